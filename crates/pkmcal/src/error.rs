@@ -1,0 +1,56 @@
+//! Errors for bad input and impossible requests. Each message says what to do.
+
+use thiserror::Error;
+
+/// Everything that can go wrong in the library. Disappointing results (no
+/// convergence of a fit, rank deficiency) are *not* errors: they are reported in
+/// the result with a reason.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum Error {
+    /// A parameter name that the mechanism does not know.
+    #[error("unknown parameter `{name}`; known parameters are: {known}")]
+    UnknownParameter { name: String, known: String },
+
+    /// A parameter value that is not allowed (non-finite, non-positive stiffness…).
+    #[error("invalid value {value} for parameter `{name}`: {reason}")]
+    InvalidParameter {
+        name: String,
+        value: f64,
+        reason: String,
+    },
+
+    /// A vector or matrix of the wrong size.
+    #[error("{what}: expected {expected} values, got {got}")]
+    Dimension {
+        what: String,
+        expected: usize,
+        got: usize,
+    },
+
+    /// A target tool position outside the reachable workspace.
+    #[error("target {target:?} is not reachable: {reason}; choose a target inside the workspace")]
+    Unreachable { target: Vec<f64>, reason: String },
+
+    /// A configuration where the loop closure cannot be solved for the dependent
+    /// joints (or the equilibrium is degenerate).
+    #[error(
+        "singular configuration at joints {q:?}: {reason}; move the pose away from the singularity"
+    )]
+    Singular { q: Vec<f64>, reason: String },
+
+    /// The loop closure has no solution for these actuator values (the legs cannot
+    /// be assembled) or Newton did not converge.
+    #[error("{what} did not converge: {reason}")]
+    NoConvergence { what: String, reason: String },
+
+    /// A mechanism description that is inconsistent.
+    #[error("invalid mechanism: {0}")]
+    InvalidMechanism(String),
+
+    /// A request the data cannot support (too few poses, nothing free…).
+    #[error("{0}")]
+    InvalidRequest(String),
+}
+
+/// Result type of the library.
+pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -1,0 +1,225 @@
+//! Loop-closure kinematics: forward (actuated/independent joints → pose, by
+//! Newton on `g(q, ρ) = 0`, MODEL.md eq. 3) and inverse (tool position → all
+//! joints, closed form where the mechanism has one, Newton otherwise).
+
+use crate::autodiff::jacobians;
+use crate::error::{Error, Result};
+use crate::mechanism::Mechanism;
+use nalgebra::{DMatrix, DVector};
+
+/// Newton stops when the largest joint step is below this (rad or mm).
+pub const STEP_TOL: f64 = 1e-13;
+/// Largest joint step (rad) of one continuation stage.
+const CONTINUATION_STEP: f64 = 0.1;
+/// Largest Newton iterations per solve.
+const MAX_NEWTON: usize = 40;
+/// Relative pivot size below which a Jacobian counts as singular.
+pub const SINGULAR_RCOND: f64 = 1e-9;
+
+/// Solve `g(q, ρ) = 0` for the joints not in `fixed`, starting from `q`
+/// (modified in place). `fixed` must hold as many joints as degrees of freedom.
+pub fn solve_closure<M: Mechanism>(
+    mech: &M,
+    rho: &[f64],
+    q: &mut [f64],
+    fixed: &[usize],
+) -> Result<usize> {
+    let spec = mech.spec();
+    let nq = spec.joints.len();
+    let free: Vec<usize> = (0..nq).filter(|i| !fixed.contains(i)).collect();
+    if free.len() != spec.n_constraints {
+        return Err(Error::InvalidRequest(format!(
+            "{} fixed joints leave {} unknowns for {} constraints",
+            fixed.len(),
+            free.len(),
+            spec.n_constraints
+        )));
+    }
+    let mut last = f64::INFINITY;
+    for it in 0..MAX_NEWTON {
+        let j = jacobians(mech, q, rho, 0..nq);
+        let gv = j.dg.select_columns(&free);
+        let step = solve_square(gv, DVector::from_column_slice(&j.g)).ok_or_else(|| {
+            Error::Singular {
+                q: q.to_vec(),
+                reason: "the loop-closure Jacobian of the dependent joints is singular".into(),
+            }
+        })?;
+        let mut big = step.amax();
+        if !big.is_finite() {
+            big = f64::INFINITY;
+        }
+        // Damped step: never more than 0.5 rad at once.
+        let scale = if big > 0.5 { 0.5 / big } else { 1.0 };
+        for (k, &i) in free.iter().enumerate() {
+            q[i] -= scale * step[k];
+        }
+        if big < STEP_TOL || (big < 1e-9 && big >= last) {
+            return Ok(it + 1);
+        }
+        last = big;
+    }
+    let g = jacobians(mech, q, rho, 0..0).g;
+    let scale = rho.iter().fold(1.0f64, |m, v| m.max(v.abs()));
+    if g.iter().all(|v| v.abs() < 1e-8 * scale * scale) {
+        return Ok(MAX_NEWTON);
+    }
+    Err(Error::NoConvergence {
+        what: "loop closure".into(),
+        reason: format!(
+            "the legs cannot be assembled at joints {q:?} (residual {g:?}); the actuator values are probably outside the workspace"
+        ),
+    })
+}
+
+/// Solve a square system by LU (partial pivoting) with a singularity check on
+/// the pivots.
+pub(crate) fn solve_square(a: DMatrix<f64>, b: DVector<f64>) -> Option<DVector<f64>> {
+    let scale = a.amax();
+    let lu = a.lu();
+    let (mut max, mut min) = (scale, f64::INFINITY);
+    for i in 0..b.len() {
+        let d = lu.lu_internal()[(i, i)].abs();
+        min = min.min(d);
+    }
+    if max.is_nan() {
+        max = 0.0;
+    }
+    if max.is_nan() || max <= 0.0 || min < SINGULAR_RCOND * max {
+        return None;
+    }
+    lu.solve(&b)
+}
+
+/// Forward kinematics: the full joint vector with the independent joints
+/// (`spec().independent`) at `q_u`, by Newton from `start` with continuation
+/// (the independent joints move from their start values to `q_u` in stages, so
+/// the solution stays on the assembly branch of `start`).
+pub fn forward_kinematics<M: Mechanism>(
+    mech: &M,
+    rho: &[f64],
+    q_u: &[f64],
+    start: &[f64],
+) -> Result<Vec<f64>> {
+    let spec = mech.spec();
+    let ind = &spec.independent;
+    if q_u.len() != ind.len() {
+        return Err(Error::Dimension {
+            what: "independent joint values".into(),
+            expected: ind.len(),
+            got: q_u.len(),
+        });
+    }
+    if q_u.iter().any(|v| !v.is_finite()) {
+        return Err(Error::InvalidRequest(format!(
+            "joint values must be finite, got {q_u:?}"
+        )));
+    }
+    let mut q = start.to_vec();
+    let from: Vec<f64> = ind.iter().map(|&i| start[i]).collect();
+    let span = from
+        .iter()
+        .zip(q_u)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    let stages = ((span / CONTINUATION_STEP).ceil() as usize).max(1);
+    for s in 1..=stages {
+        let t = s as f64 / stages as f64;
+        for (k, &i) in ind.iter().enumerate() {
+            q[i] = from[k] + t * (q_u[k] - from[k]);
+        }
+        solve_closure(mech, rho, &mut q, ind)?;
+    }
+    if !mech.on_branch(&q, rho) {
+        return Err(Error::Singular {
+            q,
+            reason: "the path from the start configuration crossed a singularity and left the assembly branch".into(),
+        });
+    }
+    Ok(q)
+}
+
+/// The reference configuration (`spec().reference_q`) made to close exactly
+/// for parameters ρ (its independent joints kept).
+pub fn reference_configuration<M: Mechanism>(mech: &M, rho: &[f64]) -> Result<Vec<f64>> {
+    let spec = mech.spec();
+    let mut q = spec.reference_q.clone();
+    solve_closure(mech, rho, &mut q, &spec.independent).map_err(|e| {
+        Error::InvalidMechanism(format!(
+            "the reference configuration does not close with these parameters ({e}); check the lengths and the reference joint values"
+        ))
+    })?;
+    Ok(q)
+}
+
+/// Inverse kinematics: all joints for a tool position, on the assembly branch
+/// of the reference configuration. Closed form where the mechanism provides it,
+/// otherwise Newton on `[g; x − target] = 0` with continuation from the
+/// reference configuration.
+pub fn inverse_kinematics<M: Mechanism>(mech: &M, rho: &[f64], target: &[f64]) -> Result<Vec<f64>> {
+    let spec = mech.spec();
+    if target.len() != spec.tool_axes.len() {
+        return Err(Error::Dimension {
+            what: "target".into(),
+            expected: spec.tool_axes.len(),
+            got: target.len(),
+        });
+    }
+    if let Some(r) = mech.inverse_kinematics_closed(target, rho) {
+        return r;
+    }
+    let nq = spec.joints.len();
+    if spec.n_constraints + target.len() != nq {
+        return Err(Error::InvalidRequest(
+            "inverse kinematics by Newton needs as many tool coordinates as degrees of freedom"
+                .into(),
+        ));
+    }
+    let mut q = reference_configuration(mech, rho)?;
+    let x0 = jacobians(mech, &q, rho, 0..0).x;
+    let span = x0
+        .iter()
+        .zip(target)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    let stages = ((span / 10.0).ceil() as usize).max(1);
+    for s in 1..=stages {
+        let t = s as f64 / stages as f64;
+        let goal: Vec<f64> = x0.iter().zip(target).map(|(a, b)| a + t * (b - a)).collect();
+        let mut converged = false;
+        for _ in 0..MAX_NEWTON {
+            let j = jacobians(mech, &q, rho, 0..nq);
+            let mut a = DMatrix::zeros(nq, nq);
+            a.view_mut((0, 0), (spec.n_constraints, nq)).copy_from(&j.dg);
+            a.view_mut((spec.n_constraints, 0), (target.len(), nq))
+                .copy_from(&j.dx);
+            let mut b = DVector::zeros(nq);
+            for (i, v) in j.g.iter().enumerate() {
+                b[i] = *v;
+            }
+            for (i, (x, t)) in j.x.iter().zip(&goal).enumerate() {
+                b[spec.n_constraints + i] = x - t;
+            }
+            let step = solve_square(a, b).ok_or_else(|| Error::Unreachable {
+                target: target.to_vec(),
+                reason: "the path from the reference configuration meets a singularity".into(),
+            })?;
+            let big = step.amax();
+            let scale = if big > 0.5 { 0.5 / big } else { 1.0 };
+            for i in 0..nq {
+                q[i] -= scale * step[i];
+            }
+            if big < STEP_TOL * 10.0 {
+                converged = true;
+                break;
+            }
+        }
+        if !converged {
+            return Err(Error::Unreachable {
+                target: target.to_vec(),
+                reason: "Newton did not converge".into(),
+            });
+        }
+    }
+    Ok(q)
+}

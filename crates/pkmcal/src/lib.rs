@@ -1,0 +1,55 @@
+//! # pkmcal
+//!
+//! Kinematic calibration of parallel mechanisms, first of all redundantly
+//! actuated ones, after Jeong & Kim (*Kinematic Calibration Method for
+//! Redundantly Actuated Parallel Mechanisms*). The crate knows no files: a
+//! mechanism is plain data plus loop-closure and tool functions ([`Mechanism`]);
+//! algorithms are free functions.
+//!
+//! Where each relation of MODEL.md lives:
+//!
+//! | relation | function |
+//! |---|---|
+//! | eq. 3 loop closure, tool map | [`Mechanism::constraints`], [`Mechanism::tool`] |
+//! | eq. 4 derivatives | [`autodiff::jacobians`] |
+//! | eq. 5–7, 9: Φ, J_p, Γ, H, J_f | [`linearize`] |
+//! | eq. 10 load `P` | [`load_vector`] |
+//! | eq. 11 Λ and joint errors | [`projection`], [`joint_errors`] |
+//! | eq. 2 torques | [`linearized::torques`] |
+//! | exact equilibrium | [`equilibrium`] |
+//! | three forward models | [`predict_pose`], [`Model`] |
+//!
+//! ```
+//! use pkmcal::{JeongKim2Dof, Mechanism, Model, Params, inverse_kinematics, predict};
+//! let mech = JeongKim2Dof::new();
+//! let spec = mech.spec();
+//! let nominal = Params::nominal(spec);
+//! let q = inverse_kinematics(&mech, nominal.geometric(), &[-30.0, 165.0]).unwrap();
+//! let commands: Vec<f64> = spec.actuated.iter().map(|&j| q[j]).collect();
+//! // A 0.1 mm longer link 1 and a 1 mrad offset on actuator 3.
+//! let truth = Params::from_named(spec, [("l11", 280.1), ("dq3", 1e-3)]).unwrap();
+//! let p = predict(&mech, &truth, &commands, Model::Exact, &[]).unwrap();
+//! assert!((p.x[0] + 30.0).abs() < 1.0 && (p.x[1] - 165.0).abs() < 1.0);
+//! assert!(p.torque.iter().any(|t| t.abs() > 1.0)); // the actuators fight
+//! ```
+
+pub mod autodiff;
+pub mod error;
+pub mod kinematics;
+pub mod linearized;
+pub mod mechanism;
+pub mod models;
+pub mod reference;
+pub mod simulate;
+pub mod stats;
+pub mod workspace;
+
+pub use error::{Error, Result};
+pub use kinematics::{forward_kinematics, inverse_kinematics, reference_configuration, solve_closure};
+pub use linearized::{Linearization, joint_errors, linearize, load_vector, projection};
+pub use mechanism::{Mechanism, Params, Scalar, Spec};
+pub use models::{Equilibrium, Model, Pose, Prediction, equilibrium, predict, predict_pose, prepare_pose};
+pub use reference::JeongKim2Dof;
+pub use simulate::{Measurement, simulate};
+pub use stats::{ErrorStats, error_stats, improvement_percent};
+pub use workspace::{WorkspacePoint, nominal_commands, sample_workspace, spread_targets};

@@ -1,0 +1,165 @@
+//! The paper's linearised relations (MODEL.md §2, eq. 2 and 4–11).
+//!
+//! At a configuration `q` (on `g(q, ρ) = 0`) with independent joints `q_u` and
+//! dependent joints `q_v`:
+//!
+//! * eq. 5: `dq_v = Φ dq_u + J_p Δρ`, `Φ = −(∂g/∂q_v)⁻¹ ∂g/∂q_u`, `J_p = −(∂g/∂q_v)⁻¹ ∂g/∂ρ`;
+//! * eq. 7: `dq_r = Γ dq_u + H Δρ`;
+//! * eq. 9: `J_f = dx/dq_u` (through the dependent joints);
+//! * eq. 10: `Γᵀ τ_r = P`, `P = J_fᵀ (Q + N)`;
+//! * eq. 11: `dq_r = Λ Δq_r + (I − Λ) H Δρ − Γ (Γᵀ K Γ)⁻¹ P`, `Λ = Γ (ΓᵀKΓ)⁻¹ ΓᵀK`.
+//!
+//! Load convention: [`load_vector`] takes the external force applied *to* the
+//! tool (N, e.g. a payload's weight `m·g`); the paper's `Q + N` (the force the
+//! actuators must deliver at the tool) is its negative.
+
+use crate::autodiff::jacobians;
+use crate::error::{Error, Result};
+use crate::kinematics::solve_square;
+use crate::mechanism::Mechanism;
+use nalgebra::{DMatrix, DVector};
+
+/// N·mm → N·m: a tool force (N) times a length in mm gives 1e-3 N·m.
+pub const MM_TO_M: f64 = 1e-3;
+
+/// The paper's matrices at one configuration.
+#[derive(Debug, Clone)]
+pub struct Linearization {
+    /// Independent joints used (indices into the joint vector).
+    pub independent: Vec<usize>,
+    /// Φ (eq. 5): dependent joints per independent joint.
+    pub phi: DMatrix<f64>,
+    /// J_p (eq. 5): dependent joints per geometric parameter.
+    pub jp: DMatrix<f64>,
+    /// Full joint sensitivity to `q_u` (`U [I; Φ]`, nq × n).
+    pub dq_du: DMatrix<f64>,
+    /// Full joint sensitivity to ρ (`U [0; J_p]`, nq × nρ).
+    pub dq_drho: DMatrix<f64>,
+    /// Γ (eq. 7): actuated joints per independent joint (l × n).
+    pub gamma: DMatrix<f64>,
+    /// H (eq. 7): actuated joints per geometric parameter (l × nρ).
+    pub h: DMatrix<f64>,
+    /// J_f (eq. 9): tool per independent joint (nx × n), mm/rad.
+    pub jf: DMatrix<f64>,
+    /// Tool per geometric parameter at fixed `q_u` (nx × nρ).
+    pub jx_rho: DMatrix<f64>,
+}
+
+/// Φ, J_p, Γ, H and J_f at configuration `q` (eq. 4–7, 9), with the given
+/// independent joints.
+pub fn linearize<M: Mechanism>(
+    mech: &M,
+    q: &[f64],
+    rho: &[f64],
+    independent: &[usize],
+) -> Result<Linearization> {
+    let spec = mech.spec();
+    let nq = spec.joints.len();
+    let nr = rho.len();
+    let dependent: Vec<usize> = (0..nq).filter(|i| !independent.contains(i)).collect();
+    if dependent.len() != spec.n_constraints {
+        return Err(Error::InvalidRequest(format!(
+            "{} independent joints given, the mechanism has {} degrees of freedom",
+            independent.len(),
+            spec.dof()
+        )));
+    }
+    let j = jacobians(mech, q, rho, 0..nq + nr);
+    let gq = j.dg.columns(0, nq);
+    let gu = gq.select_columns(independent);
+    let gv = gq.select_columns(&dependent);
+    let grho = j.dg.columns(nq, nr).into_owned();
+    let mut rhs = DMatrix::zeros(spec.n_constraints, independent.len() + nr);
+    rhs.columns_mut(0, independent.len()).copy_from(&(-gu));
+    rhs.columns_mut(independent.len(), nr).copy_from(&(-grho));
+    let sol = solve_square_multi(gv, rhs).ok_or_else(|| Error::Singular {
+        q: q.to_vec(),
+        reason: "∂g/∂q_v is singular (the dependent joints are not determined)".into(),
+    })?;
+    let phi = sol.columns(0, independent.len()).into_owned();
+    let jp = sol.columns(independent.len(), nr).into_owned();
+    let mut dq_du = DMatrix::zeros(nq, independent.len());
+    let mut dq_drho = DMatrix::zeros(nq, nr);
+    for (k, &i) in independent.iter().enumerate() {
+        dq_du[(i, k)] = 1.0;
+    }
+    for (k, &i) in dependent.iter().enumerate() {
+        dq_du.row_mut(i).copy_from(&phi.row(k));
+        dq_drho.row_mut(i).copy_from(&jp.row(k));
+    }
+    let gamma = dq_du.select_rows(&spec.actuated);
+    let h = dq_drho.select_rows(&spec.actuated);
+    let xq = j.dx.columns(0, nq);
+    let jf = &xq * &dq_du;
+    let jx_rho = j.dx.columns(nq, nr) + &xq * &dq_drho;
+    Ok(Linearization {
+        independent: independent.to_vec(),
+        phi,
+        jp,
+        dq_du,
+        dq_drho,
+        gamma,
+        h,
+        jf,
+        jx_rho,
+    })
+}
+
+fn solve_square_multi(a: DMatrix<f64>, b: DMatrix<f64>) -> Option<DMatrix<f64>> {
+    let mut out = DMatrix::zeros(b.nrows(), b.ncols());
+    let lu = a.clone().full_piv_lu();
+    // Reuse the pivot check of the single right-hand-side solver.
+    solve_square(a, DVector::zeros(b.nrows()))?;
+    for c in 0..b.ncols() {
+        out.set_column(c, &lu.solve(&b.column(c).into_owned())?);
+    }
+    Some(out)
+}
+
+/// Λ = Γ (ΓᵀKΓ)⁻¹ ΓᵀK (eq. 11): the K-weighted projection onto feasible
+/// actuated-joint motions. `Λ² = Λ`, `ΛΓ = Γ`; `Λ = I` without redundancy.
+pub fn projection(gamma: &DMatrix<f64>, k: &[f64]) -> Result<DMatrix<f64>> {
+    let kd = DMatrix::from_diagonal(&DVector::from_column_slice(k));
+    let gkg = gamma.transpose() * &kd * gamma;
+    let inv = gkg.try_inverse().ok_or_else(|| Error::Singular {
+        q: vec![],
+        reason: "ΓᵀKΓ is singular (the actuators do not control every degree of freedom)".into(),
+    })?;
+    Ok(gamma * inv * gamma.transpose() * kd)
+}
+
+/// The generalised load `P` of eq. 10 (N·m) for an external force `force`
+/// applied to the tool (N): `P = J_fᵀ (Q + N)` with `Q + N = −force`.
+pub fn load_vector(lin: &Linearization, force: &[f64]) -> DVector<f64> {
+    let f = DVector::from_column_slice(force);
+    -(lin.jf.transpose() * f) * MM_TO_M
+}
+
+/// Actual actuated joint errors `dq_r` by eq. 11 (rad):
+/// `dq_r = Λ Δq_r + (I − Λ) H Δρ − Γ (ΓᵀKΓ)⁻¹ P`.
+pub fn joint_errors(
+    lin: &Linearization,
+    k: &[f64],
+    offsets: &[f64],
+    drho: &[f64],
+    p: &DVector<f64>,
+) -> Result<DVector<f64>> {
+    let l = lin.gamma.nrows();
+    let lambda = projection(&lin.gamma, k)?;
+    let kd = DMatrix::from_diagonal(&DVector::from_column_slice(k));
+    let gkg = lin.gamma.transpose() * &kd * &lin.gamma;
+    let load = &lin.gamma * gkg.lu().solve(p).unwrap_or_else(|| DVector::zeros(p.len()));
+    let dq = &lambda * DVector::from_column_slice(offsets)
+        + (DMatrix::identity(l, l) - &lambda) * (&lin.h * DVector::from_column_slice(drho))
+        - load;
+    Ok(dq)
+}
+
+/// Internal torques by eq. 2: `τ_r = K (Δq_r − dq_r)` (N·m).
+pub fn torques(k: &[f64], offsets: &[f64], dq: &[f64]) -> Vec<f64> {
+    k.iter()
+        .zip(offsets)
+        .zip(dq)
+        .map(|((k, o), d)| k * (o - d))
+        .collect()
+}

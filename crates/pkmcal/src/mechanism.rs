@@ -1,0 +1,276 @@
+//! The mechanism abstraction: joints, parameters, loop closure `g(q, ρ) = 0`
+//! (MODEL.md eq. 3) and the tool map `x(q, ρ)`.
+//!
+//! A mechanism is plain data ([`Spec`]) plus two functions written once, generic
+//! over the scalar type, so that every derivative the method needs (∂g/∂q, ∂g/∂ρ,
+//! ∂x/∂q, ∂x/∂ρ and the second derivatives of the equilibrium) comes exactly from
+//! forward-mode automatic differentiation ([`crate::autodiff`]).
+//!
+//! Parameter vectors are laid out as `[ρ (geometric), Δq (encoder offsets, one per
+//! actuated joint), k (stiffness, one per actuated joint)]`; [`Spec::param_names`]
+//! gives the names in that order.
+
+use crate::error::{Error, Result};
+use num_dual::DualNum;
+
+/// The scalar type mechanism functions are written for: `f64` or a dual number.
+pub trait Scalar: DualNum<Primitive = f64> + Copy + Send + Sync {}
+impl<T: DualNum<Primitive = f64> + Copy + Send + Sync> Scalar for T {}
+
+/// The plain description of a mechanism: names, indices, nominal values.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Spec {
+    /// Human-readable name.
+    pub name: String,
+    /// Joint names, in the order of the joint vector `q`.
+    pub joints: Vec<String>,
+    /// Indices (into `joints`) of the actuated joints `q_r`, in actuator order.
+    pub actuated: Vec<usize>,
+    /// Indices of the independent joints `q_u` (as many as degrees of freedom).
+    /// The rigid and linear forward models drive these joints.
+    pub independent: Vec<usize>,
+    /// Number of loop-closure equations (= joints − degrees of freedom).
+    pub n_constraints: usize,
+    /// Names of the geometric parameters ρ.
+    pub geometric: Vec<String>,
+    /// Names of the encoder offsets, one per actuated joint.
+    pub offsets: Vec<String>,
+    /// Names of the stiffness parameters, one per actuated joint.
+    pub stiffness: Vec<String>,
+    /// Names of the tool coordinates (`x`, `y`, …), in mm.
+    pub tool_axes: Vec<String>,
+    /// Nominal values of all parameters, in [`Spec::param_names`] order.
+    pub nominal: Vec<f64>,
+    /// A configuration of the nominal mechanism on the wanted assembly branch.
+    pub reference_q: Vec<f64>,
+    /// Parameters identified by default (the paper's set for the reference).
+    pub default_free: Vec<String>,
+    /// Box `[min, max]` per tool axis that contains the workspace (mm).
+    pub workspace_box: Vec<[f64; 2]>,
+}
+
+impl Spec {
+    /// Degrees of freedom.
+    pub fn dof(&self) -> usize {
+        self.independent.len()
+    }
+    /// Number of geometric parameters.
+    pub fn n_geometric(&self) -> usize {
+        self.geometric.len()
+    }
+    /// Number of actuators.
+    pub fn n_actuated(&self) -> usize {
+        self.actuated.len()
+    }
+    /// Total number of parameters (geometric, offsets, stiffness).
+    pub fn n_params(&self) -> usize {
+        self.geometric.len() + 2 * self.actuated.len()
+    }
+    /// All parameter names in vector order.
+    pub fn param_names(&self) -> Vec<&str> {
+        self.geometric
+            .iter()
+            .chain(&self.offsets)
+            .chain(&self.stiffness)
+            .map(String::as_str)
+            .collect()
+    }
+    /// Index of a parameter by name.
+    pub fn param_index(&self, name: &str) -> Result<usize> {
+        self.param_names()
+            .iter()
+            .position(|n| *n == name)
+            .ok_or_else(|| Error::UnknownParameter {
+                name: name.to_string(),
+                known: self.param_names().join(" "),
+            })
+    }
+    /// Names of the actuated joints.
+    pub fn actuated_names(&self) -> Vec<&str> {
+        self.actuated
+            .iter()
+            .map(|&i| self.joints[i].as_str())
+            .collect()
+    }
+
+    /// Check the description for internal consistency.
+    pub fn validate(&self) -> Result<()> {
+        let nq = self.joints.len();
+        let bad = |m: String| Err(Error::InvalidMechanism(m));
+        if self.actuated.iter().chain(&self.independent).any(|&i| i >= nq) {
+            return bad("a joint index is out of range".into());
+        }
+        if self.independent.len() + self.n_constraints != nq {
+            return bad(format!(
+                "{} joints must equal {} independent joints plus {} constraints",
+                nq,
+                self.independent.len(),
+                self.n_constraints
+            ));
+        }
+        if self
+            .independent
+            .iter()
+            .any(|j| !self.actuated.contains(j))
+        {
+            return bad("every independent joint must be actuated (the rigid and linear models drive them)".into());
+        }
+        if self.actuated.len() < self.independent.len() {
+            return bad("fewer actuated joints than degrees of freedom".into());
+        }
+        if self.offsets.len() != self.actuated.len() || self.stiffness.len() != self.actuated.len()
+        {
+            return bad("one encoder offset and one stiffness per actuated joint are needed".into());
+        }
+        if self.nominal.len() != self.n_params() {
+            return bad(format!(
+                "{} nominal values for {} parameters",
+                self.nominal.len(),
+                self.n_params()
+            ));
+        }
+        if self.reference_q.len() != nq {
+            return bad(format!(
+                "reference configuration has {} values for {} joints",
+                self.reference_q.len(),
+                nq
+            ));
+        }
+        if self.workspace_box.len() != self.tool_axes.len() {
+            return bad("one workspace interval per tool axis is needed".into());
+        }
+        let mut names = self.param_names();
+        names.sort_unstable();
+        if let Some(w) = names.windows(2).find(|w| w[0] == w[1]) {
+            return bad(format!("parameter `{}` is defined twice", w[0]));
+        }
+        let params = crate::Params::new(self, self.nominal.clone())?;
+        params.validate(self)?;
+        for name in &self.default_free {
+            self.param_index(name)?;
+        }
+        Ok(())
+    }
+}
+
+/// A parallel mechanism: loop closure plus tool map, generic over the scalar.
+///
+/// Implement this trait to bring your own mechanism; every algorithm of the
+/// crate then works on it. Both functions receive the joint vector `q` (rad or
+/// mm for prismatic joints) and the geometric parameters ρ (mm, rad).
+pub trait Mechanism: Send + Sync {
+    /// The plain description (names, indices, nominal values).
+    fn spec(&self) -> &Spec;
+
+    /// Loop-closure constraints `g(q, ρ) = 0` (MODEL.md eq. 3); `g` has
+    /// `spec().n_constraints` entries.
+    fn constraints<D: Scalar>(&self, q: &[D], rho: &[D], g: &mut [D]);
+
+    /// Tool coordinates `x(q, ρ)` in mm (`spec().tool_axes`).
+    fn tool<D: Scalar>(&self, q: &[D], rho: &[D], x: &mut [D]);
+
+    /// Closed-form inverse kinematics (tool position → all joints) on the
+    /// assembly branch of the reference configuration, if the mechanism has one.
+    /// The default (`None`) makes [`crate::inverse_kinematics`] use Newton.
+    fn inverse_kinematics_closed(&self, _target: &[f64], _rho: &[f64]) -> Option<Result<Vec<f64>>> {
+        None
+    }
+
+    /// Whether a configuration lies on the assembly branch of the reference
+    /// configuration. The default accepts every configuration.
+    fn on_branch(&self, _q: &[f64], _rho: &[f64]) -> bool {
+        true
+    }
+}
+
+/// A full parameter vector `[ρ, Δq, k]` of a mechanism.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Params {
+    /// Values in [`Spec::param_names`] order.
+    pub values: Vec<f64>,
+    n_geometric: usize,
+    n_actuated: usize,
+}
+
+impl Params {
+    /// Wrap a full vector (checks its length).
+    pub fn new(spec: &Spec, values: Vec<f64>) -> Result<Self> {
+        if values.len() != spec.n_params() {
+            return Err(Error::Dimension {
+                what: "parameter vector".into(),
+                expected: spec.n_params(),
+                got: values.len(),
+            });
+        }
+        Ok(Self {
+            values,
+            n_geometric: spec.n_geometric(),
+            n_actuated: spec.n_actuated(),
+        })
+    }
+    /// The nominal parameters.
+    pub fn nominal(spec: &Spec) -> Self {
+        Self {
+            values: spec.nominal.clone(),
+            n_geometric: spec.n_geometric(),
+            n_actuated: spec.n_actuated(),
+        }
+    }
+    /// Nominal values with some set by name (names not given stay nominal).
+    pub fn from_named<'a>(
+        spec: &Spec,
+        named: impl IntoIterator<Item = (&'a str, f64)>,
+    ) -> Result<Self> {
+        let mut p = Self::nominal(spec);
+        for (name, value) in named {
+            let i = spec.param_index(name)?;
+            p.values[i] = value;
+        }
+        p.validate(spec)?;
+        Ok(p)
+    }
+    /// Geometric parameters ρ.
+    pub fn geometric(&self) -> &[f64] {
+        &self.values[..self.n_geometric]
+    }
+    /// Encoder offsets Δq_r (rad), actual minus reported.
+    pub fn offsets(&self) -> &[f64] {
+        &self.values[self.n_geometric..self.n_geometric + self.n_actuated]
+    }
+    /// Stiffness of the actuated joints (N·m/rad, or N/mm for prismatic).
+    pub fn stiffness(&self) -> &[f64] {
+        &self.values[self.n_geometric + self.n_actuated..]
+    }
+    /// Value by name.
+    pub fn get(&self, spec: &Spec, name: &str) -> Result<f64> {
+        Ok(self.values[spec.param_index(name)?])
+    }
+    /// Set a value by name.
+    pub fn set(&mut self, spec: &Spec, name: &str, value: f64) -> Result<()> {
+        let i = spec.param_index(name)?;
+        self.values[i] = value;
+        Ok(())
+    }
+    /// Check that every value is finite and every stiffness positive.
+    pub fn validate(&self, spec: &Spec) -> Result<()> {
+        for (name, &v) in spec.param_names().iter().zip(&self.values) {
+            if !v.is_finite() {
+                return Err(Error::InvalidParameter {
+                    name: name.to_string(),
+                    value: v,
+                    reason: "values must be finite numbers".into(),
+                });
+            }
+        }
+        for (name, &k) in spec.stiffness.iter().zip(self.stiffness()) {
+            if k <= 0.0 {
+                return Err(Error::InvalidParameter {
+                    name: name.clone(),
+                    value: k,
+                    reason: "stiffness must be positive".into(),
+                });
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,449 @@
+//! The three forward models of MODEL.md §3: for actuator commands and a
+//! parameter set, where is the tool?
+//!
+//! * [`Model::Rigid`]: the independent actuated joints sit at `command + Δq`;
+//!   loop closure gives the rest; the other actuators are ignored.
+//! * [`Model::Linear`]: the paper's eq. 11 evaluated at the nominal configuration
+//!   of the command, then exact loop closure with the true parameters.
+//! * [`Model::Exact`]: the static equilibrium itself ([`equilibrium`]): minimum
+//!   elastic energy minus load work on the exact constraint manifold.
+//!
+//! A command that is inconsistent with the nominal geometry (the actuators do
+//! not agree on one pose) acts exactly like an extra encoder offset `e = c −
+//! q_r,nominal`; the linear model adds it to `Δq` so that it stays the
+//! first-order expansion of the exact model.
+
+use crate::autodiff::{jacobians, output_hessians, weighted_sum};
+use crate::error::{Error, Result};
+use crate::kinematics::{forward_kinematics, reference_configuration, solve_square};
+use crate::linearized::{Linearization, MM_TO_M, joint_errors, linearize, load_vector};
+use crate::mechanism::{Mechanism, Params};
+use nalgebra::{DMatrix, DVector};
+use serde::{Deserialize, Serialize};
+use std::sync::OnceLock;
+
+/// Which forward model to use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Model {
+    /// Conventional non-redundant treatment: no compliance.
+    Rigid,
+    /// The paper's linearised compliance model (eq. 11).
+    Linear,
+    /// Exact static equilibrium on the constraint manifold.
+    Exact,
+}
+
+impl Model {
+    /// All models, in order of fidelity.
+    pub const ALL: [Model; 3] = [Model::Rigid, Model::Linear, Model::Exact];
+    /// Lower-case name (`rigid`, `linear`, `exact`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Model::Rigid => "rigid",
+            Model::Linear => "linear",
+            Model::Exact => "exact",
+        }
+    }
+}
+
+impl std::str::FromStr for Model {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "rigid" => Ok(Model::Rigid),
+            "linear" => Ok(Model::Linear),
+            "exact" => Ok(Model::Exact),
+            _ => Err(Error::InvalidRequest(format!(
+                "unknown model `{s}`; use exact, linear or rigid"
+            ))),
+        }
+    }
+}
+
+/// A commanded pose prepared once: its nominal configuration and the paper's
+/// matrices there (nominal parameters).
+#[derive(Debug, Clone)]
+pub struct Pose {
+    /// Actuator commands (rad or mm), one per actuated joint.
+    pub commands: Vec<f64>,
+    /// Nominal configuration: forward kinematics of the independent commands
+    /// with nominal parameters.
+    pub nominal_q: Vec<f64>,
+    /// Φ, J_p, Γ, H, J_f at the nominal configuration.
+    pub lin: Linearization,
+    /// Second derivatives of each constraint and tool coordinate with respect
+    /// to the joints at the nominal configuration (computed on first use by the
+    /// exact model; Newton's curvature there is good to ~1e-6 relative).
+    hessians: OnceLock<Vec<DMatrix<f64>>>,
+}
+
+impl Pose {
+    /// Per-output joint Hessians at the nominal configuration.
+    pub fn hessians<M: Mechanism>(&self, mech: &M) -> &[DMatrix<f64>] {
+        self.hessians.get_or_init(|| {
+            let spec = mech.spec();
+            let nq = spec.joints.len();
+            output_hessians(
+                mech,
+                &self.nominal_q,
+                &spec.nominal[..spec.n_geometric()],
+                0..nq,
+                0..nq,
+            )
+        })
+    }
+}
+
+/// Where the tool is and what the actuators feel.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Prediction {
+    /// Full joint vector.
+    pub q: Vec<f64>,
+    /// Tool coordinates (mm).
+    pub x: Vec<f64>,
+    /// Twist of each actuated joint through its stiffness: link side minus motor
+    /// side, `q_r − (command + Δq)` (rad). For the rigid model, the mismatch the
+    /// rigid model ignores (zero at the driven joints).
+    pub deflection: Vec<f64>,
+    /// Internal torque of each actuator on its link, `τ = K(command + Δq − q_r)`
+    /// (eq. 2; N·m). Zero for the rigid model.
+    pub torque: Vec<f64>,
+    /// Newton iterations of the equilibrium (exact model), else 0.
+    pub iterations: usize,
+}
+
+/// Result of the exact equilibrium.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Equilibrium {
+    /// Joint vector at equilibrium.
+    pub q: Vec<f64>,
+    /// Lagrange multipliers of the constraints.
+    pub lambda: Vec<f64>,
+    /// Internal torques `τ = K(command + Δq − q_r)` (N·m).
+    pub torque: Vec<f64>,
+    /// Newton iterations.
+    pub iterations: usize,
+}
+
+fn check_commands(spec: &crate::Spec, commands: &[f64]) -> Result<()> {
+    if commands.len() != spec.n_actuated() {
+        return Err(Error::Dimension {
+            what: "actuator commands".into(),
+            expected: spec.n_actuated(),
+            got: commands.len(),
+        });
+    }
+    if let Some(c) = commands.iter().find(|c| !c.is_finite()) {
+        return Err(Error::InvalidRequest(format!(
+            "actuator command {c} is not a finite number"
+        )));
+    }
+    Ok(())
+}
+
+/// Position of each independent joint in the actuator list.
+pub(crate) fn independent_actuators(spec: &crate::Spec) -> Vec<usize> {
+    spec.independent
+        .iter()
+        .map(|j| {
+            spec.actuated
+                .iter()
+                .position(|a| a == j)
+                .expect("validated: independent joints are actuated")
+        })
+        .collect()
+}
+
+/// Prepare a pose: nominal forward kinematics of the independent commands
+/// (from `start`, or from the reference configuration) and the linearisation.
+pub fn prepare_pose<M: Mechanism>(
+    mech: &M,
+    commands: &[f64],
+    start: Option<&[f64]>,
+) -> Result<Pose> {
+    let spec = mech.spec();
+    check_commands(spec, commands)?;
+    let rho = &spec.nominal[..spec.n_geometric()];
+    let reference;
+    let start = match start {
+        Some(s) => s,
+        None => {
+            reference = reference_configuration(mech, rho)?;
+            &reference
+        }
+    };
+    let q_u: Vec<f64> = independent_actuators(spec)
+        .iter()
+        .map(|&a| commands[a])
+        .collect();
+    let nominal_q = forward_kinematics(mech, rho, &q_u, start)?;
+    let lin = linearize(mech, &nominal_q, rho, &spec.independent)?;
+    Ok(Pose {
+        commands: commands.to_vec(),
+        nominal_q,
+        lin,
+        hessians: OnceLock::new(),
+    })
+}
+
+/// Prediction of one prepared pose with one model (MODEL.md §3).
+/// `force` is the external force applied to the tool (N), empty for none.
+pub fn predict_pose<M: Mechanism>(
+    mech: &M,
+    pose: &Pose,
+    params: &Params,
+    model: Model,
+    force: &[f64],
+) -> Result<Prediction> {
+    let spec = mech.spec();
+    let force = effective_force(spec, force)?;
+    let rho = params.geometric();
+    let ind = independent_actuators(spec);
+    match model {
+        Model::Rigid => {
+            let q_u: Vec<f64> = ind
+                .iter()
+                .map(|&a| pose.commands[a] + params.offsets()[a])
+                .collect();
+            let q = forward_kinematics(mech, rho, &q_u, &pose.nominal_q)?;
+            let x = jacobians(mech, &q, rho, 0..0).x;
+            let deflection = spec
+                .actuated
+                .iter()
+                .enumerate()
+                .map(|(a, &j)| q[j] - pose.commands[a] - params.offsets()[a])
+                .collect();
+            Ok(Prediction {
+                q,
+                x,
+                deflection,
+                torque: vec![0.0; spec.n_actuated()],
+                iterations: 0,
+            })
+        }
+        Model::Linear => linear_prediction(mech, pose, params, &force),
+        Model::Exact => {
+            let lin = linear_prediction(mech, pose, params, &force)?;
+            let eq = equilibrium(
+                mech,
+                params,
+                &pose.commands,
+                &force,
+                &lin.q,
+                Some(pose.hessians(mech)),
+            )?;
+            let x = jacobians(mech, &eq.q, rho, 0..0).x;
+            let deflection = eq
+                .torque
+                .iter()
+                .zip(params.stiffness())
+                .map(|(t, k)| -t / k)
+                .collect();
+            Ok(Prediction {
+                q: eq.q,
+                x,
+                deflection,
+                torque: eq.torque,
+                iterations: eq.iterations,
+            })
+        }
+    }
+}
+
+fn effective_force(spec: &crate::Spec, force: &[f64]) -> Result<Vec<f64>> {
+    let nx = spec.tool_axes.len();
+    if force.is_empty() {
+        return Ok(vec![0.0; nx]);
+    }
+    if force.len() != nx {
+        return Err(Error::Dimension {
+            what: "tool force".into(),
+            expected: nx,
+            got: force.len(),
+        });
+    }
+    if force.iter().any(|f| !f.is_finite()) {
+        return Err(Error::InvalidRequest("the tool force must be finite".into()));
+    }
+    Ok(force.to_vec())
+}
+
+fn linear_prediction<M: Mechanism>(
+    mech: &M,
+    pose: &Pose,
+    params: &Params,
+    force: &[f64],
+) -> Result<Prediction> {
+    let spec = mech.spec();
+    let rho = params.geometric();
+    let nominal = &spec.nominal[..spec.n_geometric()];
+    // Effective motor-side offset: encoder offset plus command inconsistency.
+    let offsets: Vec<f64> = spec
+        .actuated
+        .iter()
+        .enumerate()
+        .map(|(a, &j)| params.offsets()[a] + pose.commands[a] - pose.nominal_q[j])
+        .collect();
+    let drho: Vec<f64> = rho.iter().zip(nominal).map(|(a, b)| a - b).collect();
+    let p = load_vector(&pose.lin, force);
+    let dq = joint_errors(&pose.lin, params.stiffness(), &offsets, &drho, &p)?;
+    let q_u: Vec<f64> = spec
+        .independent
+        .iter()
+        .zip(independent_actuators(spec))
+        .map(|(&j, a)| pose.nominal_q[j] + dq[a])
+        .collect();
+    let q = forward_kinematics(mech, rho, &q_u, &pose.nominal_q)?;
+    let x = jacobians(mech, &q, rho, 0..0).x;
+    let torque = crate::linearized::torques(params.stiffness(), &offsets, dq.as_slice());
+    let deflection = torque
+        .iter()
+        .zip(params.stiffness())
+        .map(|(t, k)| -t / k)
+        .collect();
+    Ok(Prediction {
+        q,
+        x,
+        deflection,
+        torque,
+        iterations: 0,
+    })
+}
+
+/// Convenience: prepare the pose from the reference configuration and predict.
+pub fn predict<M: Mechanism>(
+    mech: &M,
+    params: &Params,
+    commands: &[f64],
+    model: Model,
+    force: &[f64],
+) -> Result<Prediction> {
+    let pose = prepare_pose(mech, commands, None)?;
+    predict_pose(mech, &pose, params, model, force)
+}
+
+/// Largest Newton iterations of the equilibrium.
+const MAX_EQUILIBRIUM_ITERATIONS: usize = 30;
+/// The equilibrium stops when the largest joint step falls below this (rad).
+pub const EQUILIBRIUM_TOL: f64 = 1e-14;
+
+/// Exact static equilibrium (MODEL.md §3, the "exact" model): minimise
+/// `E(q) = ½ Σ_j k_j (c_j + Δq_j − q_r,j)² + 10⁻³ wᵀ x(q)` subject to
+/// `g(q, ρ) = 0`, with `w = −force` the force the actuators deliver at the tool
+/// (the paper's `Q + N`). Newton on the KKT system
+///
+/// ```text
+/// [ W   Gᵀ ] [δq]     [ ∇E + Gᵀλ ]
+/// [ G   0  ] [δλ] = − [ g        ],   W = SᵀKS + ∇²(λᵀg + 10⁻³ wᵀx)
+/// ```
+///
+/// from `start` (a configuration near the solution, e.g. the linear model's).
+/// The curvature `∇²(λᵀg + 10⁻³ wᵀx)` uses per-output Hessians `hessians`
+/// (from [`crate::autodiff::output_hessians`] at a nearby configuration, e.g.
+/// [`Pose::hessians`]; computed at `start` when `None`): their error is of the
+/// order of the distance to the solution, so convergence stays quadratic-like
+/// in practice while each iteration needs only first derivatives. Its
+/// first-order expansion is eq. 11; at the solution `Γᵀτ = P` (eq. 10) holds to
+/// machine precision.
+pub fn equilibrium<M: Mechanism>(
+    mech: &M,
+    params: &Params,
+    commands: &[f64],
+    force: &[f64],
+    start: &[f64],
+    hessians: Option<&[DMatrix<f64>]>,
+) -> Result<Equilibrium> {
+    let spec = mech.spec();
+    check_commands(spec, commands)?;
+    let force = effective_force(spec, force)?;
+    let nq = spec.joints.len();
+    let m = spec.n_constraints;
+    let rho = params.geometric();
+    let k = params.stiffness();
+    let w: Vec<f64> = force.iter().map(|f| -f * MM_TO_M).collect();
+    let motor: Vec<f64> = commands
+        .iter()
+        .zip(params.offsets())
+        .map(|(c, o)| c + o)
+        .collect();
+    let own;
+    let hessians = match hessians {
+        Some(h) => h,
+        None => {
+            own = output_hessians(mech, start, rho, 0..nq, 0..nq);
+            &own
+        }
+    };
+    let mut q = start.to_vec();
+    let mut lambda: Option<DVector<f64>> = None;
+    let mut last = f64::INFINITY;
+    for it in 1..=MAX_EQUILIBRIUM_ITERATIONS {
+        let j = jacobians(mech, &q, rho, 0..nq);
+        // ∇E = −Sᵀτ + Xqᵀ w.
+        let mut grad_e = j.dx.transpose() * DVector::from_column_slice(&w);
+        for (a, &jt) in spec.actuated.iter().enumerate() {
+            grad_e[jt] -= k[a] * (motor[a] - q[jt]);
+        }
+        let lam = match lambda.take() {
+            Some(l) => l,
+            // Least-squares multipliers at the start: Gᵀλ ≈ −∇E.
+            None => {
+                let ggt = &j.dg * j.dg.transpose();
+                ggt.lu()
+                    .solve(&(-(&j.dg * &grad_e)))
+                    .unwrap_or_else(|| DVector::zeros(m))
+            }
+        };
+        let mut kkt = DMatrix::zeros(nq + m, nq + m);
+        let weights: Vec<f64> = lam.iter().chain(&w).copied().collect();
+        let hess = weighted_sum(hessians, &weights);
+        kkt.view_mut((0, 0), (nq, nq)).copy_from(&hess);
+        for (a, &jt) in spec.actuated.iter().enumerate() {
+            kkt[(jt, jt)] += k[a];
+        }
+        kkt.view_mut((0, nq), (nq, m)).copy_from(&j.dg.transpose());
+        kkt.view_mut((nq, 0), (m, nq)).copy_from(&j.dg);
+        let mut rhs = DVector::zeros(nq + m);
+        rhs.rows_mut(0, nq)
+            .copy_from(&(grad_e + j.dg.transpose() * &lam));
+        rhs.rows_mut(nq, m).copy_from(&DVector::from_column_slice(&j.g));
+        let step = solve_square(kkt, rhs).ok_or_else(|| Error::Singular {
+            q: q.clone(),
+            reason: "the equilibrium (KKT) system is singular".into(),
+        })?;
+        let big = step.rows(0, nq).amax();
+        if !big.is_finite() {
+            break;
+        }
+        let scale = if big > 0.2 { 0.2 / big } else { 1.0 };
+        for i in 0..nq {
+            q[i] -= scale * step[i];
+        }
+        lambda = Some(lam - step.rows(nq, m) * scale);
+        // Convergence is at least linear with a small rate r = big/last; the
+        // error left after this step is about r·big.
+        let rate = if last.is_finite() { big / last } else { 1.0 };
+        if big < EQUILIBRIUM_TOL || (rate < 0.5 && rate * big < EQUILIBRIUM_TOL) || (big < 1e-10 && rate >= 1.0) {
+            let torque = spec
+                .actuated
+                .iter()
+                .enumerate()
+                .map(|(a, &jt)| k[a] * (motor[a] - q[jt]))
+                .collect();
+            return Ok(Equilibrium {
+                q,
+                lambda: lambda.expect("set above").as_slice().to_vec(),
+                torque,
+                iterations: it,
+            });
+        }
+        last = big;
+    }
+    Err(Error::NoConvergence {
+        what: "static equilibrium".into(),
+        reason: format!(
+            "Newton on the KKT system did not converge from {start:?}; the commands may be far from consistent with the geometry or near a singularity"
+        ),
+    })
+}

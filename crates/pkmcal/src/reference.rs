@@ -1,0 +1,256 @@
+//! The reference mechanism of MODEL.md §4 (paper §3): a planar 2-DOF parallel
+//! mechanism with three actuated base revolute joints (Jeong & Kim).
+//!
+//! Joints `q1..q5`: `q1, q2, q3` actuated at `B1, B2, B3`; `q4, q5` the passive
+//! elbows of legs 1 and 2; leg 3 is a single link. With `e(a) = (cos a, sin a)`:
+//!
+//! ```text
+//! P1 = B1 + l11 e(q1) + l12 e(q1 + q4)
+//! P2 = B2 + l21 e(q2) + l22 e(q2 + q5)
+//! P3 = B3 + l31 e(q3)
+//! g  = (|P1−P2|² − D1², |P2−P3|² − D2², |P3−P1|² − D3²)      (paper eq. 13–14)
+//! Pt = P1 + Ptx·x̂ + Pty·ŷ,  x̂ = (P2−P1)/|P2−P1|,  ŷ = x̂ turned +90°
+//! ```
+
+use crate::error::{Error, Result};
+use crate::mechanism::{Mechanism, Scalar, Spec};
+
+/// Geometric parameter names of the reference mechanism, in vector order.
+pub const GEOMETRIC: [&str; 16] = [
+    "l11", "l12", "l21", "l22", "l31", "B1x", "B1y", "B2x", "B2y", "B3x", "B3y", "D1", "D2", "D3",
+    "Ptx", "Pty",
+];
+
+/// The parameters the paper identifies (its Table 1): all but `B1x B1y B2x`.
+pub const PAPER_FREE: [&str; 16] = [
+    "l11", "l12", "l21", "l22", "l31", "B2y", "B3x", "B3y", "D1", "D2", "D3", "Ptx", "Pty", "dq1",
+    "dq2", "dq3",
+];
+
+/// Nominal values (paper Tables 2 and 3), in [`GEOMETRIC`] order, mm.
+pub fn nominal_geometric() -> [f64; 16] {
+    let side = 215.0;
+    [
+        280.0,
+        280.0,
+        280.0,
+        280.0,
+        280.0,
+        -300.0,
+        0.0,
+        300.0,
+        0.0,
+        150.0,
+        420.0,
+        side,
+        side,
+        side,
+        side / 2.0,
+        side / (2.0 * 3f64.sqrt()),
+    ]
+}
+
+/// Nominal stiffness of the three actuated joints (paper Table 3), N·m/rad.
+pub const NOMINAL_STIFFNESS: [f64; 3] = [8360.0, 7750.0, 8390.0];
+
+/// Reference configuration (tool at (−30, 165) mm), degrees, MODEL.md §4.
+pub const REFERENCE_Q_DEG: [f64; 5] = [83.735, 204.025, -148.618, -135.209, -124.275];
+
+/// The reference mechanism. Holds its [`Spec`]; the nominal values may be
+/// overridden (e.g. from a mechanism file) with [`JeongKim2Dof::with_spec`].
+#[derive(Debug, Clone)]
+pub struct JeongKim2Dof {
+    spec: Spec,
+}
+
+impl Default for JeongKim2Dof {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl JeongKim2Dof {
+    /// The built-in reference with the paper's nominal values.
+    pub fn new() -> Self {
+        Self {
+            spec: Self::default_spec(),
+        }
+    }
+
+    /// The default description (names, nominal values, assembly mode).
+    pub fn default_spec() -> Spec {
+        let mut nominal = nominal_geometric().to_vec();
+        nominal.extend([0.0; 3]);
+        nominal.extend(NOMINAL_STIFFNESS);
+        Spec {
+            name: "Jeong-Kim planar 2-DOF, 3 actuators".into(),
+            joints: ["q1", "q2", "q3", "q4", "q5"].map(String::from).to_vec(),
+            actuated: vec![0, 1, 2],
+            independent: vec![0, 1],
+            n_constraints: 3,
+            geometric: GEOMETRIC.map(String::from).to_vec(),
+            offsets: ["dq1", "dq2", "dq3"].map(String::from).to_vec(),
+            stiffness: ["k1", "k2", "k3"].map(String::from).to_vec(),
+            tool_axes: vec!["x".into(), "y".into()],
+            nominal,
+            reference_q: REFERENCE_Q_DEG.map(f64::to_radians).to_vec(),
+            default_free: PAPER_FREE.map(String::from).to_vec(),
+            workspace_box: vec![[-250.0, 250.0], [0.0, 420.0]],
+        }
+    }
+
+    /// A reference mechanism with another description (same structure, other
+    /// nominal values, reference configuration or workspace box).
+    pub fn with_spec(spec: Spec) -> Result<Self> {
+        let d = Self::default_spec();
+        if spec.joints != d.joints
+            || spec.geometric != d.geometric
+            || spec.actuated != d.actuated
+            || spec.n_constraints != d.n_constraints
+        {
+            return Err(Error::InvalidMechanism(
+                "the jeong-kim-2dof structure has fixed joints and parameter names".into(),
+            ));
+        }
+        spec.validate()?;
+        Ok(Self { spec })
+    }
+
+    /// The three platform points and the tool point, generic.
+    fn points<D: Scalar>(q: &[D], r: &[D]) -> [[D; 2]; 3] {
+        let (s1, c1) = q[0].sin_cos();
+        let (s14, c14) = (q[0] + q[3]).sin_cos();
+        let (s2, c2) = q[1].sin_cos();
+        let (s25, c25) = (q[1] + q[4]).sin_cos();
+        let (s3, c3) = q[2].sin_cos();
+        let p1 = [r[5] + r[0] * c1 + r[1] * c14, r[6] + r[0] * s1 + r[1] * s14];
+        let p2 = [r[7] + r[2] * c2 + r[3] * c25, r[8] + r[2] * s2 + r[3] * s25];
+        let p3 = [r[9] + r[4] * c3, r[10] + r[4] * s3];
+        [p1, p2, p3]
+    }
+
+    /// Branch indicators (sin q4, sin q5, z of (P3−B3)×(Pt−P3)).
+    fn branch(&self, q: &[f64], rho: &[f64]) -> [f64; 3] {
+        let [_, _, p3] = Self::points(q, rho);
+        let mut t = [0.0; 2];
+        self.tool(q, rho, &mut t);
+        let a = [p3[0] - rho[9], p3[1] - rho[10]];
+        let b = [t[0] - p3[0], t[1] - p3[1]];
+        [q[3].sin(), q[4].sin(), a[0] * b[1] - a[1] * b[0]]
+    }
+}
+
+fn dist2<D: Scalar>(a: &[D; 2], b: &[D; 2]) -> D {
+    let dx = a[0] - b[0];
+    let dy = a[1] - b[1];
+    dx * dx + dy * dy
+}
+
+/// Wrap `a` to within π of `near`.
+pub(crate) fn wrap_near(a: f64, near: f64) -> f64 {
+    use std::f64::consts::{PI, TAU};
+    near + (a - near + PI).rem_euclid(TAU) - PI
+}
+
+impl Mechanism for JeongKim2Dof {
+    fn spec(&self) -> &Spec {
+        &self.spec
+    }
+
+    fn constraints<D: Scalar>(&self, q: &[D], rho: &[D], g: &mut [D]) {
+        let [p1, p2, p3] = Self::points(q, rho);
+        g[0] = dist2(&p1, &p2) - rho[11] * rho[11];
+        g[1] = dist2(&p2, &p3) - rho[12] * rho[12];
+        g[2] = dist2(&p3, &p1) - rho[13] * rho[13];
+    }
+
+    fn tool<D: Scalar>(&self, q: &[D], rho: &[D], x: &mut [D]) {
+        let [p1, p2, _] = Self::points(q, rho);
+        let d = [p2[0] - p1[0], p2[1] - p1[1]];
+        let len = dist2(&p1, &p2).sqrt();
+        let ux = [d[0] / len, d[1] / len];
+        x[0] = p1[0] + rho[14] * ux[0] - rho[15] * ux[1];
+        x[1] = p1[1] + rho[14] * ux[1] + rho[15] * ux[0];
+    }
+
+    fn inverse_kinematics_closed(&self, target: &[f64], rho: &[f64]) -> Option<Result<Vec<f64>>> {
+        Some(self.ik(target, rho))
+    }
+
+    fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
+        let now = self.branch(q, rho);
+        let reference = self.branch(&self.spec.reference_q, &self.spec.nominal);
+        now.iter().zip(reference).all(|(a, b)| a * b > 0.0)
+    }
+}
+
+impl JeongKim2Dof {
+    fn ik(&self, t: &[f64], r: &[f64]) -> Result<Vec<f64>> {
+        let unreachable = |reason: &str| Error::Unreachable {
+            target: t.to_vec(),
+            reason: reason.to_string(),
+        };
+        if t.len() != 2 || t.iter().any(|v| !v.is_finite()) {
+            return Err(unreachable("a target needs two finite coordinates (x, y)"));
+        }
+        let reference = self.branch(&self.spec.reference_q, &self.spec.nominal);
+        let (d1, d2, d3) = (r[11], r[12], r[13]);
+        // Platform points in the platform frame, relative to the tool point.
+        let a = (d1 * d1 + d3 * d3 - d2 * d2) / (2.0 * d1);
+        let b2 = d3 * d3 - a * a;
+        if b2 <= 0.0 {
+            return Err(Error::InvalidMechanism(
+                "platform side lengths D1, D2, D3 do not form a triangle".into(),
+            ));
+        }
+        let local = [[0.0, 0.0], [d1, 0.0], [a, b2.sqrt()]].map(|p| [p[0] - r[14], p[1] - r[15]]);
+        // Leg 3: |t + R(φ) v − B3| = l31, i.e. A cos φ + B sin φ = C.
+        let v = local[2];
+        let d = [t[0] - r[9], t[1] - r[10]];
+        let big_a = d[0] * v[0] + d[1] * v[1];
+        let big_b = d[1] * v[0] - d[0] * v[1];
+        let c = (r[4] * r[4] - (d[0] * d[0] + d[1] * d[1]) - (v[0] * v[0] + v[1] * v[1])) / 2.0;
+        let rr = big_a.hypot(big_b);
+        if rr == 0.0 || c.abs() > rr {
+            return Err(unreachable("leg 3 cannot reach the platform"));
+        }
+        let psi = big_b.atan2(big_a);
+        let delta = (c / rr).acos();
+        for phi in [psi + delta, psi - delta] {
+            let (s, co) = phi.sin_cos();
+            let world = local.map(|p| [t[0] + co * p[0] - s * p[1], t[1] + s * p[0] + co * p[1]]);
+            let p3 = world[2];
+            let a3 = [p3[0] - r[9], p3[1] - r[10]];
+            let b3 = [t[0] - p3[0], t[1] - p3[1]];
+            if (a3[0] * b3[1] - a3[1] * b3[0]) * reference[2] <= 0.0 {
+                continue;
+            }
+            let mut q = [0.0; 5];
+            q[2] = a3[1].atan2(a3[0]);
+            for (leg, (base, la, lb, sign)) in [
+                ([r[5], r[6]], r[0], r[1], reference[0]),
+                ([r[7], r[8]], r[2], r[3], reference[1]),
+            ]
+            .into_iter()
+            .enumerate()
+            {
+                let w = [world[leg][0] - base[0], world[leg][1] - base[1]];
+                let l2 = w[0] * w[0] + w[1] * w[1];
+                let ce = (l2 - la * la - lb * lb) / (2.0 * la * lb);
+                if ce.abs() > 1.0 {
+                    return Err(unreachable(&format!("leg {} cannot reach the platform", leg + 1)));
+                }
+                let elbow = ce.acos().copysign(sign);
+                q[3 + leg] = elbow;
+                q[leg] = w[1].atan2(w[0]) - (lb * elbow.sin()).atan2(la + lb * elbow.cos());
+            }
+            let q: Vec<f64> = q
+                .iter()
+                .zip(&self.spec.reference_q)
+                .map(|(&a, &n)| wrap_near(a, n))
+                .collect();
+            return Ok(q);
+        }
+        Err(unreachable("no platform orientation on the assembly branch"))
+    }
+}
