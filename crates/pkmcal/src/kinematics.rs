@@ -39,12 +39,11 @@ pub fn solve_closure<M: Mechanism>(
     for it in 0..MAX_NEWTON {
         let j = jacobians(mech, q, rho, 0..nq);
         let gv = j.dg.select_columns(&free);
-        let step = solve_square(gv, DVector::from_column_slice(&j.g)).ok_or_else(|| {
-            Error::Singular {
+        let step =
+            solve_square(gv, DVector::from_column_slice(&j.g)).ok_or_else(|| Error::Singular {
                 q: q.to_vec(),
                 reason: "the loop-closure Jacobian of the dependent joints is singular".into(),
-            }
-        })?;
+            })?;
         let mut big = step.amax();
         if !big.is_finite() {
             big = f64::INFINITY;
@@ -185,12 +184,17 @@ pub fn inverse_kinematics<M: Mechanism>(mech: &M, rho: &[f64], target: &[f64]) -
     let stages = ((span / 10.0).ceil() as usize).max(1);
     for s in 1..=stages {
         let t = s as f64 / stages as f64;
-        let goal: Vec<f64> = x0.iter().zip(target).map(|(a, b)| a + t * (b - a)).collect();
+        let goal: Vec<f64> = x0
+            .iter()
+            .zip(target)
+            .map(|(a, b)| a + t * (b - a))
+            .collect();
         let mut converged = false;
         for _ in 0..MAX_NEWTON {
             let j = jacobians(mech, &q, rho, 0..nq);
             let mut a = DMatrix::zeros(nq, nq);
-            a.view_mut((0, 0), (spec.n_constraints, nq)).copy_from(&j.dg);
+            a.view_mut((0, 0), (spec.n_constraints, nq))
+                .copy_from(&j.dg);
             a.view_mut((spec.n_constraints, 0), (target.len(), nq))
                 .copy_from(&j.dx);
             let mut b = DVector::zeros(nq);

@@ -45,10 +45,14 @@ pub mod stats;
 pub mod workspace;
 
 pub use error::{Error, Result};
-pub use kinematics::{forward_kinematics, inverse_kinematics, reference_configuration, solve_closure};
+pub use kinematics::{
+    forward_kinematics, inverse_kinematics, reference_configuration, solve_closure,
+};
 pub use linearized::{Linearization, joint_errors, linearize, load_vector, projection};
 pub use mechanism::{Mechanism, Params, Scalar, Spec};
-pub use models::{Equilibrium, Model, Pose, Prediction, equilibrium, predict, predict_pose, prepare_pose};
+pub use models::{
+    Equilibrium, Model, Pose, Prediction, equilibrium, predict, predict_pose, prepare_pose,
+};
 pub use reference::JeongKim2Dof;
 pub use simulate::{Measurement, simulate};
 pub use stats::{ErrorStats, error_stats, improvement_percent};

@@ -90,8 +90,8 @@ pub fn linearize<M: Mechanism>(
     let gamma = dq_du.select_rows(&spec.actuated);
     let h = dq_drho.select_rows(&spec.actuated);
     let xq = j.dx.columns(0, nq);
-    let jf = &xq * &dq_du;
-    let jx_rho = j.dx.columns(nq, nr) + &xq * &dq_drho;
+    let jf = xq * &dq_du;
+    let jx_rho = j.dx.columns(nq, nr) + xq * &dq_drho;
     Ok(Linearization {
         independent: independent.to_vec(),
         phi,

@@ -97,7 +97,12 @@ impl Spec {
     pub fn validate(&self) -> Result<()> {
         let nq = self.joints.len();
         let bad = |m: String| Err(Error::InvalidMechanism(m));
-        if self.actuated.iter().chain(&self.independent).any(|&i| i >= nq) {
+        if self
+            .actuated
+            .iter()
+            .chain(&self.independent)
+            .any(|&i| i >= nq)
+        {
             return bad("a joint index is out of range".into());
         }
         if self.independent.len() + self.n_constraints != nq {
@@ -108,19 +113,20 @@ impl Spec {
                 self.n_constraints
             ));
         }
-        if self
-            .independent
-            .iter()
-            .any(|j| !self.actuated.contains(j))
-        {
-            return bad("every independent joint must be actuated (the rigid and linear models drive them)".into());
+        if self.independent.iter().any(|j| !self.actuated.contains(j)) {
+            return bad(
+                "every independent joint must be actuated (the rigid and linear models drive them)"
+                    .into(),
+            );
         }
         if self.actuated.len() < self.independent.len() {
             return bad("fewer actuated joints than degrees of freedom".into());
         }
         if self.offsets.len() != self.actuated.len() || self.stiffness.len() != self.actuated.len()
         {
-            return bad("one encoder offset and one stiffness per actuated joint are needed".into());
+            return bad(
+                "one encoder offset and one stiffness per actuated joint are needed".into(),
+            );
         }
         if self.nominal.len() != self.n_params() {
             return bad(format!(
@@ -173,6 +179,15 @@ pub trait Mechanism: Send + Sync {
     /// assembly branch of the reference configuration, if the mechanism has one.
     /// The default (`None`) makes [`crate::inverse_kinematics`] use Newton.
     fn inverse_kinematics_closed(&self, _target: &[f64], _rho: &[f64]) -> Option<Result<Vec<f64>>> {
+        None
+    }
+
+    /// A configuration near the one the actuator `commands` (one per actuated
+    /// joint) put the mechanism in, on the assembly branch, if the mechanism can
+    /// compute one directly (e.g. in closed form from all actuators). Forward
+    /// kinematics polishes it with Newton. The default (`None`) makes
+    /// [`crate::prepare_pose`] use continuation from the reference configuration.
+    fn configuration_guess(&self, _commands: &[f64], _rho: &[f64]) -> Option<Vec<f64>> {
         None
     }
 

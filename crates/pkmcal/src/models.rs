@@ -165,19 +165,58 @@ pub fn prepare_pose<M: Mechanism>(
     let spec = mech.spec();
     check_commands(spec, commands)?;
     let rho = &spec.nominal[..spec.n_geometric()];
-    let reference;
-    let start = match start {
-        Some(s) => s,
-        None => {
-            reference = reference_configuration(mech, rho)?;
-            &reference
-        }
-    };
     let q_u: Vec<f64> = independent_actuators(spec)
         .iter()
         .map(|&a| commands[a])
         .collect();
-    let nominal_q = forward_kinematics(mech, rho, &q_u, start)?;
+    // Candidate starts: the mechanism's own guess from all commands, the
+    // caller's configuration, the reference configuration. Forward kinematics
+    // may find other assembly modes from a poor start, so keep the solution
+    // that agrees best with the redundant commands (for consistent commands,
+    // exactly), and stop at the first that agrees to `CONSISTENT`.
+    const CONSISTENT: f64 = 1e-6;
+    let mismatch = |q: &[f64]| {
+        spec.actuated
+            .iter()
+            .zip(commands)
+            .map(|(&j, c)| (q[j] - c).abs())
+            .fold(0.0, f64::max)
+    };
+    let mut best: Option<(f64, Vec<f64>)> = None;
+    let mut first_error = None;
+    let guess = mech.configuration_guess(commands, rho);
+    let candidates = [guess, start.map(<[f64]>::to_vec), None];
+    for (i, s) in candidates.into_iter().enumerate() {
+        let s = match s {
+            Some(s) => s,
+            None if i == 2 => match reference_configuration(mech, rho) {
+                Ok(r) => r,
+                Err(e) => {
+                    first_error.get_or_insert(e);
+                    continue;
+                }
+            },
+            None => continue,
+        };
+        match forward_kinematics(mech, rho, &q_u, &s) {
+            Ok(q) => {
+                let m = mismatch(&q);
+                if best.as_ref().is_none_or(|b| m < b.0) {
+                    best = Some((m, q));
+                }
+                if m < CONSISTENT {
+                    break;
+                }
+            }
+            Err(e) => {
+                first_error.get_or_insert(e);
+            }
+        }
+    }
+    let nominal_q = match best {
+        Some((_, q)) => q,
+        None => return Err(first_error.expect("at least one attempt was made")),
+    };
     let lin = linearize(mech, &nominal_q, rho, &spec.independent)?;
     Ok(Pose {
         commands: commands.to_vec(),
@@ -264,7 +303,9 @@ fn effective_force(spec: &crate::Spec, force: &[f64]) -> Result<Vec<f64>> {
         });
     }
     if force.iter().any(|f| !f.is_finite()) {
-        return Err(Error::InvalidRequest("the tool force must be finite".into()));
+        return Err(Error::InvalidRequest(
+            "the tool force must be finite".into(),
+        ));
     }
     Ok(force.to_vec())
 }
@@ -407,7 +448,8 @@ pub fn equilibrium<M: Mechanism>(
         let mut rhs = DVector::zeros(nq + m);
         rhs.rows_mut(0, nq)
             .copy_from(&(grad_e + j.dg.transpose() * &lam));
-        rhs.rows_mut(nq, m).copy_from(&DVector::from_column_slice(&j.g));
+        rhs.rows_mut(nq, m)
+            .copy_from(&DVector::from_column_slice(&j.g));
         let step = solve_square(kkt, rhs).ok_or_else(|| Error::Singular {
             q: q.clone(),
             reason: "the equilibrium (KKT) system is singular".into(),
@@ -424,7 +466,10 @@ pub fn equilibrium<M: Mechanism>(
         // Convergence is at least linear with a small rate r = big/last; the
         // error left after this step is about r·big.
         let rate = if last.is_finite() { big / last } else { 1.0 };
-        if big < EQUILIBRIUM_TOL || (rate < 0.5 && rate * big < EQUILIBRIUM_TOL) || (big < 1e-10 && rate >= 1.0) {
+        if big < EQUILIBRIUM_TOL
+            || (rate < 0.5 && rate * big < EQUILIBRIUM_TOL)
+            || (big < 1e-10 && rate >= 1.0)
+        {
             let torque = spec
                 .actuated
                 .iter()

@@ -95,7 +95,7 @@ impl JeongKim2Dof {
             nominal,
             reference_q: REFERENCE_Q_DEG.map(f64::to_radians).to_vec(),
             default_free: PAPER_FREE.map(String::from).to_vec(),
-            workspace_box: vec![[-250.0, 250.0], [0.0, 420.0]],
+            workspace_box: vec![[-140.0, 250.0], [0.0, 420.0]],
         }
     }
 
@@ -129,14 +129,16 @@ impl JeongKim2Dof {
         [p1, p2, p3]
     }
 
-    /// Branch indicators (sin q4, sin q5, z of (P3−B3)×(Pt−P3)).
-    fn branch(&self, q: &[f64], rho: &[f64]) -> [f64; 3] {
-        let [_, _, p3] = Self::points(q, rho);
+    /// Branch indicators: sin q4, sin q5, z of (P3−B3)×(Pt−P3), and z of
+    /// (P2−P1)×(P3−P1) (the platform the right way up: P3 on its +y side).
+    fn branch(&self, q: &[f64], rho: &[f64]) -> [f64; 4] {
+        let [p1, p2, p3] = Self::points(q, rho);
+        let up = (p2[0] - p1[0]) * (p3[1] - p1[1]) - (p2[1] - p1[1]) * (p3[0] - p1[0]);
         let mut t = [0.0; 2];
         self.tool(q, rho, &mut t);
         let a = [p3[0] - rho[9], p3[1] - rho[10]];
         let b = [t[0] - p3[0], t[1] - p3[1]];
-        [q[3].sin(), q[4].sin(), a[0] * b[1] - a[1] * b[0]]
+        [q[3].sin(), q[4].sin(), a[0] * b[1] - a[1] * b[0], up]
     }
 }
 
@@ -175,6 +177,59 @@ impl Mechanism for JeongKim2Dof {
 
     fn inverse_kinematics_closed(&self, target: &[f64], rho: &[f64]) -> Option<Result<Vec<f64>>> {
         Some(self.ik(target, rho))
+    }
+
+    fn configuration_guess(&self, c: &[f64], r: &[f64]) -> Option<Vec<f64>> {
+        // P3 is fixed by q3; P1 and P2 lie where their elbow circles meet the
+        // circles of radius D3 and D2 around P3. Of the (up to) four
+        // combinations on the elbow branches, keep the one whose |P1 − P2| is
+        // closest to D1 with the platform the right way up.
+        let reference = self.branch(&self.spec.reference_q, &self.spec.nominal);
+        let p3 = [r[9] + r[4] * c[2].cos(), r[10] + r[4] * c[2].sin()];
+        let mut legs: [Vec<(f64, [f64; 2])>; 2] = [vec![], vec![]];
+        for (leg, (base, la, lb, d, sign)) in [
+            ([r[5], r[6]], r[0], r[1], r[13], reference[0]),
+            ([r[7], r[8]], r[2], r[3], r[12], reference[1]),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let e = [base[0] + la * c[leg].cos(), base[1] + la * c[leg].sin()];
+            let (dx, dy) = (p3[0] - e[0], p3[1] - e[1]);
+            let dist = dx.hypot(dy);
+            let a = (lb * lb - d * d + dist * dist) / (2.0 * dist);
+            let h2 = lb * lb - a * a;
+            if h2.is_nan() || h2 < 0.0 {
+                return None;
+            }
+            let h = h2.sqrt();
+            let mid = [e[0] + a * dx / dist, e[1] + a * dy / dist];
+            for s in [1.0, -1.0] {
+                let p = [mid[0] - s * h * dy / dist, mid[1] + s * h * dx / dist];
+                let elbow = wrap_near((p[1] - e[1]).atan2(p[0] - e[0]) - c[leg], 0.0);
+                if elbow.sin() * sign > 0.0 {
+                    legs[leg].push((elbow, p));
+                }
+            }
+        }
+        let mut best: Option<(f64, f64, f64)> = None;
+        for &(e1, p1) in &legs[0] {
+            for &(e2, p2) in &legs[1] {
+                let up = (p2[0] - p1[0]) * (p3[1] - p1[1]) - (p2[1] - p1[1]) * (p3[0] - p1[0]);
+                let miss = ((p2[0] - p1[0]).hypot(p2[1] - p1[1]) - r[11]).abs();
+                if up * reference[3] > 0.0 && best.is_none_or(|b| miss < b.0) {
+                    best = Some((miss, e1, e2));
+                }
+            }
+        }
+        let (_, e1, e2) = best?;
+        Some(vec![
+            c[0],
+            c[1],
+            c[2],
+            wrap_near(e1, self.spec.reference_q[3]),
+            wrap_near(e2, self.spec.reference_q[4]),
+        ])
     }
 
     fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
@@ -238,7 +293,10 @@ impl JeongKim2Dof {
                 let l2 = w[0] * w[0] + w[1] * w[1];
                 let ce = (l2 - la * la - lb * lb) / (2.0 * la * lb);
                 if ce.abs() > 1.0 {
-                    return Err(unreachable(&format!("leg {} cannot reach the platform", leg + 1)));
+                    return Err(unreachable(&format!(
+                        "leg {} cannot reach the platform",
+                        leg + 1
+                    )));
                 }
                 let elbow = ce.acos().copysign(sign);
                 q[3 + leg] = elbow;
@@ -251,6 +309,43 @@ impl JeongKim2Dof {
                 .collect();
             return Ok(q);
         }
-        Err(unreachable("no platform orientation on the assembly branch"))
+        Err(unreachable(
+            "no platform orientation on the assembly branch",
+        ))
     }
+}
+
+/// Parameter errors of the size the paper reports (about 1.4 mm of tool error
+/// before calibration over the workspace): a fixed, documented scenario for the
+/// demo, tests and benchmarks. Sub-millimetre length errors, milliradian
+/// encoder offsets.
+pub const DEMO_ERRORS: [(&str, f64); 16] = [
+    ("l11", 0.40),
+    ("l12", -0.30),
+    ("l21", 0.25),
+    ("l22", 0.35),
+    ("l31", -0.28),
+    ("B2y", 0.33),
+    ("B3x", -0.45),
+    ("B3y", 0.40),
+    ("D1", 0.17),
+    ("D2", -0.22),
+    ("D3", 0.20),
+    ("Ptx", 0.28),
+    ("Pty", -0.22),
+    ("dq1", 1.1e-3),
+    ("dq2", -0.9e-3),
+    ("dq3", 1.35e-3),
+];
+
+/// The demo's true parameters: nominal plus [`DEMO_ERRORS`].
+pub fn demo_truth() -> crate::Params {
+    let mech = JeongKim2Dof::new();
+    let spec = mech.spec();
+    let mut p = crate::Params::nominal(spec);
+    for (name, err) in DEMO_ERRORS {
+        let i = spec.param_index(name).expect("demo names are valid");
+        p.values[i] += err;
+    }
+    p
 }

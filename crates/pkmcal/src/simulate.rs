@@ -2,9 +2,9 @@
 //! positions from the true parameters (exact model) plus Gaussian noise.
 
 use crate::error::Result;
+use crate::kinematics::inverse_kinematics;
 use crate::mechanism::{Mechanism, Params};
 use crate::models::{Model, predict_pose, prepare_pose};
-use crate::workspace::nominal_commands;
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 use rand_distr::{Distribution, Normal};
@@ -32,18 +32,19 @@ pub fn simulate<M: Mechanism>(
 ) -> Result<Vec<Measurement>> {
     let mut rng = StdRng::seed_from_u64(seed);
     let normal = Normal::new(0.0, noise.max(0.0)).map_err(|e| {
-        crate::Error::InvalidRequest(format!("noise {noise} is not a valid standard deviation: {e}"))
+        crate::Error::InvalidRequest(format!(
+            "noise {noise} is not a valid standard deviation: {e}"
+        ))
     })?;
-    let mut start: Option<Vec<f64>> = None;
+    let spec = mech.spec();
     let mut out = Vec::with_capacity(targets.len());
     for target in targets {
-        let commands = nominal_commands(mech, target)?;
-        let pose = match prepare_pose(mech, &commands, start.as_deref()) {
-            Ok(p) => p,
-            Err(_) => prepare_pose(mech, &commands, None)?,
-        };
+        // Nominal inverse kinematics gives the commands and the exact nominal
+        // configuration.
+        let q = inverse_kinematics(mech, &spec.nominal[..spec.n_geometric()], target)?;
+        let commands: Vec<f64> = spec.actuated.iter().map(|&j| q[j]).collect();
+        let pose = prepare_pose(mech, &commands, Some(&q))?;
         let p = predict_pose(mech, &pose, truth, Model::Exact, &[])?;
-        start = Some(pose.nominal_q.clone());
         let measured = p.x.iter().map(|x| x + normal.sample(&mut rng)).collect();
         out.push(Measurement {
             target: Some(target.clone()),

@@ -119,7 +119,10 @@ pub fn spread_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<Worksp
         .min_by(|&a, &b| d2(&pool[a].target, &centroid).total_cmp(&d2(&pool[b].target, &centroid)))
         .expect("pool is not empty");
     let mut chosen = vec![first];
-    let mut nearest: Vec<f64> = pool.iter().map(|p| d2(&p.target, &pool[first].target)).collect();
+    let mut nearest: Vec<f64> = pool
+        .iter()
+        .map(|p| d2(&p.target, &pool[first].target))
+        .collect();
     while chosen.len() < count {
         let next = (0..pool.len())
             .max_by(|&a, &b| nearest[a].total_cmp(&nearest[b]))

@@ -1,0 +1,321 @@
+//! Files: CSV tables found by header name, flat parameter TOML, mechanism
+//! files, and atomic output (temporary file, then rename).
+
+use anyhow::{Context, Result, bail};
+use pkmcal::{JeongKim2Dof, Mechanism, Params, Spec};
+use serde::Deserialize;
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// A CSV file read whole, with its header.
+pub struct Csv {
+    pub path: PathBuf,
+    pub headers: Vec<String>,
+    /// (line number, fields) per data row.
+    pub rows: Vec<(u64, Vec<String>)>,
+}
+
+impl Csv {
+    pub fn read(path: &Path) -> Result<Self> {
+        let mut rdr = csv::ReaderBuilder::new()
+            .trim(csv::Trim::All)
+            .comment(Some(b'#'))
+            .flexible(true)
+            .from_path(path)
+            .with_context(|| format!("cannot open {}", path.display()))?;
+        let headers: Vec<String> = rdr
+            .headers()
+            .with_context(|| format!("{}: cannot read the header line", path.display()))?
+            .iter()
+            .map(str::to_string)
+            .collect();
+        if headers.iter().all(String::is_empty) {
+            bail!(
+                "{}: the file is empty; it needs a header line naming the columns",
+                path.display()
+            );
+        }
+        let mut rows = Vec::new();
+        for rec in rdr.records() {
+            let rec = rec.with_context(|| format!("{}: malformed CSV", path.display()))?;
+            let line = rec.position().map_or(0, |p| p.line());
+            if rec.iter().all(str::is_empty) {
+                continue;
+            }
+            rows.push((line, rec.iter().map(str::to_string).collect()));
+        }
+        Ok(Self {
+            path: path.to_path_buf(),
+            headers,
+            rows,
+        })
+    }
+
+    /// Index of a column by name; an error naming the file and the columns
+    /// found if it is missing or appears twice.
+    pub fn column(&self, name: &str) -> Result<usize> {
+        let hits: Vec<usize> = (0..self.headers.len())
+            .filter(|&i| self.headers[i] == name)
+            .collect();
+        match hits.as_slice() {
+            [i] => Ok(*i),
+            [] => bail!(
+                "{}: missing column `{}` (columns found: {})",
+                self.path.display(),
+                name,
+                self.headers.join(",")
+            ),
+            _ => bail!(
+                "{}: column `{}` appears {} times; keep one",
+                self.path.display(),
+                name,
+                hits.len()
+            ),
+        }
+    }
+
+    /// Numeric values of the given columns, row by row.
+    pub fn numbers(&self, cols: &[(usize, &str)]) -> Result<Vec<Vec<f64>>> {
+        self.rows
+            .iter()
+            .map(|(line, rec)| {
+                cols.iter()
+                    .map(|&(c, name)| {
+                        let field = rec.get(c).with_context(|| {
+                            format!(
+                                "{}:{}: the row is short: no value for column `{}`",
+                                self.path.display(),
+                                line,
+                                name
+                            )
+                        })?;
+                        let v: f64 = field.parse().map_err(|_| {
+                            anyhow::anyhow!(
+                                "{}:{}: column `{}`: `{}` is not a number",
+                                self.path.display(),
+                                line,
+                                name,
+                                field
+                            )
+                        })?;
+                        if !v.is_finite() {
+                            bail!(
+                                "{}:{}: column `{}`: `{}` is not a finite number",
+                                self.path.display(),
+                                line,
+                                name,
+                                field
+                            );
+                        }
+                        Ok(v)
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// Numeric values of named columns.
+    pub fn named(&self, names: &[String]) -> Result<Vec<Vec<f64>>> {
+        let cols: Vec<(usize, &str)> = names
+            .iter()
+            .map(|n| Ok((self.column(n)?, n.as_str())))
+            .collect::<Result<_>>()?;
+        self.numbers(&cols)
+    }
+
+    pub fn require_rows(&self) -> Result<()> {
+        if self.rows.is_empty() {
+            bail!("{}: no data rows below the header", self.path.display());
+        }
+        Ok(())
+    }
+
+    pub fn line(&self, row: usize) -> u64 {
+        self.rows[row].0
+    }
+}
+
+/// Write a file atomically: to a temporary file in the same directory, then
+/// rename over the target. A failure leaves an earlier file untouched.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .with_context(|| format!("{} is not a file name", path.display()))?;
+    let tmp = dir.join(format!(
+        ".{}.tmp-{}",
+        name.to_string_lossy(),
+        std::process::id()
+    ));
+    let result = (|| -> std::io::Result<()> {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if let Err(e) = result {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(e).with_context(|| format!("cannot write {}", path.display()));
+    }
+    Ok(())
+}
+
+/// CSV text from a header and rows of numbers (shortest round-trip format).
+pub fn csv_bytes(header: &[String], rows: &[Vec<f64>]) -> Vec<u8> {
+    let mut out = String::with_capacity(rows.len() * header.len() * 20);
+    out.push_str(&header.join(","));
+    out.push('\n');
+    for r in rows {
+        for (i, v) in r.iter().enumerate() {
+            if i > 0 {
+                out.push(',');
+            }
+            out.push_str(&format!("{v}"));
+        }
+        out.push('\n');
+    }
+    out.into_bytes()
+}
+
+/// Read a flat parameter file `name = value` (names not given stay nominal).
+pub fn read_params(path: &Path, spec: &Spec) -> Result<Params> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read parameter file {}", path.display()))?;
+    params_from_str(&text, spec).with_context(|| format!("in parameter file {}", path.display()))
+}
+
+pub fn params_from_str(text: &str, spec: &Spec) -> Result<Params> {
+    let table: toml::Table = toml::from_str(text).context("TOML syntax error")?;
+    let mut named = Vec::new();
+    for (name, value) in &table {
+        let v = match value {
+            toml::Value::Float(f) => *f,
+            toml::Value::Integer(i) => *i as f64,
+            other => bail!(
+                "parameter `{name}` must be a number, found {}",
+                other.type_str()
+            ),
+        };
+        spec.param_index(name)?;
+        named.push((name.as_str(), v));
+    }
+    Ok(Params::from_named(spec, named)?)
+}
+
+/// Flat parameter file text with every parameter, in vector order.
+pub fn params_to_string(spec: &Spec, params: &Params, header: &str) -> String {
+    let mut out = String::new();
+    for line in header.lines() {
+        out.push_str(&format!("# {line}\n"));
+    }
+    let units = |name: &str| -> &str {
+        if spec.offsets.iter().any(|n| n == name) {
+            "rad"
+        } else if spec.stiffness.iter().any(|n| n == name) {
+            "N·m/rad"
+        } else {
+            "mm"
+        }
+    };
+    for (name, v) in spec.param_names().iter().zip(&params.values) {
+        out.push_str(&format!("{name} = {v:?}  # {}\n", units(name)));
+    }
+    out
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MechanismFile {
+    #[serde(rename = "type")]
+    kind: String,
+    name: Option<String>,
+    #[serde(default)]
+    nominal: BTreeMap<String, f64>,
+    assembly: Option<Assembly>,
+    #[serde(default)]
+    workspace: BTreeMap<String, [f64; 2]>,
+    free: Option<Vec<String>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Assembly {
+    reference_q: Vec<f64>,
+}
+
+/// The mechanism the CLI works on.
+pub type Mech = JeongKim2Dof;
+
+/// Read a mechanism file, or the built-in reference when `path` is `None`.
+pub fn read_mechanism(path: Option<&Path>) -> Result<Mech> {
+    let Some(path) = path else {
+        return Ok(JeongKim2Dof::new());
+    };
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read mechanism file {}", path.display()))?;
+    mechanism_from_str(&text).with_context(|| format!("in mechanism file {}", path.display()))
+}
+
+pub fn mechanism_from_str(text: &str) -> Result<Mech> {
+    let file: MechanismFile = toml::from_str(text).context("invalid mechanism description")?;
+    if file.kind != "jeong-kim-2dof" {
+        bail!(
+            "unknown mechanism type `{}`; supported: jeong-kim-2dof",
+            file.kind
+        );
+    }
+    let mut spec = JeongKim2Dof::default_spec();
+    if let Some(name) = file.name {
+        spec.name = name;
+    }
+    for (name, value) in &file.nominal {
+        let i = spec.param_index(name)?;
+        spec.nominal[i] = *value;
+    }
+    for (i, name) in spec.geometric.iter().enumerate() {
+        if name.starts_with('l') || name.starts_with('D') {
+            let v = spec.nominal[i];
+            if v.is_nan() || v <= 0.0 {
+                bail!("length `{name}` = {v} must be positive");
+            }
+        }
+    }
+    if let Some(a) = file.assembly {
+        spec.reference_q = a.reference_q;
+    }
+    for (axis, range) in file.workspace {
+        let k = spec
+            .tool_axes
+            .iter()
+            .position(|a| *a == axis)
+            .with_context(|| format!("[workspace]: unknown tool axis `{axis}` (axes: x, y)"))?;
+        if range[0].is_nan() || range[1].is_nan() || range[0] >= range[1] {
+            bail!("[workspace]: `{axis}` must be [min, max] with min < max");
+        }
+        spec.workspace_box[k] = range;
+    }
+    if let Some(free) = file.free {
+        spec.default_free = free;
+    }
+    let mech = JeongKim2Dof::with_spec(spec)?;
+    // The nominal assembly must close.
+    pkmcal::reference_configuration(&mech, &mech.spec().nominal[..mech.spec().n_geometric()])?;
+    Ok(mech)
+}
+
+/// Parse `a,b,c` into numbers.
+pub fn parse_list(s: &str, what: &str) -> Result<Vec<f64>> {
+    s.split(',')
+        .map(|t| {
+            t.trim()
+                .parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .with_context(|| format!("{what}: `{t}` is not a finite number"))
+        })
+        .collect()
+}

@@ -1,0 +1,302 @@
+//! End-to-end tests of the command-line tool.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const BIN: &str = env!("CARGO_BIN_EXE_pkmcal");
+/// Agreement of predict with simulate on noise-free data (mm).
+const SAME_MM: f64 = 1e-9;
+
+pub fn run(dir: &Path, args: &[&str]) -> Output {
+    Command::new(BIN)
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("pkmcal runs")
+}
+
+pub fn ok(dir: &Path, args: &[&str]) -> String {
+    let o = run(dir, args);
+    assert!(
+        o.status.success(),
+        "pkmcal {args:?} failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+pub fn fails(dir: &Path, args: &[&str], code: i32, needle: &str) {
+    let o = run(dir, args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(code), "pkmcal {args:?}: {err}");
+    assert!(
+        err.contains(needle),
+        "pkmcal {args:?}: `{needle}` not in: {err}"
+    );
+}
+
+fn example_mechanism() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/jeong-kim-2dof/mechanism.toml")
+}
+
+pub fn read_csv(path: &Path) -> (Vec<String>, Vec<Vec<f64>>) {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    let header = lines.next().unwrap().split(',').map(String::from).collect();
+    let rows = lines
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    (header, rows)
+}
+
+#[test]
+fn simulate_then_predict_round_trip() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mech = example_mechanism();
+    let mech = mech.to_str().unwrap();
+    std::fs::write(
+        d.join("truth.toml"),
+        "l11 = 280.3\ndq3 = 0.002\nD2 = 214.8\n",
+    )
+    .unwrap();
+    ok(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            mech,
+            "--truth",
+            "truth.toml",
+            "--grid",
+            "12",
+            "--out",
+            "data.csv",
+        ],
+    );
+    let (header, rows) = read_csv(&d.join("data.csv"));
+    assert_eq!(header, ["target_x", "target_y", "q1", "q2", "q3", "x", "y"]);
+    assert_eq!(rows.len(), 12);
+    ok(
+        d,
+        &[
+            "predict",
+            "--mechanism",
+            mech,
+            "--params",
+            "truth.toml",
+            "--commands",
+            "data.csv",
+            "--out",
+            "pred.csv",
+        ],
+    );
+    let (ph, prows) = read_csv(&d.join("pred.csv"));
+    assert_eq!(
+        ph,
+        [
+            "q1",
+            "q2",
+            "q3",
+            "x",
+            "y",
+            "deflection_q1",
+            "deflection_q2",
+            "deflection_q3",
+            "torque_q1",
+            "torque_q2",
+            "torque_q3"
+        ]
+    );
+    for (a, b) in rows.iter().zip(&prows) {
+        assert!(
+            (a[5] - b[3]).abs() < SAME_MM && (a[6] - b[4]).abs() < SAME_MM,
+            "{a:?} vs {b:?}"
+        );
+        // Internal torques appear: the actuators fight.
+        assert!(b[8..11].iter().any(|t| t.abs() > 0.1));
+        // Deflection = −torque/stiffness.
+        assert!((b[5] + b[8] / 8360.0).abs() < 1e-12);
+    }
+    // The other models run and differ from exact by little.
+    for model in ["linear", "rigid"] {
+        ok(
+            d,
+            &[
+                "predict",
+                "--params",
+                "truth.toml",
+                "--model",
+                model,
+                "--commands",
+                "data.csv",
+                "--out",
+                "m.csv",
+            ],
+        );
+        let (_, m) = read_csv(&d.join("m.csv"));
+        for (a, b) in m.iter().zip(&prows) {
+            assert!((a[3] - b[3]).hypot(a[4] - b[4]) < 1.0);
+        }
+    }
+}
+
+#[test]
+fn simulate_with_targets_file_and_noise_is_seeded() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("t.csv"),
+        "name,target_y,target_x\na,165,-30\nb,180,0\n",
+    )
+    .unwrap();
+    for out in ["a.csv", "b.csv"] {
+        ok(
+            d,
+            &[
+                "simulate",
+                "--targets",
+                "t.csv",
+                "--noise",
+                "0.002",
+                "--seed",
+                "5",
+                "--out",
+                out,
+            ],
+        );
+    }
+    let a = std::fs::read(d.join("a.csv")).unwrap();
+    assert_eq!(a, std::fs::read(d.join("b.csv")).unwrap());
+    let (_, rows) = read_csv(&d.join("a.csv"));
+    assert_eq!(rows[0][0], -30.0);
+    assert!((rows[0][2].to_degrees() - 83.735).abs() < 1e-3);
+    // Noise of 2 µm: the measured point is within 10 µm of the target.
+    assert!((rows[0][5] + 30.0).abs() < 0.01 && (rows[0][6] - 165.0).abs() < 0.01);
+}
+
+#[test]
+fn demo_prints_the_before_statistics() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = ok(dir.path(), &["demo", "--out-dir", "demo"]);
+    assert!(out.contains("before calibration"), "{out}");
+    assert!(dir.path().join("demo/measurements.csv").exists());
+}
+
+#[test]
+fn bad_input_gets_a_clear_message_and_exit_code() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("c.csv"), "q1,q2,q3\n1.4614,3.5609,-2.5939\n").unwrap();
+    std::fs::write(d.join("bad.toml"), "l13 = 1.0\n").unwrap();
+    fails(
+        d,
+        &[
+            "predict",
+            "--params",
+            "bad.toml",
+            "--commands",
+            "c.csv",
+            "--out",
+            "o.csv",
+        ],
+        1,
+        "unknown parameter `l13`",
+    );
+    std::fs::write(d.join("nan.csv"), "q1,q2,q3\n1.4614,NaN,-2.5939\n").unwrap();
+    fails(
+        d,
+        &["predict", "--commands", "nan.csv", "--out", "o.csv"],
+        1,
+        "nan.csv:2: column `q2`",
+    );
+    std::fs::write(d.join("missing.csv"), "q1,q3\n1.4,2.0\n").unwrap();
+    fails(
+        d,
+        &["predict", "--commands", "missing.csv", "--out", "o.csv"],
+        1,
+        "missing column `q2`",
+    );
+    fails(
+        d,
+        &["predict", "--commands", "nope.csv", "--out", "o.csv"],
+        1,
+        "nope.csv",
+    );
+    std::fs::write(d.join("far.csv"), "target_x,target_y\n900,900\n").unwrap();
+    fails(
+        d,
+        &["simulate", "--targets", "far.csv", "--out", "o.csv"],
+        1,
+        "far.csv:2",
+    );
+    std::fs::write(d.join("syntax.toml"), "l11 = = 3\n").unwrap();
+    fails(
+        d,
+        &[
+            "predict",
+            "--params",
+            "syntax.toml",
+            "--commands",
+            "c.csv",
+            "--out",
+            "o.csv",
+        ],
+        1,
+        "syntax.toml",
+    );
+    fails(d, &["predict", "--commands", "c.csv"], 2, "--out");
+    fails(
+        d,
+        &[
+            "predict",
+            "--model",
+            "stiff",
+            "--commands",
+            "c.csv",
+            "--out",
+            "o.csv",
+        ],
+        2,
+        "stiff",
+    );
+    std::fs::write(
+        d.join("mech.toml"),
+        "type = \"jeong-kim-2dof\"\n[nominal]\nl11 = -5.0\n",
+    )
+    .unwrap();
+    fails(
+        d,
+        &[
+            "predict",
+            "--mechanism",
+            "mech.toml",
+            "--commands",
+            "c.csv",
+            "--out",
+            "o.csv",
+        ],
+        1,
+        "must be positive",
+    );
+}
+
+#[test]
+fn a_failed_run_leaves_the_earlier_output_alone() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("out.csv"), "earlier\n").unwrap();
+    std::fs::write(d.join("c.csv"), "q1,q2,q3\n1.4614,3.5609,-2.5939\n0,3,1\n").unwrap();
+    let o = run(d, &["predict", "--commands", "c.csv", "--out", "out.csv"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("c.csv:3"));
+    assert_eq!(
+        std::fs::read_to_string(d.join("out.csv")).unwrap(),
+        "earlier\n"
+    );
+    let names: Vec<_> = std::fs::read_dir(d)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(names.len(), 2, "no temporary file left: {names:?}");
+}

@@ -1,0 +1,61 @@
+//! Shared test helpers: a non-redundant variant of the reference mechanism and
+//! reachable poses.
+#![allow(dead_code)]
+
+use pkmcal::reference::JeongKim2Dof;
+use pkmcal::{Mechanism, Scalar, Spec, spread_targets};
+
+/// The reference mechanism with only `q1, q2` actuated (non-redundant).
+pub struct NonRedundant {
+    inner: JeongKim2Dof,
+    spec: Spec,
+}
+
+impl NonRedundant {
+    pub fn new() -> Self {
+        let inner = JeongKim2Dof::new();
+        let mut spec = inner.spec().clone();
+        spec.actuated = vec![0, 1];
+        spec.offsets.truncate(2);
+        spec.stiffness.truncate(2);
+        let ng = spec.n_geometric();
+        let nominal = spec.nominal.clone();
+        spec.nominal = nominal[..ng].to_vec();
+        spec.nominal
+            .extend([0.0, 0.0, nominal[ng + 3], nominal[ng + 4]]);
+        spec.default_free.retain(|n| n != "dq3");
+        spec.validate().unwrap();
+        Self { inner, spec }
+    }
+}
+
+impl Mechanism for NonRedundant {
+    fn spec(&self) -> &Spec {
+        &self.spec
+    }
+    fn constraints<D: Scalar>(&self, q: &[D], rho: &[D], g: &mut [D]) {
+        self.inner.constraints(q, rho, g)
+    }
+    fn tool<D: Scalar>(&self, q: &[D], rho: &[D], x: &mut [D]) {
+        self.inner.tool(q, rho, x)
+    }
+    fn inverse_kinematics_closed(
+        &self,
+        t: &[f64],
+        rho: &[f64],
+    ) -> Option<pkmcal::Result<Vec<f64>>> {
+        self.inner.inverse_kinematics_closed(t, rho)
+    }
+    fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
+        self.inner.on_branch(q, rho)
+    }
+}
+
+/// `n` usable targets of the reference mechanism.
+pub fn targets(n: usize) -> Vec<Vec<f64>> {
+    spread_targets(&JeongKim2Dof::new(), n)
+        .unwrap()
+        .into_iter()
+        .map(|p| p.target)
+        .collect()
+}
