@@ -37,6 +37,7 @@ pub mod autodiff;
 pub mod error;
 pub mod kinematics;
 pub mod linearized;
+pub mod lm;
 pub mod mechanism;
 pub mod models;
 pub mod reference;

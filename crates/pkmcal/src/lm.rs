@@ -1,0 +1,703 @@
+//! Levenberg–Marquardt least squares, MINPACK style (Moré 1978; `lmder`,
+//! `lmpar`, `qrfac`, `qrsolv`): a scaled trust region solved on the QR
+//! factorisation with column pivoting of the Jacobian — never the normal
+//! equations — with free/fixed parameter masks, residual weights, optional
+//! bounds and a termination reason. Non-convergence is a [`Termination`], not
+//! an error.
+//!
+//! Written here because no Rust crate offers masks, bounds, covariance and a
+//! rank-revealing QR together (the `levenberg-marquardt` crate has the MINPACK
+//! core but neither masks, bounds nor covariance).
+
+use nalgebra::{DMatrix, DVector};
+use serde::Serialize;
+
+/// A least-squares problem: residuals `r(x)` and their Jacobian, evaluated
+/// together (one shared inner solve). Implement it to use [`minimize`].
+pub trait Problem {
+    /// Number of parameters (the full vector, free and fixed).
+    fn n_params(&self) -> usize;
+    /// Number of residuals.
+    fn n_residuals(&self) -> usize;
+    /// Residuals at `x`, and the Jacobian (`n_residuals × n_params`, full) when
+    /// `jacobian` is true. `Err(reason)` when the model cannot be evaluated at
+    /// `x` (the solver then shrinks its step).
+    fn evaluate(
+        &self,
+        x: &[f64],
+        jacobian: bool,
+    ) -> Result<(DVector<f64>, Option<DMatrix<f64>>), String>;
+}
+
+/// Options of [`minimize`].
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// Which parameters are free (`None`: all).
+    pub free: Option<Vec<bool>>,
+    /// Residual weights (`1/σ`); `None`: all 1.
+    pub weights: Option<Vec<f64>>,
+    /// Lower bounds (full vector); the step is projected onto the box.
+    pub lower: Option<Vec<f64>>,
+    /// Upper bounds (full vector).
+    pub upper: Option<Vec<f64>>,
+    /// Relative reduction of the sum of squares below which the fit stops.
+    pub ftol: f64,
+    /// Relative step size below which the fit stops.
+    pub xtol: f64,
+    /// Cosine between residuals and Jacobian columns below which the fit stops.
+    pub gtol: f64,
+    /// Largest number of residual evaluations.
+    pub max_evaluations: usize,
+    /// Initial trust-region radius factor (MINPACK `factor`).
+    pub factor: f64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self {
+            free: None,
+            weights: None,
+            lower: None,
+            upper: None,
+            ftol: 1e-15,
+            xtol: 1e-15,
+            gtol: 0.0,
+            max_evaluations: 2000,
+            factor: 100.0,
+        }
+    }
+}
+
+/// Why the solver stopped.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case", tag = "kind", content = "detail")]
+pub enum Termination {
+    /// The sum of squares cannot decrease by more than `ftol` (relative).
+    SmallReduction,
+    /// The step is below `xtol` relative to the parameters.
+    SmallStep,
+    /// Both of the above.
+    SmallReductionAndStep,
+    /// The residuals are orthogonal to the Jacobian columns (within `gtol`).
+    SmallGradient,
+    /// No further progress is possible at machine precision.
+    MachinePrecision,
+    /// The evaluation budget ran out.
+    MaxEvaluations,
+    /// Nothing to fit (no free parameter).
+    NothingFree,
+    /// The model could not be evaluated at the start.
+    EvaluationFailed(String),
+}
+
+impl Termination {
+    /// True when the solver stopped at a (local) minimum.
+    pub fn converged(&self) -> bool {
+        matches!(
+            self,
+            Self::SmallReduction
+                | Self::SmallStep
+                | Self::SmallReductionAndStep
+                | Self::SmallGradient
+                | Self::MachinePrecision
+                | Self::NothingFree
+        )
+    }
+    /// A readable reason, with a hint where one helps.
+    pub fn reason(&self) -> String {
+        match self {
+            Self::SmallReduction => "converged: the sum of squares no longer decreases".into(),
+            Self::SmallStep => "converged: the parameter step is negligible".into(),
+            Self::SmallReductionAndStep => {
+                "converged: neither the sum of squares nor the parameters change".into()
+            }
+            Self::SmallGradient => "converged: the gradient vanishes".into(),
+            Self::MachinePrecision => "converged to machine precision".into(),
+            Self::MaxEvaluations => {
+                "stopped: evaluation budget exhausted before convergence; check the data or start closer".into()
+            }
+            Self::NothingFree => "nothing to fit: no parameter is free".into(),
+            Self::EvaluationFailed(r) => format!(
+                "the model cannot be evaluated at the start ({r}); check the data and the starting parameters"
+            ),
+        }
+    }
+}
+
+/// The outcome of [`minimize`].
+#[derive(Debug, Clone)]
+pub struct Report {
+    /// Parameters at the end (full vector).
+    pub x: Vec<f64>,
+    /// Why the solver stopped.
+    pub termination: Termination,
+    /// Accepted iterations (Jacobian evaluations − 1).
+    pub iterations: usize,
+    /// Residual evaluations.
+    pub evaluations: usize,
+    /// Weighted residuals at `x`.
+    pub residuals: DVector<f64>,
+    /// Weighted sum of squares at `x`.
+    pub sum_of_squares: f64,
+    /// Weighted Jacobian of the free parameters at `x` (`m × n_free`).
+    pub jacobian: DMatrix<f64>,
+    /// Indices of the free parameters (columns of `jacobian`).
+    pub free: Vec<usize>,
+}
+
+fn enorm(v: &[f64]) -> f64 {
+    v.iter().map(|a| a * a).sum::<f64>().sqrt()
+}
+
+/// QR factorisation with column pivoting (MINPACK `qrfac`). On return `a`
+/// holds R in its upper triangle (diagonal in `rdiag`) and the Householder
+/// vectors below; `ipvt[j]` is the original column of column j; `acnorm` the
+/// original column norms.
+pub(crate) fn qrfac(a: &mut DMatrix<f64>) -> (Vec<usize>, Vec<f64>, Vec<f64>) {
+    let (m, n) = a.shape();
+    let eps = f64::EPSILON;
+    let acnorm: Vec<f64> = (0..n).map(|j| a.column(j).norm()).collect();
+    let mut rdiag = acnorm.clone();
+    let mut wa = acnorm.clone();
+    let mut ipvt: Vec<usize> = (0..n).collect();
+    for j in 0..m.min(n) {
+        let kmax = (j..n).fold(j, |k, i| if rdiag[i] > rdiag[k] { i } else { k });
+        if kmax != j {
+            a.swap_columns(j, kmax);
+            rdiag[kmax] = rdiag[j];
+            wa[kmax] = wa[j];
+            ipvt.swap(j, kmax);
+        }
+        let mut ajnorm = a.view((j, j), (m - j, 1)).norm();
+        if ajnorm != 0.0 {
+            if a[(j, j)] < 0.0 {
+                ajnorm = -ajnorm;
+            }
+            for i in j..m {
+                a[(i, j)] /= ajnorm;
+            }
+            a[(j, j)] += 1.0;
+            for k in j + 1..n {
+                let mut sum = 0.0;
+                for i in j..m {
+                    sum += a[(i, j)] * a[(i, k)];
+                }
+                let temp = sum / a[(j, j)];
+                for i in j..m {
+                    a[(i, k)] -= temp * a[(i, j)];
+                }
+                if rdiag[k] != 0.0 {
+                    let t = a[(j, k)] / rdiag[k];
+                    rdiag[k] *= (1.0 - t * t).max(0.0).sqrt();
+                    if 0.05 * (rdiag[k] / wa[k]).powi(2) <= eps {
+                        rdiag[k] = a.view((j + 1, k), (m - j - 1, 1)).norm();
+                        wa[k] = rdiag[k];
+                    }
+                }
+            }
+        }
+        rdiag[j] = -ajnorm;
+    }
+    (ipvt, rdiag, acnorm)
+}
+
+/// Solve `min ‖(R; D·Pᵀ... )‖` — MINPACK `qrsolv`: given the upper triangle R
+/// of `AP = QR`, the diagonal `diag` and `qtb = Qᵀb`, find `x` minimising
+/// `‖A x − b‖² + ‖D x‖²`. The strict lower triangle of `r` receives S's.
+fn qrsolv(
+    r: &mut DMatrix<f64>,
+    ipvt: &[usize],
+    diag: &[f64],
+    qtb: &[f64],
+    x: &mut [f64],
+    sdiag: &mut [f64],
+) {
+    let n = r.ncols();
+    let mut wa = qtb[..n].to_vec();
+    for j in 0..n {
+        for i in j..n {
+            r[(i, j)] = r[(j, i)];
+        }
+        x[j] = r[(j, j)];
+    }
+    for j in 0..n {
+        let l = ipvt[j];
+        if diag[l] != 0.0 {
+            for s in sdiag.iter_mut().skip(j) {
+                *s = 0.0;
+            }
+            sdiag[j] = diag[l];
+            let mut qtbpj = 0.0;
+            for k in j..n {
+                if sdiag[k] == 0.0 {
+                    continue;
+                }
+                let (sin, cos) = if r[(k, k)].abs() < sdiag[k].abs() {
+                    let cotan = r[(k, k)] / sdiag[k];
+                    let sin = 0.5 / (0.25 + 0.25 * cotan * cotan).sqrt();
+                    (sin, sin * cotan)
+                } else {
+                    let tan = sdiag[k] / r[(k, k)];
+                    let cos = 0.5 / (0.25 + 0.25 * tan * tan).sqrt();
+                    (cos * tan, cos)
+                };
+                r[(k, k)] = cos * r[(k, k)] + sin * sdiag[k];
+                let temp = cos * wa[k] + sin * qtbpj;
+                qtbpj = -sin * wa[k] + cos * qtbpj;
+                wa[k] = temp;
+                for i in k + 1..n {
+                    let temp = cos * r[(i, k)] + sin * sdiag[i];
+                    sdiag[i] = -sin * r[(i, k)] + cos * sdiag[i];
+                    r[(i, k)] = temp;
+                }
+            }
+        }
+        sdiag[j] = r[(j, j)];
+        r[(j, j)] = x[j];
+    }
+    let mut nsing = n;
+    for j in 0..n {
+        if sdiag[j] == 0.0 && nsing == n {
+            nsing = j;
+        }
+        if nsing < n {
+            wa[j] = 0.0;
+        }
+    }
+    for j in (0..nsing).rev() {
+        let mut sum = 0.0;
+        for i in j + 1..nsing {
+            sum += r[(i, j)] * wa[i];
+        }
+        wa[j] = (wa[j] - sum) / sdiag[j];
+    }
+    for j in 0..n {
+        x[ipvt[j]] = wa[j];
+    }
+}
+
+/// The Levenberg–Marquardt parameter (MINPACK `lmpar`): returns `par` and the
+/// step `x` with `‖D x‖ ≈ delta` (or the Gauss–Newton step if shorter).
+fn lmpar(
+    r: &mut DMatrix<f64>,
+    ipvt: &[usize],
+    diag: &[f64],
+    qtb: &[f64],
+    delta: f64,
+    mut par: f64,
+    x: &mut [f64],
+) -> f64 {
+    let n = r.ncols();
+    let dwarf = f64::MIN_POSITIVE;
+    let mut sdiag = vec![0.0; n];
+    let mut wa1 = qtb[..n].to_vec();
+    let mut nsing = n;
+    for j in 0..n {
+        if r[(j, j)] == 0.0 && nsing == n {
+            nsing = j;
+        }
+        if nsing < n {
+            wa1[j] = 0.0;
+        }
+    }
+    for j in (0..nsing).rev() {
+        wa1[j] /= r[(j, j)];
+        let temp = wa1[j];
+        for i in 0..j {
+            wa1[i] -= r[(i, j)] * temp;
+        }
+    }
+    for j in 0..n {
+        x[ipvt[j]] = wa1[j];
+    }
+    let mut wa2: Vec<f64> = (0..n).map(|j| diag[j] * x[j]).collect();
+    let mut dxnorm = enorm(&wa2);
+    let mut fp = dxnorm - delta;
+    if fp <= 0.1 * delta {
+        return 0.0;
+    }
+    let mut parl = 0.0;
+    if nsing == n {
+        for j in 0..n {
+            let l = ipvt[j];
+            wa1[j] = diag[l] * (wa2[l] / dxnorm);
+        }
+        for j in 0..n {
+            let mut sum = 0.0;
+            for i in 0..j {
+                sum += r[(i, j)] * wa1[i];
+            }
+            wa1[j] = (wa1[j] - sum) / r[(j, j)];
+        }
+        let temp = enorm(&wa1);
+        parl = ((fp / delta) / temp) / temp;
+    }
+    for j in 0..n {
+        let mut sum = 0.0;
+        for i in 0..=j {
+            sum += r[(i, j)] * qtb[i];
+        }
+        wa1[j] = sum / diag[ipvt[j]];
+    }
+    let gnorm = enorm(&wa1);
+    let mut paru = gnorm / delta;
+    if paru == 0.0 {
+        paru = dwarf / delta.min(0.1);
+    }
+    par = par.max(parl).min(paru);
+    if par == 0.0 {
+        par = gnorm / dxnorm;
+    }
+    let mut iter = 0;
+    loop {
+        iter += 1;
+        if par == 0.0 {
+            par = dwarf.max(0.001 * paru);
+        }
+        let temp = par.sqrt();
+        for j in 0..n {
+            wa1[j] = temp * diag[j];
+        }
+        qrsolv(r, ipvt, &wa1, qtb, x, &mut sdiag);
+        for j in 0..n {
+            wa2[j] = diag[j] * x[j];
+        }
+        dxnorm = enorm(&wa2);
+        let temp = fp;
+        fp = dxnorm - delta;
+        if fp.abs() <= 0.1 * delta || (parl == 0.0 && fp <= temp && temp < 0.0) || iter == 10 {
+            return par;
+        }
+        for j in 0..n {
+            let l = ipvt[j];
+            wa1[j] = diag[l] * (wa2[l] / dxnorm);
+        }
+        for j in 0..n {
+            wa1[j] /= sdiag[j];
+            let temp = wa1[j];
+            for i in j + 1..n {
+                wa1[i] -= r[(i, j)] * temp;
+            }
+        }
+        let temp = enorm(&wa1);
+        let parc = ((fp / delta) / temp) / temp;
+        if fp > 0.0 {
+            parl = parl.max(par);
+        }
+        if fp < 0.0 {
+            paru = paru.min(par);
+        }
+        par = parl.max(par + parc);
+    }
+}
+
+struct Scaled<'a, P: Problem> {
+    problem: &'a P,
+    x0: Vec<f64>,
+    free: Vec<usize>,
+    weights: Option<&'a [f64]>,
+    lower: Option<&'a [f64]>,
+    upper: Option<&'a [f64]>,
+    evaluations: usize,
+}
+
+impl<P: Problem> Scaled<'_, P> {
+    fn full(&self, xf: &[f64]) -> Vec<f64> {
+        let mut x = self.x0.clone();
+        for (k, &i) in self.free.iter().enumerate() {
+            x[i] = xf[k];
+        }
+        x
+    }
+    fn project(&self, xf: &mut [f64]) {
+        for (k, &i) in self.free.iter().enumerate() {
+            if let Some(l) = self.lower {
+                xf[k] = xf[k].max(l[i]);
+            }
+            if let Some(u) = self.upper {
+                xf[k] = xf[k].min(u[i]);
+            }
+        }
+    }
+    fn eval(
+        &mut self,
+        xf: &[f64],
+        jac: bool,
+    ) -> Result<(DVector<f64>, Option<DMatrix<f64>>), String> {
+        self.evaluations += 1;
+        let (mut r, j) = self.problem.evaluate(&self.full(xf), jac)?;
+        if r.iter().any(|v| !v.is_finite()) {
+            return Err("non-finite residual".into());
+        }
+        let mut j = j.map(|j| j.select_columns(&self.free));
+        if let Some(w) = self.weights {
+            for (i, wi) in w.iter().enumerate() {
+                r[i] *= wi;
+                if let Some(j) = j.as_mut() {
+                    j.row_mut(i).scale_mut(*wi);
+                }
+            }
+        }
+        if let Some(j) = &j
+            && j.iter().any(|v| !v.is_finite())
+        {
+            return Err("non-finite Jacobian".into());
+        }
+        Ok((r, j))
+    }
+}
+
+/// Minimise `Σ (w_i r_i(x))²` over the free parameters, from `x0`.
+pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
+    let n_all = problem.n_params();
+    let free: Vec<usize> = match &opts.free {
+        Some(mask) => (0..n_all).filter(|&i| mask[i]).collect(),
+        None => (0..n_all).collect(),
+    };
+    let mut s = Scaled {
+        problem,
+        x0: x0.to_vec(),
+        free: free.clone(),
+        weights: opts.weights.as_deref(),
+        lower: opts.lower.as_deref(),
+        upper: opts.upper.as_deref(),
+        evaluations: 0,
+    };
+    let n = free.len();
+    let mut x: Vec<f64> = free.iter().map(|&i| x0[i]).collect();
+    s.project(&mut x);
+    let finish = |s: &Scaled<P>, x: &[f64], t: Termination, it, r: DVector<f64>, j| Report {
+        x: s.full(x),
+        termination: t,
+        iterations: it,
+        evaluations: s.evaluations,
+        sum_of_squares: r.norm_squared(),
+        residuals: r,
+        jacobian: j,
+        free: free.clone(),
+    };
+    let (mut fvec, _) = match s.eval(&x, false) {
+        Ok(v) => v,
+        Err(e) => {
+            let m = problem.n_residuals();
+            return finish(
+                &s,
+                &x,
+                Termination::EvaluationFailed(e),
+                0,
+                DVector::zeros(m),
+                DMatrix::zeros(m, n),
+            );
+        }
+    };
+    let m = fvec.len();
+    if n == 0 {
+        return finish(
+            &s,
+            &x,
+            Termination::NothingFree,
+            0,
+            fvec,
+            DMatrix::zeros(m, 0),
+        );
+    }
+    let eps = f64::EPSILON;
+    let mut fnorm = fvec.norm();
+    let mut par = 0.0;
+    let mut delta = 0.0;
+    let mut xnorm = 0.0;
+    let mut diag = vec![0.0; n];
+    let mut iter = 1;
+    let mut wa1 = vec![0.0; n];
+    loop {
+        // Jacobian at x (recomputed with the residuals: one shared solve).
+        let (fv, fjac) = match s.eval(&x, true) {
+            Ok((f, Some(j))) => (f, j),
+            Ok((_, None)) | Err(_) => {
+                return finish(
+                    &s,
+                    &x,
+                    Termination::EvaluationFailed("the Jacobian cannot be evaluated".into()),
+                    iter - 1,
+                    fvec,
+                    DMatrix::zeros(m, n),
+                );
+            }
+        };
+        fvec = fv;
+        let jac_at_x = fjac.clone();
+        let mut fjac = fjac;
+        let (ipvt, rdiag, acnorm) = qrfac(&mut fjac);
+        if iter == 1 {
+            for j in 0..n {
+                diag[j] = if acnorm[j] == 0.0 { 1.0 } else { acnorm[j] };
+            }
+            xnorm = enorm(&(0..n).map(|j| diag[j] * x[j]).collect::<Vec<_>>());
+            delta = opts.factor * xnorm;
+            if delta == 0.0 {
+                delta = opts.factor;
+            }
+        }
+        // Qᵀ f.
+        let mut wa4: Vec<f64> = fvec.iter().copied().collect();
+        for j in 0..m.min(n) {
+            if fjac[(j, j)] != 0.0 {
+                let mut sum = 0.0;
+                for i in j..m {
+                    sum += fjac[(i, j)] * wa4[i];
+                }
+                let temp = -sum / fjac[(j, j)];
+                for i in j..m {
+                    wa4[i] += fjac[(i, j)] * temp;
+                }
+            }
+        }
+        let mut r = DMatrix::zeros(n, n);
+        for j in 0..n {
+            for i in 0..j.min(m) {
+                r[(i, j)] = fjac[(i, j)];
+            }
+            if j < m {
+                r[(j, j)] = rdiag[j];
+            }
+        }
+        let mut qtf = vec![0.0; n];
+        qtf[..m.min(n)].copy_from_slice(&wa4[..m.min(n)]);
+        // Scaled gradient norm.
+        let mut gnorm: f64 = 0.0;
+        if fnorm != 0.0 {
+            for j in 0..n {
+                let l = ipvt[j];
+                if acnorm[l] != 0.0 {
+                    let mut sum = 0.0;
+                    for i in 0..=j {
+                        sum += r[(i, j)] * (qtf[i] / fnorm);
+                    }
+                    gnorm = gnorm.max((sum / acnorm[l]).abs());
+                }
+            }
+        }
+        if gnorm <= opts.gtol {
+            return finish(&s, &x, Termination::SmallGradient, iter - 1, fvec, jac_at_x);
+        }
+        for j in 0..n {
+            diag[j] = diag[j].max(acnorm[j]);
+        }
+        loop {
+            par = lmpar(&mut r, &ipvt, &diag, &qtf, delta, par, &mut wa1);
+            let mut wa2: Vec<f64> = (0..n).map(|j| x[j] - wa1[j]).collect();
+            s.project(&mut wa2);
+            let step: Vec<f64> = (0..n).map(|j| wa2[j] - x[j]).collect();
+            let pnorm = enorm(&(0..n).map(|j| diag[j] * step[j]).collect::<Vec<_>>());
+            if iter == 1 {
+                delta = delta.min(pnorm);
+            }
+            let trial = s.eval(&wa2, false);
+            let (fnorm1, fvec1) = match trial {
+                Ok((f, _)) => (f.norm(), Some(f)),
+                Err(_) => (f64::INFINITY, None),
+            };
+            let actred = if 0.1 * fnorm1 < fnorm {
+                1.0 - (fnorm1 / fnorm).powi(2)
+            } else {
+                -1.0
+            };
+            // Predicted reduction and directional derivative.
+            let mut wa3 = vec![0.0; n];
+            for j in 0..n {
+                let temp = step[ipvt[j]];
+                for i in 0..=j {
+                    wa3[i] += r[(i, j)] * temp;
+                }
+            }
+            let temp1 = enorm(&wa3) / fnorm;
+            let temp2 = par.sqrt() * pnorm / fnorm;
+            let prered = temp1 * temp1 + temp2 * temp2 / 0.5;
+            let dirder = -(temp1 * temp1 + temp2 * temp2);
+            let ratio = if prered != 0.0 { actred / prered } else { 0.0 };
+            if ratio <= 0.25 {
+                let mut temp = if actred >= 0.0 {
+                    0.5
+                } else {
+                    0.5 * dirder / (dirder + 0.5 * actred)
+                };
+                if 0.1 * fnorm1 >= fnorm || temp < 0.1 {
+                    temp = 0.1;
+                }
+                delta = temp * delta.min(pnorm / 0.1);
+                par /= temp;
+            } else if par == 0.0 || ratio >= 0.75 {
+                delta = pnorm / 0.5;
+                par *= 0.5;
+            }
+            if ratio >= 1e-4 {
+                x = wa2;
+                xnorm = enorm(&(0..n).map(|j| diag[j] * x[j]).collect::<Vec<_>>());
+                fvec = fvec1.expect("accepted steps were evaluated");
+                fnorm = fnorm1;
+                iter += 1;
+            }
+            let small_red = actred.abs() <= opts.ftol && prered <= opts.ftol && 0.5 * ratio <= 1.0;
+            let small_step = delta <= opts.xtol * xnorm;
+            let done = match (small_red, small_step) {
+                (true, true) => Some(Termination::SmallReductionAndStep),
+                (true, false) => Some(Termination::SmallReduction),
+                (false, true) => Some(Termination::SmallStep),
+                _ if s.evaluations >= opts.max_evaluations => Some(Termination::MaxEvaluations),
+                _ if (actred.abs() <= eps && prered <= eps && 0.5 * ratio <= 1.0)
+                    || delta <= eps * xnorm
+                    || gnorm <= eps =>
+                {
+                    Some(Termination::MachinePrecision)
+                }
+                _ => None,
+            };
+            if let Some(t) = done {
+                // Report the Jacobian at the final point.
+                let j = match s.eval(&x, true) {
+                    Ok((_, Some(j))) => j,
+                    _ => jac_at_x,
+                };
+                s.evaluations -= 1;
+                return finish(&s, &x, t, iter - 1, fvec, j);
+            }
+            if ratio >= 1e-4 {
+                break;
+            }
+        }
+    }
+}
+
+/// Covariance factor `(JᵀJ)⁻¹` of the free parameters from the weighted
+/// Jacobian, by QR with column pivoting (MINPACK `covar`): columns whose
+/// pivot falls below `tol·|R₁₁|` are rank-deficient and get zero rows and
+/// columns. Returns the matrix and the numerical rank.
+pub fn covariance(jacobian: &DMatrix<f64>, tol: f64) -> (DMatrix<f64>, usize) {
+    let n = jacobian.ncols();
+    let mut a = jacobian.clone();
+    let (ipvt, rdiag, _) = qrfac(&mut a);
+    let mut r = DMatrix::zeros(n, n);
+    for j in 0..n {
+        for i in 0..j.min(a.nrows()) {
+            r[(i, j)] = a[(i, j)];
+        }
+        if j < a.nrows() {
+            r[(j, j)] = rdiag[j];
+        }
+    }
+    let r11 = r.get((0, 0)).map_or(0.0, |v| v.abs());
+    let rank = (0..n).take_while(|&j| r[(j, j)].abs() > tol * r11).count();
+    let mut cov = DMatrix::zeros(n, n);
+    if rank > 0 {
+        let rr = r.view((0, 0), (rank, rank)).into_owned();
+        if let Some(rinv) = rr.solve_upper_triangular(&DMatrix::identity(rank, rank)) {
+            let c = &rinv * rinv.transpose();
+            for a in 0..rank {
+                for b in 0..rank {
+                    cov[(ipvt[a], ipvt[b])] = c[(a, b)];
+                }
+            }
+        }
+    }
+    (cov, rank)
+}

@@ -1,0 +1,85 @@
+//! The least-squares solver on the NIST StRD nonlinear regression problems
+//! (certified values): from the second start every problem to ≥ 6 significant
+//! digits of the parameters and of the residual sum of squares; from the first
+//! start at least 25 of 27; certified standard deviations to 3 digits.
+
+mod nist;
+
+use pkmcal::lm::{Options, covariance, minimize};
+
+/// Correct significant digits required of parameters and RSS.
+const DIGITS: f64 = 6.0;
+/// Correct significant digits required of the standard deviations.
+const SD_DIGITS: f64 = 3.0;
+/// Problems that must pass from the first (harder) start.
+const FIRST_START_PASSES: usize = 25;
+/// Rank tolerance of the covariance.
+const RANK_TOL: f64 = 1e-14;
+
+struct Outcome {
+    params: f64,
+    rss: f64,
+    sd: f64,
+    reason: String,
+}
+
+fn solve(p: &nist::Nist, start: usize) -> Outcome {
+    let rep = minimize(p, &p.starts[start], &Options::default());
+    let params = rep
+        .x
+        .iter()
+        .zip(&p.certified)
+        .map(|(a, b)| nist::lre(*a, *b))
+        .fold(f64::INFINITY, f64::min);
+    let rss = nist::lre(rep.sum_of_squares, p.rss);
+    let (cov, _) = covariance(&rep.jacobian, RANK_TOL);
+    let dof = (p.data.len() - p.certified.len()) as f64;
+    let s2 = rep.sum_of_squares / dof;
+    let sd = (0..p.certified.len())
+        .map(|k| nist::lre((cov[(k, k)] * s2).sqrt(), p.std_dev[k]))
+        .fold(f64::INFINITY, f64::min);
+    Outcome {
+        params,
+        rss,
+        sd,
+        reason: rep.termination.reason(),
+    }
+}
+
+#[test]
+fn nist_strd_certified_values() {
+    let mut report = String::new();
+    let mut first_passes = 0;
+    let mut failures = vec![];
+    for name in nist::NAMES {
+        let p = nist::load(name);
+        for start in [1, 0] {
+            let o = solve(&p, start);
+            let pass = o.params >= DIGITS && o.rss >= DIGITS;
+            report.push_str(&format!(
+                "{name:<9} start {} params {:5.1} rss {:5.1} sd {:5.1} {}\n",
+                start + 1,
+                o.params,
+                o.rss,
+                o.sd,
+                o.reason
+            ));
+            if start == 1 {
+                if !pass {
+                    failures.push(format!("{name} from start 2: {o:?}", o = (o.params, o.rss)));
+                }
+                if o.sd < SD_DIGITS {
+                    failures.push(format!("{name} standard deviations: {:.1} digits", o.sd));
+                }
+            } else if pass {
+                first_passes += 1;
+            }
+        }
+    }
+    println!("{report}");
+    assert!(failures.is_empty(), "{failures:#?}\n{report}");
+    assert!(
+        first_passes >= FIRST_START_PASSES,
+        "only {first_passes} of 27 from the first start\n{report}"
+    );
+}
