@@ -1,52 +1,15 @@
 //! End-to-end tests of the command-line tool.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod common;
 
-const BIN: &str = env!("CARGO_BIN_EXE_pkmcal");
 /// Agreement of predict with simulate on noise-free data (mm).
 const SAME_MM: f64 = 1e-9;
 
-pub fn run(dir: &Path, args: &[&str]) -> Output {
-    Command::new(BIN)
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("pkmcal runs")
-}
-
-pub fn ok(dir: &Path, args: &[&str]) -> String {
-    let o = run(dir, args);
-    assert!(
-        o.status.success(),
-        "pkmcal {args:?} failed: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
-pub fn fails(dir: &Path, args: &[&str], code: i32, needle: &str) {
-    let o = run(dir, args);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(code), "pkmcal {args:?}: {err}");
-    assert!(
-        err.contains(needle),
-        "pkmcal {args:?}: `{needle}` not in: {err}"
-    );
-}
+use common::{fails, ok, read_csv, run};
+use std::path::{Path, PathBuf};
 
 fn example_mechanism() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/jeong-kim-2dof/mechanism.toml")
-}
-
-pub fn read_csv(path: &Path) -> (Vec<String>, Vec<Vec<f64>>) {
-    let text = std::fs::read_to_string(path).unwrap();
-    let mut lines = text.lines();
-    let header = lines.next().unwrap().split(',').map(String::from).collect();
-    let rows = lines
-        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
-        .collect();
-    (header, rows)
 }
 
 #[test]

@@ -107,37 +107,38 @@ pub fn output_hessians<M: Mechanism>(
     rows: Range<usize>,
     cols: Range<usize>,
 ) -> Vec<DMatrix<f64>> {
-    match rows.len().max(cols.len()) {
-        0..=3 => hessians_chunked::<M, 3>(mech, q, rho, rows, cols),
-        4..=6 => hessians_chunked::<M, 6>(mech, q, rho, rows, cols),
-        _ => hessians_chunked::<M, 8>(mech, q, rho, rows, cols),
+    // Small blocks: large hyper-dual numbers cost more to copy than the
+    // extra passes (measured: one 6×24 pass is slower than three 8×8 ones).
+    match (rows.len(), cols.len()) {
+        (0..=6, 0..=6) => hessians_chunked::<M, 6, 6>(mech, q, rho, rows, cols),
+        _ => hessians_chunked::<M, 8, 8>(mech, q, rho, rows, cols),
     }
 }
 
-fn hessians_chunked<M: Mechanism, const C: usize>(
+fn hessians_chunked<M: Mechanism, const R: usize, const C: usize>(
     mech: &M,
     q: &[f64],
     rho: &[f64],
     rows: Range<usize>,
     cols: Range<usize>,
 ) -> Vec<DMatrix<f64>> {
-    type H<const C: usize> = HyperDualSVec64<C, C>;
+    type H<const R: usize, const C: usize> = HyperDualSVec64<R, C>;
     let spec = mech.spec();
     let (m, nx) = (spec.n_constraints, spec.tool_axes.len());
     let v0: Vec<f64> = q.iter().chain(rho).copied().collect();
     let mut out = vec![DMatrix::zeros(rows.len(), cols.len()); m + nx];
-    let mut g = vec![H::<C>::from_re(0.0); m];
-    let mut x = vec![H::<C>::from_re(0.0); nx];
-    let mut v: Vec<H<C>> = Vec::with_capacity(v0.len());
+    let mut g = vec![H::<R, C>::from_re(0.0); m];
+    let mut x = vec![H::<R, C>::from_re(0.0); nx];
+    let mut v: Vec<H<R, C>> = Vec::with_capacity(v0.len());
     let mut r0 = rows.start;
     while r0 < rows.end {
-        let r1 = (r0 + C).min(rows.end);
+        let r1 = (r0 + R).min(rows.end);
         let mut c0 = cols.start;
         while c0 < cols.end {
             let c1 = (c0 + C).min(cols.end);
             v.clear();
             v.extend(v0.iter().enumerate().map(|(i, &a)| {
-                let mut d = H::<C>::from_re(a);
+                let mut d = H::<R, C>::from_re(a);
                 if (r0..r1).contains(&i) {
                     d = d.derivative1(i - r0);
                 }
@@ -148,7 +149,7 @@ fn hessians_chunked<M: Mechanism, const C: usize>(
             }));
             eval(mech, &v, &mut g, &mut x);
             for (o, y) in out.iter_mut().zip(g.iter().chain(&x)) {
-                let block = y.eps1eps2.unwrap_generic(Const::<C>, Const::<C>);
+                let block = y.eps1eps2.unwrap_generic(Const::<R>, Const::<C>);
                 for i in 0..r1 - r0 {
                     for j in 0..c1 - c0 {
                         o[(r0 - rows.start + i, c0 - cols.start + j)] = block[(i, j)];

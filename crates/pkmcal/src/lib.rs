@@ -34,6 +34,7 @@
 //! ```
 
 pub mod autodiff;
+pub mod calibration;
 pub mod error;
 pub mod kinematics;
 pub mod linearized;
@@ -41,10 +42,15 @@ pub mod lm;
 pub mod mechanism;
 pub mod models;
 pub mod reference;
+pub mod sensitivity;
 pub mod simulate;
 pub mod stats;
 pub mod workspace;
 
+pub use calibration::{
+    Accuracy, Calibration, CalibrationOptions, Identifiability, accuracy, analyze, calibrate,
+    cross_validate, holdout_split, predict_with_uncertainty,
+};
 pub use error::{Error, Result};
 pub use kinematics::{
     forward_kinematics, inverse_kinematics, reference_configuration, solve_closure,
@@ -57,4 +63,6 @@ pub use models::{
 pub use reference::JeongKim2Dof;
 pub use simulate::{Measurement, simulate};
 pub use stats::{ErrorStats, error_stats, improvement_percent};
-pub use workspace::{WorkspacePoint, nominal_commands, sample_workspace, spread_targets};
+pub use workspace::{
+    WorkspacePoint, nominal_commands, random_targets, sample_workspace, spread_targets,
+};

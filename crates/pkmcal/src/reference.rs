@@ -320,22 +320,22 @@ impl JeongKim2Dof {
 /// demo, tests and benchmarks. Sub-millimetre length errors, milliradian
 /// encoder offsets.
 pub const DEMO_ERRORS: [(&str, f64); 16] = [
-    ("l11", 0.40),
-    ("l12", -0.30),
-    ("l21", 0.25),
-    ("l22", 0.35),
-    ("l31", -0.28),
-    ("B2y", 0.33),
-    ("B3x", -0.45),
-    ("B3y", 0.40),
-    ("D1", 0.17),
-    ("D2", -0.22),
-    ("D3", 0.20),
-    ("Ptx", 0.28),
-    ("Pty", -0.22),
-    ("dq1", 1.1e-3),
-    ("dq2", -0.9e-3),
-    ("dq3", 1.35e-3),
+    ("l11", 0.42),
+    ("l12", -0.32),
+    ("l21", 0.26),
+    ("l22", 0.37),
+    ("l31", -0.29),
+    ("B2y", 0.35),
+    ("B3x", -0.47),
+    ("B3y", 0.42),
+    ("D1", 0.18),
+    ("D2", -0.23),
+    ("D3", 0.21),
+    ("Ptx", 0.29),
+    ("Pty", -0.23),
+    ("dq1", 1.15e-3),
+    ("dq2", -0.95e-3),
+    ("dq3", 1.42e-3),
 ];
 
 /// The demo's true parameters: nominal plus [`DEMO_ERRORS`].

@@ -143,3 +143,19 @@ pub fn nominal_commands<M: Mechanism>(mech: &M, target: &[f64]) -> Result<Vec<f6
     let q = inverse_kinematics(mech, nominal.geometric(), target)?;
     Ok(spec.actuated.iter().map(|&j| q[j]).collect())
 }
+
+/// `count` distinct usable targets drawn at random (seeded) from a 5 mm
+/// lattice of the usable workspace: unseen poses for validation.
+pub fn random_targets<M: Mechanism>(mech: &M, count: usize, seed: u64) -> Result<Vec<Vec<f64>>> {
+    use rand::SeedableRng;
+    use rand::seq::SliceRandom;
+    let mut pool = sample_workspace(mech, 5.0);
+    if pool.len() < count {
+        return Err(Error::InvalidRequest(format!(
+            "only {} usable workspace points for {count} random targets",
+            pool.len()
+        )));
+    }
+    pool.shuffle(&mut rand::rngs::StdRng::seed_from_u64(seed));
+    Ok(pool.into_iter().take(count).map(|p| p.target).collect())
+}

@@ -1,0 +1,417 @@
+//! `calibrate` and `analyze`: read data, identify, validate, report.
+
+use crate::io::{Csv, Mech, parse_list, read_mechanism, read_params, write_atomic};
+use anyhow::{Context, Result, bail};
+use pkmcal::calibration::{CrossValidation, Identifiability};
+use pkmcal::{
+    Accuracy, Calibration, CalibrationOptions, ErrorStats, Measurement, Mechanism, Model, Params,
+    accuracy, analyze, calibrate, cross_validate, holdout_split,
+};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+
+/// Read a measurement file: commands and measured tool coordinates, optional
+/// targets.
+pub fn read_data(path: &Path, mech: &Mech) -> Result<Vec<Measurement>> {
+    let spec = mech.spec();
+    let csv = Csv::read(path)?;
+    csv.require_rows()?;
+    let act: Vec<String> = spec
+        .actuated_names()
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    let commands = csv.named(&act)?;
+    let measured = csv.named(&spec.tool_axes)?;
+    let target_names: Vec<String> = spec
+        .tool_axes
+        .iter()
+        .map(|a| format!("target_{a}"))
+        .collect();
+    let has_targets = target_names.iter().all(|n| csv.headers.contains(n));
+    let targets = if has_targets {
+        Some(csv.named(&target_names)?)
+    } else {
+        None
+    };
+    Ok(commands
+        .into_iter()
+        .zip(measured)
+        .enumerate()
+        .map(|(i, (c, m))| Measurement {
+            target: targets.as_ref().map(|t| t[i].clone()),
+            commands: c,
+            measured: m,
+        })
+        .collect())
+}
+
+/// Resolve `--free` / `--fix` lists into parameter indices.
+pub fn free_set(mech: &Mech, free: Option<&str>, fix: Option<&str>) -> Result<Vec<usize>> {
+    let spec = mech.spec();
+    let names = |s: &str| -> Vec<String> {
+        s.split(',')
+            .map(|t| t.trim().to_string())
+            .filter(|t| !t.is_empty())
+            .collect()
+    };
+    let mut set: Vec<usize> = match free {
+        None => spec
+            .default_free
+            .iter()
+            .map(|n| spec.param_index(n))
+            .collect::<pkmcal::Result<_>>()?,
+        Some(list) => {
+            let mut out = vec![];
+            for n in names(list) {
+                match n.as_str() {
+                    "all" => out.extend(0..spec.n_params()),
+                    "default" | "paper" => {
+                        for d in &spec.default_free {
+                            out.push(spec.param_index(d)?);
+                        }
+                    }
+                    _ => out.push(spec.param_index(&n).context("in --free")?),
+                }
+            }
+            out
+        }
+    };
+    if let Some(list) = fix {
+        for n in names(list) {
+            let i = spec.param_index(&n).context("in --fix")?;
+            set.retain(|&k| k != i);
+        }
+    }
+    set.sort_unstable();
+    set.dedup();
+    if set.is_empty() {
+        bail!("no parameter is left free; name some with --free");
+    }
+    Ok(set)
+}
+
+/// Validation results in the report.
+#[derive(Serialize)]
+pub struct Validation {
+    /// Where the validation poses came from.
+    pub source: String,
+    /// Before/after on the validation poses.
+    pub accuracy: Accuracy,
+}
+
+/// The JSON report of `calibrate`.
+#[derive(Serialize)]
+pub struct Report<'a> {
+    pub pkmcal_version: &'static str,
+    pub mechanism: String,
+    pub data: String,
+    #[serde(flatten)]
+    pub calibration: &'a Calibration,
+    pub accuracy: Accuracy,
+    pub validation: Option<Validation>,
+    pub cross_validation: Option<CrossValidation>,
+}
+
+/// Arguments of `calibrate`, already parsed by clap.
+pub struct CalibrateConfig {
+    pub mechanism: Option<PathBuf>,
+    pub data: PathBuf,
+    pub model: Model,
+    pub free: Option<String>,
+    pub fix: Option<String>,
+    pub start: Option<PathBuf>,
+    pub force: Option<String>,
+    pub out: PathBuf,
+    pub report: Option<PathBuf>,
+    pub validate: Option<PathBuf>,
+    pub holdout: Option<f64>,
+    pub seed: u64,
+    pub kfold: Option<usize>,
+}
+
+fn force_arg(mech: &Mech, s: Option<&str>) -> Result<Vec<f64>> {
+    let Some(s) = s else { return Ok(vec![]) };
+    let f = parse_list(s, "--force")?;
+    if f.len() != mech.spec().tool_axes.len() {
+        bail!(
+            "--force needs {} values, got {}",
+            mech.spec().tool_axes.len(),
+            f.len()
+        );
+    }
+    Ok(f)
+}
+
+pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
+    let mech = read_mechanism(c.mechanism.as_deref())?;
+    let spec = mech.spec();
+    let all = read_data(&c.data, &mech)?;
+    let start = match &c.start {
+        Some(p) => read_params(p, spec)?,
+        None => Params::nominal(spec),
+    };
+    let mut opts = CalibrationOptions::new(spec, c.model);
+    opts.free = free_set(&mech, c.free.as_deref(), c.fix.as_deref())?;
+    opts.force = force_arg(&mech, c.force.as_deref())?;
+    let (train, held): (Vec<Measurement>, Option<(String, Vec<Measurement>)>) =
+        match (&c.validate, c.holdout) {
+            (Some(_), Some(_)) => bail!("give either --validate FILE or --holdout F, not both"),
+            (Some(v), None) => (
+                all.clone(),
+                Some((v.display().to_string(), read_data(v, &mech)?)),
+            ),
+            (None, Some(f)) => {
+                let (tr, he) = holdout_split(all.len(), f, c.seed)?;
+                (
+                    tr.iter().map(|&i| all[i].clone()).collect(),
+                    Some((
+                        format!(
+                            "{} held-out poses of {} (seed {})",
+                            he.len(),
+                            c.data.display(),
+                            c.seed
+                        ),
+                        he.iter().map(|&i| all[i].clone()).collect(),
+                    )),
+                )
+            }
+            (None, None) => (all.clone(), None),
+        };
+    let cal = calibrate(&mech, &train, &start, &opts)
+        .with_context(|| format!("calibrating from {}", c.data.display()))?;
+    let (acc, _, _) = accuracy(&mech, &train, &cal.params, c.model, &opts.force)?;
+    let validation = match &held {
+        Some((source, data)) => Some(Validation {
+            source: source.clone(),
+            accuracy: accuracy(&mech, data, &cal.params, c.model, &opts.force)?.0,
+        }),
+        None => None,
+    };
+    let cross_validation = match c.kfold {
+        Some(k) => Some(cross_validate(&mech, &train, &start, &opts, k, c.seed)?),
+        None => None,
+    };
+    let header = format!(
+        "pkmcal {} calibration ({} model) of {} from {}\nsolver: {}",
+        env!("CARGO_PKG_VERSION"),
+        c.model.name(),
+        spec.name,
+        c.data.display(),
+        cal.termination_reason
+    );
+    let params_text = crate::io::params_to_string(spec, &cal.params, &header);
+    let report = Report {
+        pkmcal_version: env!("CARGO_PKG_VERSION"),
+        mechanism: spec.name.clone(),
+        data: c.data.display().to_string(),
+        calibration: &cal,
+        accuracy: acc,
+        validation,
+        cross_validation,
+    };
+    let json = serde_json::to_string_pretty(&report)?;
+    // Write everything only after every computation succeeded.
+    write_atomic(&c.out, params_text.as_bytes())?;
+    if let Some(r) = &c.report {
+        write_atomic(r, json.as_bytes())?;
+    }
+    print_summary(&report);
+    println!();
+    println!("identified parameters -> {}", c.out.display());
+    if let Some(r) = &c.report {
+        println!("report -> {}", r.display());
+    }
+    Ok(())
+}
+
+pub fn print_stats_header() {
+    println!(
+        "  {:<24} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
+        "errors (mm)", "Xmin", "Xmax", "Ymin", "Ymax", "dmin", "dmean", "drms", "dmax"
+    );
+}
+
+pub fn print_stats(label: &str, s: &ErrorStats) {
+    let ax = |k: usize| (s.axis_min.get(k).copied(), s.axis_max.get(k).copied());
+    let (x0, x1) = ax(0);
+    let (y0, y1) = ax(1);
+    println!(
+        "  {label:<24} {:>8.4} {:>8.4} {:>8.4} {:>8.4} {:>8.4} {:>8.4} {:>8.4} {:>8.4}",
+        x0.unwrap_or(f64::NAN),
+        x1.unwrap_or(f64::NAN),
+        y0.unwrap_or(f64::NAN),
+        y1.unwrap_or(f64::NAN),
+        s.distance_min,
+        s.distance_mean,
+        s.distance_rms,
+        s.distance_max
+    );
+}
+
+pub fn print_identifiability(id: &Identifiability) {
+    println!(
+        "identifiability: rank {} of {} free, condition number {:.3e}",
+        id.rank,
+        id.singular_values.len(),
+        id.condition_number
+    );
+    let o = &id.observability;
+    println!(
+        "  observability O1 {:.4e}  O2 {:.4e}  O3 {:.4e}  O4 {:.4e}  O5 {:.4e}",
+        o.o1, o.o2, o.o3, o.o4, o.o5
+    );
+    for u in &id.unidentifiable {
+        match &u.fixed {
+            Some(f) => println!("  unidentifiable: {}  -> fixed {f}", u.combination),
+            None => println!("  unidentifiable: {}", u.combination),
+        }
+    }
+    for c in &id.correlations {
+        println!("  correlated: {} and {} (r = {:+.3})", c.a, c.b, c.r);
+    }
+}
+
+fn print_summary(r: &Report) {
+    let cal = r.calibration;
+    println!(
+        "calibration of {} from {} ({} poses, {} model)",
+        r.mechanism,
+        r.data,
+        cal.poses,
+        cal.model.name()
+    );
+    println!(
+        "{} after {} iterations ({} evaluations); residual σ {:.3e} mm",
+        cal.termination_reason, cal.iterations, cal.evaluations, cal.residual_sigma
+    );
+    println!();
+    println!(
+        "  {:<6} {:>14} {:>16} {:>14} {:>12} {:<8}",
+        "param", "nominal", "identified", "change", "±σ", "unit"
+    );
+    for p in &cal.parameters {
+        if p.free || p.note.is_some() {
+            println!(
+                "  {:<6} {:>14.6} {:>16.8} {:>+14.6e} {:>12.3e} {:<8}{}",
+                p.name,
+                p.nominal,
+                p.identified,
+                p.change,
+                p.std_dev,
+                p.unit,
+                p.note
+                    .as_deref()
+                    .map(|n| format!(" ({n})"))
+                    .unwrap_or_default()
+            );
+        }
+    }
+    let fixed: Vec<&str> = cal
+        .parameters
+        .iter()
+        .filter(|p| !p.free && p.note.is_none())
+        .map(|p| p.name.as_str())
+        .collect();
+    println!("  fixed: {}", fixed.join(" "));
+    println!();
+    print_identifiability(&cal.identifiability);
+    for c in &cal.correlations {
+        println!(
+            "  correlated at the solution: {} and {} (r = {:+.3})",
+            c.a, c.b, c.r
+        );
+    }
+    println!();
+    print_stats_header();
+    print_stats("calibration, before", &r.accuracy.before);
+    print_stats("calibration, after", &r.accuracy.after);
+    println!(
+        "  improvement: max {:.1} %, RMS {:.1} %",
+        r.accuracy.improvement_max_percent, r.accuracy.improvement_rms_percent
+    );
+    if let Some(v) = &r.validation {
+        println!("  validation: {}", v.source);
+        print_stats("validation, before", &v.accuracy.before);
+        print_stats("validation, after", &v.accuracy.after);
+        println!(
+            "  improvement: max {:.1} %, RMS {:.1} %",
+            v.accuracy.improvement_max_percent, v.accuracy.improvement_rms_percent
+        );
+    }
+    if let Some(cv) = &r.cross_validation {
+        println!(
+            "  {}-fold cross-validation: held-out RMS per fold {}",
+            cv.folds,
+            cv.fold_rms
+                .iter()
+                .map(|v| format!("{v:.4}"))
+                .collect::<Vec<_>>()
+                .join(" ")
+        );
+        print_stats("cross-validation pooled", &cv.pooled);
+    }
+    for w in &cal.warnings {
+        println!("warning: {}\n  hint: {}", w.message, w.hint);
+    }
+}
+
+pub struct AnalyzeConfig {
+    pub mechanism: Option<PathBuf>,
+    pub data: PathBuf,
+    pub model: Model,
+    pub free: Option<String>,
+    pub fix: Option<String>,
+    pub params: Option<PathBuf>,
+    pub force: Option<String>,
+    pub report: Option<PathBuf>,
+}
+
+pub fn run_analyze(c: AnalyzeConfig) -> Result<()> {
+    let mech = read_mechanism(c.mechanism.as_deref())?;
+    let spec = mech.spec();
+    let data = read_data(&c.data, &mech)?;
+    let params = match &c.params {
+        Some(p) => read_params(p, spec)?,
+        None => Params::nominal(spec),
+    };
+    let free = free_set(&mech, c.free.as_deref(), c.fix.as_deref())?;
+    let force = force_arg(&mech, c.force.as_deref())?;
+    let id = analyze(&mech, &data, &params, c.model, &free, &force)
+        .with_context(|| format!("analysing {}", c.data.display()))?;
+    if let Some(r) = &c.report {
+        write_atomic(r, serde_json::to_string_pretty(&id)?.as_bytes())?;
+    }
+    println!(
+        "identifiability of {} free parameters from {} poses of {} ({} model)",
+        free.len(),
+        data.len(),
+        c.data.display(),
+        c.model.name()
+    );
+    println!(
+        "  free: {}",
+        free.iter()
+            .map(|&i| spec.param_names()[i])
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    print_identifiability(&id);
+    println!(
+        "  singular values (column-scaled): {}",
+        id.singular_values
+            .iter()
+            .map(|s| format!("{s:.3e}"))
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    if id.unidentifiable.is_empty() {
+        println!("all {} free parameters are identifiable", free.len());
+    } else {
+        println!(
+            "{} direction(s) cannot be identified; calibrate fixes one parameter per direction (or use --fix)",
+            id.unidentifiable.len()
+        );
+    }
+    Ok(())
+}

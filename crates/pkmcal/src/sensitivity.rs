@@ -1,0 +1,219 @@
+//! Exact derivatives of the predicted tool position with respect to every
+//! parameter (`[ρ, Δq, k]`), for each forward model: the identification
+//! Jacobian of eq. 12, by implicit differentiation of the loop closure and of
+//! the equilibrium (never finite differences around a nested solve).
+
+use crate::autodiff::{jacobians, output_hessians};
+use crate::error::{Error, Result};
+use crate::kinematics::solve_square;
+use crate::linearized::{MM_TO_M, linearize, load_vector};
+use crate::mechanism::{Mechanism, Params};
+use crate::models::{Model, Pose, Prediction, independent_actuators, predict_pose};
+use nalgebra::{DMatrix, DVector};
+
+/// A prediction with its derivatives.
+#[derive(Debug, Clone)]
+pub struct Sensitivity {
+    /// The prediction itself.
+    pub prediction: Prediction,
+    /// `∂x/∂p`: tool coordinates per parameter (nx × n_params), mm per unit.
+    pub jacobian: DMatrix<f64>,
+}
+
+/// Prediction of `pose` under `params` with `model`, and `∂x/∂p` for every
+/// parameter (`[ρ, Δq, k]`).
+///
+/// * rigid: `x = x(q(q_u, ρ), ρ)` with `q_u = c_u + Δq_u`: loop-closure
+///   sensitivities (eq. 5) at the actual configuration;
+/// * linear: `q_u = c_u + dq_u(Δq, ρ, k)` from eq. 11, whose derivatives are
+///   linear in Δq and ρ and rational in k (`∂Λ/∂k_j` analytic), then the
+///   loop-closure sensitivities at the actual configuration;
+/// * exact: implicit differentiation of the KKT system of [`equilibrium`]
+///   with fresh second derivatives at the solution: `dz/dp = −F_z⁻¹ F_p`.
+pub fn sensitivity<M: Mechanism>(
+    mech: &M,
+    pose: &Pose,
+    params: &Params,
+    model: Model,
+    force: &[f64],
+) -> Result<Sensitivity> {
+    let spec = mech.spec();
+    let ng = spec.n_geometric();
+    let nx = spec.tool_axes.len();
+    let np = spec.n_params();
+    let rho = params.geometric();
+    let force: Vec<f64> = if force.is_empty() {
+        vec![0.0; nx]
+    } else {
+        force.to_vec()
+    };
+    let ind = independent_actuators(spec);
+    let mut jac = DMatrix::zeros(nx, np);
+    match model {
+        Model::Rigid | Model::Linear => {
+            let prediction = predict_pose(mech, pose, params, model, &force)?;
+            let lin = linearize(mech, &prediction.q, rho, &spec.independent)?;
+            // ∂x/∂ρ at fixed independent joints.
+            jac.columns_mut(0, ng).copy_from(&lin.jx_rho);
+            // ∂q_u/∂p, then through J_f.
+            let mut dqu = DMatrix::zeros(spec.dof(), np);
+            if model == Model::Rigid {
+                for (k, &a) in ind.iter().enumerate() {
+                    dqu[(k, ng + a)] = 1.0;
+                }
+            } else {
+                dqu = linear_qu_derivatives(mech, pose, params, &force)?;
+            }
+            jac += &lin.jf * dqu;
+            Ok(Sensitivity {
+                prediction,
+                jacobian: jac,
+            })
+        }
+        Model::Exact => {
+            let prediction = predict_pose(mech, pose, params, model, &force)?;
+            exact_sensitivity(mech, params, &pose.commands, &force, prediction)
+        }
+    }
+}
+
+/// `∂q_u/∂p` of the linear model (eq. 11 rows of the independent joints).
+fn linear_qu_derivatives<M: Mechanism>(
+    mech: &M,
+    pose: &Pose,
+    params: &Params,
+    force: &[f64],
+) -> Result<DMatrix<f64>> {
+    let spec = mech.spec();
+    let (ng, na) = (spec.n_geometric(), spec.n_actuated());
+    let np = spec.n_params();
+    let ind = independent_actuators(spec);
+    let lin = &pose.lin;
+    let k = params.stiffness();
+    let kd = DMatrix::from_diagonal(&DVector::from_column_slice(k));
+    let gamma = &lin.gamma;
+    let m = (gamma.transpose() * &kd * gamma)
+        .try_inverse()
+        .ok_or_else(|| Error::Singular {
+            q: pose.nominal_q.clone(),
+            reason: "ΓᵀKΓ is singular".into(),
+        })?;
+    let lambda = gamma * &m * gamma.transpose() * &kd;
+    let eye = DMatrix::<f64>::identity(na, na);
+    let ih = (&eye - &lambda) * &lin.h;
+    let nominal = &spec.nominal[..ng];
+    let offsets: DVector<f64> = DVector::from_iterator(
+        na,
+        spec.actuated
+            .iter()
+            .enumerate()
+            .map(|(a, &j)| params.offsets()[a] + pose.commands[a] - pose.nominal_q[j]),
+    );
+    let drho = DVector::from_iterator(
+        ng,
+        params.geometric().iter().zip(nominal).map(|(a, b)| a - b),
+    );
+    let p = load_vector(lin, force);
+    let mut d = DMatrix::zeros(spec.dof(), np);
+    let v = &offsets - &lin.h * &drho;
+    for (r, &a) in ind.iter().enumerate() {
+        for c in 0..ng {
+            d[(r, c)] = ih[(a, c)];
+        }
+        for c in 0..na {
+            d[(r, ng + c)] = lambda[(a, c)];
+        }
+    }
+    for j in 0..na {
+        // ∂M/∂k_j = −M Γᵀ E_j Γ M;  ∂Λ/∂k_j = Γ ∂M ΓᵀK + Γ M Γᵀ E_j.
+        let gj = gamma.row(j).transpose();
+        let dm = -(&m * &gj * gj.transpose() * &m);
+        let mut ej = DMatrix::zeros(na, na);
+        ej[(j, j)] = 1.0;
+        let dl = gamma * &dm * gamma.transpose() * &kd + gamma * &m * gamma.transpose() * ej;
+        let ddq = &dl * &v - gamma * (&dm * &p);
+        for (r, &a) in ind.iter().enumerate() {
+            d[(r, ng + na + j)] = ddq[a];
+        }
+    }
+    Ok(d)
+}
+
+/// Implicit differentiation of the KKT conditions of the equilibrium at its
+/// solution `prediction.q` (exact model).
+fn exact_sensitivity<M: Mechanism>(
+    mech: &M,
+    params: &Params,
+    commands: &[f64],
+    force: &[f64],
+    prediction: Prediction,
+) -> Result<Sensitivity> {
+    let spec = mech.spec();
+    let (ng, na) = (spec.n_geometric(), spec.n_actuated());
+    let nq = spec.joints.len();
+    let m = spec.n_constraints;
+    let nx = spec.tool_axes.len();
+    let np = spec.n_params();
+    let rho = params.geometric();
+    let k = params.stiffness();
+    let q = &prediction.q;
+    let w: Vec<f64> = force.iter().map(|f| -f * MM_TO_M).collect();
+    let j = jacobians(mech, q, rho, 0..nq + ng);
+    let hess = output_hessians(mech, q, rho, 0..nq, 0..nq + ng);
+    // Multipliers from stationarity: Gqᵀλ = Sᵀτ − Xqᵀw (least squares).
+    let gq = j.dg.columns(0, nq).into_owned();
+    let xq = j.dx.columns(0, nq).into_owned();
+    let mut rhs = -(xq.transpose() * DVector::from_column_slice(&w));
+    for (a, &jt) in spec.actuated.iter().enumerate() {
+        rhs[jt] += prediction.torque[a];
+    }
+    let lambda = (&gq * gq.transpose())
+        .lu()
+        .solve(&(&gq * rhs))
+        .ok_or_else(|| Error::Singular {
+            q: q.clone(),
+            reason: "the constraint Jacobian is rank deficient".into(),
+        })?;
+    let weights: Vec<f64> = lambda.iter().chain(&w).copied().collect();
+    let mut lag = DMatrix::zeros(nq, nq + ng);
+    for (h, &wt) in hess.iter().zip(&weights) {
+        if wt != 0.0 {
+            lag += h * wt;
+        }
+    }
+    let mut fz = DMatrix::zeros(nq + m, nq + m);
+    fz.view_mut((0, 0), (nq, nq)).copy_from(&lag.columns(0, nq));
+    for (a, &jt) in spec.actuated.iter().enumerate() {
+        fz[(jt, jt)] += k[a];
+    }
+    fz.view_mut((0, nq), (nq, m)).copy_from(&gq.transpose());
+    fz.view_mut((nq, 0), (m, nq)).copy_from(&gq);
+    let mut fp = DMatrix::zeros(nq + m, np);
+    fp.view_mut((0, 0), (nq, ng))
+        .copy_from(&lag.columns(nq, ng));
+    fp.view_mut((nq, 0), (m, ng))
+        .copy_from(&j.dg.columns(nq, ng));
+    for (a, &jt) in spec.actuated.iter().enumerate() {
+        fp[(jt, ng + a)] = -k[a];
+        fp[(jt, ng + na + a)] = -(commands[a] + params.offsets()[a] - q[jt]);
+    }
+    let lu = fz.clone().lu();
+    solve_square(fz, DVector::zeros(nq + m)).ok_or_else(|| Error::Singular {
+        q: q.clone(),
+        reason: "the equilibrium (KKT) system is singular".into(),
+    })?;
+    let dz = -lu.solve(&fp).ok_or_else(|| Error::Singular {
+        q: q.clone(),
+        reason: "the equilibrium (KKT) system is singular".into(),
+    })?;
+    let dq = dz.rows(0, nq);
+    let mut jac = &xq * dq;
+    let xrho = j.dx.columns(nq, ng);
+    let mut left = jac.columns_mut(0, ng);
+    left += xrho;
+    debug_assert_eq!(jac.nrows(), nx);
+    Ok(Sensitivity {
+        prediction,
+        jacobian: jac,
+    })
+}

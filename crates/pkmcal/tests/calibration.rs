@@ -1,0 +1,327 @@
+//! Tests of the identification (issue 3): exact Jacobians, recovery of the
+//! true parameters, identifiability, uncertainty and validation.
+
+mod common;
+
+use pkmcal::calibration::{IdentificationProblem, analyze_identifiability};
+use pkmcal::reference::{JeongKim2Dof, demo_truth};
+use pkmcal::sensitivity::sensitivity;
+use pkmcal::*;
+
+/// Exact Jacobian against Richardson-extrapolated central differences,
+/// relative to the largest entry of each column.
+const JACOBIAN_REL: f64 = 1e-8;
+/// Noise of the simulated measurements (mm per axis), as MODEL.md §5.
+const NOISE_MM: f64 = 0.002;
+/// Recovery of the true parameters from noise-free data (mm).
+const RECOVERY_MM: f64 = 1e-6;
+
+fn data(n: usize, noise: f64, seed: u64) -> Vec<Measurement> {
+    let mech = JeongKim2Dof::new();
+    simulate(&mech, &demo_truth(), &common::targets(n), noise, seed).unwrap()
+}
+
+fn fd_column(
+    mech: &JeongKim2Dof,
+    pose: &Pose,
+    p: &Params,
+    model: Model,
+    force: &[f64],
+    c: usize,
+) -> [f64; 2] {
+    let h = if c < 16 {
+        1e-2
+    } else if c < 19 {
+        1e-4
+    } else {
+        10.0
+    };
+    let d = |h: f64| {
+        let (mut a, mut b) = (p.clone(), p.clone());
+        a.values[c] += h;
+        b.values[c] -= h;
+        let pa = predict_pose(mech, pose, &a, model, force).unwrap();
+        let pb = predict_pose(mech, pose, &b, model, force).unwrap();
+        [
+            (pa.x[0] - pb.x[0]) / (2.0 * h),
+            (pa.x[1] - pb.x[1]) / (2.0 * h),
+        ]
+    };
+    let (d1, d2) = (d(h), d(h / 2.0));
+    [(4.0 * d2[0] - d1[0]) / 3.0, (4.0 * d2[1] - d1[1]) / 3.0]
+}
+
+#[test]
+fn identification_jacobians_are_exact() {
+    let mech = JeongKim2Dof::new();
+    let truth = demo_truth();
+    let rho = &mech.spec().nominal[..16];
+    for t in [[0.0, 180.0], [60.0, 100.0], [-90.0, 240.0]] {
+        let q = inverse_kinematics(&mech, rho, &t).unwrap();
+        let pose = prepare_pose(&mech, &q[..3], Some(&q)).unwrap();
+        for model in Model::ALL {
+            for force in [vec![], vec![20.0, -30.0]] {
+                let s = sensitivity(&mech, &pose, &truth, model, &force).unwrap();
+                for c in 0..22 {
+                    let fd = fd_column(&mech, &pose, &truth, model, &force, c);
+                    let scale = s.jacobian.column(c).amax();
+                    for r in 0..2 {
+                        let err = (fd[r] - s.jacobian[(r, c)]).abs();
+                        if scale > 1e-12 {
+                            assert!(
+                                err <= JACOBIAN_REL * scale,
+                                "{t:?} {model:?} force {force:?} column {c}: {} vs {} ",
+                                s.jacobian[(r, c)],
+                                fd[r]
+                            );
+                        } else {
+                            assert!(fd[r].abs() < 1e-9, "column {c} should vanish: {}", fd[r]);
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn exact_model_recovers_the_truth_from_noise_free_data() {
+    let mech = JeongKim2Dof::new();
+    let spec = mech.spec();
+    let d = data(35, 0.0, 1);
+    let cal = calibrate(
+        &mech,
+        &d,
+        &Params::nominal(spec),
+        &CalibrationOptions::new(spec, Model::Exact),
+    )
+    .unwrap();
+    assert!(cal.converged, "{}", cal.termination_reason);
+    let truth = demo_truth();
+    for p in &cal.parameters {
+        let t = truth.get(spec, &p.name).unwrap();
+        assert!(
+            (p.identified - t).abs() < RECOVERY_MM,
+            "{}: {} vs {t}",
+            p.name,
+            p.identified
+        );
+    }
+    assert!(cal.residual_sigma < 1e-7);
+}
+
+#[test]
+fn compliance_aware_models_reach_the_noise_floor_where_rigid_cannot() {
+    let mech = JeongKim2Dof::new();
+    let spec = mech.spec();
+    let d = data(35, NOISE_MM, 7);
+    let unseen = simulate(
+        &mech,
+        &demo_truth(),
+        &random_targets(&mech, 40, 3).unwrap(),
+        NOISE_MM,
+        8,
+    )
+    .unwrap();
+    let truth = demo_truth();
+    for model in Model::ALL {
+        let cal = calibrate(
+            &mech,
+            &d,
+            &Params::nominal(spec),
+            &CalibrationOptions::new(spec, model),
+        )
+        .unwrap();
+        let (val, _, _) = accuracy(&mech, &unseen, &cal.params, model, &[]).unwrap();
+        match model {
+            Model::Rigid => {
+                // dq3 cannot be seen by a rigid model driven by q1, q2.
+                assert!(cal.warnings.iter().any(|w| w.message.contains("dq3")));
+                assert!(cal.parameters.iter().any(|p| p.name == "dq3" && !p.free));
+                assert!(
+                    cal.residual_sigma > 10.0 * NOISE_MM,
+                    "rigid σ {}",
+                    cal.residual_sigma
+                );
+                assert!(val.after.distance_max > 0.05);
+            }
+            _ => {
+                assert!(cal.warnings.is_empty(), "{:?}", cal.warnings);
+                assert!(
+                    cal.residual_sigma > 0.6 * NOISE_MM && cal.residual_sigma < 1.4 * NOISE_MM,
+                    "{model:?} σ {}",
+                    cal.residual_sigma
+                );
+                assert!(
+                    val.after.distance_rms < 3.0 * NOISE_MM,
+                    "{model:?} {:?}",
+                    val.after
+                );
+                // Every identified parameter within 4.5 σ of the truth.
+                for p in cal.parameters.iter().filter(|p| p.free) {
+                    let t = truth.get(spec, &p.name).unwrap();
+                    assert!(
+                        (p.identified - t).abs() < 4.5 * p.std_dev + 1e-9,
+                        "{model:?} {}: {} ± {} vs {t}",
+                        p.name,
+                        p.identified,
+                        p.std_dev
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn reported_standard_deviations_match_the_scatter_over_noise_draws() {
+    // Seeded repeats: the spread of the estimates agrees with the reported σ.
+    let mech = JeongKim2Dof::new();
+    let spec = mech.spec();
+    let targets = common::targets(35);
+    let opts = CalibrationOptions::new(spec, Model::Linear);
+    let names = ["l11", "B3x", "dq3", "Ptx"];
+    let mut est: Vec<Vec<f64>> = vec![vec![]; names.len()];
+    let mut sd = vec![0.0; names.len()];
+    let runs = 40;
+    for seed in 0..runs {
+        let d = simulate(&mech, &demo_truth(), &targets, NOISE_MM, 100 + seed).unwrap();
+        let cal = calibrate(&mech, &d, &Params::nominal(spec), &opts).unwrap();
+        for (k, n) in names.iter().enumerate() {
+            let p = cal.parameters.iter().find(|p| p.name == *n).unwrap();
+            est[k].push(p.identified);
+            sd[k] += p.std_dev / runs as f64;
+        }
+    }
+    for (k, n) in names.iter().enumerate() {
+        let mean = est[k].iter().sum::<f64>() / runs as f64;
+        let var = est[k].iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (runs - 1) as f64;
+        let ratio = var.sqrt() / sd[k];
+        assert!(
+            (0.6..1.6).contains(&ratio),
+            "{n}: empirical/reported σ = {ratio}"
+        );
+    }
+}
+
+#[test]
+fn predicted_position_uncertainty_is_of_the_noise_size() {
+    let mech = JeongKim2Dof::new();
+    let spec = mech.spec();
+    let d = data(35, NOISE_MM, 11);
+    let cal = calibrate(
+        &mech,
+        &d,
+        &Params::nominal(spec),
+        &CalibrationOptions::new(spec, Model::Exact),
+    )
+    .unwrap();
+    let q = inverse_kinematics(&mech, &spec.nominal[..16], &[0.0, 180.0]).unwrap();
+    let (x, cov) = predict_with_uncertainty(&mech, &cal, &q[..3], &[]).unwrap();
+    assert!((x[0]).abs() < 2.0 && (x[1] - 180.0).abs() < 2.0);
+    for a in 0..2 {
+        let s = cov[(a, a)].sqrt();
+        assert!(s > 0.05 * NOISE_MM && s < 2.0 * NOISE_MM, "σ {s}");
+    }
+}
+
+#[test]
+fn stiffness_ratios_only_without_load() {
+    let mech = JeongKim2Dof::new();
+    let spec = mech.spec();
+    let d = data(35, 0.0, 1);
+    let mut free: Vec<usize> = CalibrationOptions::new(spec, Model::Exact).free;
+    free.extend(19..22);
+    let problem = IdentificationProblem::new(&mech, &d, Model::Exact, &[]).unwrap();
+    let (_, jac) = problem.jacobian(&demo_truth()).unwrap();
+    let (id, kept) = analyze_identifiability(spec, &jac, &free, d.len(), true);
+    assert_eq!(id.unidentifiable.len(), 1, "{:?}", id.unidentifiable);
+    let u = &id.unidentifiable[0];
+    let names: Vec<&str> = u.terms.iter().map(|t| t.0.as_str()).collect();
+    for k in ["k1", "k2", "k3"] {
+        assert!(names.contains(&k), "{}", u.combination);
+    }
+    assert_eq!(kept.len(), free.len() - 1);
+    // Under a tool load the absolute stiffness shows.
+    let loaded = IdentificationProblem::new(&mech, &d, Model::Exact, &[30.0, -60.0]).unwrap();
+    let (_, jac) = loaded.jacobian(&demo_truth()).unwrap();
+    let (id, _) = analyze_identifiability(spec, &jac, &free, d.len(), true);
+    assert!(id.unidentifiable.is_empty(), "{:?}", id.unidentifiable);
+    // And calibrate says so in a warning.
+    let mut opts = CalibrationOptions::new(spec, Model::Exact);
+    opts.free = free;
+    let cal = calibrate(&mech, &d, &Params::nominal(spec), &opts).unwrap();
+    assert!(cal.warnings.iter().any(|w| w.message.contains("ratios")));
+}
+
+#[test]
+fn observability_indices_and_condition_are_consistent() {
+    let mech = JeongKim2Dof::new();
+    let spec = mech.spec();
+    let d = data(35, 0.0, 1);
+    let free = CalibrationOptions::new(spec, Model::Exact).free;
+    let id = analyze(&mech, &d, &Params::nominal(spec), Model::Exact, &free, &[]).unwrap();
+    let sv = &id.singular_values;
+    assert_eq!(id.rank, 16);
+    assert!((id.condition_number - sv[0] / sv[15]).abs() < 1e-9 * id.condition_number);
+    let o = &id.observability;
+    assert!((o.o2 - 1.0 / id.condition_number).abs() < 1e-12);
+    assert!((o.o3 - sv[15]).abs() < 1e-15);
+    assert!((o.o4 - sv[15] * sv[15] / sv[0]).abs() < 1e-15);
+    assert!(o.o5 < o.o3 && o.o1 > 0.0);
+    // Fewer, clustered poses observe worse.
+    let few: Vec<Measurement> = d.iter().take(12).cloned().collect();
+    let id2 = analyze(
+        &mech,
+        &few,
+        &Params::nominal(spec),
+        Model::Exact,
+        &free,
+        &[],
+    )
+    .unwrap();
+    assert!(id2.observability.o3 < o.o3);
+}
+
+#[test]
+fn too_few_poses_and_empty_free_sets_are_errors() {
+    let mech = JeongKim2Dof::new();
+    let spec = mech.spec();
+    let d = data(6, 0.0, 1);
+    let err = calibrate(
+        &mech,
+        &d,
+        &Params::nominal(spec),
+        &CalibrationOptions::new(spec, Model::Exact),
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("measure more poses"), "{err}");
+    let mut opts = CalibrationOptions::new(spec, Model::Exact);
+    opts.free.clear();
+    assert!(calibrate(&mech, &d, &Params::nominal(spec), &opts).is_err());
+}
+
+#[test]
+fn holdout_and_cross_validation() {
+    let (train, held) = holdout_split(35, 0.2, 3).unwrap();
+    assert_eq!(held.len(), 7);
+    assert_eq!(train.len() + held.len(), 35);
+    assert!(train.iter().all(|i| !held.contains(i)));
+    assert_eq!(holdout_split(35, 0.2, 3).unwrap(), (train, held));
+    assert!(holdout_split(10, 1.5, 1).is_err());
+    let mech = JeongKim2Dof::new();
+    let spec = mech.spec();
+    let d = data(30, NOISE_MM, 5);
+    let cv = cross_validate(
+        &mech,
+        &d,
+        &Params::nominal(spec),
+        &CalibrationOptions::new(spec, Model::Linear),
+        5,
+        1,
+    )
+    .unwrap();
+    assert_eq!(cv.fold_rms.len(), 5);
+    assert_eq!(cv.pooled.count, 30);
+    assert!(cv.pooled.distance_rms < 4.0 * NOISE_MM, "{:?}", cv.pooled);
+}
