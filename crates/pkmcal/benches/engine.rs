@@ -88,5 +88,25 @@ fn bench(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench);
+fn calibration(c: &mut Criterion) {
+    let mech = JeongKim2Dof::new();
+    let spec = mech.spec();
+    let targets: Vec<Vec<f64>> = spread_targets(&mech, 35)
+        .unwrap()
+        .into_iter()
+        .map(|p| p.target)
+        .collect();
+    let data = simulate(&mech, &demo_truth(), &targets, 0.002, 2004).unwrap();
+    let nominal = Params::nominal(spec);
+    let mut g = c.benchmark_group("calibration_35_poses_16_params");
+    for model in Model::ALL {
+        let opts = CalibrationOptions::new(spec, model);
+        g.bench_function(model.name(), |b| {
+            b.iter(|| black_box(calibrate(&mech, &data, &nominal, &opts).unwrap()))
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench, calibration);
 criterion_main!(benches);

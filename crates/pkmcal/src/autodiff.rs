@@ -37,7 +37,8 @@ pub fn jacobians<M: Mechanism>(mech: &M, q: &[f64], rho: &[f64], cols: Range<usi
         0 => values(mech, q, rho),
         1..=3 => jacobians_chunked::<M, 3>(mech, q, rho, cols),
         4..=6 => jacobians_chunked::<M, 6>(mech, q, rho, cols),
-        _ => jacobians_chunked::<M, 8>(mech, q, rho, cols),
+        7..=8 => jacobians_chunked::<M, 8>(mech, q, rho, cols),
+        _ => jacobians_chunked::<M, 11>(mech, q, rho, cols),
     }
 }
 

@@ -6,8 +6,8 @@
 use crate::error::{Error, Result};
 use crate::lm::{self, Problem, Termination};
 use crate::mechanism::{Mechanism, Params, Spec};
-use crate::models::{Model, Pose, predict_pose, prepare_pose};
-use crate::sensitivity::sensitivity;
+use crate::models::{Model, Pose, Prediction, predict_pose_warm, prepare_pose};
+use crate::sensitivity::{sensitivity, sensitivity_at};
 use crate::simulate::Measurement;
 use crate::stats::{ErrorStats, error_stats, improvement_percent};
 use nalgebra::{DMatrix, DVector};
@@ -15,6 +15,7 @@ use rand::SeedableRng;
 use rand::rngs::StdRng;
 use rand::seq::SliceRandom;
 use serde::Serialize;
+use std::cell::RefCell;
 
 /// Singular values below this fraction of the largest (of the column-scaled
 /// identification Jacobian) count as unidentifiable directions.
@@ -68,6 +69,9 @@ impl CalibrationOptions {
     }
 }
 
+/// Parameters, residuals and Jacobian of the last Jacobian evaluation.
+type CachedJacobian = (Vec<f64>, DVector<f64>, DMatrix<f64>);
+
 /// The identification least-squares problem: residuals are predicted minus
 /// measured tool coordinates, pose by pose.
 pub struct IdentificationProblem<'a, M: Mechanism> {
@@ -76,6 +80,11 @@ pub struct IdentificationProblem<'a, M: Mechanism> {
     measured: Vec<Vec<f64>>,
     model: Model,
     force: Vec<f64>,
+    /// The last parameters evaluated and their predictions: a Jacobian at an
+    /// accepted trial point reuses them, and equilibria start from them.
+    cache: RefCell<Option<(Vec<f64>, Vec<Prediction>)>>,
+    /// The last Jacobian evaluated, with its parameters.
+    jacobian_cache: RefCell<Option<CachedJacobian>>,
 }
 
 impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
@@ -95,7 +104,33 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             measured: data.iter().map(|m| m.measured.clone()).collect(),
             model,
             force: force.to_vec(),
+            cache: RefCell::new(None),
+            jacobian_cache: RefCell::new(None),
         })
+    }
+
+    /// Predictions at every pose, warm-started from (or taken from) the cache.
+    fn predictions(&self, params: &Params) -> Result<Vec<Prediction>> {
+        let cached = self.cache.borrow();
+        if let Some((x, p)) = cached.as_ref()
+            && *x == params.values
+        {
+            return Ok(p.clone());
+        }
+        let out: Result<Vec<Prediction>> = self
+            .poses
+            .iter()
+            .enumerate()
+            .map(|(i, pose)| {
+                let warm = cached.as_ref().map(|(_, p)| p[i].q.as_slice());
+                predict_pose_warm(self.mech, pose, params, self.model, &self.force, warm)
+                    .map_err(|e| Error::InvalidRequest(format!("pose {}: {e}", i + 1)))
+            })
+            .collect();
+        drop(cached);
+        let out = out?;
+        *self.cache.borrow_mut() = Some((params.values.clone(), out.clone()));
+        Ok(out)
     }
 
     /// The prepared poses.
@@ -103,33 +138,32 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         &self.poses
     }
 
-    /// Predictions at every pose under `params`.
+    /// Predicted tool coordinates at every pose under `params`.
     pub fn predict(&self, params: &Params) -> Result<Vec<Vec<f64>>> {
-        self.poses
-            .iter()
-            .enumerate()
-            .map(|(i, p)| {
-                predict_pose(self.mech, p, params, self.model, &self.force)
-                    .map(|p| p.x)
-                    .map_err(|e| Error::InvalidRequest(format!("pose {}: {e}", i + 1)))
-            })
-            .collect()
+        Ok(self.predictions(params)?.into_iter().map(|p| p.x).collect())
     }
 
     /// Residuals and the full Jacobian (all parameters) under `params`.
     pub fn jacobian(&self, params: &Params) -> Result<(DVector<f64>, DMatrix<f64>)> {
+        if let Some((x, r, j)) = self.jacobian_cache.borrow().as_ref()
+            && *x == params.values
+        {
+            return Ok((r.clone(), j.clone()));
+        }
         let nx = self.mech.spec().tool_axes.len();
         let np = self.mech.spec().n_params();
         let mut r = DVector::zeros(self.poses.len() * nx);
         let mut j = DMatrix::zeros(self.poses.len() * nx, np);
-        for (i, pose) in self.poses.iter().enumerate() {
-            let s = sensitivity(self.mech, pose, params, self.model, &self.force)
+        let predictions = self.predictions(params)?;
+        for (i, (pose, pred)) in self.poses.iter().zip(predictions).enumerate() {
+            let s = sensitivity_at(self.mech, pose, params, self.model, &self.force, pred)
                 .map_err(|e| Error::InvalidRequest(format!("pose {}: {e}", i + 1)))?;
             for a in 0..nx {
                 r[i * nx + a] = s.prediction.x[a] - self.measured[i][a];
             }
             j.view_mut((i * nx, 0), (nx, np)).copy_from(&s.jacobian);
         }
+        *self.jacobian_cache.borrow_mut() = Some((params.values.clone(), r.clone(), j.clone()));
         Ok((r, j))
     }
 }

@@ -71,23 +71,26 @@ pub fn solve_closure<M: Mechanism>(
     })
 }
 
-/// Solve a square system by LU (partial pivoting) with a singularity check on
-/// the pivots.
-pub(crate) fn solve_square(a: DMatrix<f64>, b: DVector<f64>) -> Option<DVector<f64>> {
+/// LU factorisation (partial pivoting) of a square matrix, or `None` when a
+/// pivot falls below [`SINGULAR_RCOND`] times the largest entry (singular).
+pub(crate) fn checked_lu(
+    a: DMatrix<f64>,
+) -> Option<nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn>> {
     let scale = a.amax();
-    let lu = a.lu();
-    let (mut max, mut min) = (scale, f64::INFINITY);
-    for i in 0..b.len() {
-        let d = lu.lu_internal()[(i, i)].abs();
-        min = min.min(d);
-    }
-    if max.is_nan() {
-        max = 0.0;
-    }
-    if max.is_nan() || max <= 0.0 || min < SINGULAR_RCOND * max {
+    if scale.is_nan() || scale <= 0.0 {
         return None;
     }
-    lu.solve(&b)
+    let lu = a.lu();
+    let n = lu.lu_internal().nrows();
+    let min = (0..n)
+        .map(|i| lu.lu_internal()[(i, i)].abs())
+        .fold(f64::INFINITY, f64::min);
+    (min >= SINGULAR_RCOND * scale).then_some(lu)
+}
+
+/// Solve a square system by LU with a singularity check on the pivots.
+pub(crate) fn solve_square(a: DMatrix<f64>, b: DVector<f64>) -> Option<DVector<f64>> {
+    checked_lu(a)?.solve(&b)
 }
 
 /// Forward kinematics: the full joint vector with the independent joints

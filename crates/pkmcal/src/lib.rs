@@ -58,7 +58,8 @@ pub use kinematics::{
 pub use linearized::{Linearization, joint_errors, linearize, load_vector, projection};
 pub use mechanism::{Mechanism, Params, Scalar, Spec};
 pub use models::{
-    Equilibrium, Model, Pose, Prediction, equilibrium, predict, predict_pose, prepare_pose,
+    Equilibrium, Model, Pose, Prediction, equilibrium, predict, predict_pose, predict_pose_warm,
+    prepare_pose,
 };
 pub use reference::JeongKim2Dof;
 pub use simulate::{Measurement, simulate};

@@ -15,7 +15,7 @@
 
 use crate::autodiff::jacobians;
 use crate::error::{Error, Result};
-use crate::kinematics::solve_square;
+use crate::kinematics::checked_lu;
 use crate::mechanism::Mechanism;
 use nalgebra::{DMatrix, DVector};
 
@@ -106,14 +106,7 @@ pub fn linearize<M: Mechanism>(
 }
 
 fn solve_square_multi(a: DMatrix<f64>, b: DMatrix<f64>) -> Option<DMatrix<f64>> {
-    let mut out = DMatrix::zeros(b.nrows(), b.ncols());
-    let lu = a.clone().full_piv_lu();
-    // Reuse the pivot check of the single right-hand-side solver.
-    solve_square(a, DVector::zeros(b.nrows()))?;
-    for c in 0..b.ncols() {
-        out.set_column(c, &lu.solve(&b.column(c).into_owned())?);
-    }
-    Some(out)
+    checked_lu(a)?.solve(&b)
 }
 
 /// Λ = Γ (ΓᵀKΓ)⁻¹ ΓᵀK (eq. 11): the K-weighted projection onto feasible

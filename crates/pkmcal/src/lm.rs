@@ -29,6 +29,10 @@ pub trait Problem {
     ) -> Result<(DVector<f64>, Option<DMatrix<f64>>), String>;
 }
 
+/// Relative scaled step below which the Jacobian of the previous point is
+/// reported as the final one (its change is of this order).
+const FINAL_JACOBIAN_STEP: f64 = 1e-9;
+
 /// Options of [`minimize`].
 #[derive(Debug, Clone)]
 pub struct Options {
@@ -526,6 +530,9 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
         };
         fvec = fv;
         let jac_at_x = fjac.clone();
+        // Scaled length of the step accepted since this Jacobian (to decide
+        // whether the final Jacobian must be re-evaluated).
+        let mut last_step = 0.0;
         let mut fjac = fjac;
         let (ipvt, rdiag, acnorm) = qrfac(&mut fjac);
         if iter == 1 {
@@ -631,6 +638,7 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
                 par *= 0.5;
             }
             if ratio >= 1e-4 {
+                last_step = pnorm;
                 x = wa2;
                 xnorm = enorm(&(0..n).map(|j| diag[j] * x[j]).collect::<Vec<_>>());
                 fvec = fvec1.expect("accepted steps were evaluated");
@@ -653,12 +661,19 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
                 _ => None,
             };
             if let Some(t) = done {
-                // Report the Jacobian at the final point.
-                let j = match s.eval(&x, true) {
-                    Ok((_, Some(j))) => j,
-                    _ => jac_at_x,
+                // Report the Jacobian at the final point; the one of the
+                // previous point serves when the last step was negligible.
+                let j = if last_step <= FINAL_JACOBIAN_STEP * xnorm {
+                    jac_at_x
+                } else {
+                    match s.eval(&x, true) {
+                        Ok((_, Some(j))) => {
+                            s.evaluations -= 1;
+                            j
+                        }
+                        _ => jac_at_x,
+                    }
                 };
-                s.evaluations -= 1;
                 return finish(&s, &x, t, iter - 1, fvec, j);
             }
             if ratio >= 1e-4 {

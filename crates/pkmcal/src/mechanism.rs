@@ -191,6 +191,38 @@ pub trait Mechanism: Send + Sync {
         None
     }
 
+    /// Second derivatives of `φ = λᵀg + μᵀx` with respect to the joints (rows)
+    /// and to `[q; ρ]` (columns): `n_joints × (n_joints + n_geometric)`. The
+    /// exact model's identification Jacobian needs them at every pose. The
+    /// default uses automatic differentiation; override it with an analytic
+    /// version for speed (the tests compare the two).
+    fn weighted_hessian(
+        &self,
+        q: &[f64],
+        rho: &[f64],
+        lambda: &[f64],
+        mu: &[f64],
+    ) -> nalgebra::DMatrix<f64>
+    where
+        Self: Sized,
+    {
+        let nq = q.len();
+        let h = crate::autodiff::output_hessians(self, q, rho, 0..nq, 0..nq + rho.len());
+        let weights: Vec<f64> = lambda.iter().chain(mu).copied().collect();
+        crate::autodiff::weighted_sum(&h, &weights)
+    }
+
+    /// Second derivatives of each constraint, then each tool coordinate, with
+    /// respect to the joints (one `n_joints × n_joints` matrix per output):
+    /// the curvature the equilibrium's Newton iteration uses. The default uses
+    /// automatic differentiation.
+    fn joint_hessians(&self, q: &[f64], rho: &[f64]) -> Vec<nalgebra::DMatrix<f64>>
+    where
+        Self: Sized,
+    {
+        crate::autodiff::output_hessians(self, q, rho, 0..q.len(), 0..q.len())
+    }
+
     /// Whether a configuration lies on the assembly branch of the reference
     /// configuration. The default accepts every configuration.
     fn on_branch(&self, _q: &[f64], _rho: &[f64]) -> bool {

@@ -13,7 +13,7 @@
 //! q_r,nominal`; the linear model adds it to `Δq` so that it stays the
 //! first-order expansion of the exact model.
 
-use crate::autodiff::{jacobians, output_hessians, weighted_sum};
+use crate::autodiff::{jacobians, weighted_sum};
 use crate::error::{Error, Result};
 use crate::kinematics::{forward_kinematics, reference_configuration, solve_square};
 use crate::linearized::{Linearization, MM_TO_M, joint_errors, linearize, load_vector};
@@ -83,14 +83,7 @@ impl Pose {
     pub fn hessians<M: Mechanism>(&self, mech: &M) -> &[DMatrix<f64>] {
         self.hessians.get_or_init(|| {
             let spec = mech.spec();
-            let nq = spec.joints.len();
-            output_hessians(
-                mech,
-                &self.nominal_q,
-                &spec.nominal[..spec.n_geometric()],
-                0..nq,
-                0..nq,
-            )
+            mech.joint_hessians(&self.nominal_q, &spec.nominal[..spec.n_geometric()])
         })
     }
 }
@@ -111,6 +104,9 @@ pub struct Prediction {
     pub torque: Vec<f64>,
     /// Newton iterations of the equilibrium (exact model), else 0.
     pub iterations: usize,
+    /// Lagrange multipliers of the constraints at the equilibrium (exact
+    /// model), else empty.
+    pub multipliers: Vec<f64>,
 }
 
 /// Result of the exact equilibrium.
@@ -259,35 +255,68 @@ pub fn predict_pose<M: Mechanism>(
                 deflection,
                 torque: vec![0.0; spec.n_actuated()],
                 iterations: 0,
+                multipliers: vec![],
             })
         }
         Model::Linear => linear_prediction(mech, pose, params, &force),
         Model::Exact => {
             let lin = linear_prediction(mech, pose, params, &force)?;
-            let eq = equilibrium(
-                mech,
-                params,
-                &pose.commands,
-                &force,
-                &lin.q,
-                Some(pose.hessians(mech)),
-            )?;
-            let x = jacobians(mech, &eq.q, rho, 0..0).x;
-            let deflection = eq
-                .torque
-                .iter()
-                .zip(params.stiffness())
-                .map(|(t, k)| -t / k)
-                .collect();
-            Ok(Prediction {
-                q: eq.q,
-                x,
-                deflection,
-                torque: eq.torque,
-                iterations: eq.iterations,
-            })
+            exact_from(mech, pose, params, &force, &lin.q)
         }
     }
+}
+
+/// The exact model's prediction by [`equilibrium`] from `start`.
+fn exact_from<M: Mechanism>(
+    mech: &M,
+    pose: &Pose,
+    params: &Params,
+    force: &[f64],
+    start: &[f64],
+) -> Result<Prediction> {
+    let eq = equilibrium(
+        mech,
+        params,
+        &pose.commands,
+        force,
+        start,
+        Some(pose.hessians(mech)),
+    )?;
+    let x = jacobians(mech, &eq.q, params.geometric(), 0..0).x;
+    let deflection = eq
+        .torque
+        .iter()
+        .zip(params.stiffness())
+        .map(|(t, k)| -t / k)
+        .collect();
+    Ok(Prediction {
+        q: eq.q,
+        x,
+        deflection,
+        torque: eq.torque,
+        iterations: eq.iterations,
+        multipliers: eq.lambda,
+    })
+}
+
+/// Like [`predict_pose`], with a warm start for the exact model: the
+/// equilibrium starts from `warm` (e.g. the solution for nearby parameters)
+/// and falls back to the linear model's pose if that fails.
+pub fn predict_pose_warm<M: Mechanism>(
+    mech: &M,
+    pose: &Pose,
+    params: &Params,
+    model: Model,
+    force: &[f64],
+    warm: Option<&[f64]>,
+) -> Result<Prediction> {
+    if let (Model::Exact, Some(w)) = (model, warm) {
+        let f = effective_force(mech.spec(), force)?;
+        if let Ok(p) = exact_from(mech, pose, params, &f, w) {
+            return Ok(p);
+        }
+    }
+    predict_pose(mech, pose, params, model, force)
 }
 
 fn effective_force(spec: &crate::Spec, force: &[f64]) -> Result<Vec<f64>> {
@@ -349,6 +378,7 @@ fn linear_prediction<M: Mechanism>(
         deflection,
         torque,
         iterations: 0,
+        multipliers: vec![],
     })
 }
 
@@ -412,7 +442,7 @@ pub fn equilibrium<M: Mechanism>(
     let hessians = match hessians {
         Some(h) => h,
         None => {
-            own = output_hessians(mech, start, rho, 0..nq, 0..nq);
+            own = mech.joint_hessians(start, rho);
             &own
         }
     };

@@ -3,9 +3,9 @@
 //! Jacobian of eq. 12, by implicit differentiation of the loop closure and of
 //! the equilibrium (never finite differences around a nested solve).
 
-use crate::autodiff::{jacobians, output_hessians};
+use crate::autodiff::jacobians;
 use crate::error::{Error, Result};
-use crate::kinematics::solve_square;
+use crate::kinematics::checked_lu;
 use crate::linearized::{MM_TO_M, linearize, load_vector};
 use crate::mechanism::{Mechanism, Params};
 use crate::models::{Model, Pose, Prediction, independent_actuators, predict_pose};
@@ -37,6 +37,20 @@ pub fn sensitivity<M: Mechanism>(
     model: Model,
     force: &[f64],
 ) -> Result<Sensitivity> {
+    let prediction = predict_pose(mech, pose, params, model, force)?;
+    sensitivity_at(mech, pose, params, model, force, prediction)
+}
+
+/// [`sensitivity`] for a prediction already computed (with the same pose,
+/// parameters, model and force).
+pub fn sensitivity_at<M: Mechanism>(
+    mech: &M,
+    pose: &Pose,
+    params: &Params,
+    model: Model,
+    force: &[f64],
+    prediction: Prediction,
+) -> Result<Sensitivity> {
     let spec = mech.spec();
     let ng = spec.n_geometric();
     let nx = spec.tool_axes.len();
@@ -51,7 +65,6 @@ pub fn sensitivity<M: Mechanism>(
     let mut jac = DMatrix::zeros(nx, np);
     match model {
         Model::Rigid | Model::Linear => {
-            let prediction = predict_pose(mech, pose, params, model, &force)?;
             let lin = linearize(mech, &prediction.q, rho, &spec.independent)?;
             // ∂x/∂ρ at fixed independent joints.
             jac.columns_mut(0, ng).copy_from(&lin.jx_rho);
@@ -70,10 +83,7 @@ pub fn sensitivity<M: Mechanism>(
                 jacobian: jac,
             })
         }
-        Model::Exact => {
-            let prediction = predict_pose(mech, pose, params, model, &force)?;
-            exact_sensitivity(mech, params, &pose.commands, &force, prediction)
-        }
+        Model::Exact => exact_sensitivity(mech, params, &pose.commands, &force, prediction),
     }
 }
 
@@ -159,7 +169,6 @@ fn exact_sensitivity<M: Mechanism>(
     let q = &prediction.q;
     let w: Vec<f64> = force.iter().map(|f| -f * MM_TO_M).collect();
     let j = jacobians(mech, q, rho, 0..nq + ng);
-    let hess = output_hessians(mech, q, rho, 0..nq, 0..nq + ng);
     // Multipliers from stationarity: Gqᵀλ = Sᵀτ − Xqᵀw (least squares).
     let gq = j.dg.columns(0, nq).into_owned();
     let xq = j.dx.columns(0, nq).into_owned();
@@ -167,20 +176,18 @@ fn exact_sensitivity<M: Mechanism>(
     for (a, &jt) in spec.actuated.iter().enumerate() {
         rhs[jt] += prediction.torque[a];
     }
-    let lambda = (&gq * gq.transpose())
-        .lu()
-        .solve(&(&gq * rhs))
-        .ok_or_else(|| Error::Singular {
-            q: q.clone(),
-            reason: "the constraint Jacobian is rank deficient".into(),
-        })?;
-    let weights: Vec<f64> = lambda.iter().chain(&w).copied().collect();
-    let mut lag = DMatrix::zeros(nq, nq + ng);
-    for (h, &wt) in hess.iter().zip(&weights) {
-        if wt != 0.0 {
-            lag += h * wt;
-        }
-    }
+    let lambda = if prediction.multipliers.len() == m {
+        DVector::from_column_slice(&prediction.multipliers)
+    } else {
+        (&gq * gq.transpose())
+            .lu()
+            .solve(&(&gq * rhs))
+            .ok_or_else(|| Error::Singular {
+                q: q.clone(),
+                reason: "the constraint Jacobian is rank deficient".into(),
+            })?
+    };
+    let lag = mech.weighted_hessian(q, rho, lambda.as_slice(), &w);
     let mut fz = DMatrix::zeros(nq + m, nq + m);
     fz.view_mut((0, 0), (nq, nq)).copy_from(&lag.columns(0, nq));
     for (a, &jt) in spec.actuated.iter().enumerate() {
@@ -197,15 +204,17 @@ fn exact_sensitivity<M: Mechanism>(
         fp[(jt, ng + a)] = -k[a];
         fp[(jt, ng + na + a)] = -(commands[a] + params.offsets()[a] - q[jt]);
     }
-    let lu = fz.clone().lu();
-    solve_square(fz, DVector::zeros(nq + m)).ok_or_else(|| Error::Singular {
+    let singular = || Error::Singular {
         q: q.clone(),
         reason: "the equilibrium (KKT) system is singular".into(),
-    })?;
-    let dz = -lu.solve(&fp).ok_or_else(|| Error::Singular {
-        q: q.clone(),
-        reason: "the equilibrium (KKT) system is singular".into(),
-    })?;
+    };
+    let dz = -checked_lu(fz)
+        .ok_or_else(singular)?
+        .solve(&fp)
+        .ok_or_else(|| Error::Singular {
+            q: q.clone(),
+            reason: "the equilibrium (KKT) system is singular".into(),
+        })?;
     let dq = dz.rows(0, nq);
     let mut jac = &xq * dq;
     let xrho = j.dx.columns(nq, ng);

@@ -111,6 +111,25 @@ proptest! {
         }
     }
 
+    /// The reference mechanism's analytic `weighted_hessian` equals the
+    /// automatic-differentiation default.
+    #[test]
+    fn analytic_weighted_hessian_matches_autodiff(
+        x in -130.0..150.0f64, y in 60.0..330.0f64,
+        lambda in proptest::collection::vec(-1e-3..1e-3f64, 3),
+        mu in proptest::collection::vec(-0.1..0.1f64, 2),
+        perturb in proptest::collection::vec(-1.0..1.0f64, 16)
+    ) {
+        let Some(q) = config_at(&[x, y]) else { return Ok(()); };
+        let mech = JeongKim2Dof::new();
+        let rho: Vec<f64> = nominal_rho().iter().zip(&perturb).map(|(r, p)| r + 0.5 * p).collect();
+        let analytic = mech.weighted_hessian(&q, &rho, &lambda, &mu);
+        let h = output_hessians(&mech, &q, &rho, 0..5, 0..21);
+        let weights: Vec<f64> = lambda.iter().chain(&mu).copied().collect();
+        let ad = pkmcal::autodiff::weighted_sum(&h, &weights);
+        assert_close(&analytic, &ad, 1e-12, "weighted Hessian");
+    }
+
     /// Inverse then forward kinematics returns the target, on the branch.
     #[test]
     fn inverse_then_forward_kinematics(x in -150.0..150.0f64, y in 60.0..330.0f64) {
