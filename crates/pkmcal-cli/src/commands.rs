@@ -10,6 +10,10 @@ use std::path::Path;
 /// Rows per sequential chunk (each chunk warm-starts from its previous row).
 const CHUNK_ROWS: usize = 512;
 
+/// A prediction and the standard deviation of each tool coordinate (empty
+/// without a covariance).
+type Row = (Prediction, Vec<f64>);
+
 /// Predict every row, in parallel over chunks; the error names the row's line.
 pub fn predict_rows(
     mech: &Mech,
@@ -17,9 +21,10 @@ pub fn predict_rows(
     commands: &[Vec<f64>],
     model: Model,
     force: &[f64],
+    covariance: Option<&pkmcal::ParameterCovariance>,
     where_: &(dyn Fn(usize) -> String + Sync),
-) -> Result<Vec<Prediction>> {
-    let chunks: Vec<Result<Vec<Prediction>>> = commands
+) -> Result<Vec<Row>> {
+    let chunks: Vec<Result<Vec<Row>>> = commands
         .par_chunks(CHUNK_ROWS)
         .enumerate()
         .map(|(ci, chunk)| {
@@ -32,8 +37,15 @@ pub fn predict_rows(
                     _ => prepare_pose(mech, c, None)
                         .with_context(|| format!("{}: commands {c:?}", where_(row)))?,
                 };
-                let p = predict_pose(mech, &pose, params, model, force)
-                    .with_context(|| format!("{}: commands {c:?}", where_(row)))?;
+                let row_result = match covariance {
+                    None => predict_pose(mech, &pose, params, model, force).map(|p| (p, vec![])),
+                    Some(cov) => pkmcal::tool_covariance(mech, &pose, params, model, force, cov)
+                        .map(|(p, c)| {
+                            let s = (0..c.nrows()).map(|a| c[(a, a)].max(0.0).sqrt()).collect();
+                            (p, s)
+                        }),
+                };
+                let p = row_result.with_context(|| format!("{}: commands {c:?}", where_(row)))?;
                 start = Some(pose.nominal_q);
                 out.push(p);
             }
@@ -82,21 +94,35 @@ pub fn predict(a: PredictArgs) -> Result<()> {
         .map(|s| s.to_string())
         .collect();
     let commands = csv.named(&names)?;
-    let preds = predict_rows(&mech, &params, &commands, model, &force, &|r| {
-        format!("{}:{}", csv.path.display(), csv.line(r))
-    })?;
+    let covariance = match &a.uncertainty {
+        Some(path) => Some(read_covariance(path)?),
+        None => None,
+    };
+    let preds = predict_rows(
+        &mech,
+        &params,
+        &commands,
+        model,
+        &force,
+        covariance.as_ref(),
+        &|r| format!("{}:{}", csv.path.display(), csv.line(r)),
+    )?;
     let mut header = names.clone();
     header.extend(spec.tool_axes.iter().cloned());
     header.extend(names.iter().map(|n| format!("deflection_{n}")));
     header.extend(names.iter().map(|n| format!("torque_{n}")));
+    if covariance.is_some() {
+        header.extend(spec.tool_axes.iter().map(|a| format!("sigma_{a}")));
+    }
     let rows: Vec<Vec<f64>> = commands
         .iter()
         .zip(&preds)
-        .map(|(c, p)| {
+        .map(|(c, (p, sigma))| {
             c.iter()
                 .chain(&p.x)
                 .chain(&p.deflection)
                 .chain(&p.torque)
+                .chain(sigma)
                 .copied()
                 .collect()
         })
@@ -109,6 +135,22 @@ pub fn predict(a: PredictArgs) -> Result<()> {
         a.out.display()
     );
     Ok(())
+}
+
+/// The parameter covariance stored in a calibration report (`covariance`).
+fn read_covariance(path: &Path) -> Result<pkmcal::ParameterCovariance> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read calibration report {}", path.display()))?;
+    let v: serde_json::Value = serde_json::from_str(&text)
+        .with_context(|| format!("{}: not a JSON calibration report", path.display()))?;
+    let c = v.get("covariance").with_context(|| {
+        format!(
+            "{}: no `covariance` entry; pass the report written by `pkmcal calibrate --report`",
+            path.display()
+        )
+    })?;
+    serde_json::from_value(c.clone())
+        .with_context(|| format!("{}: malformed `covariance` entry", path.display()))
 }
 
 /// Target columns `target_<axis>`.

@@ -48,6 +48,10 @@ pub struct PredictArgs {
     /// External force applied to the tool, N, one value per tool axis (e.g. `0,-9.81`).
     #[arg(long, value_name = "FX,FY", allow_hyphen_values = true)]
     pub force: Option<String>,
+    /// Calibration report (from `calibrate --report`) whose parameter covariance
+    /// gives each prediction's standard deviation (columns sigma_x, sigma_y).
+    #[arg(long, value_name = "REPORT.json")]
+    pub uncertainty: Option<PathBuf>,
     /// Output CSV.
     #[arg(long, value_name = "OUT.csv")]
     pub out: PathBuf,

@@ -530,6 +530,9 @@ pub struct Calibration {
     /// Free parameter indices actually identified.
     #[serde(skip)]
     pub free: Vec<usize>,
+    /// The covariance with parameter names (serialised as `covariance`).
+    #[serde(rename = "covariance")]
+    pub parameter_covariance: ParameterCovariance,
     /// Correlations above 0.9 at the solution.
     pub correlations: Vec<Correlation>,
     /// Warnings.
@@ -671,7 +674,14 @@ pub fn calibrate<M: Mechanism>(
         });
     }
     let correlations = correlations(spec, &free, &covariance);
+    let parameter_covariance = ParameterCovariance {
+        names: free.iter().map(|&i| names[i].to_string()).collect(),
+        matrix: (0..free.len())
+            .map(|a| (0..free.len()).map(|b| covariance[(a, b)]).collect())
+            .collect(),
+    };
     Ok(Calibration {
+        parameter_covariance,
         model: opts.model,
         params,
         converged: report.termination.converged(),
@@ -705,8 +715,58 @@ pub fn analyze<M: Mechanism>(
     Ok(analyze_identifiability(mech.spec(), &jac, free, data.len(), false).0)
 }
 
-/// Predicted tool position and its standard deviation per axis (mm) at
-/// `commands`, from the calibrated parameters and their covariance.
+/// Covariance of identified parameters, by name: plain data that travels in
+/// the calibration report (`covariance`) and back into `predict`.
+#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
+pub struct ParameterCovariance {
+    /// Parameter names, in matrix order.
+    pub names: Vec<String>,
+    /// Covariance matrix (units² of the parameters), row by row.
+    pub matrix: Vec<Vec<f64>>,
+}
+
+impl ParameterCovariance {
+    /// Parameter indices and the matrix, checked against the mechanism.
+    pub fn resolve(&self, spec: &Spec) -> Result<(Vec<usize>, DMatrix<f64>)> {
+        let n = self.names.len();
+        if self.matrix.len() != n || self.matrix.iter().any(|r| r.len() != n) {
+            return Err(Error::InvalidRequest(format!(
+                "the covariance must be {n} × {n} for {n} names"
+            )));
+        }
+        if self.matrix.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(Error::InvalidRequest(
+                "the covariance has non-finite entries".into(),
+            ));
+        }
+        let idx = self
+            .names
+            .iter()
+            .map(|n| spec.param_index(n))
+            .collect::<Result<Vec<_>>>()?;
+        Ok((idx, DMatrix::from_fn(n, n, |a, b| self.matrix[a][b])))
+    }
+}
+
+/// Predicted tool position under `params` and its covariance (mm²) from the
+/// parameters' covariance: `J_p C J_pᵀ` with the model's exact sensitivities.
+pub fn tool_covariance<M: Mechanism>(
+    mech: &M,
+    pose: &Pose,
+    params: &Params,
+    model: Model,
+    force: &[f64],
+    covariance: &ParameterCovariance,
+) -> Result<(Prediction, DMatrix<f64>)> {
+    let (idx, c) = covariance.resolve(mech.spec())?;
+    let s = sensitivity(mech, pose, params, model, force)?;
+    let j = s.jacobian.select_columns(&idx);
+    let cov = &j * c * j.transpose();
+    Ok((s.prediction, cov))
+}
+
+/// Predicted tool position and its covariance (mm²) at `commands`, from a
+/// calibration's parameters and their covariance.
 pub fn predict_with_uncertainty<M: Mechanism>(
     mech: &M,
     cal: &Calibration,
@@ -714,10 +774,15 @@ pub fn predict_with_uncertainty<M: Mechanism>(
     force: &[f64],
 ) -> Result<(Vec<f64>, DMatrix<f64>)> {
     let pose = prepare_pose(mech, commands, None)?;
-    let s = sensitivity(mech, &pose, &cal.params, cal.model, force)?;
-    let j = s.jacobian.select_columns(&cal.free);
-    let cov = &j * &cal.covariance * j.transpose();
-    Ok((s.prediction.x, cov))
+    let (p, cov) = tool_covariance(
+        mech,
+        &pose,
+        &cal.params,
+        cal.model,
+        force,
+        &cal.parameter_covariance,
+    )?;
+    Ok((p.x, cov))
 }
 
 /// Before and after statistics of a data set.

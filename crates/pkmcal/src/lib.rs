@@ -48,8 +48,8 @@ pub mod stats;
 pub mod workspace;
 
 pub use calibration::{
-    Accuracy, Calibration, CalibrationOptions, Identifiability, accuracy, analyze, calibrate,
-    cross_validate, holdout_split, predict_with_uncertainty,
+    Accuracy, Calibration, CalibrationOptions, Identifiability, ParameterCovariance, accuracy,
+    analyze, calibrate, cross_validate, holdout_split, predict_with_uncertainty, tool_covariance,
 };
 pub use error::{Error, Result};
 pub use kinematics::{
