@@ -4,6 +4,7 @@
 mod calibrate;
 mod commands;
 mod io;
+mod usecal;
 
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
@@ -27,6 +28,12 @@ enum Command {
     Calibrate(CalibrateArgs),
     /// Identifiability of the parameters from a data set, without fitting.
     Analyze(AnalyzeArgs),
+    /// Actuator commands that bring the tool to targets under calibrated parameters.
+    Compensate(CompensateArgs),
+    /// Choose measurement poses that make the parameters most observable.
+    Plan(PlanArgs),
+    /// Predict post-calibration accuracy of a measurement plan by simulation.
+    Montecarlo(MonteCarloArgs),
     /// Run the paper's case study on the built-in reference mechanism.
     Demo(DemoArgs),
 }
@@ -159,6 +166,111 @@ pub struct AnalyzeArgs {
 }
 
 #[derive(clap::Args)]
+pub struct CompensateArgs {
+    /// Mechanism file (TOML); the built-in reference mechanism if omitted.
+    #[arg(long, value_name = "M.toml")]
+    pub mechanism: Option<PathBuf>,
+    /// Calibrated parameters (flat TOML); nominal if omitted.
+    #[arg(long, value_name = "P.toml")]
+    pub params: Option<PathBuf>,
+    /// Targets: CSV with target_x,target_y (mm).
+    #[arg(long, value_name = "T.csv")]
+    pub targets: PathBuf,
+    /// Model to invert: exact (deflections included) or rigid.
+    #[arg(long, default_value = "exact", value_parser = ["exact", "rigid"])]
+    pub model: String,
+    /// External force applied to the tool, N (e.g. a payload's weight).
+    #[arg(long, value_name = "FX,FY", allow_hyphen_values = true)]
+    pub load: Option<String>,
+    /// Actuator torques (N·m) whose internal part is held as a preload.
+    #[arg(long, value_name = "T1,T2,T3", allow_hyphen_values = true)]
+    pub preload: Option<String>,
+    /// Report unreachable or singular targets and skip them instead of stopping.
+    #[arg(long)]
+    pub skip_unreachable: bool,
+    /// Output CSV: target_x,target_y,q1,q2,q3,torque_q1..3.
+    #[arg(long, value_name = "COMMANDS.csv")]
+    pub out: PathBuf,
+}
+
+#[derive(clap::Args)]
+pub struct PlanArgs {
+    /// Mechanism file (TOML); the built-in reference mechanism if omitted.
+    #[arg(long, value_name = "M.toml")]
+    pub mechanism: Option<PathBuf>,
+    /// Number of poses to choose.
+    #[arg(long, value_name = "N")]
+    pub count: usize,
+    /// Spacing of the candidate lattice over the usable workspace, mm.
+    #[arg(long, default_value_t = 6.0, value_name = "SPACING")]
+    pub candidates: f64,
+    /// Observability index to maximise.
+    #[arg(long, default_value = "O5", value_parser = ["O1", "O3", "O5", "o1", "o3", "o5"])]
+    pub criterion: String,
+    /// Model whose identification Jacobian is used.
+    #[arg(long, default_value = "exact", value_parser = ["exact", "linear", "rigid"])]
+    pub model: String,
+    /// Expected parameters (nominal if omitted).
+    #[arg(long, value_name = "P.toml")]
+    pub params: Option<PathBuf>,
+    /// Parameters to identify (as for calibrate).
+    #[arg(long, value_name = "NAMES")]
+    pub free: Option<String>,
+    /// Parameters to keep fixed.
+    #[arg(long, value_name = "NAMES")]
+    pub fix: Option<String>,
+    /// Output CSV: target_x,target_y,q1,q2,q3.
+    #[arg(long, value_name = "POSES.csv")]
+    pub out: PathBuf,
+    /// Also write the plain grid of the same size (the baseline), same columns.
+    #[arg(long, value_name = "GRID.csv")]
+    pub grid_out: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+pub struct MonteCarloArgs {
+    /// Mechanism file (TOML); the built-in reference mechanism if omitted.
+    #[arg(long, value_name = "M.toml")]
+    pub mechanism: Option<PathBuf>,
+    /// Measurement plan: CSV with target_x,target_y (e.g. from `plan`).
+    #[arg(long, value_name = "POSES.csv")]
+    pub poses: PathBuf,
+    /// Number of simulated calibrations.
+    #[arg(long, default_value_t = 200)]
+    pub runs: usize,
+    /// Measurement noise per axis, mm.
+    #[arg(long, default_value_t = 0.002, value_name = "SIGMA")]
+    pub noise: f64,
+    /// Random seed.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Model used to calibrate.
+    #[arg(long, default_value = "exact", value_parser = ["exact", "linear", "rigid"])]
+    pub model: String,
+    /// Parameters to identify (as for calibrate).
+    #[arg(long, value_name = "NAMES")]
+    pub free: Option<String>,
+    /// Parameters to keep fixed.
+    #[arg(long, value_name = "NAMES")]
+    pub fix: Option<String>,
+    /// Standard deviation of the random errors of free lengths and positions, mm.
+    #[arg(long, default_value_t = 0.3, value_name = "MM")]
+    pub length_error: f64,
+    /// Standard deviation of the random encoder offsets, rad.
+    #[arg(long, default_value_t = 0.001, value_name = "RAD")]
+    pub offset_error: f64,
+    /// Unseen poses on which accuracy is judged.
+    #[arg(long, default_value_t = 50, value_name = "N")]
+    pub validation: usize,
+    /// Output CSV with one row per run.
+    #[arg(long, value_name = "RUNS.csv")]
+    pub out: Option<PathBuf>,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+#[derive(clap::Args)]
 pub struct DemoArgs {
     /// Directory for the demo's files.
     #[arg(long, default_value = "pkmcal-demo", value_name = "DIR")]
@@ -202,6 +314,49 @@ fn main() -> ExitCode {
                 report: a.report,
             })
         }),
+        Command::Compensate(a) => a.model.parse().map_err(Into::into).and_then(|model| {
+            usecal::run_compensate(usecal::CompensateConfig {
+                mechanism: a.mechanism,
+                params: a.params,
+                targets: a.targets,
+                model,
+                load: a.load,
+                preload: a.preload,
+                skip_unreachable: a.skip_unreachable,
+                out: a.out,
+            })
+        }),
+        Command::Plan(a) => (|| {
+            usecal::run_plan(usecal::PlanConfig {
+                mechanism: a.mechanism,
+                count: a.count,
+                candidates: a.candidates,
+                criterion: a.criterion.parse()?,
+                model: a.model.parse()?,
+                params: a.params,
+                free: a.free,
+                fix: a.fix,
+                out: a.out,
+                grid_out: a.grid_out,
+            })
+        })(),
+        Command::Montecarlo(a) => (|| {
+            usecal::run_montecarlo(usecal::MonteCarloConfig {
+                mechanism: a.mechanism,
+                poses: a.poses,
+                runs: a.runs,
+                noise: a.noise,
+                seed: a.seed,
+                model: a.model.parse()?,
+                free: a.free,
+                fix: a.fix,
+                length_error: a.length_error,
+                offset_error: a.offset_error,
+                validation: a.validation,
+                out: a.out,
+                quiet: a.quiet,
+            })
+        })(),
         Command::Demo(a) => commands::demo(a),
     };
     match result {

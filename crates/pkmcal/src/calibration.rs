@@ -258,7 +258,7 @@ pub struct Identifiability {
     pub correlations: Vec<Correlation>,
 }
 
-fn observability(sv: &[f64], poses: usize) -> Observability {
+pub(crate) fn observability(sv: &[f64], poses: usize) -> Observability {
     let l = sv.len().max(1) as f64;
     let last = sv.last().copied().unwrap_or(0.0);
     let first = sv.first().copied().unwrap_or(0.0);

@@ -35,12 +35,15 @@
 
 pub mod autodiff;
 pub mod calibration;
+pub mod compensation;
 pub mod error;
 pub mod kinematics;
 pub mod linearized;
 pub mod lm;
 pub mod mechanism;
 pub mod models;
+pub mod montecarlo;
+pub mod planning;
 pub mod reference;
 pub mod sensitivity;
 pub mod simulate;
@@ -51,6 +54,7 @@ pub use calibration::{
     Accuracy, Calibration, CalibrationOptions, Identifiability, ParameterCovariance, accuracy,
     analyze, calibrate, cross_validate, holdout_split, predict_with_uncertainty, tool_covariance,
 };
+pub use compensation::{Compensation, CompensationOptions, compensate};
 pub use error::{Error, Result};
 pub use kinematics::{
     forward_kinematics, inverse_kinematics, reference_configuration, solve_closure,
@@ -61,9 +65,12 @@ pub use models::{
     Equilibrium, Model, Pose, Prediction, equilibrium, predict, predict_pose, predict_pose_warm,
     prepare_pose,
 };
+pub use montecarlo::{MonteCarloOptions, MonteCarloSummary, monte_carlo};
+pub use planning::{PlanCriterion, candidate_jacobians, plan_observability, plan_poses};
 pub use reference::JeongKim2Dof;
 pub use simulate::{Measurement, simulate};
 pub use stats::{ErrorStats, error_stats, improvement_percent};
 pub use workspace::{
-    WorkspacePoint, nominal_commands, random_targets, sample_workspace, spread_targets,
+    WorkspacePoint, grid_targets, nominal_commands, random_targets, sample_workspace,
+    spread_targets,
 };

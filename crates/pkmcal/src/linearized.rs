@@ -123,7 +123,16 @@ pub fn projection(gamma: &DMatrix<f64>, k: &[f64]) -> Result<DMatrix<f64>> {
 
 /// The generalised load `P` of eq. 10 (N·m) for an external force `force`
 /// applied to the tool (N): `P = J_fᵀ (Q + N)` with `Q + N = −force`.
+/// An empty `force` means no load; otherwise it has one value per tool axis.
 pub fn load_vector(lin: &Linearization, force: &[f64]) -> DVector<f64> {
+    if force.is_empty() {
+        return DVector::zeros(lin.jf.ncols());
+    }
+    assert_eq!(
+        force.len(),
+        lin.jf.nrows(),
+        "one force component per tool axis"
+    );
     let f = DVector::from_column_slice(force);
     -(lin.jf.transpose() * f) * MM_TO_M
 }

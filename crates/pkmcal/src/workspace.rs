@@ -159,3 +159,32 @@ pub fn random_targets<M: Mechanism>(mech: &M, count: usize, seed: u64) -> Result
     pool.shuffle(&mut rand::rngs::StdRng::seed_from_u64(seed));
     Ok(pool.into_iter().take(count).map(|p| p.target).collect())
 }
+
+/// A plain grid of `count` usable targets: the coarsest square lattice over the
+/// workspace box with at least `count` usable points, thinned evenly to
+/// `count`. The baseline measurement plan.
+pub fn grid_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<WorkspacePoint>> {
+    let spec = mech.spec();
+    let extent = spec
+        .workspace_box
+        .iter()
+        .map(|[a, b]| b - a)
+        .fold(0.0, f64::max);
+    let (mut lo, mut hi) = (extent / 400.0, extent);
+    if sample_workspace(mech, lo).len() < count {
+        return Err(Error::InvalidRequest(format!(
+            "the usable workspace holds fewer than {count} lattice points; ask for fewer"
+        )));
+    }
+    for _ in 0..30 {
+        let mid = 0.5 * (lo + hi);
+        if sample_workspace(mech, mid).len() >= count {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    let lattice = sample_workspace(mech, lo);
+    let n = lattice.len();
+    Ok((0..count).map(|i| lattice[i * n / count].clone()).collect())
+}

@@ -1,0 +1,429 @@
+//! `compensate`, `plan` and `montecarlo`: using a calibration.
+
+use crate::calibrate::free_set;
+use crate::io::{Csv, csv_bytes, parse_list, read_mechanism, read_params, write_atomic};
+use anyhow::{Context, Result, bail};
+use pkmcal::{
+    CalibrationOptions, CompensationOptions, Mechanism, Model, MonteCarloOptions, Params,
+    PlanCriterion, candidate_jacobians, compensate, grid_targets, monte_carlo, plan_observability,
+    plan_poses, random_targets, sample_workspace,
+};
+use rayon::prelude::*;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// Rows compensated per parallel batch (bounded memory for any file size).
+const BATCH_ROWS: usize = 1 << 16;
+
+pub struct CompensateConfig {
+    pub mechanism: Option<PathBuf>,
+    pub params: Option<PathBuf>,
+    pub targets: PathBuf,
+    pub model: Model,
+    pub load: Option<String>,
+    pub preload: Option<String>,
+    pub skip_unreachable: bool,
+    pub out: PathBuf,
+}
+
+/// Stream the targets file in batches, compensate each batch in parallel,
+/// write to a temporary file renamed over `out` only when all succeeded.
+pub fn run_compensate(c: CompensateConfig) -> Result<()> {
+    let mech = read_mechanism(c.mechanism.as_deref())?;
+    let spec = mech.spec();
+    let params = match &c.params {
+        Some(p) => read_params(p, spec)?,
+        None => Params::nominal(spec),
+    };
+    let nx = spec.tool_axes.len();
+    let opts = CompensationOptions {
+        force: match &c.load {
+            Some(s) => {
+                let f = parse_list(s, "--load")?;
+                if f.len() != nx {
+                    bail!("--load needs {nx} values, got {}", f.len());
+                }
+                f
+            }
+            None => vec![],
+        },
+        preload: match &c.preload {
+            Some(s) => {
+                let t = parse_list(s, "--preload")?;
+                if t.len() != spec.n_actuated() {
+                    bail!(
+                        "--preload needs {} torques (one per actuator), got {}",
+                        spec.n_actuated(),
+                        t.len()
+                    );
+                }
+                t
+            }
+            None => vec![],
+        },
+    };
+    if c.model == Model::Linear {
+        bail!("compensation inverts the exact model (or the rigid one); use --model exact");
+    }
+    let mut rdr = csv::ReaderBuilder::new()
+        .trim(csv::Trim::All)
+        .comment(Some(b'#'))
+        .flexible(true)
+        .from_path(&c.targets)
+        .with_context(|| format!("cannot open {}", c.targets.display()))?;
+    let headers: Vec<String> = rdr
+        .headers()
+        .with_context(|| format!("{}: cannot read the header", c.targets.display()))?
+        .iter()
+        .map(String::from)
+        .collect();
+    let names: Vec<String> = spec
+        .tool_axes
+        .iter()
+        .map(|a| format!("target_{a}"))
+        .collect();
+    let cols: Vec<usize> = names
+        .iter()
+        .map(|n| {
+            let hits: Vec<usize> = (0..headers.len()).filter(|&i| headers[i] == *n).collect();
+            match hits.as_slice() {
+                [i] => Ok(*i),
+                [] => bail!(
+                    "{}: missing column `{n}` (columns found: {})",
+                    c.targets.display(),
+                    headers.join(",")
+                ),
+                _ => bail!(
+                    "{}: column `{n}` appears more than once",
+                    c.targets.display()
+                ),
+            }
+        })
+        .collect::<Result<_>>()?;
+    let dir = c
+        .out
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let tmp = tempfile_in(dir, &c.out)?;
+    let result = (|| -> Result<(usize, usize)> {
+        let mut w = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
+        let mut header: Vec<String> = names.clone();
+        header.extend(spec.actuated_names().iter().map(|s| s.to_string()));
+        header.extend(spec.actuated_names().iter().map(|s| format!("torque_{s}")));
+        writeln!(w, "{}", header.join(","))?;
+        let (mut done, mut skipped) = (0usize, 0usize);
+        let mut records = rdr.records();
+        loop {
+            let mut batch: Vec<(u64, Vec<f64>)> = Vec::with_capacity(BATCH_ROWS);
+            for rec in records.by_ref().take(BATCH_ROWS) {
+                let rec = rec.with_context(|| format!("{}: malformed CSV", c.targets.display()))?;
+                let line = rec.position().map_or(0, |p| p.line());
+                if rec.iter().all(str::is_empty) {
+                    continue;
+                }
+                let t: Vec<f64> = cols
+                    .iter()
+                    .zip(&names)
+                    .map(|(&k, n)| {
+                        let f = rec.get(k).with_context(|| {
+                            format!("{}:{line}: the row is short: no `{n}`", c.targets.display())
+                        })?;
+                        f.parse::<f64>()
+                            .ok()
+                            .filter(|v| v.is_finite())
+                            .with_context(|| {
+                                format!(
+                                    "{}:{line}: column `{n}`: `{f}` is not a finite number",
+                                    c.targets.display()
+                                )
+                            })
+                    })
+                    .collect::<Result<_>>()?;
+                batch.push((line, t));
+            }
+            if batch.is_empty() {
+                break;
+            }
+            let results: Vec<_> = batch
+                .par_iter()
+                .map(|(_, t)| compensate(&mech, &params, t, c.model, &opts))
+                .collect();
+            for ((line, t), r) in batch.iter().zip(results) {
+                match r {
+                    Ok(comp) => {
+                        let vals: Vec<String> = t
+                            .iter()
+                            .chain(&comp.commands)
+                            .chain(&comp.torque)
+                            .map(|v| format!("{v}"))
+                            .collect();
+                        writeln!(w, "{}", vals.join(","))?;
+                        done += 1;
+                    }
+                    Err(e) if c.skip_unreachable => {
+                        eprintln!("{}:{line}: skipped: {e}", c.targets.display());
+                        skipped += 1;
+                    }
+                    Err(e) => bail!(
+                        "{}:{line}: target {t:?}: {e} (use --skip-unreachable to skip such rows)",
+                        c.targets.display()
+                    ),
+                }
+            }
+        }
+        if done + skipped == 0 {
+            bail!("{}: no data rows below the header", c.targets.display());
+        }
+        w.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+        Ok((done, skipped))
+    })();
+    match result {
+        Ok((done, skipped)) => {
+            std::fs::rename(&tmp, &c.out)
+                .with_context(|| format!("cannot write {}", c.out.display()))?;
+            eprintln!(
+                "compensated {done} targets{} ({} model) -> {}",
+                if skipped > 0 {
+                    format!(", skipped {skipped}")
+                } else {
+                    String::new()
+                },
+                c.model.name(),
+                c.out.display()
+            );
+            Ok(())
+        }
+        Err(e) => {
+            let _ = std::fs::remove_file(&tmp);
+            Err(e)
+        }
+    }
+}
+
+fn tempfile_in(dir: &Path, out: &Path) -> Result<PathBuf> {
+    let name = out
+        .file_name()
+        .with_context(|| format!("{} is not a file name", out.display()))?;
+    Ok(dir.join(format!(
+        ".{}.tmp-{}",
+        name.to_string_lossy(),
+        std::process::id()
+    )))
+}
+
+pub struct PlanConfig {
+    pub mechanism: Option<PathBuf>,
+    pub count: usize,
+    pub candidates: f64,
+    pub criterion: PlanCriterion,
+    pub model: Model,
+    pub params: Option<PathBuf>,
+    pub free: Option<String>,
+    pub fix: Option<String>,
+    pub out: PathBuf,
+    pub grid_out: Option<PathBuf>,
+}
+
+pub fn run_plan(c: PlanConfig) -> Result<()> {
+    let mech = read_mechanism(c.mechanism.as_deref())?;
+    let spec = mech.spec();
+    let params = match &c.params {
+        Some(p) => read_params(p, spec)?,
+        None => Params::nominal(spec),
+    };
+    let free = free_set(&mech, c.free.as_deref(), c.fix.as_deref())?;
+    if !(c.candidates.is_finite() && c.candidates > 0.0) {
+        bail!("--candidates must be a positive spacing in mm");
+    }
+    if c.count * spec.tool_axes.len() <= free.len() {
+        bail!(
+            "{} poses give too few coordinates for {} free parameters; plan at least {}",
+            c.count,
+            free.len(),
+            free.len() / spec.tool_axes.len() + 1
+        );
+    }
+    let mut points = sample_workspace(&mech, c.candidates);
+    let n_candidates = points.len();
+    // The plain grid of the same size, judged with the same column scaling.
+    let grid = grid_targets(&mech, c.count)?;
+    points.extend(grid);
+    let cands = candidate_jacobians(&mech, points, &params, c.model, &free)?;
+    let pool: Vec<usize> = (0..n_candidates).collect();
+    let sub = pkmcal::planning::Candidates {
+        points: pool.iter().map(|&i| cands.points[i].clone()).collect(),
+        rows: pool.iter().map(|&i| cands.rows[i].clone()).collect(),
+    };
+    let chosen = plan_poses(&sub, c.count, c.criterion)?;
+    let (planned, pcond) = plan_observability(&cands, &chosen);
+    let grid_idx: Vec<usize> = (n_candidates..n_candidates + c.count).collect();
+    let (grid_o, gcond) = plan_observability(&cands, &grid_idx);
+    let mut header: Vec<String> = spec
+        .tool_axes
+        .iter()
+        .map(|a| format!("target_{a}"))
+        .collect();
+    header.extend(spec.actuated_names().iter().map(|s| s.to_string()));
+    let rows = |set: &[usize]| -> Vec<Vec<f64>> {
+        set.iter()
+            .map(|&i| {
+                let p = &cands.points[i];
+                p.target
+                    .iter()
+                    .copied()
+                    .chain(spec.actuated.iter().map(|&j| p.q[j]))
+                    .collect()
+            })
+            .collect()
+    };
+    write_atomic(&c.out, &csv_bytes(&header, &rows(&chosen)))?;
+    if let Some(g) = &c.grid_out {
+        write_atomic(g, &csv_bytes(&header, &rows(&grid_idx)))?;
+    }
+    println!(
+        "planned {} poses of {} candidates (spacing {} mm) maximising {:?} for {} free parameters ({} model)",
+        c.count,
+        n_candidates,
+        c.candidates,
+        c.criterion,
+        free.len(),
+        c.model.name()
+    );
+    println!(
+        "  {:<14} {:>11} {:>11} {:>11} {:>11} {:>11} {:>10}",
+        "", "O1", "O2", "O3", "O4", "O5", "cond"
+    );
+    for (label, o, cond) in [("planned", &planned, pcond), ("plain grid", &grid_o, gcond)] {
+        println!(
+            "  {label:<14} {:>11.4e} {:>11.4e} {:>11.4e} {:>11.4e} {:>11.4e} {:>10.2}",
+            o.o1, o.o2, o.o3, o.o4, o.o5, cond
+        );
+    }
+    println!("poses -> {}", c.out.display());
+    if let Some(g) = &c.grid_out {
+        println!("plain grid -> {}", g.display());
+    }
+    Ok(())
+}
+
+pub struct MonteCarloConfig {
+    pub mechanism: Option<PathBuf>,
+    pub poses: PathBuf,
+    pub runs: usize,
+    pub noise: f64,
+    pub seed: u64,
+    pub model: Model,
+    pub free: Option<String>,
+    pub fix: Option<String>,
+    pub length_error: f64,
+    pub offset_error: f64,
+    pub validation: usize,
+    pub out: Option<PathBuf>,
+    pub quiet: bool,
+}
+
+pub fn run_montecarlo(c: MonteCarloConfig) -> Result<()> {
+    use std::io::IsTerminal;
+    let mech = read_mechanism(c.mechanism.as_deref())?;
+    let spec = mech.spec();
+    if c.runs == 0 {
+        bail!("--runs must be at least 1");
+    }
+    for (v, name) in [
+        (c.noise, "--noise"),
+        (c.length_error, "--length-error"),
+        (c.offset_error, "--offset-error"),
+    ] {
+        if !(v.is_finite() && v >= 0.0) {
+            bail!("{name} must be a non-negative number");
+        }
+    }
+    let csv = Csv::read(&c.poses)?;
+    csv.require_rows()?;
+    let names: Vec<String> = spec
+        .tool_axes
+        .iter()
+        .map(|a| format!("target_{a}"))
+        .collect();
+    let poses = csv.named(&names)?;
+    for (i, t) in poses.iter().enumerate() {
+        pkmcal::nominal_commands(&mech, t)
+            .with_context(|| format!("{}:{}: target {t:?}", c.poses.display(), csv.line(i)))?;
+    }
+    let mut cal = CalibrationOptions::new(spec, c.model);
+    cal.free = free_set(&mech, c.free.as_deref(), c.fix.as_deref())?;
+    let validation = random_targets(&mech, c.validation, c.seed ^ 0x5eed)?;
+    let bar = indicatif::ProgressBar::new(c.runs as u64);
+    if c.quiet || !std::io::stderr().is_terminal() {
+        bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    }
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} calibrations ({eta})")
+            .expect("valid template"),
+    );
+    let opts = MonteCarloOptions {
+        runs: c.runs,
+        noise: c.noise,
+        seed: c.seed,
+        length_error: c.length_error,
+        offset_error: c.offset_error,
+        calibration: cal,
+    };
+    let start = std::time::Instant::now();
+    let (runs, summary) = monte_carlo(&mech, &poses, &validation, &opts, &|| bar.inc(1))?;
+    bar.finish_and_clear();
+    let secs = start.elapsed().as_secs_f64();
+    println!(
+        "{} simulated calibrations ({} model) from {} poses of {}: {} converged ({:.0} calibrations/s)",
+        summary.runs,
+        c.model.name(),
+        poses.len(),
+        c.poses.display(),
+        summary.converged,
+        summary.runs as f64 / secs
+    );
+    println!(
+        "random errors: σ {} mm on free lengths and positions, σ {} rad on encoder offsets; noise σ {} mm",
+        c.length_error, c.offset_error, c.noise
+    );
+    println!(
+        "accuracy on {} unseen poses after calibration: RMS median {:.4} mm, 95th percentile {:.4} mm; max error median {:.4} mm",
+        c.validation,
+        summary.validation_rms_median,
+        summary.validation_rms_p95,
+        summary.validation_max_median
+    );
+    println!("parameter errors (RMS over runs):");
+    for (n, e) in summary.parameters.iter().zip(&summary.parameter_rms_error) {
+        let i = spec.param_index(n)?;
+        println!("  {n:<6} {e:>12.4e} {}", pkmcal::calibration::unit(spec, i));
+    }
+    if let Some(out) = &c.out {
+        let mut header = vec![
+            "run".to_string(),
+            "converged".into(),
+            "validation_rms".into(),
+            "validation_max".into(),
+        ];
+        header.extend(summary.parameters.iter().map(|n| format!("error_{n}")));
+        let rows: Vec<Vec<f64>> = runs
+            .iter()
+            .enumerate()
+            .map(|(i, r)| {
+                [
+                    i as f64,
+                    f64::from(u8::from(r.converged)),
+                    r.validation.distance_rms,
+                    r.validation.distance_max,
+                ]
+                .into_iter()
+                .chain(r.parameter_errors.iter().copied())
+                .collect()
+            })
+            .collect();
+        write_atomic(out, &csv_bytes(&header, &rows))?;
+        println!("runs -> {}", out.display());
+    }
+    Ok(())
+}

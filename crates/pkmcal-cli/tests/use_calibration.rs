@@ -1,0 +1,181 @@
+//! End-to-end tests of `compensate`, `plan` and `montecarlo`.
+
+mod common;
+use common::{fails, ok, read_csv};
+
+#[test]
+fn compensated_commands_bring_the_tool_to_the_targets() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("p.toml"),
+        "l11 = 280.4\nB3x = 149.6\ndq1 = 0.001\ndq3 = -0.0012\nD2 = 215.2\n",
+    )
+    .unwrap();
+    std::fs::write(
+        d.join("t.csv"),
+        "target_y,target_x\n180,0\n120,40\n230,-60\n160,100\n",
+    )
+    .unwrap();
+    for extra in [
+        vec![],
+        vec!["--load", "10,-30"],
+        vec!["--preload", "20,-5,10"],
+    ] {
+        let mut args = vec![
+            "compensate",
+            "--params",
+            "p.toml",
+            "--targets",
+            "t.csv",
+            "--out",
+            "c.csv",
+        ];
+        args.extend(extra.iter());
+        ok(d, &args);
+        let (h, rows) = read_csv(&d.join("c.csv"));
+        assert_eq!(
+            h,
+            [
+                "target_x",
+                "target_y",
+                "q1",
+                "q2",
+                "q3",
+                "torque_q1",
+                "torque_q2",
+                "torque_q3"
+            ]
+        );
+        assert_eq!(rows.len(), 4);
+        let mut pargs = vec![
+            "predict",
+            "--params",
+            "p.toml",
+            "--commands",
+            "c.csv",
+            "--out",
+            "pr.csv",
+        ];
+        if extra.first() == Some(&"--load") {
+            pargs.extend(["--force", "10,-30"]);
+        }
+        ok(d, &pargs);
+        let (_, pred) = read_csv(&d.join("pr.csv"));
+        for (c, p) in rows.iter().zip(&pred) {
+            let err = (c[0] - p[3]).hypot(c[1] - p[4]);
+            assert!(err < 1e-6, "{extra:?}: {err} mm");
+        }
+    }
+}
+
+#[test]
+fn compensate_reports_unreachable_rows() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("t.csv"),
+        "target_x,target_y\n0,180\n900,900\n40,120\n",
+    )
+    .unwrap();
+    fails(
+        d,
+        &["compensate", "--targets", "t.csv", "--out", "c.csv"],
+        1,
+        "t.csv:3",
+    );
+    assert!(!d.join("c.csv").exists());
+    let o = common::run(
+        d,
+        &[
+            "compensate",
+            "--targets",
+            "t.csv",
+            "--skip-unreachable",
+            "--out",
+            "c.csv",
+        ],
+    );
+    assert!(o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("t.csv:3: skipped"));
+    assert_eq!(read_csv(&d.join("c.csv")).1.len(), 2);
+    std::fs::write(d.join("bad.csv"), "target_x,target_y\n0,abc\n").unwrap();
+    fails(
+        d,
+        &["compensate", "--targets", "bad.csv", "--out", "c2.csv"],
+        1,
+        "bad.csv:2: column `target_y`",
+    );
+    fails(
+        d,
+        &[
+            "compensate",
+            "--targets",
+            "t.csv",
+            "--model",
+            "linear",
+            "--out",
+            "c2.csv",
+        ],
+        2,
+        "linear",
+    );
+}
+
+#[test]
+fn plan_then_montecarlo() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = ok(
+        d,
+        &[
+            "plan",
+            "--count",
+            "20",
+            "--candidates",
+            "15",
+            "--out",
+            "plan.csv",
+            "--grid-out",
+            "grid.csv",
+        ],
+    );
+    assert!(
+        out.contains("planned") && out.contains("plain grid"),
+        "{out}"
+    );
+    let (h, rows) = read_csv(&d.join("plan.csv"));
+    assert_eq!(h, ["target_x", "target_y", "q1", "q2", "q3"]);
+    assert_eq!(rows.len(), 20);
+    assert_eq!(read_csv(&d.join("grid.csv")).1.len(), 20);
+    let out = ok(
+        d,
+        &[
+            "montecarlo",
+            "--poses",
+            "plan.csv",
+            "--runs",
+            "6",
+            "--validation",
+            "10",
+            "--out",
+            "runs.csv",
+        ],
+    );
+    assert!(out.contains("6 converged"), "{out}");
+    let (h, runs) = read_csv(&d.join("runs.csv"));
+    assert_eq!(runs.len(), 6);
+    assert_eq!(h.len(), 4 + 16);
+    fails(
+        d,
+        &["plan", "--count", "5", "--out", "p.csv"],
+        1,
+        "too few coordinates",
+    );
+    fails(
+        d,
+        &["montecarlo", "--poses", "plan.csv", "--runs", "0"],
+        1,
+        "--runs",
+    );
+}

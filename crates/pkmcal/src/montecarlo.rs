@@ -1,0 +1,140 @@
+//! Monte Carlo prediction of calibration accuracy for a measurement plan:
+//! random parameter errors and measurement noise, simulated measurements,
+//! calibration, and the resulting accuracy on unseen poses and parameters.
+
+use crate::calibration::{CalibrationOptions, accuracy, calibrate};
+use crate::error::Result;
+use crate::mechanism::{Mechanism, Params};
+use crate::simulate::simulate;
+use crate::stats::ErrorStats;
+use rand::SeedableRng;
+use rand::rngs::StdRng;
+use rand_distr::{Distribution, Normal};
+use rayon::prelude::*;
+use serde::Serialize;
+
+/// Settings of a Monte Carlo study.
+#[derive(Debug, Clone)]
+pub struct MonteCarloOptions {
+    /// Number of simulated calibrations.
+    pub runs: usize,
+    /// Measurement noise, mm per axis.
+    pub noise: f64,
+    /// Seed; run `r` uses `seed + r`.
+    pub seed: u64,
+    /// Standard deviation of the random errors of free geometric parameters (mm).
+    pub length_error: f64,
+    /// Standard deviation of the random encoder offsets (rad).
+    pub offset_error: f64,
+    /// Calibration settings (model, free set).
+    pub calibration: CalibrationOptions,
+}
+
+/// One simulated calibration.
+#[derive(Debug, Clone, Serialize)]
+pub struct Run {
+    /// Whether the fit converged.
+    pub converged: bool,
+    /// Accuracy on the validation targets (noise-free truth vs calibrated model).
+    pub validation: ErrorStats,
+    /// Identified minus true value of each free parameter.
+    pub parameter_errors: Vec<f64>,
+}
+
+/// Summary over all runs.
+#[derive(Debug, Clone, Serialize)]
+pub struct MonteCarloSummary {
+    /// Runs made.
+    pub runs: usize,
+    /// Runs that converged.
+    pub converged: usize,
+    /// Median of the validation RMS distance error (mm).
+    pub validation_rms_median: f64,
+    /// 95th percentile of the validation RMS distance error (mm).
+    pub validation_rms_p95: f64,
+    /// Median of the validation maximum distance error (mm).
+    pub validation_max_median: f64,
+    /// Free parameter names.
+    pub parameters: Vec<String>,
+    /// RMS over runs of each free parameter's error.
+    pub parameter_rms_error: Vec<f64>,
+}
+
+fn percentile(v: &mut [f64], p: f64) -> f64 {
+    v.sort_by(f64::total_cmp);
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    let k = ((v.len() - 1) as f64 * p).round() as usize;
+    v[k]
+}
+
+/// Run the study: calibrate from measurements at `poses` (targets), judge on
+/// `validation` targets. `progress` is called after each run (from any thread).
+pub fn monte_carlo<M: Mechanism>(
+    mech: &M,
+    poses: &[Vec<f64>],
+    validation: &[Vec<f64>],
+    opts: &MonteCarloOptions,
+    progress: &(dyn Fn() + Sync),
+) -> Result<(Vec<Run>, MonteCarloSummary)> {
+    let spec = mech.spec();
+    let nominal = Params::nominal(spec);
+    let free = &opts.calibration.free;
+    let ng = spec.n_geometric();
+    let na = spec.n_actuated();
+    let runs: Vec<Result<Run>> = (0..opts.runs)
+        .into_par_iter()
+        .map(|r| {
+            let seed = opts.seed.wrapping_add(r as u64);
+            let mut rng = StdRng::seed_from_u64(seed);
+            let len = Normal::new(0.0, opts.length_error.max(0.0)).expect("valid σ");
+            let off = Normal::new(0.0, opts.offset_error.max(0.0)).expect("valid σ");
+            let mut truth = nominal.clone();
+            for &i in free {
+                if i < ng {
+                    truth.values[i] += len.sample(&mut rng);
+                } else if i < ng + na {
+                    truth.values[i] += off.sample(&mut rng);
+                }
+            }
+            let data = simulate(mech, &truth, poses, opts.noise, seed ^ 0x9e37_79b9)?;
+            let cal = calibrate(mech, &data, &nominal, &opts.calibration)?;
+            let unseen = simulate(mech, &truth, validation, 0.0, seed)?;
+            let (acc, _, _) = accuracy(mech, &unseen, &cal.params, opts.calibration.model, &[])?;
+            progress();
+            Ok(Run {
+                converged: cal.converged,
+                validation: acc.after,
+                parameter_errors: free
+                    .iter()
+                    .map(|&i| cal.params.values[i] - truth.values[i])
+                    .collect(),
+            })
+        })
+        .collect();
+    let runs: Vec<Run> = runs.into_iter().collect::<Result<_>>()?;
+    let mut rms: Vec<f64> = runs.iter().map(|r| r.validation.distance_rms).collect();
+    let mut max: Vec<f64> = runs.iter().map(|r| r.validation.distance_max).collect();
+    let n = runs.len().max(1) as f64;
+    let names = spec.param_names();
+    let summary = MonteCarloSummary {
+        runs: runs.len(),
+        converged: runs.iter().filter(|r| r.converged).count(),
+        validation_rms_median: percentile(&mut rms, 0.5),
+        validation_rms_p95: percentile(&mut rms, 0.95),
+        validation_max_median: percentile(&mut max, 0.5),
+        parameters: free.iter().map(|&i| names[i].to_string()).collect(),
+        parameter_rms_error: (0..free.len())
+            .map(|k| {
+                (runs
+                    .iter()
+                    .map(|r| r.parameter_errors[k].powi(2))
+                    .sum::<f64>()
+                    / n)
+                    .sqrt()
+            })
+            .collect(),
+    };
+    Ok((runs, summary))
+}

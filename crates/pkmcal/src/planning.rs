@@ -1,0 +1,175 @@
+//! Measurement planning: choose the poses that make the free parameters most
+//! observable (greedy selection, then DETMAX-style exchange), on the
+//! information matrix `M = Σ AᵀA` of column-scaled identification Jacobians.
+
+use crate::calibration::{Observability, observability};
+use crate::error::{Error, Result};
+use crate::mechanism::{Mechanism, Params};
+use crate::models::{Model, prepare_pose};
+use crate::sensitivity::sensitivity;
+use crate::workspace::WorkspacePoint;
+use nalgebra::DMatrix;
+use rayon::prelude::*;
+use serde::Serialize;
+
+/// The observability index a plan maximises.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub enum PlanCriterion {
+    /// Product of the singular values (D-optimal).
+    O1,
+    /// Smallest singular value (E-optimal).
+    O3,
+    /// Inverse of the summed inverse singular values.
+    O5,
+}
+
+impl std::str::FromStr for PlanCriterion {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s.to_ascii_uppercase().as_str() {
+            "O1" => Ok(Self::O1),
+            "O3" => Ok(Self::O3),
+            "O5" => Ok(Self::O5),
+            _ => Err(Error::InvalidRequest(format!(
+                "unknown criterion `{s}`; use O1, O3 or O5"
+            ))),
+        }
+    }
+}
+
+/// Column-scaled identification Jacobians of candidate poses.
+pub struct Candidates {
+    /// The candidate poses.
+    pub points: Vec<WorkspacePoint>,
+    /// Per candidate, `nx × n_free` rows of the scaled Jacobian.
+    pub rows: Vec<DMatrix<f64>>,
+}
+
+/// Identification Jacobians (free columns, scaled to unit norm over all
+/// candidates) of every candidate pose, at `params` with `model`.
+pub fn candidate_jacobians<M: Mechanism>(
+    mech: &M,
+    points: Vec<WorkspacePoint>,
+    params: &Params,
+    model: Model,
+    free: &[usize],
+) -> Result<Candidates> {
+    let spec = mech.spec();
+    let raw: Vec<Result<DMatrix<f64>>> = points
+        .par_iter()
+        .map(|p| {
+            let commands: Vec<f64> = spec.actuated.iter().map(|&j| p.q[j]).collect();
+            let pose = prepare_pose(mech, &commands, Some(&p.q))?;
+            Ok(sensitivity(mech, &pose, params, model, &[])?
+                .jacobian
+                .select_columns(free))
+        })
+        .collect();
+    let raw: Vec<DMatrix<f64>> = raw.into_iter().collect::<Result<_>>()?;
+    let mut norms = vec![0.0; free.len()];
+    for a in &raw {
+        for (k, n) in norms.iter_mut().enumerate() {
+            *n += a.column(k).norm_squared();
+        }
+    }
+    let rows = raw
+        .into_iter()
+        .map(|mut a| {
+            for (k, n) in norms.iter().enumerate() {
+                if *n > 0.0 {
+                    a.column_mut(k).unscale_mut(n.sqrt());
+                }
+            }
+            a
+        })
+        .collect();
+    Ok(Candidates { points, rows })
+}
+
+fn singular_values(m: &DMatrix<f64>) -> Vec<f64> {
+    let mut ev: Vec<f64> = m
+        .clone()
+        .symmetric_eigenvalues()
+        .iter()
+        .map(|e| e.max(0.0).sqrt())
+        .collect();
+    ev.sort_by(|a, b| b.total_cmp(a));
+    ev
+}
+
+fn score(m: &DMatrix<f64>, reg: f64, criterion: PlanCriterion) -> f64 {
+    let mut mr = m.clone();
+    for i in 0..mr.nrows() {
+        mr[(i, i)] += reg;
+    }
+    let sv = singular_values(&mr);
+    match criterion {
+        PlanCriterion::O1 => sv.iter().map(|s| s.ln()).sum(),
+        PlanCriterion::O3 => *sv.last().unwrap_or(&0.0),
+        PlanCriterion::O5 => 1.0 / sv.iter().map(|s| 1.0 / s).sum::<f64>(),
+    }
+}
+
+/// Observability of a set of candidates (indices into `c`).
+pub fn plan_observability(c: &Candidates, set: &[usize]) -> (Observability, f64) {
+    let n = c.rows[0].ncols();
+    let mut m = DMatrix::zeros(n, n);
+    for &i in set {
+        m += c.rows[i].transpose() * &c.rows[i];
+    }
+    let sv = singular_values(&m);
+    let cond = match (sv.first(), sv.last()) {
+        (Some(a), Some(b)) if *b > 0.0 => a / b,
+        _ => f64::INFINITY,
+    };
+    (observability(&sv, set.len()), cond)
+}
+
+/// Choose `count` candidates maximising `criterion`: greedy selection, then
+/// exchanges (swap a chosen pose for a candidate while that improves the
+/// criterion), as DETMAX does. Returns candidate indices.
+pub fn plan_poses(c: &Candidates, count: usize, criterion: PlanCriterion) -> Result<Vec<usize>> {
+    let nc = c.rows.len();
+    if count == 0 || count > nc {
+        return Err(Error::InvalidRequest(format!(
+            "cannot choose {count} poses from {nc} candidates; use a finer --candidates spacing or fewer poses"
+        )));
+    }
+    let n = c.rows[0].ncols();
+    let info: Vec<DMatrix<f64>> = c.rows.iter().map(|a| a.transpose() * a).collect();
+    // A tiny ridge keeps the criterion defined while the set is rank deficient.
+    let reg = 1e-9 * info.iter().map(|m| m.trace()).sum::<f64>() / (nc * n) as f64;
+    let mut chosen: Vec<usize> = vec![];
+    let mut m = DMatrix::zeros(n, n);
+    let best_addition = |m: &DMatrix<f64>, chosen: &[usize]| {
+        (0..nc)
+            .into_par_iter()
+            .filter(|i| !chosen.contains(i))
+            .map(|i| (score(&(m + &info[i]), reg, criterion), i))
+            .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)))
+    };
+    while chosen.len() < count {
+        let (_, i) = best_addition(&m, &chosen).expect("enough candidates");
+        m += &info[i];
+        chosen.push(i);
+    }
+    let mut current = score(&m, reg, criterion);
+    for _pass in 0..20 {
+        let mut improved = false;
+        for k in 0..chosen.len() {
+            let without = &m - &info[chosen[k]];
+            if let Some((s, i)) = best_addition(&without, &chosen)
+                && s > current * (1.0 + 1e-12) + 1e-300
+            {
+                m = without + &info[i];
+                chosen[k] = i;
+                current = s;
+                improved = true;
+            }
+        }
+        if !improved {
+            break;
+        }
+    }
+    Ok(chosen)
+}
