@@ -5,7 +5,7 @@ use anyhow::{Context, Result, bail};
 use pkmcal::calibration::{CrossValidation, Identifiability};
 use pkmcal::{
     Accuracy, Calibration, CalibrationOptions, ErrorStats, Measurement, Mechanism, Model, Params,
-    accuracy, analyze, calibrate, cross_validate, holdout_split,
+    accuracy, analyze, calibrate, holdout_split,
 };
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -128,6 +128,8 @@ pub struct CalibrateConfig {
     pub holdout: Option<f64>,
     pub seed: u64,
     pub kfold: Option<usize>,
+    pub report_dir: Option<PathBuf>,
+    pub quiet: bool,
 }
 
 fn force_arg(mech: &Mech, s: Option<&str>) -> Result<Vec<f64>> {
@@ -180,7 +182,7 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
         };
     let cal = calibrate(&mech, &train, &start, &opts)
         .with_context(|| format!("calibrating from {}", c.data.display()))?;
-    let (acc, _, _) = accuracy(&mech, &train, &cal.params, c.model, &opts.force)?;
+    let (acc, before, after) = accuracy(&mech, &train, &cal.params, c.model, &opts.force)?;
     let validation = match &held {
         Some((source, data)) => Some(Validation {
             source: source.clone(),
@@ -189,7 +191,20 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
         None => None,
     };
     let cross_validation = match c.kfold {
-        Some(k) => Some(cross_validate(&mech, &train, &start, &opts, k, c.seed)?),
+        Some(k) => {
+            let bar = crate::io::progress(k as u64, c.quiet, "folds", 1);
+            let cv = pkmcal::cross_validate_with_progress(
+                &mech,
+                &train,
+                &start,
+                &opts,
+                k,
+                c.seed,
+                &|| bar.inc(1),
+            )?;
+            bar.finish_and_clear();
+            Some(cv)
+        }
         None => None,
     };
     let header = format!(
@@ -216,11 +231,30 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
     if let Some(r) = &c.report {
         write_atomic(r, json.as_bytes())?;
     }
+    if let Some(dir) = &c.report_dir {
+        crate::report::write_report_dir(
+            dir,
+            &crate::report::ReportInputs {
+                mech: &mech,
+                data_name: &c.data.display().to_string(),
+                cal: &cal,
+                data: &train,
+                before: &before,
+                after: &after,
+                accuracy: &report.accuracy,
+                validation: report.validation.as_ref(),
+                cross_validation: report.cross_validation.as_ref(),
+            },
+        )?;
+    }
     print_summary(&report);
     println!();
     println!("identified parameters -> {}", c.out.display());
     if let Some(r) = &c.report {
         println!("report -> {}", r.display());
+    }
+    if let Some(d) = &c.report_dir {
+        println!("figures and report.html -> {}", d.display());
     }
     Ok(())
 }

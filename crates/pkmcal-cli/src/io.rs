@@ -319,3 +319,28 @@ pub fn parse_list(s: &str, what: &str) -> Result<Vec<f64>> {
         })
         .collect()
 }
+
+/// Work items below which no progress bar is shown (it would only flicker).
+const PROGRESS_MIN_ITEMS: u64 = 2000;
+
+/// A progress bar on stderr, hidden when stderr is not a terminal, with
+/// `--quiet`, or for small jobs (`min_items`; 0 for the default).
+pub fn progress(len: u64, quiet: bool, what: &str, min_items: u64) -> indicatif::ProgressBar {
+    use std::io::IsTerminal;
+    let bar = indicatif::ProgressBar::new(len);
+    let min = if min_items == 0 {
+        PROGRESS_MIN_ITEMS
+    } else {
+        min_items
+    };
+    if quiet || len < min || !std::io::stderr().is_terminal() {
+        bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    }
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(&format!(
+            "{{bar:40}} {{pos}}/{{len}} {what} ({{eta}})"
+        ))
+        .expect("valid template"),
+    );
+    bar
+}

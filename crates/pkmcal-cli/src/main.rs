@@ -3,7 +3,9 @@
 
 mod calibrate;
 mod commands;
+mod figures;
 mod io;
+mod report;
 mod usecal;
 
 use clap::{Parser, Subcommand};
@@ -62,6 +64,9 @@ pub struct PredictArgs {
     /// Output CSV.
     #[arg(long, value_name = "OUT.csv")]
     pub out: PathBuf,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
 }
 
 #[derive(clap::Args)]
@@ -92,6 +97,9 @@ pub struct SimulateArgs {
     /// Output CSV: target_x,target_y,q1,q2,q3,x,y.
     #[arg(long, value_name = "DATA.csv")]
     pub out: PathBuf,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
 }
 
 #[derive(clap::Args)]
@@ -135,6 +143,12 @@ pub struct CalibrateArgs {
     /// k-fold cross-validation on the calibration poses.
     #[arg(long, value_name = "K")]
     pub kfold: Option<usize>,
+    /// Write figures (SVG, PNG) and a self-contained report.html here.
+    #[arg(long, value_name = "DIR")]
+    pub report_dir: Option<PathBuf>,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
 }
 
 #[derive(clap::Args)]
@@ -300,6 +314,8 @@ fn main() -> ExitCode {
                 holdout: a.holdout,
                 seed: a.seed,
                 kfold: a.kfold,
+                report_dir: a.report_dir,
+                quiet: a.quiet,
             })
         }),
         Command::Analyze(a) => a.model.parse().map_err(Into::into).and_then(|model| {

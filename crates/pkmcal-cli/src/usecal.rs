@@ -324,7 +324,6 @@ pub struct MonteCarloConfig {
 }
 
 pub fn run_montecarlo(c: MonteCarloConfig) -> Result<()> {
-    use std::io::IsTerminal;
     let mech = read_mechanism(c.mechanism.as_deref())?;
     let spec = mech.spec();
     if c.runs == 0 {
@@ -354,14 +353,7 @@ pub fn run_montecarlo(c: MonteCarloConfig) -> Result<()> {
     let mut cal = CalibrationOptions::new(spec, c.model);
     cal.free = free_set(&mech, c.free.as_deref(), c.fix.as_deref())?;
     let validation = random_targets(&mech, c.validation, c.seed ^ 0x5eed)?;
-    let bar = indicatif::ProgressBar::new(c.runs as u64);
-    if c.quiet || !std::io::stderr().is_terminal() {
-        bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
-    }
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} calibrations ({eta})")
-            .expect("valid template"),
-    );
+    let bar = crate::io::progress(c.runs as u64, c.quiet, "calibrations", 1);
     let opts = MonteCarloOptions {
         runs: c.runs,
         noise: c.noise,

@@ -891,6 +891,19 @@ pub fn cross_validate<M: Mechanism>(
     folds: usize,
     seed: u64,
 ) -> Result<CrossValidation> {
+    cross_validate_with_progress(mech, data, start, opts, folds, seed, &|| {})
+}
+
+/// [`cross_validate`], calling `progress` after each fold.
+pub fn cross_validate_with_progress<M: Mechanism>(
+    mech: &M,
+    data: &[Measurement],
+    start: &Params,
+    opts: &CalibrationOptions,
+    folds: usize,
+    seed: u64,
+    progress: &dyn Fn(),
+) -> Result<CrossValidation> {
     if folds < 2 || folds > data.len() {
         return Err(Error::InvalidRequest(format!(
             "k-fold cross-validation needs 2 ≤ k ≤ {} poses, got k = {folds}",
@@ -913,6 +926,7 @@ pub fn cross_validate<M: Mechanism>(
         let (acc, _, after) = accuracy(mech, &test, &cal.params, opts.model, &opts.force)?;
         fold_rms.push(acc.after.distance_rms);
         pooled.extend(after);
+        progress();
     }
     Ok(CrossValidation {
         folds,

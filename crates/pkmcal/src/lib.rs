@@ -52,7 +52,8 @@ pub mod workspace;
 
 pub use calibration::{
     Accuracy, Calibration, CalibrationOptions, Identifiability, ParameterCovariance, accuracy,
-    analyze, calibrate, cross_validate, holdout_split, predict_with_uncertainty, tool_covariance,
+    analyze, calibrate, cross_validate, cross_validate_with_progress, holdout_split,
+    predict_with_uncertainty, tool_covariance,
 };
 pub use compensation::{Compensation, CompensationOptions, compensate};
 pub use error::{Error, Result};
@@ -68,7 +69,7 @@ pub use models::{
 pub use montecarlo::{MonteCarloOptions, MonteCarloSummary, monte_carlo};
 pub use planning::{PlanCriterion, candidate_jacobians, plan_observability, plan_poses};
 pub use reference::JeongKim2Dof;
-pub use simulate::{Measurement, simulate};
+pub use simulate::{Measurement, simulate, simulate_with_progress};
 pub use stats::{ErrorStats, error_stats, improvement_percent};
 pub use workspace::{
     WorkspacePoint, grid_targets, nominal_commands, random_targets, sample_workspace,

@@ -30,6 +30,18 @@ pub fn simulate<M: Mechanism>(
     noise: f64,
     seed: u64,
 ) -> Result<Vec<Measurement>> {
+    simulate_with_progress(mech, truth, targets, noise, seed, &|| {})
+}
+
+/// [`simulate`], calling `progress` after each target.
+pub fn simulate_with_progress<M: Mechanism>(
+    mech: &M,
+    truth: &Params,
+    targets: &[Vec<f64>],
+    noise: f64,
+    seed: u64,
+    progress: &dyn Fn(),
+) -> Result<Vec<Measurement>> {
     let mut rng = StdRng::seed_from_u64(seed);
     let normal = Normal::new(0.0, noise.max(0.0)).map_err(|e| {
         crate::Error::InvalidRequest(format!(
@@ -51,6 +63,7 @@ pub fn simulate<M: Mechanism>(
             commands,
             measured,
         });
+        progress();
     }
     Ok(out)
 }

@@ -1,0 +1,329 @@
+//! `--report-dir`: the figures (SVG and PNG) and one self-contained
+//! `report.html` with the figures inlined, the bundled font embedded and no
+//! network resources. Every user-supplied string is escaped.
+
+use crate::calibrate::Validation;
+use crate::figures::{self, Figure, ParamBar};
+use crate::io::{Mech, write_atomic};
+use anyhow::{Context, Result};
+use base64::Engine;
+use pkmcal::calibration::{CrossValidation, ErrorVectors, RANK_TOL};
+use pkmcal::{
+    Accuracy, Calibration, ErrorStats, Measurement, Mechanism, Model, prepare_pose,
+    sample_workspace, tool_covariance,
+};
+use rayon::prelude::*;
+use std::fmt::Write;
+use std::path::Path;
+
+/// Lattice spacing of the workspace maps, mm.
+const MAP_SPACING_MM: f64 = 8.0;
+
+/// Everything the report shows.
+pub struct ReportInputs<'a> {
+    pub mech: &'a Mech,
+    pub data_name: &'a str,
+    pub cal: &'a Calibration,
+    pub data: &'a [Measurement],
+    pub before: &'a ErrorVectors,
+    pub after: &'a ErrorVectors,
+    pub accuracy: &'a Accuracy,
+    pub validation: Option<&'a Validation>,
+    pub cross_validation: Option<&'a CrossValidation>,
+}
+
+/// Escape text for HTML.
+pub fn escape(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        match c {
+            '&' => out.push_str("&amp;"),
+            '<' => out.push_str("&lt;"),
+            '>' => out.push_str("&gt;"),
+            '"' => out.push_str("&quot;"),
+            '\'' => out.push_str("&#39;"),
+            _ => out.push(c),
+        }
+    }
+    out
+}
+
+/// Render every figure of a calibration.
+pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
+    let spec = r.mech.spec();
+    let cal = r.cal;
+    // Parameter groups by unit (offsets in mrad for readability).
+    let mut groups: Vec<(String, Vec<ParamBar>)> = vec![
+        ("lengths and positions (mm)".into(), vec![]),
+        ("encoder offsets (mrad)".into(), vec![]),
+        ("stiffness (N·m/rad)".into(), vec![]),
+    ];
+    for p in cal.parameters.iter().filter(|p| p.free) {
+        let (g, f) = match p.unit.as_str() {
+            "mm" => (0, 1.0),
+            "rad" => (1, 1e3),
+            _ => (2, 1.0),
+        };
+        groups[g].1.push(ParamBar {
+            name: p.name.clone(),
+            change: p.change * f,
+            sigma: p.std_dev * f,
+        });
+    }
+    let positions: Vec<Vec<f64>> = r
+        .data
+        .iter()
+        .zip(r.before)
+        .map(|(m, _)| m.target.clone().unwrap_or_else(|| m.measured.clone()))
+        .collect();
+    let lattice = sample_workspace(r.mech, MAP_SPACING_MM);
+    let maps: Vec<(Vec<f64>, f64, f64)> = lattice
+        .par_iter()
+        .filter_map(|p| {
+            let commands: Vec<f64> = spec.actuated.iter().map(|&j| p.q[j]).collect();
+            let pose = prepare_pose(r.mech, &commands, Some(&p.q)).ok()?;
+            let (pred, cov) = tool_covariance(
+                r.mech,
+                &pose,
+                &cal.params,
+                cal.model,
+                &[],
+                &cal.parameter_covariance,
+            )
+            .ok()?;
+            let miss = pred
+                .x
+                .iter()
+                .zip(&p.target)
+                .map(|(a, b)| (a - b).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            Some((p.target.clone(), miss, cov.trace().max(0.0).sqrt()))
+        })
+        .collect();
+    let map_points: Vec<Vec<f64>> = maps.iter().map(|m| m.0.clone()).collect();
+    let sigma = cal.residual_sigma.max(f64::MIN_POSITIVE);
+    let standardized: Vec<f64> = r.after.iter().flatten().map(|e| -e / sigma).collect();
+    let lattice_targets: Vec<Vec<f64>> = lattice.iter().map(|p| p.target.clone()).collect();
+    let mut out = vec![
+        figures::errors_per_pose(r.before, r.after, &spec.tool_axes)?,
+        figures::parameter_changes(&groups)?,
+        figures::workspace_errors(&lattice_targets, &positions, r.before, r.after)?,
+    ];
+    if !map_points.is_empty() {
+        out.push(figures::workspace_maps(
+            &map_points,
+            MAP_SPACING_MM,
+            &[
+                (
+                    "error without compensation (mm)".into(),
+                    maps.iter().map(|m| m.1).collect(),
+                ),
+                (
+                    "uncertainty of the prediction, σ (mm)".into(),
+                    maps.iter().map(|m| m.2).collect(),
+                ),
+            ],
+        )?);
+    }
+    out.push(figures::residuals(&standardized)?);
+    let sv = &cal.identifiability.singular_values;
+    let smax = sv.first().copied().unwrap_or(1.0);
+    out.push(figures::singular_values(sv, RANK_TOL * smax)?);
+    Ok(out)
+}
+
+fn stats_row(html: &mut String, label: &str, s: &ErrorStats) {
+    let _ = write!(
+        html,
+        "<tr><td>{}</td>{}<td>{:.4}</td><td>{:.4}</td><td>{:.4}</td><td>{:.4}</td></tr>",
+        escape(label),
+        s.axis_min
+            .iter()
+            .zip(&s.axis_max)
+            .map(|(a, b)| format!("<td>{a:.4} … {b:.4}</td>"))
+            .collect::<String>(),
+        s.distance_min,
+        s.distance_mean,
+        s.distance_rms,
+        s.distance_max
+    );
+}
+
+/// The report page.
+pub fn html(r: &ReportInputs, figs: &[Figure]) -> String {
+    let spec = r.mech.spec();
+    let cal = r.cal;
+    let font = base64::engine::general_purpose::STANDARD.encode(figures::FONT_BYTES);
+    let mut h = String::with_capacity(2_000_000);
+    let title = format!("pkmcal calibration report — {}", spec.name);
+    let _ = write!(
+        h,
+        r#"<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1">
+<title>{title}</title>
+<style>
+@font-face {{ font-family: "DejaVu Sans"; src: url(data:font/ttf;base64,{font}) format("truetype"); }}
+body {{ font-family: "DejaVu Sans", sans-serif; margin: 2em auto; max-width: 1100px; color: #222; line-height: 1.4; padding: 0 1em; }}
+h1 {{ font-size: 1.6em; }} h2 {{ font-size: 1.25em; border-bottom: 1px solid #ccc; margin-top: 2em; }}
+table {{ border-collapse: collapse; margin: 0.5em 0 1em; font-size: 0.9em; }}
+td, th {{ border: 1px solid #ddd; padding: 3px 8px; text-align: right; }}
+td:first-child, th:first-child {{ text-align: left; }}
+th {{ background: #f4f4f4; }}
+.fixed {{ color: #888; }} .warn {{ background: #fff4e0; border-left: 4px solid #e8a33d; padding: 0.5em 1em; margin: 0.5em 0; }}
+figure {{ margin: 1.5em 0; }} figure svg {{ max-width: 100%; height: auto; display: block; }}
+figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
+.kv td {{ text-align: left; }} .kv td:first-child {{ font-weight: bold; }}
+</style></head><body>
+<h1>{title}</h1>
+"#,
+        title = escape(&title),
+        font = font
+    );
+    let _ = write!(
+        h,
+        "<table class=\"kv\"><tr><td>mechanism</td><td>{}</td></tr><tr><td>joints</td><td>{} (actuated: {})</td></tr><tr><td>data</td><td>{} ({} poses)</td></tr><tr><td>model</td><td>{}</td></tr><tr><td>solver</td><td>{} after {} iterations, {} evaluations</td></tr><tr><td>residual σ</td><td>{:.3e} mm</td></tr><tr><td>pkmcal</td><td>{}</td></tr></table>",
+        escape(&spec.name),
+        escape(&spec.joints.join(", ")),
+        escape(&spec.actuated_names().join(", ")),
+        escape(r.data_name),
+        cal.poses,
+        match cal.model {
+            Model::Rigid => "rigid (no compliance)",
+            Model::Linear => "linear (paper eq. 11)",
+            Model::Exact => "exact static equilibrium",
+        },
+        escape(&cal.termination_reason),
+        cal.iterations,
+        cal.evaluations,
+        cal.residual_sigma,
+        env!("CARGO_PKG_VERSION")
+    );
+    for w in &cal.warnings {
+        let _ = write!(
+            h,
+            "<div class=\"warn\"><b>warning:</b> {}<br><i>{}</i></div>",
+            escape(&w.message),
+            escape(&w.hint)
+        );
+    }
+    h.push_str("<h2>Accuracy</h2><table><tr><th>distance error, mm</th>");
+    for a in &spec.tool_axes {
+        let _ = write!(h, "<th>{} error range</th>", escape(&a.to_uppercase()));
+    }
+    h.push_str("<th>min</th><th>mean</th><th>RMS</th><th>max</th></tr>");
+    stats_row(&mut h, "calibration poses, before", &r.accuracy.before);
+    stats_row(&mut h, "calibration poses, after", &r.accuracy.after);
+    if let Some(v) = r.validation {
+        stats_row(
+            &mut h,
+            &format!("validation ({}), before", v.source),
+            &v.accuracy.before,
+        );
+        stats_row(
+            &mut h,
+            &format!("validation ({}), after", v.source),
+            &v.accuracy.after,
+        );
+    }
+    if let Some(cv) = r.cross_validation {
+        stats_row(
+            &mut h,
+            &format!("{}-fold cross-validation", cv.folds),
+            &cv.pooled,
+        );
+    }
+    let _ = write!(
+        h,
+        "</table><p>Improvement on the calibration poses: maximum distance error {:.1} %, RMS {:.1} %.</p>",
+        r.accuracy.improvement_max_percent, r.accuracy.improvement_rms_percent
+    );
+    h.push_str("<h2>Parameters</h2><table><tr><th>parameter</th><th>unit</th><th>nominal</th><th>identified</th><th>change</th><th>σ</th><th></th></tr>");
+    for p in &cal.parameters {
+        let class = if p.free { "" } else { " class=\"fixed\"" };
+        let _ = write!(
+            h,
+            "<tr{class}><td>{}</td><td>{}</td><td>{:.6}</td><td>{:.8}</td><td>{:+.4e}</td><td>{}</td><td>{}</td></tr>",
+            escape(&p.name),
+            escape(&p.unit),
+            p.nominal,
+            p.identified,
+            p.change,
+            if p.free {
+                format!("{:.3e}", p.std_dev)
+            } else {
+                "fixed".into()
+            },
+            escape(p.note.as_deref().unwrap_or(""))
+        );
+    }
+    h.push_str("</table>");
+    let id = &cal.identifiability;
+    let o = &id.observability;
+    let _ = write!(
+        h,
+        "<h2>Identifiability</h2><p>Rank {} of {} free parameters; condition number of the column-scaled identification Jacobian {:.3e}.</p><table><tr><th>index</th><th>O1</th><th>O2</th><th>O3</th><th>O4</th><th>O5</th></tr><tr><td>value</td><td>{:.4e}</td><td>{:.4e}</td><td>{:.4e}</td><td>{:.4e}</td><td>{:.4e}</td></tr></table>",
+        id.rank,
+        id.singular_values.len(),
+        id.condition_number,
+        o.o1,
+        o.o2,
+        o.o3,
+        o.o4,
+        o.o5
+    );
+    if id.unidentifiable.is_empty() {
+        h.push_str("<p>Every free parameter is identifiable from these poses.</p>");
+    } else {
+        h.push_str("<p>Unidentifiable directions:</p><ul>");
+        for u in &id.unidentifiable {
+            let _ = write!(
+                h,
+                "<li>{}{}</li>",
+                escape(&u.combination),
+                u.fixed
+                    .as_ref()
+                    .map(|f| format!(" — fixed <b>{}</b>", escape(f)))
+                    .unwrap_or_default()
+            );
+        }
+        h.push_str("</ul>");
+    }
+    if !cal.correlations.is_empty() {
+        h.push_str("<p>Strongly correlated parameters (|r| > 0.9): ");
+        let list: Vec<String> = cal
+            .correlations
+            .iter()
+            .map(|c| format!("{} – {} ({:+.3})", escape(&c.a), escape(&c.b), c.r))
+            .collect();
+        h.push_str(&list.join(", "));
+        h.push_str("</p>");
+    }
+    h.push_str("<h2>Figures</h2>");
+    for f in figs {
+        let _ = write!(
+            h,
+            "<figure id=\"{}\"><h3>{}</h3>{}<figcaption>{}</figcaption></figure>",
+            f.name,
+            escape(&f.title),
+            f.svg
+                .trim_start_matches("<?xml version=\"1.0\" encoding=\"UTF-8\"?>"),
+            escape(&f.caption)
+        );
+    }
+    h.push_str("<p style=\"color:#888;font-size:0.8em\">Generated by pkmcal. Font: DejaVu Sans (embedded).</p></body></html>\n");
+    h
+}
+
+/// Write the figures and `report.html` into `dir`.
+pub fn write_report_dir(dir: &Path, r: &ReportInputs) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let figs = figures(r)?;
+    for f in &figs {
+        write_atomic(&dir.join(format!("{}.svg", f.name)), f.svg.as_bytes())?;
+        write_atomic(&dir.join(format!("{}.png", f.name)), &f.png)?;
+    }
+    write_atomic(&dir.join("report.html"), html(r, &figs).as_bytes())?;
+    Ok(())
+}
