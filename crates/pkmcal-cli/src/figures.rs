@@ -474,7 +474,7 @@ pub fn workspace_maps(
             let areas = root.split_evenly((1, panels.len()));
             for (area, (label, values)) in areas.iter().zip(panels) {
                 let (_, vmax) = range(values.iter().copied().chain([0.0]), 0.0);
-                let (plot, legend) = area.split_horizontally(pw - 95);
+                let (plot, legend) = area.split_horizontally(pw - 110);
                 let mut chart = ChartBuilder::on(&plot)
                     .margin(10)
                     .caption(label.as_str(), (FONT, 14))
@@ -505,8 +505,8 @@ pub fn workspace_maps(
                 let mut bar = ChartBuilder::on(&legend)
                     .margin_top(40)
                     .margin_bottom(44)
-                    .margin_right(8)
-                    .y_label_area_size(60)
+                    .margin_left(10)
+                    .right_y_label_area_size(70)
                     .build_cartesian_2d(0.0..1.0, 0.0..vmax.max(1e-12))
                     .map_err(err)?;
                 bar.configure_mesh()
@@ -514,7 +514,7 @@ pub fn workspace_maps(
                     .disable_mesh()
                     .y_labels(5)
                     .y_label_formatter(&tick)
-                    .label_style((FONT, 11))
+                    .label_style((FONT, 12))
                     .draw()
                     .map_err(err)?;
                 let steps = 60;
