@@ -2,6 +2,7 @@
 
 use crate::io::{Csv, Mech, parse_list, read_mechanism, read_params, write_atomic};
 use anyhow::{Context, Result, bail};
+use pkmcal::BallBar;
 use pkmcal::calibration::{CrossValidation, Identifiability};
 use pkmcal::{
     Accuracy, Calibration, CalibrationOptions, ErrorStats, Measurement, Mechanism, Model, Params,
@@ -12,7 +13,7 @@ use std::path::{Path, PathBuf};
 
 /// Read a measurement file: commands and measured tool coordinates, optional
 /// targets.
-pub fn read_data(path: &Path, mech: &Mech) -> Result<Vec<Measurement>> {
+pub fn read_data<M: Mechanism>(path: &Path, mech: &M) -> Result<Vec<Measurement>> {
     let spec = mech.spec();
     let csv = Csv::read(path)?;
     csv.require_rows()?;
@@ -47,7 +48,11 @@ pub fn read_data(path: &Path, mech: &Mech) -> Result<Vec<Measurement>> {
 }
 
 /// Resolve `--free` / `--fix` lists into parameter indices.
-pub fn free_set(mech: &Mech, free: Option<&str>, fix: Option<&str>) -> Result<Vec<usize>> {
+pub fn free_set<M: Mechanism>(
+    mech: &M,
+    free: Option<&str>,
+    fix: Option<&str>,
+) -> Result<Vec<usize>> {
     let spec = mech.spec();
     let names = |s: &str| -> Vec<String> {
         s.split(',')
@@ -130,9 +135,10 @@ pub struct CalibrateConfig {
     pub kfold: Option<usize>,
     pub report_dir: Option<PathBuf>,
     pub quiet: bool,
+    pub setup: Option<PathBuf>,
 }
 
-fn force_arg(mech: &Mech, s: Option<&str>) -> Result<Vec<f64>> {
+fn force_arg<M: Mechanism>(mech: &M, s: Option<&str>) -> Result<Vec<f64>> {
     let Some(s) = s else { return Ok(vec![]) };
     let f = parse_list(s, "--force")?;
     if f.len() != mech.spec().tool_axes.len() {
@@ -147,21 +153,60 @@ fn force_arg(mech: &Mech, s: Option<&str>) -> Result<Vec<f64>> {
 
 pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
     let mech = read_mechanism(c.mechanism.as_deref())?;
+    let headers = Csv::read(&c.data)?.headers;
+    let distances = headers.iter().any(|h| h == "d1");
+    let positions = mech.spec().tool_axes.iter().all(|a| headers.contains(a));
+    if distances && !positions {
+        let setup = crate::io::read_setup(c.setup.as_deref(), c.mechanism.as_deref())?
+            .with_context(|| {
+                format!(
+                    "{} holds ball-bar distances (d1…); give the socket positions with --setup S.toml (or a [ballbar] table in the mechanism file)",
+                    c.data.display()
+                )
+            })?;
+        if c.report_dir.is_some() {
+            bail!(
+                "--report-dir needs positions; trilaterate the distances first (pkmcal trilaterate) or drop --report-dir"
+            );
+        }
+        let bb = BallBar::new(mech.clone(), &setup)?;
+        let ng = mech.spec().n_geometric();
+        let nb = bb.spec().n_geometric();
+        let plain = mech.spec().clone();
+        let to_plain = move |p: &Params| -> Params {
+            let mut v = p.values[..ng].to_vec();
+            v.extend(&p.values[nb..]);
+            Params::new(&plain, v).expect("same layout")
+        };
+        return calibrate_on(&bb, &c, &mech, &to_plain, None);
+    }
+    calibrate_on(&mech, &c, &mech, &|p: &Params| p.clone(), Some(&mech))
+}
+
+/// Calibrate `mech` (the mechanism itself, or it measured by a ball bar) and
+/// write the plain mechanism's parameters.
+fn calibrate_on<M: Mechanism>(
+    mech: &M,
+    c: &CalibrateConfig,
+    plain: &Mech,
+    to_plain: &dyn Fn(&Params) -> Params,
+    figures_for: Option<&Mech>,
+) -> Result<()> {
     let spec = mech.spec();
-    let all = read_data(&c.data, &mech)?;
+    let all = read_data(&c.data, mech)?;
     let start = match &c.start {
         Some(p) => read_params(p, spec)?,
         None => Params::nominal(spec),
     };
     let mut opts = CalibrationOptions::new(spec, c.model);
-    opts.free = free_set(&mech, c.free.as_deref(), c.fix.as_deref())?;
-    opts.force = force_arg(&mech, c.force.as_deref())?;
+    opts.free = free_set(mech, c.free.as_deref(), c.fix.as_deref())?;
+    opts.force = force_arg(mech, c.force.as_deref())?;
     let (train, held): (Vec<Measurement>, Option<(String, Vec<Measurement>)>) =
         match (&c.validate, c.holdout) {
             (Some(_), Some(_)) => bail!("give either --validate FILE or --holdout F, not both"),
             (Some(v), None) => (
                 all.clone(),
-                Some((v.display().to_string(), read_data(v, &mech)?)),
+                Some((v.display().to_string(), read_data(v, mech)?)),
             ),
             (None, Some(f)) => {
                 let (tr, he) = holdout_split(all.len(), f, c.seed)?;
@@ -180,13 +225,13 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
             }
             (None, None) => (all.clone(), None),
         };
-    let cal = calibrate(&mech, &train, &start, &opts)
+    let cal = calibrate(mech, &train, &start, &opts)
         .with_context(|| format!("calibrating from {}", c.data.display()))?;
-    let (acc, before, after) = accuracy(&mech, &train, &cal.params, c.model, &opts.force)?;
+    let (acc, before, after) = accuracy(mech, &train, &cal.params, c.model, &opts.force)?;
     let validation = match &held {
         Some((source, data)) => Some(Validation {
             source: source.clone(),
-            accuracy: accuracy(&mech, data, &cal.params, c.model, &opts.force)?.0,
+            accuracy: accuracy(mech, data, &cal.params, c.model, &opts.force)?.0,
         }),
         None => None,
     };
@@ -194,7 +239,7 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
         Some(k) => {
             let bar = crate::io::progress(k as u64, c.quiet, "folds", 1);
             let cv = pkmcal::cross_validate_with_progress(
-                &mech,
+                mech,
                 &train,
                 &start,
                 &opts,
@@ -215,7 +260,7 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
         c.data.display(),
         cal.termination_reason
     );
-    let params_text = crate::io::params_to_string(spec, &cal.params, &header);
+    let params_text = crate::io::params_to_string(plain.spec(), &to_plain(&cal.params), &header);
     let report = Report {
         pkmcal_version: env!("CARGO_PKG_VERSION"),
         mechanism: spec.name.clone(),
@@ -231,11 +276,11 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
     if let Some(r) = &c.report {
         write_atomic(r, json.as_bytes())?;
     }
-    if let Some(dir) = &c.report_dir {
+    if let (Some(dir), Some(fig_mech)) = (&c.report_dir, figures_for) {
         crate::report::write_report_dir(
             dir,
             &crate::report::ReportInputs {
-                mech: &mech,
+                mech: fig_mech,
                 data_name: &c.data.display().to_string(),
                 cal: &cal,
                 data: &train,
@@ -247,7 +292,7 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
             },
         )?;
     }
-    print_summary(&report);
+    print_summary(&report, &spec.tool_axes);
     println!();
     println!("identified parameters -> {}", c.out.display());
     if let Some(r) = &c.report {
@@ -259,28 +304,36 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
     Ok(())
 }
 
-pub fn print_stats_header() {
-    println!(
-        "  {:<24} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
-        "errors (mm)", "Xmin", "Xmax", "Ymin", "Ymax", "dmin", "dmean", "drms", "dmax"
-    );
+pub fn print_stats_header(axes: &[String]) {
+    let mut h = format!("  {:<24}", "errors (mm)");
+    for a in axes {
+        let a = a.to_uppercase();
+        h.push_str(&format!(
+            " {:>8} {:>8}",
+            format!("{a}min"),
+            format!("{a}max")
+        ));
+    }
+    for t in ["dmin", "dmean", "drms", "dmax"] {
+        h.push_str(&format!(" {t:>8}"));
+    }
+    println!("{h}");
 }
 
 pub fn print_stats(label: &str, s: &ErrorStats) {
-    let ax = |k: usize| (s.axis_min.get(k).copied(), s.axis_max.get(k).copied());
-    let (x0, x1) = ax(0);
-    let (y0, y1) = ax(1);
-    println!(
-        "  {label:<24} {:>8.4} {:>8.4} {:>8.4} {:>8.4} {:>8.4} {:>8.4} {:>8.4} {:>8.4}",
-        x0.unwrap_or(f64::NAN),
-        x1.unwrap_or(f64::NAN),
-        y0.unwrap_or(f64::NAN),
-        y1.unwrap_or(f64::NAN),
+    let mut row = format!("  {label:<24}");
+    for (a, b) in s.axis_min.iter().zip(&s.axis_max) {
+        row.push_str(&format!(" {a:>8.4} {b:>8.4}"));
+    }
+    for v in [
         s.distance_min,
         s.distance_mean,
         s.distance_rms,
-        s.distance_max
-    );
+        s.distance_max,
+    ] {
+        row.push_str(&format!(" {v:>8.4}"));
+    }
+    println!("{row}");
 }
 
 pub fn print_identifiability(id: &Identifiability) {
@@ -306,7 +359,7 @@ pub fn print_identifiability(id: &Identifiability) {
     }
 }
 
-fn print_summary(r: &Report) {
+fn print_summary(r: &Report, axes: &[String]) {
     let cal = r.calibration;
     println!(
         "calibration of {} from {} ({} poses, {} model)",
@@ -357,7 +410,7 @@ fn print_summary(r: &Report) {
         );
     }
     println!();
-    print_stats_header();
+    print_stats_header(axes);
     print_stats("calibration, before", &r.accuracy.before);
     print_stats("calibration, after", &r.accuracy.after);
     println!(

@@ -214,6 +214,31 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         (None, None) => bail!("give --targets FILE or --grid N"),
     };
     let bar = crate::io::progress(targets.len() as u64, a.quiet, "poses", 0);
+    let setup = match &a.setup {
+        Some(p) => crate::io::read_setup(Some(p), None)?,
+        None => None,
+    };
+    if let Some(setup) = &setup {
+        setup.validate(mech.spec().tool_axes.len())?;
+        // Noise on the bar readings, not on positions.
+        let exact =
+            pkmcal::simulate_with_progress(&mech, &truth, &targets, 0.0, a.seed, &|| bar.inc(1))?;
+        bar.finish_and_clear();
+        let rows = ballbar_rows(&mech, setup, &exact, a.noise, a.seed)?;
+        let mut header = target_names(&mech);
+        header.extend(mech.spec().actuated_names().iter().map(|s| s.to_string()));
+        header.extend((1..=setup.sockets.len()).map(|j| format!("d{j}")));
+        write_atomic(&a.out, &csv_bytes(&header, &rows))?;
+        eprintln!(
+            "simulated {} poses measured by a ball bar ({} sockets, noise {} mm on each reading, seed {}) -> {}",
+            rows.len(),
+            setup.sockets.len(),
+            a.noise,
+            a.seed,
+            a.out.display()
+        );
+        return Ok(());
+    }
     let data =
         pkmcal::simulate_with_progress(&mech, &truth, &targets, a.noise, a.seed, &|| bar.inc(1))?;
     bar.finish_and_clear();
@@ -223,6 +248,82 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         data.len(),
         a.noise,
         a.seed,
+        a.out.display()
+    );
+    Ok(())
+}
+
+/// Rows `target_*, commands, d1..dk` of simulated ball-bar readings.
+fn ballbar_rows(
+    mech: &Mech,
+    setup: &pkmcal::Setup,
+    exact: &[pkmcal::Measurement],
+    noise: f64,
+    seed: u64,
+) -> Result<Vec<Vec<f64>>> {
+    use rand::SeedableRng;
+    use rand_distr::Distribution;
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+    let normal = rand_distr::Normal::new(0.0, noise).context("--noise")?;
+    let _ = mech;
+    Ok(exact
+        .iter()
+        .map(|m| {
+            let t = m.target.clone().unwrap_or_default();
+            let d: Vec<f64> = setup
+                .distances(&m.measured)
+                .into_iter()
+                .map(|d| d + normal.sample(&mut rng))
+                .collect();
+            t.into_iter()
+                .chain(m.commands.iter().copied())
+                .chain(d)
+                .collect()
+        })
+        .collect())
+}
+
+/// `trilaterate`: bar readings to positions with their standard deviations.
+pub fn trilaterate(a: crate::TrilaterateArgs) -> Result<()> {
+    let mech = read_mechanism(a.mechanism.as_deref())?;
+    let spec = mech.spec();
+    let setup = crate::io::read_setup(a.setup.as_deref(), a.mechanism.as_deref())?
+        .context("give the socket positions with --setup S.toml (or a [ballbar] table in the mechanism file)")?;
+    setup.validate(spec.tool_axes.len())?;
+    if !(a.sigma.is_finite() && a.sigma >= 0.0) {
+        bail!("--sigma must be a non-negative number of mm");
+    }
+    let csv = Csv::read(&a.data)?;
+    csv.require_rows()?;
+    let dnames: Vec<String> = (1..=setup.sockets.len()).map(|j| format!("d{j}")).collect();
+    let readings = csv.named(&dnames)?;
+    // Pass through targets and commands when present.
+    let mut keep: Vec<String> = target_names(&mech);
+    keep.extend(spec.actuated_names().iter().map(|s| s.to_string()));
+    keep.retain(|n| csv.headers.contains(n));
+    let kept = csv.named(&keep)?;
+    let mut rows = Vec::with_capacity(readings.len());
+    for (i, d) in readings.iter().enumerate() {
+        let (x, cov) = pkmcal::trilaterate(&setup, d, a.sigma, None)
+            .with_context(|| format!("{}:{}: readings {d:?}", a.data.display(), csv.line(i)))?;
+        let sig = (0..x.len()).map(|k| cov[(k, k)].max(0.0).sqrt());
+        rows.push(
+            kept[i]
+                .iter()
+                .copied()
+                .chain(x.iter().copied())
+                .chain(sig)
+                .collect::<Vec<f64>>(),
+        );
+    }
+    let mut header = keep;
+    header.extend(spec.tool_axes.iter().cloned());
+    header.extend(spec.tool_axes.iter().map(|a| format!("sigma_{a}")));
+    write_atomic(&a.out, &csv_bytes(&header, &rows))?;
+    eprintln!(
+        "trilaterated {} poses from {} sockets -> {}",
+        rows.len(),
+        setup.sockets.len(),
         a.out.display()
     );
     Ok(())
@@ -358,13 +459,13 @@ pub fn demo(a: DemoArgs) -> Result<()> {
     }
     println!();
     println!("calibration set (35 poses):");
-    print_stats_header();
+    print_stats_header(&spec.tool_axes);
     for (label, cal, _) in &rows {
         print_stats(label, cal);
     }
     println!();
     println!("validation set ({DEMO_VALIDATION_POSES} unseen poses):");
-    print_stats_header();
+    print_stats_header(&spec.tool_axes);
     for (label, _, val) in &rows {
         print_stats(label, val);
     }

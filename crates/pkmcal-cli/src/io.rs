@@ -239,6 +239,54 @@ struct MechanismFile {
     #[serde(default)]
     workspace: BTreeMap<String, [f64; 2]>,
     free: Option<Vec<String>>,
+    /// Ball-bar setup, read by `read_setup`.
+    #[allow(dead_code)]
+    ballbar: Option<SetupFile>,
+}
+
+/// A measurement-setup file (or the `[ballbar]` table of a mechanism file).
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SetupFile {
+    /// Socket centres in the base frame, mm: `[[x, y], …]`.
+    sockets: Vec<Vec<f64>>,
+    /// Bar reading minus true distance, mm.
+    #[serde(default)]
+    bar_offset: f64,
+}
+
+#[derive(Deserialize)]
+struct MechanismBallbar {
+    ballbar: Option<SetupFile>,
+}
+
+/// The ball-bar setup: from `--setup`, else from the mechanism file's
+/// `[ballbar]` table; `None` when neither gives one.
+pub fn read_setup(setup: Option<&Path>, mechanism: Option<&Path>) -> Result<Option<pkmcal::Setup>> {
+    let file: Option<SetupFile> = match (setup, mechanism) {
+        (Some(p), _) => {
+            let text = std::fs::read_to_string(p)
+                .with_context(|| format!("cannot read setup file {}", p.display()))?;
+            Some(toml::from_str(&text).with_context(|| {
+                format!(
+                    "in setup file {}: expected `sockets = [[x, y], …]` and optional `bar_offset`",
+                    p.display()
+                )
+            })?)
+        }
+        (None, Some(m)) => {
+            let text = std::fs::read_to_string(m)
+                .with_context(|| format!("cannot read mechanism file {}", m.display()))?;
+            toml::from_str::<MechanismBallbar>(&text)
+                .ok()
+                .and_then(|f| f.ballbar)
+        }
+        (None, None) => None,
+    };
+    Ok(file.map(|f| pkmcal::Setup {
+        sockets: f.sockets,
+        bar_offset: f.bar_offset,
+    }))
 }
 
 #[derive(Deserialize)]

@@ -36,6 +36,8 @@ enum Command {
     Plan(PlanArgs),
     /// Predict post-calibration accuracy of a measurement plan by simulation.
     Montecarlo(MonteCarloArgs),
+    /// Ball-bar readings to tool positions (least squares) with uncertainties.
+    Trilaterate(TrilaterateArgs),
     /// Run the paper's case study on the built-in reference mechanism.
     Demo(DemoArgs),
 }
@@ -94,12 +96,35 @@ pub struct SimulateArgs {
     /// Random seed of the noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Output CSV: target_x,target_y,q1,q2,q3,x,y.
+    /// Output CSV: target_x,target_y,q1,q2,q3,x,y (with --setup: d1..dk instead of x,y).
     #[arg(long, value_name = "DATA.csv")]
     pub out: PathBuf,
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
+    /// Simulate ball-bar readings with this setup (sockets, bar offset); the
+    /// noise then applies to each reading.
+    #[arg(long, value_name = "S.toml")]
+    pub setup: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+pub struct TrilaterateArgs {
+    /// Mechanism file (TOML); the built-in reference mechanism if omitted.
+    #[arg(long, value_name = "M.toml")]
+    pub mechanism: Option<PathBuf>,
+    /// Ball-bar setup: sockets and bar offset.
+    #[arg(long, value_name = "S.toml")]
+    pub setup: Option<PathBuf>,
+    /// Data with the bar readings d1, d2, … (mm).
+    #[arg(long, value_name = "DATA.csv")]
+    pub data: PathBuf,
+    /// Standard deviation of one reading (mm), for the positions' uncertainty.
+    #[arg(long, default_value_t = 0.002, value_name = "MM")]
+    pub sigma: f64,
+    /// Output CSV: targets and commands if present, x, y, sigma_x, sigma_y.
+    #[arg(long, value_name = "OUT.csv")]
+    pub out: PathBuf,
 }
 
 #[derive(clap::Args)]
@@ -149,6 +174,9 @@ pub struct CalibrateArgs {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
+    /// Ball-bar setup (sockets, bar offset) for data with distances d1, d2, …
+    #[arg(long, value_name = "S.toml")]
+    pub setup: Option<PathBuf>,
 }
 
 #[derive(clap::Args)]
@@ -316,6 +344,7 @@ fn main() -> ExitCode {
                 kfold: a.kfold,
                 report_dir: a.report_dir,
                 quiet: a.quiet,
+                setup: a.setup,
             })
         }),
         Command::Analyze(a) => a.model.parse().map_err(Into::into).and_then(|model| {
@@ -373,6 +402,7 @@ fn main() -> ExitCode {
                 quiet: a.quiet,
             })
         })(),
+        Command::Trilaterate(a) => commands::trilaterate(a),
         Command::Demo(a) => commands::demo(a),
     };
     match result {

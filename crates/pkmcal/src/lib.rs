@@ -34,6 +34,7 @@
 //! ```
 
 pub mod autodiff;
+pub mod ballbar;
 pub mod calibration;
 pub mod compensation;
 pub mod error;
@@ -50,6 +51,7 @@ pub mod simulate;
 pub mod stats;
 pub mod workspace;
 
+pub use ballbar::{BallBar, Setup, trilaterate};
 pub use calibration::{
     Accuracy, Calibration, CalibrationOptions, Identifiability, ParameterCovariance, accuracy,
     analyze, calibrate, cross_validate, cross_validate_with_progress, holdout_split,

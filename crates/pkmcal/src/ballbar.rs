@@ -1,0 +1,249 @@
+//! The laser ball bar as it measures: distances from the tool ball to fixed
+//! base sockets (paper §3: three readings per pose, trilateration).
+//!
+//! Two routes to calibration:
+//! * [`trilaterate`] each pose's distances to a position (least squares, any
+//!   number ≥ dimension + 1 of sockets, planar or 3-D) with its covariance, then
+//!   calibrate on positions;
+//! * calibrate directly on the distances with [`BallBar`], a mechanism whose
+//!   "tool coordinates" are the bar lengths `|x − s_j| + b`: the socket
+//!   coordinates and the bar length offset `b` become parameters (named
+//!   `s1x s1y … dbar`), fixed by default and identifiable on request.
+
+use crate::error::{Error, Result};
+use crate::mechanism::{Mechanism, Scalar, Spec};
+use nalgebra::{DMatrix, DVector};
+
+/// Where the sockets are and what the bar reads.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Setup {
+    /// Socket centre positions in the base frame (mm), one per distance.
+    pub sockets: Vec<Vec<f64>>,
+    /// Bar length offset `b` (mm): reading minus true ball–socket distance.
+    pub bar_offset: f64,
+}
+
+impl Setup {
+    /// Check the setup against a tool dimension.
+    pub fn validate(&self, dim: usize) -> Result<()> {
+        if self.sockets.len() < dim + 1 {
+            return Err(Error::InvalidRequest(format!(
+                "{} sockets given; trilateration in {dim} dimensions needs at least {}",
+                self.sockets.len(),
+                dim + 1
+            )));
+        }
+        for (i, s) in self.sockets.iter().enumerate() {
+            if s.len() != dim || s.iter().any(|v| !v.is_finite()) {
+                return Err(Error::InvalidRequest(format!(
+                    "socket {} needs {dim} finite coordinates",
+                    i + 1
+                )));
+            }
+        }
+        if !self.bar_offset.is_finite() {
+            return Err(Error::InvalidRequest(
+                "the bar offset must be finite".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Bar readings for a tool position.
+    pub fn distances(&self, x: &[f64]) -> Vec<f64> {
+        self.sockets
+            .iter()
+            .map(|s| {
+                s.iter()
+                    .zip(x)
+                    .map(|(a, b)| (a - b).powi(2))
+                    .sum::<f64>()
+                    .sqrt()
+                    + self.bar_offset
+            })
+            .collect()
+    }
+}
+
+/// Trilateration: the position whose distances to the sockets best match the
+/// readings (Gauss–Newton on `|x − s_j| + b − d_j`, started at the socket
+/// centroid pushed along +y… then refined), and its covariance for readings of
+/// standard deviation `sigma` (mm): `σ² (JᵀJ)⁻¹`.
+pub fn trilaterate(
+    setup: &Setup,
+    readings: &[f64],
+    sigma: f64,
+    guess: Option<&[f64]>,
+) -> Result<(Vec<f64>, DMatrix<f64>)> {
+    let k = setup.sockets.len();
+    let dim = setup.sockets.first().map_or(0, Vec::len);
+    setup.validate(dim)?;
+    if readings.len() != k {
+        return Err(Error::Dimension {
+            what: "bar readings".into(),
+            expected: k,
+            got: readings.len(),
+        });
+    }
+    if readings
+        .iter()
+        .any(|d| !d.is_finite() || *d - setup.bar_offset <= 0.0)
+    {
+        return Err(Error::InvalidRequest(format!(
+            "bar readings {readings:?} must be finite and longer than the bar offset"
+        )));
+    }
+    // Start: linearised solution (differences of squared distances), which
+    // needs no guess; the caller's guess if given.
+    let r: Vec<f64> = readings.iter().map(|d| d - setup.bar_offset).collect();
+    let mut x: DVector<f64> = match guess {
+        Some(g) => DVector::from_column_slice(g),
+        None => {
+            let s0 = &setup.sockets[0];
+            let a = DMatrix::from_fn(k - 1, dim, |i, j| 2.0 * (setup.sockets[i + 1][j] - s0[j]));
+            let b = DVector::from_fn(k - 1, |i, _| {
+                let si = &setup.sockets[i + 1];
+                r[0] * r[0] - r[i + 1] * r[i + 1] + si.iter().map(|v| v * v).sum::<f64>()
+                    - s0.iter().map(|v| v * v).sum::<f64>()
+            });
+            a.svd(true, true)
+                .solve(&b, 1e-12)
+                .map_err(|e| Error::InvalidRequest(format!("trilateration failed: {e}")))?
+        }
+    };
+    let mut jac = DMatrix::zeros(k, dim);
+    for _ in 0..50 {
+        let mut res = DVector::zeros(k);
+        for (j, s) in setup.sockets.iter().enumerate() {
+            let d = DVector::from_fn(dim, |i, _| x[i] - s[i]);
+            let n = d.norm();
+            if n == 0.0 {
+                return Err(Error::Singular {
+                    q: x.iter().copied().collect(),
+                    reason: format!("the ball sits on socket {}", j + 1),
+                });
+            }
+            res[j] = n - r[j];
+            jac.row_mut(j).copy_from(&(d / n).transpose());
+        }
+        let step = jac
+            .clone()
+            .svd(true, true)
+            .solve(&res, 1e-14)
+            .map_err(|e| Error::InvalidRequest(format!("trilateration failed: {e}")))?;
+        x -= &step;
+        if step.amax() < 1e-12 {
+            break;
+        }
+    }
+    let jtj = jac.transpose() * &jac;
+    let cov = jtj.try_inverse().ok_or_else(|| Error::Singular {
+        q: x.iter().copied().collect(),
+        reason: "the sockets are aligned with the ball: trilateration is singular; move a socket"
+            .into(),
+    })? * (sigma * sigma);
+    Ok((x.iter().copied().collect(), cov))
+}
+
+/// A mechanism measured by a ball bar: its tool coordinates are the bar
+/// readings. Parameters: the inner mechanism's geometric ones, then
+/// `s1x s1y [s1z] s2x …` and `dbar`, then offsets and stiffness.
+#[derive(Debug, Clone)]
+pub struct BallBar<M: Mechanism> {
+    inner: M,
+    spec: Spec,
+    dim: usize,
+    sockets: usize,
+}
+
+impl<M: Mechanism> BallBar<M> {
+    /// Wrap `inner` with the nominal setup `setup`.
+    pub fn new(inner: M, setup: &Setup) -> Result<Self> {
+        let s = inner.spec().clone();
+        let dim = s.tool_axes.len();
+        setup.validate(dim)?;
+        let axes = ["x", "y", "z"];
+        let mut names = vec![];
+        let mut values = vec![];
+        for (j, sock) in setup.sockets.iter().enumerate() {
+            for (a, v) in sock.iter().enumerate() {
+                names.push(format!("s{}{}", j + 1, axes.get(a).copied().unwrap_or("w")));
+                values.push(*v);
+            }
+        }
+        names.push("dbar".into());
+        values.push(setup.bar_offset);
+        let ng = s.n_geometric();
+        let mut nominal = s.nominal[..ng].to_vec();
+        nominal.extend(&values);
+        nominal.extend(&s.nominal[ng..]);
+        let mut geometric = s.geometric.clone();
+        geometric.extend(names);
+        let spec = Spec {
+            name: format!(
+                "{} measured by a ball bar ({} sockets)",
+                s.name,
+                setup.sockets.len()
+            ),
+            geometric,
+            tool_axes: (1..=setup.sockets.len()).map(|j| format!("d{j}")).collect(),
+            nominal,
+            workspace_box: vec![[0.0, 1.0]; setup.sockets.len()],
+            ..s
+        };
+        Ok(Self {
+            inner,
+            spec,
+            dim,
+            sockets: setup.sockets.len(),
+        })
+    }
+
+    /// The wrapped mechanism.
+    pub fn inner(&self) -> &M {
+        &self.inner
+    }
+
+    /// The setup held in a parameter vector's geometric part.
+    pub fn setup_of(&self, rho: &[f64]) -> Setup {
+        let ng = self.inner.spec().n_geometric();
+        Setup {
+            sockets: (0..self.sockets)
+                .map(|j| rho[ng + j * self.dim..ng + (j + 1) * self.dim].to_vec())
+                .collect(),
+            bar_offset: rho[ng + self.sockets * self.dim],
+        }
+    }
+}
+
+impl<M: Mechanism> Mechanism for BallBar<M> {
+    fn spec(&self) -> &Spec {
+        &self.spec
+    }
+    fn constraints<D: Scalar>(&self, q: &[D], rho: &[D], g: &mut [D]) {
+        let ng = self.inner.spec().n_geometric();
+        self.inner.constraints(q, &rho[..ng], g)
+    }
+    fn tool<D: Scalar>(&self, q: &[D], rho: &[D], x: &mut [D]) {
+        let ng = self.inner.spec().n_geometric();
+        let mut p = vec![D::from(0.0); self.dim];
+        self.inner.tool(q, &rho[..ng], &mut p);
+        let b = rho[ng + self.sockets * self.dim];
+        for (j, out) in x.iter_mut().enumerate().take(self.sockets) {
+            let mut sum = D::from(0.0);
+            for a in 0..self.dim {
+                let d = p[a] - rho[ng + j * self.dim + a];
+                sum += d * d;
+            }
+            *out = sum.sqrt() + b;
+        }
+    }
+    fn configuration_guess(&self, commands: &[f64], rho: &[f64]) -> Option<Vec<f64>> {
+        let ng = self.inner.spec().n_geometric();
+        self.inner.configuration_guess(commands, &rho[..ng])
+    }
+    fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
+        let ng = self.inner.spec().n_geometric();
+        self.inner.on_branch(q, &rho[..ng])
+    }
+}
