@@ -47,6 +47,39 @@ pub fn read_data<M: Mechanism>(path: &Path, mech: &M) -> Result<Vec<Measurement>
         .collect())
 }
 
+/// Per-pose standard deviations of the measured coordinates from the data
+/// file's `sigma_<axis>` columns (per axis) or `sigma` column (all axes); `None`
+/// when it has neither.
+pub fn read_sigma<M: Mechanism>(path: &Path, mech: &M) -> Result<Option<Vec<Vec<f64>>>> {
+    let spec = mech.spec();
+    let csv = Csv::read(path)?;
+    let per_axis: Vec<String> = spec
+        .tool_axes
+        .iter()
+        .map(|a| format!("sigma_{a}"))
+        .collect();
+    let rows = if per_axis.iter().all(|n| csv.headers.contains(n)) {
+        csv.named(&per_axis)?
+    } else if csv.headers.iter().any(|h| h == "sigma") {
+        csv.named(&["sigma".to_string()])?
+            .into_iter()
+            .map(|r| vec![r[0]; spec.tool_axes.len()])
+            .collect()
+    } else {
+        return Ok(None);
+    };
+    for (i, r) in rows.iter().enumerate() {
+        if r.iter().any(|v| *v <= 0.0) {
+            bail!(
+                "{}:{}: standard deviations must be positive, got {r:?}",
+                path.display(),
+                csv.line(i)
+            );
+        }
+    }
+    Ok(Some(rows))
+}
+
 /// Resolve `--free` / `--fix` lists into parameter indices.
 pub fn free_set<M: Mechanism>(
     mech: &M,
@@ -136,6 +169,9 @@ pub struct CalibrateConfig {
     pub report_dir: Option<PathBuf>,
     pub quiet: bool,
     pub setup: Option<PathBuf>,
+    pub loss: pkmcal::Loss,
+    pub outlier_threshold: f64,
+    pub drop_outliers: bool,
 }
 
 fn force_arg<M: Mechanism>(mech: &M, s: Option<&str>) -> Result<Vec<f64>> {
@@ -201,6 +237,11 @@ fn calibrate_on<M: Mechanism>(
     let mut opts = CalibrationOptions::new(spec, c.model);
     opts.free = free_set(mech, c.free.as_deref(), c.fix.as_deref())?;
     opts.force = force_arg(mech, c.force.as_deref())?;
+    opts.loss = c.loss;
+    opts.outlier_threshold = c.outlier_threshold;
+    opts.drop_outliers = c.drop_outliers;
+    let sigma = read_sigma(&c.data, mech)?;
+    let mut train_idx: Vec<usize> = (0..all.len()).collect();
     let (train, held): (Vec<Measurement>, Option<(String, Vec<Measurement>)>) =
         match (&c.validate, c.holdout) {
             (Some(_), Some(_)) => bail!("give either --validate FILE or --holdout F, not both"),
@@ -210,6 +251,7 @@ fn calibrate_on<M: Mechanism>(
             ),
             (None, Some(f)) => {
                 let (tr, he) = holdout_split(all.len(), f, c.seed)?;
+                train_idx = tr.clone();
                 (
                     tr.iter().map(|&i| all[i].clone()).collect(),
                     Some((
@@ -225,6 +267,9 @@ fn calibrate_on<M: Mechanism>(
             }
             (None, None) => (all.clone(), None),
         };
+    if let Some(sig) = &sigma {
+        opts.sigma = Some(train_idx.iter().flat_map(|&i| sig[i].clone()).collect());
+    }
     let cal = calibrate(mech, &train, &start, &opts)
         .with_context(|| format!("calibrating from {}", c.data.display()))?;
     let (acc, before, after) = accuracy(mech, &train, &cal.params, c.model, &opts.force)?;
@@ -437,6 +482,28 @@ fn print_summary(r: &Report, axes: &[String]) {
                 .join(" ")
         );
         print_stats("cross-validation pooled", &cv.pooled);
+    }
+    if cal.loss != pkmcal::Loss::Squared || !cal.outliers.is_empty() {
+        println!(
+            "  loss {:?}; robust residual scale {:.3e}",
+            cal.loss, cal.robust_scale
+        );
+    }
+    for o in &cal.outliers {
+        println!(
+            "  outlier: pose {} residual {:?} mm ({:.1} robust σ){}",
+            o.pose,
+            o.residual
+                .iter()
+                .map(|v| (v * 1e6).round() / 1e6)
+                .collect::<Vec<_>>(),
+            o.standardized,
+            if cal.dropped.contains(&o.pose) {
+                ", dropped"
+            } else {
+                ""
+            }
+        );
     }
     for w in &cal.warnings {
         println!("warning: {}\n  hint: {}", w.message, w.hint);

@@ -392,3 +392,84 @@ pub fn progress(len: u64, quiet: bool, what: &str, min_items: u64) -> indicatif:
     );
     bar
 }
+
+/// Fuzzing of the readers: random and mutated CSV, parameter, mechanism and
+/// setup files must give an `Err` or an `Ok`, never a panic. Run more with
+/// `PKMCAL_FUZZ_CASES=100000 cargo test --release -p pkmcal-cli fuzz_`.
+#[cfg(test)]
+mod fuzz {
+    use super::*;
+    use proptest::prelude::*;
+
+    const VALID_CSV: &str =
+        "target_x,target_y,q1,q2,q3,x,y\n-7,203,1.356,3.236,-2.652,-7.1,203.5\n";
+    const VALID_MECH: &str = "type = \"jeong-kim-2dof\"\n[nominal]\nl11 = 280.0\nk1 = 8360.0\n[workspace]\nx = [-140.0, 250.0]\n";
+
+    /// Apply byte edits (position, new byte, delete?) to a text.
+    fn mutate(base: &str, edits: &[(usize, u8, bool)]) -> String {
+        let mut b = base.as_bytes().to_vec();
+        for &(pos, byte, delete) in edits {
+            if b.is_empty() {
+                b.push(byte);
+                continue;
+            }
+            let p = pos % b.len();
+            if delete {
+                b.remove(p);
+            } else {
+                b.insert(p, byte);
+            }
+        }
+        String::from_utf8_lossy(&b).into_owned()
+    }
+
+    fn read_csv_text(text: &str) -> Result<Vec<Vec<f64>>> {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let p = dir.path().join("f.csv");
+        std::fs::write(&p, text).expect("write");
+        let csv = Csv::read(&p)?;
+        csv.require_rows()?;
+        csv.named(&["q1".into(), "q2".into(), "x".into()])
+    }
+
+    /// Cases per reader: 1000 in the test suite, more on request.
+    fn cases() -> u32 {
+        std::env::var("PKMCAL_FUZZ_CASES")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(1000)
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: cases(), rng_seed: proptest::test_runner::RngSeed::Fixed(11), ..ProptestConfig::default() })]
+
+        #[test]
+        fn fuzz_csv_reader(edits in proptest::collection::vec((0usize..200, any::<u8>(), any::<bool>()), 0..12), noise in ".{0,80}") {
+            let _ = read_csv_text(&mutate(VALID_CSV, &edits));
+            let _ = read_csv_text(&noise);
+        }
+
+        #[test]
+        fn fuzz_parameter_reader(edits in proptest::collection::vec((0usize..100, any::<u8>(), any::<bool>()), 0..10), noise in ".{0,60}") {
+            let spec = JeongKim2Dof::default_spec();
+            let _ = params_from_str(&mutate("l11 = 280.3\ndq3 = 0.002\nk2 = 7000\n", &edits), &spec);
+            let _ = params_from_str(&noise, &spec);
+        }
+
+        #[test]
+        fn fuzz_mechanism_reader(edits in proptest::collection::vec((0usize..200, any::<u8>(), any::<bool>()), 0..10)) {
+            let _ = mechanism_from_str(&mutate(VALID_MECH, &edits));
+        }
+
+        #[test]
+        fn fuzz_setup_reader(edits in proptest::collection::vec((0usize..80, any::<u8>(), any::<bool>()), 0..10)) {
+            let text = mutate("bar_offset = 0.0\nsockets = [[-250.0, -60.0], [260.0, -40.0], [20.0, 480.0]]\n", &edits);
+            if let Ok(f) = toml::from_str::<SetupFile>(&text) {
+                let setup = pkmcal::Setup { sockets: f.sockets, bar_offset: f.bar_offset };
+                if setup.validate(2).is_ok() {
+                    let _ = pkmcal::trilaterate(&setup, &[300.0, 310.0, 280.0], 0.002, None);
+                }
+            }
+        }
+    }
+}

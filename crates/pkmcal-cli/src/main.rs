@@ -177,6 +177,19 @@ pub struct CalibrateArgs {
     /// Ball-bar setup (sockets, bar offset) for data with distances d1, d2, …
     #[arg(long, value_name = "S.toml")]
     pub setup: Option<PathBuf>,
+    /// Loss on the standardised residuals: squared, huber or cauchy.
+    #[arg(long, default_value = "squared", value_parser = ["squared", "huber", "cauchy"])]
+    pub loss: String,
+    /// Tuning constant of the robust loss, in robust standard deviations
+    /// (default: 1.345 for huber, 2.385 for cauchy).
+    #[arg(long, value_name = "K")]
+    pub loss_scale: Option<f64>,
+    /// Poses beyond this many robust standard deviations are reported as outliers.
+    #[arg(long, default_value_t = 4.0, value_name = "T")]
+    pub outlier_threshold: f64,
+    /// Drop the outliers and refit.
+    #[arg(long)]
+    pub drop_outliers: bool,
 }
 
 #[derive(clap::Args)]
@@ -328,7 +341,24 @@ fn main() -> ExitCode {
         Command::Predict(a) => commands::predict(a),
         Command::Simulate(a) => commands::simulate(a),
         Command::Calibrate(a) => a.model.parse().map_err(Into::into).and_then(|model| {
+            let k = a.loss_scale;
+            if let Some(k) = k
+                && !(k.is_finite() && k > 0.0)
+            {
+                anyhow::bail!("--loss-scale must be a positive number");
+            }
+            if !(a.outlier_threshold.is_finite() && a.outlier_threshold > 0.0) {
+                anyhow::bail!("--outlier-threshold must be a positive number");
+            }
+            let loss = match a.loss.as_str() {
+                "huber" => pkmcal::Loss::Huber(k.unwrap_or(1.345)),
+                "cauchy" => pkmcal::Loss::Cauchy(k.unwrap_or(2.385)),
+                _ => pkmcal::Loss::Squared,
+            };
             calibrate::run_calibrate(calibrate::CalibrateConfig {
+                loss,
+                outlier_threshold: a.outlier_threshold,
+                drop_outliers: a.drop_outliers,
                 mechanism: a.mechanism,
                 data: a.data,
                 model,

@@ -28,9 +28,57 @@ pub const CORRELATION_REPORT: f64 = 0.9;
 /// Components below this are left out of a named unidentifiable combination.
 const COMBINATION_CUTOFF: f64 = 0.05;
 
+/// How residuals are penalised (the robust loss; `ρ` is taken by the
+/// parameters, hence `Loss`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(rename_all = "lowercase", tag = "kind", content = "scale")]
+pub enum Loss {
+    /// Ordinary least squares.
+    Squared,
+    /// Huber: quadratic within `k` robust standard deviations, linear beyond
+    /// (k = 1.345 gives 95 % efficiency under Gaussian noise).
+    Huber(f64),
+    /// Cauchy: `log(1 + (u/c)²)` (c = 2.385 gives 95 % efficiency).
+    Cauchy(f64),
+}
+
+impl Loss {
+    /// IRLS weight `ψ(u)/u` of a standardised residual `u`.
+    pub fn weight(self, u: f64) -> f64 {
+        match self {
+            Loss::Squared => 1.0,
+            Loss::Huber(k) => {
+                if u.abs() <= k {
+                    1.0
+                } else {
+                    k / u.abs()
+                }
+            }
+            Loss::Cauchy(c) => 1.0 / (1.0 + (u / c).powi(2)),
+        }
+    }
+}
+
+/// A pose whose residual is far beyond the noise.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Outlier {
+    /// Pose number (1-based, in data order).
+    pub pose: usize,
+    /// Residual vector, predicted minus measured (mm, per tool coordinate).
+    pub residual: Vec<f64>,
+    /// Largest standardised residual |r|/s of the pose (robust scale s).
+    pub standardized: f64,
+}
+
 /// Settings of a calibration.
 #[derive(Debug, Clone)]
 pub struct CalibrationOptions {
+    /// Loss applied to the standardised residuals (iteratively reweighted).
+    pub loss: Loss,
+    /// Poses with a standardised residual above this are reported as outliers.
+    pub outlier_threshold: f64,
+    /// Drop the outliers and refit.
+    pub drop_outliers: bool,
     /// Forward model used for identification.
     pub model: Model,
     /// Indices of the parameters to identify.
@@ -50,6 +98,9 @@ impl CalibrationOptions {
     /// The mechanism's default free set with the given model.
     pub fn new(spec: &Spec, model: Model) -> Self {
         Self {
+            loss: Loss::Squared,
+            outlier_threshold: 4.0,
+            drop_outliers: false,
             model,
             free: spec
                 .default_free
@@ -535,6 +586,18 @@ pub struct Calibration {
     pub parameter_covariance: ParameterCovariance,
     /// Correlations above 0.9 at the solution.
     pub correlations: Vec<Correlation>,
+    /// Loss used.
+    pub loss: Loss,
+    /// Robust scale of the residuals (1.4826 × median absolute deviation of
+    /// the weighted residuals), mm when unweighted.
+    pub robust_scale: f64,
+    /// Poses with residuals beyond the outlier threshold (at the final fit).
+    pub outliers: Vec<Outlier>,
+    /// Poses dropped as outliers before the final fit (1-based).
+    pub dropped: Vec<usize>,
+    /// Residuals at the solution, predicted minus measured, pose-major (mm).
+    #[serde(skip)]
+    pub residuals: Vec<f64>,
     /// Warnings.
     pub warnings: Vec<Warning>,
 }
@@ -553,8 +616,171 @@ pub fn unit(spec: &Spec, index: usize) -> &'static str {
 }
 
 /// Identify the free parameters from measurements (eq. 12), starting from
-/// `start` (usually nominal).
+/// `start` (usually nominal). With a robust [`Loss`], iteratively reweighted
+/// least squares: fit, standardise the residuals by their robust scale, reweight
+/// by `ψ(u)/u`, refit from the last solution, until the weights settle. Poses
+/// beyond `outlier_threshold` are reported; with `drop_outliers` they are
+/// removed and the fit repeated.
 pub fn calibrate<M: Mechanism>(
+    mech: &M,
+    data: &[Measurement],
+    start: &Params,
+    opts: &CalibrationOptions,
+) -> Result<Calibration> {
+    let nx = mech.spec().tool_axes.len();
+    let base: Vec<f64> = match &opts.sigma {
+        Some(s) => s.clone(),
+        None => vec![1.0; data.len() * nx],
+    };
+    let mut cal = calibrate_once(mech, data, start, opts)?;
+    let mut robust = vec![1.0; base.len()];
+    let mut scale = robust_scale(&cal.residuals, &base);
+    if opts.loss != Loss::Squared {
+        for _ in 0..MAX_REWEIGHTS {
+            let r = cal.residuals.clone();
+            scale = robust_scale(&r, &base);
+            let next: Vec<f64> = r
+                .iter()
+                .zip(&base)
+                .map(|(ri, si)| opts.loss.weight(ri / si / scale.max(f64::MIN_POSITIVE)))
+                .collect();
+            let change = next
+                .iter()
+                .zip(&robust)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            robust = next;
+            let mut o = opts.clone();
+            o.sigma = Some(
+                base.iter()
+                    .zip(&robust)
+                    .map(|(s, w)| s / w.sqrt())
+                    .collect(),
+            );
+            o.loss = Loss::Squared;
+            cal = calibrate_once(mech, data, &cal.params, &o)?;
+            if change < 1e-3 {
+                break;
+            }
+        }
+    }
+    let r = cal.residuals.clone();
+    let outliers = find_outliers(&r, &base, scale, nx, opts.outlier_threshold);
+    let max_drops = data.len() / 5;
+    if opts.drop_outliers && !outliers.is_empty() && max_drops > 0 {
+        // Drop the worst pose only, then refit: one gross error can make its
+        // neighbours look bad under least squares (masking).
+        let worst = outliers
+            .iter()
+            .max_by(|a, b| a.standardized.total_cmp(&b.standardized))
+            .expect("not empty")
+            .clone();
+        let kept: Vec<Measurement> = data
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| i + 1 != worst.pose)
+            .map(|(_, m)| m.clone())
+            .collect();
+        let mut o = opts.clone();
+        o.sigma = opts.sigma.as_ref().map(|s| {
+            s.chunks(nx)
+                .enumerate()
+                .filter(|(i, _)| i + 1 != worst.pose)
+                .flat_map(|(_, c)| c.to_vec())
+                .collect()
+        });
+        let mut refit = calibrate(mech, &kept, start, &o)?;
+        let worst_pose = worst.pose;
+        let original = |k: usize| if k >= worst_pose { k + 1 } else { k };
+        let mut dropped = vec![worst.pose];
+        dropped.extend(refit.dropped.iter().map(|&k| original(k)));
+        let mut found = vec![worst];
+        found.extend(refit.outliers.iter().map(|x| Outlier {
+            pose: original(x.pose),
+            ..x.clone()
+        }));
+        // Only the outermost call reports; inner calls' warnings are replaced.
+        refit
+            .warnings
+            .retain(|w| !w.message.contains("outlier pose(s) dropped"));
+        refit.warnings.push(Warning {
+            message: format!(
+                "{} outlier pose(s) dropped before the final fit: {}",
+                dropped.len(),
+                dropped.iter().map(|p| p.to_string()).collect::<Vec<_>>().join(", ")
+            ),
+            hint: "check those measurements (a misread, a bumped instrument) before trusting the result".into(),
+        });
+        refit.dropped = dropped;
+        refit.outliers = found;
+        return Ok(refit);
+    }
+    if !outliers.is_empty() {
+        cal.warnings.push(Warning {
+            message: format!(
+                "{} pose(s) with residuals beyond {} robust standard deviations: {}",
+                outliers.len(),
+                opts.outlier_threshold,
+                outliers
+                    .iter()
+                    .map(|o| format!("pose {} ({:.1}σ)", o.pose, o.standardized))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+            hint: "inspect them; --loss huber or cauchy limits their influence, --drop-outliers refits without them".into(),
+        });
+    }
+    cal.loss = opts.loss;
+    cal.robust_scale = scale;
+    cal.outliers = outliers;
+    Ok(cal)
+}
+
+/// Residuals below this (mm) are never outliers: on noise-free data the
+/// robust scale is round-off and would flag round-off.
+pub const OUTLIER_FLOOR_MM: f64 = 1e-6;
+
+/// Reweighting rounds of the robust fit.
+const MAX_REWEIGHTS: usize = 20;
+
+/// 1.4826 × median |r_i/σ_i|: a scale that outliers do not inflate.
+fn robust_scale(r: &[f64], sigma: &[f64]) -> f64 {
+    let mut a: Vec<f64> = r
+        .iter()
+        .zip(sigma)
+        .map(|(ri, si)| (ri / si).abs())
+        .collect();
+    if a.is_empty() {
+        return 0.0;
+    }
+    a.sort_by(f64::total_cmp);
+    1.4826 * a[a.len() / 2]
+}
+
+fn find_outliers(r: &[f64], sigma: &[f64], scale: f64, nx: usize, threshold: f64) -> Vec<Outlier> {
+    if scale <= 0.0 {
+        return vec![];
+    }
+    r.chunks(nx)
+        .zip(sigma.chunks(nx))
+        .enumerate()
+        .filter_map(|(i, (ri, si))| {
+            let u = ri
+                .iter()
+                .zip(si)
+                .map(|(a, b)| (a / b).abs() / scale)
+                .fold(0.0, f64::max);
+            let big = ri.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            (u > threshold && big > OUTLIER_FLOOR_MM).then(|| Outlier {
+                pose: i + 1,
+                residual: ri.to_vec(),
+                standardized: u,
+            })
+        })
+        .collect()
+}
+
+fn calibrate_once<M: Mechanism>(
     mech: &M,
     data: &[Measurement],
     start: &Params,
@@ -697,6 +923,16 @@ pub fn calibrate<M: Mechanism>(
         covariance,
         free,
         correlations,
+        loss: opts.loss,
+        robust_scale: 0.0,
+        outliers: vec![],
+        dropped: vec![],
+        residuals: report
+            .residuals
+            .iter()
+            .enumerate()
+            .map(|(i, v)| v / weights.as_ref().map_or(1.0, |w| w[i]))
+            .collect(),
         warnings,
     })
 }

@@ -53,8 +53,8 @@ pub mod workspace;
 
 pub use ballbar::{BallBar, Setup, trilaterate};
 pub use calibration::{
-    Accuracy, Calibration, CalibrationOptions, Identifiability, ParameterCovariance, accuracy,
-    analyze, calibrate, cross_validate, cross_validate_with_progress, holdout_split,
+    Accuracy, Calibration, CalibrationOptions, Identifiability, Loss, Outlier, ParameterCovariance,
+    accuracy, analyze, calibrate, cross_validate, cross_validate_with_progress, holdout_split,
     predict_with_uncertainty, tool_covariance,
 };
 pub use compensation::{Compensation, CompensationOptions, compensate};

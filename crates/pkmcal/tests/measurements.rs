@@ -1,0 +1,272 @@
+//! Ball-bar measurements, weights and robust fitting (issue 4).
+
+mod common;
+
+use pkmcal::reference::{JeongKim2Dof, demo_truth};
+use pkmcal::*;
+use rand::SeedableRng;
+use rand_distr::{Distribution, Normal};
+
+/// Reading noise of the simulated ball bar (mm).
+const NOISE_MM: f64 = 0.002;
+
+fn setup() -> Setup {
+    Setup {
+        sockets: vec![vec![-250.0, -60.0], vec![260.0, -40.0], vec![20.0, 480.0]],
+        bar_offset: 0.0,
+    }
+}
+
+#[test]
+fn trilateration_recovers_positions_with_their_covariance() {
+    // Planar, 3 and 4 sockets, and 3-D with 4 sockets.
+    let cases = [
+        (setup(), vec![12.0, 190.0]),
+        (
+            Setup {
+                sockets: vec![
+                    vec![-250.0, -60.0],
+                    vec![260.0, -40.0],
+                    vec![20.0, 480.0],
+                    vec![-300.0, 400.0],
+                ],
+                bar_offset: 1.5,
+            },
+            vec![-40.0, 260.0],
+        ),
+        (
+            Setup {
+                sockets: vec![
+                    vec![0.0, 0.0, 0.0],
+                    vec![500.0, 0.0, 10.0],
+                    vec![0.0, 500.0, 20.0],
+                    vec![250.0, 250.0, 400.0],
+                ],
+                bar_offset: 0.0,
+            },
+            vec![200.0, 180.0, 150.0],
+        ),
+    ];
+    let mut rng = rand::rngs::StdRng::seed_from_u64(3);
+    let normal = Normal::new(0.0, NOISE_MM).unwrap();
+    for (s, x) in cases {
+        let exact = s.distances(&x);
+        let (got, cov) = trilaterate(&s, &exact, NOISE_MM, None).unwrap();
+        for (a, b) in got.iter().zip(&x) {
+            assert!((a - b).abs() < 1e-9, "{got:?} vs {x:?}");
+        }
+        // The covariance matches the scatter of noisy trilaterations.
+        let runs = 400;
+        let mut var = vec![0.0; x.len()];
+        for _ in 0..runs {
+            let d: Vec<f64> = exact.iter().map(|d| d + normal.sample(&mut rng)).collect();
+            let (p, _) = trilaterate(&s, &d, NOISE_MM, None).unwrap();
+            for k in 0..x.len() {
+                var[k] += (p[k] - x[k]).powi(2) / runs as f64;
+            }
+        }
+        for k in 0..x.len() {
+            let ratio = var[k].sqrt() / cov[(k, k)].sqrt();
+            assert!(
+                (0.85..1.15).contains(&ratio),
+                "axis {k}: empirical/predicted σ = {ratio}"
+            );
+        }
+    }
+    let bad = Setup {
+        sockets: vec![vec![0.0, 0.0], vec![1.0, 0.0]],
+        bar_offset: 0.0,
+    };
+    assert!(trilaterate(&bad, &[1.0, 1.0], 0.0, None).is_err());
+    assert!(trilaterate(&setup(), &[1.0, f64::NAN, 2.0], 0.0, None).is_err());
+}
+
+fn distance_data(truth: &Params, targets: &[Vec<f64>], noise: f64, seed: u64) -> Vec<Measurement> {
+    let mech = JeongKim2Dof::new();
+    let s = setup();
+    let exact = simulate(&mech, truth, targets, 0.0, seed).unwrap();
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed + 1000);
+    let normal = Normal::new(0.0, noise.max(f64::MIN_POSITIVE)).unwrap();
+    exact
+        .into_iter()
+        .map(|m| Measurement {
+            target: None,
+            commands: m.commands,
+            measured: s
+                .distances(&m.measured)
+                .into_iter()
+                .map(|d| {
+                    if noise > 0.0 {
+                        d + normal.sample(&mut rng)
+                    } else {
+                        d
+                    }
+                })
+                .collect(),
+        })
+        .collect()
+}
+
+fn plain(bb: &BallBar<JeongKim2Dof>, p: &Params) -> Params {
+    let mech = bb.inner();
+    let ng = mech.spec().n_geometric();
+    let nb = bb.spec().n_geometric();
+    let mut v = p.values[..ng].to_vec();
+    v.extend(&p.values[nb..]);
+    Params::new(mech.spec(), v).unwrap()
+}
+
+fn both_routes(data: &[Measurement]) -> (Params, Params) {
+    let mech = JeongKim2Dof::new();
+    let spec = mech.spec();
+    let bb = BallBar::new(mech.clone(), &setup()).unwrap();
+    let tri: Vec<Measurement> = data
+        .iter()
+        .map(|m| Measurement {
+            target: None,
+            commands: m.commands.clone(),
+            measured: trilaterate(&setup(), &m.measured, NOISE_MM, None)
+                .unwrap()
+                .0,
+        })
+        .collect();
+    let a = calibrate(
+        &mech,
+        &tri,
+        &Params::nominal(spec),
+        &CalibrationOptions::new(spec, Model::Exact),
+    )
+    .unwrap();
+    let b = calibrate(
+        &bb,
+        data,
+        &Params::nominal(bb.spec()),
+        &CalibrationOptions::new(bb.spec(), Model::Exact),
+    )
+    .unwrap();
+    (a.params, plain(&bb, &b.params))
+}
+
+#[test]
+fn ball_bar_routes_agree_without_noise_and_the_direct_one_is_at_least_as_accurate_with_it() {
+    let mech = JeongKim2Dof::new();
+    let truth = demo_truth();
+    let targets = common::targets(35);
+    let (a, b) = both_routes(&distance_data(&truth, &targets, 0.0, 1));
+    for (i, (x, y)) in a.values.iter().zip(&b.values).enumerate() {
+        assert!((x - y).abs() < 1e-7, "parameter {i}: {x} vs {y}");
+        assert!((x - truth.values[i]).abs() < 1e-6);
+    }
+    // With noise: validation error on unseen poses, averaged over seeds.
+    let unseen = simulate(
+        &mech,
+        &truth,
+        &random_targets(&mech, 40, 9).unwrap(),
+        0.0,
+        1,
+    )
+    .unwrap();
+    let (mut tri, mut direct) = (0.0, 0.0);
+    let seeds = 16;
+    for seed in 0..seeds {
+        let (a, b) = both_routes(&distance_data(&truth, &targets, NOISE_MM, 50 + seed));
+        tri += accuracy(&mech, &unseen, &a, Model::Exact, &[])
+            .unwrap()
+            .0
+            .after
+            .distance_rms;
+        direct += accuracy(&mech, &unseen, &b, Model::Exact, &[])
+            .unwrap()
+            .0
+            .after
+            .distance_rms;
+    }
+    assert!(
+        direct <= tri,
+        "direct {} vs trilateration {}",
+        direct / seeds as f64,
+        tri / seeds as f64
+    );
+}
+
+#[test]
+fn socket_positions_and_bar_offset_are_identifiable() {
+    let mech = JeongKim2Dof::new();
+    let bb = BallBar::new(mech.clone(), &setup()).unwrap();
+    let spec = bb.spec().clone();
+    let mut truth = Params::nominal(&spec);
+    for (name, e) in pkmcal::reference::DEMO_ERRORS {
+        let i = spec.param_index(name).unwrap();
+        truth.values[i] += e;
+    }
+    truth.set(&spec, "s3x", 20.4).unwrap();
+    truth.set(&spec, "dbar", 0.3).unwrap();
+    let exact = simulate(&mech, &plain(&bb, &truth), &common::targets(40), 0.0, 1).unwrap();
+    let s = bb.setup_of(truth.geometric());
+    let data: Vec<Measurement> = exact
+        .iter()
+        .map(|m| Measurement {
+            target: None,
+            commands: m.commands.clone(),
+            measured: s.distances(&m.measured),
+        })
+        .collect();
+    let mut opts = CalibrationOptions::new(&spec, Model::Exact);
+    opts.free.push(spec.param_index("s3x").unwrap());
+    opts.free.push(spec.param_index("dbar").unwrap());
+    let cal = calibrate(&bb, &data, &Params::nominal(&spec), &opts).unwrap();
+    assert!(cal.warnings.is_empty(), "{:?}", cal.warnings);
+    assert!((cal.params.get(&spec, "s3x").unwrap() - 20.4).abs() < 1e-6);
+    assert!((cal.params.get(&spec, "dbar").unwrap() - 0.3).abs() < 1e-6);
+}
+
+#[test]
+fn robust_losses_resist_gross_errors() {
+    let mech = JeongKim2Dof::new();
+    let spec = mech.spec();
+    let truth = demo_truth();
+    let clean = simulate(&mech, &truth, &common::targets(35), NOISE_MM, 2).unwrap();
+    let reference = calibrate(
+        &mech,
+        &clean,
+        &Params::nominal(spec),
+        &CalibrationOptions::new(spec, Model::Exact),
+    )
+    .unwrap();
+    let mut data = clean.clone();
+    data[4].measured[0] += 0.08;
+    data[22].measured[1] -= 0.05;
+    // Distance from the fit of the clean data (geometric parameters, mm).
+    let err = |p: &Params| {
+        p.geometric()
+            .iter()
+            .zip(reference.params.geometric())
+            .map(|(a, b)| (a - b).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    };
+    let plain = calibrate(
+        &mech,
+        &data,
+        &Params::nominal(spec),
+        &CalibrationOptions::new(spec, Model::Exact),
+    )
+    .unwrap();
+    for loss in [Loss::Huber(1.345), Loss::Cauchy(2.385)] {
+        let mut opts = CalibrationOptions::new(spec, Model::Exact);
+        opts.loss = loss;
+        let cal = calibrate(&mech, &data, &Params::nominal(spec), &opts).unwrap();
+        let poses: Vec<usize> = cal.outliers.iter().map(|o| o.pose).collect();
+        assert_eq!(poses, [5, 23], "{loss:?}");
+        assert!(
+            err(&cal.params) < 0.2 * err(&plain.params),
+            "{loss:?}: {} vs {}",
+            err(&cal.params),
+            err(&plain.params)
+        );
+        assert!(cal.robust_scale < 1.5 * NOISE_MM);
+    }
+    assert_eq!(Loss::Huber(1.0).weight(0.5), 1.0);
+    assert_eq!(Loss::Huber(1.0).weight(4.0), 0.25);
+    assert!((Loss::Cauchy(1.0).weight(1.0) - 0.5).abs() < 1e-15);
+}
