@@ -80,7 +80,7 @@ fn load_params(path: Option<&Path>, mech: &Mech) -> Result<Params> {
 }
 
 pub fn predict(a: PredictArgs) -> Result<()> {
-    let mech = read_mechanism(a.mechanism.as_deref())?;
+    let mech = read_mechanism(a.mech.mechanism.as_deref())?;
     let spec = mech.spec();
     let params = load_params(a.params.as_deref(), &mech)?;
     let model: Model = a.model.parse()?;
@@ -182,7 +182,7 @@ fn target_names(mech: &Mech) -> Vec<String> {
 }
 
 pub fn simulate(a: SimulateArgs) -> Result<()> {
-    let mech = read_mechanism(a.mechanism.as_deref())?;
+    let mech = read_mechanism(a.mech.mechanism.as_deref())?;
     let truth = load_params(a.truth.as_deref(), &mech)?;
     if !(a.noise >= 0.0 && a.noise.is_finite()) {
         bail!(
@@ -285,9 +285,9 @@ fn ballbar_rows(
 
 /// `trilaterate`: bar readings to positions with their standard deviations.
 pub fn trilaterate(a: crate::TrilaterateArgs) -> Result<()> {
-    let mech = read_mechanism(a.mechanism.as_deref())?;
+    let mech = read_mechanism(a.mech.mechanism.as_deref())?;
     let spec = mech.spec();
-    let setup = crate::io::read_setup(a.setup.as_deref(), a.mechanism.as_deref())?
+    let setup = crate::io::read_setup(a.setup.as_deref(), a.mech.mechanism.as_deref())?
         .context("give the socket positions with --setup S.toml (or a [ballbar] table in the mechanism file)")?;
     setup.validate(spec.tool_axes.len())?;
     if !(a.sigma.is_finite() && a.sigma >= 0.0) {

@@ -42,11 +42,29 @@ enum Command {
     Demo(DemoArgs),
 }
 
+/// The mechanism option shared by every subcommand.
 #[derive(clap::Args)]
-pub struct PredictArgs {
+pub struct MechanismArg {
     /// Mechanism file (TOML); the built-in reference mechanism if omitted.
     #[arg(long, value_name = "M.toml")]
     pub mechanism: Option<PathBuf>,
+}
+
+/// Which parameters to identify.
+#[derive(clap::Args)]
+pub struct FreeArgs {
+    /// Parameters to identify, comma separated (`all`, `default` allowed); default: the paper's 16.
+    #[arg(long, value_name = "NAMES")]
+    pub free: Option<String>,
+    /// Parameters to keep fixed, comma separated (removed from the free set).
+    #[arg(long, value_name = "NAMES")]
+    pub fix: Option<String>,
+}
+
+#[derive(clap::Args)]
+pub struct PredictArgs {
+    #[command(flatten)]
+    pub mech: MechanismArg,
     /// Parameter values (flat TOML `name = value`); unnamed parameters stay nominal.
     #[arg(long, value_name = "P.toml")]
     pub params: Option<PathBuf>,
@@ -73,9 +91,8 @@ pub struct PredictArgs {
 
 #[derive(clap::Args)]
 pub struct SimulateArgs {
-    /// Mechanism file (TOML); the built-in reference mechanism if omitted.
-    #[arg(long, value_name = "M.toml")]
-    pub mechanism: Option<PathBuf>,
+    #[command(flatten)]
+    pub mech: MechanismArg,
     /// True parameter values (flat TOML); nominal if omitted.
     #[arg(long, value_name = "P.toml")]
     pub truth: Option<PathBuf>,
@@ -110,9 +127,8 @@ pub struct SimulateArgs {
 
 #[derive(clap::Args)]
 pub struct TrilaterateArgs {
-    /// Mechanism file (TOML); the built-in reference mechanism if omitted.
-    #[arg(long, value_name = "M.toml")]
-    pub mechanism: Option<PathBuf>,
+    #[command(flatten)]
+    pub mech: MechanismArg,
     /// Ball-bar setup: sockets and bar offset.
     #[arg(long, value_name = "S.toml")]
     pub setup: Option<PathBuf>,
@@ -129,21 +145,17 @@ pub struct TrilaterateArgs {
 
 #[derive(clap::Args)]
 pub struct CalibrateArgs {
-    /// Mechanism file (TOML); the built-in reference mechanism if omitted.
-    #[arg(long, value_name = "M.toml")]
-    pub mechanism: Option<PathBuf>,
-    /// Measurements: CSV with q1,q2,q3 (rad) and x,y (mm); optional target_x,target_y.
+    #[command(flatten)]
+    pub mech: MechanismArg,
+    /// Measurements: CSV with q1,q2,q3 (rad) and x,y (mm), or ball-bar readings d1..dk
+    /// (with --setup); optional target_x,target_y and sigma_x,sigma_y (or sigma).
     #[arg(long, value_name = "DATA.csv")]
     pub data: PathBuf,
     /// Forward model used for identification.
     #[arg(long, default_value = "exact", value_parser = ["exact", "linear", "rigid"])]
     pub model: String,
-    /// Parameters to identify, comma separated (`all`, `default` allowed); default: the paper's 16.
-    #[arg(long, value_name = "NAMES")]
-    pub free: Option<String>,
-    /// Parameters to keep fixed, comma separated (removed from the free set).
-    #[arg(long, value_name = "NAMES")]
-    pub fix: Option<String>,
+    #[command(flatten)]
+    pub params_set: FreeArgs,
     /// Starting (and fixed) parameter values; nominal if omitted.
     #[arg(long, value_name = "P.toml")]
     pub start: Option<PathBuf>,
@@ -194,21 +206,16 @@ pub struct CalibrateArgs {
 
 #[derive(clap::Args)]
 pub struct AnalyzeArgs {
-    /// Mechanism file (TOML); the built-in reference mechanism if omitted.
-    #[arg(long, value_name = "M.toml")]
-    pub mechanism: Option<PathBuf>,
+    #[command(flatten)]
+    pub mech: MechanismArg,
     /// Measurements (only the commands are used).
     #[arg(long, value_name = "DATA.csv")]
     pub data: PathBuf,
     /// Forward model.
     #[arg(long, default_value = "exact", value_parser = ["exact", "linear", "rigid"])]
     pub model: String,
-    /// Parameters to analyse (as for calibrate).
-    #[arg(long, value_name = "NAMES")]
-    pub free: Option<String>,
-    /// Parameters to keep fixed.
-    #[arg(long, value_name = "NAMES")]
-    pub fix: Option<String>,
+    #[command(flatten)]
+    pub params_set: FreeArgs,
     /// Parameter values at which to analyse; nominal if omitted.
     #[arg(long, value_name = "P.toml")]
     pub params: Option<PathBuf>,
@@ -222,9 +229,8 @@ pub struct AnalyzeArgs {
 
 #[derive(clap::Args)]
 pub struct CompensateArgs {
-    /// Mechanism file (TOML); the built-in reference mechanism if omitted.
-    #[arg(long, value_name = "M.toml")]
-    pub mechanism: Option<PathBuf>,
+    #[command(flatten)]
+    pub mech: MechanismArg,
     /// Calibrated parameters (flat TOML); nominal if omitted.
     #[arg(long, value_name = "P.toml")]
     pub params: Option<PathBuf>,
@@ -250,9 +256,8 @@ pub struct CompensateArgs {
 
 #[derive(clap::Args)]
 pub struct PlanArgs {
-    /// Mechanism file (TOML); the built-in reference mechanism if omitted.
-    #[arg(long, value_name = "M.toml")]
-    pub mechanism: Option<PathBuf>,
+    #[command(flatten)]
+    pub mech: MechanismArg,
     /// Number of poses to choose.
     #[arg(long, value_name = "N")]
     pub count: usize,
@@ -268,12 +273,8 @@ pub struct PlanArgs {
     /// Expected parameters (nominal if omitted).
     #[arg(long, value_name = "P.toml")]
     pub params: Option<PathBuf>,
-    /// Parameters to identify (as for calibrate).
-    #[arg(long, value_name = "NAMES")]
-    pub free: Option<String>,
-    /// Parameters to keep fixed.
-    #[arg(long, value_name = "NAMES")]
-    pub fix: Option<String>,
+    #[command(flatten)]
+    pub params_set: FreeArgs,
     /// Output CSV: target_x,target_y,q1,q2,q3.
     #[arg(long, value_name = "POSES.csv")]
     pub out: PathBuf,
@@ -284,9 +285,8 @@ pub struct PlanArgs {
 
 #[derive(clap::Args)]
 pub struct MonteCarloArgs {
-    /// Mechanism file (TOML); the built-in reference mechanism if omitted.
-    #[arg(long, value_name = "M.toml")]
-    pub mechanism: Option<PathBuf>,
+    #[command(flatten)]
+    pub mech: MechanismArg,
     /// Measurement plan: CSV with target_x,target_y (e.g. from `plan`).
     #[arg(long, value_name = "POSES.csv")]
     pub poses: PathBuf,
@@ -302,12 +302,8 @@ pub struct MonteCarloArgs {
     /// Model used to calibrate.
     #[arg(long, default_value = "exact", value_parser = ["exact", "linear", "rigid"])]
     pub model: String,
-    /// Parameters to identify (as for calibrate).
-    #[arg(long, value_name = "NAMES")]
-    pub free: Option<String>,
-    /// Parameters to keep fixed.
-    #[arg(long, value_name = "NAMES")]
-    pub fix: Option<String>,
+    #[command(flatten)]
+    pub params_set: FreeArgs,
     /// Standard deviation of the random errors of free lengths and positions, mm.
     #[arg(long, default_value_t = 0.3, value_name = "MM")]
     pub length_error: f64,
@@ -359,11 +355,11 @@ fn main() -> ExitCode {
                 loss,
                 outlier_threshold: a.outlier_threshold,
                 drop_outliers: a.drop_outliers,
-                mechanism: a.mechanism,
+                mechanism: a.mech.mechanism,
                 data: a.data,
                 model,
-                free: a.free,
-                fix: a.fix,
+                free: a.params_set.free,
+                fix: a.params_set.fix,
                 start: a.start,
                 force: a.force,
                 out: a.out,
@@ -379,11 +375,11 @@ fn main() -> ExitCode {
         }),
         Command::Analyze(a) => a.model.parse().map_err(Into::into).and_then(|model| {
             calibrate::run_analyze(calibrate::AnalyzeConfig {
-                mechanism: a.mechanism,
+                mechanism: a.mech.mechanism,
                 data: a.data,
                 model,
-                free: a.free,
-                fix: a.fix,
+                free: a.params_set.free,
+                fix: a.params_set.fix,
                 params: a.params,
                 force: a.force,
                 report: a.report,
@@ -391,7 +387,7 @@ fn main() -> ExitCode {
         }),
         Command::Compensate(a) => a.model.parse().map_err(Into::into).and_then(|model| {
             usecal::run_compensate(usecal::CompensateConfig {
-                mechanism: a.mechanism,
+                mechanism: a.mech.mechanism,
                 params: a.params,
                 targets: a.targets,
                 model,
@@ -403,28 +399,28 @@ fn main() -> ExitCode {
         }),
         Command::Plan(a) => (|| {
             usecal::run_plan(usecal::PlanConfig {
-                mechanism: a.mechanism,
+                mechanism: a.mech.mechanism,
                 count: a.count,
                 candidates: a.candidates,
                 criterion: a.criterion.parse()?,
                 model: a.model.parse()?,
                 params: a.params,
-                free: a.free,
-                fix: a.fix,
+                free: a.params_set.free,
+                fix: a.params_set.fix,
                 out: a.out,
                 grid_out: a.grid_out,
             })
         })(),
         Command::Montecarlo(a) => (|| {
             usecal::run_montecarlo(usecal::MonteCarloConfig {
-                mechanism: a.mechanism,
+                mechanism: a.mech.mechanism,
                 poses: a.poses,
                 runs: a.runs,
                 noise: a.noise,
                 seed: a.seed,
                 model: a.model.parse()?,
-                free: a.free,
-                fix: a.fix,
+                free: a.params_set.free,
+                fix: a.params_set.fix,
                 length_error: a.length_error,
                 offset_error: a.offset_error,
                 validation: a.validation,
