@@ -519,19 +519,30 @@ pub struct AnalyzeConfig {
     pub params: Option<PathBuf>,
     pub force: Option<String>,
     pub report: Option<PathBuf>,
+    pub setup: Option<PathBuf>,
 }
 
 pub fn run_analyze(c: AnalyzeConfig) -> Result<()> {
     let mech = read_mechanism(c.mechanism.as_deref())?;
+    let headers = Csv::read(&c.data)?.headers;
+    if headers.iter().any(|h| h == "d1") && !headers.iter().any(|h| h == "x") {
+        let setup = crate::io::read_setup(c.setup.as_deref(), c.mechanism.as_deref())?
+            .context("ball-bar distances need the socket positions: give --setup S.toml")?;
+        return analyze_on(&BallBar::new(mech, &setup)?, &c);
+    }
+    analyze_on(&mech, &c)
+}
+
+fn analyze_on<M: Mechanism>(mech: &M, c: &AnalyzeConfig) -> Result<()> {
     let spec = mech.spec();
-    let data = read_data(&c.data, &mech)?;
+    let data = read_data(&c.data, mech)?;
     let params = match &c.params {
         Some(p) => read_params(p, spec)?,
         None => Params::nominal(spec),
     };
-    let free = free_set(&mech, c.free.as_deref(), c.fix.as_deref())?;
-    let force = force_arg(&mech, c.force.as_deref())?;
-    let id = analyze(&mech, &data, &params, c.model, &free, &force)
+    let free = free_set(mech, c.free.as_deref(), c.fix.as_deref())?;
+    let force = force_arg(mech, c.force.as_deref())?;
+    let id = analyze(mech, &data, &params, c.model, &free, &force)
         .with_context(|| format!("analysing {}", c.data.display()))?;
     if let Some(r) = &c.report {
         write_atomic(r, serde_json::to_string_pretty(&id)?.as_bytes())?;

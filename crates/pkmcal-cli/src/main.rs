@@ -225,6 +225,9 @@ pub struct AnalyzeArgs {
     /// Output: JSON report of the analysis.
     #[arg(long, value_name = "REPORT.json")]
     pub report: Option<PathBuf>,
+    /// Ball-bar setup for data with distances d1, d2, …
+    #[arg(long, value_name = "S.toml")]
+    pub setup: Option<PathBuf>,
 }
 
 #[derive(clap::Args)]
@@ -383,6 +386,7 @@ fn main() -> ExitCode {
                 params: a.params,
                 force: a.force,
                 report: a.report,
+                setup: a.setup,
             })
         }),
         Command::Compensate(a) => a.model.parse().map_err(Into::into).and_then(|model| {

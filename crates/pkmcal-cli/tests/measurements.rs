@@ -120,6 +120,20 @@ fn both_ball_bar_routes_agree_on_noise_free_data() {
         ],
     );
     assert!(out.contains("s3x") && out.contains("dbar"), "{out}");
+    // Freeing every socket coordinate exposes the frame rotation, named.
+    let out = ok(
+        d,
+        &[
+            "analyze",
+            "--data",
+            "bb.csv",
+            "--setup",
+            "setup.toml",
+            "--free",
+            "default,s1x,s1y,s2x,s2y,s3x,s3y",
+        ],
+    );
+    assert!(out.contains("1 direction(s) cannot be identified"), "{out}");
     // Distances without a setup: a clear message.
     fails(
         d,
