@@ -142,6 +142,9 @@ pub struct Validation {
 #[derive(Serialize)]
 pub struct Report<'a> {
     pub pkmcal_version: &'static str,
+    /// Line of each data row (pose numbers count rows in file order).
+    #[serde(skip)]
+    pub lines: Vec<u64>,
     pub mechanism: String,
     pub data: String,
     #[serde(flatten)]
@@ -270,8 +273,73 @@ fn calibrate_on<M: Mechanism>(
     if let Some(sig) = &sigma {
         opts.sigma = Some(train_idx.iter().flat_map(|&i| sig[i].clone()).collect());
     }
-    let cal = calibrate(mech, &train, &start, &opts)
-        .with_context(|| format!("calibrating from {}", c.data.display()))?;
+    // Pose numbers of the library count the calibration poses; report them in
+    // data-file order with their line, so that a user can find them.
+    let lines: Vec<u64> = Csv::read(&c.data)?.rows.iter().map(|r| r.0).collect();
+    let file_pose = |k: usize| train_idx.get(k.wrapping_sub(1)).map_or(k, |&i| i + 1);
+    let mut cal = calibrate(mech, &train, &start, &opts).map_err(|e| {
+        let msg = e.to_string();
+        let located = msg
+            .strip_prefix("pose ")
+            .and_then(|rest| rest.split(|ch: char| !ch.is_ascii_digit()).next())
+            .and_then(|n| n.parse::<usize>().ok())
+            .map(|k| {
+                let p = file_pose(k);
+                format!(
+                    "{}:{}: pose {p}: {}",
+                    c.data.display(),
+                    lines.get(p - 1).copied().unwrap_or(0),
+                    msg.split_once(": ").map_or(msg.as_str(), |x| x.1)
+                )
+            });
+        match located {
+            Some(m) => anyhow::anyhow!(m),
+            None => anyhow::anyhow!(msg).context(format!("calibrating from {}", c.data.display())),
+        }
+    })?;
+    for o in &mut cal.outliers {
+        o.pose = file_pose(o.pose);
+    }
+    for d in &mut cal.dropped {
+        *d = file_pose(*d);
+    }
+    // Restate the library's outlier warnings with file pose numbers and lines.
+    let mentions = |w: &pkmcal::calibration::Warning| {
+        w.message.contains("robust standard deviations: pose")
+            || w.message.contains("outlier pose(s) dropped")
+    };
+    if cal.warnings.iter().any(mentions) {
+        cal.warnings.retain(|w| !mentions(w));
+        let list = cal
+            .outliers
+            .iter()
+            .map(|o| {
+                format!(
+                    "pose {} (line {}, {:.1}σ)",
+                    o.pose,
+                    lines.get(o.pose - 1).copied().unwrap_or(0),
+                    o.standardized
+                )
+            })
+            .collect::<Vec<_>>()
+            .join(", ");
+        let message = if cal.dropped.is_empty() {
+            format!(
+                "{} pose(s) with residuals beyond {} robust standard deviations: {list}",
+                cal.outliers.len(),
+                opts.outlier_threshold
+            )
+        } else {
+            format!(
+                "{} outlier pose(s) dropped before the final fit: {list}",
+                cal.dropped.len()
+            )
+        };
+        cal.warnings.push(pkmcal::calibration::Warning {
+            message,
+            hint: "inspect them; --loss huber or cauchy limits their influence, --drop-outliers refits without them".into(),
+        });
+    }
     let (acc, before, after) = accuracy(mech, &train, &cal.params, c.model, &opts.force)?;
     let validation = match &held {
         Some((source, data)) => Some(Validation {
@@ -307,6 +375,7 @@ fn calibrate_on<M: Mechanism>(
     );
     let params_text = crate::io::params_to_string(plain.spec(), &to_plain(&cal.params), &header);
     let report = Report {
+        lines: lines.clone(),
         pkmcal_version: env!("CARGO_PKG_VERSION"),
         mechanism: spec.name.clone(),
         data: c.data.display().to_string(),
@@ -491,8 +560,9 @@ fn print_summary(r: &Report, axes: &[String]) {
     }
     for o in &cal.outliers {
         println!(
-            "  outlier: pose {} residual {:?} mm ({:.1} robust σ){}",
+            "  outlier: pose {} (line {}) residual {:?} mm ({:.1} robust σ){}",
             o.pose,
+            r.lines.get(o.pose.wrapping_sub(1)).copied().unwrap_or(0),
             o.residual
                 .iter()
                 .map(|v| (v * 1e6).round() / 1e6)

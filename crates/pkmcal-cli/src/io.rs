@@ -18,12 +18,14 @@ pub struct Csv {
 
 impl Csv {
     pub fn read(path: &Path) -> Result<Self> {
+        let bytes =
+            std::fs::read(path).with_context(|| format!("cannot open {}", path.display()))?;
+        let mut lines = LineCounter::new(bytes.as_slice());
         let mut rdr = csv::ReaderBuilder::new()
             .trim(csv::Trim::All)
             .comment(Some(b'#'))
             .flexible(true)
-            .from_path(path)
-            .with_context(|| format!("cannot open {}", path.display()))?;
+            .from_reader(bytes.as_slice());
         let headers: Vec<String> = rdr
             .headers()
             .with_context(|| format!("{}: cannot read the header line", path.display()))?
@@ -39,7 +41,7 @@ impl Csv {
         let mut rows = Vec::new();
         for rec in rdr.records() {
             let rec = rec.with_context(|| format!("{}: malformed CSV", path.display()))?;
-            let line = rec.position().map_or(0, |p| p.line());
+            let line = rec.position().map_or(0, |p| lines.line_at(p.byte()));
             if rec.iter().all(str::is_empty) {
                 continue;
             }
@@ -133,6 +135,77 @@ impl Csv {
 
     pub fn line(&self, row: usize) -> u64 {
         self.rows[row].0
+    }
+}
+
+/// Line numbers from byte offsets, reading forward through a second copy of
+/// the stream. (The csv crate's own line count is off for CRLF files.)
+pub struct LineCounter<R: std::io::Read> {
+    reader: std::io::BufReader<R>,
+    offset: u64,
+    line: u64,
+    at_line_start: bool,
+}
+
+impl<R: std::io::Read> LineCounter<R> {
+    pub fn new(r: R) -> Self {
+        Self {
+            reader: std::io::BufReader::new(r),
+            offset: 0,
+            line: 1,
+            at_line_start: true,
+        }
+    }
+
+    /// The 1-based line of the record the csv crate says starts at `byte`
+    /// (offsets must not decrease). The crate reports the end of the previous
+    /// record (for CRLF files its `\n`) and counts skipped comment lines into
+    /// the record, so line terminators, blank lines and `#` comment lines
+    /// after `byte` are passed over before the record's own line is known.
+    pub fn line_at(&mut self, byte: u64) -> u64 {
+        use std::io::BufRead;
+        while self.offset < byte {
+            let Ok(buf) = self.reader.fill_buf() else {
+                break;
+            };
+            if buf.is_empty() {
+                break;
+            }
+            let take = ((byte - self.offset) as usize).min(buf.len());
+            let newlines = buf[..take].iter().filter(|b| **b == b'\n').count() as u64;
+            self.at_line_start = if take > 0 {
+                buf[take - 1] == b'\n'
+            } else {
+                self.at_line_start
+            };
+            self.line += newlines;
+            self.offset += take as u64;
+            self.reader.consume(take);
+        }
+        let mut in_comment = false;
+        loop {
+            let Ok(buf) = self.reader.fill_buf() else {
+                break;
+            };
+            let Some(&c) = buf.first() else { break };
+            match c {
+                b'\n' => {
+                    self.line += 1;
+                    in_comment = false;
+                    self.at_line_start = true;
+                }
+                b'#' if self.at_line_start => in_comment = true,
+                _ if in_comment => {}
+                b'\r' | b' ' | b'\t' => {}
+                _ => break,
+            }
+            if c != b'\n' && c != b'\r' && c != b' ' && c != b'\t' {
+                self.at_line_start = false;
+            }
+            self.offset += 1;
+            self.reader.consume(1);
+        }
+        self.line
     }
 }
 

@@ -71,6 +71,10 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
         .flexible(true)
         .from_path(&c.targets)
         .with_context(|| format!("cannot open {}", c.targets.display()))?;
+    let mut lines = crate::io::LineCounter::new(
+        std::fs::File::open(&c.targets)
+            .with_context(|| format!("cannot open {}", c.targets.display()))?,
+    );
     let headers: Vec<String> = rdr
         .headers()
         .with_context(|| format!("{}: cannot read the header", c.targets.display()))?
@@ -118,7 +122,7 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
             let mut batch: Vec<(u64, Vec<f64>)> = Vec::with_capacity(BATCH_ROWS);
             for rec in records.by_ref().take(BATCH_ROWS) {
                 let rec = rec.with_context(|| format!("{}: malformed CSV", c.targets.display()))?;
-                let line = rec.position().map_or(0, |p| p.line());
+                let line = rec.position().map_or(0, |p| lines.line_at(p.byte()));
                 if rec.iter().all(str::is_empty) {
                     continue;
                 }

@@ -193,3 +193,42 @@ fn impossible_requests() {
     fails(d, &["frobnicate"], 2, "frobnicate");
     assert!(!d.join("p.toml").exists());
 }
+
+#[test]
+fn line_numbers_are_right_with_crlf_comments_and_blank_lines() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("crlf.csv"),
+        "q1,q2,q3\r\n1.4614,3.5609,-2.5939\r\n1.46,abc,-2.59\r\n",
+    )
+    .unwrap();
+    fails(
+        d,
+        &["predict", "--commands", "crlf.csv", "--out", "o.csv"],
+        1,
+        "crlf.csv:3: column `q2`",
+    );
+    std::fs::write(
+        d.join("com.csv"),
+        "q1,q2,q3\n# note\n\n1.4614,3.5609,-2.5939\n# x\n1.46,abc,-2.59\n",
+    )
+    .unwrap();
+    fails(
+        d,
+        &["predict", "--commands", "com.csv", "--out", "o.csv"],
+        1,
+        "com.csv:6: column `q2`",
+    );
+    std::fs::write(
+        d.join("t.csv"),
+        "target_x,target_y\r\n0,180\r\n# far\r\n900,900\r\n",
+    )
+    .unwrap();
+    fails(
+        d,
+        &["compensate", "--targets", "t.csv", "--out", "c.csv"],
+        1,
+        "t.csv:4:",
+    );
+}
