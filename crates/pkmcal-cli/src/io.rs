@@ -183,10 +183,7 @@ impl<R: std::io::Read> LineCounter<R> {
             self.reader.consume(take);
         }
         let mut in_comment = false;
-        loop {
-            let Ok(buf) = self.reader.fill_buf() else {
-                break;
-            };
+        while let Ok(buf) = self.reader.fill_buf() {
             let Some(&c) = buf.first() else { break };
             match c {
                 b'\n' => {
