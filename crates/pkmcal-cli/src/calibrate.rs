@@ -14,8 +14,12 @@ use std::path::{Path, PathBuf};
 /// Read a measurement file: commands and measured tool coordinates, optional
 /// targets.
 pub fn read_data<M: Mechanism>(path: &Path, mech: &M) -> Result<Vec<Measurement>> {
+    data_from(&Csv::read(path)?, mech)
+}
+
+/// [`read_data`] from an already parsed table.
+pub fn data_from<M: Mechanism>(csv: &Csv, mech: &M) -> Result<Vec<Measurement>> {
     let spec = mech.spec();
-    let csv = Csv::read(path)?;
     csv.require_rows()?;
     let act: Vec<String> = spec
         .actuated_names()
@@ -50,9 +54,8 @@ pub fn read_data<M: Mechanism>(path: &Path, mech: &M) -> Result<Vec<Measurement>
 /// Per-pose standard deviations of the measured coordinates from the data
 /// file's `sigma_<axis>` columns (per axis) or `sigma` column (all axes); `None`
 /// when it has neither.
-pub fn read_sigma<M: Mechanism>(path: &Path, mech: &M) -> Result<Option<Vec<Vec<f64>>>> {
+pub fn sigma_from<M: Mechanism>(csv: &Csv, mech: &M) -> Result<Option<Vec<Vec<f64>>>> {
     let spec = mech.spec();
-    let csv = Csv::read(path)?;
     let per_axis: Vec<String> = spec
         .tool_axes
         .iter()
@@ -72,7 +75,7 @@ pub fn read_sigma<M: Mechanism>(path: &Path, mech: &M) -> Result<Option<Vec<Vec<
         if r.iter().any(|v| *v <= 0.0) {
             bail!(
                 "{}:{}: standard deviations must be positive, got {r:?}",
-                path.display(),
+                csv.path.display(),
                 csv.line(i)
             );
         }
@@ -190,19 +193,37 @@ fn force_arg<M: Mechanism>(mech: &M, s: Option<&str>) -> Result<Vec<f64>> {
     Ok(f)
 }
 
+/// The ball-bar setup when `csv` holds bar readings (`d1…`) instead of tool
+/// coordinates; an error naming the file when no setup is given for them.
+fn ballbar_setup(
+    csv: &Csv,
+    mech: &Mech,
+    setup: Option<&Path>,
+    mechanism: Option<&Path>,
+) -> Result<Option<pkmcal::Setup>> {
+    let distances = csv.headers.iter().any(|h| h == "d1");
+    let positions = mech
+        .spec()
+        .tool_axes
+        .iter()
+        .all(|a| csv.headers.contains(a));
+    if !distances || positions {
+        return Ok(None);
+    }
+    crate::io::read_setup(setup, mechanism)?
+        .with_context(|| {
+            format!(
+                "{} holds ball-bar distances (d1…); give the socket positions with --setup S.toml (or a [ballbar] table in the mechanism file)",
+                csv.path.display()
+            )
+        })
+        .map(Some)
+}
+
 pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
     let mech = read_mechanism(c.mechanism.as_deref())?;
-    let headers = Csv::read(&c.data)?.headers;
-    let distances = headers.iter().any(|h| h == "d1");
-    let positions = mech.spec().tool_axes.iter().all(|a| headers.contains(a));
-    if distances && !positions {
-        let setup = crate::io::read_setup(c.setup.as_deref(), c.mechanism.as_deref())?
-            .with_context(|| {
-                format!(
-                    "{} holds ball-bar distances (d1…); give the socket positions with --setup S.toml (or a [ballbar] table in the mechanism file)",
-                    c.data.display()
-                )
-            })?;
+    let csv = Csv::read(&c.data)?;
+    if let Some(setup) = ballbar_setup(&csv, &mech, c.setup.as_deref(), c.mechanism.as_deref())? {
         if c.report_dir.is_some() {
             bail!(
                 "--report-dir needs positions; trilaterate the distances first (pkmcal trilaterate) or drop --report-dir"
@@ -217,9 +238,9 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
             v.extend(&p.values[nb..]);
             Params::new(&plain, v).expect("same layout")
         };
-        return calibrate_on(&bb, &c, &mech, &to_plain, None);
+        return calibrate_on(&bb, &c, &csv, &mech, &to_plain, None);
     }
-    calibrate_on(&mech, &c, &mech, &|p: &Params| p.clone(), Some(&mech))
+    calibrate_on(&mech, &c, &csv, &mech, &|p: &Params| p.clone(), Some(&mech))
 }
 
 /// Calibrate `mech` (the mechanism itself, or it measured by a ball bar) and
@@ -227,12 +248,13 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
 fn calibrate_on<M: Mechanism>(
     mech: &M,
     c: &CalibrateConfig,
+    csv: &Csv,
     plain: &Mech,
     to_plain: &dyn Fn(&Params) -> Params,
     figures_for: Option<&Mech>,
 ) -> Result<()> {
     let spec = mech.spec();
-    let all = read_data(&c.data, mech)?;
+    let all = data_from(csv, mech)?;
     let start = match &c.start {
         Some(p) => read_params(p, spec)?,
         None => Params::nominal(spec),
@@ -243,7 +265,7 @@ fn calibrate_on<M: Mechanism>(
     opts.loss = c.loss;
     opts.outlier_threshold = c.outlier_threshold;
     opts.drop_outliers = c.drop_outliers;
-    let sigma = read_sigma(&c.data, mech)?;
+    let sigma = sigma_from(csv, mech)?;
     let mut train_idx: Vec<usize> = (0..all.len()).collect();
     let (train, held): (Vec<Measurement>, Option<(String, Vec<Measurement>)>) =
         match (&c.validate, c.holdout) {
@@ -275,7 +297,7 @@ fn calibrate_on<M: Mechanism>(
     }
     // Pose numbers of the library count the calibration poses; report them in
     // data-file order with their line, so that a user can find them.
-    let lines: Vec<u64> = Csv::read(&c.data)?.rows.iter().map(|r| r.0).collect();
+    let lines: Vec<u64> = csv.rows.iter().map(|r| r.0).collect();
     let file_pose = |k: usize| train_idx.get(k.wrapping_sub(1)).map_or(k, |&i| i + 1);
     let mut cal = calibrate(mech, &train, &start, &opts).map_err(|e| {
         let msg = e.to_string();
@@ -594,18 +616,16 @@ pub struct AnalyzeConfig {
 
 pub fn run_analyze(c: AnalyzeConfig) -> Result<()> {
     let mech = read_mechanism(c.mechanism.as_deref())?;
-    let headers = Csv::read(&c.data)?.headers;
-    if headers.iter().any(|h| h == "d1") && !headers.iter().any(|h| h == "x") {
-        let setup = crate::io::read_setup(c.setup.as_deref(), c.mechanism.as_deref())?
-            .context("ball-bar distances need the socket positions: give --setup S.toml")?;
-        return analyze_on(&BallBar::new(mech, &setup)?, &c);
+    let csv = Csv::read(&c.data)?;
+    if let Some(setup) = ballbar_setup(&csv, &mech, c.setup.as_deref(), c.mechanism.as_deref())? {
+        return analyze_on(&BallBar::new(mech, &setup)?, &c, &csv);
     }
-    analyze_on(&mech, &c)
+    analyze_on(&mech, &c, &csv)
 }
 
-fn analyze_on<M: Mechanism>(mech: &M, c: &AnalyzeConfig) -> Result<()> {
+fn analyze_on<M: Mechanism>(mech: &M, c: &AnalyzeConfig, csv: &Csv) -> Result<()> {
     let spec = mech.spec();
-    let data = read_data(&c.data, mech)?;
+    let data = data_from(csv, mech)?;
     let params = match &c.params {
         Some(p) => read_params(p, spec)?,
         None => Params::nominal(spec),

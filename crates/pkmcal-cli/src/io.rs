@@ -57,24 +57,7 @@ impl Csv {
     /// Index of a column by name; an error naming the file and the columns
     /// found if it is missing or appears twice.
     pub fn column(&self, name: &str) -> Result<usize> {
-        let hits: Vec<usize> = (0..self.headers.len())
-            .filter(|&i| self.headers[i] == name)
-            .collect();
-        match hits.as_slice() {
-            [i] => Ok(*i),
-            [] => bail!(
-                "{}: missing column `{}` (columns found: {})",
-                self.path.display(),
-                name,
-                self.headers.join(",")
-            ),
-            _ => bail!(
-                "{}: column `{}` appears {} times; keep one",
-                self.path.display(),
-                name,
-                hits.len()
-            ),
-        }
+        column_index(&self.path, &self.headers, name)
     }
 
     /// Numeric values of the given columns, row by row.
@@ -203,6 +186,27 @@ impl<R: std::io::Read> LineCounter<R> {
             self.reader.consume(1);
         }
         self.line
+    }
+}
+
+/// Index of column `name` in `headers` of file `path`; an error naming the
+/// file and the columns found if it is missing or appears more than once.
+pub fn column_index(path: &Path, headers: &[String], name: &str) -> Result<usize> {
+    let hits: Vec<usize> = (0..headers.len()).filter(|&i| headers[i] == name).collect();
+    match hits.as_slice() {
+        [i] => Ok(*i),
+        [] => bail!(
+            "{}: missing column `{}` (columns found: {})",
+            path.display(),
+            name,
+            headers.join(",")
+        ),
+        _ => bail!(
+            "{}: column `{}` appears {} times; keep one",
+            path.display(),
+            name,
+            hits.len()
+        ),
     }
 }
 

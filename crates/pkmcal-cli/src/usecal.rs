@@ -88,21 +88,7 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
         .collect();
     let cols: Vec<usize> = names
         .iter()
-        .map(|n| {
-            let hits: Vec<usize> = (0..headers.len()).filter(|&i| headers[i] == *n).collect();
-            match hits.as_slice() {
-                [i] => Ok(*i),
-                [] => bail!(
-                    "{}: missing column `{n}` (columns found: {})",
-                    c.targets.display(),
-                    headers.join(",")
-                ),
-                _ => bail!(
-                    "{}: column `{n}` appears more than once",
-                    c.targets.display()
-                ),
-            }
-        })
+        .map(|n| crate::io::column_index(&c.targets, &headers, n))
         .collect::<Result<_>>()?;
     let dir = c
         .out
