@@ -220,9 +220,55 @@ fn ballbar_setup(
         .map(Some)
 }
 
+/// The target points when `csv` holds their positions (`t1x…`) instead of the
+/// tool pose; an error naming the file when the mechanism file has none.
+pub fn point_targets(
+    csv: &Csv,
+    mech: &Mech,
+    mechanism: Option<&Path>,
+) -> Result<Option<Vec<[f64; 3]>>> {
+    let targets = csv.headers.iter().any(|h| h == "t1x");
+    let positions = mech
+        .spec()
+        .tool_axes
+        .iter()
+        .all(|a| csv.headers.contains(a));
+    if !targets || positions {
+        return Ok(None);
+    }
+    let t = crate::io::read_targets(mechanism)?;
+    if t.is_empty() {
+        bail!(
+            "{} holds target-point positions (t1x…); describe the targets in the mechanism file: [[target]] at = [x, y, z] (platform frame, mm)",
+            csv.path.display()
+        );
+    }
+    Ok(Some(t))
+}
+
+/// `p` of a wrapper whose extra geometric parameters follow the plain
+/// mechanism's, reduced to the plain mechanism's parameters.
+fn plain_params(plain: &Mech, wrapped_geometric: usize) -> impl Fn(&Params) -> Params + use<> {
+    let ng = plain.spec().n_geometric();
+    let spec = plain.spec().clone();
+    move |p: &Params| -> Params {
+        let mut v = p.values[..ng].to_vec();
+        v.extend(&p.values[wrapped_geometric..]);
+        Params::new(&spec, v).expect("same layout")
+    }
+}
+
 pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
     let mech = read_mechanism(c.mechanism.as_deref())?;
     let csv = Csv::read(&c.data)?;
+    if let Some(t) = point_targets(&csv, &mech, c.mechanism.as_deref())? {
+        if c.report_dir.is_some() {
+            bail!("--report-dir needs tool positions; drop it for target-point data");
+        }
+        let pt = pkmcal::PointTargets::new(mech.clone(), &t)?;
+        let to_plain = plain_params(&mech, pt.spec().n_geometric());
+        return calibrate_on(&pt, &c, &csv, &mech, &to_plain, None);
+    }
     if let Some(setup) = ballbar_setup(&csv, &mech, c.setup.as_deref(), c.mechanism.as_deref())? {
         if c.report_dir.is_some() {
             bail!(
@@ -230,14 +276,7 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
             );
         }
         let bb = BallBar::new(mech.clone(), &setup)?;
-        let ng = mech.spec().n_geometric();
-        let nb = bb.spec().n_geometric();
-        let plain = mech.spec().clone();
-        let to_plain = move |p: &Params| -> Params {
-            let mut v = p.values[..ng].to_vec();
-            v.extend(&p.values[nb..]);
-            Params::new(&plain, v).expect("same layout")
-        };
+        let to_plain = plain_params(&mech, bb.spec().n_geometric());
         return calibrate_on(&bb, &c, &csv, &mech, &to_plain, None);
     }
     calibrate_on(&mech, &c, &csv, &mech, &|p: &Params| p.clone(), Some(&mech))
@@ -619,6 +658,9 @@ pub fn run_analyze(c: AnalyzeConfig) -> Result<()> {
     let csv = Csv::read(&c.data)?;
     if let Some(setup) = ballbar_setup(&csv, &mech, c.setup.as_deref(), c.mechanism.as_deref())? {
         return analyze_on(&BallBar::new(mech, &setup)?, &c, &csv);
+    }
+    if let Some(t) = point_targets(&csv, &mech, c.mechanism.as_deref())? {
+        return analyze_on(&pkmcal::PointTargets::new(mech, &t)?, &c, &csv);
     }
     analyze_on(&mech, &c, &csv)
 }

@@ -72,7 +72,7 @@ pub fn predict_rows(
     Ok(all)
 }
 
-fn load_params(path: Option<&Path>, mech: &Mech) -> Result<Params> {
+fn load_params<M: Mechanism>(path: Option<&Path>, mech: &M) -> Result<Params> {
     match path {
         Some(p) => read_params(p, mech.spec()),
         None => Ok(Params::nominal(mech.spec())),
@@ -239,6 +239,9 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         );
         return Ok(());
     }
+    if a.measure_targets {
+        return simulate_targets(&mech, &a, &targets, &bar);
+    }
     let data =
         pkmcal::simulate_with_progress(&mech, &truth, &targets, a.noise, a.seed, &|| bar.inc(1))?;
     bar.finish_and_clear();
@@ -246,6 +249,62 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
     eprintln!(
         "simulated {} poses (noise {} mm, seed {}) -> {}",
         data.len(),
+        a.noise,
+        a.seed,
+        a.out.display()
+    );
+    Ok(())
+}
+
+/// `simulate --measure-targets`: the mechanism file's target points measured
+/// (laser tracker) at every pose, with noise on each coordinate.
+fn simulate_targets(
+    mech: &Mech,
+    a: &SimulateArgs,
+    targets: &[Vec<f64>],
+    bar: &indicatif::ProgressBar,
+) -> Result<()> {
+    use rand::SeedableRng;
+    use rand_distr::Distribution;
+    let points = crate::io::read_targets(a.mech.mechanism.as_deref())?;
+    if points.is_empty() {
+        bail!(
+            "--measure-targets needs target points in the mechanism file: [[target]] at = [x, y, z] (platform frame, mm)"
+        );
+    }
+    let pt = pkmcal::PointTargets::new(mech.clone(), &points)?;
+    let truth = load_params(a.truth.as_deref(), &pt)?;
+    let spec = mech.spec();
+    let rho = &spec.nominal[..spec.n_geometric()];
+    let mut rng = rand::rngs::StdRng::seed_from_u64(a.seed);
+    let normal = rand_distr::Normal::new(0.0, a.noise).context("--noise")?;
+    let mut rows = Vec::with_capacity(targets.len());
+    for target in targets {
+        let q = pkmcal::inverse_kinematics(mech, rho, target)
+            .with_context(|| format!("target {target:?}"))?;
+        let commands: Vec<f64> = spec.actuated.iter().map(|&j| q[j]).collect();
+        let pose = prepare_pose(&pt, &commands, Some(&q))?;
+        let p = predict_pose(&pt, &pose, &truth, Model::Exact, &[])
+            .with_context(|| format!("target {target:?}"))?;
+        rows.push(
+            target
+                .iter()
+                .chain(&commands)
+                .copied()
+                .chain(p.x.iter().map(|x| x + normal.sample(&mut rng)))
+                .collect(),
+        );
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let mut header = target_names(mech);
+    header.extend(spec.actuated_names().iter().map(|s| s.to_string()));
+    header.extend(pt.spec().tool_axes.iter().cloned());
+    write_atomic(&a.out, &csv_bytes(&header, &rows))?;
+    eprintln!(
+        "simulated {} poses measured at {} target point(s) (noise {} mm per coordinate, seed {}) -> {}",
+        rows.len(),
+        points.len(),
         a.noise,
         a.seed,
         a.out.display()
@@ -359,7 +418,7 @@ const DEMO_NOISE_MM: f64 = 0.002;
 
 pub fn demo(a: DemoArgs) -> Result<()> {
     use crate::calibrate::{print_identifiability, print_stats, print_stats_header};
-    let mech = Mech::new();
+    let mech: Mech = pkmcal::JeongKim2Dof::new().into();
     let spec = mech.spec();
     let truth = pkmcal::reference::demo_truth();
     let dir = &a.out_dir;

@@ -2,7 +2,7 @@
 //! files, and atomic output (temporary file, then rename).
 
 use anyhow::{Context, Result, bail};
-use pkmcal::{JeongKim2Dof, Mechanism, Params, Spec};
+use pkmcal::{AnyMechanism, JeongKim2Dof, Mechanism, Params, Spec};
 use serde::Deserialize;
 use std::collections::BTreeMap;
 use std::io::Write;
@@ -305,7 +305,7 @@ pub fn params_to_string(spec: &Spec, params: &Params, header: &str) -> String {
 #[serde(deny_unknown_fields)]
 struct MechanismFile {
     #[serde(rename = "type")]
-    kind: String,
+    _kind: String,
     name: Option<String>,
     #[serde(default)]
     nominal: BTreeMap<String, f64>,
@@ -370,26 +370,89 @@ struct Assembly {
 }
 
 /// The mechanism the CLI works on.
-pub type Mech = JeongKim2Dof;
+pub type Mech = AnyMechanism;
+
+/// The mechanism kinds a description file can give in `type`.
+pub const MECHANISM_TYPES: &str = "jeong-kim-2dof, planar, gough-stewart";
 
 /// Read a mechanism file, or the built-in reference when `path` is `None`.
 pub fn read_mechanism(path: Option<&Path>) -> Result<Mech> {
     let Some(path) = path else {
-        return Ok(JeongKim2Dof::new());
+        return Ok(JeongKim2Dof::new().into());
     };
     let text = std::fs::read_to_string(path)
         .with_context(|| format!("cannot read mechanism file {}", path.display()))?;
     mechanism_from_str(&text).with_context(|| format!("in mechanism file {}", path.display()))
 }
 
+/// The description as a TOML table, its `type`, and the table without the
+/// keys other readers use (`type`, `[ballbar]`, `[[target]]`).
+fn description_table(text: &str) -> Result<(String, toml::Table)> {
+    let mut table: toml::Table = text.parse().context("invalid mechanism description")?;
+    let kind = match table.remove("type") {
+        Some(toml::Value::String(s)) => s,
+        Some(_) => bail!("`type` must be a string ({MECHANISM_TYPES})"),
+        None => bail!("the description needs `type = \"…\"` ({MECHANISM_TYPES})"),
+    };
+    table.remove("ballbar");
+    table.remove("target");
+    Ok((kind, table))
+}
+
 pub fn mechanism_from_str(text: &str) -> Result<Mech> {
+    let (kind, table) = description_table(text)?;
+    let mech: Mech = match kind.as_str() {
+        "jeong-kim-2dof" => jeong_kim_from_str(text)?.into(),
+        "planar" => {
+            let d: pkmcal::PlanarDescription = table.try_into().context(
+                "invalid planar linkage description (docs/mechanisms.md shows the format)",
+            )?;
+            pkmcal::PlanarLinkage::new(&d)?.into()
+        }
+        "gough-stewart" => {
+            let d: pkmcal::GoughStewartDescription = table.try_into().context(
+                "invalid Gough–Stewart description (docs/mechanisms.md shows the format)",
+            )?;
+            pkmcal::GoughStewart::new(&d)?.into()
+        }
+        other => bail!("unknown mechanism type `{other}`; supported: {MECHANISM_TYPES}"),
+    };
+    // The nominal assembly must close.
+    pkmcal::reference_configuration(&mech, &mech.spec().nominal[..mech.spec().n_geometric()])?;
+    Ok(mech)
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TargetEntry {
+    at: [f64; 3],
+}
+
+#[derive(Deserialize)]
+struct MechanismTargets {
+    #[serde(default)]
+    target: Vec<TargetEntry>,
+}
+
+/// The target points (`[[target]] at = [x, y, z]`, platform frame, mm) of a
+/// mechanism file; empty when it has none.
+pub fn read_targets(mechanism: Option<&Path>) -> Result<Vec<[f64; 3]>> {
+    let Some(m) = mechanism else {
+        return Ok(vec![]);
+    };
+    let text = std::fs::read_to_string(m)
+        .with_context(|| format!("cannot read mechanism file {}", m.display()))?;
+    let t: MechanismTargets = toml::from_str(&text).with_context(|| {
+        format!(
+            "in mechanism file {}: each [[target]] needs `at = [x, y, z]` (platform frame, mm)",
+            m.display()
+        )
+    })?;
+    Ok(t.target.into_iter().map(|t| t.at).collect())
+}
+
+fn jeong_kim_from_str(text: &str) -> Result<JeongKim2Dof> {
     let file: MechanismFile = toml::from_str(text).context("invalid mechanism description")?;
-    if file.kind != "jeong-kim-2dof" {
-        bail!(
-            "unknown mechanism type `{}`; supported: jeong-kim-2dof",
-            file.kind
-        );
-    }
     let mut spec = JeongKim2Dof::default_spec();
     if let Some(name) = file.name {
         spec.name = name;
@@ -423,10 +486,7 @@ pub fn mechanism_from_str(text: &str) -> Result<Mech> {
     if let Some(free) = file.free {
         spec.default_free = free;
     }
-    let mech = JeongKim2Dof::with_spec(spec)?;
-    // The nominal assembly must close.
-    pkmcal::reference_configuration(&mech, &mech.spec().nominal[..mech.spec().n_geometric()])?;
-    Ok(mech)
+    Ok(JeongKim2Dof::with_spec(spec)?)
 }
 
 /// Parse `a,b,c` into numbers.

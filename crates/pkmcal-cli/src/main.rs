@@ -123,6 +123,11 @@ pub struct SimulateArgs {
     /// noise then applies to each reading.
     #[arg(long, value_name = "S.toml")]
     pub setup: Option<PathBuf>,
+    /// Measure the mechanism file's target points ([[target]], columns
+    /// t1x,t1y,t1z,…) instead of the tool pose (laser tracker on a spatial
+    /// platform); the noise applies to each coordinate.
+    #[arg(long)]
+    pub measure_targets: bool,
 }
 
 #[derive(clap::Args)]

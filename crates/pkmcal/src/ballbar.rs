@@ -189,6 +189,7 @@ impl<M: Mechanism> BallBar<M> {
             tool_axes: (1..=setup.sockets.len()).map(|j| format!("d{j}")).collect(),
             nominal,
             workspace_box: vec![[0.0, 1.0]; setup.sockets.len()],
+            axis_scale: vec![],
             ..s
         };
         Ok(Self {

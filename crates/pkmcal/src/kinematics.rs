@@ -88,6 +88,71 @@ pub(crate) fn checked_lu(
     (min >= SINGULAR_RCOND * scale).then_some(lu)
 }
 
+/// Solve `A X = B` (square `A`) after scaling `A`'s rows, then its columns, to
+/// unit largest entry, with the singularity check of [`checked_lu`] on the
+/// scaled matrix. For systems whose blocks have very different units, such as
+/// the equilibrium's KKT matrix (stiffness next to constraint gradients).
+pub(crate) fn solve_scaled(a: DMatrix<f64>, b: DMatrix<f64>) -> Option<DMatrix<f64>> {
+    let n = a.nrows();
+    let mut a = a;
+    let mut b = b;
+    for i in 0..n {
+        let r = a.row(i).amax();
+        if !(r > 0.0 && r.is_finite()) {
+            return None;
+        }
+        a.row_mut(i).unscale_mut(r);
+        b.row_mut(i).unscale_mut(r);
+    }
+    let mut c = vec![1.0; n];
+    for (j, cj) in c.iter_mut().enumerate() {
+        *cj = a.column(j).amax();
+        if *cj <= 0.0 || cj.is_nan() {
+            return None;
+        }
+        a.column_mut(j).unscale_mut(*cj);
+    }
+    let mut x = checked_lu(a)?.solve(&b)?;
+    for (j, cj) in c.iter().enumerate() {
+        x.row_mut(j).unscale_mut(*cj);
+    }
+    Some(x)
+}
+
+/// Signs of the determinants that identify an assembly branch: of the
+/// constraint Jacobian with respect to the dependent joints (forward
+/// kinematics), and of `[∂g/∂q; ∂x/∂q]` (inverse kinematics) when the tool has
+/// as many coordinates as degrees of freedom. Along a continuous path a sign
+/// changes only through a singularity, so a configuration whose signs differ
+/// from the reference configuration's is on another branch.
+pub fn branch_signs<M: Mechanism>(mech: &M, q: &[f64], rho: &[f64]) -> [i8; 2] {
+    let spec = mech.spec();
+    let nq = q.len();
+    let j = jacobians(mech, q, rho, 0..nq);
+    let dependent: Vec<usize> = (0..nq).filter(|i| !spec.independent.contains(i)).collect();
+    let sign = |d: f64| {
+        if d > 0.0 {
+            1
+        } else if d < 0.0 {
+            -1
+        } else {
+            0
+        }
+    };
+    let fk = sign(j.dg.select_columns(&dependent).determinant());
+    let ik = if spec.n_constraints + spec.tool_axes.len() == nq {
+        let mut a = DMatrix::zeros(nq, nq);
+        a.view_mut((0, 0), (spec.n_constraints, nq))
+            .copy_from(&j.dg);
+        a.view_mut((spec.n_constraints, 0), (spec.tool_axes.len(), nq))
+            .copy_from(&j.dx);
+        sign(a.determinant())
+    } else {
+        0
+    };
+    [fk, ik]
+}
+
 /// Solve a square system by LU with a singularity check on the pivots.
 pub(crate) fn solve_square(a: DMatrix<f64>, b: DVector<f64>) -> Option<DVector<f64>> {
     checked_lu(a)?.solve(&b)
@@ -227,6 +292,12 @@ pub fn inverse_kinematics<M: Mechanism>(mech: &M, rho: &[f64], target: &[f64]) -
                 reason: "Newton did not converge".into(),
             });
         }
+    }
+    if !mech.on_branch(&q, rho) {
+        return Err(Error::Unreachable {
+            target: target.to_vec(),
+            reason: "the path from the reference configuration crosses a singularity (the solution is on another assembly branch)".into(),
+        });
     }
     Ok(q)
 }

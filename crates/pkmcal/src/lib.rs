@@ -33,17 +33,20 @@
 //! assert!(p.torque.iter().any(|t| t.abs() > 1.0)); // the actuators fight
 //! ```
 
+pub mod any;
 pub mod autodiff;
 pub mod ballbar;
 pub mod calibration;
 pub mod compensation;
 pub mod error;
+pub mod gough_stewart;
 pub mod kinematics;
 pub mod linearized;
 pub mod lm;
 pub mod mechanism;
 pub mod models;
 pub mod montecarlo;
+pub mod planar;
 pub mod planning;
 pub mod reference;
 pub mod sensitivity;
@@ -51,6 +54,7 @@ pub mod simulate;
 pub mod stats;
 pub mod workspace;
 
+pub use any::AnyMechanism;
 pub use ballbar::{BallBar, Setup, trilaterate};
 pub use calibration::{
     Accuracy, Calibration, CalibrationOptions, Identifiability, Loss, Outlier, ParameterCovariance,
@@ -59,6 +63,9 @@ pub use calibration::{
 };
 pub use compensation::{Compensation, CompensationOptions, compensate};
 pub use error::{Error, Result};
+pub use gough_stewart::{
+    GoughStewart, GoughStewartAssembly, GoughStewartDescription, PointTargets,
+};
 pub use kinematics::{
     forward_kinematics, inverse_kinematics, reference_configuration, solve_closure,
 };
@@ -69,6 +76,7 @@ pub use models::{
     prepare_pose,
 };
 pub use montecarlo::{MonteCarloOptions, MonteCarloSummary, monte_carlo};
+pub use planar::{PlanarDescription, PlanarLinkage};
 pub use planning::{PlanCriterion, candidate_jacobians, plan_observability, plan_poses};
 pub use reference::JeongKim2Dof;
 pub use simulate::{Measurement, simulate, simulate_with_progress};

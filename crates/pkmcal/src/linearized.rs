@@ -43,6 +43,8 @@ pub struct Linearization {
     pub jf: DMatrix<f64>,
     /// Tool per geometric parameter at fixed `q_u` (nx × nρ).
     pub jx_rho: DMatrix<f64>,
+    /// [`crate::Spec::work_scale`] of the mechanism (force × mm → energy unit).
+    pub work_scale: f64,
 }
 
 /// Φ, J_p, Γ, H and J_f at configuration `q` (eq. 4–7, 9), with the given
@@ -102,6 +104,7 @@ pub fn linearize<M: Mechanism>(
         h,
         jf,
         jx_rho,
+        work_scale: spec.work_scale,
     })
 }
 
@@ -121,7 +124,8 @@ pub fn projection(gamma: &DMatrix<f64>, k: &[f64]) -> Result<DMatrix<f64>> {
     Ok(gamma * inv * gamma.transpose() * kd)
 }
 
-/// The generalised load `P` of eq. 10 (N·m) for an external force `force`
+/// The generalised load `P` of eq. 10 (N·m, or N for prismatic actuation; see
+/// [`crate::Spec::work_scale`]) for an external force `force`
 /// applied to the tool (N): `P = J_fᵀ (Q + N)` with `Q + N = −force`.
 /// An empty `force` means no load; otherwise it has one value per tool axis.
 pub fn load_vector(lin: &Linearization, force: &[f64]) -> DVector<f64> {
@@ -134,7 +138,7 @@ pub fn load_vector(lin: &Linearization, force: &[f64]) -> DVector<f64> {
         "one force component per tool axis"
     );
     let f = DVector::from_column_slice(force);
-    -(lin.jf.transpose() * f) * MM_TO_M
+    -(lin.jf.transpose() * f) * lin.work_scale
 }
 
 /// Actual actuated joint errors `dq_r` by eq. 11 (rad):

@@ -47,6 +47,24 @@ pub struct Spec {
     pub default_free: Vec<String>,
     /// Box `[min, max]` per tool axis that contains the workspace (mm).
     pub workspace_box: Vec<[f64; 2]>,
+    /// Factor that turns the work of a tool force (N × mm) into the unit of the
+    /// elastic energy `½ k δ²`: [`crate::linearized::MM_TO_M`] (10⁻³) when the
+    /// stiffness is in N·m/rad (revolute actuators, energy in N·m), 1 when it is
+    /// in N/mm (prismatic actuators, energy in N·mm). Only the load term uses it.
+    pub work_scale: f64,
+    /// Length (mm) that one unit of each joint stands for when conditioning is
+    /// judged (e.g. a link length for a revolute joint of a linkage with
+    /// prismatic joints); empty means 1 for every joint.
+    pub joint_scale: Vec<f64>,
+    /// Length (mm) that one unit of each tool axis stands for when conditioning
+    /// is judged and the workspace is sampled (e.g. a platform radius for an
+    /// orientation in rad); empty means 1 for every axis.
+    pub axis_scale: Vec<f64>,
+    /// Smallest inverse condition number ([`crate::workspace::conditioning`])
+    /// of a usable workspace pose: [`crate::workspace::MIN_CONDITIONING`] for
+    /// the reference mechanism; for a described mechanism, a fraction
+    /// ([`crate::workspace::RELATIVE_CONDITIONING`]) of its reference pose's.
+    pub min_conditioning: f64,
 }
 
 impl Spec {
@@ -84,6 +102,14 @@ impl Spec {
                 name: name.to_string(),
                 known: self.param_names().join(" "),
             })
+    }
+    /// [`Spec::joint_scale`] of joint `j`.
+    pub fn joint_scale(&self, j: usize) -> f64 {
+        self.joint_scale.get(j).copied().unwrap_or(1.0)
+    }
+    /// [`Spec::axis_scale`] of tool axis `k`.
+    pub fn axis_scale(&self, k: usize) -> f64 {
+        self.axis_scale.get(k).copied().unwrap_or(1.0)
     }
     /// Names of the actuated joints.
     pub fn actuated_names(&self) -> Vec<&str> {
@@ -141,6 +167,22 @@ impl Spec {
                 self.reference_q.len(),
                 nq
             ));
+        }
+        if !(self.work_scale.is_finite() && self.work_scale > 0.0) {
+            return bad("work_scale must be a positive number".into());
+        }
+        if !(self.joint_scale.is_empty() || self.joint_scale.len() == nq)
+            || !(self.axis_scale.is_empty() || self.axis_scale.len() == self.tool_axes.len())
+            || self
+                .joint_scale
+                .iter()
+                .chain(&self.axis_scale)
+                .any(|s| !(s.is_finite() && *s > 0.0))
+        {
+            return bad("joint_scale and axis_scale need one positive value per joint / tool axis (or none)".into());
+        }
+        if !(self.min_conditioning.is_finite() && (0.0..1.0).contains(&self.min_conditioning)) {
+            return bad("min_conditioning must be in [0, 1)".into());
         }
         if self.workspace_box.len() != self.tool_axes.len() {
             return bad("one workspace interval per tool axis is needed".into());

@@ -15,8 +15,8 @@
 
 use crate::autodiff::{jacobians, weighted_sum};
 use crate::error::{Error, Result};
-use crate::kinematics::{forward_kinematics, reference_configuration, solve_square};
-use crate::linearized::{Linearization, MM_TO_M, joint_errors, linearize, load_vector};
+use crate::kinematics::{forward_kinematics, reference_configuration, solve_scaled};
+use crate::linearized::{Linearization, joint_errors, linearize, load_vector};
 use crate::mechanism::{Mechanism, Params};
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
@@ -432,7 +432,7 @@ pub fn equilibrium<M: Mechanism>(
     let m = spec.n_constraints;
     let rho = params.geometric();
     let k = params.stiffness();
-    let w: Vec<f64> = force.iter().map(|f| -f * MM_TO_M).collect();
+    let w: Vec<f64> = force.iter().map(|f| -f * spec.work_scale).collect();
     let motor: Vec<f64> = commands
         .iter()
         .zip(params.offsets())
@@ -480,10 +480,12 @@ pub fn equilibrium<M: Mechanism>(
             .copy_from(&(grad_e + j.dg.transpose() * &lam));
         rhs.rows_mut(nq, m)
             .copy_from(&DVector::from_column_slice(&j.g));
-        let step = solve_square(kkt, rhs).ok_or_else(|| Error::Singular {
-            q: q.clone(),
-            reason: "the equilibrium (KKT) system is singular".into(),
-        })?;
+        let step = solve_scaled(kkt, DMatrix::from_column_slice(nq + m, 1, rhs.as_slice()))
+            .map(|x| x.column(0).into_owned())
+            .ok_or_else(|| Error::Singular {
+                q: q.clone(),
+                reason: "the equilibrium (KKT) system is singular".into(),
+            })?;
         let big = step.rows(0, nq).amax();
         if !big.is_finite() {
             break;

@@ -96,6 +96,10 @@ impl JeongKim2Dof {
             reference_q: REFERENCE_Q_DEG.map(f64::to_radians).to_vec(),
             default_free: PAPER_FREE.map(String::from).to_vec(),
             workspace_box: vec![[-140.0, 250.0], [0.0, 420.0]],
+            work_scale: crate::linearized::MM_TO_M,
+            joint_scale: vec![],
+            axis_scale: vec![],
+            min_conditioning: crate::workspace::MIN_CONDITIONING,
         }
     }
 

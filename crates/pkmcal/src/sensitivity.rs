@@ -5,8 +5,8 @@
 
 use crate::autodiff::jacobians;
 use crate::error::{Error, Result};
-use crate::kinematics::checked_lu;
-use crate::linearized::{MM_TO_M, linearize, load_vector};
+use crate::kinematics::solve_scaled;
+use crate::linearized::{linearize, load_vector};
 use crate::mechanism::{Mechanism, Params};
 use crate::models::{Model, Pose, Prediction, independent_actuators, predict_pose};
 use nalgebra::{DMatrix, DVector};
@@ -167,7 +167,7 @@ fn exact_sensitivity<M: Mechanism>(
     let rho = params.geometric();
     let k = params.stiffness();
     let q = &prediction.q;
-    let w: Vec<f64> = force.iter().map(|f| -f * MM_TO_M).collect();
+    let w: Vec<f64> = force.iter().map(|f| -f * spec.work_scale).collect();
     let j = jacobians(mech, q, rho, 0..nq + ng);
     // Multipliers from stationarity: Gqᵀλ = Sᵀτ − Xqᵀw (least squares).
     let gq = j.dg.columns(0, nq).into_owned();
@@ -208,13 +208,7 @@ fn exact_sensitivity<M: Mechanism>(
         q: q.clone(),
         reason: "the equilibrium (KKT) system is singular".into(),
     };
-    let dz = -checked_lu(fz)
-        .ok_or_else(singular)?
-        .solve(&fp)
-        .ok_or_else(|| Error::Singular {
-            q: q.clone(),
-            reason: "the equilibrium (KKT) system is singular".into(),
-        })?;
+    let dz = -solve_scaled(fz, fp).ok_or_else(singular)?;
     let dq = dz.rows(0, nq);
     let mut jac = &xq * dq;
     let xrho = j.dx.columns(nq, ng);

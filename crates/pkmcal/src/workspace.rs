@@ -10,6 +10,11 @@ use crate::mechanism::{Mechanism, Params};
 /// usable pose.
 pub const MIN_CONDITIONING: f64 = 0.2;
 
+/// Fraction of the reference pose's conditioning that a pose of a described
+/// mechanism needs to be usable (0.45 × 0.444 ≈ [`MIN_CONDITIONING`] for the
+/// reference mechanism).
+pub const RELATIVE_CONDITIONING: f64 = 0.45;
+
 /// A reachable tool position with its nominal joints.
 #[derive(Debug, Clone, PartialEq)]
 pub struct WorkspacePoint {
@@ -39,8 +44,50 @@ pub fn conditioning<M: Mechanism>(mech: &M, q: &[f64], rho: &[f64]) -> f64 {
     let nq = spec.joints.len();
     let dependent: Vec<usize> = (0..nq).filter(|i| !spec.independent.contains(i)).collect();
     let j = crate::autodiff::jacobians(mech, q, rho, 0..nq);
-    let gv = j.dg.select_columns(&dependent);
-    inverse_condition(&gv).min(inverse_condition(&lin.jf))
+    // Joints and tool axes in mm-equivalent units (Spec::joint_scale,
+    // Spec::axis_scale), so that mixed units do not pass for ill-conditioning.
+    let mut gv = j.dg.select_columns(&dependent);
+    for (c, &d) in dependent.iter().enumerate() {
+        gv.column_mut(c).unscale_mut(spec.joint_scale(d));
+    }
+    let mut jf = lin.jf.clone();
+    for (c, &u) in spec.independent.iter().enumerate() {
+        jf.column_mut(c).unscale_mut(spec.joint_scale(u));
+    }
+    for r in 0..jf.nrows() {
+        jf.row_mut(r).scale_mut(spec.axis_scale(r));
+    }
+    inverse_condition(&gv).min(inverse_condition(&jf))
+}
+
+/// Most lattice points [`sample_workspace`] evaluates; a finer spacing is
+/// coarsened to respect it (it matters for mechanisms with many tool axes).
+pub const MAX_LATTICE_POINTS: usize = 200_000;
+
+/// Lattice coordinates per axis: spacing `spacing` mm-equivalent
+/// ([`crate::Spec::axis_scale`]), coarsened to at most [`MAX_LATTICE_POINTS`].
+fn lattice_axes(spec: &crate::Spec, spacing: f64) -> Vec<Vec<f64>> {
+    let mut spacing = spacing;
+    loop {
+        let axes: Vec<Vec<f64>> = spec
+            .workspace_box
+            .iter()
+            .enumerate()
+            .map(|(k, &[lo, hi])| {
+                let step = spacing / spec.axis_scale(k);
+                let n = ((hi - lo) / step).floor() as usize;
+                (0..=n).map(|i| lo + i as f64 * step).collect()
+            })
+            .collect();
+        let total = axes
+            .iter()
+            .map(Vec::len)
+            .fold(1usize, |a, b| a.saturating_mul(b));
+        if total <= MAX_LATTICE_POINTS {
+            return axes;
+        }
+        spacing *= 1.1;
+    }
 }
 
 /// Evaluate one target: inverse kinematics and conditioning (nominal
@@ -57,24 +104,19 @@ pub fn workspace_point<M: Mechanism>(mech: &M, target: &[f64]) -> Result<Workspa
     })
 }
 
-/// All lattice points with spacing `spacing` (mm) in the mechanism's workspace
-/// box that are reachable with conditioning ≥ [`MIN_CONDITIONING`].
+/// All lattice points with spacing `spacing` (mm; an axis in other units is
+/// spaced by `spacing / axis_scale`) in the mechanism's workspace box that are
+/// reachable with conditioning ≥ [`crate::Spec::min_conditioning`]. The spacing is
+/// coarsened if the lattice would exceed [`MAX_LATTICE_POINTS`].
 pub fn sample_workspace<M: Mechanism>(mech: &M, spacing: f64) -> Vec<WorkspacePoint> {
     let spec = mech.spec();
-    let axes: Vec<Vec<f64>> = spec
-        .workspace_box
-        .iter()
-        .map(|&[lo, hi]| {
-            let n = ((hi - lo) / spacing).floor() as usize;
-            (0..=n).map(|i| lo + i as f64 * spacing).collect()
-        })
-        .collect();
+    let axes = lattice_axes(spec, spacing);
     let mut points = Vec::new();
     let mut idx = vec![0usize; axes.len()];
     'outer: loop {
         let target: Vec<f64> = idx.iter().zip(&axes).map(|(&i, a)| a[i]).collect();
         if let Ok(p) = workspace_point(mech, &target)
-            && p.conditioning >= MIN_CONDITIONING
+            && p.conditioning >= spec.min_conditioning
         {
             points.push(p);
         }
@@ -95,14 +137,10 @@ pub fn sample_workspace<M: Mechanism>(mech: &M, spacing: f64) -> Vec<WorkspacePo
 /// Deterministic.
 pub fn spread_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<WorkspacePoint>> {
     let spec = mech.spec();
-    let extent = spec
-        .workspace_box
-        .iter()
-        .map(|[a, b]| b - a)
-        .fold(0.0, f64::max);
-    let dims = spec.workspace_box.len() as f64;
-    // About 40 lattice points per target, at least a 60-per-axis lattice.
-    let spacing = (extent / 60.0).min(extent / (40.0 * count as f64).powf(1.0 / dims));
+    let extent = scaled_extent(spec);
+    let dims = spec.workspace_box.len() as i32;
+    // About 40 lattice points per target, at least 3600 (60 per axis in 2-D).
+    let spacing = extent / (40.0 * count as f64).max(3600.0).powf(1.0 / dims as f64);
     let pool = sample_workspace(mech, spacing);
     if pool.len() < count {
         return Err(Error::InvalidRequest(format!(
@@ -110,7 +148,13 @@ pub fn spread_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<Worksp
             pool.len()
         )));
     }
-    let d2 = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>();
+    let d2 = |a: &[f64], b: &[f64]| {
+        a.iter()
+            .zip(b)
+            .enumerate()
+            .map(|(k, (x, y))| ((x - y) * spec.axis_scale(k)).powi(2))
+            .sum::<f64>()
+    };
     let n = spec.tool_axes.len();
     let centroid: Vec<f64> = (0..n)
         .map(|k| pool.iter().map(|p| p.target[k]).sum::<f64>() / pool.len() as f64)
@@ -133,6 +177,15 @@ pub fn spread_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<Worksp
         }
     }
     Ok(chosen.into_iter().map(|i| pool[i].clone()).collect())
+}
+
+/// The largest extent of the workspace box, in mm-equivalent units.
+fn scaled_extent(spec: &crate::Spec) -> f64 {
+    spec.workspace_box
+        .iter()
+        .enumerate()
+        .map(|(k, [a, b])| (b - a) * spec.axis_scale(k))
+        .fold(0.0, f64::max)
 }
 
 /// Commands (one per actuator) that put the nominal mechanism's tool at
@@ -165,12 +218,13 @@ pub fn random_targets<M: Mechanism>(mech: &M, count: usize, seed: u64) -> Result
 /// `count`. The baseline measurement plan.
 pub fn grid_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<WorkspacePoint>> {
     let spec = mech.spec();
-    let extent = spec
-        .workspace_box
-        .iter()
-        .map(|[a, b]| b - a)
-        .fold(0.0, f64::max);
-    let (mut lo, mut hi) = (extent / 400.0, extent);
+    let extent = scaled_extent(spec);
+    let dims = spec.workspace_box.len() as f64;
+    let (mut lo, mut hi) = if dims <= 2.0 {
+        (extent / 400.0, extent)
+    } else {
+        (extent / (200.0 * count as f64).powf(1.0 / dims), extent)
+    };
     if sample_workspace(mech, lo).len() < count {
         return Err(Error::InvalidRequest(format!(
             "the usable workspace holds fewer than {count} lattice points; ask for fewer"
@@ -187,4 +241,61 @@ pub fn grid_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<Workspac
     let lattice = sample_workspace(mech, lo);
     let n = lattice.len();
     Ok((0..count).map(|i| lattice[i * n / count].clone()).collect())
+}
+
+/// Known configurations spread over the usable workspace, for starting forward
+/// kinematics near the answer: a mechanism without a closed-form guess
+/// ([`Mechanism::configuration_guess`]) returns the configuration whose
+/// actuators are nearest the commands, and Newton continues from there (a
+/// straight path from one far reference configuration can leave the
+/// workspace).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Atlas {
+    /// `(actuator values, joint vector)` per entry.
+    entries: Vec<(Vec<f64>, Vec<f64>)>,
+    /// Weight of each actuator in the distance ([`crate::Spec::joint_scale`]).
+    scale: Vec<f64>,
+}
+
+impl Atlas {
+    /// About `points` lattice points of the usable workspace (nominal
+    /// parameters).
+    pub fn build<M: Mechanism>(mech: &M, points: usize) -> Self {
+        let spec = mech.spec();
+        let dims = spec.workspace_box.len() as f64;
+        let spacing = scaled_extent(spec) / (points.max(2) as f64).powf(1.0 / dims);
+        let entries = sample_workspace(mech, spacing)
+            .into_iter()
+            .map(|p| (spec.actuated.iter().map(|&j| p.q[j]).collect(), p.q))
+            .collect();
+        Self {
+            entries,
+            scale: spec.actuated.iter().map(|&j| spec.joint_scale(j)).collect(),
+        }
+    }
+
+    /// Number of configurations.
+    pub fn len(&self) -> usize {
+        self.entries.len()
+    }
+
+    /// Whether it holds no configuration.
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
+    }
+
+    /// The configuration whose actuators are nearest `commands`.
+    pub fn nearest(&self, commands: &[f64]) -> Option<Vec<f64>> {
+        let d = |a: &[f64]| {
+            a.iter()
+                .zip(commands)
+                .zip(&self.scale)
+                .map(|((x, c), s)| ((x - c) * s).powi(2))
+                .sum::<f64>()
+        };
+        self.entries
+            .iter()
+            .min_by(|a, b| d(&a.0).total_cmp(&d(&b.0)))
+            .map(|e| e.1.clone())
+    }
 }

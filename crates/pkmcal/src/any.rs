@@ -1,0 +1,73 @@
+//! [`AnyMechanism`]: one type for every mechanism kind pkmcal ships, so that a
+//! program (the CLI) can choose the kind at run time from a description.
+
+use crate::Result;
+use crate::gough_stewart::GoughStewart;
+use crate::mechanism::{Mechanism, Scalar, Spec};
+use crate::planar::PlanarLinkage;
+use crate::reference::JeongKim2Dof;
+use nalgebra::DMatrix;
+
+/// A mechanism of any shipped kind; it implements [`Mechanism`] by delegation.
+#[derive(Debug, Clone)]
+pub enum AnyMechanism {
+    /// The built-in reference mechanism (MODEL.md §4).
+    JeongKim(JeongKim2Dof),
+    /// A planar linkage from a description.
+    Planar(PlanarLinkage),
+    /// A Gough–Stewart platform.
+    GoughStewart(GoughStewart),
+}
+
+macro_rules! each {
+    ($s:expr, $m:ident => $e:expr) => {
+        match $s {
+            AnyMechanism::JeongKim($m) => $e,
+            AnyMechanism::Planar($m) => $e,
+            AnyMechanism::GoughStewart($m) => $e,
+        }
+    };
+}
+
+impl From<JeongKim2Dof> for AnyMechanism {
+    fn from(m: JeongKim2Dof) -> Self {
+        Self::JeongKim(m)
+    }
+}
+impl From<PlanarLinkage> for AnyMechanism {
+    fn from(m: PlanarLinkage) -> Self {
+        Self::Planar(m)
+    }
+}
+impl From<GoughStewart> for AnyMechanism {
+    fn from(m: GoughStewart) -> Self {
+        Self::GoughStewart(m)
+    }
+}
+
+impl Mechanism for AnyMechanism {
+    fn spec(&self) -> &Spec {
+        each!(self, m => m.spec())
+    }
+    fn constraints<D: Scalar>(&self, q: &[D], rho: &[D], g: &mut [D]) {
+        each!(self, m => m.constraints(q, rho, g))
+    }
+    fn tool<D: Scalar>(&self, q: &[D], rho: &[D], x: &mut [D]) {
+        each!(self, m => m.tool(q, rho, x))
+    }
+    fn inverse_kinematics_closed(&self, target: &[f64], rho: &[f64]) -> Option<Result<Vec<f64>>> {
+        each!(self, m => m.inverse_kinematics_closed(target, rho))
+    }
+    fn configuration_guess(&self, commands: &[f64], rho: &[f64]) -> Option<Vec<f64>> {
+        each!(self, m => m.configuration_guess(commands, rho))
+    }
+    fn weighted_hessian(&self, q: &[f64], rho: &[f64], lambda: &[f64], mu: &[f64]) -> DMatrix<f64> {
+        each!(self, m => m.weighted_hessian(q, rho, lambda, mu))
+    }
+    fn joint_hessians(&self, q: &[f64], rho: &[f64]) -> Vec<DMatrix<f64>> {
+        each!(self, m => m.joint_hessians(q, rho))
+    }
+    fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
+        each!(self, m => m.on_branch(q, rho))
+    }
+}

@@ -1,0 +1,413 @@
+//! Gough–Stewart platforms with `n ≥ 6` prismatic legs (general `n`-`n`
+//! geometry; with 7 or more legs the platform is redundantly actuated), and
+//! [`PointTargets`], the measurement of target points on a moving platform
+//! (laser tracker).
+//!
+//! Conventions (docs/mechanisms.md):
+//!
+//! - Joints `q = [L1 … Ln, x, y, z, rx, ry, rz]`: the leg lengths (mm, actuated,
+//!   distance between the joint centres) and the platform pose (mm, rad).
+//!   The orientation is `R = Rz(rz) · Ry(ry) · Rx(rx)` (rotations about the
+//!   fixed base axes x, then y, then z); the platform frame's origin is at
+//!   `(x, y, z)` in the base (measurement) frame.
+//! - Loop closure, one equation per leg (MODEL.md eq. 3):
+//!   `g_i = |p + R b_i − a_i| − L_i = 0`.
+//! - Parameters: base joint centres `a{i}x a{i}y a{i}z` (base frame), platform
+//!   joint centres `b{i}x b{i}y b{i}z` (platform frame), leg length offsets
+//!   `dL{i}` (actual minus reported, mm), axial leg stiffness `k{i}` (N/mm).
+//! - Tool: the pose `x y z rx ry rz`. The first six legs are the independent
+//!   joints (the rigid model drives them).
+
+use crate::error::{Error, Result};
+use crate::mechanism::{Mechanism, Scalar, Spec};
+use serde::Deserialize;
+use std::collections::BTreeMap;
+
+/// Workspace configurations kept for starting forward kinematics.
+const ATLAS_POINTS: usize = 800;
+
+/// Names of the pose coordinates, in order.
+pub const POSE_AXES: [&str; 6] = ["x", "y", "z", "rx", "ry", "rz"];
+
+/// One leg: joint centres and axial stiffness.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Leg {
+    /// Base joint centre in the base frame (mm).
+    pub base: [f64; 3],
+    /// Platform joint centre in the platform frame (mm).
+    pub platform: [f64; 3],
+    /// Axial stiffness (N/mm).
+    pub stiffness: f64,
+}
+
+/// The reference pose of a Gough–Stewart platform.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GoughStewartAssembly {
+    /// `[x, y, z, rx, ry, rz]` (mm, rad): forward kinematics starts from it,
+    /// so it fixes the assembly mode.
+    pub pose: [f64; 6],
+}
+
+/// A Gough–Stewart platform as a user describes it.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GoughStewartDescription {
+    /// Human-readable name.
+    #[serde(default)]
+    pub name: Option<String>,
+    /// The legs (at least six).
+    #[serde(rename = "leg")]
+    pub legs: Vec<Leg>,
+    /// The reference pose (assembly mode).
+    pub assembly: GoughStewartAssembly,
+    /// Box `[min, max]` per pose axis.
+    pub workspace: BTreeMap<String, [f64; 2]>,
+    /// Parameters identified by default (base and platform joint centres and
+    /// leg offsets if left out).
+    #[serde(default)]
+    pub free: Option<Vec<String>>,
+}
+
+/// A Gough–Stewart platform.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GoughStewart {
+    spec: Spec,
+    n: usize,
+    atlas: crate::workspace::Atlas,
+    /// Sign of the forward-kinematics determinant at the reference pose.
+    branch: i8,
+}
+
+/// `R = Rz(c) Ry(b) Rx(a)`, row-major.
+pub fn rotation<D: Scalar>(a: D, b: D, c: D) -> [[D; 3]; 3] {
+    let (sa, ca) = a.sin_cos();
+    let (sb, cb) = b.sin_cos();
+    let (sc, cc) = c.sin_cos();
+    [
+        [cc * cb, cc * sb * sa - sc * ca, cc * sb * ca + sc * sa],
+        [sc * cb, sc * sb * sa + cc * ca, sc * sb * ca - cc * sa],
+        [-sb, cb * sa, cb * ca],
+    ]
+}
+
+/// `p + R v` for a pose `[x, y, z, rx, ry, rz]`.
+fn transform<D: Scalar>(pose: &[D], v: [D; 3]) -> [D; 3] {
+    let r = rotation(pose[3], pose[4], pose[5]);
+    let mut out = [pose[0], pose[1], pose[2]];
+    for (i, o) in out.iter_mut().enumerate() {
+        *o += r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2];
+    }
+    out
+}
+
+impl GoughStewart {
+    /// Build the platform from its description.
+    pub fn new(d: &GoughStewartDescription) -> Result<Self> {
+        let n = d.legs.len();
+        let bad = |m: String| Err(Error::InvalidMechanism(m));
+        if n < 6 {
+            return bad(format!(
+                "a Gough–Stewart platform needs at least 6 legs ([[leg]] tables), got {n}"
+            ));
+        }
+        for (i, l) in d.legs.iter().enumerate() {
+            if l.base.iter().chain(&l.platform).any(|v| !v.is_finite()) {
+                return bad(format!("leg {}: joint centres must be finite", i + 1));
+            }
+            if !(l.stiffness.is_finite() && l.stiffness > 0.0) {
+                return bad(format!(
+                    "leg {}: `stiffness` must be a positive axial stiffness in N/mm",
+                    i + 1
+                ));
+            }
+        }
+        if d.assembly.pose.iter().any(|v| !v.is_finite()) {
+            return bad(
+                "[assembly]: `pose` must be six finite numbers [x, y, z, rx, ry, rz]".into(),
+            );
+        }
+        let mut geometric = Vec::with_capacity(6 * n);
+        let mut nominal = Vec::with_capacity(8 * n);
+        for (i, l) in d.legs.iter().enumerate() {
+            for (c, v) in ["x", "y", "z"].iter().zip(l.base) {
+                geometric.push(format!("a{}{c}", i + 1));
+                nominal.push(v);
+            }
+        }
+        for (i, l) in d.legs.iter().enumerate() {
+            for (c, v) in ["x", "y", "z"].iter().zip(l.platform) {
+                geometric.push(format!("b{}{c}", i + 1));
+                nominal.push(v);
+            }
+        }
+        let offsets: Vec<String> = (1..=n).map(|i| format!("dL{i}")).collect();
+        nominal.extend(std::iter::repeat_n(0.0, n));
+        nominal.extend(d.legs.iter().map(|l| l.stiffness));
+        let mut joints: Vec<String> = (1..=n).map(|i| format!("L{i}")).collect();
+        joints.extend(POSE_AXES.iter().map(|s| s.to_string()));
+        let mut workspace_box = Vec::new();
+        for a in POSE_AXES {
+            let r = d.workspace.get(a).ok_or_else(|| {
+                Error::InvalidMechanism(format!(
+                    "[workspace] needs `{a} = [min, max]` (one interval per pose axis: x, y, z in mm, rx, ry, rz in rad)"
+                ))
+            })?;
+            if !(r[0].is_finite() && r[1].is_finite() && r[0] < r[1]) {
+                return bad(format!(
+                    "[workspace]: `{a}` must be [min, max] with min < max"
+                ));
+            }
+            workspace_box.push(*r);
+        }
+        if let Some(k) = d
+            .workspace
+            .keys()
+            .find(|k| !POSE_AXES.contains(&k.as_str()))
+        {
+            return bad(format!(
+                "[workspace]: unknown axis `{k}` (axes: x, y, z, rx, ry, rz)"
+            ));
+        }
+        let free = match &d.free {
+            Some(f) => f.clone(),
+            None => geometric.iter().chain(&offsets).cloned().collect(),
+        };
+        let mut gs = GoughStewart {
+            spec: Spec {
+                name: d
+                    .name
+                    .clone()
+                    .unwrap_or_else(|| format!("Gough–Stewart platform, {n} legs")),
+                joints,
+                actuated: (0..n).collect(),
+                independent: (0..6).collect(),
+                n_constraints: n,
+                geometric,
+                offsets,
+                stiffness: (1..=n).map(|i| format!("k{i}")).collect(),
+                tool_axes: POSE_AXES.iter().map(|s| s.to_string()).collect(),
+                nominal,
+                reference_q: vec![0.0; n + 6],
+                default_free: free,
+                workspace_box,
+                work_scale: 1.0,
+                joint_scale: vec![],
+                axis_scale: vec![],
+                min_conditioning: 0.0,
+            },
+            n,
+            atlas: Default::default(),
+            branch: 0,
+        };
+        // A rotation of one radian moves the platform joints by about their
+        // mean distance from the platform origin.
+        let radius = (d
+            .legs
+            .iter()
+            .map(|l| l.platform.iter().map(|v| v * v).sum::<f64>().sqrt())
+            .sum::<f64>()
+            / n as f64)
+            .max(1.0);
+        gs.spec.joint_scale = vec![1.0; n + 3];
+        gs.spec.joint_scale.extend([radius; 3]);
+        gs.spec.axis_scale = vec![1.0, 1.0, 1.0, radius, radius, radius];
+        let rho = gs.spec.nominal[..6 * n].to_vec();
+        gs.spec.reference_q = gs.ik(&d.assembly.pose, &rho)?;
+        gs.spec.validate()?;
+        // The first six legs must determine the pose at the reference.
+        let j = crate::autodiff::jacobians(&gs, &gs.spec.reference_q, &rho, 0..n + 6);
+        let dep: Vec<usize> = (6..n + 6).collect();
+        if crate::kinematics::checked_lu(j.dg.select_columns(&dep)).is_none() {
+            return bad(
+                "the reference pose is singular for the first six legs; move it or reorder the legs"
+                    .into(),
+            );
+        }
+        gs.branch = crate::kinematics::branch_signs(&gs, &gs.spec.reference_q, &rho)[0];
+        // The atlas covers every reachable pose (min_conditioning still 0).
+        gs.atlas = crate::workspace::Atlas::build(&gs, ATLAS_POINTS);
+        gs.spec.min_conditioning = crate::workspace::RELATIVE_CONDITIONING
+            * crate::workspace::conditioning(&gs, &gs.spec.reference_q, &rho);
+        Ok(gs)
+    }
+
+    /// Number of legs.
+    pub fn legs(&self) -> usize {
+        self.n
+    }
+
+    /// Inverse kinematics in closed form: leg lengths for a pose.
+    fn ik(&self, pose: &[f64], rho: &[f64]) -> Result<Vec<f64>> {
+        let n = self.n;
+        let mut q = Vec::with_capacity(n + 6);
+        for i in 0..n {
+            let b = [
+                rho[3 * n + 3 * i],
+                rho[3 * n + 3 * i + 1],
+                rho[3 * n + 3 * i + 2],
+            ];
+            let w = transform(pose, b);
+            let d = (0..3)
+                .map(|k| (w[k] - rho[3 * i + k]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            if d < 1e-9 {
+                return Err(Error::Unreachable {
+                    target: pose.to_vec(),
+                    reason: format!("leg {} would have zero length", i + 1),
+                });
+            }
+            q.push(d);
+        }
+        q.extend_from_slice(pose);
+        Ok(q)
+    }
+}
+
+impl Mechanism for GoughStewart {
+    fn spec(&self) -> &Spec {
+        &self.spec
+    }
+
+    /// `g_i = |p + R b_i − a_i| − L_i` (MODEL.md eq. 3, one per leg).
+    fn constraints<D: Scalar>(&self, q: &[D], rho: &[D], g: &mut [D]) {
+        let n = self.n;
+        let pose = &q[n..n + 6];
+        let r = rotation(pose[3], pose[4], pose[5]);
+        for i in 0..n {
+            let b = &rho[3 * n + 3 * i..3 * n + 3 * i + 3];
+            let a = &rho[3 * i..3 * i + 3];
+            let mut s = D::from(0.0);
+            for k in 0..3 {
+                let w = pose[k] + r[k][0] * b[0] + r[k][1] * b[1] + r[k][2] * b[2] - a[k];
+                s += w * w;
+            }
+            g[i] = s.sqrt() - q[i];
+        }
+    }
+
+    /// The platform pose.
+    fn tool<D: Scalar>(&self, q: &[D], _rho: &[D], x: &mut [D]) {
+        x.copy_from_slice(&q[self.n..self.n + 6]);
+    }
+
+    fn inverse_kinematics_closed(&self, target: &[f64], rho: &[f64]) -> Option<Result<Vec<f64>>> {
+        Some(self.ik(target, rho))
+    }
+
+    fn configuration_guess(&self, commands: &[f64], _rho: &[f64]) -> Option<Vec<f64>> {
+        self.atlas.nearest(commands)
+    }
+
+    /// The assembly mode of the reference pose: the same sign of the forward
+    /// kinematics determinant ([`crate::kinematics::branch_signs`]).
+    fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
+        self.branch == 0 || crate::kinematics::branch_signs(self, q, rho)[0] == self.branch
+    }
+}
+
+/// A mechanism whose tool is a spatial pose `[x, y, z, rx, ry, rz]` (as
+/// [`GoughStewart`]), measured at target points fixed on the platform: the tool
+/// coordinates become `t1x t1y t1z t2x …`, the target positions `p + R t_j` in
+/// the base frame, and the target positions in the platform frame are extra
+/// geometric parameters (after the inner mechanism's).
+#[derive(Debug, Clone)]
+pub struct PointTargets<M> {
+    inner: M,
+    spec: Spec,
+    targets: usize,
+}
+
+impl<M: Mechanism> PointTargets<M> {
+    /// Wrap `inner`, measured at `targets` (platform frame, mm).
+    pub fn new(inner: M, targets: &[[f64; 3]]) -> Result<Self> {
+        let s = inner.spec().clone();
+        if s.tool_axes != POSE_AXES {
+            return Err(Error::InvalidMechanism(format!(
+                "target points need a mechanism whose tool is a spatial pose (x y z rx ry rz); `{}` has {}",
+                s.name,
+                s.tool_axes.join(" ")
+            )));
+        }
+        if targets.is_empty() || targets.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(Error::InvalidMechanism(
+                "give at least one target point with finite coordinates".into(),
+            ));
+        }
+        let ng = s.n_geometric();
+        let mut geometric = s.geometric.clone();
+        let mut nominal = s.nominal[..ng].to_vec();
+        let mut tool_axes = Vec::new();
+        for (j, t) in targets.iter().enumerate() {
+            for (c, v) in ["x", "y", "z"].iter().zip(t) {
+                geometric.push(format!("t{}{c}", j + 1));
+                tool_axes.push(format!("t{}{c}", j + 1));
+                nominal.push(*v);
+            }
+        }
+        nominal.extend(&s.nominal[ng..]);
+        let box_: Vec<[f64; 2]> = targets
+            .iter()
+            .flat_map(|_| s.workspace_box[..3].to_vec())
+            .collect();
+        let spec = Spec {
+            name: format!("{} measured at {} target point(s)", s.name, targets.len()),
+            geometric,
+            tool_axes,
+            nominal,
+            workspace_box: box_,
+            axis_scale: vec![],
+            ..s
+        };
+        spec.validate()?;
+        Ok(Self {
+            inner,
+            spec,
+            targets: targets.len(),
+        })
+    }
+
+    /// The wrapped mechanism.
+    pub fn inner(&self) -> &M {
+        &self.inner
+    }
+
+    /// Number of target points.
+    pub fn targets(&self) -> usize {
+        self.targets
+    }
+}
+
+impl<M: Mechanism> Mechanism for PointTargets<M> {
+    fn spec(&self) -> &Spec {
+        &self.spec
+    }
+
+    fn constraints<D: Scalar>(&self, q: &[D], rho: &[D], g: &mut [D]) {
+        let ng = self.inner.spec().n_geometric();
+        self.inner.constraints(q, &rho[..ng], g);
+    }
+
+    /// `p + R t_j` for every target `j`.
+    fn tool<D: Scalar>(&self, q: &[D], rho: &[D], x: &mut [D]) {
+        let ng = self.inner.spec().n_geometric();
+        let mut pose = [D::from(0.0); 6];
+        self.inner.tool(q, &rho[..ng], &mut pose);
+        for j in 0..self.targets {
+            let t = [rho[ng + 3 * j], rho[ng + 3 * j + 1], rho[ng + 3 * j + 2]];
+            x[3 * j..3 * j + 3].copy_from_slice(&transform(&pose, t));
+        }
+    }
+
+    fn configuration_guess(&self, commands: &[f64], rho: &[f64]) -> Option<Vec<f64>> {
+        let ng = self.inner.spec().n_geometric();
+        self.inner.configuration_guess(commands, &rho[..ng])
+    }
+
+    fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
+        let ng = self.inner.spec().n_geometric();
+        self.inner.on_branch(q, &rho[..ng])
+    }
+}

@@ -1,0 +1,720 @@
+//! Planar linkages described as bodies connected by revolute and prismatic
+//! joints ([`PlanarDescription`], plain data a user writes in TOML), turned into
+//! a [`Mechanism`] ([`PlanarLinkage`]) whose loop closure (MODEL.md eq. 3) and
+//! parameter names are derived from the description.
+//!
+//! Conventions (docs/mechanisms.md explains them with examples):
+//!
+//! - Every body has a frame. The ground frame is the measurement frame. Joints
+//!   are read in order; the first joint that reaches a body *places* it (a tree
+//!   joint): the body's frame origin is the joint, and
+//!   - revolute: the body's x axis is the parent's x axis turned by `q`;
+//!   - prismatic: the body's x axis points along the slide (the parent's x axis
+//!     turned by `axis`) and its origin is `q` further along it.
+//! - A joint whose child is already placed closes a loop: three equations
+//!   (revolute: the joint's point on both bodies coincides, and `q` is the
+//!   child's angle minus the parent's; prismatic: the child's point lies at `q`
+//!   along the slide and the child's angle is the slide's plus `child_angle`).
+//! - Every joint has one coordinate in `q` (rad or mm), in file order, so
+//!   `joints − 3 × closing joints` is the number of degrees of freedom.
+//! - Every number of the geometry is a parameter. Its name is the one the user
+//!   writes (a string in place of a number, its value in `[parameters]`; one
+//!   name used twice is one parameter) or derived from the joint:
+//!   `<joint>.x`, `<joint>.y` (position on the parent), `<joint>.axis`
+//!   (prismatic slide direction), `<joint>.cx`, `<joint>.cy` (closing joint:
+//!   position on the child), `<joint>.child_angle`, `tool.x`, `tool.y`.
+//! - An actuated joint `J` has the encoder offset `dJ` and the stiffness `kN`
+//!   where `N` is `J` without a leading `q` (`q1` → `dq1`, `k1`). Revolute
+//!   actuators: N·m/rad; prismatic ones: N/mm (one kind per linkage).
+
+use crate::error::{Error, Result};
+use crate::kinematics::{checked_lu, solve_closure};
+use crate::mechanism::{Mechanism, Scalar, Spec};
+use serde::Deserialize;
+use std::collections::BTreeMap;
+
+/// Workspace configurations kept for starting forward kinematics.
+const ATLAS_POINTS: usize = 400;
+
+/// A number of the geometry: a value, or the name of a parameter whose value
+/// is in [`PlanarDescription::parameters`].
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(untagged)]
+pub enum Value {
+    /// A value; the parameter gets a derived name.
+    Number(f64),
+    /// A named parameter.
+    Name(String),
+}
+
+/// Revolute or prismatic.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum JointKind {
+    /// Rotation about the joint point (coordinate in rad).
+    Revolute,
+    /// Translation along a slide (coordinate in mm).
+    Prismatic,
+}
+
+/// One joint between two bodies.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlanarJoint {
+    /// Joint name (the coordinate's name in `q`, and the command column when
+    /// actuated).
+    pub name: String,
+    /// Revolute or prismatic.
+    pub kind: JointKind,
+    /// The body it is mounted on (`ground` is the fixed frame).
+    pub parent: String,
+    /// The body it moves.
+    pub child: String,
+    /// Position of the joint on the parent, in the parent's frame (mm).
+    pub at: [Value; 2],
+    /// Prismatic: direction of the slide in the parent's frame (rad); 0 if left
+    /// out.
+    #[serde(default)]
+    pub axis: Option<Value>,
+    /// Closing joint: position of the joint on the child, in the child's
+    /// frame (mm). Required when the child is already placed.
+    #[serde(default)]
+    pub child_at: Option<[Value; 2]>,
+    /// Closing prismatic joint: the child's angle minus the slide's (rad); 0
+    /// if left out.
+    #[serde(default)]
+    pub child_angle: Option<Value>,
+    /// Whether a motor drives it.
+    #[serde(default)]
+    pub actuated: bool,
+    /// Stiffness of the actuated joint (N·m/rad or N/mm).
+    #[serde(default)]
+    pub stiffness: Option<f64>,
+}
+
+/// The tool point.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlanarTool {
+    /// The body that carries it.
+    pub body: String,
+    /// Its position in that body's frame (mm).
+    pub at: [Value; 2],
+    /// Whether the body's orientation (`phi`, rad, from the ground x axis) is
+    /// a tool coordinate too (3-DOF linkages).
+    #[serde(default)]
+    pub orientation: bool,
+}
+
+/// A planar linkage as a user describes it.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlanarDescription {
+    /// Human-readable name.
+    #[serde(default)]
+    pub name: Option<String>,
+    /// The joints, from the ground outward (each tree joint's parent placed
+    /// before it).
+    #[serde(rename = "joint")]
+    pub joints: Vec<PlanarJoint>,
+    /// The tool point.
+    pub tool: PlanarTool,
+    /// Values of the named parameters.
+    #[serde(default)]
+    pub parameters: BTreeMap<String, f64>,
+    /// Approximate values of every tree joint on the wanted assembly branch
+    /// (rad, mm); they are polished so that the loops close. Closing joints
+    /// are computed.
+    pub assembly: BTreeMap<String, f64>,
+    /// Box `[min, max]` per tool axis (`x`, `y`, and `phi` with orientation).
+    pub workspace: BTreeMap<String, [f64; 2]>,
+    /// Parameters identified by default (all geometric parameters and encoder
+    /// offsets if left out).
+    #[serde(default)]
+    pub free: Option<Vec<String>>,
+    /// Independent joints (as many as degrees of freedom, all actuated); the
+    /// first actuated joints that are not singular at the reference if left
+    /// out.
+    #[serde(default)]
+    pub independent: Option<Vec<String>>,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+struct Closing {
+    child_at: [usize; 2],
+    child_angle: Option<usize>,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+struct Joint {
+    kind: JointKind,
+    parent: usize,
+    child: usize,
+    at: [usize; 2],
+    axis: Option<usize>,
+    closing: Option<Closing>,
+}
+
+/// A planar linkage built from a [`PlanarDescription`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlanarLinkage {
+    spec: Spec,
+    joints: Vec<Joint>,
+    /// Characteristic length (mm): the mean distance between joints on a body.
+    /// It scales the angle equations of closing joints to mm.
+    length: f64,
+    n_bodies: usize,
+    tool_body: usize,
+    tool_at: [usize; 2],
+    orientation: bool,
+    atlas: crate::workspace::Atlas,
+    /// [`crate::kinematics::branch_signs`] at the reference configuration.
+    branch: [i8; 2],
+}
+
+/// Collects parameter names and nominal values in order of first use.
+struct Names<'a> {
+    names: Vec<String>,
+    values: Vec<f64>,
+    given: &'a BTreeMap<String, f64>,
+}
+
+impl Names<'_> {
+    fn add(&mut self, v: &Value, derived: String) -> Result<usize> {
+        let (name, value) = match v {
+            Value::Number(x) => (derived, *x),
+            Value::Name(n) => {
+                let x = *self.given.get(n).ok_or_else(|| {
+                    Error::InvalidMechanism(format!(
+                        "parameter `{n}` has no value; add `{n} = …` to [parameters]"
+                    ))
+                })?;
+                (n.clone(), x)
+            }
+        };
+        if !value.is_finite() {
+            return Err(Error::InvalidMechanism(format!(
+                "parameter `{name}` = {value} must be a finite number"
+            )));
+        }
+        if let Some(i) = self.names.iter().position(|n| *n == name) {
+            if matches!(v, Value::Number(_)) {
+                return Err(Error::InvalidMechanism(format!(
+                    "the derived parameter name `{name}` is already used; rename that parameter"
+                )));
+            }
+            return Ok(i);
+        }
+        self.names.push(name);
+        self.values.push(value);
+        Ok(self.names.len() - 1)
+    }
+}
+
+fn bad<T>(m: String) -> Result<T> {
+    Err(Error::InvalidMechanism(m))
+}
+
+/// Stiffness parameter name of an actuated joint: `k` + the name without a
+/// leading `q`.
+pub fn stiffness_name(joint: &str) -> String {
+    match joint.strip_prefix('q') {
+        Some(rest) if !rest.is_empty() => format!("k{rest}"),
+        _ => format!("k{joint}"),
+    }
+}
+
+impl PlanarLinkage {
+    /// Build the linkage: derive names and constraints, check the description,
+    /// polish the reference configuration and choose the independent joints.
+    pub fn new(d: &PlanarDescription) -> Result<Self> {
+        let mut bodies: Vec<String> = vec!["ground".into()];
+        let mut names = Names {
+            names: vec![],
+            values: vec![],
+            given: &d.parameters,
+        };
+        let mut joints = Vec::with_capacity(d.joints.len());
+        if d.joints.is_empty() {
+            return bad("a planar linkage needs at least one [[joint]]".into());
+        }
+        for (i, j) in d.joints.iter().enumerate() {
+            if j.name.is_empty() || d.joints[..i].iter().any(|o| o.name == j.name) {
+                return bad(format!(
+                    "joint {} has an empty or repeated name `{}`",
+                    i + 1,
+                    j.name
+                ));
+            }
+            let parent = bodies.iter().position(|b| *b == j.parent).ok_or_else(|| {
+                Error::InvalidMechanism(format!(
+                    "joint `{}`: its parent body `{}` is not placed yet; list the joints from the ground outward",
+                    j.name, j.parent
+                ))
+            })?;
+            if j.child == j.parent {
+                return bad(format!(
+                    "joint `{}` connects `{}` to itself",
+                    j.name, j.child
+                ));
+            }
+            let at = [
+                names.add(&j.at[0], format!("{}.x", j.name))?,
+                names.add(&j.at[1], format!("{}.y", j.name))?,
+            ];
+            let axis = match j.kind {
+                JointKind::Prismatic => Some(names.add(
+                    j.axis.as_ref().unwrap_or(&Value::Number(0.0)),
+                    format!("{}.axis", j.name),
+                )?),
+                JointKind::Revolute => {
+                    if j.axis.is_some() {
+                        return bad(format!(
+                            "joint `{}`: `axis` is for prismatic joints",
+                            j.name
+                        ));
+                    }
+                    None
+                }
+            };
+            let closing = match bodies.iter().position(|b| *b == j.child) {
+                None => {
+                    if j.child_at.is_some() || j.child_angle.is_some() {
+                        return bad(format!(
+                            "joint `{}` places body `{}` (its frame starts at the joint); `child_at` and `child_angle` are for joints that close a loop",
+                            j.name, j.child
+                        ));
+                    }
+                    bodies.push(j.child.clone());
+                    None
+                }
+                Some(_) => {
+                    let ca = j.child_at.as_ref().ok_or_else(|| {
+                        Error::InvalidMechanism(format!(
+                            "joint `{}` closes a loop (body `{}` is already placed): give its position on `{}` as `child_at = [x, y]`",
+                            j.name, j.child, j.child
+                        ))
+                    })?;
+                    let child_at = [
+                        names.add(&ca[0], format!("{}.cx", j.name))?,
+                        names.add(&ca[1], format!("{}.cy", j.name))?,
+                    ];
+                    let child_angle = match j.kind {
+                        JointKind::Prismatic => Some(names.add(
+                            j.child_angle.as_ref().unwrap_or(&Value::Number(0.0)),
+                            format!("{}.child_angle", j.name),
+                        )?),
+                        JointKind::Revolute => None,
+                    };
+                    Some(Closing {
+                        child_at,
+                        child_angle,
+                    })
+                }
+            };
+            let child = bodies.iter().position(|b| *b == j.child).expect("placed");
+            joints.push(Joint {
+                kind: j.kind,
+                parent,
+                child,
+                at,
+                axis,
+                closing,
+            });
+        }
+        let tool_body = bodies
+            .iter()
+            .position(|b| *b == d.tool.body)
+            .ok_or_else(|| {
+                Error::InvalidMechanism(format!(
+                    "the tool's body `{}` is not moved by any joint (bodies: {})",
+                    d.tool.body,
+                    bodies.join(", ")
+                ))
+            })?;
+        let tool_at = [
+            names.add(&d.tool.at[0], "tool.x".into())?,
+            names.add(&d.tool.at[1], "tool.y".into())?,
+        ];
+        for n in d.parameters.keys() {
+            if !names.names.contains(n) {
+                return bad(format!(
+                    "[parameters]: `{n}` is not used by any joint or the tool"
+                ));
+            }
+        }
+        let nq = joints.len();
+        let n_closing = joints.iter().filter(|j| j.closing.is_some()).count();
+        let nc = 3 * n_closing;
+        if nc >= nq {
+            return bad(format!(
+                "{nq} joints and {n_closing} closing joints leave no degree of freedom"
+            ));
+        }
+        let dof = nq - nc;
+        let actuated: Vec<usize> = (0..nq).filter(|&i| d.joints[i].actuated).collect();
+        if actuated.len() < dof {
+            return bad(format!(
+                "the linkage has {dof} degrees of freedom but only {} actuated joints",
+                actuated.len()
+            ));
+        }
+        let kinds: Vec<JointKind> = actuated.iter().map(|&i| d.joints[i].kind).collect();
+        if kinds.iter().any(|k| *k != kinds[0]) {
+            return bad(
+                "mixing revolute and prismatic actuators is not supported (their stiffness units differ)"
+                    .into(),
+            );
+        }
+        let work_scale = match kinds[0] {
+            JointKind::Revolute => crate::linearized::MM_TO_M,
+            JointKind::Prismatic => 1.0,
+        };
+        let mut stiffness = Vec::new();
+        for j in &d.joints {
+            match (j.actuated, j.stiffness) {
+                (true, Some(k)) if k.is_finite() && k > 0.0 => stiffness.push(k),
+                (true, _) => {
+                    return bad(format!(
+                        "actuated joint `{}` needs a positive `stiffness` ({})",
+                        j.name,
+                        if j.kind == JointKind::Revolute {
+                            "N·m/rad"
+                        } else {
+                            "N/mm"
+                        }
+                    ));
+                }
+                (false, Some(_)) => {
+                    return bad(format!(
+                        "joint `{}` has a stiffness but is not actuated; only actuated joints are compliant",
+                        j.name
+                    ));
+                }
+                (false, None) => {}
+            }
+        }
+        let tool_axes: Vec<String> = if d.tool.orientation {
+            vec!["x".into(), "y".into(), "phi".into()]
+        } else {
+            vec!["x".into(), "y".into()]
+        };
+        if tool_axes.len() != dof {
+            return bad(format!(
+                "the linkage has {dof} degrees of freedom but {} tool coordinates ({}); {}",
+                tool_axes.len(),
+                tool_axes.join(", "),
+                if dof == 3 {
+                    "set `orientation = true` in [tool]"
+                } else {
+                    "planar linkages need 2 DOF (tool x, y) or 3 DOF (x, y, phi)"
+                }
+            ));
+        }
+        let mut workspace_box = Vec::new();
+        for a in &tool_axes {
+            let r = d.workspace.get(a).ok_or_else(|| {
+                Error::InvalidMechanism(format!(
+                    "[workspace] needs `{a} = [min, max]` (one interval per tool axis: {})",
+                    tool_axes.join(", ")
+                ))
+            })?;
+            if !(r[0].is_finite() && r[1].is_finite() && r[0] < r[1]) {
+                return bad(format!(
+                    "[workspace]: `{a}` must be [min, max] with min < max"
+                ));
+            }
+            workspace_box.push(*r);
+        }
+        if let Some(k) = d.workspace.keys().find(|k| !tool_axes.contains(k)) {
+            return bad(format!(
+                "[workspace]: unknown tool axis `{k}` (axes: {})",
+                tool_axes.join(", ")
+            ));
+        }
+        let joint_names: Vec<String> = d.joints.iter().map(|j| j.name.clone()).collect();
+        let offsets: Vec<String> = actuated
+            .iter()
+            .map(|&i| format!("d{}", joint_names[i]))
+            .collect();
+        let stiffness_names: Vec<String> = actuated
+            .iter()
+            .map(|&i| stiffness_name(&joint_names[i]))
+            .collect();
+        let mut nominal = names.values.clone();
+        nominal.extend(std::iter::repeat_n(0.0, actuated.len()));
+        nominal.extend(&stiffness);
+        let geometric = names.names.clone();
+        let free = match &d.free {
+            Some(f) => f.clone(),
+            None => geometric.iter().chain(&offsets).cloned().collect(),
+        };
+        let lengths: Vec<f64> = joints
+            .iter()
+            .flat_map(|j| {
+                let mut v = vec![names.values[j.at[0]].hypot(names.values[j.at[1]])];
+                if let Some(c) = &j.closing {
+                    v.push(names.values[c.child_at[0]].hypot(names.values[c.child_at[1]]));
+                }
+                v
+            })
+            .filter(|l| *l > 1e-9)
+            .collect();
+        let length = if lengths.is_empty() {
+            1.0
+        } else {
+            lengths.iter().sum::<f64>() / lengths.len() as f64
+        };
+        let mut linkage = PlanarLinkage {
+            spec: Spec {
+                name: d.name.clone().unwrap_or_else(|| "planar linkage".into()),
+                joints: joint_names.clone(),
+                actuated: actuated.clone(),
+                independent: actuated[..dof].to_vec(),
+                n_constraints: nc,
+                geometric,
+                offsets,
+                stiffness: stiffness_names,
+                tool_axes,
+                nominal,
+                reference_q: vec![0.0; nq],
+                default_free: free,
+                workspace_box,
+                work_scale,
+                joint_scale: vec![],
+                axis_scale: vec![],
+                min_conditioning: 0.0,
+            },
+            joints,
+            length,
+            n_bodies: bodies.len(),
+            tool_body,
+            tool_at,
+            orientation: d.tool.orientation,
+            atlas: Default::default(),
+            branch: [0, 0],
+        };
+        // Reference configuration: tree joints from the description, closing
+        // joints computed from the body poses.
+        for k in d.assembly.keys() {
+            match joint_names.iter().position(|n| n == k) {
+                None => {
+                    return bad(format!(
+                        "[assembly]: unknown joint `{k}` (joints: {})",
+                        joint_names.join(", ")
+                    ));
+                }
+                Some(i) if linkage.joints[i].closing.is_some() => {
+                    return bad(format!(
+                        "[assembly]: `{k}` closes a loop; its value is computed, leave it out"
+                    ));
+                }
+                _ => {}
+            }
+        }
+        let mut q0 = vec![0.0; nq];
+        for (i, j) in linkage.joints.iter().enumerate() {
+            if j.closing.is_none() {
+                q0[i] = *d.assembly.get(&joint_names[i]).ok_or_else(|| {
+                    Error::InvalidMechanism(format!(
+                        "[assembly] needs an approximate value of joint `{}` (rad or mm) on the wanted assembly branch",
+                        joint_names[i]
+                    ))
+                })?;
+                if !q0[i].is_finite() {
+                    return bad(format!("[assembly]: `{}` must be finite", joint_names[i]));
+                }
+            }
+        }
+        let rho = linkage.spec.nominal[..linkage.spec.geometric.len()].to_vec();
+        linkage.fill_closing(&mut q0, &rho);
+        linkage.spec.independent = match &d.independent {
+            Some(list) => {
+                let mut idx = Vec::new();
+                for n in list {
+                    let i = joint_names.iter().position(|j| j == n).ok_or_else(|| {
+                        Error::InvalidMechanism(format!("`independent`: unknown joint `{n}`"))
+                    })?;
+                    idx.push(i);
+                }
+                idx
+            }
+            None => linkage.choose_independent(&q0, &rho),
+        };
+        linkage.spec.joint_scale = d
+            .joints
+            .iter()
+            .map(|j| match j.kind {
+                JointKind::Revolute => length,
+                JointKind::Prismatic => 1.0,
+            })
+            .collect();
+        if d.tool.orientation {
+            linkage.spec.axis_scale = vec![1.0, 1.0, length];
+        }
+        linkage.spec.reference_q = q0.clone();
+        linkage.spec.validate()?;
+        solve_closure(&linkage, &rho, &mut q0, &linkage.spec.independent).map_err(|e| {
+            Error::InvalidMechanism(format!(
+                "the [assembly] configuration does not close ({e}); check the lengths and give joint values nearer the wanted assembly"
+            ))
+        })?;
+        linkage.spec.reference_q = q0;
+        linkage.branch = crate::kinematics::branch_signs(&linkage, &linkage.spec.reference_q, &rho);
+        // The atlas covers every reachable pose (min_conditioning still 0).
+        linkage.atlas = crate::workspace::Atlas::build(&linkage, ATLAS_POINTS);
+        linkage.spec.min_conditioning = crate::workspace::RELATIVE_CONDITIONING
+            * crate::workspace::conditioning(&linkage, &linkage.spec.reference_q, &rho);
+        Ok(linkage)
+    }
+
+    /// Names of the bodies (ground first).
+    pub fn n_bodies(&self) -> usize {
+        self.n_bodies
+    }
+
+    /// The first combination of actuated joints (in order) whose complement is
+    /// not singular at `q`.
+    fn choose_independent(&self, q: &[f64], rho: &[f64]) -> Vec<usize> {
+        let spec = &self.spec;
+        let dof = spec.joints.len() - spec.n_constraints;
+        let l = spec.actuated.len();
+        let j = crate::autodiff::jacobians(self, q, rho, 0..q.len());
+        let mut pick: Vec<usize> = (0..dof).collect();
+        loop {
+            let ind: Vec<usize> = pick.iter().map(|&a| spec.actuated[a]).collect();
+            let dep: Vec<usize> = (0..q.len()).filter(|i| !ind.contains(i)).collect();
+            if checked_lu(j.dg.select_columns(&dep)).is_some() {
+                return ind;
+            }
+            // Next combination in lexicographic order.
+            let mut k = dof;
+            loop {
+                if k == 0 {
+                    return spec.actuated[..dof].to_vec();
+                }
+                k -= 1;
+                if pick[k] < l - dof + k {
+                    pick[k] += 1;
+                    for m in k + 1..dof {
+                        pick[m] = pick[m - 1] + 1;
+                    }
+                    break;
+                }
+            }
+        }
+    }
+
+    /// Body poses `[x, y, θ]` from the tree joints.
+    fn poses<D: Scalar>(&self, q: &[D], rho: &[D]) -> Vec<[D; 3]> {
+        let zero = D::from(0.0);
+        let mut p = vec![[zero; 3]; self.n_bodies];
+        for (i, j) in self.joints.iter().enumerate() {
+            if j.closing.is_some() {
+                continue;
+            }
+            let [px, py, th] = p[j.parent];
+            let (s, c) = th.sin_cos();
+            let (a0, a1) = (rho[j.at[0]], rho[j.at[1]]);
+            let ax = px + c * a0 - s * a1;
+            let ay = py + s * a0 + c * a1;
+            p[j.child] = match j.kind {
+                JointKind::Revolute => [ax, ay, th + q[i]],
+                JointKind::Prismatic => {
+                    let ang = th + rho[j.axis.expect("prismatic")];
+                    let (s, c) = ang.sin_cos();
+                    [ax + c * q[i], ay + s * q[i], ang]
+                }
+            };
+        }
+        p
+    }
+
+    /// Set the closing joints' coordinates from the body poses of the tree
+    /// joints.
+    fn fill_closing(&self, q: &mut [f64], rho: &[f64]) {
+        let p = self.poses(q, rho);
+        for (i, j) in self.joints.iter().enumerate() {
+            if j.closing.is_none() {
+                continue;
+            }
+            let a = world(&p[j.parent], rho[j.at[0]], rho[j.at[1]]);
+            q[i] = match j.kind {
+                JointKind::Revolute => p[j.child][2] - p[j.parent][2],
+                JointKind::Prismatic => {
+                    let c = j.closing.as_ref().expect("closing");
+                    let b = world(&p[j.child], rho[c.child_at[0]], rho[c.child_at[1]]);
+                    let ang = p[j.parent][2] + rho[j.axis.expect("prismatic")];
+                    (b[0] - a[0]) * ang.cos() + (b[1] - a[1]) * ang.sin()
+                }
+            };
+        }
+    }
+}
+
+/// A point given in a body's frame, in the ground frame.
+fn world<D: Scalar>(pose: &[D; 3], x: D, y: D) -> [D; 2] {
+    let (s, c) = pose[2].sin_cos();
+    [pose[0] + c * x - s * y, pose[1] + s * x + c * y]
+}
+
+impl Mechanism for PlanarLinkage {
+    fn spec(&self) -> &Spec {
+        &self.spec
+    }
+
+    /// Three equations per closing joint (see the module documentation); the
+    /// angle equation is multiplied by a characteristic length so that every
+    /// equation is in mm.
+    fn constraints<D: Scalar>(&self, q: &[D], rho: &[D], g: &mut [D]) {
+        let p = self.poses(q, rho);
+        let mut k = 0;
+        for (i, j) in self.joints.iter().enumerate() {
+            let Some(c) = &j.closing else { continue };
+            let a = world(&p[j.parent], rho[j.at[0]], rho[j.at[1]]);
+            let b = world(&p[j.child], rho[c.child_at[0]], rho[c.child_at[1]]);
+            match j.kind {
+                JointKind::Revolute => {
+                    g[k] = a[0] - b[0];
+                    g[k + 1] = a[1] - b[1];
+                    g[k + 2] = (p[j.child][2] - p[j.parent][2] - q[i]) * self.length;
+                }
+                JointKind::Prismatic => {
+                    let ang = p[j.parent][2] + rho[j.axis.expect("prismatic")];
+                    let (s, cs) = ang.sin_cos();
+                    g[k] = a[0] + cs * q[i] - b[0];
+                    g[k + 1] = a[1] + s * q[i] - b[1];
+                    g[k + 2] = (p[j.child][2] - ang - rho[c.child_angle.expect("prismatic")])
+                        * self.length;
+                }
+            }
+            k += 3;
+        }
+    }
+
+    /// The tool point (and with `orientation`, the tool body's angle).
+    fn configuration_guess(&self, commands: &[f64], _rho: &[f64]) -> Option<Vec<f64>> {
+        self.atlas.nearest(commands)
+    }
+
+    /// Same determinant signs as the reference configuration
+    /// ([`crate::kinematics::branch_signs`]): no leg has flipped through a
+    /// singularity.
+    fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
+        self.branch == [0, 0] || crate::kinematics::branch_signs(self, q, rho) == self.branch
+    }
+
+    fn tool<D: Scalar>(&self, q: &[D], rho: &[D], x: &mut [D]) {
+        let p = self.poses(q, rho);
+        let t = world(
+            &p[self.tool_body],
+            rho[self.tool_at[0]],
+            rho[self.tool_at[1]],
+        );
+        x[0] = t[0];
+        x[1] = t[1];
+        if self.orientation {
+            x[2] = p[self.tool_body][2];
+        }
+    }
+}

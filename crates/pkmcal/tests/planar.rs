@@ -1,0 +1,276 @@
+//! Mechanisms from descriptions: the reference mechanism written as a general
+//! planar linkage (same predictions as the built-in one), the shipped planar
+//! examples and the Gough–Stewart platforms.
+
+use pkmcal::{
+    GoughStewart, GoughStewartDescription, JeongKim2Dof, Mechanism, Model, Params,
+    PlanarDescription, PlanarLinkage, PointTargets, predict_pose, prepare_pose,
+};
+use rand::{RngExt, SeedableRng};
+
+/// Agreement of two descriptions of one mechanism (mm).
+const SAME_MECHANISM_MM: f64 = 1e-9;
+/// Agreement of the three forward models on a non-redundant mechanism (mm).
+const MODELS_AGREE_MM: f64 = 1e-9;
+
+fn table(name: &str) -> toml::Table {
+    let path = format!(
+        "{}/../../examples/{name}/mechanism.toml",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let mut t: toml::Table = std::fs::read_to_string(&path).unwrap().parse().unwrap();
+    t.remove("type");
+    t.remove("target");
+    t
+}
+
+fn planar(name: &str) -> PlanarLinkage {
+    let d: PlanarDescription = table(name).try_into().unwrap();
+    PlanarLinkage::new(&d).unwrap()
+}
+
+fn gough_stewart(name: &str) -> GoughStewart {
+    let d: GoughStewartDescription = table(name).try_into().unwrap();
+    GoughStewart::new(&d).unwrap()
+}
+
+/// Seeded random errors on every geometric parameter (± `mm`) and encoder
+/// offset (± `rad`).
+fn perturbed(spec: &pkmcal::Spec, seed: u64, mm: f64, rad: f64) -> Params {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+    let mut p = Params::nominal(spec);
+    let (ng, na) = (spec.n_geometric(), spec.n_actuated());
+    for v in &mut p.values[..ng] {
+        *v += rng.random_range(-mm..mm);
+    }
+    for v in &mut p.values[ng..ng + na] {
+        *v += rng.random_range(-rad..rad);
+    }
+    p
+}
+
+/// Built-in parameters carried over to the planar description: the platform's
+/// third joint from the side lengths D1, D2, D3.
+fn to_planar(builtin: &JeongKim2Dof, p: &Params, linkage: &PlanarLinkage) -> Params {
+    let bs = builtin.spec();
+    let ls = linkage.spec();
+    let mut out = Params::nominal(ls);
+    for (i, name) in ls.param_names().iter().enumerate() {
+        if let Ok(v) = p.get(bs, name) {
+            out.values[i] = v;
+        }
+    }
+    let (d1, d2, d3) = (
+        p.get(bs, "D1").unwrap(),
+        p.get(bs, "D2").unwrap(),
+        p.get(bs, "D3").unwrap(),
+    );
+    let cx = (d1 * d1 + d3 * d3 - d2 * d2) / (2.0 * d1);
+    out.set(ls, "P3.cx", cx).unwrap();
+    out.set(ls, "P3.cy", (d3 * d3 - cx * cx).sqrt()).unwrap();
+    out
+}
+
+#[test]
+fn reference_as_planar_linkage_predicts_like_the_builtin() {
+    let builtin = JeongKim2Dof::new();
+    let linkage = planar("jeong-kim-planar");
+    assert_eq!(linkage.spec().actuated_names(), ["q1", "q2", "q3"]);
+    let targets: Vec<Vec<f64>> = pkmcal::spread_targets(&linkage, 25)
+        .unwrap()
+        .into_iter()
+        .map(|p| p.target)
+        .collect();
+    for seed in 0..4 {
+        let truth = perturbed(builtin.spec(), seed, 0.5, 0.004);
+        let truth_l = to_planar(&builtin, &truth, &linkage);
+        // The linear model is a first-order expansion in the parameter
+        // errors, so it depends on the parametrisation: compare it with
+        // errors on the shared parameters only (not the platform's sides).
+        let mut shared = truth.clone();
+        for n in ["D1", "D2", "D3"] {
+            shared.set(builtin.spec(), n, 215.0).unwrap();
+        }
+        let shared_l = to_planar(&builtin, &shared, &linkage);
+        for t in &targets {
+            let c = pkmcal::nominal_commands(&builtin, t).unwrap();
+            let pb = prepare_pose(&builtin, &c, None).unwrap();
+            let pl = prepare_pose(&linkage, &c, None).unwrap();
+            for (model, a, b) in [
+                (Model::Exact, &truth, &truth_l),
+                (Model::Rigid, &truth, &truth_l),
+                (Model::Linear, &shared, &shared_l),
+            ] {
+                let xb = predict_pose(&builtin, &pb, a, model, &[]).unwrap().x;
+                let xl = predict_pose(&linkage, &pl, b, model, &[]).unwrap().x;
+                for (u, v) in xb.iter().zip(&xl) {
+                    assert!(
+                        (u - v).abs() < SAME_MECHANISM_MM,
+                        "{model:?} seed {seed} target {t:?}: {xb:?} vs {xl:?}"
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn five_bar_models_coincide() {
+    let m = planar("five-bar");
+    assert_eq!(m.spec().n_actuated(), m.spec().dof());
+    let truth = perturbed(m.spec(), 3, 0.5, 0.004);
+    for p in pkmcal::spread_targets(&m, 20).unwrap() {
+        let c = pkmcal::nominal_commands(&m, &p.target).unwrap();
+        let pose = prepare_pose(&m, &c, None).unwrap();
+        let x: Vec<Vec<f64>> = [Model::Rigid, Model::Linear, Model::Exact]
+            .iter()
+            .map(|&model| predict_pose(&m, &pose, &truth, model, &[]).unwrap().x)
+            .collect();
+        for k in 0..2 {
+            assert!((x[0][k] - x[2][k]).abs() < MODELS_AGREE_MM, "{x:?}");
+            assert!((x[1][k] - x[2][k]).abs() < MODELS_AGREE_MM, "{x:?}");
+        }
+    }
+}
+
+/// Nominal inverse then forward kinematics returns the target (mm, rad).
+const ROUND_TRIP: f64 = 1e-9;
+
+#[test]
+fn examples_round_trip_and_have_internal_torques_when_redundant() {
+    fn check<M: Mechanism>(m: &M, redundant: bool) {
+        let spec = m.spec();
+        let truth = perturbed(spec, 5, 0.3, 0.002);
+        let targets = pkmcal::spread_targets(m, 12).unwrap();
+        let mut max_torque: f64 = 0.0;
+        for p in &targets {
+            let c = pkmcal::nominal_commands(m, &p.target).unwrap();
+            let pose = prepare_pose(m, &c, None).unwrap();
+            let nominal =
+                predict_pose(m, &pose, &Params::nominal(spec), Model::Exact, &[]).unwrap();
+            for (a, b) in nominal.x.iter().zip(&p.target) {
+                assert!(
+                    (a - b).abs() < ROUND_TRIP,
+                    "{}: {:?} vs {:?}",
+                    spec.name,
+                    nominal.x,
+                    p.target
+                );
+            }
+            let e = predict_pose(m, &pose, &truth, Model::Exact, &[]).unwrap();
+            max_torque = e.torque.iter().fold(max_torque, |a, t| a.max(t.abs()));
+        }
+        // Errors make redundant actuators fight; others stay torque free.
+        if redundant {
+            assert!(max_torque > 1.0, "{}: {max_torque}", spec.name);
+        } else {
+            assert!(max_torque < 1e-6, "{}: {max_torque}", spec.name);
+        }
+    }
+    check(&planar("five-bar"), false);
+    check(&planar("3-rrr"), false);
+    check(&planar("4-rrr"), true);
+    check(&gough_stewart("gough-stewart-6"), false);
+    check(&gough_stewart("gough-stewart-8"), true);
+}
+
+/// Identification recovers simulated errors (mm, rad) to within this.
+const RECOVERED: f64 = 1e-6;
+
+#[test]
+fn examples_calibrate_to_the_truth_without_noise() {
+    fn check<M: Mechanism>(m: &M, poses: usize) {
+        let spec = m.spec();
+        // Errors on the identified parameters only (the others stay nominal,
+        // as the calibration assumes).
+        let all = perturbed(spec, 11, 0.3, 0.002);
+        let mut truth = Params::nominal(spec);
+        for n in &spec.default_free {
+            truth.set(spec, n, all.get(spec, n).unwrap()).unwrap();
+        }
+        let targets: Vec<Vec<f64>> = pkmcal::spread_targets(m, poses)
+            .unwrap()
+            .into_iter()
+            .map(|p| p.target)
+            .collect();
+        let data = pkmcal::simulate(m, &truth, &targets, 0.0, 1).unwrap();
+        let mut opts = pkmcal::CalibrationOptions::new(spec, Model::Exact);
+        opts.free = spec
+            .default_free
+            .iter()
+            .map(|n| spec.param_index(n).unwrap())
+            .collect();
+        let cal = pkmcal::calibrate(m, &data, &Params::nominal(spec), &opts).unwrap();
+        assert!(
+            cal.identifiability.unidentifiable.is_empty(),
+            "{}: the default free set must be identifiable",
+            spec.name
+        );
+        for &i in &opts.free {
+            let d = (cal.params.values[i] - truth.values[i]).abs();
+            assert!(
+                d < RECOVERED,
+                "{}: {} off by {d}",
+                spec.name,
+                spec.param_names()[i]
+            );
+        }
+        assert!(cal.sum_of_squares.sqrt() < RECOVERED, "{}", spec.name);
+    }
+    check(&gough_stewart("gough-stewart-8"), 60);
+    check(&planar("4-rrr"), 40);
+    check(&planar("3-rrr"), 40);
+    check(&planar("five-bar"), 20);
+}
+
+#[test]
+fn point_targets_are_rigid_with_the_platform() {
+    let gs = gough_stewart("gough-stewart-6");
+    let pt = PointTargets::new(gs.clone(), &[[150.0, 0.0, 60.0], [0.0, 0.0, 0.0]]).unwrap();
+    assert_eq!(
+        pt.spec().tool_axes,
+        ["t1x", "t1y", "t1z", "t2x", "t2y", "t2z"]
+    );
+    let pose = [10.0, -5.0, 720.0, 0.05, -0.03, 0.1];
+    let q = pkmcal::inverse_kinematics(&gs, &gs.spec().nominal[..gs.spec().n_geometric()], &pose)
+        .unwrap();
+    let rho = &pt.spec().nominal[..pt.spec().n_geometric()];
+    let mut x = vec![0.0; 6];
+    pt.tool(&q, rho, &mut x);
+    // The second target is the platform origin; the first is 150 mm from it,
+    // along the rotated x axis R e_x·150 + R e_z·60.
+    for k in 0..3 {
+        assert!((x[3 + k] - pose[k]).abs() < ROUND_TRIP);
+    }
+    let d = ((x[0] - x[3]).powi(2) + (x[1] - x[4]).powi(2) + (x[2] - x[5]).powi(2)).sqrt();
+    assert!((d - (150.0f64.hypot(60.0))).abs() < ROUND_TRIP);
+}
+
+#[test]
+fn bad_descriptions_are_refused_with_a_reason() {
+    let mut t = table("five-bar");
+    t.get_mut("parameters")
+        .unwrap()
+        .as_table_mut()
+        .unwrap()
+        .remove("l3");
+    let d: PlanarDescription = t.try_into().unwrap();
+    let e = PlanarLinkage::new(&d).unwrap_err().to_string();
+    assert!(e.contains("`l3` has no value"), "{e}");
+
+    let mut t = table("3-rrr");
+    t.get_mut("tool")
+        .unwrap()
+        .as_table_mut()
+        .unwrap()
+        .remove("orientation");
+    let d: PlanarDescription = t.try_into().unwrap();
+    let e = PlanarLinkage::new(&d).unwrap_err().to_string();
+    assert!(e.contains("orientation = true"), "{e}");
+
+    let mut t = table("gough-stewart-6");
+    t.get_mut("leg").unwrap().as_array_mut().unwrap().pop();
+    let d: GoughStewartDescription = t.try_into().unwrap();
+    let e = GoughStewart::new(&d).unwrap_err().to_string();
+    assert!(e.contains("at least 6 legs"), "{e}");
+}
