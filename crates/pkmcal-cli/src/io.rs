@@ -264,20 +264,35 @@ pub fn read_params(path: &Path, spec: &Spec) -> Result<Params> {
 
 pub fn params_from_str(text: &str, spec: &Spec) -> Result<Params> {
     let table: toml::Table = toml::from_str(text).context("TOML syntax error")?;
-    let mut named = Vec::new();
-    for (name, value) in &table {
-        let v = match value {
-            toml::Value::Float(f) => *f,
-            toml::Value::Integer(i) => *i as f64,
-            other => bail!(
-                "parameter `{name}` must be a number, found {}",
-                other.type_str()
-            ),
-        };
-        spec.param_index(name)?;
-        named.push((name.as_str(), v));
+    // `P.y = 0` (a dotted key, i.e. a table) and `"P.y" = 0` both name `P.y`.
+    fn flatten(prefix: &str, t: &toml::Table, out: &mut Vec<(String, f64)>) -> Result<()> {
+        for (key, value) in t {
+            let name = if prefix.is_empty() {
+                key.clone()
+            } else {
+                format!("{prefix}.{key}")
+            };
+            match value {
+                toml::Value::Float(f) => out.push((name, *f)),
+                toml::Value::Integer(i) => out.push((name, *i as f64)),
+                toml::Value::Table(inner) => flatten(&name, inner, out)?,
+                other => bail!(
+                    "parameter `{name}` must be a number, found {}",
+                    other.type_str()
+                ),
+            }
+        }
+        Ok(())
     }
-    Ok(Params::from_named(spec, named)?)
+    let mut named = Vec::new();
+    flatten("", &table, &mut named)?;
+    for (name, _) in &named {
+        spec.param_index(name)?;
+    }
+    Ok(Params::from_named(
+        spec,
+        named.iter().map(|(n, v)| (n.as_str(), *v)),
+    )?)
 }
 
 /// Flat parameter file text with every parameter, in vector order.
@@ -286,17 +301,28 @@ pub fn params_to_string(spec: &Spec, params: &Params, header: &str) -> String {
     for line in header.lines() {
         out.push_str(&format!("# {line}\n"));
     }
+    let revolute = spec.work_scale != 1.0;
     let units = |name: &str| -> &str {
         if spec.offsets.iter().any(|n| n == name) {
-            "rad"
+            if revolute { "rad" } else { "mm" }
         } else if spec.stiffness.iter().any(|n| n == name) {
-            "N·m/rad"
+            if revolute { "N·m/rad" } else { "N/mm" }
+        } else if name.ends_with(".axis") || name.ends_with(".child_angle") {
+            "rad"
         } else {
             "mm"
         }
     };
     for (name, v) in spec.param_names().iter().zip(&params.values) {
-        out.push_str(&format!("{name} = {v:?}  # {}\n", units(name)));
+        let bare = name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
+        let key = if bare {
+            name.to_string()
+        } else {
+            format!("\"{name}\"")
+        };
+        out.push_str(&format!("{key} = {v:?}  # {}\n", units(name)));
     }
     out
 }

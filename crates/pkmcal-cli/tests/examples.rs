@@ -1,0 +1,235 @@
+//! The shipped examples end to end through the CLI: simulate → analyze →
+//! calibrate → validate → compensate, then the compensated commands run on the
+//! simulated true machine.
+
+mod common;
+use common::{ok, read_csv};
+use std::path::Path;
+
+/// Largest validation error after calibration (mm or rad): a few times the
+/// 1 µm simulated noise.
+const CALIBRATED_MAX: f64 = 0.01;
+/// Largest error of compensated commands on the true machine (mm or rad).
+const COMPENSATED_MAX: f64 = 0.01;
+/// The uncalibrated machine must be off by more than this (mm or rad), so
+/// that the checks above mean something.
+const UNCALIBRATED_MIN: f64 = 0.05;
+
+fn example(name: &str) -> String {
+    format!(
+        "{}/../../examples/{name}/mechanism.toml",
+        env!("CARGO_MANIFEST_DIR")
+    )
+}
+
+/// The largest `dmax` of the summary line that starts with `label`.
+fn dmax(summary: &str, label: &str) -> f64 {
+    let line = summary
+        .lines()
+        .find(|l| l.trim_start().starts_with(label))
+        .unwrap_or_else(|| panic!("no `{label}` in:\n{summary}"));
+    line.split_whitespace().last().unwrap().parse().unwrap()
+}
+
+fn end_to_end(name: &str, truth: &str, poses: &str) {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mech = example(name);
+    std::fs::write(d.join("truth.toml"), truth).unwrap();
+    let m = ["--mechanism", mech.as_str()];
+    let sim = |out: &str, n: &str, seed: &str| {
+        let mut a = vec![
+            "simulate",
+            "--quiet",
+            "--truth",
+            "truth.toml",
+            "--noise",
+            "0.001",
+        ];
+        a.extend(["--grid", n, "--seed", seed, "--out", out]);
+        a.extend(m);
+        ok(d, &a);
+    };
+    sim("data.csv", poses, "1");
+    sim("val.csv", "20", "2");
+    let analysis = ok(d, &[&["analyze", "--data", "data.csv"][..], &m].concat());
+    assert!(analysis.contains("are identifiable"), "{name}: {analysis}");
+    let summary = ok(
+        d,
+        &[
+            &[
+                "calibrate",
+                "--data",
+                "data.csv",
+                "--validate",
+                "val.csv",
+                "--out",
+                "cal.toml",
+            ][..],
+            &m,
+        ]
+        .concat(),
+    );
+    assert!(
+        dmax(&summary, "validation, before") > UNCALIBRATED_MIN,
+        "{name}: {summary}"
+    );
+    assert!(
+        dmax(&summary, "validation, after") < CALIBRATED_MAX,
+        "{name}: {summary}"
+    );
+    // Compensate the validation targets with the calibrated parameters and
+    // run the commands on the true machine.
+    ok(
+        d,
+        &[
+            &[
+                "compensate",
+                "--params",
+                "cal.toml",
+                "--targets",
+                "val.csv",
+                "--out",
+                "comp.csv",
+            ][..],
+            &m,
+        ]
+        .concat(),
+    );
+    ok(
+        d,
+        &[
+            &[
+                "predict",
+                "--quiet",
+                "--params",
+                "truth.toml",
+                "--commands",
+                "comp.csv",
+                "--out",
+                "reached.csv",
+            ][..],
+            &m,
+        ]
+        .concat(),
+    );
+    let (h, targets) = read_csv(&d.join("val.csv"));
+    let (hr, reached) = read_csv(&d.join("reached.csv"));
+    let tcols: Vec<usize> = (0..h.len())
+        .filter(|&i| h[i].starts_with("target_"))
+        .collect();
+    for (t, r) in targets.iter().zip(&reached) {
+        for &c in &tcols {
+            let axis = h[c].trim_start_matches("target_");
+            let k = hr.iter().position(|x| x == axis).unwrap();
+            assert!(
+                (t[c] - r[k]).abs() < COMPENSATED_MAX,
+                "{name}: target {} reached {}",
+                t[c],
+                r[k]
+            );
+        }
+    }
+}
+
+#[test]
+fn five_bar_end_to_end() {
+    end_to_end(
+        "five-bar",
+        "l1 = 200.3\nl4 = 249.8\nA2x = 100.2\ndq1 = 0.002\n",
+        "25",
+    );
+}
+
+#[test]
+fn three_rrr_end_to_end() {
+    end_to_end(
+        "3-rrr",
+        "a2 = 200.3\nb3 = 199.8\nA3y = -149.7\nC2x = -69.1\ndq1 = 0.002\ndq3 = -0.001\n",
+        "40",
+    );
+}
+
+#[test]
+fn four_rrr_end_to_end() {
+    end_to_end(
+        "4-rrr",
+        "a2 = 200.3\nb3 = 199.8\nA3y = -233.0\nC2x = -113.3\ndq1 = 0.002\ndq4 = -0.002\n",
+        "40",
+    );
+}
+
+#[test]
+fn gough_stewart_6_end_to_end() {
+    end_to_end(
+        "gough-stewart-6",
+        "a1x = 492.7\nb3z = 0.3\na5y = -383.2\ndL2 = 0.2\ndL6 = -0.15\n",
+        "60",
+    );
+}
+
+#[test]
+fn gough_stewart_8_end_to_end() {
+    end_to_end(
+        "gough-stewart-8",
+        "a1x = 489.4\nb3z = 0.3\na5y = 103.7\ndL2 = 0.2\ndL8 = -0.15\n",
+        "60",
+    );
+}
+
+#[test]
+fn gough_stewart_measured_at_target_points() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mech = example("gough-stewart-8");
+    std::fs::write(d.join("truth.toml"), "a1x = 489.4\nb3z = 0.3\ndL2 = 0.2\n").unwrap();
+    for (out, seed) in [("data.csv", "1"), ("val.csv", "2")] {
+        ok(
+            d,
+            &[
+                "simulate",
+                "--quiet",
+                "--mechanism",
+                &mech,
+                "--truth",
+                "truth.toml",
+                "--grid",
+                "60",
+                "--seed",
+                seed,
+                "--noise",
+                "0.001",
+                "--measure-targets",
+                "--out",
+                out,
+            ],
+        );
+    }
+    let (h, _) = read_csv(&d.join("data.csv"));
+    assert!(
+        h.contains(&"t3z".to_string()) && !h.contains(&"x".to_string()),
+        "{h:?}"
+    );
+    let analysis = ok(d, &["analyze", "--mechanism", &mech, "--data", "data.csv"]);
+    assert!(analysis.contains("are identifiable"), "{analysis}");
+    let summary = ok(
+        d,
+        &[
+            "calibrate",
+            "--mechanism",
+            &mech,
+            "--data",
+            "data.csv",
+            "--validate",
+            "val.csv",
+            "--out",
+            "cal.toml",
+        ],
+    );
+    assert!(
+        dmax(&summary, "validation, after") < CALIBRATED_MAX,
+        "{summary}"
+    );
+    let cal = std::fs::read_to_string(d.join("cal.toml")).unwrap();
+    assert!(cal.contains("dL2") && !cal.contains("t1x"), "{cal}");
+}
