@@ -4,7 +4,6 @@
 
 mod common;
 use common::{ok, read_csv};
-use std::path::Path;
 
 /// Largest validation error after calibration (mm or rad): a few times the
 /// 1 µm simulated noise.
