@@ -232,3 +232,42 @@ fn gough_stewart_measured_at_target_points() {
     let cal = std::fs::read_to_string(d.join("cal.toml")).unwrap();
     assert!(cal.contains("dL2") && !cal.contains("t1x"), "{cal}");
 }
+
+#[test]
+fn bad_mechanism_files_name_the_file_and_the_fix() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("m.toml"), "type = \"delta\"\n").unwrap();
+    common::fails(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            "m.toml",
+            "--grid",
+            "3",
+            "--out",
+            "o.csv",
+        ],
+        1,
+        "unknown mechanism type `delta`; supported: jeong-kim-2dof, planar, gough-stewart",
+    );
+    let five = std::fs::read_to_string(example("five-bar")).unwrap();
+    let cut = five.replace("[workspace]\nx = [-150.0, 150.0]\n", "[workspace]\n");
+    std::fs::write(d.join("m.toml"), cut).unwrap();
+    common::fails(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            "m.toml",
+            "--grid",
+            "3",
+            "--out",
+            "o.csv",
+        ],
+        1,
+        "[workspace] needs `x = [min, max]`",
+    );
+    assert!(!d.join("o.csv").exists());
+}
