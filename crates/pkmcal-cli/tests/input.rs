@@ -61,7 +61,7 @@ fn malformed_parameter_and_mechanism_files() {
         ),
         ("L11 = 280.0\n", "unknown parameter `L11`"),
         ("k1 = 0\n", "stiffness must be positive"),
-        ("[l11]\nx = 1\n", "must be a number, found table"),
+        ("[l11]\nx = 1\n", "unknown parameter `l11.x`"),
     ];
     for (text, needle) in params {
         std::fs::write(d.join("p.toml"), text).unwrap();
