@@ -147,29 +147,8 @@ impl GoughStewart {
         nominal.extend(d.legs.iter().map(|l| l.stiffness));
         let mut joints: Vec<String> = (1..=n).map(|i| format!("L{i}")).collect();
         joints.extend(POSE_AXES.iter().map(|s| s.to_string()));
-        let mut workspace_box = Vec::new();
-        for a in POSE_AXES {
-            let r = d.workspace.get(a).ok_or_else(|| {
-                Error::InvalidMechanism(format!(
-                    "[workspace] needs `{a} = [min, max]` (one interval per pose axis: x, y, z in mm, rx, ry, rz in rad)"
-                ))
-            })?;
-            if !(r[0].is_finite() && r[1].is_finite() && r[0] < r[1]) {
-                return bad(format!(
-                    "[workspace]: `{a}` must be [min, max] with min < max"
-                ));
-            }
-            workspace_box.push(*r);
-        }
-        if let Some(k) = d
-            .workspace
-            .keys()
-            .find(|k| !POSE_AXES.contains(&k.as_str()))
-        {
-            return bad(format!(
-                "[workspace]: unknown axis `{k}` (axes: x, y, z, rx, ry, rz)"
-            ));
-        }
+        let tool_axes: Vec<String> = POSE_AXES.iter().map(|s| s.to_string()).collect();
+        let workspace_box = crate::workspace::box_from_description(&tool_axes, &d.workspace)?;
         let free = match &d.free {
             Some(f) => f.clone(),
             None => geometric.iter().chain(&offsets).cloned().collect(),
@@ -187,7 +166,7 @@ impl GoughStewart {
                 geometric,
                 offsets,
                 stiffness: (1..=n).map(|i| format!("k{i}")).collect(),
-                tool_axes: POSE_AXES.iter().map(|s| s.to_string()).collect(),
+                tool_axes,
                 nominal,
                 reference_q: vec![0.0; n + 6],
                 default_free: free,

@@ -411,27 +411,7 @@ impl PlanarLinkage {
                 }
             ));
         }
-        let mut workspace_box = Vec::new();
-        for a in &tool_axes {
-            let r = d.workspace.get(a).ok_or_else(|| {
-                Error::InvalidMechanism(format!(
-                    "[workspace] needs `{a} = [min, max]` (one interval per tool axis: {})",
-                    tool_axes.join(", ")
-                ))
-            })?;
-            if !(r[0].is_finite() && r[1].is_finite() && r[0] < r[1]) {
-                return bad(format!(
-                    "[workspace]: `{a}` must be [min, max] with min < max"
-                ));
-            }
-            workspace_box.push(*r);
-        }
-        if let Some(k) = d.workspace.keys().find(|k| !tool_axes.contains(k)) {
-            return bad(format!(
-                "[workspace]: unknown tool axis `{k}` (axes: {})",
-                tool_axes.join(", ")
-            ));
-        }
+        let workspace_box = crate::workspace::box_from_description(&tool_axes, &d.workspace)?;
         let joint_names: Vec<String> = d.joints.iter().map(|j| j.name.clone()).collect();
         let offsets: Vec<String> = actuated
             .iter()

@@ -179,6 +179,37 @@ pub fn spread_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<Worksp
     Ok(chosen.into_iter().map(|i| pool[i].clone()).collect())
 }
 
+/// The workspace box of a described mechanism: one `[min, max]` per tool
+/// axis from the description's `[workspace]` table, in axis order.
+pub(crate) fn box_from_description(
+    axes: &[String],
+    given: &std::collections::BTreeMap<String, [f64; 2]>,
+) -> Result<Vec<[f64; 2]>> {
+    let bad = |m: String| Err(Error::InvalidMechanism(m));
+    if let Some(k) = given.keys().find(|k| !axes.contains(k)) {
+        return bad(format!(
+            "[workspace]: unknown tool axis `{k}` (axes: {})",
+            axes.join(", ")
+        ));
+    }
+    let mut out = Vec::with_capacity(axes.len());
+    for a in axes {
+        let Some(r) = given.get(a) else {
+            return bad(format!(
+                "[workspace] needs `{a} = [min, max]` (one interval per tool axis: {})",
+                axes.join(", ")
+            ));
+        };
+        if !(r[0].is_finite() && r[1].is_finite() && r[0] < r[1]) {
+            return bad(format!(
+                "[workspace]: `{a}` must be [min, max] with min < max"
+            ));
+        }
+        out.push(*r);
+    }
+    Ok(out)
+}
+
 /// The largest extent of the workspace box, in mm-equivalent units.
 fn scaled_extent(spec: &crate::Spec) -> f64 {
     spec.workspace_box
