@@ -467,7 +467,7 @@ fn calibrate_on<M: Mechanism>(
             },
         )?;
     }
-    print_summary(&report, &spec.tool_axes);
+    print_summary(&report, &spec.tool_axes, &spec.tool_units);
     println!();
     println!("identified parameters -> {}", c.out.display());
     if let Some(r) = &c.report {
@@ -479,34 +479,58 @@ fn calibrate_on<M: Mechanism>(
     Ok(())
 }
 
-pub fn print_stats_header(axes: &[String]) {
-    let mut h = format!("  {:<24}", "errors (mm)");
-    for a in axes {
+/// Display factor and symbol of an error column: lengths in mm, angles in
+/// mrad (so that micro-radian errors do not print as 0.0000).
+fn column_unit(u: pkmcal::Unit) -> (f64, &'static str) {
+    match u {
+        pkmcal::Unit::Radian => (1e3, "mrad"),
+        u => (1.0, u.symbol()),
+    }
+}
+
+pub fn print_stats_header(axes: &[String], units: &[pkmcal::Unit]) {
+    let mut h = format!("  {:<24}", "errors");
+    for (a, u) in axes.iter().zip(units) {
         let a = a.to_uppercase();
+        let sym = column_unit(*u).1;
         h.push_str(&format!(
-            " {:>8} {:>8}",
-            format!("{a}min"),
-            format!("{a}max")
+            " {:>10} {:>10}",
+            format!("{a}min {sym}"),
+            format!("{a}max {sym}")
         ));
     }
-    for t in ["dmin", "dmean", "drms", "dmax"] {
-        h.push_str(&format!(" {t:>8}"));
+    let lengths = units.contains(&pkmcal::Unit::Millimetre);
+    if lengths {
+        for t in ["dmin", "dmean", "drms", "dmax"] {
+            h.push_str(&format!(" {:>10}", format!("{t} mm")));
+        }
+    }
+    if units.contains(&pkmcal::Unit::Radian) {
+        for t in ["arms", "amax"] {
+            h.push_str(&format!(" {:>10}", format!("{t} mrad")));
+        }
     }
     println!("{h}");
 }
 
 pub fn print_stats(label: &str, s: &ErrorStats) {
     let mut row = format!("  {label:<24}");
-    for (a, b) in s.axis_min.iter().zip(&s.axis_max) {
-        row.push_str(&format!(" {a:>8.4} {b:>8.4}"));
+    for ((a, b), u) in s.axis_min.iter().zip(&s.axis_max).zip(&s.axis_units) {
+        let f = column_unit(*u).0;
+        row.push_str(&format!(" {:>10.4} {:>10.4}", a * f, b * f));
     }
-    for v in [
-        s.distance_min,
-        s.distance_mean,
-        s.distance_rms,
-        s.distance_max,
-    ] {
-        row.push_str(&format!(" {v:>8.4}"));
+    if s.axis_units.contains(&pkmcal::Unit::Millimetre) {
+        for v in [
+            s.distance_min,
+            s.distance_mean,
+            s.distance_rms,
+            s.distance_max,
+        ] {
+            row.push_str(&format!(" {v:>10.4}"));
+        }
+    }
+    if let (Some(r), Some(m)) = (s.angle_rms, s.angle_max) {
+        row.push_str(&format!(" {:>10.4} {:>10.4}", r * 1e3, m * 1e3));
     }
     println!("{row}");
 }
@@ -534,7 +558,7 @@ pub fn print_identifiability(id: &Identifiability) {
     }
 }
 
-fn print_summary(r: &Report, axes: &[String]) {
+fn print_summary(r: &Report, axes: &[String], units: &[pkmcal::Unit]) {
     let cal = r.calibration;
     println!(
         "calibration of {} from {} ({} poses, {} model)",
@@ -585,7 +609,7 @@ fn print_summary(r: &Report, axes: &[String]) {
         );
     }
     println!();
-    print_stats_header(axes);
+    print_stats_header(axes, units);
     print_stats("calibration, before", &r.accuracy.before);
     print_stats("calibration, after", &r.accuracy.after);
     println!(

@@ -184,12 +184,7 @@ fn target_names(mech: &Mech) -> Vec<String> {
 pub fn simulate(a: SimulateArgs) -> Result<()> {
     let mech = read_mechanism(a.mech.mechanism.as_deref())?;
     let truth = load_params(a.truth.as_deref(), &mech)?;
-    if !(a.noise >= 0.0 && a.noise.is_finite()) {
-        bail!(
-            "--noise must be a non-negative number of mm, got {}",
-            a.noise
-        );
-    }
+    let noise = crate::io::noise_arg(a.noise, a.angle_noise)?;
     let targets: Vec<Vec<f64>> = match (&a.targets, a.grid) {
         (Some(path), _) => {
             let csv = Csv::read(path)?;
@@ -221,8 +216,14 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
     if let Some(setup) = &setup {
         setup.validate(mech.spec().tool_axes.len())?;
         // Noise on the bar readings, not on positions.
-        let exact =
-            pkmcal::simulate_with_progress(&mech, &truth, &targets, 0.0, a.seed, &|| bar.inc(1))?;
+        let exact = pkmcal::simulate_with_progress(
+            &mech,
+            &truth,
+            &targets,
+            pkmcal::Noise::NONE,
+            a.seed,
+            &|| bar.inc(1),
+        )?;
         bar.finish_and_clear();
         let rows = ballbar_rows(&mech, setup, &exact, a.noise, a.seed)?;
         let mut header = target_names(&mech);
@@ -243,13 +244,18 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         return simulate_targets(&mech, &a, &targets, &bar);
     }
     let data =
-        pkmcal::simulate_with_progress(&mech, &truth, &targets, a.noise, a.seed, &|| bar.inc(1))?;
+        pkmcal::simulate_with_progress(&mech, &truth, &targets, noise, a.seed, &|| bar.inc(1))?;
     bar.finish_and_clear();
     write_atomic(&a.out, &data_csv(&mech, &data))?;
     eprintln!(
-        "simulated {} poses (noise {} mm, seed {}) -> {}",
+        "simulated {} poses (noise {} mm on lengths{}, seed {}) -> {}",
         data.len(),
-        a.noise,
+        noise.length,
+        if mech.spec().tool_units.contains(&pkmcal::Unit::Radian) {
+            format!(", {} rad on angles", noise.angle)
+        } else {
+            String::new()
+        },
         a.seed,
         a.out.display()
     );
@@ -518,13 +524,13 @@ pub fn demo(a: DemoArgs) -> Result<()> {
     }
     println!();
     println!("calibration set (35 poses):");
-    print_stats_header(&spec.tool_axes);
+    print_stats_header(&spec.tool_axes, &spec.tool_units);
     for (label, cal, _) in &rows {
         print_stats(label, cal);
     }
     println!();
     println!("validation set ({DEMO_VALIDATION_POSES} unseen poses):");
-    print_stats_header(&spec.tool_axes);
+    print_stats_header(&spec.tool_axes, &spec.tool_units);
     for (label, _, val) in &rows {
         print_stats(label, val);
     }

@@ -111,31 +111,46 @@ fn range(values: impl Iterator<Item = f64>, pad: f64) -> (f64, f64) {
 }
 
 /// Fig. 9 of the paper: X, Y and distance error at each measured pose, before
-/// and after calibration (mm).
-pub fn errors_per_pose(before: &[Vec<f64>], after: &[Vec<f64>], axes: &[String]) -> Result<Figure> {
+/// and after calibration (lengths in mm, angles in mrad).
+pub fn errors_per_pose(
+    before: &[Vec<f64>],
+    after: &[Vec<f64>],
+    axes: &[String],
+    units: &[pkmcal::Unit],
+) -> Result<Figure> {
     let n = before.len();
-    let dist = |e: &Vec<f64>| e.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let lengths: Vec<usize> = (0..units.len())
+        .filter(|&k| units[k] == pkmcal::Unit::Millimetre)
+        .collect();
+    let dist = |e: &Vec<f64>| lengths.iter().map(|&k| e[k] * e[k]).sum::<f64>().sqrt();
     let mut panels: Vec<(String, Vec<f64>, Vec<f64>)> = axes
         .iter()
+        .zip(units)
         .enumerate()
-        .map(|(k, a)| {
+        .map(|(k, (a, u))| {
+            let (f, sym) = match u {
+                pkmcal::Unit::Radian => (1e3, "mrad"),
+                u => (1.0, u.symbol()),
+            };
             (
-                format!("{} error (mm)", a.to_uppercase()),
-                before.iter().map(|e| e[k]).collect(),
-                after.iter().map(|e| e[k]).collect(),
+                format!("{} error ({sym})", a.to_uppercase()),
+                before.iter().map(|e| e[k] * f).collect(),
+                after.iter().map(|e| e[k] * f).collect(),
             )
         })
         .collect();
-    panels.push((
-        "distance error (mm)".into(),
-        before.iter().map(dist).collect(),
-        after.iter().map(dist).collect(),
-    ));
+    if !lengths.is_empty() {
+        panels.push((
+            "distance error (mm)".into(),
+            before.iter().map(dist).collect(),
+            after.iter().map(dist).collect(),
+        ));
+    }
     render!(
         "errors",
         "Errors at each measured pose (paper Fig. 9)",
         format!(
-            "X, Y and distance error of each of the {n} measured poses before (red) and after (blue) calibration, mm."
+            "Error of each tool coordinate and distance error of each of the {n} measured poses before (red) and after (blue) calibration (lengths in mm, angles in mrad)."
         ),
         (1000u32, 780u32),
         |root| {

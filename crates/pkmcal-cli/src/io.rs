@@ -301,19 +301,7 @@ pub fn params_to_string(spec: &Spec, params: &Params, header: &str) -> String {
     for line in header.lines() {
         out.push_str(&format!("# {line}\n"));
     }
-    let revolute = spec.work_scale != 1.0;
-    let units = |name: &str| -> &str {
-        if spec.offsets.iter().any(|n| n == name) {
-            if revolute { "rad" } else { "mm" }
-        } else if spec.stiffness.iter().any(|n| n == name) {
-            if revolute { "N·m/rad" } else { "N/mm" }
-        } else if name.ends_with(".axis") || name.ends_with(".child_angle") {
-            "rad"
-        } else {
-            "mm"
-        }
-    };
-    for (name, v) in spec.param_names().iter().zip(&params.values) {
+    for (i, (name, v)) in spec.param_names().iter().zip(&params.values).enumerate() {
         let bare = name
             .chars()
             .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
@@ -322,7 +310,7 @@ pub fn params_to_string(spec: &Spec, params: &Params, header: &str) -> String {
         } else {
             format!("\"{name}\"")
         };
-        out.push_str(&format!("{key} = {v:?}  # {}\n", units(name)));
+        out.push_str(&format!("{key} = {v:?}  # {}\n", spec.param_unit(i)));
     }
     out
 }
@@ -556,6 +544,22 @@ pub fn progress(len: u64, quiet: bool, what: &str, min_items: u64) -> indicatif:
 /// Fuzzing of the readers: random and mutated CSV, parameter, mechanism and
 /// setup files must give an `Err` or an `Ok`, never a panic. Run more with
 /// `PKMCAL_FUZZ_CASES=100000 cargo test --release -p pkmcal-cli fuzz_`.
+/// Measurement noise from `--noise MM` and `--angle-noise RAD` (default: the
+/// length noise over [`pkmcal::simulate::DEFAULT_ANGLE_LEVER_MM`]).
+pub fn noise_arg(mm: f64, rad: Option<f64>) -> Result<pkmcal::Noise> {
+    if !(mm.is_finite() && mm >= 0.0) {
+        bail!("--noise must be a non-negative number of mm, got {mm}");
+    }
+    let mut noise = pkmcal::Noise::lengths(mm);
+    if let Some(r) = rad {
+        if !(r.is_finite() && r >= 0.0) {
+            bail!("--angle-noise must be a non-negative number of rad, got {r}");
+        }
+        noise.angle = r;
+    }
+    Ok(noise)
+}
+
 #[cfg(test)]
 mod fuzz {
     use super::*;

@@ -107,9 +107,15 @@ pub struct SimulateArgs {
     /// Instead of a targets file: N targets spread evenly over the usable workspace.
     #[arg(long, value_name = "N")]
     pub grid: Option<usize>,
-    /// Standard deviation of the Gaussian measurement noise per axis, mm.
-    #[arg(long, default_value_t = 0.0, value_name = "SIGMA_MM")]
+    /// Standard deviation of the Gaussian noise on each length coordinate
+    /// (positions, bar readings, target points), mm.
+    #[arg(long, default_value_t = 0.0, value_name = "MM")]
     pub noise: f64,
+    /// Standard deviation of the Gaussian noise on each angle coordinate
+    /// (orientations such as phi, rx, ry, rz), rad. Default: the length noise
+    /// over a 200 mm lever arm (1e-5 rad for --noise 0.002).
+    #[arg(long, value_name = "RAD")]
+    pub angle_noise: Option<f64>,
     /// Random seed of the noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -301,9 +307,13 @@ pub struct MonteCarloArgs {
     /// Number of simulated calibrations.
     #[arg(long, default_value_t = 200)]
     pub runs: usize,
-    /// Measurement noise per axis, mm.
-    #[arg(long, default_value_t = 0.002, value_name = "SIGMA")]
+    /// Measurement noise on each length coordinate, mm.
+    #[arg(long, default_value_t = 0.002, value_name = "MM")]
     pub noise: f64,
+    /// Measurement noise on each angle coordinate, rad (default: the length
+    /// noise over a 200 mm lever arm).
+    #[arg(long, value_name = "RAD")]
+    pub angle_noise: Option<f64>,
     /// Random seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -312,12 +322,19 @@ pub struct MonteCarloArgs {
     pub model: String,
     #[command(flatten)]
     pub params_set: FreeArgs,
-    /// Standard deviation of the random errors of free lengths and positions, mm.
+    /// Standard deviation of the random errors of the free parameters in mm
+    /// (lengths, positions, offsets of prismatic actuators).
     #[arg(long, default_value_t = 0.3, value_name = "MM")]
     pub length_error: f64,
-    /// Standard deviation of the random encoder offsets, rad.
-    #[arg(long, default_value_t = 0.001, value_name = "RAD")]
-    pub offset_error: f64,
+    /// Standard deviation of the random errors of the free parameters in rad
+    /// (encoder offsets of revolute actuators, axis angles).
+    #[arg(
+        long,
+        default_value_t = 0.001,
+        value_name = "RAD",
+        alias = "offset-error"
+    )]
+    pub angle_error: f64,
     /// Unseen poses on which accuracy is judged.
     #[arg(long, default_value_t = 50, value_name = "N")]
     pub validation: usize,
@@ -431,7 +448,8 @@ fn main() -> ExitCode {
                 free: a.params_set.free,
                 fix: a.params_set.fix,
                 length_error: a.length_error,
-                offset_error: a.offset_error,
+                angle_error: a.angle_error,
+                angle_noise: a.angle_noise,
                 validation: a.validation,
                 out: a.out,
                 quiet: a.quiet,

@@ -52,17 +52,26 @@ pub fn escape(s: &str) -> String {
 pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
     let spec = r.mech.spec();
     let cal = r.cal;
-    // Parameter groups by unit (offsets in mrad for readability).
-    let mut groups: Vec<(String, Vec<ParamBar>)> = vec![
-        ("lengths and positions (mm)".into(), vec![]),
-        ("encoder offsets (mrad)".into(), vec![]),
-        ("stiffness (N·m/rad)".into(), vec![]),
-    ];
+    // Parameter groups by kind and unit (angles in mrad for readability).
+    let mut groups: Vec<(String, Vec<ParamBar>)> = vec![];
+    let mut keys: Vec<(pkmcal::ParamKind, pkmcal::Unit)> = vec![];
     for p in cal.parameters.iter().filter(|p| p.free) {
-        let (g, f) = match p.unit.as_str() {
-            "mm" => (0, 1.0),
-            "rad" => (1, 1e3),
-            _ => (2, 1.0),
+        let (f, symbol) = match p.unit {
+            pkmcal::Unit::Radian => (1e3, "mrad"),
+            u => (1.0, u.symbol()),
+        };
+        let key = (p.kind, p.unit);
+        let g = match keys.iter().position(|k| *k == key) {
+            Some(g) => g,
+            None => {
+                keys.push(key);
+                let what = match p.kind {
+                    pkmcal::ParamKind::Geometry => p.unit.group_name(),
+                    k => k.name(),
+                };
+                groups.push((format!("{what} ({symbol})"), vec![]));
+                groups.len() - 1
+            }
         };
         groups[g].1.push(ParamBar {
             name: p.name.clone(),
@@ -106,7 +115,7 @@ pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
     let standardized: Vec<f64> = r.after.iter().flatten().map(|e| -e / sigma).collect();
     let lattice_targets: Vec<Vec<f64>> = lattice.iter().map(|p| p.target.clone()).collect();
     let mut out = vec![
-        figures::errors_per_pose(r.before, r.after, &spec.tool_axes)?,
+        figures::errors_per_pose(r.before, r.after, &spec.tool_axes, &spec.tool_units)?,
         figures::parameter_changes(&groups)?,
         figures::workspace_errors(&lattice_targets, &positions, r.before, r.after)?,
     ];
@@ -246,7 +255,7 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
             h,
             "<tr{class}><td>{}</td><td>{}</td><td>{:.6}</td><td>{:.8}</td><td>{:+.4e}</td><td>{}</td><td>{}</td></tr>",
             escape(&p.name),
-            escape(&p.unit),
+            escape(p.unit.symbol()),
             p.nominal,
             p.identified,
             p.change,

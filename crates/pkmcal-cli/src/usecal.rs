@@ -307,7 +307,8 @@ pub struct MonteCarloConfig {
     pub free: Option<String>,
     pub fix: Option<String>,
     pub length_error: f64,
-    pub offset_error: f64,
+    pub angle_error: f64,
+    pub angle_noise: Option<f64>,
     pub validation: usize,
     pub out: Option<PathBuf>,
     pub quiet: bool,
@@ -319,10 +320,10 @@ pub fn run_montecarlo(c: MonteCarloConfig) -> Result<()> {
     if c.runs == 0 {
         bail!("--runs must be at least 1");
     }
+    let noise = crate::io::noise_arg(c.noise, c.angle_noise)?;
     for (v, name) in [
-        (c.noise, "--noise"),
         (c.length_error, "--length-error"),
-        (c.offset_error, "--offset-error"),
+        (c.angle_error, "--angle-error"),
     ] {
         if !(v.is_finite() && v >= 0.0) {
             bail!("{name} must be a non-negative number");
@@ -346,10 +347,10 @@ pub fn run_montecarlo(c: MonteCarloConfig) -> Result<()> {
     let bar = crate::io::progress(c.runs as u64, c.quiet, "calibrations", 1);
     let opts = MonteCarloOptions {
         runs: c.runs,
-        noise: c.noise,
+        noise,
         seed: c.seed,
         length_error: c.length_error,
-        offset_error: c.offset_error,
+        angle_error: c.angle_error,
         calibration: cal,
     };
     let start = std::time::Instant::now();
@@ -366,8 +367,15 @@ pub fn run_montecarlo(c: MonteCarloConfig) -> Result<()> {
         summary.runs as f64 / secs
     );
     println!(
-        "random errors: σ {} mm on free lengths and positions, σ {} rad on encoder offsets; noise σ {} mm",
-        c.length_error, c.offset_error, c.noise
+        "random errors: σ {} mm on free parameters in mm, σ {} rad on free parameters in rad; noise σ {} mm on lengths{}",
+        c.length_error,
+        c.angle_error,
+        noise.length,
+        if spec.tool_units.contains(&pkmcal::Unit::Radian) {
+            format!(", {} rad on angles", noise.angle)
+        } else {
+            String::new()
+        }
     );
     println!(
         "accuracy on {} unseen poses after calibration: RMS median {:.4} mm, 95th percentile {:.4} mm; max error median {:.4} mm",
@@ -379,7 +387,7 @@ pub fn run_montecarlo(c: MonteCarloConfig) -> Result<()> {
     println!("parameter errors (RMS over runs):");
     for (n, e) in summary.parameters.iter().zip(&summary.parameter_rms_error) {
         let i = spec.param_index(n)?;
-        println!("  {n:<6} {e:>12.4e} {}", pkmcal::calibration::unit(spec, i));
+        println!("  {n:<6} {e:>12.4e} {}", spec.param_unit(i));
     }
     if let Some(out) = &c.out {
         let mut header = vec![

@@ -21,13 +21,13 @@ fn example(name: &str) -> String {
     )
 }
 
-/// The largest `dmax` of the summary line that starts with `label`.
-fn dmax(summary: &str, label: &str) -> f64 {
-    let line = summary
-        .lines()
-        .find(|l| l.trim_start().starts_with(label))
-        .unwrap_or_else(|| panic!("no `{label}` in:\n{summary}"));
-    line.split_whitespace().last().unwrap().parse().unwrap()
+/// The largest error of a report's validation statistics (`before` or
+/// `after`): the distance error (mm) and, for tools with an orientation, the
+/// angle error (rad).
+fn worst(report: &serde_json::Value, which: &str) -> f64 {
+    let s = &report["validation"]["accuracy"][which];
+    let d = s["distance_max"].as_f64().unwrap();
+    s["angle_max"].as_f64().map_or(d, |a| d.max(a))
 }
 
 fn end_to_end(name: &str, truth: &str, poses: &str) {
@@ -64,17 +64,24 @@ fn end_to_end(name: &str, truth: &str, poses: &str) {
                 "val.csv",
                 "--out",
                 "cal.toml",
+                "--report",
+                "cal.json",
             ][..],
             &m,
         ]
         .concat(),
     );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("cal.json")).unwrap()).unwrap();
     assert!(
-        dmax(&summary, "validation, before") > UNCALIBRATED_MIN,
+        report["validation"]["accuracy"]["before"]["distance_max"]
+            .as_f64()
+            .unwrap()
+            > UNCALIBRATED_MIN,
         "{name}: {summary}"
     );
     assert!(
-        dmax(&summary, "validation, after") < CALIBRATED_MAX,
+        worst(&report, "after") < CALIBRATED_MAX,
         "{name}: {summary}"
     );
     // Compensate the validation targets with the calibrated parameters and
@@ -223,12 +230,13 @@ fn gough_stewart_measured_at_target_points() {
             "val.csv",
             "--out",
             "cal.toml",
+            "--report",
+            "cal.json",
         ],
     );
-    assert!(
-        dmax(&summary, "validation, after") < CALIBRATED_MAX,
-        "{summary}"
-    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("cal.json")).unwrap()).unwrap();
+    assert!(worst(&report, "after") < CALIBRATED_MAX, "{summary}");
     let cal = std::fs::read_to_string(d.join("cal.toml")).unwrap();
     assert!(cal.contains("dL2") && !cal.contains("t1x"), "{cal}");
 }

@@ -78,10 +78,10 @@ fn bench(c: &mut Criterion) {
             .unwrap();
         let opts = MonteCarloOptions {
             runs: 100,
-            noise: 0.002,
+            noise: 0.002.into(),
             seed: 1,
             length_error: 0.3,
-            offset_error: 1e-3,
+            angle_error: 1e-3,
             calibration: CalibrationOptions::new(spec, Model::Exact),
         };
         g.bench_function(format!("exact_{threads}_cores"), |b| {

@@ -12,6 +12,7 @@
 
 use crate::error::{Error, Result};
 use crate::mechanism::{Mechanism, Scalar, Spec};
+use crate::units::Unit;
 use nalgebra::{DMatrix, DVector};
 
 /// Where the sockets are and what the bar reads.
@@ -177,6 +178,8 @@ impl<M: Mechanism> BallBar<M> {
         let mut nominal = s.nominal[..ng].to_vec();
         nominal.extend(&values);
         nominal.extend(&s.nominal[ng..]);
+        let mut geometric_units = s.geometric_units.clone();
+        geometric_units.extend(std::iter::repeat_n(Unit::Millimetre, names.len()));
         let mut geometric = s.geometric.clone();
         geometric.extend(names);
         let spec = Spec {
@@ -186,6 +189,8 @@ impl<M: Mechanism> BallBar<M> {
                 setup.sockets.len()
             ),
             geometric,
+            geometric_units,
+            tool_units: vec![Unit::Millimetre; setup.sockets.len()],
             tool_axes: (1..=setup.sockets.len()).map(|j| format!("d{j}")).collect(),
             nominal,
             workspace_box: vec![[0.0, 1.0]; setup.sockets.len()],

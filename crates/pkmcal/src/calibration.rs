@@ -10,6 +10,7 @@ use crate::models::{Model, Pose, Prediction, predict_pose_warm, prepare_pose};
 use crate::sensitivity::{sensitivity, sensitivity_at};
 use crate::simulate::Measurement;
 use crate::stats::{ErrorStats, error_stats, improvement_percent};
+use crate::units::{ParamKind, Unit};
 use nalgebra::{DMatrix, DVector};
 use rand::SeedableRng;
 use rand::rngs::StdRng;
@@ -520,8 +521,10 @@ fn direction(names: &[&str], free: &[usize], d: &[f64], fixed: Option<String>) -
 pub struct ParameterResult {
     /// Name.
     pub name: String,
-    /// Unit (mm, rad, N·m/rad).
-    pub unit: String,
+    /// Unit of the values (declared by the mechanism).
+    pub unit: Unit,
+    /// Role of the parameter (geometry, encoder offset, stiffness, instrument).
+    pub kind: ParamKind,
     /// Nominal value.
     pub nominal: f64,
     /// Identified value (the starting value if fixed).
@@ -600,19 +603,6 @@ pub struct Calibration {
     pub residuals: Vec<f64>,
     /// Warnings.
     pub warnings: Vec<Warning>,
-}
-
-/// Unit of a parameter.
-pub fn unit(spec: &Spec, index: usize) -> &'static str {
-    let ng = spec.n_geometric();
-    let na = spec.n_actuated();
-    if index < ng {
-        "mm"
-    } else if index < ng + na {
-        "rad"
-    } else {
-        "N·m/rad"
-    }
 }
 
 /// Identify the free parameters from measurements (eq. 12), starting from
@@ -890,7 +880,8 @@ fn calibrate_once<M: Mechanism>(
         };
         parameters.push(ParameterResult {
             name: name.to_string(),
-            unit: unit(spec, i).into(),
+            unit: spec.param_unit(i),
+            kind: spec.param_kind(i),
             nominal: spec.nominal[i],
             identified: params.values[i],
             change: params.values[i] - spec.nominal[i],
@@ -1069,8 +1060,9 @@ pub fn accuracy<M: Mechanism>(
         .zip(&pred)
         .map(|(m, p)| m.measured.iter().zip(p).map(|(a, b)| a - b).collect())
         .collect();
-    let b = error_stats(&before);
-    let a = error_stats(&after);
+    let units = &mech.spec().tool_units;
+    let b = error_stats(&before, units);
+    let a = error_stats(&after, units);
     Ok((
         Accuracy {
             poses: data.len(),
@@ -1167,6 +1159,6 @@ pub fn cross_validate_with_progress<M: Mechanism>(
     Ok(CrossValidation {
         folds,
         fold_rms,
-        pooled: error_stats(&pooled),
+        pooled: error_stats(&pooled, &mech.spec().tool_units),
     })
 }

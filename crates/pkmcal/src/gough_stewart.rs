@@ -20,6 +20,7 @@
 
 use crate::error::{Error, Result};
 use crate::mechanism::{Mechanism, Scalar, Spec};
+use crate::units::Unit;
 use serde::Deserialize;
 use std::collections::BTreeMap;
 
@@ -28,6 +29,16 @@ const ATLAS_POINTS: usize = 800;
 
 /// Names of the pose coordinates, in order.
 pub const POSE_AXES: [&str; 6] = ["x", "y", "z", "rx", "ry", "rz"];
+
+/// Units of the pose coordinates, in order.
+pub const POSE_UNITS: [Unit; 6] = [
+    Unit::Millimetre,
+    Unit::Millimetre,
+    Unit::Millimetre,
+    Unit::Radian,
+    Unit::Radian,
+    Unit::Radian,
+];
 
 /// One leg: joint centres and axial stiffness.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
@@ -167,6 +178,11 @@ impl GoughStewart {
                 offsets,
                 stiffness: (1..=n).map(|i| format!("k{i}")).collect(),
                 tool_axes,
+                joint_units: std::iter::repeat_n(Unit::Millimetre, n + 3)
+                    .chain([Unit::Radian; 3])
+                    .collect(),
+                geometric_units: vec![Unit::Millimetre; 6 * n],
+                tool_units: POSE_UNITS.to_vec(),
                 nominal,
                 reference_q: vec![0.0; n + 6],
                 default_free: free,
@@ -303,7 +319,7 @@ impl<M: Mechanism> PointTargets<M> {
     /// Wrap `inner`, measured at `targets` (platform frame, mm).
     pub fn new(inner: M, targets: &[[f64; 3]]) -> Result<Self> {
         let s = inner.spec().clone();
-        if s.tool_axes != POSE_AXES {
+        if s.tool_axes != POSE_AXES || s.tool_units != POSE_UNITS {
             return Err(Error::InvalidMechanism(format!(
                 "target points need a mechanism whose tool is a spatial pose (x y z rx ry rz); `{}` has {}",
                 s.name,
@@ -331,9 +347,13 @@ impl<M: Mechanism> PointTargets<M> {
             .iter()
             .flat_map(|_| s.workspace_box[..3].to_vec())
             .collect();
+        let mut geometric_units = s.geometric_units.clone();
+        geometric_units.extend(std::iter::repeat_n(Unit::Millimetre, 3 * targets.len()));
         let spec = Spec {
             name: format!("{} measured at {} target point(s)", s.name, targets.len()),
             geometric,
+            geometric_units,
+            tool_units: vec![Unit::Millimetre; tool_axes.len()],
             tool_axes,
             nominal,
             workspace_box: box_,

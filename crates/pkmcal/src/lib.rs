@@ -52,6 +52,7 @@ pub mod reference;
 pub mod sensitivity;
 pub mod simulate;
 pub mod stats;
+pub mod units;
 pub mod workspace;
 
 pub use any::AnyMechanism;
@@ -79,8 +80,9 @@ pub use montecarlo::{MonteCarloOptions, MonteCarloSummary, monte_carlo};
 pub use planar::{PlanarDescription, PlanarLinkage};
 pub use planning::{PlanCriterion, candidate_jacobians, plan_observability, plan_poses};
 pub use reference::JeongKim2Dof;
-pub use simulate::{Measurement, simulate, simulate_with_progress};
+pub use simulate::{Measurement, Noise, simulate, simulate_with_progress};
 pub use stats::{ErrorStats, error_stats, improvement_percent};
+pub use units::{ParamKind, Quantity, Unit};
 pub use workspace::{
     WorkspacePoint, grid_targets, nominal_commands, random_targets, sample_workspace,
     spread_targets,

@@ -11,6 +11,7 @@
 //! gives the names in that order.
 
 use crate::error::{Error, Result};
+use crate::units::{ParamKind, Unit};
 use num_dual::DualNum;
 
 /// The scalar type mechanism functions are written for: `f64` or a dual number.
@@ -37,8 +38,16 @@ pub struct Spec {
     pub offsets: Vec<String>,
     /// Names of the stiffness parameters, one per actuated joint.
     pub stiffness: Vec<String>,
-    /// Names of the tool coordinates (`x`, `y`, …), in mm.
+    /// Names of the tool coordinates (`x`, `y`, …).
     pub tool_axes: Vec<String>,
+    /// Unit of each joint coordinate (rad for revolute, mm for prismatic
+    /// joints and positions); encoder offsets take their joint's unit and
+    /// stiffness the matching N·m/rad or N/mm.
+    pub joint_units: Vec<Unit>,
+    /// Unit of each geometric parameter.
+    pub geometric_units: Vec<Unit>,
+    /// Unit of each tool coordinate (mm for positions, rad for orientations).
+    pub tool_units: Vec<Unit>,
     /// Nominal values of all parameters, in [`Spec::param_names`] order.
     pub nominal: Vec<f64>,
     /// A configuration of the nominal mechanism on the wanted assembly branch.
@@ -102,6 +111,34 @@ impl Spec {
                 name: name.to_string(),
                 known: self.param_names().join(" "),
             })
+    }
+    /// Kind of parameter `i` (in [`Spec::param_names`] order).
+    pub fn param_kind(&self, i: usize) -> ParamKind {
+        let (ng, na) = (self.n_geometric(), self.n_actuated());
+        if i < ng {
+            ParamKind::Geometry
+        } else if i < ng + na {
+            ParamKind::Offset
+        } else {
+            ParamKind::Stiffness
+        }
+    }
+    /// Unit of parameter `i` (in [`Spec::param_names`] order): declared for
+    /// the geometry, the actuated joint's unit for an offset, N·m/rad or N/mm
+    /// for a stiffness.
+    pub fn param_unit(&self, i: usize) -> Unit {
+        let (ng, na) = (self.n_geometric(), self.n_actuated());
+        if i < ng {
+            self.geometric_units[i]
+        } else if i < ng + na {
+            self.joint_units[self.actuated[i - ng]]
+        } else {
+            self.joint_units[self.actuated[i - ng - na]].stiffness_of_joint()
+        }
+    }
+    /// Unit of each actuator command (its joint's unit), in actuator order.
+    pub fn command_units(&self) -> Vec<Unit> {
+        self.actuated.iter().map(|&j| self.joint_units[j]).collect()
     }
     /// [`Spec::joint_scale`] of joint `j`.
     pub fn joint_scale(&self, j: usize) -> f64 {
@@ -167,6 +204,28 @@ impl Spec {
                 self.reference_q.len(),
                 nq
             ));
+        }
+        if self.joint_units.len() != nq
+            || self.geometric_units.len() != self.geometric.len()
+            || self.tool_units.len() != self.tool_axes.len()
+        {
+            return bad(format!(
+                "units are needed for every joint ({nq}), geometric parameter ({}) and tool axis ({}); got {}, {} and {}",
+                self.geometric.len(),
+                self.tool_axes.len(),
+                self.joint_units.len(),
+                self.geometric_units.len(),
+                self.tool_units.len()
+            ));
+        }
+        if self
+            .joint_units
+            .iter()
+            .chain(&self.geometric_units)
+            .chain(&self.tool_units)
+            .any(|u| !matches!(u, Unit::Millimetre | Unit::Radian))
+        {
+            return bad("joints, geometric parameters and tool axes are in mm or rad".into());
         }
         if !(self.work_scale.is_finite() && self.work_scale > 0.0) {
             return bad("work_scale must be a positive number".into());

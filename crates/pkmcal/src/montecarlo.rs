@@ -5,8 +5,9 @@
 use crate::calibration::{CalibrationOptions, accuracy, calibrate};
 use crate::error::Result;
 use crate::mechanism::{Mechanism, Params};
-use crate::simulate::simulate;
+use crate::simulate::{Noise, simulate};
 use crate::stats::ErrorStats;
+use crate::units::{ParamKind, Unit};
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 use rand_distr::{Distribution, Normal};
@@ -18,14 +19,16 @@ use serde::Serialize;
 pub struct MonteCarloOptions {
     /// Number of simulated calibrations.
     pub runs: usize,
-    /// Measurement noise, mm per axis.
-    pub noise: f64,
+    /// Measurement noise per kind of coordinate.
+    pub noise: Noise,
     /// Seed; run `r` uses `seed + r`.
     pub seed: u64,
-    /// Standard deviation of the random errors of free geometric parameters (mm).
+    /// Standard deviation of the random errors of the free parameters in mm
+    /// (lengths, positions, offsets of prismatic actuators).
     pub length_error: f64,
-    /// Standard deviation of the random encoder offsets (rad).
-    pub offset_error: f64,
+    /// Standard deviation of the random errors of the free parameters in rad
+    /// (encoder offsets of revolute actuators, axis angles).
+    pub angle_error: f64,
     /// Calibration settings (model, free set).
     pub calibration: CalibrationOptions,
 }
@@ -81,26 +84,25 @@ pub fn monte_carlo<M: Mechanism>(
     let spec = mech.spec();
     let nominal = Params::nominal(spec);
     let free = &opts.calibration.free;
-    let ng = spec.n_geometric();
-    let na = spec.n_actuated();
     let runs: Vec<Result<Run>> = (0..opts.runs)
         .into_par_iter()
         .map(|r| {
             let seed = opts.seed.wrapping_add(r as u64);
             let mut rng = StdRng::seed_from_u64(seed);
             let len = Normal::new(0.0, opts.length_error.max(0.0)).expect("valid σ");
-            let off = Normal::new(0.0, opts.offset_error.max(0.0)).expect("valid σ");
+            let ang = Normal::new(0.0, opts.angle_error.max(0.0)).expect("valid σ");
             let mut truth = nominal.clone();
             for &i in free {
-                if i < ng {
-                    truth.values[i] += len.sample(&mut rng);
-                } else if i < ng + na {
-                    truth.values[i] += off.sample(&mut rng);
+                // Stiffness stays nominal: its errors are a separate question.
+                match (spec.param_kind(i), spec.param_unit(i)) {
+                    (ParamKind::Stiffness, _) => {}
+                    (_, Unit::Radian) => truth.values[i] += ang.sample(&mut rng),
+                    _ => truth.values[i] += len.sample(&mut rng),
                 }
             }
             let data = simulate(mech, &truth, poses, opts.noise, seed ^ 0x9e37_79b9)?;
             let cal = calibrate(mech, &data, &nominal, &opts.calibration)?;
-            let unseen = simulate(mech, &truth, validation, 0.0, seed)?;
+            let unseen = simulate(mech, &truth, validation, Noise::NONE, seed)?;
             let (acc, _, _) = accuracy(mech, &unseen, &cal.params, opts.calibration.model, &[])?;
             progress();
             Ok(Run {

@@ -30,6 +30,7 @@
 use crate::error::{Error, Result};
 use crate::kinematics::{checked_lu, solve_closure};
 use crate::mechanism::{Mechanism, Scalar, Spec};
+use crate::units::Unit;
 use serde::Deserialize;
 use std::collections::BTreeMap;
 
@@ -176,11 +177,12 @@ pub struct PlanarLinkage {
 struct Names<'a> {
     names: Vec<String>,
     values: Vec<f64>,
+    units: Vec<Unit>,
     given: &'a BTreeMap<String, f64>,
 }
 
 impl Names<'_> {
-    fn add(&mut self, v: &Value, derived: String) -> Result<usize> {
+    fn add(&mut self, v: &Value, derived: String, unit: Unit) -> Result<usize> {
         let (name, value) = match v {
             Value::Number(x) => (derived, *x),
             Value::Name(n) => {
@@ -203,10 +205,16 @@ impl Names<'_> {
                     "the derived parameter name `{name}` is already used; rename that parameter"
                 )));
             }
+            if self.units[i] != unit {
+                return Err(Error::InvalidMechanism(format!(
+                    "parameter `{name}` is used as a length (mm) and as an angle (rad); give the two numbers different names"
+                )));
+            }
             return Ok(i);
         }
         self.names.push(name);
         self.values.push(value);
+        self.units.push(unit);
         Ok(self.names.len() - 1)
     }
 }
@@ -232,6 +240,7 @@ impl PlanarLinkage {
         let mut names = Names {
             names: vec![],
             values: vec![],
+            units: vec![],
             given: &d.parameters,
         };
         let mut joints = Vec::with_capacity(d.joints.len());
@@ -259,13 +268,14 @@ impl PlanarLinkage {
                 ));
             }
             let at = [
-                names.add(&j.at[0], format!("{}.x", j.name))?,
-                names.add(&j.at[1], format!("{}.y", j.name))?,
+                names.add(&j.at[0], format!("{}.x", j.name), Unit::Millimetre)?,
+                names.add(&j.at[1], format!("{}.y", j.name), Unit::Millimetre)?,
             ];
             let axis = match j.kind {
                 JointKind::Prismatic => Some(names.add(
                     j.axis.as_ref().unwrap_or(&Value::Number(0.0)),
                     format!("{}.axis", j.name),
+                    Unit::Radian,
                 )?),
                 JointKind::Revolute => {
                     if j.axis.is_some() {
@@ -296,13 +306,14 @@ impl PlanarLinkage {
                         ))
                     })?;
                     let child_at = [
-                        names.add(&ca[0], format!("{}.cx", j.name))?,
-                        names.add(&ca[1], format!("{}.cy", j.name))?,
+                        names.add(&ca[0], format!("{}.cx", j.name), Unit::Millimetre)?,
+                        names.add(&ca[1], format!("{}.cy", j.name), Unit::Millimetre)?,
                     ];
                     let child_angle = match j.kind {
                         JointKind::Prismatic => Some(names.add(
                             j.child_angle.as_ref().unwrap_or(&Value::Number(0.0)),
                             format!("{}.child_angle", j.name),
+                            Unit::Radian,
                         )?),
                         JointKind::Revolute => None,
                     };
@@ -333,8 +344,8 @@ impl PlanarLinkage {
                 ))
             })?;
         let tool_at = [
-            names.add(&d.tool.at[0], "tool.x".into())?,
-            names.add(&d.tool.at[1], "tool.y".into())?,
+            names.add(&d.tool.at[0], "tool.x".into(), Unit::Millimetre)?,
+            names.add(&d.tool.at[1], "tool.y".into(), Unit::Millimetre)?,
         ];
         for n in d.parameters.keys() {
             if !names.names.contains(n) {
@@ -455,6 +466,25 @@ impl PlanarLinkage {
                 geometric,
                 offsets,
                 stiffness: stiffness_names,
+                joint_units: d
+                    .joints
+                    .iter()
+                    .map(|j| match j.kind {
+                        JointKind::Revolute => Unit::Radian,
+                        JointKind::Prismatic => Unit::Millimetre,
+                    })
+                    .collect(),
+                geometric_units: names.units.clone(),
+                tool_units: tool_axes
+                    .iter()
+                    .map(|a| {
+                        if a == "phi" {
+                            Unit::Radian
+                        } else {
+                            Unit::Millimetre
+                        }
+                    })
+                    .collect(),
                 tool_axes,
                 nominal,
                 reference_q: vec![0.0; nq],

@@ -14,6 +14,7 @@
 
 use crate::error::{Error, Result};
 use crate::mechanism::{Mechanism, Scalar, Spec};
+use crate::units::Unit;
 
 /// Geometric parameter names of the reference mechanism, in vector order.
 pub const GEOMETRIC: [&str; 16] = [
@@ -92,6 +93,9 @@ impl JeongKim2Dof {
             offsets: ["dq1", "dq2", "dq3"].map(String::from).to_vec(),
             stiffness: ["k1", "k2", "k3"].map(String::from).to_vec(),
             tool_axes: vec!["x".into(), "y".into()],
+            joint_units: vec![Unit::Radian; 5],
+            geometric_units: vec![Unit::Millimetre; GEOMETRIC.len()],
+            tool_units: vec![Unit::Millimetre; 2],
             nominal,
             reference_q: REFERENCE_Q_DEG.map(f64::to_radians).to_vec(),
             default_free: PAPER_FREE.map(String::from).to_vec(),

@@ -155,10 +155,10 @@ fn monte_carlo_is_seeded_and_reaches_the_noise_floor() {
     let validation = random_targets(&mech, 20, 4).unwrap();
     let opts = MonteCarloOptions {
         runs: 12,
-        noise: 0.002,
+        noise: 0.002.into(),
         seed: 5,
         length_error: 0.3,
-        offset_error: 1e-3,
+        angle_error: 1e-3,
         calibration: CalibrationOptions::new(spec, Model::Linear),
     };
     let count = std::sync::atomic::AtomicUsize::new(0);
