@@ -12,12 +12,14 @@ use serde::Serialize;
 use std::path::{Path, PathBuf};
 
 /// Read a measurement file: commands and measured tool coordinates, optional
-/// targets.
+/// targets and standard deviations.
 pub fn read_data<M: Mechanism>(path: &Path, mech: &M) -> Result<Vec<Measurement>> {
     data_from(&Csv::read(path)?, mech)
 }
 
-/// [`read_data`] from an already parsed table.
+/// [`read_data`] from an already parsed table: every pose carries its σ
+/// (`sigma_<axis>` columns, any subset; or `sigma` for all axes of one unit)
+/// and its origin (pose number and line in the file).
 pub fn data_from<M: Mechanism>(csv: &Csv, mech: &M) -> Result<Vec<Measurement>> {
     let spec = mech.spec();
     csv.require_rows()?;
@@ -39,6 +41,7 @@ pub fn data_from<M: Mechanism>(csv: &Csv, mech: &M) -> Result<Vec<Measurement>> 
     } else {
         None
     };
+    let sigma = sigma_from(csv, mech)?;
     Ok(commands
         .into_iter()
         .zip(measured)
@@ -47,40 +50,116 @@ pub fn data_from<M: Mechanism>(csv: &Csv, mech: &M) -> Result<Vec<Measurement>> 
             target: targets.as_ref().map(|t| t[i].clone()),
             commands: c,
             measured: m,
+            sigma: sigma.as_ref().map_or(vec![], |s| s[i].clone()),
+            origin: Some(pkmcal::Origin {
+                pose: i + 1,
+                line: Some(csv.line(i)),
+            }),
         })
         .collect())
 }
 
-/// Per-pose standard deviations of the measured coordinates from the data
-/// file's `sigma_<axis>` columns (per axis) or `sigma` column (all axes); `None`
-/// when it has neither.
-pub fn sigma_from<M: Mechanism>(csv: &Csv, mech: &M) -> Result<Option<Vec<Vec<f64>>>> {
+/// Per-pose standard deviations of the measured coordinates: `sigma_<axis>`
+/// columns (any subset; the other axes are estimated from the residuals) or
+/// one `sigma` column for every axis when all axes share a unit. `None` when
+/// the file has none.
+pub fn sigma_from<M: Mechanism>(csv: &Csv, mech: &M) -> Result<Option<Vec<Vec<Option<f64>>>>> {
     let spec = mech.spec();
-    let per_axis: Vec<String> = spec
+    let nx = spec.tool_axes.len();
+    let per_axis: Vec<(usize, String)> = spec
         .tool_axes
         .iter()
-        .map(|a| format!("sigma_{a}"))
+        .enumerate()
+        .map(|(k, a)| (k, format!("sigma_{a}")))
+        .filter(|(_, n)| csv.headers.contains(n))
         .collect();
-    let rows = if per_axis.iter().all(|n| csv.headers.contains(n)) {
-        csv.named(&per_axis)?
-    } else if csv.headers.iter().any(|h| h == "sigma") {
+    let unknown: Vec<&String> = csv
+        .headers
+        .iter()
+        .filter(|h| h.starts_with("sigma_") && !per_axis.iter().any(|(_, n)| n == *h))
+        .collect();
+    if !unknown.is_empty() {
+        bail!(
+            "{}: column(s) {} name no measured axis of {}; the measured axes are {} (columns sigma_{})",
+            csv.path.display(),
+            unknown
+                .iter()
+                .map(|s| s.as_str())
+                .collect::<Vec<_>>()
+                .join(", "),
+            spec.name,
+            spec.tool_axes.join(", "),
+            spec.tool_axes.join(", sigma_")
+        );
+    }
+    let common = csv.headers.iter().any(|h| h == "sigma");
+    if common && !per_axis.is_empty() {
+        bail!(
+            "{}: give either one `sigma` column or per-axis `sigma_<axis>` columns, not both",
+            csv.path.display()
+        );
+    }
+    let rows: Vec<Vec<Option<f64>>> = if common {
+        let units = &spec.tool_units;
+        if units.iter().any(|u| *u != units[0]) {
+            bail!(
+                "{}: one `sigma` column cannot hold the noise of {} ({}); give per-axis columns sigma_{} (any subset; the others are estimated)",
+                csv.path.display(),
+                spec.tool_axes.join(", "),
+                units
+                    .iter()
+                    .map(|u| u.symbol())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                spec.tool_axes.join(", sigma_")
+            );
+        }
         csv.named(&["sigma".to_string()])?
             .into_iter()
-            .map(|r| vec![r[0]; spec.tool_axes.len()])
+            .map(|r| vec![Some(r[0]); nx])
             .collect()
-    } else {
+    } else if per_axis.is_empty() {
         return Ok(None);
+    } else {
+        let names: Vec<String> = per_axis.iter().map(|(_, n)| n.clone()).collect();
+        csv.named(&names)?
+            .into_iter()
+            .map(|r| {
+                let mut row = vec![None; nx];
+                for ((k, _), v) in per_axis.iter().zip(r) {
+                    row[*k] = Some(v);
+                }
+                row
+            })
+            .collect()
     };
     for (i, r) in rows.iter().enumerate() {
-        if r.iter().any(|v| *v <= 0.0) {
+        if r.iter().flatten().any(|v| *v <= 0.0) {
             bail!(
-                "{}:{}: standard deviations must be positive, got {r:?}",
+                "{}:{}: standard deviations must be positive, got {}",
                 csv.path.display(),
-                csv.line(i)
+                csv.line(i),
+                r.iter()
+                    .flatten()
+                    .map(|v| v.to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
             );
         }
     }
     Ok(Some(rows))
+}
+
+/// A library error, located in `file` when it names a pose that came from it.
+pub fn located(e: pkmcal::Error, file: &Path) -> anyhow::Error {
+    match e {
+        pkmcal::Error::Pose {
+            pose,
+            line: Some(line),
+            source,
+        } => anyhow::anyhow!("{}:{line}: pose {pose}: {source}", file.display()),
+        e => anyhow::Error::new(e).context(format!("calibrating from {}", file.display())),
+    }
 }
 
 /// Resolve `--free` / `--fix` lists into parameter indices.
@@ -145,9 +224,6 @@ pub struct Validation {
 #[derive(Serialize)]
 pub struct Report<'a> {
     pub pkmcal_version: &'static str,
-    /// Line of each data row (pose numbers count rows in file order).
-    #[serde(skip)]
-    pub lines: Vec<u64>,
     pub mechanism: String,
     pub data: String,
     #[serde(flatten)]
@@ -304,108 +380,43 @@ fn calibrate_on<M: Mechanism>(
     opts.loss = c.loss;
     opts.outlier_threshold = c.outlier_threshold;
     opts.drop_outliers = c.drop_outliers;
-    let sigma = sigma_from(csv, mech)?;
-    let mut train_idx: Vec<usize> = (0..all.len()).collect();
-    let (train, held): (Vec<Measurement>, Option<(String, Vec<Measurement>)>) =
-        match (&c.validate, c.holdout) {
-            (Some(_), Some(_)) => bail!("give either --validate FILE or --holdout F, not both"),
-            (Some(v), None) => (
-                all.clone(),
-                Some((v.display().to_string(), read_data(v, mech)?)),
-            ),
-            (None, Some(f)) => {
-                let (tr, he) = holdout_split(all.len(), f, c.seed)?;
-                train_idx = tr.clone();
-                (
-                    tr.iter().map(|&i| all[i].clone()).collect(),
-                    Some((
-                        format!(
-                            "{} held-out poses of {} (seed {})",
-                            he.len(),
-                            c.data.display(),
-                            c.seed
-                        ),
-                        he.iter().map(|&i| all[i].clone()).collect(),
-                    )),
-                )
-            }
-            (None, None) => (all.clone(), None),
-        };
-    if let Some(sig) = &sigma {
-        opts.sigma = Some(train_idx.iter().flat_map(|&i| sig[i].clone()).collect());
-    }
-    // Pose numbers of the library count the calibration poses; report them in
-    // data-file order with their line, so that a user can find them.
-    let lines: Vec<u64> = csv.rows.iter().map(|r| r.0).collect();
-    let file_pose = |k: usize| train_idx.get(k.wrapping_sub(1)).map_or(k, |&i| i + 1);
-    let mut cal = calibrate(mech, &train, &start, &opts).map_err(|e| {
-        let msg = e.to_string();
-        let located = msg
-            .strip_prefix("pose ")
-            .and_then(|rest| rest.split(|ch: char| !ch.is_ascii_digit()).next())
-            .and_then(|n| n.parse::<usize>().ok())
-            .map(|k| {
-                let p = file_pose(k);
-                format!(
-                    "{}:{}: pose {p}: {}",
-                    c.data.display(),
-                    lines.get(p - 1).copied().unwrap_or(0),
-                    msg.split_once(": ").map_or(msg.as_str(), |x| x.1)
-                )
-            });
-        match located {
-            Some(m) => anyhow::anyhow!(m),
-            None => anyhow::anyhow!(msg).context(format!("calibrating from {}", c.data.display())),
+    // Validation data: a description, the file it came from, the poses.
+    type Held = Option<(String, PathBuf, Vec<Measurement>)>;
+    let (train, held): (Vec<Measurement>, Held) = match (&c.validate, c.holdout) {
+        (Some(_), Some(_)) => bail!("give either --validate FILE or --holdout F, not both"),
+        (Some(v), None) => (
+            all.clone(),
+            Some((v.display().to_string(), v.clone(), read_data(v, mech)?)),
+        ),
+        (None, Some(f)) => {
+            let (tr, he) = holdout_split(all.len(), f, c.seed)?;
+            (
+                tr.iter().map(|&i| all[i].clone()).collect(),
+                Some((
+                    format!(
+                        "{} held-out poses of {} (seed {})",
+                        he.len(),
+                        c.data.display(),
+                        c.seed
+                    ),
+                    c.data.clone(),
+                    he.iter().map(|&i| all[i].clone()).collect(),
+                )),
+            )
         }
-    })?;
-    for o in &mut cal.outliers {
-        o.pose = file_pose(o.pose);
-    }
-    for d in &mut cal.dropped {
-        *d = file_pose(*d);
-    }
-    // Restate the library's outlier warnings with file pose numbers and lines.
-    let mentions = |w: &pkmcal::calibration::Warning| {
-        w.message.contains("robust standard deviations: pose")
-            || w.message.contains("outlier pose(s) dropped")
+        (None, None) => (all.clone(), None),
     };
-    if cal.warnings.iter().any(mentions) {
-        cal.warnings.retain(|w| !mentions(w));
-        let list = cal
-            .outliers
-            .iter()
-            .map(|o| {
-                format!(
-                    "pose {} (line {}, {:.1}σ)",
-                    o.pose,
-                    lines.get(o.pose - 1).copied().unwrap_or(0),
-                    o.standardized
-                )
-            })
-            .collect::<Vec<_>>()
-            .join(", ");
-        let message = if cal.dropped.is_empty() {
-            format!(
-                "{} pose(s) with residuals beyond {} robust standard deviations: {list}",
-                cal.outliers.len(),
-                opts.outlier_threshold
-            )
-        } else {
-            format!(
-                "{} outlier pose(s) dropped before the final fit: {list}",
-                cal.dropped.len()
-            )
-        };
-        cal.warnings.push(pkmcal::calibration::Warning {
-            message,
-            hint: "inspect them; --loss huber or cauchy limits their influence, --drop-outliers refits without them".into(),
-        });
-    }
-    let (acc, before, after) = accuracy(mech, &train, &cal.params, c.model, &opts.force)?;
+    // Every pose carries its data-file number and line, so errors, outliers
+    // and dropped poses name them without translation.
+    let cal = calibrate(mech, &train, &start, &opts).map_err(|e| located(e, &c.data))?;
+    let (acc, before, after) = accuracy(mech, &train, &cal.params, c.model, &opts.force)
+        .map_err(|e| located(e, &c.data))?;
     let validation = match &held {
-        Some((source, data)) => Some(Validation {
+        Some((source, path, data)) => Some(Validation {
             source: source.clone(),
-            accuracy: accuracy(mech, data, &cal.params, c.model, &opts.force)?.0,
+            accuracy: accuracy(mech, data, &cal.params, c.model, &opts.force)
+                .map_err(|e| located(e, path))?
+                .0,
         }),
         None => None,
     };
@@ -436,7 +447,6 @@ fn calibrate_on<M: Mechanism>(
     );
     let params_text = crate::io::params_to_string(plain.spec(), &to_plain(&cal.params), &header);
     let report = Report {
-        lines: lines.clone(),
         pkmcal_version: env!("CARGO_PKG_VERSION"),
         mechanism: spec.name.clone(),
         data: c.data.display().to_string(),
@@ -535,7 +545,47 @@ pub fn print_stats(label: &str, s: &ErrorStats) {
     println!("{row}");
 }
 
-pub fn print_identifiability(id: &Identifiability) {
+/// Values with their units, each in a readable scale (µm, µrad…).
+pub fn with_units(values: &[f64], units: &[pkmcal::Unit]) -> String {
+    values
+        .iter()
+        .zip(units)
+        .map(|(v, u)| {
+            let (f, sym) = u.readable(*v);
+            format!("{:.3} {sym}", v * f)
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// A noise group in words: its σ (estimated or given) and residual RMS.
+pub fn noise_text(g: &pkmcal::NoiseGroup) -> String {
+    let (f, sym) = g.unit.readable(g.sigma);
+    format!(
+        "noise of {} ({}, {} coordinates): σ {:.3} {sym} {}; residual RMS {:.3} {sym}",
+        g.unit.group_name(),
+        g.axes.join(", "),
+        g.count,
+        g.sigma * f,
+        if g.estimated {
+            "estimated from the residuals"
+        } else {
+            "given in the data"
+        },
+        g.residual_rms * f
+    )
+}
+
+/// One line per noise group.
+pub fn print_noise(groups: &[pkmcal::NoiseGroup]) {
+    for g in groups {
+        println!("  {}", noise_text(g));
+    }
+}
+
+/// The identifiability summary; `fixed` says what happened to the parameter
+/// named for each unidentifiable direction ("fixed", "calibrate fixes").
+pub fn print_identifiability(id: &Identifiability, fixed: &str) {
     println!(
         "identifiability: rank {} of {} free, condition number {:.3e}",
         id.rank,
@@ -549,7 +599,7 @@ pub fn print_identifiability(id: &Identifiability) {
     );
     for u in &id.unidentifiable {
         match &u.fixed {
-            Some(f) => println!("  unidentifiable: {}  -> fixed {f}", u.combination),
+            Some(f) => println!("  unidentifiable: {}  -> {fixed} {f}", u.combination),
             None => println!("  unidentifiable: {}", u.combination),
         }
     }
@@ -568,9 +618,10 @@ fn print_summary(r: &Report, axes: &[String], units: &[pkmcal::Unit]) {
         cal.model.name()
     );
     println!(
-        "{} after {} iterations ({} evaluations); residual σ {:.3e} mm",
-        cal.termination_reason, cal.iterations, cal.evaluations, cal.residual_sigma
+        "{} after {} iterations ({} evaluations); σ of unit weight {:.3}",
+        cal.termination_reason, cal.iterations, cal.evaluations, cal.unit_weight_sigma
     );
+    print_noise(&cal.noise);
     println!();
     println!(
         "  {:<6} {:>14} {:>16} {:>14} {:>12} {:<8}",
@@ -601,7 +652,7 @@ fn print_summary(r: &Report, axes: &[String], units: &[pkmcal::Unit]) {
         .collect();
     println!("  fixed: {}", fixed.join(" "));
     println!();
-    print_identifiability(&cal.identifiability);
+    print_identifiability(&cal.identifiability, "fixed");
     for c in &cal.correlations {
         println!(
             "  correlated at the solution: {} and {} (r = {:+.3})",
@@ -637,23 +688,20 @@ fn print_summary(r: &Report, axes: &[String], units: &[pkmcal::Unit]) {
         );
         print_stats("cross-validation pooled", &cv.pooled);
     }
-    if cal.loss != pkmcal::Loss::Squared || !cal.outliers.is_empty() {
-        println!(
-            "  loss {:?}; robust residual scale {:.3e}",
-            cal.loss, cal.robust_scale
-        );
+    if cal.loss != pkmcal::Loss::Squared {
+        println!("  loss {:?}", cal.loss);
     }
     for o in &cal.outliers {
         println!(
-            "  outlier: pose {} (line {}) residual {:?} mm ({:.1} robust σ){}",
-            o.pose,
-            r.lines.get(o.pose.wrapping_sub(1)).copied().unwrap_or(0),
-            o.residual
-                .iter()
-                .map(|v| (v * 1e6).round() / 1e6)
-                .collect::<Vec<_>>(),
+            "  outlier: pose {}{} residual {} ({:.1} robust σ){}",
+            o.origin.pose,
+            o.origin
+                .line
+                .map(|l| format!(" (line {l})"))
+                .unwrap_or_default(),
+            with_units(&o.residual, &o.units),
             o.standardized,
-            if cal.dropped.contains(&o.pose) {
+            if cal.dropped.contains(&o.origin) {
                 ", dropped"
             } else {
                 ""
@@ -717,7 +765,7 @@ fn analyze_on<M: Mechanism>(mech: &M, c: &AnalyzeConfig, csv: &Csv) -> Result<()
             .collect::<Vec<_>>()
             .join(" ")
     );
-    print_identifiability(&id);
+    print_identifiability(&id, "calibrate fixes");
     println!(
         "  singular values (column-scaled): {}",
         id.singular_values

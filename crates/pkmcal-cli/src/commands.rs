@@ -512,11 +512,11 @@ pub fn demo(a: DemoArgs) -> Result<()> {
             "{name:>6} model: {} ({} iterations), residual σ {:.2} µm",
             cal.termination_reason,
             cal.iterations,
-            cal.residual_sigma * 1e3
+            cal.noise.first().map_or(0.0, |g| g.sigma) * 1e3
         );
         if model == Model::Exact {
             print!("  ");
-            print_identifiability(&cal.identifiability);
+            print_identifiability(&cal.identifiability, "fixed");
         }
         for w in &cal.warnings {
             println!("  warning: {}", w.message);

@@ -111,8 +111,13 @@ pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
         })
         .collect();
     let map_points: Vec<Vec<f64>> = maps.iter().map(|m| m.0.clone()).collect();
-    let sigma = cal.residual_sigma.max(f64::MIN_POSITIVE);
-    let standardized: Vec<f64> = r.after.iter().flatten().map(|e| -e / sigma).collect();
+    let unit_weight = cal.unit_weight_sigma.max(f64::MIN_POSITIVE);
+    let standardized: Vec<f64> = cal
+        .residuals
+        .iter()
+        .zip(&cal.sigmas)
+        .map(|(e, s)| e / s / unit_weight)
+        .collect();
     let lattice_targets: Vec<Vec<f64>> = lattice.iter().map(|p| p.target.clone()).collect();
     let mut out = vec![
         figures::errors_per_pose(r.before, r.after, &spec.tool_axes, &spec.tool_units)?,
@@ -192,7 +197,7 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
     );
     let _ = write!(
         h,
-        "<table class=\"kv\"><tr><td>mechanism</td><td>{}</td></tr><tr><td>joints</td><td>{} (actuated: {})</td></tr><tr><td>data</td><td>{} ({} poses)</td></tr><tr><td>model</td><td>{}</td></tr><tr><td>solver</td><td>{} after {} iterations, {} evaluations</td></tr><tr><td>residual σ</td><td>{:.3e} mm</td></tr><tr><td>pkmcal</td><td>{}</td></tr></table>",
+        "<table class=\"kv\"><tr><td>mechanism</td><td>{}</td></tr><tr><td>joints</td><td>{} (actuated: {})</td></tr><tr><td>data</td><td>{} ({} poses)</td></tr><tr><td>model</td><td>{}</td></tr><tr><td>solver</td><td>{} after {} iterations, {} evaluations</td></tr><tr><td>noise</td><td>{}</td></tr><tr><td>pkmcal</td><td>{}</td></tr></table>",
         escape(&spec.name),
         escape(&spec.joints.join(", ")),
         escape(&spec.actuated_names().join(", ")),
@@ -206,7 +211,11 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
         escape(&cal.termination_reason),
         cal.iterations,
         cal.evaluations,
-        cal.residual_sigma,
+        cal.noise
+            .iter()
+            .map(|g| escape(&crate::calibrate::noise_text(g)))
+            .collect::<Vec<_>>()
+            .join("<br>"),
         env!("CARGO_PKG_VERSION")
     );
     for w in &cal.warnings {

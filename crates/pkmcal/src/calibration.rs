@@ -7,8 +7,9 @@ use crate::error::{Error, Result};
 use crate::lm::{self, Problem, Termination};
 use crate::mechanism::{Mechanism, Params, Spec};
 use crate::models::{Model, Pose, Prediction, predict_pose_warm, prepare_pose};
+use crate::noise::{NoiseGroup, NoiseModel, VCE_MAX_ROUNDS, VCE_TOL, leverages};
 use crate::sensitivity::{sensitivity, sensitivity_at};
-use crate::simulate::Measurement;
+use crate::simulate::{Measurement, Origin, numbered};
 use crate::stats::{ErrorStats, error_stats, improvement_percent};
 use crate::units::{ParamKind, Unit};
 use nalgebra::{DMatrix, DVector};
@@ -17,6 +18,7 @@ use rand::rngs::StdRng;
 use rand::seq::SliceRandom;
 use serde::Serialize;
 use std::cell::RefCell;
+use std::collections::BTreeMap;
 
 /// Singular values below this fraction of the largest (of the column-scaled
 /// identification Jacobian) count as unidentifiable directions.
@@ -63,11 +65,15 @@ impl Loss {
 /// A pose whose residual is far beyond the noise.
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct Outlier {
-    /// Pose number (1-based, in data order).
-    pub pose: usize,
-    /// Residual vector, predicted minus measured (mm, per tool coordinate).
+    /// Where the pose came from (pose number, line).
+    #[serde(flatten)]
+    pub origin: Origin,
+    /// Residual vector, predicted minus measured (per measured coordinate).
     pub residual: Vec<f64>,
-    /// Largest standardised residual |r|/s of the pose (robust scale s).
+    /// Unit of each residual.
+    pub units: Vec<Unit>,
+    /// Largest standardised residual of the pose: `|r/σ|` over its group's
+    /// robust scale.
     pub standardized: f64,
 }
 
@@ -86,9 +92,6 @@ pub struct CalibrationOptions {
     pub free: Vec<usize>,
     /// External force applied to the tool during the measurements (N).
     pub force: Vec<f64>,
-    /// Standard deviation of each residual (pose-major, tool axes inner), mm;
-    /// `None`: all equal.
-    pub sigma: Option<Vec<f64>>,
     /// Fix unidentifiable parameters automatically (with a warning).
     pub auto_fix: bool,
     /// Solver settings (tolerances, bounds; `free` and `weights` are set here).
@@ -109,7 +112,6 @@ impl CalibrationOptions {
                 .filter_map(|n| spec.param_index(n).ok())
                 .collect(),
             force: vec![],
-            sigma: None,
             auto_fix: true,
             solver: lm::Options {
                 ftol: 1e-12,
@@ -129,6 +131,7 @@ type CachedJacobian = (Vec<f64>, DVector<f64>, DMatrix<f64>);
 pub struct IdentificationProblem<'a, M: Mechanism> {
     mech: &'a M,
     poses: Vec<Pose>,
+    origins: Vec<Origin>,
     measured: Vec<Vec<f64>>,
     model: Model,
     force: Vec<f64>,
@@ -143,16 +146,20 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
     /// Prepare every pose (nominal configuration and linearisation).
     pub fn new(mech: &'a M, data: &[Measurement], model: Model, force: &[f64]) -> Result<Self> {
         let mut poses: Vec<Pose> = Vec::with_capacity(data.len());
-        for (i, m) in data.iter().enumerate() {
+        let origins: Vec<Origin> = numbered(data)
+            .iter()
+            .map(|m| m.origin.expect("numbered"))
+            .collect();
+        for (m, origin) in data.iter().zip(&origins) {
             let start = poses.last().map(|p| p.nominal_q.clone());
-            let pose = prepare_pose(mech, &m.commands, start.as_deref()).map_err(|e| {
-                Error::InvalidRequest(format!("pose {} (commands {:?}): {e}", i + 1, m.commands))
-            })?;
+            let pose = prepare_pose(mech, &m.commands, start.as_deref())
+                .map_err(|e| e.at_pose(*origin))?;
             poses.push(pose);
         }
         Ok(Self {
             mech,
             poses,
+            origins,
             measured: data.iter().map(|m| m.measured.clone()).collect(),
             model,
             force: force.to_vec(),
@@ -176,7 +183,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             .map(|(i, pose)| {
                 let warm = cached.as_ref().map(|(_, p)| p[i].q.as_slice());
                 predict_pose_warm(self.mech, pose, params, self.model, &self.force, warm)
-                    .map_err(|e| Error::InvalidRequest(format!("pose {}: {e}", i + 1)))
+                    .map_err(|e| e.at_pose(self.origins[i]))
             })
             .collect();
         drop(cached);
@@ -209,7 +216,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         let predictions = self.predictions(params)?;
         for (i, (pose, pred)) in self.poses.iter().zip(predictions).enumerate() {
             let s = sensitivity_at(self.mech, pose, params, self.model, &self.force, pred)
-                .map_err(|e| Error::InvalidRequest(format!("pose {}: {e}", i + 1)))?;
+                .map_err(|e| e.at_pose(self.origins[i]))?;
             for a in 0..nx {
                 r[i * nx + a] = s.prediction.x[a] - self.measured[i][a];
             }
@@ -539,13 +546,149 @@ pub struct ParameterResult {
     pub note: Option<String>,
 }
 
-/// A warning with what to do about it.
+/// What a warning is about, with its data: the CLI and other callers match on
+/// the kind, never on the message.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum WarningKind {
+    /// All stiffness parameters were free without an external load: only
+    /// their ratios are identifiable, so `fixed` was fixed.
+    StiffnessRatios {
+        /// The stiffness fixed.
+        fixed: String,
+    },
+    /// A direction of parameter space that the data cannot see.
+    Unidentifiable {
+        /// Model used.
+        model: Model,
+        /// The combination, e.g. `0.71·l11 − 0.71·B1x`.
+        combination: String,
+        /// The parameter fixed to remove it, if any.
+        fixed: Option<String>,
+    },
+    /// The fit did not converge.
+    NotConverged {
+        /// The solver's reason.
+        reason: String,
+    },
+    /// The Jacobian at the solution is rank deficient.
+    RankDeficient {
+        /// Its rank.
+        rank: usize,
+        /// Free parameters.
+        free: usize,
+    },
+    /// Poses with residuals beyond the outlier threshold at the final fit.
+    Outliers {
+        /// Where they came from.
+        poses: Vec<Origin>,
+        /// The threshold (robust standard deviations).
+        threshold: f64,
+        /// Whether a robust loss was in use.
+        robust_loss: bool,
+        /// Whether dropping was requested (and stopped at the cap).
+        dropping: bool,
+    },
+    /// Poses dropped as outliers before the final fit.
+    Dropped {
+        /// Where they came from.
+        poses: Vec<Origin>,
+    },
+}
+
+/// A warning: its kind (with data), what happened and what to do.
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct Warning {
+    /// What it is about.
+    #[serde(flatten)]
+    pub kind: WarningKind,
     /// What happened.
     pub message: String,
     /// What to do.
     pub hint: String,
+}
+
+fn pose_list(poses: &[Origin]) -> String {
+    poses
+        .iter()
+        .map(|o| match o.line {
+            Some(l) => format!("pose {} (line {l})", o.pose),
+            None => format!("pose {}", o.pose),
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+impl Warning {
+    /// The warning of `kind`, with its message and hint.
+    pub fn new(kind: WarningKind) -> Self {
+        let (message, hint) = match &kind {
+            WarningKind::StiffnessRatios { fixed } => (
+                format!(
+                    "all stiffness parameters are free without an external load: only their ratios are identifiable, so `{fixed}` is fixed at its starting value"
+                ),
+                format!(
+                    "give `{fixed}` its measured value (--start), or calibrate with a known tool load"
+                ),
+            ),
+            WarningKind::Unidentifiable {
+                model,
+                combination,
+                fixed,
+            } => (
+                match fixed {
+                    Some(f) => format!(
+                        "unidentifiable with the {} model: {combination} (fixed `{f}` at its starting value)",
+                        model.name()
+                    ),
+                    None => format!("unidentifiable with the {} model: {combination}", model.name()),
+                },
+                "these parameters cannot be separated by these measurements at these poses; fix one of them, or add poses or measurements that see them".into(),
+            ),
+            WarningKind::NotConverged { reason } => (
+                format!("the fit did not converge: {reason}"),
+                "check the data for outliers or wrong columns, or start closer".into(),
+            ),
+            WarningKind::RankDeficient { rank, free } => (
+                format!(
+                    "the Jacobian at the solution has rank {rank} for {free} free parameters; their uncertainties are not defined"
+                ),
+                "fix parameters named in the identifiability report".into(),
+            ),
+            WarningKind::Outliers {
+                poses,
+                threshold,
+                robust_loss,
+                dropping,
+            } => (
+                format!(
+                    "{} pose(s) with residuals beyond {threshold} robust standard deviations: {}",
+                    poses.len(),
+                    pose_list(poses)
+                ),
+                if *dropping {
+                    "the drop limit (20 % of the poses) is reached; inspect these measurements".into()
+                } else if *robust_loss {
+                    "the robust loss already limits their influence; inspect them, or refit without them (--drop-outliers)".into()
+                } else {
+                    "inspect them; a robust loss (huber, cauchy) limits their influence, dropping refits without them".into()
+                },
+            ),
+            WarningKind::Dropped { poses } => (
+                format!(
+                    "{} outlier pose(s) dropped before the final fit: {}",
+                    poses.len(),
+                    pose_list(poses)
+                ),
+                "check those measurements (a misread, a bumped instrument) before trusting the result".into(),
+            ),
+        };
+        Self {
+            kind,
+            message,
+            hint,
+        }
+    }
 }
 
 /// Everything a calibration produces.
@@ -562,23 +705,27 @@ pub struct Calibration {
     pub termination_reason: String,
     /// Whether it converged.
     pub converged: bool,
-    /// Solver iterations.
+    /// Solver iterations (of the final fit).
     pub iterations: usize,
-    /// Residual evaluations.
+    /// Residual evaluations (of the final fit).
     pub evaluations: usize,
     /// Number of poses.
     pub poses: usize,
-    /// Weighted residual sum of squares at the solution.
+    /// Sum of squared standardised residuals `Σ (r/σ)²` at the solution.
     pub sum_of_squares: f64,
-    /// Residual standard deviation `√(RSS/(m − n))` (weighted units; mm when
-    /// unweighted).
-    pub residual_sigma: f64,
+    /// Standard deviation of unit weight `√(Σ (r/σ)² / (m − n))`
+    /// (dimensionless): about 1 when the noise levels are right.
+    pub unit_weight_sigma: f64,
+    /// Noise of each group of like coordinates: estimated from the residuals
+    /// or given in the data.
+    pub noise: Vec<NoiseGroup>,
     /// Parameter table.
     pub parameters: Vec<ParameterResult>,
-    /// Identifiability before fitting (at the starting parameters).
+    /// Identifiability (at the starting parameters, or where the actuators
+    /// fight when stiffness is free; see [`calibrate`]).
     pub identifiability: Identifiability,
-    /// Covariance of the free parameters (scaled by the residual variance),
-    /// in `free` order.
+    /// Covariance of the free parameters (scaled by the unit-weight
+    /// variance), in `free` order.
     #[serde(skip)]
     pub covariance: DMatrix<f64>,
     /// Free parameter indices actually identified.
@@ -591,190 +738,304 @@ pub struct Calibration {
     pub correlations: Vec<Correlation>,
     /// Loss used.
     pub loss: Loss,
-    /// Robust scale of the residuals (1.4826 × median absolute deviation of
-    /// the weighted residuals), mm when unweighted.
-    pub robust_scale: f64,
-    /// Poses with residuals beyond the outlier threshold (at the final fit).
+    /// Poses with residuals beyond the outlier threshold: those dropped (with
+    /// their residual when they were dropped), then those left in the final
+    /// fit.
     pub outliers: Vec<Outlier>,
-    /// Poses dropped as outliers before the final fit (1-based).
-    pub dropped: Vec<usize>,
-    /// Residuals at the solution, predicted minus measured, pose-major (mm).
+    /// Poses dropped as outliers before the final fit.
+    pub dropped: Vec<Origin>,
+    /// Residuals at the solution, predicted minus measured, pose-major (each
+    /// in its axis's unit).
     #[serde(skip)]
     pub residuals: Vec<f64>,
+    /// Standard deviation each residual was weighted with (same order).
+    #[serde(skip)]
+    pub sigmas: Vec<f64>,
+    /// Weighted Jacobian of the free parameters at the solution.
+    #[serde(skip)]
+    pub jacobian: DMatrix<f64>,
     /// Warnings.
     pub warnings: Vec<Warning>,
 }
 
+/// Largest share of the poses that dropping outliers may remove.
+pub const MAX_DROPPED_FRACTION: f64 = 0.2;
+
 /// Identify the free parameters from measurements (eq. 12), starting from
-/// `start` (usually nominal). With a robust [`Loss`], iteratively reweighted
-/// least squares: fit, standardise the residuals by their robust scale, reweight
-/// by `ψ(u)/u`, refit from the last solution, until the weights settle. Poses
-/// beyond `outlier_threshold` are reported; with `drop_outliers` they are
-/// removed and the fit repeated.
+/// `start` (usually nominal).
+///
+/// Weighting: each measured coordinate is weighted by 1/σ, its known σ
+/// ([`Measurement::sigma`]) or its group's, estimated from the residuals
+/// ([`crate::noise`]): lengths and angles each get their own.
+/// With a robust [`Loss`], iteratively reweighted least squares: standardise
+/// the residuals by their group's robust scale, reweight by `ψ(u)/u`, refit,
+/// until the weights settle. Poses beyond `outlier_threshold` are reported;
+/// with `drop_outliers` the worst is removed and the fit repeated, until none
+/// is left or [`MAX_DROPPED_FRACTION`] of the poses are gone.
 pub fn calibrate<M: Mechanism>(
     mech: &M,
     data: &[Measurement],
     start: &Params,
     opts: &CalibrationOptions,
 ) -> Result<Calibration> {
-    let nx = mech.spec().tool_axes.len();
-    let base: Vec<f64> = match &opts.sigma {
-        Some(s) => s.clone(),
-        None => vec![1.0; data.len() * nx],
+    let data = numbered(data);
+    check_sigma(mech.spec(), &data)?;
+    let cap = (data.len() as f64 * MAX_DROPPED_FRACTION).floor() as usize;
+    let mut kept = data;
+    let mut dropped: Vec<Origin> = vec![];
+    let mut found: Vec<Outlier> = vec![];
+    loop {
+        let mut cal = calibrate_weighted(mech, &kept, start, opts)?;
+        let more = opts.drop_outliers && !cal.outliers.is_empty() && dropped.len() < cap;
+        if !more {
+            if !dropped.is_empty() {
+                cal.warnings.push(Warning::new(WarningKind::Dropped {
+                    poses: dropped.clone(),
+                }));
+            }
+            if !cal.outliers.is_empty() {
+                cal.warnings.push(Warning::new(WarningKind::Outliers {
+                    poses: cal.outliers.iter().map(|o| o.origin).collect(),
+                    threshold: opts.outlier_threshold,
+                    robust_loss: opts.loss != Loss::Squared,
+                    dropping: opts.drop_outliers,
+                }));
+            }
+            cal.dropped = dropped;
+            found.append(&mut cal.outliers);
+            cal.outliers = found;
+            return Ok(cal);
+        }
+        // Drop the worst pose only, then refit: one gross error can make its
+        // neighbours look bad (masking), and a second one can hide behind it.
+        let worst = cal
+            .outliers
+            .iter()
+            .max_by(|a, b| a.standardized.total_cmp(&b.standardized))
+            .expect("not empty")
+            .clone();
+        kept.retain(|m| m.origin != Some(worst.origin));
+        dropped.push(worst.origin);
+        found.push(worst);
+    }
+}
+
+fn check_sigma(spec: &Spec, data: &[Measurement]) -> Result<()> {
+    let nx = spec.tool_axes.len();
+    for m in data {
+        let origin = m.origin.expect("numbered");
+        if !(m.sigma.is_empty() || m.sigma.len() == nx) {
+            return Err(Error::Dimension {
+                what: "standard deviations of the measured coordinates".into(),
+                expected: nx,
+                got: m.sigma.len(),
+            }
+            .at_pose(origin));
+        }
+        if let Some(s) = m
+            .sigma
+            .iter()
+            .flatten()
+            .find(|s| !(s.is_finite() && **s > 0.0))
+        {
+            return Err(Error::InvalidRequest(format!(
+                "standard deviation {s} must be a positive finite number"
+            ))
+            .at_pose(origin));
+        }
+    }
+    Ok(())
+}
+
+/// One weighted fit: noise groups estimated, robust reweighting, outliers.
+fn calibrate_weighted<M: Mechanism>(
+    mech: &M,
+    data: &[Measurement],
+    start: &Params,
+    opts: &CalibrationOptions,
+) -> Result<Calibration> {
+    let spec = mech.spec();
+    let mut noise = NoiseModel::new(data, &spec.tool_axes, &spec.tool_units);
+    let mut cal = calibrate_once(mech, data, start, opts, &noise.sigmas())?;
+    // The free set and identifiability of the first fit hold for the refits.
+    let mut refit_opts = opts.clone();
+    refit_opts.free = cal.free.clone();
+    refit_opts.auto_fix = false;
+    let refit = |cal: &Calibration, sigma: &[f64]| -> Result<Calibration> {
+        let mut next = calibrate_once(mech, data, &cal.params, &refit_opts, sigma)?;
+        next.identifiability = cal.identifiability.clone();
+        // Identifiability warnings from the first fit, the solver's from
+        // this one.
+        let solver_kind = |w: &Warning| {
+            matches!(
+                w.kind,
+                WarningKind::NotConverged { .. } | WarningKind::RankDeficient { .. }
+            )
+        };
+        let mut warnings: Vec<Warning> = cal
+            .warnings
+            .iter()
+            .filter(|w| !solver_kind(w))
+            .cloned()
+            .collect();
+        warnings.extend(next.warnings.drain(..).filter(solver_kind));
+        next.warnings = warnings;
+        Ok(next)
     };
-    let mut cal = calibrate_once(mech, data, start, opts)?;
-    let mut robust = vec![1.0; base.len()];
-    let mut scale = robust_scale(&cal.residuals, &base);
+    if noise.estimated_groups() > 0 {
+        // One estimated group and nothing given: the weights are uniform
+        // whatever its σ, so one estimate after the fit is exact.
+        let uniform = noise.estimated_groups() == 1 && !noise.any_given();
+        for _ in 0..VCE_MAX_ROUNDS {
+            let h = leverages(&cal.jacobian);
+            let change = noise.update(&cal.residuals, &h);
+            if uniform || change < VCE_TOL {
+                break;
+            }
+            cal = refit(&cal, &noise.sigmas())?;
+        }
+        if !uniform {
+            // The covariance and σ of unit weight under the final weights.
+            cal = refit(&cal, &noise.sigmas())?;
+        } else {
+            rescale(&mut cal, &noise.sigmas());
+        }
+    }
+    let base = noise.sigmas();
+    let keys = noise.keys(&spec.tool_units);
     if opts.loss != Loss::Squared {
+        let mut robust = vec![1.0; base.len()];
         for _ in 0..MAX_REWEIGHTS {
-            let r = cal.residuals.clone();
-            scale = robust_scale(&r, &base);
-            let next: Vec<f64> = r
-                .iter()
-                .zip(&base)
-                .map(|(ri, si)| opts.loss.weight(ri / si / scale.max(f64::MIN_POSITIVE)))
-                .collect();
+            let u = standardized(&cal.residuals, &base, &keys);
+            let next: Vec<f64> = u.iter().map(|ui| opts.loss.weight(*ui)).collect();
             let change = next
                 .iter()
                 .zip(&robust)
                 .map(|(a, b)| (a - b).abs())
                 .fold(0.0, f64::max);
             robust = next;
-            let mut o = opts.clone();
-            o.sigma = Some(
-                base.iter()
-                    .zip(&robust)
-                    .map(|(s, w)| s / w.sqrt())
-                    .collect(),
-            );
-            o.loss = Loss::Squared;
-            cal = calibrate_once(mech, data, &cal.params, &o)?;
+            let sigma: Vec<f64> = base
+                .iter()
+                .zip(&robust)
+                .map(|(s, w)| s / w.max(f64::MIN_POSITIVE).sqrt())
+                .collect();
+            cal = refit(&cal, &sigma)?;
             if change < 1e-3 {
                 break;
             }
         }
+        // Report robust noise levels: the outliers must not inflate them.
+        let scales = group_scales(&cal.residuals, &base, &keys);
+        for (g, s) in noise.sigma.iter_mut().enumerate() {
+            if let Some(f) = scales.get(&g).filter(|f| **f > 0.0) {
+                *s *= f;
+            }
+        }
     }
-    let r = cal.residuals.clone();
-    let outliers = find_outliers(&r, &base, scale, nx, opts.outlier_threshold);
-    let max_drops = data.len() / 5;
-    if opts.drop_outliers && !outliers.is_empty() && max_drops > 0 {
-        // Drop the worst pose only, then refit: one gross error can make its
-        // neighbours look bad under least squares (masking).
-        let worst = outliers
-            .iter()
-            .max_by(|a, b| a.standardized.total_cmp(&b.standardized))
-            .expect("not empty")
-            .clone();
-        let kept: Vec<Measurement> = data
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| i + 1 != worst.pose)
-            .map(|(_, m)| m.clone())
-            .collect();
-        let mut o = opts.clone();
-        o.sigma = opts.sigma.as_ref().map(|s| {
-            s.chunks(nx)
-                .enumerate()
-                .filter(|(i, _)| i + 1 != worst.pose)
-                .flat_map(|(_, c)| c.to_vec())
-                .collect()
-        });
-        let mut refit = calibrate(mech, &kept, start, &o)?;
-        let worst_pose = worst.pose;
-        let original = |k: usize| if k >= worst_pose { k + 1 } else { k };
-        let mut dropped = vec![worst.pose];
-        dropped.extend(refit.dropped.iter().map(|&k| original(k)));
-        let mut found = vec![worst];
-        found.extend(refit.outliers.iter().map(|x| Outlier {
-            pose: original(x.pose),
-            ..x.clone()
-        }));
-        // Only the outermost call reports; inner calls' warnings are replaced.
-        refit
-            .warnings
-            .retain(|w| !w.message.contains("outlier pose(s) dropped"));
-        refit.warnings.push(Warning {
-            message: format!(
-                "{} outlier pose(s) dropped before the final fit: {}",
-                dropped.len(),
-                dropped.iter().map(|p| p.to_string()).collect::<Vec<_>>().join(", ")
-            ),
-            hint: "check those measurements (a misread, a bumped instrument) before trusting the result".into(),
-        });
-        refit.dropped = dropped;
-        refit.outliers = found;
-        return Ok(refit);
-    }
-    if !outliers.is_empty() {
-        cal.warnings.push(Warning {
-            message: format!(
-                "{} pose(s) with residuals beyond {} robust standard deviations: {}",
-                outliers.len(),
-                opts.outlier_threshold,
-                outliers
-                    .iter()
-                    .map(|o| format!("pose {} ({:.1}σ)", o.pose, o.standardized))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ),
-            hint: "inspect them; --loss huber or cauchy limits their influence, --drop-outliers refits without them".into(),
-        });
-    }
+    let u = standardized(&cal.residuals, &base, &keys);
+    cal.outliers = find_outliers(
+        data,
+        &cal.residuals,
+        &u,
+        &spec.tool_units,
+        opts.outlier_threshold,
+    );
+    cal.noise = noise.report(&cal.residuals, &spec.tool_axes, &spec.tool_units);
     cal.loss = opts.loss;
-    cal.robust_scale = scale;
-    cal.outliers = outliers;
     Ok(cal)
 }
 
-/// Residuals below this (mm) are never outliers: on noise-free data the
-/// robust scale is round-off and would flag round-off.
-pub const OUTLIER_FLOOR_MM: f64 = 1e-6;
+/// Scale a calibration's weighted quantities to new uniform-ratio σ: the
+/// solution is unchanged (all weights scale alike), the statistics follow.
+fn rescale(cal: &mut Calibration, sigma: &[f64]) {
+    let f = sigma
+        .first()
+        .map_or(1.0, |s| cal.sigmas.first().map_or(1.0, |o| o / s));
+    cal.sum_of_squares *= f * f;
+    cal.unit_weight_sigma *= f;
+    cal.jacobian.scale_mut(f);
+    cal.sigmas = sigma.to_vec();
+}
 
 /// Reweighting rounds of the robust fit.
 const MAX_REWEIGHTS: usize = 20;
 
-/// 1.4826 × median |r_i/σ_i|: a scale that outliers do not inflate.
-fn robust_scale(r: &[f64], sigma: &[f64]) -> f64 {
-    let mut a: Vec<f64> = r
-        .iter()
-        .zip(sigma)
-        .map(|(ri, si)| (ri / si).abs())
-        .collect();
-    if a.is_empty() {
-        return 0.0;
+/// Residuals below this (mm) are never outliers: on noise-free data the
+/// robust scale is round-off and would flag round-off.
+pub const OUTLIER_FLOOR_MM: f64 = 1e-6;
+/// [`OUTLIER_FLOOR_MM`] for angles (rad).
+pub const OUTLIER_FLOOR_RAD: f64 = 1e-8;
+
+/// Robust scale (1.4826 × median |r/σ|) of each group of residuals.
+fn group_scales(r: &[f64], sigma: &[f64], keys: &[usize]) -> BTreeMap<usize, f64> {
+    let mut scale = BTreeMap::new();
+    for &k in keys {
+        if scale.contains_key(&k) {
+            continue;
+        }
+        let mut v: Vec<f64> = r
+            .iter()
+            .zip(sigma)
+            .zip(keys)
+            .filter(|(_, g)| **g == k)
+            .map(|((a, s), _)| (a / s).abs())
+            .collect();
+        v.sort_by(f64::total_cmp);
+        scale.insert(k, 1.4826 * v[v.len() / 2]);
     }
-    a.sort_by(f64::total_cmp);
-    1.4826 * a[a.len() / 2]
+    scale
 }
 
-fn find_outliers(r: &[f64], sigma: &[f64], scale: f64, nx: usize, threshold: f64) -> Vec<Outlier> {
-    if scale <= 0.0 {
-        return vec![];
-    }
-    r.chunks(nx)
-        .zip(sigma.chunks(nx))
-        .enumerate()
-        .filter_map(|(i, (ri, si))| {
-            let u = ri
-                .iter()
-                .zip(si)
-                .map(|(a, b)| (a / b).abs() / scale)
+/// `|r/σ| / s_g` with `s_g` the robust scale of the residual's group:
+/// lengths and angles are judged each against their own.
+fn standardized(r: &[f64], sigma: &[f64], keys: &[usize]) -> Vec<f64> {
+    let scale = group_scales(r, sigma, keys);
+    r.iter()
+        .zip(sigma)
+        .zip(keys)
+        .map(|((a, s), k)| {
+            let g = scale[k];
+            if g > 0.0 { (a / s).abs() / g } else { 0.0 }
+        })
+        .collect()
+}
+
+fn find_outliers(
+    data: &[Measurement],
+    r: &[f64],
+    u: &[f64],
+    units: &[Unit],
+    threshold: f64,
+) -> Vec<Outlier> {
+    let nx = units.len().max(1);
+    data.iter()
+        .zip(r.chunks(nx).zip(u.chunks(nx)))
+        .filter_map(|(m, (ri, ui))| {
+            let floor = |k: usize| match units[k] {
+                Unit::Radian => OUTLIER_FLOOR_RAD,
+                _ => OUTLIER_FLOOR_MM,
+            };
+            let worst = (0..ri.len())
+                .filter(|&k| ri[k].abs() > floor(k))
+                .map(|k| ui[k])
                 .fold(0.0, f64::max);
-            let big = ri.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            (u > threshold && big > OUTLIER_FLOOR_MM).then(|| Outlier {
-                pose: i + 1,
+            (worst > threshold && worst.is_finite()).then(|| Outlier {
+                origin: m.origin.expect("numbered"),
                 residual: ri.to_vec(),
-                standardized: u,
+                units: units.to_vec(),
+                standardized: worst,
             })
         })
         .collect()
 }
 
+/// One least-squares fit with the residuals weighted by 1/`sigma`.
 fn calibrate_once<M: Mechanism>(
     mech: &M,
     data: &[Measurement],
     start: &Params,
     opts: &CalibrationOptions,
+    sigma: &[f64],
 ) -> Result<Calibration> {
     let spec = mech.spec();
     let names = spec.param_names();
@@ -794,80 +1055,81 @@ fn calibrate_once<M: Mechanism>(
             opts.free.len() / nx + 1
         )));
     }
-    let weights: Option<Vec<f64>> = match &opts.sigma {
-        Some(s) => {
-            if s.len() != m || s.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
-                return Err(Error::InvalidRequest(
-                    "one positive finite standard deviation per measured coordinate is needed"
-                        .into(),
-                ));
-            }
-            Some(s.iter().map(|v| 1.0 / v).collect())
-        }
-        None => None,
-    };
+    if sigma.len() != m || sigma.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
+        return Err(Error::InvalidRequest(
+            "one positive finite standard deviation per measured coordinate is needed".into(),
+        ));
+    }
+    let weights: Vec<f64> = sigma.iter().map(|v| 1.0 / v).collect();
     let stiff: Vec<usize> = (spec.n_geometric() + spec.n_actuated()..spec.n_params()).collect();
     let unloaded = opts.force.iter().all(|f| *f == 0.0);
-    if unloaded && stiff.iter().all(|k| opts.free.contains(k)) {
-        warnings.push(Warning {
-            message: "all stiffness parameters are free without an external load: only their ratios are identifiable, so one is fixed".into(),
-            hint: "fix one stiffness at its measured value (e.g. --fix k1), or calibrate with a known tool load".into(),
-        });
+    let mut requested = opts.free.clone();
+    if opts.auto_fix && unloaded && !stiff.is_empty() && stiff.iter().all(|k| requested.contains(k))
+    {
+        // Only the ratios act without a load: fix exactly one.
+        let k = stiff[0];
+        requested.retain(|&i| i != k);
+        warnings.push(Warning::new(WarningKind::StiffnessRatios {
+            fixed: names[k].to_string(),
+        }));
     }
     let problem = IdentificationProblem::new(mech, data, opts.model, &opts.force)?;
-    // Identifiability at the start.
-    let (_, mut jac) = problem.jacobian(start)?;
-    if let Some(w) = &weights {
-        for (i, wi) in w.iter().enumerate() {
+    let weigh = |mut jac: DMatrix<f64>| {
+        for (i, wi) in weights.iter().enumerate() {
             jac.row_mut(i).scale_mut(*wi);
         }
+        jac
+    };
+    // Identifiability at the start.
+    let (_, jac) = problem.jacobian(start)?;
+    let jac = weigh(jac);
+    let (mut identifiability, mut free) =
+        analyze_identifiability(spec, &jac, &requested, data.len(), opts.auto_fix);
+    let mut start = start.clone();
+    // Stiffness acts only where the actuators fight, which they do not at
+    // nominal parameters: judge its identifiability where they do, at the
+    // solution without it.
+    let idle: Vec<usize> = stiff
+        .iter()
+        .copied()
+        .filter(|k| requested.contains(k) && !free.contains(k))
+        .collect();
+    if opts.auto_fix && !idle.is_empty() && !free.is_empty() {
+        let mut solver = opts.solver.clone();
+        solver.free = Some(mask(spec.n_params(), &free));
+        solver.weights = Some(weights.clone());
+        let first = lm::minimize(&problem, &start.values, &solver);
+        start = Params::new(spec, first.x)?;
+        let (_, jac) = problem.jacobian(&start)?;
+        let jac = weigh(jac);
+        (identifiability, free) =
+            analyze_identifiability(spec, &jac, &requested, data.len(), opts.auto_fix);
     }
-    let (identifiability, free) =
-        analyze_identifiability(spec, &jac, &opts.free, data.len(), opts.auto_fix);
     for u in &identifiability.unidentifiable {
-        let message = match &u.fixed {
-            Some(f) => format!(
-                "unidentifiable with the {} model: {} (fixed `{f}` at its starting value)",
-                opts.model.name(),
-                u.combination
-            ),
-            None => format!(
-                "unidentifiable with the {} model: {}",
-                opts.model.name(),
-                u.combination
-            ),
-        };
-        warnings.push(Warning {
-            message,
-            hint: "these parameters cannot be separated by tool positions at these poses; fix one of them, or add poses or measurements that see them".into(),
-        });
+        warnings.push(Warning::new(WarningKind::Unidentifiable {
+            model: opts.model,
+            combination: u.combination.clone(),
+            fixed: u.fixed.clone(),
+        }));
     }
     let mut solver = opts.solver.clone();
-    let mut mask = vec![false; spec.n_params()];
-    for &i in &free {
-        mask[i] = true;
-    }
-    solver.free = Some(mask);
-    solver.weights = weights.clone();
+    solver.free = Some(mask(spec.n_params(), &free));
+    solver.weights = Some(weights.clone());
     let report = lm::minimize(&problem, &start.values, &solver);
     if !report.termination.converged() {
-        warnings.push(Warning {
-            message: format!("the fit did not converge: {}", report.termination.reason()),
-            hint: "check the data for outliers or wrong columns, or start closer".into(),
-        });
+        warnings.push(Warning::new(WarningKind::NotConverged {
+            reason: report.termination.reason(),
+        }));
     }
     let params = Params::new(spec, report.x.clone())?;
     let dof = m.saturating_sub(free.len()).max(1);
     let s2 = report.sum_of_squares / dof as f64;
     let (cov_unit, rank) = lm::covariance(&report.jacobian, 1e-12);
     if rank < free.len() {
-        warnings.push(Warning {
-            message: format!(
-                "the Jacobian at the solution has rank {rank} for {} free parameters; their uncertainties are not defined",
-                free.len()
-            ),
-            hint: "fix parameters named in the identifiability report".into(),
-        });
+        warnings.push(Warning::new(WarningKind::RankDeficient {
+            rank,
+            free: free.len(),
+        }));
     }
     let covariance = cov_unit * s2;
     let mut parameters = vec![];
@@ -908,27 +1170,41 @@ fn calibrate_once<M: Mechanism>(
         evaluations: report.evaluations,
         poses: data.len(),
         sum_of_squares: report.sum_of_squares,
-        residual_sigma: s2.sqrt(),
+        unit_weight_sigma: s2.sqrt(),
+        noise: vec![],
         parameters,
         identifiability,
         covariance,
         free,
         correlations,
         loss: opts.loss,
-        robust_scale: 0.0,
         outliers: vec![],
         dropped: vec![],
         residuals: report
             .residuals
             .iter()
-            .enumerate()
-            .map(|(i, v)| v / weights.as_ref().map_or(1.0, |w| w[i]))
+            .zip(sigma)
+            .map(|(v, s)| v * s)
             .collect(),
+        sigmas: sigma.to_vec(),
+        jacobian: report.jacobian,
         warnings,
     })
 }
 
-/// Identifiability analysis alone (no fit), at `params`.
+fn mask(n: usize, free: &[usize]) -> Vec<bool> {
+    let mut m = vec![false; n];
+    for &i in free {
+        m[i] = true;
+    }
+    m
+}
+
+/// Identifiability analysis alone (no fit), at `params`. Rows are weighted by
+/// the data's σ where given, otherwise by the default noise ratio of lengths
+/// and angles ([`crate::Noise::lengths`]), so that mm and rad do not meet
+/// unscaled. Every unidentifiable direction is listed with the parameter
+/// that [`calibrate`] would fix for it.
 pub fn analyze<M: Mechanism>(
     mech: &M,
     data: &[Measurement],
@@ -937,9 +1213,20 @@ pub fn analyze<M: Mechanism>(
     free: &[usize],
     force: &[f64],
 ) -> Result<Identifiability> {
+    let spec = mech.spec();
     let problem = IdentificationProblem::new(mech, data, model, force)?;
-    let (_, jac) = problem.jacobian(params)?;
-    Ok(analyze_identifiability(mech.spec(), &jac, free, data.len(), false).0)
+    let (_, mut jac) = problem.jacobian(params)?;
+    let default = crate::simulate::Noise::lengths(1.0);
+    let nx = spec.tool_axes.len();
+    for (i, m) in data.iter().enumerate() {
+        for a in 0..nx {
+            let s = m
+                .sigma_of(a)
+                .unwrap_or_else(|| default.for_unit(spec.tool_units[a]));
+            jac.row_mut(i * nx + a).unscale_mut(s);
+        }
+    }
+    Ok(analyze_identifiability(spec, &jac, free, data.len(), true).0)
 }
 
 /// Covariance of identified parameters, by name: plain data that travels in

@@ -50,6 +50,32 @@ pub enum Error {
     /// A request the data cannot support (too few poses, nothing free…).
     #[error("{0}")]
     InvalidRequest(String),
+
+    /// Something went wrong at one measured pose: which pose (data-file
+    /// numbering when the data carry it), its line, and what.
+    #[error("pose {pose}{}: {source}", line.map(|l| format!(" (line {l})")).unwrap_or_default())]
+    Pose {
+        /// Pose number (1-based).
+        pose: usize,
+        /// Line in the data file, when known.
+        line: Option<u64>,
+        /// What went wrong there.
+        source: Box<Error>,
+    },
+}
+
+impl Error {
+    /// This error located at a measured pose.
+    pub fn at_pose(self, origin: crate::simulate::Origin) -> Error {
+        match self {
+            e @ Error::Pose { .. } => e,
+            e => Error::Pose {
+                pose: origin.pose,
+                line: origin.line,
+                source: Box::new(e),
+            },
+        }
+    }
 }
 
 /// Result type of the library.

@@ -46,6 +46,7 @@ pub mod lm;
 pub mod mechanism;
 pub mod models;
 pub mod montecarlo;
+pub mod noise;
 pub mod planar;
 pub mod planning;
 pub mod reference;
@@ -77,10 +78,11 @@ pub use models::{
     prepare_pose,
 };
 pub use montecarlo::{MonteCarloOptions, MonteCarloSummary, monte_carlo};
+pub use noise::NoiseGroup;
 pub use planar::{PlanarDescription, PlanarLinkage};
 pub use planning::{PlanCriterion, candidate_jacobians, plan_observability, plan_poses};
 pub use reference::JeongKim2Dof;
-pub use simulate::{Measurement, Noise, simulate, simulate_with_progress};
+pub use simulate::{Measurement, Noise, Origin, simulate, simulate_with_progress};
 pub use stats::{ErrorStats, error_stats, improvement_percent};
 pub use units::{ParamKind, Quantity, Unit};
 pub use workspace::{

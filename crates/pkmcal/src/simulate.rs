@@ -10,15 +10,56 @@ use rand::SeedableRng;
 use rand::rngs::StdRng;
 use rand_distr::{Distribution, Normal};
 
-/// One measured pose.
-#[derive(Debug, Clone, PartialEq)]
+/// One measured pose: what was commanded, what was measured, how well, and
+/// where it came from. Every subset of a data set (held-out poses, folds,
+/// poses left after dropping outliers) keeps each pose's σ and origin.
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct Measurement {
-    /// The target the commands were computed for (mm), if known.
+    /// The target the commands were computed for (tool coordinates), if known.
     pub target: Option<Vec<f64>>,
-    /// Actuator commands (rad or mm).
+    /// Actuator commands (each in its joint's unit, rad or mm).
     pub commands: Vec<f64>,
-    /// Measured tool position (mm).
+    /// Measured coordinates (each in its axis's unit, mm or rad).
     pub measured: Vec<f64>,
+    /// Known standard deviation of each measured coordinate (same unit);
+    /// `None` where it is to be estimated from the residuals. Empty: none
+    /// known.
+    pub sigma: Vec<Option<f64>>,
+    /// Where the pose came from, for messages and reports; `None`: its
+    /// position in the data given to the library.
+    pub origin: Option<Origin>,
+}
+
+/// Where a pose came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct Origin {
+    /// Pose number in the data file (1-based, file order).
+    pub pose: usize,
+    /// Line in the data file.
+    pub line: Option<u64>,
+}
+
+impl Measurement {
+    /// The known standard deviation of coordinate `axis`, if any.
+    pub fn sigma_of(&self, axis: usize) -> Option<f64> {
+        self.sigma.get(axis).copied().flatten()
+    }
+}
+
+/// `data` with every pose's [`Origin`] filled in (its 1-based position where
+/// none was given), so that subsets still name the original poses.
+pub fn numbered(data: &[Measurement]) -> Vec<Measurement> {
+    data.iter()
+        .enumerate()
+        .map(|(i, m)| {
+            let mut m = m.clone();
+            m.origin.get_or_insert(Origin {
+                pose: i + 1,
+                line: None,
+            });
+            m
+        })
+        .collect()
 }
 
 /// Standard deviations of simulated measurement noise, per kind of
@@ -124,6 +165,7 @@ pub fn simulate_with_progress<M: Mechanism>(
             target: Some(target.clone()),
             commands,
             measured,
+            ..Default::default()
         });
         progress();
     }

@@ -107,7 +107,7 @@ fn exact_model_recovers_the_truth_from_noise_free_data() {
             p.identified
         );
     }
-    assert!(cal.residual_sigma < 1e-7);
+    assert!(cal.noise[0].sigma < 1e-7);
 }
 
 #[test]
@@ -139,18 +139,18 @@ fn compliance_aware_models_reach_the_noise_floor_where_rigid_cannot() {
                 assert!(cal.warnings.iter().any(|w| w.message.contains("dq3")));
                 assert!(cal.parameters.iter().any(|p| p.name == "dq3" && !p.free));
                 assert!(
-                    cal.residual_sigma > 10.0 * NOISE_MM,
+                    cal.noise[0].sigma > 10.0 * NOISE_MM,
                     "rigid σ {}",
-                    cal.residual_sigma
+                    cal.noise[0].sigma
                 );
                 assert!(val.after.distance_max > 0.05);
             }
             _ => {
                 assert!(cal.warnings.is_empty(), "{:?}", cal.warnings);
                 assert!(
-                    cal.residual_sigma > 0.6 * NOISE_MM && cal.residual_sigma < 1.4 * NOISE_MM,
+                    cal.noise[0].sigma > 0.6 * NOISE_MM && cal.noise[0].sigma < 1.4 * NOISE_MM,
                     "{model:?} σ {}",
-                    cal.residual_sigma
+                    cal.noise[0].sigma
                 );
                 assert!(
                     val.after.distance_rms < 3.0 * NOISE_MM,

@@ -1,0 +1,258 @@
+//! Measurement noise per group of like coordinates, and its estimation from
+//! the residuals (variance-component estimation).
+//!
+//! Each measured coordinate has a standard deviation σ: given (a `sigma_*`
+//! column) or unknown. Unknown ones are grouped by unit (all lengths of the
+//! data one group, all angles another: mm and rad never share a σ) and each
+//! group's σ is estimated from its residuals after a weighted fit,
+//!
+//! ```text
+//! σ_g² = Σ_{i∈g} r_i²  /  Σ_{i∈g} (1 − h_ii)
+//! ```
+//!
+//! with `h_ii` the leverages of the weighted Jacobian (`Σ (1 − h_ii)` is the
+//! group's share of the redundancy `m − n`, Förstner's estimator), then the
+//! fit is repeated with the new weights until the σ settle. Weighting by
+//! 1/σ makes the fit the maximum-likelihood one whatever the units.
+
+use crate::simulate::Measurement;
+use crate::units::Unit;
+use nalgebra::DMatrix;
+use serde::Serialize;
+
+/// Relative change of every group σ below which the estimation stops.
+pub const VCE_TOL: f64 = 1e-3;
+/// Most refits of the variance-component estimation.
+pub const VCE_MAX_ROUNDS: usize = 12;
+
+/// A group of like coordinates and its noise level.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct NoiseGroup {
+    /// Unit of the coordinates (and of `sigma`, `residual_rms`).
+    pub unit: Unit,
+    /// Names of the measured axes in the group.
+    pub axes: Vec<String>,
+    /// Number of measured coordinates in the group.
+    pub count: usize,
+    /// Whether σ was estimated from the residuals (`false`: given in the
+    /// data; `sigma` is then the root mean square of the given values).
+    pub estimated: bool,
+    /// Standard deviation of one coordinate.
+    pub sigma: f64,
+    /// Root mean square of the group's residuals at the solution.
+    pub residual_rms: f64,
+}
+
+/// Which σ each residual (pose-major, axes inner) takes.
+#[derive(Debug, Clone)]
+pub(crate) struct NoiseModel {
+    /// Per residual: `Ok(σ)` given, `Err(g)` the estimated group `g`.
+    assign: Vec<Result<f64, usize>>,
+    /// Estimated groups: unit and axis names.
+    groups: Vec<(Unit, Vec<String>)>,
+    /// Current σ of each estimated group.
+    pub sigma: Vec<f64>,
+}
+
+impl NoiseModel {
+    /// Assign every measured coordinate of `data` (axes `axes` in `units`).
+    pub fn new(data: &[Measurement], axes: &[String], units: &[Unit]) -> Self {
+        let mut groups: Vec<(Unit, Vec<String>)> = vec![];
+        let mut assign = Vec::with_capacity(data.len() * axes.len());
+        for m in data {
+            for (a, unit) in units.iter().enumerate() {
+                match m.sigma_of(a) {
+                    Some(s) => assign.push(Ok(s)),
+                    None => {
+                        let g = match groups.iter().position(|(u, _)| u == unit) {
+                            Some(g) => g,
+                            None => {
+                                groups.push((*unit, vec![]));
+                                groups.len() - 1
+                            }
+                        };
+                        if !groups[g].1.contains(&axes[a]) {
+                            groups[g].1.push(axes[a].clone());
+                        }
+                        assign.push(Err(g));
+                    }
+                }
+            }
+        }
+        let n = groups.len();
+        Self {
+            assign,
+            groups,
+            sigma: vec![1.0; n],
+        }
+    }
+
+    /// Number of estimated groups.
+    pub fn estimated_groups(&self) -> usize {
+        self.groups.len()
+    }
+
+    /// Whether any σ is given in the data.
+    pub fn any_given(&self) -> bool {
+        self.assign.iter().any(Result::is_ok)
+    }
+
+    /// σ of every residual under the current group estimates.
+    pub fn sigmas(&self) -> Vec<f64> {
+        self.assign
+            .iter()
+            .map(|a| match a {
+                Ok(s) => *s,
+                Err(g) => self.sigma[*g],
+            })
+            .collect()
+    }
+
+    /// New group σ from residuals `r` (unweighted) and leverages `h` of the
+    /// weighted Jacobian; returns the largest relative change.
+    pub fn update(&mut self, r: &[f64], h: &[f64]) -> f64 {
+        let n = self.groups.len();
+        let mut ss = vec![0.0; n];
+        let mut red = vec![0.0; n];
+        for ((a, ri), hi) in self.assign.iter().zip(r).zip(h) {
+            if let Err(g) = a {
+                ss[*g] += ri * ri;
+                red[*g] += (1.0 - hi).max(0.0);
+            }
+        }
+        let mut change: f64 = 0.0;
+        for g in 0..n {
+            if red[g] > 0.0 && ss[g] > 0.0 {
+                let s = (ss[g] / red[g]).sqrt();
+                change = change.max((s / self.sigma[g] - 1.0).abs());
+                self.sigma[g] = s;
+            }
+        }
+        change
+    }
+
+    /// The groups as reported: estimated ones, then given ones by unit.
+    pub fn report(&self, r: &[f64], axes: &[String], units: &[Unit]) -> Vec<NoiseGroup> {
+        let nx = axes.len().max(1);
+        let mut out: Vec<NoiseGroup> = self
+            .groups
+            .iter()
+            .enumerate()
+            .map(|(g, (unit, names))| {
+                let v: Vec<f64> = self
+                    .assign
+                    .iter()
+                    .zip(r)
+                    .filter(|(a, _)| **a == Err(g))
+                    .map(|(_, ri)| *ri)
+                    .collect();
+                NoiseGroup {
+                    unit: *unit,
+                    axes: names.clone(),
+                    count: v.len(),
+                    estimated: true,
+                    sigma: self.sigma[g],
+                    residual_rms: rms(&v),
+                }
+            })
+            .collect();
+        // Per unit: axes, given σ, residuals.
+        type Given = (Unit, Vec<String>, Vec<f64>, Vec<f64>);
+        let mut given: Vec<Given> = vec![];
+        for (k, (a, ri)) in self.assign.iter().zip(r).enumerate() {
+            if let Ok(s) = a {
+                let (unit, axis) = (units[k % nx], &axes[k % nx]);
+                let e = match given.iter().position(|x| x.0 == unit) {
+                    Some(e) => e,
+                    None => {
+                        given.push((unit, vec![], vec![], vec![]));
+                        given.len() - 1
+                    }
+                };
+                if !given[e].1.contains(axis) {
+                    given[e].1.push(axis.clone());
+                }
+                given[e].2.push(*s);
+                given[e].3.push(*ri);
+            }
+        }
+        out.extend(given.into_iter().map(|(unit, names, s, v)| NoiseGroup {
+            unit,
+            axes: names,
+            count: v.len(),
+            estimated: false,
+            sigma: rms(&s),
+            residual_rms: rms(&v),
+        }));
+        out
+    }
+
+    /// Group key of each residual (for per-group robust scales): estimated
+    /// groups by number, given σ by unit after them.
+    pub fn keys(&self, units: &[Unit]) -> Vec<usize> {
+        let nx = units.len().max(1);
+        let n = self.groups.len();
+        self.assign
+            .iter()
+            .enumerate()
+            .map(|(k, a)| match a {
+                Err(g) => *g,
+                Ok(_) => n + units[k % nx] as usize,
+            })
+            .collect()
+    }
+}
+
+fn rms(v: &[f64]) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt()
+}
+
+/// Leverages `h_ii = J_i (JᵀJ)⁺ J_iᵀ` of a weighted Jacobian (rows: residuals,
+/// columns: free parameters).
+pub(crate) fn leverages(jac: &DMatrix<f64>) -> Vec<f64> {
+    let (c, _) = crate::lm::covariance(jac, 1e-12);
+    let jc = jac * c;
+    (0..jac.nrows())
+        .map(|i| jc.row(i).dot(&jac.row(i)))
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+
+    #[test]
+    fn leverages_sum_to_the_number_of_parameters() {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(3);
+        let n = Normal::new(0.0, 1.0).unwrap();
+        let j = DMatrix::from_fn(20, 4, |_, _| n.sample(&mut rng));
+        let h = leverages(&j);
+        assert!((h.iter().sum::<f64>() - 4.0).abs() < 1e-10);
+        assert!(h.iter().all(|v| (0.0..=1.0 + 1e-12).contains(v)));
+    }
+
+    #[test]
+    fn groups_by_unit_and_given_sigma() {
+        let m = Measurement {
+            measured: vec![0.0; 3],
+            sigma: vec![Some(0.002), None, None],
+            ..Default::default()
+        };
+        let axes: Vec<String> = ["x", "y", "phi"].map(String::from).to_vec();
+        let units = [Unit::Millimetre, Unit::Millimetre, Unit::Radian];
+        let mut nm = NoiseModel::new(&[m.clone(), m], &axes, &units);
+        assert_eq!(nm.estimated_groups(), 2);
+        nm.sigma = vec![0.003, 1e-5];
+        assert_eq!(nm.sigmas(), vec![0.002, 0.003, 1e-5, 0.002, 0.003, 1e-5]);
+        let rep = nm.report(&[0.0; 6], &axes, &units);
+        assert_eq!(rep.len(), 3);
+        assert_eq!(rep[0].axes, vec!["y".to_string()]);
+        assert_eq!(rep[1].unit, Unit::Radian);
+        assert!(!rep[2].estimated && rep[2].count == 2);
+    }
+}
