@@ -932,7 +932,15 @@ fn calibrate_weighted<M: Mechanism>(
             }
         }
     }
-    let u = standardized(&cal.residuals, &base, &keys);
+    // Studentised: a pose that pulls the fit towards itself (high leverage)
+    // shows a small residual for a large error.
+    let h = leverages(&cal.jacobian);
+    let student: Vec<f64> = base
+        .iter()
+        .zip(&h)
+        .map(|(s, hi)| s * (1.0 - hi).max(1e-6).sqrt())
+        .collect();
+    let u = standardized(&cal.residuals, &student, &keys);
     cal.outliers = find_outliers(
         data,
         &cal.residuals,

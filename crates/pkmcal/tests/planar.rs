@@ -2,52 +2,17 @@
 //! planar linkage (same predictions as the built-in one), the shipped planar
 //! examples and the Gough–Stewart platforms.
 
+mod common;
+use common::{gough_stewart, perturbed, planar, table};
 use pkmcal::{
     GoughStewart, GoughStewartDescription, JeongKim2Dof, Mechanism, Model, Params,
     PlanarDescription, PlanarLinkage, PointTargets, predict_pose, prepare_pose,
 };
-use rand::{RngExt, SeedableRng};
 
 /// Agreement of two descriptions of one mechanism (mm).
 const SAME_MECHANISM_MM: f64 = 1e-9;
 /// Agreement of the three forward models on a non-redundant mechanism (mm).
 const MODELS_AGREE_MM: f64 = 1e-9;
-
-fn table(name: &str) -> toml::Table {
-    let path = format!(
-        "{}/../../examples/{name}/mechanism.toml",
-        env!("CARGO_MANIFEST_DIR")
-    );
-    let mut t: toml::Table = std::fs::read_to_string(&path).unwrap().parse().unwrap();
-    t.remove("type");
-    t.remove("target");
-    t
-}
-
-fn planar(name: &str) -> PlanarLinkage {
-    let d: PlanarDescription = table(name).try_into().unwrap();
-    PlanarLinkage::new(&d).unwrap()
-}
-
-fn gough_stewart(name: &str) -> GoughStewart {
-    let d: GoughStewartDescription = table(name).try_into().unwrap();
-    GoughStewart::new(&d).unwrap()
-}
-
-/// Seeded random errors on every geometric parameter (± `mm`) and encoder
-/// offset (± `rad`).
-fn perturbed(spec: &pkmcal::Spec, seed: u64, mm: f64, rad: f64) -> Params {
-    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-    let mut p = Params::nominal(spec);
-    let (ng, na) = (spec.n_geometric(), spec.n_actuated());
-    for v in &mut p.values[..ng] {
-        *v += rng.random_range(-mm..mm);
-    }
-    for v in &mut p.values[ng..ng + na] {
-        *v += rng.random_range(-rad..rad);
-    }
-    p
-}
 
 /// Built-in parameters carried over to the planar description: the platform's
 /// third joint from the side lengths D1, D2, D3.

@@ -59,3 +59,40 @@ pub fn targets(n: usize) -> Vec<Vec<f64>> {
         .map(|p| p.target)
         .collect()
 }
+
+/// An example's mechanism file as a table (without `type` and targets).
+pub fn table(name: &str) -> toml::Table {
+    let path = format!(
+        "{}/../../examples/{name}/mechanism.toml",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let mut t: toml::Table = std::fs::read_to_string(&path).unwrap().parse().unwrap();
+    t.remove("type");
+    t.remove("target");
+    t
+}
+
+pub fn planar(name: &str) -> pkmcal::PlanarLinkage {
+    let d: pkmcal::PlanarDescription = table(name).try_into().unwrap();
+    pkmcal::PlanarLinkage::new(&d).unwrap()
+}
+
+pub fn gough_stewart(name: &str) -> pkmcal::GoughStewart {
+    let d: pkmcal::GoughStewartDescription = table(name).try_into().unwrap();
+    pkmcal::GoughStewart::new(&d).unwrap()
+}
+
+/// Seeded random errors on every geometric parameter (± `mm`) and encoder
+/// offset (± `rad`).
+pub fn perturbed(spec: &pkmcal::Spec, seed: u64, mm: f64, rad: f64) -> pkmcal::Params {
+    let mut rng = <rand::rngs::StdRng as rand::SeedableRng>::seed_from_u64(seed);
+    let mut p = pkmcal::Params::nominal(spec);
+    let (ng, na) = (spec.n_geometric(), spec.n_actuated());
+    for v in &mut p.values[..ng] {
+        *v += rand::RngExt::random_range(&mut rng, -mm..mm);
+    }
+    for v in &mut p.values[ng..ng + na] {
+        *v += rand::RngExt::random_range(&mut rng, -rad..rad);
+    }
+    p
+}
