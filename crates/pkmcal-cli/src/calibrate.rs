@@ -6,7 +6,7 @@ use pkmcal::BallBar;
 use pkmcal::calibration::{CrossValidation, Identifiability};
 use pkmcal::{
     Accuracy, Calibration, CalibrationOptions, ErrorStats, Measurement, Mechanism, Model, Params,
-    accuracy, analyze, calibrate, holdout_split,
+    analyze, calibrate, calibration_accuracy, holdout_split,
 };
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -254,6 +254,8 @@ pub struct CalibrateConfig {
     pub loss: pkmcal::Loss,
     pub outlier_threshold: f64,
     pub drop_outliers: bool,
+    /// `auto`, `free` or `base`.
+    pub frame: String,
 }
 
 fn force_arg<M: Mechanism>(mech: &M, s: Option<&str>) -> Result<Vec<f64>> {
@@ -380,6 +382,12 @@ fn calibrate_on<M: Mechanism>(
     opts.loss = c.loss;
     opts.outlier_threshold = c.outlier_threshold;
     opts.drop_outliers = c.drop_outliers;
+    opts.frame = match c.frame.as_str() {
+        _ if spec.tool_layout.frame_size() == 0 => pkmcal::Frame::Base,
+        "base" => pkmcal::Frame::Base,
+        "auto" if csv.base_frame => pkmcal::Frame::Base,
+        _ => pkmcal::Frame::Free,
+    };
     // Validation data: a description, the file it came from, the poses.
     type Held = Option<(String, PathBuf, Vec<Measurement>)>;
     let (train, held): (Vec<Measurement>, Held) = match (&c.validate, c.holdout) {
@@ -409,12 +417,12 @@ fn calibrate_on<M: Mechanism>(
     // Every pose carries its data-file number and line, so errors, outliers
     // and dropped poses name them without translation.
     let cal = calibrate(mech, &train, &start, &opts).map_err(|e| located(e, &c.data))?;
-    let (acc, before, after) = accuracy(mech, &train, &cal.params, c.model, &opts.force)
-        .map_err(|e| located(e, &c.data))?;
+    let (acc, before, after) =
+        calibration_accuracy(mech, &train, &cal, &opts.force).map_err(|e| located(e, &c.data))?;
     let validation = match &held {
         Some((source, path, data)) => Some(Validation {
             source: source.clone(),
-            accuracy: accuracy(mech, data, &cal.params, c.model, &opts.force)
+            accuracy: calibration_accuracy(mech, data, &cal, &opts.force)
                 .map_err(|e| located(e, path))?
                 .0,
         }),

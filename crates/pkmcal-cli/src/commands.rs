@@ -243,10 +243,24 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
     if a.measure_targets {
         return simulate_targets(&mech, &a, &targets, &bar);
     }
-    let data =
+    let frame = instrument_frame(mech.spec().tool_layout, a.instrument_frame.as_deref())?;
+    let mut data =
         pkmcal::simulate_with_progress(&mech, &truth, &targets, noise, a.seed, &|| bar.inc(1))?;
     bar.finish_and_clear();
-    write_atomic(&a.out, &data_csv(&mech, &data))?;
+    if let Some(f) = &frame {
+        // Noise-free coordinates seen from the instrument, then the noise.
+        let exact = pkmcal::simulate(&mech, &truth, &targets, pkmcal::Noise::NONE, a.seed)?;
+        for (m, e) in data.iter_mut().zip(exact) {
+            let seen = observed(mech.spec().tool_layout, &e.measured, Some(f));
+            for ((v, s), x) in m.measured.iter_mut().zip(seen).zip(&e.measured) {
+                *v = s + (*v - x);
+            }
+        }
+    }
+    write_atomic(
+        &a.out,
+        &with_frame_comment(data_csv(&mech, &data), frame.is_none()),
+    )?;
     eprintln!(
         "simulated {} poses (noise {} mm on lengths{}, seed {}) -> {}",
         data.len(),
@@ -280,6 +294,7 @@ fn simulate_targets(
     }
     let pt = pkmcal::PointTargets::new(mech.clone(), &points)?;
     let truth = load_params(a.truth.as_deref(), &pt)?;
+    let frame = instrument_frame(pt.spec().tool_layout, a.instrument_frame.as_deref())?;
     let spec = mech.spec();
     let rho = &spec.nominal[..spec.n_geometric()];
     let mut rng = rand::rngs::StdRng::seed_from_u64(a.seed);
@@ -292,12 +307,13 @@ fn simulate_targets(
         let pose = prepare_pose(&pt, &commands, Some(&q))?;
         let p = predict_pose(&pt, &pose, &truth, Model::Exact, &[])
             .with_context(|| format!("target {target:?}"))?;
+        let seen = observed(pt.spec().tool_layout, &p.x, frame.as_deref());
         rows.push(
             target
                 .iter()
                 .chain(&commands)
                 .copied()
-                .chain(p.x.iter().map(|x| x + normal.sample(&mut rng)))
+                .chain(seen.iter().map(|x| x + normal.sample(&mut rng)))
                 .collect(),
         );
         bar.inc(1);
@@ -306,7 +322,10 @@ fn simulate_targets(
     let mut header = target_names(mech);
     header.extend(spec.actuated_names().iter().map(|s| s.to_string()));
     header.extend(pt.spec().tool_axes.iter().cloned());
-    write_atomic(&a.out, &csv_bytes(&header, &rows))?;
+    write_atomic(
+        &a.out,
+        &with_frame_comment(csv_bytes(&header, &rows), frame.is_none()),
+    )?;
     eprintln!(
         "simulated {} poses measured at {} target point(s) (noise {} mm per coordinate, seed {}) -> {}",
         rows.len(),
@@ -384,7 +403,8 @@ pub fn trilaterate(a: crate::TrilaterateArgs) -> Result<()> {
     let mut header = keep;
     header.extend(spec.tool_axes.iter().cloned());
     header.extend(spec.tool_axes.iter().map(|a| format!("sigma_{a}")));
-    write_atomic(&a.out, &csv_bytes(&header, &rows))?;
+    // Sockets are placed in the base frame, so are the positions.
+    write_atomic(&a.out, &with_frame_comment(csv_bytes(&header, &rows), true))?;
     eprintln!(
         "trilaterated {} poses from {} sockets -> {}",
         rows.len(),
@@ -436,8 +456,14 @@ pub fn demo(a: DemoArgs) -> Result<()> {
     let data = pkmcal::simulate(&mech, &truth, &targets, DEMO_NOISE_MM, a.seed)?;
     let vtargets = pkmcal::random_targets(&mech, DEMO_VALIDATION_POSES, a.seed + 1)?;
     let vdata = pkmcal::simulate(&mech, &truth, &vtargets, DEMO_NOISE_MM, a.seed + 2)?;
-    write_atomic(&dir.join("measurements.csv"), &data_csv(&mech, &data))?;
-    write_atomic(&dir.join("validation.csv"), &data_csv(&mech, &vdata))?;
+    write_atomic(
+        &dir.join("measurements.csv"),
+        &with_frame_comment(data_csv(&mech, &data), true),
+    )?;
+    write_atomic(
+        &dir.join("validation.csv"),
+        &with_frame_comment(data_csv(&mech, &vdata), true),
+    )?;
     write_atomic(
         &dir.join("truth.toml"),
         crate::io::params_to_string(spec, &truth, "true parameters of the demo (simulated)")
@@ -554,4 +580,42 @@ pub fn demo(a: DemoArgs) -> Result<()> {
         dir.join("report").join("report.html").display()
     );
     Ok(())
+}
+
+/// `--instrument-frame` values for a tool layout (3 planar, 6 spatial).
+fn instrument_frame(layout: pkmcal::ToolLayout, arg: Option<&str>) -> Result<Option<Vec<f64>>> {
+    let Some(s) = arg else { return Ok(None) };
+    let f = crate::io::parse_list(s, "--instrument-frame")?;
+    let n = layout.frame_size();
+    if n == 0 || f.len() != n {
+        bail!(
+            "--instrument-frame needs {n} values for this tool ({}), got {}",
+            layout.frame_names().join(","),
+            f.len()
+        );
+    }
+    Ok(Some(f))
+}
+
+/// Tool coordinates as an instrument at `frame` sees them (unchanged
+/// without a frame).
+fn observed(layout: pkmcal::ToolLayout, x: &[f64], frame: Option<&[f64]>) -> Vec<f64> {
+    match frame {
+        Some(f) => {
+            let mut y = vec![0.0; x.len()];
+            pkmcal::frame::observe(layout, x, f, &mut y);
+            y
+        }
+        None => x.to_vec(),
+    }
+}
+
+/// CSV bytes with the comment that declares them in the base frame.
+pub fn with_frame_comment(bytes: Vec<u8>, base: bool) -> Vec<u8> {
+    if !base {
+        return bytes;
+    }
+    let mut out = format!("{}\n", crate::io::BASE_FRAME_COMMENT).into_bytes();
+    out.extend(bytes);
+    out
 }

@@ -14,7 +14,14 @@ pub struct Csv {
     pub headers: Vec<String>,
     /// (line number, fields) per data row.
     pub rows: Vec<(u64, Vec<String>)>,
+    /// Whether a comment line declares the data to be in the base frame
+    /// (`# frame: base`, as `simulate` and `trilaterate` write).
+    pub base_frame: bool,
 }
+
+/// The comment line that declares a data file's measurements to be in the
+/// mechanism's base frame.
+pub const BASE_FRAME_COMMENT: &str = "# frame: base";
 
 impl Csv {
     pub fn read(path: &Path) -> Result<Self> {
@@ -47,10 +54,14 @@ impl Csv {
             }
             rows.push((line, rec.iter().map(str::to_string).collect()));
         }
+        let base_frame = String::from_utf8_lossy(&bytes)
+            .lines()
+            .any(|l| l.trim() == BASE_FRAME_COMMENT);
         Ok(Self {
             path: path.to_path_buf(),
             headers,
             rows,
+            base_frame,
         })
     }
 

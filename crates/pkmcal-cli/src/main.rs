@@ -119,6 +119,12 @@ pub struct SimulateArgs {
     /// Random seed of the noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Measure from an instrument standing at this pose in the base frame
+    /// (x,y,phi in mm and rad for planar tools; x,y,z,rx,ry,rz for spatial
+    /// ones), as a tracker would. Without it the data are in the base frame
+    /// and the file says so (`# frame: base`).
+    #[arg(long, value_name = "POSE", allow_hyphen_values = true)]
+    pub instrument_frame: Option<String>,
     /// Output CSV: target_x,target_y,q1,q2,q3,x,y (with --setup: d1..dk instead of x,y).
     #[arg(long, value_name = "DATA.csv")]
     pub out: PathBuf,
@@ -213,6 +219,14 @@ pub struct CalibrateArgs {
     /// Drop the outliers and refit.
     #[arg(long)]
     pub drop_outliers: bool,
+    /// Where the measuring instrument stands: `free` (a tracker or camera
+    /// where it was put: its frame is identified with the rest), `base` (the
+    /// data are in the base frame, e.g. trilaterated from ball-bar sockets at
+    /// known places), `auto`: base when the data file says `# frame: base`
+    /// (simulate and trilaterate write it), otherwise free. Ball-bar
+    /// readings carry no frame.
+    #[arg(long, default_value = "auto", value_parser = ["auto", "free", "base"])]
+    pub frame: String,
 }
 
 #[derive(clap::Args)]
@@ -380,6 +394,7 @@ fn main() -> ExitCode {
                 loss,
                 outlier_threshold: a.outlier_threshold,
                 drop_outliers: a.drop_outliers,
+                frame: a.frame,
                 mechanism: a.mech.mechanism,
                 data: a.data,
                 model,

@@ -49,10 +49,13 @@ fn calibrate_writes_params_that_predict_accepts() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     simulated(d);
+    // Simulated data are in the base frame, as predict's output is.
     let out = ok(
         d,
         &[
             "calibrate",
+            "--frame",
+            "base",
             "--data",
             "data.csv",
             "--out",

@@ -162,7 +162,11 @@ fn impossible_requests() {
     // Standard deviations must be positive.
     ok(d, &["simulate", "--grid", "20", "--out", "s.csv"]);
     let text = std::fs::read_to_string(d.join("s.csv")).unwrap();
-    let mut lines: Vec<String> = text.lines().map(String::from).collect();
+    let mut lines: Vec<String> = text
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .map(String::from)
+        .collect();
     lines[0].push_str(",sigma");
     for (i, l) in lines.iter_mut().enumerate().skip(1) {
         l.push_str(if i == 3 { ",0" } else { ",0.002" });

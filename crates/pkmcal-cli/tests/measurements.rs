@@ -168,13 +168,19 @@ fn weights_and_outliers() {
     let text = std::fs::read_to_string(d.join("data.csv")).unwrap();
     let mut lines: Vec<Vec<String>> = text
         .lines()
+        .filter(|l| !l.starts_with('#'))
         .map(|l| l.split(',').map(String::from).collect())
         .collect();
     let bump = |v: &str, by: f64| (v.parse::<f64>().unwrap() + by).to_string();
     lines[7][5] = bump(&lines[7][5], 0.06);
     lines[19][6] = bump(&lines[19][6], -0.09);
     let joined: Vec<String> = lines.iter().map(|l| l.join(",")).collect();
-    std::fs::write(d.join("bad.csv"), joined.join("\n")).unwrap();
+    // Still in the base frame, as simulated.
+    std::fs::write(
+        d.join("bad.csv"),
+        format!("# frame: base\n{}", joined.join("\n")),
+    )
+    .unwrap();
     // Least squares flags the worst pose (the other can be masked: its error
     // leaks into neighbours); the robust fits and iterative dropping find both.
     let out = ok(d, &["calibrate", "--data", "bad.csv", "--out", "p.toml"]);
@@ -237,7 +243,11 @@ fn weights_and_outliers() {
         l.extend([s.to_string(), s.to_string()]);
     }
     let joined: Vec<String> = lines2.iter().map(|l| l.join(",")).collect();
-    std::fs::write(d.join("w.csv"), joined.join("\n")).unwrap();
+    std::fs::write(
+        d.join("w.csv"),
+        format!("# frame: base\n{}", joined.join("\n")),
+    )
+    .unwrap();
     ok(d, &["calibrate", "--data", "w.csv", "--out", "w.toml"]);
     assert!(
         err("w.toml") < 0.5 * err("p.toml"),

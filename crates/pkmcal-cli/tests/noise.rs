@@ -15,6 +15,7 @@ fn example(name: &str) -> String {
 /// Add `sigma_<axis>` columns with `value` to a CSV.
 fn add_sigma(text: &str, axes: &[&str], value: &str) -> String {
     text.lines()
+        .filter(|l| !l.starts_with('#'))
         .enumerate()
         .map(|(i, l)| {
             let extra: Vec<String> = axes
@@ -117,6 +118,7 @@ fn mixed_units_partial_sigma_and_estimated_noise() {
     // One `sigma` column cannot cover mm and rad.
     let one: String = text
         .lines()
+        .filter(|l| !l.starts_with('#'))
         .enumerate()
         .map(|(i, l)| format!("{l},{}\n", if i == 0 { "sigma" } else { "0.002" }))
         .collect();
@@ -219,7 +221,11 @@ fn a_pose_that_cannot_be_assembled_is_named_with_its_line() {
         ],
     );
     let text = std::fs::read_to_string(d.join("data.csv")).unwrap();
-    let mut lines: Vec<String> = text.lines().map(String::from).collect();
+    let mut lines: Vec<String> = text
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .map(String::from)
+        .collect();
     // A comment shifts the lines; pose 5 gets commands that cannot assemble.
     lines.insert(1, "# measured on Monday".into());
     let mut cells: Vec<String> = lines[6].split(',').map(String::from).collect();

@@ -191,6 +191,7 @@ impl<M: Mechanism> BallBar<M> {
             geometric,
             geometric_units,
             tool_units: vec![Unit::Millimetre; setup.sockets.len()],
+            tool_layout: crate::frame::ToolLayout::Readings,
             tool_axes: (1..=setup.sockets.len()).map(|j| format!("d{j}")).collect(),
             nominal,
             workspace_box: vec![[0.0, 1.0]; setup.sockets.len()],

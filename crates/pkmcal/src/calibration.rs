@@ -4,6 +4,7 @@
 //! uncertainty after, and validation on held-out poses.
 
 use crate::error::{Error, Result};
+use crate::frame::{ToolLayout, observe, observe_jacobian, register, to_base};
 use crate::lm::{self, Problem, Termination};
 use crate::mechanism::{Mechanism, Params, Spec};
 use crate::models::{Model, Pose, Prediction, predict_pose_warm, prepare_pose};
@@ -77,6 +78,20 @@ pub struct Outlier {
     pub standardized: f64,
 }
 
+/// Where the measuring instrument stands relative to the base frame.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Frame {
+    /// The data are in the base frame (ball-bar sockets at known places, a
+    /// frame already registered).
+    Base,
+    /// At this known pose ([`crate::frame`]: `x, y, phi` or
+    /// `x, y, z, rx, ry, rz`).
+    Known(Vec<f64>),
+    /// Unknown (a tracker or camera where it was put): identified with the
+    /// rest, from a start found by rigid registration.
+    Free,
+}
+
 /// Settings of a calibration.
 #[derive(Debug, Clone)]
 pub struct CalibrationOptions {
@@ -92,6 +107,8 @@ pub struct CalibrationOptions {
     pub free: Vec<usize>,
     /// External force applied to the tool during the measurements (N).
     pub force: Vec<f64>,
+    /// Where the instrument stands ([`Frame`]).
+    pub frame: Frame,
     /// Fix unidentifiable parameters automatically (with a warning).
     pub auto_fix: bool,
     /// Solver settings (tolerances, bounds; `free` and `weights` are set here).
@@ -112,6 +129,7 @@ impl CalibrationOptions {
                 .filter_map(|n| spec.param_index(n).ok())
                 .collect(),
             force: vec![],
+            frame: Frame::Base,
             auto_fix: true,
             solver: lm::Options {
                 ftol: 1e-12,
@@ -127,7 +145,10 @@ impl CalibrationOptions {
 type CachedJacobian = (Vec<f64>, DVector<f64>, DMatrix<f64>);
 
 /// The identification least-squares problem: residuals are predicted minus
-/// measured tool coordinates, pose by pose.
+/// measured coordinates, pose by pose. The parameter vector is the
+/// mechanism's `[ρ, Δq, k]`, followed by the instrument frame's parameters
+/// when the frame is identified ([`IdentificationProblem::with_frame`]): the
+/// prediction is then seen from the instrument ([`crate::frame::observe`]).
 pub struct IdentificationProblem<'a, M: Mechanism> {
     mech: &'a M,
     poses: Vec<Pose>,
@@ -135,6 +156,8 @@ pub struct IdentificationProblem<'a, M: Mechanism> {
     measured: Vec<Vec<f64>>,
     model: Model,
     force: Vec<f64>,
+    /// The tool layout when the frame's parameters follow the mechanism's.
+    frame: Option<ToolLayout>,
     /// The last parameters evaluated and their predictions: a Jacobian at an
     /// accepted trial point reuses them, and equilibria start from them.
     cache: RefCell<Option<(Vec<f64>, Vec<Prediction>)>>,
@@ -163,9 +186,23 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             measured: data.iter().map(|m| m.measured.clone()).collect(),
             model,
             force: force.to_vec(),
+            frame: None,
             cache: RefCell::new(None),
             jacobian_cache: RefCell::new(None),
         })
+    }
+
+    /// Append the instrument frame's parameters to the parameter vector (no
+    /// effect for frame-free readings).
+    pub fn with_frame(mut self) -> Self {
+        let layout = self.mech.spec().tool_layout;
+        self.frame = (layout.frame_size() > 0).then_some(layout);
+        self
+    }
+
+    /// Number of frame parameters in the parameter vector.
+    pub fn n_frame(&self) -> usize {
+        self.frame.map_or(0, ToolLayout::frame_size)
     }
 
     /// Predictions at every pose, warm-started from (or taken from) the cache.
@@ -197,39 +234,93 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         &self.poses
     }
 
-    /// Predicted tool coordinates at every pose under `params`.
+    /// Predicted tool coordinates (base frame) at every pose under `params`.
     pub fn predict(&self, params: &Params) -> Result<Vec<Vec<f64>>> {
         Ok(self.predictions(params)?.into_iter().map(|p| p.x).collect())
     }
 
-    /// Residuals and the full Jacobian (all parameters) under `params`.
-    pub fn jacobian(&self, params: &Params) -> Result<(DVector<f64>, DMatrix<f64>)> {
-        if let Some((x, r, j)) = self.jacobian_cache.borrow().as_ref()
-            && *x == params.values
+    /// Split a full parameter vector into the mechanism's and the frame's.
+    fn split(&self, x: &[f64]) -> Result<(Params, Vec<f64>)> {
+        let n = self.mech.spec().n_params();
+        if x.len() != n + self.n_frame() {
+            return Err(Error::Dimension {
+                what: "identification parameter vector".into(),
+                expected: n + self.n_frame(),
+                got: x.len(),
+            });
+        }
+        Ok((
+            Params::new(self.mech.spec(), x[..n].to_vec())?,
+            x[n..].to_vec(),
+        ))
+    }
+
+    /// Residuals (predicted minus measured) under a full parameter vector.
+    pub fn residuals(&self, x: &[f64]) -> Result<DVector<f64>> {
+        let (params, frame) = self.split(x)?;
+        let nx = self.mech.spec().tool_axes.len();
+        let mut r = DVector::zeros(self.poses.len() * nx);
+        let mut y = vec![0.0; nx];
+        for (i, p) in self.predict(&params)?.iter().enumerate() {
+            match self.frame {
+                Some(layout) => observe(layout, p, &frame, &mut y),
+                None => y.copy_from_slice(p),
+            }
+            for a in 0..nx {
+                r[i * nx + a] = y[a] - self.measured[i][a];
+            }
+        }
+        Ok(r)
+    }
+
+    /// Residuals and the Jacobian (every parameter of the full vector).
+    pub fn residuals_and_jacobian(&self, x: &[f64]) -> Result<(DVector<f64>, DMatrix<f64>)> {
+        if let Some((key, r, j)) = self.jacobian_cache.borrow().as_ref()
+            && key == x
         {
             return Ok((r.clone(), j.clone()));
         }
+        let (params, frame) = self.split(x)?;
         let nx = self.mech.spec().tool_axes.len();
         let np = self.mech.spec().n_params();
+        let nf = self.n_frame();
         let mut r = DVector::zeros(self.poses.len() * nx);
-        let mut j = DMatrix::zeros(self.poses.len() * nx, np);
-        let predictions = self.predictions(params)?;
+        let mut j = DMatrix::zeros(self.poses.len() * nx, np + nf);
+        let predictions = self.predictions(&params)?;
         for (i, (pose, pred)) in self.poses.iter().zip(predictions).enumerate() {
-            let s = sensitivity_at(self.mech, pose, params, self.model, &self.force, pred)
+            let s = sensitivity_at(self.mech, pose, &params, self.model, &self.force, pred)
                 .map_err(|e| e.at_pose(self.origins[i]))?;
-            for a in 0..nx {
-                r[i * nx + a] = s.prediction.x[a] - self.measured[i][a];
+            match self.frame {
+                Some(layout) => {
+                    let (y, dx, df) = observe_jacobian(layout, &s.prediction.x, &frame);
+                    for a in 0..nx {
+                        r[i * nx + a] = y[a] - self.measured[i][a];
+                    }
+                    j.view_mut((i * nx, 0), (nx, np))
+                        .copy_from(&(dx * &s.jacobian));
+                    j.view_mut((i * nx, np), (nx, nf)).copy_from(&df);
+                }
+                None => {
+                    for a in 0..nx {
+                        r[i * nx + a] = s.prediction.x[a] - self.measured[i][a];
+                    }
+                    j.view_mut((i * nx, 0), (nx, np)).copy_from(&s.jacobian);
+                }
             }
-            j.view_mut((i * nx, 0), (nx, np)).copy_from(&s.jacobian);
         }
-        *self.jacobian_cache.borrow_mut() = Some((params.values.clone(), r.clone(), j.clone()));
+        *self.jacobian_cache.borrow_mut() = Some((x.to_vec(), r.clone(), j.clone()));
         Ok((r, j))
+    }
+
+    /// Residuals and the Jacobian of the mechanism's parameters (no frame).
+    pub fn jacobian(&self, params: &Params) -> Result<(DVector<f64>, DMatrix<f64>)> {
+        self.residuals_and_jacobian(&params.values)
     }
 }
 
 impl<M: Mechanism> Problem for IdentificationProblem<'_, M> {
     fn n_params(&self) -> usize {
-        self.mech.spec().n_params()
+        self.mech.spec().n_params() + self.n_frame()
     }
     fn n_residuals(&self) -> usize {
         self.poses.len() * self.mech.spec().tool_axes.len()
@@ -239,23 +330,15 @@ impl<M: Mechanism> Problem for IdentificationProblem<'_, M> {
         x: &[f64],
         jacobian: bool,
     ) -> std::result::Result<(DVector<f64>, Option<DMatrix<f64>>), String> {
-        let params = Params::new(self.mech.spec(), x.to_vec()).map_err(|e| e.to_string())?;
+        let (params, _) = self.split(x).map_err(|e| e.to_string())?;
         if params.stiffness().iter().any(|k| *k <= 0.0) {
             return Err("non-positive stiffness".into());
         }
         if jacobian {
-            let (r, j) = self.jacobian(&params).map_err(|e| e.to_string())?;
+            let (r, j) = self.residuals_and_jacobian(x).map_err(|e| e.to_string())?;
             return Ok((r, Some(j)));
         }
-        let pred = self.predict(&params).map_err(|e| e.to_string())?;
-        let nx = self.mech.spec().tool_axes.len();
-        let mut r = DVector::zeros(self.poses.len() * nx);
-        for (i, p) in pred.iter().enumerate() {
-            for a in 0..nx {
-                r[i * nx + a] = p[a] - self.measured[i][a];
-            }
-        }
-        Ok((r, None))
+        Ok((self.residuals(x).map_err(|e| e.to_string())?, None))
     }
 }
 
@@ -335,8 +418,51 @@ pub(crate) fn observability(sv: &[f64], poses: usize) -> Observability {
     }
 }
 
-fn correlations(spec: &Spec, free: &[usize], cov: &DMatrix<f64>) -> Vec<Correlation> {
-    let names = spec.param_names();
+/// The columns of an identification Jacobian: each parameter's name, unit,
+/// kind and typical size (its nominal value, for judging whether a column
+/// acts at all).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Columns {
+    /// Names, in column order.
+    pub names: Vec<String>,
+    /// Units.
+    pub units: Vec<Unit>,
+    /// Kinds.
+    pub kinds: Vec<ParamKind>,
+    /// Nominal values.
+    pub nominal: Vec<f64>,
+}
+
+impl Columns {
+    /// The mechanism's parameters.
+    pub fn of(spec: &Spec) -> Self {
+        let n = spec.n_params();
+        Self {
+            names: spec.param_names().iter().map(|s| s.to_string()).collect(),
+            units: (0..n).map(|i| spec.param_unit(i)).collect(),
+            kinds: (0..n).map(|i| spec.param_kind(i)).collect(),
+            nominal: spec.nominal.clone(),
+        }
+    }
+
+    /// The mechanism's parameters, then the instrument frame's (`frame`:
+    /// their values at the start).
+    pub fn with_frame(spec: &Spec, frame: &[f64]) -> Self {
+        let mut c = Self::of(spec);
+        let layout = spec.tool_layout;
+        c.names
+            .extend(layout.frame_names().into_iter().take(frame.len()));
+        c.units
+            .extend(layout.frame_units().into_iter().take(frame.len()));
+        c.kinds
+            .extend(std::iter::repeat_n(ParamKind::Instrument, frame.len()));
+        c.nominal.extend(frame);
+        c
+    }
+}
+
+fn correlations(cols: &Columns, free: &[usize], cov: &DMatrix<f64>) -> Vec<Correlation> {
+    let names = &cols.names;
     let mut out = vec![];
     for a in 0..free.len() {
         for b in a + 1..free.len() {
@@ -362,13 +488,13 @@ fn correlations(spec: &Spec, free: &[usize], cov: &DMatrix<f64>) -> Vec<Correlat
 /// per unidentifiable direction (the one that dominates it) until the rest
 /// has full rank. Returns the analysis and the remaining free set.
 pub fn analyze_identifiability(
-    spec: &Spec,
+    cols: &Columns,
     jac: &DMatrix<f64>,
     free: &[usize],
     poses: usize,
     auto_fix: bool,
 ) -> (Identifiability, Vec<usize>) {
-    let names = spec.param_names();
+    let names: Vec<&str> = cols.names.iter().map(String::as_str).collect();
     let mut free = free.to_vec();
     let mut unidentifiable = vec![];
     let mut first_sv: Option<Vec<f64>> = None;
@@ -392,7 +518,7 @@ pub fn analyze_identifiability(
         let effect: Vec<f64> = free
             .iter()
             .enumerate()
-            .map(|(k, &i)| sub.column(k).norm() * spec.nominal[i].abs().max(1.0))
+            .map(|(k, &i)| sub.column(k).norm() * cols.nominal[i].abs().max(1.0))
             .collect();
         let biggest = effect.iter().copied().fold(0.0, f64::max);
         let norms: Vec<f64> = (0..free.len())
@@ -450,7 +576,7 @@ pub fn analyze_identifiability(
             let kept: Vec<f64> = sv[..rank].to_vec();
             let cov = if rank == free.len() {
                 let (c, _) = lm::covariance(&sub, 1e-14);
-                correlations(spec, &free, &c)
+                correlations(cols, &free, &c)
             } else {
                 vec![]
             };
@@ -474,11 +600,8 @@ pub fn analyze_identifiability(
             };
             return (ident, free);
         }
-        // Fix the parameter that dominates the first direction.
         let d = &dirs[0];
-        let k = (0..d.len())
-            .max_by(|&a, &b| d[a].abs().total_cmp(&d[b].abs()))
-            .expect("non-empty");
+        let k = fix_choice(cols, &free, &dirs);
         unidentifiable.push(direction(
             &names,
             &free,
@@ -487,6 +610,40 @@ pub fn analyze_identifiability(
         ));
         free.remove(k);
     }
+}
+
+/// Which free parameter (position in `free`) to fix for the unidentifiable
+/// directions `dirs`: the mechanism's parameters before the instrument's (a
+/// free instrument frame leaves the base frame to be defined by the
+/// mechanism, e.g. `B2y = 0`), and among them the one that the space of
+/// directions involves most (the largest row of an orthonormal basis of the
+/// directions restricted to them; unlike "the largest entry of the first
+/// direction", this does not depend on how the solver picked the basis, nor
+/// on where the instrument stands).
+fn fix_choice(cols: &Columns, free: &[usize], dirs: &[Vec<f64>]) -> usize {
+    let preferred: Vec<usize> = (0..free.len())
+        .filter(|&k| cols.kinds[free[k]] != ParamKind::Instrument)
+        .collect();
+    if !preferred.is_empty() {
+        let d = DMatrix::from_fn(preferred.len(), dirs.len(), |r, c| dirs[c][preferred[r]]);
+        let svd = d.svd(true, false);
+        let smax = svd.singular_values.max();
+        if smax > COMBINATION_CUTOFF {
+            let u = svd.u.expect("requested");
+            let keep: Vec<usize> = (0..svd.singular_values.len())
+                .filter(|&j| svd.singular_values[j] > 1e-6 * smax)
+                .collect();
+            let weight = |r: usize| keep.iter().map(|&j| u[(r, j)].powi(2)).sum::<f64>();
+            let r = (0..preferred.len())
+                .max_by(|&a, &b| weight(a).total_cmp(&weight(b)))
+                .expect("non-empty");
+            return preferred[r];
+        }
+    }
+    let d = &dirs[0];
+    (0..d.len())
+        .max_by(|&a, &b| d[a].abs().total_cmp(&d[b].abs()))
+        .expect("non-empty")
 }
 
 fn direction(names: &[&str], free: &[usize], d: &[f64], fixed: Option<String>) -> Unidentifiable {
@@ -696,9 +853,13 @@ impl Warning {
 pub struct Calibration {
     /// Model used.
     pub model: Model,
-    /// Identified parameters (full vector).
+    /// Identified parameters of the mechanism (full vector).
     #[serde(skip)]
     pub params: Params,
+    /// Identified (or given) pose of the instrument frame in the base frame
+    /// ([`crate::frame`]); `None` when the data are in the base frame. Also
+    /// in `parameters`, kind `instrument`.
+    pub frame: Option<Vec<f64>>,
     /// Why the solver stopped.
     pub termination: Termination,
     /// Readable reason.
@@ -856,14 +1017,24 @@ fn calibrate_weighted<M: Mechanism>(
 ) -> Result<Calibration> {
     let spec = mech.spec();
     let mut noise = NoiseModel::new(data, &spec.tool_axes, &spec.tool_units);
-    let mut cal = calibrate_once(mech, data, start, opts, &noise.sigmas())?;
+    let mut cal = calibrate_once(mech, data, start, None, opts, &noise.sigmas(), None)?;
     // The free set and identifiability of the first fit hold for the refits.
     let mut refit_opts = opts.clone();
-    refit_opts.free = cal.free.clone();
     refit_opts.auto_fix = false;
     let refit = |cal: &Calibration, sigma: &[f64]| -> Result<Calibration> {
-        let mut next = calibrate_once(mech, data, &cal.params, &refit_opts, sigma)?;
+        let mut next = calibrate_once(
+            mech,
+            data,
+            &cal.params,
+            cal.frame.as_deref(),
+            &refit_opts,
+            sigma,
+            Some(&cal.free),
+        )?;
         next.identifiability = cal.identifiability.clone();
+        for (p, first) in next.parameters.iter_mut().zip(&cal.parameters) {
+            p.note = first.note.clone();
+        }
         // Identifiability warnings from the first fit, the solver's from
         // this one.
         let solver_kind = |w: &Warning| {
@@ -1037,31 +1208,76 @@ fn find_outliers(
         .collect()
 }
 
-/// One least-squares fit with the residuals weighted by 1/`sigma`.
+/// One least-squares fit with the residuals weighted by 1/`sigma`, from the
+/// mechanism's `start` and, when the instrument frame is identified, the
+/// frame's `frame_start` (default: the registration of the measured onto
+/// the nominal positions).
 fn calibrate_once<M: Mechanism>(
     mech: &M,
     data: &[Measurement],
     start: &Params,
+    frame_start: Option<&[f64]>,
     opts: &CalibrationOptions,
     sigma: &[f64],
+    exact_free: Option<&[usize]>,
 ) -> Result<Calibration> {
     let spec = mech.spec();
-    let names = spec.param_names();
     let nx = spec.tool_axes.len();
+    let np = spec.n_params();
     let mut warnings = vec![];
-    if opts.free.is_empty() {
+    if opts.free.is_empty() && opts.frame != Frame::Free {
         return Err(Error::InvalidRequest(
             "no parameter is free; free at least one with --free".into(),
         ));
     }
+    let n_free_frame = match opts.frame {
+        Frame::Free => spec.tool_layout.frame_size(),
+        _ => 0,
+    };
     let m = data.len() * nx;
-    if m <= opts.free.len() {
+    let n_requested = exact_free.map_or(opts.free.len() + n_free_frame, <[usize]>::len);
+    if m <= n_requested {
         return Err(Error::InvalidRequest(format!(
-            "{} poses give {m} coordinates for {} free parameters; measure more poses (at least {}) or fix parameters",
+            "{} poses give {m} coordinates for {n_requested} free parameters{}; measure more poses (at least {}) or fix parameters",
             data.len(),
-            opts.free.len(),
-            opts.free.len() / nx + 1
+            if n_free_frame > 0 {
+                " (with the instrument frame's)"
+            } else {
+                ""
+            },
+            n_requested / nx + 1
         )));
+    }
+    let mut problem = IdentificationProblem::new(mech, data, opts.model, &opts.force)?;
+    // The frame's parameters follow the mechanism's.
+    let frame0: Vec<f64> = match (&opts.frame, frame_start) {
+        (Frame::Base, _) => vec![],
+        (_, Some(f)) => f.to_vec(),
+        (Frame::Known(f), None) => f.clone(),
+        (Frame::Free, None) => {
+            let nominal = problem.predict(start)?;
+            let measured: Vec<Vec<f64>> = data.iter().map(|m| m.measured.clone()).collect();
+            register(spec.tool_layout, &nominal, &measured)?
+        }
+    };
+    if !frame0.is_empty() {
+        if frame0.len() != spec.tool_layout.frame_size() {
+            return Err(Error::Dimension {
+                what: "instrument frame".into(),
+                expected: spec.tool_layout.frame_size(),
+                got: frame0.len(),
+            });
+        }
+        problem = problem.with_frame();
+    }
+    let nf = frame0.len();
+    let cols = Columns::with_frame(spec, &frame0);
+    let mut requested = opts.free.clone();
+    if opts.frame == Frame::Free {
+        requested.extend(np..np + nf);
+    }
+    if let Some(f) = exact_free {
+        requested = f.to_vec();
     }
     if sigma.len() != m || sigma.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
         return Err(Error::InvalidRequest(
@@ -1069,31 +1285,28 @@ fn calibrate_once<M: Mechanism>(
         ));
     }
     let weights: Vec<f64> = sigma.iter().map(|v| 1.0 / v).collect();
-    let stiff: Vec<usize> = (spec.n_geometric() + spec.n_actuated()..spec.n_params()).collect();
+    let stiff: Vec<usize> = (spec.n_geometric() + spec.n_actuated()..np).collect();
     let unloaded = opts.force.iter().all(|f| *f == 0.0);
-    let mut requested = opts.free.clone();
     if opts.auto_fix && unloaded && !stiff.is_empty() && stiff.iter().all(|k| requested.contains(k))
     {
         // Only the ratios act without a load: fix exactly one.
         let k = stiff[0];
         requested.retain(|&i| i != k);
         warnings.push(Warning::new(WarningKind::StiffnessRatios {
-            fixed: names[k].to_string(),
+            fixed: cols.names[k].clone(),
         }));
     }
-    let problem = IdentificationProblem::new(mech, data, opts.model, &opts.force)?;
     let weigh = |mut jac: DMatrix<f64>| {
         for (i, wi) in weights.iter().enumerate() {
             jac.row_mut(i).scale_mut(*wi);
         }
         jac
     };
+    let mut x0: Vec<f64> = start.values.iter().chain(&frame0).copied().collect();
     // Identifiability at the start.
-    let (_, jac) = problem.jacobian(start)?;
-    let jac = weigh(jac);
+    let (_, jac) = problem.residuals_and_jacobian(&x0)?;
     let (mut identifiability, mut free) =
-        analyze_identifiability(spec, &jac, &requested, data.len(), opts.auto_fix);
-    let mut start = start.clone();
+        analyze_identifiability(&cols, &weigh(jac), &requested, data.len(), opts.auto_fix);
     // Stiffness acts only where the actuators fight, which they do not at
     // nominal parameters: judge its identifiability where they do, at the
     // solution without it.
@@ -1104,14 +1317,12 @@ fn calibrate_once<M: Mechanism>(
         .collect();
     if opts.auto_fix && !idle.is_empty() && !free.is_empty() {
         let mut solver = opts.solver.clone();
-        solver.free = Some(mask(spec.n_params(), &free));
+        solver.free = Some(mask(np + nf, &free));
         solver.weights = Some(weights.clone());
-        let first = lm::minimize(&problem, &start.values, &solver);
-        start = Params::new(spec, first.x)?;
-        let (_, jac) = problem.jacobian(&start)?;
-        let jac = weigh(jac);
+        x0 = lm::minimize(&problem, &x0, &solver).x;
+        let (_, jac) = problem.residuals_and_jacobian(&x0)?;
         (identifiability, free) =
-            analyze_identifiability(spec, &jac, &requested, data.len(), opts.auto_fix);
+            analyze_identifiability(&cols, &weigh(jac), &requested, data.len(), opts.auto_fix);
     }
     for u in &identifiability.unidentifiable {
         warnings.push(Warning::new(WarningKind::Unidentifiable {
@@ -1121,15 +1332,16 @@ fn calibrate_once<M: Mechanism>(
         }));
     }
     let mut solver = opts.solver.clone();
-    solver.free = Some(mask(spec.n_params(), &free));
+    solver.free = Some(mask(np + nf, &free));
     solver.weights = Some(weights.clone());
-    let report = lm::minimize(&problem, &start.values, &solver);
+    let report = lm::minimize(&problem, &x0, &solver);
     if !report.termination.converged() {
         warnings.push(Warning::new(WarningKind::NotConverged {
             reason: report.termination.reason(),
         }));
     }
-    let params = Params::new(spec, report.x.clone())?;
+    let params = Params::new(spec, report.x[..np].to_vec())?;
+    let frame = report.x[np..].to_vec();
     let dof = m.saturating_sub(free.len()).max(1);
     let s2 = report.sum_of_squares / dof as f64;
     let (cov_unit, rank) = lm::covariance(&report.jacobian, 1e-12);
@@ -1141,28 +1353,28 @@ fn calibrate_once<M: Mechanism>(
     }
     let covariance = cov_unit * s2;
     let mut parameters = vec![];
-    for (i, name) in names.iter().enumerate() {
+    for (i, name) in cols.names.iter().enumerate() {
         let k = free.iter().position(|&f| f == i);
-        let note = if k.is_none() && opts.free.contains(&i) {
+        let note = if k.is_none() && requested.contains(&i) {
             Some("unidentifiable: fixed at its starting value".into())
         } else {
             None
         };
         parameters.push(ParameterResult {
-            name: name.to_string(),
-            unit: spec.param_unit(i),
-            kind: spec.param_kind(i),
-            nominal: spec.nominal[i],
-            identified: params.values[i],
-            change: params.values[i] - spec.nominal[i],
+            name: name.clone(),
+            unit: cols.units[i],
+            kind: cols.kinds[i],
+            nominal: cols.nominal[i],
+            identified: report.x[i],
+            change: report.x[i] - cols.nominal[i],
             std_dev: k.map_or(0.0, |k| covariance[(k, k)].max(0.0).sqrt()),
             free: k.is_some(),
             note,
         });
     }
-    let correlations = correlations(spec, &free, &covariance);
+    let correlations = correlations(&cols, &free, &covariance);
     let parameter_covariance = ParameterCovariance {
-        names: free.iter().map(|&i| names[i].to_string()).collect(),
+        names: free.iter().map(|&i| cols.names[i].clone()).collect(),
         matrix: (0..free.len())
             .map(|a| (0..free.len()).map(|b| covariance[(a, b)]).collect())
             .collect(),
@@ -1171,6 +1383,7 @@ fn calibrate_once<M: Mechanism>(
         parameter_covariance,
         model: opts.model,
         params,
+        frame: (!frame.is_empty()).then_some(frame),
         converged: report.termination.converged(),
         termination_reason: report.termination.reason(),
         termination: report.termination,
@@ -1234,7 +1447,7 @@ pub fn analyze<M: Mechanism>(
             jac.row_mut(i * nx + a).unscale_mut(s);
         }
     }
-    Ok(analyze_identifiability(spec, &jac, free, data.len(), true).0)
+    Ok(analyze_identifiability(&Columns::of(spec), &jac, free, data.len(), true).0)
 }
 
 /// Covariance of identified parameters, by name: plain data that travels in
@@ -1334,28 +1547,70 @@ pub fn accuracy<M: Mechanism>(
     model: Model,
     force: &[f64],
 ) -> Result<(Accuracy, ErrorVectors, ErrorVectors)> {
+    accuracy_in_frame(mech, data, params, None, model, force)
+}
+
+/// [`accuracy`] of a calibration: its parameters, model and instrument frame.
+pub fn calibration_accuracy<M: Mechanism>(
+    mech: &M,
+    data: &[Measurement],
+    cal: &Calibration,
+    force: &[f64],
+) -> Result<(Accuracy, ErrorVectors, ErrorVectors)> {
+    accuracy_in_frame(
+        mech,
+        data,
+        &cal.params,
+        cal.frame.as_deref(),
+        cal.model,
+        force,
+    )
+}
+
+/// [`accuracy`] of data measured from the instrument frame `frame` (`None`:
+/// the base frame). Errors are in the base frame: after calibration the
+/// measurements are taken to the base by the identified frame; before, by
+/// the frame that best registers them onto the targets (or the nominal
+/// predictions), as a metrologist compares an uncalibrated machine.
+pub fn accuracy_in_frame<M: Mechanism>(
+    mech: &M,
+    data: &[Measurement],
+    params: &Params,
+    frame: Option<&[f64]>,
+    model: Model,
+    force: &[f64],
+) -> Result<(Accuracy, ErrorVectors, ErrorVectors)> {
+    let spec = mech.spec();
+    let layout = spec.tool_layout;
     let problem = IdentificationProblem::new(mech, data, model, force)?;
-    let nominal = Params::nominal(mech.spec());
+    let nominal = Params::nominal(spec);
     let nominal_pred = problem.predict(&nominal)?;
     let pred = problem.predict(params)?;
-    let before: Vec<Vec<f64>> = data
+    let reference: Vec<Vec<f64>> = data
         .iter()
         .zip(&nominal_pred)
-        .map(|(m, p)| {
-            let reference = m.target.as_ref().unwrap_or(p);
-            m.measured
-                .iter()
-                .zip(reference)
-                .map(|(a, b)| a - b)
-                .collect()
-        })
+        .map(|(m, p)| m.target.clone().unwrap_or_else(|| p.clone()))
         .collect();
-    let after: Vec<Vec<f64>> = data
-        .iter()
-        .zip(&pred)
-        .map(|(m, p)| m.measured.iter().zip(p).map(|(a, b)| a - b).collect())
-        .collect();
-    let units = &mech.spec().tool_units;
+    let measured: Vec<Vec<f64>> = data.iter().map(|m| m.measured.clone()).collect();
+    let in_base = |f: Option<&[f64]>| -> Vec<Vec<f64>> {
+        match f {
+            Some(f) => measured.iter().map(|y| to_base(layout, y, f)).collect(),
+            None => measured.clone(),
+        }
+    };
+    let registered = match frame {
+        Some(_) => Some(register(layout, &reference, &measured)?),
+        None => None,
+    };
+    let diff = |a: &[Vec<f64>], b: &[Vec<f64>]| -> Vec<Vec<f64>> {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| x.iter().zip(y).map(|(p, q)| p - q).collect())
+            .collect()
+    };
+    let before = diff(&in_base(registered.as_deref()), &reference);
+    let after = diff(&in_base(frame), &pred);
+    let units = &spec.tool_units;
     let b = error_stats(&before, units);
     let a = error_stats(&after, units);
     Ok((
@@ -1446,7 +1701,7 @@ pub fn cross_validate_with_progress<M: Mechanism>(
             .collect();
         let test: Vec<Measurement> = held.iter().map(|&i| data[i].clone()).collect();
         let cal = calibrate(mech, &train, start, opts)?;
-        let (acc, _, after) = accuracy(mech, &test, &cal.params, opts.model, &opts.force)?;
+        let (acc, _, after) = calibration_accuracy(mech, &test, &cal, &opts.force)?;
         fold_rms.push(acc.after.distance_rms);
         pooled.extend(after);
         progress();

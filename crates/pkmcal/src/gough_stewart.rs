@@ -183,6 +183,7 @@ impl GoughStewart {
                     .collect(),
                 geometric_units: vec![Unit::Millimetre; 6 * n],
                 tool_units: POSE_UNITS.to_vec(),
+                tool_layout: crate::frame::ToolLayout::SpatialPose,
                 nominal,
                 reference_q: vec![0.0; n + 6],
                 default_free: free,
@@ -354,6 +355,10 @@ impl<M: Mechanism> PointTargets<M> {
             geometric,
             geometric_units,
             tool_units: vec![Unit::Millimetre; tool_axes.len()],
+            tool_layout: crate::frame::ToolLayout::Points {
+                dim: 3,
+                count: targets.len(),
+            },
             tool_axes,
             nominal,
             workspace_box: box_,

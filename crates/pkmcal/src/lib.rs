@@ -39,6 +39,7 @@ pub mod ballbar;
 pub mod calibration;
 pub mod compensation;
 pub mod error;
+pub mod frame;
 pub mod gough_stewart;
 pub mod kinematics;
 pub mod linearized;
@@ -59,12 +60,14 @@ pub mod workspace;
 pub use any::AnyMechanism;
 pub use ballbar::{BallBar, Setup, trilaterate};
 pub use calibration::{
-    Accuracy, Calibration, CalibrationOptions, Identifiability, Loss, Outlier, ParameterCovariance,
-    accuracy, analyze, calibrate, cross_validate, cross_validate_with_progress, holdout_split,
-    predict_with_uncertainty, tool_covariance,
+    Accuracy, Calibration, CalibrationOptions, Frame, Identifiability, Loss, Outlier,
+    ParameterCovariance, accuracy, accuracy_in_frame, analyze, calibrate, calibration_accuracy,
+    cross_validate, cross_validate_with_progress, holdout_split, predict_with_uncertainty,
+    tool_covariance,
 };
 pub use compensation::{Compensation, CompensationOptions, compensate};
 pub use error::{Error, Result};
+pub use frame::ToolLayout;
 pub use gough_stewart::{
     GoughStewart, GoughStewartAssembly, GoughStewartDescription, PointTargets,
 };

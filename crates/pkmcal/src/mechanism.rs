@@ -48,6 +48,9 @@ pub struct Spec {
     pub geometric_units: Vec<Unit>,
     /// Unit of each tool coordinate (mm for positions, rad for orientations).
     pub tool_units: Vec<Unit>,
+    /// What the tool coordinates are geometrically (how a change of the
+    /// instrument's frame acts on them).
+    pub tool_layout: crate::frame::ToolLayout,
     /// Nominal values of all parameters, in [`Spec::param_names`] order.
     pub nominal: Vec<f64>,
     /// A configuration of the nominal mechanism on the wanted assembly branch.
@@ -226,6 +229,20 @@ impl Spec {
             .any(|u| !matches!(u, Unit::Millimetre | Unit::Radian))
         {
             return bad("joints, geometric parameters and tool axes are in mm or rad".into());
+        }
+        let layout_size = match self.tool_layout {
+            crate::frame::ToolLayout::PlanarPoint => Some(2),
+            crate::frame::ToolLayout::PlanarPose => Some(3),
+            crate::frame::ToolLayout::SpatialPose => Some(6),
+            crate::frame::ToolLayout::Points { dim, count } => Some(dim * count),
+            crate::frame::ToolLayout::Readings => None,
+        };
+        if layout_size.is_some_and(|n| n != self.tool_axes.len()) {
+            return bad(format!(
+                "the tool layout {:?} does not fit {} tool axes",
+                self.tool_layout,
+                self.tool_axes.len()
+            ));
         }
         if !(self.work_scale.is_finite() && self.work_scale > 0.0) {
             return bad("work_scale must be a positive number".into());

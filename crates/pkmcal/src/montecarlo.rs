@@ -2,7 +2,7 @@
 //! random parameter errors and measurement noise, simulated measurements,
 //! calibration, and the resulting accuracy on unseen poses and parameters.
 
-use crate::calibration::{CalibrationOptions, accuracy, calibrate};
+use crate::calibration::{CalibrationOptions, calibrate, calibration_accuracy};
 use crate::error::Result;
 use crate::mechanism::{Mechanism, Params};
 use crate::simulate::{Noise, simulate};
@@ -103,7 +103,7 @@ pub fn monte_carlo<M: Mechanism>(
             let data = simulate(mech, &truth, poses, opts.noise, seed ^ 0x9e37_79b9)?;
             let cal = calibrate(mech, &data, &nominal, &opts.calibration)?;
             let unseen = simulate(mech, &truth, validation, Noise::NONE, seed)?;
-            let (acc, _, _) = accuracy(mech, &unseen, &cal.params, opts.calibration.model, &[])?;
+            let (acc, _, _) = calibration_accuracy(mech, &unseen, &cal, &[])?;
             progress();
             Ok(Run {
                 converged: cal.converged,

@@ -485,6 +485,11 @@ impl PlanarLinkage {
                         }
                     })
                     .collect(),
+                tool_layout: if d.tool.orientation {
+                    crate::frame::ToolLayout::PlanarPose
+                } else {
+                    crate::frame::ToolLayout::PlanarPoint
+                },
                 tool_axes,
                 nominal,
                 reference_q: vec![0.0; nq],

@@ -96,6 +96,7 @@ impl JeongKim2Dof {
             joint_units: vec![Unit::Radian; 5],
             geometric_units: vec![Unit::Millimetre; GEOMETRIC.len()],
             tool_units: vec![Unit::Millimetre; 2],
+            tool_layout: crate::frame::ToolLayout::PlanarPoint,
             nominal,
             reference_q: REFERENCE_Q_DEG.map(f64::to_radians).to_vec(),
             default_free: PAPER_FREE.map(String::from).to_vec(),

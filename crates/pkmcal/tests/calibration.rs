@@ -3,7 +3,7 @@
 
 mod common;
 
-use pkmcal::calibration::{IdentificationProblem, analyze_identifiability};
+use pkmcal::calibration::{Columns, IdentificationProblem, analyze_identifiability};
 use pkmcal::reference::{JeongKim2Dof, demo_truth};
 use pkmcal::sensitivity::sensitivity;
 use pkmcal::*;
@@ -234,7 +234,7 @@ fn stiffness_ratios_only_without_load() {
     free.extend(19..22);
     let problem = IdentificationProblem::new(&mech, &d, Model::Exact, &[]).unwrap();
     let (_, jac) = problem.jacobian(&demo_truth()).unwrap();
-    let (id, kept) = analyze_identifiability(spec, &jac, &free, d.len(), true);
+    let (id, kept) = analyze_identifiability(&Columns::of(spec), &jac, &free, d.len(), true);
     assert_eq!(id.unidentifiable.len(), 1, "{:?}", id.unidentifiable);
     let u = &id.unidentifiable[0];
     let names: Vec<&str> = u.terms.iter().map(|t| t.0.as_str()).collect();
@@ -245,7 +245,7 @@ fn stiffness_ratios_only_without_load() {
     // Under a tool load the absolute stiffness shows.
     let loaded = IdentificationProblem::new(&mech, &d, Model::Exact, &[30.0, -60.0]).unwrap();
     let (_, jac) = loaded.jacobian(&demo_truth()).unwrap();
-    let (id, _) = analyze_identifiability(spec, &jac, &free, d.len(), true);
+    let (id, _) = analyze_identifiability(&Columns::of(spec), &jac, &free, d.len(), true);
     assert!(id.unidentifiable.is_empty(), "{:?}", id.unidentifiable);
     // And calibrate says so in a warning.
     let mut opts = CalibrationOptions::new(spec, Model::Exact);

@@ -1,0 +1,395 @@
+//! The instrument frame: where the measuring instrument (a laser tracker, a
+//! camera) stands relative to the mechanism's base frame.
+//!
+//! A tracker never stands in the base frame. Its data are the tool
+//! coordinates seen from its own frame: with `F = (t, R)` the instrument
+//! frame's pose in the base frame (origin `t`, axes `R`),
+//!
+//! ```text
+//! position:     y = Rᵀ (x − t)
+//! orientation:  planar φ_y = φ − θ;  spatial R_y = Rᵀ R_x (Euler angles again)
+//! ```
+//!
+//! `F` has 3 parameters in the plane (`frame.x frame.y frame.phi`) and 6 in
+//! space (`frame.x frame.y frame.z frame.rx frame.ry frame.rz`, the rotation
+//! `R = Rz(rz) Ry(ry) Rx(rx)` as for platform poses). Identified with the
+//! mechanism's parameters, it starts from the rigid registration of the
+//! measured positions onto the nominal ones (Kabsch/Horn, closed form), so
+//! Newton starts near the solution wherever the instrument stands.
+//!
+//! Which coordinates are positions and which orientations is the tool's
+//! [`ToolLayout`], declared by the mechanism.
+
+use crate::error::{Error, Result};
+use crate::gough_stewart::rotation;
+use crate::mechanism::Scalar;
+use crate::units::Unit;
+use nalgebra::{DMatrix, Matrix3, Vector3};
+use num_dual::Dual64;
+use serde::Serialize;
+
+/// What the tool coordinates are, geometrically: how a change of frame acts
+/// on them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case", tag = "kind")]
+pub enum ToolLayout {
+    /// A planar position `x, y` (mm).
+    PlanarPoint,
+    /// A planar pose `x, y` (mm), `phi` (rad).
+    PlanarPose,
+    /// A spatial pose `x, y, z` (mm), `rx, ry, rz` (rad), `R = Rz Ry Rx`.
+    SpatialPose,
+    /// `count` points of dimension `dim` (2 or 3), coordinates in order.
+    Points {
+        /// Dimension of each point.
+        dim: usize,
+        /// Number of points.
+        count: usize,
+    },
+    /// Readings that do not depend on a frame (distances).
+    Readings,
+}
+
+impl ToolLayout {
+    /// Number of frame parameters: 3 in the plane, 6 in space, 0 for
+    /// frame-free readings.
+    pub fn frame_size(self) -> usize {
+        match self {
+            ToolLayout::PlanarPoint | ToolLayout::PlanarPose => 3,
+            ToolLayout::Points { dim: 2, .. } => 3,
+            ToolLayout::SpatialPose | ToolLayout::Points { .. } => 6,
+            ToolLayout::Readings => 0,
+        }
+    }
+
+    /// Names of the frame parameters.
+    pub fn frame_names(self) -> Vec<String> {
+        let names: &[&str] = if self.frame_size() == 3 {
+            &["frame.x", "frame.y", "frame.phi"]
+        } else if self.frame_size() == 6 {
+            &[
+                "frame.x", "frame.y", "frame.z", "frame.rx", "frame.ry", "frame.rz",
+            ]
+        } else {
+            &[]
+        };
+        names.iter().map(|s| s.to_string()).collect()
+    }
+
+    /// Units of the frame parameters.
+    pub fn frame_units(self) -> Vec<Unit> {
+        match self.frame_size() {
+            3 => vec![Unit::Millimetre, Unit::Millimetre, Unit::Radian],
+            6 => [Unit::Millimetre; 3]
+                .into_iter()
+                .chain([Unit::Radian; 3])
+                .collect(),
+            _ => vec![],
+        }
+    }
+
+    /// The points of a tool vector: start index of each, and its dimension.
+    fn points(self, n: usize) -> (Vec<usize>, usize) {
+        match self {
+            ToolLayout::PlanarPoint | ToolLayout::PlanarPose => (vec![0], 2),
+            ToolLayout::SpatialPose => (vec![0], 3),
+            ToolLayout::Points { dim, count } => ((0..count).map(|k| k * dim).collect(), dim),
+            ToolLayout::Readings => (vec![], n.min(1)),
+        }
+    }
+}
+
+/// Tool coordinates `x` (base frame) as the instrument at `frame` sees them.
+pub fn observe<D: Scalar>(layout: ToolLayout, x: &[D], frame: &[D], y: &mut [D]) {
+    y.copy_from_slice(x);
+    match layout.frame_size() {
+        3 => {
+            let (s, c) = frame[2].sin_cos();
+            let (starts, _) = layout.points(x.len());
+            for k in starts {
+                let dx = x[k] - frame[0];
+                let dy = x[k + 1] - frame[1];
+                y[k] = c * dx + s * dy;
+                y[k + 1] = c * dy - s * dx;
+            }
+            if layout == ToolLayout::PlanarPose {
+                y[2] = x[2] - frame[2];
+            }
+        }
+        6 => {
+            let r = rotation(frame[3], frame[4], frame[5]);
+            let (starts, _) = layout.points(x.len());
+            for k in starts {
+                let d = [x[k] - frame[0], x[k + 1] - frame[1], x[k + 2] - frame[2]];
+                for i in 0..3 {
+                    y[k + i] = r[0][i] * d[0] + r[1][i] * d[1] + r[2][i] * d[2];
+                }
+            }
+            if layout == ToolLayout::SpatialPose {
+                let p = rotation(x[3], x[4], x[5]);
+                // Rᵀ P, then its Euler angles (R = Rz Ry Rx).
+                let m =
+                    |i: usize, j: usize| r[0][i] * p[0][j] + r[1][i] * p[1][j] + r[2][i] * p[2][j];
+                y[4] = (-m(2, 0)).asin();
+                y[3] = m(2, 1).atan2(m(2, 2));
+                y[5] = m(1, 0).atan2(m(0, 0));
+            }
+        }
+        _ => {}
+    }
+}
+
+/// [`observe`] and its exact derivatives with respect to `x` and `frame`.
+pub fn observe_jacobian(
+    layout: ToolLayout,
+    x: &[f64],
+    frame: &[f64],
+) -> (Vec<f64>, DMatrix<f64>, DMatrix<f64>) {
+    let (nx, nf) = (x.len(), frame.len());
+    let mut y = vec![0.0; nx];
+    observe(layout, x, frame, &mut y);
+    let mut dx = DMatrix::zeros(nx, nx);
+    let mut df = DMatrix::zeros(nx, nf);
+    let xd: Vec<Dual64> = x.iter().map(|&v| Dual64::from(v)).collect();
+    let fd: Vec<Dual64> = frame.iter().map(|&v| Dual64::from(v)).collect();
+    let mut out = vec![Dual64::from(0.0); nx];
+    for j in 0..nx + nf {
+        let (mut a, mut b) = (xd.clone(), fd.clone());
+        if j < nx {
+            a[j] = Dual64::from(x[j]).derivative();
+        } else {
+            b[j - nx] = Dual64::from(frame[j - nx]).derivative();
+        }
+        observe(layout, &a, &b, &mut out);
+        for i in 0..nx {
+            if j < nx {
+                dx[(i, j)] = out[i].eps;
+            } else {
+                df[(i, j - nx)] = out[i].eps;
+            }
+        }
+    }
+    (y, dx, df)
+}
+
+/// The base-frame tool coordinates behind the instrument's `y`: the inverse
+/// of [`observe`].
+pub fn to_base(layout: ToolLayout, y: &[f64], frame: &[f64]) -> Vec<f64> {
+    let mut x = y.to_vec();
+    match layout.frame_size() {
+        3 => {
+            let (s, c) = frame[2].sin_cos();
+            let (starts, _) = layout.points(y.len());
+            for k in starts {
+                x[k] = frame[0] + c * y[k] - s * y[k + 1];
+                x[k + 1] = frame[1] + s * y[k] + c * y[k + 1];
+            }
+            if layout == ToolLayout::PlanarPose {
+                x[2] = y[2] + frame[2];
+            }
+        }
+        6 => {
+            let r = rotation(frame[3], frame[4], frame[5]);
+            let (starts, _) = layout.points(y.len());
+            for k in starts {
+                for i in 0..3 {
+                    x[k + i] = frame[i] + (0..3).map(|j| r[i][j] * y[k + j]).sum::<f64>();
+                }
+            }
+            if layout == ToolLayout::SpatialPose {
+                let p = rotation(y[3], y[4], y[5]);
+                let m = |i: usize, j: usize| (0..3).map(|k| r[i][k] * p[k][j]).sum::<f64>();
+                let (rx, ry, rz) = euler(&m);
+                x[3] = rx;
+                x[4] = ry;
+                x[5] = rz;
+            }
+        }
+        _ => {}
+    }
+    x
+}
+
+fn euler(m: &dyn Fn(usize, usize) -> f64) -> (f64, f64, f64) {
+    (
+        m(2, 1).atan2(m(2, 2)),
+        (-m(2, 0)).clamp(-1.0, 1.0).asin(),
+        m(1, 0).atan2(m(0, 0)),
+    )
+}
+
+/// The frame that best maps the measured positions onto `reference` (base
+/// frame), by least squares over every point of every pose: the closed-form
+/// rigid registration (Kabsch 1976 / Horn 1987; 2-D: the angle of the summed
+/// cross and dot products). Only positions are used; a registration from
+/// fewer than 2 (plane) or 3 (space) distinct points is refused.
+pub fn register(
+    layout: ToolLayout,
+    reference: &[Vec<f64>],
+    measured: &[Vec<f64>],
+) -> Result<Vec<f64>> {
+    let nf = layout.frame_size();
+    if nf == 0 {
+        return Ok(vec![]);
+    }
+    let (starts, dim) = layout.points(reference.first().map_or(0, Vec::len));
+    let mut p: Vec<[f64; 3]> = vec![];
+    let mut q: Vec<[f64; 3]> = vec![];
+    for (a, b) in reference.iter().zip(measured) {
+        for &k in &starts {
+            let mut u = [0.0; 3];
+            let mut v = [0.0; 3];
+            u[..dim].copy_from_slice(&a[k..k + dim]);
+            v[..dim].copy_from_slice(&b[k..k + dim]);
+            p.push(u);
+            q.push(v);
+        }
+    }
+    let need = if dim == 2 { 2 } else { 3 };
+    if p.len() < need {
+        return Err(Error::InvalidRequest(format!(
+            "the instrument frame needs at least {need} measured points to be registered, got {}",
+            p.len()
+        )));
+    }
+    let n = p.len() as f64;
+    let mean = |s: &[[f64; 3]]| {
+        let mut m = [0.0; 3];
+        for v in s {
+            for i in 0..3 {
+                m[i] += v[i] / n;
+            }
+        }
+        m
+    };
+    let (pm, qm) = (mean(&p), mean(&q));
+    if dim == 2 {
+        // x = t + R(θ) y: θ maximises Σ (x − x̄)·R(y − ȳ).
+        let (mut sc, mut ss) = (0.0, 0.0);
+        for (a, b) in p.iter().zip(&q) {
+            let (ax, ay) = (a[0] - pm[0], a[1] - pm[1]);
+            let (bx, by) = (b[0] - qm[0], b[1] - qm[1]);
+            sc += ax * bx + ay * by;
+            ss += ay * bx - ax * by;
+        }
+        let th = ss.atan2(sc);
+        let (s, c) = th.sin_cos();
+        return Ok(vec![
+            pm[0] - (c * qm[0] - s * qm[1]),
+            pm[1] - (s * qm[0] + c * qm[1]),
+            th,
+        ]);
+    }
+    // Cross-covariance H = Σ (y − ȳ)(x − x̄)ᵀ = U S Vᵀ; R = V diag(1, 1, d) Uᵀ.
+    let mut h = Matrix3::zeros();
+    for (a, b) in p.iter().zip(&q) {
+        let x = Vector3::new(a[0] - pm[0], a[1] - pm[1], a[2] - pm[2]);
+        let y = Vector3::new(b[0] - qm[0], b[1] - qm[1], b[2] - qm[2]);
+        h += y * x.transpose();
+    }
+    let svd = h.svd(true, true);
+    let (u, vt) = (svd.u.expect("requested"), svd.v_t.expect("requested"));
+    let d = (vt.transpose() * u.transpose()).determinant().signum();
+    let r = vt.transpose() * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, d)) * u.transpose();
+    let t = Vector3::from(pm) - r * Vector3::from(qm);
+    let (rx, ry, rz) = euler(&|i, j| r[(i, j)]);
+    Ok(vec![t[0], t[1], t[2], rx, ry, rz])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Round-off agreement of exact computations.
+    const EXACT: f64 = 1e-9;
+
+    fn poses() -> Vec<Vec<f64>> {
+        vec![
+            vec![10.0, 20.0, 700.0, 0.01, -0.02, 0.03],
+            vec![-50.0, 35.0, 650.0, -0.05, 0.04, 0.2],
+            vec![80.0, -60.0, 720.0, 0.1, 0.0, -0.1],
+            vec![0.0, 0.0, 690.0, 0.0, 0.07, 0.0],
+        ]
+    }
+
+    #[test]
+    fn observe_and_to_base_are_inverse() {
+        let frame = [1000.0, -200.0, 50.0, 0.02, -0.03, 0.035];
+        for x in poses() {
+            let mut y = vec![0.0; 6];
+            observe(ToolLayout::SpatialPose, &x, &frame, &mut y);
+            let back = to_base(ToolLayout::SpatialPose, &y, &frame);
+            for (a, b) in x.iter().zip(&back) {
+                assert!((a - b).abs() < EXACT, "{x:?} -> {back:?}");
+            }
+        }
+        let frame = [500.0, 300.0, 0.4];
+        let x = [10.0, 20.0, 0.3];
+        let mut y = [0.0; 3];
+        observe(ToolLayout::PlanarPose, &x, &frame, &mut y);
+        let back = to_base(ToolLayout::PlanarPose, &y, &frame);
+        assert!(x.iter().zip(&back).all(|(a, b)| (a - b).abs() < EXACT));
+    }
+
+    #[test]
+    fn registration_recovers_the_frame() {
+        let frame = [1000.0, -200.0, 50.0, 0.02, -0.03, 0.035];
+        let x = poses();
+        let y: Vec<Vec<f64>> = x
+            .iter()
+            .map(|p| {
+                let mut o = vec![0.0; 6];
+                observe(ToolLayout::SpatialPose, p, &frame, &mut o);
+                o
+            })
+            .collect();
+        let f = register(ToolLayout::SpatialPose, &x, &y).unwrap();
+        for (a, b) in f.iter().zip(&frame) {
+            assert!((a - b).abs() < 1e-6, "{f:?}");
+        }
+        let frame2 = [500.0, 300.0, 0.4];
+        let x2: Vec<Vec<f64>> = vec![vec![0.0, 0.0], vec![100.0, 0.0], vec![30.0, 80.0]];
+        let y2: Vec<Vec<f64>> = x2
+            .iter()
+            .map(|p| {
+                let mut o = vec![0.0; 2];
+                observe(ToolLayout::PlanarPoint, p, &frame2, &mut o);
+                o
+            })
+            .collect();
+        let f2 = register(ToolLayout::PlanarPoint, &x2, &y2).unwrap();
+        for (a, b) in f2.iter().zip(&frame2) {
+            assert!((a - b).abs() < 1e-9, "{f2:?}");
+        }
+    }
+
+    #[test]
+    fn derivatives_match_central_differences() {
+        let frame = vec![100.0, -20.0, 5.0, 0.2, -0.3, 0.35];
+        let x = poses()[1].clone();
+        let (_, dx, df) = observe_jacobian(ToolLayout::SpatialPose, &x, &frame);
+        let h = 1e-6;
+        for j in 0..12 {
+            let (mut a, mut b) = (x.clone(), frame.clone());
+            let (mut a2, mut b2) = (x.clone(), frame.clone());
+            if j < 6 {
+                a[j] += h;
+                a2[j] -= h;
+            } else {
+                b[j - 6] += h;
+                b2[j - 6] -= h;
+            }
+            let (mut yp, mut ym) = (vec![0.0; 6], vec![0.0; 6]);
+            observe(ToolLayout::SpatialPose, &a, &b, &mut yp);
+            observe(ToolLayout::SpatialPose, &a2, &b2, &mut ym);
+            for i in 0..6 {
+                let fd = (yp[i] - ym[i]) / (2.0 * h);
+                let ad = if j < 6 { dx[(i, j)] } else { df[(i, j - 6)] };
+                assert!(
+                    (fd - ad).abs() < 1e-6 * (1.0 + ad.abs()),
+                    "{i},{j}: {fd} {ad}"
+                );
+            }
+        }
+    }
+}

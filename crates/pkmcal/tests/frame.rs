@@ -1,0 +1,151 @@
+//! The instrument frame: data measured from a tracker standing 1 m and 2°
+//! away from the base frame give the same mechanism parameters and the same
+//! validation accuracy as the same data seen from the base frame.
+
+mod common;
+use common::{gough_stewart, perturbed};
+use pkmcal::calibration::Frame;
+use pkmcal::frame::{observe, to_base};
+use pkmcal::{
+    CalibrationOptions, JeongKim2Dof, Measurement, Mechanism, Model, Noise, Params, calibrate,
+    calibration_accuracy, simulate, spread_targets,
+};
+
+/// Two fits of the same data seen from two frames agree to this (mm, rad)…
+const SAME_FIT: f64 = 1e-6;
+/// …or to this fraction of the parameter's standard deviation: the problem
+/// is invariant, but the noise levels are estimated iteratively and the
+/// iterations stop at a tolerance.
+const SAME_FIT_SIGMAS: f64 = 0.02;
+
+/// `data` as seen from an instrument at `frame`.
+fn seen_from<M: Mechanism>(m: &M, data: &[Measurement], frame: &[f64]) -> Vec<Measurement> {
+    let layout = m.spec().tool_layout;
+    data.iter()
+        .map(|d| {
+            let mut y = vec![0.0; d.measured.len()];
+            observe(layout, &d.measured, frame, &mut y);
+            Measurement {
+                measured: y,
+                ..d.clone()
+            }
+        })
+        .collect()
+}
+
+fn targets<M: Mechanism>(m: &M, n: usize) -> Vec<Vec<f64>> {
+    spread_targets(m, n)
+        .unwrap()
+        .into_iter()
+        .map(|p| p.target)
+        .collect()
+}
+
+fn check_invariance<M: Mechanism>(m: &M, truth: &Params, poses: usize, far: &[f64]) {
+    let spec = m.spec();
+    let data = simulate(m, truth, &targets(m, poses), Noise::lengths(0.002), 3).unwrap();
+    let unseen = simulate(m, truth, &targets(m, 20), Noise::NONE, 4).unwrap();
+    let mut opts = CalibrationOptions::new(spec, Model::Exact);
+    opts.frame = Frame::Free;
+    let start = Params::nominal(spec);
+    let near = calibrate(m, &data, &start, &opts).unwrap();
+    let moved = calibrate(m, &seen_from(m, &data, far), &start, &opts).unwrap();
+    assert!(near.converged && moved.converged);
+    for (i, (a, b)) in near
+        .params
+        .values
+        .iter()
+        .zip(&moved.params.values)
+        .enumerate()
+    {
+        let sigma = near.parameters[i].std_dev;
+        assert!(
+            (a - b).abs() < (SAME_FIT * (1.0 + a.abs())).max(SAME_FIT_SIGMAS * sigma),
+            "{}: {} {a} vs {b} (σ {sigma}); fixed {:?} vs {:?}",
+            spec.name,
+            spec.param_names()[i],
+            near.parameters
+                .iter()
+                .filter(|p| p.note.is_some())
+                .map(|p| &p.name)
+                .collect::<Vec<_>>(),
+            moved
+                .parameters
+                .iter()
+                .filter(|p| p.note.is_some())
+                .map(|p| &p.name)
+                .collect::<Vec<_>>()
+        );
+    }
+    // The identified frame is where the tracker stands, composed with the
+    // frame found for the base-frame data (near identity): a point seen by
+    // the tracker lands in the same place either way.
+    let f = moved.frame.as_ref().unwrap();
+    let f0 = near.frame.as_ref().unwrap();
+    let layout = spec.tool_layout;
+    for d in data.iter().take(5) {
+        let direct = to_base(layout, &d.measured, f);
+        let composed = to_base(layout, &to_base(layout, &d.measured, far), f0);
+        for (x, y) in direct.iter().zip(&composed) {
+            assert!(
+                (x - y).abs() < 1e-2,
+                "{}: {direct:?} vs {composed:?}",
+                spec.name
+            );
+        }
+    }
+    let (acc_near, _, _) = calibration_accuracy(m, &unseen, &near, &[]).unwrap();
+    let (acc_far, _, _) =
+        calibration_accuracy(m, &seen_from(m, &unseen, far), &moved, &[]).unwrap();
+    assert!(
+        (acc_near.after.distance_rms / acc_far.after.distance_rms - 1.0).abs() < SAME_FIT_SIGMAS,
+        "{}: {} vs {}",
+        spec.name,
+        acc_near.after.distance_rms,
+        acc_far.after.distance_rms
+    );
+    assert!(acc_far.after.distance_max < 0.01, "{:?}", acc_far.after);
+    // The "before" errors are judged after the best rigid registration, not
+    // against a tracker 1 m away.
+    assert!(acc_far.before.distance_max < 5.0, "{:?}", acc_far.before);
+    // Pretending the data were in the base frame cannot fit them.
+    let mut base = opts.clone();
+    base.frame = Frame::Base;
+    if let Ok(c) = calibrate(m, &seen_from(m, &data, far), &start, &base) {
+        assert!(
+            c.noise[0].residual_rms > 100.0 * near.noise[0].residual_rms,
+            "{:?}",
+            c.noise
+        );
+    }
+}
+
+#[test]
+fn a_planar_tracker_frame_1_m_and_2_degrees_away_changes_nothing() {
+    let m = JeongKim2Dof::new();
+    let truth = Params::from_named(
+        m.spec(),
+        [
+            ("l11", 280.3),
+            ("B3x", 149.6),
+            ("D2", 215.2),
+            ("dq3", 0.002),
+        ],
+    )
+    .unwrap();
+    check_invariance(&m, &truth, 35, &[1000.0, -300.0, 2f64.to_radians()]);
+}
+
+#[test]
+fn a_spatial_tracker_frame_1_m_and_2_degrees_away_changes_nothing() {
+    let m = gough_stewart("gough-stewart-6");
+    let spec = m.spec();
+    let all = perturbed(spec, 4, 0.2, 0.1);
+    let mut truth = Params::nominal(spec);
+    for n in &spec.default_free {
+        truth.set(spec, n, all.get(spec, n).unwrap()).unwrap();
+    }
+    // About a tilted axis: 2° in total.
+    let a = 2f64.to_radians() / 3f64.sqrt();
+    check_invariance(&m, &truth, 50, &[800.0, -500.0, 300.0, a, -a, a]);
+}
