@@ -566,6 +566,36 @@ pub fn with_units(values: &[f64], units: &[pkmcal::Unit]) -> String {
         .join(", ")
 }
 
+/// The instrument frame in words, when the data were measured from one.
+pub fn frame_text(cal: &Calibration) -> Option<String> {
+    cal.frame.as_ref()?;
+    let rows: Vec<String> = cal
+        .parameters
+        .iter()
+        .filter(|p| p.kind == pkmcal::ParamKind::Instrument)
+        .map(|p| {
+            let (f, sym) = match p.unit {
+                pkmcal::Unit::Radian => (1e3, "mrad"),
+                u => (1.0, u.symbol()),
+            };
+            if p.free {
+                format!(
+                    "{} {:.4} ± {:.2e} {sym}",
+                    p.name,
+                    p.identified * f,
+                    p.std_dev * f
+                )
+            } else {
+                format!("{} {:.4} {sym} (fixed)", p.name, p.identified * f)
+            }
+        })
+        .collect();
+    Some(format!(
+        "instrument frame in the base frame (identified; --frame base if the data are in the base frame): {}",
+        rows.join(", ")
+    ))
+}
+
 /// A noise group in words: its σ (estimated or given) and residual RMS.
 pub fn noise_text(g: &pkmcal::NoiseGroup) -> String {
     let (f, sym) = g.unit.readable(g.sigma);
@@ -659,6 +689,9 @@ fn print_summary(r: &Report, axes: &[String], units: &[pkmcal::Unit]) {
         .map(|p| p.name.as_str())
         .collect();
     println!("  fixed: {}", fixed.join(" "));
+    if let Some(text) = frame_text(cal) {
+        println!("  {text}");
+    }
     println!();
     print_identifiability(&cal.identifiability, "fixed");
     for c in &cal.correlations {

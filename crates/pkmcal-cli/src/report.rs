@@ -197,7 +197,7 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
     );
     let _ = write!(
         h,
-        "<table class=\"kv\"><tr><td>mechanism</td><td>{}</td></tr><tr><td>joints</td><td>{} (actuated: {})</td></tr><tr><td>data</td><td>{} ({} poses)</td></tr><tr><td>model</td><td>{}</td></tr><tr><td>solver</td><td>{} after {} iterations, {} evaluations</td></tr><tr><td>noise</td><td>{}</td></tr><tr><td>pkmcal</td><td>{}</td></tr></table>",
+        "<table class=\"kv\"><tr><td>mechanism</td><td>{}</td></tr><tr><td>joints</td><td>{} (actuated: {})</td></tr><tr><td>data</td><td>{} ({} poses)</td></tr><tr><td>model</td><td>{}</td></tr><tr><td>solver</td><td>{} after {} iterations, {} evaluations</td></tr><tr><td>noise</td><td>{}</td></tr><tr><td>instrument frame</td><td>{}</td></tr><tr><td>pkmcal</td><td>{}</td></tr></table>",
         escape(&spec.name),
         escape(&spec.joints.join(", ")),
         escape(&spec.actuated_names().join(", ")),
@@ -216,6 +216,10 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
             .map(|g| escape(&crate::calibrate::noise_text(g)))
             .collect::<Vec<_>>()
             .join("<br>"),
+        escape(
+            &crate::calibrate::frame_text(cal)
+                .unwrap_or_else(|| "the base frame (--frame base)".into())
+        ),
         env!("CARGO_PKG_VERSION")
     );
     for w in &cal.warnings {

@@ -1461,7 +1461,10 @@ pub struct ParameterCovariance {
 }
 
 impl ParameterCovariance {
-    /// Parameter indices and the matrix, checked against the mechanism.
+    /// Parameter indices and the matrix, checked against the mechanism. The
+    /// instrument frame's parameters are left out (the marginal covariance
+    /// of the mechanism's is the sub-matrix): predictions are in the base
+    /// frame.
     pub fn resolve(&self, spec: &Spec) -> Result<(Vec<usize>, DMatrix<f64>)> {
         let n = self.names.len();
         if self.matrix.len() != n || self.matrix.iter().any(|r| r.len() != n) {
@@ -1474,12 +1477,18 @@ impl ParameterCovariance {
                 "the covariance has non-finite entries".into(),
             ));
         }
-        let idx = self
-            .names
+        let frame = spec.tool_layout.frame_names();
+        let keep: Vec<usize> = (0..n)
+            .filter(|&a| !frame.contains(&self.names[a]))
+            .collect();
+        let idx = keep
             .iter()
-            .map(|n| spec.param_index(n))
+            .map(|&a| spec.param_index(&self.names[a]))
             .collect::<Result<Vec<_>>>()?;
-        Ok((idx, DMatrix::from_fn(n, n, |a, b| self.matrix[a][b])))
+        Ok((
+            idx,
+            DMatrix::from_fn(keep.len(), keep.len(), |a, b| self.matrix[keep[a]][keep[b]]),
+        ))
     }
 }
 
