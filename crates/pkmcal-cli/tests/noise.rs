@@ -241,3 +241,76 @@ fn a_pose_that_cannot_be_assembled_is_named_with_its_line() {
     );
     assert!(!d.join("p.toml").exists());
 }
+
+#[test]
+fn tracker_data_from_a_frame_1_m_and_2_degrees_away() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("t.toml"), "l11 = 280.4\nB3x = 149.6\ndq3 = 0.002\n").unwrap();
+    let frame = format!("1000,-300,{}", 2f64.to_radians());
+    for (out, n, seed) in [("data.csv", "35", "1"), ("val.csv", "20", "2")] {
+        ok(
+            d,
+            &[
+                "simulate",
+                "--truth",
+                "t.toml",
+                "--grid",
+                n,
+                "--seed",
+                seed,
+                "--noise",
+                "0.002",
+                "--instrument-frame",
+                &frame,
+                "--out",
+                out,
+            ],
+        );
+    }
+    // The tracker's file does not claim the base frame: the frame is found.
+    let text = std::fs::read_to_string(d.join("data.csv")).unwrap();
+    assert!(!text.contains("# frame: base"));
+    let summary = ok(
+        d,
+        &[
+            "calibrate",
+            "--data",
+            "data.csv",
+            "--validate",
+            "val.csv",
+            "--out",
+            "p.toml",
+            "--report",
+            "r.json",
+        ],
+    );
+    assert!(
+        summary.contains("instrument frame in the base frame"),
+        "{summary}"
+    );
+    assert!(!summary.contains("outlier"), "{summary}");
+    let r = json(&d.join("r.json"));
+    let f = r["frame"].as_array().unwrap();
+    assert!((f[0].as_f64().unwrap() - 1000.0).abs() < 0.1, "{f:?}");
+    assert!(
+        (f[2].as_f64().unwrap() - 2f64.to_radians()).abs() < 1e-3,
+        "{f:?}"
+    );
+    let after = r["validation"]["accuracy"]["after"]["distance_max"]
+        .as_f64()
+        .unwrap();
+    assert!(after < 0.01, "{after}");
+    let l11 = r["parameters"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|p| p["name"] == "l11")
+        .unwrap()["identified"]
+        .as_f64()
+        .unwrap();
+    assert!((l11 - 280.4).abs() < 0.02, "{l11}");
+    // The parameter file holds the mechanism's parameters only.
+    let params = std::fs::read_to_string(d.join("p.toml")).unwrap();
+    assert!(!params.contains("frame."), "{params}");
+}
