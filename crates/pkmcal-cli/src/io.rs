@@ -354,11 +354,6 @@ pub struct SetupFile {
     bar_offset: f64,
 }
 
-#[derive(Deserialize)]
-struct MechanismBallbar {
-    ballbar: Option<SetupFile>,
-}
-
 /// The ball-bar setup: from `--setup`, else from the mechanism file's
 /// `[ballbar]` table; `None` when neither gives one.
 pub fn read_setup(setup: Option<&Path>, mechanism: Option<&Path>) -> Result<Option<pkmcal::Setup>> {
@@ -376,9 +371,20 @@ pub fn read_setup(setup: Option<&Path>, mechanism: Option<&Path>) -> Result<Opti
         (None, Some(m)) => {
             let text = std::fs::read_to_string(m)
                 .with_context(|| format!("cannot read mechanism file {}", m.display()))?;
-            toml::from_str::<MechanismBallbar>(&text)
-                .ok()
-                .and_then(|f| f.ballbar)
+            // The mechanism file itself was checked when it was read; only
+            // its `[ballbar]` table matters here, and a mistake in it is
+            // reported, not taken for "no table".
+            let table: toml::Table = toml::from_str(&text)
+                .with_context(|| format!("in mechanism file {}", m.display()))?;
+            match table.get("ballbar") {
+                None => None,
+                Some(v) => Some(v.clone().try_into::<SetupFile>().with_context(|| {
+                    format!(
+                        "in the [ballbar] table of {}: expected `sockets = [[x, y], …]` and optional `bar_offset`",
+                        m.display()
+                    )
+                })?),
+            }
         }
         (None, None) => None,
     };

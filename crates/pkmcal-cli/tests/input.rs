@@ -236,3 +236,41 @@ fn line_numbers_are_right_with_crlf_comments_and_blank_lines() {
         "t.csv:4:",
     );
 }
+
+#[test]
+fn a_typo_in_the_ballbar_table_is_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let reference = format!(
+        "{}/../../examples/jeong-kim-2dof/mechanism.toml",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let mut text = std::fs::read_to_string(reference).unwrap();
+    text.push_str("\n[ballbar]\nbar_ofset = 0.0\nsockets = [[-250.0, -60.0], [260.0, -40.0], [20.0, 480.0]]\n");
+    std::fs::write(d.join("m.toml"), text).unwrap();
+    std::fs::write(
+        d.join("s.toml"),
+        "sockets = [[-250.0, -60.0], [260.0, -40.0], [20.0, 480.0]]\n",
+    )
+    .unwrap();
+    ok(
+        d,
+        &[
+            "simulate", "--grid", "10", "--setup", "s.toml", "--out", "bb.csv",
+        ],
+    );
+    fails(
+        d,
+        &[
+            "calibrate",
+            "--mechanism",
+            "m.toml",
+            "--data",
+            "bb.csv",
+            "--out",
+            "p.toml",
+        ],
+        1,
+        "unknown field `bar_ofset`",
+    );
+}
