@@ -53,7 +53,7 @@ pub struct MechanismArg {
 /// Which parameters to identify.
 #[derive(clap::Args)]
 pub struct FreeArgs {
-    /// Parameters to identify, comma separated (`all`, `default` allowed); default: the paper's 16.
+    /// Parameters to identify, comma separated (`all`, `default` allowed); default: the mechanism's default set (the paper's 16 for the reference).
     #[arg(long, value_name = "NAMES")]
     pub free: Option<String>,
     /// Parameters to keep fixed, comma separated (removed from the free set).
@@ -71,14 +71,17 @@ pub struct PredictArgs {
     /// Forward model.
     #[arg(long, default_value = "exact", value_parser = ["exact", "linear", "rigid"])]
     pub model: String,
-    /// Actuator commands: CSV with one column per actuated joint (q1,q2,q3; rad).
+    /// Actuator commands: CSV with one column per actuated joint, named as the
+    /// mechanism's joints (q1,q2,q3 for the reference), in rad or mm.
     #[arg(long, value_name = "C.csv")]
     pub commands: PathBuf,
-    /// External force applied to the tool, N, one value per tool axis (e.g. `0,-9.81`).
-    #[arg(long, value_name = "FX,FY", allow_hyphen_values = true)]
+    /// External load applied to the tool, one value per tool coordinate: N along a length, N·mm per rad
+    /// on an angle (for phi: the moment about the tool point; for rx, ry, rz:
+    /// the generalised force of the Euler angle), e.g. `0,-9.81`.
+    #[arg(long, value_name = "F1,F2,…", allow_hyphen_values = true)]
     pub force: Option<String>,
     /// Calibration report (from `calibrate --report`) whose parameter covariance
-    /// gives each prediction's standard deviation (columns sigma_x, sigma_y).
+    /// gives each prediction's standard deviation (columns sigma_<axis>).
     #[arg(long, value_name = "REPORT.json")]
     pub uncertainty: Option<PathBuf>,
     /// Output CSV.
@@ -96,7 +99,8 @@ pub struct SimulateArgs {
     /// True parameter values (flat TOML); nominal if omitted.
     #[arg(long, value_name = "P.toml")]
     pub truth: Option<PathBuf>,
-    /// Target tool positions: CSV with columns target_x,target_y (mm).
+    /// Target tool positions: CSV with one column target_<axis> per tool axis
+    /// (target_x,target_y for the reference; mm, rad).
     #[arg(
         long,
         value_name = "T.csv",
@@ -125,7 +129,9 @@ pub struct SimulateArgs {
     /// and the file says so (`# frame: base`).
     #[arg(long, value_name = "POSE", allow_hyphen_values = true)]
     pub instrument_frame: Option<String>,
-    /// Output CSV: target_x,target_y,q1,q2,q3,x,y (with --setup: d1..dk instead of x,y).
+    /// Output CSV: targets, commands and measured tool coordinates
+    /// (target_x,target_y,q1,q2,q3,x,y for the reference; with --setup: d1..dk
+    /// instead of the tool coordinates).
     #[arg(long, value_name = "DATA.csv")]
     pub out: PathBuf,
     /// No progress bar.
@@ -164,8 +170,10 @@ pub struct TrilaterateArgs {
 pub struct CalibrateArgs {
     #[command(flatten)]
     pub mech: MechanismArg,
-    /// Measurements: CSV with q1,q2,q3 (rad) and x,y (mm), or ball-bar readings d1..dk
-    /// (with --setup); optional target_x,target_y and sigma_x,sigma_y (or sigma).
+    /// Measurements: CSV with the commands (one column per actuated joint) and
+    /// the measured tool coordinates (q1,q2,q3 and x,y for the reference), or
+    /// ball-bar readings d1..dk (with --setup); optional target_<axis> and
+    /// sigma_<axis> columns (any subset; the others are estimated).
     #[arg(long, value_name = "DATA.csv")]
     pub data: PathBuf,
     /// Forward model used for identification.
@@ -176,8 +184,10 @@ pub struct CalibrateArgs {
     /// Starting (and fixed) parameter values; nominal if omitted.
     #[arg(long, value_name = "P.toml")]
     pub start: Option<PathBuf>,
-    /// External force applied to the tool during the measurements, N.
-    #[arg(long, value_name = "FX,FY", allow_hyphen_values = true)]
+    /// External load applied to the tool during the measurements, one value per tool coordinate: N along a length, N·mm per rad
+    /// on an angle (for phi: the moment about the tool point; for rx, ry, rz:
+    /// the generalised force of the Euler angle).
+    #[arg(long, value_name = "F1,F2,…", allow_hyphen_values = true)]
     pub force: Option<String>,
     /// Output: identified parameters (flat TOML, readable by --params).
     #[arg(long, value_name = "PARAMS.toml")]
@@ -244,8 +254,10 @@ pub struct AnalyzeArgs {
     /// Parameter values at which to analyse; nominal if omitted.
     #[arg(long, value_name = "P.toml")]
     pub params: Option<PathBuf>,
-    /// External force applied to the tool, N.
-    #[arg(long, value_name = "FX,FY", allow_hyphen_values = true)]
+    /// External load applied to the tool, one value per tool coordinate: N along a length, N·mm per rad
+    /// on an angle (for phi: the moment about the tool point; for rx, ry, rz:
+    /// the generalised force of the Euler angle).
+    #[arg(long, value_name = "F1,F2,…", allow_hyphen_values = true)]
     pub force: Option<String>,
     /// Output: JSON report of the analysis.
     #[arg(long, value_name = "REPORT.json")]
@@ -262,14 +274,16 @@ pub struct CompensateArgs {
     /// Calibrated parameters (flat TOML); nominal if omitted.
     #[arg(long, value_name = "P.toml")]
     pub params: Option<PathBuf>,
-    /// Targets: CSV with target_x,target_y (mm).
+    /// Targets: CSV with one column target_<axis> per tool axis.
     #[arg(long, value_name = "T.csv")]
     pub targets: PathBuf,
     /// Model to invert: exact (deflections included) or rigid.
     #[arg(long, default_value = "exact", value_parser = ["exact", "rigid"])]
     pub model: String,
-    /// External force applied to the tool, N (e.g. a payload's weight).
-    #[arg(long, value_name = "FX,FY", allow_hyphen_values = true)]
+    /// External load applied to the tool (e.g. a payload's weight), one value per tool coordinate: N along a length, N·mm per rad
+    /// on an angle (for phi: the moment about the tool point; for rx, ry, rz:
+    /// the generalised force of the Euler angle).
+    #[arg(long, value_name = "F1,F2,…", allow_hyphen_values = true)]
     pub load: Option<String>,
     /// Actuator torques (N·m) whose internal part is held as a preload.
     #[arg(long, value_name = "T1,T2,T3", allow_hyphen_values = true)]
@@ -277,7 +291,8 @@ pub struct CompensateArgs {
     /// Report unreachable or singular targets and skip them instead of stopping.
     #[arg(long)]
     pub skip_unreachable: bool,
-    /// Output CSV: target_x,target_y,q1,q2,q3,torque_q1..3.
+    /// Output CSV: targets, commands and the actuators' internal torques
+    /// (target_x,target_y,q1,q2,q3,torque_q1..3 for the reference).
     #[arg(long, value_name = "COMMANDS.csv")]
     pub out: PathBuf,
 }
@@ -303,7 +318,7 @@ pub struct PlanArgs {
     pub params: Option<PathBuf>,
     #[command(flatten)]
     pub params_set: FreeArgs,
-    /// Output CSV: target_x,target_y,q1,q2,q3.
+    /// Output CSV: targets and commands (target_x,target_y,q1,q2,q3 for the reference).
     #[arg(long, value_name = "POSES.csv")]
     pub out: PathBuf,
     /// Also write the plain grid of the same size (the baseline), same columns.
@@ -315,7 +330,7 @@ pub struct PlanArgs {
 pub struct MonteCarloArgs {
     #[command(flatten)]
     pub mech: MechanismArg,
-    /// Measurement plan: CSV with target_x,target_y (e.g. from `plan`).
+    /// Measurement plan: CSV with target_<axis> columns (e.g. from `plan`).
     #[arg(long, value_name = "POSES.csv")]
     pub poses: PathBuf,
     /// Number of simulated calibrations.
