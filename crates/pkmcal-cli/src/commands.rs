@@ -214,7 +214,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         None => None,
     };
     if let Some(setup) = &setup {
-        setup.validate(mech.spec().tool_axes.len())?;
+        setup.validate(point_dim(mech.spec())?)?;
         // Noise on the bar readings, not on positions.
         let exact = pkmcal::simulate_with_progress(
             &mech,
@@ -373,7 +373,7 @@ pub fn trilaterate(a: crate::TrilaterateArgs) -> Result<()> {
     let spec = mech.spec();
     let setup = crate::io::read_setup(a.setup.as_deref(), a.mech.mechanism.as_deref())?
         .context("give the socket positions with --setup S.toml (or a [ballbar] table in the mechanism file)")?;
-    setup.validate(spec.tool_axes.len())?;
+    setup.validate(point_dim(spec)?)?;
     if !(a.sigma.is_finite() && a.sigma >= 0.0) {
         bail!("--sigma must be a non-negative number of mm");
     }
@@ -618,4 +618,15 @@ pub fn with_frame_comment(bytes: Vec<u8>, base: bool) -> Vec<u8> {
     let mut out = format!("{}\n", crate::io::BASE_FRAME_COMMENT).into_bytes();
     out.extend(bytes);
     out
+}
+
+/// Dimension of the tool point, where a ball-bar ball sits.
+fn point_dim(spec: &pkmcal::Spec) -> Result<usize> {
+    spec.tool_layout.point_dim().with_context(|| {
+        format!(
+            "a ball bar measures one tool point; the tool of `{}` ({}) has none",
+            spec.name,
+            spec.tool_axes.join(" ")
+        )
+    })
 }

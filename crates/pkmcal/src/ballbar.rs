@@ -161,7 +161,15 @@ impl<M: Mechanism> BallBar<M> {
     /// Wrap `inner` with the nominal setup `setup`.
     pub fn new(inner: M, setup: &Setup) -> Result<Self> {
         let s = inner.spec().clone();
-        let dim = s.tool_axes.len();
+        // The ball sits on the tool point: the position part of the tool
+        // coordinates (x, y of a planar pose; x, y, z of a spatial one).
+        let dim = s.tool_layout.point_dim().ok_or_else(|| {
+            Error::InvalidMechanism(format!(
+                "a ball bar measures one tool point; the tool of `{}` ({}) has none",
+                s.name,
+                s.tool_axes.join(" ")
+            ))
+        })?;
         setup.validate(dim)?;
         let axes = ["x", "y", "z"];
         let mut names = vec![];
@@ -233,7 +241,7 @@ impl<M: Mechanism> Mechanism for BallBar<M> {
     }
     fn tool<D: Scalar>(&self, q: &[D], rho: &[D], x: &mut [D]) {
         let ng = self.inner.spec().n_geometric();
-        let mut p = vec![D::from(0.0); self.dim];
+        let mut p = vec![D::from(0.0); self.inner.spec().tool_axes.len()];
         self.inner.tool(q, &rho[..ng], &mut p);
         let b = rho[ng + self.sockets * self.dim];
         for (j, out) in x.iter_mut().enumerate().take(self.sockets) {

@@ -277,3 +277,54 @@ fn robust_losses_resist_gross_errors() {
     assert_eq!(Loss::Huber(1.0).weight(4.0), 0.25);
     assert!((Loss::Cauchy(1.0).weight(1.0) - 0.5).abs() < 1e-15);
 }
+
+/// A ball bar on a Gough–Stewart platform: the sockets are 3-D points, the
+/// ball sits on the platform's tool point (x, y, z of the pose).
+#[test]
+fn ball_bar_on_a_spatial_platform_uses_3d_sockets() {
+    let gs = common::gough_stewart("gough-stewart-6");
+    let spec = gs.spec();
+    let flat = Setup {
+        sockets: vec![vec![0.0, 0.0]; 4],
+        bar_offset: 0.0,
+    };
+    let e = BallBar::new(gs.clone(), &flat).unwrap_err().to_string();
+    assert!(e.contains("needs 3 finite coordinates"), "{e}");
+    let setup = Setup {
+        sockets: vec![
+            vec![600.0, 0.0, 0.0],
+            vec![-300.0, 520.0, 0.0],
+            vec![-300.0, -520.0, 0.0],
+            vec![0.0, 0.0, 1400.0],
+            vec![400.0, 400.0, 1200.0],
+        ],
+        bar_offset: 0.0,
+    };
+    let bb = BallBar::new(gs.clone(), &setup).unwrap();
+    let truth = Params::from_named(spec, [("dL2", 0.2), ("dL5", -0.1)]).unwrap();
+    let targets: Vec<Vec<f64>> = pkmcal::spread_targets(&gs, 40)
+        .unwrap()
+        .into_iter()
+        .map(|p| p.target)
+        .collect();
+    let exact = simulate(&gs, &truth, &targets, 0.0, 1).unwrap();
+    let data: Vec<Measurement> = exact
+        .into_iter()
+        .map(|m| Measurement {
+            measured: setup.distances(&m.measured[..3]),
+            target: None,
+            ..m
+        })
+        .collect();
+    let bspec = bb.spec();
+    let mut opts = CalibrationOptions::new(bspec, Model::Exact);
+    opts.free = ["dL1", "dL2", "dL3", "dL4", "dL5", "dL6"]
+        .iter()
+        .map(|n| bspec.param_index(n).unwrap())
+        .collect();
+    let cal = calibrate(&bb, &data, &Params::nominal(bspec), &opts).unwrap();
+    for (n, v) in [("dL2", 0.2), ("dL5", -0.1), ("dL1", 0.0)] {
+        let got = cal.params.get(bspec, n).unwrap();
+        assert!((got - v).abs() < 1e-6, "{n}: {got}");
+    }
+}
