@@ -32,7 +32,8 @@ pub struct Compensation {
 /// What the commands must achieve besides the position.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct CompensationOptions {
-    /// External force applied to the tool (N); empty for none.
+    /// External load on the tool, a wrench ([`crate::load`]: N along lengths,
+    /// N·m about angles); empty for none.
     pub force: Vec<f64>,
     /// Desired actuator torques (N·m) whose internal part (the projection on
     /// `null(Γᵀ)`, which does no work) is held as a preload; empty for none.
@@ -92,7 +93,8 @@ pub fn compensate<M: Mechanism>(
         })?;
         let mut tau = DVector::zeros(l);
         if loaded {
-            let p = load_vector(&lin, &opts.force);
+            let q_load = crate::load::generalized_forces(spec.tool_layout, target, &opts.force);
+            let p = load_vector(&lin, &q_load);
             tau += &kd * gamma * (&m * p);
         }
         if preloaded {

@@ -44,6 +44,7 @@ pub mod gough_stewart;
 pub mod kinematics;
 pub mod linearized;
 pub mod lm;
+pub mod load;
 pub mod mechanism;
 pub mod models;
 pub mod montecarlo;

@@ -125,8 +125,9 @@ pub fn projection(gamma: &DMatrix<f64>, k: &[f64]) -> Result<DMatrix<f64>> {
 }
 
 /// The generalised load `P` of eq. 10 (N·m, or N for prismatic actuation; see
-/// [`crate::Spec::work_scale`]) for an external force `force`
-/// applied to the tool (N): `P = J_fᵀ (Q + N)` with `Q + N = −force`.
+/// [`crate::Spec::work_scale`]) for generalised forces `force` on the tool
+/// coordinates (N on lengths, N·mm per rad on angles: [`crate::load`] maps a
+/// wrench to them): `P = J_fᵀ (Q + N)` with `Q + N = −force`.
 /// An empty `force` means no load; otherwise it has one value per tool axis.
 pub fn load_vector(lin: &Linearization, force: &[f64]) -> DVector<f64> {
     if force.is_empty() {

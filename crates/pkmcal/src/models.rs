@@ -223,7 +223,8 @@ pub fn prepare_pose<M: Mechanism>(
 }
 
 /// Prediction of one prepared pose with one model (MODEL.md §3).
-/// `force` is the external force applied to the tool (N), empty for none.
+/// `force` is the external load on the tool, a wrench ([`crate::load`]: N
+/// along each length coordinate, N·m about each angle's axis), empty for none.
 pub fn predict_pose<M: Mechanism>(
     mech: &M,
     pose: &Pose,
@@ -232,7 +233,7 @@ pub fn predict_pose<M: Mechanism>(
     force: &[f64],
 ) -> Result<Prediction> {
     let spec = mech.spec();
-    let force = effective_force(spec, force)?;
+    let force = effective_force(mech, pose, force)?;
     let rho = params.geometric();
     let ind = independent_actuators(spec);
     match model {
@@ -311,7 +312,7 @@ pub fn predict_pose_warm<M: Mechanism>(
     warm: Option<&[f64]>,
 ) -> Result<Prediction> {
     if let (Model::Exact, Some(w)) = (model, warm) {
-        let f = effective_force(mech.spec(), force)?;
+        let f = effective_force(mech, pose, force)?;
         if let Ok(p) = exact_from(mech, pose, params, &f, w) {
             return Ok(p);
         }
@@ -319,10 +320,34 @@ pub fn predict_pose_warm<M: Mechanism>(
     predict_pose(mech, pose, params, model, force)
 }
 
-fn effective_force(spec: &crate::Spec, force: &[f64]) -> Result<Vec<f64>> {
+/// The generalised forces of the load `force` (a wrench, [`crate::load`])
+/// at the pose's nominal configuration.
+pub(crate) fn effective_force<M: Mechanism>(
+    mech: &M,
+    pose: &Pose,
+    force: &[f64],
+) -> Result<Vec<f64>> {
+    let spec = mech.spec();
+    let nx = spec.tool_axes.len();
+    if force.is_empty() || force.iter().all(|f| *f == 0.0) {
+        check_load(spec, force)?;
+        return Ok(vec![0.0; nx]);
+    }
+    check_load(spec, force)?;
+    let x = jacobians(
+        mech,
+        &pose.nominal_q,
+        &spec.nominal[..spec.n_geometric()],
+        0..0,
+    )
+    .x;
+    Ok(crate::load::generalized_forces(spec.tool_layout, &x, force))
+}
+
+fn check_load(spec: &crate::Spec, force: &[f64]) -> Result<()> {
     let nx = spec.tool_axes.len();
     if force.is_empty() {
-        return Ok(vec![0.0; nx]);
+        return Ok(());
     }
     if force.len() != nx {
         return Err(Error::Dimension {
@@ -336,7 +361,7 @@ fn effective_force(spec: &crate::Spec, force: &[f64]) -> Result<Vec<f64>> {
             "the tool force must be finite".into(),
         ));
     }
-    Ok(force.to_vec())
+    Ok(())
 }
 
 fn linear_prediction<M: Mechanism>(
@@ -427,7 +452,13 @@ pub fn equilibrium<M: Mechanism>(
 ) -> Result<Equilibrium> {
     let spec = mech.spec();
     check_commands(spec, commands)?;
-    let force = effective_force(spec, force)?;
+    // Generalised forces on the tool coordinates ([`crate::load`]).
+    check_load(spec, force)?;
+    let force: Vec<f64> = if force.is_empty() {
+        vec![0.0; spec.tool_axes.len()]
+    } else {
+        force.to_vec()
+    };
     let nq = spec.joints.len();
     let m = spec.n_constraints;
     let rho = params.geometric();

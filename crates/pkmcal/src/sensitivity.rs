@@ -56,11 +56,7 @@ pub fn sensitivity_at<M: Mechanism>(
     let nx = spec.tool_axes.len();
     let np = spec.n_params();
     let rho = params.geometric();
-    let force: Vec<f64> = if force.is_empty() {
-        vec![0.0; nx]
-    } else {
-        force.to_vec()
-    };
+    let force = crate::models::effective_force(mech, pose, force)?;
     let ind = independent_actuators(spec);
     let mut jac = DMatrix::zeros(nx, np);
     match model {

@@ -178,3 +178,70 @@ fn monte_carlo_is_seeded_and_reaches_the_noise_floor() {
         assert_eq!(a.parameter_errors, b.parameter_errors);
     }
 }
+
+/// A wrench (force and moment on the tool point) on mechanisms whose tool
+/// has an orientation: compensated commands reach the target under it, and
+/// a moment turns the tool the way it pushes.
+#[test]
+fn a_wrench_on_an_oriented_tool() {
+    // Redundant platform: 8 legs; force 200 N down, moment 30 N·m about z.
+    let gs = common::gough_stewart("gough-stewart-8");
+    let truth = common::perturbed(gs.spec(), 2, 0.2, 0.1);
+    let wrench = vec![10.0, 0.0, -200.0, 5.0, -3.0, 30.0];
+    let opts = CompensationOptions {
+        force: wrench.clone(),
+        preload: vec![],
+    };
+    // Near the home pose (sampling the 6-D workspace is slow).
+    let home = gs
+        .spec()
+        .workspace_box
+        .iter()
+        .map(|b| 0.5 * (b[0] + b[1]))
+        .collect::<Vec<_>>();
+    let poses = [
+        home.clone(),
+        home.iter()
+            .zip([20.0, -15.0, 10.0, 0.02, -0.01, 0.03])
+            .map(|(a, b)| a + b)
+            .collect(),
+        home.iter()
+            .zip([-30.0, 10.0, -20.0, -0.02, 0.03, -0.05])
+            .map(|(a, b)| a + b)
+            .collect::<Vec<f64>>(),
+    ];
+    for t in poses {
+        let c = compensate(&gs, &truth, &t, Model::Exact, &opts).unwrap();
+        let p = predict(&gs, &truth, &c.commands, Model::Exact, &wrench).unwrap();
+        for (a, b) in p.x.iter().zip(&t) {
+            assert!((a - b).abs() < REACH_MM, "{t:?}: reached {:?}", p.x);
+        }
+        // A moment about z alone turns the platform about z, positively.
+        let free = predict(&gs, &truth, &c.commands, Model::Exact, &[]).unwrap();
+        let mz = predict(
+            &gs,
+            &truth,
+            &c.commands,
+            Model::Exact,
+            &[0.0, 0.0, 0.0, 0.0, 0.0, 50.0],
+        )
+        .unwrap();
+        assert!(mz.x[5] > free.x[5], "{} vs {}", mz.x[5], free.x[5]);
+    }
+    // Planar pose: a moment about phi (N·m).
+    let rrr = common::planar("4-rrr");
+    let truth = common::perturbed(rrr.spec(), 2, 0.2, 0.002);
+    let t = random_targets(&rrr, 1, 5).unwrap().remove(0);
+    let opts = CompensationOptions {
+        force: vec![20.0, -10.0, 2.0],
+        preload: vec![],
+    };
+    let c = compensate(&rrr, &truth, &t, Model::Exact, &opts).unwrap();
+    let p = predict(&rrr, &truth, &c.commands, Model::Exact, &opts.force).unwrap();
+    for (a, b) in p.x.iter().zip(&t) {
+        assert!((a - b).abs() < REACH_MM, "{t:?}: reached {:?}", p.x);
+    }
+    let free = predict(&rrr, &truth, &c.commands, Model::Exact, &[]).unwrap();
+    let turned = predict(&rrr, &truth, &c.commands, Model::Exact, &[0.0, 0.0, 5.0]).unwrap();
+    assert!(turned.x[2] > free.x[2]);
+}
