@@ -6,7 +6,7 @@ use pkmcal::BallBar;
 use pkmcal::calibration::{CrossValidation, Identifiability};
 use pkmcal::{
     Accuracy, Calibration, CalibrationOptions, ErrorStats, Measurement, Mechanism, Model, Params,
-    analyze, calibrate, calibration_accuracy, holdout_split,
+    calibrate, calibration_accuracy, holdout_split,
 };
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -382,12 +382,7 @@ fn calibrate_on<M: Mechanism>(
     opts.loss = c.loss;
     opts.outlier_threshold = c.outlier_threshold;
     opts.drop_outliers = c.drop_outliers;
-    opts.frame = match c.frame.as_str() {
-        _ if spec.tool_layout.frame_size() == 0 => pkmcal::Frame::Base,
-        "base" => pkmcal::Frame::Base,
-        "auto" if csv.base_frame => pkmcal::Frame::Base,
-        _ => pkmcal::Frame::Free,
-    };
+    opts.frame = frame_choice(&c.frame, spec, csv);
     // Validation data: a description, the file it came from, the poses.
     type Held = Option<(String, PathBuf, Vec<Measurement>)>;
     let (train, held): (Vec<Measurement>, Held) = match (&c.validate, c.holdout) {
@@ -764,6 +759,18 @@ pub struct AnalyzeConfig {
     pub force: Option<String>,
     pub report: Option<PathBuf>,
     pub setup: Option<PathBuf>,
+    /// `auto`, `free` or `base`.
+    pub frame: String,
+}
+
+/// The instrument frame of `--frame` for data `csv` of a mechanism.
+fn frame_choice(choice: &str, spec: &pkmcal::Spec, csv: &Csv) -> pkmcal::Frame {
+    match choice {
+        _ if spec.tool_layout.frame_size() == 0 => pkmcal::Frame::Base,
+        "base" => pkmcal::Frame::Base,
+        "auto" if csv.base_frame => pkmcal::Frame::Base,
+        _ => pkmcal::Frame::Free,
+    }
 }
 
 pub fn run_analyze(c: AnalyzeConfig) -> Result<()> {
@@ -787,7 +794,8 @@ fn analyze_on<M: Mechanism>(mech: &M, c: &AnalyzeConfig, csv: &Csv) -> Result<()
     };
     let free = free_set(mech, c.free.as_deref(), c.fix.as_deref())?;
     let force = force_arg(mech, c.force.as_deref())?;
-    let id = analyze(mech, &data, &params, c.model, &free, &force)
+    let frame = frame_choice(&c.frame, spec, csv);
+    let id = pkmcal::analyze_in_frame(mech, &data, &params, c.model, &free, &force, &frame)
         .with_context(|| format!("analysing {}", c.data.display()))?;
     if let Some(r) = &c.report {
         write_atomic(r, serde_json::to_string_pretty(&id)?.as_bytes())?;
@@ -800,11 +808,19 @@ fn analyze_on<M: Mechanism>(mech: &M, c: &AnalyzeConfig, csv: &Csv) -> Result<()
         c.model.name()
     );
     println!(
-        "  free: {}",
+        "  free: {}{}",
         free.iter()
             .map(|&i| spec.param_names()[i])
             .collect::<Vec<_>>()
-            .join(" ")
+            .join(" "),
+        if frame == pkmcal::Frame::Free {
+            format!(
+                ", and the instrument frame's {} (--frame base if the data are in the base frame)",
+                spec.tool_layout.frame_names().join(" ")
+            )
+        } else {
+            String::new()
+        }
     );
     print_identifiability(&id, "calibrate fixes");
     println!(

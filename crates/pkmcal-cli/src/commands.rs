@@ -439,7 +439,7 @@ pub fn data_csv(mech: &Mech, data: &[pkmcal::Measurement]) -> Vec<u8> {
 
 /// Validation poses of the demo (unseen: drawn at random from the workspace).
 const DEMO_VALIDATION_POSES: usize = 50;
-/// Measurement noise of the demo, mm per axis (MODEL.md §5).
+/// Measurement noise of the demo, mm per axis (docs/model.md §10).
 const DEMO_NOISE_MM: f64 = 0.002;
 
 pub fn demo(a: DemoArgs) -> Result<()> {

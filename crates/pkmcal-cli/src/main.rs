@@ -265,6 +265,11 @@ pub struct AnalyzeArgs {
     /// Ball-bar setup for data with distances d1, d2, …
     #[arg(long, value_name = "S.toml")]
     pub setup: Option<PathBuf>,
+    /// Where the measuring instrument stands (as for `calibrate`): `free`
+    /// adds its frame's parameters to the analysis, `base` leaves them out,
+    /// `auto` reads the data file's `# frame: base`.
+    #[arg(long, default_value = "auto", value_parser = ["auto", "free", "base"])]
+    pub frame: String,
 }
 
 #[derive(clap::Args)]
@@ -439,6 +444,7 @@ fn main() -> ExitCode {
                 force: a.force,
                 report: a.report,
                 setup: a.setup,
+                frame: a.frame,
             })
         }),
         Command::Compensate(a) => a.model.parse().map_err(Into::into).and_then(|model| {

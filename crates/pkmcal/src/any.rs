@@ -11,7 +11,7 @@ use nalgebra::DMatrix;
 /// A mechanism of any shipped kind; it implements [`Mechanism`] by delegation.
 #[derive(Debug, Clone)]
 pub enum AnyMechanism {
-    /// The built-in reference mechanism (MODEL.md §4).
+    /// The built-in reference mechanism (docs/model.md §10).
     JeongKim(JeongKim2Dof),
     /// A planar linkage from a description.
     Planar(PlanarLinkage),

@@ -31,7 +31,7 @@ pub struct Jacobians {
 }
 
 /// Values and exact first derivatives of `g` and `x` with respect to the columns
-/// `cols` of `v = [q; ρ]` (MODEL.md eq. 4: ∂g/∂q, ∂g/∂ρ; eq. 9: ∂x/∂q).
+/// `cols` of `v = [q; ρ]` (docs/model.md eq. 4: ∂g/∂q, ∂g/∂ρ; eq. 9: ∂x/∂q).
 pub fn jacobians<M: Mechanism>(mech: &M, q: &[f64], rho: &[f64], cols: Range<usize>) -> Jacobians {
     match cols.len() {
         0 => values(mech, q, rho),

@@ -1,4 +1,4 @@
-//! Identification of parameter errors and encoder offsets (MODEL.md eq. 12):
+//! Identification of parameter errors and encoder offsets (docs/model.md eq. 12):
 //! minimise `Σ_i ‖x̂_i − h(c_i, p)‖²` over the free parameters with one of the
 //! three forward models, with identifiability analysis before fitting,
 //! uncertainty after, and validation on held-out poses.
@@ -1434,9 +1434,42 @@ pub fn analyze<M: Mechanism>(
     free: &[usize],
     force: &[f64],
 ) -> Result<Identifiability> {
+    analyze_in_frame(mech, data, params, model, free, force, &Frame::Base)
+}
+
+/// [`analyze`] with the instrument's frame: with [`Frame::Free`] its
+/// parameters are analysed with the mechanism's (at the registration of the
+/// measured onto the predicted positions).
+pub fn analyze_in_frame<M: Mechanism>(
+    mech: &M,
+    data: &[Measurement],
+    params: &Params,
+    model: Model,
+    free: &[usize],
+    force: &[f64],
+    frame: &Frame,
+) -> Result<Identifiability> {
     let spec = mech.spec();
-    let problem = IdentificationProblem::new(mech, data, model, force)?;
-    let (_, mut jac) = problem.jacobian(params)?;
+    let mut problem = IdentificationProblem::new(mech, data, model, force)?;
+    let np = spec.n_params();
+    let frame0: Vec<f64> = match frame {
+        Frame::Base => vec![],
+        Frame::Known(f) => f.clone(),
+        Frame::Free => {
+            let predicted = problem.predict(params)?;
+            let measured: Vec<Vec<f64>> = data.iter().map(|m| m.measured.clone()).collect();
+            register(spec.tool_layout, &predicted, &measured)?
+        }
+    };
+    if !frame0.is_empty() {
+        problem = problem.with_frame();
+    }
+    let mut free = free.to_vec();
+    if *frame == Frame::Free {
+        free.extend(np..np + frame0.len());
+    }
+    let x: Vec<f64> = params.values.iter().chain(&frame0).copied().collect();
+    let (_, mut jac) = problem.residuals_and_jacobian(&x)?;
     let default = crate::simulate::Noise::lengths(1.0);
     let nx = spec.tool_axes.len();
     for (i, m) in data.iter().enumerate() {
@@ -1447,7 +1480,8 @@ pub fn analyze<M: Mechanism>(
             jac.row_mut(i * nx + a).unscale_mut(s);
         }
     }
-    Ok(analyze_identifiability(&Columns::of(spec), &jac, free, data.len(), true).0)
+    let cols = Columns::with_frame(spec, &frame0);
+    Ok(analyze_identifiability(&cols, &jac, &free, data.len(), true).0)
 }
 
 /// Covariance of identified parameters, by name: plain data that travels in

@@ -10,7 +10,7 @@
 //!   The orientation is `R = Rz(rz) · Ry(ry) · Rx(rx)` (rotations about the
 //!   fixed base axes x, then y, then z); the platform frame's origin is at
 //!   `(x, y, z)` in the base (measurement) frame.
-//! - Loop closure, one equation per leg (MODEL.md eq. 3):
+//! - Loop closure, one equation per leg (docs/model.md eq. 3):
 //!   `g_i = |p + R b_i − a_i| − L_i = 0`.
 //! - Parameters: base joint centres `a{i}x a{i}y a{i}z` (base frame), platform
 //!   joint centres `b{i}x b{i}y b{i}z` (platform frame), leg length offsets
@@ -267,7 +267,7 @@ impl Mechanism for GoughStewart {
         &self.spec
     }
 
-    /// `g_i = |p + R b_i − a_i| − L_i` (MODEL.md eq. 3, one per leg).
+    /// `g_i = |p + R b_i − a_i| − L_i` (docs/model.md eq. 3, one per leg).
     fn constraints<D: Scalar>(&self, q: &[D], rho: &[D], g: &mut [D]) {
         let n = self.n;
         let pose = &q[n..n + 6];

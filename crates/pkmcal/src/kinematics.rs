@@ -1,5 +1,5 @@
 //! Loop-closure kinematics: forward (actuated/independent joints → pose, by
-//! Newton on `g(q, ρ) = 0`, MODEL.md eq. 3) and inverse (tool position → all
+//! Newton on `g(q, ρ) = 0`, docs/model.md eq. 3) and inverse (tool position → all
 //! joints, closed form where the mechanism has one, Newton otherwise).
 
 use crate::autodiff::jacobians;

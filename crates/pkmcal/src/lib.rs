@@ -6,7 +6,7 @@
 //! mechanism is plain data plus loop-closure and tool functions ([`Mechanism`]);
 //! algorithms are free functions.
 //!
-//! Where each relation of MODEL.md lives:
+//! Where each relation of docs/model.md lives:
 //!
 //! | relation | function |
 //! |---|---|
@@ -62,9 +62,9 @@ pub use any::AnyMechanism;
 pub use ballbar::{BallBar, Setup, trilaterate};
 pub use calibration::{
     Accuracy, Calibration, CalibrationOptions, Frame, Identifiability, Loss, Outlier,
-    ParameterCovariance, accuracy, accuracy_in_frame, analyze, calibrate, calibration_accuracy,
-    cross_validate, cross_validate_with_progress, holdout_split, predict_with_uncertainty,
-    tool_covariance,
+    ParameterCovariance, accuracy, accuracy_in_frame, analyze, analyze_in_frame, calibrate,
+    calibration_accuracy, cross_validate, cross_validate_with_progress, holdout_split,
+    predict_with_uncertainty, tool_covariance,
 };
 pub use compensation::{Compensation, CompensationOptions, compensate};
 pub use error::{Error, Result};

@@ -1,4 +1,4 @@
-//! The paper's linearised relations (MODEL.md §2, eq. 2 and 4–11).
+//! The paper's linearised relations (docs/model.md §3, eq. 2 and 4–11).
 //!
 //! At a configuration `q` (on `g(q, ρ) = 0`) with independent joints `q_u` and
 //! dependent joints `q_v`:

@@ -1,5 +1,5 @@
 //! The external load on the tool as a wrench, mapped to generalised forces on
-//! the tool coordinates (MODEL.md eq. 10 takes `J_fᵀ` of those).
+//! the tool coordinates (docs/model.md eq. 10 takes `J_fᵀ` of those).
 //!
 //! A load is given with one value per tool coordinate, each in the unit that
 //! does work with it: a **force** (N) along each length coordinate (x, y, z),

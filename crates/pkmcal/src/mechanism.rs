@@ -1,5 +1,5 @@
 //! The mechanism abstraction: joints, parameters, loop closure `g(q, ρ) = 0`
-//! (MODEL.md eq. 3) and the tool map `x(q, ρ)`.
+//! (docs/model.md eq. 3) and the tool map `x(q, ρ)`.
 //!
 //! A mechanism is plain data ([`Spec`]) plus two functions written once, generic
 //! over the scalar type, so that every derivative the method needs (∂g/∂q, ∂g/∂ρ,
@@ -286,7 +286,7 @@ pub trait Mechanism: Send + Sync {
     /// The plain description (names, indices, nominal values).
     fn spec(&self) -> &Spec;
 
-    /// Loop-closure constraints `g(q, ρ) = 0` (MODEL.md eq. 3); `g` has
+    /// Loop-closure constraints `g(q, ρ) = 0` (docs/model.md eq. 3); `g` has
     /// `spec().n_constraints` entries.
     fn constraints<D: Scalar>(&self, q: &[D], rho: &[D], g: &mut [D]);
 

@@ -1,4 +1,4 @@
-//! The three forward models of MODEL.md §3: for actuator commands and a
+//! The three forward models of docs/model.md §4: for actuator commands and a
 //! parameter set, where is the tool?
 //!
 //! * [`Model::Rigid`]: the independent actuated joints sit at `command + Δq`;
@@ -222,7 +222,7 @@ pub fn prepare_pose<M: Mechanism>(
     })
 }
 
-/// Prediction of one prepared pose with one model (MODEL.md §3).
+/// Prediction of one prepared pose with one model (docs/model.md §4).
 /// `force` is the external load on the tool, a wrench ([`crate::load`]: N
 /// along each length coordinate, N·m about each angle's axis), empty for none.
 pub fn predict_pose<M: Mechanism>(
@@ -424,7 +424,7 @@ const MAX_EQUILIBRIUM_ITERATIONS: usize = 30;
 /// The equilibrium stops when the largest joint step falls below this (rad).
 pub const EQUILIBRIUM_TOL: f64 = 1e-14;
 
-/// Exact static equilibrium (MODEL.md §3, the "exact" model): minimise
+/// Exact static equilibrium (docs/model.md §4, the "exact" model): minimise
 /// `E(q) = ½ Σ_j k_j (c_j + Δq_j − q_r,j)² + 10⁻³ wᵀ x(q)` subject to
 /// `g(q, ρ) = 0`, with `w = −force` the force the actuators deliver at the tool
 /// (the paper's `Q + N`). Newton on the KKT system

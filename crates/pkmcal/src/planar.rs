@@ -1,6 +1,6 @@
 //! Planar linkages described as bodies connected by revolute and prismatic
 //! joints ([`PlanarDescription`], plain data a user writes in TOML), turned into
-//! a [`Mechanism`] ([`PlanarLinkage`]) whose loop closure (MODEL.md eq. 3) and
+//! a [`Mechanism`] ([`PlanarLinkage`]) whose loop closure (docs/model.md eq. 3) and
 //! parameter names are derived from the description.
 //!
 //! Conventions (docs/mechanisms.md explains them with examples):

@@ -1,4 +1,4 @@
-//! The reference mechanism of MODEL.md §4 (paper §3): a planar 2-DOF parallel
+//! The reference mechanism of docs/model.md §10 (paper §3): a planar 2-DOF parallel
 //! mechanism with three actuated base revolute joints (Jeong & Kim).
 //!
 //! Joints `q1..q5`: `q1, q2, q3` actuated at `B1, B2, B3`; `q4, q5` the passive
@@ -54,7 +54,7 @@ pub fn nominal_geometric() -> [f64; 16] {
 /// Nominal stiffness of the three actuated joints (paper Table 3), N·m/rad.
 pub const NOMINAL_STIFFNESS: [f64; 3] = [8360.0, 7750.0, 8390.0];
 
-/// Reference configuration (tool at (−30, 165) mm), degrees, MODEL.md §4.
+/// Reference configuration (tool at (−30, 165) mm), degrees, docs/model.md §10.
 pub const REFERENCE_Q_DEG: [f64; 5] = [83.735, 204.025, -148.618, -135.209, -124.275];
 
 /// The reference mechanism. Holds its [`Spec`]; the nominal values may be

@@ -2,7 +2,7 @@
 //! the description to the report: nothing downstream guesses a unit from a
 //! name or an index range.
 //!
-//! Internal units are fixed (MODEL.md §3): lengths in mm, angles in rad,
+//! Internal units are fixed (docs/model.md §9): lengths in mm, angles in rad,
 //! rotational stiffness in N·m/rad, linear stiffness in N/mm. A [`Unit`]
 //! says which of them a number is in; [`Unit::readable`] chooses a display
 //! scale (µm, mrad, µrad) for small values.

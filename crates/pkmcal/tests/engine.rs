@@ -149,7 +149,7 @@ proptest! {
 
 #[test]
 fn inverse_kinematics_matches_model_example() {
-    // MODEL.md §4: tool at (−30, 165) mm.
+    // docs/model.md §10: tool at (−30, 165) mm.
     let q = config_at(&[-30.0, 165.0]).unwrap();
     let expected = [83.735, 204.025, -148.618, -135.209, -124.275];
     for (a, e) in q.iter().zip(expected) {
@@ -238,7 +238,7 @@ fn linear_and_exact_agree_to_second_order() {
     let full = linear_exact_gap(1.0, &targets);
     let half = linear_exact_gap(0.5, &targets);
     let quarter = linear_exact_gap(0.25, &targets);
-    // MODEL.md §5: sub-micrometre for sub-millimetre errors.
+    // docs/model.md §10: sub-micrometre for sub-millimetre errors.
     assert!(full < 0.02, "gap {full} mm at paper-sized errors");
     assert!(quarter < 1e-3, "gap {quarter} mm at a quarter of them");
     for (a, b) in [(full, half), (half, quarter)] {
@@ -366,7 +366,7 @@ fn a_tool_force_pushes_the_tool_its_way() {
 
 #[test]
 fn compliance_matters_in_the_redundant_mechanism() {
-    // MODEL.md §5: ignoring the deflection is wrong by tenths of a millimetre,
+    // docs/model.md §10: ignoring the deflection is wrong by tenths of a millimetre,
     // with internal torques of tens of N·m.
     let mech = JeongKim2Dof::new();
     let truth = demo_truth();
