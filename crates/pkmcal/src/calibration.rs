@@ -1057,19 +1057,23 @@ fn calibrate_weighted<M: Mechanism>(
         // One estimated group and nothing given: the weights are uniform
         // whatever its σ, so one estimate after the fit is exact.
         let uniform = noise.estimated_groups() == 1 && !noise.any_given();
-        for _ in 0..VCE_MAX_ROUNDS {
+        if uniform {
             let h = leverages(&cal.jacobian);
-            let change = noise.update(&cal.residuals, &h);
-            if uniform || change < VCE_TOL {
-                break;
-            }
-            cal = refit(&cal, &noise.sigmas())?;
-        }
-        if !uniform {
-            // The covariance and σ of unit weight under the final weights.
-            cal = refit(&cal, &noise.sigmas())?;
-        } else {
+            noise.update(&cal.residuals, &h);
             rescale(&mut cal, &noise.sigmas());
+        } else {
+            // Iterate the estimates on the fit linearised at the current
+            // solution (the reweighted solution moves by a fraction of the
+            // noise, where the problem is linear), then refit once with them;
+            // repeat while the refit still moves the estimates.
+            for _ in 0..VCE_MAX_REFITS {
+                linearized_vce(&mut noise, &cal);
+                cal = refit(&cal, &noise.sigmas())?;
+                let mut check = noise.clone();
+                if check.update(&cal.residuals, &leverages(&cal.jacobian)) < VCE_TOL {
+                    break;
+                }
+            }
         }
     }
     let base = noise.sigmas();
@@ -1122,6 +1126,38 @@ fn calibrate_weighted<M: Mechanism>(
     cal.noise = noise.report(&cal.residuals, &spec.tool_axes, &spec.tool_units);
     cal.loss = opts.loss;
     Ok(cal)
+}
+
+/// Refits of the noise estimation (each after a linearised estimation).
+const VCE_MAX_REFITS: usize = 4;
+
+/// Variance-component estimation on the fit linearised at `cal`'s solution:
+/// residuals `r0 + J δp(σ)` with `δp` the weighted least-squares step under
+/// the current σ, iterated until the σ settle.
+fn linearized_vce(noise: &mut NoiseModel, cal: &Calibration) {
+    // Unweighted Jacobian of the free parameters.
+    let mut j = cal.jacobian.clone();
+    for (i, s) in cal.sigmas.iter().enumerate() {
+        j.row_mut(i).scale_mut(*s);
+    }
+    let r0 = DVector::from_column_slice(&cal.residuals);
+    for _ in 0..VCE_MAX_ROUNDS {
+        let s = noise.sigmas();
+        let mut jw = j.clone();
+        let mut rw = r0.clone();
+        for (i, si) in s.iter().enumerate() {
+            jw.row_mut(i).unscale_mut(*si);
+            rw[i] /= si;
+        }
+        let (c, _) = lm::covariance(&jw, 1e-12);
+        let step = -(&c * (jw.transpose() * &rw));
+        let r = &r0 + &j * &step;
+        let jc = &jw * &c;
+        let h: Vec<f64> = (0..jw.nrows()).map(|i| jc.row(i).dot(&jw.row(i))).collect();
+        if noise.update(r.as_slice(), &h) < VCE_TOL {
+            break;
+        }
+    }
 }
 
 /// Scale a calibration's weighted quantities to new uniform-ratio σ: the
