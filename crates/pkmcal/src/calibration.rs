@@ -1252,7 +1252,7 @@ fn calibrate_once<M: Mechanism>(
     mech: &M,
     data: &[Measurement],
     start: &Params,
-    frame_start: Option<&[f64]>,
+    frame_given: Option<&[f64]>,
     opts: &CalibrationOptions,
     sigma: &[f64],
     exact_free: Option<&[usize]>,
@@ -1286,16 +1286,7 @@ fn calibrate_once<M: Mechanism>(
     }
     let mut problem = IdentificationProblem::new(mech, data, opts.model, &opts.force)?;
     // The frame's parameters follow the mechanism's.
-    let frame0: Vec<f64> = match (&opts.frame, frame_start) {
-        (Frame::Base, _) => vec![],
-        (_, Some(f)) => f.to_vec(),
-        (Frame::Known(f), None) => f.clone(),
-        (Frame::Free, None) => {
-            let nominal = problem.predict(start)?;
-            let measured: Vec<Vec<f64>> = data.iter().map(|m| m.measured.clone()).collect();
-            register(spec.tool_layout, &nominal, &measured)?
-        }
-    };
+    let frame0 = frame_start(&problem, &opts.frame, frame_given, start, data)?;
     if !frame0.is_empty() {
         if frame0.len() != spec.tool_layout.frame_size() {
             return Err(Error::Dimension {
@@ -1449,6 +1440,28 @@ fn calibrate_once<M: Mechanism>(
     })
 }
 
+/// The instrument frame's parameters to start from: none in the base frame,
+/// `given` or the known pose, else the registration of the measured onto the
+/// positions predicted under `params`.
+fn frame_start<M: Mechanism>(
+    problem: &IdentificationProblem<'_, M>,
+    frame: &Frame,
+    given: Option<&[f64]>,
+    params: &Params,
+    data: &[Measurement],
+) -> Result<Vec<f64>> {
+    Ok(match (frame, given) {
+        (Frame::Base, _) => vec![],
+        (_, Some(f)) => f.to_vec(),
+        (Frame::Known(f), None) => f.clone(),
+        (Frame::Free, None) => {
+            let predicted = problem.predict(params)?;
+            let measured: Vec<Vec<f64>> = data.iter().map(|m| m.measured.clone()).collect();
+            register(problem.mech.spec().tool_layout, &predicted, &measured)?
+        }
+    })
+}
+
 fn mask(n: usize, free: &[usize]) -> Vec<bool> {
     let mut m = vec![false; n];
     for &i in free {
@@ -1488,15 +1501,7 @@ pub fn analyze_in_frame<M: Mechanism>(
     let spec = mech.spec();
     let mut problem = IdentificationProblem::new(mech, data, model, force)?;
     let np = spec.n_params();
-    let frame0: Vec<f64> = match frame {
-        Frame::Base => vec![],
-        Frame::Known(f) => f.clone(),
-        Frame::Free => {
-            let predicted = problem.predict(params)?;
-            let measured: Vec<Vec<f64>> = data.iter().map(|m| m.measured.clone()).collect();
-            register(spec.tool_layout, &predicted, &measured)?
-        }
-    };
+    let frame0 = frame_start(&problem, frame, None, params, data)?;
     if !frame0.is_empty() {
         problem = problem.with_frame();
     }

@@ -3,12 +3,12 @@
 //! validation accuracy as the same data seen from the base frame.
 
 mod common;
-use common::{gough_stewart, perturbed};
+use common::{gough_stewart, perturbed, spread};
 use pkmcal::calibration::Frame;
 use pkmcal::frame::{observe, to_base};
 use pkmcal::{
     CalibrationOptions, JeongKim2Dof, Measurement, Mechanism, Model, Noise, Params, calibrate,
-    calibration_accuracy, simulate, spread_targets,
+    calibration_accuracy, simulate,
 };
 
 /// Two fits of the same data seen from two frames agree to this (mm, rad)…
@@ -33,18 +33,10 @@ fn seen_from<M: Mechanism>(m: &M, data: &[Measurement], frame: &[f64]) -> Vec<Me
         .collect()
 }
 
-fn targets<M: Mechanism>(m: &M, n: usize) -> Vec<Vec<f64>> {
-    spread_targets(m, n)
-        .unwrap()
-        .into_iter()
-        .map(|p| p.target)
-        .collect()
-}
-
 fn check_invariance<M: Mechanism>(m: &M, truth: &Params, poses: usize, far: &[f64]) {
     let spec = m.spec();
-    let data = simulate(m, truth, &targets(m, poses), Noise::lengths(0.002), 3).unwrap();
-    let unseen = simulate(m, truth, &targets(m, 20), Noise::NONE, 4).unwrap();
+    let data = simulate(m, truth, &spread(m, poses), Noise::lengths(0.002), 3).unwrap();
+    let unseen = simulate(m, truth, &spread(m, 20), Noise::NONE, 4).unwrap();
     let mut opts = CalibrationOptions::new(spec, Model::Exact);
     opts.frame = Frame::Free;
     let start = Params::nominal(spec);

@@ -4,11 +4,11 @@
 //! where the actuators fight, units of every parameter.
 
 mod common;
-use common::{gough_stewart, perturbed, planar};
+use common::{gough_stewart, perturbed, planar, spread};
 use pkmcal::calibration::WarningKind;
 use pkmcal::{
     CalibrationOptions, JeongKim2Dof, Mechanism, Model, Noise, ParamKind, Params, Unit, accuracy,
-    calibrate, cross_validate, simulate, spread_targets,
+    calibrate, cross_validate, simulate,
 };
 
 /// Simulated noise on lengths (mm) and angles (rad), as in a tracker that
@@ -34,14 +34,6 @@ fn truth(spec: &pkmcal::Spec, seed: u64) -> Params {
         truth.set(spec, n, all.get(spec, n).unwrap()).unwrap();
     }
     truth
-}
-
-fn targets<M: Mechanism>(m: &M, n: usize) -> Vec<Vec<f64>> {
-    spread_targets(m, n)
-        .unwrap()
-        .into_iter()
-        .map(|p| p.target)
-        .collect()
 }
 
 /// Validation RMS of position (mm) and angle (rad) after calibrating `data`.
@@ -71,14 +63,14 @@ fn mixed_units_are_weighted_by_estimated_noise() {
     let m = planar("4-rrr");
     let spec = m.spec();
     let truth = truth(spec, 5);
-    let unseen = simulate(&m, &truth, &targets(&m, 30), Noise::NONE, 8).unwrap();
+    let unseen = simulate(&m, &truth, &spread(&m, 30), Noise::NONE, 8).unwrap();
     // Over several data sets (one estimate of σ scatters by about ±20 %
     // with 50 poses): the accuracy of the fit with estimated σ against the
     // fit with the simulated σ given, and the σ estimates.
     let (mut pos_ratio, mut ang_ratio) = (vec![], vec![]);
     let (mut len_sigma, mut ang_sigma) = (vec![], vec![]);
     for seed in 1..=SEEDS {
-        let data = simulate(&m, &truth, &targets(&m, 50), NOISE, seed).unwrap();
+        let data = simulate(&m, &truth, &spread(&m, 50), NOISE, seed).unwrap();
         let known = with_sigma(
             &data,
             &[Some(NOISE.length), Some(NOISE.length), Some(NOISE.angle)],
@@ -129,7 +121,7 @@ fn a_partial_set_of_sigma_is_used_and_the_rest_estimated() {
     let m = planar("4-rrr");
     let spec = m.spec();
     let truth = truth(spec, 5);
-    let data = simulate(&m, &truth, &targets(&m, 40), NOISE, 9).unwrap();
+    let data = simulate(&m, &truth, &spread(&m, 40), NOISE, 9).unwrap();
     let partial = with_sigma(&data, &[Some(NOISE.length), Some(NOISE.length), None]);
     let opts = CalibrationOptions::new(spec, Model::Exact);
     let cal = calibrate(&m, &partial, &Params::nominal(spec), &opts).unwrap();
@@ -186,7 +178,7 @@ fn cross_validation_keeps_each_poses_sigma() {
     let m = planar("4-rrr");
     let spec = m.spec();
     let truth = truth(spec, 5);
-    let data = simulate(&m, &truth, &targets(&m, 40), NOISE, 11).unwrap();
+    let data = simulate(&m, &truth, &spread(&m, 40), NOISE, 11).unwrap();
     let known = with_sigma(
         &data,
         &[Some(NOISE.length), Some(NOISE.length), Some(NOISE.angle)],
@@ -206,7 +198,7 @@ fn stiffness_ratios_are_identified_where_the_actuators_fight() {
     // Another stiffness ratio than nominal.
     let k3 = spec.param_index("k3").unwrap();
     truth.values[k3] *= 1.5;
-    let data = simulate(&m, &truth, &targets(&m, 60), 0.0, 2).unwrap();
+    let data = simulate(&m, &truth, &spread(&m, 60), 0.0, 2).unwrap();
     let mut opts = CalibrationOptions::new(spec, Model::Exact);
     opts.free = (0..spec.n_params()).collect();
     let cal = calibrate(&m, &data, &Params::nominal(spec), &opts).unwrap();

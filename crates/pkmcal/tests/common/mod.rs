@@ -96,3 +96,12 @@ pub fn perturbed(spec: &pkmcal::Spec, seed: u64, mm: f64, rad: f64) -> pkmcal::P
     }
     p
 }
+
+/// `n` targets spread over a mechanism's usable workspace.
+pub fn spread<M: pkmcal::Mechanism>(m: &M, n: usize) -> Vec<Vec<f64>> {
+    spread_targets(m, n)
+        .unwrap()
+        .into_iter()
+        .map(|p| p.target)
+        .collect()
+}
