@@ -3,7 +3,7 @@
 //! simulated true machine.
 
 mod common;
-use common::{ok, read_csv};
+use common::{example, ok, read_csv};
 
 /// Largest validation error after calibration (mm or rad): a few times the
 /// 1 µm simulated noise.
@@ -13,13 +13,6 @@ const COMPENSATED_MAX: f64 = 0.01;
 /// The uncalibrated machine must be off by more than this (mm or rad), so
 /// that the checks above mean something.
 const UNCALIBRATED_MIN: f64 = 0.05;
-
-fn example(name: &str) -> String {
-    format!(
-        "{}/../../examples/{name}/mechanism.toml",
-        env!("CARGO_MANIFEST_DIR")
-    )
-}
 
 /// The largest error of a report's validation statistics (`before` or
 /// `after`): the distance error (mm) and, for tools with an orientation, the

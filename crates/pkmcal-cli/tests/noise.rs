@@ -3,14 +3,7 @@
 //! the data file.
 
 mod common;
-use common::{fails, ok};
-
-fn example(name: &str) -> String {
-    format!(
-        "{}/../../examples/{name}/mechanism.toml",
-        env!("CARGO_MANIFEST_DIR")
-    )
-}
+use common::{example, fails, json, ok};
 
 /// Add `sigma_<axis>` columns with `value` to a CSV.
 fn add_sigma(text: &str, axes: &[&str], value: &str) -> String {
@@ -31,10 +24,6 @@ fn add_sigma(text: &str, axes: &[&str], value: &str) -> String {
             format!("{l},{}\n", extra.join(","))
         })
         .collect()
-}
-
-fn json(path: &std::path::Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
 }
 
 #[test]

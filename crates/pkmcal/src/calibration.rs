@@ -8,7 +8,7 @@ use crate::frame::{ToolLayout, observe, observe_jacobian, register, to_base};
 use crate::lm::{self, Problem, Termination};
 use crate::mechanism::{Mechanism, Params, Spec};
 use crate::models::{Model, Pose, Prediction, predict_pose_warm, prepare_pose};
-use crate::noise::{NoiseGroup, NoiseModel, VCE_MAX_ROUNDS, VCE_TOL, leverages};
+use crate::noise::{NoiseGroup, NoiseModel, VCE_MAX_ROUNDS, VCE_TOL, leverages, leverages_with};
 use crate::sensitivity::{sensitivity, sensitivity_at};
 use crate::simulate::{Measurement, Origin, numbered};
 use crate::stats::{ErrorStats, error_stats, improvement_percent};
@@ -1152,8 +1152,7 @@ fn linearized_vce(noise: &mut NoiseModel, cal: &Calibration) {
         let (c, _) = lm::covariance(&jw, 1e-12);
         let step = -(&c * (jw.transpose() * &rw));
         let r = &r0 + &j * &step;
-        let jc = &jw * &c;
-        let h: Vec<f64> = (0..jw.nrows()).map(|i| jc.row(i).dot(&jw.row(i))).collect();
+        let h = leverages_with(&jw, &c);
         if noise.update(r.as_slice(), &h) < VCE_TOL {
             break;
         }

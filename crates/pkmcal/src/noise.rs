@@ -214,7 +214,12 @@ fn rms(v: &[f64]) -> f64 {
 /// columns: free parameters).
 pub(crate) fn leverages(jac: &DMatrix<f64>) -> Vec<f64> {
     let (c, _) = crate::lm::covariance(jac, 1e-12);
-    let jc = jac * c;
+    leverages_with(jac, &c)
+}
+
+/// [`leverages`] with `(JᵀJ)⁺` already computed.
+pub(crate) fn leverages_with(jac: &DMatrix<f64>, inverse: &DMatrix<f64>) -> Vec<f64> {
+    let jc = jac * inverse;
     (0..jac.nrows())
         .map(|i| jc.row(i).dot(&jac.row(i)))
         .collect()

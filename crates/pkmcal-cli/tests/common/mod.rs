@@ -45,3 +45,16 @@ pub fn read_csv(path: &Path) -> (Vec<String>, Vec<Vec<f64>>) {
         .collect();
     (header, rows)
 }
+
+/// The mechanism file of a shipped example.
+pub fn example(name: &str) -> String {
+    format!(
+        "{}/../../examples/{name}/mechanism.toml",
+        env!("CARGO_MANIFEST_DIR")
+    )
+}
+
+/// A JSON file (a report).
+pub fn json(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
