@@ -2,25 +2,32 @@
 
 use crate::io::{Csv, Mech, parse_list, read_mechanism, read_params, write_atomic};
 use anyhow::{Context, Result, bail};
-use pkmcal::BallBar;
 use pkmcal::calibration::{CrossValidation, Identifiability};
 use pkmcal::{
-    Accuracy, Calibration, CalibrationOptions, ErrorStats, Measurement, Mechanism, Model, Params,
-    calibrate, calibration_accuracy, holdout_split,
+    Accuracy, Calibration, CalibrationOptions, ErrorStats, Frame, Measurement, MeasurementModel,
+    Mechanism, Model, Params, calibrate, calibration_accuracy, holdout_split,
 };
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
-/// Read a measurement file: commands and measured tool coordinates, optional
-/// targets and standard deviations.
-pub fn read_data<M: Mechanism>(path: &Path, mech: &M) -> Result<Vec<Measurement>> {
-    data_from(&Csv::read(path)?, mech)
+/// Read a measurement file: commands and the readings of `measurement`,
+/// optional targets and standard deviations.
+pub fn read_data<M: Mechanism>(
+    path: &Path,
+    mech: &M,
+    measurement: &MeasurementModel,
+) -> Result<Vec<Measurement>> {
+    data_from(&Csv::read(path)?, mech, measurement)
 }
 
 /// [`read_data`] from an already parsed table: every pose carries its σ
-/// (`sigma_<axis>` columns, any subset; or `sigma` for all axes of one unit)
-/// and its origin (pose number and line in the file).
-pub fn data_from<M: Mechanism>(csv: &Csv, mech: &M) -> Result<Vec<Measurement>> {
+/// (`sigma_<axis>` columns, any subset; or `sigma` for all readings of one
+/// unit) and its origin (pose number and line in the file).
+pub fn data_from<M: Mechanism>(
+    csv: &Csv,
+    mech: &M,
+    measurement: &MeasurementModel,
+) -> Result<Vec<Measurement>> {
     let spec = mech.spec();
     csv.require_rows()?;
     let act: Vec<String> = spec
@@ -29,7 +36,7 @@ pub fn data_from<M: Mechanism>(csv: &Csv, mech: &M) -> Result<Vec<Measurement>> 
         .map(|s| s.to_string())
         .collect();
     let commands = csv.named(&act)?;
-    let measured = csv.named(&spec.tool_axes)?;
+    let measured = csv.named(measurement.axes())?;
     let target_names: Vec<String> = spec
         .tool_axes
         .iter()
@@ -41,7 +48,7 @@ pub fn data_from<M: Mechanism>(csv: &Csv, mech: &M) -> Result<Vec<Measurement>> 
     } else {
         None
     };
-    let sigma = sigma_from(csv, mech)?;
+    let sigma = sigma_from(csv, measurement)?;
     Ok(commands
         .into_iter()
         .zip(measured)
@@ -63,11 +70,13 @@ pub fn data_from<M: Mechanism>(csv: &Csv, mech: &M) -> Result<Vec<Measurement>> 
 /// columns (any subset; the other axes are estimated from the residuals) or
 /// one `sigma` column for every axis when all axes share a unit. `None` when
 /// the file has none.
-pub fn sigma_from<M: Mechanism>(csv: &Csv, mech: &M) -> Result<Option<Vec<Vec<Option<f64>>>>> {
-    let spec = mech.spec();
-    let nx = spec.tool_axes.len();
-    let per_axis: Vec<(usize, String)> = spec
-        .tool_axes
+pub fn sigma_from(
+    csv: &Csv,
+    measurement: &MeasurementModel,
+) -> Result<Option<Vec<Vec<Option<f64>>>>> {
+    let axes = measurement.axes();
+    let nx = axes.len();
+    let per_axis: Vec<(usize, String)> = axes
         .iter()
         .enumerate()
         .map(|(k, a)| (k, format!("sigma_{a}")))
@@ -80,16 +89,16 @@ pub fn sigma_from<M: Mechanism>(csv: &Csv, mech: &M) -> Result<Option<Vec<Vec<Op
         .collect();
     if !unknown.is_empty() {
         bail!(
-            "{}: column(s) {} name no measured axis of {}; the measured axes are {} (columns sigma_{})",
+            "{}: column(s) {} name nothing measured ({}); the measured readings are {} (columns sigma_{})",
             csv.path.display(),
             unknown
                 .iter()
                 .map(|s| s.as_str())
                 .collect::<Vec<_>>()
                 .join(", "),
-            spec.name,
-            spec.tool_axes.join(", "),
-            spec.tool_axes.join(", sigma_")
+            measurement.describe(),
+            axes.join(", "),
+            axes.join(", sigma_")
         );
     }
     let common = csv.headers.iter().any(|h| h == "sigma");
@@ -100,18 +109,18 @@ pub fn sigma_from<M: Mechanism>(csv: &Csv, mech: &M) -> Result<Option<Vec<Vec<Op
         );
     }
     let rows: Vec<Vec<Option<f64>>> = if common {
-        let units = &spec.tool_units;
+        let units = measurement.units();
         if units.iter().any(|u| *u != units[0]) {
             bail!(
                 "{}: one `sigma` column cannot hold the noise of {} ({}); give per-axis columns sigma_{} (any subset; the others are estimated)",
                 csv.path.display(),
-                spec.tool_axes.join(", "),
+                axes.join(", "),
                 units
                     .iter()
                     .map(|u| u.symbol())
                     .collect::<Vec<_>>()
                     .join(", "),
-                spec.tool_axes.join(", sigma_")
+                axes.join(", sigma_")
             );
         }
         csv.named(&["sigma".to_string()])?
@@ -162,9 +171,13 @@ pub fn located(e: pkmcal::Error, file: &Path) -> anyhow::Error {
     }
 }
 
-/// Resolve `--free` / `--fix` lists into parameter indices.
+/// Resolve `--free` / `--fix` lists into indices of the identification
+/// vector: the mechanism's parameters, then the measurement model's (socket
+/// positions, target points…). `all` frees both; the instrument frame's
+/// follow `--frame`.
 pub fn free_set<M: Mechanism>(
     mech: &M,
+    measurement: &MeasurementModel,
     free: Option<&str>,
     fix: Option<&str>,
 ) -> Result<Vec<usize>> {
@@ -174,6 +187,21 @@ pub fn free_set<M: Mechanism>(
             .map(|t| t.trim().to_string())
             .filter(|t| !t.is_empty())
             .collect()
+    };
+    let frame: Vec<usize> = measurement
+        .frame_range()
+        .map(|i| spec.n_params() + i)
+        .collect();
+    let index = |n: &str, option: &str| -> Result<usize> {
+        let i = measurement
+            .index_of(spec, n)
+            .with_context(|| format!("in {option}"))?;
+        if frame.contains(&i) {
+            bail!(
+                "in {option}: `{n}` belongs to the instrument frame, which --frame sets (free: identified; base: the data are in the base frame)"
+            );
+        }
+        Ok(i)
     };
     let mut set: Vec<usize> = match free {
         None => spec
@@ -185,13 +213,18 @@ pub fn free_set<M: Mechanism>(
             let mut out = vec![];
             for n in names(list) {
                 match n.as_str() {
-                    "all" => out.extend(0..spec.n_params()),
+                    "all" => {
+                        out.extend(0..spec.n_params());
+                        out.extend(
+                            (0..measurement.frame_range().start).map(|i| spec.n_params() + i),
+                        );
+                    }
                     "default" | "paper" => {
                         for d in &spec.default_free {
                             out.push(spec.param_index(d)?);
                         }
                     }
-                    _ => out.push(spec.param_index(&n).context("in --free")?),
+                    _ => out.push(index(&n, "--free")?),
                 }
             }
             out
@@ -199,7 +232,7 @@ pub fn free_set<M: Mechanism>(
     };
     if let Some(list) = fix {
         for n in names(list) {
-            let i = spec.param_index(&n).context("in --fix")?;
+            let i = index(&n, "--fix")?;
             set.retain(|&k| k != i);
         }
     }
@@ -226,6 +259,8 @@ pub struct Report<'a> {
     pub pkmcal_version: &'static str,
     pub mechanism: String,
     pub data: String,
+    /// What the instrument read.
+    pub measurement: pkmcal::MeasurementSummary,
     #[serde(flatten)]
     pub calibration: &'a Calibration,
     pub accuracy: Accuracy,
@@ -256,6 +291,8 @@ pub struct CalibrateConfig {
     pub drop_outliers: bool,
     /// `auto`, `free` or `base`.
     pub frame: String,
+    /// `--axes`: the tool axes measured, when not all.
+    pub axes: Option<String>,
 }
 
 fn force_arg<M: Mechanism>(mech: &M, s: Option<&str>) -> Result<Vec<f64>> {
@@ -271,125 +308,135 @@ fn force_arg<M: Mechanism>(mech: &M, s: Option<&str>) -> Result<Vec<f64>> {
     Ok(f)
 }
 
-/// The ball-bar setup when `csv` holds bar readings (`d1…`) instead of tool
-/// coordinates; an error naming the file when no setup is given for them.
-fn ballbar_setup(
+/// The measurement model of a data file, from its columns: the whole tool
+/// (`x, y, …`), target points (`t1x …`, from the mechanism file's
+/// `[[target]]`s), ball-bar readings (`d1 …`, with `setup` or the mechanism
+/// file's `[ballbar]`), or the tool axes named by `axes` (e.g. only `z`;
+/// a file missing a tool column without `--axes` is an error, not a
+/// subset). The frame:
+/// `--frame free` (identified), `base`, or `auto` (free for positions unless
+/// the file says `# frame: base`; base for readings that do not fix a frame,
+/// a subset of axes or bar lengths).
+pub fn measurement_of(
     csv: &Csv,
     mech: &Mech,
     setup: Option<&Path>,
     mechanism: Option<&Path>,
-) -> Result<Option<pkmcal::Setup>> {
-    let distances = csv.headers.iter().any(|h| h == "d1");
-    let positions = mech
-        .spec()
-        .tool_axes
-        .iter()
-        .all(|a| csv.headers.contains(a));
-    if !distances || positions {
-        return Ok(None);
-    }
-    crate::io::read_setup(setup, mechanism)?
-        .with_context(|| {
+    frame: &str,
+    axes: Option<&str>,
+) -> Result<MeasurementModel> {
+    let spec = mech.spec();
+    let has = |h: &str| csv.headers.iter().any(|c| c == h);
+    let whole = spec.tool_axes.iter().all(|a| has(a));
+    let some: Vec<&String> = spec.tool_axes.iter().filter(|a| has(a)).collect();
+    let file = csv.path.display();
+    let m = if let Some(axes) = axes {
+        let names: Vec<&str> = axes.split(',').map(str::trim).collect();
+        MeasurementModel::tool_axes(spec, &names).context("in --axes")?
+    } else if whole {
+        MeasurementModel::tool(spec)
+    } else if has("t1x") {
+        let t = crate::io::read_targets(mechanism)?;
+        if t.is_empty() {
+            bail!(
+                "{file} holds target-point positions (t1x…); describe the targets in the mechanism file: [[target]] at = [x, y, z] (tool frame, mm)"
+            );
+        }
+        MeasurementModel::targets(spec, &t).with_context(|| format!("targets for {file}"))?
+    } else if has("d1") {
+        let setup = crate::io::read_setup(setup, mechanism)?.with_context(|| {
             format!(
-                "{} holds ball-bar distances (d1…); give the socket positions with --setup S.toml (or a [ballbar] table in the mechanism file)",
-                csv.path.display()
+                "{file} holds ball-bar distances (d1…); give the socket positions with --setup S.toml (or a [ballbar] table in the mechanism file)"
             )
-        })
-        .map(Some)
-}
-
-/// The target points when `csv` holds their positions (`t1x…`) instead of the
-/// tool pose; an error naming the file when the mechanism file has none.
-pub fn point_targets(
-    csv: &Csv,
-    mech: &Mech,
-    mechanism: Option<&Path>,
-) -> Result<Option<Vec<[f64; 3]>>> {
-    let targets = csv.headers.iter().any(|h| h == "t1x");
-    let positions = mech
-        .spec()
-        .tool_axes
-        .iter()
-        .all(|a| csv.headers.contains(a));
-    if !targets || positions {
-        return Ok(None);
-    }
-    let t = crate::io::read_targets(mechanism)?;
-    if t.is_empty() {
+        })?;
+        MeasurementModel::ball_bar(spec, &setup).with_context(|| format!("ball bar for {file}"))?
+    } else if !some.is_empty() {
+        let missing: Vec<&String> = spec.tool_axes.iter().filter(|a| !has(a)).collect();
         bail!(
-            "{} holds target-point positions (t1x…); describe the targets in the mechanism file: [[target]] at = [x, y, z] (platform frame, mm)",
-            csv.path.display()
+            "{file}: missing column{} `{}`; if the instrument measured only {}, say so with --axes {}",
+            if missing.len() > 1 { "s" } else { "" },
+            missing
+                .iter()
+                .map(|s| s.as_str())
+                .collect::<Vec<_>>()
+                .join("`, `"),
+            some.iter()
+                .map(|s| s.as_str())
+                .collect::<Vec<_>>()
+                .join(", "),
+            some.iter()
+                .map(|s| s.as_str())
+                .collect::<Vec<_>>()
+                .join(",")
+        );
+    } else {
+        bail!(
+            "{file} has no measured columns: give the tool coordinates ({}), some of them, target points (t1x, t1y, …) or ball-bar readings (d1, d2, …)",
+            spec.tool_axes.join(", ")
+        );
+    };
+    let positions =
+        m.is_whole_tool() || matches!(m.instrument(), pkmcal::Instrument::Targets { .. });
+    let choice = match frame {
+        "free" => Frame::Free,
+        "base" => Frame::Base,
+        _ if positions && !csv.base_frame => Frame::Free,
+        _ => Frame::Base,
+    };
+    if !matches!(m.instrument(), pkmcal::Instrument::BallBar { .. })
+        && !positions
+        && frame == "free"
+    {
+        bail!(
+            "--frame free needs whole positions to register the instrument frame; {file} reads only {}",
+            m.axes().join(", ")
         );
     }
-    Ok(Some(t))
-}
-
-/// `p` of a wrapper whose extra geometric parameters follow the plain
-/// mechanism's, reduced to the plain mechanism's parameters.
-fn plain_params(plain: &Mech, wrapped_geometric: usize) -> impl Fn(&Params) -> Params + use<> {
-    let ng = plain.spec().n_geometric();
-    let spec = plain.spec().clone();
-    move |p: &Params| -> Params {
-        let mut v = p.values[..ng].to_vec();
-        v.extend(&p.values[wrapped_geometric..]);
-        Params::new(&spec, v).expect("same layout")
+    let no_frame = matches!(m.instrument(), pkmcal::Instrument::BallBar { .. });
+    if no_frame && choice == Frame::Free && frame == "free" {
+        bail!("--frame free: a ball bar's sockets are in the base frame; drop --frame");
     }
+    if no_frame || spec.tool_layout.frame_size() == 0 {
+        return Ok(m);
+    }
+    Ok(m.in_frame(choice)?)
 }
 
 pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
     let mech = read_mechanism(c.mechanism.as_deref())?;
     let csv = Csv::read(&c.data)?;
-    if let Some(t) = point_targets(&csv, &mech, c.mechanism.as_deref())? {
-        if c.report_dir.is_some() {
-            bail!("--report-dir needs tool positions; drop it for target-point data");
-        }
-        let pt = pkmcal::PointTargets::new(mech.clone(), &t)?;
-        let to_plain = plain_params(&mech, pt.spec().n_geometric());
-        return calibrate_on(&pt, &c, &csv, &mech, &to_plain, None);
-    }
-    if let Some(setup) = ballbar_setup(&csv, &mech, c.setup.as_deref(), c.mechanism.as_deref())? {
-        if c.report_dir.is_some() {
-            bail!(
-                "--report-dir needs positions; trilaterate the distances first (pkmcal trilaterate) or drop --report-dir"
-            );
-        }
-        let bb = BallBar::new(mech.clone(), &setup)?;
-        let to_plain = plain_params(&mech, bb.spec().n_geometric());
-        return calibrate_on(&bb, &c, &csv, &mech, &to_plain, None);
-    }
-    calibrate_on(&mech, &c, &csv, &mech, &|p: &Params| p.clone(), Some(&mech))
-}
-
-/// Calibrate `mech` (the mechanism itself, or it measured by a ball bar) and
-/// write the plain mechanism's parameters.
-fn calibrate_on<M: Mechanism>(
-    mech: &M,
-    c: &CalibrateConfig,
-    csv: &Csv,
-    plain: &Mech,
-    to_plain: &dyn Fn(&Params) -> Params,
-    figures_for: Option<&Mech>,
-) -> Result<()> {
+    let measurement = measurement_of(
+        &csv,
+        &mech,
+        c.setup.as_deref(),
+        c.mechanism.as_deref(),
+        &c.frame,
+        c.axes.as_deref(),
+    )?;
     let spec = mech.spec();
-    let all = data_from(csv, mech)?;
+    let mech = &mech;
+    let all = data_from(&csv, mech, &measurement)?;
     let start = match &c.start {
         Some(p) => read_params(p, spec)?,
         None => Params::nominal(spec),
     };
     let mut opts = CalibrationOptions::new(spec, c.model);
-    opts.free = free_set(mech, c.free.as_deref(), c.fix.as_deref())?;
+    opts.free = free_set(mech, &measurement, c.free.as_deref(), c.fix.as_deref())?;
     opts.force = force_arg(mech, c.force.as_deref())?;
     opts.loss = c.loss;
     opts.outlier_threshold = c.outlier_threshold;
     opts.drop_outliers = c.drop_outliers;
-    opts.frame = frame_choice(&c.frame, spec, csv);
     // Validation data: a description, the file it came from, the poses.
     type Held = Option<(String, PathBuf, Vec<Measurement>)>;
     let (train, held): (Vec<Measurement>, Held) = match (&c.validate, c.holdout) {
         (Some(_), Some(_)) => bail!("give either --validate FILE or --holdout F, not both"),
         (Some(v), None) => (
             all.clone(),
-            Some((v.display().to_string(), v.clone(), read_data(v, mech)?)),
+            Some((
+                v.display().to_string(),
+                v.clone(),
+                read_data(v, mech, &measurement)?,
+            )),
         ),
         (None, Some(f)) => {
             let (tr, he) = holdout_split(all.len(), f, c.seed)?;
@@ -411,13 +458,14 @@ fn calibrate_on<M: Mechanism>(
     };
     // Every pose carries its data-file number and line, so errors, outliers
     // and dropped poses name them without translation.
-    let cal = calibrate(mech, &train, &start, &opts).map_err(|e| located(e, &c.data))?;
-    let (acc, before, after) =
-        calibration_accuracy(mech, &train, &cal, &opts.force).map_err(|e| located(e, &c.data))?;
+    let cal =
+        calibrate(mech, &measurement, &train, &start, &opts).map_err(|e| located(e, &c.data))?;
+    let (acc, before, after) = calibration_accuracy(mech, &measurement, &train, &cal, &opts.force)
+        .map_err(|e| located(e, &c.data))?;
     let validation = match &held {
         Some((source, path, data)) => Some(Validation {
             source: source.clone(),
-            accuracy: calibration_accuracy(mech, data, &cal, &opts.force)
+            accuracy: calibration_accuracy(mech, &measurement, data, &cal, &opts.force)
                 .map_err(|e| located(e, path))?
                 .0,
         }),
@@ -428,6 +476,7 @@ fn calibrate_on<M: Mechanism>(
             let bar = crate::io::progress(k as u64, c.quiet, "folds", 1);
             let cv = pkmcal::cross_validate_with_progress(
                 mech,
+                &measurement,
                 &train,
                 &start,
                 &opts,
@@ -448,11 +497,12 @@ fn calibrate_on<M: Mechanism>(
         c.data.display(),
         cal.termination_reason
     );
-    let params_text = crate::io::params_to_string(plain.spec(), &to_plain(&cal.params), &header);
+    let params_text = crate::io::params_to_string(spec, &cal.params, &header);
     let report = Report {
         pkmcal_version: env!("CARGO_PKG_VERSION"),
         mechanism: spec.name.clone(),
         data: c.data.display().to_string(),
+        measurement: measurement.summary(),
         calibration: &cal,
         accuracy: acc,
         validation,
@@ -464,11 +514,12 @@ fn calibrate_on<M: Mechanism>(
     if let Some(r) = &c.report {
         write_atomic(r, json.as_bytes())?;
     }
-    if let (Some(dir), Some(fig_mech)) = (&c.report_dir, figures_for) {
+    if let Some(dir) = &c.report_dir {
         crate::report::write_report_dir(
             dir,
             &crate::report::ReportInputs {
-                mech: fig_mech,
+                mech,
+                measurement: &measurement,
                 data_name: &c.data.display().to_string(),
                 cal: &cal,
                 data: &train,
@@ -480,7 +531,7 @@ fn calibrate_on<M: Mechanism>(
             },
         )?;
     }
-    print_summary(&report, &spec.tool_axes, &spec.tool_units);
+    print_summary(&report, &measurement);
     println!();
     println!("identified parameters -> {}", c.out.display());
     if let Some(r) = &c.report {
@@ -494,7 +545,7 @@ fn calibrate_on<M: Mechanism>(
 
 /// Display factor and symbol of an error column: lengths in mm, angles in
 /// mrad (so that micro-radian errors do not print as 0.0000).
-fn column_unit(u: pkmcal::Unit) -> (f64, &'static str) {
+pub fn column_unit(u: pkmcal::Unit) -> (f64, &'static str) {
     match u {
         pkmcal::Unit::Radian => (1e3, "mrad"),
         u => (1.0, u.symbol()),
@@ -562,12 +613,13 @@ pub fn with_units(values: &[f64], units: &[pkmcal::Unit]) -> String {
 }
 
 /// The instrument frame in words, when the data were measured from one.
-pub fn frame_text(cal: &Calibration) -> Option<String> {
+pub fn frame_text(cal: &Calibration, measurement: &MeasurementModel) -> Option<String> {
     cal.frame.as_ref()?;
+    let names = &measurement.param_names()[measurement.frame_range()];
     let rows: Vec<String> = cal
         .parameters
         .iter()
-        .filter(|p| p.kind == pkmcal::ParamKind::Instrument)
+        .filter(|p| p.kind == pkmcal::ParamKind::Instrument && names.contains(&p.name))
         .map(|p| {
             let (f, sym) = match p.unit {
                 pkmcal::Unit::Radian => (1e3, "mrad"),
@@ -586,7 +638,12 @@ pub fn frame_text(cal: &Calibration) -> Option<String> {
         })
         .collect();
     Some(format!(
-        "instrument frame in the base frame (identified; --frame base if the data are in the base frame): {}",
+        "instrument frame in the base frame ({}): {}",
+        if *measurement.frame() == Frame::Free {
+            "identified; --frame base if the data are in the base frame"
+        } else {
+            "given"
+        },
         rows.join(", ")
     ))
 }
@@ -641,7 +698,8 @@ pub fn print_identifiability(id: &Identifiability, fixed: &str) {
     }
 }
 
-fn print_summary(r: &Report, axes: &[String], units: &[pkmcal::Unit]) {
+fn print_summary(r: &Report, measurement: &MeasurementModel) {
+    let (axes, units) = (measurement.axes(), measurement.units());
     let cal = r.calibration;
     println!(
         "calibration of {} from {} ({} poses, {} model)",
@@ -684,7 +742,7 @@ fn print_summary(r: &Report, axes: &[String], units: &[pkmcal::Unit]) {
         .map(|p| p.name.as_str())
         .collect();
     println!("  fixed: {}", fixed.join(" "));
-    if let Some(text) = frame_text(cal) {
+    if let Some(text) = frame_text(cal, measurement) {
         println!("  {text}");
     }
     println!();
@@ -761,41 +819,31 @@ pub struct AnalyzeConfig {
     pub setup: Option<PathBuf>,
     /// `auto`, `free` or `base`.
     pub frame: String,
-}
-
-/// The instrument frame of `--frame` for data `csv` of a mechanism.
-fn frame_choice(choice: &str, spec: &pkmcal::Spec, csv: &Csv) -> pkmcal::Frame {
-    match choice {
-        _ if spec.tool_layout.frame_size() == 0 => pkmcal::Frame::Base,
-        "base" => pkmcal::Frame::Base,
-        "auto" if csv.base_frame => pkmcal::Frame::Base,
-        _ => pkmcal::Frame::Free,
-    }
+    /// `--axes`: the tool axes measured, when not all.
+    pub axes: Option<String>,
 }
 
 pub fn run_analyze(c: AnalyzeConfig) -> Result<()> {
     let mech = read_mechanism(c.mechanism.as_deref())?;
     let csv = Csv::read(&c.data)?;
-    if let Some(setup) = ballbar_setup(&csv, &mech, c.setup.as_deref(), c.mechanism.as_deref())? {
-        return analyze_on(&BallBar::new(mech, &setup)?, &c, &csv);
-    }
-    if let Some(t) = point_targets(&csv, &mech, c.mechanism.as_deref())? {
-        return analyze_on(&pkmcal::PointTargets::new(mech, &t)?, &c, &csv);
-    }
-    analyze_on(&mech, &c, &csv)
-}
-
-fn analyze_on<M: Mechanism>(mech: &M, c: &AnalyzeConfig, csv: &Csv) -> Result<()> {
+    let measurement = measurement_of(
+        &csv,
+        &mech,
+        c.setup.as_deref(),
+        c.mechanism.as_deref(),
+        &c.frame,
+        c.axes.as_deref(),
+    )?;
+    let mech = &mech;
     let spec = mech.spec();
-    let data = data_from(csv, mech)?;
+    let data = data_from(&csv, mech, &measurement)?;
     let params = match &c.params {
         Some(p) => read_params(p, spec)?,
         None => Params::nominal(spec),
     };
-    let free = free_set(mech, c.free.as_deref(), c.fix.as_deref())?;
+    let free = free_set(mech, &measurement, c.free.as_deref(), c.fix.as_deref())?;
     let force = force_arg(mech, c.force.as_deref())?;
-    let frame = frame_choice(&c.frame, spec, csv);
-    let id = pkmcal::analyze_in_frame(mech, &data, &params, c.model, &free, &force, &frame)
+    let id = pkmcal::analyze(mech, &measurement, &data, &params, c.model, &free, &force)
         .with_context(|| format!("analysing {}", c.data.display()))?;
     if let Some(r) = &c.report {
         write_atomic(r, serde_json::to_string_pretty(&id)?.as_bytes())?;
@@ -810,13 +858,13 @@ fn analyze_on<M: Mechanism>(mech: &M, c: &AnalyzeConfig, csv: &Csv) -> Result<()
     println!(
         "  free: {}{}",
         free.iter()
-            .map(|&i| spec.param_names()[i])
+            .map(|&i| measurement.all_names(spec)[i].clone())
             .collect::<Vec<_>>()
             .join(" "),
-        if frame == pkmcal::Frame::Free {
+        if *measurement.frame() == Frame::Free {
             format!(
                 ", and the instrument frame's {} (--frame base if the data are in the base frame)",
-                spec.tool_layout.frame_names().join(" ")
+                measurement.param_names()[measurement.frame_range()].join(" ")
             )
         } else {
             String::new()

@@ -208,64 +208,30 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         }
         (None, None) => bail!("give --targets FILE or --grid N"),
     };
+    let measurement = simulated_measurement(&mech, &a)?;
     let bar = crate::io::progress(targets.len() as u64, a.quiet, "poses", 0);
-    let setup = match &a.setup {
-        Some(p) => crate::io::read_setup(Some(p), None)?,
-        None => None,
-    };
-    if let Some(setup) = &setup {
-        setup.validate(point_dim(mech.spec())?)?;
-        // Noise on the bar readings, not on positions.
-        let exact = pkmcal::simulate_with_progress(
-            &mech,
-            &truth,
-            &targets,
-            pkmcal::Noise::NONE,
-            a.seed,
-            &|| bar.inc(1),
-        )?;
-        bar.finish_and_clear();
-        let rows = ballbar_rows(&mech, setup, &exact, a.noise, a.seed)?;
-        let mut header = target_names(&mech);
-        header.extend(mech.spec().actuated_names().iter().map(|s| s.to_string()));
-        header.extend((1..=setup.sockets.len()).map(|j| format!("d{j}")));
-        write_atomic(&a.out, &csv_bytes(&header, &rows))?;
-        eprintln!(
-            "simulated {} poses measured by a ball bar ({} sockets, noise {} mm on each reading, seed {}) -> {}",
-            rows.len(),
-            setup.sockets.len(),
-            a.noise,
-            a.seed,
-            a.out.display()
-        );
-        return Ok(());
-    }
-    if a.measure_targets {
-        return simulate_targets(&mech, &a, &targets, &bar);
-    }
-    let frame = instrument_frame(mech.spec().tool_layout, a.instrument_frame.as_deref())?;
-    let mut data =
-        pkmcal::simulate_with_progress(&mech, &truth, &targets, noise, a.seed, &|| bar.inc(1))?;
+    let data = pkmcal::simulate_with_progress(
+        &mech,
+        &measurement,
+        &truth,
+        &targets,
+        noise,
+        a.seed,
+        &|| bar.inc(1),
+    )?;
     bar.finish_and_clear();
-    if let Some(f) = &frame {
-        // Noise-free coordinates seen from the instrument, then the noise.
-        let exact = pkmcal::simulate(&mech, &truth, &targets, pkmcal::Noise::NONE, a.seed)?;
-        for (m, e) in data.iter_mut().zip(exact) {
-            let seen = observed(mech.spec().tool_layout, &e.measured, Some(f));
-            for ((v, s), x) in m.measured.iter_mut().zip(seen).zip(&e.measured) {
-                *v = s + (*v - x);
-            }
-        }
-    }
+    let base = *measurement.frame() == pkmcal::Frame::Base;
     write_atomic(
         &a.out,
-        &with_frame_comment(data_csv(&mech, &data), frame.is_none()),
+        &with_frame_comment(data_csv(&mech, &measurement, &data), base),
     )?;
+    let angles = measurement.units().contains(&pkmcal::Unit::Radian);
     eprintln!(
-        "simulated {} poses (noise {} mm on lengths{}, seed {}) -> {}",
+        "simulated {} poses, {} (noise {} mm on lengths{}, seed {}) -> {}",
         data.len(),
+        measurement.describe(),
         noise.length,
-        if mech.spec().tool_units.contains(&pkmcal::Unit::Radian) {
+        if angles {
             format!(", {} rad on angles", noise.angle)
         } else {
             String::new()
@@ -276,95 +242,37 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
     Ok(())
 }
 
-/// `simulate --measure-targets`: the mechanism file's target points measured
-/// (laser tracker) at every pose, with noise on each coordinate.
-fn simulate_targets(
-    mech: &Mech,
-    a: &SimulateArgs,
-    targets: &[Vec<f64>],
-    bar: &indicatif::ProgressBar,
-) -> Result<()> {
-    use rand::SeedableRng;
-    use rand_distr::Distribution;
-    let points = crate::io::read_targets(a.mech.mechanism.as_deref())?;
-    if points.is_empty() {
-        bail!(
-            "--measure-targets needs target points in the mechanism file: [[target]] at = [x, y, z] (platform frame, mm)"
-        );
-    }
-    let pt = pkmcal::PointTargets::new(mech.clone(), &points)?;
-    let truth = load_params(a.truth.as_deref(), &pt)?;
-    let frame = instrument_frame(pt.spec().tool_layout, a.instrument_frame.as_deref())?;
+/// What `simulate` measures: a ball bar (`--setup`), target points
+/// (`--measure-targets`), some tool axes (`--axes`) or the whole tool; from
+/// an instrument at `--instrument-frame` if given.
+fn simulated_measurement(mech: &Mech, a: &SimulateArgs) -> Result<pkmcal::MeasurementModel> {
     let spec = mech.spec();
-    let rho = &spec.nominal[..spec.n_geometric()];
-    let mut rng = rand::rngs::StdRng::seed_from_u64(a.seed);
-    let normal = rand_distr::Normal::new(0.0, a.noise).context("--noise")?;
-    let mut rows = Vec::with_capacity(targets.len());
-    for target in targets {
-        let q = pkmcal::inverse_kinematics(mech, rho, target)
-            .with_context(|| format!("target {target:?}"))?;
-        let commands: Vec<f64> = spec.actuated.iter().map(|&j| q[j]).collect();
-        let pose = prepare_pose(&pt, &commands, Some(&q))?;
-        let p = predict_pose(&pt, &pose, &truth, Model::Exact, &[])
-            .with_context(|| format!("target {target:?}"))?;
-        let seen = observed(pt.spec().tool_layout, &p.x, frame.as_deref());
-        rows.push(
-            target
-                .iter()
-                .chain(&commands)
-                .copied()
-                .chain(seen.iter().map(|x| x + normal.sample(&mut rng)))
-                .collect(),
-        );
-        bar.inc(1);
+    let m = if let Some(p) = &a.setup {
+        let setup = crate::io::read_setup(Some(p), None)?
+            .with_context(|| format!("{}: no ball-bar setup", p.display()))?;
+        pkmcal::MeasurementModel::ball_bar(spec, &setup)?
+    } else if a.measure_targets {
+        let points = crate::io::read_targets(a.mech.mechanism.as_deref())?;
+        if points.is_empty() {
+            bail!(
+                "--measure-targets needs target points in the mechanism file: [[target]] at = [x, y, z] (tool frame, mm; [x, y] for a planar tool)"
+            );
+        }
+        pkmcal::MeasurementModel::targets(spec, &points)?
+    } else if let Some(axes) = &a.axes {
+        let names: Vec<&str> = axes.split(',').map(str::trim).collect();
+        pkmcal::MeasurementModel::tool_axes(spec, &names).context("in --axes")?
+    } else {
+        pkmcal::MeasurementModel::tool(spec)
+    };
+    match &a.instrument_frame {
+        None => Ok(m),
+        Some(s) => {
+            let f = crate::io::parse_list(s, "--instrument-frame")?;
+            m.in_frame(pkmcal::Frame::Known(f))
+                .context("in --instrument-frame")
+        }
     }
-    bar.finish_and_clear();
-    let mut header = target_names(mech);
-    header.extend(spec.actuated_names().iter().map(|s| s.to_string()));
-    header.extend(pt.spec().tool_axes.iter().cloned());
-    write_atomic(
-        &a.out,
-        &with_frame_comment(csv_bytes(&header, &rows), frame.is_none()),
-    )?;
-    eprintln!(
-        "simulated {} poses measured at {} target point(s) (noise {} mm per coordinate, seed {}) -> {}",
-        rows.len(),
-        points.len(),
-        a.noise,
-        a.seed,
-        a.out.display()
-    );
-    Ok(())
-}
-
-/// Rows `target_*, commands, d1..dk` of simulated ball-bar readings.
-fn ballbar_rows(
-    mech: &Mech,
-    setup: &pkmcal::Setup,
-    exact: &[pkmcal::Measurement],
-    noise: f64,
-    seed: u64,
-) -> Result<Vec<Vec<f64>>> {
-    use rand::SeedableRng;
-    use rand_distr::Distribution;
-    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-    let normal = rand_distr::Normal::new(0.0, noise).context("--noise")?;
-    let _ = mech;
-    Ok(exact
-        .iter()
-        .map(|m| {
-            let t = m.target.clone().unwrap_or_default();
-            let d: Vec<f64> = setup
-                .distances(&m.measured)
-                .into_iter()
-                .map(|d| d + normal.sample(&mut rng))
-                .collect();
-            t.into_iter()
-                .chain(m.commands.iter().copied())
-                .chain(d)
-                .collect()
-        })
-        .collect())
 }
 
 /// `trilaterate`: bar readings to positions with their standard deviations.
@@ -373,7 +281,8 @@ pub fn trilaterate(a: crate::TrilaterateArgs) -> Result<()> {
     let spec = mech.spec();
     let setup = crate::io::read_setup(a.setup.as_deref(), a.mech.mechanism.as_deref())?
         .context("give the socket positions with --setup S.toml (or a [ballbar] table in the mechanism file)")?;
-    setup.validate(point_dim(spec)?)?;
+    // Checks the setup against the tool point.
+    pkmcal::MeasurementModel::ball_bar(spec, &setup)?;
     if !(a.sigma.is_finite() && a.sigma >= 0.0) {
         bail!("--sigma must be a non-negative number of mm");
     }
@@ -415,11 +324,15 @@ pub fn trilaterate(a: crate::TrilaterateArgs) -> Result<()> {
 }
 
 /// Measurement file: target_*, commands, measured tool coordinates.
-pub fn data_csv(mech: &Mech, data: &[pkmcal::Measurement]) -> Vec<u8> {
+pub fn data_csv(
+    mech: &Mech,
+    measurement: &pkmcal::MeasurementModel,
+    data: &[pkmcal::Measurement],
+) -> Vec<u8> {
     let spec = mech.spec();
     let mut header = target_names(mech);
     header.extend(spec.actuated_names().iter().map(|s| s.to_string()));
-    header.extend(spec.tool_axes.iter().cloned());
+    header.extend(measurement.axes().iter().cloned());
     let rows: Vec<Vec<f64>> = data
         .iter()
         .map(|m| {
@@ -453,16 +366,17 @@ pub fn demo(a: DemoArgs) -> Result<()> {
         .into_iter()
         .map(|p| p.target)
         .collect();
-    let data = pkmcal::simulate(&mech, &truth, &targets, DEMO_NOISE_MM, a.seed)?;
+    let tool = pkmcal::MeasurementModel::tool(spec);
+    let data = pkmcal::simulate(&mech, &tool, &truth, &targets, DEMO_NOISE_MM, a.seed)?;
     let vtargets = pkmcal::random_targets(&mech, DEMO_VALIDATION_POSES, a.seed + 1)?;
-    let vdata = pkmcal::simulate(&mech, &truth, &vtargets, DEMO_NOISE_MM, a.seed + 2)?;
+    let vdata = pkmcal::simulate(&mech, &tool, &truth, &vtargets, DEMO_NOISE_MM, a.seed + 2)?;
     write_atomic(
         &dir.join("measurements.csv"),
-        &with_frame_comment(data_csv(&mech, &data), true),
+        &with_frame_comment(data_csv(&mech, &tool, &data), true),
     )?;
     write_atomic(
         &dir.join("validation.csv"),
-        &with_frame_comment(data_csv(&mech, &vdata), true),
+        &with_frame_comment(data_csv(&mech, &tool, &vdata), true),
     )?;
     write_atomic(
         &dir.join("truth.toml"),
@@ -484,9 +398,9 @@ pub fn demo(a: DemoArgs) -> Result<()> {
     let mut first = true;
     for model in Model::ALL {
         let opts = pkmcal::CalibrationOptions::new(spec, model);
-        let cal = pkmcal::calibrate(&mech, &data, &nominal, &opts)?;
-        let (acc, before, after) = pkmcal::accuracy(&mech, &data, &cal.params, model, &[])?;
-        let (vacc, _, _) = pkmcal::accuracy(&mech, &vdata, &cal.params, model, &[])?;
+        let cal = pkmcal::calibrate(&mech, &tool, &data, &nominal, &opts)?;
+        let (acc, before, after) = pkmcal::calibration_accuracy(&mech, &tool, &data, &cal, &[])?;
+        let (vacc, _, _) = pkmcal::calibration_accuracy(&mech, &tool, &vdata, &cal, &[])?;
         if model == Model::Exact {
             let validation = crate::calibrate::Validation {
                 source: format!("{DEMO_VALIDATION_POSES} unseen poses"),
@@ -496,6 +410,7 @@ pub fn demo(a: DemoArgs) -> Result<()> {
                 &dir.join("report"),
                 &crate::report::ReportInputs {
                     mech: &mech,
+                    measurement: &tool,
                     data_name: "measurements.csv (simulated)",
                     cal: &cal,
                     data: &data,
@@ -582,34 +497,6 @@ pub fn demo(a: DemoArgs) -> Result<()> {
     Ok(())
 }
 
-/// `--instrument-frame` values for a tool layout (3 planar, 6 spatial).
-fn instrument_frame(layout: pkmcal::ToolLayout, arg: Option<&str>) -> Result<Option<Vec<f64>>> {
-    let Some(s) = arg else { return Ok(None) };
-    let f = crate::io::parse_list(s, "--instrument-frame")?;
-    let n = layout.frame_size();
-    if n == 0 || f.len() != n {
-        bail!(
-            "--instrument-frame needs {n} values for this tool ({}), got {}",
-            layout.frame_names().join(","),
-            f.len()
-        );
-    }
-    Ok(Some(f))
-}
-
-/// Tool coordinates as an instrument at `frame` sees them (unchanged
-/// without a frame).
-fn observed(layout: pkmcal::ToolLayout, x: &[f64], frame: Option<&[f64]>) -> Vec<f64> {
-    match frame {
-        Some(f) => {
-            let mut y = vec![0.0; x.len()];
-            pkmcal::frame::observe(layout, x, f, &mut y);
-            y
-        }
-        None => x.to_vec(),
-    }
-}
-
 /// CSV bytes with the comment that declares them in the base frame.
 pub fn with_frame_comment(bytes: Vec<u8>, base: bool) -> Vec<u8> {
     if !base {
@@ -618,15 +505,4 @@ pub fn with_frame_comment(bytes: Vec<u8>, base: bool) -> Vec<u8> {
     let mut out = format!("{}\n", crate::io::BASE_FRAME_COMMENT).into_bytes();
     out.extend(bytes);
     out
-}
-
-/// Dimension of the tool point, where a ball-bar ball sits.
-fn point_dim(spec: &pkmcal::Spec) -> Result<usize> {
-    spec.tool_layout.point_dim().with_context(|| {
-        format!(
-            "a ball bar measures one tool point; the tool of `{}` ({}) has none",
-            spec.name,
-            spec.tool_axes.join(" ")
-        )
-    })
 }

@@ -456,7 +456,7 @@ pub fn mechanism_from_str(text: &str) -> Result<Mech> {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct TargetEntry {
-    at: [f64; 3],
+    at: Vec<f64>,
 }
 
 #[derive(Deserialize)]
@@ -465,9 +465,9 @@ struct MechanismTargets {
     target: Vec<TargetEntry>,
 }
 
-/// The target points (`[[target]] at = [x, y, z]`, platform frame, mm) of a
-/// mechanism file; empty when it has none.
-pub fn read_targets(mechanism: Option<&Path>) -> Result<Vec<[f64; 3]>> {
+/// The target points (`[[target]] at = [x, y, z]`, or `[x, y]` on a planar
+/// tool; tool frame, mm) of a mechanism file; empty when it has none.
+pub fn read_targets(mechanism: Option<&Path>) -> Result<Vec<Vec<f64>>> {
     let Some(m) = mechanism else {
         return Ok(vec![]);
     };
@@ -475,7 +475,7 @@ pub fn read_targets(mechanism: Option<&Path>) -> Result<Vec<[f64; 3]>> {
         .with_context(|| format!("cannot read mechanism file {}", m.display()))?;
     let t: MechanismTargets = toml::from_str(&text).with_context(|| {
         format!(
-            "in mechanism file {}: each [[target]] needs `at = [x, y, z]` (platform frame, mm)",
+            "in mechanism file {}: each [[target]] needs `at = [x, y, z]` (tool frame, mm; `[x, y]` on a planar tool)",
             m.display()
         )
     })?;

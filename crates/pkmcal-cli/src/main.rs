@@ -144,8 +144,12 @@ pub struct SimulateArgs {
     /// Measure the mechanism file's target points ([[target]], columns
     /// t1x,t1y,t1z,…) instead of the tool pose (laser tracker on a spatial
     /// platform); the noise applies to each coordinate.
-    #[arg(long)]
+    #[arg(long, conflicts_with_all = ["setup", "axes"])]
     pub measure_targets: bool,
+    /// Measure only these tool axes (comma-separated, e.g. `z` for a height
+    /// probe); the file then has only their columns.
+    #[arg(long, value_name = "AXES", conflicts_with = "setup")]
+    pub axes: Option<String>,
 }
 
 #[derive(clap::Args)]
@@ -237,6 +241,10 @@ pub struct CalibrateArgs {
     /// readings carry no frame.
     #[arg(long, default_value = "auto", value_parser = ["auto", "free", "base"])]
     pub frame: String,
+    /// Only these tool axes were measured (comma-separated, e.g. `z` for a
+    /// height probe); the data file then needs only their columns.
+    #[arg(long, value_name = "AXES")]
+    pub axes: Option<String>,
 }
 
 #[derive(clap::Args)]
@@ -270,6 +278,10 @@ pub struct AnalyzeArgs {
     /// `auto` reads the data file's `# frame: base`.
     #[arg(long, default_value = "auto", value_parser = ["auto", "free", "base"])]
     pub frame: String,
+    /// Only these tool axes were measured (comma-separated, e.g. `z` for a
+    /// height probe); the data file then needs only their columns.
+    #[arg(long, value_name = "AXES")]
+    pub axes: Option<String>,
 }
 
 #[derive(clap::Args)]
@@ -415,6 +427,7 @@ fn main() -> ExitCode {
                 outlier_threshold: a.outlier_threshold,
                 drop_outliers: a.drop_outliers,
                 frame: a.frame,
+                axes: a.axes,
                 mechanism: a.mech.mechanism,
                 data: a.data,
                 model,
@@ -445,6 +458,7 @@ fn main() -> ExitCode {
                 report: a.report,
                 setup: a.setup,
                 frame: a.frame,
+                axes: a.axes,
             })
         }),
         Command::Compensate(a) => a.model.parse().map_err(Into::into).and_then(|model| {

@@ -22,6 +22,7 @@ const MAP_SPACING_MM: f64 = 8.0;
 /// Everything the report shows.
 pub struct ReportInputs<'a> {
     pub mech: &'a Mech,
+    pub measurement: &'a pkmcal::MeasurementModel,
     pub data_name: &'a str,
     pub cal: &'a Calibration,
     pub data: &'a [Measurement],
@@ -79,12 +80,18 @@ pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
             sigma: p.std_dev * f,
         });
     }
+    // Where each pose is: its target, else the calibrated prediction.
     let positions: Vec<Vec<f64>> = r
         .data
         .iter()
-        .zip(r.before)
-        .map(|(m, _)| m.target.clone().unwrap_or_else(|| m.measured.clone()))
-        .collect();
+        .map(|m| match &m.target {
+            Some(t) => Ok(t.clone()),
+            None => {
+                let pose = prepare_pose(r.mech, &m.commands, None)?;
+                Ok(pkmcal::predict_pose(r.mech, &pose, &cal.params, cal.model, &[])?.x)
+            }
+        })
+        .collect::<pkmcal::Result<_>>()?;
     let lattice = sample_workspace(r.mech, MAP_SPACING_MM);
     let maps: Vec<(Vec<f64>, f64, f64)> = lattice
         .par_iter()
@@ -120,10 +127,24 @@ pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
         .collect();
     let lattice_targets: Vec<Vec<f64>> = lattice.iter().map(|p| p.target.clone()).collect();
     let mut out = vec![
-        figures::errors_per_pose(r.before, r.after, &spec.tool_axes, &spec.tool_units)?,
+        figures::errors_per_pose(
+            r.before,
+            r.after,
+            r.measurement.axes(),
+            r.measurement.units(),
+        )?,
         figures::parameter_changes(&groups)?,
-        figures::workspace_errors(&lattice_targets, &positions, r.before, r.after)?,
     ];
+    // Error vectors over the workspace: when the errors are tool positions
+    // in the base frame (other readings have no direction in the plan view).
+    if r.measurement.is_whole_tool() {
+        out.push(figures::workspace_errors(
+            &lattice_targets,
+            &positions,
+            r.before,
+            r.after,
+        )?);
+    }
     if !map_points.is_empty() {
         out.push(figures::workspace_maps(
             &map_points,
@@ -155,7 +176,11 @@ fn stats_row(html: &mut String, label: &str, s: &ErrorStats) {
         s.axis_min
             .iter()
             .zip(&s.axis_max)
-            .map(|(a, b)| format!("<td>{a:.4} … {b:.4}</td>"))
+            .zip(&s.axis_units)
+            .map(|((a, b), u)| {
+                let f = crate::calibrate::column_unit(*u).0;
+                format!("<td>{:.4} … {:.4}</td>", a * f, b * f)
+            })
             .collect::<String>(),
         s.distance_min,
         s.distance_mean,
@@ -217,7 +242,7 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
             .collect::<Vec<_>>()
             .join("<br>"),
         escape(
-            &crate::calibrate::frame_text(cal)
+            &crate::calibrate::frame_text(cal, r.measurement)
                 .unwrap_or_else(|| "the base frame (--frame base)".into())
         ),
         env!("CARGO_PKG_VERSION")
@@ -231,8 +256,13 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
         );
     }
     h.push_str("<h2>Accuracy</h2><table><tr><th>distance error, mm</th>");
-    for a in &spec.tool_axes {
-        let _ = write!(h, "<th>{} error range</th>", escape(&a.to_uppercase()));
+    for (a, u) in r.measurement.axes().iter().zip(r.measurement.units()) {
+        let _ = write!(
+            h,
+            "<th>{} error range, {}</th>",
+            escape(&a.to_uppercase()),
+            crate::calibrate::column_unit(*u).1
+        );
     }
     h.push_str("<th>min</th><th>mean</th><th>RMS</th><th>max</th></tr>");
     stats_row(&mut h, "calibration poses, before", &r.accuracy.before);

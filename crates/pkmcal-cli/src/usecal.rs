@@ -222,7 +222,12 @@ pub fn run_plan(c: PlanConfig) -> Result<()> {
         Some(p) => read_params(p, spec)?,
         None => Params::nominal(spec),
     };
-    let free = free_set(&mech, c.free.as_deref(), c.fix.as_deref())?;
+    let free = free_set(
+        &mech,
+        &pkmcal::MeasurementModel::tool(spec),
+        c.free.as_deref(),
+        c.fix.as_deref(),
+    )?;
     if !(c.candidates.is_finite() && c.candidates > 0.0) {
         bail!("--candidates must be a positive spacing in mm");
     }
@@ -342,7 +347,12 @@ pub fn run_montecarlo(c: MonteCarloConfig) -> Result<()> {
             .with_context(|| format!("{}:{}: target {t:?}", c.poses.display(), csv.line(i)))?;
     }
     let mut cal = CalibrationOptions::new(spec, c.model);
-    cal.free = free_set(&mech, c.free.as_deref(), c.fix.as_deref())?;
+    cal.free = free_set(
+        &mech,
+        &pkmcal::MeasurementModel::tool(spec),
+        c.free.as_deref(),
+        c.fix.as_deref(),
+    )?;
     let validation = random_targets(&mech, c.validation, c.seed ^ 0x5eed)?;
     let bar = crate::io::progress(c.runs as u64, c.quiet, "calibrations", 1);
     let opts = MonteCarloOptions {

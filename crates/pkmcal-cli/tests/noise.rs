@@ -102,7 +102,7 @@ fn mixed_units_partial_sigma_and_estimated_noise() {
         d,
         &[&["calibrate", "--data", "z.csv", "--out", "p.toml"][..], &m].concat(),
         1,
-        "sigma_z name no measured axis",
+        "sigma_z name nothing measured",
     );
     // One `sigma` column cannot cover mm and rad.
     let one: String = text

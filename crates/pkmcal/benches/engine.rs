@@ -96,13 +96,32 @@ fn calibration(c: &mut Criterion) {
         .into_iter()
         .map(|p| p.target)
         .collect();
-    let data = simulate(&mech, &demo_truth(), &targets, 0.002, 2004).unwrap();
+    let data = simulate(
+        &mech,
+        &pkmcal::MeasurementModel::tool(mech.spec()),
+        &demo_truth(),
+        &targets,
+        0.002,
+        2004,
+    )
+    .unwrap();
     let nominal = Params::nominal(spec);
     let mut g = c.benchmark_group("calibration_35_poses_16_params");
     for model in Model::ALL {
         let opts = CalibrationOptions::new(spec, model);
         g.bench_function(model.name(), |b| {
-            b.iter(|| black_box(calibrate(&mech, &data, &nominal, &opts).unwrap()))
+            b.iter(|| {
+                black_box(
+                    calibrate(
+                        &mech,
+                        &pkmcal::MeasurementModel::tool(mech.spec()),
+                        &data,
+                        &nominal,
+                        &opts,
+                    )
+                    .unwrap(),
+                )
+            })
         });
     }
     g.finish();

@@ -38,12 +38,31 @@ fn bench(c: &mut Criterion) {
             .into_iter()
             .map(|p| p.target)
             .collect();
-        let data = simulate(&m, &truth, &targets, 0.001, 1).unwrap();
+        let data = simulate(
+            &m,
+            &pkmcal::MeasurementModel::tool(m.spec()),
+            &truth,
+            &targets,
+            0.001,
+            1,
+        )
+        .unwrap();
         let mut opts = CalibrationOptions::new(spec, Model::Exact);
         opts.free = free;
         group.bench_function(
             format!("{}_legs_{}_params_100_poses", m.legs(), opts.free.len()),
-            |b| b.iter(|| calibrate(&m, black_box(&data), &Params::nominal(spec), &opts).unwrap()),
+            |b| {
+                b.iter(|| {
+                    calibrate(
+                        &m,
+                        &pkmcal::MeasurementModel::tool(m.spec()),
+                        black_box(&data),
+                        &Params::nominal(spec),
+                        &opts,
+                    )
+                    .unwrap()
+                })
+            },
         );
     }
     group.finish();

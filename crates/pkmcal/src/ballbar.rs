@@ -5,14 +5,13 @@
 //! * [`trilaterate`] each pose's distances to a position (least squares, any
 //!   number ≥ dimension + 1 of sockets, planar or 3-D) with its covariance, then
 //!   calibrate on positions;
-//! * calibrate directly on the distances with [`BallBar`], a mechanism whose
-//!   "tool coordinates" are the bar lengths `|x − s_j| + b`: the socket
-//!   coordinates and the bar length offset `b` become parameters (named
-//!   `s1x s1y … dbar`), fixed by default and identifiable on request.
+//! * calibrate directly on the distances with the ball-bar measurement model
+//!   ([`crate::MeasurementModel::ball_bar`]), whose readings are the bar
+//!   lengths `|b − s_j| + d`: the socket coordinates and the bar length offset
+//!   `d` are its parameters (named `s1x s1y … dbar`), fixed by default and
+//!   identifiable on request.
 
 use crate::error::{Error, Result};
-use crate::mechanism::{Mechanism, Scalar, Spec};
-use crate::units::Unit;
 use nalgebra::{DMatrix, DVector};
 
 /// Where the sockets are and what the bar reads.
@@ -144,121 +143,4 @@ pub fn trilaterate(
             .into(),
     })? * (sigma * sigma);
     Ok((x.iter().copied().collect(), cov))
-}
-
-/// A mechanism measured by a ball bar: its tool coordinates are the bar
-/// readings. Parameters: the inner mechanism's geometric ones, then
-/// `s1x s1y [s1z] s2x …` and `dbar`, then offsets and stiffness.
-#[derive(Debug, Clone)]
-pub struct BallBar<M: Mechanism> {
-    inner: M,
-    spec: Spec,
-    dim: usize,
-    sockets: usize,
-}
-
-impl<M: Mechanism> BallBar<M> {
-    /// Wrap `inner` with the nominal setup `setup`.
-    pub fn new(inner: M, setup: &Setup) -> Result<Self> {
-        let s = inner.spec().clone();
-        // The ball sits on the tool point: the position part of the tool
-        // coordinates (x, y of a planar pose; x, y, z of a spatial one).
-        let dim = s.tool_layout.point_dim().ok_or_else(|| {
-            Error::InvalidMechanism(format!(
-                "a ball bar measures one tool point; the tool of `{}` ({}) has none",
-                s.name,
-                s.tool_axes.join(" ")
-            ))
-        })?;
-        setup.validate(dim)?;
-        let axes = ["x", "y", "z"];
-        let mut names = vec![];
-        let mut values = vec![];
-        for (j, sock) in setup.sockets.iter().enumerate() {
-            for (a, v) in sock.iter().enumerate() {
-                names.push(format!("s{}{}", j + 1, axes.get(a).copied().unwrap_or("w")));
-                values.push(*v);
-            }
-        }
-        names.push("dbar".into());
-        values.push(setup.bar_offset);
-        let ng = s.n_geometric();
-        let mut nominal = s.nominal[..ng].to_vec();
-        nominal.extend(&values);
-        nominal.extend(&s.nominal[ng..]);
-        let mut geometric_units = s.geometric_units.clone();
-        geometric_units.extend(std::iter::repeat_n(Unit::Millimetre, names.len()));
-        let mut geometric = s.geometric.clone();
-        geometric.extend(names);
-        let spec = Spec {
-            name: format!(
-                "{} measured by a ball bar ({} sockets)",
-                s.name,
-                setup.sockets.len()
-            ),
-            geometric,
-            geometric_units,
-            tool_units: vec![Unit::Millimetre; setup.sockets.len()],
-            tool_layout: crate::frame::ToolLayout::Readings,
-            tool_axes: (1..=setup.sockets.len()).map(|j| format!("d{j}")).collect(),
-            nominal,
-            workspace_box: vec![[0.0, 1.0]; setup.sockets.len()],
-            axis_scale: vec![],
-            ..s
-        };
-        Ok(Self {
-            inner,
-            spec,
-            dim,
-            sockets: setup.sockets.len(),
-        })
-    }
-
-    /// The wrapped mechanism.
-    pub fn inner(&self) -> &M {
-        &self.inner
-    }
-
-    /// The setup held in a parameter vector's geometric part.
-    pub fn setup_of(&self, rho: &[f64]) -> Setup {
-        let ng = self.inner.spec().n_geometric();
-        Setup {
-            sockets: (0..self.sockets)
-                .map(|j| rho[ng + j * self.dim..ng + (j + 1) * self.dim].to_vec())
-                .collect(),
-            bar_offset: rho[ng + self.sockets * self.dim],
-        }
-    }
-}
-
-impl<M: Mechanism> Mechanism for BallBar<M> {
-    fn spec(&self) -> &Spec {
-        &self.spec
-    }
-    fn constraints<D: Scalar>(&self, q: &[D], rho: &[D], g: &mut [D]) {
-        let ng = self.inner.spec().n_geometric();
-        self.inner.constraints(q, &rho[..ng], g)
-    }
-    fn tool<D: Scalar>(&self, q: &[D], rho: &[D], x: &mut [D]) {
-        let ng = self.inner.spec().n_geometric();
-        let mut p = vec![D::from(0.0); self.inner.spec().tool_axes.len()];
-        self.inner.tool(q, &rho[..ng], &mut p);
-        let b = rho[ng + self.sockets * self.dim];
-        for (j, out) in x.iter_mut().enumerate().take(self.sockets) {
-            let mut sum = D::from(0.0);
-            for a in 0..self.dim {
-                let d = p[a] - rho[ng + j * self.dim + a];
-                sum += d * d;
-            }
-            *out = sum.sqrt() + b;
-        }
-    }
-    fn configuration_guess(&self, commands: &[f64], rho: &[f64]) -> Option<Vec<f64>> {
-        let ng = self.inner.spec().n_geometric();
-        self.inner.configuration_guess(commands, &rho[..ng])
-    }
-    fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
-        let ng = self.inner.spec().n_geometric();
-        self.inner.on_branch(q, &rho[..ng])
-    }
 }

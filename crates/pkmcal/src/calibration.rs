@@ -4,8 +4,8 @@
 //! uncertainty after, and validation on held-out poses.
 
 use crate::error::{Error, Result};
-use crate::frame::{ToolLayout, observe, observe_jacobian, register, to_base};
 use crate::lm::{self, Problem, Termination};
+use crate::measurement::{Frame, MeasurementModel};
 use crate::mechanism::{Mechanism, Params, Spec};
 use crate::models::{Model, Pose, Prediction, predict_pose_warm, prepare_pose};
 use crate::noise::{NoiseGroup, NoiseModel, VCE_MAX_ROUNDS, VCE_TOL, leverages, leverages_with};
@@ -78,20 +78,6 @@ pub struct Outlier {
     pub standardized: f64,
 }
 
-/// Where the measuring instrument stands relative to the base frame.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Frame {
-    /// The data are in the base frame (ball-bar sockets at known places, a
-    /// frame already registered).
-    Base,
-    /// At this known pose ([`crate::frame`]: `x, y, phi` or
-    /// `x, y, z, rx, ry, rz`).
-    Known(Vec<f64>),
-    /// Unknown (a tracker or camera where it was put): identified with the
-    /// rest, from a start found by rigid registration.
-    Free,
-}
-
 /// Settings of a calibration.
 #[derive(Debug, Clone)]
 pub struct CalibrationOptions {
@@ -107,8 +93,6 @@ pub struct CalibrationOptions {
     pub free: Vec<usize>,
     /// External force applied to the tool during the measurements (N).
     pub force: Vec<f64>,
-    /// Where the instrument stands ([`Frame`]).
-    pub frame: Frame,
     /// Fix unidentifiable parameters automatically (with a warning).
     pub auto_fix: bool,
     /// Solver settings (tolerances, bounds; `free` and `weights` are set here).
@@ -129,7 +113,6 @@ impl CalibrationOptions {
                 .filter_map(|n| spec.param_index(n).ok())
                 .collect(),
             force: vec![],
-            frame: Frame::Base,
             auto_fix: true,
             solver: lm::Options {
                 ftol: 1e-12,
@@ -144,20 +127,18 @@ impl CalibrationOptions {
 /// Parameters, residuals and Jacobian of the last Jacobian evaluation.
 type CachedJacobian = (Vec<f64>, DVector<f64>, DMatrix<f64>);
 
-/// The identification least-squares problem: residuals are predicted minus
-/// measured coordinates, pose by pose. The parameter vector is the
-/// mechanism's `[ρ, Δq, k]`, followed by the instrument frame's parameters
-/// when the frame is identified ([`IdentificationProblem::with_frame`]): the
-/// prediction is then seen from the instrument ([`crate::frame::observe`]).
+/// The identification least-squares problem: residuals are the readings
+/// predicted by the measurement model minus those measured, pose by pose. The
+/// parameter vector is the mechanism's `[ρ, Δq, k]` followed by the
+/// measurement model's ([`MeasurementModel::param_names`]).
 pub struct IdentificationProblem<'a, M: Mechanism> {
     mech: &'a M,
+    measurement: &'a MeasurementModel,
     poses: Vec<Pose>,
     origins: Vec<Origin>,
     measured: Vec<Vec<f64>>,
     model: Model,
     force: Vec<f64>,
-    /// The tool layout when the frame's parameters follow the mechanism's.
-    frame: Option<ToolLayout>,
     /// The last parameters evaluated and their predictions: a Jacobian at an
     /// accepted trial point reuses them, and equilibria start from them.
     cache: RefCell<Option<(Vec<f64>, Vec<Prediction>)>>,
@@ -167,13 +148,27 @@ pub struct IdentificationProblem<'a, M: Mechanism> {
 
 impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
     /// Prepare every pose (nominal configuration and linearisation).
-    pub fn new(mech: &'a M, data: &[Measurement], model: Model, force: &[f64]) -> Result<Self> {
+    pub fn new(
+        mech: &'a M,
+        measurement: &'a MeasurementModel,
+        data: &[Measurement],
+        model: Model,
+        force: &[f64],
+    ) -> Result<Self> {
         let mut poses: Vec<Pose> = Vec::with_capacity(data.len());
         let origins: Vec<Origin> = numbered(data)
             .iter()
             .map(|m| m.origin.expect("numbered"))
             .collect();
         for (m, origin) in data.iter().zip(&origins) {
+            if m.measured.len() != measurement.len() {
+                return Err(Error::Dimension {
+                    what: format!("readings ({})", measurement.axes().join(" ")),
+                    expected: measurement.len(),
+                    got: m.measured.len(),
+                }
+                .at_pose(*origin));
+            }
             let start = poses.last().map(|p| p.nominal_q.clone());
             let pose = prepare_pose(mech, &m.commands, start.as_deref())
                 .map_err(|e| e.at_pose(*origin))?;
@@ -181,28 +176,15 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         }
         Ok(Self {
             mech,
+            measurement,
             poses,
             origins,
             measured: data.iter().map(|m| m.measured.clone()).collect(),
             model,
             force: force.to_vec(),
-            frame: None,
             cache: RefCell::new(None),
             jacobian_cache: RefCell::new(None),
         })
-    }
-
-    /// Append the instrument frame's parameters to the parameter vector (no
-    /// effect for frame-free readings).
-    pub fn with_frame(mut self) -> Self {
-        let layout = self.mech.spec().tool_layout;
-        self.frame = (layout.frame_size() > 0).then_some(layout);
-        self
-    }
-
-    /// Number of frame parameters in the parameter vector.
-    pub fn n_frame(&self) -> usize {
-        self.frame.map_or(0, ToolLayout::frame_size)
     }
 
     /// Predictions at every pose, warm-started from (or taken from) the cache.
@@ -234,18 +216,25 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         &self.poses
     }
 
+    /// The measurement model.
+    pub fn measurement(&self) -> &MeasurementModel {
+        self.measurement
+    }
+
     /// Predicted tool coordinates (base frame) at every pose under `params`.
     pub fn predict(&self, params: &Params) -> Result<Vec<Vec<f64>>> {
         Ok(self.predictions(params)?.into_iter().map(|p| p.x).collect())
     }
 
-    /// Split a full parameter vector into the mechanism's and the frame's.
+    /// Split a full parameter vector into the mechanism's and the
+    /// measurement model's.
     fn split(&self, x: &[f64]) -> Result<(Params, Vec<f64>)> {
         let n = self.mech.spec().n_params();
-        if x.len() != n + self.n_frame() {
+        let nm = self.measurement.n_params();
+        if x.len() != n + nm {
             return Err(Error::Dimension {
                 what: "identification parameter vector".into(),
-                expected: n + self.n_frame(),
+                expected: n + nm,
                 got: x.len(),
             });
         }
@@ -255,75 +244,71 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         ))
     }
 
-    /// Residuals (predicted minus measured) under a full parameter vector.
+    /// Residuals (predicted minus measured readings) under a full parameter
+    /// vector.
     pub fn residuals(&self, x: &[f64]) -> Result<DVector<f64>> {
-        let (params, frame) = self.split(x)?;
-        let nx = self.mech.spec().tool_axes.len();
-        let mut r = DVector::zeros(self.poses.len() * nx);
-        let mut y = vec![0.0; nx];
+        let (params, m) = self.split(x)?;
+        let ny = self.measurement.len();
+        let mut r = DVector::zeros(self.poses.len() * ny);
+        let mut y = vec![0.0; ny];
         for (i, p) in self.predict(&params)?.iter().enumerate() {
-            match self.frame {
-                Some(layout) => observe(layout, p, &frame, &mut y),
-                None => y.copy_from_slice(p),
-            }
-            for a in 0..nx {
-                r[i * nx + a] = y[a] - self.measured[i][a];
+            self.measurement.observe(p, &m, &mut y);
+            for a in 0..ny {
+                r[i * ny + a] = y[a] - self.measured[i][a];
             }
         }
         Ok(r)
     }
 
-    /// Residuals and the Jacobian (every parameter of the full vector).
+    /// Residuals and the Jacobian (every parameter of the full vector):
+    /// `∂h/∂x · ∂x/∂p` for the mechanism's, `∂h/∂m` for the model's.
     pub fn residuals_and_jacobian(&self, x: &[f64]) -> Result<(DVector<f64>, DMatrix<f64>)> {
         if let Some((key, r, j)) = self.jacobian_cache.borrow().as_ref()
             && key == x
         {
             return Ok((r.clone(), j.clone()));
         }
-        let (params, frame) = self.split(x)?;
-        let nx = self.mech.spec().tool_axes.len();
+        let (params, m) = self.split(x)?;
+        let ny = self.measurement.len();
         let np = self.mech.spec().n_params();
-        let nf = self.n_frame();
-        let mut r = DVector::zeros(self.poses.len() * nx);
-        let mut j = DMatrix::zeros(self.poses.len() * nx, np + nf);
+        let nm = m.len();
+        let mut r = DVector::zeros(self.poses.len() * ny);
+        let mut j = DMatrix::zeros(self.poses.len() * ny, np + nm);
         let predictions = self.predictions(&params)?;
         for (i, (pose, pred)) in self.poses.iter().zip(predictions).enumerate() {
             let s = sensitivity_at(self.mech, pose, &params, self.model, &self.force, pred)
                 .map_err(|e| e.at_pose(self.origins[i]))?;
-            match self.frame {
-                Some(layout) => {
-                    let (y, dx, df) = observe_jacobian(layout, &s.prediction.x, &frame);
-                    for a in 0..nx {
-                        r[i * nx + a] = y[a] - self.measured[i][a];
-                    }
-                    j.view_mut((i * nx, 0), (nx, np))
-                        .copy_from(&(dx * &s.jacobian));
-                    j.view_mut((i * nx, np), (nx, nf)).copy_from(&df);
-                }
-                None => {
-                    for a in 0..nx {
-                        r[i * nx + a] = s.prediction.x[a] - self.measured[i][a];
-                    }
-                    j.view_mut((i * nx, 0), (nx, np)).copy_from(&s.jacobian);
-                }
+            let (y, dx, dm) = self.measurement.observe_jacobian(&s.prediction.x, &m);
+            for a in 0..ny {
+                r[i * ny + a] = y[a] - self.measured[i][a];
             }
+            j.view_mut((i * ny, 0), (ny, np))
+                .copy_from(&(dx * &s.jacobian));
+            j.view_mut((i * ny, np), (ny, nm)).copy_from(&dm);
         }
         *self.jacobian_cache.borrow_mut() = Some((x.to_vec(), r.clone(), j.clone()));
         Ok((r, j))
     }
 
-    /// Residuals and the Jacobian of the mechanism's parameters (no frame).
+    /// Residuals and the Jacobian under the mechanism's `params` and the
+    /// measurement model's nominal values.
     pub fn jacobian(&self, params: &Params) -> Result<(DVector<f64>, DMatrix<f64>)> {
-        self.residuals_and_jacobian(&params.values)
+        let x: Vec<f64> = params
+            .values
+            .iter()
+            .chain(self.measurement.nominal())
+            .copied()
+            .collect();
+        self.residuals_and_jacobian(&x)
     }
 }
 
 impl<M: Mechanism> Problem for IdentificationProblem<'_, M> {
     fn n_params(&self) -> usize {
-        self.mech.spec().n_params() + self.n_frame()
+        self.mech.spec().n_params() + self.measurement.n_params()
     }
     fn n_residuals(&self) -> usize {
-        self.poses.len() * self.mech.spec().tool_axes.len()
+        self.poses.len() * self.measurement.len()
     }
     fn evaluate(
         &self,
@@ -445,18 +430,15 @@ impl Columns {
         }
     }
 
-    /// The mechanism's parameters, then the instrument frame's (`frame`:
-    /// their values at the start).
-    pub fn with_frame(spec: &Spec, frame: &[f64]) -> Self {
+    /// The mechanism's parameters, then the measurement model's (`values`:
+    /// theirs at the start).
+    pub fn with_measurement(spec: &Spec, measurement: &MeasurementModel, values: &[f64]) -> Self {
         let mut c = Self::of(spec);
-        let layout = spec.tool_layout;
-        c.names
-            .extend(layout.frame_names().into_iter().take(frame.len()));
-        c.units
-            .extend(layout.frame_units().into_iter().take(frame.len()));
+        c.names.extend(measurement.param_names().iter().cloned());
+        c.units.extend(measurement.param_units());
         c.kinds
-            .extend(std::iter::repeat_n(ParamKind::Instrument, frame.len()));
-        c.nominal.extend(frame);
+            .extend(std::iter::repeat_n(ParamKind::Instrument, values.len()));
+        c.nominal.extend(values);
         c
     }
 }
@@ -860,6 +842,10 @@ pub struct Calibration {
     /// ([`crate::frame`]); `None` when the data are in the base frame. Also
     /// in `parameters`, kind `instrument`.
     pub frame: Option<Vec<f64>>,
+    /// Identified (or given) values of all the measurement model's
+    /// parameters ([`MeasurementModel::param_names`]), the frame's last.
+    #[serde(skip)]
+    pub measurement: Vec<f64>,
     /// Why the solver stopped.
     pub termination: Termination,
     /// Readable reason.
@@ -935,18 +921,19 @@ pub const MAX_DROPPED_FRACTION: f64 = 0.2;
 /// is left or [`MAX_DROPPED_FRACTION`] of the poses are gone.
 pub fn calibrate<M: Mechanism>(
     mech: &M,
+    measurement: &MeasurementModel,
     data: &[Measurement],
     start: &Params,
     opts: &CalibrationOptions,
 ) -> Result<Calibration> {
     let data = numbered(data);
-    check_sigma(mech.spec(), &data)?;
+    check_sigma(measurement, &data)?;
     let cap = (data.len() as f64 * MAX_DROPPED_FRACTION).floor() as usize;
     let mut kept = data;
     let mut dropped: Vec<Origin> = vec![];
     let mut found: Vec<Outlier> = vec![];
     loop {
-        let mut cal = calibrate_weighted(mech, &kept, start, opts)?;
+        let mut cal = calibrate_weighted(mech, measurement, &kept, start, opts)?;
         let more = opts.drop_outliers && !cal.outliers.is_empty() && dropped.len() < cap;
         if !more {
             if !dropped.is_empty() {
@@ -981,8 +968,8 @@ pub fn calibrate<M: Mechanism>(
     }
 }
 
-fn check_sigma(spec: &Spec, data: &[Measurement]) -> Result<()> {
-    let nx = spec.tool_axes.len();
+fn check_sigma(measurement: &MeasurementModel, data: &[Measurement]) -> Result<()> {
+    let nx = measurement.len();
     for m in data {
         let origin = m.origin.expect("numbered");
         if !(m.sigma.is_empty() || m.sigma.len() == nx) {
@@ -1011,22 +998,33 @@ fn check_sigma(spec: &Spec, data: &[Measurement]) -> Result<()> {
 /// One weighted fit: noise groups estimated, robust reweighting, outliers.
 fn calibrate_weighted<M: Mechanism>(
     mech: &M,
+    measurement: &MeasurementModel,
     data: &[Measurement],
     start: &Params,
     opts: &CalibrationOptions,
 ) -> Result<Calibration> {
-    let spec = mech.spec();
-    let mut noise = NoiseModel::new(data, &spec.tool_axes, &spec.tool_units);
-    let mut cal = calibrate_once(mech, data, start, None, opts, &noise.sigmas(), None)?;
+    let (axes, units) = (measurement.axes(), measurement.units());
+    let mut noise = NoiseModel::new(data, axes, units);
+    let mut cal = calibrate_once(
+        mech,
+        measurement,
+        data,
+        start,
+        None,
+        opts,
+        &noise.sigmas(),
+        None,
+    )?;
     // The free set and identifiability of the first fit hold for the refits.
     let mut refit_opts = opts.clone();
     refit_opts.auto_fix = false;
     let refit = |cal: &Calibration, sigma: &[f64]| -> Result<Calibration> {
         let mut next = calibrate_once(
             mech,
+            measurement,
             data,
             &cal.params,
-            cal.frame.as_deref(),
+            Some(&cal.measurement),
             &refit_opts,
             sigma,
             Some(&cal.free),
@@ -1077,7 +1075,7 @@ fn calibrate_weighted<M: Mechanism>(
         }
     }
     let base = noise.sigmas();
-    let keys = noise.keys(&spec.tool_units);
+    let keys = noise.keys(units);
     if opts.loss != Loss::Squared {
         let mut robust = vec![1.0; base.len()];
         for _ in 0..MAX_REWEIGHTS {
@@ -1116,14 +1114,8 @@ fn calibrate_weighted<M: Mechanism>(
         .map(|(s, hi)| s * (1.0 - hi).max(1e-6).sqrt())
         .collect();
     let u = standardized(&cal.residuals, &student, &keys);
-    cal.outliers = find_outliers(
-        data,
-        &cal.residuals,
-        &u,
-        &spec.tool_units,
-        opts.outlier_threshold,
-    );
-    cal.noise = noise.report(&cal.residuals, &spec.tool_axes, &spec.tool_units);
+    cal.outliers = find_outliers(data, &cal.residuals, &u, units, opts.outlier_threshold);
+    cal.noise = noise.report(&cal.residuals, axes, units);
     cal.loss = opts.loss;
     Ok(cal)
 }
@@ -1244,36 +1236,49 @@ fn find_outliers(
 }
 
 /// One least-squares fit with the residuals weighted by 1/`sigma`, from the
-/// mechanism's `start` and, when the instrument frame is identified, the
-/// frame's `frame_start` (default: the registration of the measured onto
-/// the nominal positions).
+/// mechanism's `start` and the measurement model's `m_given` (default: its
+/// nominal values, the frame registered when free).
+#[allow(clippy::too_many_arguments)]
 fn calibrate_once<M: Mechanism>(
     mech: &M,
+    measurement: &MeasurementModel,
     data: &[Measurement],
     start: &Params,
-    frame_given: Option<&[f64]>,
+    m_given: Option<&[f64]>,
     opts: &CalibrationOptions,
     sigma: &[f64],
     exact_free: Option<&[usize]>,
 ) -> Result<Calibration> {
     let spec = mech.spec();
-    let nx = spec.tool_axes.len();
+    let nx = measurement.len();
     let np = spec.n_params();
     let mut warnings = vec![];
-    if opts.free.is_empty() && opts.frame != Frame::Free {
+    let frame_free = *measurement.frame() == Frame::Free;
+    if opts.free.is_empty() && !frame_free {
         return Err(Error::InvalidRequest(
             "no parameter is free; free at least one with --free".into(),
         ));
     }
-    let n_free_frame = match opts.frame {
-        Frame::Free => spec.tool_layout.frame_size(),
-        _ => 0,
+    if let Some(&i) = opts
+        .free
+        .iter()
+        .find(|&&i| i >= np + measurement.n_params())
+    {
+        return Err(Error::InvalidRequest(format!(
+            "free parameter index {i} is out of range: the mechanism has {np} parameters and the measurement model {}",
+            measurement.n_params()
+        )));
+    }
+    let n_free_frame = if frame_free {
+        measurement.frame_range().len()
+    } else {
+        0
     };
     let m = data.len() * nx;
     let n_requested = exact_free.map_or(opts.free.len() + n_free_frame, <[usize]>::len);
     if m <= n_requested {
         return Err(Error::InvalidRequest(format!(
-            "{} poses give {m} coordinates for {n_requested} free parameters{}; measure more poses (at least {}) or fix parameters",
+            "{} poses give {m} readings for {n_requested} free parameters{}; measure more poses (at least {}) or fix parameters",
             data.len(),
             if n_free_frame > 0 {
                 " (with the instrument frame's)"
@@ -1283,24 +1288,13 @@ fn calibrate_once<M: Mechanism>(
             n_requested / nx + 1
         )));
     }
-    let mut problem = IdentificationProblem::new(mech, data, opts.model, &opts.force)?;
-    // The frame's parameters follow the mechanism's.
-    let frame0 = frame_start(&problem, &opts.frame, frame_given, start, data)?;
-    if !frame0.is_empty() {
-        if frame0.len() != spec.tool_layout.frame_size() {
-            return Err(Error::Dimension {
-                what: "instrument frame".into(),
-                expected: spec.tool_layout.frame_size(),
-                got: frame0.len(),
-            });
-        }
-        problem = problem.with_frame();
-    }
-    let nf = frame0.len();
-    let cols = Columns::with_frame(spec, &frame0);
+    let problem = IdentificationProblem::new(mech, measurement, data, opts.model, &opts.force)?;
+    let m0 = measurement_start(&problem, m_given, start, data)?;
+    let nf = m0.len();
+    let cols = Columns::with_measurement(spec, measurement, &m0);
     let mut requested = opts.free.clone();
-    if opts.frame == Frame::Free {
-        requested.extend(np..np + nf);
+    if frame_free {
+        requested.extend(measurement.frame_range().map(|i| np + i));
     }
     if let Some(f) = exact_free {
         requested = f.to_vec();
@@ -1328,7 +1322,7 @@ fn calibrate_once<M: Mechanism>(
         }
         jac
     };
-    let mut x0: Vec<f64> = start.values.iter().chain(&frame0).copied().collect();
+    let mut x0: Vec<f64> = start.values.iter().chain(&m0).copied().collect();
     // Identifiability at the start.
     let (_, jac) = problem.residuals_and_jacobian(&x0)?;
     let (mut identifiability, mut free) =
@@ -1367,7 +1361,8 @@ fn calibrate_once<M: Mechanism>(
         }));
     }
     let params = Params::new(spec, report.x[..np].to_vec())?;
-    let frame = report.x[np..].to_vec();
+    let m_values = report.x[np..].to_vec();
+    let frame = m_values[measurement.frame_range()].to_vec();
     let dof = m.saturating_sub(free.len()).max(1);
     let s2 = report.sum_of_squares / dof as f64;
     let (cov_unit, rank) = lm::covariance(&report.jacobian, 1e-12);
@@ -1399,10 +1394,18 @@ fn calibrate_once<M: Mechanism>(
         });
     }
     let correlations = correlations(&cols, &free, &covariance);
+    // The mechanism's part travels with the parameters into predictions
+    // (the marginal covariance is the sub-matrix); the instrument's stays in
+    // the parameter table.
+    let mech_free: Vec<usize> = (0..free.len()).filter(|&a| free[a] < np).collect();
     let parameter_covariance = ParameterCovariance {
-        names: free.iter().map(|&i| cols.names[i].clone()).collect(),
-        matrix: (0..free.len())
-            .map(|a| (0..free.len()).map(|b| covariance[(a, b)]).collect())
+        names: mech_free
+            .iter()
+            .map(|&a| cols.names[free[a]].clone())
+            .collect(),
+        matrix: mech_free
+            .iter()
+            .map(|&a| mech_free.iter().map(|&b| covariance[(a, b)]).collect())
             .collect(),
     };
     Ok(Calibration {
@@ -1410,6 +1413,7 @@ fn calibrate_once<M: Mechanism>(
         model: opts.model,
         params,
         frame: (!frame.is_empty()).then_some(frame),
+        measurement: m_values,
         converged: report.termination.converged(),
         termination_reason: report.termination.reason(),
         termination: report.termination,
@@ -1439,26 +1443,25 @@ fn calibrate_once<M: Mechanism>(
     })
 }
 
-/// The instrument frame's parameters to start from: none in the base frame,
-/// `given` or the known pose, else the registration of the measured onto the
-/// positions predicted under `params`.
-fn frame_start<M: Mechanism>(
+/// The measurement model's parameters to start from: `given`, else its
+/// nominal values with a free frame registered onto the readings predicted
+/// under `params`.
+fn measurement_start<M: Mechanism>(
     problem: &IdentificationProblem<'_, M>,
-    frame: &Frame,
     given: Option<&[f64]>,
     params: &Params,
     data: &[Measurement],
 ) -> Result<Vec<f64>> {
-    Ok(match (frame, given) {
-        (Frame::Base, _) => vec![],
-        (_, Some(f)) => f.to_vec(),
-        (Frame::Known(f), None) => f.clone(),
-        (Frame::Free, None) => {
-            let predicted = problem.predict(params)?;
-            let measured: Vec<Vec<f64>> = data.iter().map(|m| m.measured.clone()).collect();
-            register(problem.mech.spec().tool_layout, &predicted, &measured)?
-        }
-    })
+    let measurement = problem.measurement();
+    if let Some(g) = given {
+        return Ok(g.to_vec());
+    }
+    if *measurement.frame() != Frame::Free {
+        return Ok(measurement.nominal().to_vec());
+    }
+    let predicted = problem.predict(params)?;
+    let measured: Vec<Vec<f64>> = data.iter().map(|m| m.measured.clone()).collect();
+    measurement.registered(measurement.nominal(), &predicted, &measured)
 }
 
 fn mask(n: usize, free: &[usize]) -> Vec<bool> {
@@ -1469,58 +1472,45 @@ fn mask(n: usize, free: &[usize]) -> Vec<bool> {
     m
 }
 
-/// Identifiability analysis alone (no fit), at `params`. Rows are weighted by
-/// the data's σ where given, otherwise by the default noise ratio of lengths
-/// and angles ([`crate::Noise::lengths`]), so that mm and rad do not meet
-/// unscaled. Every unidentifiable direction is listed with the parameter
-/// that [`calibrate`] would fix for it.
+/// Identifiability analysis alone (no fit), at `params` and the measurement
+/// model's nominal values (a free frame registered). Rows are weighted by the
+/// data's σ where given, otherwise by the default noise ratio of lengths and
+/// angles ([`crate::Noise::lengths`]), so that mm and rad do not meet
+/// unscaled. `free` indexes the mechanism's parameters then the model's; a
+/// free frame's are added. Every unidentifiable direction is listed with the
+/// parameter that [`calibrate`] would fix for it.
 pub fn analyze<M: Mechanism>(
     mech: &M,
+    measurement: &MeasurementModel,
     data: &[Measurement],
     params: &Params,
     model: Model,
     free: &[usize],
     force: &[f64],
-) -> Result<Identifiability> {
-    analyze_in_frame(mech, data, params, model, free, force, &Frame::Base)
-}
-
-/// [`analyze`] with the instrument's frame: with [`Frame::Free`] its
-/// parameters are analysed with the mechanism's (at the registration of the
-/// measured onto the predicted positions).
-pub fn analyze_in_frame<M: Mechanism>(
-    mech: &M,
-    data: &[Measurement],
-    params: &Params,
-    model: Model,
-    free: &[usize],
-    force: &[f64],
-    frame: &Frame,
 ) -> Result<Identifiability> {
     let spec = mech.spec();
-    let mut problem = IdentificationProblem::new(mech, data, model, force)?;
+    let data = numbered(data);
+    check_sigma(measurement, &data)?;
+    let problem = IdentificationProblem::new(mech, measurement, &data, model, force)?;
     let np = spec.n_params();
-    let frame0 = frame_start(&problem, frame, None, params, data)?;
-    if !frame0.is_empty() {
-        problem = problem.with_frame();
-    }
+    let m0 = measurement_start(&problem, None, params, &data)?;
     let mut free = free.to_vec();
-    if *frame == Frame::Free {
-        free.extend(np..np + frame0.len());
+    if *measurement.frame() == Frame::Free {
+        free.extend(measurement.frame_range().map(|i| np + i));
     }
-    let x: Vec<f64> = params.values.iter().chain(&frame0).copied().collect();
+    let x: Vec<f64> = params.values.iter().chain(&m0).copied().collect();
     let (_, mut jac) = problem.residuals_and_jacobian(&x)?;
     let default = crate::simulate::Noise::lengths(1.0);
-    let nx = spec.tool_axes.len();
+    let nx = measurement.len();
     for (i, m) in data.iter().enumerate() {
         for a in 0..nx {
             let s = m
                 .sigma_of(a)
-                .unwrap_or_else(|| default.for_unit(spec.tool_units[a]));
+                .unwrap_or_else(|| default.for_unit(measurement.units()[a]));
             jac.row_mut(i * nx + a).unscale_mut(s);
         }
     }
-    let cols = Columns::with_frame(spec, &frame0);
+    let cols = Columns::with_measurement(spec, measurement, &m0);
     Ok(analyze_identifiability(&cols, &jac, &free, data.len(), true).0)
 }
 
@@ -1622,78 +1612,58 @@ pub struct Accuracy {
 /// Error vectors (measured minus reference), one per pose, mm.
 pub type ErrorVectors = Vec<Vec<f64>>;
 
-/// Errors of `data` before (nominal) and after (calibrated `params`) with `model`.
+/// Errors of `data` before (nominal) and after (calibrated: the
+/// mechanism's `params` and the measurement model's `m`) with `model`.
+///
+/// Readings of the whole tool are compared in the base frame: after
+/// calibration the readings are taken to the base by the identified frame;
+/// before, by the frame that best registers them onto the targets (or the
+/// nominal predictions), as a metrologist compares an uncalibrated machine.
+/// Other readings (target points, bar lengths, a subset of axes) are compared
+/// as read; before calibration against the model's nominal values, the frame
+/// registered.
 pub fn accuracy<M: Mechanism>(
     mech: &M,
+    measurement: &MeasurementModel,
     data: &[Measurement],
     params: &Params,
-    model: Model,
-    force: &[f64],
-) -> Result<(Accuracy, ErrorVectors, ErrorVectors)> {
-    accuracy_in_frame(mech, data, params, None, model, force)
-}
-
-/// [`accuracy`] of a calibration: its parameters, model and instrument frame.
-pub fn calibration_accuracy<M: Mechanism>(
-    mech: &M,
-    data: &[Measurement],
-    cal: &Calibration,
-    force: &[f64],
-) -> Result<(Accuracy, ErrorVectors, ErrorVectors)> {
-    accuracy_in_frame(
-        mech,
-        data,
-        &cal.params,
-        cal.frame.as_deref(),
-        cal.model,
-        force,
-    )
-}
-
-/// [`accuracy`] of data measured from the instrument frame `frame` (`None`:
-/// the base frame). Errors are in the base frame: after calibration the
-/// measurements are taken to the base by the identified frame; before, by
-/// the frame that best registers them onto the targets (or the nominal
-/// predictions), as a metrologist compares an uncalibrated machine.
-pub fn accuracy_in_frame<M: Mechanism>(
-    mech: &M,
-    data: &[Measurement],
-    params: &Params,
-    frame: Option<&[f64]>,
+    m: &[f64],
     model: Model,
     force: &[f64],
 ) -> Result<(Accuracy, ErrorVectors, ErrorVectors)> {
     let spec = mech.spec();
-    let layout = spec.tool_layout;
-    let problem = IdentificationProblem::new(mech, data, model, force)?;
+    let problem = IdentificationProblem::new(mech, measurement, data, model, force)?;
     let nominal = Params::nominal(spec);
     let nominal_pred = problem.predict(&nominal)?;
     let pred = problem.predict(params)?;
     let reference: Vec<Vec<f64>> = data
         .iter()
         .zip(&nominal_pred)
-        .map(|(m, p)| m.target.clone().unwrap_or_else(|| p.clone()))
+        .map(|(d, p)| d.target.clone().unwrap_or_else(|| p.clone()))
         .collect();
-    let measured: Vec<Vec<f64>> = data.iter().map(|m| m.measured.clone()).collect();
-    let in_base = |f: Option<&[f64]>| -> Vec<Vec<f64>> {
-        match f {
-            Some(f) => measured.iter().map(|y| to_base(layout, y, f)).collect(),
-            None => measured.clone(),
-        }
+    let measured: Vec<Vec<f64>> = data.iter().map(|d| d.measured.clone()).collect();
+    let m_before = if *measurement.frame() == Frame::Base {
+        measurement.nominal().to_vec()
+    } else {
+        measurement.registered(measurement.nominal(), &reference, &measured)?
     };
-    let registered = match frame {
-        Some(_) => Some(register(layout, &reference, &measured)?),
-        None => None,
-    };
-    let diff = |a: &[Vec<f64>], b: &[Vec<f64>]| -> Vec<Vec<f64>> {
-        a.iter()
-            .zip(b)
-            .map(|(x, y)| x.iter().zip(y).map(|(p, q)| p - q).collect())
+    let errors = |tools: &[Vec<f64>], mv: &[f64]| -> Vec<Vec<f64>> {
+        tools
+            .iter()
+            .zip(&measured)
+            .map(|(x, y)| match measurement.to_base(y, mv) {
+                Some(b) => b.iter().zip(x).map(|(p, q)| p - q).collect(),
+                None => {
+                    let mut h = vec![0.0; measurement.len()];
+                    measurement.observe(x, mv, &mut h);
+                    y.iter().zip(&h).map(|(p, q)| p - q).collect()
+                }
+            })
             .collect()
     };
-    let before = diff(&in_base(registered.as_deref()), &reference);
-    let after = diff(&in_base(frame), &pred);
-    let units = &spec.tool_units;
+    let before = errors(&reference, &m_before);
+    let after = errors(&pred, m);
+    let units = measurement.units();
     let b = error_stats(&before, units);
     let a = error_stats(&after, units);
     Ok((
@@ -1707,6 +1677,26 @@ pub fn accuracy_in_frame<M: Mechanism>(
         before,
         after,
     ))
+}
+
+/// [`accuracy`] of a calibration: its parameters, model and measurement
+/// model's values.
+pub fn calibration_accuracy<M: Mechanism>(
+    mech: &M,
+    measurement: &MeasurementModel,
+    data: &[Measurement],
+    cal: &Calibration,
+    force: &[f64],
+) -> Result<(Accuracy, ErrorVectors, ErrorVectors)> {
+    accuracy(
+        mech,
+        measurement,
+        data,
+        &cal.params,
+        &cal.measurement,
+        cal.model,
+        force,
+    )
 }
 
 /// Split indices into a training and a held-out part (`fraction` held out),
@@ -1746,18 +1736,21 @@ pub struct CrossValidation {
 /// k-fold cross-validation: calibrate on k−1 folds, predict the held-out one.
 pub fn cross_validate<M: Mechanism>(
     mech: &M,
+    measurement: &MeasurementModel,
     data: &[Measurement],
     start: &Params,
     opts: &CalibrationOptions,
     folds: usize,
     seed: u64,
 ) -> Result<CrossValidation> {
-    cross_validate_with_progress(mech, data, start, opts, folds, seed, &|| {})
+    cross_validate_with_progress(mech, measurement, data, start, opts, folds, seed, &|| {})
 }
 
 /// [`cross_validate`], calling `progress` after each fold.
+#[allow(clippy::too_many_arguments)]
 pub fn cross_validate_with_progress<M: Mechanism>(
     mech: &M,
+    measurement: &MeasurementModel,
     data: &[Measurement],
     start: &Params,
     opts: &CalibrationOptions,
@@ -1783,8 +1776,8 @@ pub fn cross_validate_with_progress<M: Mechanism>(
             .map(|&i| data[i].clone())
             .collect();
         let test: Vec<Measurement> = held.iter().map(|&i| data[i].clone()).collect();
-        let cal = calibrate(mech, &train, start, opts)?;
-        let (acc, _, after) = calibration_accuracy(mech, &test, &cal, &opts.force)?;
+        let cal = calibrate(mech, measurement, &train, start, opts)?;
+        let (acc, _, after) = calibration_accuracy(mech, measurement, &test, &cal, &opts.force)?;
         fold_rms.push(acc.after.distance_rms);
         pooled.extend(after);
         progress();
@@ -1792,6 +1785,6 @@ pub fn cross_validate_with_progress<M: Mechanism>(
     Ok(CrossValidation {
         folds,
         fold_rms,
-        pooled: error_stats(&pooled, &mech.spec().tool_units),
+        pooled: error_stats(&pooled, measurement.units()),
     })
 }

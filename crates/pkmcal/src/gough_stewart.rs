@@ -104,7 +104,7 @@ pub fn rotation<D: Scalar>(a: D, b: D, c: D) -> [[D; 3]; 3] {
 }
 
 /// `p + R v` for a pose `[x, y, z, rx, ry, rz]`.
-fn transform<D: Scalar>(pose: &[D], v: [D; 3]) -> [D; 3] {
+pub(crate) fn transform<D: Scalar>(pose: &[D], v: [D; 3]) -> [D; 3] {
     let r = rotation(pose[3], pose[4], pose[5]);
     let mut out = [pose[0], pose[1], pose[2]];
     for (i, o) in out.iter_mut().enumerate() {
@@ -301,117 +301,5 @@ impl Mechanism for GoughStewart {
     /// kinematics determinant ([`crate::kinematics::branch_signs`]).
     fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
         self.branch == 0 || crate::kinematics::branch_signs(self, q, rho)[0] == self.branch
-    }
-}
-
-/// A mechanism whose tool is a spatial pose `[x, y, z, rx, ry, rz]` (as
-/// [`GoughStewart`]), measured at target points fixed on the platform: the tool
-/// coordinates become `t1x t1y t1z t2x …`, the target positions `p + R t_j` in
-/// the base frame, and the target positions in the platform frame are extra
-/// geometric parameters (after the inner mechanism's).
-#[derive(Debug, Clone)]
-pub struct PointTargets<M> {
-    inner: M,
-    spec: Spec,
-    targets: usize,
-}
-
-impl<M: Mechanism> PointTargets<M> {
-    /// Wrap `inner`, measured at `targets` (platform frame, mm).
-    pub fn new(inner: M, targets: &[[f64; 3]]) -> Result<Self> {
-        let s = inner.spec().clone();
-        if s.tool_axes != POSE_AXES || s.tool_units != POSE_UNITS {
-            return Err(Error::InvalidMechanism(format!(
-                "target points need a mechanism whose tool is a spatial pose (x y z rx ry rz); `{}` has {}",
-                s.name,
-                s.tool_axes.join(" ")
-            )));
-        }
-        if targets.is_empty() || targets.iter().flatten().any(|v| !v.is_finite()) {
-            return Err(Error::InvalidMechanism(
-                "give at least one target point with finite coordinates".into(),
-            ));
-        }
-        let ng = s.n_geometric();
-        let mut geometric = s.geometric.clone();
-        let mut nominal = s.nominal[..ng].to_vec();
-        let mut tool_axes = Vec::new();
-        for (j, t) in targets.iter().enumerate() {
-            for (c, v) in ["x", "y", "z"].iter().zip(t) {
-                geometric.push(format!("t{}{c}", j + 1));
-                tool_axes.push(format!("t{}{c}", j + 1));
-                nominal.push(*v);
-            }
-        }
-        nominal.extend(&s.nominal[ng..]);
-        let box_: Vec<[f64; 2]> = targets
-            .iter()
-            .flat_map(|_| s.workspace_box[..3].to_vec())
-            .collect();
-        let mut geometric_units = s.geometric_units.clone();
-        geometric_units.extend(std::iter::repeat_n(Unit::Millimetre, 3 * targets.len()));
-        let spec = Spec {
-            name: format!("{} measured at {} target point(s)", s.name, targets.len()),
-            geometric,
-            geometric_units,
-            tool_units: vec![Unit::Millimetre; tool_axes.len()],
-            tool_layout: crate::frame::ToolLayout::Points {
-                dim: 3,
-                count: targets.len(),
-            },
-            tool_axes,
-            nominal,
-            workspace_box: box_,
-            axis_scale: vec![],
-            ..s
-        };
-        spec.validate()?;
-        Ok(Self {
-            inner,
-            spec,
-            targets: targets.len(),
-        })
-    }
-
-    /// The wrapped mechanism.
-    pub fn inner(&self) -> &M {
-        &self.inner
-    }
-
-    /// Number of target points.
-    pub fn targets(&self) -> usize {
-        self.targets
-    }
-}
-
-impl<M: Mechanism> Mechanism for PointTargets<M> {
-    fn spec(&self) -> &Spec {
-        &self.spec
-    }
-
-    fn constraints<D: Scalar>(&self, q: &[D], rho: &[D], g: &mut [D]) {
-        let ng = self.inner.spec().n_geometric();
-        self.inner.constraints(q, &rho[..ng], g);
-    }
-
-    /// `p + R t_j` for every target `j`.
-    fn tool<D: Scalar>(&self, q: &[D], rho: &[D], x: &mut [D]) {
-        let ng = self.inner.spec().n_geometric();
-        let mut pose = [D::from(0.0); 6];
-        self.inner.tool(q, &rho[..ng], &mut pose);
-        for j in 0..self.targets {
-            let t = [rho[ng + 3 * j], rho[ng + 3 * j + 1], rho[ng + 3 * j + 2]];
-            x[3 * j..3 * j + 3].copy_from_slice(&transform(&pose, t));
-        }
-    }
-
-    fn configuration_guess(&self, commands: &[f64], rho: &[f64]) -> Option<Vec<f64>> {
-        let ng = self.inner.spec().n_geometric();
-        self.inner.configuration_guess(commands, &rho[..ng])
-    }
-
-    fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
-        let ng = self.inner.spec().n_geometric();
-        self.inner.on_branch(q, &rho[..ng])
     }
 }

@@ -45,6 +45,7 @@ pub mod kinematics;
 pub mod linearized;
 pub mod lm;
 pub mod load;
+pub mod measurement;
 pub mod mechanism;
 pub mod models;
 pub mod montecarlo;
@@ -59,23 +60,21 @@ pub mod units;
 pub mod workspace;
 
 pub use any::AnyMechanism;
-pub use ballbar::{BallBar, Setup, trilaterate};
+pub use ballbar::{Setup, trilaterate};
 pub use calibration::{
-    Accuracy, Calibration, CalibrationOptions, Frame, Identifiability, Loss, Outlier,
-    ParameterCovariance, accuracy, accuracy_in_frame, analyze, analyze_in_frame, calibrate,
-    calibration_accuracy, cross_validate, cross_validate_with_progress, holdout_split,
-    predict_with_uncertainty, tool_covariance,
+    Accuracy, Calibration, CalibrationOptions, Identifiability, Loss, Outlier, ParameterCovariance,
+    accuracy, analyze, calibrate, calibration_accuracy, cross_validate,
+    cross_validate_with_progress, holdout_split, predict_with_uncertainty, tool_covariance,
 };
 pub use compensation::{Compensation, CompensationOptions, compensate};
 pub use error::{Error, Result};
 pub use frame::ToolLayout;
-pub use gough_stewart::{
-    GoughStewart, GoughStewartAssembly, GoughStewartDescription, PointTargets,
-};
+pub use gough_stewart::{GoughStewart, GoughStewartAssembly, GoughStewartDescription};
 pub use kinematics::{
     forward_kinematics, inverse_kinematics, reference_configuration, solve_closure,
 };
 pub use linearized::{Linearization, joint_errors, linearize, load_vector, projection};
+pub use measurement::{Frame, Instrument, MeasurementModel, MeasurementSummary};
 pub use mechanism::{Mechanism, Params, Scalar, Spec};
 pub use models::{
     Equilibrium, Model, Pose, Prediction, equilibrium, predict, predict_pose, predict_pose_warm,

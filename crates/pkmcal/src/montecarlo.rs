@@ -4,6 +4,7 @@
 
 use crate::calibration::{CalibrationOptions, calibrate, calibration_accuracy};
 use crate::error::Result;
+use crate::measurement::MeasurementModel;
 use crate::mechanism::{Mechanism, Params};
 use crate::simulate::{Noise, simulate};
 use crate::stats::ErrorStats;
@@ -84,6 +85,7 @@ pub fn monte_carlo<M: Mechanism>(
     let spec = mech.spec();
     let nominal = Params::nominal(spec);
     let free = &opts.calibration.free;
+    let tool = MeasurementModel::tool(spec);
     let runs: Vec<Result<Run>> = (0..opts.runs)
         .into_par_iter()
         .map(|r| {
@@ -100,10 +102,10 @@ pub fn monte_carlo<M: Mechanism>(
                     _ => truth.values[i] += len.sample(&mut rng),
                 }
             }
-            let data = simulate(mech, &truth, poses, opts.noise, seed ^ 0x9e37_79b9)?;
-            let cal = calibrate(mech, &data, &nominal, &opts.calibration)?;
-            let unseen = simulate(mech, &truth, validation, Noise::NONE, seed)?;
-            let (acc, _, _) = calibration_accuracy(mech, &unseen, &cal, &[])?;
+            let data = simulate(mech, &tool, &truth, poses, opts.noise, seed ^ 0x9e37_79b9)?;
+            let cal = calibrate(mech, &tool, &data, &nominal, &opts.calibration)?;
+            let unseen = simulate(mech, &tool, &truth, validation, Noise::NONE, seed)?;
+            let (acc, _, _) = calibration_accuracy(mech, &tool, &unseen, &cal, &[])?;
             progress();
             Ok(Run {
                 converged: cal.converged,

@@ -3,6 +3,7 @@
 
 use crate::error::Result;
 use crate::kinematics::inverse_kinematics;
+use crate::measurement::MeasurementModel;
 use crate::mechanism::{Mechanism, Params};
 use crate::models::{Model, predict_pose, prepare_pose};
 use crate::units::{Quantity, Unit};
@@ -106,22 +107,26 @@ impl From<f64> for Noise {
     }
 }
 
-/// Simulate measurements at `targets` for a mechanism whose true parameters are
-/// `truth`, with independent Gaussian noise on each tool coordinate (lengths
-/// and angles each their own, [`Noise`]), seeded by `seed`.
+/// Simulate measurements at `targets` (tool coordinates) for a mechanism
+/// whose true parameters are `truth`, read by the instrument `measurement` at
+/// its nominal values (e.g. a known frame, the true socket positions), with
+/// independent Gaussian noise on each reading (lengths and angles each their
+/// own, [`Noise`]), seeded by `seed`.
 pub fn simulate<M: Mechanism>(
     mech: &M,
+    measurement: &MeasurementModel,
     truth: &Params,
     targets: &[Vec<f64>],
     noise: impl Into<Noise>,
     seed: u64,
 ) -> Result<Vec<Measurement>> {
-    simulate_with_progress(mech, truth, targets, noise, seed, &|| {})
+    simulate_with_progress(mech, measurement, truth, targets, noise, seed, &|| {})
 }
 
 /// [`simulate`], calling `progress` after each target.
 pub fn simulate_with_progress<M: Mechanism>(
     mech: &M,
+    measurement: &MeasurementModel,
     truth: &Params,
     targets: &[Vec<f64>],
     noise: impl Into<Noise>,
@@ -131,8 +136,8 @@ pub fn simulate_with_progress<M: Mechanism>(
     let noise = noise.into();
     let mut rng = StdRng::seed_from_u64(seed);
     let spec = mech.spec();
-    let normals = spec
-        .tool_units
+    let normals = measurement
+        .units()
         .iter()
         .map(|u| {
             let s = noise.for_unit(*u);
@@ -156,11 +161,13 @@ pub fn simulate_with_progress<M: Mechanism>(
         let commands: Vec<f64> = spec.actuated.iter().map(|&j| q[j]).collect();
         let pose = prepare_pose(mech, &commands, Some(&q))?;
         let p = predict_pose(mech, &pose, truth, Model::Exact, &[])?;
-        let measured =
-            p.x.iter()
-                .zip(&normals)
-                .map(|(x, n)| x + n.sample(&mut rng))
-                .collect();
+        let mut read = vec![0.0; measurement.len()];
+        measurement.observe(&p.x, measurement.nominal(), &mut read);
+        let measured = read
+            .iter()
+            .zip(&normals)
+            .map(|(y, n)| y + n.sample(&mut rng))
+            .collect();
         out.push(Measurement {
             target: Some(target.clone()),
             commands,

@@ -18,7 +18,15 @@ const RECOVERY_MM: f64 = 1e-6;
 
 fn data(n: usize, noise: f64, seed: u64) -> Vec<Measurement> {
     let mech = JeongKim2Dof::new();
-    simulate(&mech, &demo_truth(), &common::targets(n), noise, seed).unwrap()
+    simulate(
+        &mech,
+        &MeasurementModel::tool(mech.spec()),
+        &demo_truth(),
+        &common::targets(n),
+        noise,
+        seed,
+    )
+    .unwrap()
 }
 
 fn fd_column(
@@ -91,6 +99,7 @@ fn exact_model_recovers_the_truth_from_noise_free_data() {
     let d = data(35, 0.0, 1);
     let cal = calibrate(
         &mech,
+        &MeasurementModel::tool(mech.spec()),
         &d,
         &Params::nominal(spec),
         &CalibrationOptions::new(spec, Model::Exact),
@@ -117,6 +126,7 @@ fn compliance_aware_models_reach_the_noise_floor_where_rigid_cannot() {
     let d = data(35, NOISE_MM, 7);
     let unseen = simulate(
         &mech,
+        &MeasurementModel::tool(mech.spec()),
         &demo_truth(),
         &random_targets(&mech, 40, 3).unwrap(),
         NOISE_MM,
@@ -127,12 +137,22 @@ fn compliance_aware_models_reach_the_noise_floor_where_rigid_cannot() {
     for model in Model::ALL {
         let cal = calibrate(
             &mech,
+            &MeasurementModel::tool(mech.spec()),
             &d,
             &Params::nominal(spec),
             &CalibrationOptions::new(spec, model),
         )
         .unwrap();
-        let (val, _, _) = accuracy(&mech, &unseen, &cal.params, model, &[]).unwrap();
+        let (val, _, _) = accuracy(
+            &mech,
+            &MeasurementModel::tool(mech.spec()),
+            &unseen,
+            &cal.params,
+            &[],
+            model,
+            &[],
+        )
+        .unwrap();
         match model {
             Model::Rigid => {
                 // dq3 cannot be seen by a rigid model driven by q1, q2.
@@ -185,8 +205,23 @@ fn reported_standard_deviations_match_the_scatter_over_noise_draws() {
     let mut sd = vec![0.0; names.len()];
     let runs = 40;
     for seed in 0..runs {
-        let d = simulate(&mech, &demo_truth(), &targets, NOISE_MM, 100 + seed).unwrap();
-        let cal = calibrate(&mech, &d, &Params::nominal(spec), &opts).unwrap();
+        let d = simulate(
+            &mech,
+            &MeasurementModel::tool(mech.spec()),
+            &demo_truth(),
+            &targets,
+            NOISE_MM,
+            100 + seed,
+        )
+        .unwrap();
+        let cal = calibrate(
+            &mech,
+            &MeasurementModel::tool(mech.spec()),
+            &d,
+            &Params::nominal(spec),
+            &opts,
+        )
+        .unwrap();
         for (k, n) in names.iter().enumerate() {
             let p = cal.parameters.iter().find(|p| p.name == *n).unwrap();
             est[k].push(p.identified);
@@ -211,6 +246,7 @@ fn predicted_position_uncertainty_is_of_the_noise_size() {
     let d = data(35, NOISE_MM, 11);
     let cal = calibrate(
         &mech,
+        &MeasurementModel::tool(mech.spec()),
         &d,
         &Params::nominal(spec),
         &CalibrationOptions::new(spec, Model::Exact),
@@ -232,7 +268,8 @@ fn stiffness_ratios_only_without_load() {
     let d = data(35, 0.0, 1);
     let mut free: Vec<usize> = CalibrationOptions::new(spec, Model::Exact).free;
     free.extend(19..22);
-    let problem = IdentificationProblem::new(&mech, &d, Model::Exact, &[]).unwrap();
+    let tool = MeasurementModel::tool(spec);
+    let problem = IdentificationProblem::new(&mech, &tool, &d, Model::Exact, &[]).unwrap();
     let (_, jac) = problem.jacobian(&demo_truth()).unwrap();
     let (id, kept) = analyze_identifiability(&Columns::of(spec), &jac, &free, d.len(), true);
     assert_eq!(id.unidentifiable.len(), 1, "{:?}", id.unidentifiable);
@@ -243,14 +280,22 @@ fn stiffness_ratios_only_without_load() {
     }
     assert_eq!(kept.len(), free.len() - 1);
     // Under a tool load the absolute stiffness shows.
-    let loaded = IdentificationProblem::new(&mech, &d, Model::Exact, &[30.0, -60.0]).unwrap();
+    let loaded =
+        IdentificationProblem::new(&mech, &tool, &d, Model::Exact, &[30.0, -60.0]).unwrap();
     let (_, jac) = loaded.jacobian(&demo_truth()).unwrap();
     let (id, _) = analyze_identifiability(&Columns::of(spec), &jac, &free, d.len(), true);
     assert!(id.unidentifiable.is_empty(), "{:?}", id.unidentifiable);
     // And calibrate says so in a warning.
     let mut opts = CalibrationOptions::new(spec, Model::Exact);
     opts.free = free;
-    let cal = calibrate(&mech, &d, &Params::nominal(spec), &opts).unwrap();
+    let cal = calibrate(
+        &mech,
+        &MeasurementModel::tool(mech.spec()),
+        &d,
+        &Params::nominal(spec),
+        &opts,
+    )
+    .unwrap();
     assert!(cal.warnings.iter().any(|w| w.message.contains("ratios")));
 }
 
@@ -260,7 +305,17 @@ fn observability_indices_and_condition_are_consistent() {
     let spec = mech.spec();
     let d = data(35, 0.0, 1);
     let free = CalibrationOptions::new(spec, Model::Exact).free;
-    let id = analyze(&mech, &d, &Params::nominal(spec), Model::Exact, &free, &[]).unwrap();
+    let tool = MeasurementModel::tool(spec);
+    let id = analyze(
+        &mech,
+        &tool,
+        &d,
+        &Params::nominal(spec),
+        Model::Exact,
+        &free,
+        &[],
+    )
+    .unwrap();
     let sv = &id.singular_values;
     assert_eq!(id.rank, 16);
     assert!((id.condition_number - sv[0] / sv[15]).abs() < 1e-9 * id.condition_number);
@@ -273,6 +328,7 @@ fn observability_indices_and_condition_are_consistent() {
     let few: Vec<Measurement> = d.iter().take(12).cloned().collect();
     let id2 = analyze(
         &mech,
+        &tool,
         &few,
         &Params::nominal(spec),
         Model::Exact,
@@ -290,6 +346,7 @@ fn too_few_poses_and_empty_free_sets_are_errors() {
     let d = data(6, 0.0, 1);
     let err = calibrate(
         &mech,
+        &MeasurementModel::tool(mech.spec()),
         &d,
         &Params::nominal(spec),
         &CalibrationOptions::new(spec, Model::Exact),
@@ -298,7 +355,16 @@ fn too_few_poses_and_empty_free_sets_are_errors() {
     assert!(err.to_string().contains("measure more poses"), "{err}");
     let mut opts = CalibrationOptions::new(spec, Model::Exact);
     opts.free.clear();
-    assert!(calibrate(&mech, &d, &Params::nominal(spec), &opts).is_err());
+    assert!(
+        calibrate(
+            &mech,
+            &MeasurementModel::tool(mech.spec()),
+            &d,
+            &Params::nominal(spec),
+            &opts
+        )
+        .is_err()
+    );
 }
 
 #[test]
@@ -314,6 +380,7 @@ fn holdout_and_cross_validation() {
     let d = data(30, NOISE_MM, 5);
     let cv = cross_validate(
         &mech,
+        &MeasurementModel::tool(mech.spec()),
         &d,
         &Params::nominal(spec),
         &CalibrationOptions::new(spec, Model::Linear),

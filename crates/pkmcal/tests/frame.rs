@@ -4,11 +4,10 @@
 
 mod common;
 use common::{gough_stewart, perturbed, spread};
-use pkmcal::calibration::Frame;
 use pkmcal::frame::{observe, to_base};
 use pkmcal::{
-    CalibrationOptions, JeongKim2Dof, Measurement, Mechanism, Model, Noise, Params, calibrate,
-    calibration_accuracy, simulate,
+    CalibrationOptions, Frame, JeongKim2Dof, Measurement, MeasurementModel, Mechanism, Model,
+    Noise, Params, calibrate, calibration_accuracy, simulate,
 };
 
 /// Two fits of the same data seen from two frames agree to this (mm, rad)…
@@ -35,13 +34,30 @@ fn seen_from<M: Mechanism>(m: &M, data: &[Measurement], frame: &[f64]) -> Vec<Me
 
 fn check_invariance<M: Mechanism>(m: &M, truth: &Params, poses: usize, far: &[f64]) {
     let spec = m.spec();
-    let data = simulate(m, truth, &spread(m, poses), Noise::lengths(0.002), 3).unwrap();
-    let unseen = simulate(m, truth, &spread(m, 20), Noise::NONE, 4).unwrap();
-    let mut opts = CalibrationOptions::new(spec, Model::Exact);
-    opts.frame = Frame::Free;
+    let data = simulate(
+        m,
+        &MeasurementModel::tool(m.spec()),
+        truth,
+        &spread(m, poses),
+        Noise::lengths(0.002),
+        3,
+    )
+    .unwrap();
+    let unseen = simulate(
+        m,
+        &MeasurementModel::tool(m.spec()),
+        truth,
+        &spread(m, 20),
+        Noise::NONE,
+        4,
+    )
+    .unwrap();
+    let opts = CalibrationOptions::new(spec, Model::Exact);
+    let tool = MeasurementModel::tool(spec);
+    let tracker = tool.clone().in_frame(Frame::Free).unwrap();
     let start = Params::nominal(spec);
-    let near = calibrate(m, &data, &start, &opts).unwrap();
-    let moved = calibrate(m, &seen_from(m, &data, far), &start, &opts).unwrap();
+    let near = calibrate(m, &tracker, &data, &start, &opts).unwrap();
+    let moved = calibrate(m, &tracker, &seen_from(m, &data, far), &start, &opts).unwrap();
     assert!(near.converged && moved.converged);
     for (i, (a, b)) in near
         .params
@@ -86,9 +102,9 @@ fn check_invariance<M: Mechanism>(m: &M, truth: &Params, poses: usize, far: &[f6
             );
         }
     }
-    let (acc_near, _, _) = calibration_accuracy(m, &unseen, &near, &[]).unwrap();
+    let (acc_near, _, _) = calibration_accuracy(m, &tracker, &unseen, &near, &[]).unwrap();
     let (acc_far, _, _) =
-        calibration_accuracy(m, &seen_from(m, &unseen, far), &moved, &[]).unwrap();
+        calibration_accuracy(m, &tracker, &seen_from(m, &unseen, far), &moved, &[]).unwrap();
     assert!(
         (acc_near.after.distance_rms / acc_far.after.distance_rms - 1.0).abs() < SAME_FIT_SIGMAS,
         "{}: {} vs {}",
@@ -101,9 +117,7 @@ fn check_invariance<M: Mechanism>(m: &M, truth: &Params, poses: usize, far: &[f6
     // against a tracker 1 m away.
     assert!(acc_far.before.distance_max < 5.0, "{:?}", acc_far.before);
     // Pretending the data were in the base frame cannot fit them.
-    let mut base = opts.clone();
-    base.frame = Frame::Base;
-    if let Ok(c) = calibrate(m, &seen_from(m, &data, far), &start, &base) {
+    if let Ok(c) = calibrate(m, &tool, &seen_from(m, &data, far), &start, &opts) {
         assert!(
             c.noise[0].residual_rms > 100.0 * near.noise[0].residual_rms,
             "{:?}",

@@ -84,7 +84,15 @@ fn trilateration_recovers_positions_with_their_covariance() {
 fn distance_data(truth: &Params, targets: &[Vec<f64>], noise: f64, seed: u64) -> Vec<Measurement> {
     let mech = JeongKim2Dof::new();
     let s = setup();
-    let exact = simulate(&mech, truth, targets, 0.0, seed).unwrap();
+    let exact = simulate(
+        &mech,
+        &MeasurementModel::tool(mech.spec()),
+        truth,
+        targets,
+        0.0,
+        seed,
+    )
+    .unwrap();
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed + 1000);
     let normal = Normal::new(0.0, noise.max(f64::MIN_POSITIVE)).unwrap();
     exact
@@ -109,19 +117,10 @@ fn distance_data(truth: &Params, targets: &[Vec<f64>], noise: f64, seed: u64) ->
         .collect()
 }
 
-fn plain(bb: &BallBar<JeongKim2Dof>, p: &Params) -> Params {
-    let mech = bb.inner();
-    let ng = mech.spec().n_geometric();
-    let nb = bb.spec().n_geometric();
-    let mut v = p.values[..ng].to_vec();
-    v.extend(&p.values[nb..]);
-    Params::new(mech.spec(), v).unwrap()
-}
-
 fn both_routes(data: &[Measurement]) -> (Params, Params) {
     let mech = JeongKim2Dof::new();
     let spec = mech.spec();
-    let bb = BallBar::new(mech.clone(), &setup()).unwrap();
+    let bb = MeasurementModel::ball_bar(spec, &setup()).unwrap();
     let tri: Vec<Measurement> = data
         .iter()
         .map(|m| Measurement {
@@ -134,21 +133,11 @@ fn both_routes(data: &[Measurement]) -> (Params, Params) {
                 .0,
         })
         .collect();
-    let a = calibrate(
-        &mech,
-        &tri,
-        &Params::nominal(spec),
-        &CalibrationOptions::new(spec, Model::Exact),
-    )
-    .unwrap();
-    let b = calibrate(
-        &bb,
-        data,
-        &Params::nominal(bb.spec()),
-        &CalibrationOptions::new(bb.spec(), Model::Exact),
-    )
-    .unwrap();
-    (a.params, plain(&bb, &b.params))
+    let opts = CalibrationOptions::new(spec, Model::Exact);
+    let start = Params::nominal(spec);
+    let a = calibrate(&mech, &MeasurementModel::tool(spec), &tri, &start, &opts).unwrap();
+    let b = calibrate(&mech, &bb, data, &start, &opts).unwrap();
+    (a.params, b.params)
 }
 
 #[test]
@@ -164,6 +153,7 @@ fn ball_bar_routes_agree_without_noise_and_the_direct_one_is_at_least_as_accurat
     // With noise: validation error on unseen poses, averaged over seeds.
     let unseen = simulate(
         &mech,
+        &MeasurementModel::tool(mech.spec()),
         &truth,
         &random_targets(&mech, 40, 9).unwrap(),
         0.0,
@@ -174,12 +164,13 @@ fn ball_bar_routes_agree_without_noise_and_the_direct_one_is_at_least_as_accurat
     let seeds = 16;
     for seed in 0..seeds {
         let (a, b) = both_routes(&distance_data(&truth, &targets, NOISE_MM, 50 + seed));
-        tri += accuracy(&mech, &unseen, &a, Model::Exact, &[])
+        let tool = MeasurementModel::tool(mech.spec());
+        tri += accuracy(&mech, &tool, &unseen, &a, &[], Model::Exact, &[])
             .unwrap()
             .0
             .after
             .distance_rms;
-        direct += accuracy(&mech, &unseen, &b, Model::Exact, &[])
+        direct += accuracy(&mech, &tool, &unseen, &b, &[], Model::Exact, &[])
             .unwrap()
             .0
             .after
@@ -196,34 +187,49 @@ fn ball_bar_routes_agree_without_noise_and_the_direct_one_is_at_least_as_accurat
 #[test]
 fn socket_positions_and_bar_offset_are_identifiable() {
     let mech = JeongKim2Dof::new();
-    let bb = BallBar::new(mech.clone(), &setup()).unwrap();
-    let spec = bb.spec().clone();
-    let mut truth = Params::nominal(&spec);
-    for (name, e) in pkmcal::reference::DEMO_ERRORS {
-        let i = spec.param_index(name).unwrap();
-        truth.values[i] += e;
-    }
-    truth.set(&spec, "s3x", 20.4).unwrap();
-    truth.set(&spec, "dbar", 0.3).unwrap();
-    let exact = simulate(&mech, &plain(&bb, &truth), &common::targets(40), 0.0, 1).unwrap();
-    let s = bb.setup_of(truth.geometric());
+    let spec = mech.spec();
+    let truth = demo_truth();
+    let mut true_setup = setup();
+    true_setup.sockets[2][0] = 20.4;
+    true_setup.bar_offset = 0.3;
+    let exact = simulate(
+        &mech,
+        &MeasurementModel::tool(spec),
+        &truth,
+        &common::targets(40),
+        0.0,
+        1,
+    )
+    .unwrap();
+    // Readings computed independently of the measurement model.
     let data: Vec<Measurement> = exact
         .iter()
         .map(|m| Measurement {
-            target: None,
-            sigma: vec![],
-            origin: None,
             commands: m.commands.clone(),
-            measured: s.distances(&m.measured),
+            measured: true_setup.distances(&m.measured),
+            ..Default::default()
         })
         .collect();
-    let mut opts = CalibrationOptions::new(&spec, Model::Exact);
-    opts.free.push(spec.param_index("s3x").unwrap());
-    opts.free.push(spec.param_index("dbar").unwrap());
-    let cal = calibrate(&bb, &data, &Params::nominal(&spec), &opts).unwrap();
+    let bb = MeasurementModel::ball_bar(spec, &setup()).unwrap();
+    let mut opts = CalibrationOptions::new(spec, Model::Exact);
+    opts.free.push(bb.index_of(spec, "s3x").unwrap());
+    opts.free.push(bb.index_of(spec, "dbar").unwrap());
+    let cal = calibrate(&mech, &bb, &data, &Params::nominal(spec), &opts).unwrap();
     assert!(cal.warnings.is_empty(), "{:?}", cal.warnings);
-    assert!((cal.params.get(&spec, "s3x").unwrap() - 20.4).abs() < 1e-6);
-    assert!((cal.params.get(&spec, "dbar").unwrap() - 0.3).abs() < 1e-6);
+    let m = |n: &str| cal.measurement[bb.index_of(spec, n).unwrap() - spec.n_params()];
+    assert!((m("s3x") - 20.4).abs() < 1e-6);
+    assert!((m("dbar") - 0.3).abs() < 1e-6);
+    let row = cal.parameters.iter().find(|p| p.name == "dbar").unwrap();
+    assert_eq!(
+        (row.kind, row.unit),
+        (ParamKind::Instrument, Unit::Millimetre)
+    );
+    assert!(row.free && (row.identified - 0.3).abs() < 1e-6);
+    for (i, v) in truth.values.iter().enumerate() {
+        if opts.free.contains(&i) {
+            assert!((cal.params.values[i] - v).abs() < 1e-6, "parameter {i}");
+        }
+    }
 }
 
 #[test]
@@ -231,9 +237,18 @@ fn robust_losses_resist_gross_errors() {
     let mech = JeongKim2Dof::new();
     let spec = mech.spec();
     let truth = demo_truth();
-    let clean = simulate(&mech, &truth, &common::targets(35), NOISE_MM, 2).unwrap();
+    let clean = simulate(
+        &mech,
+        &MeasurementModel::tool(mech.spec()),
+        &truth,
+        &common::targets(35),
+        NOISE_MM,
+        2,
+    )
+    .unwrap();
     let reference = calibrate(
         &mech,
+        &MeasurementModel::tool(mech.spec()),
         &clean,
         &Params::nominal(spec),
         &CalibrationOptions::new(spec, Model::Exact),
@@ -253,6 +268,7 @@ fn robust_losses_resist_gross_errors() {
     };
     let plain = calibrate(
         &mech,
+        &MeasurementModel::tool(mech.spec()),
         &data,
         &Params::nominal(spec),
         &CalibrationOptions::new(spec, Model::Exact),
@@ -261,7 +277,14 @@ fn robust_losses_resist_gross_errors() {
     for loss in [Loss::Huber(1.345), Loss::Cauchy(2.385)] {
         let mut opts = CalibrationOptions::new(spec, Model::Exact);
         opts.loss = loss;
-        let cal = calibrate(&mech, &data, &Params::nominal(spec), &opts).unwrap();
+        let cal = calibrate(
+            &mech,
+            &MeasurementModel::tool(mech.spec()),
+            &data,
+            &Params::nominal(spec),
+            &opts,
+        )
+        .unwrap();
         let poses: Vec<usize> = cal.outliers.iter().map(|o| o.origin.pose).collect();
         assert_eq!(poses, [5, 23], "{loss:?}");
         assert!(
@@ -288,7 +311,9 @@ fn ball_bar_on_a_spatial_platform_uses_3d_sockets() {
         sockets: vec![vec![0.0, 0.0]; 4],
         bar_offset: 0.0,
     };
-    let e = BallBar::new(gs.clone(), &flat).unwrap_err().to_string();
+    let e = MeasurementModel::ball_bar(spec, &flat)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("needs 3 finite coordinates"), "{e}");
     let setup = Setup {
         sockets: vec![
@@ -300,14 +325,22 @@ fn ball_bar_on_a_spatial_platform_uses_3d_sockets() {
         ],
         bar_offset: 0.0,
     };
-    let bb = BallBar::new(gs.clone(), &setup).unwrap();
+    let bb = MeasurementModel::ball_bar(spec, &setup).unwrap();
     let truth = Params::from_named(spec, [("dL2", 0.2), ("dL5", -0.1)]).unwrap();
     let targets: Vec<Vec<f64>> = pkmcal::spread_targets(&gs, 40)
         .unwrap()
         .into_iter()
         .map(|p| p.target)
         .collect();
-    let exact = simulate(&gs, &truth, &targets, 0.0, 1).unwrap();
+    let exact = simulate(
+        &gs,
+        &MeasurementModel::tool(gs.spec()),
+        &truth,
+        &targets,
+        0.0,
+        1,
+    )
+    .unwrap();
     let data: Vec<Measurement> = exact
         .into_iter()
         .map(|m| Measurement {
@@ -316,15 +349,14 @@ fn ball_bar_on_a_spatial_platform_uses_3d_sockets() {
             ..m
         })
         .collect();
-    let bspec = bb.spec();
-    let mut opts = CalibrationOptions::new(bspec, Model::Exact);
+    let mut opts = CalibrationOptions::new(spec, Model::Exact);
     opts.free = ["dL1", "dL2", "dL3", "dL4", "dL5", "dL6"]
         .iter()
-        .map(|n| bspec.param_index(n).unwrap())
+        .map(|n| spec.param_index(n).unwrap())
         .collect();
-    let cal = calibrate(&bb, &data, &Params::nominal(bspec), &opts).unwrap();
+    let cal = calibrate(&gs, &bb, &data, &Params::nominal(spec), &opts).unwrap();
     for (n, v) in [("dL2", 0.2), ("dL5", -0.1), ("dL1", 0.0)] {
-        let got = cal.params.get(bspec, n).unwrap();
+        let got = cal.params.get(spec, n).unwrap();
         assert!((got - v).abs() < 1e-6, "{n}: {got}");
     }
 }

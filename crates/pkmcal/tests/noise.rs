@@ -44,8 +44,16 @@ fn validation<M: Mechanism>(
 ) -> (f64, f64, pkmcal::Calibration) {
     let spec = m.spec();
     let opts = CalibrationOptions::new(spec, Model::Exact);
-    let cal = calibrate(m, data, &Params::nominal(spec), &opts).unwrap();
-    let (acc, _, _) = accuracy(m, unseen, &cal.params, Model::Exact, &[]).unwrap();
+    let cal = calibrate(
+        m,
+        &pkmcal::MeasurementModel::tool(m.spec()),
+        data,
+        &Params::nominal(spec),
+        &opts,
+    )
+    .unwrap();
+    let tool = pkmcal::MeasurementModel::tool(m.spec());
+    let (acc, _, _) = accuracy(m, &tool, unseen, &cal.params, &[], Model::Exact, &[]).unwrap();
     (acc.after.distance_rms, acc.after.angle_rms.unwrap(), cal)
 }
 
@@ -63,14 +71,30 @@ fn mixed_units_are_weighted_by_estimated_noise() {
     let m = planar("4-rrr");
     let spec = m.spec();
     let truth = truth(spec, 5);
-    let unseen = simulate(&m, &truth, &spread(&m, 30), Noise::NONE, 8).unwrap();
+    let unseen = simulate(
+        &m,
+        &pkmcal::MeasurementModel::tool(m.spec()),
+        &truth,
+        &spread(&m, 30),
+        Noise::NONE,
+        8,
+    )
+    .unwrap();
     // Over several data sets (one estimate of σ scatters by about ±20 %
     // with 50 poses): the accuracy of the fit with estimated σ against the
     // fit with the simulated σ given, and the σ estimates.
     let (mut pos_ratio, mut ang_ratio) = (vec![], vec![]);
     let (mut len_sigma, mut ang_sigma) = (vec![], vec![]);
     for seed in 1..=SEEDS {
-        let data = simulate(&m, &truth, &spread(&m, 50), NOISE, seed).unwrap();
+        let data = simulate(
+            &m,
+            &pkmcal::MeasurementModel::tool(m.spec()),
+            &truth,
+            &spread(&m, 50),
+            NOISE,
+            seed,
+        )
+        .unwrap();
         let known = with_sigma(
             &data,
             &[Some(NOISE.length), Some(NOISE.length), Some(NOISE.angle)],
@@ -121,10 +145,25 @@ fn a_partial_set_of_sigma_is_used_and_the_rest_estimated() {
     let m = planar("4-rrr");
     let spec = m.spec();
     let truth = truth(spec, 5);
-    let data = simulate(&m, &truth, &spread(&m, 40), NOISE, 9).unwrap();
+    let data = simulate(
+        &m,
+        &pkmcal::MeasurementModel::tool(m.spec()),
+        &truth,
+        &spread(&m, 40),
+        NOISE,
+        9,
+    )
+    .unwrap();
     let partial = with_sigma(&data, &[Some(NOISE.length), Some(NOISE.length), None]);
     let opts = CalibrationOptions::new(spec, Model::Exact);
-    let cal = calibrate(&m, &partial, &Params::nominal(spec), &opts).unwrap();
+    let cal = calibrate(
+        &m,
+        &pkmcal::MeasurementModel::tool(m.spec()),
+        &partial,
+        &Params::nominal(spec),
+        &opts,
+    )
+    .unwrap();
     let angles = cal.noise.iter().find(|g| g.unit == Unit::Radian).unwrap();
     assert!(angles.estimated && angles.axes == ["phi"]);
     assert!((angles.sigma / NOISE.angle - 1.0).abs() < 2.5 * SIGMA_RECOVERED);
@@ -137,7 +176,14 @@ fn a_partial_set_of_sigma_is_used_and_the_rest_estimated() {
     // A wrong-length σ row is refused with the pose named.
     let mut bad = partial.clone();
     bad[3].sigma = vec![Some(0.002)];
-    let e = calibrate(&m, &bad, &Params::nominal(spec), &opts).unwrap_err();
+    let e = calibrate(
+        &m,
+        &pkmcal::MeasurementModel::tool(m.spec()),
+        &bad,
+        &Params::nominal(spec),
+        &opts,
+    )
+    .unwrap_err();
     assert!(e.to_string().starts_with("pose 4"), "{e}");
 }
 
@@ -146,14 +192,29 @@ fn dropping_stops_at_the_cap_and_rechecks_after_each_drop() {
     let mech = JeongKim2Dof::new();
     let spec = mech.spec();
     let truth = pkmcal::Params::from_named(spec, [("l11", 280.3), ("dq3", 0.002)]).unwrap();
-    let clean = simulate(&mech, &truth, &common::targets(35), 0.002, 3).unwrap();
+    let clean = simulate(
+        &mech,
+        &pkmcal::MeasurementModel::tool(mech.spec()),
+        &truth,
+        &common::targets(35),
+        0.002,
+        3,
+    )
+    .unwrap();
     let mut opts = CalibrationOptions::new(spec, Model::Exact);
     opts.drop_outliers = true;
     // Two gross errors: both found, one after the other.
     let mut two = clean.clone();
     two[5].measured[0] += 0.08;
     two[20].measured[1] += 0.06;
-    let cal = calibrate(&mech, &two, &Params::nominal(spec), &opts).unwrap();
+    let cal = calibrate(
+        &mech,
+        &pkmcal::MeasurementModel::tool(mech.spec()),
+        &two,
+        &Params::nominal(spec),
+        &opts,
+    )
+    .unwrap();
     let mut dropped: Vec<usize> = cal.dropped.iter().map(|o| o.pose).collect();
     dropped.sort_unstable();
     assert_eq!(dropped, [6, 21]);
@@ -164,7 +225,14 @@ fn dropping_stops_at_the_cap_and_rechecks_after_each_drop() {
     for (k, i) in (0..35).step_by(3).take(10).enumerate() {
         many[i].measured[k % 2] += 0.05 + 0.01 * k as f64;
     }
-    let cal = calibrate(&mech, &many, &Params::nominal(spec), &opts).unwrap();
+    let cal = calibrate(
+        &mech,
+        &pkmcal::MeasurementModel::tool(mech.spec()),
+        &many,
+        &Params::nominal(spec),
+        &opts,
+    )
+    .unwrap();
     assert_eq!(cal.dropped.len(), 7, "{:?}", cal.dropped);
     assert!(
         cal.warnings
@@ -178,13 +246,30 @@ fn cross_validation_keeps_each_poses_sigma() {
     let m = planar("4-rrr");
     let spec = m.spec();
     let truth = truth(spec, 5);
-    let data = simulate(&m, &truth, &spread(&m, 40), NOISE, 11).unwrap();
+    let data = simulate(
+        &m,
+        &pkmcal::MeasurementModel::tool(m.spec()),
+        &truth,
+        &spread(&m, 40),
+        NOISE,
+        11,
+    )
+    .unwrap();
     let known = with_sigma(
         &data,
         &[Some(NOISE.length), Some(NOISE.length), Some(NOISE.angle)],
     );
     let opts = CalibrationOptions::new(spec, Model::Exact);
-    let cv = cross_validate(&m, &known, &Params::nominal(spec), &opts, 4, 1).unwrap();
+    let cv = cross_validate(
+        &m,
+        &pkmcal::MeasurementModel::tool(m.spec()),
+        &known,
+        &Params::nominal(spec),
+        &opts,
+        4,
+        1,
+    )
+    .unwrap();
     assert_eq!(cv.fold_rms.len(), 4);
     assert!(cv.pooled.distance_rms < 0.01, "{:?}", cv.pooled);
     assert!(cv.pooled.angle_rms.unwrap() < 1e-4);
@@ -198,10 +283,25 @@ fn stiffness_ratios_are_identified_where_the_actuators_fight() {
     // Another stiffness ratio than nominal.
     let k3 = spec.param_index("k3").unwrap();
     truth.values[k3] *= 1.5;
-    let data = simulate(&m, &truth, &spread(&m, 60), 0.0, 2).unwrap();
+    let data = simulate(
+        &m,
+        &pkmcal::MeasurementModel::tool(m.spec()),
+        &truth,
+        &spread(&m, 60),
+        0.0,
+        2,
+    )
+    .unwrap();
     let mut opts = CalibrationOptions::new(spec, Model::Exact);
     opts.free = (0..spec.n_params()).collect();
-    let cal = calibrate(&m, &data, &Params::nominal(spec), &opts).unwrap();
+    let cal = calibrate(
+        &m,
+        &pkmcal::MeasurementModel::tool(m.spec()),
+        &data,
+        &Params::nominal(spec),
+        &opts,
+    )
+    .unwrap();
     let fixed: Vec<&str> = cal
         .parameters
         .iter()

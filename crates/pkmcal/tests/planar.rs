@@ -6,7 +6,7 @@ mod common;
 use common::{gough_stewart, perturbed, planar, table};
 use pkmcal::{
     GoughStewart, GoughStewartDescription, JeongKim2Dof, Mechanism, Model, Params,
-    PlanarDescription, PlanarLinkage, PointTargets, predict_pose, prepare_pose,
+    PlanarDescription, PlanarLinkage, predict_pose, prepare_pose,
 };
 
 /// Agreement of two descriptions of one mechanism (mm).
@@ -158,14 +158,29 @@ fn examples_calibrate_to_the_truth_without_noise() {
             .into_iter()
             .map(|p| p.target)
             .collect();
-        let data = pkmcal::simulate(m, &truth, &targets, 0.0, 1).unwrap();
+        let data = pkmcal::simulate(
+            m,
+            &pkmcal::MeasurementModel::tool(m.spec()),
+            &truth,
+            &targets,
+            0.0,
+            1,
+        )
+        .unwrap();
         let mut opts = pkmcal::CalibrationOptions::new(spec, Model::Exact);
         opts.free = spec
             .default_free
             .iter()
             .map(|n| spec.param_index(n).unwrap())
             .collect();
-        let cal = pkmcal::calibrate(m, &data, &Params::nominal(spec), &opts).unwrap();
+        let cal = pkmcal::calibrate(
+            m,
+            &pkmcal::MeasurementModel::tool(m.spec()),
+            &data,
+            &Params::nominal(spec),
+            &opts,
+        )
+        .unwrap();
         assert!(
             cal.identifiability.unidentifiable.is_empty(),
             "{}: the default free set must be identifiable",
@@ -191,29 +206,6 @@ fn examples_calibrate_to_the_truth_without_noise() {
     check(&planar("4-rrr"), 40);
     check(&planar("3-rrr"), 40);
     check(&planar("five-bar"), 20);
-}
-
-#[test]
-fn point_targets_are_rigid_with_the_platform() {
-    let gs = gough_stewart("gough-stewart-6");
-    let pt = PointTargets::new(gs.clone(), &[[150.0, 0.0, 60.0], [0.0, 0.0, 0.0]]).unwrap();
-    assert_eq!(
-        pt.spec().tool_axes,
-        ["t1x", "t1y", "t1z", "t2x", "t2y", "t2z"]
-    );
-    let pose = [10.0, -5.0, 720.0, 0.05, -0.03, 0.1];
-    let q = pkmcal::inverse_kinematics(&gs, &gs.spec().nominal[..gs.spec().n_geometric()], &pose)
-        .unwrap();
-    let rho = &pt.spec().nominal[..pt.spec().n_geometric()];
-    let mut x = vec![0.0; 6];
-    pt.tool(&q, rho, &mut x);
-    // The second target is the platform origin; the first is 150 mm from it,
-    // along the rotated x axis R e_x·150 + R e_z·60.
-    for k in 0..3 {
-        assert!((x[3 + k] - pose[k]).abs() < ROUND_TRIP);
-    }
-    let d = ((x[0] - x[3]).powi(2) + (x[1] - x[4]).powi(2) + (x[2] - x[5]).powi(2)).sqrt();
-    assert!((d - (150.0f64.hypot(60.0))).abs() < ROUND_TRIP);
 }
 
 #[test]

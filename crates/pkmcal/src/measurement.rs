@@ -1,0 +1,579 @@
+//! Measurement models: what the instrument observes of the tool, with its own
+//! parameters and exact derivatives (docs/model.md §7).
+//!
+//! The mechanism predicts its tool coordinates `x` (base frame) at a pose; a
+//! [`MeasurementModel`] turns them into what the instrument reads,
+//! `y = h(x, m)`, where `m` are the instrument's parameters:
+//!
+//! | [`Instrument`] | reads | own parameters |
+//! |---|---|---|
+//! | `Tool` | any subset of the tool coordinates (e.g. only `z`) | — |
+//! | `Targets` | positions of points fixed on the tool body | `t1x t1y [t1z] …` (mm, tool frame) |
+//! | `BallBar` | distances `|b − s_j| + d` from the ball `b` to sockets `s_j` | `s1x s1y [s1z] … dbar`, and `ball.x ball.y [ball.z]` on a tool with an orientation |
+//!
+//! followed by the instrument frame's parameters (`frame.x …`, [`crate::frame`])
+//! unless the data are in the base frame ([`Frame::Base`]). A ball bar has no
+//! frame of its own: its sockets fix it. Identification appends `m` to the
+//! mechanism's parameters; the instrument's own are fixed unless freed by
+//! name, the frame's are free with [`Frame::Free`].
+//!
+//! A new instrument (a probe on a plane, distances between two poses) is one
+//! new variant: its readings, names, units and parameters below.
+
+use crate::ballbar::Setup;
+use crate::error::{Error, Result};
+use crate::frame::{self, ToolLayout};
+use crate::gough_stewart::transform;
+use crate::mechanism::{Scalar, Spec};
+use crate::units::Unit;
+use nalgebra::DMatrix;
+use num_dual::Dual64;
+use serde::Serialize;
+
+/// Where the measuring instrument stands relative to the base frame.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Frame {
+    /// The data are in the base frame (ball-bar sockets at known places, a
+    /// frame already registered).
+    Base,
+    /// At this known pose ([`crate::frame`]: `x, y, phi` or
+    /// `x, y, z, rx, ry, rz`).
+    Known(Vec<f64>),
+    /// Unknown (a tracker or camera where it was put): identified with the
+    /// rest, from a start found by rigid registration.
+    Free,
+}
+
+/// What the instrument observes.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Instrument {
+    /// Tool coordinates: these axes (indices into the mechanism's tool axes,
+    /// in the order they are read).
+    Tool {
+        /// Indices of the axes read.
+        axes: Vec<usize>,
+    },
+    /// Positions of points fixed on the tool body (e.g. tracker targets on a
+    /// platform), given in the tool frame (mm); read as `t1x t1y [t1z] t2x …`.
+    Targets {
+        /// Nominal positions in the tool frame.
+        points: Vec<Vec<f64>>,
+    },
+    /// Ball-bar distances from a ball fixed on the tool to sockets fixed on
+    /// the base; read as `d1 d2 …`.
+    BallBar {
+        /// Sockets and bar offset.
+        setup: Setup,
+        /// Ball centre in the tool frame (mm): empty when the tool is a point
+        /// (the ball is the tool point), else its nominal offset.
+        ball: Vec<f64>,
+    },
+}
+
+/// A measurement model for one mechanism: the instrument, its frame, and the
+/// names, units and nominal values of what it reads and of its parameters.
+/// Built by [`MeasurementModel::tool`], [`MeasurementModel::tool_axes`],
+/// [`MeasurementModel::targets`] or [`MeasurementModel::ball_bar`], each
+/// checked against the mechanism.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MeasurementModel {
+    instrument: Instrument,
+    frame: Frame,
+    tool: ToolLayout,
+    tool_axes: Vec<String>,
+    axes: Vec<String>,
+    units: Vec<Unit>,
+    names: Vec<String>,
+    param_units: Vec<Unit>,
+    nominal: Vec<f64>,
+    n_own: usize,
+}
+
+/// A summary of a measurement model for reports.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct MeasurementSummary {
+    /// `tool`, `targets` or `ball_bar`.
+    pub kind: &'static str,
+    /// What is read, in data-column order.
+    pub axes: Vec<String>,
+    /// Unit of each.
+    pub units: Vec<Unit>,
+    /// `base`, `known` or `free`.
+    pub frame: &'static str,
+}
+
+/// Dimension of the tool's body points (2 in the plane, 3 in space), and
+/// whether the tool has an orientation (so that a point off the tool point
+/// moves differently).
+fn body(layout: ToolLayout) -> Option<(usize, bool)> {
+    match layout {
+        ToolLayout::PlanarPoint => Some((2, false)),
+        ToolLayout::PlanarPose => Some((2, true)),
+        ToolLayout::SpatialPose => Some((3, true)),
+        ToolLayout::Points { dim, count: 1 } => Some((dim, false)),
+        _ => None,
+    }
+}
+
+/// The base-frame position of the body point `t` (tool frame) of a tool at
+/// `x`: `p + R t` on a tool with an orientation, the tool point otherwise.
+fn body_point<D: Scalar>(layout: ToolLayout, x: &[D], t: &[D]) -> [D; 3] {
+    let zero = D::from(0.0);
+    match layout {
+        ToolLayout::PlanarPose => {
+            let (s, c) = x[2].sin_cos();
+            [x[0] + c * t[0] - s * t[1], x[1] + s * t[0] + c * t[1], zero]
+        }
+        ToolLayout::SpatialPose => transform(x, [t[0], t[1], t[2]]),
+        _ => {
+            let mut p = [zero; 3];
+            let dim = body(layout).map_or(0, |b| b.0).min(x.len());
+            p[..dim].copy_from_slice(&x[..dim]);
+            p
+        }
+    }
+}
+
+const COORD: [&str; 3] = ["x", "y", "z"];
+
+impl MeasurementModel {
+    fn build(spec: &Spec, instrument: Instrument) -> Self {
+        let (axes, units, names, nominal) = match &instrument {
+            Instrument::Tool { axes } => (
+                axes.iter().map(|&a| spec.tool_axes[a].clone()).collect(),
+                axes.iter().map(|&a| spec.tool_units[a]).collect(),
+                vec![],
+                vec![],
+            ),
+            Instrument::Targets { points } => {
+                let mut names = vec![];
+                let mut nominal = vec![];
+                for (j, p) in points.iter().enumerate() {
+                    for (c, v) in COORD.iter().zip(p) {
+                        names.push(format!("t{}{c}", j + 1));
+                        nominal.push(*v);
+                    }
+                }
+                let units = vec![Unit::Millimetre; names.len()];
+                (names.clone(), units, names, nominal)
+            }
+            Instrument::BallBar { setup, ball } => {
+                let mut names = vec![];
+                let mut nominal = vec![];
+                for (j, s) in setup.sockets.iter().enumerate() {
+                    for (c, v) in COORD.iter().zip(s) {
+                        names.push(format!("s{}{c}", j + 1));
+                        nominal.push(*v);
+                    }
+                }
+                names.push("dbar".into());
+                nominal.push(setup.bar_offset);
+                for (c, v) in COORD.iter().zip(ball) {
+                    names.push(format!("ball.{c}"));
+                    nominal.push(*v);
+                }
+                let k = setup.sockets.len();
+                (
+                    (1..=k).map(|j| format!("d{j}")).collect(),
+                    vec![Unit::Millimetre; k],
+                    names,
+                    nominal,
+                )
+            }
+        };
+        let n_own = names.len();
+        Self {
+            instrument,
+            frame: Frame::Base,
+            tool: spec.tool_layout,
+            tool_axes: spec.tool_axes.clone(),
+            axes,
+            units,
+            param_units: vec![Unit::Millimetre; n_own],
+            names,
+            nominal,
+            n_own,
+        }
+    }
+
+    /// Every tool coordinate, in the base frame: the mechanism's own data.
+    pub fn tool(spec: &Spec) -> Self {
+        Self::build(
+            spec,
+            Instrument::Tool {
+                axes: (0..spec.tool_axes.len()).collect(),
+            },
+        )
+    }
+
+    /// The tool coordinates named `axes` (e.g. only `z`), in that order.
+    pub fn tool_axes<S: AsRef<str>>(spec: &Spec, axes: &[S]) -> Result<Self> {
+        if axes.is_empty() {
+            return Err(Error::InvalidRequest(format!(
+                "name at least one tool axis to measure ({})",
+                spec.tool_axes.join(" ")
+            )));
+        }
+        let mut idx = vec![];
+        for a in axes {
+            let a = a.as_ref();
+            let i = spec.tool_axes.iter().position(|t| t == a).ok_or_else(|| {
+                Error::InvalidRequest(format!(
+                    "`{a}` is not a tool axis of `{}`; its axes are {}",
+                    spec.name,
+                    spec.tool_axes.join(" ")
+                ))
+            })?;
+            if idx.contains(&i) {
+                return Err(Error::InvalidRequest(format!(
+                    "tool axis `{a}` is named twice"
+                )));
+            }
+            idx.push(i);
+        }
+        Ok(Self::build(spec, Instrument::Tool { axes: idx }))
+    }
+
+    /// Points fixed on the tool body at `points` (tool frame, mm), whose
+    /// positions are read. The tool needs an orientation (a planar or
+    /// spatial pose).
+    pub fn targets(spec: &Spec, points: &[Vec<f64>]) -> Result<Self> {
+        let dim = match body(spec.tool_layout) {
+            Some((dim, true)) => dim,
+            _ => {
+                return Err(Error::InvalidMechanism(format!(
+                    "target points need a tool with an orientation (a planar or spatial pose); the tool of `{}` is {}",
+                    spec.name,
+                    spec.tool_axes.join(" ")
+                )));
+            }
+        };
+        if points.is_empty() {
+            return Err(Error::InvalidRequest(
+                "give at least one target point".into(),
+            ));
+        }
+        for (j, p) in points.iter().enumerate() {
+            if p.len() != dim || p.iter().any(|v| !v.is_finite()) {
+                return Err(Error::InvalidRequest(format!(
+                    "target {} needs {dim} finite coordinates (tool frame, mm), got {p:?}",
+                    j + 1
+                )));
+            }
+        }
+        Ok(Self::build(
+            spec,
+            Instrument::Targets {
+                points: points.to_vec(),
+            },
+        ))
+    }
+
+    /// A ball bar between sockets on the base (`setup`, base frame) and a
+    /// ball on the tool point (on a tool with an orientation, the ball's
+    /// offset `ball.x …` is a parameter, nominally 0).
+    pub fn ball_bar(spec: &Spec, setup: &Setup) -> Result<Self> {
+        let (dim, oriented) = body(spec.tool_layout).ok_or_else(|| {
+            Error::InvalidMechanism(format!(
+                "a ball bar measures one tool point; the tool of `{}` ({}) has none",
+                spec.name,
+                spec.tool_axes.join(" ")
+            ))
+        })?;
+        setup.validate(dim)?;
+        Ok(Self::build(
+            spec,
+            Instrument::BallBar {
+                setup: setup.clone(),
+                ball: if oriented { vec![0.0; dim] } else { vec![] },
+            },
+        ))
+    }
+
+    /// The same model with the instrument at `frame`. A ball bar has no frame
+    /// (its sockets are in the base frame): only [`Frame::Base`] is accepted.
+    pub fn in_frame(mut self, frame: Frame) -> Result<Self> {
+        let layout = self.frame_layout();
+        let size = layout.frame_size();
+        if size == 0 && frame != Frame::Base {
+            return Err(Error::InvalidRequest(
+                "a ball bar's sockets are in the base frame: it has no instrument frame to identify or give".into(),
+            ));
+        }
+        self.names.truncate(self.n_own);
+        self.param_units.truncate(self.n_own);
+        self.nominal.truncate(self.n_own);
+        match &frame {
+            Frame::Base => {}
+            Frame::Known(f) => {
+                if f.len() != size || f.iter().any(|v| !v.is_finite()) {
+                    return Err(Error::Dimension {
+                        what: format!("instrument frame ({})", layout.frame_names().join(" ")),
+                        expected: size,
+                        got: f.len(),
+                    });
+                }
+                self.nominal.extend(f);
+            }
+            Frame::Free => self.nominal.extend(vec![0.0; size]),
+        }
+        if frame != Frame::Base {
+            self.names.extend(layout.frame_names());
+            self.param_units.extend(layout.frame_units());
+        }
+        self.frame = frame;
+        Ok(self)
+    }
+
+    /// The instrument.
+    pub fn instrument(&self) -> &Instrument {
+        &self.instrument
+    }
+    /// Where the instrument stands.
+    pub fn frame(&self) -> &Frame {
+        &self.frame
+    }
+    /// Names of the readings (data columns), in order.
+    pub fn axes(&self) -> &[String] {
+        &self.axes
+    }
+    /// Unit of each reading.
+    pub fn units(&self) -> &[Unit] {
+        &self.units
+    }
+    /// Number of readings per pose.
+    pub fn len(&self) -> usize {
+        self.axes.len()
+    }
+    /// Whether a pose has no reading (never, for a built model).
+    pub fn is_empty(&self) -> bool {
+        self.axes.is_empty()
+    }
+    /// Names of the model's parameters: its own, then the frame's.
+    pub fn param_names(&self) -> &[String] {
+        &self.names
+    }
+    /// Units of the model's parameters.
+    pub fn param_units(&self) -> &[Unit] {
+        &self.param_units
+    }
+    /// Nominal values of the model's parameters (the frame's: the known
+    /// pose, or 0 before registration).
+    pub fn nominal(&self) -> &[f64] {
+        &self.nominal
+    }
+    /// Number of parameters.
+    pub fn n_params(&self) -> usize {
+        self.names.len()
+    }
+    /// Indices (into [`MeasurementModel::param_names`]) of the frame's
+    /// parameters.
+    pub fn frame_range(&self) -> std::ops::Range<usize> {
+        self.n_own..self.names.len()
+    }
+    /// Index of parameter `name` in the identification vector: the
+    /// mechanism's parameters, then this model's.
+    pub fn index_of(&self, spec: &Spec, name: &str) -> Result<usize> {
+        if let Some(i) = self.names.iter().position(|n| n == name) {
+            return Ok(spec.n_params() + i);
+        }
+        spec.param_index(name).map_err(|_| Error::UnknownParameter {
+            name: name.to_string(),
+            known: self.all_names(spec).join(" "),
+        })
+    }
+
+    /// Names of the identification vector: the mechanism's, then this
+    /// model's.
+    pub fn all_names(&self, spec: &Spec) -> Vec<String> {
+        spec.param_names()
+            .iter()
+            .map(|s| s.to_string())
+            .chain(self.names.iter().cloned())
+            .collect()
+    }
+
+    /// Whether this model reads every tool coordinate in order.
+    pub fn is_whole_tool(&self) -> bool {
+        matches!(&self.instrument, Instrument::Tool { axes }
+            if axes.len() == self.tool_axes.len() && axes.iter().enumerate().all(|(i, a)| i == *a))
+    }
+
+    /// How a change of the instrument's frame acts: on the tool coordinates
+    /// (then the axes read are picked), on the target points, or not at all.
+    fn frame_layout(&self) -> ToolLayout {
+        match &self.instrument {
+            Instrument::Tool { .. } => self.tool,
+            Instrument::Targets { points } => ToolLayout::Points {
+                dim: points.first().map_or(3, Vec::len),
+                count: points.len(),
+            },
+            Instrument::BallBar { .. } => ToolLayout::Readings,
+        }
+    }
+
+    /// The summary for reports.
+    pub fn summary(&self) -> MeasurementSummary {
+        MeasurementSummary {
+            kind: match self.instrument {
+                Instrument::Tool { .. } => "tool",
+                Instrument::Targets { .. } => "targets",
+                Instrument::BallBar { .. } => "ball_bar",
+            },
+            axes: self.axes.clone(),
+            units: self.units.clone(),
+            frame: match self.frame {
+                Frame::Base => "base",
+                Frame::Known(_) => "known",
+                Frame::Free => "free",
+            },
+        }
+    }
+
+    /// A one-line description ("x y phi", "3 target points", "ball bar, 3
+    /// sockets").
+    pub fn describe(&self) -> String {
+        match &self.instrument {
+            Instrument::Tool { .. } => format!("tool coordinates {}", self.axes.join(" ")),
+            Instrument::Targets { points } => format!("{} target point(s)", points.len()),
+            Instrument::BallBar { setup, .. } => {
+                format!("ball bar, {} sockets", setup.sockets.len())
+            }
+        }
+    }
+
+    /// The readings `y = h(x, m)` of a tool at `x` (base frame) under the
+    /// model's parameters `m`.
+    pub fn observe<D: Scalar>(&self, x: &[D], m: &[D], y: &mut [D]) {
+        let f = &m[self.n_own..];
+        let zero = D::from(0.0);
+        match &self.instrument {
+            Instrument::Tool { axes } => {
+                let mut full = [zero; 6];
+                let n = x.len();
+                if self.frame == Frame::Base {
+                    full[..n].copy_from_slice(x);
+                } else {
+                    frame::observe(self.tool, x, f, &mut full[..n]);
+                }
+                for (out, &a) in y.iter_mut().zip(axes) {
+                    *out = full[a];
+                }
+            }
+            Instrument::Targets { points } => {
+                let dim = points.first().map_or(3, Vec::len);
+                for j in 0..points.len() {
+                    let p = body_point(self.tool, x, &m[dim * j..dim * (j + 1)]);
+                    y[dim * j..dim * (j + 1)].copy_from_slice(&p[..dim]);
+                }
+                if self.frame != Frame::Base {
+                    let base = y.to_vec();
+                    frame::observe(self.frame_layout(), &base, f, y);
+                }
+            }
+            Instrument::BallBar { setup, ball } => {
+                let (k, dim) = (setup.sockets.len(), body(self.tool).map_or(2, |b| b.0));
+                let b = if ball.is_empty() {
+                    body_point(self.tool, x, &[])
+                } else {
+                    body_point(self.tool, x, &m[k * dim + 1..k * dim + 1 + dim])
+                };
+                let offset = m[k * dim];
+                for (j, out) in y.iter_mut().enumerate().take(k) {
+                    let mut sum = zero;
+                    for (a, bc) in b.iter().enumerate().take(dim) {
+                        let d = *bc - m[j * dim + a];
+                        sum += d * d;
+                    }
+                    *out = sum.sqrt() + offset;
+                }
+            }
+        }
+    }
+
+    /// [`MeasurementModel::observe`] and its exact derivatives (dual numbers)
+    /// with respect to the tool coordinates and to the model's parameters.
+    pub fn observe_jacobian(&self, x: &[f64], m: &[f64]) -> (Vec<f64>, DMatrix<f64>, DMatrix<f64>) {
+        let (nx, nm, ny) = (x.len(), m.len(), self.len());
+        let mut y = vec![0.0; ny];
+        self.observe(x, m, &mut y);
+        let mut dx = DMatrix::zeros(ny, nx);
+        let mut dm = DMatrix::zeros(ny, nm);
+        let mut xd: Vec<Dual64> = x.iter().map(|&v| Dual64::from(v)).collect();
+        let mut md: Vec<Dual64> = m.iter().map(|&v| Dual64::from(v)).collect();
+        let mut out = vec![Dual64::from(0.0); ny];
+        for j in 0..nx + nm {
+            if j < nx {
+                xd[j] = Dual64::from(x[j]).derivative();
+            } else {
+                md[j - nx] = Dual64::from(m[j - nx]).derivative();
+            }
+            self.observe(&xd, &md, &mut out);
+            for (i, o) in out.iter().enumerate() {
+                if j < nx {
+                    dx[(i, j)] = o.eps;
+                } else {
+                    dm[(i, j - nx)] = o.eps;
+                }
+            }
+            if j < nx {
+                xd[j] = Dual64::from(x[j]);
+            } else {
+                md[j - nx] = Dual64::from(m[j - nx]);
+            }
+        }
+        (y, dx, dm)
+    }
+
+    /// The base-frame tool coordinates behind readings `y` of the whole tool
+    /// (`None` for any other model: its readings are compared as read).
+    pub fn to_base(&self, y: &[f64], m: &[f64]) -> Option<Vec<f64>> {
+        if !self.is_whole_tool() {
+            return None;
+        }
+        Some(match self.frame {
+            Frame::Base => y.to_vec(),
+            _ => frame::to_base(self.tool, y, &m[self.n_own..]),
+        })
+    }
+
+    /// The model's parameters `own` (its own, the frame's ignored) with the
+    /// frame found by rigid registration of the readings onto those of tools
+    /// at `predicted` (Kabsch/Horn, [`crate::frame::register`]): a start near
+    /// the solution wherever the instrument stands. Models whose readings are
+    /// not whole positions (a subset of axes) keep the frame of `own`.
+    pub fn registered(
+        &self,
+        own: &[f64],
+        predicted: &[Vec<f64>],
+        measured: &[Vec<f64>],
+    ) -> Result<Vec<f64>> {
+        let mut m = own.to_vec();
+        if self.frame_range().is_empty() {
+            return Ok(m);
+        }
+        let positions = match &self.instrument {
+            Instrument::Tool { .. } => self.is_whole_tool(),
+            Instrument::Targets { .. } => true,
+            Instrument::BallBar { .. } => false,
+        };
+        if !positions {
+            return Ok(m);
+        }
+        // Readings of the predicted tools with the instrument in the base
+        // frame, registered onto the measured readings.
+        let base = self.clone().in_frame(Frame::Base)?;
+        let own_only = &m[..self.n_own];
+        let reference: Vec<Vec<f64>> = predicted
+            .iter()
+            .map(|x| {
+                let mut y = vec![0.0; self.len()];
+                base.observe(x, own_only, &mut y);
+                y
+            })
+            .collect();
+        let f = frame::register(self.frame_layout(), &reference, measured)?;
+        m[self.n_own..].copy_from_slice(&f);
+        Ok(m)
+    }
+}
