@@ -1,0 +1,250 @@
+//! Every instrument on one path: ball-bar readings, target points on a
+//! planar tool seen from a tracker, and a subset of the tool axes, through
+//! simulate, calibrate (with --report-dir, --kfold, --validate) and analyze.
+
+mod common;
+use common::{example, fails, json, ok, read_csv};
+
+/// The report directory holds the page and its figures.
+fn assert_report(dir: &std::path::Path) {
+    let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
+    assert!(html.contains("<svg"), "no inline figure");
+    assert!(dir.join("errors.svg").exists());
+}
+
+#[test]
+fn ball_bar_readings_get_a_report_and_cross_validation() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("setup.toml"),
+        "bar_offset = 0.0\nsockets = [[-250.0, -60.0], [260.0, -40.0], [20.0, 480.0]]\n",
+    )
+    .unwrap();
+    std::fs::write(d.join("truth.toml"), "l11 = 280.4\ndq3 = -0.0012\n").unwrap();
+    for (out, grid, seed) in [("bb.csv", "30", "1"), ("val.csv", "12", "2")] {
+        ok(
+            d,
+            &[
+                "simulate",
+                "--truth",
+                "truth.toml",
+                "--grid",
+                grid,
+                "--setup",
+                "setup.toml",
+                "--noise",
+                "0.002",
+                "--seed",
+                seed,
+                "--out",
+                out,
+            ],
+        );
+    }
+    let out = ok(
+        d,
+        &[
+            "calibrate",
+            "--data",
+            "bb.csv",
+            "--setup",
+            "setup.toml",
+            "--out",
+            "p.toml",
+            "--report",
+            "r.json",
+            "--report-dir",
+            "rep",
+            "--kfold",
+            "3",
+            "--validate",
+            "val.csv",
+            "--quiet",
+        ],
+    );
+    assert!(out.contains("D1min mm"), "{out}");
+    assert_report(&d.join("rep"));
+    let r = json(&d.join("r.json"));
+    assert_eq!(r["measurement"]["kind"], "ball_bar");
+    assert_eq!(r["measurement"]["axes"][2], "d3");
+    assert!(
+        r["validation"]["accuracy"]["after"]["distance_max"]
+            .as_f64()
+            .unwrap()
+            < 0.05
+    );
+    assert_eq!(r["cross_validation"]["folds"], 3);
+    // The parameter file holds the mechanism's parameters only.
+    let p = std::fs::read_to_string(d.join("p.toml")).unwrap();
+    assert!(p.contains("l11 = ") && !p.contains("dbar"), "{p}");
+    fails(
+        d,
+        &[
+            "calibrate",
+            "--data",
+            "bb.csv",
+            "--setup",
+            "setup.toml",
+            "--out",
+            "p2.toml",
+            "--frame",
+            "free",
+        ],
+        1,
+        "sockets are in the base frame",
+    );
+}
+
+#[test]
+fn targets_on_a_planar_tool_seen_from_a_tracker() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut text = std::fs::read_to_string(example("3-rrr")).unwrap();
+    text.push_str("\n[[target]]\nat = [40.0, 0.0]\n\n[[target]]\nat = [-20.0, 35.0]\n");
+    std::fs::write(d.join("m.toml"), text).unwrap();
+    ok(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            "m.toml",
+            "--grid",
+            "30",
+            "--measure-targets",
+            "--instrument-frame",
+            "1000,-400,0.035",
+            "--noise",
+            "0.002",
+            "--out",
+            "t.csv",
+        ],
+    );
+    let (h, _) = read_csv(&d.join("t.csv"));
+    assert_eq!(&h[h.len() - 4..], ["t1x", "t1y", "t2x", "t2y"]);
+    let out = ok(
+        d,
+        &[
+            "calibrate",
+            "--mechanism",
+            "m.toml",
+            "--data",
+            "t.csv",
+            "--out",
+            "p.toml",
+            "--report",
+            "r.json",
+            "--report-dir",
+            "rep",
+            "--quiet",
+        ],
+    );
+    assert!(out.contains("instrument frame in the base frame"), "{out}");
+    assert_report(&d.join("rep"));
+    let r = json(&d.join("r.json"));
+    assert_eq!(r["measurement"]["kind"], "targets");
+    assert_eq!(r["measurement"]["frame"], "free");
+    let frame = r["frame"].as_array().unwrap();
+    assert!(
+        (frame[0].as_f64().unwrap() - 1000.0).abs() < 2.0,
+        "{frame:?}"
+    );
+    assert!(r["accuracy"]["after"]["distance_max"].as_f64().unwrap() < 0.05);
+    let a = ok(d, &["analyze", "--mechanism", "m.toml", "--data", "t.csv"]);
+    assert!(a.contains("frame.phi"), "{a}");
+}
+
+#[test]
+fn a_subset_of_axes_is_declared_not_guessed() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let m = example("gough-stewart-6");
+    ok(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            &m,
+            "--grid",
+            "30",
+            "--axes",
+            "z",
+            "--noise",
+            "0.002",
+            "--out",
+            "z.csv",
+        ],
+    );
+    let (h, _) = read_csv(&d.join("z.csv"));
+    assert_eq!(h.last().unwrap(), "z");
+    assert!(!h.contains(&"x".to_string()));
+    fails(
+        d,
+        &[
+            "calibrate",
+            "--mechanism",
+            &m,
+            "--data",
+            "z.csv",
+            "--out",
+            "p.toml",
+        ],
+        1,
+        "say so with --axes z",
+    );
+    let out = ok(
+        d,
+        &[
+            "calibrate",
+            "--mechanism",
+            &m,
+            "--data",
+            "z.csv",
+            "--out",
+            "p.toml",
+            "--axes",
+            "z",
+            "--free",
+            "dL1,dL2,dL3,dL4,dL5,dL6",
+            "--report",
+            "r.json",
+        ],
+    );
+    assert!(out.contains("Zmin mm"), "{out}");
+    let r = json(&d.join("r.json"));
+    assert_eq!(r["measurement"]["axes"], serde_json::json!(["z"]));
+    fails(
+        d,
+        &[
+            "calibrate",
+            "--mechanism",
+            &m,
+            "--data",
+            "z.csv",
+            "--out",
+            "p.toml",
+            "--axes",
+            "z",
+            "--frame",
+            "free",
+        ],
+        1,
+        "needs whole positions",
+    );
+    fails(
+        d,
+        &[
+            "calibrate",
+            "--mechanism",
+            &m,
+            "--data",
+            "z.csv",
+            "--out",
+            "p.toml",
+            "--axes",
+            "w",
+        ],
+        1,
+        "not a tool axis",
+    );
+}
