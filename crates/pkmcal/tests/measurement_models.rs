@@ -212,3 +212,59 @@ fn targets_on_a_planar_tool_from_a_tracker_far_away() {
     assert!(acc.after.distance_max < 1e-5, "{:?}", acc.after);
     assert!(acc.before.distance_max > 1e-2, "{:?}", acc.before);
 }
+
+/// A ball bar on a Gough–Stewart platform with the ball off the tool point:
+/// its offset is identified with the leg offsets, from 3-D sockets.
+#[test]
+fn ball_offset_on_a_platform_is_identified() {
+    let gs = gough_stewart("gough-stewart-6");
+    let spec = gs.spec();
+    let nominal = MeasurementModel::ball_bar(spec, &sockets_3d()).unwrap();
+    let truth = Params::from_named(spec, [("dL2", 0.2), ("dL5", -0.1)]).unwrap();
+    // Readings with the ball at (10, −5, 30) mm in the platform frame,
+    // computed independently: the platform pose, then the ball, then the bar.
+    let targets = spread(&gs, 40);
+    let poses = simulate(&gs, &MeasurementModel::tool(spec), &truth, &targets, 0.0, 1).unwrap();
+    let setup = sockets_3d();
+    let data: Vec<Measurement> = poses
+        .into_iter()
+        .map(|m| {
+            let p = &m.measured;
+            let r = pkmcal::gough_stewart::rotation(p[3], p[4], p[5]);
+            let t = [10.0, -5.0, 30.0];
+            let ball: Vec<f64> = (0..3)
+                .map(|i| p[i] + (0..3).map(|j| r[i][j] * t[j]).sum::<f64>())
+                .collect();
+            Measurement {
+                measured: setup.distances(&ball),
+                target: None,
+                ..m
+            }
+        })
+        .collect();
+    let mut opts = CalibrationOptions::new(spec, Model::Exact);
+    let names: Vec<&str> = spec
+        .offsets
+        .iter()
+        .map(String::as_str)
+        .chain(["ball.x", "ball.y", "ball.z"])
+        .collect();
+    opts.free = names
+        .iter()
+        .map(|n| nominal.index_of(spec, n).unwrap())
+        .collect();
+    let cal = calibrate(&gs, &nominal, &data, &Params::nominal(spec), &opts).unwrap();
+    assert!(cal.warnings.is_empty(), "{:?}", cal.warnings);
+    let n = cal.measurement.len();
+    for (got, want) in cal.measurement[n - 3..].iter().zip([10.0, -5.0, 30.0]) {
+        assert!(
+            (got - want).abs() < RECOVERY,
+            "{:?}",
+            &cal.measurement[n - 3..]
+        );
+    }
+    for (name, want) in [("dL2", 0.2), ("dL5", -0.1), ("dL1", 0.0)] {
+        let got = cal.params.get(spec, name).unwrap();
+        assert!((got - want).abs() < RECOVERY, "{name}: {got}");
+    }
+}
