@@ -242,8 +242,14 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
             .collect::<Vec<_>>()
             .join("<br>"),
         escape(
-            &crate::calibrate::frame_text(cal, r.measurement)
-                .unwrap_or_else(|| "the base frame (--frame base)".into())
+            &crate::calibrate::frame_text(cal, r.measurement).unwrap_or_else(|| {
+                match r.measurement.instrument() {
+                    pkmcal::Instrument::BallBar { .. } => {
+                        "none: the ball-bar sockets are given in the base frame".into()
+                    }
+                    _ => format!("the base frame; readings: {}", r.measurement.describe()),
+                }
+            })
         ),
         env!("CARGO_PKG_VERSION")
     );
