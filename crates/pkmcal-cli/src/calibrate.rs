@@ -1,6 +1,6 @@
 //! `calibrate` and `analyze`: read data, identify, validate, report.
 
-use crate::io::{Csv, Mech, parse_list, read_mechanism, read_params, write_atomic};
+use crate::io::{Csv, Mech, parse_list, read_mechanism, read_params};
 use anyhow::{Context, Result, bail};
 use pkmcal::calibration::{CrossValidation, Identifiability};
 use pkmcal::{
@@ -510,9 +510,9 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
     };
     let json = serde_json::to_string_pretty(&report)?;
     // Write everything only after every computation succeeded.
-    write_atomic(&c.out, params_text.as_bytes())?;
+    crate::output::stage(&c.out, params_text.as_bytes())?;
     if let Some(r) = &c.report {
-        write_atomic(r, json.as_bytes())?;
+        crate::output::stage(r, json.as_bytes())?;
     }
     if let Some(dir) = &c.report_dir {
         crate::report::write_report_dir(
@@ -846,7 +846,7 @@ pub fn run_analyze(c: AnalyzeConfig) -> Result<()> {
     let id = pkmcal::analyze(mech, &measurement, &data, &params, c.model, &free, &force)
         .with_context(|| format!("analysing {}", c.data.display()))?;
     if let Some(r) = &c.report {
-        write_atomic(r, serde_json::to_string_pretty(&id)?.as_bytes())?;
+        crate::output::stage(r, serde_json::to_string_pretty(&id)?.as_bytes())?;
     }
     println!(
         "identifiability of {} free parameters from {} poses of {} ({} model)",

@@ -1,6 +1,6 @@
 //! The subcommands: each reads its inputs, calls the library, writes outputs.
 
-use crate::io::{Csv, Mech, csv_bytes, parse_list, read_mechanism, read_params, write_atomic};
+use crate::io::{Csv, Mech, csv_bytes, parse_list, read_mechanism, read_params};
 use crate::{DemoArgs, PredictArgs, SimulateArgs};
 use anyhow::{Context, Result, bail};
 use pkmcal::{ErrorStats, Mechanism, Model, Params, Prediction, predict_pose, prepare_pose};
@@ -146,7 +146,7 @@ pub fn predict(a: PredictArgs) -> Result<()> {
                 .collect()
         })
         .collect();
-    write_atomic(&a.out, &csv_bytes(&header, &rows))?;
+    crate::output::stage(&a.out, &csv_bytes(&header, &rows))?;
     eprintln!(
         "predicted {} poses with the {} model -> {}",
         rows.len(),
@@ -221,7 +221,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
     )?;
     bar.finish_and_clear();
     let base = *measurement.frame() == pkmcal::Frame::Base;
-    write_atomic(
+    crate::output::stage(
         &a.out,
         &with_frame_comment(data_csv(&mech, &measurement, &data), base),
     )?;
@@ -313,7 +313,7 @@ pub fn trilaterate(a: crate::TrilaterateArgs) -> Result<()> {
     header.extend(spec.tool_axes.iter().cloned());
     header.extend(spec.tool_axes.iter().map(|a| format!("sigma_{a}")));
     // Sockets are placed in the base frame, so are the positions.
-    write_atomic(&a.out, &with_frame_comment(csv_bytes(&header, &rows), true))?;
+    crate::output::stage(&a.out, &with_frame_comment(csv_bytes(&header, &rows), true))?;
     eprintln!(
         "trilaterated {} poses from {} sockets -> {}",
         rows.len(),
@@ -355,13 +355,26 @@ const DEMO_VALIDATION_POSES: usize = 50;
 /// Measurement noise of the demo, mm per axis (docs/model.md §10).
 const DEMO_NOISE_MM: f64 = 0.002;
 
+/// Every file `demo` writes in its directory (the report in `report/`).
+pub const DEMO_FILES: &[&str] = &[
+    "measurements.csv",
+    "validation.csv",
+    "truth.toml",
+    "params-rigid.toml",
+    "params-linear.toml",
+    "params-exact.toml",
+    "report-rigid.json",
+    "report-linear.json",
+    "report-exact.json",
+];
+
 pub fn demo(a: DemoArgs) -> Result<()> {
     use crate::calibrate::{print_identifiability, print_stats, print_stats_header};
     let mech: Mech = pkmcal::JeongKim2Dof::new().into();
     let spec = mech.spec();
     let truth = pkmcal::reference::demo_truth();
     let dir = &a.out_dir;
-    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    crate::output::create_dir(dir)?;
     let targets: Vec<Vec<f64>> = pkmcal::spread_targets(&mech, 35)?
         .into_iter()
         .map(|p| p.target)
@@ -370,15 +383,15 @@ pub fn demo(a: DemoArgs) -> Result<()> {
     let data = pkmcal::simulate(&mech, &tool, &truth, &targets, DEMO_NOISE_MM, a.seed)?;
     let vtargets = pkmcal::random_targets(&mech, DEMO_VALIDATION_POSES, a.seed + 1)?;
     let vdata = pkmcal::simulate(&mech, &tool, &truth, &vtargets, DEMO_NOISE_MM, a.seed + 2)?;
-    write_atomic(
+    crate::output::stage(
         &dir.join("measurements.csv"),
         &with_frame_comment(data_csv(&mech, &tool, &data), true),
     )?;
-    write_atomic(
+    crate::output::stage(
         &dir.join("validation.csv"),
         &with_frame_comment(data_csv(&mech, &tool, &vdata), true),
     )?;
-    write_atomic(
+    crate::output::stage(
         &dir.join("truth.toml"),
         crate::io::params_to_string(spec, &truth, "true parameters of the demo (simulated)")
             .as_bytes(),
@@ -436,7 +449,7 @@ pub fn demo(a: DemoArgs) -> Result<()> {
             vacc.after,
         ));
         let name = model.name();
-        write_atomic(
+        crate::output::stage(
             &dir.join(format!("params-{name}.toml")),
             crate::io::params_to_string(
                 spec,
@@ -445,7 +458,7 @@ pub fn demo(a: DemoArgs) -> Result<()> {
             )
             .as_bytes(),
         )?;
-        write_atomic(
+        crate::output::stage(
             &dir.join(format!("report-{name}.json")),
             serde_json::to_string_pretty(&cal)?.as_bytes(),
         )?;

@@ -5,7 +5,6 @@ use anyhow::{Context, Result, bail};
 use pkmcal::{AnyMechanism, JeongKim2Dof, Mechanism, Params, Spec};
 use serde::Deserialize;
 use std::collections::BTreeMap;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// A CSV file read whole, with its header.
@@ -132,6 +131,48 @@ impl Csv {
     }
 }
 
+/// A reader that hands a copy of every byte it passes on to a
+/// [`LineCounter`] ([`tee`]), so that a stream (a pipe) is read once.
+pub struct Tee<R> {
+    inner: R,
+    copy: std::rc::Rc<std::cell::RefCell<std::collections::VecDeque<u8>>>,
+}
+
+impl<R: std::io::Read> std::io::Read for Tee<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.copy.borrow_mut().extend(&buf[..n]);
+        Ok(n)
+    }
+}
+
+/// The bytes a [`Tee`] has passed on and the line counter not yet read.
+pub struct Copied(std::rc::Rc<std::cell::RefCell<std::collections::VecDeque<u8>>>);
+
+impl std::io::Read for Copied {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let mut q = self.0.borrow_mut();
+        let n = q.len().min(buf.len());
+        for (b, v) in buf.iter_mut().zip(q.drain(..n)) {
+            *b = v;
+        }
+        Ok(n)
+    }
+}
+
+/// A reader for the CSV parser and a line counter over the same bytes,
+/// reading the source once.
+pub fn tee<R: std::io::Read>(r: R) -> (Tee<R>, LineCounter<Copied>) {
+    let copy = std::rc::Rc::new(std::cell::RefCell::new(std::collections::VecDeque::new()));
+    (
+        Tee {
+            inner: r,
+            copy: copy.clone(),
+        },
+        LineCounter::new(Copied(copy)),
+    )
+}
+
 /// Line numbers from byte offsets, reading forward through a second copy of
 /// the stream. (The csv crate's own line count is off for CRLF files.)
 pub struct LineCounter<R: std::io::Read> {
@@ -219,34 +260,6 @@ pub fn column_index(path: &Path, headers: &[String], name: &str) -> Result<usize
             hits.len()
         ),
     }
-}
-
-/// Write a file atomically: to a temporary file in the same directory, then
-/// rename over the target. A failure leaves an earlier file untouched.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .with_context(|| format!("{} is not a file name", path.display()))?;
-    let tmp = dir.join(format!(
-        ".{}.tmp-{}",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
-    let result = (|| -> std::io::Result<()> {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if let Err(e) = result {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(e).with_context(|| format!("cannot write {}", path.display()));
-    }
-    Ok(())
 }
 
 /// CSV text from a header and rows of numbers (shortest round-trip format).

@@ -5,6 +5,7 @@ mod calibrate;
 mod commands;
 mod figures;
 mod io;
+mod output;
 mod report;
 mod usecal;
 
@@ -402,9 +403,109 @@ pub struct DemoArgs {
     pub seed: u64,
 }
 
+/// The files a command reads and writes, checked before any work
+/// ([`output::check`]).
+fn check_paths(command: &Command) -> anyhow::Result<()> {
+    use std::path::Path;
+    let m = |a: &MechanismArg| a.mechanism.clone();
+    let mut dirs: Vec<PathBuf> = vec![];
+    let (inputs, outputs): (Vec<Option<PathBuf>>, Vec<PathBuf>) = match command {
+        Command::Predict(a) => (
+            vec![
+                m(&a.mech),
+                a.params.clone(),
+                Some(a.commands.clone()),
+                a.uncertainty.clone(),
+            ],
+            vec![a.out.clone()],
+        ),
+        Command::Simulate(a) => (
+            vec![
+                m(&a.mech),
+                a.truth.clone(),
+                a.targets.clone(),
+                a.setup.clone(),
+            ],
+            vec![a.out.clone()],
+        ),
+        Command::Trilaterate(a) => (
+            vec![m(&a.mech), a.setup.clone(), Some(a.data.clone())],
+            vec![a.out.clone()],
+        ),
+        Command::Calibrate(a) => {
+            let mut out = vec![a.out.clone()];
+            out.extend(a.report.clone());
+            if let Some(d) = &a.report_dir {
+                out.extend(output::in_dir(d, report::FILES)?);
+                dirs.push(d.clone());
+            }
+            (
+                vec![
+                    m(&a.mech),
+                    Some(a.data.clone()),
+                    a.start.clone(),
+                    a.validate.clone(),
+                    a.setup.clone(),
+                ],
+                out,
+            )
+        }
+        Command::Analyze(a) => (
+            vec![
+                m(&a.mech),
+                Some(a.data.clone()),
+                a.params.clone(),
+                a.setup.clone(),
+            ],
+            a.report.iter().cloned().collect(),
+        ),
+        Command::Compensate(a) => (
+            vec![m(&a.mech), a.params.clone(), Some(a.targets.clone())],
+            vec![a.out.clone()],
+        ),
+        Command::Plan(a) => {
+            let mut out = vec![a.out.clone()];
+            out.extend(a.grid_out.clone());
+            (vec![m(&a.mech), a.params.clone()], out)
+        }
+        Command::Montecarlo(a) => (
+            vec![m(&a.mech), Some(a.poses.clone())],
+            a.out.iter().cloned().collect(),
+        ),
+        Command::Demo(a) => {
+            let mut out = output::in_dir(&a.out_dir, commands::DEMO_FILES)?;
+            out.extend(output::in_dir(&a.out_dir.join("report"), report::FILES)?);
+            dirs.push(a.out_dir.clone());
+            (vec![], out)
+        }
+    };
+    let inputs: Vec<PathBuf> = inputs.into_iter().flatten().collect();
+    let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
+    let outputs: Vec<&Path> = outputs.iter().map(PathBuf::as_path).collect();
+    output::check(&inputs, &outputs, &dirs)
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let result = match cli.command {
+    output::install_cleanup();
+    let result = check_paths(&cli.command).and_then(|()| run(cli.command));
+    let result = result.and_then(|()| output::commit());
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            output::discard();
+            eprintln!("error: {e:#}");
+            if e.downcast_ref::<output::Usage>().is_some() {
+                ExitCode::from(2)
+            } else {
+                ExitCode::from(1)
+            }
+        }
+    }
+}
+
+fn run(command: Command) -> anyhow::Result<()> {
+    match command {
         Command::Predict(a) => commands::predict(a),
         Command::Simulate(a) => commands::simulate(a),
         Command::Calibrate(a) => a.model.parse().map_err(Into::into).and_then(|model| {
@@ -507,12 +608,5 @@ fn main() -> ExitCode {
         })(),
         Command::Trilaterate(a) => commands::trilaterate(a),
         Command::Demo(a) => commands::demo(a),
-    };
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e:#}");
-            ExitCode::from(1)
-        }
     }
 }

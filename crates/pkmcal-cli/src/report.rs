@@ -4,8 +4,8 @@
 
 use crate::calibrate::Validation;
 use crate::figures::{self, Figure, ParamBar};
-use crate::io::{Mech, write_atomic};
-use anyhow::{Context, Result};
+use crate::io::Mech;
+use anyhow::Result;
 use base64::Engine;
 use pkmcal::calibration::{CrossValidation, ErrorVectors, RANK_TOL};
 use pkmcal::{
@@ -15,6 +15,23 @@ use pkmcal::{
 use rayon::prelude::*;
 use std::fmt::Write;
 use std::path::Path;
+
+/// Every file `--report-dir` writes (checked against the inputs first).
+pub const FILES: &[&str] = &[
+    "report.html",
+    "errors.svg",
+    "errors.png",
+    "parameters.svg",
+    "parameters.png",
+    "workspace.svg",
+    "workspace.png",
+    "maps.svg",
+    "maps.png",
+    "residuals.svg",
+    "residuals.png",
+    "singular-values.svg",
+    "singular-values.png",
+];
 
 /// Lattice spacing of the workspace maps, mm.
 const MAP_SPACING_MM: f64 = 8.0;
@@ -376,12 +393,12 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
 
 /// Write the figures and `report.html` into `dir`.
 pub fn write_report_dir(dir: &Path, r: &ReportInputs) -> Result<()> {
-    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    crate::output::create_dir(dir)?;
     let figs = figures(r)?;
     for f in &figs {
-        write_atomic(&dir.join(format!("{}.svg", f.name)), f.svg.as_bytes())?;
-        write_atomic(&dir.join(format!("{}.png", f.name)), &f.png)?;
+        crate::output::stage(&dir.join(format!("{}.svg", f.name)), f.svg.as_bytes())?;
+        crate::output::stage(&dir.join(format!("{}.png", f.name)), &f.png)?;
     }
-    write_atomic(&dir.join("report.html"), html(r, &figs).as_bytes())?;
+    crate::output::stage(&dir.join("report.html"), html(r, &figs).as_bytes())?;
     Ok(())
 }

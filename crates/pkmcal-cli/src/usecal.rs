@@ -1,7 +1,7 @@
 //! `compensate`, `plan` and `montecarlo`: using a calibration.
 
 use crate::calibrate::free_set;
-use crate::io::{Csv, csv_bytes, parse_list, read_mechanism, read_params, write_atomic};
+use crate::io::{Csv, csv_bytes, parse_list, read_mechanism, read_params};
 use anyhow::{Context, Result, bail};
 use pkmcal::{
     CalibrationOptions, CompensationOptions, Mechanism, Model, MonteCarloOptions, Params,
@@ -10,7 +10,7 @@ use pkmcal::{
 };
 use rayon::prelude::*;
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// Rows compensated per parallel batch (bounded memory for any file size).
 const BATCH_ROWS: usize = 1 << 16;
@@ -65,16 +65,15 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
     if c.model == Model::Linear {
         bail!("compensation inverts the exact model (or the rigid one); use --model exact");
     }
+    // Read once (a pipe works): the line counter sees a copy of the bytes.
+    let file = std::fs::File::open(&c.targets)
+        .with_context(|| format!("cannot open {}", c.targets.display()))?;
+    let (tee, mut lines) = crate::io::tee(file);
     let mut rdr = csv::ReaderBuilder::new()
         .trim(csv::Trim::All)
         .comment(Some(b'#'))
         .flexible(true)
-        .from_path(&c.targets)
-        .with_context(|| format!("cannot open {}", c.targets.display()))?;
-    let mut lines = crate::io::LineCounter::new(
-        std::fs::File::open(&c.targets)
-            .with_context(|| format!("cannot open {}", c.targets.display()))?,
-    );
+        .from_reader(tee);
     let headers: Vec<String> = rdr
         .headers()
         .with_context(|| format!("{}: cannot read the header", c.targets.display()))?
@@ -90,14 +89,9 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
         .iter()
         .map(|n| crate::io::column_index(&c.targets, &headers, n))
         .collect::<Result<_>>()?;
-    let dir = c
-        .out
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let tmp = tempfile_in(dir, &c.out)?;
+    let (file, _) = crate::output::stage_file(&c.out)?;
     let result = (|| -> Result<(usize, usize)> {
-        let mut w = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
+        let mut w = std::io::BufWriter::new(file);
         let mut header: Vec<String> = names.clone();
         header.extend(spec.actuated_names().iter().map(|s| s.to_string()));
         header.extend(spec.actuated_names().iter().map(|s| format!("torque_{s}")));
@@ -168,38 +162,18 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
         w.into_inner().map_err(|e| e.into_error())?.sync_all()?;
         Ok((done, skipped))
     })();
-    match result {
-        Ok((done, skipped)) => {
-            std::fs::rename(&tmp, &c.out)
-                .with_context(|| format!("cannot write {}", c.out.display()))?;
-            eprintln!(
-                "compensated {done} targets{} ({} model) -> {}",
-                if skipped > 0 {
-                    format!(", skipped {skipped}")
-                } else {
-                    String::new()
-                },
-                c.model.name(),
-                c.out.display()
-            );
-            Ok(())
-        }
-        Err(e) => {
-            let _ = std::fs::remove_file(&tmp);
-            Err(e)
-        }
-    }
-}
-
-fn tempfile_in(dir: &Path, out: &Path) -> Result<PathBuf> {
-    let name = out
-        .file_name()
-        .with_context(|| format!("{} is not a file name", out.display()))?;
-    Ok(dir.join(format!(
-        ".{}.tmp-{}",
-        name.to_string_lossy(),
-        std::process::id()
-    )))
+    let (done, skipped) = result?;
+    eprintln!(
+        "compensated {done} targets{} ({} model) -> {}",
+        if skipped > 0 {
+            format!(", skipped {skipped}")
+        } else {
+            String::new()
+        },
+        c.model.name(),
+        c.out.display()
+    );
+    Ok(())
 }
 
 pub struct PlanConfig {
@@ -272,9 +246,9 @@ pub fn run_plan(c: PlanConfig) -> Result<()> {
             })
             .collect()
     };
-    write_atomic(&c.out, &csv_bytes(&header, &rows(&chosen)))?;
+    crate::output::stage(&c.out, &csv_bytes(&header, &rows(&chosen)))?;
     if let Some(g) = &c.grid_out {
-        write_atomic(g, &csv_bytes(&header, &rows(&grid_idx)))?;
+        crate::output::stage(g, &csv_bytes(&header, &rows(&grid_idx)))?;
     }
     println!(
         "planned {} poses of {} candidates (spacing {} mm) maximising {:?} for {} free parameters ({} model)",
@@ -422,7 +396,7 @@ pub fn run_montecarlo(c: MonteCarloConfig) -> Result<()> {
                 .collect()
             })
             .collect();
-        write_atomic(out, &csv_bytes(&header, &rows))?;
+        crate::output::stage(out, &csv_bytes(&header, &rows))?;
         println!("runs -> {}", out.display());
     }
     Ok(())
