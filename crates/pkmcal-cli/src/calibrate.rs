@@ -195,7 +195,7 @@ pub fn free_set<M: Mechanism>(
     let index = |n: &str, option: &str| -> Result<usize> {
         let i = measurement
             .index_of(spec, n)
-            .with_context(|| format!("in {option}"))?;
+            .map_err(|e| crate::output::Usage(format!("in {option}: {e}")))?;
         if frame.contains(&i) {
             bail!(
                 "in {option}: `{n}` belongs to the instrument frame, which --frame sets (free: identified; base: the data are in the base frame)"
@@ -299,11 +299,11 @@ fn force_arg<M: Mechanism>(mech: &M, s: Option<&str>) -> Result<Vec<f64>> {
     let Some(s) = s else { return Ok(vec![]) };
     let f = parse_list(s, "--force")?;
     if f.len() != mech.spec().tool_axes.len() {
-        bail!(
+        return crate::output::usage(format!(
             "--force needs {} values, got {}",
             mech.spec().tool_axes.len(),
             f.len()
-        );
+        ));
     }
     Ok(f)
 }
@@ -332,7 +332,8 @@ pub fn measurement_of(
     let file = csv.path.display();
     let m = if let Some(axes) = axes {
         let names: Vec<&str> = axes.split(',').map(str::trim).collect();
-        MeasurementModel::tool_axes(spec, &names).context("in --axes")?
+        MeasurementModel::tool_axes(spec, &names)
+            .map_err(|e| crate::output::Usage(format!("in --axes: {e}")))?
     } else if whole {
         MeasurementModel::tool(spec)
     } else if has("t1x") {
@@ -387,14 +388,16 @@ pub fn measurement_of(
         && !positions
         && frame == "free"
     {
-        bail!(
+        return crate::output::usage(format!(
             "--frame free needs whole positions to register the instrument frame; {file} reads only {}",
             m.axes().join(", ")
-        );
+        ));
     }
     let no_frame = matches!(m.instrument(), pkmcal::Instrument::BallBar { .. });
     if no_frame && choice == Frame::Free && frame == "free" {
-        bail!("--frame free: a ball bar's sockets are in the base frame; drop --frame");
+        return crate::output::usage(
+            "--frame free: a ball bar's sockets are in the base frame; drop --frame",
+        );
     }
     if no_frame || spec.tool_layout.frame_size() == 0 {
         return Ok(m);
@@ -429,7 +432,9 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
     // Validation data: a description, the file it came from, the poses.
     type Held = Option<(String, PathBuf, Vec<Measurement>)>;
     let (train, held): (Vec<Measurement>, Held) = match (&c.validate, c.holdout) {
-        (Some(_), Some(_)) => bail!("give either --validate FILE or --holdout F, not both"),
+        (Some(_), Some(_)) => {
+            return crate::output::usage("give either --validate FILE or --holdout F, not both");
+        }
         (Some(v), None) => (
             all.clone(),
             Some((

@@ -88,12 +88,12 @@ pub fn predict(a: PredictArgs) -> Result<()> {
         Some(s) => {
             let f = parse_list(s, "--force")?;
             if f.len() != spec.tool_axes.len() {
-                bail!(
+                return crate::output::usage(format!(
                     "--force needs {} values ({}), got {}",
                     spec.tool_axes.len(),
                     spec.tool_axes.join(","),
                     f.len()
-                );
+                ));
             }
             f
         }
@@ -199,7 +199,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         }
         (None, Some(n)) => {
             if n == 0 {
-                bail!("--grid needs at least one target");
+                return crate::output::usage("--grid needs at least one target");
             }
             pkmcal::spread_targets(&mech, n)?
                 .into_iter()
@@ -254,14 +254,15 @@ fn simulated_measurement(mech: &Mech, a: &SimulateArgs) -> Result<pkmcal::Measur
     } else if a.measure_targets {
         let points = crate::io::read_targets(a.mech.mechanism.as_deref())?;
         if points.is_empty() {
-            bail!(
-                "--measure-targets needs target points in the mechanism file: [[target]] at = [x, y, z] (tool frame, mm; [x, y] for a planar tool)"
+            return crate::output::usage(
+                "--measure-targets needs target points in the mechanism file: [[target]] at = [x, y, z] (tool frame, mm; [x, y] for a planar tool)",
             );
         }
         pkmcal::MeasurementModel::targets(spec, &points)?
     } else if let Some(axes) = &a.axes {
         let names: Vec<&str> = axes.split(',').map(str::trim).collect();
-        pkmcal::MeasurementModel::tool_axes(spec, &names).context("in --axes")?
+        pkmcal::MeasurementModel::tool_axes(spec, &names)
+            .map_err(|e| crate::output::Usage(format!("in --axes: {e}")))?
     } else {
         pkmcal::MeasurementModel::tool(spec)
     };
@@ -270,7 +271,7 @@ fn simulated_measurement(mech: &Mech, a: &SimulateArgs) -> Result<pkmcal::Measur
         Some(s) => {
             let f = crate::io::parse_list(s, "--instrument-frame")?;
             m.in_frame(pkmcal::Frame::Known(f))
-                .context("in --instrument-frame")
+                .map_err(|e| crate::output::Usage(format!("in --instrument-frame: {e}")).into())
         }
     }
 }
@@ -284,7 +285,7 @@ pub fn trilaterate(a: crate::TrilaterateArgs) -> Result<()> {
     // Checks the setup against the tool point.
     pkmcal::MeasurementModel::ball_bar(spec, &setup)?;
     if !(a.sigma.is_finite() && a.sigma >= 0.0) {
-        bail!("--sigma must be a non-negative number of mm");
+        return crate::output::usage("--sigma must be a non-negative number of mm");
     }
     let csv = Csv::read(&a.data)?;
     csv.require_rows()?;

@@ -541,7 +541,9 @@ pub fn parse_list(s: &str, what: &str) -> Result<Vec<f64>> {
                 .parse::<f64>()
                 .ok()
                 .filter(|v| v.is_finite())
-                .with_context(|| format!("{what}: `{t}` is not a finite number"))
+                .ok_or_else(|| {
+                    crate::output::Usage(format!("{what}: `{t}` is not a finite number")).into()
+                })
         })
         .collect()
 }
@@ -578,12 +580,16 @@ pub fn progress(len: u64, quiet: bool, what: &str, min_items: u64) -> indicatif:
 /// length noise over [`pkmcal::simulate::DEFAULT_ANGLE_LEVER_MM`]).
 pub fn noise_arg(mm: f64, rad: Option<f64>) -> Result<pkmcal::Noise> {
     if !(mm.is_finite() && mm >= 0.0) {
-        bail!("--noise must be a non-negative number of mm, got {mm}");
+        return crate::output::usage(format!(
+            "--noise must be a non-negative number of mm, got {mm}"
+        ));
     }
     let mut noise = pkmcal::Noise::lengths(mm);
     if let Some(r) = rad {
         if !(r.is_finite() && r >= 0.0) {
-            bail!("--angle-noise must be a non-negative number of rad, got {r}");
+            return crate::output::usage(format!(
+                "--angle-noise must be a non-negative number of rad, got {r}"
+            ));
         }
         noise.angle = r;
     }

@@ -110,16 +110,16 @@ pub struct SimulateArgs {
     )]
     pub targets: Option<PathBuf>,
     /// Instead of a targets file: N targets spread evenly over the usable workspace.
-    #[arg(long, value_name = "N")]
+    #[arg(value_parser = values::count, long, value_name = "N")]
     pub grid: Option<usize>,
     /// Standard deviation of the Gaussian noise on each length coordinate
     /// (positions, bar readings, target points), mm.
-    #[arg(long, default_value_t = 0.0, value_name = "MM")]
+    #[arg(value_parser = values::length_noise, long, default_value_t = 0.0, value_name = "MM")]
     pub noise: f64,
     /// Standard deviation of the Gaussian noise on each angle coordinate
     /// (orientations such as phi, rx, ry, rz), rad. Default: the length noise
     /// over a 200 mm lever arm (1e-5 rad for --noise 0.002).
-    #[arg(long, value_name = "RAD")]
+    #[arg(value_parser = values::angle_noise, long, value_name = "RAD")]
     pub angle_noise: Option<f64>,
     /// Random seed of the noise.
     #[arg(long, default_value_t = 1)]
@@ -164,7 +164,7 @@ pub struct TrilaterateArgs {
     #[arg(long, value_name = "DATA.csv")]
     pub data: PathBuf,
     /// Standard deviation of one reading (mm), for the positions' uncertainty.
-    #[arg(long, default_value_t = 0.002, value_name = "MM")]
+    #[arg(value_parser = values::positive, long, default_value_t = 0.002, value_name = "MM")]
     pub sigma: f64,
     /// Output CSV: targets and commands if present, x, y, sigma_x, sigma_y.
     #[arg(long, value_name = "OUT.csv")]
@@ -204,13 +204,13 @@ pub struct CalibrateArgs {
     #[arg(long, value_name = "FILE")]
     pub validate: Option<PathBuf>,
     /// Hold out this fraction of the poses for validation.
-    #[arg(long, value_name = "F")]
+    #[arg(value_parser = values::fraction, long, value_name = "F")]
     pub holdout: Option<f64>,
     /// Seed of the hold-out split and of the cross-validation folds.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// k-fold cross-validation on the calibration poses.
-    #[arg(long, value_name = "K")]
+    #[arg(value_parser = values::folds, long, value_name = "K")]
     pub kfold: Option<usize>,
     /// Write figures (SVG, PNG) and a self-contained report.html here.
     #[arg(long, value_name = "DIR")]
@@ -226,10 +226,10 @@ pub struct CalibrateArgs {
     pub loss: String,
     /// Tuning constant of the robust loss, in robust standard deviations
     /// (default: 1.345 for huber, 2.385 for cauchy).
-    #[arg(long, value_name = "K")]
+    #[arg(value_parser = values::positive, long, value_name = "K")]
     pub loss_scale: Option<f64>,
     /// Poses beyond this many robust standard deviations are reported as outliers.
-    #[arg(long, default_value_t = 4.0, value_name = "T")]
+    #[arg(value_parser = values::positive, long, default_value_t = 4.0, value_name = "T")]
     pub outlier_threshold: f64,
     /// Drop the outliers and refit.
     #[arg(long)]
@@ -320,10 +320,10 @@ pub struct PlanArgs {
     #[command(flatten)]
     pub mech: MechanismArg,
     /// Number of poses to choose.
-    #[arg(long, value_name = "N")]
+    #[arg(value_parser = values::count, long, value_name = "N")]
     pub count: usize,
     /// Spacing of the candidate lattice over the usable workspace, mm.
-    #[arg(long, default_value_t = 6.0, value_name = "SPACING")]
+    #[arg(value_parser = values::positive, long, default_value_t = 6.0, value_name = "SPACING")]
     pub candidates: f64,
     /// Observability index to maximise.
     #[arg(long, default_value = "O5", value_parser = ["O1", "O3", "O5", "o1", "o3", "o5"])]
@@ -352,14 +352,14 @@ pub struct MonteCarloArgs {
     #[arg(long, value_name = "POSES.csv")]
     pub poses: PathBuf,
     /// Number of simulated calibrations.
-    #[arg(long, default_value_t = 200)]
+    #[arg(value_parser = values::count, long, default_value_t = 200)]
     pub runs: usize,
     /// Measurement noise on each length coordinate, mm.
-    #[arg(long, default_value_t = 0.002, value_name = "MM")]
+    #[arg(value_parser = values::length_noise, long, default_value_t = 0.002, value_name = "MM")]
     pub noise: f64,
     /// Measurement noise on each angle coordinate, rad (default: the length
     /// noise over a 200 mm lever arm).
-    #[arg(long, value_name = "RAD")]
+    #[arg(value_parser = values::angle_noise, long, value_name = "RAD")]
     pub angle_noise: Option<f64>,
     /// Random seed.
     #[arg(long, default_value_t = 1)]
@@ -371,11 +371,12 @@ pub struct MonteCarloArgs {
     pub params_set: FreeArgs,
     /// Standard deviation of the random errors of the free parameters in mm
     /// (lengths, positions, offsets of prismatic actuators).
-    #[arg(long, default_value_t = 0.3, value_name = "MM")]
+    #[arg(value_parser = values::length_noise, long, default_value_t = 0.3, value_name = "MM")]
     pub length_error: f64,
     /// Standard deviation of the random errors of the free parameters in rad
     /// (encoder offsets of revolute actuators, axis angles).
     #[arg(
+        value_parser = values::angle_noise,
         long,
         default_value_t = 0.001,
         value_name = "RAD",
@@ -383,7 +384,7 @@ pub struct MonteCarloArgs {
     )]
     pub angle_error: f64,
     /// Unseen poses on which accuracy is judged.
-    #[arg(long, default_value_t = 50, value_name = "N")]
+    #[arg(value_parser = values::count, long, default_value_t = 50, value_name = "N")]
     pub validation: usize,
     /// Output CSV with one row per run.
     #[arg(long, value_name = "RUNS.csv")]
@@ -401,6 +402,64 @@ pub struct DemoArgs {
     /// Random seed of the measurement noise.
     #[arg(long, default_value_t = 2004)]
     pub seed: u64,
+}
+
+/// Option values checked by the parser (a bad value exits 2, naming the
+/// option).
+mod values {
+    /// Largest noise or error on a length that makes sense (mm).
+    pub const MAX_LENGTH_MM: f64 = 1000.0;
+    /// Largest noise or error on an angle that makes sense (rad).
+    pub const MAX_ANGLE_RAD: f64 = 1.0;
+
+    fn number(s: &str) -> Result<f64, String> {
+        s.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite())
+            .ok_or_else(|| format!("`{s}` is not a finite number"))
+    }
+    pub fn positive(s: &str) -> Result<f64, String> {
+        let v = number(s)?;
+        (v > 0.0)
+            .then_some(v)
+            .ok_or_else(|| format!("{v} must be positive"))
+    }
+    pub fn fraction(s: &str) -> Result<f64, String> {
+        let v = number(s)?;
+        (v > 0.0 && v < 1.0)
+            .then_some(v)
+            .ok_or_else(|| format!("{v} must be between 0 and 1 (exclusive)"))
+    }
+    pub fn length_noise(s: &str) -> Result<f64, String> {
+        let v = number(s)?;
+        (0.0..=MAX_LENGTH_MM)
+            .contains(&v)
+            .then_some(v)
+            .ok_or_else(|| format!("{v} mm must be between 0 and {MAX_LENGTH_MM} mm"))
+    }
+    pub fn angle_noise(s: &str) -> Result<f64, String> {
+        let v = number(s)?;
+        (0.0..=MAX_ANGLE_RAD)
+            .contains(&v)
+            .then_some(v)
+            .ok_or_else(|| format!("{v} rad must be between 0 and {MAX_ANGLE_RAD} rad"))
+    }
+    pub fn count(s: &str) -> Result<usize, String> {
+        let v: usize = s
+            .trim()
+            .parse()
+            .map_err(|_| format!("`{s}` is not a whole number"))?;
+        (v >= 1)
+            .then_some(v)
+            .ok_or_else(|| "must be at least 1".to_string())
+    }
+    pub fn folds(s: &str) -> Result<usize, String> {
+        let v = count(s)?;
+        (v >= 2)
+            .then_some(v)
+            .ok_or_else(|| "k-fold cross-validation needs at least 2 folds".to_string())
+    }
 }
 
 /// The files a command reads and writes, checked before any work
@@ -513,10 +572,10 @@ fn run(command: Command) -> anyhow::Result<()> {
             if let Some(k) = k
                 && !(k.is_finite() && k > 0.0)
             {
-                anyhow::bail!("--loss-scale must be a positive number");
+                return crate::output::usage("--loss-scale must be a positive number");
             }
             if !(a.outlier_threshold.is_finite() && a.outlier_threshold > 0.0) {
-                anyhow::bail!("--outlier-threshold must be a positive number");
+                return crate::output::usage("--outlier-threshold must be a positive number");
             }
             let loss = match a.loss.as_str() {
                 "huber" => pkmcal::Loss::Huber(k.unwrap_or(1.345)),

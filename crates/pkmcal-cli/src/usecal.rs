@@ -41,7 +41,10 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
             Some(s) => {
                 let f = parse_list(s, "--load")?;
                 if f.len() != nx {
-                    bail!("--load needs {nx} values, got {}", f.len());
+                    return crate::output::usage(format!(
+                        "--load needs {nx} values, got {}",
+                        f.len()
+                    ));
                 }
                 f
             }
@@ -51,11 +54,11 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
             Some(s) => {
                 let t = parse_list(s, "--preload")?;
                 if t.len() != spec.n_actuated() {
-                    bail!(
+                    return crate::output::usage(format!(
                         "--preload needs {} torques (one per actuator), got {}",
                         spec.n_actuated(),
                         t.len()
-                    );
+                    ));
                 }
                 t
             }
@@ -203,7 +206,7 @@ pub fn run_plan(c: PlanConfig) -> Result<()> {
         c.fix.as_deref(),
     )?;
     if !(c.candidates.is_finite() && c.candidates > 0.0) {
-        bail!("--candidates must be a positive spacing in mm");
+        return crate::output::usage("--candidates must be a positive spacing in mm");
     }
     if c.count * spec.tool_axes.len() <= free.len() {
         bail!(
@@ -297,7 +300,7 @@ pub fn run_montecarlo(c: MonteCarloConfig) -> Result<()> {
     let mech = read_mechanism(c.mechanism.as_deref())?;
     let spec = mech.spec();
     if c.runs == 0 {
-        bail!("--runs must be at least 1");
+        return crate::output::usage("--runs must be at least 1");
     }
     let noise = crate::io::noise_arg(c.noise, c.angle_noise)?;
     for (v, name) in [

@@ -215,7 +215,7 @@ fn calibrate_bad_input() {
             "--out",
             "p.toml",
         ],
-        1,
+        2,
         "unknown parameter `l99`",
     );
     std::fs::write(d.join("few.csv"), "q1,q2,q3,x,y\n1.46,3.56,-2.59,-30,165\n").unwrap();
@@ -245,7 +245,7 @@ fn calibrate_bad_input() {
             "--out",
             "p.toml",
         ],
-        1,
+        2,
         "not both",
     );
     assert!(!d.join("p.toml").exists());

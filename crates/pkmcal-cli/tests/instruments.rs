@@ -91,7 +91,7 @@ fn ball_bar_readings_get_a_report_and_cross_validation() {
             "--frame",
             "free",
         ],
-        1,
+        2,
         "sockets are in the base frame",
     );
 }
@@ -228,7 +228,7 @@ fn a_subset_of_axes_is_declared_not_guessed() {
             "--frame",
             "free",
         ],
-        1,
+        2,
         "needs whole positions",
     );
     fails(
@@ -244,7 +244,7 @@ fn a_subset_of_axes_is_declared_not_guessed() {
             "--axes",
             "w",
         ],
-        1,
+        2,
         "not a tool axis",
     );
 }

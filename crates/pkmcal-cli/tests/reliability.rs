@@ -350,3 +350,150 @@ fn an_interrupted_run_leaves_no_temporary() {
     no_temporaries(d);
     let _ = run;
 }
+
+#[test]
+fn bad_option_values_are_usage_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    files(d);
+    let cases: &[(&[&str], &str)] = &[
+        (
+            &["simulate", "--grid", "3", "--noise=-1", "--out", "s.csv"],
+            "--noise",
+        ),
+        (
+            &[
+                "simulate", "--grid", "3", "--noise", "1e308", "--out", "s.csv",
+            ],
+            "--noise",
+        ),
+        (&["simulate", "--grid", "0", "--out", "s.csv"], "--grid"),
+        (
+            &[
+                "simulate",
+                "--grid",
+                "3",
+                "--angle-noise",
+                "nan",
+                "--out",
+                "s.csv",
+            ],
+            "--angle-noise",
+        ),
+        (
+            &[
+                "calibrate",
+                "--data",
+                "d.csv",
+                "--kfold",
+                "0",
+                "--out",
+                "p.toml",
+            ],
+            "--kfold",
+        ),
+        (
+            &[
+                "calibrate",
+                "--data",
+                "d.csv",
+                "--kfold",
+                "1",
+                "--out",
+                "p.toml",
+            ],
+            "--kfold",
+        ),
+        (
+            &[
+                "calibrate",
+                "--data",
+                "d.csv",
+                "--holdout",
+                "1",
+                "--out",
+                "p.toml",
+            ],
+            "--holdout",
+        ),
+        (
+            &[
+                "calibrate",
+                "--data",
+                "d.csv",
+                "--loss",
+                "huber",
+                "--loss-scale",
+                "0",
+                "--out",
+                "p.toml",
+            ],
+            "--loss-scale",
+        ),
+        (
+            &[
+                "calibrate",
+                "--data",
+                "d.csv",
+                "--force",
+                "a,b",
+                "--out",
+                "p.toml",
+            ],
+            "--force",
+        ),
+        (
+            &[
+                "calibrate",
+                "--data",
+                "d.csv",
+                "--force",
+                "1,2,3",
+                "--out",
+                "p.toml",
+            ],
+            "--force",
+        ),
+        (&["montecarlo", "--poses", "d.csv", "--runs", "0"], "--runs"),
+        (
+            &[
+                "plan",
+                "--count",
+                "5",
+                "--candidates",
+                "0",
+                "--out",
+                "p.csv",
+            ],
+            "--candidates",
+        ),
+        (
+            &[
+                "trilaterate",
+                "--data",
+                "d.csv",
+                "--sigma",
+                "0",
+                "--out",
+                "x.csv",
+            ],
+            "--sigma",
+        ),
+        (
+            &[
+                "compensate",
+                "--targets",
+                "t.csv",
+                "--load",
+                "1,x",
+                "--out",
+                "x.csv",
+            ],
+            "--load",
+        ),
+    ];
+    for (args, needle) in cases {
+        fails(d, args, 2, needle);
+    }
+    no_temporaries(d);
+}

@@ -175,7 +175,7 @@ fn plan_then_montecarlo() {
     fails(
         d,
         &["montecarlo", "--poses", "plan.csv", "--runs", "0"],
-        1,
+        2,
         "--runs",
     );
 }
