@@ -1,6 +1,6 @@
 //! `calibrate` and `analyze`: read data, identify, validate, report.
 
-use crate::io::{Csv, Mech, parse_list, read_mechanism, read_params};
+use crate::io::{Csv, Mech, read_mechanism, read_params};
 use anyhow::{Context, Result, bail};
 use pkmcal::calibration::{CrossValidation, Identifiability};
 use pkmcal::{
@@ -35,6 +35,7 @@ pub fn data_from<M: Mechanism>(
         .iter()
         .map(|s| s.to_string())
         .collect();
+    csv.check_commands_belong(spec)?;
     let commands = csv.named(&act)?;
     let measured = csv.named(measurement.axes())?;
     let target_names: Vec<String> = spec
@@ -297,7 +298,7 @@ pub struct CalibrateConfig {
 
 fn force_arg<M: Mechanism>(mech: &M, s: Option<&str>) -> Result<Vec<f64>> {
     let Some(s) = s else { return Ok(vec![]) };
-    let f = parse_list(s, "--force")?;
+    let f = crate::io::parse_load(s, "--force")?;
     if f.len() != mech.spec().tool_axes.len() {
         return crate::output::usage(format!(
             "--force needs {} values, got {}",
@@ -420,7 +421,7 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
     let mech = &mech;
     let all = data_from(&csv, mech, &measurement)?;
     let start = match &c.start {
-        Some(p) => read_params(p, spec)?,
+        Some(p) => read_params(p, mech)?,
         None => Params::nominal(spec),
     };
     let mut opts = CalibrationOptions::new(spec, c.model);
@@ -843,7 +844,7 @@ pub fn run_analyze(c: AnalyzeConfig) -> Result<()> {
     let spec = mech.spec();
     let data = data_from(&csv, mech, &measurement)?;
     let params = match &c.params {
-        Some(p) => read_params(p, spec)?,
+        Some(p) => read_params(p, mech)?,
         None => Params::nominal(spec),
     };
     let free = free_set(mech, &measurement, c.free.as_deref(), c.fix.as_deref())?;

@@ -1,6 +1,6 @@
 //! The subcommands: each reads its inputs, calls the library, writes outputs.
 
-use crate::io::{Csv, Mech, csv_bytes, parse_list, read_mechanism, read_params};
+use crate::io::{Csv, Mech, csv_bytes, read_mechanism, read_params};
 use crate::{DemoArgs, PredictArgs, SimulateArgs};
 use anyhow::{Context, Result, bail};
 use pkmcal::{ErrorStats, Mechanism, Model, Params, Prediction, predict_pose, prepare_pose};
@@ -74,7 +74,7 @@ pub fn predict_rows(
 
 fn load_params<M: Mechanism>(path: Option<&Path>, mech: &M) -> Result<Params> {
     match path {
-        Some(p) => read_params(p, mech.spec()),
+        Some(p) => read_params(p, mech),
         None => Ok(Params::nominal(mech.spec())),
     }
 }
@@ -86,7 +86,7 @@ pub fn predict(a: PredictArgs) -> Result<()> {
     let model: Model = a.model.parse()?;
     let force = match &a.force {
         Some(s) => {
-            let f = parse_list(s, "--force")?;
+            let f = crate::io::parse_load(s, "--force")?;
             if f.len() != spec.tool_axes.len() {
                 return crate::output::usage(format!(
                     "--force needs {} values ({}), got {}",
@@ -101,6 +101,7 @@ pub fn predict(a: PredictArgs) -> Result<()> {
     };
     let csv = Csv::read(&a.commands)?;
     csv.require_rows()?;
+    csv.check_commands_belong(spec)?;
     let names: Vec<String> = spec
         .actuated_names()
         .iter()

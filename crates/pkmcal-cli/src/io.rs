@@ -26,12 +26,18 @@ impl Csv {
     pub fn read(path: &Path) -> Result<Self> {
         let bytes =
             std::fs::read(path).with_context(|| format!("cannot open {}", path.display()))?;
-        let mut lines = LineCounter::new(bytes.as_slice());
+        let base_frame = String::from_utf8_lossy(&bytes)
+            .lines()
+            .any(|l| l.trim() == BASE_FRAME_COMMENT);
+        let mut text = Vec::with_capacity(bytes.len());
+        std::io::Read::read_to_end(&mut Uncomment::new(bytes.as_slice()), &mut text)
+            .with_context(|| format!("cannot read {}", path.display()))?;
+        let mut lines = LineCounter::new(text.as_slice());
         let mut rdr = csv::ReaderBuilder::new()
             .trim(csv::Trim::All)
             .comment(Some(b'#'))
             .flexible(true)
-            .from_reader(bytes.as_slice());
+            .from_reader(text.as_slice());
         let headers: Vec<String> = rdr
             .headers()
             .with_context(|| format!("{}: cannot read the header line", path.display()))?
@@ -53,15 +59,50 @@ impl Csv {
             }
             rows.push((line, rec.iter().map(str::to_string).collect()));
         }
-        let base_frame = String::from_utf8_lossy(&bytes)
-            .lines()
-            .any(|l| l.trim() == BASE_FRAME_COMMENT);
         Ok(Self {
             path: path.to_path_buf(),
             headers,
             rows,
             base_frame,
         })
+    }
+
+    /// Refuse a file with command columns the mechanism does not have (e.g.
+    /// `q7, q8` of an 8-leg platform given to a 6-leg one): data for another
+    /// mechanism, which would otherwise be read half.
+    pub fn check_commands_belong(&self, spec: &pkmcal::Spec) -> Result<()> {
+        let names = spec.actuated_names();
+        let prefix = |n: &str| n.trim_end_matches(|c: char| c.is_ascii_digit()).to_string();
+        let Some(first) = names.first().map(|n| prefix(n)) else {
+            return Ok(());
+        };
+        if first.is_empty() || names.iter().any(|n| prefix(n) != first || *n == first) {
+            return Ok(());
+        }
+        let foreign: Vec<&String> = self
+            .headers
+            .iter()
+            .filter(|h| {
+                h.len() > first.len()
+                    && prefix(h) == first
+                    && !names.contains(&h.as_str())
+                    && !spec.tool_axes.contains(h)
+            })
+            .collect();
+        if !foreign.is_empty() {
+            bail!(
+                "{}: column(s) {} name actuators that `{}` does not have (its actuators are {}); is this file for another mechanism? Give the matching --mechanism",
+                self.path.display(),
+                foreign
+                    .iter()
+                    .map(|s| s.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                spec.name,
+                names.join(", ")
+            );
+        }
+        Ok(())
     }
 
     /// Index of a column by name; an error naming the file and the columns
@@ -128,6 +169,71 @@ impl Csv {
 
     pub fn line(&self, row: usize) -> u64 {
         self.rows[row].0
+    }
+}
+
+/// A reader that blanks comment lines, indented ones too (`  # note`),
+/// keeping their line breaks so that line numbers stay right.
+pub struct Uncomment<R> {
+    inner: R,
+    state: CommentState,
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum CommentState {
+    /// Only blanks so far on this line.
+    Start,
+    /// In a comment: dropped up to the line break.
+    Comment,
+    /// In data.
+    Data,
+}
+
+impl<R: std::io::Read> Uncomment<R> {
+    pub fn new(inner: R) -> Self {
+        Self {
+            inner,
+            state: CommentState::Start,
+        }
+    }
+}
+
+impl<R: std::io::Read> std::io::Read for Uncomment<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        loop {
+            let n = self.inner.read(buf)?;
+            if n == 0 {
+                return Ok(0);
+            }
+            let mut k = 0;
+            for i in 0..n {
+                let b = buf[i];
+                let keep = match (self.state, b) {
+                    (_, b'\n') => {
+                        self.state = CommentState::Start;
+                        true
+                    }
+                    (CommentState::Comment, _) => false,
+                    (CommentState::Start, b' ' | b'\t' | b'\r') => true,
+                    (CommentState::Start, b'#') => {
+                        self.state = CommentState::Comment;
+                        false
+                    }
+                    (CommentState::Start, _) => {
+                        self.state = CommentState::Data;
+                        true
+                    }
+                    (CommentState::Data, _) => true,
+                };
+                if keep {
+                    buf[k] = b;
+                    k += 1;
+                }
+            }
+            if k > 0 {
+                return Ok(k);
+            }
+        }
     }
 }
 
@@ -280,10 +386,21 @@ pub fn csv_bytes(header: &[String], rows: &[Vec<f64>]) -> Vec<u8> {
 }
 
 /// Read a flat parameter file `name = value` (names not given stay nominal).
-pub fn read_params(path: &Path, spec: &Spec) -> Result<Params> {
+/// Read a parameter file for `mech` and check the values
+/// ([`pkmcal::check_params`]: finite, in range, lengths positive, the
+/// mechanism still assembles), naming the file.
+pub fn read_params<M: pkmcal::Mechanism>(path: &Path, mech: &M) -> Result<Params> {
     let text = std::fs::read_to_string(path)
         .with_context(|| format!("cannot read parameter file {}", path.display()))?;
-    params_from_str(&text, spec).with_context(|| format!("in parameter file {}", path.display()))
+    let p = params_from_str(&text, mech.spec())
+        .with_context(|| format!("in parameter file {}", path.display()))?;
+    pkmcal::check_params(mech, &p).with_context(|| {
+        format!(
+            "in parameter file {}: the values cannot describe this mechanism",
+            path.display()
+        )
+    })?;
+    Ok(p)
 }
 
 pub fn params_from_str(text: &str, spec: &Spec) -> Result<Params> {
@@ -370,6 +487,7 @@ pub struct SetupFile {
 /// The ball-bar setup: from `--setup`, else from the mechanism file's
 /// `[ballbar]` table; `None` when neither gives one.
 pub fn read_setup(setup: Option<&Path>, mechanism: Option<&Path>) -> Result<Option<pkmcal::Setup>> {
+    let setup_file = setup;
     let file: Option<SetupFile> = match (setup, mechanism) {
         (Some(p), _) => {
             let text = std::fs::read_to_string(p)
@@ -401,10 +519,26 @@ pub fn read_setup(setup: Option<&Path>, mechanism: Option<&Path>) -> Result<Opti
         }
         (None, None) => None,
     };
-    Ok(file.map(|f| pkmcal::Setup {
+    let Some(f) = file else { return Ok(None) };
+    let setup = pkmcal::Setup {
         sockets: f.sockets,
         bar_offset: f.bar_offset,
-    }))
+    };
+    // Checked here, so that a mistake names the file it is in.
+    let dim = setup.sockets.first().map_or(2, Vec::len).clamp(2, 3);
+    setup
+        .validate(dim)
+        .with_context(|| match setup_path_name(setup_file, mechanism) {
+            Some(p) => format!("in ball-bar setup {p}"),
+            None => "in the ball-bar setup".into(),
+        })?;
+    Ok(Some(setup))
+}
+
+fn setup_path_name(setup: Option<&Path>, mechanism: Option<&Path>) -> Option<String> {
+    setup
+        .map(|p| p.display().to_string())
+        .or_else(|| mechanism.map(|m| format!("the [ballbar] table of {}", m.display())))
 }
 
 #[derive(Deserialize)]
@@ -534,6 +668,19 @@ fn jeong_kim_from_str(text: &str) -> Result<JeongKim2Dof> {
 }
 
 /// Parse `a,b,c` into numbers.
+/// [`parse_list`] of load values (N, N·m), each within
+/// [`pkmcal::units::MAX_LOAD`].
+pub fn parse_load(s: &str, what: &str) -> Result<Vec<f64>> {
+    let v = parse_list(s, what)?;
+    if let Some(x) = v.iter().find(|x| x.abs() > pkmcal::units::MAX_LOAD) {
+        return crate::output::usage(format!(
+            "{what}: {x:?} is beyond ±{:e} (N, N·m); no machine bears that",
+            pkmcal::units::MAX_LOAD
+        ));
+    }
+    Ok(v)
+}
+
 pub fn parse_list(s: &str, what: &str) -> Result<Vec<f64>> {
     s.split(',')
         .map(|t| {

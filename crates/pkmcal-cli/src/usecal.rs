@@ -1,7 +1,7 @@
 //! `compensate`, `plan` and `montecarlo`: using a calibration.
 
 use crate::calibrate::free_set;
-use crate::io::{Csv, csv_bytes, parse_list, read_mechanism, read_params};
+use crate::io::{Csv, csv_bytes, read_mechanism, read_params};
 use anyhow::{Context, Result, bail};
 use pkmcal::{
     CalibrationOptions, CompensationOptions, Mechanism, Model, MonteCarloOptions, Params,
@@ -32,14 +32,14 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
     let mech = read_mechanism(c.mechanism.as_deref())?;
     let spec = mech.spec();
     let params = match &c.params {
-        Some(p) => read_params(p, spec)?,
+        Some(p) => read_params(p, &mech)?,
         None => Params::nominal(spec),
     };
     let nx = spec.tool_axes.len();
     let opts = CompensationOptions {
         force: match &c.load {
             Some(s) => {
-                let f = parse_list(s, "--load")?;
+                let f = crate::io::parse_load(s, "--load")?;
                 if f.len() != nx {
                     return crate::output::usage(format!(
                         "--load needs {nx} values, got {}",
@@ -52,7 +52,7 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
         },
         preload: match &c.preload {
             Some(s) => {
-                let t = parse_list(s, "--preload")?;
+                let t = crate::io::parse_load(s, "--preload")?;
                 if t.len() != spec.n_actuated() {
                     return crate::output::usage(format!(
                         "--preload needs {} torques (one per actuator), got {}",
@@ -71,7 +71,7 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
     // Read once (a pipe works): the line counter sees a copy of the bytes.
     let file = std::fs::File::open(&c.targets)
         .with_context(|| format!("cannot open {}", c.targets.display()))?;
-    let (tee, mut lines) = crate::io::tee(file);
+    let (tee, mut lines) = crate::io::tee(crate::io::Uncomment::new(file));
     let mut rdr = csv::ReaderBuilder::new()
         .trim(csv::Trim::All)
         .comment(Some(b'#'))
@@ -196,7 +196,7 @@ pub fn run_plan(c: PlanConfig) -> Result<()> {
     let mech = read_mechanism(c.mechanism.as_deref())?;
     let spec = mech.spec();
     let params = match &c.params {
-        Some(p) => read_params(p, spec)?,
+        Some(p) => read_params(p, &mech)?,
         None => Params::nominal(spec),
     };
     let free = free_set(
@@ -216,7 +216,12 @@ pub fn run_plan(c: PlanConfig) -> Result<()> {
             free.len() / spec.tool_axes.len() + 1
         );
     }
-    let mut points = sample_workspace(&mech, c.candidates);
+    let spacing = pkmcal::workspace::lattice_spacing(
+        spec,
+        c.candidates,
+        pkmcal::planning::MAX_CANDIDATE_LATTICE,
+    );
+    let mut points = sample_workspace(&mech, spacing);
     let n_candidates = points.len();
     // The plain grid of the same size, judged with the same column scaling.
     let grid = grid_targets(&mech, c.count)?;
@@ -254,10 +259,19 @@ pub fn run_plan(c: PlanConfig) -> Result<()> {
         crate::output::stage(g, &csv_bytes(&header, &rows(&grid_idx)))?;
     }
     println!(
-        "planned {} poses of {} candidates (spacing {} mm) maximising {:?} for {} free parameters ({} model)",
+        "planned {} poses of {} candidates (spacing {:.4} mm{}) maximising {:?} for {} free parameters ({} model)",
         c.count,
         n_candidates,
-        c.candidates,
+        spacing,
+        if spacing > c.candidates {
+            format!(
+                ", coarsened from {} mm to stay within {} lattice points",
+                c.candidates,
+                pkmcal::planning::MAX_CANDIDATE_LATTICE
+            )
+        } else {
+            String::new()
+        },
         c.criterion,
         free.len(),
         c.model.name()

@@ -497,3 +497,259 @@ fn bad_option_values_are_usage_errors() {
     }
     no_temporaries(d);
 }
+
+/// Extreme but finite numbers: a clear error (or a correct result), never a
+/// panic, NaN output or hang.
+#[test]
+fn extreme_values_give_an_error_or_a_result_never_a_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    files(d);
+    let sockets = "sockets = [[-250.0, -60.0], [260.0, -40.0], [20.0, 480.0]]\n";
+    std::fs::write(d.join("s.toml"), format!("bar_offset = 0.0\n{sockets}")).unwrap();
+    std::fs::write(
+        d.join("s-off.toml"),
+        format!("bar_offset = -1e300\n{sockets}"),
+    )
+    .unwrap();
+    std::fs::write(
+        d.join("s-far.toml"),
+        "sockets = [[-1e200, -60.0], [260.0, -40.0], [20.0, 480.0]]\n",
+    )
+    .unwrap();
+    std::fs::write(d.join("huge.csv"), "d1,d2,d3\n1e155,300,300\n").unwrap();
+    let tri = |setup: &str| -> Vec<String> {
+        [
+            "trilaterate",
+            "--setup",
+            setup,
+            "--data",
+            "huge.csv",
+            "--out",
+            "x.csv",
+        ]
+        .map(String::from)
+        .to_vec()
+    };
+    for (setup, needle) in [
+        ("s.toml", "huge.csv:2"),
+        ("s-off.toml", "in ball-bar setup s-off.toml"),
+        ("s-far.toml", "in ball-bar setup s-far.toml"),
+    ] {
+        let args = tri(setup);
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        fails(d, &args, 1, needle);
+    }
+    // A measured coordinate of 1e308: named by file and line.
+    let text = read(d, "d.csv");
+    let mut lines: Vec<String> = text.lines().map(String::from).collect();
+    let header: Vec<&str> = lines[1].split(',').collect();
+    let x = header.iter().position(|h| *h == "x").unwrap();
+    let mut row: Vec<String> = lines[4].split(',').map(String::from).collect();
+    row[x] = "1e308".into();
+    lines[4] = row.join(",");
+    std::fs::write(d.join("big.csv"), lines.join("\n") + "\n").unwrap();
+    fails(
+        d,
+        &["calibrate", "--data", "big.csv", "--out", "p.toml"],
+        1,
+        "big.csv:5: pose 3: measured `x` = 1e308 mm",
+    );
+    // Loads beyond reason, and a preload that would twist an actuator.
+    fails(
+        d,
+        &[
+            "compensate",
+            "--targets",
+            "t.csv",
+            "--load",
+            "1e308,0",
+            "--out",
+            "x.csv",
+        ],
+        2,
+        "--load",
+    );
+    fails(
+        d,
+        &[
+            "compensate",
+            "--targets",
+            "t.csv",
+            "--preload",
+            "1e5,0,0",
+            "--out",
+            "x.csv",
+        ],
+        1,
+        "small deflections",
+    );
+    // A zero length in a parameter file is the parameter file's fault.
+    std::fs::write(d.join("l0.toml"), "l11 = 0\n").unwrap();
+    fails(
+        d,
+        &[
+            "predict",
+            "--params",
+            "l0.toml",
+            "--commands",
+            "c.csv",
+            "--out",
+            "x.csv",
+        ],
+        1,
+        "in parameter file l0.toml",
+    );
+    fails(
+        d,
+        &[
+            "calibrate",
+            "--start",
+            "l0.toml",
+            "--data",
+            "d.csv",
+            "--out",
+            "x.toml",
+        ],
+        1,
+        "`l11`: a length must be positive",
+    );
+    // A platform coordinate of -1e154: the mechanism file is refused at once.
+    let gs = std::fs::read_to_string(common::example("gough-stewart-6")).unwrap();
+    let bad = gs.replacen(
+        "platform = [192.836, -229.813, 0.0]",
+        "platform = [-1e154, -229.813, 0.0]",
+        1,
+    );
+    assert_ne!(gs, bad);
+    std::fs::write(d.join("gs.toml"), bad).unwrap();
+    fails(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            "gs.toml",
+            "--grid",
+            "3",
+            "--out",
+            "x.csv",
+        ],
+        1,
+        "beyond ±1e6 mm",
+    );
+    // A revolute command ten million radians out: the same joint position
+    // (modulo 2π), predicted at once.
+    std::fs::write(
+        d.join("turns.csv"),
+        format!(
+            "q1,q2,q3\n1.46,3.56,-2.59\n{},3.56,-2.59\n",
+            1.46 + 2.0 * std::f64::consts::PI * 1.6e6
+        ),
+    )
+    .unwrap();
+    ok(
+        d,
+        &[
+            "predict",
+            "--commands",
+            "turns.csv",
+            "--out",
+            "turns-out.csv",
+        ],
+    );
+    let (_, rows) = common::read_csv(&d.join("turns-out.csv"));
+    assert!(
+        (rows[0][3] - rows[1][3]).abs() < 1e-5 && (rows[0][4] - rows[1][4]).abs() < 1e-5,
+        "{rows:?}"
+    );
+    // An impossible spacing is coarsened, and the spacing used is reported.
+    let out = ok(
+        d,
+        &[
+            "plan",
+            "--count",
+            "10",
+            "--candidates",
+            "0.01",
+            "--out",
+            "plan.csv",
+        ],
+    );
+    assert!(out.contains("coarsened from 0.01 mm"), "{out}");
+    no_temporaries(d);
+}
+
+#[test]
+fn messages_blame_the_right_file_and_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // An indented comment is a comment: line numbers stay right.
+    std::fs::write(
+        d.join("c.csv"),
+        "q1,q2,q3\n1.46,3.56,-2.59\n   # a note\n1.46,3.56\n",
+    )
+    .unwrap();
+    fails(
+        d,
+        &["predict", "--commands", "c.csv", "--out", "x.csv"],
+        1,
+        "c.csv:4",
+    );
+    // Data of an 8-leg platform given to a 6-leg one.
+    let m8 = common::example("gough-stewart-8");
+    let m6 = common::example("gough-stewart-6");
+    ok(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            &m8,
+            "--grid",
+            "20",
+            "--out",
+            "g8.csv",
+        ],
+    );
+    fails(
+        d,
+        &[
+            "calibrate",
+            "--mechanism",
+            &m6,
+            "--data",
+            "g8.csv",
+            "--out",
+            "x.toml",
+        ],
+        1,
+        "L7, L8 name actuators",
+    );
+    // A workspace box outside the mechanism's reach.
+    let text = std::fs::read_to_string(common::example("five-bar")).unwrap();
+    let start = text.find("[workspace]").unwrap();
+    let mut far = text[..start].to_string();
+    far.push_str("[workspace]\nx = [5000.0, 5100.0]\ny = [5000.0, 5100.0]\n");
+    let rest = &text[start + "[workspace]".len()..];
+    if let Some(next) = rest.find("\n[") {
+        far.push_str(&rest[next..]);
+    }
+    std::fs::write(d.join("far.toml"), far).unwrap();
+    let o = run(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            "far.toml",
+            "--grid",
+            "5",
+            "--out",
+            "x.csv",
+        ],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("no reachable, well-conditioned pose") || err.contains("far.toml"),
+        "{err}"
+    );
+}

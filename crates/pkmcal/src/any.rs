@@ -70,4 +70,7 @@ impl Mechanism for AnyMechanism {
     fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
         each!(self, m => m.on_branch(q, rho))
     }
+    fn check_params(&self, rho: &[f64]) -> Result<()> {
+        each!(self, m => m.check_params(rho))
+    }
 }

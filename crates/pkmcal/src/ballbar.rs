@@ -14,6 +14,9 @@
 use crate::error::{Error, Result};
 use nalgebra::{DMatrix, DVector};
 
+/// Largest length accepted (mm).
+const MAX: f64 = crate::units::MAX_LENGTH_MM;
+
 /// Where the sockets are and what the bar reads.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Setup {
@@ -34,17 +37,18 @@ impl Setup {
             )));
         }
         for (i, s) in self.sockets.iter().enumerate() {
-            if s.len() != dim || s.iter().any(|v| !v.is_finite()) {
+            if s.len() != dim || s.iter().any(|v| !(v.is_finite() && v.abs() <= MAX)) {
                 return Err(Error::InvalidRequest(format!(
-                    "socket {} needs {dim} finite coordinates",
+                    "socket {} needs {dim} finite coordinates within ±{MAX:e} mm, got {s:?}",
                     i + 1
                 )));
             }
         }
-        if !self.bar_offset.is_finite() {
-            return Err(Error::InvalidRequest(
-                "the bar offset must be finite".into(),
-            ));
+        if !(self.bar_offset.is_finite() && self.bar_offset.abs() <= MAX) {
+            return Err(Error::InvalidRequest(format!(
+                "the bar offset {:?} must be finite and within ±{MAX:e} mm",
+                self.bar_offset
+            )));
         }
         Ok(())
     }
@@ -87,10 +91,15 @@ pub fn trilaterate(
     }
     if readings
         .iter()
-        .any(|d| !d.is_finite() || *d - setup.bar_offset <= 0.0)
+        .any(|d| !(d.is_finite() && d.abs() <= MAX) || *d - setup.bar_offset <= 0.0)
     {
         return Err(Error::InvalidRequest(format!(
-            "bar readings {readings:?} must be finite and longer than the bar offset"
+            "bar readings {readings:?} must be finite, within ±{MAX:e} mm and longer than the bar offset"
+        )));
+    }
+    if !(sigma.is_finite() && sigma > 0.0) {
+        return Err(Error::InvalidRequest(format!(
+            "the reading noise σ = {sigma} must be a positive number of mm"
         )));
     }
     // Start: linearised solution (differences of squared distances), which
@@ -125,6 +134,11 @@ pub fn trilaterate(
             }
             res[j] = n - r[j];
             jac.row_mut(j).copy_from(&(d / n).transpose());
+        }
+        if !(res.iter().all(|v| v.is_finite()) && jac.iter().all(|v| v.is_finite())) {
+            return Err(Error::InvalidRequest(format!(
+                "trilateration of {readings:?} diverged; check the readings and the socket positions"
+            )));
         }
         let step = jac
             .clone()

@@ -169,6 +169,20 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
                 }
                 .at_pose(*origin));
             }
+            for ((v, u), axis) in m
+                .measured
+                .iter()
+                .zip(measurement.units())
+                .zip(measurement.axes())
+            {
+                if !(v.is_finite() && v.abs() <= u.max_magnitude()) {
+                    return Err(Error::InvalidRequest(format!(
+                        "measured `{axis}` = {v:?} {u} is not a finite value within ±{:e} {u}; check the measurement",
+                        u.max_magnitude()
+                    ))
+                    .at_pose(*origin));
+                }
+            }
             let start = poses.last().map(|p| p.nominal_q.clone());
             let pose = prepare_pose(mech, &m.commands, start.as_deref())
                 .map_err(|e| e.at_pose(*origin))?;

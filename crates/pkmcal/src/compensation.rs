@@ -77,6 +77,17 @@ pub fn compensate<M: Mechanism>(
             "compensation inverts the exact model (or the rigid one); use --model exact".into(),
         ));
     }
+    if let Some(v) = opts
+        .force
+        .iter()
+        .chain(&opts.preload)
+        .find(|v| !(v.is_finite() && v.abs() <= crate::units::MAX_LOAD))
+    {
+        return Err(Error::InvalidRequest(format!(
+            "load or preload value {v:?} is beyond ±{:e} (N, N·m); no machine bears that",
+            crate::units::MAX_LOAD
+        )));
+    }
     let mut torque = vec![0.0; l];
     if model == Model::Exact && (loaded || preloaded) {
         let lin = linearize(mech, &q, rho, &spec.independent).map_err(|_| Error::Singular {
@@ -120,12 +131,32 @@ pub fn compensate<M: Mechanism>(
             });
         }
     }
-    let commands = spec
+    let commands: Vec<f64> = spec
         .actuated
         .iter()
         .enumerate()
         .map(|(a, &j)| q[j] - params.offsets()[a] + torque[a] / params.stiffness()[a])
         .collect();
+    for (a, &j) in spec.actuated.iter().enumerate() {
+        let deflection = torque[a] / params.stiffness()[a];
+        let limit = match spec.joint_units[j] {
+            crate::Unit::Radian => crate::units::MAX_DEFLECTION_RAD,
+            _ => crate::units::MAX_DEFLECTION_MM,
+        };
+        if deflection.abs() > limit {
+            return Err(Error::InvalidRequest(format!(
+                "at target {target:?} the load or preload deflects actuator `{}` by {deflection:.4e} {}; the model holds for small deflections (below {limit} {}): reduce the load",
+                spec.actuated_names()[a],
+                spec.joint_units[j],
+                spec.joint_units[j]
+            )));
+        }
+    }
+    if commands.iter().chain(&torque).any(|v| !v.is_finite()) {
+        return Err(Error::InvalidRequest(format!(
+            "the compensated commands for target {target:?} are not finite: the load is more than the model can represent"
+        )));
+    }
     Ok(Compensation {
         commands,
         torque,

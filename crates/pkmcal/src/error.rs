@@ -12,7 +12,7 @@ pub enum Error {
     UnknownParameter { name: String, known: String },
 
     /// A parameter value that is not allowed (non-finite, non-positive stiffness…).
-    #[error("invalid value {value} for parameter `{name}`: {reason}")]
+    #[error("invalid value {value:?} for parameter `{name}`: {reason}")]
     InvalidParameter {
         name: String,
         value: f64,

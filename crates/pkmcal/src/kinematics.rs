@@ -11,6 +11,9 @@ use nalgebra::{DMatrix, DVector};
 pub const STEP_TOL: f64 = 1e-13;
 /// Largest joint step (rad) of one continuation stage.
 const CONTINUATION_STEP: f64 = 0.1;
+/// Most continuation stages of one forward-kinematics solve: the work is
+/// bounded whatever the distance asked for.
+pub const MAX_CONTINUATION_STAGES: usize = 20_000;
 /// Largest Newton iterations per solve.
 const MAX_NEWTON: usize = 40;
 /// Relative pivot size below which a Jacobian counts as singular.
@@ -189,7 +192,13 @@ pub fn forward_kinematics<M: Mechanism>(
         .zip(q_u)
         .map(|(a, b)| (a - b).abs())
         .fold(0.0, f64::max);
-    let stages = ((span / CONTINUATION_STEP).ceil() as usize).max(1);
+    let stages = (span / CONTINUATION_STEP).ceil();
+    if stages.is_nan() || stages > MAX_CONTINUATION_STAGES as f64 {
+        return Err(Error::InvalidRequest(format!(
+            "the joint values {q_u:?} are {span:.4e} away from the start configuration; no machine moves that far between two poses (check the units: rad and mm)"
+        )));
+    }
+    let stages = (stages as usize).max(1);
     for s in 1..=stages {
         let t = s as f64 / stages as f64;
         for (k, &i) in ind.iter().enumerate() {
@@ -204,6 +213,17 @@ pub fn forward_kinematics<M: Mechanism>(
         });
     }
     Ok(q)
+}
+
+/// Check parameter values for a mechanism before using them: finite and
+/// within range ([`crate::Params::validate`]), the mechanism's own rules
+/// ([`Mechanism::check_params`], e.g. positive lengths), and the mechanism
+/// still assembles at its reference configuration.
+pub fn check_params<M: Mechanism>(mech: &M, params: &crate::Params) -> Result<()> {
+    params.validate(mech.spec())?;
+    mech.check_params(params.geometric())?;
+    reference_configuration(mech, params.geometric())?;
+    Ok(())
 }
 
 /// The reference configuration (`spec().reference_q`) made to close exactly

@@ -71,7 +71,7 @@ pub use error::{Error, Result};
 pub use frame::ToolLayout;
 pub use gough_stewart::{GoughStewart, GoughStewartAssembly, GoughStewartDescription};
 pub use kinematics::{
-    forward_kinematics, inverse_kinematics, reference_configuration, solve_closure,
+    check_params, forward_kinematics, inverse_kinematics, reference_configuration, solve_closure,
 };
 pub use linearized::{Linearization, joint_errors, linearize, load_vector, projection};
 pub use measurement::{Frame, Instrument, MeasurementModel, MeasurementSummary};

@@ -263,6 +263,21 @@ impl Spec {
         if self.workspace_box.len() != self.tool_axes.len() {
             return bad("one workspace interval per tool axis is needed".into());
         }
+        for ((axis, b), u) in self
+            .tool_axes
+            .iter()
+            .zip(&self.workspace_box)
+            .zip(&self.tool_units)
+        {
+            if b.iter()
+                .any(|v| !(v.is_finite() && v.abs() <= u.max_magnitude()))
+            {
+                return bad(format!(
+                    "the workspace interval of `{axis}` {b:?} must be finite and within ±{:e} {u}",
+                    u.max_magnitude()
+                ));
+            }
+        }
         let mut names = self.param_names();
         names.sort_unstable();
         if let Some(w) = names.windows(2).find(|w| w[0] == w[1]) {
@@ -341,6 +356,12 @@ pub trait Mechanism: Send + Sync {
         crate::autodiff::output_hessians(self, q, rho, 0..q.len(), 0..q.len())
     }
 
+    /// Check parameter values beyond finiteness (e.g. lengths that must be
+    /// positive). The default accepts every value.
+    fn check_params(&self, _rho: &[f64]) -> Result<()> {
+        Ok(())
+    }
+
     /// Whether a configuration lies on the assembly branch of the reference
     /// configuration. The default accepts every configuration.
     fn on_branch(&self, _q: &[f64], _rho: &[f64]) -> bool {
@@ -416,14 +437,26 @@ impl Params {
         self.values[i] = value;
         Ok(())
     }
-    /// Check that every value is finite and every stiffness positive.
+    /// Check that every value is finite and within the range its unit
+    /// allows ([`Unit::max_magnitude`]) and every stiffness positive.
     pub fn validate(&self, spec: &Spec) -> Result<()> {
-        for (name, &v) in spec.param_names().iter().zip(&self.values) {
+        for (i, (name, &v)) in spec.param_names().iter().zip(&self.values).enumerate() {
             if !v.is_finite() {
                 return Err(Error::InvalidParameter {
                     name: name.to_string(),
                     value: v,
                     reason: "values must be finite numbers".into(),
+                });
+            }
+            let unit = spec.param_unit(i);
+            if v.abs() > unit.max_magnitude() {
+                return Err(Error::InvalidParameter {
+                    name: name.to_string(),
+                    value: v,
+                    reason: format!(
+                        "beyond ±{:e} {unit}, no machine has such a value",
+                        unit.max_magnitude()
+                    ),
                 });
             }
         }

@@ -130,12 +130,43 @@ fn check_commands(spec: &crate::Spec, commands: &[f64]) -> Result<()> {
             got: commands.len(),
         });
     }
-    if let Some(c) = commands.iter().find(|c| !c.is_finite()) {
-        return Err(Error::InvalidRequest(format!(
-            "actuator command {c} is not a finite number"
-        )));
+    for (k, (&j, c)) in spec.actuated.iter().zip(commands).enumerate() {
+        let unit = spec.joint_units[j];
+        if !c.is_finite() {
+            return Err(Error::InvalidRequest(format!(
+                "actuator command {c:?} of `{}` is not a finite number",
+                spec.actuated_names()[k]
+            )));
+        }
+        if unit == crate::Unit::Millimetre && c.abs() > crate::units::MAX_LENGTH_MM {
+            return Err(Error::InvalidRequest(format!(
+                "actuator command {c:?} mm of `{}` is beyond ±{:e} mm; no machine moves that far",
+                spec.actuated_names()[k],
+                crate::units::MAX_LENGTH_MM
+            )));
+        }
     }
     Ok(())
+}
+
+/// Revolute commands more than a turn from the reference configuration,
+/// reduced modulo 2π to within π of it (the same joint position): forward
+/// kinematics then never travels further than a turn and a half, whatever the
+/// encoder's turn count. Commands within a turn are kept as given.
+pub(crate) fn reduced_commands(spec: &crate::Spec, commands: &[f64]) -> Vec<f64> {
+    use std::f64::consts::{PI, TAU};
+    spec.actuated
+        .iter()
+        .zip(commands)
+        .map(|(&j, &c)| {
+            let r = spec.reference_q[j];
+            if spec.joint_units[j] != crate::Unit::Radian || (c - r).abs() <= TAU {
+                return c;
+            }
+            let d = (c - r).rem_euclid(TAU);
+            if d > PI { r + d - TAU } else { r + d }
+        })
+        .collect()
 }
 
 /// Position of each independent joint in the actuator list.
@@ -160,6 +191,8 @@ pub fn prepare_pose<M: Mechanism>(
 ) -> Result<Pose> {
     let spec = mech.spec();
     check_commands(spec, commands)?;
+    let reduced = reduced_commands(spec, commands);
+    let commands = reduced.as_slice();
     let rho = &spec.nominal[..spec.n_geometric()];
     let q_u: Vec<f64> = independent_actuators(spec)
         .iter()

@@ -12,6 +12,11 @@ use nalgebra::DMatrix;
 use rayon::prelude::*;
 use serde::Serialize;
 
+/// Most lattice points over the workspace box that `plan` evaluates as
+/// candidates: a finer `--candidates` spacing is coarsened to respect it
+/// ([`crate::workspace::lattice_spacing`]), so planning time is bounded.
+pub const MAX_CANDIDATE_LATTICE: usize = 20_000;
+
 /// The observability index a plan maximises.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub enum PlanCriterion {

@@ -168,6 +168,20 @@ impl Mechanism for JeongKim2Dof {
         &self.spec
     }
 
+    /// Link lengths `l…` and platform sides `D…` must be positive.
+    fn check_params(&self, rho: &[f64]) -> crate::Result<()> {
+        for (name, &v) in self.spec.geometric.iter().zip(rho) {
+            if (name.starts_with('l') || name.starts_with('D')) && v <= 0.0 {
+                return Err(crate::Error::InvalidParameter {
+                    name: name.clone(),
+                    value: v,
+                    reason: "a length must be positive".into(),
+                });
+            }
+        }
+        Ok(())
+    }
+
     fn constraints<D: Scalar>(&self, q: &[D], rho: &[D], g: &mut [D]) {
         let [p1, p2, p3] = Self::points(q, rho);
         g[0] = dist2(&p1, &p2) - rho[11] * rho[11];

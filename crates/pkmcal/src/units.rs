@@ -26,7 +26,32 @@ pub enum Unit {
     NewtonPerMillimetre,
 }
 
+/// Largest length that means anything to a machine (mm, 1 km): lengths,
+/// positions and prismatic commands beyond it are refused as input errors
+/// (they would only overflow the arithmetic).
+pub const MAX_LENGTH_MM: f64 = 1e6;
+/// Largest measured orientation angle accepted (rad); revolute commands are
+/// reduced modulo 2π instead.
+pub const MAX_ANGLE_RAD: f64 = 1e3;
+/// Largest actuator deflection the elastic model is used for (rad).
+pub const MAX_DEFLECTION_RAD: f64 = 0.1;
+/// Largest actuator deflection the elastic model is used for (mm).
+pub const MAX_DEFLECTION_MM: f64 = 10.0;
+/// Largest load component accepted (N or N·m).
+pub const MAX_LOAD: f64 = 1e9;
+/// Largest stiffness accepted (N·m/rad or N/mm).
+pub const MAX_STIFFNESS: f64 = 1e15;
+
 impl Unit {
+    /// Largest magnitude of a value of this unit that is accepted as input.
+    pub fn max_magnitude(self) -> f64 {
+        match self {
+            Unit::Millimetre => MAX_LENGTH_MM,
+            Unit::Radian => MAX_ANGLE_RAD,
+            _ => MAX_STIFFNESS,
+        }
+    }
+
     /// The unit's symbol as printed (`mm`, `rad`, `N·m/rad`, `N/mm`).
     pub fn symbol(self) -> &'static str {
         match self {

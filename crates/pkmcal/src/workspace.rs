@@ -67,24 +67,42 @@ pub const MAX_LATTICE_POINTS: usize = 200_000;
 /// Lattice coordinates per axis: spacing `spacing` mm-equivalent
 /// ([`crate::Spec::axis_scale`]), coarsened to at most [`MAX_LATTICE_POINTS`].
 fn lattice_axes(spec: &crate::Spec, spacing: f64) -> Vec<Vec<f64>> {
-    let mut spacing = spacing;
+    axes_at(spec, lattice_spacing(spec, spacing, MAX_LATTICE_POINTS))
+}
+
+fn axes_at(spec: &crate::Spec, spacing: f64) -> Vec<Vec<f64>> {
+    spec.workspace_box
+        .iter()
+        .enumerate()
+        .map(|(k, &[lo, hi])| {
+            let step = spacing / spec.axis_scale(k);
+            let n = ((hi - lo) / step).floor() as usize;
+            (0..=n).map(|i| lo + i as f64 * step).collect()
+        })
+        .collect()
+}
+
+/// The lattice spacing actually used for `spacing` (mm, scaled per axis):
+/// `spacing`, coarsened by steps of 10 % until the lattice over the
+/// workspace box has at most `max_points` points, so that the work is
+/// bounded whatever spacing is asked for.
+pub fn lattice_spacing(spec: &crate::Spec, spacing: f64, max_points: usize) -> f64 {
+    let extent = scaled_extent(spec).max(f64::MIN_POSITIVE);
+    let mut spacing = if spacing.is_finite() && spacing > 0.0 {
+        spacing
+    } else {
+        extent
+    };
+    // Start no finer than the budget allows on a full box.
+    let dims = spec.workspace_box.len().max(1) as f64;
+    spacing = spacing.max(extent / (max_points as f64).powf(1.0 / dims) / 2.0);
     loop {
-        let axes: Vec<Vec<f64>> = spec
-            .workspace_box
-            .iter()
-            .enumerate()
-            .map(|(k, &[lo, hi])| {
-                let step = spacing / spec.axis_scale(k);
-                let n = ((hi - lo) / step).floor() as usize;
-                (0..=n).map(|i| lo + i as f64 * step).collect()
-            })
-            .collect();
-        let total = axes
+        let total = axes_at(spec, spacing)
             .iter()
             .map(Vec::len)
             .fold(1usize, |a, b| a.saturating_mul(b));
-        if total <= MAX_LATTICE_POINTS {
-            return axes;
+        if total <= max_points {
+            return spacing;
         }
         spacing *= 1.1;
     }
@@ -143,10 +161,7 @@ pub fn spread_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<Worksp
     let spacing = extent / (40.0 * count as f64).max(3600.0).powf(1.0 / dims as f64);
     let pool = sample_workspace(mech, spacing);
     if pool.len() < count {
-        return Err(Error::InvalidRequest(format!(
-            "only {} usable workspace points were found for {count} targets; ask for fewer",
-            pool.len()
-        )));
+        return Err(too_few(spec, pool.len(), count));
     }
     let d2 = |a: &[f64], b: &[f64]| {
         a.iter()
@@ -211,6 +226,21 @@ pub(crate) fn box_from_description(
 }
 
 /// The largest extent of the workspace box, in mm-equivalent units.
+/// The error for a workspace with too few usable points: none at all means
+/// the box misses the reachable, well-conditioned region.
+fn too_few(spec: &crate::Spec, found: usize, count: usize) -> Error {
+    if found == 0 {
+        Error::InvalidRequest(format!(
+            "no reachable, well-conditioned pose of `{}` lies in its workspace box {:?}; check the box (`[workspace]`) against the mechanism's reach",
+            spec.name, spec.workspace_box
+        ))
+    } else {
+        Error::InvalidRequest(format!(
+            "only {found} usable workspace points were found for {count} targets; ask for fewer"
+        ))
+    }
+}
+
 fn scaled_extent(spec: &crate::Spec) -> f64 {
     spec.workspace_box
         .iter()
@@ -235,10 +265,7 @@ pub fn random_targets<M: Mechanism>(mech: &M, count: usize, seed: u64) -> Result
     use rand::seq::SliceRandom;
     let mut pool = sample_workspace(mech, 5.0);
     if pool.len() < count {
-        return Err(Error::InvalidRequest(format!(
-            "only {} usable workspace points for {count} random targets",
-            pool.len()
-        )));
+        return Err(too_few(mech.spec(), pool.len(), count));
     }
     pool.shuffle(&mut rand::rngs::StdRng::seed_from_u64(seed));
     Ok(pool.into_iter().take(count).map(|p| p.target).collect())
@@ -256,10 +283,9 @@ pub fn grid_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<Workspac
     } else {
         (extent / (200.0 * count as f64).powf(1.0 / dims), extent)
     };
-    if sample_workspace(mech, lo).len() < count {
-        return Err(Error::InvalidRequest(format!(
-            "the usable workspace holds fewer than {count} lattice points; ask for fewer"
-        )));
+    let found = sample_workspace(mech, lo).len();
+    if found < count {
+        return Err(too_few(spec, found, count));
     }
     for _ in 0..30 {
         let mid = 0.5 * (lo + hi);
