@@ -466,7 +466,13 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
     // and dropped poses name them without translation.
     let cal =
         calibrate(mech, &measurement, &train, &start, &opts).map_err(|e| located(e, &c.data))?;
-    let (acc, before, after) = calibration_accuracy(mech, &measurement, &train, &cal, &opts.force)
+    // Statistics over the poses the fit kept (dropped outliers are listed).
+    let kept: Vec<Measurement> = train
+        .iter()
+        .filter(|m| m.origin.is_none_or(|o| !cal.dropped.contains(&o)))
+        .cloned()
+        .collect();
+    let (acc, before, after) = calibration_accuracy(mech, &measurement, &kept, &cal, &opts.force)
         .map_err(|e| located(e, &c.data))?;
     let validation = match &held {
         Some((source, path, data)) => Some(Validation {
@@ -528,7 +534,7 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
                 measurement: &measurement,
                 data_name: &c.data.display().to_string(),
                 cal: &cal,
-                data: &train,
+                data: &kept,
                 before: &before,
                 after: &after,
                 accuracy: &report.accuracy,

@@ -753,3 +753,50 @@ fn messages_blame_the_right_file_and_line() {
         "{err}"
     );
 }
+
+/// A gross error (500 mm on one reading) is named before it can drag the
+/// fit anywhere; with --drop-outliers it is dropped and the fit is clean.
+#[test]
+fn a_gross_error_is_named_or_dropped() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    files(d);
+    let text = read(d, "d.csv");
+    let mut lines: Vec<String> = text.lines().map(String::from).collect();
+    let header: Vec<&str> = lines[1].split(',').collect();
+    let y = header.iter().position(|h| *h == "y").unwrap();
+    let mut row: Vec<String> = lines[6].split(',').map(String::from).collect();
+    row[y] = format!("{}", row[y].parse::<f64>().unwrap() + 500.0);
+    lines[6] = row.join(",");
+    std::fs::write(d.join("gross.csv"), lines.join("\n") + "\n").unwrap();
+    fails(
+        d,
+        &["calibrate", "--data", "gross.csv", "--out", "p.toml"],
+        1,
+        "gross.csv:7: pose 5: the measurement is 5.0000e2 mm from the nominal prediction",
+    );
+    let out = ok(
+        d,
+        &[
+            "calibrate",
+            "--data",
+            "gross.csv",
+            "--out",
+            "p.toml",
+            "--drop-outliers",
+            "--report",
+            "r.json",
+        ],
+    );
+    assert!(
+        out.contains("dropped before the final fit: pose 5 (line 7)"),
+        "{out}"
+    );
+    let r = common::json(&d.join("r.json"));
+    assert!(
+        r["accuracy"]["after"]["distance_max"].as_f64().unwrap() < 0.02,
+        "{}",
+        r["accuracy"]
+    );
+    assert_eq!(r["accuracy"]["poses"], 29);
+}

@@ -946,6 +946,20 @@ pub fn calibrate<M: Mechanism>(
     let mut kept = data;
     let mut dropped: Vec<Origin> = vec![];
     let mut found: Vec<Outlier> = vec![];
+    // Gross errors (a misread, a swapped column) would drag the first,
+    // unweighted fit to parameters where poses cannot be assembled: find
+    // them first, drop them when asked to, name them otherwise.
+    for g in gross_errors(mech, measurement, &kept, start, opts)? {
+        if !opts.drop_outliers || dropped.len() >= cap {
+            return Err(Error::InvalidRequest(format!(
+                "the measurement is {:.4e} mm from the nominal prediction, where the median pose is {:.4e} mm: a gross error (a misread, a swapped column, another pose's row); fix or remove it, or calibrate with --drop-outliers",
+                g.distance, g.median
+            ))
+            .at_pose(g.origin));
+        }
+        kept.retain(|m| m.origin != Some(g.origin));
+        dropped.push(g.origin);
+    }
     loop {
         let mut cal = calibrate_weighted(mech, measurement, &kept, start, opts)?;
         let more = opts.drop_outliers && !cal.outliers.is_empty() && dropped.len() < cap;
@@ -980,6 +994,83 @@ pub fn calibrate<M: Mechanism>(
         dropped.push(worst.origin);
         found.push(worst);
     }
+}
+
+/// A pose whose measurement is grossly off ([`gross_errors`]).
+struct Gross {
+    origin: Origin,
+    /// Its distance from the nominal prediction (mm).
+    distance: f64,
+    /// The median pose's (mm).
+    median: f64,
+}
+
+/// A pose is a gross error when its readings (length axes) are more than
+/// this many times the median pose's distance from the nominal prediction…
+pub const GROSS_FACTOR: f64 = 50.0;
+/// …and more than this share of the workspace's extent: far beyond what
+/// parameter errors explain.
+pub const GROSS_EXTENT_SHARE: f64 = 0.02;
+
+/// Poses whose readings are grossly far from the nominal prediction (a free
+/// frame registered first), worst first.
+fn gross_errors<M: Mechanism>(
+    mech: &M,
+    measurement: &MeasurementModel,
+    data: &[Measurement],
+    start: &Params,
+    opts: &CalibrationOptions,
+) -> Result<Vec<Gross>> {
+    let spec = mech.spec();
+    let problem = IdentificationProblem::new(mech, measurement, data, opts.model, &opts.force)?;
+    let Ok(predicted) = problem.predict(start) else {
+        return Ok(vec![]);
+    };
+    let Ok(m0) = measurement_start(&problem, None, start, data) else {
+        return Ok(vec![]);
+    };
+    let lengths: Vec<usize> = (0..measurement.len())
+        .filter(|&a| measurement.units()[a] == Unit::Millimetre)
+        .collect();
+    if lengths.is_empty() || data.len() < 4 {
+        return Ok(vec![]);
+    }
+    let mut y = vec![0.0; measurement.len()];
+    let distance: Vec<f64> = predicted
+        .iter()
+        .zip(data)
+        .map(|(x, d)| {
+            measurement.observe(x, &m0, &mut y);
+            lengths
+                .iter()
+                .map(|&a| (y[a] - d.measured[a]).powi(2))
+                .sum::<f64>()
+                .sqrt()
+        })
+        .collect();
+    let mut sorted = distance.clone();
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted[sorted.len() / 2];
+    let extent = spec
+        .workspace_box
+        .iter()
+        .zip(&spec.tool_units)
+        .filter(|(_, u)| **u == Unit::Millimetre)
+        .map(|(b, _)| b[1] - b[0])
+        .fold(0.0, f64::max);
+    let limit = (GROSS_FACTOR * median).max(GROSS_EXTENT_SHARE * extent);
+    let mut out: Vec<Gross> = distance
+        .iter()
+        .zip(data)
+        .filter(|(d, _)| **d > limit)
+        .map(|(d, m)| Gross {
+            origin: m.origin.expect("numbered"),
+            distance: *d,
+            median,
+        })
+        .collect();
+    out.sort_by(|a, b| b.distance.total_cmp(&a.distance));
+    Ok(out)
 }
 
 fn check_sigma(measurement: &MeasurementModel, data: &[Measurement]) -> Result<()> {
