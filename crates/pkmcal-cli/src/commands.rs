@@ -99,34 +99,26 @@ pub fn predict(a: PredictArgs) -> Result<()> {
         }
         None => vec![],
     };
-    let csv = Csv::read(&a.commands)?;
-    csv.require_rows()?;
-    csv.check_commands_belong(spec)?;
+    // Streamed in batches (memory flat in the rows, a pipe works), each
+    // batch predicted on all cores.
+    let mut input = crate::io::CsvStream::open(&a.commands)?;
+    crate::io::commands_belong(&input.path, &input.headers, spec)?;
     let names: Vec<String> = spec
         .actuated_names()
         .iter()
         .map(|s| s.to_string())
         .collect();
-    let commands = csv.named(&names)?;
+    let cols = input.columns(&names)?;
     let covariance = match &a.uncertainty {
         Some(path) => Some(read_covariance(path)?),
         None => None,
     };
-    let bar = crate::io::progress(commands.len() as u64, a.quiet, "poses", 0);
     let settings = PredictSettings {
         params: &params,
         model,
         force: &force,
         covariance: covariance.as_ref(),
     };
-    let preds = predict_rows(
-        &mech,
-        &settings,
-        &commands,
-        &|r| format!("{}:{}", csv.path.display(), csv.line(r)),
-        &bar,
-    )?;
-    bar.finish_and_clear();
     let mut header = names.clone();
     header.extend(spec.tool_axes.iter().cloned());
     header.extend(names.iter().map(|n| format!("deflection_{n}")));
@@ -134,28 +126,58 @@ pub fn predict(a: PredictArgs) -> Result<()> {
     if covariance.is_some() {
         header.extend(spec.tool_axes.iter().map(|a| format!("sigma_{a}")));
     }
-    let rows: Vec<Vec<f64>> = commands
-        .iter()
-        .zip(&preds)
-        .map(|(c, (p, sigma))| {
-            c.iter()
+    let bar = crate::io::progress(0, a.quiet, "poses", 0);
+    let mut w = crate::output::writer(&a.out)?;
+    use std::io::Write;
+    writeln!(w, "{}", header.join(","))?;
+    let mut total = 0usize;
+    let mut line = String::new();
+    loop {
+        let batch = input.batch(&cols, &names, PREDICT_BATCH_ROWS)?;
+        if batch.is_empty() {
+            break;
+        }
+        bar.inc_length(batch.len() as u64);
+        let commands: Vec<Vec<f64>> = batch.iter().map(|(_, c)| c.clone()).collect();
+        let path = input.path.clone();
+        let preds = predict_rows(
+            &mech,
+            &settings,
+            &commands,
+            &|r| format!("{}:{}", path.display(), batch[r].0),
+            &bar,
+        )?;
+        for (c, (p, sigma)) in commands.iter().zip(&preds) {
+            line.clear();
+            for (k, v) in c
+                .iter()
                 .chain(&p.x)
                 .chain(&p.deflection)
                 .chain(&p.torque)
                 .chain(sigma)
-                .copied()
-                .collect()
-        })
-        .collect();
-    crate::output::stage(&a.out, &csv_bytes(&header, &rows))?;
+                .enumerate()
+            {
+                if k > 0 {
+                    line.push(',');
+                }
+                line.push_str(&format!("{v}"));
+            }
+            writeln!(w, "{line}")?;
+        }
+        total += batch.len();
+    }
+    w.flush()?;
+    bar.finish_and_clear();
     eprintln!(
-        "predicted {} poses with the {} model -> {}",
-        rows.len(),
+        "predicted {total} poses with the {} model -> {}",
         model.name(),
         a.out.display()
     );
     Ok(())
 }
+
+/// Rows predicted per batch of a streamed `predict`.
+const PREDICT_BATCH_ROWS: usize = 1 << 14;
 
 /// The parameter covariance stored in a calibration report (`covariance`).
 fn read_covariance(path: &Path) -> Result<pkmcal::ParameterCovariance> {

@@ -67,42 +67,10 @@ impl Csv {
         })
     }
 
-    /// Refuse a file with command columns the mechanism does not have (e.g.
-    /// `q7, q8` of an 8-leg platform given to a 6-leg one): data for another
-    /// mechanism, which would otherwise be read half.
+    /// Refuse command columns the mechanism does not have
+    /// ([`commands_belong`]).
     pub fn check_commands_belong(&self, spec: &pkmcal::Spec) -> Result<()> {
-        let names = spec.actuated_names();
-        let prefix = |n: &str| n.trim_end_matches(|c: char| c.is_ascii_digit()).to_string();
-        let Some(first) = names.first().map(|n| prefix(n)) else {
-            return Ok(());
-        };
-        if first.is_empty() || names.iter().any(|n| prefix(n) != first || *n == first) {
-            return Ok(());
-        }
-        let foreign: Vec<&String> = self
-            .headers
-            .iter()
-            .filter(|h| {
-                h.len() > first.len()
-                    && prefix(h) == first
-                    && !names.contains(&h.as_str())
-                    && !spec.tool_axes.contains(h)
-            })
-            .collect();
-        if !foreign.is_empty() {
-            bail!(
-                "{}: column(s) {} name actuators that `{}` does not have (its actuators are {}); is this file for another mechanism? Give the matching --mechanism",
-                self.path.display(),
-                foreign
-                    .iter()
-                    .map(|s| s.as_str())
-                    .collect::<Vec<_>>()
-                    .join(", "),
-                spec.name,
-                names.join(", ")
-            );
-        }
-        Ok(())
+        commands_belong(&self.path, &self.headers, spec)
     }
 
     /// Index of a column by name; an error naming the file and the columns
@@ -169,6 +137,147 @@ impl Csv {
 
     pub fn line(&self, row: usize) -> u64 {
         self.rows[row].0
+    }
+}
+
+/// Refuse a file with command columns the mechanism does not have (e.g.
+/// `q7, q8` of an 8-leg platform given to a 6-leg one): data for another
+/// mechanism, which would otherwise be read half.
+pub fn commands_belong(path: &Path, headers: &[String], spec: &pkmcal::Spec) -> Result<()> {
+    let names = spec.actuated_names();
+    let prefix = |n: &str| n.trim_end_matches(|c: char| c.is_ascii_digit()).to_string();
+    let Some(first) = names.first().map(|n| prefix(n)) else {
+        return Ok(());
+    };
+    if first.is_empty() || names.iter().any(|n| prefix(n) != first || *n == first) {
+        return Ok(());
+    }
+    let foreign: Vec<&String> = headers
+        .iter()
+        .filter(|h| {
+            h.len() > first.len()
+                && prefix(h) == first
+                && !names.contains(&h.as_str())
+                && !spec.tool_axes.contains(h)
+        })
+        .collect();
+    if !foreign.is_empty() {
+        bail!(
+            "{}: column(s) {} name actuators that `{}` does not have (its actuators are {}); is this file for another mechanism? Give the matching --mechanism",
+            path.display(),
+            foreign
+                .iter()
+                .map(|s| s.as_str())
+                .collect::<Vec<_>>()
+                .join(", "),
+            spec.name,
+            names.join(", ")
+        );
+    }
+    Ok(())
+}
+
+/// A CSV file read as a stream, once (a pipe works), in batches of rows:
+/// memory stays flat in the number of rows; every row keeps its line.
+pub struct CsvStream {
+    pub path: PathBuf,
+    pub headers: Vec<String>,
+    rdr: csv::Reader<Tee<Uncomment<std::fs::File>>>,
+    lines: LineCounter<Copied>,
+    rows: usize,
+}
+
+impl CsvStream {
+    pub fn open(path: &Path) -> Result<Self> {
+        let file =
+            std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+        let (tee, lines) = tee(Uncomment::new(file));
+        let mut rdr = csv::ReaderBuilder::new()
+            .trim(csv::Trim::All)
+            .comment(Some(b'#'))
+            .flexible(true)
+            .from_reader(tee);
+        let headers: Vec<String> = rdr
+            .headers()
+            .with_context(|| format!("{}: cannot read the header line", path.display()))?
+            .iter()
+            .map(String::from)
+            .collect();
+        if headers.iter().all(String::is_empty) {
+            bail!(
+                "{}: the file is empty; it needs a header line naming the columns",
+                path.display()
+            );
+        }
+        Ok(Self {
+            path: path.to_path_buf(),
+            headers,
+            rdr,
+            lines,
+            rows: 0,
+        })
+    }
+
+    /// Column indices of `names`, each an error naming the file if missing.
+    pub fn columns(&self, names: &[String]) -> Result<Vec<usize>> {
+        names
+            .iter()
+            .map(|n| column_index(&self.path, &self.headers, n))
+            .collect()
+    }
+
+    /// Up to `max` rows (line, values of `cols`), blank lines skipped; an
+    /// empty batch at the end; an error naming file, line and column for a
+    /// short row or a value that is not a finite number.
+    pub fn batch(
+        &mut self,
+        cols: &[usize],
+        names: &[String],
+        max: usize,
+    ) -> Result<Vec<(u64, Vec<f64>)>> {
+        let mut out = Vec::with_capacity(max);
+        let mut rec = csv::StringRecord::new();
+        while out.len() < max {
+            let more = self
+                .rdr
+                .read_record(&mut rec)
+                .with_context(|| format!("{}: malformed CSV", self.path.display()))?;
+            if !more {
+                break;
+            }
+            let line = rec.position().map_or(0, |p| self.lines.line_at(p.byte()));
+            if rec.iter().all(str::is_empty) {
+                continue;
+            }
+            let values = cols
+                .iter()
+                .zip(names)
+                .map(|(&k, n)| {
+                    let f = rec.get(k).with_context(|| {
+                        format!("{}:{line}: the row is short: no `{n}`", self.path.display())
+                    })?;
+                    let v = f.parse::<f64>().map_err(|_| {
+                        anyhow::anyhow!(
+                            "{}:{line}: column `{n}`: `{f}` is not a number",
+                            self.path.display()
+                        )
+                    })?;
+                    if !v.is_finite() {
+                        bail!(
+                            "{}:{line}: column `{n}`: `{f}` is not a finite number",
+                            self.path.display()
+                        );
+                    }
+                    Ok(v)
+                })
+                .collect::<Result<Vec<f64>>>()?;
+            out.push((line, values));
+        }
+        self.rows += out.len();
+        if out.is_empty() && self.rows == 0 {
+            bail!("{}: no data rows below the header", self.path.display());
+        }
+        Ok(out)
     }
 }
 

@@ -147,7 +147,7 @@ pub fn check(inputs: &[&Path], outputs: &[&Path], dirs: &[PathBuf]) -> Result<()
         }
     }
     let mut seen: Vec<(&Path, Vec<Key>)> = vec![];
-    for o in outputs {
+    for o in outputs.iter().filter(|o| !is_stdout(o)) {
         if let Ok(meta) = std::fs::symlink_metadata(o) {
             let t = meta.file_type();
             if t.is_symlink() {
@@ -252,6 +252,22 @@ pub fn stage_file(dest: &Path) -> Result<(std::fs::File, PathBuf)> {
         dest: dest.to_path_buf(),
     });
     Ok((f, tmp))
+}
+
+/// The path that means standard output.
+pub fn is_stdout(dest: &Path) -> bool {
+    dest == Path::new("-")
+}
+
+/// A buffered writer for an output written as it is computed: standard
+/// output for `-`, else a staged temporary ([`stage_file`]). Flush it at the
+/// end.
+pub fn writer(dest: &Path) -> Result<Box<dyn Write>> {
+    if is_stdout(dest) {
+        return Ok(Box::new(std::io::BufWriter::new(std::io::stdout())));
+    }
+    let (f, _) = stage_file(dest)?;
+    Ok(Box::new(std::io::BufWriter::new(f)))
 }
 
 /// Rename every staged temporary into place.

@@ -68,67 +68,23 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
     if c.model == Model::Linear {
         bail!("compensation inverts the exact model (or the rigid one); use --model exact");
     }
-    // Read once (a pipe works): the line counter sees a copy of the bytes.
-    let file = std::fs::File::open(&c.targets)
-        .with_context(|| format!("cannot open {}", c.targets.display()))?;
-    let (tee, mut lines) = crate::io::tee(crate::io::Uncomment::new(file));
-    let mut rdr = csv::ReaderBuilder::new()
-        .trim(csv::Trim::All)
-        .comment(Some(b'#'))
-        .flexible(true)
-        .from_reader(tee);
-    let headers: Vec<String> = rdr
-        .headers()
-        .with_context(|| format!("{}: cannot read the header", c.targets.display()))?
-        .iter()
-        .map(String::from)
-        .collect();
+    // Read once, in batches (a pipe works; memory flat in the rows).
+    let mut input = crate::io::CsvStream::open(&c.targets)?;
     let names: Vec<String> = spec
         .tool_axes
         .iter()
         .map(|a| format!("target_{a}"))
         .collect();
-    let cols: Vec<usize> = names
-        .iter()
-        .map(|n| crate::io::column_index(&c.targets, &headers, n))
-        .collect::<Result<_>>()?;
-    let (file, _) = crate::output::stage_file(&c.out)?;
+    let cols = input.columns(&names)?;
+    let mut w = crate::output::writer(&c.out)?;
     let result = (|| -> Result<(usize, usize)> {
-        let mut w = std::io::BufWriter::new(file);
         let mut header: Vec<String> = names.clone();
         header.extend(spec.actuated_names().iter().map(|s| s.to_string()));
         header.extend(spec.actuated_names().iter().map(|s| format!("torque_{s}")));
         writeln!(w, "{}", header.join(","))?;
         let (mut done, mut skipped) = (0usize, 0usize);
-        let mut records = rdr.records();
         loop {
-            let mut batch: Vec<(u64, Vec<f64>)> = Vec::with_capacity(BATCH_ROWS);
-            for rec in records.by_ref().take(BATCH_ROWS) {
-                let rec = rec.with_context(|| format!("{}: malformed CSV", c.targets.display()))?;
-                let line = rec.position().map_or(0, |p| lines.line_at(p.byte()));
-                if rec.iter().all(str::is_empty) {
-                    continue;
-                }
-                let t: Vec<f64> = cols
-                    .iter()
-                    .zip(&names)
-                    .map(|(&k, n)| {
-                        let f = rec.get(k).with_context(|| {
-                            format!("{}:{line}: the row is short: no `{n}`", c.targets.display())
-                        })?;
-                        f.parse::<f64>()
-                            .ok()
-                            .filter(|v| v.is_finite())
-                            .with_context(|| {
-                                format!(
-                                    "{}:{line}: column `{n}`: `{f}` is not a finite number",
-                                    c.targets.display()
-                                )
-                            })
-                    })
-                    .collect::<Result<_>>()?;
-                batch.push((line, t));
-            }
+            let batch = input.batch(&cols, &names, BATCH_ROWS)?;
             if batch.is_empty() {
                 break;
             }
@@ -159,10 +115,7 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
                 }
             }
         }
-        if done + skipped == 0 {
-            bail!("{}: no data rows below the header", c.targets.display());
-        }
-        w.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+        w.flush()?;
         Ok((done, skipped))
     })();
     let (done, skipped) = result?;

@@ -800,3 +800,20 @@ fn a_gross_error_is_named_or_dropped() {
     );
     assert_eq!(r["accuracy"]["poses"], 29);
 }
+
+/// `--out -` streams predictions and compensated commands to standard
+/// output; nothing is written to disk.
+#[test]
+fn predictions_and_commands_stream_to_standard_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    files(d);
+    let out = ok(d, &["predict", "--commands", "c.csv", "--out", "-"]);
+    let mut lines = out.lines();
+    assert!(lines.next().unwrap().starts_with("q1,q2,q3,x,y,"), "{out}");
+    assert_eq!(lines.count(), 1);
+    let out = ok(d, &["compensate", "--targets", "t.csv", "--out", "-"]);
+    assert_eq!(out.lines().count(), 3, "{out}");
+    assert!(!d.join("-").exists());
+    no_temporaries(d);
+}
