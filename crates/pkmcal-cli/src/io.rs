@@ -829,9 +829,6 @@ pub fn progress(len: u64, quiet: bool, what: &str, min_items: u64) -> indicatif:
     bar
 }
 
-/// Fuzzing of the readers: random and mutated CSV, parameter, mechanism and
-/// setup files must give an `Err` or an `Ok`, never a panic. Run more with
-/// `PKMCAL_FUZZ_CASES=100000 cargo test --release -p pkmcal-cli fuzz_`.
 /// Measurement noise from `--noise MM` and `--angle-noise RAD` (default: the
 /// length noise over [`pkmcal::simulate::DEFAULT_ANGLE_LEVER_MM`]).
 pub fn noise_arg(mm: f64, rad: Option<f64>) -> Result<pkmcal::Noise> {
@@ -852,6 +849,9 @@ pub fn noise_arg(mm: f64, rad: Option<f64>) -> Result<pkmcal::Noise> {
     Ok(noise)
 }
 
+/// Fuzzing of the readers: random and mutated CSV, parameter, mechanism and
+/// setup files must give an `Err` or an `Ok`, never a panic. Run more with
+/// `PKMCAL_FUZZ_CASES=100000 cargo test --release -p pkmcal-cli fuzz_`.
 #[cfg(test)]
 mod fuzz {
     use super::*;

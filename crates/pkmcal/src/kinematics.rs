@@ -9,8 +9,14 @@ use nalgebra::{DMatrix, DVector};
 
 /// Newton stops when the largest joint step is below this (rad or mm).
 pub const STEP_TOL: f64 = 1e-13;
-/// Largest joint step (rad) of one continuation stage.
+/// Largest revolute joint step (rad) of one continuation stage.
 const CONTINUATION_STEP: f64 = 0.1;
+/// Largest prismatic joint step (mm) of one continuation stage.
+const CONTINUATION_STEP_MM: f64 = 10.0;
+/// Tool travel (mm, or rad) of one inverse-kinematics continuation stage.
+const IK_STAGE: f64 = 10.0;
+/// Most inverse-kinematics continuation stages (10 m of travel).
+pub const MAX_IK_STAGES: usize = 1000;
 /// Most continuation stages of one forward-kinematics solve: the work is
 /// bounded whatever the distance asked for.
 pub const MAX_CONTINUATION_STAGES: usize = 20_000;
@@ -187,12 +193,25 @@ pub fn forward_kinematics<M: Mechanism>(
     }
     let mut q = start.to_vec();
     let from: Vec<f64> = ind.iter().map(|&i| start[i]).collect();
+    // Stages of at most 0.1 rad on a revolute joint, 10 mm on a prismatic one.
     let span = from
         .iter()
         .zip(q_u)
         .map(|(a, b)| (a - b).abs())
         .fold(0.0, f64::max);
-    let stages = (span / CONTINUATION_STEP).ceil();
+    let stages = from
+        .iter()
+        .zip(q_u)
+        .zip(ind)
+        .map(|((a, b), &i)| {
+            let step = match spec.joint_units[i] {
+                crate::Unit::Radian => CONTINUATION_STEP,
+                _ => CONTINUATION_STEP_MM,
+            };
+            ((a - b) / step).abs()
+        })
+        .fold(0.0, f64::max)
+        .ceil();
     if stages.is_nan() || stages > MAX_CONTINUATION_STAGES as f64 {
         return Err(Error::InvalidRequest(format!(
             "the joint values {q_u:?} are {span:.4e} away from the start configuration; no machine moves that far between two poses (check the units: rad and mm)"
@@ -252,6 +271,17 @@ pub fn inverse_kinematics<M: Mechanism>(mech: &M, rho: &[f64], target: &[f64]) -
             got: target.len(),
         });
     }
+    for (t, u) in target.iter().zip(&spec.tool_units) {
+        if !(t.is_finite() && t.abs() <= u.max_magnitude()) {
+            return Err(Error::Unreachable {
+                target: target.to_vec(),
+                reason: format!(
+                    "every coordinate must be finite and within ±{:e} {u}",
+                    u.max_magnitude()
+                ),
+            });
+        }
+    }
     if let Some(r) = mech.inverse_kinematics_closed(target, rho) {
         return r;
     }
@@ -269,7 +299,16 @@ pub fn inverse_kinematics<M: Mechanism>(mech: &M, rho: &[f64], target: &[f64]) -
         .zip(target)
         .map(|(a, b)| (a - b).abs())
         .fold(0.0, f64::max);
-    let stages = ((span / 10.0).ceil() as usize).max(1);
+    let stages = (span / IK_STAGE).ceil();
+    if stages.is_nan() || stages > MAX_IK_STAGES as f64 {
+        return Err(Error::Unreachable {
+            target: target.to_vec(),
+            reason: format!(
+                "it is {span:.4e} from the reference tool position, beyond the reach of any linkage"
+            ),
+        });
+    }
+    let stages = (stages as usize).max(1);
     for s in 1..=stages {
         let t = s as f64 / stages as f64;
         let goal: Vec<f64> = x0
