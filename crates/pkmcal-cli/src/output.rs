@@ -230,6 +230,33 @@ fn temporary(dest: &Path) -> Result<PathBuf> {
     )))
 }
 
+/// Remove temporaries of `dest` left by runs that were killed (SIGKILL
+/// cannot be caught): `.NAME.tmp-PID` whose process no longer exists.
+fn sweep_stale(dest: &Path) {
+    let (Some(name), dir) = (
+        dest.file_name(),
+        dest.parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new(".")),
+    ) else {
+        return;
+    };
+    let prefix = format!(".{}.tmp-", name.to_string_lossy());
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let n = e.file_name().to_string_lossy().into_owned();
+        let Some(pid) = n.strip_prefix(&prefix).and_then(|p| p.parse::<u32>().ok()) else {
+            continue;
+        };
+        let alive = pid == std::process::id() || Path::new(&format!("/proc/{pid}")).exists();
+        if !alive && Path::new("/proc/self").exists() {
+            let _ = std::fs::remove_file(e.path());
+        }
+    }
+}
+
 /// Stage `bytes` for `dest`: written to a temporary now, renamed at
 /// [`commit`].
 pub fn stage(dest: &Path, bytes: &[u8]) -> Result<()> {
@@ -242,6 +269,7 @@ pub fn stage(dest: &Path, bytes: &[u8]) -> Result<()> {
 /// A temporary file for `dest`, registered for [`commit`] (for outputs
 /// written as they are computed).
 pub fn stage_file(dest: &Path) -> Result<(std::fs::File, PathBuf)> {
+    sweep_stale(dest);
     let tmp = temporary(dest)?;
     let f =
         std::fs::File::create(&tmp).with_context(|| format!("cannot write {}", dest.display()))?;

@@ -817,3 +817,16 @@ fn predictions_and_commands_stream_to_standard_output() {
     assert!(!d.join("-").exists());
     no_temporaries(d);
 }
+
+/// A temporary left by a killed run (SIGKILL cannot be caught) is removed by
+/// the next run that writes the same output.
+#[test]
+fn a_killed_runs_temporary_is_swept() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    files(d);
+    // No process has this PID (above the kernel's maximum).
+    std::fs::write(d.join(".p.csv.tmp-4194999"), vec![b'x'; 1000]).unwrap();
+    ok(d, &["predict", "--commands", "c.csv", "--out", "p.csv"]);
+    no_temporaries(d);
+}
