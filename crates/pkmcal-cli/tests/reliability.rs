@@ -724,6 +724,24 @@ fn messages_blame_the_right_file_and_line() {
         1,
         "L7, L8 name actuators",
     );
+    // An unreachable target row, named by line in simulate and montecarlo.
+    std::fs::write(
+        d.join("unr.csv"),
+        "target_x,target_y\n0,180\n10,190\n0,5000\n20,200\n-10,170\n5,185\n15,175\n-5,195\n",
+    )
+    .unwrap();
+    fails(
+        d,
+        &["simulate", "--targets", "unr.csv", "--out", "x.csv"],
+        1,
+        "unr.csv:4: target [0.0, 5000.0]",
+    );
+    fails(
+        d,
+        &["montecarlo", "--poses", "unr.csv", "--runs", "2"],
+        1,
+        "unr.csv:4: target [0.0, 5000.0]",
+    );
     // A workspace box outside the mechanism's reach.
     let text = std::fs::read_to_string(common::example("five-bar")).unwrap();
     let start = text.find("[workspace]").unwrap();
