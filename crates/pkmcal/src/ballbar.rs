@@ -97,9 +97,9 @@ pub fn trilaterate(
             "bar readings {readings:?} must be finite, within ±{MAX:e} mm and longer than the bar offset"
         )));
     }
-    if !(sigma.is_finite() && sigma > 0.0) {
+    if !(sigma.is_finite() && sigma > 0.0 && sigma <= MAX) {
         return Err(Error::InvalidRequest(format!(
-            "the reading noise σ = {sigma} must be a positive number of mm"
+            "the reading noise σ = {sigma:?} must be a positive number of mm, at most {MAX:e}"
         )));
     }
     // Start: linearised solution (differences of squared distances), which
@@ -156,5 +156,11 @@ pub fn trilaterate(
         reason: "the sockets are aligned with the ball: trilateration is singular; move a socket"
             .into(),
     })? * (sigma * sigma);
+    if !(x.iter().all(|v| v.is_finite()) && cov.iter().all(|v| v.is_finite())) {
+        return Err(Error::Singular {
+            q: x.iter().copied().collect(),
+            reason: "the trilateration is numerically singular (sockets nearly aligned with the ball); move a socket".into(),
+        });
+    }
     Ok((x.iter().copied().collect(), cov))
 }

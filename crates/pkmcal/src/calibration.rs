@@ -1085,14 +1085,16 @@ fn check_sigma(measurement: &MeasurementModel, data: &[Measurement]) -> Result<(
             }
             .at_pose(origin));
         }
-        if let Some(s) = m
+        if let Some((s, u)) = m
             .sigma
             .iter()
-            .flatten()
-            .find(|s| !(s.is_finite() && **s > 0.0))
+            .zip(measurement.units())
+            .filter_map(|(s, u)| s.map(|s| (s, u)))
+            .find(|(s, u)| !(s.is_finite() && *s > 0.0 && *s <= u.max_magnitude()))
         {
             return Err(Error::InvalidRequest(format!(
-                "standard deviation {s} must be a positive finite number"
+                "standard deviation {s:?} {u} must be a positive finite number, at most {:e}",
+                u.max_magnitude()
             ))
             .at_pose(origin));
         }
