@@ -33,6 +33,10 @@ pub const FILES: &[&str] = &[
     "singular-values.png",
 ];
 
+/// Most lattice points of the workspace maps (the spacing is coarsened to
+/// respect it: 8 mm on the reference, coarser in 6-D).
+const MAP_POINTS: usize = 4000;
+
 /// Lattice spacing of the workspace maps, mm.
 const MAP_SPACING_MM: f64 = 8.0;
 
@@ -109,8 +113,14 @@ pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
             }
         })
         .collect::<pkmcal::Result<_>>()?;
-    let lattice = sample_workspace(r.mech, MAP_SPACING_MM);
-    let maps: Vec<(Vec<f64>, f64, f64)> = lattice
+    // The maps' lattice within a point budget (6-D workspaces included);
+    // shown on the x–y plane, each cell the worst over the other axes.
+    let spacing = pkmcal::workspace::lattice_spacing(spec, MAP_SPACING_MM, MAP_POINTS);
+    let lattice = sample_workspace(r.mech, spacing);
+    let lengths: Vec<usize> = (0..spec.tool_axes.len())
+        .filter(|&a| spec.tool_units[a] == pkmcal::Unit::Millimetre)
+        .collect();
+    let points: Vec<(Vec<f64>, f64, f64)> = lattice
         .par_iter()
         .filter_map(|p| {
             let commands: Vec<f64> = spec.actuated.iter().map(|&j| p.q[j]).collect();
@@ -124,16 +134,35 @@ pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
                 &cal.parameter_covariance,
             )
             .ok()?;
-            let miss = pred
-                .x
+            // Position only: lengths and angles are not pooled.
+            let miss = lengths
                 .iter()
-                .zip(&p.target)
-                .map(|(a, b)| (a - b).powi(2))
+                .map(|&a| (pred.x[a] - p.target[a]).powi(2))
                 .sum::<f64>()
                 .sqrt();
-            Some((p.target.clone(), miss, cov.trace().max(0.0).sqrt()))
+            let sigma = lengths
+                .iter()
+                .map(|&a| cov[(a, a)])
+                .sum::<f64>()
+                .max(0.0)
+                .sqrt();
+            Some((p.target.clone(), miss, sigma))
         })
         .collect();
+    let mut cells: std::collections::BTreeMap<(i64, i64), (Vec<f64>, f64, f64)> =
+        std::collections::BTreeMap::new();
+    for (t, miss, sigma) in points {
+        let key = (
+            (t[0] / spacing).round() as i64,
+            (t[1] / spacing).round() as i64,
+        );
+        let cell = cells
+            .entry(key)
+            .or_insert_with(|| (vec![t[0], t[1]], 0.0, 0.0));
+        cell.1 = cell.1.max(miss);
+        cell.2 = cell.2.max(sigma);
+    }
+    let maps: Vec<(Vec<f64>, f64, f64)> = cells.into_values().collect();
     let map_points: Vec<Vec<f64>> = maps.iter().map(|m| m.0.clone()).collect();
     let unit_weight = cal.unit_weight_sigma.max(f64::MIN_POSITIVE);
     let standardized: Vec<f64> = cal
@@ -165,7 +194,7 @@ pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
     if !map_points.is_empty() {
         out.push(figures::workspace_maps(
             &map_points,
-            MAP_SPACING_MM,
+            spacing,
             &[
                 (
                     "error without compensation (mm)".into(),
