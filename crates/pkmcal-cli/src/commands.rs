@@ -214,9 +214,8 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
             csv.require_rows()?;
             let t = csv.named(&target_names(&mech))?;
             for (i, target) in t.iter().enumerate() {
-                pkmcal::nominal_commands(&mech, target).with_context(|| {
-                    format!("{}:{}: target {target:?}", path.display(), csv.line(i))
-                })?;
+                pkmcal::nominal_commands(&mech, target)
+                    .with_context(|| format!("{}:{}", path.display(), csv.line(i)))?;
             }
             t
         }

@@ -326,7 +326,7 @@ pub struct PlanArgs {
     #[arg(value_parser = values::positive, long, default_value_t = 6.0, value_name = "SPACING")]
     pub candidates: f64,
     /// Observability index to maximise.
-    #[arg(long, default_value = "O5", value_parser = ["O1", "O3", "O5", "o1", "o3", "o5"])]
+    #[arg(long, default_value = "O5", value_parser = ["O1", "O3", "O5"], ignore_case = true)]
     pub criterion: String,
     /// Model whose identification Jacobian is used.
     #[arg(long, default_value = "exact", value_parser = ["exact", "linear", "rigid"])]

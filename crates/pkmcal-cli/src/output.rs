@@ -60,6 +60,18 @@ pub fn install_cleanup() {
     let default = std::panic::take_hook();
     std::panic::set_hook(Box::new(move |info| {
         discard();
+        // `println!` panics when standard output is closed (`| head`) or
+        // full: a one-line error and exit 1, not a panic report.
+        let message = info
+            .payload()
+            .downcast_ref::<String>()
+            .map(String::as_str)
+            .or_else(|| info.payload().downcast_ref::<&str>().copied())
+            .unwrap_or("");
+        if let Some(cause) = message.strip_prefix("failed printing to stdout: ") {
+            eprintln!("error: cannot write to standard output: {cause}");
+            std::process::exit(1);
+        }
         default(info);
     }));
 }

@@ -109,7 +109,7 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
                         skipped += 1;
                     }
                     Err(e) => bail!(
-                        "{}:{line}: target {t:?}: {e} (use --skip-unreachable to skip such rows)",
+                        "{}:{line}: {e} (use --skip-unreachable to skip such rows)",
                         c.targets.display()
                     ),
                 }
@@ -288,7 +288,7 @@ pub fn run_montecarlo(c: MonteCarloConfig) -> Result<()> {
     let poses = csv.named(&names)?;
     for (i, t) in poses.iter().enumerate() {
         pkmcal::nominal_commands(&mech, t)
-            .with_context(|| format!("{}:{}: target {t:?}", c.poses.display(), csv.line(i)))?;
+            .with_context(|| format!("{}:{}", c.poses.display(), csv.line(i)))?;
     }
     let mut cal = CalibrationOptions::new(spec, c.model);
     cal.free = free_set(

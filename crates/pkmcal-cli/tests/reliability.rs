@@ -348,7 +348,6 @@ fn an_interrupted_run_leaves_no_temporary() {
     );
     assert_eq!(read(d, "p.csv"), "mine");
     no_temporaries(d);
-    let _ = run;
 }
 
 #[test]
@@ -742,6 +741,10 @@ fn messages_blame_the_right_file_and_line() {
         1,
         "unr.csv:4: target [0.0, 5000.0]",
     );
+    // Each thing said once.
+    let o = run(d, &["simulate", "--targets", "unr.csv", "--out", "x.csv"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(err.matches("[0.0, 5000.0]").count(), 1, "{err}");
     // A workspace box outside the mechanism's reach.
     let text = std::fs::read_to_string(common::example("five-bar")).unwrap();
     let start = text.find("[workspace]").unwrap();
@@ -847,4 +850,42 @@ fn a_killed_runs_temporary_is_swept() {
     std::fs::write(d.join(".p.csv.tmp-4194999"), vec![b'x'; 1000]).unwrap();
     ok(d, &["predict", "--commands", "c.csv", "--out", "p.csv"]);
     no_temporaries(d);
+}
+
+/// A full standard output is a one-line error and exit 1, not a panic.
+#[test]
+fn a_full_standard_output_is_an_error_not_a_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    files(d);
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_pkmcal"))
+        .args(["analyze", "--data", "d.csv"])
+        .current_dir(d)
+        .stdout(std::fs::File::create("/dev/full").unwrap())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.starts_with("error: cannot write to standard output"),
+        "{err}"
+    );
+    assert_eq!(err.lines().count(), 1, "{err}");
+    // Upper- or lower-case criteria, listed once.
+    let help = common::ok(d, &["plan", "--help"]);
+    assert!(help.contains("[possible values: O1, O3, O5]"), "{help}");
+    ok(
+        d,
+        &[
+            "plan",
+            "--count",
+            "9",
+            "--criterion",
+            "o3",
+            "--candidates",
+            "20",
+            "--out",
+            "p.csv",
+        ],
+    );
 }

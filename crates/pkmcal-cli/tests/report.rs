@@ -126,6 +126,12 @@ fn chromium() -> Option<String> {
 #[test]
 fn report_renders_in_headless_chromium() {
     let Some(browser) = chromium() else {
+        // In CI (`.ci/run` installs it) a missing browser is a failure, not
+        // a silent pass.
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "CI is set but no Chromium was found: the report was not rendered"
+        );
         eprintln!(
             "SKIPPED: no Chromium found (install Debian's `chromium` package to run this test)"
         );
