@@ -406,20 +406,46 @@ pub fn measurement_of(
     Ok(m.in_frame(choice)?)
 }
 
+/// What `calibrate` and `analyze` read first: the mechanism, the data file,
+/// its measurement model and its poses.
+struct Measured {
+    mech: Mech,
+    measurement: MeasurementModel,
+    data: Vec<Measurement>,
+}
+
+fn read_measured(
+    mechanism: Option<&Path>,
+    data: &Path,
+    setup: Option<&Path>,
+    frame: &str,
+    axes: Option<&str>,
+) -> Result<Measured> {
+    let mech = read_mechanism(mechanism)?;
+    let csv = Csv::read(data)?;
+    let measurement = measurement_of(&csv, &mech, setup, mechanism, frame, axes)?;
+    let data = data_from(&csv, &mech, &measurement)?;
+    Ok(Measured {
+        mech,
+        measurement,
+        data,
+    })
+}
+
 pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
-    let mech = read_mechanism(c.mechanism.as_deref())?;
-    let csv = Csv::read(&c.data)?;
-    let measurement = measurement_of(
-        &csv,
-        &mech,
-        c.setup.as_deref(),
+    let Measured {
+        mech,
+        measurement,
+        data: all,
+    } = read_measured(
         c.mechanism.as_deref(),
+        &c.data,
+        c.setup.as_deref(),
         &c.frame,
         c.axes.as_deref(),
     )?;
     let spec = mech.spec();
     let mech = &mech;
-    let all = data_from(&csv, mech, &measurement)?;
     let start = match &c.start {
         Some(p) => read_params(p, mech)?,
         None => Params::nominal(spec),
@@ -836,19 +862,19 @@ pub struct AnalyzeConfig {
 }
 
 pub fn run_analyze(c: AnalyzeConfig) -> Result<()> {
-    let mech = read_mechanism(c.mechanism.as_deref())?;
-    let csv = Csv::read(&c.data)?;
-    let measurement = measurement_of(
-        &csv,
-        &mech,
-        c.setup.as_deref(),
+    let Measured {
+        mech,
+        measurement,
+        data,
+    } = read_measured(
         c.mechanism.as_deref(),
+        &c.data,
+        c.setup.as_deref(),
         &c.frame,
         c.axes.as_deref(),
     )?;
     let mech = &mech;
     let spec = mech.spec();
-    let data = data_from(&csv, mech, &measurement)?;
     let params = match &c.params {
         Some(p) => read_params(p, mech)?,
         None => Params::nominal(spec),
