@@ -996,6 +996,10 @@ pub fn calibrate<M: Mechanism>(
     }
 }
 
+/// Smallest standard deviation accepted (mm or rad): no instrument is
+/// better, and smaller ones only overflow the weights.
+pub const MIN_SIGMA: f64 = 1e-12;
+
 /// A pose whose measurement is grossly off ([`gross_errors`]).
 struct Gross {
     origin: Origin,
@@ -1090,10 +1094,10 @@ fn check_sigma(measurement: &MeasurementModel, data: &[Measurement]) -> Result<(
             .iter()
             .zip(measurement.units())
             .filter_map(|(s, u)| s.map(|s| (s, u)))
-            .find(|(s, u)| !(s.is_finite() && *s > 0.0 && *s <= u.max_magnitude()))
+            .find(|(s, u)| !(s.is_finite() && *s >= MIN_SIGMA && *s <= u.max_magnitude()))
         {
             return Err(Error::InvalidRequest(format!(
-                "standard deviation {s:?} {u} must be a positive finite number, at most {:e}",
+                "standard deviation {s:?} {u} must be a finite number between {MIN_SIGMA:e} and {:e}",
                 u.max_magnitude()
             ))
             .at_pose(origin));
@@ -1423,17 +1427,22 @@ fn calibrate_once<M: Mechanism>(
             fixed: cols.names[k].clone(),
         }));
     }
-    let weigh = |mut jac: DMatrix<f64>| {
+    let weigh = |mut jac: DMatrix<f64>| -> Result<DMatrix<f64>> {
         for (i, wi) in weights.iter().enumerate() {
             jac.row_mut(i).scale_mut(*wi);
         }
-        jac
+        if jac.iter().any(|v| !v.is_finite()) {
+            return Err(Error::InvalidRequest(
+                "the weighted identification Jacobian is not finite: a standard deviation is too small for the values measured; check the sigma columns and the data".into(),
+            ));
+        }
+        Ok(jac)
     };
     let mut x0: Vec<f64> = start.values.iter().chain(&m0).copied().collect();
     // Identifiability at the start.
     let (_, jac) = problem.residuals_and_jacobian(&x0)?;
     let (mut identifiability, mut free) =
-        analyze_identifiability(&cols, &weigh(jac), &requested, data.len(), opts.auto_fix);
+        analyze_identifiability(&cols, &weigh(jac)?, &requested, data.len(), opts.auto_fix);
     // Stiffness acts only where the actuators fight, which they do not at
     // nominal parameters: judge its identifiability where they do, at the
     // solution without it.
@@ -1449,7 +1458,7 @@ fn calibrate_once<M: Mechanism>(
         x0 = lm::minimize(&problem, &x0, &solver).x;
         let (_, jac) = problem.residuals_and_jacobian(&x0)?;
         (identifiability, free) =
-            analyze_identifiability(&cols, &weigh(jac), &requested, data.len(), opts.auto_fix);
+            analyze_identifiability(&cols, &weigh(jac)?, &requested, data.len(), opts.auto_fix);
     }
     for u in &identifiability.unidentifiable {
         warnings.push(Warning::new(WarningKind::Unidentifiable {
@@ -1607,6 +1616,11 @@ pub fn analyze<M: Mechanism>(
     }
     let x: Vec<f64> = params.values.iter().chain(&m0).copied().collect();
     let (_, mut jac) = problem.residuals_and_jacobian(&x)?;
+    if jac.iter().any(|v| !v.is_finite()) {
+        return Err(Error::InvalidRequest(
+            "the identification Jacobian is not finite at these parameters".into(),
+        ));
+    }
     let default = crate::simulate::Noise::lengths(1.0);
     let nx = measurement.len();
     for (i, m) in data.iter().enumerate() {

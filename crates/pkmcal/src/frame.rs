@@ -299,6 +299,11 @@ pub fn register(
         let y = Vector3::new(b[0] - qm[0], b[1] - qm[1], b[2] - qm[2]);
         h += y * x.transpose();
     }
+    if h.iter().any(|v| !v.is_finite()) {
+        return Err(Error::InvalidRequest(
+            "the instrument frame cannot be registered: the positions are not finite".into(),
+        ));
+    }
     let svd = h.svd(true, true);
     let (u, vt) = (svd.u.expect("requested"), svd.v_t.expect("requested"));
     let d = (vt.transpose() * u.transpose()).determinant().signum();

@@ -28,6 +28,9 @@ pub struct WorkspacePoint {
 }
 
 fn inverse_condition(m: &nalgebra::DMatrix<f64>) -> f64 {
+    if m.iter().any(|v| !v.is_finite()) {
+        return 0.0;
+    }
     let sv = m.clone().svd(false, false).singular_values;
     let max = sv.max();
     if max > 0.0 { sv.min() / max } else { 0.0 }

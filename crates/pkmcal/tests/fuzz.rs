@@ -196,6 +196,9 @@ proptest! {
         sigma in prop::option::of(extreme()),
         start in prop::collection::vec((0usize..200, extreme()), 0..2),
     ) {
+        if std::env::var_os("PKMCAL_FUZZ_TRACE").is_some() {
+            eprintln!("case: m {m} pose {pose} axis {axis} value {value:?} command {command} sigma {sigma:?} start {start:?}");
+        }
         let mech = &mechanisms()[m];
         let spec = mech.spec();
         let mut d = data(m).to_vec();
