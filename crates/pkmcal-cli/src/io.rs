@@ -32,11 +32,20 @@ impl Csv {
         let mut text = Vec::with_capacity(bytes.len());
         std::io::Read::read_to_end(&mut Uncomment::new(bytes.as_slice()), &mut text)
             .with_context(|| format!("cannot read {}", path.display()))?;
+        let delimiter = detect_delimiter(&text);
+        if delimiter == b';' {
+            // A semicolon-separated export may use decimal commas: with `;`
+            // between fields a comma can only be one.
+            for b in text.iter_mut().filter(|b| **b == b',') {
+                *b = b'.';
+            }
+        }
         let mut lines = LineCounter::new(text.as_slice());
         let mut rdr = csv::ReaderBuilder::new()
             .trim(csv::Trim::All)
             .comment(Some(b'#'))
             .flexible(true)
+            .delimiter(delimiter)
             .from_reader(text.as_slice());
         let headers: Vec<String> = rdr
             .headers()
@@ -182,20 +191,34 @@ pub fn commands_belong(path: &Path, headers: &[String], spec: &pkmcal::Spec) -> 
 pub struct CsvStream {
     pub path: PathBuf,
     pub headers: Vec<String>,
-    rdr: csv::Reader<Tee<Uncomment<std::fs::File>>>,
+    rdr: csv::Reader<Tee<Box<dyn std::io::Read>>>,
     lines: LineCounter<Copied>,
     rows: usize,
 }
 
 impl CsvStream {
     pub fn open(path: &Path) -> Result<Self> {
+        use std::io::BufRead;
         let file =
             std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
-        let (tee, lines) = tee(Uncomment::new(file));
+        // The delimiter from the first buffer (it holds the header line).
+        let mut buffered = std::io::BufReader::with_capacity(1 << 16, Uncomment::new(file));
+        let delimiter = detect_delimiter(
+            buffered
+                .fill_buf()
+                .with_context(|| format!("cannot read {}", path.display()))?,
+        );
+        let source: Box<dyn std::io::Read> = if delimiter == b';' {
+            Box::new(DecimalCommas(buffered))
+        } else {
+            Box::new(buffered)
+        };
+        let (tee, lines) = tee(source);
         let mut rdr = csv::ReaderBuilder::new()
             .trim(csv::Trim::All)
             .comment(Some(b'#'))
             .flexible(true)
+            .delimiter(delimiter)
             .from_reader(tee);
         let headers: Vec<String> = rdr
             .headers()
@@ -278,6 +301,20 @@ impl CsvStream {
             bail!("{}: no data rows below the header", self.path.display());
         }
         Ok(out)
+    }
+}
+
+/// Decimal commas read as points (for semicolon-separated files, where a
+/// comma can only be one).
+struct DecimalCommas<R>(R);
+
+impl<R: std::io::Read> std::io::Read for DecimalCommas<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.0.read(buf)?;
+        for b in buf[..n].iter_mut().filter(|b| **b == b',') {
+            *b = b'.';
+        }
+        Ok(n)
     }
 }
 
@@ -459,15 +496,46 @@ impl<R: std::io::Read> LineCounter<R> {
 /// Index of column `name` in `headers` of file `path`; an error naming the
 /// file and the columns found if it is missing or appears more than once.
 pub fn column_index(path: &Path, headers: &[String], name: &str) -> Result<usize> {
-    let hits: Vec<usize> = (0..headers.len()).filter(|&i| headers[i] == name).collect();
+    let mut hits: Vec<usize> = (0..headers.len()).filter(|&i| headers[i] == name).collect();
+    if hits.is_empty() {
+        // `X` for `x`: headers match regardless of case when unambiguous.
+        hits = (0..headers.len())
+            .filter(|&i| headers[i].eq_ignore_ascii_case(name))
+            .collect();
+    }
     match hits.as_slice() {
         [i] => Ok(*i),
-        [] => bail!(
-            "{}: missing column `{}` (columns found: {})",
-            path.display(),
-            name,
-            headers.join(",")
-        ),
+        [] => {
+            // The nearest headers (ignoring case and punctuation), if near.
+            let norm = |t: &str| -> String {
+                t.chars()
+                    .filter(|c| c.is_alphanumeric())
+                    .flat_map(char::to_lowercase)
+                    .collect()
+            };
+            let dist: Vec<usize> = headers
+                .iter()
+                .map(|h| edit_distance(&norm(h), &norm(name)))
+                .collect();
+            let best = dist.iter().copied().min().unwrap_or(usize::MAX);
+            let near: Vec<&str> = headers
+                .iter()
+                .zip(&dist)
+                .filter(|(_, d)| **d == best && best <= 2)
+                .map(|(h, _)| h.as_str())
+                .collect();
+            bail!(
+                "{}: missing column `{}`{} (columns found: {})",
+                path.display(),
+                name,
+                if near.is_empty() {
+                    String::new()
+                } else {
+                    format!("; did you mean `{}`?", near.join("`, `"))
+                },
+                headers.join(",")
+            )
+        }
         _ => bail!(
             "{}: column `{}` appears {} times; keep one",
             path.display(),
@@ -475,6 +543,38 @@ pub fn column_index(path: &Path, headers: &[String], name: &str) -> Result<usize
             hits.len()
         ),
     }
+}
+
+/// Levenshtein distance (for "did you mean").
+fn edit_distance(a: &str, b: &str) -> usize {
+    let b: Vec<char> = b.chars().collect();
+    let mut row: Vec<usize> = (0..=b.len()).collect();
+    for (i, ca) in a.chars().enumerate() {
+        let mut prev = row[0];
+        row[0] = i + 1;
+        for (j, cb) in b.iter().enumerate() {
+            let cur = row[j + 1];
+            row[j + 1] = (prev + usize::from(ca != *cb)).min(row[j] + 1).min(cur + 1);
+            prev = cur;
+        }
+    }
+    row[b.len()]
+}
+
+/// The field delimiter of a CSV text, from its header line: the most
+/// frequent of comma, semicolon and tab (spreadsheet exports use all three);
+/// comma when none appears.
+pub fn detect_delimiter(text: &[u8]) -> u8 {
+    let header = text
+        .split(|&b| b == b'\n')
+        .find(|l| l.iter().any(|b| !b.is_ascii_whitespace()))
+        .unwrap_or(&[]);
+    let count = |d: u8| header.iter().filter(|&&b| b == d).count();
+    [b',', b';', b'\t']
+        .into_iter()
+        .max_by_key(|&d| (count(d), d == b','))
+        .filter(|&d| count(d) > 0)
+        .unwrap_or(b',')
 }
 
 /// CSV text from a header and rows of numbers (shortest round-trip format).

@@ -274,3 +274,53 @@ fn a_typo_in_the_ballbar_table_is_reported() {
         "unknown field `bar_ofset`",
     );
 }
+
+/// Spreadsheet exports: semicolons with decimal commas, tabs, headers in
+/// another case; a near-miss header gets a "did you mean".
+#[test]
+fn spreadsheet_exports_are_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    common::ok(
+        d,
+        &[
+            "simulate", "--grid", "30", "--noise", "0.002", "--out", "d.csv",
+        ],
+    );
+    let text = std::fs::read_to_string(d.join("d.csv")).unwrap();
+    let semi: String = text
+        .lines()
+        .map(|l| {
+            if l.starts_with('#') {
+                l.to_string()
+            } else {
+                l.replace(',', ";")
+                    .replace('.', ",")
+                    .replace("target_x", "TARGET_X")
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    std::fs::write(d.join("semi.csv"), semi + "\n").unwrap();
+    common::ok(d, &["calibrate", "--data", "d.csv", "--out", "a.toml"]);
+    common::ok(d, &["calibrate", "--data", "semi.csv", "--out", "b.toml"]);
+    let params = |f: &str| -> Vec<String> {
+        std::fs::read_to_string(d.join(f))
+            .unwrap()
+            .lines()
+            .filter(|l| !l.starts_with('#'))
+            .map(String::from)
+            .collect()
+    };
+    assert_eq!(params("a.toml"), params("b.toml"));
+    std::fs::write(d.join("tab.csv"), "Q1\tQ2\tQ3\n1.46\t3.56\t-2.59\n").unwrap();
+    let out = common::ok(d, &["predict", "--commands", "tab.csv", "--out", "-"]);
+    assert_eq!(out.lines().count(), 2, "{out}");
+    std::fs::write(d.join("typo.csv"), "q_1,q2,q3\n1.46,3.56,-2.59\n").unwrap();
+    common::fails(
+        d,
+        &["predict", "--commands", "typo.csv", "--out", "x.csv"],
+        1,
+        "missing column `q1`; did you mean `q_1`?",
+    );
+}
