@@ -207,7 +207,7 @@ fn target_names(mech: &Mech) -> Vec<String> {
 pub fn simulate(a: SimulateArgs) -> Result<()> {
     let mech = read_mechanism(a.mech.mechanism.as_deref())?;
     let truth = load_params(a.truth.as_deref(), &mech)?;
-    let noise = crate::io::noise_arg(a.noise, a.angle_noise)?;
+    let noise = crate::io::noise_arg(a.noise, a.angle_noise);
     let targets: Vec<Vec<f64>> = match (&a.targets, a.grid) {
         (Some(path), _) => {
             let csv = Csv::read(path)?;

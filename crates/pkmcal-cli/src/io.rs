@@ -95,33 +95,7 @@ impl Csv {
             .map(|(line, rec)| {
                 cols.iter()
                     .map(|&(c, name)| {
-                        let field = rec.get(c).with_context(|| {
-                            format!(
-                                "{}:{}: the row is short: no value for column `{}`",
-                                self.path.display(),
-                                line,
-                                name
-                            )
-                        })?;
-                        let v: f64 = field.parse().map_err(|_| {
-                            anyhow::anyhow!(
-                                "{}:{}: column `{}`: `{}` is not a number",
-                                self.path.display(),
-                                line,
-                                name,
-                                field
-                            )
-                        })?;
-                        if !v.is_finite() {
-                            bail!(
-                                "{}:{}: column `{}`: `{}` is not a finite number",
-                                self.path.display(),
-                                line,
-                                name,
-                                field
-                            );
-                        }
-                        Ok(v)
+                        field_number(&self.path, *line, name, rec.get(c).map(String::as_str))
                     })
                     .collect()
             })
@@ -147,6 +121,30 @@ impl Csv {
     pub fn line(&self, row: usize) -> u64 {
         self.rows[row].0
     }
+}
+
+/// The number in a CSV field (`None`: the row is short), or an error naming
+/// the file, line and column.
+fn field_number(path: &Path, line: u64, name: &str, field: Option<&str>) -> Result<f64> {
+    let field = field.with_context(|| {
+        format!(
+            "{}:{line}: the row is short: no value for column `{name}`",
+            path.display()
+        )
+    })?;
+    let v: f64 = field.parse().map_err(|_| {
+        anyhow::anyhow!(
+            "{}:{line}: column `{name}`: `{field}` is not a number",
+            path.display()
+        )
+    })?;
+    if !v.is_finite() {
+        bail!(
+            "{}:{line}: column `{name}`: `{field}` is not a finite number",
+            path.display()
+        );
+    }
+    Ok(v)
 }
 
 /// Refuse a file with command columns the mechanism does not have (e.g.
@@ -275,24 +273,7 @@ impl CsvStream {
             let values = cols
                 .iter()
                 .zip(names)
-                .map(|(&k, n)| {
-                    let f = rec.get(k).with_context(|| {
-                        format!("{}:{line}: the row is short: no `{n}`", self.path.display())
-                    })?;
-                    let v = f.parse::<f64>().map_err(|_| {
-                        anyhow::anyhow!(
-                            "{}:{line}: column `{n}`: `{f}` is not a number",
-                            self.path.display()
-                        )
-                    })?;
-                    if !v.is_finite() {
-                        bail!(
-                            "{}:{line}: column `{n}`: `{f}` is not a finite number",
-                            self.path.display()
-                        );
-                    }
-                    Ok(v)
-                })
+                .map(|(&k, n)| field_number(&self.path, line, n, rec.get(k)))
                 .collect::<Result<Vec<f64>>>()?;
             out.push((line, values));
         }
@@ -931,22 +912,14 @@ pub fn progress(len: u64, quiet: bool, what: &str, min_items: u64) -> indicatif:
 
 /// Measurement noise from `--noise MM` and `--angle-noise RAD` (default: the
 /// length noise over [`pkmcal::simulate::DEFAULT_ANGLE_LEVER_MM`]).
-pub fn noise_arg(mm: f64, rad: Option<f64>) -> Result<pkmcal::Noise> {
-    if !(mm.is_finite() && mm >= 0.0) {
-        return crate::output::usage(format!(
-            "--noise must be a non-negative number of mm, got {mm}"
-        ));
-    }
+pub fn noise_arg(mm: f64, rad: Option<f64>) -> pkmcal::Noise {
+    // The ranges are checked by the option parser (`values::length_noise`,
+    // `values::angle_noise`).
     let mut noise = pkmcal::Noise::lengths(mm);
     if let Some(r) = rad {
-        if !(r.is_finite() && r >= 0.0) {
-            return crate::output::usage(format!(
-                "--angle-noise must be a non-negative number of rad, got {r}"
-            ));
-        }
         noise.angle = r;
     }
-    Ok(noise)
+    noise
 }
 
 /// Fuzzing of the readers: random and mutated CSV, parameter, mechanism and

@@ -569,14 +569,6 @@ fn run(command: Command) -> anyhow::Result<()> {
         Command::Simulate(a) => commands::simulate(a),
         Command::Calibrate(a) => a.model.parse().map_err(Into::into).and_then(|model| {
             let k = a.loss_scale;
-            if let Some(k) = k
-                && !(k.is_finite() && k > 0.0)
-            {
-                return crate::output::usage("--loss-scale must be a positive number");
-            }
-            if !(a.outlier_threshold.is_finite() && a.outlier_threshold > 0.0) {
-                return crate::output::usage("--outlier-threshold must be a positive number");
-            }
             let loss = match a.loss.as_str() {
                 "huber" => pkmcal::Loss::Huber(k.unwrap_or(1.345)),
                 "cauchy" => pkmcal::Loss::Cauchy(k.unwrap_or(2.385)),

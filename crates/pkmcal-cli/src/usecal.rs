@@ -269,7 +269,7 @@ pub fn run_montecarlo(c: MonteCarloConfig) -> Result<()> {
     if c.runs == 0 {
         return crate::output::usage("--runs must be at least 1");
     }
-    let noise = crate::io::noise_arg(c.noise, c.angle_noise)?;
+    let noise = crate::io::noise_arg(c.noise, c.angle_noise);
     for (v, name) in [
         (c.length_error, "--length-error"),
         (c.angle_error, "--angle-error"),
