@@ -16,17 +16,20 @@ pub fn read_data<M: Mechanism>(
     path: &Path,
     mech: &M,
     measurement: &MeasurementModel,
+    units: &pkmcal::FileUnits,
 ) -> Result<Vec<Measurement>> {
-    data_from(&Csv::read(path)?, mech, measurement)
+    data_from(&Csv::read(path)?, mech, measurement, units)
 }
 
 /// [`read_data`] from an already parsed table: every pose carries its σ
 /// (`sigma_<axis>` columns, any subset; or `sigma` for all readings of one
-/// unit) and its origin (pose number and line in the file).
+/// unit) and its origin (pose number and line in the file). Numbers are
+/// converted from the file's `units` to mm and rad.
 pub fn data_from<M: Mechanism>(
     csv: &Csv,
     mech: &M,
     measurement: &MeasurementModel,
+    units: &pkmcal::FileUnits,
 ) -> Result<Vec<Measurement>> {
     let spec = mech.spec();
     csv.require_rows()?;
@@ -36,8 +39,12 @@ pub fn data_from<M: Mechanism>(
         .map(|s| s.to_string())
         .collect();
     csv.check_commands_belong(spec)?;
-    let commands = csv.named(&act)?;
-    let measured = csv.named(measurement.axes())?;
+    use crate::fileunits as fu;
+    let mut commands = csv.named(&act)?;
+    fu::to_internal(&mut commands, &fu::commands(spec, units));
+    let reading = fu::readings(measurement.units(), units);
+    let mut measured = csv.named(measurement.axes())?;
+    fu::to_internal(&mut measured, &reading);
     let target_names: Vec<String> = spec
         .tool_axes
         .iter()
@@ -45,11 +52,20 @@ pub fn data_from<M: Mechanism>(
         .collect();
     let has_targets = target_names.iter().all(|n| csv.headers.contains(n));
     let targets = if has_targets {
-        Some(csv.named(&target_names)?)
+        let mut t = csv.named(&target_names)?;
+        fu::to_internal(&mut t, &fu::tool(spec, units));
+        Some(t)
     } else {
         None
     };
-    let sigma = sigma_from(csv, measurement)?;
+    let mut sigma = sigma_from(csv, measurement)?;
+    for row in sigma.iter_mut().flatten() {
+        for (v, f) in row.iter_mut().zip(&reading) {
+            if let Some(v) = v {
+                *v *= f;
+            }
+        }
+    }
     Ok(commands
         .into_iter()
         .zip(measured)
@@ -412,6 +428,7 @@ struct Measured {
     mech: Mech,
     measurement: MeasurementModel,
     data: Vec<Measurement>,
+    units: pkmcal::FileUnits,
 }
 
 fn read_measured(
@@ -424,11 +441,14 @@ fn read_measured(
     let mech = read_mechanism(mechanism)?;
     let csv = Csv::read(data)?;
     let measurement = measurement_of(&csv, &mech, setup, mechanism, frame, axes)?;
-    let data = data_from(&csv, &mech, &measurement)?;
+    let units = crate::fileunits::of(mechanism)?;
+    let data = data_from(&csv, &mech, &measurement, &units)?;
+    crate::hints::check_data(&mech, &measurement, &data, &units, &csv.path)?;
     Ok(Measured {
         mech,
         measurement,
         data,
+        units,
     })
 }
 
@@ -437,6 +457,7 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
         mech,
         measurement,
         data: all,
+        units,
     } = read_measured(
         c.mechanism.as_deref(),
         &c.data,
@@ -467,7 +488,7 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
             Some((
                 v.display().to_string(),
                 v.clone(),
-                read_data(v, mech, &measurement)?,
+                read_data(v, mech, &measurement, &units)?,
             )),
         ),
         (None, Some(f)) => {
@@ -866,6 +887,7 @@ pub fn run_analyze(c: AnalyzeConfig) -> Result<()> {
         mech,
         measurement,
         data,
+        ..
     } = read_measured(
         c.mechanism.as_deref(),
         &c.data,

@@ -126,9 +126,27 @@ pub fn predict(a: PredictArgs) -> Result<()> {
     if covariance.is_some() {
         header.extend(spec.tool_axes.iter().map(|a| format!("sigma_{a}")));
     }
+    let units = crate::fileunits::of(a.mech.mechanism.as_deref())?;
+    let (cf, tf) = (
+        crate::fileunits::commands(spec, &units),
+        crate::fileunits::tool(spec, &units),
+    );
+    // Output factors, column by column: commands, tool, deflections (in the
+    // commands' unit), torques (N·m or N), σ (tool).
+    let out_factors: Vec<f64> = cf
+        .iter()
+        .chain(&tf)
+        .chain(&cf)
+        .copied()
+        .chain(std::iter::repeat_n(1.0, names.len()))
+        .chain(tf.iter().copied())
+        .collect();
     let bar = crate::io::progress(0, a.quiet, "poses", 0);
     let mut w = crate::output::writer(&a.out)?;
     use std::io::Write;
+    if let Some(c) = crate::fileunits::comment(&units) {
+        writeln!(w, "{c}")?;
+    }
     writeln!(w, "{}", header.join(","))?;
     let mut total = 0usize;
     let mut line = String::new();
@@ -138,7 +156,8 @@ pub fn predict(a: PredictArgs) -> Result<()> {
             break;
         }
         bar.inc_length(batch.len() as u64);
-        let commands: Vec<Vec<f64>> = batch.iter().map(|(_, c)| c.clone()).collect();
+        let mut commands: Vec<Vec<f64>> = batch.iter().map(|(_, c)| c.clone()).collect();
+        crate::fileunits::to_internal(&mut commands, &cf);
         let path = input.path.clone();
         let preds = predict_rows(
             &mech,
@@ -146,7 +165,8 @@ pub fn predict(a: PredictArgs) -> Result<()> {
             &commands,
             &|r| format!("{}:{}", path.display(), batch[r].0),
             &bar,
-        )?;
+        )
+        .map_err(|e| crate::hints::explain_failure(e, &mech, &commands, &units))?;
         for (c, (p, sigma)) in commands.iter().zip(&preds) {
             line.clear();
             for (k, v) in c
@@ -160,7 +180,10 @@ pub fn predict(a: PredictArgs) -> Result<()> {
                 if k > 0 {
                     line.push(',');
                 }
-                line.push_str(&format!("{v}"));
+                line.push_str(&format!(
+                    "{}",
+                    crate::fileunits::to_file(*v, out_factors[k])
+                ));
             }
             writeln!(w, "{line}")?;
         }
@@ -212,7 +235,14 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         (Some(path), _) => {
             let csv = Csv::read(path)?;
             csv.require_rows()?;
-            let t = csv.named(&target_names(&mech))?;
+            let mut t = csv.named(&target_names(&mech))?;
+            crate::fileunits::to_internal(
+                &mut t,
+                &crate::fileunits::tool(
+                    mech.spec(),
+                    &crate::fileunits::of(a.mech.mechanism.as_deref())?,
+                ),
+            );
             for (i, target) in t.iter().enumerate() {
                 pkmcal::nominal_commands(&mech, target)
                     .with_context(|| format!("{}:{}", path.display(), csv.line(i)))?;
@@ -245,7 +275,15 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
     let base = *measurement.frame() == pkmcal::Frame::Base;
     crate::output::stage(
         &a.out,
-        &with_frame_comment(data_csv(&mech, &measurement, &data), base),
+        &with_frame_comment(
+            data_csv(
+                &mech,
+                &measurement,
+                &data,
+                &crate::fileunits::of(a.mech.mechanism.as_deref())?,
+            ),
+            base,
+        ),
     )?;
     let angles = measurement.units().contains(&pkmcal::Unit::Radian);
     eprintln!(
@@ -312,8 +350,12 @@ pub fn trilaterate(a: crate::TrilaterateArgs) -> Result<()> {
     let csv = Csv::read(&a.data)?;
     csv.require_rows()?;
     let dnames: Vec<String> = (1..=setup.sockets.len()).map(|j| format!("d{j}")).collect();
-    let readings = csv.named(&dnames)?;
-    // Pass through targets and commands when present.
+    let units = crate::fileunits::of(a.mech.mechanism.as_deref())?;
+    let mut readings = csv.named(&dnames)?;
+    let d_factor = units.factor(pkmcal::Unit::Millimetre, pkmcal::Role::Reading);
+    crate::fileunits::to_internal(&mut readings, &vec![d_factor; dnames.len()]);
+    let tf = crate::fileunits::tool(spec, &units);
+    // Pass through targets and commands when present (in the file's units).
     let mut keep: Vec<String> = target_names(&mech);
     keep.extend(spec.actuated_names().iter().map(|s| s.to_string()));
     keep.retain(|n| csv.headers.contains(n));
@@ -322,12 +364,12 @@ pub fn trilaterate(a: crate::TrilaterateArgs) -> Result<()> {
     for (i, d) in readings.iter().enumerate() {
         let (x, cov) = pkmcal::trilaterate(&setup, d, a.sigma, None)
             .with_context(|| format!("{}:{}: readings {d:?}", a.data.display(), csv.line(i)))?;
-        let sig = (0..x.len()).map(|k| cov[(k, k)].max(0.0).sqrt());
+        let sig = (0..x.len()).map(|k| cov[(k, k)].max(0.0).sqrt() / tf[k]);
         rows.push(
             kept[i]
                 .iter()
                 .copied()
-                .chain(x.iter().copied())
+                .chain(x.iter().zip(&tf).map(|(v, f)| v / f))
                 .chain(sig)
                 .collect::<Vec<f64>>(),
         );
@@ -336,7 +378,13 @@ pub fn trilaterate(a: crate::TrilaterateArgs) -> Result<()> {
     header.extend(spec.tool_axes.iter().cloned());
     header.extend(spec.tool_axes.iter().map(|a| format!("sigma_{a}")));
     // Sockets are placed in the base frame, so are the positions.
-    crate::output::stage(&a.out, &with_frame_comment(csv_bytes(&header, &rows), true))?;
+    crate::output::stage(
+        &a.out,
+        &with_frame_comment(
+            crate::fileunits::with_comment(csv_bytes(&header, &rows), &units),
+            true,
+        ),
+    )?;
     eprintln!(
         "trilaterated {} poses from {} sockets -> {}",
         rows.len(),
@@ -346,13 +394,21 @@ pub fn trilaterate(a: crate::TrilaterateArgs) -> Result<()> {
     Ok(())
 }
 
-/// Measurement file: target_*, commands, measured tool coordinates.
+/// Measurement file: target_*, commands, measured tool coordinates, in the
+/// data-file `units` (with a comment line naming them unless internal).
 pub fn data_csv(
     mech: &Mech,
     measurement: &pkmcal::MeasurementModel,
     data: &[pkmcal::Measurement],
+    units: &pkmcal::FileUnits,
 ) -> Vec<u8> {
     let spec = mech.spec();
+    use crate::fileunits as fu;
+    let factors: Vec<f64> = fu::tool(spec, units)
+        .into_iter()
+        .chain(fu::commands(spec, units))
+        .chain(fu::readings(measurement.units(), units))
+        .collect();
     let mut header = target_names(mech);
     header.extend(spec.actuated_names().iter().map(|s| s.to_string()));
     header.extend(measurement.axes().iter().cloned());
@@ -366,11 +422,12 @@ pub fn data_csv(
                 .iter()
                 .chain(&m.commands)
                 .chain(&m.measured)
-                .copied()
+                .zip(&factors)
+                .map(|(v, f)| fu::to_file(*v, *f))
                 .collect()
         })
         .collect();
-    csv_bytes(&header, &rows)
+    fu::with_comment(csv_bytes(&header, &rows), units)
 }
 
 /// Validation poses of the demo (unseen: drawn at random from the workspace).
@@ -397,6 +454,9 @@ pub fn demo(a: DemoArgs) -> Result<()> {
     let spec = mech.spec();
     let truth = pkmcal::reference::demo_truth();
     let dir = &a.out_dir;
+    // The demo's own calibrations read its files internally; only what it
+    // writes follows --units.
+    let units = crate::fileunits::of(None)?;
     crate::output::create_dir(dir)?;
     let targets: Vec<Vec<f64>> = pkmcal::spread_targets(&mech, 35)?
         .into_iter()
@@ -408,11 +468,11 @@ pub fn demo(a: DemoArgs) -> Result<()> {
     let vdata = pkmcal::simulate(&mech, &tool, &truth, &vtargets, DEMO_NOISE_MM, a.seed + 2)?;
     crate::output::stage(
         &dir.join("measurements.csv"),
-        &with_frame_comment(data_csv(&mech, &tool, &data), true),
+        &with_frame_comment(data_csv(&mech, &tool, &data, &units), true),
     )?;
     crate::output::stage(
         &dir.join("validation.csv"),
-        &with_frame_comment(data_csv(&mech, &tool, &vdata), true),
+        &with_frame_comment(data_csv(&mech, &tool, &vdata, &units), true),
     )?;
     crate::output::stage(
         &dir.join("truth.toml"),

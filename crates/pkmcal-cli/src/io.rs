@@ -32,13 +32,19 @@ impl Csv {
         let mut text = Vec::with_capacity(bytes.len());
         std::io::Read::read_to_end(&mut Uncomment::new(bytes.as_slice()), &mut text)
             .with_context(|| format!("cannot read {}", path.display()))?;
-        let delimiter = detect_delimiter(&text);
+        let mut delimiter = detect_delimiter(&text);
         if delimiter == b';' {
             // A semicolon-separated export may use decimal commas: with `;`
             // between fields a comma can only be one.
             for b in text.iter_mut().filter(|b| **b == b',') {
                 *b = b'.';
             }
+        } else if delimiter == b' ' {
+            let mut out = Vec::with_capacity(text.len());
+            std::io::Read::read_to_end(&mut Whitespace::new(text.as_slice()), &mut out)
+                .with_context(|| format!("cannot read {}", path.display()))?;
+            text = out;
+            delimiter = b',';
         }
         let mut lines = LineCounter::new(text.as_slice());
         let mut rdr = csv::ReaderBuilder::new()
@@ -206,11 +212,12 @@ impl CsvStream {
                 .fill_buf()
                 .with_context(|| format!("cannot read {}", path.display()))?,
         );
-        let source: Box<dyn std::io::Read> = if delimiter == b';' {
-            Box::new(DecimalCommas(buffered))
-        } else {
-            Box::new(buffered)
+        let source: Box<dyn std::io::Read> = match delimiter {
+            b';' => Box::new(DecimalCommas(buffered)),
+            b' ' => Box::new(Whitespace::new(buffered)),
+            _ => Box::new(buffered),
         };
+        let delimiter = if delimiter == b' ' { b',' } else { delimiter };
         let (tee, lines) = tee(source);
         let mut rdr = csv::ReaderBuilder::new()
             .trim(csv::Trim::All)
@@ -282,6 +289,70 @@ impl CsvStream {
             bail!("{}: no data rows below the header", self.path.display());
         }
         Ok(out)
+    }
+}
+
+/// Whitespace-separated columns (instrument exports, `numpy.savetxt`) read
+/// as comma-separated: a run of blanks between fields is one separator,
+/// blanks at the start and end of a line are dropped, and a comma can only be
+/// a decimal comma. Line breaks are kept, so line numbers stay right.
+pub struct Whitespace<R> {
+    inner: R,
+    raw: Vec<u8>,
+    pending: bool,
+    line_start: bool,
+}
+
+impl<R: std::io::Read> Whitespace<R> {
+    pub fn new(inner: R) -> Self {
+        Self {
+            inner,
+            raw: vec![0; 1 << 15],
+            pending: false,
+            line_start: true,
+        }
+    }
+}
+
+impl<R: std::io::Read> std::io::Read for Whitespace<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        if buf.len() < 2 {
+            return Err(std::io::Error::other("read buffer too small"));
+        }
+        loop {
+            // Each input byte gives at most two output bytes (a pending
+            // separator and itself).
+            let want = (buf.len() / 2).min(self.raw.len());
+            let n = self.inner.read(&mut self.raw[..want])?;
+            if n == 0 {
+                return Ok(0);
+            }
+            let mut k = 0;
+            for &b in &self.raw[..n] {
+                match b {
+                    b'\n' | b'\r' => {
+                        buf[k] = b;
+                        k += 1;
+                        self.pending = false;
+                        self.line_start = true;
+                    }
+                    b' ' | b'\t' => self.pending = !self.line_start,
+                    _ => {
+                        if self.pending {
+                            buf[k] = b',';
+                            k += 1;
+                        }
+                        buf[k] = if b == b',' { b'.' } else { b };
+                        k += 1;
+                        self.pending = false;
+                        self.line_start = false;
+                    }
+                }
+            }
+            if k > 0 {
+                return Ok(k);
+            }
+        }
     }
 }
 
@@ -544,18 +615,23 @@ fn edit_distance(a: &str, b: &str) -> usize {
 
 /// The field delimiter of a CSV text, from its header line: the most
 /// frequent of comma, semicolon and tab (spreadsheet exports use all three);
-/// comma when none appears.
+/// `b' '` (runs of blanks, read through [`Whitespace`]) when the header has
+/// none of them but several names separated by blanks; comma otherwise.
 pub fn detect_delimiter(text: &[u8]) -> u8 {
     let header = text
         .split(|&b| b == b'\n')
         .find(|l| l.iter().any(|b| !b.is_ascii_whitespace()))
         .unwrap_or(&[]);
     let count = |d: u8| header.iter().filter(|&&b| b == d).count();
+    let words = header
+        .split(|b| *b == b' ')
+        .filter(|w| w.iter().any(|b| !b.is_ascii_whitespace()))
+        .count();
     [b',', b';', b'\t']
         .into_iter()
         .max_by_key(|&d| (count(d), d == b','))
         .filter(|&d| count(d) > 0)
-        .unwrap_or(b',')
+        .unwrap_or(if words > 1 { b' ' } else { b',' })
 }
 
 /// CSV text from a header and rows of numbers (shortest round-trip format).
@@ -661,6 +737,9 @@ struct MechanismFile {
     /// Ball-bar setup, read by `read_setup`.
     #[allow(dead_code)]
     ballbar: Option<SetupFile>,
+    /// Data-file units, read by `fileunits::of`.
+    #[allow(dead_code)]
+    units: Option<pkmcal::PartialUnits>,
 }
 
 /// A measurement-setup file (or the `[ballbar]` table of a mechanism file).
@@ -754,7 +833,7 @@ pub fn read_mechanism(path: Option<&Path>) -> Result<Mech> {
 }
 
 /// The description as a TOML table, its `type`, and the table without the
-/// keys other readers use (`type`, `[ballbar]`, `[[target]]`).
+/// keys other readers use (`type`, `[ballbar]`, `[[target]]`, `[units]`).
 fn description_table(text: &str) -> Result<(String, toml::Table)> {
     let mut table: toml::Table = text.parse().context("invalid mechanism description")?;
     let kind = match table.remove("type") {
@@ -764,6 +843,7 @@ fn description_table(text: &str) -> Result<(String, toml::Table)> {
     };
     table.remove("ballbar");
     table.remove("target");
+    table.remove("units");
     Ok((kind, table))
 }
 

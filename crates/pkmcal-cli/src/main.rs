@@ -4,6 +4,9 @@
 mod calibrate;
 mod commands;
 mod figures;
+mod fileunits;
+mod gcode;
+mod hints;
 mod io;
 mod output;
 mod report;
@@ -19,6 +22,12 @@ use std::process::ExitCode;
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Units of the numbers in data files (read and written), e.g.
+    /// `angle=deg,length=m` or `counts_per_rev=4096`: angle rad|deg, length
+    /// mm|m|um, counts_per_rev, counts_per_mm (commands in encoder counts).
+    /// Overrides the mechanism file's [units]; default mm and rad.
+    #[arg(long, global = true, value_name = "KEY=UNIT,…")]
+    units: Option<String>,
 }
 
 #[derive(Subcommand)]
@@ -33,6 +42,9 @@ enum Command {
     Analyze(AnalyzeArgs),
     /// Actuator commands that bring the tool to targets under calibrated parameters.
     Compensate(CompensateArgs),
+    /// Rewrite the G0/G1 moves of a G-code program so that a controller running
+    /// the nominal kinematics makes the calibrated machine reach the programmed points.
+    Gcode(GcodeArgs),
     /// Choose measurement poses that make the parameters most observable.
     Plan(PlanArgs),
     /// Predict post-calibration accuracy of a measurement plan by simulation.
@@ -293,8 +305,33 @@ pub struct CompensateArgs {
     #[arg(long, value_name = "P.toml")]
     pub params: Option<PathBuf>,
     /// Targets: CSV with one column target_<axis> per tool axis.
-    #[arg(long, value_name = "T.csv")]
-    pub targets: PathBuf,
+    #[arg(
+        long,
+        value_name = "T.csv",
+        required_unless_present = "grid",
+        conflicts_with = "grid"
+    )]
+    pub targets: Option<PathBuf>,
+    /// A regular grid of corrections instead of a targets file: per tool axis
+    /// `start:stop:step` (gridded) or one value (held), e.g.
+    /// `x=-100:100:10,y=50:250:10`; axes not named are held at the middle of
+    /// the workspace box. Written as CSV, or JSON if --out ends in .json, with
+    /// the interpolation error checked at the cell centres.
+    #[arg(
+        long,
+        value_name = "AXIS=START:STOP:STEP,…",
+        allow_hyphen_values = true
+    )]
+    pub grid: Option<String>,
+    /// Cartesian pre-distortion for a controller that accepts only tool
+    /// targets: write the target to send (command_<axis>) so that the real
+    /// machine reaches the wanted one, instead of actuator commands.
+    #[arg(long, conflicts_with = "grid")]
+    pub cartesian: bool,
+    /// The controller's own parameter values (flat TOML) for --cartesian and
+    /// the corrections; nominal if omitted.
+    #[arg(long, value_name = "P.toml")]
+    pub controller: Option<PathBuf>,
     /// Model to invert: exact (deflections included) or rigid.
     #[arg(long, default_value = "exact", value_parser = ["exact", "rigid"])]
     pub model: String,
@@ -309,9 +346,40 @@ pub struct CompensateArgs {
     /// Report unreachable or singular targets and skip them instead of stopping.
     #[arg(long)]
     pub skip_unreachable: bool,
-    /// Output CSV: targets, commands and the actuators' internal torques
-    /// (target_x,target_y,q1,q2,q3,torque_q1..3 for the reference).
+    /// Output CSV: targets, commands, corrections (delta_<actuator>, to add to
+    /// the nominal model's commands) and the actuators' internal torques
+    /// (torque_<actuator> in N·m) or forces (force_<actuator> in N).
     #[arg(long, value_name = "COMMANDS.csv")]
+    pub out: PathBuf,
+}
+
+#[derive(clap::Args)]
+pub struct GcodeArgs {
+    #[command(flatten)]
+    pub mech: MechanismArg,
+    /// Calibrated parameters (flat TOML): the real machine.
+    #[arg(long, value_name = "P.toml")]
+    pub params: PathBuf,
+    /// The controller's own parameter values (flat TOML); nominal if omitted.
+    #[arg(long, value_name = "P.toml")]
+    pub controller: Option<PathBuf>,
+    /// Model of the real machine: exact (deflections included) or rigid.
+    #[arg(long, default_value = "exact", value_parser = ["exact", "rigid"])]
+    pub model: String,
+    /// External load on the tool while it moves, one value per tool coordinate (N, N·mm per rad).
+    #[arg(long, value_name = "F1,F2,…", allow_hyphen_values = true)]
+    pub load: Option<String>,
+    /// The G-code program to rewrite.
+    #[arg(long = "in", value_name = "PROGRAM.gcode")]
+    pub input: PathBuf,
+    /// Added to the programmed coordinates to give tool coordinates (mm; degrees for angles), one per tool axis.
+    #[arg(long, value_name = "X,Y,…", allow_hyphen_values = true)]
+    pub offset: Option<String>,
+    /// Split moves longer than this (mm) so that the correction follows the path.
+    #[arg(long, value_name = "MM")]
+    pub max_segment: Option<f64>,
+    /// The rewritten program (`-` for standard output).
+    #[arg(long, value_name = "OUT.gcode")]
     pub out: PathBuf,
 }
 
@@ -519,7 +587,21 @@ fn check_paths(command: &Command) -> anyhow::Result<()> {
             a.report.iter().cloned().collect(),
         ),
         Command::Compensate(a) => (
-            vec![m(&a.mech), a.params.clone(), Some(a.targets.clone())],
+            vec![
+                m(&a.mech),
+                a.params.clone(),
+                a.targets.clone(),
+                a.controller.clone(),
+            ],
+            vec![a.out.clone()],
+        ),
+        Command::Gcode(a) => (
+            vec![
+                m(&a.mech),
+                Some(a.params.clone()),
+                a.controller.clone(),
+                Some(a.input.clone()),
+            ],
             vec![a.out.clone()],
         ),
         Command::Plan(a) => {
@@ -547,7 +629,9 @@ fn check_paths(command: &Command) -> anyhow::Result<()> {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     output::install_cleanup();
-    let result = check_paths(&cli.command).and_then(|()| run(cli.command));
+    let result = fileunits::set_cli(cli.units.as_deref())
+        .and_then(|()| check_paths(&cli.command))
+        .and_then(|()| run(cli.command));
     let result = result.and_then(|()| output::commit());
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -618,6 +702,9 @@ fn run(command: Command) -> anyhow::Result<()> {
                 mechanism: a.mech.mechanism,
                 params: a.params,
                 targets: a.targets,
+                grid: a.grid,
+                cartesian: a.cartesian,
+                controller: a.controller,
                 model,
                 load: a.load,
                 preload: a.preload,
@@ -658,6 +745,19 @@ fn run(command: Command) -> anyhow::Result<()> {
             })
         })(),
         Command::Trilaterate(a) => commands::trilaterate(a),
+        Command::Gcode(a) => a.model.parse().map_err(Into::into).and_then(|model| {
+            gcode::run_gcode(gcode::GcodeConfig {
+                mechanism: a.mech.mechanism,
+                params: a.params,
+                controller: a.controller,
+                model,
+                load: a.load,
+                input: a.input,
+                offset: a.offset,
+                max_segment: a.max_segment,
+                out: a.out,
+            })
+        }),
         Command::Demo(a) => commands::demo(a),
     }
 }

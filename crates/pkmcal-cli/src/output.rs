@@ -39,11 +39,14 @@ struct State {
     staged: Vec<Staged>,
     /// Directories this run created (removed again on failure if empty).
     created: Vec<PathBuf>,
+    /// Whole outputs for standard output (`-`), written on commit.
+    stdout: Vec<u8>,
 }
 
 static STATE: Mutex<State> = Mutex::new(State {
     staged: vec![],
     created: vec![],
+    stdout: vec![],
 });
 
 fn state() -> std::sync::MutexGuard<'static, State> {
@@ -272,6 +275,10 @@ fn sweep_stale(dest: &Path) {
 /// Stage `bytes` for `dest`: written to a temporary now, renamed at
 /// [`commit`].
 pub fn stage(dest: &Path, bytes: &[u8]) -> Result<()> {
+    if is_stdout(dest) {
+        state().stdout.extend_from_slice(bytes);
+        return Ok(());
+    }
     let (mut f, _) = stage_file(dest)?;
     f.write_all(bytes)
         .and_then(|_| f.sync_all())
@@ -322,12 +329,20 @@ pub fn commit() -> Result<()> {
         }
     }
     state().created.clear();
+    let out = std::mem::take(&mut state().stdout);
+    if !out.is_empty() {
+        let mut o = std::io::stdout().lock();
+        o.write_all(&out)
+            .and_then(|()| o.flush())
+            .context("cannot write to standard output")?;
+    }
     Ok(())
 }
 
 /// Remove every staged temporary and the directories this run created.
 pub fn discard() {
     let mut s = state();
+    s.stdout.clear();
     for x in s.staged.drain(..) {
         let _ = std::fs::remove_file(&x.tmp);
     }

@@ -18,7 +18,10 @@ const BATCH_ROWS: usize = 1 << 16;
 pub struct CompensateConfig {
     pub mechanism: Option<PathBuf>,
     pub params: Option<PathBuf>,
-    pub targets: PathBuf,
+    pub targets: Option<PathBuf>,
+    pub grid: Option<String>,
+    pub cartesian: bool,
+    pub controller: Option<PathBuf>,
     pub model: Model,
     pub load: Option<String>,
     pub preload: Option<String>,
@@ -26,12 +29,27 @@ pub struct CompensateConfig {
     pub out: PathBuf,
 }
 
+/// The name of an actuator's internal load column: `torque_<a>` (N·m) for a
+/// revolute actuator, `force_<a>` (N) for a prismatic one.
+pub fn load_column(name: &str, unit: pkmcal::Unit) -> String {
+    match unit {
+        pkmcal::Unit::Radian => format!("torque_{name}"),
+        _ => format!("force_{name}"),
+    }
+}
+
 /// Stream the targets file in batches, compensate each batch in parallel,
 /// write to a temporary file renamed over `out` only when all succeeded.
+/// With `grid`, a correction table instead; with `cartesian`, the targets to
+/// send to a closed controller.
 pub fn run_compensate(c: CompensateConfig) -> Result<()> {
     let mech = read_mechanism(c.mechanism.as_deref())?;
     let spec = mech.spec();
     let params = match &c.params {
+        Some(p) => read_params(p, &mech)?,
+        None => Params::nominal(spec),
+    };
+    let controller = match &c.controller {
         Some(p) => read_params(p, &mech)?,
         None => Params::nominal(spec),
     };
@@ -68,49 +86,111 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
     if c.model == Model::Linear {
         bail!("compensation inverts the exact model (or the rigid one); use --model exact");
     }
+    if c.cartesian && !opts.preload.is_empty() {
+        return crate::output::usage(
+            "--preload needs actuator commands; a closed controller given tool targets cannot hold one (drop --cartesian or --preload)",
+        );
+    }
+    let units = crate::fileunits::of(c.mechanism.as_deref())?;
+    if let Some(g) = &c.grid {
+        return run_grid(&mech, &params, g, &c, &opts, &units);
+    }
+    let Some(targets) = &c.targets else {
+        return crate::output::usage("give --targets T.csv or --grid AXIS=START:STOP:STEP,…");
+    };
+    let (cf, tf) = (
+        crate::fileunits::commands(spec, &units),
+        crate::fileunits::tool(spec, &units),
+    );
     // Read once, in batches (a pipe works; memory flat in the rows).
-    let mut input = crate::io::CsvStream::open(&c.targets)?;
+    let mut input = crate::io::CsvStream::open(targets)?;
     let names: Vec<String> = spec
         .tool_axes
         .iter()
         .map(|a| format!("target_{a}"))
         .collect();
     let cols = input.columns(&names)?;
+    let act = spec.actuated_names();
+    let cmd_units = spec.command_units();
     let mut w = crate::output::writer(&c.out)?;
     let result = (|| -> Result<(usize, usize)> {
         let mut header: Vec<String> = names.clone();
-        header.extend(spec.actuated_names().iter().map(|s| s.to_string()));
-        header.extend(spec.actuated_names().iter().map(|s| format!("torque_{s}")));
+        // Output factors, column by column.
+        let mut factors: Vec<f64> = tf.clone();
+        if c.cartesian {
+            header.extend(spec.tool_axes.iter().map(|a| format!("command_{a}")));
+            header.extend(spec.tool_axes.iter().map(|a| format!("delta_{a}")));
+            header.extend(act.iter().map(|s| s.to_string()));
+            factors.extend(tf.iter().chain(&tf).chain(&cf));
+        } else {
+            header.extend(act.iter().map(|s| s.to_string()));
+            header.extend(act.iter().map(|s| format!("delta_{s}")));
+            header.extend(act.iter().zip(&cmd_units).map(|(s, u)| load_column(s, *u)));
+            factors.extend(cf.iter().chain(&cf));
+            factors.extend(std::iter::repeat_n(1.0, act.len()));
+        }
+        if let Some(u) = crate::fileunits::comment(&units) {
+            writeln!(w, "{u}")?;
+        }
         writeln!(w, "{}", header.join(","))?;
         let (mut done, mut skipped) = (0usize, 0usize);
         loop {
-            let batch = input.batch(&cols, &names, BATCH_ROWS)?;
+            let mut batch = input.batch(&cols, &names, BATCH_ROWS)?;
             if batch.is_empty() {
                 break;
             }
-            let results: Vec<_> = batch
+            for (_, t) in batch.iter_mut() {
+                for (v, f) in t.iter_mut().zip(&tf) {
+                    *v *= f;
+                }
+            }
+            let results: Vec<Result<Vec<f64>, pkmcal::Error>> = batch
                 .par_iter()
-                .map(|(_, t)| compensate(&mech, &params, t, c.model, &opts))
+                .map(|(_, t)| {
+                    if c.cartesian {
+                        pkmcal::predistort(&mech, &controller, &params, t, c.model, &opts).map(
+                            |p| {
+                                let delta: Vec<f64> =
+                                    p.command_target.iter().zip(t).map(|(a, b)| a - b).collect();
+                                p.command_target
+                                    .iter()
+                                    .chain(&delta)
+                                    .chain(&p.commands)
+                                    .copied()
+                                    .collect()
+                            },
+                        )
+                    } else {
+                        compensate(&mech, &params, t, c.model, &opts).map(|comp| {
+                            comp.commands
+                                .iter()
+                                .chain(&comp.correction)
+                                .chain(&comp.torque)
+                                .copied()
+                                .collect()
+                        })
+                    }
+                })
                 .collect();
             for ((line, t), r) in batch.iter().zip(results) {
                 match r {
-                    Ok(comp) => {
+                    Ok(vals) => {
                         let vals: Vec<String> = t
                             .iter()
-                            .chain(&comp.commands)
-                            .chain(&comp.torque)
-                            .map(|v| format!("{v}"))
+                            .chain(&vals)
+                            .zip(&factors)
+                            .map(|(v, f)| format!("{}", crate::fileunits::to_file(*v, *f)))
                             .collect();
                         writeln!(w, "{}", vals.join(","))?;
                         done += 1;
                     }
                     Err(e) if c.skip_unreachable => {
-                        eprintln!("{}:{line}: skipped: {e}", c.targets.display());
+                        eprintln!("{}:{line}: skipped: {e}", targets.display());
                         skipped += 1;
                     }
                     Err(e) => bail!(
                         "{}:{line}: {e} (use --skip-unreachable to skip such rows)",
-                        c.targets.display()
+                        targets.display()
                     ),
                 }
             }
@@ -120,7 +200,12 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
     })();
     let (done, skipped) = result?;
     eprintln!(
-        "compensated {done} targets{} ({} model) -> {}",
+        "{} {done} targets{} ({} model) -> {}",
+        if c.cartesian {
+            "pre-distorted"
+        } else {
+            "compensated"
+        },
         if skipped > 0 {
             format!(", skipped {skipped}")
         } else {
@@ -130,6 +215,293 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
         c.out.display()
     );
     Ok(())
+}
+
+/// Parse `x=-100:100:10,y=50,…` into gridded axes and held values (file
+/// units, converted with the tool factors `tf`); unnamed axes are held at
+/// the middle of the workspace box.
+pub fn parse_grid(
+    spec: &pkmcal::Spec,
+    text: &str,
+    tf: &[f64],
+) -> Result<(Vec<pkmcal::GridAxis>, Vec<f64>)> {
+    let mut fixed: Vec<f64> = spec
+        .workspace_box
+        .iter()
+        .map(|b| 0.5 * (b[0] + b[1]))
+        .collect();
+    let mut axes = vec![];
+    let mut seen = vec![];
+    for item in text.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+        let bad = |why: &str| {
+            crate::output::Usage(format!(
+                "--grid: `{item}`: {why}; write AXIS=START:STOP:STEP or AXIS=VALUE, e.g. x=-100:100:10"
+            ))
+        };
+        let (name, value) = item.split_once('=').ok_or_else(|| bad("no `=`"))?;
+        let name = name.trim();
+        let k = spec
+            .tool_axes
+            .iter()
+            .position(|a| a == name)
+            .ok_or_else(|| {
+                bad(&format!(
+                    "`{name}` is not a tool axis ({})",
+                    spec.tool_axes.join(", ")
+                ))
+            })?;
+        if seen.contains(&k) {
+            return Err(bad("axis given twice").into());
+        }
+        seen.push(k);
+        let nums: Vec<f64> = value
+            .split(':')
+            .map(|v| v.trim().parse::<f64>())
+            .collect::<std::result::Result<_, _>>()
+            .map_err(|_| bad("not numbers"))?;
+        if nums.iter().any(|v| !v.is_finite()) {
+            return Err(bad("not finite").into());
+        }
+        match nums[..] {
+            [v] => fixed[k] = v * tf[k],
+            [a, b, step] => {
+                if step <= 0.0 || b < a {
+                    return Err(bad("needs START ≤ STOP and a positive STEP").into());
+                }
+                let count = ((b - a) / step + 1e-9).floor() as usize + 1;
+                if count > pkmcal::compensation::MAX_GRID_NODES {
+                    return Err(bad("too many nodes; use a larger step").into());
+                }
+                axes.push((
+                    k,
+                    pkmcal::GridAxis {
+                        name: name.to_string(),
+                        unit: spec.tool_units[k],
+                        start: a * tf[k],
+                        step: step * tf[k],
+                        count,
+                    },
+                ));
+            }
+            _ => return Err(bad("give one value or START:STOP:STEP").into()),
+        }
+    }
+    if axes.is_empty() {
+        return Err(crate::output::Usage(
+            "--grid needs at least one gridded axis, AXIS=START:STOP:STEP".into(),
+        )
+        .into());
+    }
+    axes.sort_by_key(|(k, _)| *k);
+    Ok((axes.into_iter().map(|(_, a)| a).collect(), fixed))
+}
+
+/// The correction table of `compensate --grid`, as JSON.
+#[derive(serde::Serialize)]
+struct GridFile<'a> {
+    mechanism: &'a str,
+    model: &'a str,
+    /// How a controller uses the table.
+    usage: &'static str,
+    units: pkmcal::FileUnits,
+    /// Gridded axes (values in the file's units).
+    axes: Vec<pkmcal::GridAxis>,
+    /// Value of every tool axis not gridded.
+    held: std::collections::BTreeMap<String, f64>,
+    actuators: Vec<GridActuator>,
+    /// Corrections per node, row-major (the last axis fastest); `null` where
+    /// the node is unreachable or singular.
+    corrections: Vec<Option<Vec<f64>>>,
+    interpolation_error: pkmcal::InterpolationError,
+}
+
+#[derive(serde::Serialize)]
+struct GridActuator {
+    name: String,
+    unit: &'static str,
+}
+
+fn run_grid(
+    mech: &crate::io::Mech,
+    params: &Params,
+    text: &str,
+    c: &CompensateConfig,
+    opts: &CompensationOptions,
+    units: &pkmcal::FileUnits,
+) -> Result<()> {
+    let spec = mech.spec();
+    let (cf, tf) = (
+        crate::fileunits::commands(spec, units),
+        crate::fileunits::tool(spec, units),
+    );
+    let (axes, fixed) = parse_grid(spec, text, &tf)?;
+    let grid = pkmcal::correction_grid(mech, params, &axes, &fixed, c.model, opts)?;
+    let reachable = grid.nodes.iter().filter(|n| n.is_some()).count();
+    if reachable == 0 {
+        bail!(
+            "no node of the grid {text} is reachable; choose ranges inside the workspace (box: {})",
+            spec.tool_axes
+                .iter()
+                .zip(&spec.workspace_box)
+                .zip(&tf)
+                .map(|((a, b), f)| format!("{a} {}..{}", b[0] / f, b[1] / f))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
+    let err = pkmcal::interpolation_error(mech, params, &grid, c.model, opts)?;
+    let act = spec.actuated_names();
+    let cmd_units = spec.command_units();
+    let file_axes: Vec<pkmcal::GridAxis> = grid
+        .axes
+        .iter()
+        .zip(&grid.axis_index)
+        .map(|(a, &k)| pkmcal::GridAxis {
+            start: a.start / tf[k],
+            step: a.step / tf[k],
+            ..a.clone()
+        })
+        .collect();
+    let held: std::collections::BTreeMap<String, f64> = (0..spec.tool_axes.len())
+        .filter(|k| !grid.axis_index.contains(k))
+        .map(|k| (spec.tool_axes[k].clone(), fixed[k] / tf[k]))
+        .collect();
+    let describe = format!(
+        "{}{}",
+        file_axes
+            .iter()
+            .map(|a| format!(
+                "{} = {}:{}:{} ({} nodes)",
+                a.name,
+                a.start,
+                a.node(a.count - 1),
+                a.step,
+                a.count
+            ))
+            .collect::<Vec<_>>()
+            .join(", "),
+        if held.is_empty() {
+            String::new()
+        } else {
+            format!(
+                "; held: {}",
+                held.iter()
+                    .map(|(k, v)| format!("{k} = {v}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        }
+    );
+    let usage = "command = nominal model's command + correction interpolated multilinearly in the grid cell";
+    let json = c
+        .out
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"));
+    let bytes = if json {
+        let f = GridFile {
+            mechanism: &spec.name,
+            model: c.model.name(),
+            usage,
+            units: *units,
+            axes: file_axes.clone(),
+            held: held.clone(),
+            actuators: act
+                .iter()
+                .zip(&cmd_units)
+                .map(|(n, u)| GridActuator {
+                    name: n.to_string(),
+                    unit: units.symbol(*u, pkmcal::Role::Command),
+                })
+                .collect(),
+            corrections: grid
+                .nodes
+                .iter()
+                .map(|n| {
+                    n.as_ref()
+                        .map(|comp| crate::fileunits::row_to_file(&comp.correction, &cf))
+                })
+                .collect(),
+            interpolation_error: pkmcal::InterpolationError {
+                command_max: crate::fileunits::row_to_file(&err.command_max, &cf),
+                ..err.clone()
+            },
+        };
+        let mut b = serde_json::to_vec_pretty(&f)?;
+        b.push(b'\n');
+        b
+    } else {
+        let mut out = String::new();
+        if let Some(u) = crate::fileunits::comment(units) {
+            out.push_str(&format!("{u}\n"));
+        }
+        out.push_str(&format!("# correction grid: {describe}\n# {usage}; empty fields: node unreachable or outside the usable workspace\n"));
+        out.push_str(&format!(
+            "# interpolation error at {} cell centres: {}\n",
+            err.points,
+            interpolation_summary(&err)
+        ));
+        let mut header: Vec<String> = spec
+            .tool_axes
+            .iter()
+            .map(|a| format!("target_{a}"))
+            .collect();
+        header.extend(act.iter().map(|s| s.to_string()));
+        header.extend(act.iter().map(|s| format!("delta_{s}")));
+        header.extend(act.iter().zip(&cmd_units).map(|(s, u)| load_column(s, *u)));
+        out.push_str(&header.join(","));
+        out.push('\n');
+        for (n, node) in grid.nodes.iter().enumerate() {
+            let t = grid.target(n);
+            let mut fields: Vec<String> = t
+                .iter()
+                .zip(&tf)
+                .map(|(v, f)| format!("{}", crate::fileunits::to_file(*v, *f)))
+                .collect();
+            match node {
+                Some(comp) => fields.extend(
+                    comp.commands
+                        .iter()
+                        .zip(&cf)
+                        .chain(comp.correction.iter().zip(&cf))
+                        .map(|(v, f)| format!("{}", crate::fileunits::to_file(*v, *f)))
+                        .chain(comp.torque.iter().map(|v| format!("{v}"))),
+                ),
+                None => fields.extend(std::iter::repeat_n(String::new(), 3 * act.len())),
+            }
+            out.push_str(&fields.join(","));
+            out.push('\n');
+        }
+        out.into_bytes()
+    };
+    crate::output::stage(&c.out, &bytes)?;
+    eprintln!(
+        "correction grid {describe}: {reachable} of {} nodes reachable and usable ({} model) -> {}",
+        grid.len(),
+        c.model.name(),
+        c.out.display()
+    );
+    eprintln!(
+        "interpolation error at {} cell centres: {}",
+        err.points,
+        interpolation_summary(&err)
+    );
+    Ok(())
+}
+
+/// `position max 0.41 µm, RMS 0.12 µm` (and angles when the tool has them).
+fn interpolation_summary(e: &pkmcal::InterpolationError) -> String {
+    let (f, u) = pkmcal::Unit::Millimetre.readable(e.position_max);
+    let mut s = format!(
+        "position max {:.3} {u} (at {:?}), RMS {:.3} {u}",
+        e.position_max * f,
+        e.worst_target,
+        e.position_rms * f
+    );
+    if e.angle_max > 0.0 {
+        let (fa, ua) = pkmcal::Unit::Radian.readable(e.angle_max);
+        s.push_str(&format!(", angle max {:.3} {ua}", e.angle_max * fa));
+    }
+    s
 }
 
 pub struct PlanConfig {
@@ -195,21 +567,30 @@ pub fn run_plan(c: PlanConfig) -> Result<()> {
         .map(|a| format!("target_{a}"))
         .collect();
     header.extend(spec.actuated_names().iter().map(|s| s.to_string()));
+    let units = crate::fileunits::of(c.mechanism.as_deref())?;
+    let factors: Vec<f64> = crate::fileunits::tool(spec, &units)
+        .into_iter()
+        .chain(crate::fileunits::commands(spec, &units))
+        .collect();
     let rows = |set: &[usize]| -> Vec<Vec<f64>> {
         set.iter()
             .map(|&i| {
                 let p = &cands.points[i];
-                p.target
+                let row: Vec<f64> = p
+                    .target
                     .iter()
                     .copied()
                     .chain(spec.actuated.iter().map(|&j| p.q[j]))
-                    .collect()
+                    .collect();
+                crate::fileunits::row_to_file(&row, &factors)
             })
             .collect()
     };
-    crate::output::stage(&c.out, &csv_bytes(&header, &rows(&chosen)))?;
+    let file =
+        |set: &[usize]| crate::fileunits::with_comment(csv_bytes(&header, &rows(set)), &units);
+    crate::output::stage(&c.out, &file(&chosen))?;
     if let Some(g) = &c.grid_out {
-        crate::output::stage(g, &csv_bytes(&header, &rows(&grid_idx)))?;
+        crate::output::stage(g, &file(&grid_idx))?;
     }
     println!(
         "planned {} poses of {} candidates (spacing {:.4} mm{}) maximising {:?} for {} free parameters ({} model)",
@@ -285,7 +666,11 @@ pub fn run_montecarlo(c: MonteCarloConfig) -> Result<()> {
         .iter()
         .map(|a| format!("target_{a}"))
         .collect();
-    let poses = csv.named(&names)?;
+    let mut poses = csv.named(&names)?;
+    crate::fileunits::to_internal(
+        &mut poses,
+        &crate::fileunits::tool(spec, &crate::fileunits::of(c.mechanism.as_deref())?),
+    );
     for (i, t) in poses.iter().enumerate() {
         pkmcal::nominal_commands(&mech, t)
             .with_context(|| format!("{}:{}", c.poses.display(), csv.line(i)))?;

@@ -313,6 +313,28 @@ fn spreadsheet_exports_are_read() {
             .collect()
     };
     assert_eq!(params("a.toml"), params("b.toml"));
+    // Whitespace-separated (numpy.savetxt, instrument logs): runs of blanks,
+    // aligned columns, leading blanks; read by the whole-file reader.
+    let spaced: String = text
+        .lines()
+        .map(|l| {
+            if l.starts_with('#') {
+                l.to_string()
+            } else {
+                format!("  {}  ", l.replace(',', " \t  "))
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    std::fs::write(d.join("spaced.txt"), spaced + "\n").unwrap();
+    common::ok(d, &["calibrate", "--data", "spaced.txt", "--out", "c.toml"]);
+    assert_eq!(params("a.toml"), params("c.toml"));
+    // ... and by the streamed one, decimal commas included.
+    std::fs::write(d.join("ws.txt"), "q1 q2   q3\n 1,46  3,56 -2,59\n").unwrap();
+    std::fs::write(d.join("cs.csv"), "q1,q2,q3\n1.46,3.56,-2.59\n").unwrap();
+    let ws = common::ok(d, &["predict", "--commands", "ws.txt", "--out", "-"]);
+    let cs = common::ok(d, &["predict", "--commands", "cs.csv", "--out", "-"]);
+    assert_eq!(ws, cs);
     std::fs::write(d.join("tab.csv"), "Q1\tQ2\tQ3\n1.46\t3.56\t-2.59\n").unwrap();
     let out = common::ok(d, &["predict", "--commands", "tab.csv", "--out", "-"]);
     assert_eq!(out.lines().count(), 2, "{out}");

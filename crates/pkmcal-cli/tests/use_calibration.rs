@@ -42,6 +42,9 @@ fn compensated_commands_bring_the_tool_to_the_targets() {
                 "q1",
                 "q2",
                 "q3",
+                "delta_q1",
+                "delta_q2",
+                "delta_q3",
                 "torque_q1",
                 "torque_q2",
                 "torque_q3"

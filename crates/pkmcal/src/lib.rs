@@ -66,7 +66,10 @@ pub use calibration::{
     accuracy, analyze, calibrate, calibration_accuracy, cross_validate,
     cross_validate_with_progress, holdout_split, predict_with_uncertainty, tool_covariance,
 };
-pub use compensation::{Compensation, CompensationOptions, compensate};
+pub use compensation::{
+    Compensation, CompensationOptions, CorrectionGrid, GridAxis, InterpolationError, Predistortion,
+    compensate, controller_commands, correction_grid, interpolation_error, predistort,
+};
 pub use error::{Error, Result};
 pub use frame::ToolLayout;
 pub use gough_stewart::{GoughStewart, GoughStewartAssembly, GoughStewartDescription};
@@ -87,7 +90,7 @@ pub use planning::{PlanCriterion, candidate_jacobians, plan_observability, plan_
 pub use reference::JeongKim2Dof;
 pub use simulate::{Measurement, Noise, Origin, simulate, simulate_with_progress};
 pub use stats::{ErrorStats, error_stats, improvement_percent};
-pub use units::{ParamKind, Quantity, Unit};
+pub use units::{AngleUnit, FileUnits, LengthUnit, ParamKind, PartialUnits, Quantity, Role, Unit};
 pub use workspace::{
     WorkspacePoint, grid_targets, nominal_commands, random_targets, sample_workspace,
     spread_targets,

@@ -149,6 +149,256 @@ impl ParamKind {
     }
 }
 
+/// An angle unit a data file may use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub enum AngleUnit {
+    /// Radian (the internal unit).
+    #[default]
+    #[serde(rename = "rad")]
+    Radian,
+    /// Degree.
+    #[serde(rename = "deg")]
+    Degree,
+}
+
+/// A length unit a data file may use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub enum LengthUnit {
+    /// Millimetre (the internal unit).
+    #[default]
+    #[serde(rename = "mm")]
+    Millimetre,
+    /// Metre.
+    #[serde(rename = "m")]
+    Metre,
+    /// Micrometre.
+    #[serde(rename = "um")]
+    Micrometre,
+}
+
+impl AngleUnit {
+    /// Radians per unit.
+    pub fn to_rad(self) -> f64 {
+        match self {
+            AngleUnit::Radian => 1.0,
+            AngleUnit::Degree => std::f64::consts::PI / 180.0,
+        }
+    }
+    /// The symbol (`rad`, `deg`).
+    pub fn symbol(self) -> &'static str {
+        match self {
+            AngleUnit::Radian => "rad",
+            AngleUnit::Degree => "deg",
+        }
+    }
+}
+
+impl LengthUnit {
+    /// Millimetres per unit.
+    pub fn to_mm(self) -> f64 {
+        match self {
+            LengthUnit::Millimetre => 1.0,
+            LengthUnit::Metre => 1e3,
+            LengthUnit::Micrometre => 1e-3,
+        }
+    }
+    /// The symbol (`mm`, `m`, `um`).
+    pub fn symbol(self) -> &'static str {
+        match self {
+            LengthUnit::Millimetre => "mm",
+            LengthUnit::Metre => "m",
+            LengthUnit::Micrometre => "um",
+        }
+    }
+}
+
+/// The units of the numbers in a user's data files (commands, measured
+/// positions, targets, σ, bar lengths), converted to the internal ones on
+/// read and back on write. Parameter files and reports stay in the internal
+/// units (mm, rad), which they name.
+///
+/// Commands of revolute actuators are in `angle`, or in encoder counts when
+/// `counts_per_rev` is given; commands of prismatic actuators in `length`, or
+/// in counts when `counts_per_mm` is given. Tool positions and distances are
+/// in `length`, tool orientations in `angle`.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FileUnits {
+    /// Unit of angles (revolute commands, orientations).
+    #[serde(default)]
+    pub angle: AngleUnit,
+    /// Unit of lengths (prismatic commands, positions, distances).
+    #[serde(default)]
+    pub length: LengthUnit,
+    /// Encoder counts per revolution of a revolute actuator: its commands are
+    /// then counts.
+    #[serde(default)]
+    pub counts_per_rev: Option<f64>,
+    /// Encoder counts per millimetre of a prismatic actuator: its commands
+    /// are then counts.
+    #[serde(default)]
+    pub counts_per_mm: Option<f64>,
+}
+
+/// Whether a number in a data file is an actuator command or a reading
+/// (position, orientation, distance, target, σ).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Role {
+    /// An actuator command (may be in encoder counts).
+    Command,
+    /// Any other number: measured, target or predicted coordinates, σ.
+    Reading,
+}
+
+impl FileUnits {
+    /// Internal value per file unit of a number of internal unit `unit`
+    /// playing `role` (`internal = file × factor`).
+    pub fn factor(&self, unit: Unit, role: Role) -> f64 {
+        match (unit, role) {
+            (Unit::Radian, Role::Command) if self.counts_per_rev.is_some() => {
+                std::f64::consts::TAU / self.counts_per_rev.unwrap_or(1.0)
+            }
+            (Unit::Millimetre, Role::Command) if self.counts_per_mm.is_some() => {
+                1.0 / self.counts_per_mm.unwrap_or(1.0)
+            }
+            (Unit::Radian, _) => self.angle.to_rad(),
+            (Unit::Millimetre, _) => self.length.to_mm(),
+            _ => 1.0,
+        }
+    }
+
+    /// The file unit's symbol for a number of internal unit `unit`.
+    pub fn symbol(&self, unit: Unit, role: Role) -> &'static str {
+        match (unit, role) {
+            (Unit::Radian, Role::Command) if self.counts_per_rev.is_some() => "counts",
+            (Unit::Millimetre, Role::Command) if self.counts_per_mm.is_some() => "counts",
+            (Unit::Radian, _) => self.angle.symbol(),
+            (Unit::Millimetre, _) => self.length.symbol(),
+            _ => unit.symbol(),
+        }
+    }
+
+    /// Whether every factor is 1 (the internal units).
+    pub fn is_internal(&self) -> bool {
+        *self == FileUnits::default()
+    }
+
+    /// Overlay `other`'s explicitly given settings (`Some`) on these.
+    pub fn with(mut self, other: &PartialUnits) -> Self {
+        if let Some(a) = other.angle {
+            self.angle = a;
+        }
+        if let Some(l) = other.length {
+            self.length = l;
+        }
+        if other.counts_per_rev.is_some() {
+            self.counts_per_rev = other.counts_per_rev;
+        }
+        if other.counts_per_mm.is_some() {
+            self.counts_per_mm = other.counts_per_mm;
+        }
+        self
+    }
+
+    /// Check that counts per revolution or per mm are positive and finite.
+    pub fn validate(&self) -> crate::error::Result<()> {
+        for (name, v) in [
+            ("counts_per_rev", self.counts_per_rev),
+            ("counts_per_mm", self.counts_per_mm),
+        ] {
+            if let Some(v) = v
+                && !(v.is_finite() && v > 0.0 && v < 1e15)
+            {
+                return Err(crate::error::Error::InvalidRequest(format!(
+                    "units: {name} = {v} must be a positive number of encoder counts"
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// Text for a summary line: `angles in deg, lengths in m, …`.
+    pub fn describe(&self) -> String {
+        let mut parts = vec![
+            format!("angles in {}", self.angle.symbol()),
+            format!("lengths in {}", self.length.symbol()),
+        ];
+        if let Some(c) = self.counts_per_rev {
+            parts.push(format!("revolute commands in counts ({c} per rev)"));
+        }
+        if let Some(c) = self.counts_per_mm {
+            parts.push(format!("prismatic commands in counts ({c} per mm)"));
+        }
+        parts.join(", ")
+    }
+}
+
+/// Units given explicitly (on the command line, or in a mechanism file's
+/// `[units]` table): what is `None` keeps the setting below it.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PartialUnits {
+    /// Angle unit.
+    pub angle: Option<AngleUnit>,
+    /// Length unit.
+    pub length: Option<LengthUnit>,
+    /// Encoder counts per revolution.
+    pub counts_per_rev: Option<f64>,
+    /// Encoder counts per mm.
+    pub counts_per_mm: Option<f64>,
+}
+
+impl PartialUnits {
+    /// Parse `angle=deg,length=m,counts_per_rev=4096` (keys in any order,
+    /// any subset; `µm` and `um` both accepted).
+    pub fn parse(text: &str) -> crate::error::Result<Self> {
+        let bad = |m: String| crate::error::Error::InvalidRequest(m);
+        let mut out = PartialUnits::default();
+        for item in text.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+            let (k, v) = item.split_once('=').ok_or_else(|| {
+                bad(format!(
+                    "`{item}` is not key=value; use e.g. angle=deg,length=m,counts_per_rev=4096"
+                ))
+            })?;
+            let v = v.trim();
+            match k.trim() {
+                "angle" => {
+                    out.angle = Some(match v {
+                        "rad" => AngleUnit::Radian,
+                        "deg" | "°" => AngleUnit::Degree,
+                        _ => return Err(bad(format!("angle unit `{v}`: use rad or deg"))),
+                    })
+                }
+                "length" => {
+                    out.length = Some(match v {
+                        "mm" => LengthUnit::Millimetre,
+                        "m" => LengthUnit::Metre,
+                        "um" | "µm" => LengthUnit::Micrometre,
+                        _ => return Err(bad(format!("length unit `{v}`: use mm, m or um"))),
+                    })
+                }
+                key @ ("counts_per_rev" | "counts_per_mm") => {
+                    let n: f64 = v
+                        .parse()
+                        .map_err(|_| bad(format!("{key} = `{v}` is not a number")))?;
+                    if key == "counts_per_rev" {
+                        out.counts_per_rev = Some(n);
+                    } else {
+                        out.counts_per_mm = Some(n);
+                    }
+                }
+                other => {
+                    return Err(bad(format!(
+                        "unknown unit key `{other}`: the keys are angle, length, counts_per_rev, counts_per_mm"
+                    )));
+                }
+            }
+        }
+        FileUnits::default().with(&out).validate()?;
+        Ok(out)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -168,4 +418,27 @@ mod tests {
             Unit::NewtonPerMillimetre
         );
     }
+
+    #[test]
+    fn file_units() {
+        let u = FileUnits::default()
+            .with(&PartialUnits::parse("angle=deg, length=m, counts_per_mm=100").unwrap());
+        assert_eq!(u.factor(Unit::Radian, Role::Command), PI_180);
+        assert_eq!(u.factor(Unit::Radian, Role::Reading), PI_180);
+        assert_eq!(u.factor(Unit::Millimetre, Role::Reading), 1e3);
+        assert_eq!(u.factor(Unit::Millimetre, Role::Command), 0.01);
+        assert_eq!(u.symbol(Unit::Millimetre, Role::Command), "counts");
+        let c = FileUnits::default().with(&PartialUnits::parse("counts_per_rev=4096").unwrap());
+        assert_eq!(
+            c.factor(Unit::Radian, Role::Command),
+            std::f64::consts::TAU / 4096.0
+        );
+        assert_eq!(c.factor(Unit::Radian, Role::Reading), 1.0);
+        assert!(PartialUnits::parse("angle=grad").is_err());
+        assert!(PartialUnits::parse("counts_per_rev=-3").is_err());
+        assert!(PartialUnits::parse("speed=1").is_err());
+        assert!(FileUnits::default().is_internal());
+    }
+
+    const PI_180: f64 = std::f64::consts::PI / 180.0;
 }

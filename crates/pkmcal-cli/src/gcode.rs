@@ -1,0 +1,376 @@
+//! `gcode`: rewrite the `G0`/`G1` moves of a G-code program through the
+//! Cartesian pre-distortion ([`pkmcal::predistort`]), so that a controller
+//! that runs its own (nominal) kinematics makes the calibrated machine reach
+//! the programmed points.
+//!
+//! Tool axes map to words: `x y z` → `X Y Z`, `rx ry rz` → `A B C`, a planar
+//! tool's `phi` → `C`; lengths in mm (`G21`, or inches after `G20`), angles
+//! in degrees (the G-code convention). Supported: `G90`/`G91` (absolute or
+//! relative), `G20`/`G21`, `M82`/`M83` and `G92 E` (extrusion, split with
+//! the segments), comments `;…` and `(…)`. Refused with the line: arcs
+//! (`G2`/`G3`), `G92` on a tool axis. `G28` (homing) forgets the position
+//! until the next move gives every axis again.
+
+use anyhow::{Context, Result};
+use pkmcal::{CompensationOptions, Mechanism, Model, Params, predistort};
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+pub struct GcodeConfig {
+    pub mechanism: Option<PathBuf>,
+    pub params: PathBuf,
+    pub controller: Option<PathBuf>,
+    pub model: Model,
+    pub load: Option<String>,
+    pub input: PathBuf,
+    pub offset: Option<String>,
+    pub max_segment: Option<f64>,
+    pub out: PathBuf,
+}
+
+/// The G-code word of a tool axis.
+fn word_of(axis: &str) -> Option<char> {
+    match axis {
+        "x" => Some('X'),
+        "y" => Some('Y'),
+        "z" => Some('Z'),
+        "rx" => Some('A'),
+        "ry" => Some('B'),
+        "rz" | "phi" => Some('C'),
+        _ => None,
+    }
+}
+
+/// `G0`/`G1` (and their zero-padded forms).
+fn is_linear(v: &str) -> bool {
+    matches!(v, "0" | "00" | "1" | "01")
+}
+
+/// Digits written for lengths (mm: 0.1 µm) and angles (degrees).
+const LENGTH_DECIMALS: usize = 4;
+const ANGLE_DECIMALS: usize = 6;
+
+/// One line split into its words (letter, number text) and its comment.
+struct Line<'a> {
+    words: Vec<(char, &'a str)>,
+    comment: &'a str,
+}
+
+fn split(line: &str) -> Result<Line<'_>, String> {
+    let (code, comment) = match line.find([';', '(']) {
+        Some(i) => (&line[..i], &line[i..]),
+        None => (line, ""),
+    };
+    let mut words = vec![];
+    let b = code.as_bytes();
+    let mut i = 0;
+    while i < b.len() {
+        let c = b[i] as char;
+        if c.is_ascii_whitespace() {
+            i += 1;
+            continue;
+        }
+        if !c.is_ascii_alphabetic() {
+            return Err(format!("unexpected `{c}`"));
+        }
+        let start = i + 1;
+        let mut j = start;
+        while j < b.len()
+            && (b[j] == b'.'
+                || b[j] == b'-'
+                || b[j] == b'+'
+                || b[j].is_ascii_digit()
+                || b[j] == b' ')
+        {
+            if b[j] == b' ' && j > start && !code[start..j].trim().is_empty() {
+                break;
+            }
+            j += 1;
+        }
+        words.push((c.to_ascii_uppercase(), code[start..j].trim()));
+        i = j;
+    }
+    Ok(Line { words, comment })
+}
+
+pub fn run_gcode(c: GcodeConfig) -> Result<()> {
+    let mech = crate::io::read_mechanism(c.mechanism.as_deref())?;
+    let spec = mech.spec();
+    let real = crate::io::read_params(&c.params, &mech)?;
+    let controller = match &c.controller {
+        Some(p) => crate::io::read_params(p, &mech)?,
+        None => Params::nominal(spec),
+    };
+    let nx = spec.tool_axes.len();
+    let force = match &c.load {
+        Some(s) => {
+            let f = crate::io::parse_load(s, "--load")?;
+            if f.len() != nx {
+                return crate::output::usage(format!("--load needs {nx} values, got {}", f.len()));
+            }
+            f
+        }
+        None => vec![],
+    };
+    let opts = CompensationOptions {
+        force,
+        preload: vec![],
+    };
+    let words: Vec<char> = spec
+        .tool_axes
+        .iter()
+        .map(|a| word_of(a).with_context(|| format!("tool axis `{a}` has no G-code word")))
+        .collect::<Result<_>>()?;
+    let angle: Vec<bool> = spec
+        .tool_units
+        .iter()
+        .map(|u| *u == pkmcal::Unit::Radian)
+        .collect();
+    let offset = match &c.offset {
+        Some(s) => {
+            let v = crate::io::parse_list(s, "--offset")?;
+            if v.len() != nx {
+                return crate::output::usage(format!(
+                    "--offset needs {nx} values (mm, and degrees for angles: {}), got {}",
+                    spec.tool_axes.join(", "),
+                    v.len()
+                ));
+            }
+            v
+        }
+        None => vec![0.0; nx],
+    };
+    if let Some(m) = c.max_segment
+        && !(m.is_finite() && m > 0.0)
+    {
+        return crate::output::usage("--max-segment must be a positive length in mm");
+    }
+    let text = std::fs::read_to_string(&c.input)
+        .with_context(|| format!("cannot read G-code file {}", c.input.display()))?;
+    let file = c.input.display();
+    // Programmed position in G-code units of each tool axis (None: unknown);
+    // rotations not programmed stay at 0.
+    let mut pos: Vec<Option<f64>> = (0..nx).map(|k| angle[k].then_some(0.0)).collect();
+    // The pre-distorted position last sent (for relative moves).
+    let mut sent_pos: Vec<Option<f64>> = pos.clone();
+    let (mut absolute, mut inches, mut abs_e) = (true, false, true);
+    let mut motion: Option<u32> = None;
+    let mut e_pos = 0.0;
+    let mut out = String::with_capacity(text.len() * 2);
+    let (mut moves, mut segments, mut worst) = (0usize, 0usize, 0.0f64);
+    for (n, raw) in text.lines().enumerate() {
+        let line_no = n + 1;
+        let here = |m: String| anyhow::anyhow!("{file}:{line_no}: {m}");
+        let l = split(raw).map_err(|m| here(format!("{m}: not G-code")))?;
+        let num = |v: &str, w: char| -> Result<f64> {
+            let x: f64 = v
+                .parse()
+                .map_err(|_| here(format!("`{w}{v}` is not a number")))?;
+            if !x.is_finite() {
+                return Err(here(format!("`{w}{v}` is not finite")));
+            }
+            Ok(x)
+        };
+        let mut is_move = false;
+        let mut g92 = false;
+        for &(w, v) in &l.words {
+            match (w, v) {
+                ('G', v) if is_linear(v) => {
+                    motion = Some(num(v, w)? as u32);
+                    is_move = true;
+                }
+                ('G', "2" | "02" | "3" | "03") => {
+                    return Err(here(
+                        "arcs (G2/G3) are not rewritten; have the CAM or slicer write them as G1 segments".into(),
+                    ));
+                }
+                ('G', "90") => absolute = true,
+                ('G', "91") => absolute = false,
+                ('G', "20") => inches = true,
+                ('G', "21") => inches = false,
+                ('G', "92") => g92 = true,
+                ('G', "28") => {
+                    for k in 0..nx {
+                        if !angle[k] {
+                            pos[k] = None;
+                            sent_pos[k] = None;
+                        }
+                    }
+                }
+                ('M', "82") => abs_e = true,
+                ('M', "83") => abs_e = false,
+                _ => {}
+            }
+        }
+        let has_axis = l.words.iter().any(|(w, _)| words.contains(w));
+        if g92 {
+            if has_axis {
+                return Err(here(
+                    "G92 on a tool axis shifts the coordinates; remove it or give the shift with --offset".into(),
+                ));
+            }
+            if let Some((_, v)) = l.words.iter().find(|(w, _)| *w == 'E') {
+                e_pos = num(v, 'E')?;
+            }
+            out.push_str(raw);
+            out.push('\n');
+            continue;
+        }
+        let continues = !is_move
+            && has_axis
+            && motion.is_some()
+            && l.words.iter().all(|(w, _)| *w != 'G' && *w != 'M');
+        if !(is_move || continues) || !has_axis {
+            if let Some((_, v)) = l.words.iter().find(|(w, _)| *w == 'E')
+                && is_move
+            {
+                let e = num(v, 'E')?;
+                e_pos = if abs_e { e } else { e_pos + e };
+            }
+            out.push_str(raw);
+            out.push('\n');
+            continue;
+        }
+        // A move: the new programmed position.
+        let scale = if inches { 25.4 } else { 1.0 };
+        let from = pos.clone();
+        for (k, w) in words.iter().enumerate() {
+            if let Some((_, v)) = l.words.iter().find(|(x, _)| x == w) {
+                let x = num(v, *w)? * if angle[k] { 1.0 } else { scale };
+                pos[k] = Some(if absolute {
+                    x
+                } else {
+                    pos[k].map_or(x, |p| p + x)
+                });
+                if !absolute && from[k].is_none() {
+                    return Err(here(format!(
+                        "relative move before the position of {} is known",
+                        spec.tool_axes[k]
+                    )));
+                }
+            }
+        }
+        if let Some(k) = pos.iter().position(Option::is_none) {
+            return Err(here(format!(
+                "a move before the position of `{}` is known (after the start or a G28); give every axis ({}) on the first move",
+                spec.tool_axes[k],
+                (0..nx)
+                    .filter(|&k| !angle[k])
+                    .map(|k| words[k].to_string())
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            )));
+        }
+        let to: Vec<f64> = pos.iter().map(|p| p.unwrap_or(0.0)).collect();
+        let e_word = l.words.iter().find(|(w, _)| *w == 'E').map(|(_, v)| *v);
+        let e_new = match e_word {
+            Some(v) => {
+                let e = num(v, 'E')?;
+                Some(if abs_e { e } else { e_pos + e })
+            }
+            None => None,
+        };
+        // Segments: straight in programmed coordinates.
+        let pieces = match (c.max_segment, from.iter().all(Option::is_some)) {
+            (Some(max), true) => {
+                let d: f64 = (0..nx)
+                    .filter(|&k| !angle[k])
+                    .map(|k| (to[k] - from[k].unwrap_or(0.0)).powi(2))
+                    .sum::<f64>()
+                    .sqrt();
+                ((d / max).ceil() as usize).max(1)
+            }
+            _ => 1,
+        };
+        let g = format!("G{}", motion.unwrap_or(1));
+        // Words kept as they are (feed rate, other codes).
+        let others: Vec<String> = l
+            .words
+            .iter()
+            .filter(|(w, v)| !(words.contains(w) || *w == 'E' || (*w == 'G' && is_linear(v))))
+            .map(|(w, v)| format!("{w}{v}"))
+            .collect();
+        for p in 1..=pieces {
+            let f = p as f64 / pieces as f64;
+            let point: Vec<f64> = (0..nx)
+                .map(|k| match from[k] {
+                    Some(a) if pieces > 1 => a + (to[k] - a) * f,
+                    _ => to[k],
+                })
+                .collect();
+            // Programmed (G-code units) to tool coordinates (mm, rad).
+            let target: Vec<f64> = (0..nx)
+                .map(|k| {
+                    if angle[k] {
+                        (point[k] + offset[k]).to_radians()
+                    } else {
+                        point[k] + offset[k]
+                    }
+                })
+                .collect();
+            let pd = predistort(&mech, &controller, &real, &target, c.model, &opts)
+                .map_err(|e| here(format!("{e}")))?;
+            worst = worst.max(
+                (0..nx)
+                    .filter(|&k| !angle[k])
+                    .map(|k| (pd.command_target[k] - target[k]).abs())
+                    .fold(0.0, f64::max),
+            );
+            let send: Vec<f64> = (0..nx)
+                .map(|k| {
+                    if angle[k] {
+                        pd.command_target[k].to_degrees() - offset[k]
+                    } else {
+                        (pd.command_target[k] - offset[k]) / scale
+                    }
+                })
+                .collect();
+            let mut line = g.clone();
+            for k in 0..nx {
+                // Every axis: the correction moves them all.
+                let v = if absolute {
+                    send[k]
+                } else {
+                    send[k] - sent_pos[k].unwrap_or(send[k])
+                };
+                let decimals = if angle[k] {
+                    ANGLE_DECIMALS
+                } else {
+                    LENGTH_DECIMALS
+                };
+                let _ = write!(line, " {}{:.*}", words[k], decimals, v);
+                sent_pos[k] = Some(send[k]);
+            }
+            if let Some(en) = e_new {
+                let e_here = e_pos + (en - e_pos) * f;
+                let e_prev = e_pos + (en - e_pos) * (p - 1) as f64 / pieces as f64;
+                let v = if abs_e { e_here } else { e_here - e_prev };
+                let _ = write!(line, " E{v:.5}");
+            }
+            for o in &others {
+                line.push(' ');
+                line.push_str(o);
+            }
+            if p == pieces && !l.comment.is_empty() {
+                line.push(' ');
+                line.push_str(l.comment);
+            }
+            out.push_str(&line);
+            out.push('\n');
+            segments += 1;
+        }
+        if let Some(en) = e_new {
+            e_pos = en;
+        }
+        moves += 1;
+    }
+    crate::output::stage(&c.out, out.as_bytes())?;
+    let (f, u) = pkmcal::Unit::Millimetre.readable(worst);
+    eprintln!(
+        "rewrote {moves} moves as {segments} pre-distorted moves (largest shift {:.3} {u}, {} model) -> {}",
+        worst * f,
+        c.model.name(),
+        c.out.display()
+    );
+    Ok(())
+}
