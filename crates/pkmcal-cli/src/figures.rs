@@ -110,107 +110,217 @@ fn range(values: impl Iterator<Item = f64>, pad: f64) -> (f64, f64) {
     (lo - p, hi + p)
 }
 
-/// Fig. 9 of the paper: X, Y and distance error at each measured pose, before
-/// and after calibration (lengths in mm, angles in mrad).
+/// A panel's values scaled to a readable unit (µm, mrad, …) for their size.
+fn readable(values: &[f64], unit: pkmcal::Unit) -> (Vec<f64>, &'static str) {
+    let m = values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let (f, sym) = unit.readable(m);
+    (values.iter().map(|v| v * f).collect(), sym)
+}
+
+/// Panels whose before and after scales differ by more than this get an
+/// after panel of their own.
+const SPLIT_RATIO: f64 = 10.0;
+/// Height of one row of panels (px).
+const PANEL_HEIGHT: u32 = 150;
+/// Height of the legend strip above the panels (px).
+const LEGEND_HEIGHT: u32 = 34;
+
+/// One error panel: the values of one or two series at each pose.
+fn error_panel<DB: DrawingBackend>(
+    area: &DrawingArea<DB, plotters::coord::Shift>,
+    n: usize,
+    label: &str,
+    series: &[(&[f64], RGBColor)],
+) -> Result<()> {
+    let (lo, hi) = range(
+        series
+            .iter()
+            .flat_map(|(v, _)| v.iter().copied())
+            .chain([0.0]),
+        0.08,
+    );
+    let mut chart = ChartBuilder::on(area)
+        .margin(8)
+        .x_label_area_size(30)
+        .y_label_area_size(62)
+        .build_cartesian_2d(0.5f64..n as f64 + 0.5, lo..hi)
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc("measured pose")
+        .y_desc(label)
+        .x_labels(8)
+        .y_labels(5)
+        .x_label_formatter(&|x| format!("{}", x.round() as i64))
+        .y_label_formatter(&tick)
+        .label_style((FONT, 12))
+        .axis_desc_style((FONT, 13))
+        .light_line_style(WHITE)
+        .draw()
+        .map_err(err)?;
+    chart
+        .draw_series(LineSeries::new(
+            [(0.5, 0.0), (n as f64 + 0.5, 0.0)],
+            BLACK.mix(0.4),
+        ))
+        .map_err(err)?;
+    for (vals, color) in series {
+        let color = *color;
+        chart
+            .draw_series(LineSeries::new(
+                vals.iter().enumerate().map(|(i, v)| (i as f64 + 1.0, *v)),
+                color.mix(0.5),
+            ))
+            .map_err(err)?;
+        chart
+            .draw_series(
+                vals.iter()
+                    .enumerate()
+                    .map(|(i, v)| Circle::new((i as f64 + 1.0, *v), 3, color.filled())),
+            )
+            .map_err(err)?;
+    }
+    Ok(())
+}
+
+/// The legend strip: coloured dots and names, outside the data.
+fn legend<DB: DrawingBackend>(
+    area: &DrawingArea<DB, plotters::coord::Shift>,
+    entries: &[(&str, RGBColor)],
+) -> Result<()> {
+    let mut x = 80;
+    for (name, color) in entries {
+        area.draw(&Circle::new(
+            (x, LEGEND_HEIGHT as i32 / 2),
+            5,
+            color.filled(),
+        ))
+        .map_err(err)?;
+        area.draw(&Text::new(
+            name.to_string(),
+            (x + 12, LEGEND_HEIGHT as i32 / 2 - 8),
+            (FONT, 15).into_font(),
+        ))
+        .map_err(err)?;
+        x += 24 + 9 * name.len() as i32;
+    }
+    Ok(())
+}
+
+/// Fig. 9 of the paper: the error of each tool coordinate and the distance
+/// error at each measured pose, before and after calibration. Each panel is
+/// in a unit readable for its size (mm, µm; mrad, µrad; angles never in mm);
+/// when the errors after calibration are more than ten times smaller, they
+/// get panels of their own, on the right.
 pub fn errors_per_pose(
     before: &[Vec<f64>],
     after: &[Vec<f64>],
     axes: &[String],
     units: &[pkmcal::Unit],
 ) -> Result<Figure> {
+    use pkmcal::Unit;
     let n = before.len();
     let lengths: Vec<usize> = (0..units.len())
-        .filter(|&k| units[k] == pkmcal::Unit::Millimetre)
+        .filter(|&k| units[k] == Unit::Millimetre)
         .collect();
     let dist = |e: &Vec<f64>| lengths.iter().map(|&k| e[k] * e[k]).sum::<f64>().sqrt();
-    let mut panels: Vec<(String, Vec<f64>, Vec<f64>)> = axes
+    // (name, unit, before, after) per quantity, in internal units.
+    let mut rows: Vec<(String, Unit, Vec<f64>, Vec<f64>)> = axes
         .iter()
         .zip(units)
         .enumerate()
         .map(|(k, (a, u))| {
-            let (f, sym) = match u {
-                pkmcal::Unit::Radian => (1e3, "mrad"),
-                u => (1.0, u.symbol()),
-            };
             (
-                format!("{} error ({sym})", a.to_uppercase()),
-                before.iter().map(|e| e[k] * f).collect(),
-                after.iter().map(|e| e[k] * f).collect(),
+                format!("{a} error"),
+                *u,
+                before.iter().map(|e| e[k]).collect(),
+                after.iter().map(|e| e[k]).collect(),
             )
         })
         .collect();
-    if !lengths.is_empty() {
-        panels.push((
-            "distance error (mm)".into(),
+    if lengths.len() > 1 {
+        rows.push((
+            "distance error".into(),
+            Unit::Millimetre,
             before.iter().map(dist).collect(),
             after.iter().map(dist).collect(),
         ));
     }
+    let peak = |v: &[f64]| v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    let split = rows
+        .iter()
+        .any(|(_, _, b, a)| peak(b) > SPLIT_RATIO * peak(a).max(1e-300));
+    let height = LEGEND_HEIGHT + PANEL_HEIGHT * rows.len() as u32;
+    let width = if split { 1200u32 } else { 1000 };
     render!(
         "errors",
         "Errors at each measured pose (paper Fig. 9)",
         format!(
-            "Error of each tool coordinate and distance error of each of the {n} measured poses before (red) and after (blue) calibration (lengths in mm, angles in mrad)."
+            "Error of each tool coordinate{} at each of the {n} measured poses, before (red) and after (blue) calibration{}. Each panel has its own unit (lengths in mm or µm, angles in mrad or µrad).",
+            if lengths.len() > 1 {
+                " and the distance error"
+            } else {
+                ""
+            },
+            if split {
+                "; the errors after calibration are more than ten times smaller and are drawn on their own scale, on the right"
+            } else {
+                ""
+            }
         ),
-        (1000u32, 780u32),
+        (width, height),
         |root| {
             root.fill(&WHITE).map_err(err)?;
-            let rows = root.split_evenly((panels.len(), 1));
-            for (area, (label, b, a)) in rows.iter().zip(&panels) {
-                let (lo, hi) = range(b.iter().chain(a).copied().chain([0.0]), 0.08);
-                let mut chart = ChartBuilder::on(area)
-                    .margin(8)
-                    .x_label_area_size(32)
-                    .y_label_area_size(70)
-                    .build_cartesian_2d(0.5f64..n as f64 + 0.5, lo..hi)
-                    .map_err(err)?;
-                chart
-                    .configure_mesh()
-                    .x_desc("measured pose")
-                    .y_desc(label.as_str())
-                    .x_label_formatter(&|x| format!("{}", x.round() as i64))
-                    .y_label_formatter(&tick)
-                    .label_style((FONT, 13))
-                    .axis_desc_style((FONT, 14))
-                    .light_line_style(WHITE)
-                    .draw()
-                    .map_err(err)?;
-                chart
-                    .draw_series(LineSeries::new(
-                        [(0.5, 0.0), (n as f64 + 0.5, 0.0)],
-                        BLACK.mix(0.4),
-                    ))
-                    .map_err(err)?;
-                for (vals, color, name) in [(b, BEFORE, "before"), (a, AFTER, "after")] {
-                    chart
-                        .draw_series(LineSeries::new(
-                            vals.iter().enumerate().map(|(i, v)| (i as f64 + 1.0, *v)),
-                            color.mix(0.5),
-                        ))
-                        .map_err(err)?;
-                    chart
-                        .draw_series(
-                            vals.iter()
-                                .enumerate()
-                                .map(|(i, v)| Circle::new((i as f64 + 1.0, *v), 3, color.filled())),
-                        )
-                        .map_err(err)?
-                        .label(name)
-                        .legend(move |(x, y)| Circle::new((x + 8, y), 4, color.filled()));
+            let (top, body) = root.split_vertically(LEGEND_HEIGHT);
+            if split {
+                let (l, r) = top.split_horizontally(width / 2);
+                legend(&l, &[("before calibration", BEFORE)])?;
+                legend(&r, &[("after calibration", AFTER)])?;
+            } else {
+                legend(&top, &[("before", BEFORE), ("after", AFTER)])?;
+            }
+            let cells = body.split_evenly((rows.len(), if split { 2 } else { 1 }));
+            for (r, (name, unit, b, a)) in rows.iter().enumerate() {
+                if split {
+                    let (bv, bu) = readable(b, *unit);
+                    let (av, au) = readable(a, *unit);
+                    error_panel(
+                        &cells[2 * r],
+                        n,
+                        &format!("{name} ({bu})"),
+                        &[(&bv, BEFORE)],
+                    )?;
+                    error_panel(
+                        &cells[2 * r + 1],
+                        n,
+                        &format!("{name} ({au})"),
+                        &[(&av, AFTER)],
+                    )?;
+                } else {
+                    let all: Vec<f64> = b.iter().chain(a).copied().collect();
+                    let m = peak(&all);
+                    let (f, u) = unit.readable(m);
+                    let bv: Vec<f64> = b.iter().map(|v| v * f).collect();
+                    let av: Vec<f64> = a.iter().map(|v| v * f).collect();
+                    error_panel(
+                        &cells[r],
+                        n,
+                        &format!("{name} ({u})"),
+                        &[(&bv, BEFORE), (&av, AFTER)],
+                    )?;
                 }
-                chart
-                    .configure_series_labels()
-                    .label_font((FONT, 13))
-                    .border_style(BLACK.mix(0.3))
-                    .background_style(WHITE.mix(0.9))
-                    .position(SeriesLabelPosition::UpperRight)
-                    .draw()
-                    .map_err(err)?;
             }
             Ok(())
         }
     )
 }
+
+/// Most bars in one panel of the parameter figure.
+const PARAMS_PER_PANEL: usize = 20;
+/// Widest row of parameter panels (px).
+const ROW_WIDTH: u32 = 1400;
+/// Height of one row of parameter panels (px).
+const PARAM_ROW_HEIGHT: u32 = 420;
 
 /// One parameter of Fig. 8.
 pub struct ParamBar {
@@ -222,79 +332,113 @@ pub struct ParamBar {
 /// Fig. 8 of the paper: identified parameter changes with ±2σ bars, one panel
 /// per unit group.
 pub fn parameter_changes(groups: &[(String, Vec<ParamBar>)]) -> Result<Figure> {
-    let groups: Vec<&(String, Vec<ParamBar>)> = groups.iter().filter(|g| !g.1.is_empty()).collect();
-    let widths: Vec<u32> = groups.iter().map(|g| 120 + 55 * g.1.len() as u32).collect();
-    let total: u32 = widths.iter().sum::<u32>().max(400);
+    // Panels of at most PARAMS_PER_PANEL bars, packed into rows no wider
+    // than ROW_WIDTH, so that many parameters stay readable.
+    let mut panels: Vec<(String, &[ParamBar])> = vec![];
+    for (title, bars) in groups.iter().filter(|g| !g.1.is_empty()) {
+        let chunks = bars.len().div_ceil(PARAMS_PER_PANEL);
+        for (k, c) in bars.chunks(bars.len().div_ceil(chunks)).enumerate() {
+            let t = if chunks > 1 {
+                format!("{title}, {}/{chunks}", k + 1)
+            } else {
+                title.clone()
+            };
+            panels.push((t, c));
+        }
+    }
+    let width_of = |n: usize| 120 + 55 * n as u32;
+    let mut rows: Vec<Vec<usize>> = vec![];
+    let mut used = u32::MAX;
+    for (i, (_, bars)) in panels.iter().enumerate() {
+        let w = width_of(bars.len());
+        if used.saturating_add(w) > ROW_WIDTH {
+            rows.push(vec![]);
+            used = 0;
+        }
+        rows.last_mut().expect("a row").push(i);
+        used += w;
+    }
+    let total: u32 = rows
+        .iter()
+        .map(|r| r.iter().map(|&i| width_of(panels[i].1.len())).sum::<u32>())
+        .max()
+        .unwrap_or(0)
+        .max(400);
     render!(
         "parameters",
         "Identified parameter changes (paper Fig. 8)",
-        "Identified minus nominal value of each free parameter, grouped by unit; black bars span ±2 standard deviations.",
-        (total, 460u32),
+        "Identified minus nominal value of each free parameter, grouped by kind and unit; black bars span ±2 standard deviations.",
+        (total, PARAM_ROW_HEIGHT * rows.len().max(1) as u32),
         |root| {
             root.fill(&WHITE).map_err(err)?;
-            let mut rest = root.clone();
-            for (g, w) in groups.iter().zip(&widths) {
-                let (area, r) = rest.split_horizontally(*w);
-                rest = r;
-                let (unit, bars) = (&g.0, &g.1);
-                let (lo, hi) = range(
-                    bars.iter()
-                        .flat_map(|b| [b.change - 2.0 * b.sigma, b.change + 2.0 * b.sigma, 0.0]),
-                    0.1,
-                );
-                let n = bars.len();
-                let mut chart = ChartBuilder::on(&area)
-                    .margin(10)
-                    .caption(unit.as_str(), (FONT, 15))
-                    .x_label_area_size(40)
-                    .y_label_area_size(75)
-                    .build_cartesian_2d(-0.5f64..n as f64 - 0.5, lo..hi)
-                    .map_err(err)?;
-                chart
-                    .configure_mesh()
-                    .x_labels(n)
-                    .x_label_formatter(&|x| {
-                        let i = x.round();
-                        if (x - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < n {
-                            bars[i as usize].name.clone()
-                        } else {
-                            String::new()
-                        }
-                    })
-                    .y_desc("identified − nominal")
-                    .y_label_formatter(&tick)
-                    .label_style((FONT, 13))
-                    .axis_desc_style((FONT, 13))
-                    .light_line_style(WHITE)
-                    .disable_x_mesh()
-                    .draw()
-                    .map_err(err)?;
-                chart
-                    .draw_series(LineSeries::new(
-                        [(-0.5, 0.0), (n as f64 - 0.5, 0.0)],
-                        BLACK.mix(0.4),
-                    ))
-                    .map_err(err)?;
-                chart
-                    .draw_series(bars.iter().enumerate().map(|(i, b)| {
-                        Rectangle::new(
-                            [(i as f64 - 0.3, 0.0), (i as f64 + 0.3, b.change)],
-                            AFTER.mix(0.55).filled(),
-                        )
-                    }))
-                    .map_err(err)?;
-                chart
-                    .draw_series(bars.iter().enumerate().map(|(i, b)| {
-                        ErrorBar::new_vertical(
-                            i as f64,
-                            b.change - 2.0 * b.sigma,
-                            b.change,
-                            b.change + 2.0 * b.sigma,
-                            BLACK.stroke_width(1),
-                            8,
-                        )
-                    }))
-                    .map_err(err)?;
+            let row_areas = root.split_evenly((rows.len().max(1), 1));
+            for (row, row_area) in rows.iter().zip(&row_areas) {
+                let mut rest = row_area.clone();
+                for &i in row {
+                    let (title, bars) = (&panels[i].0, panels[i].1);
+                    let (area, r) = rest.split_horizontally(width_of(bars.len()));
+                    rest = r;
+                    let unit = title;
+                    let (lo, hi) = range(
+                        bars.iter().flat_map(|b| {
+                            [b.change - 2.0 * b.sigma, b.change + 2.0 * b.sigma, 0.0]
+                        }),
+                        0.1,
+                    );
+                    let n = bars.len();
+                    let mut chart = ChartBuilder::on(&area)
+                        .margin(10)
+                        .caption(unit.as_str(), (FONT, 15))
+                        .x_label_area_size(40)
+                        .y_label_area_size(75)
+                        .build_cartesian_2d(-0.5f64..n as f64 - 0.5, lo..hi)
+                        .map_err(err)?;
+                    chart
+                        .configure_mesh()
+                        .x_labels(n)
+                        .x_label_formatter(&|x| {
+                            let i = x.round();
+                            if (x - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < n {
+                                bars[i as usize].name.clone()
+                            } else {
+                                String::new()
+                            }
+                        })
+                        .y_desc("identified − nominal")
+                        .y_label_formatter(&tick)
+                        .label_style((FONT, 13))
+                        .axis_desc_style((FONT, 13))
+                        .light_line_style(WHITE)
+                        .disable_x_mesh()
+                        .draw()
+                        .map_err(err)?;
+                    chart
+                        .draw_series(LineSeries::new(
+                            [(-0.5, 0.0), (n as f64 - 0.5, 0.0)],
+                            BLACK.mix(0.4),
+                        ))
+                        .map_err(err)?;
+                    chart
+                        .draw_series(bars.iter().enumerate().map(|(i, b)| {
+                            Rectangle::new(
+                                [(i as f64 - 0.3, 0.0), (i as f64 + 0.3, b.change)],
+                                AFTER.mix(0.55).filled(),
+                            )
+                        }))
+                        .map_err(err)?;
+                    chart
+                        .draw_series(bars.iter().enumerate().map(|(i, b)| {
+                            ErrorBar::new_vertical(
+                                i as f64,
+                                b.change - 2.0 * b.sigma,
+                                b.change,
+                                b.change + 2.0 * b.sigma,
+                                BLACK.stroke_width(1),
+                                8,
+                            )
+                        }))
+                        .map_err(err)?;
+                }
             }
             Ok(())
         }
@@ -320,27 +464,29 @@ fn nice(v: f64) -> f64 {
     m * 10f64.powf(e)
 }
 
-/// The workspace seen from above: measured poses with their error vectors
-/// before and after (scaled), over the usable workspace.
-pub fn workspace_errors(
+/// One plan-view panel: the workspace, the measured poses and their error
+/// vectors magnified so that the largest spans 10 % of the width, with a
+/// scale bar in a readable unit.
+fn arrow_panel<DB: DrawingBackend>(
+    area: &DrawingArea<DB, plotters::coord::Shift>,
     workspace: &[Vec<f64>],
     points: &[Vec<f64>],
-    before: &[Vec<f64>],
-    after: &[Vec<f64>],
-) -> Result<Figure> {
+    errors: &[Vec<f64>],
+    color: RGBColor,
+    title: &str,
+) -> Result<()> {
     let (x0, x1) = range(workspace.iter().chain(points).map(|p| p[0]), 0.04);
-    let biggest = before
+    let biggest = errors
         .iter()
         .map(|e| e[0].hypot(e[1]))
         .fold(0.0, f64::max)
-        .max(1e-9);
-    // Arrows: the largest error before calibration spans 10 % of the width.
+        .max(1e-12);
     let scale = 0.10 * (x1 - x0) / biggest;
     let tips = || {
         points
             .iter()
-            .zip(before.iter().chain(after))
-            .map(move |(p, e)| vec![p[0] + scale * e[0], p[1] + scale * e[1]])
+            .zip(errors)
+            .map(move |(p, e)| [p[0] + scale * e[0], p[1] + scale * e[1]])
     };
     let (x0, x1) = range(
         workspace
@@ -358,90 +504,93 @@ pub fn workspace_errors(
             .chain(tips().map(|t| t[1])),
         0.06,
     );
-    let bar_mm = nice(biggest / 2.0);
-    let w = 900u32;
-    let h = ((w as f64) * (y1 - y0) / (x1 - x0)).clamp(400.0, 1400.0) as u32;
+    let bar = nice(biggest / 2.0);
+    let (f, unit) = pkmcal::Unit::Millimetre.readable(bar);
+    let mut chart = ChartBuilder::on(area)
+        .margin(12)
+        .caption(
+            format!("{title}, error vectors magnified {}×", tick(&scale.round())),
+            (FONT, 15),
+        )
+        .x_label_area_size(36)
+        .y_label_area_size(55)
+        .build_cartesian_2d(x0..x1, y0..y1)
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc("x (mm)")
+        .y_desc("y (mm)")
+        .x_label_formatter(&tick)
+        .y_label_formatter(&tick)
+        .label_style((FONT, 13))
+        .axis_desc_style((FONT, 14))
+        .light_line_style(WHITE)
+        .draw()
+        .map_err(err)?;
+    chart
+        .draw_series(
+            workspace
+                .iter()
+                .map(|p| Circle::new((p[0], p[1]), 1, GREY.filled())),
+        )
+        .map_err(err)?;
+    chart
+        .draw_series(points.iter().zip(errors).map(|(p, e)| {
+            PathElement::new(
+                vec![(p[0], p[1]), (p[0] + scale * e[0], p[1] + scale * e[1])],
+                color.stroke_width(2),
+            )
+        }))
+        .map_err(err)?;
+    chart
+        .draw_series(
+            points
+                .iter()
+                .map(|p| Circle::new((p[0], p[1]), 3, BLACK.filled())),
+        )
+        .map_err(err)?;
+    // Scale bar in the lower left corner.
+    let sx = x0 + 0.05 * (x1 - x0);
+    let sy = y0 + 0.05 * (y1 - y0);
+    chart
+        .draw_series([PathElement::new(
+            vec![(sx, sy), (sx + scale * bar, sy)],
+            color.stroke_width(3),
+        )])
+        .map_err(err)?;
+    chart
+        .draw_series([Text::new(
+            format!("{} {unit} error", tick(&(bar * f))),
+            (sx, sy + 0.03 * (y1 - y0)),
+            (FONT, 13).into_font(),
+        )])
+        .map_err(err)?;
+    Ok(())
+}
+
+/// The workspace seen from above: measured poses (black) with their error
+/// vectors before (left, red) and after (right, blue) calibration, each
+/// magnified for its own size, over the usable workspace (grey).
+pub fn workspace_errors(
+    workspace: &[Vec<f64>],
+    points: &[Vec<f64>],
+    before: &[Vec<f64>],
+    after: &[Vec<f64>],
+) -> Result<Figure> {
+    let (x0, x1) = range(workspace.iter().chain(points).map(|p| p[0]), 0.04);
+    let (y0, y1) = range(workspace.iter().chain(points).map(|p| p[1]), 0.06);
+    let w = 640u32;
+    let h = ((w as f64 - 70.0) * (y1 - y0) / (x1 - x0) + 90.0).clamp(400.0, 1000.0) as u32;
     render!(
         "workspace",
         "Errors over the workspace",
-        format!(
-            "Measured poses (black) over the usable workspace (grey), with each error vector before (red) and after (blue) calibration, magnified {scale:.0}×; the bar is {bar_mm} mm of error."
-        ),
-        (w, h),
+        "Measured poses (black) over the usable workspace (grey) with each error vector, before calibration (left, red) and after (right, blue); each panel magnifies its vectors for their size and has its own scale bar.",
+        (2 * w, h),
         |root| {
             root.fill(&WHITE).map_err(err)?;
-            let mut chart = ChartBuilder::on(root)
-                .margin(12)
-                .x_label_area_size(36)
-                .y_label_area_size(55)
-                .build_cartesian_2d(x0..x1, y0..y1)
-                .map_err(err)?;
-            chart
-                .configure_mesh()
-                .x_desc("x (mm)")
-                .y_desc("y (mm)")
-                .x_label_formatter(&tick)
-                .y_label_formatter(&tick)
-                .label_style((FONT, 13))
-                .axis_desc_style((FONT, 14))
-                .light_line_style(WHITE)
-                .draw()
-                .map_err(err)?;
-            chart
-                .draw_series(
-                    workspace
-                        .iter()
-                        .map(|p| Circle::new((p[0], p[1]), 1, GREY.filled())),
-                )
-                .map_err(err)?;
-            for (errors, color, name) in [
-                (before, BEFORE, "error before"),
-                (after, AFTER, "error after"),
-            ] {
-                chart
-                    .draw_series(points.iter().zip(errors).map(|(p, e)| {
-                        PathElement::new(
-                            vec![(p[0], p[1]), (p[0] + scale * e[0], p[1] + scale * e[1])],
-                            color.stroke_width(2),
-                        )
-                    }))
-                    .map_err(err)?
-                    .label(name)
-                    .legend(move |(x, y)| {
-                        PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
-                    });
-            }
-            chart
-                .draw_series(
-                    points
-                        .iter()
-                        .map(|p| Circle::new((p[0], p[1]), 3, BLACK.filled())),
-                )
-                .map_err(err)?;
-            // Scale bar in the lower left corner.
-            let sx = x0 + 0.05 * (x1 - x0);
-            let sy = y0 + 0.05 * (y1 - y0);
-            chart
-                .draw_series([PathElement::new(
-                    vec![(sx, sy), (sx + scale * bar_mm, sy)],
-                    BLACK.stroke_width(3),
-                )])
-                .map_err(err)?;
-            chart
-                .draw_series([Text::new(
-                    format!("{bar_mm} mm error"),
-                    (sx, sy + 0.025 * (y1 - y0)),
-                    (FONT, 13).into_font(),
-                )])
-                .map_err(err)?;
-            chart
-                .configure_series_labels()
-                .label_font((FONT, 13))
-                .border_style(BLACK.mix(0.3))
-                .background_style(WHITE.mix(0.9))
-                .position(SeriesLabelPosition::UpperRight)
-                .draw()
-                .map_err(err)?;
+            let (l, r) = root.split_horizontally(w);
+            arrow_panel(&l, workspace, points, before, BEFORE, "before calibration")?;
+            arrow_panel(&r, workspace, points, after, AFTER, "after calibration")?;
             Ok(())
         }
     )
@@ -467,78 +616,247 @@ fn heat(t: f64) -> RGBColor {
     )
 }
 
-/// Maps over the usable workspace of a per-point value (one panel each):
-/// e.g. the predicted error magnitude and its uncertainty.
-pub fn workspace_maps(
-    points: &[Vec<f64>],
-    spacing: f64,
-    panels: &[(String, Vec<f64>)],
-) -> Result<Figure> {
-    let (x0, x1) = range(points.iter().map(|p| p[0]), 0.04);
-    let (y0, y1) = range(points.iter().map(|p| p[1]), 0.04);
-    let pw = 560u32;
-    let ph = ((pw as f64 - 120.0) * (y1 - y0) / (x1 - x0) + 90.0).clamp(300.0, 1100.0) as u32;
-    let w = pw * panels.len() as u32;
+/// A map on two length axes: a slice through the workspace.
+pub struct MapSlice {
+    /// The two axes (`x`, `y`), mm.
+    pub axes: [String; 2],
+    /// Where the other axes are held (`z = 700 mm, rx = 0 mrad, …`), empty
+    /// for a planar tool without orientation.
+    pub held: String,
+    /// Lattice points (the two axes' values), mm.
+    pub points: Vec<[f64; 2]>,
+    /// Lattice spacing, mm.
+    pub spacing: f64,
+    /// Position error without compensation at each point, mm.
+    pub miss: Vec<f64>,
+    /// Standard deviation of the predicted position at each point, mm.
+    pub sigma: Vec<f64>,
+}
+
+/// The same quantities along one angle axis, the others held.
+pub struct MapSweep {
+    /// The angle axis (`rx`, `phi`).
+    pub axis: String,
+    /// Where the other axes are held.
+    pub held: String,
+    /// Angle at each point, rad.
+    pub values: Vec<f64>,
+    /// Position error without compensation, mm.
+    pub miss: Vec<f64>,
+    /// Standard deviation of the predicted position, mm.
+    pub sigma: Vec<f64>,
+}
+
+/// Width of one map panel with its colour bar (px).
+const MAP_PANEL_WIDTH: u32 = 560;
+/// Height of a row title strip (px).
+const ROW_TITLE: u32 = 24;
+/// Height of the row of angle sweeps (px).
+const SWEEP_HEIGHT: u32 = 280;
+
+/// One heat map with a labelled colour bar; values in mm shown in a
+/// readable unit.
+fn heat_panel<DB: DrawingBackend>(
+    area: &DrawingArea<DB, plotters::coord::Shift>,
+    slice: &MapSlice,
+    title: &str,
+    values: &[f64],
+) -> Result<()> {
+    let (x0, x1) = range(slice.points.iter().map(|p| p[0]), 0.04);
+    let (y0, y1) = range(slice.points.iter().map(|p| p[1]), 0.04);
+    // Colours span the values' range (the bar gives the numbers), so that
+    // the variation shows even when it is small next to the mean.
+    let (mut vmin, mut vmax) = range(values.iter().copied(), 0.0);
+    if vmax - vmin < 1e-3 * vmax.abs() {
+        vmin = 0.0;
+    }
+    vmax = vmax.max(vmin + 1e-15);
+    let (f, unit) = pkmcal::Unit::Millimetre.readable(vmax);
+    let (plot, legend) = area.split_horizontally(MAP_PANEL_WIDTH - 110);
+    let mut chart = ChartBuilder::on(&plot)
+        .margin(10)
+        .caption(format!("{title} ({unit})"), (FONT, 14))
+        .x_label_area_size(34)
+        .y_label_area_size(56)
+        .build_cartesian_2d(x0..x1, y0..y1)
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc(format!("{} (mm)", slice.axes[0]))
+        .y_desc(format!("{} (mm)", slice.axes[1]))
+        .x_labels(6)
+        .y_labels(6)
+        .x_label_formatter(&tick)
+        .y_label_formatter(&tick)
+        .label_style((FONT, 12))
+        .axis_desc_style((FONT, 13))
+        .light_line_style(WHITE)
+        .draw()
+        .map_err(err)?;
+    let hs = slice.spacing / 2.0;
+    chart
+        .draw_series(slice.points.iter().zip(values).map(|(p, v)| {
+            Rectangle::new(
+                [(p[0] - hs, p[1] - hs), (p[0] + hs, p[1] + hs)],
+                heat((v - vmin) / (vmax - vmin)).filled(),
+            )
+        }))
+        .map_err(err)?;
+    let (bottom, top) = (vmin * f, vmax * f);
+    let mut bar = ChartBuilder::on(&legend)
+        .margin_top(44)
+        .margin_bottom(44)
+        .margin_left(10)
+        .right_y_label_area_size(70)
+        .build_cartesian_2d(0.0..1.0, bottom..top)
+        .map_err(err)?;
+    bar.configure_mesh()
+        .disable_x_axis()
+        .disable_mesh()
+        .y_labels(5)
+        .y_label_formatter(&tick)
+        .label_style((FONT, 12))
+        .draw()
+        .map_err(err)?;
+    let steps = 60;
+    bar.draw_series((0..steps).map(|i| {
+        let a = bottom + (top - bottom) * i as f64 / steps as f64;
+        let b = bottom + (top - bottom) * (i + 1) as f64 / steps as f64;
+        Rectangle::new([(0.0, a), (1.0, b)], heat(i as f64 / steps as f64).filled())
+    }))
+    .map_err(err)?;
+    // The colour bar's label: what and in which unit.
+    legend
+        .draw(&Text::new(
+            unit.to_string(),
+            (12, 22),
+            (FONT, 14).into_font(),
+        ))
+        .map_err(err)?;
+    Ok(())
+}
+
+/// One angle sweep: a quantity (mm) against the angle (mrad).
+fn sweep_panel<DB: DrawingBackend>(
+    area: &DrawingArea<DB, plotters::coord::Shift>,
+    sweep: &MapSweep,
+    what: &str,
+    values: &[f64],
+    color: RGBColor,
+) -> Result<()> {
+    let x: Vec<f64> = sweep.values.iter().map(|v| v * 1e3).collect();
+    let (x0, x1) = range(x.iter().copied(), 0.02);
+    let vmax = values.iter().fold(0.0f64, |m, v| m.max(*v));
+    let (f, unit) = pkmcal::Unit::Millimetre.readable(vmax);
+    let mut chart = ChartBuilder::on(area)
+        .margin(10)
+        .x_label_area_size(34)
+        .y_label_area_size(60)
+        .build_cartesian_2d(x0..x1, 0.0..(vmax * f * 1.08).max(1e-12))
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc(format!("{} (mrad)", sweep.axis))
+        .y_desc(format!("{what} ({unit})"))
+        .x_labels(6)
+        .y_labels(5)
+        .x_label_formatter(&tick)
+        .y_label_formatter(&tick)
+        .label_style((FONT, 12))
+        .axis_desc_style((FONT, 13))
+        .light_line_style(WHITE)
+        .draw()
+        .map_err(err)?;
+    chart
+        .draw_series(LineSeries::new(
+            x.iter().zip(values).map(|(a, v)| (*a, v * f)),
+            color.stroke_width(2),
+        ))
+        .map_err(err)?;
+    Ok(())
+}
+
+/// Maps over the usable workspace of the position error without
+/// compensation and of the uncertainty of the prediction: heat maps on
+/// slices through the workspace (x–y, and x–z, y–z for a spatial tool), the
+/// other axes held at the workspace centre (`centre` says where); and, for
+/// each angle axis, both quantities along that angle. Each panel in a unit
+/// readable for its size, every colour bar labelled.
+pub fn workspace_maps(slices: &[MapSlice], sweeps: &[MapSweep], centre: &str) -> Result<Figure> {
+    let heights: Vec<u32> = slices
+        .iter()
+        .map(|s| {
+            let (x0, x1) = range(s.points.iter().map(|p| p[0]), 0.04);
+            let (y0, y1) = range(s.points.iter().map(|p| p[1]), 0.04);
+            ((MAP_PANEL_WIDTH as f64 - 170.0) * (y1 - y0) / (x1 - x0) + 90.0).clamp(300.0, 700.0)
+                as u32
+                + ROW_TITLE
+        })
+        .collect();
+    let sweep_height = if sweeps.is_empty() {
+        0
+    } else {
+        ROW_TITLE + 2 * SWEEP_HEIGHT
+    };
+    let w = 2 * MAP_PANEL_WIDTH;
+    let h = heights.iter().sum::<u32>() + sweep_height;
+    let held: Vec<&str> = slices
+        .iter()
+        .map(|s| s.held.as_str())
+        .chain(sweeps.iter().map(|s| s.held.as_str()))
+        .filter(|s| !s.is_empty())
+        .collect();
     render!(
         "maps",
         "Predicted error over the workspace",
-        "Left: how far the tool would miss each target without compensation under the identified parameters (nominal commands), mm. Right: standard deviation of the predicted position from the parameters' covariance, mm.",
-        (w, ph),
+        format!(
+            "Left: how far the tool would miss each target without compensation under the identified parameters (nominal commands). Right: standard deviation of the predicted position from the parameters' covariance.{}",
+            if held.is_empty() {
+                String::new()
+            } else {
+                " Each map is a slice through the workspace, the other axes held where its title says; the bottom rows follow each angle with the other axes at the centre (red: error without compensation, blue: σ).".to_string()
+            }
+        ),
+        (w, h),
         |root| {
             root.fill(&WHITE).map_err(err)?;
-            let areas = root.split_evenly((1, panels.len()));
-            for (area, (label, values)) in areas.iter().zip(panels) {
-                let (_, vmax) = range(values.iter().copied().chain([0.0]), 0.0);
-                let (plot, legend) = area.split_horizontally(pw - 110);
-                let mut chart = ChartBuilder::on(&plot)
-                    .margin(10)
-                    .caption(label.as_str(), (FONT, 14))
-                    .x_label_area_size(34)
-                    .y_label_area_size(50)
-                    .build_cartesian_2d(x0..x1, y0..y1)
+            let mut rest = root.clone();
+            for (s, hgt) in slices.iter().zip(&heights) {
+                let (row, r) = rest.split_vertically(*hgt);
+                rest = r;
+                let (title, body) = row.split_vertically(ROW_TITLE);
+                let text = if s.held.is_empty() {
+                    format!("{}–{}, over the usable workspace", s.axes[0], s.axes[1])
+                } else {
+                    format!("{}–{} slice at {}", s.axes[0], s.axes[1], s.held)
+                };
+                title
+                    .draw(&Text::new(text, (12, 4), (FONT, 15).into_font()))
                     .map_err(err)?;
-                chart
-                    .configure_mesh()
-                    .x_desc("x (mm)")
-                    .y_desc("y (mm)")
-                    .x_label_formatter(&tick)
-                    .y_label_formatter(&tick)
-                    .label_style((FONT, 12))
-                    .axis_desc_style((FONT, 13))
-                    .light_line_style(WHITE)
-                    .draw()
+                let (l, r) = body.split_horizontally(MAP_PANEL_WIDTH);
+                heat_panel(&l, s, "error without compensation", &s.miss)?;
+                heat_panel(&r, s, "uncertainty of the prediction, σ", &s.sigma)?;
+            }
+            if !sweeps.is_empty() {
+                let (title, body) = rest.split_vertically(ROW_TITLE);
+                title
+                    .draw(&Text::new(
+                        format!("along each angle, the other axes at the centre ({centre})"),
+                        (12, 4),
+                        (FONT, 15).into_font(),
+                    ))
                     .map_err(err)?;
-                let hs = spacing / 2.0;
-                chart
-                    .draw_series(points.iter().zip(values).map(|(p, v)| {
-                        Rectangle::new(
-                            [(p[0] - hs, p[1] - hs), (p[0] + hs, p[1] + hs)],
-                            heat(v / vmax).filled(),
-                        )
-                    }))
-                    .map_err(err)?;
-                let mut bar = ChartBuilder::on(&legend)
-                    .margin_top(40)
-                    .margin_bottom(44)
-                    .margin_left(10)
-                    .right_y_label_area_size(70)
-                    .build_cartesian_2d(0.0..1.0, 0.0..vmax.max(1e-12))
-                    .map_err(err)?;
-                bar.configure_mesh()
-                    .disable_x_axis()
-                    .disable_mesh()
-                    .y_labels(5)
-                    .y_label_formatter(&tick)
-                    .label_style((FONT, 12))
-                    .draw()
-                    .map_err(err)?;
-                let steps = 60;
-                bar.draw_series((0..steps).map(|i| {
-                    let a = vmax * i as f64 / steps as f64;
-                    let b = vmax * (i + 1) as f64 / steps as f64;
-                    Rectangle::new([(0.0, a), (1.0, b)], heat(i as f64 / steps as f64).filled())
-                }))
-                .map_err(err)?;
+                let cells = body.split_evenly((2, sweeps.len()));
+                for (k, s) in sweeps.iter().enumerate() {
+                    sweep_panel(&cells[k], s, "error without compensation", &s.miss, BEFORE)?;
+                    sweep_panel(
+                        &cells[sweeps.len() + k],
+                        s,
+                        "σ of the prediction",
+                        &s.sigma,
+                        AFTER,
+                    )?;
+                }
             }
             Ok(())
         }
@@ -706,10 +1024,26 @@ pub fn singular_values(sv: &[f64], threshold: f64) -> Result<Figure> {
         format!(
             "The {n} singular values of the identification Jacobian with columns scaled to unit norm; below the red line a direction counts as unidentifiable. Their spread is the condition number."
         ),
-        (800u32, 380u32),
+        ((800u32).max(60 + 22 * n as u32), 380u32 + LEGEND_HEIGHT),
         |root| {
             root.fill(&WHITE).map_err(err)?;
-            let mut chart = ChartBuilder::on(root)
+            let (top, body) = root.split_vertically(LEGEND_HEIGHT);
+            // The legend above the data.
+            top.draw(&PathElement::new(
+                vec![
+                    (80, LEGEND_HEIGHT as i32 / 2),
+                    (104, LEGEND_HEIGHT as i32 / 2),
+                ],
+                BEFORE.stroke_width(2),
+            ))
+            .map_err(err)?;
+            top.draw(&Text::new(
+                "rank threshold: below it a direction is unidentifiable",
+                (112, LEGEND_HEIGHT as i32 / 2 - 8),
+                (FONT, 14).into_font(),
+            ))
+            .map_err(err)?;
+            let mut chart = ChartBuilder::on(&body)
                 .margin(12)
                 .x_label_area_size(34)
                 .y_label_area_size(70)
@@ -739,17 +1073,6 @@ pub fn singular_values(sv: &[f64], threshold: f64) -> Result<Figure> {
                     [(0.5, threshold), (n as f64 + 0.5, threshold)],
                     BEFORE.stroke_width(2),
                 ))
-                .map_err(err)?
-                .label("rank threshold")
-                .legend(|(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 18, y)], BEFORE.stroke_width(2))
-                });
-            chart
-                .configure_series_labels()
-                .label_font((FONT, 12))
-                .border_style(BLACK.mix(0.3))
-                .background_style(WHITE.mix(0.9))
-                .draw()
                 .map_err(err)?;
             Ok(())
         }

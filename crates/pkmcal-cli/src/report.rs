@@ -37,8 +37,158 @@ pub const FILES: &[&str] = &[
 /// respect it: 8 mm on the reference, coarser in 6-D).
 const MAP_POINTS: usize = 4000;
 
-/// Lattice spacing of the workspace maps, mm.
+/// Lattice spacing of the workspace plan view, mm.
 const MAP_SPACING_MM: f64 = 8.0;
+
+/// Lattice points of each map slice (about 50 × 50).
+const MAP_SLICE_POINTS: f64 = 2500.0;
+/// Points along each angle of the angle sweeps.
+const MAP_SWEEP_POINTS: usize = 41;
+
+/// The error without compensation and the σ of the prediction at a target
+/// in the usable workspace (`None` outside it): position only, lengths and
+/// angles are not pooled.
+fn miss_and_sigma(mech: &Mech, cal: &pkmcal::Calibration, target: &[f64]) -> Option<(f64, f64)> {
+    let spec = mech.spec();
+    let p = pkmcal::workspace::workspace_point(mech, target).ok()?;
+    if p.conditioning < spec.min_conditioning {
+        return None;
+    }
+    let commands: Vec<f64> = spec.actuated.iter().map(|&j| p.q[j]).collect();
+    let pose = prepare_pose(mech, &commands, Some(&p.q)).ok()?;
+    let (pred, cov) = tool_covariance(
+        mech,
+        &pose,
+        &cal.params,
+        cal.model,
+        &[],
+        &cal.parameter_covariance,
+    )
+    .ok()?;
+    let lengths =
+        (0..spec.tool_axes.len()).filter(|&a| spec.tool_units[a] == pkmcal::Unit::Millimetre);
+    let miss = lengths
+        .clone()
+        .map(|a| (pred.x[a] - target[a]).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    let sigma = lengths.map(|a| cov[(a, a)]).sum::<f64>().max(0.0).sqrt();
+    Some((miss, sigma))
+}
+
+/// Where the axes other than `except` are held: `z = 700 mm, rx = 0 mrad`.
+fn held_text(spec: &pkmcal::Spec, centre: &[f64], except: &[usize]) -> String {
+    (0..spec.tool_axes.len())
+        .filter(|k| !except.contains(k))
+        .map(|k| match spec.tool_units[k] {
+            pkmcal::Unit::Radian => {
+                format!("{} = {} mrad", spec.tool_axes[k], tick(centre[k] * 1e3))
+            }
+            _ => format!("{} = {} mm", spec.tool_axes[k], tick(centre[k])),
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+fn tick(v: f64) -> String {
+    let s = format!("{v:.3}");
+    let s = s.trim_end_matches('0').trim_end_matches('.');
+    if s == "-0" { "0".into() } else { s.to_string() }
+}
+
+/// The maps' data: slices through the workspace centre on each pair of
+/// length axes (lattice of about [`MAP_SLICE_POINTS`]) and a sweep along each
+/// angle axis, evaluated in parallel.
+fn map_data(
+    mech: &Mech,
+    cal: &pkmcal::Calibration,
+) -> Result<(Vec<figures::MapSlice>, Vec<figures::MapSweep>)> {
+    let spec = mech.spec();
+    let bx = &spec.workspace_box;
+    let centre: Vec<f64> = bx.iter().map(|b| 0.5 * (b[0] + b[1])).collect();
+    let lengths: Vec<usize> = (0..spec.tool_axes.len())
+        .filter(|&a| spec.tool_units[a] == pkmcal::Unit::Millimetre)
+        .collect();
+    let angles: Vec<usize> = (0..spec.tool_axes.len())
+        .filter(|&a| spec.tool_units[a] == pkmcal::Unit::Radian)
+        .collect();
+    let mut planes = vec![];
+    for (i, &a) in lengths.iter().enumerate() {
+        for &b in &lengths[i + 1..] {
+            planes.push((a, b));
+        }
+    }
+    let mut slices = vec![];
+    for (a, b) in planes {
+        let (ea, eb) = (bx[a][1] - bx[a][0], bx[b][1] - bx[b][0]);
+        let spacing = (ea * eb / MAP_SLICE_POINTS).sqrt();
+        let (na, nb) = ((ea / spacing) as usize + 1, (eb / spacing) as usize + 1);
+        let targets: Vec<Vec<f64>> = (0..na)
+            .flat_map(|i| (0..nb).map(move |j| (i, j)))
+            .map(|(i, j)| {
+                let mut t = centre.clone();
+                t[a] = bx[a][0] + spacing * i as f64;
+                t[b] = bx[b][0] + spacing * j as f64;
+                t
+            })
+            .collect();
+        let values: Vec<Option<(f64, f64)>> = targets
+            .par_iter()
+            .map(|t| miss_and_sigma(mech, cal, t))
+            .collect();
+        let mut s = figures::MapSlice {
+            axes: [spec.tool_axes[a].clone(), spec.tool_axes[b].clone()],
+            held: held_text(spec, &centre, &[a, b]),
+            points: vec![],
+            spacing,
+            miss: vec![],
+            sigma: vec![],
+        };
+        for (t, v) in targets.iter().zip(values) {
+            if let Some((m, sg)) = v {
+                s.points.push([t[a], t[b]]);
+                s.miss.push(m);
+                s.sigma.push(sg);
+            }
+        }
+        slices.push(s);
+    }
+    let mut sweeps = vec![];
+    if !lengths.is_empty() {
+        for &k in &angles {
+            let mut s = figures::MapSweep {
+                axis: spec.tool_axes[k].clone(),
+                held: held_text(spec, &centre, &[k]),
+                values: vec![],
+                miss: vec![],
+                sigma: vec![],
+            };
+            let targets: Vec<Vec<f64>> = (0..MAP_SWEEP_POINTS)
+                .map(|i| {
+                    let mut t = centre.clone();
+                    t[k] =
+                        bx[k][0] + (bx[k][1] - bx[k][0]) * i as f64 / (MAP_SWEEP_POINTS - 1) as f64;
+                    t
+                })
+                .collect();
+            let values: Vec<Option<(f64, f64)>> = targets
+                .par_iter()
+                .map(|t| miss_and_sigma(mech, cal, t))
+                .collect();
+            for (t, v) in targets.iter().zip(values) {
+                if let Some((m, sg)) = v {
+                    s.values.push(t[k]);
+                    s.miss.push(m);
+                    s.sigma.push(sg);
+                }
+            }
+            if !s.values.is_empty() {
+                sweeps.push(s);
+            }
+        }
+    }
+    Ok((slices, sweeps))
+}
 
 /// Everything the report shows.
 pub struct ReportInputs<'a> {
@@ -113,57 +263,10 @@ pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
             }
         })
         .collect::<pkmcal::Result<_>>()?;
-    // The maps' lattice within a point budget (6-D workspaces included);
-    // shown on the x–y plane, each cell the worst over the other axes.
+    // The workspace lattice behind the plan view, within a point budget.
     let spacing = pkmcal::workspace::lattice_spacing(spec, MAP_SPACING_MM, MAP_POINTS);
     let lattice = sample_workspace(r.mech, spacing);
-    let lengths: Vec<usize> = (0..spec.tool_axes.len())
-        .filter(|&a| spec.tool_units[a] == pkmcal::Unit::Millimetre)
-        .collect();
-    let points: Vec<(Vec<f64>, f64, f64)> = lattice
-        .par_iter()
-        .filter_map(|p| {
-            let commands: Vec<f64> = spec.actuated.iter().map(|&j| p.q[j]).collect();
-            let pose = prepare_pose(r.mech, &commands, Some(&p.q)).ok()?;
-            let (pred, cov) = tool_covariance(
-                r.mech,
-                &pose,
-                &cal.params,
-                cal.model,
-                &[],
-                &cal.parameter_covariance,
-            )
-            .ok()?;
-            // Position only: lengths and angles are not pooled.
-            let miss = lengths
-                .iter()
-                .map(|&a| (pred.x[a] - p.target[a]).powi(2))
-                .sum::<f64>()
-                .sqrt();
-            let sigma = lengths
-                .iter()
-                .map(|&a| cov[(a, a)])
-                .sum::<f64>()
-                .max(0.0)
-                .sqrt();
-            Some((p.target.clone(), miss, sigma))
-        })
-        .collect();
-    let mut cells: std::collections::BTreeMap<(i64, i64), (Vec<f64>, f64, f64)> =
-        std::collections::BTreeMap::new();
-    for (t, miss, sigma) in points {
-        let key = (
-            (t[0] / spacing).round() as i64,
-            (t[1] / spacing).round() as i64,
-        );
-        let cell = cells
-            .entry(key)
-            .or_insert_with(|| (vec![t[0], t[1]], 0.0, 0.0));
-        cell.1 = cell.1.max(miss);
-        cell.2 = cell.2.max(sigma);
-    }
-    let maps: Vec<(Vec<f64>, f64, f64)> = cells.into_values().collect();
-    let map_points: Vec<Vec<f64>> = maps.iter().map(|m| m.0.clone()).collect();
+    let (slices, sweeps) = map_data(r.mech, cal)?;
     let unit_weight = cal.unit_weight_sigma.max(f64::MIN_POSITIVE);
     let standardized: Vec<f64> = cal
         .residuals
@@ -191,20 +294,13 @@ pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
             r.after,
         )?);
     }
-    if !map_points.is_empty() {
+    if slices.iter().any(|s| !s.points.is_empty()) || !sweeps.is_empty() {
+        let bx = &spec.workspace_box;
+        let centre: Vec<f64> = bx.iter().map(|b| 0.5 * (b[0] + b[1])).collect();
         out.push(figures::workspace_maps(
-            &map_points,
-            spacing,
-            &[
-                (
-                    "error without compensation (mm)".into(),
-                    maps.iter().map(|m| m.1).collect(),
-                ),
-                (
-                    "uncertainty of the prediction, σ (mm)".into(),
-                    maps.iter().map(|m| m.2).collect(),
-                ),
-            ],
+            &slices,
+            &sweeps,
+            &held_text(spec, &centre, &[]),
         )?);
     }
     out.push(figures::residuals(&standardized)?);

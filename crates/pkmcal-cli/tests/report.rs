@@ -79,10 +79,23 @@ fn report_dir_has_valid_figures_and_a_self_contained_page() {
             "{f}.png is nearly blank"
         );
     }
-    // Marks: Fig. 9 has a marker per pose, panel (X, Y, distance) and series
-    // (before, after), plus one legend marker per series and panel.
+    // Marks: Fig. 9 has a marker per pose, quantity (x, y, distance) and
+    // series (before, after), plus one legend marker per series above the
+    // panels. After calibration the errors are far smaller: their panels are
+    // their own, in µm, while the before panels stay in mm.
     let errors = std::fs::read_to_string(rep.join("errors.svg")).unwrap();
-    assert_eq!(count(&errors, "<circle"), 3 * 2 * n + 3 * 2);
+    assert_eq!(count(&errors, "<circle"), 3 * 2 * n + 2);
+    assert!(errors.contains("x error (µm)") && errors.contains("x error (mm)"));
+    assert!(errors.contains("after calibration"));
+    // Maps: every colour bar says its unit; the plan view has an after panel.
+    let maps = std::fs::read_to_string(rep.join("maps.svg")).unwrap();
+    assert!(maps.contains("error without compensation (mm)"), "maps");
+    assert!(
+        maps.contains("uncertainty of the prediction, σ (µm)"),
+        "maps"
+    );
+    let plan = std::fs::read_to_string(rep.join("workspace.svg")).unwrap();
+    assert!(plan.contains("after calibration, error vectors magnified"));
     // Q–Q plot: one marker per residual coordinate.
     let resid = std::fs::read_to_string(rep.join("residuals.svg")).unwrap();
     assert_eq!(count(&resid, "<circle"), 2 * n);
@@ -177,4 +190,68 @@ fn report_renders_in_headless_chromium() {
         "only {} colours: figures missing?",
         colours.len()
     );
+}
+
+/// A 6-axis platform's figures stay readable: angles never in mm, slices
+/// and angle sweeps show the dependence on z and the rotations, many
+/// parameters wrap into panels.
+#[test]
+fn six_axis_report_figures_are_laid_out_for_six_axes() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let gs = common::example("gough-stewart-6");
+    std::fs::write(d.join("truth.toml"), "a1x = 492.9\nb3z = -0.4\ndL2 = 0.3\n").unwrap();
+    common::ok(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            &gs,
+            "--grid",
+            "30",
+            "--truth",
+            "truth.toml",
+            "--out",
+            "g.csv",
+        ],
+    );
+    common::ok(
+        d,
+        &[
+            "calibrate",
+            "--mechanism",
+            &gs,
+            "--data",
+            "g.csv",
+            "--frame",
+            "base",
+            "--out",
+            "p.toml",
+            "--report-dir",
+            "rep",
+        ],
+    );
+    let svg = |f: &str| std::fs::read_to_string(d.join("rep").join(format!("{f}.svg"))).unwrap();
+    let errors = svg("errors");
+    for a in ["rx", "ry", "rz"] {
+        assert!(!errors.contains(&format!("{a} error (mm)")), "{a} in mm");
+        assert!(
+            errors.contains(&format!("{a} error (mrad)"))
+                || errors.contains(&format!("{a} error (µrad)")),
+            "{a}"
+        );
+    }
+    let maps = svg("maps");
+    for needle in [
+        "x–y slice at z = 700 mm",
+        "x–z slice at",
+        "y–z slice at",
+        "rx (mrad)",
+        "rz (mrad)",
+    ] {
+        assert!(maps.contains(needle), "{needle}");
+    }
+    assert!(svg("parameters").contains("lengths (mm), 1/2"));
+    let html = std::fs::metadata(d.join("rep/report.html")).unwrap().len();
+    assert!(html < 5_000_000, "report.html is {html} bytes");
 }
