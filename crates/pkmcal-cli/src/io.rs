@@ -16,6 +16,8 @@ pub struct Csv {
     /// Whether a comment line declares the data to be in the base frame
     /// (`# frame: base`, as `simulate` and `trilaterate` write).
     pub base_frame: bool,
+    /// The field delimiter found ([`detect_delimiter`]).
+    pub delimiter: u8,
 }
 
 /// The comment line that declares a data file's measurements to be in the
@@ -32,7 +34,8 @@ impl Csv {
         let mut text = Vec::with_capacity(bytes.len());
         std::io::Read::read_to_end(&mut Uncomment::new(bytes.as_slice()), &mut text)
             .with_context(|| format!("cannot read {}", path.display()))?;
-        let mut delimiter = detect_delimiter(&text);
+        let found = detect_delimiter(&text);
+        let mut delimiter = found;
         if delimiter == b';' {
             // A semicolon-separated export may use decimal commas: with `;`
             // between fields a comma can only be one.
@@ -79,6 +82,7 @@ impl Csv {
             headers,
             rows,
             base_frame,
+            delimiter: found,
         })
     }
 
@@ -91,7 +95,7 @@ impl Csv {
     /// Index of a column by name; an error naming the file and the columns
     /// found if it is missing or appears twice.
     pub fn column(&self, name: &str) -> Result<usize> {
-        column_index(&self.path, &self.headers, name)
+        column_index(&self.path, &self.headers, name, self.delimiter)
     }
 
     /// Numeric values of the given columns, row by row.
@@ -198,6 +202,7 @@ pub struct CsvStream {
     rdr: csv::Reader<Tee<Box<dyn std::io::Read>>>,
     lines: LineCounter<Copied>,
     rows: usize,
+    delimiter: u8,
 }
 
 impl CsvStream {
@@ -217,6 +222,7 @@ impl CsvStream {
             b' ' => Box::new(Whitespace::new(buffered)),
             _ => Box::new(buffered),
         };
+        let found = delimiter;
         let delimiter = if delimiter == b' ' { b',' } else { delimiter };
         let (tee, lines) = tee(source);
         let mut rdr = csv::ReaderBuilder::new()
@@ -243,6 +249,7 @@ impl CsvStream {
             rdr,
             lines,
             rows: 0,
+            delimiter: found,
         })
     }
 
@@ -250,7 +257,7 @@ impl CsvStream {
     pub fn columns(&self, names: &[String]) -> Result<Vec<usize>> {
         names
             .iter()
-            .map(|n| column_index(&self.path, &self.headers, n))
+            .map(|n| column_index(&self.path, &self.headers, n, self.delimiter))
             .collect()
     }
 
@@ -547,7 +554,7 @@ impl<R: std::io::Read> LineCounter<R> {
 
 /// Index of column `name` in `headers` of file `path`; an error naming the
 /// file and the columns found if it is missing or appears more than once.
-pub fn column_index(path: &Path, headers: &[String], name: &str) -> Result<usize> {
+pub fn column_index(path: &Path, headers: &[String], name: &str, delimiter: u8) -> Result<usize> {
     let mut hits: Vec<usize> = (0..headers.len()).filter(|&i| headers[i] == name).collect();
     if hits.is_empty() {
         // `X` for `x`: headers match regardless of case when unambiguous.
@@ -565,19 +572,28 @@ pub fn column_index(path: &Path, headers: &[String], name: &str) -> Result<usize
                     .flat_map(char::to_lowercase)
                     .collect()
             };
+            // `q2` is not a typo of `q1`: another index is another column.
+            let letters =
+                |t: &str| -> String { norm(t).chars().filter(|c| !c.is_ascii_digit()).collect() };
             let dist: Vec<usize> = headers
                 .iter()
-                .map(|h| edit_distance(&norm(h), &norm(name)))
+                .map(|h| {
+                    if letters(h) == letters(name) && norm(h) != norm(name) {
+                        usize::MAX
+                    } else {
+                        edit_distance(&norm(h), &norm(name))
+                    }
+                })
                 .collect();
             let best = dist.iter().copied().min().unwrap_or(usize::MAX);
             let near: Vec<&str> = headers
                 .iter()
                 .zip(&dist)
-                .filter(|(_, d)| **d == best && best <= 2)
+                .filter(|(_, d)| **d == best && best <= (norm(name).len() / 3).max(1))
                 .map(|(h, _)| h.as_str())
                 .collect();
             bail!(
-                "{}: missing column `{}`{} (columns found: {})",
+                "{}: missing column `{}`{} (columns found, {}: {})",
                 path.display(),
                 name,
                 if near.is_empty() {
@@ -585,7 +601,8 @@ pub fn column_index(path: &Path, headers: &[String], name: &str) -> Result<usize
                 } else {
                     format!("; did you mean `{}`?", near.join("`, `"))
                 },
-                headers.join(",")
+                delimiter_name(delimiter),
+                headers.join(", ")
             )
         }
         _ => bail!(
@@ -611,6 +628,16 @@ fn edit_distance(a: &str, b: &str) -> usize {
         }
     }
     row[b.len()]
+}
+
+/// How a file's fields were found to be separated, for messages.
+pub fn delimiter_name(d: u8) -> &'static str {
+    match d {
+        b';' => "separated by semicolons",
+        b'\t' => "separated by tabs",
+        b' ' => "separated by blanks",
+        _ => "separated by commas",
+    }
 }
 
 /// The field delimiter of a CSV text, from its header line: the most

@@ -338,6 +338,14 @@ fn spreadsheet_exports_are_read() {
     std::fs::write(d.join("tab.csv"), "Q1\tQ2\tQ3\n1.46\t3.56\t-2.59\n").unwrap();
     let out = common::ok(d, &["predict", "--commands", "tab.csv", "--out", "-"]);
     assert_eq!(out.lines().count(), 2, "{out}");
+    // A missing column names how the fields were separated.
+    std::fs::write(d.join("semi-bad.csv"), "a;q2;q3\n1,46;3,56;-2,59\n").unwrap();
+    common::fails(
+        d,
+        &["predict", "--commands", "semi-bad.csv", "--out", "x.csv"],
+        1,
+        "missing column `q1` (columns found, separated by semicolons: a, q2, q3)",
+    );
     std::fs::write(d.join("typo.csv"), "q_1,q2,q3\n1.46,3.56,-2.59\n").unwrap();
     common::fails(
         d,
