@@ -732,14 +732,29 @@ pub fn print_noise(groups: &[pkmcal::NoiseGroup]) {
     }
 }
 
+/// The condition number in words: with unidentifiable directions, that of
+/// the identifiable ones (the full one is infinite).
+pub fn condition_text(id: &Identifiability) -> String {
+    let n = id.singular_values.len();
+    if id.rank == 0 || id.rank >= n {
+        return format!("condition number {:.3e}", id.condition_number);
+    }
+    let c = id.singular_values[0] / id.singular_values[id.rank - 1];
+    format!(
+        "condition number {c:.3e} over the {} identifiable directions ({} unidentifiable)",
+        id.rank,
+        n - id.rank
+    )
+}
+
 /// The identifiability summary; `fixed` says what happened to the parameter
 /// named for each unidentifiable direction ("fixed", "calibrate fixes").
 pub fn print_identifiability(id: &Identifiability, fixed: &str) {
     println!(
-        "identifiability: rank {} of {} free, condition number {:.3e}",
+        "identifiability: rank {} of {} free, {}",
         id.rank,
         id.singular_values.len(),
-        id.condition_number
+        condition_text(id)
     );
     let o = &id.observability;
     println!(

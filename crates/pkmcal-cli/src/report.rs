@@ -463,10 +463,10 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
     let o = &id.observability;
     let _ = write!(
         h,
-        "<h2>Identifiability</h2><p>Rank {} of {} free parameters; condition number of the column-scaled identification Jacobian {:.3e}.</p><table><tr><th>index</th><th>O1</th><th>O2</th><th>O3</th><th>O4</th><th>O5</th></tr><tr><td>value</td><td>{:.4e}</td><td>{:.4e}</td><td>{:.4e}</td><td>{:.4e}</td><td>{:.4e}</td></tr></table>",
+        "<h2>Identifiability</h2><p>Rank {} of {} free parameters; column-scaled identification Jacobian: {}.</p><table><tr><th>index</th><th>O1</th><th>O2</th><th>O3</th><th>O4</th><th>O5</th></tr><tr><td>value</td><td>{:.4e}</td><td>{:.4e}</td><td>{:.4e}</td><td>{:.4e}</td><td>{:.4e}</td></tr></table>",
         id.rank,
         id.singular_values.len(),
-        id.condition_number,
+        escape(&crate::calibrate::condition_text(id)),
         o.o1,
         o.o2,
         o.o3,

@@ -720,3 +720,152 @@ fn gcode_moves_are_rewritten_through_the_predistortion() {
         assert!(!d.join("bad.out").exists());
     }
 }
+
+/// The README's walk-through, step by step.
+#[test]
+fn readme_walkthrough_from_a_tracker_export_to_controller_corrections() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("truth.toml"),
+        "l11 = 280.4\nB3x = 149.6\nB3y = 420.5\nD2 = 215.2\ndq1 = 0.004\ndq3 = -0.003\n",
+    )
+    .unwrap();
+    ok(
+        d,
+        &[
+            "simulate",
+            "--grid",
+            "35",
+            "--truth",
+            "truth.toml",
+            "--noise",
+            "0.002",
+            "--instrument-frame",
+            "1200,-400,0.03",
+            "--units",
+            "angle=deg,length=m",
+            "--out",
+            "sim.csv",
+        ],
+    );
+    // sed -e '/^#/!{s/,/;/g; s/\./,/g}'
+    let text: String = std::fs::read_to_string(d.join("sim.csv"))
+        .unwrap()
+        .lines()
+        .map(|l| {
+            if l.starts_with('#') {
+                l.to_string()
+            } else {
+                l.replace(',', ";").replace('.', ",")
+            }
+        })
+        .map(|l| l + "\n")
+        .collect();
+    std::fs::write(d.join("tracker.csv"), text).unwrap();
+    fails(
+        d,
+        &["calibrate", "--data", "tracker.csv", "--out", "cal.toml"],
+        1,
+        "but they do in another unit: give --units angle=deg",
+    );
+    let out = ok(
+        d,
+        &[
+            "calibrate",
+            "--data",
+            "tracker.csv",
+            "--units",
+            "angle=deg,length=m",
+            "--out",
+            "cal.toml",
+            "--report",
+            "r.json",
+            "--report-dir",
+            "report",
+        ],
+    );
+    assert!(
+        out.contains("instrument frame in the base frame (identified"),
+        "{out}"
+    );
+    let r = json(&d.join("r.json"));
+    let after = r["accuracy"]["after"]["distance_max"].as_f64().unwrap();
+    let before = r["accuracy"]["before"]["distance_max"].as_f64().unwrap();
+    assert!(after < 0.01 && before > 0.5, "{before} -> {after} mm");
+    let frame = r["frame"].as_array().unwrap();
+    assert!(
+        (frame[0].as_f64().unwrap() - 1200.0).abs() < 0.1,
+        "{frame:?}"
+    );
+    std::fs::write(
+        d.join("path.csv"),
+        "target_x,target_y\n0,200\n50,250\n-80,300\n",
+    )
+    .unwrap();
+    ok(
+        d,
+        &[
+            "compensate",
+            "--params",
+            "cal.toml",
+            "--targets",
+            "path.csv",
+            "--units",
+            "angle=deg",
+            "--out",
+            "commands.csv",
+        ],
+    );
+    ok(
+        d,
+        &[
+            "compensate",
+            "--params",
+            "cal.toml",
+            "--grid",
+            "x=-60:60:5,y=160:260:5",
+            "--units",
+            "angle=deg",
+            "--out",
+            "table.json",
+        ],
+    );
+    let t = json(&d.join("table.json"));
+    assert_eq!(t["actuators"][0]["unit"], "deg");
+    assert!(t["interpolation_error"]["position_max"].as_f64().unwrap() < 0.005);
+    ok(
+        d,
+        &[
+            "compensate",
+            "--params",
+            "cal.toml",
+            "--targets",
+            "path.csv",
+            "--cartesian",
+            "--out",
+            "targets.csv",
+        ],
+    );
+    std::fs::write(
+        d.join("part.gcode"),
+        "G21 G90\nG0 X-40 Y200 F6000\nG1 X40 F1200\nG1 Y260\nG1 X-40\nG1 Y200\n",
+    )
+    .unwrap();
+    ok(
+        d,
+        &[
+            "gcode",
+            "--params",
+            "cal.toml",
+            "--in",
+            "part.gcode",
+            "--max-segment",
+            "10",
+            "--out",
+            "part-cal.gcode",
+        ],
+    );
+    let g = std::fs::read_to_string(d.join("part-cal.gcode")).unwrap();
+    assert_eq!(g.lines().filter(|l| l.starts_with("G1")).count(), 28, "{g}");
+}
