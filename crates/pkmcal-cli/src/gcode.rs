@@ -308,8 +308,15 @@ pub fn run_gcode(c: GcodeConfig) -> Result<()> {
                     }
                 })
                 .collect();
-            let pd = predistort(&mech, &controller, &real, &target, c.model, &opts)
-                .map_err(|e| here(format!("{e}")))?;
+            let pd = predistort(&mech, &controller, &real, &target, c.model, &opts).map_err(|e| {
+                if p < pieces {
+                    here(format!(
+                        "the straight move passes outside the reachable workspace (piece {p} of {pieces}): {e}; add an intermediate point or move around"
+                    ))
+                } else {
+                    here(format!("{e}"))
+                }
+            })?;
             worst = worst.max(
                 (0..nx)
                     .filter(|&k| !angle[k])

@@ -1389,14 +1389,22 @@ fn calibrate_once<M: Mechanism>(
     let n_requested = exact_free.map_or(opts.free.len() + n_free_frame, <[usize]>::len);
     if m <= n_requested {
         return Err(Error::InvalidRequest(format!(
-            "{} poses give {m} readings for {n_requested} free parameters{}; measure more poses (at least {}) or fix parameters",
+            "{} poses give {m} readings for {n_requested} free parameters{}; measure more poses (at least {}) or identify fewer parameters (--free NAMES, --fix NAMES){}",
             data.len(),
             if n_free_frame > 0 {
                 " (with the instrument frame's)"
             } else {
                 ""
             },
-            n_requested / nx + 1
+            n_requested / nx + 1,
+            if nx < spec.tool_axes.len() {
+                format!(
+                    "; {} alone cannot see every parameter of the default set: `analyze` names the combinations they cannot separate",
+                    measurement.axes().join(", ")
+                )
+            } else {
+                String::new()
+            }
         )));
     }
     let problem = IdentificationProblem::new(mech, measurement, data, opts.model, &opts.force)?;
