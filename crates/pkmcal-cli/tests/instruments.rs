@@ -248,3 +248,53 @@ fn a_subset_of_axes_is_declared_not_guessed() {
         "not a tool axis",
     );
 }
+
+/// A tracker's frame identified with a platform's base joint centres: the
+/// directions that move both together are one warning, not six.
+#[test]
+fn frame_gauge_is_one_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let gs = common::example("gough-stewart-6");
+    common::ok(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            &gs,
+            "--grid",
+            "30",
+            "--instrument-frame",
+            "800,-500,300,0.02,-0.02,0.02",
+            "--out",
+            "t.csv",
+        ],
+    );
+    let out = common::ok(
+        d,
+        &[
+            "calibrate",
+            "--mechanism",
+            &gs,
+            "--data",
+            "t.csv",
+            "--out",
+            "p.toml",
+            "--report",
+            "r.json",
+        ],
+    );
+    assert_eq!(out.matches("warning:").count(), 1, "{out}");
+    let r = common::json(&d.join("r.json"));
+    let w = r["warnings"].as_array().unwrap();
+    assert_eq!(w.len(), 1, "{w:?}");
+    assert_eq!(w[0]["kind"], "frame_gauge");
+    assert_eq!(w[0]["fixed"].as_array().unwrap().len(), 6);
+    assert_eq!(
+        r["identifiability"]["unidentifiable"]
+            .as_array()
+            .unwrap()
+            .len(),
+        6
+    );
+}

@@ -719,6 +719,18 @@ pub enum WarningKind {
         /// The parameter fixed to remove it, if any.
         fixed: Option<String>,
     },
+    /// The instrument frame is identified and, with it, parameters that
+    /// also place the mechanism in space (e.g. base joint centres): the
+    /// directions that only move everything together are unidentifiable, and
+    /// `fixed` were fixed to remove them (they then define the base frame).
+    FrameGauge {
+        /// Model used.
+        model: Model,
+        /// The parameters fixed, one per direction.
+        fixed: Vec<String>,
+        /// Directions that no parameter could remove (none when fixing).
+        unfixed: usize,
+    },
     /// The fit did not converge.
     NotConverged {
         /// The solver's reason.
@@ -797,6 +809,30 @@ impl Warning {
                     None => format!("unidentifiable with the {} model: {combination}", model.name()),
                 },
                 "these parameters cannot be separated by these measurements at these poses; fix one of them, or add poses or measurements that see them".into(),
+            ),
+            WarningKind::FrameGauge {
+                model,
+                fixed,
+                unfixed,
+            } => (
+                format!(
+                    "the instrument frame is identified together with parameters that also place the mechanism: {} directions move both together and are unidentifiable with the {} model{}",
+                    fixed.len() + unfixed,
+                    model.name(),
+                    if fixed.is_empty() {
+                        String::new()
+                    } else {
+                        format!(
+                            "; fixed {} at their starting values (they now define the base frame)",
+                            fixed
+                                .iter()
+                                .map(|f| format!("`{f}`"))
+                                .collect::<Vec<_>>()
+                                .join(", ")
+                        )
+                    }
+                ),
+                "to choose which parameters define the base frame, fix them yourself (--fix), or measure in the base frame (--frame base); the combinations are listed under identifiability".into(),
             ),
             WarningKind::NotConverged { reason } => (
                 format!("the fit did not converge: {reason}"),
@@ -1468,7 +1504,20 @@ fn calibrate_once<M: Mechanism>(
         (identifiability, free) =
             analyze_identifiability(&cols, &weigh(jac)?, &requested, data.len(), opts.auto_fix);
     }
-    for u in &identifiability.unidentifiable {
+    // Directions that move the instrument frame with the mechanism are one
+    // matter (the gauge), said once.
+    let (gauge, other): (Vec<&Unidentifiable>, Vec<&Unidentifiable>) = identifiability
+        .unidentifiable
+        .iter()
+        .partition(|u| frame_free && u.terms.iter().any(|(n, _)| n.starts_with("frame.")));
+    if !gauge.is_empty() {
+        warnings.push(Warning::new(WarningKind::FrameGauge {
+            model: opts.model,
+            fixed: gauge.iter().filter_map(|u| u.fixed.clone()).collect(),
+            unfixed: gauge.iter().filter(|u| u.fixed.is_none()).count(),
+        }));
+    }
+    for u in other {
         warnings.push(Warning::new(WarningKind::Unidentifiable {
             model: opts.model,
             combination: u.combination.clone(),
