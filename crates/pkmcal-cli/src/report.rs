@@ -40,8 +40,11 @@ const MAP_POINTS: usize = 4000;
 /// Lattice spacing of the workspace plan view, mm.
 const MAP_SPACING_MM: f64 = 8.0;
 
-/// Lattice points of each map slice (about 50 × 50).
+/// Lattice points of a map slice (about 50 × 50), at most.
 const MAP_SLICE_POINTS: f64 = 2500.0;
+/// Lattice points of all map slices together (three slices of a spatial
+/// tool share them: about 37 × 37 each).
+const MAP_TOTAL_POINTS: f64 = 4000.0;
 /// Points along each angle of the angle sweeps.
 const MAP_SWEEP_POINTS: usize = 41;
 
@@ -97,7 +100,8 @@ fn tick(v: f64) -> String {
 }
 
 /// The maps' data: slices through the workspace centre on each pair of
-/// length axes (lattice of about [`MAP_SLICE_POINTS`]) and a sweep along each
+/// length axes (lattices of about [`MAP_SLICE_POINTS`] each and
+/// [`MAP_TOTAL_POINTS`] together) and a sweep along each
 /// angle axis, evaluated in parallel.
 fn map_data(
     mech: &Mech,
@@ -119,9 +123,10 @@ fn map_data(
         }
     }
     let mut slices = vec![];
+    let per_slice = MAP_SLICE_POINTS.min(MAP_TOTAL_POINTS / planes.len().max(1) as f64);
     for (a, b) in planes {
         let (ea, eb) = (bx[a][1] - bx[a][0], bx[b][1] - bx[b][0]);
-        let spacing = (ea * eb / MAP_SLICE_POINTS).sqrt();
+        let spacing = (ea * eb / per_slice).sqrt();
         let (na, nb) = ((ea / spacing) as usize + 1, (eb / spacing) as usize + 1);
         let targets: Vec<Vec<f64>> = (0..na)
             .flat_map(|i| (0..nb).map(move |j| (i, j)))

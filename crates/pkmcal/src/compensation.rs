@@ -184,14 +184,24 @@ pub fn controller_commands<M: Mechanism>(
     controller: &Params,
     target: &[f64],
 ) -> Result<Vec<f64>> {
+    Ok(controller_configuration(mech, controller, target)?.0)
+}
+
+/// [`controller_commands`] and the controller's joint configuration.
+fn controller_configuration<M: Mechanism>(
+    mech: &M,
+    controller: &Params,
+    target: &[f64],
+) -> Result<(Vec<f64>, Vec<f64>)> {
     let spec = mech.spec();
     let q = inverse_kinematics(mech, controller.geometric(), target)?;
-    Ok(spec
+    let c = spec
         .actuated
         .iter()
         .zip(controller.offsets())
         .map(|(&j, o)| q[j] - o)
-        .collect())
+        .collect();
+    Ok((c, q))
 }
 
 /// Largest fixed-point iterations of [`predistort`].
@@ -231,8 +241,11 @@ pub fn predistort<M: Mechanism>(
     let mut sent = target.to_vec();
     let mut residual = f64::INFINITY;
     for it in 0..MAX_PREDISTORT_ITERATIONS {
-        let commands = controller_commands(mech, controller, &sent)?;
-        let reached = crate::models::predict(mech, real, &commands, model, &opts.force)?;
+        // The controller's configuration starts forward kinematics: the
+        // real machine is near it.
+        let (commands, q) = controller_configuration(mech, controller, &sent)?;
+        let pose = crate::models::prepare_pose(mech, &commands, Some(&q))?;
+        let reached = crate::models::predict_pose(mech, &pose, real, model, &opts.force)?;
         residual = 0.0;
         for ((s, x), t) in sent.iter_mut().zip(&reached.x).zip(target) {
             let e = x - t;
