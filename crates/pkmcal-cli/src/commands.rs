@@ -122,7 +122,12 @@ pub fn predict(a: PredictArgs) -> Result<()> {
     let mut header = names.clone();
     header.extend(spec.tool_axes.iter().cloned());
     header.extend(names.iter().map(|n| format!("deflection_{n}")));
-    header.extend(names.iter().map(|n| format!("torque_{n}")));
+    header.extend(
+        names
+            .iter()
+            .zip(spec.command_units())
+            .map(|(n, u)| crate::usecal::load_column(n, u)),
+    );
     if covariance.is_some() {
         header.extend(spec.tool_axes.iter().map(|a| format!("sigma_{a}")));
     }

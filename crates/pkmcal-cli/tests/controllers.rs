@@ -163,6 +163,23 @@ fn corrections_units_and_force_columns() {
         "{h:?}"
     );
     assert!(!h.iter().any(|c| c.starts_with("torque_")), "{h:?}");
+    ok(
+        d,
+        &[
+            "predict",
+            "--mechanism",
+            &gs,
+            "--commands",
+            "gc.csv",
+            "--out",
+            "gp.csv",
+        ],
+    );
+    let (h, _) = read_csv(&d.join("gp.csv"));
+    assert!(
+        h.contains(&"force_L1".to_string()) && h.contains(&"deflection_L1".to_string()),
+        "{h:?}"
+    );
     fails(
         d,
         &[
