@@ -41,6 +41,9 @@ fn word_of(axis: &str) -> Option<char> {
     }
 }
 
+/// Most pieces one move is split into (`--max-segment`).
+const MAX_PIECES: usize = 100_000;
+
 /// `G0`/`G1` (and their zero-padded forms).
 fn is_linear(v: &str) -> bool {
     matches!(v, "0" | "00" | "1" | "01")
@@ -278,7 +281,13 @@ pub fn run_gcode(c: GcodeConfig) -> Result<()> {
                     .map(|k| (to[k] - from[k].unwrap_or(0.0)).powi(2))
                     .sum::<f64>()
                     .sqrt();
-                ((d / max).ceil() as usize).max(1)
+                let n = (d / max).ceil();
+                if n > MAX_PIECES as f64 {
+                    return Err(here(format!(
+                        "--max-segment {max} mm would split this {d:.3} mm move into more than {MAX_PIECES} pieces; use a larger --max-segment"
+                    )));
+                }
+                (n as usize).max(1)
             }
             _ => 1,
         };
