@@ -718,7 +718,10 @@ fn gcode_moves_are_rewritten_through_the_predistortion() {
         ),
         ("G1 X0 Y900\n", "bad.gcode:1: target"),
         ("G1 X0 Y1-2\n", "bad.gcode:1: `Y1-2` is not a number"),
-        ("G1 X0 Y180\nG1 X1000000\n", "bad.gcode:2: --max-segment 5 mm would split"),
+        (
+            "G1 X0 Y180\nG1 X1000000\n",
+            "bad.gcode:2: --max-segment 5 mm would split",
+        ),
     ] {
         std::fs::write(d.join("bad.gcode"), text).unwrap();
         fails(

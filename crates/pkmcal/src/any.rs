@@ -61,6 +61,14 @@ impl Mechanism for AnyMechanism {
     fn configuration_guess(&self, commands: &[f64], rho: &[f64]) -> Option<Vec<f64>> {
         each!(self, m => m.configuration_guess(commands, rho))
     }
+    fn first_derivatives(
+        &self,
+        q: &[f64],
+        rho: &[f64],
+        cols: std::ops::Range<usize>,
+    ) -> Option<crate::autodiff::Jacobians> {
+        each!(self, m => m.first_derivatives(q, rho, cols))
+    }
     fn weighted_hessian(&self, q: &[f64], rho: &[f64], lambda: &[f64], mu: &[f64]) -> DMatrix<f64> {
         each!(self, m => m.weighted_hessian(q, rho, lambda, mu))
     }

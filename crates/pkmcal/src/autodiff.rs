@@ -32,7 +32,23 @@ pub struct Jacobians {
 
 /// Values and exact first derivatives of `g` and `x` with respect to the columns
 /// `cols` of `v = [q; ρ]` (docs/model.md eq. 4: ∂g/∂q, ∂g/∂ρ; eq. 9: ∂x/∂q).
+/// Uses the mechanism's closed-form derivatives
+/// ([`Mechanism::first_derivatives`]) when it has them.
 pub fn jacobians<M: Mechanism>(mech: &M, q: &[f64], rho: &[f64], cols: Range<usize>) -> Jacobians {
+    if let Some(j) = mech.first_derivatives(q, rho, cols.clone()) {
+        return j;
+    }
+    automatic_jacobians(mech, q, rho, cols)
+}
+
+/// [`jacobians`] by automatic differentiation always (the oracle for
+/// closed-form derivatives).
+pub fn automatic_jacobians<M: Mechanism>(
+    mech: &M,
+    q: &[f64],
+    rho: &[f64],
+    cols: Range<usize>,
+) -> Jacobians {
     match cols.len() {
         0 => values(mech, q, rho),
         1..=3 => jacobians_chunked::<M, 3>(mech, q, rho, cols),

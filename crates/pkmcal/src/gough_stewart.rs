@@ -262,6 +262,135 @@ impl GoughStewart {
     }
 }
 
+/// The rotation `R = Rz(c) Ry(b) Rx(a)` with its first and second
+/// derivatives in the pose angles, for closed-form leg derivatives.
+struct RotationDerivatives {
+    r: nalgebra::Matrix3<f64>,
+    d: [nalgebra::Matrix3<f64>; 3],
+    dd: [[nalgebra::Matrix3<f64>; 3]; 3],
+}
+
+impl RotationDerivatives {
+    fn new(a: f64, b: f64, c: f64) -> Self {
+        use nalgebra::Matrix3;
+        let (sa, ca) = a.sin_cos();
+        let (sb, cb) = b.sin_cos();
+        let (sc, cc) = c.sin_cos();
+        let x = [
+            Matrix3::new(1.0, 0.0, 0.0, 0.0, ca, -sa, 0.0, sa, ca),
+            Matrix3::new(0.0, 0.0, 0.0, 0.0, -sa, -ca, 0.0, ca, -sa),
+            Matrix3::new(0.0, 0.0, 0.0, 0.0, -ca, sa, 0.0, -sa, -ca),
+        ];
+        let y = [
+            Matrix3::new(cb, 0.0, sb, 0.0, 1.0, 0.0, -sb, 0.0, cb),
+            Matrix3::new(-sb, 0.0, cb, 0.0, 0.0, 0.0, -cb, 0.0, -sb),
+            Matrix3::new(-cb, 0.0, -sb, 0.0, 0.0, 0.0, sb, 0.0, -cb),
+        ];
+        let z = [
+            Matrix3::new(cc, -sc, 0.0, sc, cc, 0.0, 0.0, 0.0, 1.0),
+            Matrix3::new(-sc, -cc, 0.0, cc, -sc, 0.0, 0.0, 0.0, 0.0),
+            Matrix3::new(-cc, sc, 0.0, -sc, -cc, 0.0, 0.0, 0.0, 0.0),
+        ];
+        // Derivative orders of (a, b, c) for each product.
+        let prod = |oa: usize, ob: usize, oc: usize| z[oc] * y[ob] * x[oa];
+        let order = |j: usize| -> [usize; 3] {
+            let mut o = [0; 3];
+            o[j] += 1;
+            o
+        };
+        let d = [0, 1, 2].map(|j| {
+            let o = order(j);
+            prod(o[0], o[1], o[2])
+        });
+        let dd = [0, 1, 2].map(|j| {
+            [0, 1, 2].map(|k| {
+                let mut o = order(j);
+                o[k] += 1;
+                prod(o[0], o[1], o[2])
+            })
+        });
+        Self {
+            r: prod(0, 0, 0),
+            d,
+            dd,
+        }
+    }
+}
+
+/// Closed-form second derivatives of each leg's constraint
+/// `g_i = |w_i| − L_i`, `w_i = p + R b_i − a_i`, over its twelve variables
+/// `z = (p, θ, a_i, b_i)`: `∇²g = Wᵀ (I − u uᵀ)/|w| W + Σ_m u_m ∇²w_m` with
+/// `W = ∂w/∂z = [I, (∂R/∂θ_j) b, −I, R]` and `u = w/|w|`.
+struct LegHessians<'a> {
+    q: &'a [f64],
+    rho: &'a [f64],
+    n: usize,
+    rot: RotationDerivatives,
+}
+
+impl<'a> LegHessians<'a> {
+    fn new(q: &'a [f64], rho: &'a [f64], n: usize) -> Self {
+        let pose = &q[n..n + 6];
+        Self {
+            q,
+            rho,
+            n,
+            rot: RotationDerivatives::new(pose[3], pose[4], pose[5]),
+        }
+    }
+
+    /// The indices of `z` in `[q; ρ]` and `∇²g_i` over them.
+    fn leg(&self, i: usize) -> ([usize; 12], nalgebra::SMatrix<f64, 12, 12>) {
+        use nalgebra::{Matrix3, SMatrix, Vector3};
+        let (n, nq) = (self.n, self.n + 6);
+        let (q, rho, rot) = (self.q, self.rho, &self.rot);
+        let p = Vector3::new(q[n], q[n + 1], q[n + 2]);
+        let a = Vector3::new(rho[3 * i], rho[3 * i + 1], rho[3 * i + 2]);
+        let b = Vector3::new(
+            rho[3 * n + 3 * i],
+            rho[3 * n + 3 * i + 1],
+            rho[3 * n + 3 * i + 2],
+        );
+        let w = p + rot.r * b - a;
+        let len = w.norm();
+        let mut idx = [0usize; 12];
+        for k in 0..3 {
+            idx[k] = n + k;
+            idx[3 + k] = n + 3 + k;
+            idx[6 + k] = nq + 3 * i + k;
+            idx[9 + k] = nq + 3 * n + 3 * i + k;
+        }
+        let mut h = SMatrix::<f64, 12, 12>::zeros();
+        if len <= 0.0 {
+            return (idx, h);
+        }
+        let u = w / len;
+        let mut wz = SMatrix::<f64, 3, 12>::zeros();
+        wz.fixed_view_mut::<3, 3>(0, 0)
+            .copy_from(&Matrix3::identity());
+        for j in 0..3 {
+            wz.fixed_view_mut::<3, 1>(0, 3 + j)
+                .copy_from(&(rot.d[j] * b));
+        }
+        wz.fixed_view_mut::<3, 3>(0, 6)
+            .copy_from(&(-Matrix3::identity()));
+        wz.fixed_view_mut::<3, 3>(0, 9).copy_from(&rot.r);
+        let proj = (Matrix3::identity() - u * u.transpose()) / len;
+        h += wz.transpose() * proj * wz;
+        for j in 0..3 {
+            for k in 0..3 {
+                h[(3 + j, 3 + k)] += u.dot(&(rot.dd[j][k] * b));
+            }
+            let c = rot.d[j].transpose() * u;
+            for l in 0..3 {
+                h[(3 + j, 9 + l)] += c[l];
+                h[(9 + l, 3 + j)] += c[l];
+            }
+        }
+        (idx, h)
+    }
+}
+
 impl Mechanism for GoughStewart {
     fn spec(&self) -> &Spec {
         &self.spec
@@ -287,6 +416,120 @@ impl Mechanism for GoughStewart {
     /// The platform pose.
     fn tool<D: Scalar>(&self, q: &[D], _rho: &[D], x: &mut [D]) {
         x.copy_from_slice(&q[self.n..self.n + 6]);
+    }
+
+    /// Closed form: with `w_i = p + R b_i − a_i` and `u_i = w_i/|w_i|`,
+    /// `g_i = |w_i| − L_i` has `∂g_i/∂L_i = −1`, `∂g_i/∂p = u_i`,
+    /// `∂g_i/∂θ_j = u_iᵀ (∂R/∂θ_j) b_i`, `∂g_i/∂a_i = −u_i`,
+    /// `∂g_i/∂b_i = Rᵀu_i`; the tool map is the pose itself.
+    fn first_derivatives(
+        &self,
+        q: &[f64],
+        rho: &[f64],
+        cols: std::ops::Range<usize>,
+    ) -> Option<crate::autodiff::Jacobians> {
+        use nalgebra::{DMatrix, Matrix3, Vector3};
+        let n = self.n;
+        let nq = n + 6;
+        let pose = &q[n..nq];
+        let (sa, ca) = pose[3].sin_cos();
+        let (sb, cb) = pose[4].sin_cos();
+        let (sc, cc) = pose[5].sin_cos();
+        let rx = Matrix3::new(1.0, 0.0, 0.0, 0.0, ca, -sa, 0.0, sa, ca);
+        let ry = Matrix3::new(cb, 0.0, sb, 0.0, 1.0, 0.0, -sb, 0.0, cb);
+        let rz = Matrix3::new(cc, -sc, 0.0, sc, cc, 0.0, 0.0, 0.0, 1.0);
+        let drx = Matrix3::new(0.0, 0.0, 0.0, 0.0, -sa, -ca, 0.0, ca, -sa);
+        let dry = Matrix3::new(-sb, 0.0, cb, 0.0, 0.0, 0.0, -cb, 0.0, -sb);
+        let drz = Matrix3::new(-sc, -cc, 0.0, cc, -sc, 0.0, 0.0, 0.0, 0.0);
+        let r = rz * ry * rx;
+        let dr = [rz * ry * drx, rz * dry * rx, drz * ry * rx];
+        let p = Vector3::new(pose[0], pose[1], pose[2]);
+        let (c0, width) = (cols.start, cols.len());
+        let mut g = vec![0.0; n];
+        let mut dg = DMatrix::zeros(n, width);
+        let mut dx = DMatrix::zeros(6, width);
+        let put = |m: &mut DMatrix<f64>, row: usize, col: usize, v: f64| {
+            if col >= cols.start && col < cols.end {
+                m[(row, col - c0)] = v;
+            }
+        };
+        for i in 0..n {
+            let a = Vector3::new(rho[3 * i], rho[3 * i + 1], rho[3 * i + 2]);
+            let b = Vector3::new(
+                rho[3 * n + 3 * i],
+                rho[3 * n + 3 * i + 1],
+                rho[3 * n + 3 * i + 2],
+            );
+            let w = p + r * b - a;
+            let len = w.norm();
+            g[i] = len - q[i];
+            let u = if len > 0.0 { w / len } else { Vector3::zeros() };
+            put(&mut dg, i, i, -1.0);
+            for k in 0..3 {
+                put(&mut dg, i, n + k, u[k]);
+                put(&mut dg, i, n + 3 + k, u.dot(&(dr[k] * b)));
+                put(&mut dg, i, nq + 3 * i + k, -u[k]);
+            }
+            let rtu = r.transpose() * u;
+            for k in 0..3 {
+                put(&mut dg, i, nq + 3 * n + 3 * i + k, rtu[k]);
+            }
+        }
+        for k in 0..6 {
+            put(&mut dx, k, n + k, 1.0);
+        }
+        Some(crate::autodiff::Jacobians {
+            g,
+            x: pose.to_vec(),
+            dg,
+            dx,
+        })
+    }
+
+    fn weighted_hessian(
+        &self,
+        q: &[f64],
+        rho: &[f64],
+        lambda: &[f64],
+        _mu: &[f64],
+    ) -> nalgebra::DMatrix<f64> {
+        // The tool map is linear in q: only the constraints curve.
+        let (n, nq) = (self.n, self.n + 6);
+        let mut h = nalgebra::DMatrix::zeros(nq, nq + rho.len());
+        let legs = LegHessians::new(q, rho, n);
+        for (i, &l) in lambda.iter().enumerate().take(n) {
+            if l == 0.0 {
+                continue;
+            }
+            let (idx, hi) = legs.leg(i);
+            for (r, &vr) in idx.iter().enumerate() {
+                if vr >= nq {
+                    continue;
+                }
+                for (c, &vc) in idx.iter().enumerate() {
+                    h[(vr, vc)] += l * hi[(r, c)];
+                }
+            }
+        }
+        h
+    }
+
+    fn joint_hessians(&self, q: &[f64], rho: &[f64]) -> Vec<nalgebra::DMatrix<f64>> {
+        let (n, nq) = (self.n, self.n + 6);
+        let legs = LegHessians::new(q, rho, n);
+        let mut out = Vec::with_capacity(n + 6);
+        for i in 0..n {
+            let (idx, hi) = legs.leg(i);
+            let mut m = nalgebra::DMatrix::zeros(nq, nq);
+            for r in 0..6 {
+                for c in 0..6 {
+                    m[(idx[r], idx[c])] = hi[(r, c)];
+                }
+            }
+            out.push(m);
+        }
+        out.extend(std::iter::repeat_n(nalgebra::DMatrix::zeros(nq, nq), 6));
+        out
     }
 
     fn inverse_kinematics_closed(&self, target: &[f64], rho: &[f64]) -> Option<Result<Vec<f64>>> {

@@ -324,6 +324,20 @@ pub trait Mechanism: Send + Sync {
         None
     }
 
+    /// Values and exact first derivatives of the constraints and the tool map
+    /// with respect to the columns `cols` of `[q; ρ]`, when the mechanism has
+    /// them in closed form (cheaper than automatic differentiation). The
+    /// default (`None`) makes [`crate::autodiff::jacobians`] differentiate
+    /// automatically; the tests compare the two.
+    fn first_derivatives(
+        &self,
+        _q: &[f64],
+        _rho: &[f64],
+        _cols: std::ops::Range<usize>,
+    ) -> Option<crate::autodiff::Jacobians> {
+        None
+    }
+
     /// Second derivatives of `φ = λᵀg + μᵀx` with respect to the joints (rows)
     /// and to `[q; ρ]` (columns): `n_joints × (n_joints + n_geometric)`. The
     /// exact model's identification Jacobian needs them at every pose. The

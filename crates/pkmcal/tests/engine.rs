@@ -411,3 +411,99 @@ fn parameter_names_are_checked() {
     let err = Params::from_named(mech.spec(), [("l11", f64::NAN)]).unwrap_err();
     assert!(err.to_string().contains("finite"), "{err}");
 }
+
+/// Closed-form first derivatives agree with automatic differentiation.
+const CLOSED_FORM_REL: f64 = 1e-12;
+
+/// The Gough–Stewart closed-form Jacobians equal automatic differentiation's
+/// on every column range, at perturbed parameters and random poses (both
+/// shipped platforms).
+#[test]
+fn gough_stewart_closed_form_derivatives_equal_automatic_ones() {
+    use rand::{RngExt, SeedableRng};
+    for name in ["gough-stewart-6", "gough-stewart-8"] {
+        let gs = common::gough_stewart(name);
+        let spec = gs.spec();
+        let rho = common::perturbed(spec, 3, 0.5, 1e-3).values[..spec.n_geometric()].to_vec();
+        let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+        let n = spec.joints.len() + spec.n_geometric();
+        for _ in 0..20 {
+            let mut q = spec.reference_q.clone();
+            for v in &mut q {
+                *v += rng.random_range(-0.1..0.1) * v.abs().max(1.0);
+            }
+            for cols in [0..n, 0..spec.joints.len(), 3..17, n - 5..n, 0..0] {
+                let closed = jacobians(&gs, &q, &rho, cols.clone());
+                let auto = pkmcal::autodiff::automatic_jacobians(&gs, &q, &rho, cols.clone());
+                let close = |a: f64, b: f64| (a - b).abs() <= CLOSED_FORM_REL * (1.0 + b.abs());
+                assert!(
+                    closed.g.iter().zip(&auto.g).all(|(a, b)| close(*a, *b)),
+                    "{name} g"
+                );
+                assert_eq!(closed.x, auto.x);
+                assert_eq!(closed.dg.shape(), auto.dg.shape());
+                assert!(
+                    closed
+                        .dg
+                        .iter()
+                        .zip(auto.dg.iter())
+                        .all(|(a, b)| close(*a, *b)),
+                    "{name} dg {cols:?}"
+                );
+                assert!(
+                    closed
+                        .dx
+                        .iter()
+                        .zip(auto.dx.iter())
+                        .all(|(a, b)| close(*a, *b)),
+                    "{name} dx {cols:?}"
+                );
+            }
+        }
+    }
+}
+
+/// The Gough–Stewart closed-form second derivatives (the equilibrium's
+/// curvature and the exact model's identification Hessian) equal automatic
+/// differentiation's.
+#[test]
+fn gough_stewart_closed_form_hessians_equal_automatic_ones() {
+    use rand::{RngExt, SeedableRng};
+    for name in ["gough-stewart-6", "gough-stewart-8"] {
+        let gs = common::gough_stewart(name);
+        let spec = gs.spec();
+        let ng = spec.n_geometric();
+        let rho = common::perturbed(spec, 5, 0.5, 1e-3).values[..ng].to_vec();
+        let nq = spec.joints.len();
+        let mut rng = rand::rngs::StdRng::seed_from_u64(13);
+        let close = |a: f64, b: f64| (a - b).abs() <= CLOSED_FORM_REL * (1.0 + b.abs());
+        for _ in 0..10 {
+            let mut q = spec.reference_q.clone();
+            for v in &mut q {
+                *v += rng.random_range(-0.1..0.1) * v.abs().max(1.0);
+            }
+            let lambda: Vec<f64> = (0..spec.n_constraints)
+                .map(|_| rng.random_range(-2.0..2.0))
+                .collect();
+            let mu: Vec<f64> = (0..6).map(|_| rng.random_range(-2.0..2.0)).collect();
+            let closed = gs.weighted_hessian(&q, &rho, &lambda, &mu);
+            let h = output_hessians(&gs, &q, &rho, 0..nq, 0..nq + ng);
+            let weights: Vec<f64> = lambda.iter().chain(&mu).copied().collect();
+            let auto = pkmcal::autodiff::weighted_sum(&h, &weights);
+            assert_eq!(closed.shape(), auto.shape());
+            assert!(
+                closed.iter().zip(auto.iter()).all(|(a, b)| close(*a, *b)),
+                "{name} weighted"
+            );
+            let closed = gs.joint_hessians(&q, &rho);
+            let auto = output_hessians(&gs, &q, &rho, 0..nq, 0..nq);
+            assert_eq!(closed.len(), auto.len());
+            for (c, a) in closed.iter().zip(&auto) {
+                assert!(
+                    c.iter().zip(a.iter()).all(|(x, y)| close(*x, *y)),
+                    "{name} joint"
+                );
+            }
+        }
+    }
+}
