@@ -390,9 +390,17 @@ pub struct PlanArgs {
     /// Number of poses to choose.
     #[arg(value_parser = values::count, long, value_name = "N")]
     pub count: usize,
-    /// Spacing of the candidate lattice over the usable workspace, mm.
+    /// Spacing of the candidate lattice over the usable workspace, mm (an
+    /// axis in rad is spaced by it over the mechanism's lever arm).
     #[arg(value_parser = values::positive, long, default_value_t = 6.0, value_name = "SPACING")]
     pub candidates: f64,
+    /// Most candidates: a lattice with more usable points is thinned evenly
+    /// to this many (a 6-DOF workspace has many at any spacing).
+    #[arg(value_parser = values::count, long, default_value_t = 4000, value_name = "N")]
+    pub max_candidates: usize,
+    /// Hide the progress bar.
+    #[arg(long)]
+    pub quiet: bool,
     /// Observability index to maximise.
     #[arg(long, default_value = "O5", value_parser = ["O1", "O3", "O5"], ignore_case = true)]
     pub criterion: String,
@@ -717,6 +725,8 @@ fn run(command: Command) -> anyhow::Result<()> {
                 mechanism: a.mech.mechanism,
                 count: a.count,
                 candidates: a.candidates,
+                max_candidates: a.max_candidates,
+                quiet: a.quiet,
                 criterion: a.criterion.parse()?,
                 model: a.model.parse()?,
                 params: a.params,

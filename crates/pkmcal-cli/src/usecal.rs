@@ -6,7 +6,7 @@ use anyhow::{Context, Result, bail};
 use pkmcal::{
     CalibrationOptions, CompensationOptions, Mechanism, Model, MonteCarloOptions, Params,
     PlanCriterion, candidate_jacobians, compensate, grid_targets, monte_carlo, plan_observability,
-    plan_poses, random_targets, sample_workspace,
+    random_targets, sample_workspace,
 };
 use rayon::prelude::*;
 use std::io::Write;
@@ -508,6 +508,8 @@ pub struct PlanConfig {
     pub mechanism: Option<PathBuf>,
     pub count: usize,
     pub candidates: f64,
+    pub max_candidates: usize,
+    pub quiet: bool,
     pub criterion: PlanCriterion,
     pub model: Model,
     pub params: Option<PathBuf>,
@@ -541,12 +543,20 @@ pub fn run_plan(c: PlanConfig) -> Result<()> {
             free.len() / spec.tool_axes.len() + 1
         );
     }
+    // The lattice within a point budget (four box points per wanted
+    // candidate), then thinned evenly to at most --max-candidates.
     let spacing = pkmcal::workspace::lattice_spacing(
         spec,
         c.candidates,
-        pkmcal::planning::MAX_CANDIDATE_LATTICE,
+        pkmcal::planning::MAX_CANDIDATE_LATTICE.min(c.max_candidates.saturating_mul(4)),
     );
     let mut points = sample_workspace(&mech, spacing);
+    let lattice_points = points.len();
+    if points.len() > c.max_candidates {
+        let keep = c.max_candidates;
+        let n = points.len();
+        points = (0..keep).map(|k| points[k * n / keep].clone()).collect();
+    }
     let n_candidates = points.len();
     // The plain grid of the same size, judged with the same column scaling.
     let grid = grid_targets(&mech, c.count)?;
@@ -557,7 +567,12 @@ pub fn run_plan(c: PlanConfig) -> Result<()> {
         points: pool.iter().map(|&i| cands.points[i].clone()).collect(),
         rows: pool.iter().map(|&i| cands.rows[i].clone()).collect(),
     };
-    let chosen = plan_poses(&sub, c.count, c.criterion)?;
+    let bar = crate::io::progress(0, c.quiet, "planning steps", 0);
+    let chosen = pkmcal::plan_poses_with_progress(&sub, c.count, c.criterion, &|| {
+        bar.inc_length(1);
+        bar.inc(1);
+    })?;
+    bar.finish_and_clear();
     let (planned, pcond) = plan_observability(&cands, &chosen);
     let grid_idx: Vec<usize> = (n_candidates..n_candidates + c.count).collect();
     let (grid_o, gcond) = plan_observability(&cands, &grid_idx);
@@ -597,14 +612,21 @@ pub fn run_plan(c: PlanConfig) -> Result<()> {
         c.count,
         n_candidates,
         spacing,
-        if spacing > c.candidates {
-            format!(
-                ", coarsened from {} mm to stay within {} lattice points",
-                c.candidates,
-                pkmcal::planning::MAX_CANDIDATE_LATTICE
-            )
-        } else {
-            String::new()
+        {
+            let mut notes = String::new();
+            if spacing > c.candidates {
+                notes.push_str(&format!(
+                    ", coarsened from {} mm to stay within {} lattice points",
+                    c.candidates,
+                    pkmcal::planning::MAX_CANDIDATE_LATTICE.min(c.max_candidates.saturating_mul(4))
+                ));
+            }
+            if lattice_points > n_candidates {
+                notes.push_str(&format!(
+                    ", {lattice_points} usable lattice points thinned evenly to --max-candidates"
+                ));
+            }
+            notes
         },
         c.criterion,
         free.len(),

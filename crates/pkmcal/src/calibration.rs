@@ -17,6 +17,7 @@ use nalgebra::{DMatrix, DVector};
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 use rand::seq::SliceRandom;
+use rayon::prelude::*;
 use serde::Serialize;
 use std::cell::RefCell;
 use std::collections::BTreeMap;
@@ -209,14 +210,20 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         {
             return Ok(p.clone());
         }
+        // Poses in parallel (each independent; assembled in order, so the
+        // result does not depend on the threads).
+        let warm: Vec<Option<&[f64]>> = (0..self.poses.len())
+            .map(|i| cached.as_ref().map(|(_, p)| p[i].q.as_slice()))
+            .collect();
+        let (mech, model, force, origins) = (self.mech, self.model, &self.force, &self.origins);
         let out: Result<Vec<Prediction>> = self
             .poses
-            .iter()
+            .par_iter()
+            .zip(warm.par_iter())
             .enumerate()
-            .map(|(i, pose)| {
-                let warm = cached.as_ref().map(|(_, p)| p[i].q.as_slice());
-                predict_pose_warm(self.mech, pose, params, self.model, &self.force, warm)
-                    .map_err(|e| e.at_pose(self.origins[i]))
+            .map(|(i, (pose, warm))| {
+                predict_pose_warm(mech, pose, params, model, force, *warm)
+                    .map_err(|e| e.at_pose(origins[i]))
             })
             .collect();
         drop(cached);
@@ -289,15 +296,31 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         let mut r = DVector::zeros(self.poses.len() * ny);
         let mut j = DMatrix::zeros(self.poses.len() * ny, np + nm);
         let predictions = self.predictions(&params)?;
-        for (i, (pose, pred)) in self.poses.iter().zip(predictions).enumerate() {
-            let s = sensitivity_at(self.mech, pose, &params, self.model, &self.force, pred)
-                .map_err(|e| e.at_pose(self.origins[i]))?;
-            let (y, dx, dm) = self.measurement.observe_jacobian(&s.prediction.x, &m);
+        // Poses in parallel, assembled in order.
+        let (mech, model, force, origins, measurement) = (
+            self.mech,
+            self.model,
+            &self.force,
+            &self.origins,
+            self.measurement,
+        );
+        let blocks: Result<Vec<_>> = self
+            .poses
+            .par_iter()
+            .zip(predictions.into_par_iter())
+            .enumerate()
+            .map(|(i, (pose, pred))| {
+                let s = sensitivity_at(mech, pose, &params, model, force, pred)
+                    .map_err(|e| e.at_pose(origins[i]))?;
+                let (y, dx, dm) = measurement.observe_jacobian(&s.prediction.x, &m);
+                Ok((y, dx * &s.jacobian, dm))
+            })
+            .collect();
+        for (i, (y, jx, dm)) in blocks?.into_iter().enumerate() {
             for a in 0..ny {
                 r[i * ny + a] = y[a] - self.measured[i][a];
             }
-            j.view_mut((i * ny, 0), (ny, np))
-                .copy_from(&(dx * &s.jacobian));
+            j.view_mut((i * ny, 0), (ny, np)).copy_from(&jx);
             j.view_mut((i * ny, np), (ny, nm)).copy_from(&dm);
         }
         *self.jacobian_cache.borrow_mut() = Some((x.to_vec(), r.clone(), j.clone()));

@@ -91,6 +91,37 @@ pub fn candidate_jacobians<M: Mechanism>(
     Ok(Candidates { points, rows })
 }
 
+/// The [`SCREENED`] candidates (not in `chosen`) with the largest D-optimal
+/// gain `log det(I + A (M + reg·I)⁻¹ Aᵀ)`, in parallel.
+fn screen(c: &Candidates, m: &DMatrix<f64>, reg: f64, chosen: &[usize]) -> Vec<usize> {
+    let n = m.nrows();
+    let mut mr = m.clone();
+    for i in 0..n {
+        mr[(i, i)] += reg;
+    }
+    let Some(chol) = mr.cholesky() else {
+        return (0..c.rows.len()).filter(|i| !chosen.contains(i)).collect();
+    };
+    let l = chol.l();
+    let mut gains: Vec<(f64, usize)> = (0..c.rows.len())
+        .into_par_iter()
+        .filter(|i| !chosen.contains(i))
+        .map(|i| {
+            let a = &c.rows[i];
+            let b = l
+                .solve_lower_triangular(&a.transpose())
+                .unwrap_or_else(|| DMatrix::zeros(n, a.nrows()));
+            let s = DMatrix::identity(a.nrows(), a.nrows()) + b.transpose() * b;
+            let gain = s.cholesky().map_or(0.0, |c| {
+                c.l().diagonal().iter().map(|d| 2.0 * d.ln()).sum::<f64>()
+            });
+            (gain, i)
+        })
+        .collect();
+    gains.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    gains.into_iter().take(SCREENED).map(|(_, i)| i).collect()
+}
+
 fn singular_values(m: &DMatrix<f64>) -> Vec<f64> {
     let mut ev: Vec<f64> = m
         .clone()
@@ -130,10 +161,30 @@ pub fn plan_observability(c: &Candidates, set: &[usize]) -> (Observability, f64)
     (observability(&sv, set.len()), cond)
 }
 
+/// Work (about `candidates × parameters³ × poses`) up to which every
+/// candidate is scored exactly at every step; beyond it each step scores
+/// exactly only the [`SCREENED`] candidates with the largest information
+/// gain `log det(I + A M⁻¹ Aᵀ)` (one triangular solve each), so that planning
+/// a 6-DOF platform with 56 parameters takes seconds, not hours.
+pub const EXHAUSTIVE_WORK: f64 = 2e9;
+/// Candidates scored exactly per step when screening.
+pub const SCREENED: usize = 24;
+
 /// Choose `count` candidates maximising `criterion`: greedy selection, then
 /// exchanges (swap a chosen pose for a candidate while that improves the
 /// criterion), as DETMAX does. Returns candidate indices.
 pub fn plan_poses(c: &Candidates, count: usize, criterion: PlanCriterion) -> Result<Vec<usize>> {
+    plan_poses_with_progress(c, count, criterion, &|| {})
+}
+
+/// [`plan_poses`], calling `tick` after each greedy step and each exchange
+/// position (`count × (1 + passes)` ticks).
+pub fn plan_poses_with_progress(
+    c: &Candidates,
+    count: usize,
+    criterion: PlanCriterion,
+    tick: &(dyn Fn() + Sync),
+) -> Result<Vec<usize>> {
     let nc = c.rows.len();
     if count == 0 || count > nc {
         return Err(Error::InvalidRequest(format!(
@@ -146,10 +197,14 @@ pub fn plan_poses(c: &Candidates, count: usize, criterion: PlanCriterion) -> Res
     let reg = 1e-9 * info.iter().map(|m| m.trace()).sum::<f64>() / (nc * n) as f64;
     let mut chosen: Vec<usize> = vec![];
     let mut m = DMatrix::zeros(n, n);
+    let screening = (nc as f64) * (n as f64).powi(3) * count as f64 > EXHAUSTIVE_WORK;
     let best_addition = |m: &DMatrix<f64>, chosen: &[usize]| {
-        (0..nc)
-            .into_par_iter()
-            .filter(|i| !chosen.contains(i))
+        let pool: Vec<usize> = if screening {
+            screen(c, m, reg, chosen)
+        } else {
+            (0..nc).filter(|i| !chosen.contains(i)).collect()
+        };
+        pool.into_par_iter()
             .map(|i| (score(&(m + &info[i]), reg, criterion), i))
             .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)))
     };
@@ -157,6 +212,7 @@ pub fn plan_poses(c: &Candidates, count: usize, criterion: PlanCriterion) -> Res
         let (_, i) = best_addition(&m, &chosen).expect("enough candidates");
         m += &info[i];
         chosen.push(i);
+        tick();
     }
     let mut current = score(&m, reg, criterion);
     for _pass in 0..20 {
@@ -171,6 +227,7 @@ pub fn plan_poses(c: &Candidates, count: usize, criterion: PlanCriterion) -> Res
                 current = s;
                 improved = true;
             }
+            tick();
         }
         if !improved {
             break;
