@@ -66,10 +66,15 @@ macro_rules! render {
             }
             area.present().map_err(err)?;
         }
-        let img =
-            image::RgbImage::from_raw($w, $h, buf).ok_or_else(|| anyhow!("bad image buffer"))?;
         let mut png = Vec::new();
-        img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)?;
+        {
+            // The png crate alone: the image crate's colour management is not needed.
+            let mut enc = png::Encoder::new(&mut png, $w, $h);
+            enc.set_color(png::ColorType::Rgb);
+            enc.set_depth(png::BitDepth::Eight);
+            let mut w = enc.write_header().map_err(err)?;
+            w.write_image_data(&buf).map_err(err)?;
+        }
         Ok(Figure {
             name: $name,
             title: $title.into(),

@@ -65,19 +65,11 @@ fn report_dir_has_valid_figures_and_a_self_contained_page() {
             "{f}.svg"
         );
         assert!(svg.len() > 2_000, "{f}.svg is {} bytes", svg.len());
-        let png = image::open(rep.join(format!("{f}.png"))).unwrap().to_rgb8();
-        assert!(
-            png.width() >= 400 && png.height() >= 300,
-            "{f}.png {}×{}",
-            png.width(),
-            png.height()
-        );
+        let (w, h, pixels) = read_png(&rep.join(format!("{f}.png")));
+        assert!(w >= 400 && h >= 300, "{f}.png {w}×{h}");
         // Not blank: a good share of non-white pixels.
-        let ink = png.pixels().filter(|p| p.0 != [255, 255, 255]).count();
-        assert!(
-            ink * 50 > (png.width() * png.height()) as usize,
-            "{f}.png is nearly blank"
-        );
+        let ink = pixels.iter().filter(|p| **p != [255, 255, 255]).count();
+        assert!(ink * 50 > (w * h) as usize, "{f}.png is nearly blank");
     }
     // Marks: Fig. 9 has a marker per pose, quantity (x, y, distance) and
     // series (before, after), plus one legend marker per series above the
@@ -177,14 +169,11 @@ fn report_renders_in_headless_chromium() {
         .status()
         .expect("chromium runs");
     assert!(status.success());
-    let img = image::open(&shot).unwrap().to_rgb8();
-    assert_eq!((img.width(), img.height()), (1200, 2400));
-    let ink = img.pixels().filter(|p| p.0 != [255, 255, 255]).count();
-    let colours: std::collections::HashSet<[u8; 3]> = img.pixels().map(|p| p.0).collect();
-    assert!(
-        ink * 20 > (img.width() * img.height()) as usize,
-        "screenshot nearly blank"
-    );
+    let (w, h, pixels) = read_png(&shot);
+    assert_eq!((w, h), (1200, 2400));
+    let ink = pixels.iter().filter(|p| **p != [255, 255, 255]).count();
+    let colours: std::collections::HashSet<[u8; 3]> = pixels.iter().copied().collect();
+    assert!(ink * 20 > (w * h) as usize, "screenshot nearly blank");
     assert!(
         colours.len() > 50,
         "only {} colours: figures missing?",
@@ -254,4 +243,24 @@ fn six_axis_report_figures_are_laid_out_for_six_axes() {
     assert!(svg("parameters").contains("lengths (mm), 1/2"));
     let html = std::fs::metadata(d.join("rep/report.html")).unwrap().len();
     assert!(html < 5_000_000, "report.html is {html} bytes");
+}
+
+/// A PNG file's size and RGB pixels (RGB or RGBA, 8 bits).
+fn read_png(path: &std::path::Path) -> (u32, u32, Vec<[u8; 3]>) {
+    let file = std::io::BufReader::new(std::fs::File::open(path).unwrap());
+    let mut decoder = png::Decoder::new(file);
+    decoder.set_transformations(png::Transformations::normalize_to_color8());
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    let step = match info.color_type {
+        png::ColorType::Rgb => 3,
+        png::ColorType::Rgba => 4,
+        other => panic!("{}: unexpected colour type {other:?}", path.display()),
+    };
+    let pixels = buf[..info.buffer_size()]
+        .chunks(step)
+        .map(|p| [p[0], p[1], p[2]])
+        .collect();
+    (info.width, info.height, pixels)
 }

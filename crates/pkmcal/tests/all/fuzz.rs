@@ -5,9 +5,9 @@
 //! and calibration. Each call must return `Ok` or `Err`, never panic, and an
 //! `Ok` must hold finite numbers. The suite runs a hundred cases per
 //! property; run more with
-//! `PKMCAL_FUZZ_CASES=100000 cargo test --release -p pkmcal --test fuzz`.
+//! `PKMCAL_FUZZ_CASES=100000 cargo test --release -p pkmcal --test all fuzz`.
 
-mod common;
+use crate::common;
 use pkmcal::reference::JeongKim2Dof;
 use pkmcal::*;
 use proptest::prelude::*;

@@ -2,7 +2,7 @@
 //! exact identification Jacobians, target points rigid with the tool, a
 //! subset of axes, targets on a planar tool seen from a tracker far away.
 
-mod common;
+use crate::common;
 use common::{gough_stewart, perturbed, planar, spread};
 use pkmcal::calibration::IdentificationProblem;
 use pkmcal::reference::JeongKim2Dof;

@@ -1,7 +1,7 @@
 //! Tests of the identification (issue 3): exact Jacobians, recovery of the
 //! true parameters, identifiability, uncertainty and validation.
 
-mod common;
+use crate::common;
 
 use pkmcal::calibration::{Columns, IdentificationProblem, analyze_identifiability};
 use pkmcal::reference::{JeongKim2Dof, demo_truth};

@@ -2,7 +2,7 @@
 //! away from the base frame give the same mechanism parameters and the same
 //! validation accuracy as the same data seen from the base frame.
 
-mod common;
+use crate::common;
 use common::{gough_stewart, perturbed, spread};
 use pkmcal::frame::{observe, to_base};
 use pkmcal::{

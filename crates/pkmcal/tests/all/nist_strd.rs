@@ -3,6 +3,7 @@
 //! digits of the parameters and of the residual sum of squares; from the first
 //! start at least 25 of 27; certified standard deviations to 3 digits.
 
+#[path = "../nist/mod.rs"]
 mod nist;
 
 use pkmcal::lm::{Options, covariance, minimize};

@@ -3,7 +3,7 @@
 //! per group, the drop cap, cross-validation with weights, stiffness ratios
 //! where the actuators fight, units of every parameter.
 
-mod common;
+use crate::common;
 use common::{gough_stewart, perturbed, planar, spread};
 use pkmcal::calibration::WarningKind;
 use pkmcal::{

@@ -2,7 +2,7 @@
 //! planar linkage (same predictions as the built-in one), the shipped planar
 //! examples and the Gough–Stewart platforms.
 
-mod common;
+use crate::common;
 use common::{gough_stewart, perturbed, planar, table};
 use pkmcal::{
     GoughStewart, GoughStewartDescription, JeongKim2Dof, Mechanism, Model, Params,

@@ -1,6 +1,6 @@
 //! Tests of compensation, measurement planning and Monte Carlo (issue 6).
 
-mod common;
+use crate::common;
 
 use pkmcal::linearized::linearize;
 use pkmcal::reference::{JeongKim2Dof, demo_truth};

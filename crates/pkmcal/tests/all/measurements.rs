@@ -1,6 +1,6 @@
 //! Ball-bar measurements, weights and robust fitting (issue 4).
 
-mod common;
+use crate::common;
 
 use pkmcal::reference::{JeongKim2Dof, demo_truth};
 use pkmcal::*;

@@ -1,7 +1,7 @@
 //! Tests of the core engine (issue 2): derivatives, kinematics, the paper's
 //! relations and the three forward models.
 
-mod common;
+use crate::common;
 
 use nalgebra::{DMatrix, DVector};
 use pkmcal::autodiff::{jacobians, output_hessians};

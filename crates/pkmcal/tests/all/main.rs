@@ -1,0 +1,16 @@
+//! The library's integration tests, in one binary: the generic library is
+//! monomorphised and linked once for all of them, not once per file (this
+//! halves the test suite's build).
+
+mod common;
+
+mod calibration;
+mod engine;
+mod frame;
+mod fuzz;
+mod measurement_models;
+mod measurements;
+mod nist_strd;
+mod noise;
+mod planar;
+mod use_calibration;
