@@ -5,7 +5,7 @@
 #   OLD=/path/to/other/pkmcal bash benchmarks/compare-builds.sh
 set -u
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
-OLD=${OLD:?set OLD to the other build's pkmcal binary}
+OLD=${OLD:?set OLD to the pkmcal binary of the other build}
 NEW=${NEW:-$ROOT/target/release/pkmcal}
 EX=$ROOT/examples
 W=$(mktemp -d); trap 'rm -rf "$W"' EXIT; cd "$W"
