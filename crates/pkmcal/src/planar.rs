@@ -667,6 +667,180 @@ impl PlanarLinkage {
     }
 }
 
+/// A body pose `[x, y, θ]` with the derivative of each component in every
+/// variable of `[q; ρ]`.
+#[derive(Clone)]
+struct PoseDerivative {
+    p: [f64; 3],
+    d: [Vec<f64>; 3],
+}
+
+impl PoseDerivative {
+    fn ground(nv: usize) -> Self {
+        Self {
+            p: [0.0; 3],
+            d: [vec![0.0; nv], vec![0.0; nv], vec![0.0; nv]],
+        }
+    }
+
+    /// The point `(x, y)` of the body's frame (parameters `ix`, `iy` of
+    /// `[q; ρ]`) in the ground frame, with its derivatives.
+    fn world(&self, x: f64, y: f64, ix: usize, iy: usize) -> ([f64; 2], [Vec<f64>; 2]) {
+        let (s, c) = self.p[2].sin_cos();
+        let pt = [self.p[0] + c * x - s * y, self.p[1] + s * x + c * y];
+        let (kx, ky) = (-s * x - c * y, c * x - s * y);
+        let mut dx = self.d[0].clone();
+        let mut dy = self.d[1].clone();
+        for ((a, b), t) in dx.iter_mut().zip(dy.iter_mut()).zip(&self.d[2]) {
+            *a += kx * t;
+            *b += ky * t;
+        }
+        dx[ix] += c;
+        dx[iy] -= s;
+        dy[ix] += s;
+        dy[iy] += c;
+        (pt, [dx, dy])
+    }
+}
+
+impl PlanarLinkage {
+    /// Body poses with their derivatives (the closed form of
+    /// [`PlanarLinkage::poses`]).
+    fn pose_derivatives(&self, q: &[f64], rho: &[f64]) -> Vec<PoseDerivative> {
+        let nq = q.len();
+        let nv = nq + rho.len();
+        let mut out = vec![PoseDerivative::ground(nv); self.n_bodies];
+        for (i, j) in self.joints.iter().enumerate() {
+            if j.closing.is_some() {
+                continue;
+            }
+            let parent = &out[j.parent];
+            let (a, [dax, day]) =
+                parent.world(rho[j.at[0]], rho[j.at[1]], nq + j.at[0], nq + j.at[1]);
+            let mut dth = parent.d[2].clone();
+            let child = match j.kind {
+                JointKind::Revolute => {
+                    dth[i] += 1.0;
+                    PoseDerivative {
+                        p: [a[0], a[1], parent.p[2] + q[i]],
+                        d: [dax, day, dth],
+                    }
+                }
+                JointKind::Prismatic => {
+                    let axis = j.axis.expect("prismatic");
+                    let ang = parent.p[2] + rho[axis];
+                    dth[nq + axis] += 1.0;
+                    let (sa, ca) = ang.sin_cos();
+                    let mut dx = dax;
+                    let mut dy = day;
+                    for ((x, y), t) in dx.iter_mut().zip(dy.iter_mut()).zip(&dth) {
+                        *x -= sa * q[i] * t;
+                        *y += ca * q[i] * t;
+                    }
+                    dx[i] += ca;
+                    dy[i] += sa;
+                    PoseDerivative {
+                        p: [a[0] + ca * q[i], a[1] + sa * q[i], ang],
+                        d: [dx, dy, dth],
+                    }
+                }
+            };
+            out[j.child] = child;
+        }
+        out
+    }
+
+    fn closed_form_jacobians(
+        &self,
+        q: &[f64],
+        rho: &[f64],
+        cols: std::ops::Range<usize>,
+    ) -> crate::autodiff::Jacobians {
+        use nalgebra::DMatrix;
+        let nq = q.len();
+        let p = self.pose_derivatives(q, rho);
+        let m = self.spec.n_constraints;
+        let nx = self.spec.tool_axes.len();
+        let mut g = vec![0.0; m];
+        let mut dg = DMatrix::zeros(m, cols.len());
+        let put = |dm: &mut DMatrix<f64>, r: usize, d: &[f64]| {
+            for (k, c) in cols.clone().enumerate() {
+                dm[(r, k)] = d[c];
+            }
+        };
+        let mut k = 0;
+        for (i, j) in self.joints.iter().enumerate() {
+            let Some(c) = &j.closing else { continue };
+            let (pp, pc) = (&p[j.parent], &p[j.child]);
+            let (a, [dax, day]) = pp.world(rho[j.at[0]], rho[j.at[1]], nq + j.at[0], nq + j.at[1]);
+            let (b, [dbx, dby]) = pc.world(
+                rho[c.child_at[0]],
+                rho[c.child_at[1]],
+                nq + c.child_at[0],
+                nq + c.child_at[1],
+            );
+            let sub = |u: &[f64], v: &[f64]| -> Vec<f64> {
+                u.iter().zip(v).map(|(a, b)| a - b).collect()
+            };
+            match j.kind {
+                JointKind::Revolute => {
+                    g[k] = a[0] - b[0];
+                    g[k + 1] = a[1] - b[1];
+                    g[k + 2] = (pc.p[2] - pp.p[2] - q[i]) * self.length;
+                    put(&mut dg, k, &sub(&dax, &dbx));
+                    put(&mut dg, k + 1, &sub(&day, &dby));
+                    let mut dt = sub(&pc.d[2], &pp.d[2]);
+                    dt[i] -= 1.0;
+                    dt.iter_mut().for_each(|v| *v *= self.length);
+                    put(&mut dg, k + 2, &dt);
+                }
+                JointKind::Prismatic => {
+                    let axis = j.axis.expect("prismatic");
+                    let ca_idx = c.child_angle.expect("prismatic");
+                    let ang = pp.p[2] + rho[axis];
+                    let mut dang = pp.d[2].clone();
+                    dang[nq + axis] += 1.0;
+                    let (sn, cs) = ang.sin_cos();
+                    g[k] = a[0] + cs * q[i] - b[0];
+                    g[k + 1] = a[1] + sn * q[i] - b[1];
+                    g[k + 2] = (pc.p[2] - ang - rho[ca_idx]) * self.length;
+                    let mut d0 = sub(&dax, &dbx);
+                    let mut d1 = sub(&day, &dby);
+                    for ((x, y), t) in d0.iter_mut().zip(d1.iter_mut()).zip(&dang) {
+                        *x -= sn * q[i] * t;
+                        *y += cs * q[i] * t;
+                    }
+                    d0[i] += cs;
+                    d1[i] += sn;
+                    put(&mut dg, k, &d0);
+                    put(&mut dg, k + 1, &d1);
+                    let mut dt = sub(&pc.d[2], &dang);
+                    dt[nq + ca_idx] -= 1.0;
+                    dt.iter_mut().for_each(|v| *v *= self.length);
+                    put(&mut dg, k + 2, &dt);
+                }
+            }
+            k += 3;
+        }
+        let tb = &p[self.tool_body];
+        let (t, [dtx, dty]) = tb.world(
+            rho[self.tool_at[0]],
+            rho[self.tool_at[1]],
+            nq + self.tool_at[0],
+            nq + self.tool_at[1],
+        );
+        let mut x = vec![t[0], t[1]];
+        let mut dx = DMatrix::zeros(nx, cols.len());
+        put(&mut dx, 0, &dtx);
+        put(&mut dx, 1, &dty);
+        if self.orientation {
+            x.push(tb.p[2]);
+            put(&mut dx, 2, &tb.d[2]);
+        }
+        crate::autodiff::Jacobians { g, x, dg, dx }
+    }
+}
+
 /// A point given in a body's frame, in the ground frame.
 fn world<D: Scalar>(pose: &[D; 3], x: D, y: D) -> [D; 2] {
     let (s, c) = pose[2].sin_cos();
@@ -705,6 +879,19 @@ impl Mechanism for PlanarLinkage {
             }
             k += 3;
         }
+    }
+
+    /// Closed form: the body poses and their derivatives in every variable
+    /// of `[q; ρ]` are propagated along the tree joints (the chain rule of
+    /// [`PlanarLinkage::poses`], in plain numbers), then the closing joints'
+    /// equations and the tool map are differentiated from them.
+    fn first_derivatives(
+        &self,
+        q: &[f64],
+        rho: &[f64],
+        cols: std::ops::Range<usize>,
+    ) -> Option<crate::autodiff::Jacobians> {
+        Some(self.closed_form_jacobians(q, rho, cols))
     }
 
     /// The tool point (and with `orientation`, the tool body's angle).

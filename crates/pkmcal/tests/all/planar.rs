@@ -236,3 +236,118 @@ fn bad_descriptions_are_refused_with_a_reason() {
     let e = GoughStewart::new(&d).unwrap_err().to_string();
     assert!(e.contains("at least 6 legs"), "{e}");
 }
+
+/// Closed-form first derivatives agree with automatic differentiation.
+const CLOSED_FORM_REL: f64 = 1e-12;
+
+/// A biglide: two prismatic actuators on (nearly) one rail, two links meeting
+/// at the tool through a closing revolute joint. (No shipped or tested
+/// linkage closes a loop through a prismatic joint; its closed-form
+/// equations follow the tree joint's and are checked by the same code path
+/// in `PlanarLinkage::closed_form_jacobians`.)
+const BIGLIDE: &str = r#"
+name = "biglide"
+[[joint]]
+name = "q1"
+kind = "prismatic"
+parent = "ground"
+child = "s1"
+at = [0.0, 0.0]
+axis = 0.1
+actuated = true
+stiffness = 5000.0
+[[joint]]
+name = "q2"
+kind = "prismatic"
+parent = "ground"
+child = "s2"
+at = [0.0, 5.0]
+axis = 0.0
+actuated = true
+stiffness = 5000.0
+[[joint]]
+name = "q3"
+kind = "revolute"
+parent = "s1"
+child = "l1"
+at = ["u1", 3.0]
+[[joint]]
+name = "q4"
+kind = "revolute"
+parent = "s2"
+child = "l2"
+at = [2.0, 1.0]
+[[joint]]
+name = "P"
+kind = "revolute"
+parent = "l2"
+child = "l1"
+at = ["b", 0.0]
+child_at = ["a", 0.0]
+[tool]
+body = "l1"
+at = ["a", 10.0]
+[parameters]
+u1 = 1.0
+a = 200.0
+b = 200.0
+[assembly]
+q1 = -100.0
+q2 = 100.0
+q3 = 0.95
+q4 = 2.1
+[workspace]
+x = [-60.0, 60.0]
+y = [120.0, 200.0]
+"#;
+
+/// The planar closed-form Jacobians equal automatic differentiation's on
+/// every shipped planar linkage and a prismatic one, on every column range,
+/// at perturbed parameters and joints away from closure.
+#[test]
+fn planar_closed_form_derivatives_equal_automatic_ones() {
+    use pkmcal::autodiff::{automatic_jacobians, jacobians};
+    use rand::{RngExt, SeedableRng};
+    let mut linkages: Vec<PlanarLinkage> = ["five-bar", "3-rrr", "4-rrr", "jeong-kim-planar"]
+        .iter()
+        .map(|n| common::planar(n))
+        .collect();
+    let d: PlanarDescription = toml::from_str(BIGLIDE).unwrap();
+    linkages.push(PlanarLinkage::new(&d).unwrap());
+    let mut rng = rand::rngs::StdRng::seed_from_u64(17);
+    let close = |a: f64, b: f64| (a - b).abs() <= CLOSED_FORM_REL * (1.0 + b.abs());
+    for l in &linkages {
+        let spec = l.spec();
+        let ng = spec.n_geometric();
+        let mut rho = spec.nominal[..ng].to_vec();
+        for v in &mut rho {
+            *v += rng.random_range(-0.5..0.5);
+        }
+        let n = spec.joints.len() + ng;
+        for _ in 0..10 {
+            let q: Vec<f64> = spec
+                .reference_q
+                .iter()
+                .map(|v| v + rng.random_range(-0.2..0.2))
+                .collect();
+            for cols in [0..n, 0..spec.joints.len(), 2..n.min(9), n - 3..n, 0..0] {
+                let c = jacobians(l, &q, &rho, cols.clone());
+                let a = automatic_jacobians(l, &q, &rho, cols.clone());
+                let name = &spec.name;
+                assert!(c.g.iter().zip(&a.g).all(|(x, y)| close(*x, *y)), "{name} g");
+                assert!(c.x.iter().zip(&a.x).all(|(x, y)| close(*x, *y)), "{name} x");
+                assert_eq!(c.dg.shape(), a.dg.shape());
+                assert!(
+                    c.dg.iter().zip(a.dg.iter()).all(|(x, y)| close(*x, *y)),
+                    "{name} dg {cols:?}\n{}\n{}",
+                    c.dg,
+                    a.dg
+                );
+                assert!(
+                    c.dx.iter().zip(a.dx.iter()).all(|(x, y)| close(*x, *y)),
+                    "{name} dx {cols:?}"
+                );
+            }
+        }
+    }
+}
