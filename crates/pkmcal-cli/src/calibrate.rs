@@ -313,16 +313,7 @@ pub struct CalibrateConfig {
 }
 
 fn force_arg<M: Mechanism>(mech: &M, s: Option<&str>) -> Result<Vec<f64>> {
-    let Some(s) = s else { return Ok(vec![]) };
-    let f = crate::io::parse_load(s, "--force")?;
-    if f.len() != mech.spec().tool_axes.len() {
-        return crate::output::usage(format!(
-            "--force needs {} values, got {}",
-            mech.spec().tool_axes.len(),
-            f.len()
-        ));
-    }
-    Ok(f)
+    crate::io::load_option(s, "--force", mech.spec().tool_axes.len())
 }
 
 /// The measurement model of a data file, from its columns: the whole tool

@@ -105,16 +105,7 @@ pub fn run_gcode(c: GcodeConfig) -> Result<()> {
         None => Params::nominal(spec),
     };
     let nx = spec.tool_axes.len();
-    let force = match &c.load {
-        Some(s) => {
-            let f = crate::io::parse_load(s, "--load")?;
-            if f.len() != nx {
-                return crate::output::usage(format!("--load needs {nx} values, got {}", f.len()));
-            }
-            f
-        }
-        None => vec![],
-    };
+    let force = crate::io::load_option(c.load.as_deref(), "--load", nx)?;
     let opts = CompensationOptions {
         force,
         preload: vec![],

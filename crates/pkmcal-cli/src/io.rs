@@ -967,6 +967,16 @@ fn jeong_kim_from_str(text: &str) -> Result<JeongKim2Dof> {
 /// Parse `a,b,c` into numbers.
 /// [`parse_list`] of load values (N, N·m), each within
 /// [`pkmcal::units::MAX_LOAD`].
+/// An optional load option with exactly `n` values (empty when absent).
+pub fn load_option(s: Option<&str>, what: &str, n: usize) -> Result<Vec<f64>> {
+    let Some(s) = s else { return Ok(vec![]) };
+    let f = parse_load(s, what)?;
+    if f.len() != n {
+        return crate::output::usage(format!("{what} needs {n} values, got {}", f.len()));
+    }
+    Ok(f)
+}
+
 pub fn parse_load(s: &str, what: &str) -> Result<Vec<f64>> {
     let v = parse_list(s, what)?;
     if let Some(x) = v.iter().find(|x| x.abs() > pkmcal::units::MAX_LOAD) {

@@ -55,19 +55,7 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
     };
     let nx = spec.tool_axes.len();
     let opts = CompensationOptions {
-        force: match &c.load {
-            Some(s) => {
-                let f = crate::io::parse_load(s, "--load")?;
-                if f.len() != nx {
-                    return crate::output::usage(format!(
-                        "--load needs {nx} values, got {}",
-                        f.len()
-                    ));
-                }
-                f
-            }
-            None => vec![],
-        },
+        force: crate::io::load_option(c.load.as_deref(), "--load", nx)?,
         preload: match &c.preload {
             Some(s) => {
                 let t = crate::io::parse_load(s, "--preload")?;

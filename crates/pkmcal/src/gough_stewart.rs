@@ -428,21 +428,12 @@ impl Mechanism for GoughStewart {
         rho: &[f64],
         cols: std::ops::Range<usize>,
     ) -> Option<crate::autodiff::Jacobians> {
-        use nalgebra::{DMatrix, Matrix3, Vector3};
+        use nalgebra::{DMatrix, Vector3};
         let n = self.n;
         let nq = n + 6;
         let pose = &q[n..nq];
-        let (sa, ca) = pose[3].sin_cos();
-        let (sb, cb) = pose[4].sin_cos();
-        let (sc, cc) = pose[5].sin_cos();
-        let rx = Matrix3::new(1.0, 0.0, 0.0, 0.0, ca, -sa, 0.0, sa, ca);
-        let ry = Matrix3::new(cb, 0.0, sb, 0.0, 1.0, 0.0, -sb, 0.0, cb);
-        let rz = Matrix3::new(cc, -sc, 0.0, sc, cc, 0.0, 0.0, 0.0, 1.0);
-        let drx = Matrix3::new(0.0, 0.0, 0.0, 0.0, -sa, -ca, 0.0, ca, -sa);
-        let dry = Matrix3::new(-sb, 0.0, cb, 0.0, 0.0, 0.0, -cb, 0.0, -sb);
-        let drz = Matrix3::new(-sc, -cc, 0.0, cc, -sc, 0.0, 0.0, 0.0, 0.0);
-        let r = rz * ry * rx;
-        let dr = [rz * ry * drx, rz * dry * rx, drz * ry * rx];
+        let RotationDerivatives { r, d: dr, .. } =
+            RotationDerivatives::new(pose[3], pose[4], pose[5]);
         let p = Vector3::new(pose[0], pose[1], pose[2]);
         let (c0, width) = (cols.start, cols.len());
         let mut g = vec![0.0; n];
