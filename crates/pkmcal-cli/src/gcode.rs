@@ -13,6 +13,7 @@
 
 use anyhow::{Context, Result};
 use pkmcal::{CompensationOptions, Mechanism, Model, Params, predistort};
+use rayon::prelude::*;
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
@@ -39,6 +40,31 @@ fn word_of(axis: &str) -> Option<char> {
         "rz" | "phi" => Some('C'),
         _ => None,
     }
+}
+
+/// One line of the rewritten program, in order.
+enum Item {
+    /// A line kept as it is.
+    Raw(String),
+    /// `G28`: the position sent is unknown again.
+    Reset,
+    /// A pre-distorted piece of a move (index into the pieces).
+    Piece(usize),
+}
+
+/// A piece of a move: its target and how to write it.
+struct Piece {
+    line_no: usize,
+    piece: usize,
+    pieces: usize,
+    /// Tool coordinates (mm, rad).
+    target: Vec<f64>,
+    absolute: bool,
+    scale: f64,
+    g: String,
+    e_text: Option<String>,
+    others: Vec<String>,
+    comment: String,
 }
 
 /// Most pieces one move is split into (`--max-segment`).
@@ -150,8 +176,12 @@ pub fn run_gcode(c: GcodeConfig) -> Result<()> {
     let (mut absolute, mut inches, mut abs_e) = (true, false, true);
     let mut motion: Option<u32> = None;
     let mut e_pos = 0.0;
-    let mut out = String::with_capacity(text.len() * 2);
-    let (mut moves, mut segments, mut worst) = (0usize, 0usize, 0.0f64);
+    // First pass: parse, follow the modes, cut moves into pieces (in order);
+    // then every piece is pre-distorted in parallel; then the program is
+    // written, relative coordinates from the pieces sent before.
+    let mut items: Vec<Item> = Vec::with_capacity(text.lines().count());
+    let mut pieces_out: Vec<Piece> = vec![];
+    let mut moves = 0usize;
     for (n, raw) in text.lines().enumerate() {
         let line_no = n + 1;
         let here = |m: String| anyhow::anyhow!("{file}:{line_no}: {m}");
@@ -187,9 +217,9 @@ pub fn run_gcode(c: GcodeConfig) -> Result<()> {
                     for k in 0..nx {
                         if !angle[k] {
                             pos[k] = None;
-                            sent_pos[k] = None;
                         }
                     }
+                    items.push(Item::Reset);
                 }
                 ('M', "82") => abs_e = true,
                 ('M', "83") => abs_e = false,
@@ -206,8 +236,7 @@ pub fn run_gcode(c: GcodeConfig) -> Result<()> {
             if let Some((_, v)) = l.words.iter().find(|(w, _)| *w == 'E') {
                 e_pos = num(v, 'E')?;
             }
-            out.push_str(raw);
-            out.push('\n');
+            items.push(Item::Raw(raw.to_string()));
             continue;
         }
         let continues = !is_move
@@ -221,8 +250,7 @@ pub fn run_gcode(c: GcodeConfig) -> Result<()> {
                 let e = num(v, 'E')?;
                 e_pos = if abs_e { e } else { e_pos + e };
             }
-            out.push_str(raw);
-            out.push('\n');
+            items.push(Item::Raw(raw.to_string()));
             continue;
         }
         // A move: the new programmed position.
@@ -308,68 +336,118 @@ pub fn run_gcode(c: GcodeConfig) -> Result<()> {
                     }
                 })
                 .collect();
-            let pd = predistort(&mech, &controller, &real, &target, c.model, &opts).map_err(|e| {
-                if p < pieces {
-                    here(format!(
-                        "the straight move passes outside the reachable workspace (piece {p} of {pieces}): {e}; add an intermediate point or move around"
-                    ))
-                } else {
-                    here(format!("{e}"))
-                }
-            })?;
-            worst = worst.max(
-                (0..nx)
-                    .filter(|&k| !angle[k])
-                    .map(|k| (pd.command_target[k] - target[k]).abs())
-                    .fold(0.0, f64::max),
-            );
-            let send: Vec<f64> = (0..nx)
-                .map(|k| {
-                    if angle[k] {
-                        pd.command_target[k].to_degrees() - offset[k]
-                    } else {
-                        (pd.command_target[k] - offset[k]) / scale
-                    }
-                })
-                .collect();
-            let mut line = g.clone();
-            for k in 0..nx {
-                // Every axis: the correction moves them all.
-                let v = if absolute {
-                    send[k]
-                } else {
-                    send[k] - sent_pos[k].unwrap_or(send[k])
-                };
-                let decimals = if angle[k] {
-                    ANGLE_DECIMALS
-                } else {
-                    LENGTH_DECIMALS
-                };
-                let _ = write!(line, " {}{:.*}", words[k], decimals, v);
-                sent_pos[k] = Some(send[k]);
-            }
-            if let Some(en) = e_new {
+            let e_text = e_new.map(|en| {
                 let e_here = e_pos + (en - e_pos) * f;
                 let e_prev = e_pos + (en - e_pos) * (p - 1) as f64 / pieces as f64;
                 let v = if abs_e { e_here } else { e_here - e_prev };
-                let _ = write!(line, " E{v:.5}");
-            }
-            for o in &others {
-                line.push(' ');
-                line.push_str(o);
-            }
-            if p == pieces && !l.comment.is_empty() {
-                line.push(' ');
-                line.push_str(l.comment);
-            }
-            out.push_str(&line);
-            out.push('\n');
-            segments += 1;
+                format!(" E{v:.5}")
+            });
+            items.push(Item::Piece(pieces_out.len()));
+            pieces_out.push(Piece {
+                line_no,
+                piece: p,
+                pieces,
+                target,
+                absolute,
+                scale,
+                g: g.clone(),
+                e_text,
+                others: others.clone(),
+                comment: if p == pieces {
+                    l.comment.to_string()
+                } else {
+                    String::new()
+                },
+            });
         }
         if let Some(en) = e_new {
             e_pos = en;
         }
         moves += 1;
+    }
+    let results: Vec<pkmcal::Result<pkmcal::Predistortion>> = pieces_out
+        .par_iter()
+        .map(|pc| predistort(&mech, &controller, &real, &pc.target, c.model, &opts))
+        .collect();
+    let mut out = String::with_capacity(text.len() * 2);
+    let (mut segments, mut worst) = (0usize, 0.0f64);
+    for item in &items {
+        let k_piece = match item {
+            Item::Raw(r) => {
+                out.push_str(r);
+                out.push('\n');
+                continue;
+            }
+            Item::Reset => {
+                for k in 0..nx {
+                    if !angle[k] {
+                        sent_pos[k] = None;
+                    }
+                }
+                continue;
+            }
+            Item::Piece(i) => *i,
+        };
+        let pc = &pieces_out[k_piece];
+        let pd = match &results[k_piece] {
+            Ok(pd) => pd,
+            Err(e) => {
+                let (line_no, p, pieces) = (pc.line_no, pc.piece, pc.pieces);
+                return Err(if p < pieces {
+                    anyhow::anyhow!(
+                        "{file}:{line_no}: the straight move passes outside the reachable workspace (piece {p} of {pieces}): {e}; add an intermediate point or move around"
+                    )
+                } else {
+                    anyhow::anyhow!("{file}:{line_no}: {e}")
+                });
+            }
+        };
+        let target = &pc.target;
+        worst = worst.max(
+            (0..nx)
+                .filter(|&k| !angle[k])
+                .map(|k| (pd.command_target[k] - target[k]).abs())
+                .fold(0.0, f64::max),
+        );
+        let send: Vec<f64> = (0..nx)
+            .map(|k| {
+                if angle[k] {
+                    pd.command_target[k].to_degrees() - offset[k]
+                } else {
+                    (pd.command_target[k] - offset[k]) / pc.scale
+                }
+            })
+            .collect();
+        let mut line = pc.g.clone();
+        for k in 0..nx {
+            // Every axis: the correction moves them all.
+            let v = if pc.absolute {
+                send[k]
+            } else {
+                send[k] - sent_pos[k].unwrap_or(send[k])
+            };
+            let decimals = if angle[k] {
+                ANGLE_DECIMALS
+            } else {
+                LENGTH_DECIMALS
+            };
+            let _ = write!(line, " {}{:.*}", words[k], decimals, v);
+            sent_pos[k] = Some(send[k]);
+        }
+        if let Some(e) = &pc.e_text {
+            line.push_str(e);
+        }
+        for o in &pc.others {
+            line.push(' ');
+            line.push_str(o);
+        }
+        if !pc.comment.is_empty() {
+            line.push(' ');
+            line.push_str(&pc.comment);
+        }
+        out.push_str(&line);
+        out.push('\n');
+        segments += 1;
     }
     crate::output::stage(&c.out, out.as_bytes())?;
     let (f, u) = pkmcal::Unit::Millimetre.readable(worst);
