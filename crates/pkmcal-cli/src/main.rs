@@ -88,9 +88,9 @@ pub struct PredictArgs {
     /// mechanism's joints (q1,q2,q3 for the reference), in rad or mm.
     #[arg(long, value_name = "C.csv")]
     pub commands: PathBuf,
-    /// External load applied to the tool, one value per tool coordinate: N along a length, N·mm per rad
-    /// on an angle (for phi: the moment about the tool point; for rx, ry, rz:
-    /// the generalised force of the Euler angle), e.g. `0,-9.81`.
+    /// External load applied to the tool, one value per tool coordinate, a wrench: a force in N along each length coordinate, a moment in N·m
+    /// about each angle coordinate's axis (phi: the plane's normal; rx, ry,
+    /// rz: the base x, y, z axes), e.g. `0,-9.81`.
     #[arg(long, value_name = "F1,F2,…", allow_hyphen_values = true)]
     pub force: Option<String>,
     /// Calibration report (from `calibrate --report`) whose parameter covariance
@@ -201,9 +201,9 @@ pub struct CalibrateArgs {
     /// Starting (and fixed) parameter values; nominal if omitted.
     #[arg(long, value_name = "P.toml")]
     pub start: Option<PathBuf>,
-    /// External load applied to the tool during the measurements, one value per tool coordinate: N along a length, N·mm per rad
-    /// on an angle (for phi: the moment about the tool point; for rx, ry, rz:
-    /// the generalised force of the Euler angle).
+    /// External load applied to the tool during the measurements, one value per tool coordinate, a wrench: a force in N along each length coordinate, a moment in N·m
+    /// about each angle coordinate's axis (phi: the plane's normal; rx, ry,
+    /// rz: the base x, y, z axes).
     #[arg(long, value_name = "F1,F2,…", allow_hyphen_values = true)]
     pub force: Option<String>,
     /// Output: identified parameters (flat TOML, readable by --params).
@@ -275,9 +275,10 @@ pub struct AnalyzeArgs {
     /// Parameter values at which to analyse; nominal if omitted.
     #[arg(long, value_name = "P.toml")]
     pub params: Option<PathBuf>,
-    /// External load applied to the tool, one value per tool coordinate: N along a length, N·mm per rad
-    /// on an angle (for phi: the moment about the tool point; for rx, ry, rz:
-    /// the generalised force of the Euler angle).
+    /// External load applied to the tool, one value per tool coordinate, a
+    /// wrench: a force in N along each length coordinate, a moment in N·m
+    /// about each angle coordinate's axis (phi: the plane's normal; rx, ry,
+    /// rz: the base x, y, z axes).
     #[arg(long, value_name = "F1,F2,…", allow_hyphen_values = true)]
     pub force: Option<String>,
     /// Output: JSON report of the analysis.
@@ -335,9 +336,9 @@ pub struct CompensateArgs {
     /// Model to invert: exact (deflections included) or rigid.
     #[arg(long, default_value = "exact", value_parser = ["exact", "rigid"])]
     pub model: String,
-    /// External load applied to the tool (e.g. a payload's weight), one value per tool coordinate: N along a length, N·mm per rad
-    /// on an angle (for phi: the moment about the tool point; for rx, ry, rz:
-    /// the generalised force of the Euler angle).
+    /// External load applied to the tool (e.g. a payload's weight), one value per tool coordinate, a wrench: a force in N along each length coordinate, a moment in N·m
+    /// about each angle coordinate's axis (phi: the plane's normal; rx, ry,
+    /// rz: the base x, y, z axes).
     #[arg(long, value_name = "F1,F2,…", allow_hyphen_values = true)]
     pub load: Option<String>,
     /// Actuator torques (N·m) whose internal part is held as a preload.
@@ -366,7 +367,9 @@ pub struct GcodeArgs {
     /// Model of the real machine: exact (deflections included) or rigid.
     #[arg(long, default_value = "exact", value_parser = ["exact", "rigid"])]
     pub model: String,
-    /// External load on the tool while it moves, one value per tool coordinate (N, N·mm per rad).
+    /// External load on the tool while it moves, one value per tool coordinate, a wrench: a force in N along each length coordinate, a moment in N·m
+    /// about each angle coordinate's axis (phi: the plane's normal; rx, ry,
+    /// rz: the base x, y, z axes).
     #[arg(long, value_name = "F1,F2,…", allow_hyphen_values = true)]
     pub load: Option<String>,
     /// The G-code program to rewrite.
