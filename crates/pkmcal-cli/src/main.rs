@@ -329,8 +329,8 @@ pub struct CompensateArgs {
     /// machine reaches the wanted one, instead of actuator commands.
     #[arg(long, conflicts_with = "grid")]
     pub cartesian: bool,
-    /// The controller's own parameter values (flat TOML) for --cartesian and
-    /// the corrections; nominal if omitted.
+    /// The controller's own parameter values (flat TOML) for --cartesian;
+    /// nominal if omitted. (Corrections are always against the nominal model.)
     #[arg(long, value_name = "P.toml")]
     pub controller: Option<PathBuf>,
     /// Model to invert: exact (deflections included) or rigid.

@@ -271,7 +271,9 @@ struct RotationDerivatives {
 }
 
 impl RotationDerivatives {
-    fn new(a: f64, b: f64, c: f64) -> Self {
+    /// `R`, its first derivatives and, with `second`, its second ones
+    /// (zero otherwise: the first derivatives of the legs need none).
+    fn new(a: f64, b: f64, c: f64, second: bool) -> Self {
         use nalgebra::Matrix3;
         let (sa, ca) = a.sin_cos();
         let (sb, cb) = b.sin_cos();
@@ -304,6 +306,9 @@ impl RotationDerivatives {
         });
         let dd = [0, 1, 2].map(|j| {
             [0, 1, 2].map(|k| {
+                if !second {
+                    return Matrix3::zeros();
+                }
                 let mut o = order(j);
                 o[k] += 1;
                 prod(o[0], o[1], o[2])
@@ -335,7 +340,7 @@ impl<'a> LegHessians<'a> {
             q,
             rho,
             n,
-            rot: RotationDerivatives::new(pose[3], pose[4], pose[5]),
+            rot: RotationDerivatives::new(pose[3], pose[4], pose[5], true),
         }
     }
 
@@ -433,7 +438,7 @@ impl Mechanism for GoughStewart {
         let nq = n + 6;
         let pose = &q[n..nq];
         let RotationDerivatives { r, d: dr, .. } =
-            RotationDerivatives::new(pose[3], pose[4], pose[5]);
+            RotationDerivatives::new(pose[3], pose[4], pose[5], false);
         let p = Vector3::new(pose[0], pose[1], pose[2]);
         let (c0, width) = (cols.start, cols.len());
         let mut g = vec![0.0; n];
