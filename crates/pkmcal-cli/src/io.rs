@@ -917,13 +917,34 @@ pub fn read_targets(mechanism: Option<&Path>) -> Result<Vec<Vec<f64>>> {
     };
     let text = std::fs::read_to_string(m)
         .with_context(|| format!("cannot read mechanism file {}", m.display()))?;
-    let t: MechanismTargets = toml::from_str(&text).with_context(|| {
-        format!(
-            "in mechanism file {}: each [[target]] needs `at = [x, y, z]` (tool frame, mm; `[x, y]` on a planar tool)",
-            m.display()
-        )
-    })?;
+    targets_from_str(&text).with_context(|| format!("in mechanism file {}", m.display()))
+}
+
+/// The target points (`[[target]]`) of a mechanism description's text.
+pub fn targets_from_str(text: &str) -> Result<Vec<Vec<f64>>> {
+    let t: MechanismTargets = toml::from_str(text).context(
+        "each [[target]] needs `at = [x, y, z]` (tool frame, mm; `[x, y]` on a planar tool)",
+    )?;
     Ok(t.target.into_iter().map(|t| t.at).collect())
+}
+
+/// The `[ballbar]` table of a mechanism description's text, checked; `None`
+/// when it has none.
+pub fn setup_from_str(text: &str) -> Result<Option<pkmcal::Setup>> {
+    let table: toml::Table = toml::from_str(text).context("invalid mechanism description")?;
+    let Some(v) = table.get("ballbar") else {
+        return Ok(None);
+    };
+    let f: SetupFile = v.clone().try_into().context(
+        "in the [ballbar] table: expected `sockets = [[x, y], …]` and optional `bar_offset`",
+    )?;
+    let setup = pkmcal::Setup {
+        sockets: f.sockets,
+        bar_offset: f.bar_offset,
+    };
+    let dim = setup.sockets.first().map_or(2, Vec::len).clamp(2, 3);
+    setup.validate(dim).context("in the [ballbar] table")?;
+    Ok(Some(setup))
 }
 
 fn jeong_kim_from_str(text: &str) -> Result<JeongKim2Dof> {

@@ -1,16 +1,9 @@
 //! `pkmcal`: the command-line tool. Reads files, validates arguments, calls the
 //! library, writes files. No kinematics here.
 
-mod calibrate;
 mod commands;
-mod figures;
-mod fileunits;
-mod gcode;
-mod hints;
-mod io;
-mod output;
-mod report;
-mod usecal;
+
+use pkmcal_cli::{calibrate, fileunits, gcode, hints, io, output, report, usecal};
 
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;

@@ -5,8 +5,7 @@ use crate::io::{Csv, csv_bytes, read_mechanism, read_params};
 use anyhow::{Context, Result, bail};
 use pkmcal::{
     CalibrationOptions, CompensationOptions, Mechanism, Model, MonteCarloOptions, Params,
-    PlanCriterion, candidate_jacobians, compensate, grid_targets, monte_carlo, plan_observability,
-    random_targets, sample_workspace,
+    PlanCriterion, compensate, monte_carlo, random_targets,
 };
 use rayon::prelude::*;
 use std::io::Write;
@@ -523,47 +522,26 @@ pub fn run_plan(c: PlanConfig) -> Result<()> {
     if !(c.candidates.is_finite() && c.candidates > 0.0) {
         return crate::output::usage("--candidates must be a positive spacing in mm");
     }
-    if c.count * spec.tool_axes.len() <= free.len() {
-        bail!(
-            "{} poses give too few coordinates for {} free parameters; plan at least {}",
-            c.count,
-            free.len(),
-            free.len() / spec.tool_axes.len() + 1
-        );
-    }
-    // The lattice within a point budget (four box points per wanted
-    // candidate), then thinned evenly to at most --max-candidates.
-    let spacing = pkmcal::workspace::lattice_spacing(
-        spec,
-        c.candidates,
-        pkmcal::planning::MAX_CANDIDATE_LATTICE.min(c.max_candidates.saturating_mul(4)),
-    );
-    let mut points = sample_workspace(&mech, spacing);
-    let lattice_points = points.len();
-    if points.len() > c.max_candidates {
-        let keep = c.max_candidates;
-        let n = points.len();
-        points = (0..keep).map(|k| points[k * n / keep].clone()).collect();
-    }
-    let n_candidates = points.len();
-    // The plain grid of the same size, judged with the same column scaling.
-    let grid = grid_targets(&mech, c.count)?;
-    points.extend(grid);
-    let cands = candidate_jacobians(&mech, points, &params, c.model, &free)?;
-    let pool: Vec<usize> = (0..n_candidates).collect();
-    let sub = pkmcal::planning::Candidates {
-        points: pool.iter().map(|&i| cands.points[i].clone()).collect(),
-        rows: pool.iter().map(|&i| cands.rows[i].clone()).collect(),
-    };
     let bar = crate::io::progress(0, c.quiet, "planning steps", 0);
-    let chosen = pkmcal::plan_poses_with_progress(&sub, c.count, c.criterion, &|| {
-        bar.inc_length(1);
-        bar.inc(1);
-    })?;
+    let plan = pkmcal::planning::plan(
+        &mech,
+        &params,
+        &pkmcal::planning::PlanOptions {
+            count: c.count,
+            criterion: c.criterion,
+            model: c.model,
+            free: free.clone(),
+            spacing: c.candidates,
+            max_candidates: c.max_candidates,
+        },
+        &|| {
+            bar.inc_length(1);
+            bar.inc(1);
+        },
+    )?;
     bar.finish_and_clear();
-    let (planned, pcond) = plan_observability(&cands, &chosen);
-    let grid_idx: Vec<usize> = (n_candidates..n_candidates + c.count).collect();
-    let (grid_o, gcond) = plan_observability(&cands, &grid_idx);
+    let (spacing, lattice_points, n_candidates) =
+        (plan.spacing, plan.lattice_points, plan.candidates);
     let mut header: Vec<String> = spec
         .tool_axes
         .iter()
@@ -575,10 +553,9 @@ pub fn run_plan(c: PlanConfig) -> Result<()> {
         .into_iter()
         .chain(crate::fileunits::commands(spec, &units))
         .collect();
-    let rows = |set: &[usize]| -> Vec<Vec<f64>> {
+    let rows = |set: &[pkmcal::WorkspacePoint]| -> Vec<Vec<f64>> {
         set.iter()
-            .map(|&i| {
-                let p = &cands.points[i];
+            .map(|p| {
                 let row: Vec<f64> = p
                     .target
                     .iter()
@@ -589,11 +566,12 @@ pub fn run_plan(c: PlanConfig) -> Result<()> {
             })
             .collect()
     };
-    let file =
-        |set: &[usize]| crate::fileunits::with_comment(csv_bytes(&header, &rows(set)), &units);
-    crate::output::stage(&c.out, &file(&chosen))?;
+    let file = |set: &[pkmcal::WorkspacePoint]| {
+        crate::fileunits::with_comment(csv_bytes(&header, &rows(set)), &units)
+    };
+    crate::output::stage(&c.out, &file(&plan.poses))?;
     if let Some(g) = &c.grid_out {
-        crate::output::stage(g, &file(&grid_idx))?;
+        crate::output::stage(g, &file(&plan.grid))?;
     }
     println!(
         "planned {} poses of {} candidates (spacing {:.4} mm{}) maximising {:?} for {} free parameters ({} model)",
@@ -624,7 +602,10 @@ pub fn run_plan(c: PlanConfig) -> Result<()> {
         "  {:<14} {:>11} {:>11} {:>11} {:>11} {:>11} {:>10}",
         "", "O1", "O2", "O3", "O4", "O5", "cond"
     );
-    for (label, o, cond) in [("planned", &planned, pcond), ("plain grid", &grid_o, gcond)] {
+    for (label, o, cond) in [
+        ("planned", &plan.observability, plan.condition),
+        ("plain grid", &plan.grid_observability, plan.grid_condition),
+    ] {
         println!(
             "  {label:<14} {:>11.4e} {:>11.4e} {:>11.4e} {:>11.4e} {:>11.4e} {:>10.2}",
             o.o1, o.o2, o.o3, o.o4, o.o5, cond

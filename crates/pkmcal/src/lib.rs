@@ -87,7 +87,8 @@ pub use montecarlo::{MonteCarloOptions, MonteCarloSummary, monte_carlo};
 pub use noise::NoiseGroup;
 pub use planar::{PlanarDescription, PlanarLinkage};
 pub use planning::{
-    PlanCriterion, candidate_jacobians, plan_observability, plan_poses, plan_poses_with_progress,
+    Plan, PlanCriterion, PlanOptions, candidate_jacobians, plan, plan_observability, plan_poses,
+    plan_poses_with_progress,
 };
 pub use reference::JeongKim2Dof;
 pub use simulate::{Measurement, Noise, Origin, simulate, simulate_with_progress};

@@ -235,3 +235,113 @@ pub fn plan_poses_with_progress(
     }
     Ok(chosen)
 }
+
+/// Settings of [`plan`].
+#[derive(Debug, Clone)]
+pub struct PlanOptions {
+    /// Poses to choose.
+    pub count: usize,
+    /// The observability index maximised.
+    pub criterion: PlanCriterion,
+    /// Forward model of the identification Jacobians.
+    pub model: Model,
+    /// Indices of the parameters to identify.
+    pub free: Vec<usize>,
+    /// Wanted candidate lattice spacing (mm; angle axes scaled by the
+    /// mechanism's work scale); coarsened to stay within four lattice points
+    /// per allowed candidate and [`MAX_CANDIDATE_LATTICE`].
+    pub spacing: f64,
+    /// Most candidates scored: a larger lattice is thinned evenly.
+    pub max_candidates: usize,
+}
+
+/// A measurement plan and how it compares with a plain grid of the same size.
+#[derive(Debug, Clone)]
+pub struct Plan {
+    /// The chosen poses, in the order chosen.
+    pub poses: Vec<WorkspacePoint>,
+    /// Observability of the chosen poses and the condition number of their
+    /// column-scaled identification Jacobian.
+    pub observability: Observability,
+    /// Condition number of the chosen poses.
+    pub condition: f64,
+    /// A plain grid of `count` poses ([`crate::workspace::grid_targets`]).
+    pub grid: Vec<WorkspacePoint>,
+    /// Observability of the grid, with the same column scaling.
+    pub grid_observability: Observability,
+    /// Condition number of the grid.
+    pub grid_condition: f64,
+    /// Lattice spacing used (mm).
+    pub spacing: f64,
+    /// Usable lattice points before thinning.
+    pub lattice_points: usize,
+    /// Candidates scored.
+    pub candidates: usize,
+}
+
+/// Plan `opts.count` poses over the mechanism's usable workspace at
+/// `params`: candidates on a lattice ([`crate::workspace::sample_workspace`]),
+/// thinned evenly to `opts.max_candidates`, chosen by [`plan_poses`];
+/// `tick` is called after each greedy step and exchange position.
+pub fn plan<M: Mechanism>(
+    mech: &M,
+    params: &Params,
+    opts: &PlanOptions,
+    tick: &(dyn Fn() + Sync),
+) -> Result<Plan> {
+    let spec = mech.spec();
+    let nx = spec.tool_axes.len();
+    if opts.count * nx <= opts.free.len() {
+        return Err(Error::InvalidRequest(format!(
+            "{} poses give too few coordinates for {} free parameters; plan at least {}",
+            opts.count,
+            opts.free.len(),
+            opts.free.len() / nx + 1
+        )));
+    }
+    if !(opts.spacing.is_finite() && opts.spacing > 0.0) {
+        return Err(Error::InvalidRequest(format!(
+            "the candidate spacing must be a positive length in mm, got {}",
+            opts.spacing
+        )));
+    }
+    if opts.max_candidates == 0 {
+        return Err(Error::InvalidRequest(
+            "the number of candidates must be at least 1".into(),
+        ));
+    }
+    let spacing = crate::workspace::lattice_spacing(
+        spec,
+        opts.spacing,
+        MAX_CANDIDATE_LATTICE.min(opts.max_candidates.saturating_mul(4)),
+    );
+    let mut points = crate::workspace::sample_workspace(mech, spacing);
+    let lattice_points = points.len();
+    if points.len() > opts.max_candidates {
+        let (keep, n) = (opts.max_candidates, points.len());
+        points = (0..keep).map(|k| points[k * n / keep].clone()).collect();
+    }
+    let candidates = points.len();
+    // The plain grid of the same size, judged with the same column scaling.
+    points.extend(crate::workspace::grid_targets(mech, opts.count)?);
+    let cands = candidate_jacobians(mech, points, params, opts.model, &opts.free)?;
+    let pool = Candidates {
+        points: cands.points[..candidates].to_vec(),
+        rows: cands.rows[..candidates].to_vec(),
+    };
+    let chosen = plan_poses_with_progress(&pool, opts.count, opts.criterion, tick)?;
+    let (observability, condition) = plan_observability(&cands, &chosen);
+    let grid_idx: Vec<usize> = (candidates..cands.points.len()).collect();
+    let (grid_observability, grid_condition) = plan_observability(&cands, &grid_idx);
+    Ok(Plan {
+        poses: chosen.iter().map(|&i| cands.points[i].clone()).collect(),
+        observability,
+        condition,
+        grid: grid_idx.iter().map(|&i| cands.points[i].clone()).collect(),
+        grid_observability,
+        grid_condition,
+        spacing,
+        lattice_points,
+        candidates,
+    })
+}

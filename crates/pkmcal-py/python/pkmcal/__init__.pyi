@@ -1,0 +1,312 @@
+"""Type stubs of pkmcal (the extension module ``pkmcal._pkmcal``)."""
+
+import os
+from typing import Any, Literal, Mapping, Optional, Sequence, Tuple, Union
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+ArrayLike = npt.ArrayLike
+Array = npt.NDArray[np.float64]
+ModelName = Literal["exact", "linear", "rigid"]
+Params = Union[None, Mapping[str, float], "Calibration", str]
+Names = Union[None, str, Sequence[str]]
+
+class PkmcalError(ValueError):
+    """Bad input or an impossible request; ``pose`` is the row (from 0) where it happened."""
+
+    pose: Optional[int]
+
+class Mechanism:
+    """A parallel mechanism: the built-in reference, or one described in TOML
+    (a path, TOML text or a dict)."""
+
+    def __init__(self, source: Union[None, str, os.PathLike, Mapping[str, Any]] = None) -> None: ...
+    @staticmethod
+    def reference() -> Mechanism: ...
+    @staticmethod
+    def from_file(path: Union[str, os.PathLike]) -> Mechanism: ...
+    @staticmethod
+    def from_toml(text: str) -> Mechanism: ...
+    @staticmethod
+    def from_dict(d: Mapping[str, Any]) -> Mechanism: ...
+    @property
+    def name(self) -> str: ...
+    @property
+    def kind(self) -> Literal["jeong-kim-2dof", "planar", "gough-stewart"]: ...
+    @property
+    def dof(self) -> int: ...
+    @property
+    def joints(self) -> list[str]: ...
+    @property
+    def actuators(self) -> list[str]: ...
+    @property
+    def command_units(self) -> list[str]: ...
+    @property
+    def tool_axes(self) -> list[str]: ...
+    @property
+    def tool_units(self) -> list[str]: ...
+    @property
+    def parameters(self) -> list[str]: ...
+    @property
+    def nominal(self) -> dict[str, float]: ...
+    @property
+    def parameter_units(self) -> dict[str, str]: ...
+    @property
+    def parameter_kinds(self) -> dict[str, str]: ...
+    @property
+    def default_free(self) -> list[str]: ...
+    @property
+    def workspace(self) -> Array: ...
+    @property
+    def targets(self) -> Optional[Array]: ...
+
+class ErrorStats:
+    """Error statistics of a set of poses (mm; angles in rad)."""
+
+    count: int
+    axis_units: list[str]
+    axis_min: list[float]
+    axis_max: list[float]
+    axis_rms: list[float]
+    distance_min: float
+    distance_mean: float
+    distance_rms: float
+    distance_max: float
+    angle_rms: Optional[float]
+    angle_max: Optional[float]
+
+class Warning:
+    """A calibration warning: kind, message, hint."""
+
+    kind: str
+    message: str
+    hint: str
+
+class Identifiability:
+    """Rank, singular values and unidentifiable combinations."""
+
+    @property
+    def free(self) -> list[str]: ...
+    @property
+    def rank(self) -> int: ...
+    @property
+    def singular_values(self) -> Array: ...
+    @property
+    def condition_number(self) -> float: ...
+    @property
+    def observability(self) -> dict[str, float]: ...
+    @property
+    def unidentifiable(self) -> list[dict[str, Any]]: ...
+    @property
+    def correlations(self) -> list[Tuple[str, str, float]]: ...
+
+class Figure:
+    """A rendered figure (SVG and PNG); shown inline in a notebook."""
+
+    name: str
+    title: str
+    caption: str
+    svg: str
+    png: bytes
+    def _repr_svg_(self) -> str: ...
+    def save(self, path: Union[str, os.PathLike]) -> None: ...
+
+class Calibration:
+    """Result of :func:`calibrate`."""
+
+    @property
+    def parameters(self) -> dict[str, float]: ...
+    @property
+    def measurement_parameters(self) -> dict[str, float]: ...
+    @property
+    def free(self) -> list[str]: ...
+    @property
+    def std_dev(self) -> dict[str, float]: ...
+    @property
+    def change(self) -> dict[str, float]: ...
+    @property
+    def nominal(self) -> dict[str, float]: ...
+    @property
+    def units(self) -> dict[str, str]: ...
+    @property
+    def notes(self) -> dict[str, str]: ...
+    @property
+    def covariance(self) -> Array: ...
+    @property
+    def covariance_names(self) -> list[str]: ...
+    @property
+    def identifiability(self) -> Identifiability: ...
+    @property
+    def before(self) -> ErrorStats: ...
+    @property
+    def after(self) -> ErrorStats: ...
+    @property
+    def improvement(self) -> Tuple[float, float]: ...
+    @property
+    def validation(self) -> Optional[Tuple[ErrorStats, ErrorStats]]: ...
+    @property
+    def cross_validation(self) -> Optional[dict[str, Any]]: ...
+    @property
+    def warnings(self) -> list[Warning]: ...
+    @property
+    def converged(self) -> bool: ...
+    @property
+    def termination(self) -> str: ...
+    @property
+    def iterations(self) -> int: ...
+    @property
+    def model(self) -> str: ...
+    @property
+    def sum_of_squares(self) -> float: ...
+    @property
+    def unit_weight_sigma(self) -> float: ...
+    @property
+    def axes(self) -> list[str]: ...
+    @property
+    def axis_units(self) -> list[str]: ...
+    @property
+    def residuals(self) -> Array: ...
+    @property
+    def poses(self) -> list[int]: ...
+    @property
+    def outliers(self) -> list[dict[str, Any]]: ...
+    @property
+    def dropped(self) -> list[int]: ...
+    def to_toml(self) -> str: ...
+    def figures(self) -> list[Figure]: ...
+    def save_report(self, path: Union[str, os.PathLike]) -> None: ...
+
+class Prediction:
+    x: Array
+    q: Array
+    torque: Array
+    deflection: Array
+    covariance: Optional[Array]
+
+class Compensation:
+    commands: Array
+    nominal: Array
+    correction: Array
+    torque: Array
+    q: Array
+
+class Plan:
+    targets: Array
+    commands: Array
+    observability: dict[str, float]
+    condition: float
+    grid_targets: Array
+    grid_observability: dict[str, float]
+    grid_condition: float
+    spacing: float
+    candidates: int
+
+def predict(
+    mechanism: Mechanism,
+    commands: ArrayLike,
+    params: Params = None,
+    *,
+    model: Optional[ModelName] = None,
+    force: Optional[Sequence[float]] = None,
+    uncertainty: bool = False,
+) -> Prediction: ...
+def nominal_commands(mechanism: Mechanism, targets: ArrayLike) -> Array: ...
+def simulate(
+    mechanism: Mechanism,
+    targets: ArrayLike,
+    truth: Params = None,
+    *,
+    noise: float = 0.0,
+    angle_noise: Optional[float] = None,
+    seed: int = 1,
+    axes: Optional[Sequence[str]] = None,
+    points: Union[None, ArrayLike, Literal["mechanism"]] = None,
+    ballbar: Union[None, Mapping[str, Any], Literal["mechanism"]] = None,
+) -> Tuple[Array, Array]: ...
+def calibrate(
+    mechanism: Mechanism,
+    commands: ArrayLike,
+    measured: ArrayLike,
+    *,
+    sigma: Union[None, float, ArrayLike] = None,
+    targets: Optional[ArrayLike] = None,
+    model: ModelName = "exact",
+    free: Names = None,
+    fix: Names = None,
+    start: Params = None,
+    loss: Literal["squared", "huber", "cauchy"] = "squared",
+    loss_scale: Optional[float] = None,
+    outlier_threshold: float = 4.0,
+    drop_outliers: bool = False,
+    force: Optional[Sequence[float]] = None,
+    axes: Optional[Sequence[str]] = None,
+    points: Union[None, ArrayLike, Literal["mechanism"]] = None,
+    ballbar: Union[None, Mapping[str, Any], Literal["mechanism"]] = None,
+    frame: Literal["base", "free"] = "base",
+    validation: Optional[Tuple[ArrayLike, ...]] = None,
+    holdout: Optional[float] = None,
+    kfold: Optional[int] = None,
+    seed: int = 1,
+) -> Calibration: ...
+def analyze(
+    mechanism: Mechanism,
+    commands: ArrayLike,
+    measured: ArrayLike,
+    *,
+    params: Params = None,
+    sigma: Union[None, float, ArrayLike] = None,
+    model: ModelName = "exact",
+    free: Names = None,
+    fix: Names = None,
+    force: Optional[Sequence[float]] = None,
+    axes: Optional[Sequence[str]] = None,
+    points: Union[None, ArrayLike, Literal["mechanism"]] = None,
+    ballbar: Union[None, Mapping[str, Any], Literal["mechanism"]] = None,
+    frame: Literal["base", "free"] = "base",
+) -> Identifiability: ...
+def compensate(
+    mechanism: Mechanism,
+    targets: ArrayLike,
+    params: Params = None,
+    *,
+    model: Literal["exact", "rigid"] = "exact",
+    force: Optional[Sequence[float]] = None,
+    preload: Optional[Sequence[float]] = None,
+) -> Compensation: ...
+def plan(
+    mechanism: Mechanism,
+    count: int,
+    params: Params = None,
+    *,
+    criterion: Literal["O1", "O3", "O5"] = "O5",
+    model: ModelName = "exact",
+    free: Names = None,
+    fix: Names = None,
+    spacing: float = 6.0,
+    max_candidates: int = 4000,
+) -> Plan: ...
+def montecarlo(
+    mechanism: Mechanism,
+    targets: ArrayLike,
+    *,
+    runs: int = 200,
+    noise: float = 0.002,
+    angle_noise: Optional[float] = None,
+    seed: int = 1,
+    model: ModelName = "exact",
+    free: Names = None,
+    fix: Names = None,
+    length_error: float = 0.3,
+    angle_error: float = 0.001,
+    validation: int = 50,
+) -> dict[str, Any]: ...
+def trilaterate(
+    sockets: ArrayLike,
+    readings: ArrayLike,
+    *,
+    bar_offset: float = 0.0,
+    sigma: float = 0.002,
+) -> Tuple[Array, Array]: ...

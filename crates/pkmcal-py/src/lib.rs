@@ -1,0 +1,2134 @@
+//! Python bindings of pkmcal (PyO3): the library's free functions over NumPy
+//! arrays. Arrays are in the library's units (mm, rad, N, N·m); pose numbers
+//! in results and exceptions are row indices (from 0) of the arrays given.
+//! Long computations release the GIL.
+
+use nalgebra::DMatrix;
+use numpy::ndarray::{Array2, Array3, ArrayView2, Axis, Ix2};
+use numpy::{
+    AllowTypeChange, IntoPyArray, PyArray1, PyArrayLikeDyn, PyReadonlyArrayDyn,
+    PyUntypedArrayMethods,
+};
+use pkmcal::calibration::{Calibration as LibCalibration, CrossValidation, Identifiability};
+use pkmcal::{
+    AnyMechanism, CalibrationOptions, Frame, Loss, MeasurementModel, Mechanism as _, Model, Noise,
+    Origin, Params,
+};
+use pkmcal_cli::calibrate::Validation;
+use pyo3::create_exception;
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyDict, PyList, PyTuple};
+use rayon::prelude::*;
+use std::borrow::Cow;
+use std::sync::Arc;
+
+create_exception!(
+    pkmcal,
+    PkmcalError,
+    PyValueError,
+    "Bad input or an impossible request. `str(e)` says what happened and what to do; \
+`e.pose` is the row (from 0) of the arrays where it happened, or None."
+);
+
+// ---------------------------------------------------------------- errors
+
+fn raise(message: String, pose: Option<usize>) -> PyErr {
+    let err = PkmcalError::new_err(message);
+    Python::attach(|py| {
+        let v = err.value(py);
+        let _ = v.setattr("pose", pose);
+    });
+    err
+}
+
+fn lib_err(e: pkmcal::Error) -> PyErr {
+    let pose = match &e {
+        pkmcal::Error::Pose { pose, .. } => Some(*pose),
+        _ => None,
+    };
+    raise(e.to_string(), pose)
+}
+
+fn cli_err(e: anyhow::Error) -> PyErr {
+    let pose = e
+        .chain()
+        .find_map(|c| match c.downcast_ref::<pkmcal::Error>() {
+            Some(pkmcal::Error::Pose { pose, .. }) => Some(*pose),
+            _ => None,
+        });
+    raise(format!("{e:#}"), pose)
+}
+
+fn usage(message: impl Into<String>) -> PyErr {
+    raise(message.into(), None)
+}
+
+/// An error at row `i` of the arrays.
+fn at(i: usize) -> impl Fn(pkmcal::Error) -> pkmcal::Error {
+    move |e| {
+        e.at_pose(Origin {
+            pose: i,
+            line: None,
+        })
+    }
+}
+
+// ---------------------------------------------------------------- arrays
+
+/// A 2-D array of finite numbers read from anything array-like (a NumPy
+/// array is read in place when it is float64); a 1-D array is one row.
+struct Rows<'py> {
+    arr: PyReadonlyArrayDyn<'py, f64>,
+    single: bool,
+}
+
+impl<'py> Rows<'py> {
+    fn view(&self) -> ArrayView2<'_, f64> {
+        let v = self.arr.as_array();
+        let v = if self.single {
+            v.insert_axis(Axis(0))
+        } else {
+            v
+        };
+        v.into_dimensionality::<Ix2>().expect("checked to be 2-D")
+    }
+    fn len(&self) -> usize {
+        self.view().nrows()
+    }
+    fn to_vecs(&self) -> Vec<Vec<f64>> {
+        self.view().rows().into_iter().map(|r| r.to_vec()).collect()
+    }
+}
+
+/// Row `i` of a view, borrowed when contiguous.
+fn row<'a>(v: &'a ArrayView2<'_, f64>, i: usize) -> Cow<'a, [f64]> {
+    let r = v.row(i);
+    match r.to_slice() {
+        Some(s) => Cow::Borrowed(s),
+        None => Cow::Owned(r.to_vec()),
+    }
+}
+
+fn rows<'py>(
+    obj: &Bound<'py, PyAny>,
+    what: &str,
+    columns: &[String],
+    allow_nan: bool,
+) -> PyResult<Rows<'py>> {
+    let width = columns.len();
+    let shape_hint = format!("(n, {width}) with columns {}", columns.join(", "));
+    let arr: PyArrayLikeDyn<'py, f64, AllowTypeChange> = obj.extract().map_err(|_| {
+        usage(format!(
+            "{what}: expected an array of numbers of shape {shape_hint}"
+        ))
+    })?;
+    let arr: PyReadonlyArrayDyn<'py, f64> = (*arr).clone();
+    let shape = arr.shape().to_vec();
+    let single = match shape.as_slice() {
+        [w] if *w == width => true,
+        [_, w] if *w == width => false,
+        _ => {
+            return Err(usage(format!(
+                "{what}: expected shape {shape_hint}, got {}",
+                shape_text(&shape)
+            )));
+        }
+    };
+    let r = Rows { arr, single };
+    if r.len() == 0 {
+        return Err(usage(format!("{what}: no rows; give at least one")));
+    }
+    for (i, rw) in r.view().rows().into_iter().enumerate() {
+        for (k, v) in rw.iter().enumerate() {
+            if !(v.is_finite() || (allow_nan && v.is_nan())) {
+                return Err(raise(
+                    format!(
+                        "{what}: row {i}, column {} ({}) is {v}; every value must be a finite number",
+                        k, columns[k]
+                    ),
+                    Some(i),
+                ));
+            }
+        }
+    }
+    Ok(r)
+}
+
+/// A shape as Python prints it: `(35, 1)`, `(3,)`.
+fn shape_text(shape: &[usize]) -> String {
+    match shape {
+        [n] => format!("({n},)"),
+        s => format!(
+            "({})",
+            s.iter()
+                .map(|n| n.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    }
+}
+
+/// `n × w` values as a NumPy array, 1-D when the input was one row.
+fn out2<'py>(py: Python<'py>, flat: Vec<f64>, w: usize, single: bool) -> Bound<'py, PyAny> {
+    let n = flat.len().checked_div(w).unwrap_or(0);
+    let a = Array2::from_shape_vec((n, w), flat).expect("sizes agree");
+    if single {
+        a.row(0).to_owned().into_pyarray(py).into_any()
+    } else {
+        a.into_pyarray(py).into_any()
+    }
+}
+
+fn vec1<'py>(py: Python<'py>, v: &[f64]) -> Bound<'py, PyArray1<f64>> {
+    PyArray1::from_slice(py, v)
+}
+
+fn finite_list(v: &[f64], what: &str, n: usize) -> PyResult<Vec<f64>> {
+    if v.len() != n {
+        return Err(usage(format!(
+            "{what}: expected {n} values, got {}",
+            v.len()
+        )));
+    }
+    if let Some(x) = v.iter().find(|x| !x.is_finite()) {
+        return Err(usage(format!("{what}: {x} is not a finite number")));
+    }
+    Ok(v.to_vec())
+}
+
+fn parse_model(s: &str) -> PyResult<Model> {
+    s.parse().map_err(lib_err)
+}
+
+// ---------------------------------------------------------------- mechanism
+
+/// A parallel mechanism: the built-in reference, or one described in TOML.
+///
+/// ``Mechanism()`` is the built-in reference (Jeong & Kim's planar 2-DOF
+/// mechanism with three actuators). ``Mechanism(source)`` reads a
+/// description: a path (``str`` ending in ``.toml`` or ``os.PathLike``), TOML
+/// text, or a ``dict`` with the same tables and keys as the file. The formats
+/// are those of the command-line tool (docs/mechanisms.md).
+///
+/// Arrays passed to and returned by pkmcal are in mm, rad, N and N·m; a
+/// description's ``[units]`` table applies to the command-line tool's files
+/// only.
+#[pyclass(frozen, module = "pkmcal", name = "Mechanism")]
+struct PyMechanism {
+    mech: Arc<AnyMechanism>,
+    targets: Vec<Vec<f64>>,
+    setup: Option<pkmcal::Setup>,
+    source: String,
+}
+
+fn toml_value(v: &Bound<'_, PyAny>, path: &str) -> PyResult<toml::Value> {
+    use pyo3::types::{PyBool, PyFloat, PyInt, PyString};
+    if v.is_instance_of::<PyBool>() {
+        return Ok(toml::Value::Boolean(v.extract()?));
+    }
+    if v.is_instance_of::<PyInt>() {
+        return Ok(toml::Value::Integer(v.extract()?));
+    }
+    if v.is_instance_of::<PyFloat>() {
+        return Ok(toml::Value::Float(v.extract()?));
+    }
+    if v.is_instance_of::<PyString>() {
+        return Ok(toml::Value::String(v.extract()?));
+    }
+    if let Ok(d) = v.cast::<PyDict>() {
+        let mut t = toml::Table::new();
+        for (k, x) in d.iter() {
+            let k: String = k.extract().map_err(|_| {
+                usage(format!(
+                    "mechanism dict: keys must be strings (at `{path}`)"
+                ))
+            })?;
+            let p = if path.is_empty() {
+                k.clone()
+            } else {
+                format!("{path}.{k}")
+            };
+            t.insert(k, toml_value(&x, &p)?);
+        }
+        return Ok(toml::Value::Table(t));
+    }
+    if v.hasattr("tolist")? && !v.is_instance_of::<PyList>() {
+        return toml_value(&v.call_method0("tolist")?, path);
+    }
+    if v.is_instance_of::<PyList>() || v.is_instance_of::<PyTuple>() {
+        let items: Vec<Bound<'_, PyAny>> = v.try_iter()?.collect::<PyResult<_>>()?;
+        let mut a = vec![];
+        for (i, x) in items.iter().enumerate() {
+            a.push(toml_value(x, &format!("{path}[{i}]"))?);
+        }
+        return Ok(toml::Value::Array(a));
+    }
+    // NumPy scalars and other numbers.
+    if let Ok(f) = v.extract::<f64>() {
+        return Ok(toml::Value::Float(f));
+    }
+    Err(usage(format!(
+        "mechanism dict: `{path}` holds a {}, which a description cannot hold (numbers, strings, booleans, lists and dicts)",
+        v.get_type().name()?
+    )))
+}
+
+impl PyMechanism {
+    fn from_text(text: &str, source: String) -> PyResult<Self> {
+        let mech = pkmcal_cli::io::mechanism_from_str(text)
+            .map_err(|e| cli_err(e.context(format!("in mechanism description {source}"))))?;
+        let targets = pkmcal_cli::io::targets_from_str(text)
+            .map_err(|e| cli_err(e.context(format!("in mechanism description {source}"))))?;
+        let setup = pkmcal_cli::io::setup_from_str(text)
+            .map_err(|e| cli_err(e.context(format!("in mechanism description {source}"))))?;
+        Ok(Self {
+            mech: Arc::new(mech),
+            targets,
+            setup,
+            source,
+        })
+    }
+    fn from_path(path: &str) -> PyResult<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| {
+            usage(format!(
+                "cannot read mechanism file {path}: {e}; give a path to a .toml description, TOML text or a dict"
+            ))
+        })?;
+        Self::from_text(&text, path.to_string())
+    }
+    fn spec(&self) -> &pkmcal::Spec {
+        self.mech.spec()
+    }
+    fn actuators(&self) -> Vec<String> {
+        self.spec()
+            .actuated_names()
+            .iter()
+            .map(|s| s.to_string())
+            .collect()
+    }
+}
+
+#[pymethods]
+impl PyMechanism {
+    #[new]
+    #[pyo3(signature = (source = None))]
+    fn new(source: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
+        let Some(s) = source else {
+            return Ok(Self::reference());
+        };
+        if s.is_none() {
+            return Ok(Self::reference());
+        }
+        if let Ok(d) = s.cast::<PyDict>() {
+            return Self::from_dict(d);
+        }
+        if let Ok(text) = s.extract::<String>() {
+            let t = text.trim();
+            let looks_like_path = !t.contains('\n') && !t.contains('=');
+            if looks_like_path {
+                return Self::from_path(t);
+            }
+            return Self::from_toml(&text);
+        }
+        if s.hasattr("__fspath__")? {
+            let p: String = s.call_method0("__fspath__")?.extract()?;
+            return Self::from_path(&p);
+        }
+        Err(usage(format!(
+            "Mechanism(source): expected None, a path, TOML text or a dict, got {}",
+            s.get_type().name()?
+        )))
+    }
+
+    /// The built-in reference mechanism (Jeong & Kim's planar 2-DOF, three
+    /// actuators).
+    #[staticmethod]
+    fn reference() -> Self {
+        Self {
+            mech: Arc::new(pkmcal::JeongKim2Dof::new().into()),
+            targets: vec![],
+            setup: None,
+            source: "the built-in reference".into(),
+        }
+    }
+
+    /// A mechanism from a TOML description file.
+    #[staticmethod]
+    fn from_file(path: &Bound<'_, PyAny>) -> PyResult<Self> {
+        let p: String = if path.hasattr("__fspath__")? {
+            path.call_method0("__fspath__")?.extract()?
+        } else {
+            path.extract()?
+        };
+        Self::from_path(&p)
+    }
+
+    /// A mechanism from TOML text.
+    #[staticmethod]
+    fn from_toml(text: &str) -> PyResult<Self> {
+        Self::from_text(text, "(TOML text)".into())
+    }
+
+    /// A mechanism from a dict with the tables and keys of a description file.
+    #[staticmethod]
+    fn from_dict(d: &Bound<'_, PyDict>) -> PyResult<Self> {
+        let toml::Value::Table(t) = toml_value(d.as_any(), "")? else {
+            unreachable!("a dict is a table")
+        };
+        let text = toml::to_string(&t).map_err(|e| usage(format!("mechanism dict: {e}")))?;
+        Self::from_text(&text, "(dict)".into())
+    }
+
+    /// The mechanism's name.
+    #[getter]
+    fn name(&self) -> String {
+        self.spec().name.clone()
+    }
+    /// Its kind: ``jeong-kim-2dof``, ``planar`` or ``gough-stewart``.
+    #[getter]
+    fn kind(&self) -> &'static str {
+        match &*self.mech {
+            AnyMechanism::JeongKim(_) => "jeong-kim-2dof",
+            AnyMechanism::Planar(_) => "planar",
+            AnyMechanism::GoughStewart(_) => "gough-stewart",
+        }
+    }
+    /// Degrees of freedom.
+    #[getter]
+    fn dof(&self) -> usize {
+        self.spec().dof()
+    }
+    /// Joint names, in the order of a configuration ``q``.
+    #[getter]
+    fn joints(&self) -> Vec<String> {
+        self.spec().joints.clone()
+    }
+    /// Actuated joint names: the columns of a commands array.
+    #[getter(actuators)]
+    fn py_actuators(&self) -> Vec<String> {
+        self.actuators()
+    }
+    /// Units of the commands (``mm`` or ``rad``), per actuator.
+    #[getter]
+    fn command_units(&self) -> Vec<&'static str> {
+        self.spec()
+            .command_units()
+            .iter()
+            .map(|u| u.symbol())
+            .collect()
+    }
+    /// Tool coordinate names: the columns of a positions array.
+    #[getter]
+    fn tool_axes(&self) -> Vec<String> {
+        self.spec().tool_axes.clone()
+    }
+    /// Units of the tool coordinates (``mm`` or ``rad``), per axis.
+    #[getter]
+    fn tool_units(&self) -> Vec<&'static str> {
+        self.spec().tool_units.iter().map(|u| u.symbol()).collect()
+    }
+    /// Every parameter name: geometry, then encoder offsets, then stiffness.
+    #[getter]
+    fn parameters(&self) -> Vec<String> {
+        self.spec()
+            .param_names()
+            .iter()
+            .map(|s| s.to_string())
+            .collect()
+    }
+    /// Nominal parameter values by name.
+    #[getter]
+    fn nominal<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        let spec = self.spec();
+        for (n, v) in spec.param_names().iter().zip(&spec.nominal) {
+            d.set_item(n, v)?;
+        }
+        Ok(d)
+    }
+    /// Unit of each parameter by name (``mm``, ``rad``, ``N·m/rad``, ``N/mm``).
+    #[getter]
+    fn parameter_units<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        let spec = self.spec();
+        for (i, n) in spec.param_names().iter().enumerate() {
+            d.set_item(n, spec.param_unit(i).symbol())?;
+        }
+        Ok(d)
+    }
+    /// Kind of each parameter by name (``geometry``, ``offset``, ``stiffness``).
+    #[getter]
+    fn parameter_kinds<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        let spec = self.spec();
+        for (i, n) in spec.param_names().iter().enumerate() {
+            d.set_item(n, spec.param_kind(i).name())?;
+        }
+        Ok(d)
+    }
+    /// The parameters a calibration identifies unless told otherwise.
+    #[getter]
+    fn default_free(&self) -> Vec<String> {
+        self.spec().default_free.clone()
+    }
+    /// The workspace box, one ``[min, max]`` row per tool axis.
+    #[getter]
+    fn workspace<'py>(&self, py: Python<'py>) -> Bound<'py, PyAny> {
+        let b = &self.spec().workspace_box;
+        out2(py, b.iter().flat_map(|r| [r[0], r[1]]).collect(), 2, false)
+    }
+    /// Target points of the description's ``[[target]]`` tables (tool frame,
+    /// mm), shape (k, axes); None when it has none.
+    #[getter]
+    fn targets<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyAny>> {
+        let w = self.targets.first()?.len();
+        Some(out2(py, self.targets.concat(), w, false))
+    }
+    fn __repr__(&self) -> String {
+        let s = self.spec();
+        format!(
+            "<pkmcal.Mechanism {:?} ({}): {} DOF, actuators {}, tool axes {}, {} parameters; from {}>",
+            s.name,
+            self.kind(),
+            s.dof(),
+            self.actuators().join(", "),
+            s.tool_axes.join(", "),
+            s.n_params(),
+            self.source
+        )
+    }
+}
+
+fn mech_ref<'a, 'py>(m: &'a Bound<'py, PyMechanism>) -> &'a PyMechanism {
+    m.get()
+}
+
+/// Parameters from None (nominal), a dict (name → value; the others
+/// nominal), a Calibration (its identified values) or a path to a parameter
+/// file written by the command-line tool.
+fn params_arg(m: &PyMechanism, p: Option<&Bound<'_, PyAny>>, what: &str) -> PyResult<Params> {
+    let spec = m.spec();
+    let Some(p) = p.filter(|p| !p.is_none()) else {
+        return Ok(Params::nominal(spec));
+    };
+    if let Ok(c) = p.cast::<PyCalibration>() {
+        let c = c.get();
+        if c.mech.spec().param_names() != spec.param_names() {
+            return Err(usage(format!(
+                "{what}: this calibration is of another mechanism ({})",
+                c.mech.spec().name
+            )));
+        }
+        return Ok(c.cal.params.clone());
+    }
+    let params = if let Ok(d) = p.cast::<PyDict>() {
+        let mut params = Params::nominal(spec);
+        for (k, v) in d.iter() {
+            let name: String = k
+                .extract()
+                .map_err(|_| usage(format!("{what}: keys must be parameter names")))?;
+            let value: f64 = v
+                .extract()
+                .map_err(|_| usage(format!("{what}: `{name}` must be a number")))?;
+            params
+                .set(spec, &name, value)
+                .map_err(|e| usage(format!("{what}: {e}")))?;
+        }
+        params
+    } else if let Ok(path) = p.extract::<String>() {
+        return pkmcal_cli::io::read_params(std::path::Path::new(&path), &*m.mech).map_err(cli_err);
+    } else {
+        return Err(usage(format!(
+            "{what}: expected a dict of parameter values by name, a Calibration or a parameter file path"
+        )));
+    };
+    pkmcal::check_params(&*m.mech, &params).map_err(|e| {
+        usage(format!(
+            "{what}: the values cannot describe this mechanism: {e}"
+        ))
+    })?;
+    Ok(params)
+}
+
+fn names_arg(v: Option<&Bound<'_, PyAny>>, what: &str) -> PyResult<Option<String>> {
+    let Some(v) = v.filter(|v| !v.is_none()) else {
+        return Ok(None);
+    };
+    if let Ok(s) = v.extract::<String>() {
+        return Ok(Some(s));
+    }
+    let names: Vec<String> = v
+        .extract()
+        .map_err(|_| usage(format!("{what}: expected a list of parameter names")))?;
+    if names.iter().any(|n| n.contains(',')) {
+        return Err(usage(format!("{what}: a name cannot contain a comma")));
+    }
+    Ok(Some(names.join(",")))
+}
+
+fn free_arg(
+    m: &PyMechanism,
+    measurement: &MeasurementModel,
+    free: Option<&Bound<'_, PyAny>>,
+    fix: Option<&Bound<'_, PyAny>>,
+) -> PyResult<Vec<usize>> {
+    let free = names_arg(free, "free")?;
+    let fix = names_arg(fix, "fix")?;
+    pkmcal_cli::calibrate::free_set(&*m.mech, measurement, free.as_deref(), fix.as_deref()).map_err(
+        |e| {
+            usage(
+                format!("{e:#}")
+                    .replace("--free", "free")
+                    .replace("--fix", "fix"),
+            )
+        },
+    )
+}
+
+fn wrench(m: &PyMechanism, f: Option<Vec<f64>>, what: &str) -> PyResult<Vec<f64>> {
+    match f {
+        None => Ok(vec![]),
+        Some(v) => finite_list(&v, what, m.spec().tool_axes.len()),
+    }
+}
+
+/// The instrument: the whole tool, some tool axes, target points on the tool
+/// or a ball bar; in the base frame or with a free (identified) frame.
+fn measurement_arg(
+    m: &PyMechanism,
+    axes: Option<Vec<String>>,
+    points: Option<&Bound<'_, PyAny>>,
+    ballbar: Option<&Bound<'_, PyAny>>,
+    frame: &str,
+) -> PyResult<MeasurementModel> {
+    let spec = m.spec();
+    let given = [axes.is_some(), points.is_some(), ballbar.is_some()];
+    if given.iter().filter(|g| **g).count() > 1 {
+        return Err(usage(
+            "give at most one of axes=, points= and ballbar= (what the instrument reads)",
+        ));
+    }
+    let mm = if let Some(a) = &axes {
+        MeasurementModel::tool_axes(spec, a).map_err(|e| usage(format!("axes: {e}")))?
+    } else if let Some(p) = points {
+        let pts: Vec<Vec<f64>> = if let Ok(s) = p.extract::<String>() {
+            if s != "mechanism" {
+                return Err(usage(
+                    "points: give an array of target points (k, axes) or \"mechanism\" for the description's [[target]]s",
+                ));
+            }
+            if m.targets.is_empty() {
+                return Err(usage(
+                    "points=\"mechanism\": the description has no [[target]] tables",
+                ));
+            }
+            m.targets.clone()
+        } else {
+            let dim = if spec.tool_layout.frame_size() == 3 {
+                2
+            } else {
+                3
+            };
+            let cols: Vec<String> = ["x", "y", "z"][..dim]
+                .iter()
+                .map(|s| s.to_string())
+                .collect();
+            rows(p, "points", &cols, false)?.to_vecs()
+        };
+        MeasurementModel::targets(spec, &pts).map_err(|e| usage(format!("points: {e}")))?
+    } else if let Some(b) = ballbar {
+        let setup = if let Ok(s) = b.extract::<String>() {
+            if s != "mechanism" {
+                return Err(usage(
+                    "ballbar: give a dict {\"sockets\": array, \"bar_offset\": mm} or \"mechanism\" for the description's [ballbar]",
+                ));
+            }
+            m.setup.clone().ok_or_else(|| {
+                usage("ballbar=\"mechanism\": the description has no [ballbar] table")
+            })?
+        } else {
+            let d = b.cast::<PyDict>().map_err(|_| {
+                usage(
+                    "ballbar: expected a dict {\"sockets\": array (k, 2 or 3), \"bar_offset\": mm}",
+                )
+            })?;
+            let sockets = d
+                .get_item("sockets")?
+                .ok_or_else(|| usage("ballbar: the dict needs \"sockets\""))?;
+            let arr: PyArrayLikeDyn<'_, f64, AllowTypeChange> =
+                sockets.extract().map_err(|_| {
+                    usage("ballbar: \"sockets\" must be an array of numbers (k, 2 or 3)")
+                })?;
+            let a = arr.as_array();
+            if a.ndim() != 2 {
+                return Err(usage(
+                    "ballbar: \"sockets\" must be 2-D, one row per socket",
+                ));
+            }
+            let sockets: Vec<Vec<f64>> = a.rows().into_iter().map(|r| r.to_vec()).collect();
+            let bar_offset: f64 = match d.get_item("bar_offset")? {
+                Some(v) => v
+                    .extract()
+                    .map_err(|_| usage("ballbar: \"bar_offset\" must be a number (mm)"))?,
+                None => 0.0,
+            };
+            pkmcal::Setup {
+                sockets,
+                bar_offset,
+            }
+        };
+        MeasurementModel::ball_bar(spec, &setup).map_err(|e| usage(format!("ballbar: {e}")))?
+    } else {
+        MeasurementModel::tool(spec)
+    };
+    let ballbar_instrument = matches!(mm.instrument(), pkmcal::Instrument::BallBar { .. });
+    let positions =
+        mm.is_whole_tool() || matches!(mm.instrument(), pkmcal::Instrument::Targets { .. });
+    let choice = match frame {
+        "base" => Frame::Base,
+        "free" => {
+            if ballbar_instrument {
+                return Err(usage(
+                    "frame=\"free\": a ball bar's sockets are in the base frame; use frame=\"base\"",
+                ));
+            }
+            if !positions {
+                return Err(usage(format!(
+                    "frame=\"free\" needs whole positions to register the instrument frame; the instrument reads only {}",
+                    mm.axes().join(", ")
+                )));
+            }
+            Frame::Free
+        }
+        other => {
+            return Err(usage(format!(
+                "frame: unknown `{other}`; use \"base\" (readings in the base frame) or \"free\" (an instrument frame identified with the rest)"
+            )));
+        }
+    };
+    if ballbar_instrument || spec.tool_layout.frame_size() == 0 {
+        return Ok(mm);
+    }
+    mm.in_frame(choice).map_err(lib_err)
+}
+
+/// Per-pose σ: None; a scalar (when every reading has one unit); one value
+/// per axis; or an array (n, axes) with NaN where the σ is to be estimated.
+fn sigma_arg(
+    s: Option<&Bound<'_, PyAny>>,
+    mm: &MeasurementModel,
+    n: usize,
+) -> PyResult<Vec<Vec<Option<f64>>>> {
+    let Some(s) = s.filter(|s| !s.is_none()) else {
+        return Ok(vec![vec![]; n]);
+    };
+    let nx = mm.len();
+    let check = |v: f64| -> PyResult<Option<f64>> {
+        if v.is_nan() {
+            Ok(None)
+        } else if v.is_finite() && v > 0.0 {
+            Ok(Some(v))
+        } else {
+            Err(usage(format!(
+                "sigma: {v} is not a standard deviation; give positive numbers (NaN where it is to be estimated)"
+            )))
+        }
+    };
+    if let Ok(v) = s.extract::<f64>() {
+        let units = mm.units();
+        if units.iter().any(|u| *u != units[0]) {
+            return Err(usage(format!(
+                "sigma: one number cannot be the σ of readings in {}; give one per axis ({})",
+                units
+                    .iter()
+                    .map(|u| u.symbol())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                mm.axes().join(", ")
+            )));
+        }
+        let v = check(v)?;
+        return Ok(vec![vec![v; nx]; n]);
+    }
+    let r = rows(s, "sigma", mm.axes(), true)?;
+    let all = r.to_vecs();
+    let per: Vec<Vec<Option<f64>>> = all
+        .iter()
+        .map(|row| row.iter().map(|&v| check(v)).collect::<PyResult<_>>())
+        .collect::<PyResult<_>>()?;
+    if r.single {
+        return Ok(vec![per[0].clone(); n]);
+    }
+    if per.len() != n {
+        return Err(usage(format!(
+            "sigma: {} rows for {n} poses; give one row per pose or one per axis",
+            per.len()
+        )));
+    }
+    Ok(per)
+}
+
+/// Commands and readings as the library's measurements, rows numbered from 0.
+fn measurements(
+    m: &PyMechanism,
+    mm: &MeasurementModel,
+    commands: &Bound<'_, PyAny>,
+    measured: &Bound<'_, PyAny>,
+    sigma: Option<&Bound<'_, PyAny>>,
+    targets: Option<&Bound<'_, PyAny>>,
+    what: &str,
+) -> PyResult<Vec<pkmcal::Measurement>> {
+    let spec = m.spec();
+    let c = rows(commands, &format!("{what}commands"), &m.actuators(), false)?.to_vecs();
+    let y = rows(measured, &format!("{what}measured"), mm.axes(), false)?.to_vecs();
+    if c.len() != y.len() {
+        return Err(usage(format!(
+            "{what}commands has {} rows and {what}measured {}; give one row of each per pose",
+            c.len(),
+            y.len()
+        )));
+    }
+    let t = match targets.filter(|t| !t.is_none()) {
+        Some(t) => {
+            let t = rows(t, &format!("{what}targets"), &spec.tool_axes, false)?.to_vecs();
+            if t.len() != c.len() {
+                return Err(usage(format!(
+                    "{what}targets has {} rows for {} poses",
+                    t.len(),
+                    c.len()
+                )));
+            }
+            Some(t)
+        }
+        None => None,
+    };
+    let s = sigma_arg(sigma, mm, c.len())?;
+    Ok(c.into_iter()
+        .zip(y)
+        .zip(s)
+        .enumerate()
+        .map(|(i, ((commands, measured), sigma))| pkmcal::Measurement {
+            target: t.as_ref().map(|t| t[i].clone()),
+            commands,
+            measured,
+            sigma,
+            origin: Some(Origin {
+                pose: i,
+                line: None,
+            }),
+        })
+        .collect())
+}
+
+fn loss_arg(loss: &str, scale: Option<f64>) -> PyResult<Loss> {
+    if let Some(k) = scale
+        && !(k.is_finite() && k > 0.0)
+    {
+        return Err(usage(format!("loss_scale must be positive, got {k}")));
+    }
+    match loss {
+        "squared" | "linear" => Ok(Loss::Squared),
+        "huber" => Ok(Loss::Huber(scale.unwrap_or(1.345))),
+        "cauchy" => Ok(Loss::Cauchy(scale.unwrap_or(2.385))),
+        other => Err(usage(format!(
+            "loss: unknown `{other}`; use \"squared\", \"huber\" or \"cauchy\""
+        ))),
+    }
+}
+
+fn noise_arg(length: f64, angle: Option<f64>) -> PyResult<Noise> {
+    if !(length.is_finite() && length >= 0.0) {
+        return Err(usage(format!(
+            "noise must be a non-negative length in mm, got {length}"
+        )));
+    }
+    if let Some(a) = angle
+        && !(a.is_finite() && a >= 0.0)
+    {
+        return Err(usage(format!(
+            "angle_noise must be a non-negative angle in rad, got {a}"
+        )));
+    }
+    Ok(pkmcal_cli::io::noise_arg(length, angle))
+}
+
+// ---------------------------------------------------------------- results
+
+/// Error statistics of a set of poses: per axis and over the position
+/// distance (mm); angles apart (rad).
+#[pyclass(frozen, module = "pkmcal", name = "ErrorStats", get_all)]
+struct PyErrorStats {
+    /// Poses.
+    count: usize,
+    /// Unit of each axis.
+    axis_units: Vec<&'static str>,
+    /// Smallest error per axis.
+    axis_min: Vec<f64>,
+    /// Largest error per axis.
+    axis_max: Vec<f64>,
+    /// RMS error per axis.
+    axis_rms: Vec<f64>,
+    /// Position error distance, smallest (mm).
+    distance_min: f64,
+    /// Mean (mm).
+    distance_mean: f64,
+    /// RMS (mm).
+    distance_rms: f64,
+    /// Largest (mm).
+    distance_max: f64,
+    /// RMS angle error (rad), when the readings have angles.
+    angle_rms: Option<f64>,
+    /// Largest angle error (rad).
+    angle_max: Option<f64>,
+}
+
+impl From<&pkmcal::ErrorStats> for PyErrorStats {
+    fn from(s: &pkmcal::ErrorStats) -> Self {
+        Self {
+            count: s.count,
+            axis_units: s.axis_units.iter().map(|u| u.symbol()).collect(),
+            axis_min: s.axis_min.clone(),
+            axis_max: s.axis_max.clone(),
+            axis_rms: s.axis_rms.clone(),
+            distance_min: s.distance_min,
+            distance_mean: s.distance_mean,
+            distance_rms: s.distance_rms,
+            distance_max: s.distance_max,
+            angle_rms: s.angle_rms,
+            angle_max: s.angle_max,
+        }
+    }
+}
+
+#[pymethods]
+impl PyErrorStats {
+    fn __repr__(&self) -> String {
+        let angles = match (self.angle_rms, self.angle_max) {
+            (Some(r), Some(m)) => format!(", angle rms {r:.3e} rad, max {m:.3e} rad"),
+            _ => String::new(),
+        };
+        format!(
+            "<ErrorStats {} poses: distance rms {:.4} mm, max {:.4} mm{angles}>",
+            self.count, self.distance_rms, self.distance_max
+        )
+    }
+}
+
+/// A warning of a calibration: ``kind`` (e.g. ``unidentifiable``,
+/// ``not_converged``), what happened and what to do.
+#[pyclass(frozen, module = "pkmcal", name = "Warning", get_all)]
+struct PyWarning {
+    /// What it is about: stiffness_ratios, unidentifiable, frame_gauge,
+    /// not_converged, rank_deficient, outliers, dropped.
+    kind: &'static str,
+    /// What happened.
+    message: String,
+    /// What to do.
+    hint: String,
+}
+
+#[pymethods]
+impl PyWarning {
+    fn __repr__(&self) -> String {
+        format!("<Warning {}: {}>", self.kind, self.message)
+    }
+    fn __str__(&self) -> String {
+        format!("{} ({})", self.message, self.hint)
+    }
+}
+
+fn warning(w: &pkmcal::calibration::Warning) -> PyWarning {
+    use pkmcal::calibration::WarningKind as K;
+    PyWarning {
+        kind: match w.kind {
+            K::StiffnessRatios { .. } => "stiffness_ratios",
+            K::Unidentifiable { .. } => "unidentifiable",
+            K::FrameGauge { .. } => "frame_gauge",
+            K::NotConverged { .. } => "not_converged",
+            K::RankDeficient { .. } => "rank_deficient",
+            K::Outliers { .. } => "outliers",
+            K::Dropped { .. } => "dropped",
+        },
+        message: w.message.clone(),
+        hint: w.hint.clone(),
+    }
+}
+
+/// What the data can and cannot identify: rank, singular values of the
+/// scaled identification Jacobian, the unidentifiable combinations and the
+/// strong correlations.
+#[pyclass(frozen, module = "pkmcal", name = "Identifiability")]
+struct PyIdentifiability {
+    id: Identifiability,
+}
+
+#[pymethods]
+impl PyIdentifiability {
+    /// Free parameter names, in column order.
+    #[getter]
+    fn free(&self) -> Vec<String> {
+        self.id.free.clone()
+    }
+    /// Numerical rank.
+    #[getter]
+    fn rank(&self) -> usize {
+        self.id.rank
+    }
+    /// Singular values of the column-scaled, σ-weighted Jacobian, largest first.
+    #[getter]
+    fn singular_values<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        vec1(py, &self.id.singular_values)
+    }
+    /// Condition number of the identifiable directions.
+    #[getter]
+    fn condition_number(&self) -> f64 {
+        self.id.condition_number
+    }
+    /// Observability indices O1…O5 by name.
+    #[getter]
+    fn observability<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        observability(py, &self.id.observability)
+    }
+    /// Unidentifiable directions: dicts with ``combination`` (text),
+    /// ``terms`` (name → coefficient) and ``fixed`` (the parameter fixed to
+    /// remove it, or None).
+    #[getter]
+    fn unidentifiable<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        self.id
+            .unidentifiable
+            .iter()
+            .map(|u| {
+                let d = PyDict::new(py);
+                d.set_item("combination", &u.combination)?;
+                let t = PyDict::new(py);
+                for (n, c) in &u.terms {
+                    t.set_item(n, c)?;
+                }
+                d.set_item("terms", t)?;
+                d.set_item("fixed", &u.fixed)?;
+                Ok(d)
+            })
+            .collect()
+    }
+    /// Pairs of free parameters correlated beyond 0.9: ``(a, b, r)``.
+    #[getter]
+    fn correlations(&self) -> Vec<(String, String, f64)> {
+        self.id
+            .correlations
+            .iter()
+            .map(|c| (c.a.clone(), c.b.clone(), c.r))
+            .collect()
+    }
+    fn __repr__(&self) -> String {
+        format!(
+            "<Identifiability rank {} of {} free, condition {:.3e}, {} unidentifiable direction(s)>",
+            self.id.rank,
+            self.id.free.len(),
+            self.id.condition_number,
+            self.id.unidentifiable.len()
+        )
+    }
+}
+
+fn observability<'py>(
+    py: Python<'py>,
+    o: &pkmcal::calibration::Observability,
+) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    for (k, v) in [
+        ("O1", o.o1),
+        ("O2", o.o2),
+        ("O3", o.o3),
+        ("O4", o.o4),
+        ("O5", o.o5),
+    ] {
+        d.set_item(k, v)?;
+    }
+    Ok(d)
+}
+
+/// A rendered figure: ``svg`` (text), ``png`` (bytes), a title and a caption.
+/// A notebook shows it inline.
+#[pyclass(frozen, module = "pkmcal", name = "Figure", get_all)]
+struct PyFigure {
+    /// Short name (``errors``, ``parameters``, ``workspace``, ``maps``,
+    /// ``residuals``, ``singular-values``).
+    name: &'static str,
+    /// Title.
+    title: String,
+    /// What is shown and how to read it.
+    caption: String,
+    /// SVG text.
+    svg: String,
+    /// PNG image.
+    png: Py<PyBytes>,
+}
+
+#[pymethods]
+impl PyFigure {
+    fn _repr_svg_(&self) -> String {
+        self.svg.clone()
+    }
+    /// Write the figure to ``path``: SVG, or PNG when the name ends in ``.png``.
+    fn save(&self, py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<()> {
+        let p: String = if path.hasattr("__fspath__")? {
+            path.call_method0("__fspath__")?.extract()?
+        } else {
+            path.extract()?
+        };
+        let bytes: Vec<u8> = if p.to_ascii_lowercase().ends_with(".png") {
+            self.png.bind(py).as_bytes().to_vec()
+        } else {
+            self.svg.as_bytes().to_vec()
+        };
+        pkmcal_cli::output::stage(std::path::Path::new(&p), &bytes).map_err(cli_err)
+    }
+    fn __repr__(&self) -> String {
+        format!("<Figure {}: {}>", self.name, self.title)
+    }
+}
+
+/// The result of :func:`calibrate`: identified parameters with their
+/// standard deviations and covariance, identifiability, before/after
+/// accuracy, warnings, residuals and figures.
+#[pyclass(frozen, module = "pkmcal", name = "Calibration")]
+struct PyCalibration {
+    mech: Arc<AnyMechanism>,
+    measurement: MeasurementModel,
+    cal: LibCalibration,
+    data: Vec<pkmcal::Measurement>,
+    before: pkmcal::calibration::ErrorVectors,
+    after: pkmcal::calibration::ErrorVectors,
+    accuracy: pkmcal::Accuracy,
+    validation: Option<Validation>,
+    cross_validation: Option<CrossValidation>,
+}
+
+fn by_name<'py>(
+    py: Python<'py>,
+    items: impl Iterator<Item = (String, f64)>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    for (k, v) in items {
+        d.set_item(k, v)?;
+    }
+    Ok(d)
+}
+
+#[pymethods]
+impl PyCalibration {
+    /// Every mechanism parameter by name, as identified (fixed ones at their
+    /// start values): pass it as ``params`` to predict or compensate.
+    #[getter]
+    fn parameters<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let spec = self.mech.spec();
+        by_name(
+            py,
+            spec.param_names()
+                .iter()
+                .zip(&self.cal.params.values)
+                .map(|(n, v)| (n.to_string(), *v)),
+        )
+    }
+    /// Instrument parameters (frame, socket or target positions) by name.
+    #[getter]
+    fn measurement_parameters<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        by_name(
+            py,
+            self.measurement
+                .param_names()
+                .iter()
+                .zip(&self.cal.measurement)
+                .map(|(n, v)| (n.clone(), *v)),
+        )
+    }
+    /// Names of the identified (free) parameters, mechanism then instrument.
+    #[getter]
+    fn free(&self) -> Vec<String> {
+        self.cal
+            .parameters
+            .iter()
+            .filter(|p| p.free)
+            .map(|p| p.name.clone())
+            .collect()
+    }
+    /// Standard deviation of each free parameter by name (its unit in ``units``).
+    #[getter]
+    fn std_dev<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        by_name(
+            py,
+            self.cal
+                .parameters
+                .iter()
+                .filter(|p| p.free)
+                .map(|p| (p.name.clone(), p.std_dev)),
+        )
+    }
+    /// Identified minus nominal, by name, for every parameter.
+    #[getter]
+    fn change<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        by_name(
+            py,
+            self.cal
+                .parameters
+                .iter()
+                .map(|p| (p.name.clone(), p.change)),
+        )
+    }
+    /// Nominal value by name, for every parameter.
+    #[getter]
+    fn nominal<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        by_name(
+            py,
+            self.cal
+                .parameters
+                .iter()
+                .map(|p| (p.name.clone(), p.nominal)),
+        )
+    }
+    /// Unit of every parameter by name.
+    #[getter]
+    fn units<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        for p in &self.cal.parameters {
+            d.set_item(&p.name, p.unit.symbol())?;
+        }
+        Ok(d)
+    }
+    /// Notes on parameters (e.g. why one was fixed), by name.
+    #[getter]
+    fn notes<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        for p in &self.cal.parameters {
+            if let Some(n) = &p.note {
+                d.set_item(&p.name, n)?;
+            }
+        }
+        Ok(d)
+    }
+    /// Covariance of the free parameters (their units squared), in the order
+    /// of ``covariance_names``.
+    #[getter]
+    fn covariance<'py>(&self, py: Python<'py>) -> Bound<'py, PyAny> {
+        let c = &self.cal.parameter_covariance;
+        let n = c.names.len();
+        out2(py, c.matrix.concat(), n, false)
+    }
+    /// Row and column names of ``covariance``.
+    #[getter]
+    fn covariance_names(&self) -> Vec<String> {
+        self.cal.parameter_covariance.names.clone()
+    }
+    /// Rank, singular values and unidentifiable combinations.
+    #[getter]
+    fn identifiability(&self) -> PyIdentifiability {
+        PyIdentifiability {
+            id: self.cal.identifiability.clone(),
+        }
+    }
+    /// Error statistics at nominal parameters, on the poses the fit kept.
+    #[getter]
+    fn before(&self) -> PyErrorStats {
+        (&self.accuracy.before).into()
+    }
+    /// Error statistics with the identified parameters.
+    #[getter]
+    fn after(&self) -> PyErrorStats {
+        (&self.accuracy.after).into()
+    }
+    /// Improvement of the largest and the RMS distance error, in percent:
+    /// ``(max, rms)``.
+    #[getter]
+    fn improvement(&self) -> (f64, f64) {
+        (
+            self.accuracy.improvement_max_percent,
+            self.accuracy.improvement_rms_percent,
+        )
+    }
+    /// Before and after on the validation poses (``validation=`` or
+    /// ``holdout=``): ``(before, after)``, or None.
+    #[getter]
+    fn validation(&self) -> Option<(PyErrorStats, PyErrorStats)> {
+        self.validation
+            .as_ref()
+            .map(|v| ((&v.accuracy.before).into(), (&v.accuracy.after).into()))
+    }
+    /// k-fold cross-validation (``kfold=``): ``{"folds", "fold_rms", "pooled"}``, or None.
+    #[getter]
+    fn cross_validation<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(cv) = &self.cross_validation else {
+            return Ok(None);
+        };
+        let d = PyDict::new(py);
+        d.set_item("folds", cv.folds)?;
+        d.set_item("fold_rms", vec1(py, &cv.fold_rms))?;
+        d.set_item("pooled", Py::new(py, PyErrorStats::from(&cv.pooled))?)?;
+        Ok(Some(d))
+    }
+    /// Warnings: unidentifiable directions fixed, no convergence, outliers…
+    #[getter]
+    fn warnings(&self) -> Vec<PyWarning> {
+        self.cal.warnings.iter().map(warning).collect()
+    }
+    /// Whether the solver converged.
+    #[getter]
+    fn converged(&self) -> bool {
+        self.cal.converged
+    }
+    /// Why the solver stopped.
+    #[getter]
+    fn termination(&self) -> String {
+        self.cal.termination_reason.clone()
+    }
+    /// Solver iterations.
+    #[getter]
+    fn iterations(&self) -> usize {
+        self.cal.iterations
+    }
+    /// Forward model used: ``rigid``, ``linear`` or ``exact``.
+    #[getter]
+    fn model(&self) -> &'static str {
+        self.cal.model.name()
+    }
+    /// Weighted sum of squared residuals at the solution.
+    #[getter]
+    fn sum_of_squares(&self) -> f64 {
+        self.cal.sum_of_squares
+    }
+    /// Noise scale estimated from the residuals (1 when the σ given fit).
+    #[getter]
+    fn unit_weight_sigma(&self) -> f64 {
+        self.cal.unit_weight_sigma
+    }
+    /// Names of the readings (columns of ``measured`` and ``residuals``).
+    #[getter]
+    fn axes(&self) -> Vec<String> {
+        self.measurement.axes().to_vec()
+    }
+    /// Units of the readings.
+    #[getter]
+    fn axis_units(&self) -> Vec<&'static str> {
+        self.measurement
+            .units()
+            .iter()
+            .map(|u| u.symbol())
+            .collect()
+    }
+    /// Residuals (predicted minus measured), shape (poses kept, axes).
+    #[getter]
+    fn residuals<'py>(&self, py: Python<'py>) -> Bound<'py, PyAny> {
+        out2(
+            py,
+            self.cal.residuals.clone(),
+            self.measurement.len(),
+            false,
+        )
+    }
+    /// Rows (from 0) of the poses the fit kept.
+    #[getter]
+    fn poses(&self) -> Vec<usize> {
+        self.data
+            .iter()
+            .filter_map(|m| m.origin.map(|o| o.pose))
+            .collect()
+    }
+    /// Poses beyond the outlier threshold: dicts with ``pose`` (row),
+    /// ``residual`` and ``standardized``.
+    #[getter]
+    fn outliers<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        self.cal
+            .outliers
+            .iter()
+            .map(|o| {
+                let d = PyDict::new(py);
+                d.set_item("pose", o.origin.pose)?;
+                d.set_item("residual", vec1(py, &o.residual))?;
+                d.set_item("standardized", o.standardized)?;
+                Ok(d)
+            })
+            .collect()
+    }
+    /// Rows dropped as outliers (``drop_outliers=True``).
+    #[getter]
+    fn dropped(&self) -> Vec<usize> {
+        self.cal.dropped.iter().map(|o| o.pose).collect()
+    }
+    /// Parameter file text (``name = value`` in mm, rad, N·m/rad), the format
+    /// the command-line tool reads with ``--params``.
+    fn to_toml(&self) -> String {
+        let spec = self.mech.spec();
+        let header = format!(
+            "pkmcal {} calibration ({} model) of {} from Python\nsolver: {}",
+            env!("CARGO_PKG_VERSION"),
+            self.cal.model.name(),
+            spec.name,
+            self.cal.termination_reason
+        );
+        pkmcal_cli::io::params_to_string(spec, &self.cal.params, &header)
+    }
+    /// The report's figures: errors per pose, parameter changes, workspace
+    /// errors and maps, residuals, singular values.
+    fn figures(&self, py: Python<'_>) -> PyResult<Vec<PyFigure>> {
+        let figs = py
+            .detach(|| pkmcal_cli::report::figures(&self.inputs()))
+            .map_err(cli_err)?;
+        Ok(figs
+            .into_iter()
+            .map(|f| PyFigure {
+                name: f.name,
+                title: f.title,
+                caption: f.caption,
+                svg: f.svg,
+                png: PyBytes::new(py, &f.png).unbind(),
+            })
+            .collect())
+    }
+    /// Write the report (report.html with every figure as SVG and PNG) into
+    /// the directory ``path`` (created if needed).
+    fn save_report(&self, py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<()> {
+        let p: String = if path.hasattr("__fspath__")? {
+            path.call_method0("__fspath__")?.extract()?
+        } else {
+            path.extract()?
+        };
+        py.detach(|| pkmcal_cli::report::write_report_dir(std::path::Path::new(&p), &self.inputs()))
+            .map_err(cli_err)
+    }
+    fn __repr__(&self) -> String {
+        format!(
+            "<Calibration of {} ({} model, {} poses, {} free, {}): distance rms {:.4} -> {:.4} mm, max {:.4} -> {:.4} mm; {} warning(s)>",
+            self.mech.spec().name,
+            self.cal.model.name(),
+            self.cal.poses,
+            self.cal.free.len(),
+            if self.cal.converged {
+                "converged"
+            } else {
+                "NOT converged"
+            },
+            self.accuracy.before.distance_rms,
+            self.accuracy.after.distance_rms,
+            self.accuracy.before.distance_max,
+            self.accuracy.after.distance_max,
+            self.cal.warnings.len()
+        )
+    }
+}
+
+impl PyCalibration {
+    fn inputs(&self) -> pkmcal_cli::report::ReportInputs<'_> {
+        pkmcal_cli::report::ReportInputs {
+            mech: &self.mech,
+            measurement: &self.measurement,
+            data_name: "Python arrays",
+            cal: &self.cal,
+            data: &self.data,
+            before: &self.before,
+            after: &self.after,
+            accuracy: &self.accuracy,
+            validation: self.validation.as_ref(),
+            cross_validation: self.cross_validation.as_ref(),
+        }
+    }
+}
+
+/// Predicted tool positions and what the model computed with them.
+#[pyclass(frozen, module = "pkmcal", name = "Prediction", get_all)]
+struct PyPrediction {
+    /// Tool coordinates, shape (n, axes).
+    x: Py<PyAny>,
+    /// Joint configurations, shape (n, joints).
+    q: Py<PyAny>,
+    /// Internal actuator loads, shape (n, actuators): N·m for revolute, N for
+    /// prismatic actuators.
+    torque: Py<PyAny>,
+    /// Deflections of the actuated joints (rad or mm), shape (n, actuators).
+    deflection: Py<PyAny>,
+    /// Covariance of ``x`` (n, axes, axes) from a calibration's parameter
+    /// covariance, when asked for with ``uncertainty=True``; else None.
+    covariance: Option<Py<PyAny>>,
+}
+
+#[pymethods]
+impl PyPrediction {
+    fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
+        Ok(format!("<Prediction x={}>", self.x.bind(py).repr()?))
+    }
+}
+
+/// Commands that bring the tool to its targets.
+#[pyclass(frozen, module = "pkmcal", name = "Compensation", get_all)]
+struct PyCompensation {
+    /// Commands to send, shape (n, actuators).
+    commands: Py<PyAny>,
+    /// Commands of the nominal model for the same targets.
+    nominal: Py<PyAny>,
+    /// ``commands - nominal``.
+    correction: Py<PyAny>,
+    /// Internal actuator loads at the compensated pose (N·m or N).
+    torque: Py<PyAny>,
+    /// Joint configurations, shape (n, joints).
+    q: Py<PyAny>,
+}
+
+#[pymethods]
+impl PyCompensation {
+    fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
+        Ok(format!(
+            "<Compensation commands={}>",
+            self.commands.bind(py).repr()?
+        ))
+    }
+}
+
+/// A measurement plan.
+#[pyclass(frozen, module = "pkmcal", name = "Plan", get_all)]
+struct PyPlan {
+    /// Chosen tool positions, shape (count, axes).
+    targets: Py<PyAny>,
+    /// Their nominal commands, shape (count, actuators).
+    commands: Py<PyAny>,
+    /// Observability indices O1…O5 of the plan.
+    observability: Py<PyDict>,
+    /// Condition number of the plan's scaled identification Jacobian.
+    condition: f64,
+    /// A plain grid of the same size (the baseline), shape (count, axes).
+    grid_targets: Py<PyAny>,
+    /// Observability of the grid.
+    grid_observability: Py<PyDict>,
+    /// Condition number of the grid.
+    grid_condition: f64,
+    /// Candidate lattice spacing used (mm).
+    spacing: f64,
+    /// Candidates scored.
+    candidates: usize,
+}
+
+#[pymethods]
+impl PyPlan {
+    fn __repr__(&self) -> String {
+        format!(
+            "<Plan: {} candidates, condition {:.2} (plain grid {:.2})>",
+            self.candidates, self.condition, self.grid_condition
+        )
+    }
+}
+
+// ---------------------------------------------------------------- functions
+
+/// Predict the tool position reached at each row of ``commands``.
+///
+/// ``params``: None (nominal), a dict name → value (others nominal), a
+/// :class:`Calibration` or a parameter file path. ``model``: ``"exact"``
+/// (default), ``"linear"`` or ``"rigid"``. ``force``: a constant wrench on
+/// the tool (N along lengths, N·m about angles). ``uncertainty=True`` (with a
+/// Calibration) adds the covariance of each position.
+#[pyfunction]
+#[pyo3(signature = (mechanism, commands, params = None, *, model = None, force = None, uncertainty = false))]
+fn predict<'py>(
+    py: Python<'py>,
+    mechanism: &Bound<'py, PyMechanism>,
+    commands: &Bound<'py, PyAny>,
+    params: Option<&Bound<'py, PyAny>>,
+    model: Option<&str>,
+    force: Option<Vec<f64>>,
+    uncertainty: bool,
+) -> PyResult<PyPrediction> {
+    let m = mech_ref(mechanism);
+    let spec = m.spec();
+    let cal = params.and_then(|p| p.cast::<PyCalibration>().ok());
+    let model = match (model, &cal) {
+        (Some(s), _) => parse_model(s)?,
+        (None, Some(c)) => c.get().cal.model,
+        (None, None) => Model::Exact,
+    };
+    if uncertainty && cal.is_none() {
+        return Err(usage(
+            "uncertainty=True needs params=<a Calibration>: the covariance comes from its parameters",
+        ));
+    }
+    let p = params_arg(m, params, "params")?;
+    let force = wrench(m, force, "force")?;
+    let r = rows(commands, "commands", &m.actuators(), false)?;
+    let v = r.view();
+    let n = v.nrows();
+    let cal_ref = cal.as_ref().map(|c| &c.get().cal);
+    let mech = &*m.mech;
+    type Row = (pkmcal::Prediction, Option<DMatrix<f64>>);
+    let out: Vec<Row> = py
+        .detach(|| {
+            (0..n)
+                .into_par_iter()
+                .map(|i| {
+                    let c = row(&v, i);
+                    if uncertainty {
+                        let cal = cal_ref.expect("checked");
+                        let pose = pkmcal::prepare_pose(mech, &c, None).map_err(at(i))?;
+                        let (pr, cov) = pkmcal::tool_covariance(
+                            mech,
+                            &pose,
+                            &p,
+                            model,
+                            &force,
+                            &cal.parameter_covariance,
+                        )
+                        .map_err(at(i))?;
+                        Ok((pr, Some(cov)))
+                    } else {
+                        Ok((
+                            pkmcal::predict(mech, &p, &c, model, &force).map_err(at(i))?,
+                            None,
+                        ))
+                    }
+                })
+                .collect::<pkmcal::Result<Vec<Row>>>()
+        })
+        .map_err(lib_err)?;
+    let nx = spec.tool_axes.len();
+    let na = spec.n_actuated();
+    let nj = spec.joints.len();
+    let flat = |f: &dyn Fn(&pkmcal::Prediction) -> &Vec<f64>| -> Vec<f64> {
+        out.iter().flat_map(|(p, _)| f(p).iter().copied()).collect()
+    };
+    let covariance = if uncertainty {
+        let mut a = Array3::<f64>::zeros((n, nx, nx));
+        for (i, (_, c)) in out.iter().enumerate() {
+            let c = c.as_ref().expect("asked for");
+            for j in 0..nx {
+                for k in 0..nx {
+                    a[(i, j, k)] = c[(j, k)];
+                }
+            }
+        }
+        let a = a.into_pyarray(py).into_any();
+        Some(if r.single { a.get_item(0)? } else { a }.unbind())
+    } else {
+        None
+    };
+    Ok(PyPrediction {
+        x: out2(py, flat(&|p| &p.x), nx, r.single).unbind(),
+        q: out2(py, flat(&|p| &p.q), nj, r.single).unbind(),
+        torque: out2(py, flat(&|p| &p.torque), na, r.single).unbind(),
+        deflection: out2(py, flat(&|p| &p.deflection), na, r.single).unbind(),
+        covariance,
+    })
+}
+
+/// Nominal commands (inverse kinematics with nominal parameters) of tool
+/// positions, shape (n, actuators).
+#[pyfunction]
+fn nominal_commands<'py>(
+    py: Python<'py>,
+    mechanism: &Bound<'py, PyMechanism>,
+    targets: &Bound<'py, PyAny>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let m = mech_ref(mechanism);
+    let r = rows(targets, "targets", &m.spec().tool_axes, false)?;
+    let v = r.view();
+    let mech = &*m.mech;
+    let out: Vec<Vec<f64>> = py
+        .detach(|| {
+            (0..v.nrows())
+                .into_par_iter()
+                .map(|i| pkmcal::nominal_commands(mech, &row(&v, i)).map_err(at(i)))
+                .collect::<pkmcal::Result<_>>()
+        })
+        .map_err(lib_err)?;
+    Ok(out2(py, out.concat(), m.spec().n_actuated(), r.single))
+}
+
+/// Simulate measurements at tool positions ``targets`` for a mechanism whose
+/// true parameters are ``truth`` (None: nominal; a dict; a Calibration).
+///
+/// Returns ``(commands, measured)``: the nominal commands of each target and
+/// what the instrument reads when they are sent, with Gaussian noise
+/// (``noise`` mm on lengths, ``angle_noise`` rad on angles; default the
+/// length noise over a 200 mm lever arm), seeded by ``seed``. The instrument
+/// is the whole tool unless ``axes``, ``points`` or ``ballbar`` say otherwise
+/// (as in :func:`calibrate`).
+#[pyfunction]
+#[pyo3(signature = (mechanism, targets, truth = None, *, noise = 0.0, angle_noise = None, seed = 1, axes = None, points = None, ballbar = None))]
+#[allow(clippy::too_many_arguments)]
+fn simulate<'py>(
+    py: Python<'py>,
+    mechanism: &Bound<'py, PyMechanism>,
+    targets: &Bound<'py, PyAny>,
+    truth: Option<&Bound<'py, PyAny>>,
+    noise: f64,
+    angle_noise: Option<f64>,
+    seed: u64,
+    axes: Option<Vec<String>>,
+    points: Option<&Bound<'py, PyAny>>,
+    ballbar: Option<&Bound<'py, PyAny>>,
+) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    let m = mech_ref(mechanism);
+    let spec = m.spec();
+    let truth = params_arg(m, truth, "truth")?;
+    let noise = noise_arg(noise, angle_noise)?;
+    let mm = measurement_arg(m, axes, points, ballbar, "base")?;
+    let r = rows(targets, "targets", &spec.tool_axes, false)?;
+    let t = r.to_vecs();
+    let mech = &*m.mech;
+    let data = py
+        .detach(|| pkmcal::simulate(mech, &mm, &truth, &t, noise, seed))
+        .map_err(lib_err)?;
+    let c: Vec<f64> = data.iter().flat_map(|d| d.commands.clone()).collect();
+    let y: Vec<f64> = data.iter().flat_map(|d| d.measured.clone()).collect();
+    Ok((
+        out2(py, c, spec.n_actuated(), r.single),
+        out2(py, y, mm.len(), r.single),
+    ))
+}
+
+/// Identify parameter errors and encoder offsets from measurements (the
+/// method of docs/model.md, eq. 12).
+///
+/// ``commands``: (n, actuators); ``measured``: (n, readings) — the tool
+/// coordinates (``mechanism.tool_axes``), or with ``axes=[...]`` only those,
+/// with ``points=`` target points on the tool (``t1x, t1y, …``), with
+/// ``ballbar=`` bar lengths (``d1, d2, …``). ``sigma``: the standard
+/// deviation of the readings (a number when they share a unit, one per
+/// reading, or (n, readings) with NaN where it is to be estimated).
+/// ``frame``: ``"base"`` (default: readings in the base frame) or ``"free"``
+/// (an instrument frame identified with the rest, e.g. a laser tracker).
+/// ``free``/``fix``: parameter names (``"all"``, ``"default"``); ``start``:
+/// starting parameters. ``loss``: ``"squared"``, ``"huber"`` or ``"cauchy"``.
+/// Validation: ``validation=(commands, measured)``, or ``holdout=0.2``
+/// (a fraction held out, seeded), and/or ``kfold=5``.
+#[pyfunction]
+#[pyo3(signature = (mechanism, commands, measured, *, sigma = None, targets = None, model = "exact", free = None, fix = None, start = None, loss = "squared", loss_scale = None, outlier_threshold = 4.0, drop_outliers = false, force = None, axes = None, points = None, ballbar = None, frame = "base", validation = None, holdout = None, kfold = None, seed = 1))]
+#[allow(clippy::too_many_arguments)]
+fn calibrate<'py>(
+    py: Python<'py>,
+    mechanism: &Bound<'py, PyMechanism>,
+    commands: &Bound<'py, PyAny>,
+    measured: &Bound<'py, PyAny>,
+    sigma: Option<&Bound<'py, PyAny>>,
+    targets: Option<&Bound<'py, PyAny>>,
+    model: &str,
+    free: Option<&Bound<'py, PyAny>>,
+    fix: Option<&Bound<'py, PyAny>>,
+    start: Option<&Bound<'py, PyAny>>,
+    loss: &str,
+    loss_scale: Option<f64>,
+    outlier_threshold: f64,
+    drop_outliers: bool,
+    force: Option<Vec<f64>>,
+    axes: Option<Vec<String>>,
+    points: Option<&Bound<'py, PyAny>>,
+    ballbar: Option<&Bound<'py, PyAny>>,
+    frame: &str,
+    validation: Option<&Bound<'py, PyAny>>,
+    holdout: Option<f64>,
+    kfold: Option<usize>,
+    seed: u64,
+) -> PyResult<PyCalibration> {
+    let m = mech_ref(mechanism);
+    let spec = m.spec();
+    let mm = measurement_arg(m, axes, points, ballbar, frame)?;
+    let all = measurements(m, &mm, commands, measured, sigma, targets, "")?;
+    let start = params_arg(m, start, "start")?;
+    let mut opts = CalibrationOptions::new(spec, parse_model(model)?);
+    opts.free = free_arg(m, &mm, free, fix)?;
+    opts.force = wrench(m, force, "force")?;
+    opts.loss = loss_arg(loss, loss_scale)?;
+    if !(outlier_threshold.is_finite() && outlier_threshold > 0.0) {
+        return Err(usage(format!(
+            "outlier_threshold must be a positive number of robust standard deviations, got {outlier_threshold}"
+        )));
+    }
+    opts.outlier_threshold = outlier_threshold;
+    opts.drop_outliers = drop_outliers;
+    let held: Option<(String, Vec<pkmcal::Measurement>)> = match (validation, holdout) {
+        (Some(v), _) if v.is_none() => None,
+        (Some(_), Some(_)) => {
+            return Err(usage(
+                "give either validation=(commands, measured) or holdout=fraction, not both",
+            ));
+        }
+        (Some(v), None) => {
+            let t = v.cast::<PyTuple>().map_err(|_| {
+                usage("validation: expected a tuple (commands, measured) or (commands, measured, sigma)")
+            })?;
+            if !(2..=3).contains(&t.len()) {
+                return Err(usage(
+                    "validation: expected a tuple (commands, measured) or (commands, measured, sigma)",
+                ));
+            }
+            let s = if t.len() == 3 {
+                Some(t.get_item(2)?)
+            } else {
+                None
+            };
+            Some((
+                "validation arrays".into(),
+                measurements(
+                    m,
+                    &mm,
+                    &t.get_item(0)?,
+                    &t.get_item(1)?,
+                    s.as_ref(),
+                    None,
+                    "validation ",
+                )?,
+            ))
+        }
+        (None, Some(_)) => None,
+        (None, None) => None,
+    };
+    if let Some(k) = kfold
+        && k < 2
+    {
+        return Err(usage(format!("kfold must be at least 2, got {k}")));
+    }
+    let mech = &*m.mech;
+    let result = py.detach(|| -> pkmcal::Result<_> {
+        let (train, held) = match (holdout, held) {
+            (Some(f), _) => {
+                let (tr, he) = pkmcal::holdout_split(all.len(), f, seed)?;
+                (
+                    tr.iter().map(|&i| all[i].clone()).collect(),
+                    Some((
+                        format!("{} held-out poses (seed {seed})", he.len()),
+                        he.iter().map(|&i| all[i].clone()).collect::<Vec<_>>(),
+                    )),
+                )
+            }
+            (None, h) => (all.clone(), h),
+        };
+        let cal = pkmcal::calibrate(mech, &mm, &train, &start, &opts)?;
+        let kept: Vec<pkmcal::Measurement> = train
+            .iter()
+            .filter(|d| d.origin.is_none_or(|o| !cal.dropped.contains(&o)))
+            .cloned()
+            .collect();
+        let (accuracy, before, after) =
+            pkmcal::calibration_accuracy(mech, &mm, &kept, &cal, &opts.force)?;
+        let validation = match held {
+            Some((source, data)) => Some(Validation {
+                source,
+                accuracy: pkmcal::calibration_accuracy(mech, &mm, &data, &cal, &opts.force)?.0,
+            }),
+            None => None,
+        };
+        let cross_validation = match kfold {
+            Some(k) => Some(pkmcal::cross_validate(
+                mech, &mm, &train, &start, &opts, k, seed,
+            )?),
+            None => None,
+        };
+        Ok(PyCalibration {
+            mech: m.mech.clone(),
+            measurement: mm.clone(),
+            cal,
+            data: kept,
+            before,
+            after,
+            accuracy,
+            validation,
+            cross_validation,
+        })
+    });
+    result.map_err(lib_err)
+}
+
+/// Identifiability of the free parameters from poses and readings at
+/// ``params`` (nominal by default), without fitting: rank, singular values
+/// and the combinations the data cannot see. Arguments as :func:`calibrate`.
+#[pyfunction]
+#[pyo3(signature = (mechanism, commands, measured, *, params = None, sigma = None, model = "exact", free = None, fix = None, force = None, axes = None, points = None, ballbar = None, frame = "base"))]
+#[allow(clippy::too_many_arguments)]
+fn analyze<'py>(
+    py: Python<'py>,
+    mechanism: &Bound<'py, PyMechanism>,
+    commands: &Bound<'py, PyAny>,
+    measured: &Bound<'py, PyAny>,
+    params: Option<&Bound<'py, PyAny>>,
+    sigma: Option<&Bound<'py, PyAny>>,
+    model: &str,
+    free: Option<&Bound<'py, PyAny>>,
+    fix: Option<&Bound<'py, PyAny>>,
+    force: Option<Vec<f64>>,
+    axes: Option<Vec<String>>,
+    points: Option<&Bound<'py, PyAny>>,
+    ballbar: Option<&Bound<'py, PyAny>>,
+    frame: &str,
+) -> PyResult<PyIdentifiability> {
+    let m = mech_ref(mechanism);
+    let mm = measurement_arg(m, axes, points, ballbar, frame)?;
+    let data = measurements(m, &mm, commands, measured, sigma, None, "")?;
+    let params = params_arg(m, params, "params")?;
+    let model = parse_model(model)?;
+    let free = free_arg(m, &mm, free, fix)?;
+    let force = wrench(m, force, "force")?;
+    let mech = &*m.mech;
+    let id = py
+        .detach(|| pkmcal::analyze(mech, &mm, &data, &params, model, &free, &force))
+        .map_err(lib_err)?;
+    Ok(PyIdentifiability { id })
+}
+
+/// Commands that bring the tool to each row of ``targets`` under ``params``
+/// (a Calibration, a dict or None), deflections included (``model="exact"``)
+/// or not (``"rigid"``); ``force``: a wrench on the tool; ``preload``:
+/// actuator loads whose internal part is held.
+#[pyfunction]
+#[pyo3(signature = (mechanism, targets, params = None, *, model = "exact", force = None, preload = None))]
+fn compensate<'py>(
+    py: Python<'py>,
+    mechanism: &Bound<'py, PyMechanism>,
+    targets: &Bound<'py, PyAny>,
+    params: Option<&Bound<'py, PyAny>>,
+    model: &str,
+    force: Option<Vec<f64>>,
+    preload: Option<Vec<f64>>,
+) -> PyResult<PyCompensation> {
+    let m = mech_ref(mechanism);
+    let spec = m.spec();
+    let p = params_arg(m, params, "params")?;
+    let model = parse_model(model)?;
+    let opts = pkmcal::CompensationOptions {
+        force: wrench(m, force, "force")?,
+        preload: match preload {
+            None => vec![],
+            Some(v) => finite_list(&v, "preload", spec.n_actuated())?,
+        },
+    };
+    let r = rows(targets, "targets", &spec.tool_axes, false)?;
+    let v = r.view();
+    let mech = &*m.mech;
+    let out: Vec<pkmcal::Compensation> = py
+        .detach(|| {
+            (0..v.nrows())
+                .into_par_iter()
+                .map(|i| pkmcal::compensate(mech, &p, &row(&v, i), model, &opts).map_err(at(i)))
+                .collect::<pkmcal::Result<_>>()
+        })
+        .map_err(lib_err)?;
+    let na = spec.n_actuated();
+    let nj = spec.joints.len();
+    let flat = |f: &dyn Fn(&pkmcal::Compensation) -> &Vec<f64>| -> Vec<f64> {
+        out.iter().flat_map(|c| f(c).iter().copied()).collect()
+    };
+    Ok(PyCompensation {
+        commands: out2(py, flat(&|c| &c.commands), na, r.single).unbind(),
+        nominal: out2(py, flat(&|c| &c.nominal), na, r.single).unbind(),
+        correction: out2(py, flat(&|c| &c.correction), na, r.single).unbind(),
+        torque: out2(py, flat(&|c| &c.torque), na, r.single).unbind(),
+        q: out2(py, flat(&|c| &c.q), nj, r.single).unbind(),
+    })
+}
+
+/// Choose ``count`` poses that make the free parameters most observable
+/// (greedy selection then exchanges, over a lattice of the usable
+/// workspace). ``criterion``: ``"O1"`` (D-optimal), ``"O3"`` or ``"O5"``
+/// (default); ``spacing``: lattice spacing in mm; ``max_candidates``: most
+/// lattice points scored.
+#[pyfunction]
+#[pyo3(signature = (mechanism, count, params = None, *, criterion = "O5", model = "exact", free = None, fix = None, spacing = 6.0, max_candidates = 4000))]
+#[allow(clippy::too_many_arguments)]
+fn plan<'py>(
+    py: Python<'py>,
+    mechanism: &Bound<'py, PyMechanism>,
+    count: usize,
+    params: Option<&Bound<'py, PyAny>>,
+    criterion: &str,
+    model: &str,
+    free: Option<&Bound<'py, PyAny>>,
+    fix: Option<&Bound<'py, PyAny>>,
+    spacing: f64,
+    max_candidates: usize,
+) -> PyResult<PyPlan> {
+    let m = mech_ref(mechanism);
+    let spec = m.spec();
+    let params = params_arg(m, params, "params")?;
+    let opts = pkmcal::PlanOptions {
+        count,
+        criterion: criterion.parse().map_err(lib_err)?,
+        model: parse_model(model)?,
+        free: free_arg(m, &MeasurementModel::tool(spec), free, fix)?,
+        spacing,
+        max_candidates,
+    };
+    let mech = &*m.mech;
+    let p = py
+        .detach(|| pkmcal::plan(mech, &params, &opts, &|| {}))
+        .map_err(lib_err)?;
+    let nx = spec.tool_axes.len();
+    let targets = |s: &[pkmcal::WorkspacePoint]| -> Vec<f64> {
+        s.iter().flat_map(|w| w.target.iter().copied()).collect()
+    };
+    let commands: Vec<f64> = p
+        .poses
+        .iter()
+        .flat_map(|w| spec.actuated.iter().map(|&j| w.q[j]).collect::<Vec<_>>())
+        .collect();
+    Ok(PyPlan {
+        targets: out2(py, targets(&p.poses), nx, false).unbind(),
+        commands: out2(py, commands, spec.n_actuated(), false).unbind(),
+        observability: observability(py, &p.observability)?.unbind(),
+        condition: p.condition,
+        grid_targets: out2(py, targets(&p.grid), nx, false).unbind(),
+        grid_observability: observability(py, &p.grid_observability)?.unbind(),
+        grid_condition: p.grid_condition,
+        spacing: p.spacing,
+        candidates: p.candidates,
+    })
+}
+
+/// Monte Carlo study of a measurement plan: ``runs`` simulated calibrations
+/// from the poses ``targets``, each with random parameter errors
+/// (``length_error`` mm, ``angle_error`` rad on the free parameters) and
+/// measurement noise, judged on ``validation`` random unseen poses.
+///
+/// Returns a dict: ``runs``, ``converged``, ``validation_rms_median`` and
+/// ``validation_max_median`` (mm), ``parameters`` and
+/// ``parameter_rms_error`` (per free parameter, its unit).
+#[pyfunction]
+#[pyo3(signature = (mechanism, targets, *, runs = 200, noise = 0.002, angle_noise = None, seed = 1, model = "exact", free = None, fix = None, length_error = 0.3, angle_error = 0.001, validation = 50))]
+#[allow(clippy::too_many_arguments)]
+fn montecarlo<'py>(
+    py: Python<'py>,
+    mechanism: &Bound<'py, PyMechanism>,
+    targets: &Bound<'py, PyAny>,
+    runs: usize,
+    noise: f64,
+    angle_noise: Option<f64>,
+    seed: u64,
+    model: &str,
+    free: Option<&Bound<'py, PyAny>>,
+    fix: Option<&Bound<'py, PyAny>>,
+    length_error: f64,
+    angle_error: f64,
+    validation: usize,
+) -> PyResult<Bound<'py, PyDict>> {
+    let m = mech_ref(mechanism);
+    let spec = m.spec();
+    if runs == 0 || validation == 0 {
+        return Err(usage("runs and validation must be at least 1"));
+    }
+    for (v, name) in [(length_error, "length_error"), (angle_error, "angle_error")] {
+        if !(v.is_finite() && v >= 0.0) {
+            return Err(usage(format!(
+                "{name} must be a non-negative number, got {v}"
+            )));
+        }
+    }
+    let poses = rows(targets, "targets", &spec.tool_axes, false)?.to_vecs();
+    let mut cal = CalibrationOptions::new(spec, parse_model(model)?);
+    cal.free = free_arg(m, &MeasurementModel::tool(spec), free, fix)?;
+    let opts = pkmcal::MonteCarloOptions {
+        runs,
+        noise: noise_arg(noise, angle_noise)?,
+        seed,
+        length_error,
+        angle_error,
+        calibration: cal,
+    };
+    let mech = &*m.mech;
+    let (_, s) = py
+        .detach(|| -> pkmcal::Result<_> {
+            for (i, t) in poses.iter().enumerate() {
+                pkmcal::nominal_commands(mech, t).map_err(at(i))?;
+            }
+            let val = pkmcal::random_targets(mech, validation, seed ^ 0x5eed)?;
+            pkmcal::monte_carlo(mech, &poses, &val, &opts, &|| {})
+        })
+        .map_err(lib_err)?;
+    let d = PyDict::new(py);
+    d.set_item("runs", s.runs)?;
+    d.set_item("converged", s.converged)?;
+    d.set_item("validation_rms_median", s.validation_rms_median)?;
+    d.set_item("validation_max_median", s.validation_max_median)?;
+    d.set_item("parameters", s.parameters.clone())?;
+    d.set_item("parameter_rms_error", vec1(py, &s.parameter_rms_error))?;
+    Ok(d)
+}
+
+/// Positions from ball-bar readings: for each row of ``readings`` (bar
+/// lengths to each socket, mm), the point whose distances to ``sockets``
+/// (k, 2 or 3; base frame, mm) best match them, and its covariance for
+/// readings of standard deviation ``sigma`` (mm). Returns
+/// ``(positions (n, dim), covariances (n, dim, dim))``.
+#[pyfunction]
+#[pyo3(signature = (sockets, readings, *, bar_offset = 0.0, sigma = 0.002))]
+fn trilaterate<'py>(
+    py: Python<'py>,
+    sockets: &Bound<'py, PyAny>,
+    readings: &Bound<'py, PyAny>,
+    bar_offset: f64,
+    sigma: f64,
+) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    if !(sigma.is_finite() && sigma > 0.0) {
+        return Err(usage(format!(
+            "sigma must be a positive length in mm, got {sigma}"
+        )));
+    }
+    let arr: PyArrayLikeDyn<'py, f64, AllowTypeChange> = sockets
+        .extract()
+        .map_err(|_| usage("sockets: expected an array of numbers (k, 2 or 3)"))?;
+    let a = arr.as_array();
+    if a.ndim() != 2 || !(2..=3).contains(&a.shape()[1]) {
+        return Err(usage(format!(
+            "sockets: expected shape (k, 2) or (k, 3), got {}",
+            shape_text(a.shape())
+        )));
+    }
+    let setup = pkmcal::Setup {
+        sockets: a.rows().into_iter().map(|r| r.to_vec()).collect(),
+        bar_offset,
+    };
+    let dim = a.shape()[1];
+    setup.validate(dim).map_err(lib_err)?;
+    let cols: Vec<String> = (1..=setup.sockets.len()).map(|k| format!("d{k}")).collect();
+    let r = rows(readings, "readings", &cols, false)?;
+    let v = r.view();
+    let out: Vec<(Vec<f64>, DMatrix<f64>)> = py
+        .detach(|| {
+            (0..v.nrows())
+                .into_par_iter()
+                .map(|i| pkmcal::trilaterate(&setup, &row(&v, i), sigma, None).map_err(at(i)))
+                .collect::<pkmcal::Result<_>>()
+        })
+        .map_err(lib_err)?;
+    let n = out.len();
+    let mut cov = Array3::<f64>::zeros((n, dim, dim));
+    for (i, (_, c)) in out.iter().enumerate() {
+        for j in 0..dim {
+            for k in 0..dim {
+                cov[(i, j, k)] = c[(j, k)];
+            }
+        }
+    }
+    let x: Vec<f64> = out.iter().flat_map(|(x, _)| x.iter().copied()).collect();
+    let cov = cov.into_pyarray(py).into_any();
+    let cov = if r.single { cov.get_item(0)? } else { cov };
+    Ok((out2(py, x, dim, r.single), cov))
+}
+
+/// Kinematic calibration of (redundantly actuated) parallel mechanisms.
+#[pymodule]
+fn _pkmcal(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add("PkmcalError", m.py().get_type::<PkmcalError>())?;
+    m.add_class::<PyMechanism>()?;
+    m.add_class::<PyCalibration>()?;
+    m.add_class::<PyIdentifiability>()?;
+    m.add_class::<PyErrorStats>()?;
+    m.add_class::<PyWarning>()?;
+    m.add_class::<PyFigure>()?;
+    m.add_class::<PyPrediction>()?;
+    m.add_class::<PyCompensation>()?;
+    m.add_class::<PyPlan>()?;
+    m.add_function(wrap_pyfunction!(predict, m)?)?;
+    m.add_function(wrap_pyfunction!(nominal_commands, m)?)?;
+    m.add_function(wrap_pyfunction!(simulate, m)?)?;
+    m.add_function(wrap_pyfunction!(calibrate, m)?)?;
+    m.add_function(wrap_pyfunction!(analyze, m)?)?;
+    m.add_function(wrap_pyfunction!(compensate, m)?)?;
+    m.add_function(wrap_pyfunction!(plan, m)?)?;
+    m.add_function(wrap_pyfunction!(montecarlo, m)?)?;
+    m.add_function(wrap_pyfunction!(trilaterate, m)?)?;
+    Ok(())
+}

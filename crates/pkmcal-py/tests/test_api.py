@@ -1,0 +1,158 @@
+"""The package in a user's hands: mechanisms from files, text and dicts,
+NumPy conventions, the result object, figures, the GIL."""
+
+import pathlib
+import threading
+import tomllib
+
+import numpy as np
+import pytest
+
+import pkmcal
+from conftest import EXAMPLES
+
+# Numbers computed twice the same way must agree to rounding.
+SAME = 1e-12
+
+
+def test_mechanism_from_file_text_and_dict_agree():
+    path = EXAMPLES / "4-rrr" / "mechanism.toml"
+    text = path.read_text()
+    with open(path, "rb") as f:
+        as_dict = tomllib.load(f)
+    a = pkmcal.Mechanism(path)
+    b = pkmcal.Mechanism.from_toml(text)
+    c = pkmcal.Mechanism(as_dict)
+    d = pkmcal.Mechanism(str(path))
+    assert a.kind == "planar" and a.dof == 3
+    targets = pkmcal.plan(a, 8, max_candidates=300).targets
+    commands = pkmcal.nominal_commands(a, targets)
+    x = [pkmcal.predict(m, commands).x for m in (a, b, c, d)]
+    for other in x[1:]:
+        assert np.max(np.abs(other - x[0])) < SAME
+    assert a.nominal == c.nominal
+
+
+def test_mechanism_properties():
+    m = pkmcal.Mechanism()
+    assert m.actuators == ["q1", "q2", "q3"]
+    assert m.tool_axes == ["x", "y"] and m.tool_units == ["mm", "mm"]
+    assert m.parameter_units["l11"] == "mm" and m.parameter_units["dq1"] == "rad"
+    assert m.parameter_kinds["k1"] == "stiffness"
+    assert m.workspace.shape == (2, 2)
+    assert "2 DOF" in repr(m)
+    gs = pkmcal.Mechanism(EXAMPLES / "gough-stewart-6" / "mechanism.toml")
+    assert gs.tool_units == ["mm", "mm", "mm", "rad", "rad", "rad"]
+
+
+def test_one_row_in_one_row_out():
+    m = pkmcal.Mechanism()
+    c = pkmcal.nominal_commands(m, [0.0, 200.0])
+    assert c.shape == (3,)
+    p = pkmcal.predict(m, c)
+    assert p.x.shape == (2,) and p.torque.shape == (3,)
+    assert np.allclose(p.x, [0.0, 200.0], atol=1e-8)
+    # Lists, integers and non-contiguous views are read too.
+    many = pkmcal.nominal_commands(m, np.array([[0, 200], [10, 190]])[:, :])
+    assert pkmcal.predict(m, many.T.copy().T).x.shape == (2, 2)
+    assert np.array_equal(pkmcal.predict(m, many.tolist()).x, pkmcal.predict(m, many).x)
+
+
+def test_calibration_result():
+    m = pkmcal.Mechanism()
+    targets = pkmcal.plan(m, 35).targets
+    truth = {"l11": 280.3, "dq3": 0.002}
+    c, y = pkmcal.simulate(m, targets, truth, noise=0.002, seed=3)
+    vc, vy = pkmcal.simulate(m, pkmcal.plan(m, 12, spacing=9.0).targets, truth, noise=0.002, seed=4)
+    cal = pkmcal.calibrate(m, c, y, validation=(vc, vy), kfold=4)
+    assert cal.converged and cal.model == "exact"
+    assert set(cal.free) == set(m.default_free)
+    assert abs(cal.parameters["l11"] - 280.3) < 6 * cal.std_dev["l11"]
+    assert cal.units["dq3"] == "rad"
+    cov = cal.covariance
+    names = cal.covariance_names
+    assert cov.shape == (len(names), len(names))
+    assert np.allclose(cov, cov.T)
+    i = names.index("l11")
+    assert abs(np.sqrt(cov[i, i]) - cal.std_dev["l11"]) < 1e-12
+    ident = cal.identifiability
+    assert ident.rank == len(cal.free) and ident.singular_values[0] > 0
+    assert cal.residuals.shape == (35, 2)
+    before, after = cal.validation
+    assert after.distance_rms < before.distance_rms
+    assert cal.cross_validation["folds"] == 4
+    assert cal.after.distance_max < 0.02 < cal.before.distance_max
+    text = cal.to_toml()
+    assert tomllib.loads(text)["l11"] == cal.parameters["l11"]
+    # The identified parameters feed prediction with uncertainty.
+    p = pkmcal.predict(m, c, cal, uncertainty=True)
+    assert p.covariance.shape == (35, 2, 2)
+    assert np.all(np.diagonal(p.covariance, axis1=1, axis2=2) > 0)
+
+
+def test_unidentifiable_parameters_are_named():
+    m = pkmcal.Mechanism()
+    c, y = pkmcal.simulate(m, pkmcal.plan(m, 20).targets)
+    ident = pkmcal.analyze(m, c, y, free="all")
+    assert ident.rank < len(ident.free)
+    assert ident.unidentifiable and all("combination" in u for u in ident.unidentifiable)
+    cal = pkmcal.calibrate(m, c, y, free="all")
+    assert any(w.kind in ("unidentifiable", "stiffness_ratios") for w in cal.warnings)
+
+
+def test_instruments():
+    gs = pkmcal.Mechanism(EXAMPLES / "gough-stewart-6" / "mechanism.toml")
+    t = pkmcal.plan(gs, 30, max_candidates=400).targets
+    c, y = pkmcal.simulate(gs, t, noise=0.001)
+    z = pkmcal.simulate(gs, t, axes=["z"])[1]
+    assert z.shape == (30, 1) and np.allclose(z[:, 0], y[:, 2])
+    ref = pkmcal.Mechanism()
+    sockets = np.array([[-300.0, 0.0], [300.0, 0.0], [0.0, -50.0]])
+    rc, d = pkmcal.simulate(ref, pkmcal.plan(ref, 25).targets, {"l11": 280.2}, ballbar={"sockets": sockets})
+    cal = pkmcal.calibrate(ref, rc, d, ballbar={"sockets": sockets})
+    assert cal.axes == ["d1", "d2", "d3"]
+    assert abs(cal.parameters["l11"] - 280.2) < 1e-6
+    x, cov = pkmcal.trilaterate(sockets, d)
+    reached = pkmcal.predict(ref, rc, {"l11": 280.2}).x
+    assert np.max(np.abs(x - reached)) < 1e-6 and cov.shape == (25, 2, 2)
+
+
+def test_figures_render(tmp_path):
+    m = pkmcal.Mechanism()
+    c, y = pkmcal.simulate(m, pkmcal.plan(m, 20).targets, {"l11": 280.2}, noise=0.002)
+    cal = pkmcal.calibrate(m, c, y)
+    figs = cal.figures()
+    assert [f.name for f in figs][:2] == ["errors", "parameters"]
+    for f in figs:
+        assert f._repr_svg_().lstrip().startswith("<svg")
+        assert f.png[:8] == b"\x89PNG\r\n\x1a\n"
+    figs[0].save(tmp_path / "errors.png")
+    assert (tmp_path / "errors.png").read_bytes()[:4] == b"\x89PNG"
+    cal.save_report(tmp_path / "report")
+    assert "<html" in (tmp_path / "report" / "report.html").read_text()
+
+
+def test_the_gil_is_released_during_long_computations():
+    m = pkmcal.Mechanism()
+    targets = pkmcal.plan(m, 35).targets
+    done = threading.Event()
+    ticks = 0
+
+    def work():
+        pkmcal.montecarlo(m, targets, runs=60)
+        done.set()
+
+    t = threading.Thread(target=work)
+    t.start()
+    while not done.is_set():
+        ticks += 1
+    t.join()
+    # With the GIL held, this thread could not run until the study ended.
+    assert ticks > 1000
+
+
+def test_help_explains():
+    assert "mm" in pkmcal.calibrate.__doc__ and "free" in pkmcal.calibrate.__doc__
+    assert pkmcal.Mechanism.__doc__
+    sig = pkmcal.calibrate.__text_signature__
+    assert "sigma" in sig and "frame" in sig

@@ -1,0 +1,119 @@
+"""Bad input gives a PkmcalError (a ValueError) that says what is wrong and,
+at a pose, which row; never a crash."""
+
+import numpy as np
+import pytest
+
+import pkmcal
+from conftest import EXAMPLES
+
+
+@pytest.fixture(scope="module")
+def ref():
+    mech = pkmcal.Mechanism()
+    targets = pkmcal.plan(mech, 20).targets
+    commands, measured = pkmcal.simulate(mech, targets, {"l11": 280.2}, noise=0.002)
+    return mech, commands, measured
+
+
+def test_wrong_shapes(ref):
+    mech, c, y = ref
+    with pytest.raises(pkmcal.PkmcalError, match=r"measured: expected shape \(n, 2\) with columns x, y, got \(20, 1\)"):
+        pkmcal.calibrate(mech, c, y[:, :1])
+    with pytest.raises(pkmcal.PkmcalError, match=r"commands: expected shape \(n, 3\).*got \(20, 2\)"):
+        pkmcal.predict(mech, c[:, :2])
+    with pytest.raises(pkmcal.PkmcalError, match="20 rows and measured 19"):
+        pkmcal.calibrate(mech, c, y[:19])
+    with pytest.raises(pkmcal.PkmcalError, match="expected an array of numbers"):
+        pkmcal.predict(mech, [["a", "b", "c"]])
+    with pytest.raises(pkmcal.PkmcalError, match="no rows"):
+        pkmcal.predict(mech, np.zeros((0, 3)))
+
+
+def test_nan_names_the_row(ref):
+    mech, c, y = ref
+    bad = y.copy()
+    bad[7, 1] = np.nan
+    with pytest.raises(pkmcal.PkmcalError) as e:
+        pkmcal.calibrate(mech, c, bad)
+    assert e.value.pose == 7
+    assert "row 7, column 1 (y) is NaN" in str(e.value)
+    assert isinstance(e.value, ValueError)
+
+
+def test_unknown_parameter_names(ref):
+    mech, c, y = ref
+    with pytest.raises(pkmcal.PkmcalError, match="unknown parameter `l99`"):
+        pkmcal.predict(mech, c, {"l99": 1.0})
+    with pytest.raises(pkmcal.PkmcalError, match="in free: unknown parameter `bogus`"):
+        pkmcal.calibrate(mech, c, y, free=["l11", "bogus"])
+    with pytest.raises(pkmcal.PkmcalError, match="in fix: unknown parameter"):
+        pkmcal.calibrate(mech, c, y, fix="nope")
+    with pytest.raises(pkmcal.PkmcalError, match="`l11` must be a number"):
+        pkmcal.predict(mech, c, {"l11": "long"})
+
+
+def test_values_that_cannot_describe_the_mechanism(ref):
+    mech, c, _ = ref
+    with pytest.raises(pkmcal.PkmcalError, match="cannot describe this mechanism"):
+        pkmcal.predict(mech, c, {"l11": -5.0})
+
+
+def test_unreachable_target_names_the_row(ref):
+    mech, _, _ = ref
+    targets = np.array([[0.0, 200.0], [5000.0, 0.0]])
+    with pytest.raises(pkmcal.PkmcalError) as e:
+        pkmcal.compensate(mech, targets)
+    assert e.value.pose == 1
+    assert "pose 1" in str(e.value)
+
+
+def test_options(ref):
+    mech, c, y = ref
+    with pytest.raises(pkmcal.PkmcalError, match="unknown model"):
+        pkmcal.calibrate(mech, c, y, model="elastic")
+    with pytest.raises(pkmcal.PkmcalError, match="loss: unknown"):
+        pkmcal.calibrate(mech, c, y, loss="l1")
+    with pytest.raises(pkmcal.PkmcalError, match="frame: unknown"):
+        pkmcal.calibrate(mech, c, y, frame="tracker")
+    with pytest.raises(pkmcal.PkmcalError, match="either validation"):
+        pkmcal.calibrate(mech, c, y, validation=(c, y), holdout=0.2)
+    with pytest.raises(pkmcal.PkmcalError, match="force: expected 2 values"):
+        pkmcal.predict(mech, c, force=[1.0, 2.0, 3.0])
+    with pytest.raises(pkmcal.PkmcalError, match="uncertainty=True needs"):
+        pkmcal.predict(mech, c, uncertainty=True)
+    with pytest.raises(pkmcal.PkmcalError, match="one number cannot be the σ"):
+        # tool axes x, y share mm on the reference; a platform mixes mm and rad.
+        gs = pkmcal.Mechanism(EXAMPLES / "gough-stewart-6" / "mechanism.toml")
+        t = pkmcal.plan(gs, 10, max_candidates=200).targets
+        gc, gy = pkmcal.simulate(gs, t)
+        pkmcal.calibrate(gs, gc, gy, sigma=0.01)
+
+
+def test_mechanism_sources(tmp_path):
+    with pytest.raises(pkmcal.PkmcalError, match="cannot read mechanism file .*missing.toml"):
+        pkmcal.Mechanism("missing.toml")
+    with pytest.raises(pkmcal.PkmcalError, match="needs `type"):
+        pkmcal.Mechanism("name = 'no type'\n")
+    with pytest.raises(pkmcal.PkmcalError, match="unknown mechanism type `hexapod`"):
+        pkmcal.Mechanism({"type": "hexapod"})
+    with pytest.raises(pkmcal.PkmcalError, match="cannot hold"):
+        pkmcal.Mechanism({"type": "planar", "x": object()})
+    with pytest.raises(pkmcal.PkmcalError, match="expected None, a path"):
+        pkmcal.Mechanism(42)
+
+
+def test_calibration_of_another_mechanism(ref):
+    mech, c, y = ref
+    cal = pkmcal.calibrate(mech, c, y)
+    other = pkmcal.Mechanism(EXAMPLES / "4-rrr" / "mechanism.toml")
+    with pytest.raises(pkmcal.PkmcalError, match="another mechanism"):
+        pkmcal.predict(other, np.zeros((1, len(other.actuators))), cal)
+
+
+def test_no_half_written_figure(tmp_path, ref):
+    mech, c, y = ref
+    cal = pkmcal.calibrate(mech, c, y)
+    with pytest.raises(pkmcal.PkmcalError):
+        cal.figures()[0].save(tmp_path / "no-such-dir" / "errors.svg")
+    assert not (tmp_path / "no-such-dir").exists()
