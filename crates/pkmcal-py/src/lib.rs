@@ -64,6 +64,32 @@ fn usage(message: impl Into<String>) -> PyErr {
     raise(message.into(), None)
 }
 
+/// Outputs are staged and renamed into place only when complete (the CLI's
+/// `output` module); its state is per process, so writers take turns.
+static OUTPUT: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn written(write: impl FnOnce() -> anyhow::Result<()>) -> PyResult<()> {
+    let _turn = OUTPUT.lock().unwrap_or_else(|e| e.into_inner());
+    match write().and_then(|()| pkmcal_cli::output::commit()) {
+        Ok(()) => Ok(()),
+        Err(e) => {
+            pkmcal_cli::output::discard();
+            Err(cli_err(e))
+        }
+    }
+}
+
+/// A path from a `str` or an `os.PathLike`.
+fn path_arg(path: &Bound<'_, PyAny>) -> PyResult<String> {
+    let p = if path.hasattr("__fspath__")? {
+        path.call_method0("__fspath__")?
+    } else {
+        path.clone()
+    };
+    p.extract()
+        .map_err(|_| usage("expected a path (str or os.PathLike)"))
+}
+
 /// An error at row `i` of the arrays.
 fn at(i: usize) -> impl Fn(pkmcal::Error) -> pkmcal::Error {
     move |e| {
@@ -332,8 +358,7 @@ impl PyMechanism {
             return Self::from_toml(&text);
         }
         if s.hasattr("__fspath__")? {
-            let p: String = s.call_method0("__fspath__")?.extract()?;
-            return Self::from_path(&p);
+            return Self::from_path(&path_arg(s)?);
         }
         Err(usage(format!(
             "Mechanism(source): expected None, a path, TOML text or a dict, got {}",
@@ -356,11 +381,7 @@ impl PyMechanism {
     /// A mechanism from a TOML description file.
     #[staticmethod]
     fn from_file(path: &Bound<'_, PyAny>) -> PyResult<Self> {
-        let p: String = if path.hasattr("__fspath__")? {
-            path.call_method0("__fspath__")?.extract()?
-        } else {
-            path.extract()?
-        };
+        let p = path_arg(path)?;
         Self::from_path(&p)
     }
 
@@ -1072,17 +1093,13 @@ impl PyFigure {
     }
     /// Write the figure to ``path``: SVG, or PNG when the name ends in ``.png``.
     fn save(&self, py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<()> {
-        let p: String = if path.hasattr("__fspath__")? {
-            path.call_method0("__fspath__")?.extract()?
-        } else {
-            path.extract()?
-        };
+        let p = path_arg(path)?;
         let bytes: Vec<u8> = if p.to_ascii_lowercase().ends_with(".png") {
             self.png.bind(py).as_bytes().to_vec()
         } else {
             self.svg.as_bytes().to_vec()
         };
-        pkmcal_cli::output::stage(std::path::Path::new(&p), &bytes).map_err(cli_err)
+        written(|| pkmcal_cli::output::stage(std::path::Path::new(&p), &bytes))
     }
     fn __repr__(&self) -> String {
         format!("<Figure {}: {}>", self.name, self.title)
@@ -1387,13 +1404,12 @@ impl PyCalibration {
     /// Write the report (report.html with every figure as SVG and PNG) into
     /// the directory ``path`` (created if needed).
     fn save_report(&self, py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<()> {
-        let p: String = if path.hasattr("__fspath__")? {
-            path.call_method0("__fspath__")?.extract()?
-        } else {
-            path.extract()?
-        };
-        py.detach(|| pkmcal_cli::report::write_report_dir(std::path::Path::new(&p), &self.inputs()))
-            .map_err(cli_err)
+        let p = path_arg(path)?;
+        py.detach(|| {
+            written(|| {
+                pkmcal_cli::report::write_report_dir(std::path::Path::new(&p), &self.inputs())
+            })
+        })
     }
     fn __repr__(&self) -> String {
         format!(

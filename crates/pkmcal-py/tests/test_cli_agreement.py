@@ -42,9 +42,9 @@ def test_calibration_equals_cli(cli, tmp_path, mechanism, truth, count, noise):
         # A perturbation of the first free length and the first offset.
         names = mech.default_free
         units = mech.parameter_units
-        first_mm = next(n for n in names if units[n] == "mm")
-        first_rad = next(n for n in names if units[n] == "rad")
-        truth = {first_mm: mech.nominal[first_mm] + 0.2, first_rad: mech.nominal[first_rad] + 0.001}
+        a, b = names[0], names[-1]
+        step = {"mm": 0.2, "rad": 0.001}
+        truth = {a: mech.nominal[a] + step[units[a]], b: mech.nominal[b] + step[units[b]]}
     data = simulated(cli, tmp_path, mechanism, truth, count, noise)
     out = tmp_path / "identified.toml"
     args = ["calibrate", "--data", data, "--out", out, "--quiet"]
@@ -97,7 +97,7 @@ def test_compensate_equals_cli(cli, tmp_path):
     params.write_text("".join(f"{k} = {v!r}\n" for k, v in truth.items()))
     targets = pkmcal.plan(mech, 10).targets
     tfile = tmp_path / "targets.csv"
-    tfile.write_text("target_x,target_y\n" + "\n".join(f"{x!r},{y!r}" for x, y in targets) + "\n")
+    tfile.write_text("target_x,target_y\n" + "\n".join(f"{float(x)!r},{float(y)!r}" for x, y in targets) + "\n")
     out = tmp_path / "commands.csv"
     cli("compensate", "--params", params, "--targets", tfile, "--out", out)
     table = read_csv(out)
