@@ -26,8 +26,8 @@ print(mech)
 
 # The machine as built: a few tenths of a millimetre and a few milliradians
 # away from the drawing (mm and rad, the units of every array).
-truth = dict(mech.nominal)
-truth.update({"l11": 280.35, "l21": 279.8, "B2y": 0.4, "B3x": 599.7, "D2": 0.3, "dq1": 0.004, "dq3": -0.003})
+errors = {"l11": 0.35, "l21": -0.2, "B2y": 0.4, "B3x": -0.3, "D2": 0.3, "dq1": 0.004, "dq3": -0.003}
+truth = {name: value + errors.get(name, 0.0) for name, value in mech.nominal.items()}
 
 # Where to measure: 35 poses chosen for observability.
 plan = pkmcal.plan(mech, 35)

@@ -1486,6 +1486,9 @@ struct PyCompensation {
     torque: Py<PyAny>,
     /// Joint configurations, shape (n, joints).
     q: Py<PyAny>,
+    /// Rows whose target could not be reached (``skip_unreachable=True``;
+    /// their values are NaN).
+    skipped: Vec<usize>,
 }
 
 #[pymethods]
@@ -1888,9 +1891,12 @@ fn analyze<'py>(
 /// Commands that bring the tool to each row of ``targets`` under ``params``
 /// (a Calibration, a dict or None), deflections included (``model="exact"``)
 /// or not (``"rigid"``); ``force``: a wrench on the tool; ``preload``:
-/// actuator loads whose internal part is held.
+/// actuator loads whose internal part is held. An unreachable or singular
+/// target raises, naming its row; with ``skip_unreachable=True`` its row is
+/// NaN and listed in ``skipped``.
 #[pyfunction]
-#[pyo3(signature = (mechanism, targets, params = None, *, model = "exact", force = None, preload = None))]
+#[pyo3(signature = (mechanism, targets, params = None, *, model = "exact", force = None, preload = None, skip_unreachable = false))]
+#[allow(clippy::too_many_arguments)]
 fn compensate<'py>(
     py: Python<'py>,
     mechanism: &Bound<'py, PyMechanism>,
@@ -1899,6 +1905,7 @@ fn compensate<'py>(
     model: &str,
     force: Option<Vec<f64>>,
     preload: Option<Vec<f64>>,
+    skip_unreachable: bool,
 ) -> PyResult<PyCompensation> {
     let m = mech_ref(mechanism);
     let spec = m.spec();
@@ -1914,25 +1921,38 @@ fn compensate<'py>(
     let r = rows(targets, "targets", &spec.tool_axes, false)?;
     let v = r.view();
     let mech = &*m.mech;
-    let out: Vec<pkmcal::Compensation> = py
+    let out: Vec<Option<pkmcal::Compensation>> = py
         .detach(|| {
             (0..v.nrows())
                 .into_par_iter()
-                .map(|i| pkmcal::compensate(mech, &p, &row(&v, i), model, &opts).map_err(at(i)))
+                .map(
+                    |i| match pkmcal::compensate(mech, &p, &row(&v, i), model, &opts) {
+                        Ok(c) => Ok(Some(c)),
+                        Err(_) if skip_unreachable => Ok(None),
+                        Err(e) => Err(at(i)(e)),
+                    },
+                )
                 .collect::<pkmcal::Result<_>>()
         })
         .map_err(lib_err)?;
     let na = spec.n_actuated();
     let nj = spec.joints.len();
-    let flat = |f: &dyn Fn(&pkmcal::Compensation) -> &Vec<f64>| -> Vec<f64> {
-        out.iter().flat_map(|c| f(c).iter().copied()).collect()
+    let flat = |f: &dyn Fn(&pkmcal::Compensation) -> &Vec<f64>, w: usize| -> Vec<f64> {
+        out.iter()
+            .flat_map(|c| match c {
+                Some(c) => f(c).clone(),
+                None => vec![f64::NAN; w],
+            })
+            .collect()
     };
+    let skipped: Vec<usize> = (0..out.len()).filter(|&i| out[i].is_none()).collect();
     Ok(PyCompensation {
-        commands: out2(py, flat(&|c| &c.commands), na, r.single).unbind(),
-        nominal: out2(py, flat(&|c| &c.nominal), na, r.single).unbind(),
-        correction: out2(py, flat(&|c| &c.correction), na, r.single).unbind(),
-        torque: out2(py, flat(&|c| &c.torque), na, r.single).unbind(),
-        q: out2(py, flat(&|c| &c.q), nj, r.single).unbind(),
+        commands: out2(py, flat(&|c| &c.commands, na), na, r.single).unbind(),
+        nominal: out2(py, flat(&|c| &c.nominal, na), na, r.single).unbind(),
+        correction: out2(py, flat(&|c| &c.correction, na), na, r.single).unbind(),
+        torque: out2(py, flat(&|c| &c.torque, na), na, r.single).unbind(),
+        q: out2(py, flat(&|c| &c.q, nj), nj, r.single).unbind(),
+        skipped,
     })
 }
 

@@ -117,3 +117,11 @@ def test_no_half_written_figure(tmp_path, ref):
     with pytest.raises(pkmcal.PkmcalError):
         cal.figures()[0].save(tmp_path / "no-such-dir" / "errors.svg")
     assert not (tmp_path / "no-such-dir").exists()
+
+
+def test_unreachable_targets_can_be_skipped(ref):
+    mech, _, _ = ref
+    targets = np.array([[0.0, 200.0], [5000.0, 0.0], [10.0, 190.0]])
+    comp = pkmcal.compensate(mech, targets, skip_unreachable=True)
+    assert comp.skipped == [1]
+    assert np.all(np.isnan(comp.commands[1])) and np.all(np.isfinite(comp.commands[[0, 2]]))

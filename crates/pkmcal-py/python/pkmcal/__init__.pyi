@@ -192,6 +192,7 @@ class Compensation:
     correction: Array
     torque: Array
     q: Array
+    skipped: list[int]
 
 class Plan:
     targets: Array
@@ -275,6 +276,7 @@ def compensate(
     model: Literal["exact", "rigid"] = "exact",
     force: Optional[Sequence[float]] = None,
     preload: Optional[Sequence[float]] = None,
+    skip_unreachable: bool = False,
 ) -> Compensation: ...
 def plan(
     mechanism: Mechanism,
