@@ -1411,6 +1411,44 @@ impl PyCalibration {
             })
         })
     }
+    /// The summary as an HTML table (a notebook shows it).
+    fn _repr_html_(&self) -> String {
+        use std::fmt::Write;
+        let esc = pkmcal_cli::report::escape;
+        let mut h = format!(
+            "<p><b>Calibration of {}</b> ({} model, {} poses, {}): distance error RMS {:.4} → {:.4} mm, max {:.4} → {:.4} mm</p>",
+            esc(&self.mech.spec().name),
+            self.cal.model.name(),
+            self.cal.poses,
+            if self.cal.converged {
+                "converged"
+            } else {
+                "<b>not converged</b>"
+            },
+            self.accuracy.before.distance_rms,
+            self.accuracy.after.distance_rms,
+            self.accuracy.before.distance_max,
+            self.accuracy.after.distance_max,
+        );
+        h.push_str("<table><tr><th>parameter</th><th>nominal</th><th>identified</th><th>change</th><th>std dev</th><th>unit</th></tr>");
+        for p in self.cal.parameters.iter().filter(|p| p.free) {
+            let _ = write!(
+                h,
+                "<tr><td>{}</td><td>{:.6}</td><td>{:.6}</td><td>{:+.3e}</td><td>{:.2e}</td><td>{}</td></tr>",
+                esc(&p.name),
+                p.nominal,
+                p.identified,
+                p.change,
+                p.std_dev,
+                esc(p.unit.symbol())
+            );
+        }
+        h.push_str("</table>");
+        for w in &self.cal.warnings {
+            let _ = write!(h, "<p>⚠ {} ({})</p>", esc(&w.message), esc(&w.hint));
+        }
+        h
+    }
     fn __repr__(&self) -> String {
         format!(
             "<Calibration of {} ({} model, {} poses, {} free, {}): distance rms {:.4} -> {:.4} mm, max {:.4} -> {:.4} mm; {} warning(s)>",

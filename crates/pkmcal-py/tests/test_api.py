@@ -82,6 +82,8 @@ def test_calibration_result():
     assert after.distance_rms < before.distance_rms
     assert cal.cross_validation["folds"] == 4
     assert cal.after.distance_max < 0.02 < cal.before.distance_max
+    html = cal._repr_html_()
+    assert "<table>" in html and "l11" in html and "dq3" in html
     text = cal.to_toml()
     assert tomllib.loads(text)["l11"] == cal.parameters["l11"]
     # The identified parameters feed prediction with uncertainty.
