@@ -281,24 +281,30 @@ pub fn grid_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<Workspac
     let spec = mech.spec();
     let extent = scaled_extent(spec);
     let dims = spec.workspace_box.len() as f64;
-    let (mut lo, mut hi) = if dims <= 2.0 {
-        (extent / 400.0, extent)
+    let finest = if dims <= 2.0 {
+        extent / 400.0
     } else {
-        (extent / (200.0 * count as f64).powf(1.0 / dims), extent)
+        extent / (200.0 * count as f64).powf(1.0 / dims)
     };
-    let found = sample_workspace(mech, lo).len();
-    if found < count {
-        return Err(too_few(spec, found, count));
-    }
+    let (mut lo, mut hi) = (finest, extent);
+    // Bisection on the spacing; `lo` is known to give `count` usable points
+    // once it has moved. The finest lattice (up to 160,000 points, seconds
+    // of inverse kinematics on a planar linkage) is sampled only when it
+    // never does.
+    let mut verified = false;
     for _ in 0..30 {
         let mid = 0.5 * (lo + hi);
         if sample_workspace(mech, mid).len() >= count {
             lo = mid;
+            verified = true;
         } else {
             hi = mid;
         }
     }
     let lattice = sample_workspace(mech, lo);
+    if !verified && lattice.len() < count {
+        return Err(too_few(spec, lattice.len(), count));
+    }
     let n = lattice.len();
     Ok((0..count).map(|i| lattice[i * n / count].clone()).collect())
 }
