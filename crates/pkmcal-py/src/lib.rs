@@ -246,6 +246,8 @@ struct PyMechanism {
     targets: Vec<Vec<f64>>,
     setup: Option<pkmcal::Setup>,
     source: String,
+    /// The description's text (None for the built-in reference), for pickling.
+    text: Option<String>,
 }
 
 fn toml_value(v: &Bound<'_, PyAny>, path: &str) -> PyResult<toml::Value> {
@@ -313,6 +315,7 @@ impl PyMechanism {
             targets,
             setup,
             source,
+            text: Some(text.to_string()),
         })
     }
     fn from_path(path: &str) -> PyResult<Self> {
@@ -375,6 +378,7 @@ impl PyMechanism {
             targets: vec![],
             setup: None,
             source: "the built-in reference".into(),
+            text: None,
         }
     }
 
@@ -505,6 +509,18 @@ impl PyMechanism {
     fn targets<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyAny>> {
         let w = self.targets.first()?.len();
         Some(out2(py, self.targets.concat(), w, false))
+    }
+    /// Pickled as its description, so that it crosses process boundaries
+    /// (multiprocessing, joblib).
+    fn __reduce__<'py>(
+        slf: &Bound<'py, Self>,
+    ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyTuple>)> {
+        let py = slf.py();
+        let cls = py.get_type::<PyMechanism>();
+        Ok(match &slf.get().text {
+            Some(t) => (cls.getattr("from_toml")?, PyTuple::new(py, [t])?),
+            None => (cls.getattr("reference")?, PyTuple::empty(py)),
+        })
     }
     fn __repr__(&self) -> String {
         let s = self.spec();

@@ -160,3 +160,13 @@ def test_help_explains():
     assert pkmcal.Mechanism.__doc__
     sig = pkmcal.calibrate.__text_signature__
     assert "sigma" in sig and "frame" in sig
+
+
+def test_mechanisms_pickle():
+    import pickle
+
+    for m in (pkmcal.Mechanism(), pkmcal.Mechanism(EXAMPLES / "five-bar" / "mechanism.toml")):
+        back = pickle.loads(pickle.dumps(m))
+        assert back.nominal == m.nominal and back.actuators == m.actuators
+        c = pkmcal.nominal_commands(m, pkmcal.plan(m, 10, max_candidates=300).targets)
+        assert np.array_equal(pkmcal.predict(back, c).x, pkmcal.predict(m, c).x)
