@@ -693,17 +693,7 @@ fn measurement_arg(
             let sockets = d
                 .get_item("sockets")?
                 .ok_or_else(|| usage("ballbar: the dict needs \"sockets\""))?;
-            let arr: PyArrayLikeDyn<'_, f64, AllowTypeChange> =
-                sockets.extract().map_err(|_| {
-                    usage("ballbar: \"sockets\" must be an array of numbers (k, 2 or 3)")
-                })?;
-            let a = arr.as_array();
-            if a.ndim() != 2 {
-                return Err(usage(
-                    "ballbar: \"sockets\" must be 2-D, one row per socket",
-                ));
-            }
-            let sockets: Vec<Vec<f64>> = a.rows().into_iter().map(|r| r.to_vec()).collect();
+            let sockets = sockets_arg(&sockets, "ballbar: \"sockets\"")?;
             let bar_offset: f64 = match d.get_item("bar_offset")? {
                 Some(v) => v
                     .extract()
@@ -748,6 +738,21 @@ fn measurement_arg(
         return Ok(mm);
     }
     mm.in_frame(choice).map_err(lib_err)
+}
+
+/// Ball-bar socket centres: an array (k, 2) or (k, 3) of finite numbers.
+fn sockets_arg(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<Vec<Vec<f64>>> {
+    let arr: PyArrayLikeDyn<'_, f64, AllowTypeChange> = obj
+        .extract()
+        .map_err(|_| usage(format!("{what}: expected an array of numbers (k, 2 or 3)")))?;
+    let a = arr.as_array();
+    if a.ndim() != 2 || !(2..=3).contains(&a.shape()[1]) || a.shape()[0] == 0 {
+        return Err(usage(format!(
+            "{what}: expected shape (k, 2) or (k, 3), one row per socket, got {}",
+            shape_text(a.shape())
+        )));
+    }
+    Ok(a.rows().into_iter().map(|r| r.to_vec()).collect())
 }
 
 /// Per-pose σ: None; a scalar (when every reading has one unit); one value
@@ -2155,21 +2160,11 @@ fn trilaterate<'py>(
             "sigma must be a positive length in mm, got {sigma}"
         )));
     }
-    let arr: PyArrayLikeDyn<'py, f64, AllowTypeChange> = sockets
-        .extract()
-        .map_err(|_| usage("sockets: expected an array of numbers (k, 2 or 3)"))?;
-    let a = arr.as_array();
-    if a.ndim() != 2 || !(2..=3).contains(&a.shape()[1]) {
-        return Err(usage(format!(
-            "sockets: expected shape (k, 2) or (k, 3), got {}",
-            shape_text(a.shape())
-        )));
-    }
     let setup = pkmcal::Setup {
-        sockets: a.rows().into_iter().map(|r| r.to_vec()).collect(),
+        sockets: sockets_arg(sockets, "sockets")?,
         bar_offset,
     };
-    let dim = a.shape()[1];
+    let dim = setup.sockets[0].len();
     setup.validate(dim).map_err(lib_err)?;
     let cols: Vec<String> = (1..=setup.sockets.len()).map(|k| format!("d{k}")).collect();
     let r = rows(readings, "readings", &cols, false)?;

@@ -125,3 +125,13 @@ def test_unreachable_targets_can_be_skipped(ref):
     comp = pkmcal.compensate(mech, targets, skip_unreachable=True)
     assert comp.skipped == [1]
     assert np.all(np.isnan(comp.commands[1])) and np.all(np.isfinite(comp.commands[[0, 2]]))
+
+
+def test_ball_bar_sockets():
+    with pytest.raises(pkmcal.PkmcalError, match=r"sockets: expected shape \(k, 2\) or \(k, 3\).*got \(3,\)"):
+        pkmcal.trilaterate([1.0, 2.0, 3.0], [[1.0, 2.0, 3.0]])
+    mech = pkmcal.Mechanism()
+    with pytest.raises(pkmcal.PkmcalError, match="ballbar: the dict needs"):
+        pkmcal.simulate(mech, [[0.0, 200.0]], ballbar={"bar_offset": 1.0})
+    with pytest.raises(pkmcal.PkmcalError, match=r'ballbar: "sockets": expected shape'):
+        pkmcal.simulate(mech, [[0.0, 200.0]], ballbar={"sockets": [[1.0, 2.0, 3.0, 4.0]]})
