@@ -619,8 +619,13 @@ pub fn analyze_identifiability(
             };
             return (ident, free);
         }
-        let d = &dirs[0];
         let k = fix_choice(cols, &free, &dirs);
+        // Report the direction that fixing `k` removes: the one it takes the
+        // most part in (with zero columns, that parameter alone).
+        let d = dirs
+            .iter()
+            .reduce(|a, b| if b[k].abs() > a[k].abs() { b } else { a })
+            .expect("non-empty");
         unidentifiable.push(direction(
             &names,
             &free,

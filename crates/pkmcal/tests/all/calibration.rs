@@ -340,6 +340,42 @@ fn observability_indices_and_condition_are_consistent() {
 }
 
 #[test]
+fn each_unidentifiable_direction_is_the_one_its_fix_removes() {
+    // At nominal parameters the actuators do not fight: the three
+    // stiffnesses have no effect, three zero columns. Each is named alone,
+    // next to the parameter fixed for it.
+    let mech = JeongKim2Dof::new();
+    let spec = mech.spec();
+    let d = data(20, 0.0, 1);
+    let all: Vec<usize> = (0..spec.n_params()).collect();
+    let tool = MeasurementModel::tool(spec);
+    let id = analyze(
+        &mech,
+        &tool,
+        &d,
+        &Params::nominal(spec),
+        Model::Exact,
+        &all,
+        &[],
+    )
+    .unwrap();
+    assert_eq!(id.unidentifiable.len(), 3);
+    let mut fixed = vec![];
+    for u in &id.unidentifiable {
+        let f = u.fixed.clone().expect("a parameter is fixed for each");
+        assert_eq!(u.terms.len(), 1, "{}", u.combination);
+        assert_eq!(
+            u.terms[0].0, f,
+            "{} is removed by fixing {f}",
+            u.combination
+        );
+        fixed.push(f);
+    }
+    fixed.sort();
+    assert_eq!(fixed, ["k1", "k2", "k3"]);
+}
+
+#[test]
 fn too_few_poses_and_empty_free_sets_are_errors() {
     let mech = JeongKim2Dof::new();
     let spec = mech.spec();
