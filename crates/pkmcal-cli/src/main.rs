@@ -656,12 +656,7 @@ fn run(command: Command) -> anyhow::Result<()> {
         Command::Predict(a) => commands::predict(a),
         Command::Simulate(a) => commands::simulate(a),
         Command::Calibrate(a) => a.model.parse().map_err(Into::into).and_then(|model| {
-            let k = a.loss_scale;
-            let loss = match a.loss.as_str() {
-                "huber" => pkmcal::Loss::Huber(k.unwrap_or(1.345)),
-                "cauchy" => pkmcal::Loss::Cauchy(k.unwrap_or(2.385)),
-                _ => pkmcal::Loss::Squared,
-            };
+            let loss = pkmcal::Loss::named(&a.loss, a.loss_scale)?;
             calibrate::run_calibrate(calibrate::CalibrateConfig {
                 loss,
                 outlier_threshold: a.outlier_threshold,

@@ -5,7 +5,7 @@ use crate::io::{Csv, csv_bytes, read_mechanism, read_params};
 use anyhow::{Context, Result, bail};
 use pkmcal::{
     CalibrationOptions, CompensationOptions, Mechanism, Model, MonteCarloOptions, Params,
-    PlanCriterion, compensate, monte_carlo, random_targets,
+    PlanCriterion, compensate, monte_carlo,
 };
 use rayon::prelude::*;
 use std::io::Write;
@@ -673,7 +673,7 @@ pub fn run_montecarlo(c: MonteCarloConfig) -> Result<()> {
         c.free.as_deref(),
         c.fix.as_deref(),
     )?;
-    let validation = random_targets(&mech, c.validation, c.seed ^ 0x5eed)?;
+    let validation = pkmcal::validation_targets(&mech, c.validation, c.seed)?;
     let bar = crate::io::progress(c.runs as u64, c.quiet, "calibrations", 1);
     let opts = MonteCarloOptions {
         runs: c.runs,

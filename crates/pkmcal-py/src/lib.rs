@@ -136,6 +136,35 @@ fn row<'a>(v: &'a ArrayView2<'_, f64>, i: usize) -> Cow<'a, [f64]> {
     }
 }
 
+/// `f` on every row of `rows`, spread over the cores with the GIL released,
+/// results in row order; an error names its row.
+fn per_row<T: Send>(
+    py: Python<'_>,
+    rows: &Rows<'_>,
+    f: impl Fn(&[f64]) -> pkmcal::Result<T> + Sync,
+) -> PyResult<Vec<T>> {
+    let v = rows.view();
+    py.detach(|| {
+        (0..v.nrows())
+            .into_par_iter()
+            .map(|i| f(&row(&v, i)).map_err(at(i)))
+            .collect::<pkmcal::Result<Vec<T>>>()
+    })
+    .map_err(lib_err)
+}
+
+/// Square matrices as a NumPy array (n, d, d), or (d, d) for one row in.
+fn stacked<'py>(
+    py: Python<'py>,
+    mats: &[&DMatrix<f64>],
+    d: usize,
+    single: bool,
+) -> PyResult<Bound<'py, PyAny>> {
+    let a = Array3::from_shape_fn((mats.len(), d, d), |(i, j, k)| mats[i][(j, k)]);
+    let a = a.into_pyarray(py).into_any();
+    if single { a.get_item(0) } else { Ok(a) }
+}
+
 fn rows<'py>(
     obj: &Bound<'py, PyAny>,
     what: &str,
@@ -861,22 +890,6 @@ fn measurements(
             }),
         })
         .collect())
-}
-
-fn loss_arg(loss: &str, scale: Option<f64>) -> PyResult<Loss> {
-    if let Some(k) = scale
-        && !(k.is_finite() && k > 0.0)
-    {
-        return Err(usage(format!("loss_scale must be positive, got {k}")));
-    }
-    match loss {
-        "squared" | "linear" => Ok(Loss::Squared),
-        "huber" => Ok(Loss::Huber(scale.unwrap_or(1.345))),
-        "cauchy" => Ok(Loss::Cauchy(scale.unwrap_or(2.385))),
-        other => Err(usage(format!(
-            "loss: unknown `{other}`; use \"squared\", \"huber\" or \"cauchy\""
-        ))),
-    }
 }
 
 fn noise_arg(length: f64, angle: Option<f64>) -> PyResult<Noise> {
@@ -1629,40 +1642,19 @@ fn predict<'py>(
     let p = params_arg(m, params, "params")?;
     let force = wrench(m, force, "force")?;
     let r = rows(commands, "commands", &m.actuators(), false)?;
-    let v = r.view();
-    let n = v.nrows();
     let cal_ref = cal.as_ref().map(|c| &c.get().cal);
     let mech = &*m.mech;
-    type Row = (pkmcal::Prediction, Option<DMatrix<f64>>);
-    let out: Vec<Row> = py
-        .detach(|| {
-            (0..n)
-                .into_par_iter()
-                .map(|i| {
-                    let c = row(&v, i);
-                    if uncertainty {
-                        let cal = cal_ref.expect("checked");
-                        let pose = pkmcal::prepare_pose(mech, &c, None).map_err(at(i))?;
-                        let (pr, cov) = pkmcal::tool_covariance(
-                            mech,
-                            &pose,
-                            &p,
-                            model,
-                            &force,
-                            &cal.parameter_covariance,
-                        )
-                        .map_err(at(i))?;
-                        Ok((pr, Some(cov)))
-                    } else {
-                        Ok((
-                            pkmcal::predict(mech, &p, &c, model, &force).map_err(at(i))?,
-                            None,
-                        ))
-                    }
-                })
-                .collect::<pkmcal::Result<Vec<Row>>>()
-        })
-        .map_err(lib_err)?;
+    let out: Vec<(pkmcal::Prediction, Option<DMatrix<f64>>)> = per_row(py, &r, |c| match cal_ref
+        .filter(|_| uncertainty)
+    {
+        Some(cal) => {
+            let pose = pkmcal::prepare_pose(mech, c, None)?;
+            let (pr, cov) =
+                pkmcal::tool_covariance(mech, &pose, &p, model, &force, &cal.parameter_covariance)?;
+            Ok((pr, Some(cov)))
+        }
+        None => Ok((pkmcal::predict(mech, &p, c, model, &force)?, None)),
+    })?;
     let nx = spec.tool_axes.len();
     let na = spec.n_actuated();
     let nj = spec.joints.len();
@@ -1670,17 +1662,8 @@ fn predict<'py>(
         out.iter().flat_map(|(p, _)| f(p).iter().copied()).collect()
     };
     let covariance = if uncertainty {
-        let mut a = Array3::<f64>::zeros((n, nx, nx));
-        for (i, (_, c)) in out.iter().enumerate() {
-            let c = c.as_ref().expect("asked for");
-            for j in 0..nx {
-                for k in 0..nx {
-                    a[(i, j, k)] = c[(j, k)];
-                }
-            }
-        }
-        let a = a.into_pyarray(py).into_any();
-        Some(if r.single { a.get_item(0)? } else { a }.unbind())
+        let mats: Vec<&DMatrix<f64>> = out.iter().filter_map(|(_, c)| c.as_ref()).collect();
+        Some(stacked(py, &mats, nx, r.single)?.unbind())
     } else {
         None
     };
@@ -1703,16 +1686,8 @@ fn nominal_commands<'py>(
 ) -> PyResult<Bound<'py, PyAny>> {
     let m = mech_ref(mechanism);
     let r = rows(targets, "targets", &m.spec().tool_axes, false)?;
-    let v = r.view();
     let mech = &*m.mech;
-    let out: Vec<Vec<f64>> = py
-        .detach(|| {
-            (0..v.nrows())
-                .into_par_iter()
-                .map(|i| pkmcal::nominal_commands(mech, &row(&v, i)).map_err(at(i)))
-                .collect::<pkmcal::Result<_>>()
-        })
-        .map_err(lib_err)?;
+    let out = per_row(py, &r, |t| pkmcal::nominal_commands(mech, t))?;
     Ok(out2(py, out.concat(), m.spec().n_actuated(), r.single))
 }
 
@@ -1810,7 +1785,7 @@ fn calibrate<'py>(
     let mut opts = CalibrationOptions::new(spec, parse_model(model)?);
     opts.free = free_arg(m, &mm, free, fix)?;
     opts.force = wrench(m, force, "force")?;
-    opts.loss = loss_arg(loss, loss_scale)?;
+    opts.loss = Loss::named(loss, loss_scale).map_err(lib_err)?;
     if !(outlier_threshold.is_finite() && outlier_threshold > 0.0) {
         return Err(usage(format!(
             "outlier_threshold must be a positive number of robust standard deviations, got {outlier_threshold}"
@@ -1978,22 +1953,14 @@ fn compensate<'py>(
         },
     };
     let r = rows(targets, "targets", &spec.tool_axes, false)?;
-    let v = r.view();
     let mech = &*m.mech;
-    let out: Vec<Option<pkmcal::Compensation>> = py
-        .detach(|| {
-            (0..v.nrows())
-                .into_par_iter()
-                .map(
-                    |i| match pkmcal::compensate(mech, &p, &row(&v, i), model, &opts) {
-                        Ok(c) => Ok(Some(c)),
-                        Err(_) if skip_unreachable => Ok(None),
-                        Err(e) => Err(at(i)(e)),
-                    },
-                )
-                .collect::<pkmcal::Result<_>>()
-        })
-        .map_err(lib_err)?;
+    let out: Vec<Option<pkmcal::Compensation>> = per_row(py, &r, |t| {
+        match pkmcal::compensate(mech, &p, t, model, &opts) {
+            Ok(c) => Ok(Some(c)),
+            Err(_) if skip_unreachable => Ok(None),
+            Err(e) => Err(e),
+        }
+    })?;
     let na = spec.n_actuated();
     let nj = spec.joints.len();
     let flat = |f: &dyn Fn(&pkmcal::Compensation) -> &Vec<f64>, w: usize| -> Vec<f64> {
@@ -2127,7 +2094,7 @@ fn montecarlo<'py>(
             for (i, t) in poses.iter().enumerate() {
                 pkmcal::nominal_commands(mech, t).map_err(at(i))?;
             }
-            let val = pkmcal::random_targets(mech, validation, seed ^ 0x5eed)?;
+            let val = pkmcal::validation_targets(mech, validation, seed)?;
             pkmcal::monte_carlo(mech, &poses, &val, &opts, &|| {})
         })
         .map_err(lib_err)?;
@@ -2168,27 +2135,10 @@ fn trilaterate<'py>(
     setup.validate(dim).map_err(lib_err)?;
     let cols: Vec<String> = (1..=setup.sockets.len()).map(|k| format!("d{k}")).collect();
     let r = rows(readings, "readings", &cols, false)?;
-    let v = r.view();
-    let out: Vec<(Vec<f64>, DMatrix<f64>)> = py
-        .detach(|| {
-            (0..v.nrows())
-                .into_par_iter()
-                .map(|i| pkmcal::trilaterate(&setup, &row(&v, i), sigma, None).map_err(at(i)))
-                .collect::<pkmcal::Result<_>>()
-        })
-        .map_err(lib_err)?;
-    let n = out.len();
-    let mut cov = Array3::<f64>::zeros((n, dim, dim));
-    for (i, (_, c)) in out.iter().enumerate() {
-        for j in 0..dim {
-            for k in 0..dim {
-                cov[(i, j, k)] = c[(j, k)];
-            }
-        }
-    }
+    let out = per_row(py, &r, |d| pkmcal::trilaterate(&setup, d, sigma, None))?;
     let x: Vec<f64> = out.iter().flat_map(|(x, _)| x.iter().copied()).collect();
-    let cov = cov.into_pyarray(py).into_any();
-    let cov = if r.single { cov.get_item(0)? } else { cov };
+    let mats: Vec<&DMatrix<f64>> = out.iter().map(|(_, c)| c).collect();
+    let cov = stacked(py, &mats, dim, r.single)?;
     Ok((out2(py, x, dim, r.single), cov))
 }
 

@@ -48,6 +48,32 @@ pub enum Loss {
 }
 
 impl Loss {
+    /// Huber's default tuning constant (95 % efficiency under Gaussian noise).
+    pub const HUBER_DEFAULT: f64 = 1.345;
+    /// Cauchy's default tuning constant (95 % efficiency).
+    pub const CAUCHY_DEFAULT: f64 = 2.385;
+
+    /// The loss named `squared`, `huber` or `cauchy`, with the tuning
+    /// constant `scale` (robust standard deviations; the default when
+    /// `None`).
+    pub fn named(name: &str, scale: Option<f64>) -> Result<Self> {
+        if let Some(k) = scale
+            && !(k.is_finite() && k > 0.0)
+        {
+            return Err(Error::InvalidRequest(format!(
+                "the loss scale must be positive, got {k}"
+            )));
+        }
+        match name {
+            "squared" | "linear" => Ok(Loss::Squared),
+            "huber" => Ok(Loss::Huber(scale.unwrap_or(Self::HUBER_DEFAULT))),
+            "cauchy" => Ok(Loss::Cauchy(scale.unwrap_or(Self::CAUCHY_DEFAULT))),
+            other => Err(Error::InvalidRequest(format!(
+                "loss: unknown `{other}`; use \"squared\", \"huber\" or \"cauchy\""
+            ))),
+        }
+    }
+
     /// IRLS weight `ψ(u)/u` of a standardised residual `u`.
     pub fn weight(self, u: f64) -> f64 {
         match self {

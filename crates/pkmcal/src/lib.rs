@@ -83,7 +83,7 @@ pub use models::{
     Equilibrium, Model, Pose, Prediction, equilibrium, predict, predict_pose, predict_pose_warm,
     prepare_pose,
 };
-pub use montecarlo::{MonteCarloOptions, MonteCarloSummary, monte_carlo};
+pub use montecarlo::{MonteCarloOptions, MonteCarloSummary, monte_carlo, validation_targets};
 pub use noise::NoiseGroup;
 pub use planar::{PlanarDescription, PlanarLinkage};
 pub use planning::{

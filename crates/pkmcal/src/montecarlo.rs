@@ -15,6 +15,17 @@ use rand_distr::{Distribution, Normal};
 use rayon::prelude::*;
 use serde::Serialize;
 
+/// The unseen poses a study is judged on: `count` random usable targets,
+/// drawn from a stream apart from the noise's (`seed` mixed with a constant),
+/// so that the CLI and the Python package judge the same study alike.
+pub fn validation_targets<M: Mechanism>(
+    mech: &M,
+    count: usize,
+    seed: u64,
+) -> Result<Vec<Vec<f64>>> {
+    crate::workspace::random_targets(mech, count, seed ^ 0x5eed)
+}
+
 /// Settings of a Monte Carlo study.
 #[derive(Debug, Clone)]
 pub struct MonteCarloOptions {
