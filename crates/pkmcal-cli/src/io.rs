@@ -847,7 +847,7 @@ struct Assembly {
 pub type Mech = AnyMechanism;
 
 /// The mechanism kinds a description file can give in `type`.
-pub const MECHANISM_TYPES: &str = "jeong-kim-2dof, planar, gough-stewart";
+pub const MECHANISM_TYPES: &str = "jeong-kim-2dof, planar, gough-stewart, spatial";
 
 /// Read a mechanism file, or the built-in reference when `path` is `None`.
 pub fn read_mechanism(path: Option<&Path>) -> Result<Mech> {
@@ -889,6 +889,12 @@ pub fn mechanism_from_str(text: &str) -> Result<Mech> {
                 "invalid Gough–Stewart description (docs/mechanisms.md shows the format)",
             )?;
             pkmcal::GoughStewart::new(&d)?.into()
+        }
+        "spatial" => {
+            let d: pkmcal::SpatialDescription = table.try_into().context(
+                "invalid spatial mechanism description (docs/mechanisms.md shows the format)",
+            )?;
+            pkmcal::SpatialMechanism::new(&d)?.into()
         }
         other => bail!("unknown mechanism type `{other}`; supported: {MECHANISM_TYPES}"),
     };

@@ -251,7 +251,7 @@ fn bad_mechanism_files_name_the_file_and_the_fix() {
             "o.csv",
         ],
         1,
-        "unknown mechanism type `delta`; supported: jeong-kim-2dof, planar, gough-stewart",
+        "unknown mechanism type `delta`; supported: jeong-kim-2dof, planar, gough-stewart, spatial",
     );
     let five = std::fs::read_to_string(example("five-bar")).unwrap();
     let cut = five.replace("[workspace]\nx = [-150.0, 150.0]\n", "[workspace]\n");

@@ -446,6 +446,7 @@ impl PyMechanism {
             AnyMechanism::JeongKim(_) => "jeong-kim-2dof",
             AnyMechanism::Planar(_) => "planar",
             AnyMechanism::GoughStewart(_) => "gough-stewart",
+            AnyMechanism::Spatial(_) => "spatial",
         }
     }
     /// Degrees of freedom.

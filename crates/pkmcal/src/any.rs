@@ -6,6 +6,7 @@ use crate::gough_stewart::GoughStewart;
 use crate::mechanism::{Mechanism, Scalar, Spec};
 use crate::planar::PlanarLinkage;
 use crate::reference::JeongKim2Dof;
+use crate::spatial::SpatialMechanism;
 use nalgebra::DMatrix;
 
 /// A mechanism of any shipped kind; it implements [`Mechanism`] by delegation.
@@ -17,6 +18,8 @@ pub enum AnyMechanism {
     Planar(PlanarLinkage),
     /// A Gough–Stewart platform.
     GoughStewart(GoughStewart),
+    /// A spatial mechanism from a description.
+    Spatial(SpatialMechanism),
 }
 
 macro_rules! each {
@@ -25,6 +28,7 @@ macro_rules! each {
             AnyMechanism::JeongKim($m) => $e,
             AnyMechanism::Planar($m) => $e,
             AnyMechanism::GoughStewart($m) => $e,
+            AnyMechanism::Spatial($m) => $e,
         }
     };
 }
@@ -37,6 +41,11 @@ impl From<JeongKim2Dof> for AnyMechanism {
 impl From<PlanarLinkage> for AnyMechanism {
     fn from(m: PlanarLinkage) -> Self {
         Self::Planar(m)
+    }
+}
+impl From<SpatialMechanism> for AnyMechanism {
+    fn from(m: SpatialMechanism) -> Self {
+        Self::Spatial(m)
     }
 }
 impl From<GoughStewart> for AnyMechanism {

@@ -360,3 +360,37 @@ pub fn inverse_kinematics<M: Mechanism>(mech: &M, rho: &[f64], target: &[f64]) -
     }
     Ok(q)
 }
+
+/// The independent joints: the first combination of `dof` actuated joints (in
+/// actuator order) whose complement is not singular at `q` (the rigid and
+/// linear models drive them); the first `dof` actuated joints if every
+/// combination is singular there.
+pub fn choose_independent<M: Mechanism>(mech: &M, q: &[f64], rho: &[f64]) -> Vec<usize> {
+    let spec = mech.spec();
+    let dof = spec.joints.len() - spec.n_constraints;
+    let l = spec.actuated.len();
+    let j = jacobians(mech, q, rho, 0..q.len());
+    let mut pick: Vec<usize> = (0..dof).collect();
+    loop {
+        let ind: Vec<usize> = pick.iter().map(|&a| spec.actuated[a]).collect();
+        let dep: Vec<usize> = (0..q.len()).filter(|i| !ind.contains(i)).collect();
+        if checked_lu(j.dg.select_columns(&dep)).is_some() {
+            return ind;
+        }
+        // Next combination in lexicographic order.
+        let mut k = dof;
+        loop {
+            if k == 0 {
+                return spec.actuated[..dof].to_vec();
+            }
+            k -= 1;
+            if pick[k] < l - dof + k {
+                pick[k] += 1;
+                for m in k + 1..dof {
+                    pick[m] = pick[m - 1] + 1;
+                }
+                break;
+            }
+        }
+    }
+}

@@ -55,6 +55,7 @@ pub mod planning;
 pub mod reference;
 pub mod sensitivity;
 pub mod simulate;
+pub mod spatial;
 pub mod stats;
 pub mod units;
 pub mod workspace;
@@ -91,6 +92,7 @@ pub use planning::{
     plan_poses_with_progress,
 };
 pub use reference::JeongKim2Dof;
+pub use spatial::{SpatialDescription, SpatialMechanism};
 pub use simulate::{Measurement, Noise, Origin, simulate, simulate_with_progress};
 pub use stats::{ErrorStats, error_stats, improvement_percent};
 pub use units::{AngleUnit, FileUnits, LengthUnit, ParamKind, PartialUnits, Quantity, Role, Unit};

@@ -28,7 +28,7 @@
 //!   actuators: N·m/rad; prismatic ones: N/mm (one kind per linkage).
 
 use crate::error::{Error, Result};
-use crate::kinematics::{checked_lu, solve_closure};
+use crate::kinematics::solve_closure;
 use crate::mechanism::{Mechanism, Scalar, Spec};
 use crate::units::Unit;
 use serde::Deserialize;
@@ -174,15 +174,15 @@ pub struct PlanarLinkage {
 }
 
 /// Collects parameter names and nominal values in order of first use.
-struct Names<'a> {
-    names: Vec<String>,
-    values: Vec<f64>,
-    units: Vec<Unit>,
-    given: &'a BTreeMap<String, f64>,
+pub(crate) struct Names<'a> {
+    pub(crate) names: Vec<String>,
+    pub(crate) values: Vec<f64>,
+    pub(crate) units: Vec<Unit>,
+    pub(crate) given: &'a BTreeMap<String, f64>,
 }
 
 impl Names<'_> {
-    fn add(&mut self, v: &Value, derived: String, unit: Unit) -> Result<usize> {
+    pub(crate) fn add(&mut self, v: &Value, derived: String, unit: Unit) -> Result<usize> {
         let (name, value) = match v {
             Value::Number(x) => (derived, *x),
             Value::Name(n) => {
@@ -554,7 +554,7 @@ impl PlanarLinkage {
                 }
                 idx
             }
-            None => linkage.choose_independent(&q0, &rho),
+            None => crate::kinematics::choose_independent(&linkage, &q0, &rho),
         };
         linkage.spec.joint_scale = d
             .joints
@@ -586,38 +586,6 @@ impl PlanarLinkage {
     /// Names of the bodies (ground first).
     pub fn n_bodies(&self) -> usize {
         self.n_bodies
-    }
-
-    /// The first combination of actuated joints (in order) whose complement is
-    /// not singular at `q`.
-    fn choose_independent(&self, q: &[f64], rho: &[f64]) -> Vec<usize> {
-        let spec = &self.spec;
-        let dof = spec.joints.len() - spec.n_constraints;
-        let l = spec.actuated.len();
-        let j = crate::autodiff::jacobians(self, q, rho, 0..q.len());
-        let mut pick: Vec<usize> = (0..dof).collect();
-        loop {
-            let ind: Vec<usize> = pick.iter().map(|&a| spec.actuated[a]).collect();
-            let dep: Vec<usize> = (0..q.len()).filter(|i| !ind.contains(i)).collect();
-            if checked_lu(j.dg.select_columns(&dep)).is_some() {
-                return ind;
-            }
-            // Next combination in lexicographic order.
-            let mut k = dof;
-            loop {
-                if k == 0 {
-                    return spec.actuated[..dof].to_vec();
-                }
-                k -= 1;
-                if pick[k] < l - dof + k {
-                    pick[k] += 1;
-                    for m in k + 1..dof {
-                        pick[m] = pick[m - 1] + 1;
-                    }
-                    break;
-                }
-            }
-        }
     }
 
     /// Body poses `[x, y, θ]` from the tree joints.

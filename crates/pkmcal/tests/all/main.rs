@@ -13,4 +13,5 @@ mod measurements;
 mod nist_strd;
 mod noise;
 mod planar;
+mod spatial;
 mod use_calibration;

@@ -105,3 +105,24 @@ pub fn spread<M: pkmcal::Mechanism>(m: &M, n: usize) -> Vec<Vec<f64>> {
         .map(|p| p.target)
         .collect()
 }
+
+pub fn spatial(name: &str) -> pkmcal::SpatialMechanism {
+    let d: pkmcal::SpatialDescription = table(name).try_into().unwrap();
+    pkmcal::SpatialMechanism::new(&d).unwrap()
+}
+
+/// Seeded random errors by unit: ± `mm` on lengths, ± `rad` on angles and
+/// encoder offsets in rad (offsets in mm get ± `mm`).
+pub fn perturbed_by_unit(spec: &pkmcal::Spec, seed: u64, mm: f64, rad: f64) -> pkmcal::Params {
+    let mut rng = <rand::rngs::StdRng as rand::SeedableRng>::seed_from_u64(seed);
+    let mut p = pkmcal::Params::nominal(spec);
+    let n = spec.n_geometric() + spec.n_actuated();
+    for (i, v) in p.values[..n].iter_mut().enumerate() {
+        let r = match spec.param_unit(i) {
+            pkmcal::Unit::Radian => rad,
+            _ => mm,
+        };
+        *v += rand::RngExt::random_range(&mut rng, -r..r);
+    }
+    p
+}

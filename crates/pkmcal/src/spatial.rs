@@ -1,0 +1,1267 @@
+//! Spatial parallel mechanisms described as a platform and legs
+//! ([`SpatialDescription`], plain data a user writes in TOML), turned into a
+//! [`Mechanism`] ([`SpatialMechanism`]) whose loop closure (docs/model.md
+//! eq. 3) and parameter names are derived from the description.
+//!
+//! Conventions (docs/mechanisms.md explains them with examples):
+//!
+//! - The base frame is the measurement frame. The platform (the moving body)
+//!   has a frame whose origin is at `(x, y, z)` in the base frame; with
+//!   `motion = "full"` it turns by `R = Rz(rz) · Ry(ry) · Rx(rx)` (as on a
+//!   Gough–Stewart platform), with `motion = "translation"` it keeps the base
+//!   frame's orientation (a delta robot's parallelograms).
+//! - Each leg is a chain from the base to the platform. Its frame starts at
+//!   the base origin, turned about the base z axis by the leg's `angle` (if
+//!   given). Each joint of the chain sits at `at` in the current frame and
+//!   moves along or about `axis` (a direction in the current frame, tilted by
+//!   the joint's two tilt parameters); a revolute joint turns the frame that
+//!   follows by `q` (rad), a prismatic joint moves it `q` (mm) along the axis.
+//! - The chain ends at the point `at` of the last frame and meets the platform
+//!   point `platform` (platform frame) through its `end`:
+//!   - `spherical`: the two points coincide (three equations);
+//!   - `rod`: a link between two spherical joints (a Gough–Stewart leg, a
+//!     delta's parallelogram) keeps them `length` apart (one equation); an
+//!     actuated rod's length is a joint (a Gough–Stewart leg).
+//! - Joints `q = [each leg's joints (and actuated rod), in file order, then
+//!   the platform coordinates]`. The tool coordinates are the platform
+//!   coordinates (or the subset `tool` names, as many as degrees of freedom).
+//! - Every number of the geometry is a parameter. Its name is the one the user
+//!   writes (a string in place of a number, its value in `[parameters]`; one
+//!   name used twice is one parameter) or derived: `<leg>.angle`, `<joint>.x`,
+//!   `<joint>.y`, `<joint>.z`, `<joint>.tilt1`, `<joint>.tilt2`, `<leg>.ex`,
+//!   `<leg>.ey`, `<leg>.ez` (chain end), `<leg>.px`, `<leg>.py`, `<leg>.pz`
+//!   (platform point), `<leg>.length` (rod).
+//! - A joint's axis is `n + tan(tilt1) e1 + tan(tilt2) e2`, normalised, where
+//!   `n` is the written `axis` (normalised), `e1` is `n × z` normalised (`x`
+//!   when `n` is along `z`) and `e2 = n × e1`: the tilts turn the axis by
+//!   small angles about two directions across it.
+//! - An actuated joint `J` has the encoder offset `dJ` and the stiffness `kN`
+//!   where `N` is `J` without a leading `q`. Revolute actuators: N·m/rad;
+//!   prismatic ones and actuated rods: N/mm (one kind per mechanism).
+
+use crate::error::{Error, Result};
+use crate::mechanism::{Mechanism, Scalar, Spec};
+use crate::planar::{Names, Value, stiffness_name};
+use crate::units::Unit;
+use serde::Deserialize;
+use std::collections::BTreeMap;
+
+/// Workspace configurations kept for starting forward kinematics.
+const ATLAS_POINTS: usize = 800;
+
+/// Names of the platform coordinates, in order (`motion = "full"`; the first
+/// three with `motion = "translation"`).
+pub const PLATFORM_AXES: [&str; 6] = ["x", "y", "z", "rx", "ry", "rz"];
+
+/// How the platform moves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Motion {
+    /// Position only, orientation fixed (delta robots): coordinates `x y z`.
+    Translation,
+    /// Position and orientation: `x y z rx ry rz`.
+    Full,
+}
+
+impl Motion {
+    /// Number of platform coordinates.
+    pub fn coordinates(self) -> usize {
+        match self {
+            Motion::Translation => 3,
+            Motion::Full => 6,
+        }
+    }
+}
+
+/// Revolute or prismatic.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SpatialJointKind {
+    /// Rotation about the axis (coordinate in rad).
+    Revolute,
+    /// Translation along the axis (coordinate in mm).
+    Prismatic,
+}
+
+/// How a leg's chain meets the platform.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum EndKind {
+    /// A spherical joint: the chain's end point is the platform point.
+    Spherical,
+    /// A rod between two spherical joints: the points are `length` apart.
+    Rod,
+}
+
+fn origin() -> [Value; 3] {
+    [Value::Number(0.0), Value::Number(0.0), Value::Number(0.0)]
+}
+
+/// One joint of a leg's chain.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpatialJoint {
+    /// Joint name (the coordinate's name in `q`, and the command column when
+    /// actuated).
+    pub name: String,
+    /// Revolute or prismatic.
+    pub kind: SpatialJointKind,
+    /// Position of the joint in the current frame (mm); the origin if left out.
+    #[serde(default = "origin")]
+    pub at: [Value; 3],
+    /// Direction of the joint's axis in the current frame (normalised).
+    pub axis: [f64; 3],
+    /// The axis's two tilts (rad); 0 if left out.
+    #[serde(default)]
+    pub tilt: Option<[Value; 2]>,
+    /// Whether a motor drives it.
+    #[serde(default)]
+    pub actuated: bool,
+    /// Stiffness of the actuated joint (N·m/rad or N/mm).
+    #[serde(default)]
+    pub stiffness: Option<f64>,
+}
+
+/// The end of a leg: how its chain meets the platform.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LegEnd {
+    /// Spherical joint or rod.
+    pub kind: EndKind,
+    /// The chain's end point in the last joint's frame (the leg's frame when
+    /// it has no joint), mm; the origin if left out.
+    #[serde(default = "origin")]
+    pub at: [Value; 3],
+    /// The point on the platform, in the platform frame (mm).
+    pub platform: [Value; 3],
+    /// Rod: its length (mm), unless actuated.
+    #[serde(default)]
+    pub length: Option<Value>,
+    /// Actuated rod: the name of its length coordinate.
+    #[serde(default)]
+    pub name: Option<String>,
+    /// Whether the rod's length is driven (a Gough–Stewart leg).
+    #[serde(default)]
+    pub actuated: bool,
+    /// Axial stiffness of an actuated rod (N/mm).
+    #[serde(default)]
+    pub stiffness: Option<f64>,
+}
+
+/// One leg: a chain of joints from the base, and its end.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpatialLeg {
+    /// Leg name (prefix of its derived parameter names).
+    pub name: String,
+    /// Rotation of the leg's frame about the base z axis (rad), if any.
+    #[serde(default)]
+    pub angle: Option<Value>,
+    /// The joints from the base outward.
+    #[serde(rename = "joint", default)]
+    pub joints: Vec<SpatialJoint>,
+    /// How the chain meets the platform.
+    pub end: LegEnd,
+}
+
+/// The moving platform.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpatialPlatform {
+    /// Translation only, or full pose.
+    pub motion: Motion,
+    /// The tool axes among the platform coordinates (as many as degrees of
+    /// freedom); all of them if left out.
+    #[serde(default)]
+    pub tool: Option<Vec<String>>,
+}
+
+/// The reference configuration: the platform coordinates and approximate
+/// values of every chain joint on the wanted assembly branch.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+pub struct SpatialAssembly {
+    /// Platform coordinates `[x, y, z]` or `[x, y, z, rx, ry, rz]` (mm, rad);
+    /// the tool axes are kept, the rest is polished so that the legs close.
+    pub pose: Vec<f64>,
+    /// Approximate values of the chain joints (rad, mm), by name.
+    #[serde(flatten)]
+    pub joints: BTreeMap<String, f64>,
+}
+
+/// A spatial parallel mechanism as a user describes it.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpatialDescription {
+    /// Human-readable name.
+    #[serde(default)]
+    pub name: Option<String>,
+    /// The platform.
+    pub platform: SpatialPlatform,
+    /// The legs.
+    #[serde(rename = "leg")]
+    pub legs: Vec<SpatialLeg>,
+    /// Values of the named parameters.
+    #[serde(default)]
+    pub parameters: BTreeMap<String, f64>,
+    /// The reference configuration (assembly mode).
+    pub assembly: SpatialAssembly,
+    /// Box `[min, max]` per tool axis.
+    pub workspace: BTreeMap<String, [f64; 2]>,
+    /// Parameters identified by default (all geometric parameters and encoder
+    /// offsets if left out).
+    #[serde(default)]
+    pub free: Option<Vec<String>>,
+    /// Independent joints (as many as degrees of freedom, all actuated); the
+    /// first actuated joints that are not singular at the reference if left
+    /// out.
+    #[serde(default)]
+    pub independent: Option<Vec<String>>,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+struct JointIx {
+    kind: SpatialJointKind,
+    /// Index in `q`.
+    q: usize,
+    at: [usize; 3],
+    tilt: [usize; 2],
+    /// `n`, `e1`, `e2` of the axis.
+    basis: [[f64; 3]; 3],
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Rod {
+    /// A fixed length: the parameter's index.
+    Fixed(usize),
+    /// An actuated length: the joint's index.
+    Joint(usize),
+}
+
+#[derive(Debug, Clone, PartialEq)]
+struct LegIx {
+    angle: Option<usize>,
+    joints: Vec<JointIx>,
+    end_at: [usize; 3],
+    platform: [usize; 3],
+    /// `None` for a spherical end.
+    rod: Option<Rod>,
+    /// First constraint row.
+    row: usize,
+    /// Every variable of `v = [q; ρ]` the leg's equations depend on, sorted
+    /// (its joints, the platform coordinates, then its parameters).
+    vars: Vec<usize>,
+    /// How many of `vars` are joints.
+    n_joint_vars: usize,
+}
+
+/// A spatial parallel mechanism built from a [`SpatialDescription`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct SpatialMechanism {
+    spec: Spec,
+    legs: Vec<LegIx>,
+    leg_names: Vec<String>,
+    motion: Motion,
+    /// Index in `q` of the first platform coordinate.
+    pose0: usize,
+    /// Platform coordinate (0..6) of each tool axis.
+    tool: Vec<usize>,
+    /// Characteristic length (mm): the mean of the joint offsets and rod
+    /// lengths.
+    length: f64,
+    atlas: crate::workspace::Atlas,
+    /// [`crate::kinematics::branch_signs`] at the reference configuration.
+    branch: [i8; 2],
+    /// Sign of each leg's own inverse-kinematics determinant (its equations
+    /// against its joints, the platform held) at the reference: its working
+    /// mode. Empty when some leg has not as many joints as equations.
+    leg_signs: Vec<i8>,
+}
+
+fn bad<T>(m: String) -> Result<T> {
+    Err(Error::InvalidMechanism(m))
+}
+
+type Mat<D> = [[D; 3]; 3];
+
+fn identity<D: Scalar>() -> Mat<D> {
+    let (o, l) = (D::from(0.0), D::from(1.0));
+    [[l, o, o], [o, l, o], [o, o, l]]
+}
+
+fn mat_mul<D: Scalar>(a: &Mat<D>, b: &Mat<D>) -> Mat<D> {
+    let mut c = [[D::from(0.0); 3]; 3];
+    for (i, row) in c.iter_mut().enumerate() {
+        for (j, v) in row.iter_mut().enumerate() {
+            *v = a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j];
+        }
+    }
+    c
+}
+
+fn apply<D: Scalar>(r: &Mat<D>, v: [D; 3]) -> [D; 3] {
+    [0, 1, 2].map(|i| r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2])
+}
+
+/// Rotation by `t` about the unit axis `u` (Rodrigues).
+fn rotation_about<D: Scalar>(u: [D; 3], t: D) -> Mat<D> {
+    let (s, c) = t.sin_cos();
+    let v = D::from(1.0) - c;
+    [
+        [c + u[0] * u[0] * v, u[0] * u[1] * v - u[2] * s, u[0] * u[2] * v + u[1] * s],
+        [u[1] * u[0] * v + u[2] * s, c + u[1] * u[1] * v, u[1] * u[2] * v - u[0] * s],
+        [u[2] * u[0] * v - u[1] * s, u[2] * u[1] * v + u[0] * s, c + u[2] * u[2] * v],
+    ]
+}
+
+fn normalized(v: [f64; 3]) -> [f64; 3] {
+    let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    v.map(|c| c / n)
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+/// `n`, `e1 = n × z` (normalised; `x` when `n` is along `z`), `e2 = n × e1`.
+fn axis_basis(axis: [f64; 3]) -> [[f64; 3]; 3] {
+    let n = normalized(axis);
+    let c = cross(n, [0.0, 0.0, 1.0]);
+    let e1 = if c.iter().map(|v| v * v).sum::<f64>() < 1e-12 {
+        [1.0, 0.0, 0.0]
+    } else {
+        normalized(c)
+    };
+    [n, e1, cross(n, e1)]
+}
+
+impl JointIx {
+    /// The tilted unit axis in the current frame.
+    fn axis<D: Scalar>(&self, rho: &impl Fn(usize) -> D) -> [D; 3] {
+        let (t1, t2) = (rho(self.tilt[0]).tan(), rho(self.tilt[1]).tan());
+        let [n, e1, e2] = self.basis;
+        let v = [0, 1, 2].map(|k| D::from(n[k]) + t1 * e1[k] + t2 * e2[k]);
+        let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        v.map(|c| c / len)
+    }
+}
+
+impl LegIx {
+    /// Number of equations.
+    fn rows(&self) -> usize {
+        if self.rod.is_some() { 1 } else { 3 }
+    }
+    /// The leg's joints in `q` (chain, then actuated rod): a contiguous range.
+    fn unknowns(&self) -> std::ops::Range<usize> {
+        let last = match self.rod {
+            Some(Rod::Joint(i)) => Some(i),
+            _ => self.joints.last().map(|j| j.q),
+        };
+        match (self.joints.first(), last) {
+            (Some(j), Some(l)) => j.q..l + 1,
+            (None, Some(l)) => l..l + 1,
+            _ => 0..0,
+        }
+    }
+}
+
+/// Most Newton iterations of one leg's inverse kinematics.
+const LEG_NEWTON: usize = 50;
+
+impl SpatialMechanism {
+    /// Leg `leg`'s equations and their derivatives with respect to its own
+    /// joints (a square system: at most three of each).
+    fn leg_system(&self, leg: &LegIx, q: &[f64], rho: &[f64]) -> (nalgebra::DVector<f64>, nalgebra::DMatrix<f64>) {
+        use nalgebra::{Const, U1};
+        use num_dual::DualSVec64;
+        type D = DualSVec64<3>;
+        let cols = leg.unknowns();
+        let n = leg.rows();
+        let mut out = [D::from_re(0.0); 3];
+        let seed = |i: usize, x: f64| {
+            if cols.contains(&i) {
+                D::from_re(x).derivative(i - cols.start)
+            } else {
+                D::from_re(x)
+            }
+        };
+        self.leg_residual(leg, &|i| seed(i, q[i]), &|i| D::from_re(rho[i]), &mut out[..n]);
+        let g = nalgebra::DVector::from_iterator(n, out[..n].iter().map(|d| d.re));
+        let j = nalgebra::DMatrix::from_fn(n, cols.len(), |r, c| {
+            out[r].eps.unwrap_generic(Const::<3>, U1)[c]
+        });
+        (g, j)
+    }
+
+    /// Sign of the determinant of leg `i`'s equations against its joints.
+    fn leg_sign(&self, i: usize, q: &[f64], rho: &[f64]) -> i8 {
+        let (_, j) = self.leg_system(&self.legs[i], q, rho);
+        let d = j.determinant();
+        if d > 0.0 {
+            1
+        } else if d < 0.0 {
+            -1
+        } else {
+            0
+        }
+    }
+
+    /// Inverse kinematics leg by leg when the target fixes the platform: each
+    /// leg's joints by Newton on its own equations from the reference
+    /// configuration (an actuated rod alone: its length), checked to keep the
+    /// leg's working mode.
+    fn ik_by_leg(&self, target: &[f64], rho: &[f64]) -> Result<Vec<f64>> {
+        let mut q = self.spec.reference_q.clone();
+        for (&k, &t) in self.tool.iter().zip(target) {
+            q[self.pose0 + k] = t;
+        }
+        let unreachable = |reason: String| Error::Unreachable {
+            target: target.to_vec(),
+            reason,
+        };
+        for (i, (leg, name)) in self.legs.iter().zip(&self.leg_names).enumerate() {
+            let cols = leg.unknowns();
+            if let (true, Some(Rod::Joint(l))) = (leg.joints.is_empty(), leg.rod) {
+                let (e, w) = self.leg_points(leg, &q, rho);
+                let d = (0..3).map(|k| (w[k] - e[k]).powi(2)).sum::<f64>().sqrt();
+                if d < 1e-9 {
+                    return Err(unreachable(format!("leg `{name}` would have zero length")));
+                }
+                q[l] = d;
+                continue;
+            }
+            let mut converged = false;
+            let mut residual = f64::INFINITY;
+            for _ in 0..LEG_NEWTON {
+                let (g, a) = self.leg_system(leg, &q, rho);
+                residual = g.amax();
+                let step = crate::kinematics::solve_square(a, g).ok_or_else(|| {
+                    unreachable(format!("leg `{name}` meets a singularity on the way"))
+                })?;
+                let big = step.amax();
+                if !big.is_finite() {
+                    break;
+                }
+                // Damped: at most 0.5 rad, or half the characteristic
+                // length on a prismatic joint, at once.
+                let turn = cols
+                    .clone()
+                    .zip(step.iter())
+                    .map(|(c, d)| match self.spec.joint_units[c] {
+                        Unit::Radian => d.abs(),
+                        _ => d.abs() / self.length,
+                    })
+                    .fold(0.0, f64::max);
+                let scale = if turn > 0.5 { 0.5 / turn } else { 1.0 };
+                for (k, c) in cols.clone().enumerate() {
+                    q[c] -= scale * step[k];
+                }
+                if big < 10.0 * crate::kinematics::STEP_TOL {
+                    converged = true;
+                    break;
+                }
+            }
+            let scale = rho.iter().fold(1.0f64, |m, v| m.max(v.abs()));
+            if !converged && !(residual < 1e-9 * scale) {
+                return Err(unreachable(format!(
+                    "leg `{name}` cannot reach the platform there"
+                )));
+            }
+            if self.leg_signs[i] != 0 && self.leg_sign(i, &q, rho) != self.leg_signs[i] {
+                return Err(unreachable(format!(
+                    "leg `{name}` would have to change its working mode (the way from the reference configuration crosses a singularity)"
+                )));
+            }
+        }
+        Ok(q)
+    }
+
+    /// Build the mechanism: derive names and constraints, check the
+    /// description, polish the reference configuration and choose the
+    /// independent joints.
+    pub fn new(d: &SpatialDescription) -> Result<Self> {
+        if d.legs.is_empty() {
+            return bad("a spatial mechanism needs at least one [[leg]]".into());
+        }
+        let mut names = Names {
+            names: vec![],
+            values: vec![],
+            units: vec![],
+            given: &d.parameters,
+        };
+        let motion = d.platform.motion;
+        let pose_axes = &PLATFORM_AXES[..motion.coordinates()];
+        let mut used: Vec<String> = vec![];
+        let mut claim = |name: &str, what: &str| -> Result<()> {
+            if name.is_empty() || name.contains(char::is_whitespace) {
+                return bad(format!(
+                    "{what} `{name}`: names must be non-empty and without spaces"
+                ));
+            }
+            if used.iter().any(|u| u == name) || PLATFORM_AXES.contains(&name) {
+                return bad(format!(
+                    "{what} `{name}`: the name is already used (leg and joint names must differ from each other and from x y z rx ry rz)"
+                ));
+            }
+            used.push(name.to_string());
+            Ok(())
+        };
+        let mut legs = Vec::with_capacity(d.legs.len());
+        let mut joint_names: Vec<String> = vec![];
+        let mut joint_units: Vec<Unit> = vec![];
+        let mut actuated: Vec<usize> = vec![];
+        let mut stiffness: Vec<f64> = vec![];
+        let mut revolute_actuator: Vec<bool> = vec![];
+        let mut row = 0;
+        let mm = Unit::Millimetre;
+        for leg in &d.legs {
+            claim(&leg.name, "leg")?;
+            let ln = &leg.name;
+            let angle = match &leg.angle {
+                Some(v) => Some(names.add(v, format!("{ln}.angle"), Unit::Radian)?),
+                None => None,
+            };
+            let mut joints = Vec::with_capacity(leg.joints.len());
+            for j in &leg.joints {
+                claim(&j.name, &format!("leg `{ln}`: joint"))?;
+                let jn = &j.name;
+                let len2: f64 = j.axis.iter().map(|v| v * v).sum();
+                if !(len2.is_finite() && len2 > 1e-18) {
+                    return bad(format!(
+                        "leg `{ln}`, joint `{jn}`: `axis` must be a non-zero direction [x, y, z]"
+                    ));
+                }
+                let at = [
+                    names.add(&j.at[0], format!("{jn}.x"), mm)?,
+                    names.add(&j.at[1], format!("{jn}.y"), mm)?,
+                    names.add(&j.at[2], format!("{jn}.z"), mm)?,
+                ];
+                let zero = [Value::Number(0.0), Value::Number(0.0)];
+                let t = j.tilt.as_ref().unwrap_or(&zero);
+                let tilt = [
+                    names.add(&t[0], format!("{jn}.tilt1"), Unit::Radian)?,
+                    names.add(&t[1], format!("{jn}.tilt2"), Unit::Radian)?,
+                ];
+                let q = joint_names.len();
+                joint_names.push(jn.clone());
+                joint_units.push(match j.kind {
+                    SpatialJointKind::Revolute => Unit::Radian,
+                    SpatialJointKind::Prismatic => mm,
+                });
+                let unit = if j.kind == SpatialJointKind::Revolute {
+                    "N·m/rad"
+                } else {
+                    "N/mm"
+                };
+                match (j.actuated, j.stiffness) {
+                    (true, Some(k)) if k.is_finite() && k > 0.0 => {
+                        actuated.push(q);
+                        stiffness.push(k);
+                        revolute_actuator.push(j.kind == SpatialJointKind::Revolute);
+                    }
+                    (true, _) => {
+                        return bad(format!(
+                            "leg `{ln}`: actuated joint `{jn}` needs a positive `stiffness` ({unit})"
+                        ));
+                    }
+                    (false, Some(_)) => {
+                        return bad(format!(
+                            "leg `{ln}`: joint `{jn}` has a stiffness but is not actuated; only actuated joints are compliant"
+                        ));
+                    }
+                    (false, None) => {}
+                }
+                joints.push(JointIx {
+                    kind: j.kind,
+                    q,
+                    at,
+                    tilt,
+                    basis: axis_basis(j.axis),
+                });
+            }
+            let e = &leg.end;
+            let end_at = [
+                names.add(&e.at[0], format!("{ln}.ex"), mm)?,
+                names.add(&e.at[1], format!("{ln}.ey"), mm)?,
+                names.add(&e.at[2], format!("{ln}.ez"), mm)?,
+            ];
+            let platform = [
+                names.add(&e.platform[0], format!("{ln}.px"), mm)?,
+                names.add(&e.platform[1], format!("{ln}.py"), mm)?,
+                names.add(&e.platform[2], format!("{ln}.pz"), mm)?,
+            ];
+            let rod = match (e.kind, e.actuated) {
+                (EndKind::Spherical, _) => {
+                    if e.actuated || e.length.is_some() || e.name.is_some() || e.stiffness.is_some()
+                    {
+                        return bad(format!(
+                            "leg `{ln}`: a spherical end has no `length`, `name`, `actuated` or `stiffness` (those are for rods)"
+                        ));
+                    }
+                    None
+                }
+                (EndKind::Rod, false) => {
+                    let Some(l) = &e.length else {
+                        return bad(format!(
+                            "leg `{ln}`: a rod needs `length = …` (mm), or `actuated = true` with a `name` when its length is driven"
+                        ));
+                    };
+                    if e.name.is_some() || e.stiffness.is_some() {
+                        return bad(format!(
+                            "leg `{ln}`: `name` and `stiffness` are for actuated rods; add `actuated = true` or remove them"
+                        ));
+                    }
+                    Some(Rod::Fixed(names.add(l, format!("{ln}.length"), mm)?))
+                }
+                (EndKind::Rod, true) => {
+                    if e.length.is_some() {
+                        return bad(format!(
+                            "leg `{ln}`: an actuated rod's length is a joint; remove `length`"
+                        ));
+                    }
+                    let Some(jn) = &e.name else {
+                        return bad(format!(
+                            "leg `{ln}`: an actuated rod needs `name = \"…\"` for its length (the command column)"
+                        ));
+                    };
+                    claim(jn, &format!("leg `{ln}`: rod"))?;
+                    let Some(k) = e.stiffness.filter(|k| k.is_finite() && *k > 0.0) else {
+                        return bad(format!(
+                            "leg `{ln}`: actuated rod `{jn}` needs a positive axial `stiffness` (N/mm)"
+                        ));
+                    };
+                    let q = joint_names.len();
+                    joint_names.push(jn.clone());
+                    joint_units.push(mm);
+                    actuated.push(q);
+                    stiffness.push(k);
+                    revolute_actuator.push(false);
+                    Some(Rod::Joint(q))
+                }
+            };
+            legs.push(LegIx {
+                angle,
+                joints,
+                end_at,
+                platform,
+                rod,
+                row,
+                vars: vec![],
+                n_joint_vars: 0,
+            });
+            row += if rod.is_some() { 1 } else { 3 };
+        }
+        for n in d.parameters.keys() {
+            if !names.names.contains(n) {
+                return bad(format!("[parameters]: `{n}` is not used by any leg"));
+            }
+        }
+        let nc = row;
+        let pose0 = joint_names.len();
+        joint_names.extend(pose_axes.iter().map(|s| s.to_string()));
+        joint_units.extend(
+            pose_axes
+                .iter()
+                .map(|a| if a.starts_with('r') { Unit::Radian } else { mm }),
+        );
+        let nq = joint_names.len();
+        for leg in &mut legs {
+            let mut v: Vec<usize> = leg.unknowns().chain(pose0..nq).collect();
+            leg.n_joint_vars = v.len();
+            let mut p: Vec<usize> = leg.angle.into_iter().collect();
+            for j in &leg.joints {
+                p.extend(j.at);
+                p.extend(j.tilt);
+            }
+            p.extend(leg.end_at);
+            p.extend(leg.platform);
+            if let Some(Rod::Fixed(i)) = leg.rod {
+                p.push(i);
+            }
+            p.sort_unstable();
+            p.dedup();
+            v.extend(p.into_iter().map(|i| nq + i));
+            leg.vars = v;
+        }
+        if nc >= nq {
+            return bad(format!(
+                "{} legs impose {nc} equations on {nq} joint and platform coordinates: no degree of freedom is left; a leg has too few joints",
+                d.legs.len()
+            ));
+        }
+        let dof = nq - nc;
+        if dof > motion.coordinates() {
+            return bad(format!(
+                "the legs leave {dof} degrees of freedom, more than the platform's {} coordinates: some leg has joints that move freely; remove joints or add legs",
+                motion.coordinates()
+            ));
+        }
+        if actuated.len() < dof {
+            return bad(format!(
+                "the mechanism has {dof} degrees of freedom but only {} actuated joints",
+                actuated.len()
+            ));
+        }
+        if revolute_actuator.iter().any(|r| *r != revolute_actuator[0]) {
+            return bad(
+                "mixing revolute and prismatic actuators is not supported (their stiffness units differ)"
+                    .into(),
+            );
+        }
+        let tool_axes: Vec<String> = match &d.platform.tool {
+            Some(t) => t.clone(),
+            None => pose_axes.iter().map(|s| s.to_string()).collect(),
+        };
+        let mut tool = Vec::with_capacity(tool_axes.len());
+        for a in &tool_axes {
+            match pose_axes.iter().position(|p| p == a) {
+                Some(i) if !tool.contains(&i) => tool.push(i),
+                Some(_) => return bad(format!("[platform] `tool`: `{a}` is listed twice")),
+                None => {
+                    return bad(format!(
+                        "[platform] `tool`: `{a}` is not a platform coordinate ({})",
+                        pose_axes.join(" ")
+                    ));
+                }
+            }
+        }
+        if tool.len() != dof {
+            return bad(format!(
+                "the mechanism has {dof} degrees of freedom but {} tool axes ({}); list {dof} of {} as `tool = [...]` in [platform]",
+                tool.len(),
+                tool_axes.join(", "),
+                pose_axes.join(" ")
+            ));
+        }
+        let workspace_box = crate::workspace::box_from_description(&tool_axes, &d.workspace)?;
+        let offsets: Vec<String> = actuated
+            .iter()
+            .map(|&i| format!("d{}", joint_names[i]))
+            .collect();
+        let stiffness_names: Vec<String> = actuated
+            .iter()
+            .map(|&i| stiffness_name(&joint_names[i]))
+            .collect();
+        let mut nominal = names.values.clone();
+        nominal.extend(std::iter::repeat_n(0.0, actuated.len()));
+        nominal.extend(&stiffness);
+        let geometric = names.names.clone();
+        let free = match &d.free {
+            Some(f) => f.clone(),
+            None => geometric.iter().chain(&offsets).cloned().collect(),
+        };
+        // Characteristic lengths: a joint's lever for revolute joints, the
+        // platform radius for its rotations.
+        let norm = |ix: &[usize; 3]| {
+            ix.iter()
+                .map(|&i| names.values[i] * names.values[i])
+                .sum::<f64>()
+                .sqrt()
+        };
+        let mean = |v: Vec<f64>| {
+            let v: Vec<f64> = v.into_iter().filter(|l| *l > 1e-9).collect();
+            if v.is_empty() {
+                1.0
+            } else {
+                v.iter().sum::<f64>() / v.len() as f64
+            }
+        };
+        let length = mean(
+            legs.iter()
+                .flat_map(|l| {
+                    let mut v: Vec<f64> = l.joints.iter().map(|j| norm(&j.at)).collect();
+                    v.push(norm(&l.end_at));
+                    if let Some(Rod::Fixed(i)) = l.rod {
+                        v.push(names.values[i].abs());
+                    }
+                    v
+                })
+                .collect(),
+        );
+        let radius = mean(legs.iter().map(|l| norm(&l.platform)).collect());
+        let joint_scale: Vec<f64> = joint_units
+            .iter()
+            .enumerate()
+            .map(|(i, u)| match (u, i >= pose0) {
+                (Unit::Radian, true) => radius,
+                (Unit::Radian, false) => length,
+                _ => 1.0,
+            })
+            .collect();
+        let axis_scale: Vec<f64> = tool
+            .iter()
+            .map(|&k| if k >= 3 { radius } else { 1.0 })
+            .collect();
+        let tool_layout = match (motion, tool.len()) {
+            (Motion::Translation, 3) => crate::frame::ToolLayout::Points { dim: 3, count: 1 },
+            (Motion::Full, 6) => crate::frame::ToolLayout::SpatialPose,
+            _ => crate::frame::ToolLayout::Readings,
+        };
+        let mut mech = SpatialMechanism {
+            spec: Spec {
+                name: d
+                    .name
+                    .clone()
+                    .unwrap_or_else(|| "spatial mechanism".into()),
+                joints: joint_names.clone(),
+                actuated: actuated.clone(),
+                independent: actuated[..dof].to_vec(),
+                n_constraints: nc,
+                geometric,
+                offsets,
+                stiffness: stiffness_names,
+                joint_units,
+                geometric_units: names.units.clone(),
+                tool_units: tool
+                    .iter()
+                    .map(|&k| if k >= 3 { Unit::Radian } else { mm })
+                    .collect(),
+                tool_layout,
+                tool_axes,
+                nominal,
+                reference_q: vec![0.0; nq],
+                default_free: free,
+                workspace_box,
+                work_scale: if revolute_actuator[0] {
+                    crate::linearized::MM_TO_M
+                } else {
+                    1.0
+                },
+                joint_scale,
+                axis_scale,
+                min_conditioning: 0.0,
+            },
+            legs,
+            leg_names: d.legs.iter().map(|l| l.name.clone()).collect(),
+            motion,
+            pose0,
+            tool,
+            length,
+            atlas: Default::default(),
+            branch: [0, 0],
+            leg_signs: vec![],
+        };
+        // Reference configuration: the chain joints from [assembly], the
+        // actuated rods' lengths computed, the platform from `pose`.
+        if d.assembly.pose.len() != motion.coordinates()
+            || d.assembly.pose.iter().any(|v| !v.is_finite())
+        {
+            return bad(format!(
+                "[assembly]: `pose` must be {} finite numbers [{}] (mm, rad)",
+                motion.coordinates(),
+                pose_axes.join(", ")
+            ));
+        }
+        let chain: Vec<usize> = mech
+            .legs
+            .iter()
+            .flat_map(|l| l.joints.iter().map(|j| j.q))
+            .collect();
+        for k in d.assembly.joints.keys() {
+            let known = chain.iter().any(|&i| mech.spec.joints[i] == *k);
+            if !known {
+                return bad(format!(
+                    "[assembly]: `{k}` is not a joint of a leg's chain (chain joints: {}; actuated rods' lengths are computed)",
+                    chain
+                        .iter()
+                        .map(|&i| mech.spec.joints[i].as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ));
+            }
+        }
+        let mut q0 = vec![0.0; nq];
+        for &i in &chain {
+            let name = &mech.spec.joints[i];
+            q0[i] = *d.assembly.joints.get(name).ok_or_else(|| {
+                Error::InvalidMechanism(format!(
+                    "[assembly] needs an approximate value of joint `{name}` ({}) on the wanted assembly branch",
+                    mech.spec.joint_units[i]
+                ))
+            })?;
+            if !q0[i].is_finite() {
+                return bad(format!("[assembly]: `{name}` must be finite"));
+            }
+        }
+        q0[pose0..].copy_from_slice(&d.assembly.pose);
+        let rho = mech.spec.nominal[..mech.spec.geometric.len()].to_vec();
+        for (leg, name) in mech.legs.iter().zip(&mech.leg_names) {
+            if let Some(Rod::Joint(i)) = leg.rod {
+                let (e, w) = mech.leg_points(leg, &q0, &rho);
+                let dist = (0..3).map(|k| (w[k] - e[k]).powi(2)).sum::<f64>().sqrt();
+                if dist < 1e-9 {
+                    return bad(format!(
+                        "leg `{name}`: its rod has zero length at the reference pose"
+                    ));
+                }
+                q0[i] = dist;
+            }
+        }
+        mech.spec.reference_q = q0.clone();
+        mech.spec.validate()?;
+        let fixed: Vec<usize> = mech.tool.iter().map(|&k| pose0 + k).collect();
+        crate::kinematics::solve_closure(&mech, &rho, &mut q0, &fixed).map_err(|e| {
+            Error::InvalidMechanism(format!(
+                "the [assembly] configuration does not close ({e}); check the lengths, the pose and the joint values (a leg that cannot reach the platform there, or guesses far from the wanted assembly)"
+            ))
+        })?;
+        mech.spec.independent = match &d.independent {
+            Some(list) => {
+                let mut idx = Vec::new();
+                for n in list {
+                    let i = mech.spec.joints.iter().position(|j| j == n).ok_or_else(|| {
+                        Error::InvalidMechanism(format!("`independent`: unknown joint `{n}`"))
+                    })?;
+                    idx.push(i);
+                }
+                idx
+            }
+            None => crate::kinematics::choose_independent(&mech, &q0, &rho),
+        };
+        mech.spec.reference_q = q0.clone();
+        mech.spec.validate()?;
+        let j = crate::autodiff::jacobians(&mech, &q0, &rho, 0..nq);
+        let dep: Vec<usize> = (0..nq)
+            .filter(|i| !mech.spec.independent.contains(i))
+            .collect();
+        if crate::kinematics::checked_lu(j.dg.select_columns(&dep)).is_none() {
+            return bad(format!(
+                "the reference configuration is singular: the actuators {} do not determine the platform there; move [assembly] `pose` away from the singularity or choose `independent`",
+                mech.spec
+                    .independent
+                    .iter()
+                    .map(|&i| mech.spec.joints[i].as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ));
+        }
+        mech.branch = crate::kinematics::branch_signs(&mech, &q0, &rho);
+        if mech.legs.iter().all(|l| l.unknowns().len() == l.rows()) {
+            mech.leg_signs = (0..mech.legs.len())
+                .map(|i| mech.leg_sign(i, &q0, &rho))
+                .collect();
+        }
+        // The atlas covers every reachable pose (min_conditioning still 0).
+        mech.atlas = crate::workspace::Atlas::build(&mech, ATLAS_POINTS);
+        mech.spec.min_conditioning = crate::workspace::RELATIVE_CONDITIONING
+            * crate::workspace::conditioning(&mech, &q0, &rho);
+        Ok(mech)
+    }
+
+    /// Names of the legs, in order.
+    pub fn leg_names(&self) -> &[String] {
+        &self.leg_names
+    }
+
+    /// How the platform moves.
+    pub fn motion(&self) -> Motion {
+        self.motion
+    }
+
+    /// The chain's end point and the platform point of a leg, in the base
+    /// frame.
+    fn leg_points<D: Scalar>(&self, leg: &LegIx, q: &[D], rho: &[D]) -> ([D; 3], [D; 3]) {
+        self.leg_points_with(leg, &|i| q[i], &|i| rho[i])
+    }
+
+    /// [`Self::leg_points`] reading joint `i` as `q(i)` and geometric
+    /// parameter `i` as `rho(i)`.
+    fn leg_points_with<D: Scalar>(
+        &self,
+        leg: &LegIx,
+        q: &impl Fn(usize) -> D,
+        rho: &impl Fn(usize) -> D,
+    ) -> ([D; 3], [D; 3]) {
+        let mut r = match leg.angle {
+            Some(a) => rotation_about([D::from(0.0), D::from(0.0), D::from(1.0)], rho(a)),
+            None => identity(),
+        };
+        let mut p = [D::from(0.0); 3];
+        for j in &leg.joints {
+            let at = apply(&r, j.at.map(rho));
+            for k in 0..3 {
+                p[k] += at[k];
+            }
+            let u = j.axis(rho);
+            match j.kind {
+                SpatialJointKind::Revolute => r = mat_mul(&r, &rotation_about(u, q(j.q))),
+                SpatialJointKind::Prismatic => {
+                    let du = apply(&r, u);
+                    let t = q(j.q);
+                    for k in 0..3 {
+                        p[k] += du[k] * t;
+                    }
+                }
+            }
+        }
+        let e = apply(&r, leg.end_at.map(rho));
+        let end = [0, 1, 2].map(|k| p[k] + e[k]);
+        let pose: [D; 6] = std::array::from_fn(|k| {
+            if k < self.motion.coordinates() {
+                q(self.pose0 + k)
+            } else {
+                D::from(0.0)
+            }
+        });
+        let b = leg.platform.map(rho);
+        let w = match self.motion {
+            Motion::Translation => [0, 1, 2].map(|k| pose[k] + b[k]),
+            Motion::Full => crate::gough_stewart::transform(&pose, b),
+        };
+        (end, w)
+    }
+
+    /// A leg's equations (docs/model.md eq. 3): `end − w` for a spherical
+    /// end (three), `|w − end| − L` for a rod (one), into `out`.
+    fn leg_residual<D: Scalar>(
+        &self,
+        leg: &LegIx,
+        q: &impl Fn(usize) -> D,
+        rho: &impl Fn(usize) -> D,
+        out: &mut [D],
+    ) {
+        let (e, w) = self.leg_points_with(leg, q, rho);
+        match leg.rod {
+            None => {
+                for k in 0..3 {
+                    out[k] = e[k] - w[k];
+                }
+            }
+            Some(rod) => {
+                let mut s = D::from(0.0);
+                for k in 0..3 {
+                    s += (w[k] - e[k]) * (w[k] - e[k]);
+                }
+                let l = match rod {
+                    Rod::Fixed(i) => rho(i),
+                    Rod::Joint(i) => q(i),
+                };
+                out[0] = s.sqrt() - l;
+            }
+        }
+    }
+
+    /// Leg `leg`'s equations with every variable of `v = [q; ρ]` read through
+    /// `seed(index, value)` (which makes some of them dual numbers).
+    fn leg_eval<D: Scalar>(
+        &self,
+        leg: &LegIx,
+        v: &[f64],
+        seed: &impl Fn(usize, f64) -> D,
+        out: &mut [D],
+    ) {
+        let nq = self.spec.joints.len();
+        self.leg_residual(
+            leg,
+            &|i| seed(i, v[i]),
+            &|i| seed(nq + i, v[nq + i]),
+            &mut out[..leg.rows()],
+        );
+    }
+}
+
+/// Chunk size of the per-leg automatic differentiation.
+const CHUNK: usize = 8;
+
+impl SpatialMechanism {
+    /// Second derivatives of leg `leg`'s equations with respect to its joint
+    /// variables (rows) and `cols` (a subset of `leg.vars`), by hyper-dual
+    /// numbers over those variables only: `put(row of the leg, joint, column,
+    /// value)` for each entry.
+    fn leg_hessians(
+        &self,
+        leg: &LegIx,
+        v: &[f64],
+        cols: &[usize],
+        put: &mut impl FnMut(usize, usize, usize, f64),
+    ) {
+        use nalgebra::Const;
+        use num_dual::HyperDualSVec64;
+        type H = HyperDualSVec64<CHUNK, CHUNK>;
+        let rows = &leg.vars[..leg.n_joint_vars];
+        let mut out = [H::from_re(0.0); 3];
+        for rc in rows.chunks(CHUNK) {
+            for cc in cols.chunks(CHUNK) {
+                let seed = |i: usize, x: f64| {
+                    let mut d = H::from_re(x);
+                    if let Some(k) = rc.iter().position(|&c| c == i) {
+                        d = d.derivative1(k);
+                    }
+                    if let Some(k) = cc.iter().position(|&c| c == i) {
+                        d = d.derivative2(k);
+                    }
+                    d
+                };
+                self.leg_eval(leg, v, &seed, &mut out);
+                for (r, o) in out.iter().enumerate().take(leg.rows()) {
+                    let block = o.eps1eps2.unwrap_generic(Const::<CHUNK>, Const::<CHUNK>);
+                    for (a, &ra) in rc.iter().enumerate() {
+                        for (b, &cb) in cc.iter().enumerate() {
+                            put(r, ra, cb, block[(a, b)]);
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+impl Mechanism for SpatialMechanism {
+    fn spec(&self) -> &Spec {
+        &self.spec
+    }
+
+    /// Per leg (docs/model.md eq. 3): `end − w = 0` for a spherical end (three
+    /// equations), `|w − end| − L = 0` for a rod, where `end` is the chain's
+    /// end point and `w` the platform point, both in the base frame.
+    fn constraints<D: Scalar>(&self, q: &[D], rho: &[D], g: &mut [D]) {
+        for leg in &self.legs {
+            let n = leg.rows();
+            self.leg_residual(leg, &|i| q[i], &|i| rho[i], &mut g[leg.row..leg.row + n]);
+        }
+    }
+
+    /// Per leg, by automatic differentiation over the leg's own variables
+    /// only (its joints, the platform and its parameters): every other entry
+    /// of a leg's rows is zero, so this costs a fraction of differentiating
+    /// the whole mechanism at once.
+    fn first_derivatives(
+        &self,
+        q: &[f64],
+        rho: &[f64],
+        cols: std::ops::Range<usize>,
+    ) -> Option<crate::autodiff::Jacobians> {
+        use nalgebra::{Const, DMatrix, U1};
+        use num_dual::DualSVec64;
+        type D = DualSVec64<CHUNK>;
+        let v: Vec<f64> = q.iter().chain(rho).copied().collect();
+        let (nc, nt) = (self.spec.n_constraints, self.tool.len());
+        let mut g = vec![0.0; nc];
+        let mut dg = DMatrix::zeros(nc, cols.len());
+        let mut dx = DMatrix::zeros(nt, cols.len());
+        let mut out = [D::from_re(0.0); 3];
+        for leg in &self.legs {
+            let local: Vec<usize> = leg
+                .vars
+                .iter()
+                .copied()
+                .filter(|i| cols.contains(i))
+                .collect();
+            let n = leg.rows();
+            if local.is_empty() {
+                let mut o = [0.0; 3];
+                self.leg_eval(leg, &v, &|_, x| x, &mut o);
+                g[leg.row..leg.row + n].copy_from_slice(&o[..n]);
+                continue;
+            }
+            for chunk in local.chunks(CHUNK) {
+                let seed = |i: usize, x: f64| match chunk.iter().position(|&c| c == i) {
+                    Some(k) => D::from_re(x).derivative(k),
+                    None => D::from_re(x),
+                };
+                self.leg_eval(leg, &v, &seed, &mut out);
+                for r in 0..n {
+                    g[leg.row + r] = out[r].re;
+                    let e = out[r].eps.unwrap_generic(Const::<CHUNK>, U1);
+                    for (k, &c) in chunk.iter().enumerate() {
+                        dg[(leg.row + r, c - cols.start)] = e[k];
+                    }
+                }
+            }
+        }
+        let mut x = vec![0.0; nt];
+        for (r, &k) in self.tool.iter().enumerate() {
+            let c = self.pose0 + k;
+            x[r] = q[c];
+            if cols.contains(&c) {
+                dx[(r, c - cols.start)] = 1.0;
+            }
+        }
+        Some(crate::autodiff::Jacobians { g, x, dg, dx })
+    }
+
+    fn weighted_hessian(
+        &self,
+        q: &[f64],
+        rho: &[f64],
+        lambda: &[f64],
+        _mu: &[f64],
+    ) -> nalgebra::DMatrix<f64> {
+        // The tool map is linear in q: only the constraints curve.
+        let nq = q.len();
+        let mut h = nalgebra::DMatrix::zeros(nq, nq + rho.len());
+        let v: Vec<f64> = q.iter().chain(rho).copied().collect();
+        for leg in &self.legs {
+            let w = &lambda[leg.row..leg.row + leg.rows()];
+            if w.iter().all(|l| *l == 0.0) {
+                continue;
+            }
+            self.leg_hessians(leg, &v, &leg.vars, &mut |r, a, b, val| {
+                h[(a, b)] += w[r] * val;
+            });
+        }
+        h
+    }
+
+    fn joint_hessians(&self, q: &[f64], rho: &[f64]) -> Vec<nalgebra::DMatrix<f64>> {
+        let nq = q.len();
+        let mut out =
+            vec![nalgebra::DMatrix::zeros(nq, nq); self.spec.n_constraints + self.tool.len()];
+        let v: Vec<f64> = q.iter().chain(rho).copied().collect();
+        for leg in &self.legs {
+            let joints = &leg.vars[..leg.n_joint_vars];
+            self.leg_hessians(leg, &v, joints, &mut |r, a, b, val| {
+                out[leg.row + r][(a, b)] = val;
+            });
+        }
+        out
+    }
+
+    /// The platform coordinates named in `tool`.
+    fn tool<D: Scalar>(&self, q: &[D], _rho: &[D], x: &mut [D]) {
+        for (x, &k) in x.iter_mut().zip(&self.tool) {
+            *x = q[self.pose0 + k];
+        }
+    }
+
+    /// Leg by leg when the tool axes fix the platform and every leg has as
+    /// many joints as equations (deltas, Gough–Stewart legs); Newton on the
+    /// whole mechanism otherwise.
+    fn inverse_kinematics_closed(&self, target: &[f64], rho: &[f64]) -> Option<Result<Vec<f64>>> {
+        if self.leg_signs.is_empty() || self.tool.len() != self.motion.coordinates() {
+            return None;
+        }
+        Some(self.ik_by_leg(target, rho))
+    }
+
+    fn configuration_guess(&self, commands: &[f64], _rho: &[f64]) -> Option<Vec<f64>> {
+        self.atlas.nearest(commands)
+    }
+
+    /// Fixed rod lengths must be positive.
+    fn check_params(&self, rho: &[f64]) -> Result<()> {
+        for (leg, name) in self.legs.iter().zip(&self.leg_names) {
+            if let Some(Rod::Fixed(i)) = leg.rod
+                && rho[i] <= 0.0
+            {
+                return Err(Error::InvalidParameter {
+                    name: self.spec.geometric[i].clone(),
+                    value: rho[i],
+                    reason: format!("the rod of leg `{name}` must have a positive length"),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// The assembly and working modes of the reference configuration: the
+    /// same signs of the forward and inverse kinematics determinants.
+    fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
+        let s = crate::kinematics::branch_signs(self, q, rho);
+        (self.branch[0] == 0 || s[0] == self.branch[0])
+            && (self.branch[1] == 0 || s[1] == self.branch[1])
+    }
+}

@@ -1,0 +1,335 @@
+//! Spatial mechanisms from descriptions (`type = "spatial"`): the shipped
+//! examples (linear and rotary deltas, a redundant 4-tower delta, a 3-PRS
+//! head, a Gough–Stewart platform written in this form), their derivatives,
+//! their agreement with the built-in Gough–Stewart platform, calibration, and
+//! the messages of bad descriptions.
+
+use crate::common;
+use common::{gough_stewart, perturbed_by_unit, spatial, table};
+use pkmcal::autodiff::{automatic_jacobians, jacobians, output_hessians, weighted_sum};
+use pkmcal::{Mechanism, Model, Params, SpatialDescription, SpatialMechanism};
+use rand::{RngExt, SeedableRng};
+
+/// The shipped spatial examples.
+const EXAMPLES: [&str; 5] = [
+    "linear-delta",
+    "linear-delta-4",
+    "rotary-delta",
+    "3-prs",
+    "spatial-gough-stewart-6",
+];
+
+/// Per-leg derivatives agree with whole-mechanism automatic differentiation
+/// (relative).
+const PER_LEG_REL: f64 = 1e-12;
+/// Central differences agree with exact first derivatives (relative to the
+/// entry's scale).
+const CENTRAL_DIFF_REL: f64 = 1e-6;
+/// Two descriptions of one mechanism agree (mm, rad).
+const SAME_MECHANISM: f64 = 1e-9;
+/// Identification recovers simulated errors to within this (mm, rad).
+const RECOVERED: f64 = 1e-6;
+
+fn close(a: f64, b: f64, rel: f64) -> bool {
+    (a - b).abs() <= rel * (1.0 + b.abs())
+}
+
+/// A configuration near the reference, not closed: every derivative must
+/// hold away from closure too.
+fn jittered(spec: &pkmcal::Spec, rng: &mut rand::rngs::StdRng) -> Vec<f64> {
+    spec.reference_q
+        .iter()
+        .zip(&spec.joint_units)
+        .map(|(v, u)| {
+            v + match u {
+                pkmcal::Unit::Radian => rng.random_range(-0.1..0.1),
+                _ => rng.random_range(-5.0..5.0),
+            }
+        })
+        .collect()
+}
+
+/// The per-leg first and second derivatives equal automatic differentiation
+/// of the whole mechanism, on every column range, at perturbed parameters
+/// and joints away from closure; the first ones equal central differences.
+#[test]
+fn per_leg_derivatives_equal_automatic_and_central_ones() {
+    for name in EXAMPLES {
+        let m = spatial(name);
+        let spec = m.spec();
+        let (nq, ng) = (spec.joints.len(), spec.n_geometric());
+        let rho = perturbed_by_unit(spec, 3, 0.5, 0.01).values[..ng].to_vec();
+        let mut rng = rand::rngs::StdRng::seed_from_u64(17);
+        let n = nq + ng;
+        for _ in 0..5 {
+            let q = jittered(spec, &mut rng);
+            for cols in [0..n, 0..nq, 2..n.min(17), n - 5..n, 0..0] {
+                let leg = jacobians(&m, &q, &rho, cols.clone());
+                let auto = automatic_jacobians(&m, &q, &rho, cols.clone());
+                assert!(
+                    leg.g.iter().zip(&auto.g).all(|(a, b)| close(*a, *b, PER_LEG_REL)),
+                    "{name} g"
+                );
+                assert_eq!(leg.x, auto.x, "{name} x");
+                for (a, b) in [(&leg.dg, &auto.dg), (&leg.dx, &auto.dx)] {
+                    assert_eq!(a.shape(), b.shape());
+                    assert!(
+                        a.iter().zip(b.iter()).all(|(a, b)| close(*a, *b, PER_LEG_REL)),
+                        "{name} {cols:?}"
+                    );
+                }
+            }
+            // Central differences of g in every variable of [q; ρ].
+            let j = jacobians(&m, &q, &rho, 0..n);
+            let mut v: Vec<f64> = q.iter().chain(&rho).copied().collect();
+            for c in 0..n {
+                let h = 1e-6 * v[c].abs().max(1.0);
+                let x0 = v[c];
+                v[c] = x0 + h;
+                let gp = jacobians(&m, &v[..nq], &v[nq..], 0..0).g;
+                v[c] = x0 - h;
+                let gm = jacobians(&m, &v[..nq], &v[nq..], 0..0).g;
+                v[c] = x0;
+                for r in 0..spec.n_constraints {
+                    let fd = (gp[r] - gm[r]) / (2.0 * h);
+                    let scale = 1.0 + j.dg.column(c).amax();
+                    assert!(
+                        (fd - j.dg[(r, c)]).abs() <= CENTRAL_DIFF_REL * scale,
+                        "{name}: ∂g{r}/∂{} = {} by central differences, {} exactly",
+                        if c < nq { &spec.joints[c] } else { &spec.geometric[c - nq] },
+                        fd,
+                        j.dg[(r, c)]
+                    );
+                }
+            }
+            let lambda: Vec<f64> = (0..spec.n_constraints)
+                .map(|_| rng.random_range(-2.0..2.0))
+                .collect();
+            let mu: Vec<f64> = (0..spec.tool_axes.len())
+                .map(|_| rng.random_range(-2.0..2.0))
+                .collect();
+            let leg = m.weighted_hessian(&q, &rho, &lambda, &mu);
+            let h = output_hessians(&m, &q, &rho, 0..nq, 0..n);
+            let w: Vec<f64> = lambda.iter().chain(&mu).copied().collect();
+            let auto = weighted_sum(&h, &w);
+            assert_eq!(leg.shape(), auto.shape());
+            assert!(
+                leg.iter().zip(auto.iter()).all(|(a, b)| close(*a, *b, PER_LEG_REL)),
+                "{name} weighted Hessian"
+            );
+            let leg = m.joint_hessians(&q, &rho);
+            let auto = output_hessians(&m, &q, &rho, 0..nq, 0..nq);
+            assert_eq!(leg.len(), auto.len());
+            for (a, b) in leg.iter().zip(&auto) {
+                assert!(
+                    a.iter().zip(b.iter()).all(|(a, b)| close(*a, *b, PER_LEG_REL)),
+                    "{name} joint Hessians"
+                );
+            }
+        }
+    }
+}
+
+/// The Gough–Stewart platform written as a spatial description predicts the
+/// poses of the built-in one (exact model: deflections included), for
+/// perturbed parameters, and its inverse kinematics gives the same legs.
+#[test]
+fn gough_stewart_as_spatial_predicts_like_the_builtin() {
+    let builtin = gough_stewart("gough-stewart-6");
+    let sp = spatial("spatial-gough-stewart-6");
+    let (bs, ss) = (builtin.spec(), sp.spec());
+    let targets = common::spread(&builtin, 20);
+    for seed in 0..3 {
+        let truth = perturbed_by_unit(bs, seed, 0.5, 0.0);
+        let mut truth_s = Params::nominal(ss);
+        for (i, name) in bs.param_names().iter().enumerate() {
+            // Stiffness: `k1` built in, `kL1` (from the joint `L1`) here.
+            let name = match name.strip_prefix('k') {
+                Some(n) => format!("kL{n}"),
+                None => name.to_string(),
+            };
+            truth_s.set(ss, &name, truth.values[i]).unwrap();
+        }
+        for t in &targets {
+            let qb = pkmcal::inverse_kinematics(&builtin, truth.geometric(), t).unwrap();
+            let qs = pkmcal::inverse_kinematics(&sp, truth_s.geometric(), t).unwrap();
+            assert!(
+                qb.iter().zip(&qs).all(|(a, b)| (a - b).abs() < SAME_MECHANISM),
+                "{qb:?} {qs:?}"
+            );
+            let commands: Vec<f64> = qb[..6].iter().map(|l| l + 0.3).collect();
+            let pb = pkmcal::predict(&builtin, &truth, &commands, Model::Exact, &[]).unwrap();
+            let ps = pkmcal::predict(&sp, &truth_s, &commands, Model::Exact, &[]).unwrap();
+            assert!(
+                pb.x.iter().zip(&ps.x).all(|(a, b)| (a - b).abs() < SAME_MECHANISM),
+                "{:?} {:?}",
+                pb.x,
+                ps.x
+            );
+        }
+    }
+}
+
+/// Every example calibrates its default free parameters back to the truth
+/// from noise-free simulated measurements (the default sets are
+/// identifiable); on the redundant delta the actuators fight.
+#[test]
+fn examples_calibrate_to_the_truth_without_noise() {
+    for (name, poses) in [
+        ("linear-delta", 30),
+        ("linear-delta-4", 30),
+        ("rotary-delta", 30),
+        ("3-prs", 30),
+    ] {
+        let m = spatial(name);
+        let spec = m.spec();
+        let all = perturbed_by_unit(spec, 11, 0.3, 0.002);
+        let mut truth = Params::nominal(spec);
+        for n in &spec.default_free {
+            let i = spec.param_index(n).unwrap();
+            if i < spec.n_geometric() + spec.n_actuated() {
+                truth.values[i] = all.values[i];
+            }
+        }
+        let targets = common::spread(&m, poses);
+        let model = pkmcal::MeasurementModel::tool(spec);
+        let data = pkmcal::simulate(&m, &model, &truth, &targets, 0.0, 1).unwrap();
+        let mut opts = pkmcal::CalibrationOptions::new(spec, Model::Exact);
+        opts.free = spec
+            .default_free
+            .iter()
+            .map(|n| spec.param_index(n).unwrap())
+            .collect();
+        let cal = pkmcal::calibrate(&m, &model, &data, &Params::nominal(spec), &opts).unwrap();
+        assert!(
+            cal.identifiability.unidentifiable.is_empty(),
+            "{name}: the default free set must be identifiable"
+        );
+        for &i in &opts.free {
+            let d = (cal.params.values[i] - truth.values[i]).abs();
+            let scale = if i >= spec.n_geometric() + spec.n_actuated() {
+                truth.values[i]
+            } else {
+                1.0
+            };
+            assert!(
+                d < RECOVERED * scale,
+                "{name}: {} off by {d}",
+                spec.param_names()[i]
+            );
+        }
+        if name == "linear-delta-4" {
+            let p = pkmcal::predict(&m, &truth, &data[0].commands, Model::Exact, &[]).unwrap();
+            assert!(
+                p.torque.iter().any(|t| t.abs() > 1.0),
+                "the redundant delta's actuators must fight: {:?}",
+                p.torque
+            );
+        }
+    }
+}
+
+fn refused(edit: impl FnOnce(&mut toml::Table), base: &str) -> String {
+    let mut t = table(base);
+    edit(&mut t);
+    match t.try_into::<SpatialDescription>() {
+        Err(e) => e.to_string(),
+        Ok(d) => SpatialMechanism::new(&d).unwrap_err().to_string(),
+    }
+}
+
+fn leg(t: &mut toml::Table, i: usize) -> &mut toml::Table {
+    t.get_mut("leg").unwrap().as_array_mut().unwrap()[i]
+        .as_table_mut()
+        .unwrap()
+}
+
+/// Bad descriptions are refused with a message that names the leg and joint.
+#[test]
+fn bad_descriptions_name_the_leg_and_joint() {
+    // An unknown joint kind.
+    let e = refused(
+        |t| {
+            leg(t, 1).get_mut("joint").unwrap().as_array_mut().unwrap()[0]
+                .as_table_mut()
+                .unwrap()
+                .insert("kind".into(), "helical".into());
+        },
+        "linear-delta",
+    );
+    assert!(e.contains("helical") && e.contains("revolute"), "{e}");
+    // A rod without its length.
+    let e = refused(
+        |t| {
+            leg(t, 2)
+                .get_mut("end")
+                .unwrap()
+                .as_table_mut()
+                .unwrap()
+                .remove("length");
+        },
+        "linear-delta",
+    );
+    assert!(e.contains("leg `tower_c`") && e.contains("length"), "{e}");
+    // Too few joints: a leg without its hinge takes a degree of freedom.
+    let e = refused(
+        |t| {
+            leg(t, 0).get_mut("joint").unwrap().as_array_mut().unwrap().pop();
+            t.get_mut("assembly").unwrap().as_table_mut().unwrap().remove("r1");
+        },
+        "3-prs",
+    );
+    assert!(e.contains("2 degrees of freedom"), "{e}");
+    // A leg that cannot reach the platform at the reference pose.
+    let e = refused(
+        |t| {
+            t.get_mut("parameters")
+                .unwrap()
+                .as_table_mut()
+                .unwrap()
+                .insert("arm_b".into(), 90.0.into());
+        },
+        "linear-delta",
+    );
+    assert!(e.contains("[assembly]") && e.contains("does not close"), "{e}");
+    // An actuated joint without stiffness.
+    let e = refused(
+        |t| {
+            leg(t, 0).get_mut("joint").unwrap().as_array_mut().unwrap()[0]
+                .as_table_mut()
+                .unwrap()
+                .remove("stiffness");
+        },
+        "rotary-delta",
+    );
+    assert!(e.contains("leg `arm1`") && e.contains("`q1`") && e.contains("stiffness"), "{e}");
+    // A missing assembly guess.
+    let e = refused(
+        |t| {
+            t.get_mut("assembly").unwrap().as_table_mut().unwrap().remove("r2");
+        },
+        "3-prs",
+    );
+    assert!(e.contains("joint `r2`"), "{e}");
+    // A singular reference: the rotary delta's arms stretched along the
+    // forearms (the elbow straight).
+    let e = refused(
+        |t| {
+            let p = t.get_mut("assembly").unwrap().as_table_mut().unwrap();
+            p.insert(
+                "pose".into(),
+                toml::Value::Array(vec![0.0.into(), 0.0.into(), (-150.0).into()]),
+            );
+        },
+        "rotary-delta",
+    );
+    assert!(e.contains("singular") || e.contains("does not close"), "{e}");
+    // Wrong number of tool axes for the degrees of freedom.
+    let e = refused(
+        |t| {
+            t.get_mut("platform").unwrap().as_table_mut().unwrap().remove("tool");
+        },
+        "3-prs",
+    );
+    assert!(e.contains("3 degrees of freedom") && e.contains("tool = ["), "{e}");
+}
