@@ -272,3 +272,39 @@ fn bad_mechanism_files_name_the_file_and_the_fix() {
     );
     assert!(!d.join("o.csv").exists());
 }
+
+#[test]
+fn linear_delta_end_to_end() {
+    end_to_end(
+        "linear-delta",
+        "delta_radius = 130.6\nangle_a = 3.6700\nangle_b = 5.7570\narm_a = 250.4\narm_c = 249.7\nda = 0.8\ndb = -0.5\ndc = 0.3\n",
+        "40",
+    );
+}
+
+#[test]
+fn redundant_linear_delta_end_to_end() {
+    end_to_end(
+        "linear-delta-4",
+        "radius = 130.4\narm_b = 250.3\nda = 0.4\ndd = -0.3\n",
+        "40",
+    );
+}
+
+#[test]
+fn rotary_delta_end_to_end() {
+    end_to_end(
+        "rotary-delta",
+        "rb = 100.3\nlf2 = 299.6\ndq1 = 0.004\ndq3 = -0.003\n\"q2.tilt1\" = 0.002\n",
+        "40",
+    );
+}
+
+#[test]
+fn three_prs_end_to_end() {
+    end_to_end(
+        "3-prs",
+        "rb2 = 200.6\nds1 = 0.5\nds3 = -0.4\n\"s2.tilt1\" = 0.001\n\"leg3.angle\" = 5.7605\n",
+        "40",
+    );
+}

@@ -92,8 +92,8 @@ pub use planning::{
     plan_poses_with_progress,
 };
 pub use reference::JeongKim2Dof;
-pub use spatial::{SpatialDescription, SpatialMechanism};
 pub use simulate::{Measurement, Noise, Origin, simulate, simulate_with_progress};
+pub use spatial::{SpatialDescription, SpatialMechanism};
 pub use stats::{ErrorStats, error_stats, improvement_percent};
 pub use units::{AngleUnit, FileUnits, LengthUnit, ParamKind, PartialUnits, Quantity, Role, Unit};
 pub use workspace::{

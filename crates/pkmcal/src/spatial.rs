@@ -307,9 +307,21 @@ fn rotation_about<D: Scalar>(u: [D; 3], t: D) -> Mat<D> {
     let (s, c) = t.sin_cos();
     let v = D::from(1.0) - c;
     [
-        [c + u[0] * u[0] * v, u[0] * u[1] * v - u[2] * s, u[0] * u[2] * v + u[1] * s],
-        [u[1] * u[0] * v + u[2] * s, c + u[1] * u[1] * v, u[1] * u[2] * v - u[0] * s],
-        [u[2] * u[0] * v - u[1] * s, u[2] * u[1] * v + u[0] * s, c + u[2] * u[2] * v],
+        [
+            c + u[0] * u[0] * v,
+            u[0] * u[1] * v - u[2] * s,
+            u[0] * u[2] * v + u[1] * s,
+        ],
+        [
+            u[1] * u[0] * v + u[2] * s,
+            c + u[1] * u[1] * v,
+            u[1] * u[2] * v - u[0] * s,
+        ],
+        [
+            u[2] * u[0] * v - u[1] * s,
+            u[2] * u[1] * v + u[0] * s,
+            c + u[2] * u[2] * v,
+        ],
     ]
 }
 
@@ -374,7 +386,12 @@ const LEG_NEWTON: usize = 50;
 impl SpatialMechanism {
     /// Leg `leg`'s equations and their derivatives with respect to its own
     /// joints (a square system: at most three of each).
-    fn leg_system(&self, leg: &LegIx, q: &[f64], rho: &[f64]) -> (nalgebra::DVector<f64>, nalgebra::DMatrix<f64>) {
+    fn leg_system(
+        &self,
+        leg: &LegIx,
+        q: &[f64],
+        rho: &[f64],
+    ) -> (nalgebra::DVector<f64>, nalgebra::DMatrix<f64>) {
         use nalgebra::{Const, U1};
         use num_dual::DualSVec64;
         type D = DualSVec64<3>;
@@ -388,7 +405,12 @@ impl SpatialMechanism {
                 D::from_re(x)
             }
         };
-        self.leg_residual(leg, &|i| seed(i, q[i]), &|i| D::from_re(rho[i]), &mut out[..n]);
+        self.leg_residual(
+            leg,
+            &|i| seed(i, q[i]),
+            &|i| D::from_re(rho[i]),
+            &mut out[..n],
+        );
         let g = nalgebra::DVector::from_iterator(n, out[..n].iter().map(|d| d.re));
         let j = nalgebra::DMatrix::from_fn(n, cols.len(), |r, c| {
             out[r].eps.unwrap_generic(Const::<3>, U1)[c]
@@ -465,7 +487,7 @@ impl SpatialMechanism {
                 }
             }
             let scale = rho.iter().fold(1.0f64, |m, v| m.max(v.abs()));
-            if !converged && !(residual < 1e-9 * scale) {
+            if !converged && (residual.is_nan() || residual >= 1e-9 * scale) {
                 return Err(unreachable(format!(
                     "leg `{name}` cannot reach the platform there"
                 )));
@@ -802,10 +824,7 @@ impl SpatialMechanism {
         };
         let mut mech = SpatialMechanism {
             spec: Spec {
-                name: d
-                    .name
-                    .clone()
-                    .unwrap_or_else(|| "spatial mechanism".into()),
+                name: d.name.clone().unwrap_or_else(|| "spatial mechanism".into()),
                 joints: joint_names.clone(),
                 actuated: actuated.clone(),
                 independent: actuated[..dof].to_vec(),
@@ -912,9 +931,14 @@ impl SpatialMechanism {
             Some(list) => {
                 let mut idx = Vec::new();
                 for n in list {
-                    let i = mech.spec.joints.iter().position(|j| j == n).ok_or_else(|| {
-                        Error::InvalidMechanism(format!("`independent`: unknown joint `{n}`"))
-                    })?;
+                    let i = mech
+                        .spec
+                        .joints
+                        .iter()
+                        .position(|j| j == n)
+                        .ok_or_else(|| {
+                            Error::InvalidMechanism(format!("`independent`: unknown joint `{n}`"))
+                        })?;
                     idx.push(i);
                 }
                 idx

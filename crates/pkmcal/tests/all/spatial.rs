@@ -67,14 +67,19 @@ fn per_leg_derivatives_equal_automatic_and_central_ones() {
                 let leg = jacobians(&m, &q, &rho, cols.clone());
                 let auto = automatic_jacobians(&m, &q, &rho, cols.clone());
                 assert!(
-                    leg.g.iter().zip(&auto.g).all(|(a, b)| close(*a, *b, PER_LEG_REL)),
+                    leg.g
+                        .iter()
+                        .zip(&auto.g)
+                        .all(|(a, b)| close(*a, *b, PER_LEG_REL)),
                     "{name} g"
                 );
                 assert_eq!(leg.x, auto.x, "{name} x");
                 for (a, b) in [(&leg.dg, &auto.dg), (&leg.dx, &auto.dx)] {
                     assert_eq!(a.shape(), b.shape());
                     assert!(
-                        a.iter().zip(b.iter()).all(|(a, b)| close(*a, *b, PER_LEG_REL)),
+                        a.iter()
+                            .zip(b.iter())
+                            .all(|(a, b)| close(*a, *b, PER_LEG_REL)),
                         "{name} {cols:?}"
                     );
                 }
@@ -96,7 +101,11 @@ fn per_leg_derivatives_equal_automatic_and_central_ones() {
                     assert!(
                         (fd - j.dg[(r, c)]).abs() <= CENTRAL_DIFF_REL * scale,
                         "{name}: ∂g{r}/∂{} = {} by central differences, {} exactly",
-                        if c < nq { &spec.joints[c] } else { &spec.geometric[c - nq] },
+                        if c < nq {
+                            &spec.joints[c]
+                        } else {
+                            &spec.geometric[c - nq]
+                        },
                         fd,
                         j.dg[(r, c)]
                     );
@@ -114,7 +123,9 @@ fn per_leg_derivatives_equal_automatic_and_central_ones() {
             let auto = weighted_sum(&h, &w);
             assert_eq!(leg.shape(), auto.shape());
             assert!(
-                leg.iter().zip(auto.iter()).all(|(a, b)| close(*a, *b, PER_LEG_REL)),
+                leg.iter()
+                    .zip(auto.iter())
+                    .all(|(a, b)| close(*a, *b, PER_LEG_REL)),
                 "{name} weighted Hessian"
             );
             let leg = m.joint_hessians(&q, &rho);
@@ -122,7 +133,9 @@ fn per_leg_derivatives_equal_automatic_and_central_ones() {
             assert_eq!(leg.len(), auto.len());
             for (a, b) in leg.iter().zip(&auto) {
                 assert!(
-                    a.iter().zip(b.iter()).all(|(a, b)| close(*a, *b, PER_LEG_REL)),
+                    a.iter()
+                        .zip(b.iter())
+                        .all(|(a, b)| close(*a, *b, PER_LEG_REL)),
                     "{name} joint Hessians"
                 );
             }
@@ -154,14 +167,18 @@ fn gough_stewart_as_spatial_predicts_like_the_builtin() {
             let qb = pkmcal::inverse_kinematics(&builtin, truth.geometric(), t).unwrap();
             let qs = pkmcal::inverse_kinematics(&sp, truth_s.geometric(), t).unwrap();
             assert!(
-                qb.iter().zip(&qs).all(|(a, b)| (a - b).abs() < SAME_MECHANISM),
+                qb.iter()
+                    .zip(&qs)
+                    .all(|(a, b)| (a - b).abs() < SAME_MECHANISM),
                 "{qb:?} {qs:?}"
             );
             let commands: Vec<f64> = qb[..6].iter().map(|l| l + 0.3).collect();
             let pb = pkmcal::predict(&builtin, &truth, &commands, Model::Exact, &[]).unwrap();
             let ps = pkmcal::predict(&sp, &truth_s, &commands, Model::Exact, &[]).unwrap();
             assert!(
-                pb.x.iter().zip(&ps.x).all(|(a, b)| (a - b).abs() < SAME_MECHANISM),
+                pb.x.iter()
+                    .zip(&ps.x)
+                    .all(|(a, b)| (a - b).abs() < SAME_MECHANISM),
                 "{:?} {:?}",
                 pb.x,
                 ps.x
@@ -274,8 +291,17 @@ fn bad_descriptions_name_the_leg_and_joint() {
     // Too few joints: a leg without its hinge takes a degree of freedom.
     let e = refused(
         |t| {
-            leg(t, 0).get_mut("joint").unwrap().as_array_mut().unwrap().pop();
-            t.get_mut("assembly").unwrap().as_table_mut().unwrap().remove("r1");
+            leg(t, 0)
+                .get_mut("joint")
+                .unwrap()
+                .as_array_mut()
+                .unwrap()
+                .pop();
+            t.get_mut("assembly")
+                .unwrap()
+                .as_table_mut()
+                .unwrap()
+                .remove("r1");
         },
         "3-prs",
     );
@@ -291,7 +317,10 @@ fn bad_descriptions_name_the_leg_and_joint() {
         },
         "linear-delta",
     );
-    assert!(e.contains("[assembly]") && e.contains("does not close"), "{e}");
+    assert!(
+        e.contains("[assembly]") && e.contains("does not close"),
+        "{e}"
+    );
     // An actuated joint without stiffness.
     let e = refused(
         |t| {
@@ -302,11 +331,18 @@ fn bad_descriptions_name_the_leg_and_joint() {
         },
         "rotary-delta",
     );
-    assert!(e.contains("leg `arm1`") && e.contains("`q1`") && e.contains("stiffness"), "{e}");
+    assert!(
+        e.contains("leg `arm1`") && e.contains("`q1`") && e.contains("stiffness"),
+        "{e}"
+    );
     // A missing assembly guess.
     let e = refused(
         |t| {
-            t.get_mut("assembly").unwrap().as_table_mut().unwrap().remove("r2");
+            t.get_mut("assembly")
+                .unwrap()
+                .as_table_mut()
+                .unwrap()
+                .remove("r2");
         },
         "3-prs",
     );
@@ -323,13 +359,23 @@ fn bad_descriptions_name_the_leg_and_joint() {
         },
         "rotary-delta",
     );
-    assert!(e.contains("singular") || e.contains("does not close"), "{e}");
+    assert!(
+        e.contains("singular") || e.contains("does not close"),
+        "{e}"
+    );
     // Wrong number of tool axes for the degrees of freedom.
     let e = refused(
         |t| {
-            t.get_mut("platform").unwrap().as_table_mut().unwrap().remove("tool");
+            t.get_mut("platform")
+                .unwrap()
+                .as_table_mut()
+                .unwrap()
+                .remove("tool");
         },
         "3-prs",
     );
-    assert!(e.contains("3 degrees of freedom") && e.contains("tool = ["), "{e}");
+    assert!(
+        e.contains("3 degrees of freedom") && e.contains("tool = ["),
+        "{e}"
+    );
 }
