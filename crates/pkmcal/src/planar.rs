@@ -223,6 +223,47 @@ fn bad<T>(m: String) -> Result<T> {
     Err(Error::InvalidMechanism(m))
 }
 
+/// The encoder offsets' and stiffnesses' names, the full nominal vector and
+/// the default free set of a described mechanism.
+pub(crate) struct ActuatorNames {
+    pub(crate) offsets: Vec<String>,
+    pub(crate) stiffness: Vec<String>,
+    pub(crate) nominal: Vec<f64>,
+    pub(crate) free: Vec<String>,
+}
+
+/// [`ActuatorNames`] from the geometric parameters `names`, the joints'
+/// names, the actuated joints with their stiffness, and the description's
+/// `free` (all geometric parameters and encoder offsets if left out).
+pub(crate) fn actuator_names(
+    names: &Names,
+    joint_names: &[String],
+    actuated: &[usize],
+    stiffness: &[f64],
+    free: &Option<Vec<String>>,
+) -> ActuatorNames {
+    let offsets: Vec<String> = actuated
+        .iter()
+        .map(|&i| format!("d{}", joint_names[i]))
+        .collect();
+    let mut nominal = names.values.clone();
+    nominal.extend(std::iter::repeat_n(0.0, actuated.len()));
+    nominal.extend(stiffness);
+    let free = match free {
+        Some(f) => f.clone(),
+        None => names.names.iter().chain(&offsets).cloned().collect(),
+    };
+    ActuatorNames {
+        stiffness: actuated
+            .iter()
+            .map(|&i| stiffness_name(&joint_names[i]))
+            .collect(),
+        offsets,
+        nominal,
+        free,
+    }
+}
+
 /// Stiffness parameter name of an actuated joint: `k` + the name without a
 /// leading `q`.
 pub fn stiffness_name(joint: &str) -> String {
@@ -424,22 +465,13 @@ impl PlanarLinkage {
         }
         let workspace_box = crate::workspace::box_from_description(&tool_axes, &d.workspace)?;
         let joint_names: Vec<String> = d.joints.iter().map(|j| j.name.clone()).collect();
-        let offsets: Vec<String> = actuated
-            .iter()
-            .map(|&i| format!("d{}", joint_names[i]))
-            .collect();
-        let stiffness_names: Vec<String> = actuated
-            .iter()
-            .map(|&i| stiffness_name(&joint_names[i]))
-            .collect();
-        let mut nominal = names.values.clone();
-        nominal.extend(std::iter::repeat_n(0.0, actuated.len()));
-        nominal.extend(&stiffness);
+        let ActuatorNames {
+            offsets,
+            stiffness: stiffness_names,
+            nominal,
+            free,
+        } = actuator_names(&names, &joint_names, &actuated, &stiffness, &d.free);
         let geometric = names.names.clone();
-        let free = match &d.free {
-            Some(f) => f.clone(),
-            None => geometric.iter().chain(&offsets).cloned().collect(),
-        };
         let lengths: Vec<f64> = joints
             .iter()
             .flat_map(|j| {

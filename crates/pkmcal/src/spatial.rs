@@ -41,7 +41,7 @@
 
 use crate::error::{Error, Result};
 use crate::mechanism::{Mechanism, Scalar, Spec};
-use crate::planar::{Names, Value, stiffness_name};
+use crate::planar::{ActuatorNames, Names, Value, actuator_names};
 use crate::units::Unit;
 use serde::Deserialize;
 use std::collections::BTreeMap;
@@ -759,22 +759,13 @@ impl SpatialMechanism {
             ));
         }
         let workspace_box = crate::workspace::box_from_description(&tool_axes, &d.workspace)?;
-        let offsets: Vec<String> = actuated
-            .iter()
-            .map(|&i| format!("d{}", joint_names[i]))
-            .collect();
-        let stiffness_names: Vec<String> = actuated
-            .iter()
-            .map(|&i| stiffness_name(&joint_names[i]))
-            .collect();
-        let mut nominal = names.values.clone();
-        nominal.extend(std::iter::repeat_n(0.0, actuated.len()));
-        nominal.extend(&stiffness);
+        let ActuatorNames {
+            offsets,
+            stiffness: stiffness_names,
+            nominal,
+            free,
+        } = actuator_names(&names, &joint_names, &actuated, &stiffness, &d.free);
         let geometric = names.names.clone();
-        let free = match &d.free {
-            Some(f) => f.clone(),
-            None => geometric.iter().chain(&offsets).cloned().collect(),
-        };
         // Characteristic lengths: a joint's lever for revolute joints, the
         // platform radius for its rotations.
         let norm = |ix: &[usize; 3]| {
