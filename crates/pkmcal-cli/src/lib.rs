@@ -9,6 +9,7 @@ pub mod fileunits;
 pub mod gcode;
 pub mod hints;
 pub mod io;
+pub mod klipper;
 pub mod output;
 pub mod report;
 pub mod usecal;

@@ -44,8 +44,34 @@ enum Command {
     Montecarlo(MonteCarloArgs),
     /// Ball-bar readings to tool positions (least squares) with uncertainties.
     Trilaterate(TrilaterateArgs),
+    /// Calibrate a linear delta printer from its Klipper printer.cfg (the probe
+    /// results DELTA_CALIBRATE saved) and write Klipper's values back.
+    Klipper(KlipperArgs),
     /// Run the paper's case study on the built-in reference mechanism.
     Demo(DemoArgs),
+}
+
+#[derive(clap::Args)]
+pub struct KlipperArgs {
+    /// The printer's Klipper configuration (kinematics: delta), with the
+    /// [delta_calibrate] probe results (height0, height0_pos, …) that
+    /// DELTA_CALIBRATE and SAVE_CONFIG wrote.
+    #[arg(long, value_name = "printer.cfg")]
+    pub config: PathBuf,
+    /// Parameters to identify, comma separated: Klipper's (`default`:
+    /// delta_radius, angle_a, angle_b, da, db, dc; the d's are endstop errors)
+    /// or more (arm_a, arm_b, arm_c, angle_c, the towers' tilts a.tilt1, …).
+    #[arg(long, value_name = "NAMES")]
+    pub free: Option<String>,
+    /// Write the configuration with the new values (in its SAVE_CONFIG block,
+    /// as Klipper writes them) here; never over --config.
+    #[arg(long, value_name = "NEW.cfg")]
+    pub out: Option<PathBuf>,
+    /// Also write the printer as a pkmcal mechanism (mechanism.toml), the
+    /// probe data (probes.csv) and the identified parameters
+    /// (calibration.toml) here, for the other commands.
+    #[arg(long, value_name = "DIR")]
+    pub out_dir: Option<PathBuf>,
 }
 
 /// The mechanism option shared by every subcommand.
@@ -617,6 +643,14 @@ fn check_paths(command: &Command) -> anyhow::Result<()> {
             vec![m(&a.mech), Some(a.poses.clone())],
             a.out.iter().cloned().collect(),
         ),
+        Command::Klipper(a) => {
+            let mut out: Vec<PathBuf> = a.out.iter().cloned().collect();
+            if let Some(d) = &a.out_dir {
+                out.extend(output::in_dir(d, &pkmcal_cli::klipper::OUT_DIR_FILES)?);
+                dirs.push(d.clone());
+            }
+            (vec![Some(a.config.clone())], out)
+        }
         Command::Demo(a) => {
             let mut out = output::in_dir(&a.out_dir, commands::DEMO_FILES)?;
             out.extend(output::in_dir(&a.out_dir.join("report"), report::FILES)?);
@@ -759,6 +793,14 @@ fn run(command: Command) -> anyhow::Result<()> {
                 out: a.out,
             })
         }),
+        Command::Klipper(a) => {
+            pkmcal_cli::klipper::run_klipper(pkmcal_cli::klipper::KlipperConfig {
+                config: a.config,
+                free: a.free,
+                out: a.out,
+                out_dir: a.out_dir,
+            })
+        }
         Command::Demo(a) => commands::demo(a),
     }
 }

@@ -1,0 +1,774 @@
+//! `klipper`: calibrate a linear delta printer from its Klipper `printer.cfg`
+//! and write the values back in Klipper's keys.
+//!
+//! Klipper's delta geometry: towers at `angle` (degrees) on a circle of
+//! `delta_radius` (the effector's offset already subtracted), arms of
+//! `arm_length`; a carriage's height (the centre of its arms' joints) is
+//! `position_endstop + √(arm_length² − delta_radius²) − steps · step_distance`,
+//! `steps` counted from the endstop (Klipper's "stable positions", which
+//! `DELTA_CALIBRATE` saves as `height{N}_pos` with the probed height
+//! `height{N}`). Here that printer is the spatial linear delta of
+//! `examples/linear-delta` (tower `a` at `angle_a`, …), its carriage heights the
+//! commands, and each probe point a measurement of z alone. An encoder offset
+//! `da` (mm of carriage height) becomes Klipper's
+//! `position_endstop + da + √(arm² − r²) − √(arm'² − r'²)` with the new arm
+//! length and radius.
+//!
+//! The file is read as Klipper reads it: `key: value` or `key = value`,
+//! inline `#`/`;` comments, indented continuation lines, `[include file]`,
+//! and the `#*#` SAVE_CONFIG block at the end, whose values override. (Written
+//! here: no INI crate reads that block, and the dialect is a few rules.)
+
+use crate::output;
+use anyhow::{Context, Result, bail};
+use pkmcal::{CalibrationOptions, MeasurementModel, Mechanism, Model, Params};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+/// What `pkmcal klipper` is asked to do.
+pub struct KlipperConfig {
+    /// The printer's `printer.cfg`.
+    pub config: PathBuf,
+    /// Parameters to identify (names of the linear delta; `default` allowed).
+    pub free: Option<String>,
+    /// Where to write the updated `printer.cfg`.
+    pub out: Option<PathBuf>,
+    /// Where to write the mechanism, the probe data and the parameters.
+    pub out_dir: Option<PathBuf>,
+}
+
+/// Klipper's SAVE_CONFIG header line.
+const AUTOSAVE_HEADER: &str = "#*# <---------------------- SAVE_CONFIG ---------------------->";
+
+/// Towers in Klipper's order.
+const TOWERS: [&str; 3] = ["a", "b", "c"];
+
+/// Klipper's default tower angles (degrees).
+const DEFAULT_ANGLES: [f64; 3] = [210.0, 330.0, 90.0];
+
+/// Klipper's parameter set for probe heights alone: `delta_radius`, two
+/// tower angles, the three endstops.
+pub const KLIPPER_FREE: [&str; 6] = ["delta_radius", "angle_a", "angle_b", "da", "db", "dc"];
+
+/// Stiffness written for the carriages (N/mm): a linear delta is not
+/// redundant, so it changes no prediction without a load.
+const CARRIAGE_STIFFNESS: f64 = 2000.0;
+
+/// One option: section, key, value and the line it came from.
+#[derive(Debug, Clone)]
+struct Entry {
+    section: String,
+    key: String,
+    value: String,
+    line: usize,
+    file: String,
+}
+
+/// A Klipper configuration: every option, the SAVE_CONFIG block's last.
+#[derive(Debug, Default)]
+pub struct Ini {
+    entries: Vec<Entry>,
+}
+
+impl Ini {
+    /// The value of `key` in `[section]` (the last definition wins).
+    fn get(&self, section: &str, key: &str) -> Option<&Entry> {
+        self.entries
+            .iter()
+            .rev()
+            .find(|e| e.section == section && e.key == key)
+    }
+
+    fn has_section(&self, section: &str) -> bool {
+        self.entries.iter().any(|e| e.section == section)
+    }
+
+    /// A number, with the place it came from in an error.
+    fn number(&self, section: &str, key: &str) -> Result<Option<f64>> {
+        let Some(e) = self.get(section, key) else {
+            return Ok(None);
+        };
+        let v: f64 = e.value.trim().parse().with_context(|| {
+            format!(
+                "{}:{}: [{section}] {key} = `{}` is not a number",
+                e.file, e.line, e.value
+            )
+        })?;
+        if !v.is_finite() {
+            bail!("{}:{}: [{section}] {key} must be finite", e.file, e.line);
+        }
+        Ok(Some(v))
+    }
+
+    /// Three numbers `x,y,z` (a stable position).
+    fn triple(&self, section: &str, key: &str) -> Result<[f64; 3]> {
+        let e = self
+            .get(section, key)
+            .with_context(|| format!("[{section}] has no `{key}`"))?;
+        let v: Vec<f64> = e
+            .value
+            .split(',')
+            .map(|s| s.trim().parse::<f64>())
+            .collect::<std::result::Result<_, _>>()
+            .ok()
+            .filter(|v: &Vec<f64>| v.len() == 3 && v.iter().all(|x| x.is_finite()))
+            .with_context(|| {
+                format!(
+                    "{}:{}: [{section}] {key} = `{}` must be three numbers `a,b,c` (steps from each tower's endstop)",
+                    e.file, e.line, e.value
+                )
+            })?;
+        Ok([v[0], v[1], v[2]])
+    }
+}
+
+/// Split a file into its regular part and its SAVE_CONFIG block (prefixes
+/// removed); `None` for the block when there is none.
+fn split_autosave(text: &str) -> (String, Option<String>) {
+    match text.find(AUTOSAVE_HEADER) {
+        None => (text.to_string(), None),
+        Some(pos) => {
+            let block = text[pos..]
+                .lines()
+                .skip(1)
+                .map(|l| l.strip_prefix("#*#").unwrap_or(l))
+                .map(|l| l.strip_prefix(' ').unwrap_or(l))
+                .filter(|l| !l.starts_with("DO NOT EDIT"))
+                .collect::<Vec<_>>()
+                .join("\n");
+            (text[..pos].to_string(), Some(block))
+        }
+    }
+}
+
+/// A line without its inline comment (`#` or `;` at the start or after
+/// white space, as Klipper's parser reads them).
+fn strip_comment(line: &str) -> &str {
+    let b = line.as_bytes();
+    for (i, c) in b.iter().enumerate() {
+        if (*c == b'#' || *c == b';') && (i == 0 || b[i - 1].is_ascii_whitespace()) {
+            return &line[..i];
+        }
+    }
+    line
+}
+
+/// Parse one file's options into `ini` (following `[include …]`).
+fn parse_into(ini: &mut Ini, text: &str, file: &Path, depth: usize) -> Result<()> {
+    if depth > 8 {
+        bail!(
+            "{}: [include] nests more than 8 deep (a file includes itself?)",
+            file.display()
+        );
+    }
+    let name = file.display().to_string();
+    let mut section: Option<String> = None;
+    let mut last: Option<usize> = None;
+    for (i, raw) in text.lines().enumerate() {
+        let line = strip_comment(raw);
+        if line.trim().is_empty() {
+            continue;
+        }
+        if line.starts_with(char::is_whitespace) {
+            // A continuation of the previous value.
+            match last {
+                Some(k) => {
+                    let e = &mut ini.entries[k];
+                    e.value.push('\n');
+                    e.value.push_str(line.trim());
+                }
+                None => bail!("{name}:{}: an indented line outside any option", i + 1),
+            }
+            continue;
+        }
+        let t = line.trim();
+        if let Some(s) = t.strip_prefix('[') {
+            let s = s
+                .strip_suffix(']')
+                .with_context(|| format!("{name}:{}: `{t}` lacks its closing `]`", i + 1))?
+                .trim();
+            if let Some(inc) = s.strip_prefix("include ") {
+                let inc = inc.trim();
+                if inc.contains(['*', '?', '[']) {
+                    bail!(
+                        "{name}:{}: [include {inc}]: patterns are not followed; name the file",
+                        i + 1
+                    );
+                }
+                let path = file.parent().unwrap_or(Path::new(".")).join(inc);
+                let text = std::fs::read_to_string(&path).with_context(|| {
+                    format!("{name}:{}: cannot read included {}", i + 1, path.display())
+                })?;
+                parse_into(ini, &text, &path, depth + 1)?;
+                section = None;
+            } else {
+                section = Some(s.to_string());
+            }
+            last = None;
+            continue;
+        }
+        let Some(sec) = &section else {
+            bail!("{name}:{}: `{t}` is outside any [section]", i + 1);
+        };
+        let sep = t
+            .find([':', '='])
+            .with_context(|| format!("{name}:{}: `{t}` is not `key: value`", i + 1))?;
+        ini.entries.push(Entry {
+            section: sec.clone(),
+            key: t[..sep].trim().to_lowercase(),
+            value: t[sep + 1..].trim().to_string(),
+            line: i + 1,
+            file: name.clone(),
+        });
+        last = Some(ini.entries.len() - 1);
+    }
+    Ok(())
+}
+
+/// Read a Klipper configuration: the regular part (with its includes), then
+/// the SAVE_CONFIG block.
+pub fn parse_config(text: &str, file: &Path) -> Result<Ini> {
+    let (regular, block) = split_autosave(text);
+    let mut ini = Ini::default();
+    parse_into(&mut ini, &regular, file, 0)?;
+    if let Some(b) = block {
+        let mut saved = Ini::default();
+        parse_into(&mut saved, &b, file, 0)
+            .with_context(|| format!("in the SAVE_CONFIG block of {}", file.display()))?;
+        ini.entries.extend(saved.entries);
+    }
+    Ok(ini)
+}
+
+/// A probe result: the height measured with the carriages at `steps`.
+#[derive(Debug, Clone)]
+pub struct Probe {
+    /// `height{N}` or `manual_height{N}`.
+    pub name: String,
+    /// The height (mm).
+    pub height: f64,
+    /// Steps from each tower's endstop.
+    pub steps: [f64; 3],
+}
+
+/// A Klipper linear delta: its geometry and its saved probe results.
+#[derive(Debug, Clone)]
+pub struct KlipperDelta {
+    /// `delta_radius` (mm).
+    pub radius: f64,
+    /// Tower `angle`s (degrees).
+    pub angles: [f64; 3],
+    /// `arm_length`s (mm).
+    pub arms: [f64; 3],
+    /// `position_endstop`s (mm).
+    pub endstops: [f64; 3],
+    /// Step distances (mm): `rotation_distance / (full_steps · microsteps ·
+    /// gear ratio)`.
+    pub step_distances: [f64; 3],
+    /// `[delta_calibrate] radius` (mm): the probed circle.
+    pub probe_radius: f64,
+    /// The saved probe results.
+    pub probes: Vec<Probe>,
+    /// How many `distance{N}` measurements the file holds (not used yet).
+    pub distances: usize,
+}
+
+impl KlipperDelta {
+    /// `√(arm² − radius²)`: a carriage's height above the nozzle at the
+    /// centre.
+    fn rise(arm: f64, radius: f64) -> f64 {
+        (arm * arm - radius * radius).sqrt()
+    }
+
+    /// The carriage heights (mm) of a stable position.
+    pub fn carriage_heights(&self, steps: &[f64; 3]) -> [f64; 3] {
+        std::array::from_fn(|i| {
+            self.endstops[i] + Self::rise(self.arms[i], self.radius)
+                - steps[i] * self.step_distances[i]
+        })
+    }
+
+    /// The spatial description of this printer (TOML), in the names of
+    /// `examples/linear-delta`.
+    pub fn mechanism_toml(&self) -> String {
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "# A linear delta printer read from a Klipper printer.cfg by `pkmcal klipper`\n\
+             # (towers a, b, c = [stepper_a], [stepper_b], [stepper_c]; commands are\n\
+             # carriage heights in mm; da, db, dc are endstop errors in carriage height).\n\
+             type = \"spatial\"\nname = \"Linear delta printer (from Klipper)\"\n\
+             free = [{}]\n\n[platform]\nmotion = \"translation\"\n",
+            KLIPPER_FREE.map(|n| format!("\"{n}\"")).join(", ")
+        );
+        for t in TOWERS {
+            let _ = writeln!(
+                s,
+                "[[leg]]\nname = \"tower_{t}\"\nangle = \"angle_{t}\"\n[[leg.joint]]\n\
+                 name = \"{t}\"\nkind = \"prismatic\"\nat = [\"delta_radius\", 0.0, 0.0]\n\
+                 axis = [0.0, 0.0, 1.0]\nactuated = true\nstiffness = {CARRIAGE_STIFFNESS:?}   # N/mm\n\
+                 [leg.end]\nkind = \"rod\"\nlength = \"arm_{t}\"\nplatform = [0.0, 0.0, 0.0]\n"
+            );
+        }
+        let _ = writeln!(s, "[parameters]\ndelta_radius = {:?}", self.radius);
+        for (i, t) in TOWERS.iter().enumerate() {
+            let _ = writeln!(
+                s,
+                "angle_{t} = {:?}   # {}°",
+                self.angles[i].to_radians(),
+                self.angles[i]
+            );
+        }
+        for (i, t) in TOWERS.iter().enumerate() {
+            let _ = writeln!(s, "arm_{t} = {:?}", self.arms[i]);
+        }
+        let _ = writeln!(s, "\n[assembly]\npose = [0.0, 0.0, 10.0]");
+        for (i, t) in TOWERS.iter().enumerate() {
+            let _ = writeln!(
+                s,
+                "{t} = {:?}",
+                10.0 + Self::rise(self.arms[i], self.radius)
+            );
+        }
+        let r = (1.1 * self.probe_radius).max(10.0);
+        let _ = writeln!(
+            s,
+            "\n[workspace]   # the probed region\nx = [{:?}, {r:?}]\ny = [{:?}, {r:?}]\nz = [-10.0, 50.0]",
+            -r, -r
+        );
+        s
+    }
+
+    /// Klipper's values for identified parameters of the description.
+    pub fn identified(&self, spec: &pkmcal::Spec, p: &Params) -> Result<KlipperDelta> {
+        let radius = p.get(spec, "delta_radius")?;
+        let mut out = self.clone();
+        out.radius = radius;
+        for (i, t) in TOWERS.iter().enumerate() {
+            let arm = p.get(spec, &format!("arm_{t}"))?;
+            out.angles[i] = p.get(spec, &format!("angle_{t}"))?.to_degrees();
+            out.arms[i] = arm;
+            out.endstops[i] = self.endstops[i]
+                + p.get(spec, &format!("d{t}"))?
+                + Self::rise(self.arms[i], self.radius)
+                - Self::rise(arm, radius);
+            if arm.is_nan() || arm <= radius {
+                bail!(
+                    "the identified arm_{t} = {arm:.3} mm is not longer than delta_radius = {radius:.3} mm; the probe data cannot support this parameter set (use fewer free parameters)"
+                );
+            }
+        }
+        Ok(out)
+    }
+}
+
+/// The delta printer of a configuration.
+pub fn delta_from_config(ini: &Ini) -> Result<KlipperDelta> {
+    match ini.get("printer", "kinematics") {
+        Some(e) if e.value.trim() == "delta" => {}
+        Some(e) => bail!(
+            "{}:{}: [printer] kinematics is `{}`; `pkmcal klipper` reads delta printers (kinematics: delta)",
+            e.file,
+            e.line,
+            e.value
+        ),
+        None => bail!(
+            "[printer] has no `kinematics`; `pkmcal klipper` reads delta printers (kinematics: delta)"
+        ),
+    }
+    let radius = ini
+        .number("printer", "delta_radius")?
+        .filter(|r| *r > 0.0)
+        .context("[printer] needs a positive `delta_radius`")?;
+    let sec = |t: &str| format!("stepper_{t}");
+    let arm_a = ini
+        .number("stepper_a", "arm_length")?
+        .context("[stepper_a] needs `arm_length`")?;
+    let end_a = ini
+        .number("stepper_a", "position_endstop")?
+        .context("[stepper_a] needs `position_endstop`")?;
+    let mut d = KlipperDelta {
+        radius,
+        angles: DEFAULT_ANGLES,
+        arms: [arm_a; 3],
+        endstops: [end_a; 3],
+        step_distances: [0.0; 3],
+        probe_radius: radius,
+        probes: vec![],
+        distances: 0,
+    };
+    for (i, t) in TOWERS.iter().enumerate() {
+        let s = sec(t);
+        if !ini.has_section(&s) {
+            bail!("the configuration has no [{s}] section");
+        }
+        if let Some(a) = ini.number(&s, "angle")? {
+            d.angles[i] = a;
+        }
+        if let Some(a) = ini.number(&s, "arm_length")? {
+            d.arms[i] = a;
+        }
+        if d.arms[i] <= radius {
+            bail!(
+                "[{s}] arm_length = {} must be longer than delta_radius = {radius} (Klipper's own rule)",
+                d.arms[i]
+            );
+        }
+        if let Some(e) = ini.number(&s, "position_endstop")? {
+            d.endstops[i] = e;
+        }
+        let rotation = ini
+            .number(&s, "rotation_distance")?
+            .filter(|v| *v > 0.0)
+            .with_context(|| format!("[{s}] needs a positive `rotation_distance` (mm)"))?;
+        let micro = ini
+            .number(&s, "microsteps")?
+            .filter(|v| *v >= 1.0)
+            .with_context(|| format!("[{s}] needs `microsteps`"))?;
+        let full = ini.number(&s, "full_steps_per_rotation")?.unwrap_or(200.0);
+        let mut gear = 1.0;
+        if let Some(e) = ini.get(&s, "gear_ratio") {
+            for pair in e.value.split(',') {
+                let v: Vec<f64> = pair
+                    .split(':')
+                    .filter_map(|x| x.trim().parse().ok())
+                    .collect();
+                if v.len() != 2 || v[1] == 0.0 {
+                    bail!(
+                        "{}:{}: [{s}] gear_ratio = `{}` must be pairs `a:b` separated by commas",
+                        e.file,
+                        e.line,
+                        e.value
+                    );
+                }
+                gear *= v[0] / v[1];
+            }
+        }
+        d.step_distances[i] = rotation / (full * micro * gear);
+    }
+    if let Some(r) = ini.number("delta_calibrate", "radius")? {
+        d.probe_radius = r;
+    }
+    for prefix in ["manual_height", "height"] {
+        for n in 0.. {
+            let key = format!("{prefix}{n}");
+            let Some(h) = ini.number("delta_calibrate", &key)? else {
+                break;
+            };
+            let steps = ini.triple("delta_calibrate", &format!("{key}_pos"))?;
+            d.probes.push(Probe {
+                name: key,
+                height: h,
+                steps,
+            });
+        }
+    }
+    while ini
+        .get("delta_calibrate", &format!("distance{}", d.distances))
+        .is_some()
+    {
+        d.distances += 1;
+    }
+    if d.probes.len() < KLIPPER_FREE.len() {
+        bail!(
+            "[delta_calibrate] holds {} probe results (height0, height0_pos, …); at least {} are needed: run DELTA_CALIBRATE in Klipper, then SAVE_CONFIG, and read the saved printer.cfg",
+            d.probes.len(),
+            KLIPPER_FREE.len()
+        );
+    }
+    Ok(d)
+}
+
+/// The configuration text with Klipper's values replaced by `new`, as
+/// Klipper's SAVE_CONFIG writes them: in the SAVE_CONFIG block (created if
+/// missing), the same options in the regular part commented out.
+pub fn updated_config(text: &str, new: &KlipperDelta) -> String {
+    let mut values: Vec<(String, String, String)> = vec![(
+        "printer".into(),
+        "delta_radius".into(),
+        format!("{:.6}", new.radius),
+    )];
+    for (i, t) in TOWERS.iter().enumerate() {
+        let s = format!("stepper_{t}");
+        values.push((s.clone(), "angle".into(), format!("{:.6}", new.angles[i])));
+        values.push((
+            s.clone(),
+            "arm_length".into(),
+            format!("{:.6}", new.arms[i]),
+        ));
+        values.push((
+            s,
+            "position_endstop".into(),
+            format!("{:.6}", new.endstops[i]),
+        ));
+    }
+    let (regular, block) = split_autosave(text);
+    // The block's sections, in order, with the new values set.
+    let mut sections: Vec<(String, Vec<(String, String)>)> = vec![];
+    let mut current: Option<usize> = None;
+    for line in block.as_deref().unwrap_or("").lines() {
+        let t = line.trim();
+        if t.is_empty() {
+            continue;
+        }
+        if let Some(s) = t.strip_prefix('[').and_then(|s| s.strip_suffix(']')) {
+            sections.push((s.trim().to_string(), vec![]));
+            current = Some(sections.len() - 1);
+        } else if let (Some(c), Some(sep)) = (current, t.find([':', '='])) {
+            sections[c]
+                .1
+                .push((t[..sep].trim().to_string(), t[sep + 1..].trim().to_string()));
+        }
+    }
+    for (sec, key, v) in &values {
+        let i = match sections.iter().position(|s| s.0 == *sec) {
+            Some(i) => i,
+            None => {
+                sections.push((sec.clone(), vec![]));
+                sections.len() - 1
+            }
+        };
+        match sections[i].1.iter_mut().find(|(k, _)| k == key) {
+            Some(kv) => kv.1 = v.clone(),
+            None => sections[i].1.push((key.clone(), v.clone())),
+        }
+    }
+    // Comment out the regular part's definitions of the saved options.
+    let saved = |sec: &str, key: &str| {
+        sections
+            .iter()
+            .any(|(s, kv)| s == sec && kv.iter().any(|(k, _)| k == key))
+    };
+    let mut out = String::new();
+    let mut section = String::new();
+    let mut dup = false;
+    for line in regular.lines() {
+        let pruned = strip_comment(line).trim_end();
+        if pruned.is_empty() {
+            out.push_str(line);
+            out.push('\n');
+            continue;
+        }
+        if pruned.starts_with(char::is_whitespace) {
+            if dup {
+                out.push('#');
+            }
+            out.push_str(line);
+            out.push('\n');
+            continue;
+        }
+        dup = false;
+        if let Some(s) = pruned.strip_prefix('[').and_then(|s| s.strip_suffix(']')) {
+            section = s.trim().to_string();
+        } else if let Some(sep) = pruned.find([':', '=']) {
+            let key = pruned[..sep].trim().to_lowercase();
+            if saved(&section, &key) {
+                dup = true;
+                out.push('#');
+            }
+        }
+        out.push_str(line);
+        out.push('\n');
+    }
+    let mut data = out.trim_end().to_string();
+    data.push_str("\n\n");
+    data.push_str(AUTOSAVE_HEADER);
+    data.push_str("\n#*# DO NOT EDIT THIS BLOCK OR BELOW. The contents are auto-generated.\n#*#\n");
+    for (s, kv) in &sections {
+        let _ = writeln!(data, "#*# [{s}]");
+        for (k, v) in kv {
+            let _ = writeln!(data, "#*# {k} = {v}");
+        }
+        data.push_str("#*#\n");
+    }
+    data
+}
+
+/// Height errors (mm) of every probe for parameters `p`: the predicted
+/// nozzle height minus the probed one.
+fn height_errors(
+    mech: &pkmcal::AnyMechanism,
+    p: &Params,
+    data: &[pkmcal::Measurement],
+) -> Result<Vec<f64>> {
+    let z = mech
+        .spec()
+        .tool_axes
+        .iter()
+        .position(|a| a == "z")
+        .expect("a linear delta has a z axis");
+    data.iter()
+        .map(|m| {
+            let pr = pkmcal::predict(mech, p, &m.commands, Model::Exact, &[])?;
+            Ok(pr.x[z] - m.measured[0])
+        })
+        .collect()
+}
+
+fn rms(v: &[f64]) -> f64 {
+    (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt()
+}
+
+fn max_abs(v: &[f64]) -> f64 {
+    v.iter().fold(0.0, |m, x| m.max(x.abs()))
+}
+
+/// Run `pkmcal klipper`.
+pub fn run_klipper(c: KlipperConfig) -> Result<()> {
+    let text = std::fs::read_to_string(&c.config)
+        .with_context(|| format!("cannot read Klipper configuration {}", c.config.display()))?;
+    let ini = parse_config(&text, &c.config)?;
+    let delta = delta_from_config(&ini).with_context(|| format!("in {}", c.config.display()))?;
+    let toml = delta.mechanism_toml();
+    let mech = crate::io::mechanism_from_str(&toml)
+        .context("the printer's geometry does not describe a delta that assembles")?;
+    let spec = mech.spec();
+    let data: Vec<pkmcal::Measurement> = delta
+        .probes
+        .iter()
+        .enumerate()
+        .map(|(i, p)| pkmcal::Measurement {
+            target: None,
+            commands: delta.carriage_heights(&p.steps).to_vec(),
+            measured: vec![p.height],
+            sigma: vec![],
+            origin: Some(pkmcal::Origin {
+                pose: i + 1,
+                line: None,
+            }),
+        })
+        .collect();
+    let measurement = MeasurementModel::tool_axes(spec, &["z"])?;
+    let mut free_names: Vec<String> = vec![];
+    for n in c
+        .free
+        .as_deref()
+        .unwrap_or("default")
+        .split(',')
+        .map(str::trim)
+    {
+        match n {
+            "" => {}
+            "default" => free_names.extend(spec.default_free.iter().cloned()),
+            _ => free_names.push(n.to_string()),
+        }
+    }
+    free_names.dedup();
+    let mut opts = CalibrationOptions::new(spec, Model::Exact);
+    opts.free = free_names
+        .iter()
+        .map(|n| {
+            spec.param_index(n)
+                .map_err(|e| output::Usage(format!("in --free: {e}")))
+        })
+        .collect::<std::result::Result<_, _>>()?;
+    let nominal = Params::nominal(spec);
+    let cal = pkmcal::calibrate(&mech, &measurement, &data, &nominal, &opts).map_err(|e| {
+        let e = anyhow::Error::from(e);
+        match data_pose(&e) {
+            Some(i) => e.context(format!(
+                "probe `{}` of {}",
+                delta.probes[i].name,
+                c.config.display()
+            )),
+            None => e,
+        }
+    })?;
+    let before = height_errors(&mech, &nominal, &data)?;
+    let after = height_errors(&mech, &cal.params, &data)?;
+    let new = delta.identified(spec, &cal.params)?;
+    println!(
+        "{} probe heights from {} (Klipper), {} parameters free: {}",
+        data.len(),
+        c.config.display(),
+        free_names.len(),
+        free_names.join(" ")
+    );
+    if delta.distances > 0 {
+        println!(
+            "note: the {} distance measurements (distance0 …) are not used yet; the fit uses the probe heights",
+            delta.distances
+        );
+    }
+    println!("{}", cal.termination.reason());
+    println!(
+        "height errors: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm",
+        max_abs(&before),
+        rms(&before),
+        max_abs(&after),
+        rms(&after)
+    );
+    for w in &cal.warnings {
+        println!("warning: {}\n  hint: {}", w.message, w.hint);
+    }
+    println!(
+        "\n  {:<28} {:>14} {:>14}",
+        "Klipper value", "before", "after"
+    );
+    println!(
+        "  {:<28} {:>14.6} {:>14.6}",
+        "[printer] delta_radius", delta.radius, new.radius
+    );
+    for (i, t) in TOWERS.iter().enumerate() {
+        for (key, a, b) in [
+            ("angle", delta.angles[i], new.angles[i]),
+            ("arm_length", delta.arms[i], new.arms[i]),
+            ("position_endstop", delta.endstops[i], new.endstops[i]),
+        ] {
+            println!(
+                "  {:<28} {a:>14.6} {b:>14.6}",
+                format!("[stepper_{t}] {key}")
+            );
+        }
+    }
+    if let Some(out) = &c.out {
+        output::stage(out, updated_config(&text, &new).as_bytes())?;
+        println!(
+            "\nupdated configuration -> {} (values in its SAVE_CONFIG block)",
+            out.display()
+        );
+    }
+    if let Some(dir) = &c.out_dir {
+        output::create_dir(dir)?;
+        let mut csv = String::from("# frame: base\na,b,c,z\n");
+        for m in &data {
+            let _ = writeln!(
+                csv,
+                "{:?},{:?},{:?},{:?}",
+                m.commands[0], m.commands[1], m.commands[2], m.measured[0]
+            );
+        }
+        let [m_file, d_file, p_file] = OUT_DIR_FILES;
+        output::stage(&dir.join(m_file), toml.as_bytes())?;
+        output::stage(&dir.join(d_file), csv.as_bytes())?;
+        output::stage(
+            &dir.join(p_file),
+            crate::io::params_to_string(
+                spec,
+                &cal.params,
+                &format!(
+                    "pkmcal klipper: identified from the probe heights of {}",
+                    c.config.display()
+                ),
+            )
+            .as_bytes(),
+        )?;
+        println!(
+            "mechanism, probe data and parameters -> {} (e.g. `pkmcal calibrate --mechanism {0}/mechanism.toml --data {0}/probes.csv --axes z`)",
+            dir.display()
+        );
+    }
+    Ok(())
+}
+
+/// The files `--out-dir` holds.
+pub const OUT_DIR_FILES: [&str; 3] = ["mechanism.toml", "probes.csv", "calibration.toml"];
+
+/// The pose index (from 0) an error is about, if any.
+fn data_pose(e: &anyhow::Error) -> Option<usize> {
+    e.chain()
+        .find_map(|c| match c.downcast_ref::<pkmcal::Error>() {
+            Some(pkmcal::Error::Pose { pose, .. }) => Some(pose - 1),
+            _ => None,
+        })
+}
