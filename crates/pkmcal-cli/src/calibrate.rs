@@ -344,6 +344,8 @@ pub fn measurement_of(
             .map_err(|e| crate::output::Usage(format!("in --axes: {e}")))?
     } else if whole {
         MeasurementModel::tool(spec)
+    } else if has("probe") {
+        MeasurementModel::probe(spec).with_context(|| format!("probe heights in {file}"))?
     } else if has("t1x") {
         let t = crate::io::read_targets(mechanism)?;
         if t.is_empty() {
@@ -392,16 +394,21 @@ pub fn measurement_of(
         _ if positions && !csv.base_frame => Frame::Free,
         _ => Frame::Base,
     };
-    if !matches!(m.instrument(), pkmcal::Instrument::BallBar { .. })
-        && !positions
-        && frame == "free"
-    {
+    let no_frame = matches!(
+        m.instrument(),
+        pkmcal::Instrument::BallBar { .. } | pkmcal::Instrument::Probe
+    );
+    if matches!(m.instrument(), pkmcal::Instrument::Probe) && frame == "free" {
+        return crate::output::usage(
+            "--frame free: probed heights fix no instrument frame; the bed plane's height and tilts are the parameters bed.z, bed.rx, bed.ry (free them with --free default,bed.rx,bed.ry)",
+        );
+    }
+    if !no_frame && !positions && frame == "free" {
         return crate::output::usage(format!(
             "--frame free needs whole positions to register the instrument frame; {file} reads only {}",
             m.axes().join(", ")
         ));
     }
-    let no_frame = matches!(m.instrument(), pkmcal::Instrument::BallBar { .. });
     if no_frame && choice == Frame::Free && frame == "free" {
         return crate::output::usage(
             "--frame free: a ball bar's sockets are in the base frame; drop --frame",

@@ -316,6 +316,9 @@ fn simulated_measurement(mech: &Mech, a: &SimulateArgs) -> Result<pkmcal::Measur
         let setup = crate::io::read_setup(Some(p), None)?
             .with_context(|| format!("{}: no ball-bar setup", p.display()))?;
         pkmcal::MeasurementModel::ball_bar(spec, &setup)?
+    } else if a.probe {
+        pkmcal::MeasurementModel::probe(spec)
+            .map_err(|e| crate::output::Usage(format!("--probe: {e}")))?
     } else if a.measure_targets {
         let points = crate::io::read_targets(a.mech.mechanism.as_deref())?;
         if points.is_empty() {

@@ -584,23 +584,21 @@ pub fn updated_config(text: &str, new: &KlipperDelta) -> String {
     data
 }
 
-/// Height errors (mm) of every probe for parameters `p`: the predicted
-/// nozzle height minus the probed one.
+/// Height errors (mm) of every probe for the printer's parameters `p` and
+/// the bed plane's `bed`: the predicted reading minus the probed one.
 fn height_errors(
     mech: &pkmcal::AnyMechanism,
+    measurement: &MeasurementModel,
     p: &Params,
+    bed: &[f64],
     data: &[pkmcal::Measurement],
 ) -> Result<Vec<f64>> {
-    let z = mech
-        .spec()
-        .tool_axes
-        .iter()
-        .position(|a| a == "z")
-        .expect("a linear delta has a z axis");
     data.iter()
         .map(|m| {
             let pr = pkmcal::predict(mech, p, &m.commands, Model::Exact, &[])?;
-            Ok(pr.x[z] - m.measured[0])
+            let mut y = [0.0];
+            measurement.observe(&pr.x, bed, &mut y);
+            Ok(y[0] - m.measured[0])
         })
         .collect()
 }
@@ -638,7 +636,7 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
             }),
         })
         .collect();
-    let measurement = MeasurementModel::tool_axes(spec, &["z"])?;
+    let measurement = MeasurementModel::probe(spec)?;
     let mut free_names: Vec<String> = vec![];
     for n in c
         .free
@@ -658,7 +656,8 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
     opts.free = free_names
         .iter()
         .map(|n| {
-            spec.param_index(n)
+            measurement
+                .index_of(spec, n)
                 .map_err(|e| output::Usage(format!("in --free: {e}")))
         })
         .collect::<std::result::Result<_, _>>()?;
@@ -674,8 +673,8 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
             None => e,
         }
     })?;
-    let before = height_errors(&mech, &nominal, &data)?;
-    let after = height_errors(&mech, &cal.params, &data)?;
+    let before = height_errors(&mech, &measurement, &nominal, measurement.nominal(), &data)?;
+    let after = height_errors(&mech, &measurement, &cal.params, &cal.measurement, &data)?;
     let new = delta.identified(spec, &cal.params)?;
     println!(
         "{} probe heights from {} (Klipper), {} parameters free: {}",
@@ -721,6 +720,17 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
             );
         }
     }
+    for (i, n) in measurement.param_names().iter().enumerate() {
+        if opts.free.contains(&(spec.n_params() + i)) {
+            println!(
+                "  {:<28} {:>14.6} {:>14.6}   ({}; not a Klipper value: level the bed or let Klipper's bed mesh take it)",
+                n,
+                measurement.nominal()[i],
+                cal.measurement[i],
+                measurement.param_units()[i]
+            );
+        }
+    }
     if let Some(out) = &c.out {
         output::stage(out, updated_config(&text, &new).as_bytes())?;
         println!(
@@ -730,7 +740,7 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
     }
     if let Some(dir) = &c.out_dir {
         output::create_dir(dir)?;
-        let mut csv = String::from("# frame: base\na,b,c,z\n");
+        let mut csv = String::from("# frame: base\na,b,c,probe\n");
         for m in &data {
             let _ = writeln!(
                 csv,
@@ -754,7 +764,7 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
             .as_bytes(),
         )?;
         println!(
-            "mechanism, probe data and parameters -> {} (e.g. `pkmcal calibrate --mechanism {0}/mechanism.toml --data {0}/probes.csv --axes z`)",
+            "mechanism, probe data and parameters -> {} (e.g. `pkmcal calibrate --mechanism {0}/mechanism.toml --data {0}/probes.csv`)",
             dir.display()
         );
     }

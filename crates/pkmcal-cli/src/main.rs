@@ -178,6 +178,11 @@ pub struct SimulateArgs {
     /// platform); the noise applies to each coordinate.
     #[arg(long, conflicts_with_all = ["setup", "axes"])]
     pub measure_targets: bool,
+    /// Measure the tool point's height above a bed plane (column `probe`:
+    /// a z-probe or a dial gauge on a surface plate; the plane's height and
+    /// tilts bed.z, bed.rx, bed.ry are 0, or as --truth gives them).
+    #[arg(long, conflicts_with_all = ["setup", "axes", "measure_targets"])]
+    pub probe: bool,
     /// Measure only these tool axes (comma-separated, e.g. `z` for a height
     /// probe); the file then has only their columns.
     #[arg(long, value_name = "AXES", conflicts_with = "setup")]

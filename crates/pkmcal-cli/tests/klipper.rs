@@ -235,8 +235,6 @@ fn klipper_probe_heights_give_klippers_values_back() {
             "kd/mechanism.toml",
             "--data",
             "kd/probes.csv",
-            "--axes",
-            "z",
             "--out",
             "again.toml",
         ],

@@ -10,6 +10,7 @@
 //! | `Tool` | any subset of the tool coordinates (e.g. only `z`) | — |
 //! | `Targets` | positions of points fixed on the tool body | `t1x t1y [t1z] …` (mm, tool frame) |
 //! | `BallBar` | distances `|b − s_j| + d` from the ball `b` to sockets `s_j` | `s1x s1y [s1z] … dbar`, and `ball.x ball.y [ball.z]` on a tool with an orientation |
+//! | `Probe` | the tool point's height above a bed plane, `z − h(x, y)` (a z-probe, a dial gauge on a surface plate) | `bed.z` (mm), `bed.rx bed.ry` (rad) |
 //!
 //! followed by the instrument frame's parameters (`frame.x …`, [`crate::frame`])
 //! unless the data are in the base frame ([`Frame::Base`]). A ball bar has no
@@ -17,8 +18,8 @@
 //! mechanism's parameters; the instrument's own are fixed unless freed by
 //! name, the frame's are free with [`Frame::Free`].
 //!
-//! A new instrument (a probe on a plane, distances between two poses) is one
-//! new variant: its readings, names, units and parameters below.
+//! A new instrument (distances between two poses, say) is one new variant:
+//! its readings, names, units and parameters below.
 
 use crate::ballbar::Setup;
 use crate::error::{Error, Result};
@@ -68,6 +69,13 @@ pub enum Instrument {
         /// (the ball is the tool point), else its nominal offset.
         ball: Vec<f64>,
     },
+    /// Heights of the tool point above a bed plane, read as `probe`: the
+    /// plane `h(x, y) = bed.z − x·tan(bed.ry) + y·tan(bed.rx)` (the plane
+    /// `z = bed.z` turned by `bed.rx` about x and `bed.ry` about y, to first
+    /// order in the tilts, exactly as a height over x and y), the reading
+    /// `z − h(x, y)`. Its three parameters are 0 nominally (a flat bed at
+    /// z = 0: the reading is the tool's z) and fixed unless freed.
+    Probe,
 }
 
 /// A measurement model for one mechanism: the instrument, its frame, and the
@@ -136,8 +144,12 @@ fn body_point<D: Scalar>(layout: ToolLayout, x: &[D], t: &[D]) -> [D; 3] {
 
 const COORD: [&str; 3] = ["x", "y", "z"];
 
+/// The bed plane's parameters of a [`Instrument::Probe`].
+pub const PROBE_PARAMS: [&str; 3] = ["bed.z", "bed.rx", "bed.ry"];
+
 impl MeasurementModel {
     fn build(spec: &Spec, instrument: Instrument) -> Self {
+        let mut param_units = None;
         let (axes, units, names, nominal) = match &instrument {
             Instrument::Tool { axes } => (
                 axes.iter().map(|&a| spec.tool_axes[a].clone()).collect(),
@@ -180,8 +192,18 @@ impl MeasurementModel {
                     nominal,
                 )
             }
+            Instrument::Probe => {
+                param_units = Some(vec![Unit::Millimetre, Unit::Radian, Unit::Radian]);
+                (
+                    vec!["probe".into()],
+                    vec![Unit::Millimetre],
+                    PROBE_PARAMS.map(String::from).to_vec(),
+                    vec![0.0; 3],
+                )
+            }
         };
         let n_own = names.len();
+        let param_units = param_units.unwrap_or_else(|| vec![Unit::Millimetre; n_own]);
         Self {
             instrument,
             frame: Frame::Base,
@@ -189,7 +211,7 @@ impl MeasurementModel {
             tool_axes: spec.tool_axes.clone(),
             axes,
             units,
-            param_units: vec![Unit::Millimetre; n_own],
+            param_units,
             names,
             nominal,
             n_own,
@@ -290,15 +312,47 @@ impl MeasurementModel {
         ))
     }
 
-    /// The same model with the instrument at `frame`. A ball bar has no frame
-    /// (its sockets are in the base frame): only [`Frame::Base`] is accepted.
+    /// Heights of the tool point probed on a bed plane (read as `probe`;
+    /// [`Instrument::Probe`]). The tool needs a spatial tool point.
+    pub fn probe(spec: &Spec) -> Result<Self> {
+        match body(spec.tool_layout) {
+            Some((3, _)) => Ok(Self::build(spec, Instrument::Probe)),
+            _ => Err(Error::InvalidMechanism(format!(
+                "a height probe needs a spatial tool point (x, y, z); the tool of `{}` is {}",
+                spec.name,
+                spec.tool_axes.join(" ")
+            ))),
+        }
+    }
+
+    /// The same model with its own parameters (not the frame's) at `own`
+    /// (e.g. a tilted bed for a probe, to simulate one).
+    pub fn with_own(mut self, own: &[f64]) -> Result<Self> {
+        if own.len() != self.n_own || own.iter().any(|v| !v.is_finite()) {
+            return Err(Error::Dimension {
+                what: format!(
+                    "finite values of the instrument's parameters ({})",
+                    self.names[..self.n_own].join(" ")
+                ),
+                expected: self.n_own,
+                got: own.len(),
+            });
+        }
+        self.nominal[..self.n_own].copy_from_slice(own);
+        Ok(self)
+    }
+
+    /// The same model with the instrument at `frame`. A ball bar and a probe
+    /// have no frame (the sockets and the bed plane are in the base frame):
+    /// only [`Frame::Base`] is accepted.
     pub fn in_frame(mut self, frame: Frame) -> Result<Self> {
         let layout = self.frame_layout();
         let size = layout.frame_size();
         if size == 0 && frame != Frame::Base {
-            return Err(Error::InvalidRequest(
-                "a ball bar's sockets are in the base frame: it has no instrument frame to identify or give".into(),
-            ));
+            return Err(Error::InvalidRequest(match self.instrument {
+                Instrument::Probe => "a probe's bed plane is in the base frame (its height and tilts are the parameters bed.z, bed.rx, bed.ry): it has no instrument frame to identify or give".into(),
+                _ => "a ball bar's sockets are in the base frame: it has no instrument frame to identify or give".into(),
+            }));
         }
         self.names.truncate(self.n_own);
         self.param_units.truncate(self.n_own);
@@ -408,7 +462,7 @@ impl MeasurementModel {
                 dim: points.first().map_or(3, Vec::len),
                 count: points.len(),
             },
-            Instrument::BallBar { .. } => ToolLayout::Readings,
+            Instrument::BallBar { .. } | Instrument::Probe => ToolLayout::Readings,
         }
     }
 
@@ -419,6 +473,7 @@ impl MeasurementModel {
                 Instrument::Tool { .. } => "tool",
                 Instrument::Targets { .. } => "targets",
                 Instrument::BallBar { .. } => "ball_bar",
+                Instrument::Probe => "probe",
             },
             axes: self.axes.clone(),
             units: self.units.clone(),
@@ -439,6 +494,7 @@ impl MeasurementModel {
             Instrument::BallBar { setup, .. } => {
                 format!("ball bar, {} sockets", setup.sockets.len())
             }
+            Instrument::Probe => "heights probed on a bed plane".into(),
         }
     }
 
@@ -487,6 +543,11 @@ impl MeasurementModel {
                     }
                     *out = sum.sqrt() + offset;
                 }
+            }
+            Instrument::Probe => {
+                let p = body_point(self.tool, x, &[]);
+                let h = m[0] - p[0] * m[2].tan() + p[1] * m[1].tan();
+                y[0] = p[2] - h;
             }
         }
     }
@@ -555,7 +616,7 @@ impl MeasurementModel {
         let positions = match &self.instrument {
             Instrument::Tool { .. } => self.is_whole_tool(),
             Instrument::Targets { .. } => true,
-            Instrument::BallBar { .. } => false,
+            Instrument::BallBar { .. } | Instrument::Probe => false,
         };
         if !positions {
             return Ok(m);

@@ -379,3 +379,80 @@ fn bad_descriptions_name_the_leg_and_joint() {
         "{e}"
     );
 }
+
+/// A height probe on a tilted bed: its reading is the tool's height above
+/// the plane (checked against the formula), and a linear delta calibrates
+/// Klipper's six parameters and the bed's two tilts from probe heights alone;
+/// the bed's height trades with the three endstops and is named.
+#[test]
+fn probe_heights_on_a_tilted_bed_calibrate_a_delta() {
+    let m = spatial("linear-delta");
+    let spec = m.spec();
+    let bed = [0.2, 0.003, -0.002];
+    let probe = pkmcal::MeasurementModel::probe(spec).unwrap();
+    let tilted = probe.clone().with_own(&bed).unwrap();
+    let x = [10.0, -20.0, 5.0];
+    let mut y = [0.0];
+    tilted.observe(&x, tilted.nominal(), &mut y);
+    let h = bed[0] - x[0] * bed[2].tan() + x[1] * bed[1].tan();
+    assert!((y[0] - (x[2] - h)).abs() < 1e-12);
+    let truth = Params::from_named(
+        spec,
+        [
+            ("delta_radius", 130.5),
+            ("angle_a", 3.67),
+            ("angle_b", 5.755),
+            ("da", 0.4),
+            ("db", -0.2),
+            ("dc", 0.1),
+        ],
+    )
+    .unwrap();
+    let targets = common::spread(&m, 30);
+    let data = pkmcal::simulate(&m, &tilted, &truth, &targets, 0.0, 1).unwrap();
+    let mut opts = pkmcal::CalibrationOptions::new(spec, Model::Exact);
+    let names = [
+        "delta_radius",
+        "angle_a",
+        "angle_b",
+        "da",
+        "db",
+        "dc",
+        "bed.rx",
+        "bed.ry",
+    ];
+    opts.free = names
+        .iter()
+        .map(|n| probe.index_of(spec, n).unwrap())
+        .collect();
+    let cal = pkmcal::calibrate(&m, &probe, &data, &Params::nominal(spec), &opts).unwrap();
+    assert!(cal.identifiability.unidentifiable.is_empty());
+    for n in &names[..3] {
+        let (a, b) = (
+            cal.params.get(spec, n).unwrap(),
+            truth.get(spec, n).unwrap(),
+        );
+        assert!((a - b).abs() < RECOVERED, "{n}: {a} vs {b}");
+    }
+    // The endstops absorb the bed's height (0.2 mm higher reads as
+    // carriages 0.2 mm lower): each off by the same −0.2 mm.
+    for n in ["da", "db", "dc"] {
+        let d = cal.params.get(spec, n).unwrap() - truth.get(spec, n).unwrap();
+        assert!((d + bed[0]).abs() < RECOVERED, "{n}: {d}");
+    }
+    assert!((cal.measurement[1] - bed[1]).abs() < RECOVERED);
+    assert!((cal.measurement[2] - bed[2]).abs() < RECOVERED);
+    // With the bed's height free too, that direction is named.
+    opts.free.push(probe.index_of(spec, "bed.z").unwrap());
+    let a = pkmcal::analyze(
+        &m,
+        &probe,
+        &data,
+        &Params::nominal(spec),
+        Model::Exact,
+        &opts.free,
+        &[],
+    )
+    .unwrap();
+    assert_eq!(a.unidentifiable.len(), 1, "{:?}", a.unidentifiable);
+}
