@@ -9,7 +9,7 @@ OLD=${OLD:?set OLD to the pkmcal binary of the other build}
 NEW=${NEW:-$ROOT/target/release/pkmcal}
 EX=$ROOT/examples
 W=$(mktemp -d); trap 'rm -rf "$W"' EXIT; cd "$W"
-for ex in jeong-kim-2dof jeong-kim-planar five-bar 3-rrr 4-rrr gough-stewart-6 gough-stewart-8; do
+for ex in jeong-kim-2dof jeong-kim-planar five-bar 3-rrr 4-rrr gough-stewart-6 gough-stewart-8 linear-delta linear-delta-4 rotary-delta 3-prs spatial-gough-stewart-6; do
   M=$EX/$ex/mechanism.toml
   printf '' > t.toml
   $NEW simulate --mechanism $M --grid 40 --noise 0.002 --out $ex.csv --quiet 2>/dev/null

@@ -660,8 +660,9 @@ fn wrench(m: &PyMechanism, f: Option<Vec<f64>>, what: &str) -> PyResult<Vec<f64>
     }
 }
 
-/// The instrument: the whole tool, some tool axes, target points on the tool
-/// or a ball bar; in the base frame or with a free (identified) frame.
+/// The instrument: the whole tool, some tool axes, heights probed on a bed
+/// plane (`axes=["probe"]`), target points on the tool or a ball bar; in the
+/// base frame or with a free (identified) frame.
 fn measurement_arg(
     m: &PyMechanism,
     axes: Option<Vec<String>>,
@@ -676,7 +677,10 @@ fn measurement_arg(
             "give at most one of axes=, points= and ballbar= (what the instrument reads)",
         ));
     }
-    let mm = if let Some(a) = &axes {
+    let mm = if axes.as_deref().is_some_and(|a| a == ["probe"]) {
+        // Heights probed on a bed plane (bed.z, bed.rx, bed.ry).
+        MeasurementModel::probe(spec).map_err(|e| usage(format!("axes: {e}")))?
+    } else if let Some(a) = &axes {
         MeasurementModel::tool_axes(spec, a).map_err(|e| usage(format!("axes: {e}")))?
     } else if let Some(p) = points {
         let pts: Vec<Vec<f64>> = if let Ok(s) = p.extract::<String>() {
@@ -750,6 +754,11 @@ fn measurement_arg(
                     "frame=\"free\": a ball bar's sockets are in the base frame; use frame=\"base\"",
                 ));
             }
+            if matches!(mm.instrument(), pkmcal::Instrument::Probe) {
+                return Err(usage(
+                    "frame=\"free\": probed heights fix no instrument frame; the bed plane's height and tilts are the parameters bed.z, bed.rx, bed.ry (free them by name)",
+                ));
+            }
             if !positions {
                 return Err(usage(format!(
                     "frame=\"free\" needs whole positions to register the instrument frame; the instrument reads only {}",
@@ -764,7 +773,10 @@ fn measurement_arg(
             )));
         }
     };
-    if ballbar_instrument || spec.tool_layout.frame_size() == 0 {
+    if ballbar_instrument
+        || matches!(mm.instrument(), pkmcal::Instrument::Probe)
+        || spec.tool_layout.frame_size() == 0
+    {
         return Ok(mm);
     }
     mm.in_frame(choice).map_err(lib_err)
@@ -1739,7 +1751,9 @@ fn simulate<'py>(
 /// method of docs/model.md, eq. 12).
 ///
 /// ``commands``: (n, actuators); ``measured``: (n, readings) — the tool
-/// coordinates (``mechanism.tool_axes``), or with ``axes=[...]`` only those,
+/// coordinates (``mechanism.tool_axes``), or with ``axes=[...]`` only those
+/// (``axes=["probe"]``: heights probed on a bed plane whose height and tilts
+/// are the parameters ``bed.z``, ``bed.rx``, ``bed.ry``, fixed unless freed),
 /// with ``points=`` target points on the tool (``t1x, t1y, …``), with
 /// ``ballbar=`` bar lengths (``d1, d2, …``). ``sigma``: the standard
 /// deviation of the readings (a number when they share a unit, one per

@@ -171,3 +171,27 @@ def test_mechanisms_pickle():
         assert back.nominal == m.nominal and back.actuators == m.actuators
         c = pkmcal.nominal_commands(m, pkmcal.plan(m, 10, max_candidates=300).targets)
         assert np.array_equal(pkmcal.predict(back, c).x, pkmcal.predict(m, c).x)
+
+
+def test_spatial_delta_and_probe_heights():
+    """A spatial description (the linear delta) from Python, calibrated from
+    heights probed on a tilted bed (axes=["probe"]); the CLI reads the same
+    kind of file."""
+    delta = pkmcal.Mechanism(EXAMPLES / "linear-delta" / "mechanism.toml")
+    assert delta.kind == "spatial"
+    assert delta.tool_axes == ["x", "y", "z"]
+    plan = pkmcal.plan(delta, 25)
+    truth = {"delta_radius": 130.4, "angle_a": 3.668, "da": 0.3, "db": -0.2}
+    commands, measured = pkmcal.simulate(delta, plan.targets, truth, axes=["probe"])
+    assert measured.shape == (25, 1)
+    cal = pkmcal.calibrate(
+        delta,
+        commands,
+        measured,
+        axes=["probe"],
+        free=["delta_radius", "angle_a", "angle_b", "da", "db", "dc"],
+    )
+    assert abs(cal.parameters["delta_radius"] - 130.4) < 1e-6
+    assert abs(cal.parameters["da"] - 0.3) < 1e-6
+    with pytest.raises(pkmcal.PkmcalError, match="bed plane"):
+        pkmcal.calibrate(delta, commands, measured, axes=["probe"], frame="free")

@@ -130,17 +130,25 @@ pub fn workspace_point<M: Mechanism>(mech: &M, target: &[f64]) -> Result<Workspa
 /// reachable with conditioning ≥ [`crate::Spec::min_conditioning`]. The spacing is
 /// coarsened if the lattice would exceed [`MAX_LATTICE_POINTS`].
 pub fn sample_workspace<M: Mechanism>(mech: &M, spacing: f64) -> Vec<WorkspacePoint> {
+    use rayon::prelude::*;
     let spec = mech.spec();
+    lattice_targets(spec, spacing)
+        .into_par_iter()
+        .filter_map(|target| {
+            workspace_point(mech, &target)
+                .ok()
+                .filter(|p| p.conditioning >= spec.min_conditioning)
+        })
+        .collect()
+}
+
+/// The points of the lattice of [`sample_workspace`], in order.
+fn lattice_targets(spec: &crate::Spec, spacing: f64) -> Vec<Vec<f64>> {
     let axes = lattice_axes(spec, spacing);
-    let mut points = Vec::new();
+    let mut out = Vec::new();
     let mut idx = vec![0usize; axes.len()];
     'outer: loop {
-        let target: Vec<f64> = idx.iter().zip(&axes).map(|(&i, a)| a[i]).collect();
-        if let Ok(p) = workspace_point(mech, &target)
-            && p.conditioning >= spec.min_conditioning
-        {
-            points.push(p);
-        }
+        out.push(idx.iter().zip(&axes).map(|(&i, a)| a[i]).collect());
         for d in 0..idx.len() {
             idx[d] += 1;
             if idx[d] < axes[d].len() {
@@ -150,7 +158,7 @@ pub fn sample_workspace<M: Mechanism>(mech: &M, spacing: f64) -> Vec<WorkspacePo
         }
         break;
     }
-    points
+    out
 }
 
 /// `count` targets spread evenly over the usable workspace: farthest-point
@@ -327,12 +335,26 @@ impl Atlas {
     /// About `points` lattice points of the usable workspace (nominal
     /// parameters).
     pub fn build<M: Mechanism>(mech: &M, points: usize) -> Self {
+        use rayon::prelude::*;
         let spec = mech.spec();
         let dims = spec.workspace_box.len() as f64;
         let spacing = scaled_extent(spec) / (points.max(2) as f64).powf(1.0 / dims);
-        let entries = sample_workspace(mech, spacing)
-            .into_iter()
-            .map(|p| (spec.actuated.iter().map(|&j| p.q[j]).collect(), p.q))
+        let rho = &spec.nominal[..spec.n_geometric()];
+        // The lattice of [`sample_workspace`]; the conditioning is only
+        // computed when a threshold asks for it (none while a mechanism
+        // builds its atlas).
+        let entries = lattice_targets(spec, spacing)
+            .into_par_iter()
+            .filter_map(|target| {
+                let q = inverse_kinematics(mech, rho, &target).ok()?;
+                if spec.min_conditioning > 0.0 {
+                    let c = conditioning(mech, &q, rho);
+                    if c.is_nan() || c < spec.min_conditioning {
+                        return None;
+                    }
+                }
+                Some((spec.actuated.iter().map(|&j| q[j]).collect(), q))
+            })
             .collect();
         Self {
             entries,
