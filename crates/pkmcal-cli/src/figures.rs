@@ -479,6 +479,7 @@ fn arrow_panel<DB: DrawingBackend>(
     errors: &[Vec<f64>],
     color: RGBColor,
     title: &str,
+    axes: [&str; 2],
 ) -> Result<()> {
     let (x0, x1) = range(workspace.iter().chain(points).map(|p| p[0]), 0.04);
     let biggest = errors
@@ -523,8 +524,8 @@ fn arrow_panel<DB: DrawingBackend>(
         .map_err(err)?;
     chart
         .configure_mesh()
-        .x_desc("x (mm)")
-        .y_desc("y (mm)")
+        .x_desc(format!("{} (mm)", axes[0]))
+        .y_desc(format!("{} (mm)", axes[1]))
         .x_label_formatter(&tick)
         .y_label_formatter(&tick)
         .label_style((FONT, 13))
@@ -573,29 +574,82 @@ fn arrow_panel<DB: DrawingBackend>(
     Ok(())
 }
 
-/// The workspace seen from above: measured poses (black) with their error
-/// vectors before (left, red) and after (right, blue) calibration, each
-/// magnified for its own size, over the usable workspace (grey).
+/// One view of [`workspace_errors`]: the lattice, the poses, the errors
+/// before and after (projected), the axes' names and the row's height.
+struct Row<'a> {
+    ws: Vec<Vec<f64>>,
+    ps: Vec<Vec<f64>>,
+    b: Vec<Vec<f64>>,
+    a: Vec<Vec<f64>>,
+    names: [&'a str; 2],
+    h: u32,
+}
+
+/// The workspace seen from above (and, for a spatial tool, from the front and
+/// the side): measured poses (black) with their error vectors before (left,
+/// red) and after (right, blue) calibration, each magnified for its own size,
+/// over the usable workspace (grey). `views` are the projections, each the
+/// indices of two tool axes and their names; one row per view.
 pub fn workspace_errors(
     workspace: &[Vec<f64>],
     points: &[Vec<f64>],
     before: &[Vec<f64>],
     after: &[Vec<f64>],
+    views: &[([usize; 2], [&str; 2])],
 ) -> Result<Figure> {
-    let (x0, x1) = range(workspace.iter().chain(points).map(|p| p[0]), 0.04);
-    let (y0, y1) = range(workspace.iter().chain(points).map(|p| p[1]), 0.06);
+    let project = |v: &[Vec<f64>], [a, b]: [usize; 2]| -> Vec<Vec<f64>> {
+        v.iter().map(|p| vec![p[a], p[b]]).collect()
+    };
     let w = 640u32;
-    let h = ((w as f64 - 70.0) * (y1 - y0) / (x1 - x0) + 90.0).clamp(400.0, 1000.0) as u32;
+    let rows: Vec<Row> = views
+        .iter()
+        .map(|&(ix, names)| {
+            let (ws, ps) = (project(workspace, ix), project(points, ix));
+            let (x0, x1) = range(ws.iter().chain(&ps).map(|p| p[0]), 0.04);
+            let (y0, y1) = range(ws.iter().chain(&ps).map(|p| p[1]), 0.06);
+            let h = ((w as f64 - 70.0) * (y1 - y0) / (x1 - x0) + 90.0).clamp(400.0, 1000.0) as u32;
+            Row {
+                ws,
+                ps,
+                b: project(before, ix),
+                a: project(after, ix),
+                names,
+                h,
+            }
+        })
+        .collect();
+    let height: u32 = rows.iter().map(|r| r.h).sum();
     render!(
         "workspace",
         "Errors over the workspace",
-        "Measured poses (black) over the usable workspace (grey) with each error vector, before calibration (left, red) and after (right, blue); each panel magnifies its vectors for their size and has its own scale bar.",
-        (2 * w, h),
+        "Measured poses (black) over the usable workspace (grey) with each error vector, before calibration (left, red) and after (right, blue); each panel magnifies its vectors for their size and has its own scale bar. A spatial tool is seen from above (x–y), from the front (x–z) and from the side (y–z).",
+        (2 * w, height.max(1)),
         |root| {
             root.fill(&WHITE).map_err(err)?;
-            let (l, r) = root.split_horizontally(w);
-            arrow_panel(&l, workspace, points, before, BEFORE, "before calibration")?;
-            arrow_panel(&r, workspace, points, after, AFTER, "after calibration")?;
+            let mut rest = root.clone();
+            for Row {
+                ws,
+                ps,
+                b,
+                a,
+                names,
+                h,
+            } in &rows
+            {
+                let (row, below) = rest.split_vertically(*h);
+                let (l, r) = row.split_horizontally(w);
+                let view = format!("{}–{}", names[0], names[1]);
+                let t = |s: &str| {
+                    if rows.len() > 1 {
+                        format!("{view}, {s}")
+                    } else {
+                        s.to_string()
+                    }
+                };
+                arrow_panel(&l, ws, ps, b, BEFORE, &t("before calibration"), *names)?;
+                arrow_panel(&r, ws, ps, a, AFTER, &t("after calibration"), *names)?;
+                rest = below;
+            }
             Ok(())
         }
     )

@@ -292,11 +292,26 @@ pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
     // Error vectors over the workspace: when the errors are tool positions
     // in the base frame (other readings have no direction in the plan view).
     if r.measurement.is_whole_tool() {
+        let axis = |a: &str| {
+            spec.tool_axes
+                .iter()
+                .zip(&spec.tool_units)
+                .position(|(n, u)| n == a && *u == pkmcal::Unit::Millimetre)
+        };
+        let views: Vec<([usize; 2], [&str; 2])> = match (axis("x"), axis("y"), axis("z")) {
+            (Some(x), Some(y), Some(z)) => vec![
+                ([x, y], ["x", "y"]),
+                ([x, z], ["x", "z"]),
+                ([y, z], ["y", "z"]),
+            ],
+            _ => vec![([0, 1], ["x", "y"])],
+        };
         out.push(figures::workspace_errors(
             &lattice_targets,
             &positions,
             r.before,
             r.after,
+            &views,
         )?);
     }
     if slices.iter().any(|s| !s.points.is_empty()) || !sweeps.is_empty() {
