@@ -581,6 +581,13 @@ pub fn analyze_identifiability(
                 scaled.column_mut(k).unscale_mut(*n);
             }
         }
+        // Fewer residuals than free parameters: zero rows make the matrix
+        // square, so that the SVD also gives the null space (as many zero
+        // singular values as missing rows, each with its direction).
+        if scaled.nrows() < scaled.ncols() {
+            let (m, n) = scaled.shape();
+            scaled = scaled.insert_rows(m, n - m, 0.0);
+        }
         let svd = scaled.clone().svd(false, true);
         let mut order: Vec<usize> = (0..svd.singular_values.len()).collect();
         order.sort_by(|&a, &b| svd.singular_values[b].total_cmp(&svd.singular_values[a]));
@@ -606,11 +613,6 @@ pub fn analyze_identifiability(
                 if svd.singular_values[i] <= RANK_TOL * smax {
                     dirs.push(vt.row(i).iter().copied().collect());
                 }
-            }
-            // A tall matrix has as many singular values as columns; a wide one
-            // (fewer residuals than free parameters) is rank deficient too.
-            if sv.len() < free.len() && dirs.is_empty() {
-                dirs.push(vec![1.0; free.len()]);
             }
         }
         if dirs.is_empty() || !auto_fix {

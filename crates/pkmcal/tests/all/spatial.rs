@@ -456,3 +456,28 @@ fn probe_heights_on_a_tilted_bed_calibrate_a_delta() {
     .unwrap();
     assert_eq!(a.unidentifiable.len(), 1, "{:?}", a.unidentifiable);
 }
+
+/// Fewer readings than free parameters (8 probe heights, every geometric
+/// parameter of a delta free): the rank is at most 8 and every other
+/// direction is named, one per missing rank (not one placeholder).
+#[test]
+fn fewer_readings_than_parameters_name_every_null_direction() {
+    let m = spatial("linear-delta");
+    let spec = m.spec();
+    let probe = pkmcal::MeasurementModel::probe(spec).unwrap();
+    let targets = common::spread(&m, 8);
+    let data = pkmcal::simulate(&m, &probe, &Params::nominal(spec), &targets, 0.0, 1).unwrap();
+    let free: Vec<usize> = (0..spec.n_geometric()).collect();
+    let a = pkmcal::analyze(
+        &m,
+        &probe,
+        &data,
+        &Params::nominal(spec),
+        Model::Exact,
+        &free,
+        &[],
+    )
+    .unwrap();
+    assert!(a.rank <= 8, "{}", a.rank);
+    assert_eq!(a.rank + a.unidentifiable.len(), free.len());
+}
