@@ -361,6 +361,27 @@ pub fn inverse_kinematics<M: Mechanism>(mech: &M, rho: &[f64], target: &[f64]) -
     Ok(q)
 }
 
+/// The independent joints a description names (`given`, joint names), or
+/// [`choose_independent`]'s when it names none.
+pub fn independent_joints<M: Mechanism>(
+    mech: &M,
+    given: Option<&[String]>,
+    q: &[f64],
+    rho: &[f64],
+) -> Result<Vec<usize>> {
+    let Some(list) = given else {
+        return Ok(choose_independent(mech, q, rho));
+    };
+    let joints = &mech.spec().joints;
+    list.iter()
+        .map(|n| {
+            joints.iter().position(|j| j == n).ok_or_else(|| {
+                Error::InvalidMechanism(format!("`independent`: unknown joint `{n}`"))
+            })
+        })
+        .collect()
+}
+
 /// The independent joints: the first combination of `dof` actuated joints (in
 /// actuator order) whose complement is not singular at `q` (the rigid and
 /// linear models drive them); the first `dof` actuated joints if every

@@ -575,19 +575,8 @@ impl PlanarLinkage {
         }
         let rho = linkage.spec.nominal[..linkage.spec.geometric.len()].to_vec();
         linkage.fill_closing(&mut q0, &rho);
-        linkage.spec.independent = match &d.independent {
-            Some(list) => {
-                let mut idx = Vec::new();
-                for n in list {
-                    let i = joint_names.iter().position(|j| j == n).ok_or_else(|| {
-                        Error::InvalidMechanism(format!("`independent`: unknown joint `{n}`"))
-                    })?;
-                    idx.push(i);
-                }
-                idx
-            }
-            None => crate::kinematics::choose_independent(&linkage, &q0, &rho),
-        };
+        linkage.spec.independent =
+            crate::kinematics::independent_joints(&linkage, d.independent.as_deref(), &q0, &rho)?;
         linkage.spec.joint_scale = d
             .joints
             .iter()

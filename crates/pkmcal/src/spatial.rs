@@ -918,24 +918,8 @@ impl SpatialMechanism {
                 "the [assembly] configuration does not close ({e}); check the lengths, the pose and the joint values (a leg that cannot reach the platform there, or guesses far from the wanted assembly)"
             ))
         })?;
-        mech.spec.independent = match &d.independent {
-            Some(list) => {
-                let mut idx = Vec::new();
-                for n in list {
-                    let i = mech
-                        .spec
-                        .joints
-                        .iter()
-                        .position(|j| j == n)
-                        .ok_or_else(|| {
-                            Error::InvalidMechanism(format!("`independent`: unknown joint `{n}`"))
-                        })?;
-                    idx.push(i);
-                }
-                idx
-            }
-            None => crate::kinematics::choose_independent(&mech, &q0, &rho),
-        };
+        mech.spec.independent =
+            crate::kinematics::independent_joints(&mech, d.independent.as_deref(), &q0, &rho)?;
         mech.spec.reference_q = q0.clone();
         mech.spec.validate()?;
         let j = crate::autodiff::jacobians(&mech, &q0, &rho, 0..nq);
