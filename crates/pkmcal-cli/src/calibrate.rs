@@ -73,6 +73,7 @@ pub fn data_from<M: Mechanism>(
         .map(|(i, (c, m))| Measurement {
             target: targets.as_ref().map(|t| t[i].clone()),
             commands: c,
+            partner: None,
             measured: m,
             sigma: sigma.as_ref().map_or(vec![], |s| s[i].clone()),
             origin: Some(pkmcal::Origin {

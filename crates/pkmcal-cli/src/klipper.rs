@@ -628,6 +628,7 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
         .map(|(i, p)| pkmcal::Measurement {
             target: None,
             commands: delta.carriage_heights(&p.steps).to_vec(),
+            partner: None,
             measured: vec![p.height],
             sigma: vec![],
             origin: Some(pkmcal::Origin {

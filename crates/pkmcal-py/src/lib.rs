@@ -895,6 +895,7 @@ fn measurements(
         .map(|(i, ((commands, measured), sigma))| pkmcal::Measurement {
             target: t.as_ref().map(|t| t[i].clone()),
             commands,
+            partner: None,
             measured,
             sigma,
             origin: Some(Origin {

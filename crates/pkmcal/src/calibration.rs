@@ -154,15 +154,35 @@ impl CalibrationOptions {
 /// Parameters, residuals and Jacobian of the last Jacobian evaluation.
 type CachedJacobian = (Vec<f64>, DVector<f64>, DMatrix<f64>);
 
+/// One data row of an [`IdentificationProblem`]: a pose read by the
+/// instrument, or two poses whose distance was measured.
+#[derive(Debug, Clone, Copy)]
+struct Row {
+    /// Index of its (first) pose.
+    first: usize,
+    /// Index of the second pose of a distance.
+    second: Option<usize>,
+    /// Index of its first reading in the residual vector.
+    offset: usize,
+    /// Number of readings.
+    len: usize,
+}
+
 /// The identification least-squares problem: residuals are the readings
-/// predicted by the measurement model minus those measured, pose by pose. The
-/// parameter vector is the mechanism's `[ρ, Δq, k]` followed by the
-/// measurement model's ([`MeasurementModel::param_names`]).
+/// predicted by the measurement model minus those measured, row by row (a
+/// row is a pose, or two poses whose distance was measured,
+/// [`Measurement::partner`]). The parameter vector is the mechanism's
+/// `[ρ, Δq, k]` followed by the measurement model's
+/// ([`MeasurementModel::param_names`]).
 pub struct IdentificationProblem<'a, M: Mechanism> {
     mech: &'a M,
     measurement: &'a MeasurementModel,
+    /// Every pose: each row's first, then the second poses of distances.
     poses: Vec<Pose>,
-    origins: Vec<Origin>,
+    /// Where each pose came from (its row's origin).
+    pose_origins: Vec<Origin>,
+    rows: Vec<Row>,
+    n_readings: usize,
     measured: Vec<Vec<f64>>,
     model: Model,
     force: Vec<f64>,
@@ -182,44 +202,74 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         model: Model,
         force: &[f64],
     ) -> Result<Self> {
+        let data = numbered(data);
         let mut poses: Vec<Pose> = Vec::with_capacity(data.len());
-        let origins: Vec<Origin> = numbered(data)
-            .iter()
-            .map(|m| m.origin.expect("numbered"))
-            .collect();
-        for (m, origin) in data.iter().zip(&origins) {
-            if m.measured.len() != measurement.len() {
+        let mut pose_origins: Vec<Origin> = Vec::with_capacity(data.len());
+        let mut rows: Vec<Row> = Vec::with_capacity(data.len());
+        let mut offset = 0;
+        let mut seconds: Vec<(usize, &[f64])> = vec![];
+        for (i, m) in data.iter().enumerate() {
+            let origin = m.origin.expect("numbered");
+            let len = measurement.row_len(m);
+            if m.partner.is_some() {
+                measurement
+                    .check_distances()
+                    .map_err(|e| e.at_pose(origin))?;
+            }
+            if m.measured.len() != len {
+                let what = if m.partner.is_some() {
+                    "readings (distance)".to_string()
+                } else {
+                    format!("readings ({})", measurement.axes().join(" "))
+                };
                 return Err(Error::Dimension {
-                    what: format!("readings ({})", measurement.axes().join(" ")),
-                    expected: measurement.len(),
+                    what,
+                    expected: len,
                     got: m.measured.len(),
                 }
-                .at_pose(*origin));
+                .at_pose(origin));
             }
-            for ((v, u), axis) in m
-                .measured
-                .iter()
-                .zip(measurement.units())
-                .zip(measurement.axes())
-            {
+            for (a, v) in m.measured.iter().enumerate() {
+                let (u, axis) = (measurement.row_unit(m, a), measurement.row_axis(m, a));
                 if !(v.is_finite() && v.abs() <= u.max_magnitude()) {
                     return Err(Error::InvalidRequest(format!(
                         "measured `{axis}` = {v:?} {u} is not a finite value within ±{:e} {u}; check the measurement",
                         u.max_magnitude()
                     ))
-                    .at_pose(*origin));
+                    .at_pose(origin));
                 }
             }
             let start = poses.last().map(|p| p.nominal_q.clone());
-            let pose = prepare_pose(mech, &m.commands, start.as_deref())
-                .map_err(|e| e.at_pose(*origin))?;
+            let pose =
+                prepare_pose(mech, &m.commands, start.as_deref()).map_err(|e| e.at_pose(origin))?;
             poses.push(pose);
+            pose_origins.push(origin);
+            if let Some(b) = &m.partner {
+                seconds.push((i, b));
+            }
+            rows.push(Row {
+                first: i,
+                second: None,
+                offset,
+                len,
+            });
+            offset += len;
+        }
+        for (i, commands) in seconds {
+            let origin = pose_origins[i];
+            let pose = prepare_pose(mech, commands, Some(&poses[i].nominal_q))
+                .map_err(|e| e.at_pose(origin))?;
+            rows[i].second = Some(poses.len());
+            poses.push(pose);
+            pose_origins.push(origin);
         }
         Ok(Self {
             mech,
             measurement,
             poses,
-            origins,
+            pose_origins,
+            rows,
+            n_readings: offset,
             measured: data.iter().map(|m| m.measured.clone()).collect(),
             model,
             force: force.to_vec(),
@@ -241,7 +291,8 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         let warm: Vec<Option<&[f64]>> = (0..self.poses.len())
             .map(|i| cached.as_ref().map(|(_, p)| p[i].q.as_slice()))
             .collect();
-        let (mech, model, force, origins) = (self.mech, self.model, &self.force, &self.origins);
+        let (mech, model, force, origins) =
+            (self.mech, self.model, &self.force, &self.pose_origins);
         let out: Result<Vec<Prediction>> = self
             .poses
             .par_iter()
@@ -258,7 +309,8 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         Ok(out)
     }
 
-    /// The prepared poses.
+    /// The prepared poses: each row's (first) pose in row order, then the
+    /// second poses of the distance rows.
     pub fn poses(&self) -> &[Pose] {
         &self.poses
     }
@@ -268,9 +320,32 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         self.measurement
     }
 
-    /// Predicted tool coordinates (base frame) at every pose under `params`.
+    /// Number of readings (residuals): the instrument's per pose row, one
+    /// per distance row.
+    pub fn n_readings(&self) -> usize {
+        self.n_readings
+    }
+
+    /// Predicted tool coordinates (base frame) at each row's (first) pose
+    /// under `params`.
     pub fn predict(&self, params: &Params) -> Result<Vec<Vec<f64>>> {
-        Ok(self.predictions(params)?.into_iter().map(|p| p.x).collect())
+        let mut p = self.predictions(params)?;
+        p.truncate(self.rows.len());
+        Ok(p.into_iter().map(|p| p.x).collect())
+    }
+
+    /// Predicted distance of each row that pairs two poses (`None` for the
+    /// other rows) under `params`.
+    pub fn predict_distances(&self, params: &Params) -> Result<Vec<Option<f64>>> {
+        let p = self.predictions(params)?;
+        Ok(self
+            .rows
+            .iter()
+            .map(|r| {
+                r.second
+                    .map(|b| self.measurement.distance(&p[r.first].x, &p[b].x))
+            })
+            .collect())
     }
 
     /// Split a full parameter vector into the mechanism's and the
@@ -295,20 +370,29 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
     /// vector.
     pub fn residuals(&self, x: &[f64]) -> Result<DVector<f64>> {
         let (params, m) = self.split(x)?;
-        let ny = self.measurement.len();
-        let mut r = DVector::zeros(self.poses.len() * ny);
-        let mut y = vec![0.0; ny];
-        for (i, p) in self.predict(&params)?.iter().enumerate() {
-            self.measurement.observe(p, &m, &mut y);
-            for a in 0..ny {
-                r[i * ny + a] = y[a] - self.measured[i][a];
+        let mut r = DVector::zeros(self.n_readings);
+        let mut y = vec![0.0; self.measurement.len()];
+        let predictions = self.predictions(&params)?;
+        for (row, measured) in self.rows.iter().zip(&self.measured) {
+            let xa = &predictions[row.first].x;
+            match row.second {
+                Some(b) => {
+                    r[row.offset] = self.measurement.distance(xa, &predictions[b].x) - measured[0];
+                }
+                None => {
+                    self.measurement.observe(xa, &m, &mut y);
+                    for a in 0..row.len {
+                        r[row.offset + a] = y[a] - measured[a];
+                    }
+                }
             }
         }
         Ok(r)
     }
 
     /// Residuals and the Jacobian (every parameter of the full vector):
-    /// `∂h/∂x · ∂x/∂p` for the mechanism's, `∂h/∂m` for the model's.
+    /// `∂h/∂x · ∂x/∂p` for the mechanism's, `∂h/∂m` for the model's; a
+    /// distance row's is `∂d/∂x_a · ∂x_a/∂p + ∂d/∂x_b · ∂x_b/∂p`.
     pub fn residuals_and_jacobian(&self, x: &[f64]) -> Result<(DVector<f64>, DMatrix<f64>)> {
         if let Some((key, r, j)) = self.jacobian_cache.borrow().as_ref()
             && key == x
@@ -316,38 +400,49 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             return Ok((r.clone(), j.clone()));
         }
         let (params, m) = self.split(x)?;
-        let ny = self.measurement.len();
         let np = self.mech.spec().n_params();
         let nm = m.len();
-        let mut r = DVector::zeros(self.poses.len() * ny);
-        let mut j = DMatrix::zeros(self.poses.len() * ny, np + nm);
+        let mut r = DVector::zeros(self.n_readings);
+        let mut j = DMatrix::zeros(self.n_readings, np + nm);
         let predictions = self.predictions(&params)?;
         // Poses in parallel, assembled in order.
-        let (mech, model, force, origins, measurement) = (
-            self.mech,
-            self.model,
-            &self.force,
-            &self.origins,
-            self.measurement,
-        );
-        let blocks: Result<Vec<_>> = self
+        let (mech, model, force, origins) =
+            (self.mech, self.model, &self.force, &self.pose_origins);
+        let sens: Result<Vec<_>> = self
             .poses
             .par_iter()
             .zip(predictions.into_par_iter())
             .enumerate()
             .map(|(i, (pose, pred))| {
-                let s = sensitivity_at(mech, pose, &params, model, force, pred)
-                    .map_err(|e| e.at_pose(origins[i]))?;
-                let (y, dx, dm) = measurement.observe_jacobian(&s.prediction.x, &m);
-                Ok((y, dx * &s.jacobian, dm))
+                sensitivity_at(mech, pose, &params, model, force, pred)
+                    .map_err(|e| e.at_pose(origins[i]))
             })
             .collect();
-        for (i, (y, jx, dm)) in blocks?.into_iter().enumerate() {
-            for a in 0..ny {
-                r[i * ny + a] = y[a] - self.measured[i][a];
+        let sens = sens?;
+        for (row, measured) in self.rows.iter().zip(&self.measured) {
+            let sa = &sens[row.first];
+            match row.second {
+                Some(b) => {
+                    let sb = &sens[b];
+                    let (d, da, db) = self
+                        .measurement
+                        .distance_jacobian(&sa.prediction.x, &sb.prediction.x);
+                    r[row.offset] = d - measured[0];
+                    let ga = DMatrix::from_row_slice(1, da.len(), &da);
+                    let gb = DMatrix::from_row_slice(1, db.len(), &db);
+                    let jx = ga * &sa.jacobian + gb * &sb.jacobian;
+                    j.view_mut((row.offset, 0), (1, np)).copy_from(&jx);
+                }
+                None => {
+                    let (y, dx, dm) = self.measurement.observe_jacobian(&sa.prediction.x, &m);
+                    for a in 0..row.len {
+                        r[row.offset + a] = y[a] - measured[a];
+                    }
+                    let jx = dx * &sa.jacobian;
+                    j.view_mut((row.offset, 0), (row.len, np)).copy_from(&jx);
+                    j.view_mut((row.offset, np), (row.len, nm)).copy_from(&dm);
+                }
             }
-            j.view_mut((i * ny, 0), (ny, np)).copy_from(&jx);
-            j.view_mut((i * ny, np), (ny, nm)).copy_from(&dm);
         }
         *self.jacobian_cache.borrow_mut() = Some((x.to_vec(), r.clone(), j.clone()));
         Ok((r, j))
@@ -371,7 +466,7 @@ impl<M: Mechanism> Problem for IdentificationProblem<'_, M> {
         self.mech.spec().n_params() + self.measurement.n_params()
     }
     fn n_residuals(&self) -> usize {
-        self.poses.len() * self.measurement.len()
+        self.n_readings
     }
     fn evaluate(
         &self,
@@ -1128,13 +1223,15 @@ fn gross_errors<M: Mechanism>(
     let lengths: Vec<usize> = (0..measurement.len())
         .filter(|&a| measurement.units()[a] == Unit::Millimetre)
         .collect();
-    if lengths.is_empty() || data.len() < 4 {
+    if lengths.is_empty() || data.iter().filter(|d| d.partner.is_none()).count() < 4 {
         return Ok(vec![]);
     }
     let mut y = vec![0.0; measurement.len()];
+    // Distances between poses are not positions: they are judged by the fit.
     let distance: Vec<f64> = predicted
         .iter()
         .zip(data)
+        .filter(|(_, d)| d.partner.is_none())
         .map(|(x, d)| {
             measurement.observe(x, &m0, &mut y);
             lengths
@@ -1157,7 +1254,7 @@ fn gross_errors<M: Mechanism>(
     let limit = (GROSS_FACTOR * median).max(GROSS_EXTENT_SHARE * extent);
     let mut out: Vec<Gross> = distance
         .iter()
-        .zip(data)
+        .zip(data.iter().filter(|d| d.partner.is_none()))
         .filter(|(d, _)| **d > limit)
         .map(|(d, m)| Gross {
             origin: m.origin.expect("numbered"),
@@ -1170,9 +1267,9 @@ fn gross_errors<M: Mechanism>(
 }
 
 fn check_sigma(measurement: &MeasurementModel, data: &[Measurement]) -> Result<()> {
-    let nx = measurement.len();
     for m in data {
         let origin = m.origin.expect("numbered");
+        let nx = measurement.row_len(m);
         if !(m.sigma.is_empty() || m.sigma.len() == nx) {
             return Err(Error::Dimension {
                 what: "standard deviations of the measured coordinates".into(),
@@ -1184,8 +1281,8 @@ fn check_sigma(measurement: &MeasurementModel, data: &[Measurement]) -> Result<(
         if let Some((s, u)) = m
             .sigma
             .iter()
-            .zip(measurement.units())
-            .filter_map(|(s, u)| s.map(|s| (s, u)))
+            .enumerate()
+            .filter_map(|(a, s)| s.map(|s| (s, measurement.row_unit(m, a))))
             .find(|(s, u)| !(s.is_finite() && *s >= MIN_SIGMA && *s <= u.max_magnitude()))
         {
             return Err(Error::InvalidRequest(format!(
@@ -1206,8 +1303,7 @@ fn calibrate_weighted<M: Mechanism>(
     start: &Params,
     opts: &CalibrationOptions,
 ) -> Result<Calibration> {
-    let (axes, units) = (measurement.axes(), measurement.units());
-    let mut noise = NoiseModel::new(data, axes, units);
+    let mut noise = NoiseModel::new(data, measurement);
     let mut cal = calibrate_once(
         mech,
         measurement,
@@ -1278,7 +1374,7 @@ fn calibrate_weighted<M: Mechanism>(
         }
     }
     let base = noise.sigmas();
-    let keys = noise.keys(units);
+    let keys = noise.keys();
     if opts.loss != Loss::Squared {
         let mut robust = vec![1.0; base.len()];
         for _ in 0..MAX_REWEIGHTS {
@@ -1317,8 +1413,14 @@ fn calibrate_weighted<M: Mechanism>(
         .map(|(s, hi)| s * (1.0 - hi).max(1e-6).sqrt())
         .collect();
     let u = standardized(&cal.residuals, &student, &keys);
-    cal.outliers = find_outliers(data, &cal.residuals, &u, units, opts.outlier_threshold);
-    cal.noise = noise.report(&cal.residuals, axes, units);
+    cal.outliers = find_outliers(
+        measurement,
+        data,
+        &cal.residuals,
+        &u,
+        opts.outlier_threshold,
+    );
+    cal.noise = noise.report(&cal.residuals);
     cal.loss = opts.loss;
     Ok(cal)
 }
@@ -1410,28 +1512,31 @@ fn standardized(r: &[f64], sigma: &[f64], keys: &[usize]) -> Vec<f64> {
 }
 
 fn find_outliers(
+    measurement: &MeasurementModel,
     data: &[Measurement],
     r: &[f64],
     u: &[f64],
-    units: &[Unit],
     threshold: f64,
 ) -> Vec<Outlier> {
-    let nx = units.len().max(1);
+    let mut offset = 0;
     data.iter()
-        .zip(r.chunks(nx).zip(u.chunks(nx)))
-        .filter_map(|(m, (ri, ui))| {
+        .filter_map(|m| {
+            let n = measurement.row_len(m);
+            let (ri, ui) = (&r[offset..offset + n], &u[offset..offset + n]);
+            offset += n;
+            let units: Vec<Unit> = (0..n).map(|a| measurement.row_unit(m, a)).collect();
             let floor = |k: usize| match units[k] {
                 Unit::Radian => OUTLIER_FLOOR_RAD,
                 _ => OUTLIER_FLOOR_MM,
             };
-            let worst = (0..ri.len())
+            let worst = (0..n)
                 .filter(|&k| ri[k].abs() > floor(k))
                 .map(|k| ui[k])
                 .fold(0.0, f64::max);
             (worst > threshold && worst.is_finite()).then(|| Outlier {
                 origin: m.origin.expect("numbered"),
                 residual: ri.to_vec(),
-                units: units.to_vec(),
+                units,
                 standardized: worst,
             })
         })
@@ -1477,12 +1582,17 @@ fn calibrate_once<M: Mechanism>(
     } else {
         0
     };
-    let m = data.len() * nx;
+    let m: usize = data.iter().map(|d| measurement.row_len(d)).sum();
     let n_requested = exact_free.map_or(opts.free.len() + n_free_frame, <[usize]>::len);
     if m <= n_requested {
         return Err(Error::InvalidRequest(format!(
-            "{} poses give {m} readings for {n_requested} free parameters{}; measure more poses (at least {}) or identify fewer parameters (--free NAMES, --fix NAMES){}",
+            "{} {} give {m} readings for {n_requested} free parameters{}; measure more poses (at least {}) or identify fewer parameters (--free NAMES, --fix NAMES){}",
             data.len(),
+            if data.iter().any(|d| d.partner.is_some()) {
+                "rows"
+            } else {
+                "poses"
+            },
             if n_free_frame > 0 {
                 " (with the instrument frame's)"
             } else {
@@ -1688,8 +1798,13 @@ fn measurement_start<M: Mechanism>(
     if *measurement.frame() != Frame::Free {
         return Ok(measurement.nominal().to_vec());
     }
-    let predicted = problem.predict(params)?;
-    let measured: Vec<Vec<f64>> = data.iter().map(|m| m.measured.clone()).collect();
+    let (predicted, measured): (Vec<Vec<f64>>, Vec<Vec<f64>>) = problem
+        .predict(params)?
+        .into_iter()
+        .zip(data)
+        .filter(|(_, m)| m.partner.is_none())
+        .map(|(p, m)| (p, m.measured.clone()))
+        .unzip();
     measurement.registered(measurement.nominal(), &predicted, &measured)
 }
 
@@ -1735,13 +1850,14 @@ pub fn analyze<M: Mechanism>(
         ));
     }
     let default = crate::simulate::Noise::lengths(1.0);
-    let nx = measurement.len();
-    for (i, m) in data.iter().enumerate() {
-        for a in 0..nx {
+    let mut row = 0;
+    for m in &data {
+        for a in 0..measurement.row_len(m) {
             let s = m
                 .sigma_of(a)
-                .unwrap_or_else(|| default.for_unit(measurement.units()[a]));
-            jac.row_mut(i * nx + a).unscale_mut(s);
+                .unwrap_or_else(|| default.for_unit(measurement.row_unit(m, a)));
+            jac.row_mut(row).unscale_mut(s);
+            row += 1;
         }
     }
     let cols = Columns::with_measurement(spec, measurement, &m0);
@@ -1841,6 +1957,29 @@ pub struct Accuracy {
     pub improvement_max_percent: f64,
     /// Reduction of the RMS distance error, percent.
     pub improvement_rms_percent: f64,
+    /// Errors of the distances measured between two poses, when the data
+    /// hold any (the statistics above are of the other rows).
+    pub distances: Option<DistanceAccuracy>,
+}
+
+/// Errors of distances measured between two poses (mm): measured minus
+/// predicted, before (nominal parameters) and after calibration.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct DistanceAccuracy {
+    /// Number of distances.
+    pub count: usize,
+    /// Root mean square error before (mm).
+    pub before_rms: f64,
+    /// Largest absolute error before (mm).
+    pub before_max: f64,
+    /// Root mean square error after (mm).
+    pub after_rms: f64,
+    /// Largest absolute error after (mm).
+    pub after_max: f64,
+    /// Each distance's error before, in data order (mm).
+    pub before: Vec<f64>,
+    /// Each distance's error after (mm).
+    pub after: Vec<f64>,
 }
 
 /// Error vectors (measured minus reference), one per pose, mm.
@@ -1866,8 +2005,37 @@ pub fn accuracy<M: Mechanism>(
     force: &[f64],
 ) -> Result<(Accuracy, ErrorVectors, ErrorVectors)> {
     let spec = mech.spec();
-    let problem = IdentificationProblem::new(mech, measurement, data, model, force)?;
     let nominal = Params::nominal(spec);
+    let all = numbered(data);
+    let (pairs, data): (Vec<Measurement>, Vec<Measurement>) =
+        all.into_iter().partition(|d| d.partner.is_some());
+    let distances = if pairs.is_empty() {
+        None
+    } else {
+        let problem = IdentificationProblem::new(mech, measurement, &pairs, model, force)?;
+        let errors = |p: &Params| -> Result<Vec<f64>> {
+            Ok(problem
+                .predict_distances(p)?
+                .iter()
+                .zip(&pairs)
+                .map(|(d, m)| m.measured[0] - d.expect("a pair"))
+                .collect())
+        };
+        let (before, after) = (errors(&nominal)?, errors(params)?);
+        let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
+        let max = |v: &[f64]| v.iter().fold(0.0_f64, |a, x| a.max(x.abs()));
+        Some(DistanceAccuracy {
+            count: pairs.len(),
+            before_rms: rms(&before),
+            before_max: max(&before),
+            after_rms: rms(&after),
+            after_max: max(&after),
+            before,
+            after,
+        })
+    };
+    let data = &data[..];
+    let problem = IdentificationProblem::new(mech, measurement, data, model, force)?;
     let nominal_pred = problem.predict(&nominal)?;
     let pred = problem.predict(params)?;
     let reference: Vec<Vec<f64>> = data
@@ -1876,7 +2044,7 @@ pub fn accuracy<M: Mechanism>(
         .map(|(d, p)| d.target.clone().unwrap_or_else(|| p.clone()))
         .collect();
     let measured: Vec<Vec<f64>> = data.iter().map(|d| d.measured.clone()).collect();
-    let m_before = if *measurement.frame() == Frame::Base {
+    let m_before = if *measurement.frame() == Frame::Base || data.is_empty() {
         measurement.nominal().to_vec()
     } else {
         measurement.registered(measurement.nominal(), &reference, &measured)?
@@ -1907,6 +2075,7 @@ pub fn accuracy<M: Mechanism>(
             improvement_rms_percent: improvement_percent(b.distance_rms, a.distance_rms),
             before: b,
             after: a,
+            distances,
         },
         before,
         after,

@@ -63,8 +63,8 @@ pub mod workspace;
 pub use any::AnyMechanism;
 pub use ballbar::{Setup, trilaterate};
 pub use calibration::{
-    Accuracy, Calibration, CalibrationOptions, Identifiability, Loss, Outlier, ParameterCovariance,
-    accuracy, analyze, calibrate, calibration_accuracy, cross_validate,
+    Accuracy, Calibration, CalibrationOptions, DistanceAccuracy, Identifiability, Loss, Outlier,
+    ParameterCovariance, accuracy, analyze, calibrate, calibration_accuracy, cross_validate,
     cross_validate_with_progress, holdout_split, predict_with_uncertainty, tool_covariance,
 };
 pub use compensation::{
@@ -92,7 +92,9 @@ pub use planning::{
     plan_poses_with_progress,
 };
 pub use reference::JeongKim2Dof;
-pub use simulate::{Measurement, Noise, Origin, simulate, simulate_with_progress};
+pub use simulate::{
+    Measurement, Noise, Origin, simulate, simulate_distances, simulate_with_progress,
+};
 pub use spatial::{SpatialDescription, SpatialMechanism};
 pub use stats::{ErrorStats, error_stats, improvement_percent};
 pub use units::{AngleUnit, FileUnits, LengthUnit, ParamKind, PartialUnits, Quantity, Role, Unit};

@@ -144,6 +144,10 @@ fn body_point<D: Scalar>(layout: ToolLayout, x: &[D], t: &[D]) -> [D; 3] {
 
 const COORD: [&str; 3] = ["x", "y", "z"];
 
+/// The name of the reading of a row that is a distance between two poses
+/// ([`crate::Measurement::partner`]).
+pub const DISTANCE_AXIS: &str = "distance";
+
 /// The bed plane's parameters of a [`Instrument::Probe`].
 pub const PROBE_PARAMS: [&str; 3] = ["bed.z", "bed.rx", "bed.ry"];
 
@@ -496,6 +500,74 @@ impl MeasurementModel {
             }
             Instrument::Probe => "heights probed on a bed plane".into(),
         }
+    }
+
+    /// How many readings a data row holds: one for a distance between two
+    /// poses ([`crate::Measurement::partner`]), the instrument's otherwise.
+    pub fn row_len(&self, row: &crate::Measurement) -> usize {
+        if row.partner.is_some() { 1 } else { self.len() }
+    }
+
+    /// The unit of reading `a` of a data row.
+    pub fn row_unit(&self, row: &crate::Measurement, a: usize) -> Unit {
+        if row.partner.is_some() {
+            Unit::Millimetre
+        } else {
+            self.units[a]
+        }
+    }
+
+    /// The name of reading `a` of a data row.
+    pub fn row_axis<'s>(&'s self, row: &crate::Measurement, a: usize) -> &'s str {
+        if row.partner.is_some() {
+            DISTANCE_AXIS
+        } else {
+            &self.axes[a]
+        }
+    }
+
+    /// Check that the tool has a point whose distances between poses can be
+    /// measured (every position coordinate).
+    pub fn check_distances(&self) -> Result<()> {
+        match body(self.tool) {
+            Some(_) => Ok(()),
+            None => Err(Error::InvalidRequest(format!(
+                "distances between poses need the tool point's every position coordinate; this mechanism's tool is {}",
+                self.tool_axes.join(" ")
+            ))),
+        }
+    }
+
+    /// The distance between the tool points of tools at `a` and `b` (base
+    /// frame, mm): the reading of a row that pairs two poses. It needs no
+    /// instrument frame and no instrument parameter (calipers on a printed
+    /// object, a gauge block).
+    pub fn distance<D: Scalar>(&self, a: &[D], b: &[D]) -> D {
+        let (pa, pb) = (body_point(self.tool, a, &[]), body_point(self.tool, b, &[]));
+        let mut sum = D::from(0.0);
+        for k in 0..3 {
+            let d = pa[k] - pb[k];
+            sum += d * d;
+        }
+        sum.sqrt()
+    }
+
+    /// [`MeasurementModel::distance`] and its exact derivatives with respect
+    /// to `a` and to `b`.
+    pub fn distance_jacobian(&self, a: &[f64], b: &[f64]) -> (f64, Vec<f64>, Vec<f64>) {
+        let n = a.len();
+        let mut ad: Vec<Dual64> = a.iter().map(|&v| Dual64::from(v)).collect();
+        let mut bd: Vec<Dual64> = b.iter().map(|&v| Dual64::from(v)).collect();
+        let (mut da, mut db) = (vec![0.0; n], vec![0.0; n]);
+        for j in 0..n {
+            ad[j] = Dual64::from(a[j]).derivative();
+            da[j] = self.distance(&ad, &bd).eps;
+            ad[j] = Dual64::from(a[j]);
+            bd[j] = Dual64::from(b[j]).derivative();
+            db[j] = self.distance(&ad, &bd).eps;
+            bd[j] = Dual64::from(b[j]);
+        }
+        (self.distance(a, b), da, db)
     }
 
     /// The readings `y = h(x, m)` of a tool at `x` (base frame) under the

@@ -15,6 +15,7 @@
 //! fit is repeated with the new weights until the σ settle. Weighting by
 //! 1/σ makes the fit the maximum-likelihood one whatever the units.
 
+use crate::measurement::MeasurementModel;
 use crate::simulate::Measurement;
 use crate::units::Unit;
 use nalgebra::DMatrix;
@@ -43,36 +44,44 @@ pub struct NoiseGroup {
     pub residual_rms: f64,
 }
 
-/// Which σ each residual (pose-major, axes inner) takes.
+/// Which σ each residual (row-major, readings inner) takes.
 #[derive(Debug, Clone)]
 pub(crate) struct NoiseModel {
     /// Per residual: `Ok(σ)` given, `Err(g)` the estimated group `g`.
     assign: Vec<Result<f64, usize>>,
-    /// Estimated groups: unit and axis names.
-    groups: Vec<(Unit, Vec<String>)>,
+    /// Per residual: its unit and reading name.
+    readings: Vec<(Unit, String)>,
+    /// Estimated groups: unit, whether they are distances between poses
+    /// (another instrument, their own group), and axis names.
+    groups: Vec<(Unit, bool, Vec<String>)>,
     /// Current σ of each estimated group.
     pub sigma: Vec<f64>,
 }
 
 impl NoiseModel {
-    /// Assign every measured coordinate of `data` (axes `axes` in `units`).
-    pub fn new(data: &[Measurement], axes: &[String], units: &[Unit]) -> Self {
-        let mut groups: Vec<(Unit, Vec<String>)> = vec![];
-        let mut assign = Vec::with_capacity(data.len() * axes.len());
+    /// Assign every reading of `data` (the readings of `measurement`, or one
+    /// distance for a row that pairs two poses).
+    pub fn new(data: &[Measurement], measurement: &MeasurementModel) -> Self {
+        let mut groups: Vec<(Unit, bool, Vec<String>)> = vec![];
+        let mut assign = Vec::with_capacity(data.len() * measurement.len());
+        let mut readings = Vec::with_capacity(data.len() * measurement.len());
         for m in data {
-            for (a, unit) in units.iter().enumerate() {
+            let pair = m.partner.is_some();
+            for a in 0..measurement.row_len(m) {
+                let (unit, axis) = (measurement.row_unit(m, a), measurement.row_axis(m, a));
+                readings.push((unit, axis.to_string()));
                 match m.sigma_of(a) {
                     Some(s) => assign.push(Ok(s)),
                     None => {
-                        let g = match groups.iter().position(|(u, _)| u == unit) {
+                        let g = match groups.iter().position(|(u, p, _)| *u == unit && *p == pair) {
                             Some(g) => g,
                             None => {
-                                groups.push((*unit, vec![]));
+                                groups.push((unit, pair, vec![]));
                                 groups.len() - 1
                             }
                         };
-                        if !groups[g].1.contains(&axes[a]) {
-                            groups[g].1.push(axes[a].clone());
+                        if !groups[g].2.iter().any(|n| n == axis) {
+                            groups[g].2.push(axis.to_string());
                         }
                         assign.push(Err(g));
                     }
@@ -82,6 +91,7 @@ impl NoiseModel {
         let n = groups.len();
         Self {
             assign,
+            readings,
             groups,
             sigma: vec![1.0; n],
         }
@@ -132,13 +142,12 @@ impl NoiseModel {
     }
 
     /// The groups as reported: estimated ones, then given ones by unit.
-    pub fn report(&self, r: &[f64], axes: &[String], units: &[Unit]) -> Vec<NoiseGroup> {
-        let nx = axes.len().max(1);
+    pub fn report(&self, r: &[f64]) -> Vec<NoiseGroup> {
         let mut out: Vec<NoiseGroup> = self
             .groups
             .iter()
             .enumerate()
-            .map(|(g, (unit, names))| {
+            .map(|(g, (unit, _, names))| {
                 let v: Vec<f64> = self
                     .assign
                     .iter()
@@ -161,7 +170,7 @@ impl NoiseModel {
         let mut given: Vec<Given> = vec![];
         for (k, (a, ri)) in self.assign.iter().zip(r).enumerate() {
             if let Ok(s) = a {
-                let (unit, axis) = (units[k % nx], &axes[k % nx]);
+                let (unit, axis) = (self.readings[k].0, &self.readings[k].1);
                 let e = match given.iter().position(|x| x.0 == unit) {
                     Some(e) => e,
                     None => {
@@ -189,15 +198,14 @@ impl NoiseModel {
 
     /// Group key of each residual (for per-group robust scales): estimated
     /// groups by number, given σ by unit after them.
-    pub fn keys(&self, units: &[Unit]) -> Vec<usize> {
-        let nx = units.len().max(1);
+    pub fn keys(&self) -> Vec<usize> {
         let n = self.groups.len();
         self.assign
             .iter()
-            .enumerate()
-            .map(|(k, a)| match a {
+            .zip(&self.readings)
+            .map(|(a, (unit, _))| match a {
                 Err(g) => *g,
-                Ok(_) => n + units[k % nx] as usize,
+                Ok(_) => n + *unit as usize,
             })
             .collect()
     }
@@ -241,23 +249,57 @@ mod tests {
         assert!(h.iter().all(|v| (0.0..=1.0 + 1e-12).contains(v)));
     }
 
+    fn hexapod() -> crate::GoughStewart {
+        let text = include_str!("../../../examples/gough-stewart-6/mechanism.toml");
+        let mut t: toml::Table = text.parse().unwrap();
+        t.remove("type");
+        t.remove("target");
+        crate::GoughStewart::new(&t.try_into().unwrap()).unwrap()
+    }
+
     #[test]
     fn groups_by_unit_and_given_sigma() {
+        use crate::Mechanism;
+        let mech = hexapod();
+        let tool = MeasurementModel::tool_axes(mech.spec(), &["x", "y", "rx"]).unwrap();
         let m = Measurement {
             measured: vec![0.0; 3],
             sigma: vec![Some(0.002), None, None],
             ..Default::default()
         };
-        let axes: Vec<String> = ["x", "y", "phi"].map(String::from).to_vec();
-        let units = [Unit::Millimetre, Unit::Millimetre, Unit::Radian];
-        let mut nm = NoiseModel::new(&[m.clone(), m], &axes, &units);
+        let mut nm = NoiseModel::new(&[m.clone(), m], &tool);
         assert_eq!(nm.estimated_groups(), 2);
         nm.sigma = vec![0.003, 1e-5];
         assert_eq!(nm.sigmas(), vec![0.002, 0.003, 1e-5, 0.002, 0.003, 1e-5]);
-        let rep = nm.report(&[0.0; 6], &axes, &units);
+        let rep = nm.report(&[0.0; 6]);
         assert_eq!(rep.len(), 3);
         assert_eq!(rep[0].axes, vec!["y".to_string()]);
         assert_eq!(rep[1].unit, Unit::Radian);
         assert!(!rep[2].estimated && rep[2].count == 2);
+    }
+
+    #[test]
+    fn distances_between_poses_are_a_group_of_their_own() {
+        use crate::Mechanism;
+        let mech = hexapod();
+        let tool = MeasurementModel::tool_axes(mech.spec(), &["x", "y", "rx"]).unwrap();
+        let pose = Measurement {
+            measured: vec![0.0; 3],
+            ..Default::default()
+        };
+        let pair = Measurement {
+            measured: vec![0.0],
+            partner: Some(vec![]),
+            ..Default::default()
+        };
+        let mut nm = NoiseModel::new(&[pose, pair.clone(), pair], &tool);
+        assert_eq!(nm.estimated_groups(), 3);
+        nm.sigma = vec![0.003, 1e-5, 0.02];
+        assert_eq!(nm.sigmas(), vec![0.003, 0.003, 1e-5, 0.02, 0.02]);
+        assert_eq!(nm.keys(), vec![0, 0, 1, 2, 2]);
+        let rep = nm.report(&[0.0; 5]);
+        assert_eq!(rep[2].axes, vec!["distance".to_string()]);
+        assert_eq!(rep[2].count, 2);
+        assert_eq!(rep[2].unit, Unit::Millimetre);
     }
 }

@@ -20,6 +20,12 @@ pub struct Measurement {
     pub target: Option<Vec<f64>>,
     /// Actuator commands (each in its joint's unit, rad or mm).
     pub commands: Vec<f64>,
+    /// The commands of a second pose when the row is a distance between two
+    /// poses (a printed object or a gauge measured with calipers): `measured`
+    /// is then one value, the distance between the tool points at `commands`
+    /// and at `partner` (mm, [`crate::measurement::DISTANCE_AXIS`]), whatever
+    /// the instrument of the other rows.
+    pub partner: Option<Vec<f64>>,
     /// Measured coordinates (each in its axis's unit, mm or rad).
     pub measured: Vec<f64>,
     /// Known standard deviation of each measured coordinate (same unit);
@@ -177,4 +183,51 @@ pub fn simulate_with_progress<M: Mechanism>(
         progress();
     }
     Ok(out)
+}
+
+/// Simulated distances between pairs of poses (a printed object or a gauge
+/// measured with calipers): for each pair of targets, the commands of both
+/// from nominal inverse kinematics and the distance between the tool points
+/// under the true parameters (exact model), plus Gaussian noise of
+/// `noise_mm`. Each row has [`Measurement::partner`] set.
+pub fn simulate_distances<M: Mechanism>(
+    mech: &M,
+    measurement: &MeasurementModel,
+    truth: &Params,
+    pairs: &[(Vec<f64>, Vec<f64>)],
+    noise_mm: f64,
+    seed: u64,
+) -> Result<Vec<Measurement>> {
+    measurement.check_distances()?;
+    if !(noise_mm.is_finite() && noise_mm >= 0.0) {
+        return Err(crate::Error::InvalidRequest(format!(
+            "noise {noise_mm} mm is not a valid standard deviation; give a finite number ≥ 0"
+        )));
+    }
+    let normal = Normal::new(0.0, noise_mm).expect("checked");
+    let mut rng = StdRng::seed_from_u64(seed);
+    let spec = mech.spec();
+    let nominal = &spec.nominal[..spec.n_geometric()];
+    let at = |target: &[f64]| -> Result<(Vec<f64>, Vec<f64>)> {
+        let q = inverse_kinematics(mech, nominal, target)?;
+        let commands: Vec<f64> = spec.actuated.iter().map(|&j| q[j]).collect();
+        let pose = prepare_pose(mech, &commands, Some(&q))?;
+        Ok((
+            commands,
+            predict_pose(mech, &pose, truth, Model::Exact, &[])?.x,
+        ))
+    };
+    pairs
+        .iter()
+        .map(|(a, b)| {
+            let (ca, xa) = at(a)?;
+            let (cb, xb) = at(b)?;
+            Ok(Measurement {
+                commands: ca,
+                partner: Some(cb),
+                measured: vec![measurement.distance(&xa, &xb) + normal.sample(&mut rng)],
+                ..Default::default()
+            })
+        })
+        .collect()
 }

@@ -102,6 +102,7 @@ fn distance_data(truth: &Params, targets: &[Vec<f64>], noise: f64, seed: u64) ->
             sigma: vec![],
             origin: None,
             commands: m.commands,
+            partner: None,
             measured: s
                 .distances(&m.measured)
                 .into_iter()
@@ -128,6 +129,7 @@ fn both_routes(data: &[Measurement]) -> (Params, Params) {
             sigma: vec![],
             origin: None,
             commands: m.commands.clone(),
+            partner: None,
             measured: trilaterate(&setup(), &m.measured, NOISE_MM, None)
                 .unwrap()
                 .0,

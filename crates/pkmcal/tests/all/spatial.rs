@@ -481,3 +481,184 @@ fn fewer_readings_than_parameters_name_every_null_direction() {
     assert!(a.rank <= 8, "{}", a.rank);
     assert_eq!(a.rank + a.unidentifiable.len(), free.len());
 }
+
+/// Pairs of points on the bed (z = 0) as Klipper's calibration object
+/// measures them: from near the centre outwards at six angles, and between
+/// neighbouring outer pillars.
+fn object_pairs() -> Vec<(Vec<f64>, Vec<f64>)> {
+    let at = |deg: f64, r: f64| {
+        let a = deg.to_radians();
+        vec![r * a.cos(), r * a.sin(), 0.0]
+    };
+    let angles = [210.0, 270.0, 330.0, 30.0, 90.0, 150.0];
+    let mut pairs: Vec<(Vec<f64>, Vec<f64>)> =
+        angles.iter().map(|&a| (at(a, 4.5), at(a, 69.5))).collect();
+    for k in 0..6 {
+        pairs.push((at(angles[k], 60.0), at(angles[(k + 1) % 6], 60.0)));
+    }
+    pairs
+}
+
+/// Probe heights and caliper distances in one fit: the identification
+/// Jacobian of the mixed rows equals central differences, and the arm
+/// lengths, which heights alone leave to trade with the radius, come back
+/// to the truth with Klipper's six parameters (its extended calibration).
+#[test]
+fn distances_between_poses_identify_a_deltas_arm_lengths() {
+    let m = spatial("linear-delta");
+    let spec = m.spec();
+    let probe = pkmcal::MeasurementModel::probe(spec).unwrap();
+    let truth = Params::from_named(
+        spec,
+        [
+            ("delta_radius", 130.5),
+            ("angle_a", 3.67),
+            ("angle_b", 5.755),
+            ("da", 0.4),
+            ("db", -0.2),
+            ("dc", 0.1),
+            ("arm_a", 250.6),
+            ("arm_b", 249.7),
+            ("arm_c", 250.3),
+        ],
+    )
+    .unwrap();
+    let heights = pkmcal::simulate(&m, &probe, &truth, &common::spread(&m, 20), 0.0, 1).unwrap();
+    let distances =
+        pkmcal::simulate_distances(&m, &probe, &truth, &object_pairs(), 0.0, 2).unwrap();
+    assert!(
+        distances
+            .iter()
+            .all(|d| d.partner.is_some() && d.measured.len() == 1)
+    );
+    let data: Vec<pkmcal::Measurement> = heights.iter().chain(&distances).cloned().collect();
+
+    // Exact Jacobian of mixed rows.
+    let problem =
+        pkmcal::calibration::IdentificationProblem::new(&m, &probe, &data, Model::Exact, &[])
+            .unwrap();
+    assert_eq!(problem.n_readings(), heights.len() + distances.len());
+    let x: Vec<f64> = truth
+        .values
+        .iter()
+        .chain(probe.nominal())
+        .copied()
+        .collect();
+    let (r, j) = problem.residuals_and_jacobian(&x).unwrap();
+    assert!(r.amax() < 1e-9, "noise-free residuals {}", r.amax());
+    for c in 0..x.len() {
+        let h = 1e-6 * (1.0 + x[c].abs());
+        let (mut a, mut b) = (x.clone(), x.clone());
+        a[c] += h;
+        b[c] -= h;
+        let fd = (problem.residuals(&a).unwrap() - problem.residuals(&b).unwrap()) / (2.0 * h);
+        let scale = j.column(c).amax().max(fd.amax()).max(1.0);
+        assert!(
+            (&fd - j.column(c)).amax() < CENTRAL_DIFF_REL * scale,
+            "column {c}"
+        );
+    }
+
+    let names = [
+        "delta_radius",
+        "angle_a",
+        "angle_b",
+        "da",
+        "db",
+        "dc",
+        "arm_a",
+        "arm_b",
+        "arm_c",
+    ];
+    let free: Vec<usize> = names.iter().map(|n| spec.param_index(n).unwrap()).collect();
+    // Heights alone: the arms trade with the endstops (correlation above
+    // 0.999) and the radius; the distances make the problem much better
+    // conditioned.
+    let id = |rows: &[pkmcal::Measurement]| {
+        pkmcal::analyze(
+            &m,
+            &probe,
+            rows,
+            &Params::nominal(spec),
+            Model::Exact,
+            &free,
+            &[],
+        )
+        .unwrap()
+    };
+    let (alone, both) = (id(&heights), id(&data));
+    assert!(
+        alone.correlations.iter().any(|c| c.r.abs() > 0.999),
+        "{alone:?}"
+    );
+    assert!(
+        alone.condition_number > 5.0 * both.condition_number,
+        "{} vs {}",
+        alone.condition_number,
+        both.condition_number
+    );
+    // With the distances every one of the nine is identified.
+    let mut opts = pkmcal::CalibrationOptions::new(spec, Model::Exact);
+    opts.free = free;
+    let cal = pkmcal::calibrate(&m, &probe, &data, &Params::nominal(spec), &opts).unwrap();
+    assert!(cal.identifiability.unidentifiable.is_empty());
+    for n in names {
+        let (a, b) = (
+            cal.params.get(spec, n).unwrap(),
+            truth.get(spec, n).unwrap(),
+        );
+        assert!((a - b).abs() < RECOVERED, "{n}: {a} vs {b}");
+    }
+    // Distances are their own noise group, and their accuracy is reported.
+    assert!(
+        cal.noise
+            .iter()
+            .any(|g| g.axes == ["distance"] && g.count == 12)
+    );
+    let (acc, _, _) = pkmcal::calibration_accuracy(&m, &probe, &data, &cal, &[]).unwrap();
+    let d = acc.distances.expect("distances");
+    assert_eq!((d.count, acc.poses), (12, 20));
+    assert!(d.before_max > 0.1 && d.after_max < RECOVERED, "{d:?}");
+}
+
+/// A distance row needs a tool with every position coordinate, and one
+/// reading.
+#[test]
+fn distance_rows_are_checked() {
+    let m = spatial("3-prs");
+    let spec = m.spec();
+    let tool = pkmcal::MeasurementModel::tool(spec);
+    let row = pkmcal::Measurement {
+        commands: spec.actuated.iter().map(|&j| spec.reference_q[j]).collect(),
+        partner: Some(spec.actuated.iter().map(|&j| spec.reference_q[j]).collect()),
+        measured: vec![0.0],
+        ..Default::default()
+    };
+    let e = pkmcal::calibration::IdentificationProblem::new(&m, &tool, &[row], Model::Exact, &[])
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains("distances between poses") && e.contains("pose 1"),
+        "{e}"
+    );
+    let delta = spatial("linear-delta");
+    let spec = delta.spec();
+    let probe = pkmcal::MeasurementModel::probe(spec).unwrap();
+    let mut rows = pkmcal::simulate_distances(
+        &delta,
+        &probe,
+        &Params::nominal(spec),
+        &object_pairs()[..2],
+        0.0,
+        1,
+    )
+    .unwrap();
+    rows[1].measured.push(1.0);
+    let e =
+        pkmcal::calibration::IdentificationProblem::new(&delta, &probe, &rows, Model::Exact, &[])
+            .err()
+            .unwrap()
+            .to_string();
+    assert!(e.contains("distance") && e.contains("pose 2"), "{e}");
+}
