@@ -79,9 +79,95 @@ pub fn data_from<M: Mechanism>(
             origin: Some(pkmcal::Origin {
                 pose: i + 1,
                 line: Some(csv.line(i)),
+                distance: false,
             }),
         })
         .collect())
+}
+
+/// Distances measured between pairs of poses (calipers on a printed object,
+/// a gauge): a CSV with the commands of both poses, `<actuator>_1` and
+/// `<actuator>_2` for every actuated joint, the `distance` between the tool
+/// points, and optionally `sigma_distance`. Each row is numbered in its file
+/// as a distance ([`pkmcal::Origin::distance`], see [`located_in`]).
+pub fn read_distances<M: Mechanism>(
+    path: &Path,
+    mech: &M,
+    measurement: &MeasurementModel,
+    units: &pkmcal::FileUnits,
+) -> Result<Vec<Measurement>> {
+    let csv = Csv::read(path)?;
+    csv.require_rows()?;
+    measurement
+        .check_distances()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let spec = mech.spec();
+    let names = |k: usize| -> Vec<String> {
+        spec.actuated_names()
+            .iter()
+            .map(|s| format!("{s}_{k}"))
+            .collect()
+    };
+    use crate::fileunits as fu;
+    let factors = fu::commands(spec, units);
+    let mut a = csv.named(&names(1))?;
+    fu::to_internal(&mut a, &factors);
+    let mut b = csv.named(&names(2))?;
+    fu::to_internal(&mut b, &factors);
+    let length = fu::readings(&[pkmcal::Unit::Millimetre], units);
+    let mut d = csv.named(&[pkmcal::DISTANCE_AXIS.to_string()])?;
+    fu::to_internal(&mut d, &length);
+    let sigma_name = format!("sigma_{}", pkmcal::DISTANCE_AXIS);
+    let sigma = if csv.headers.contains(&sigma_name) {
+        let mut s = csv.named(&[sigma_name])?;
+        fu::to_internal(&mut s, &length);
+        Some(s)
+    } else {
+        None
+    };
+    let mut out = vec![];
+    for (i, ((a, b), d)) in a.into_iter().zip(b).zip(d).enumerate() {
+        let sigma = match &sigma {
+            Some(s) if s[i][0] <= 0.0 => bail!(
+                "{}:{}: sigma_distance must be positive, got {}",
+                path.display(),
+                csv.line(i),
+                s[i][0]
+            ),
+            Some(s) => vec![Some(s[i][0])],
+            None => vec![],
+        };
+        out.push(Measurement {
+            target: None,
+            commands: a,
+            partner: Some(b),
+            measured: d,
+            sigma,
+            origin: Some(pkmcal::Origin {
+                pose: i + 1,
+                line: Some(csv.line(i)),
+                distance: true,
+            }),
+        });
+    }
+    Ok(out)
+}
+
+/// [`located`] for a calibration from a measurement file and a file of
+/// distances between poses: an error at a distance names that file.
+pub fn located_in(e: pkmcal::Error, data: &Path, distances: Option<&Path>) -> anyhow::Error {
+    match (e, distances) {
+        (
+            pkmcal::Error::Pose {
+                pose,
+                line: Some(line),
+                distance: true,
+                source,
+            },
+            Some(file),
+        ) => anyhow::anyhow!("{}:{line}: distance {pose}: {source}", file.display()),
+        (e, _) => located(e, data),
+    }
 }
 
 /// Per-pose standard deviations of the measured coordinates: `sigma_<axis>`
@@ -183,6 +269,7 @@ pub fn located(e: pkmcal::Error, file: &Path) -> anyhow::Error {
         pkmcal::Error::Pose {
             pose,
             line: Some(line),
+            distance: false,
             source,
         } => anyhow::anyhow!("{}:{line}: pose {pose}: {source}", file.display()),
         e => anyhow::Error::new(e).context(format!("calibrating from {}", file.display())),
@@ -311,6 +398,8 @@ pub struct CalibrateConfig {
     pub frame: String,
     /// `--axes`: the tool axes measured, when not all.
     pub axes: Option<String>,
+    /// `--distances`: distances measured between pairs of poses.
+    pub distances: Option<PathBuf>,
 }
 
 fn force_arg<M: Mechanism>(mech: &M, s: Option<&str>) -> Result<Vec<f64>> {
@@ -470,6 +559,11 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
         Some(p) => read_params(p, mech)?,
         None => Params::nominal(spec),
     };
+    let pairs = match &c.distances {
+        Some(p) => read_distances(p, mech, &measurement, &units)?,
+        None => vec![],
+    };
+    let locate = |e: pkmcal::Error| located_in(e, &c.data, c.distances.as_deref());
     let mut opts = CalibrationOptions::new(spec, c.model);
     opts.free = free_set(mech, &measurement, c.free.as_deref(), c.fix.as_deref())?;
     opts.force = force_arg(mech, c.force.as_deref())?;
@@ -508,18 +602,21 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
         }
         (None, None) => (all.clone(), None),
     };
+    // The distances all go into the fit, after the poses.
+    let train: Vec<Measurement> = train.into_iter().chain(pairs).collect();
     // Every pose carries its data-file number and line, so errors, outliers
     // and dropped poses name them without translation.
-    let cal =
-        calibrate(mech, &measurement, &train, &start, &opts).map_err(|e| located(e, &c.data))?;
+    let cal = calibrate(mech, &measurement, &train, &start, &opts).map_err(locate)?;
     // Statistics over the poses the fit kept (dropped outliers are listed).
     let kept: Vec<Measurement> = train
         .iter()
         .filter(|m| m.origin.is_none_or(|o| !cal.dropped.contains(&o)))
         .cloned()
         .collect();
-    let (acc, before, after) = calibration_accuracy(mech, &measurement, &kept, &cal, &opts.force)
-        .map_err(|e| located(e, &c.data))?;
+    let (acc, before, after) =
+        calibration_accuracy(mech, &measurement, &kept, &cal, &opts.force).map_err(locate)?;
+    // The figures show the poses (the distances are in the summary).
+    let kept: Vec<Measurement> = kept.into_iter().filter(|m| m.partner.is_none()).collect();
     let validation = match &held {
         Some((source, path, data)) => Some(Validation {
             source: source.clone(),
@@ -775,10 +872,15 @@ fn print_summary(r: &Report, measurement: &MeasurementModel) {
     let (axes, units) = (measurement.axes(), measurement.units());
     let cal = r.calibration;
     println!(
-        "calibration of {} from {} ({} poses, {} model)",
+        "calibration of {} from {} ({} poses{}, {} model)",
         r.mechanism,
         r.data,
         cal.poses,
+        if cal.distances > 0 {
+            format!(" and {} distances between poses", cal.distances)
+        } else {
+            String::new()
+        },
         cal.model.name()
     );
     println!(
@@ -787,14 +889,20 @@ fn print_summary(r: &Report, measurement: &MeasurementModel) {
     );
     print_noise(&cal.noise);
     println!();
+    let width = cal
+        .parameters
+        .iter()
+        .filter(|p| p.free || p.note.is_some())
+        .map(|p| p.name.chars().count())
+        .fold(6, usize::max);
     println!(
-        "  {:<6} {:>14} {:>16} {:>14} {:>12} {:<8}",
+        "  {:<width$} {:>14} {:>16} {:>14} {:>12} {:<8}",
         "param", "nominal", "identified", "change", "±σ", "unit"
     );
     for p in &cal.parameters {
         if p.free || p.note.is_some() {
             println!(
-                "  {:<6} {:>14.6} {:>16.8} {:>+14.6e} {:>12.3e} {:<8}{}",
+                "  {:<width$} {:>14.6} {:>16.8} {:>+14.6e} {:>12.3e} {:<8}{}",
                 p.name,
                 p.nominal,
                 p.identified,
@@ -834,6 +942,9 @@ fn print_summary(r: &Report, measurement: &MeasurementModel) {
         "  improvement: max {:.1} %, RMS {:.1} %",
         r.accuracy.improvement_max_percent, r.accuracy.improvement_rms_percent
     );
+    if let Some(d) = &r.accuracy.distances {
+        print_distances(d);
+    }
     if let Some(v) = &r.validation {
         println!("  validation: {}", v.source);
         print_stats("validation, before", &v.accuracy.before);
@@ -860,12 +971,8 @@ fn print_summary(r: &Report, measurement: &MeasurementModel) {
     }
     for o in &cal.outliers {
         println!(
-            "  outlier: pose {}{} residual {} ({:.1} robust σ){}",
-            o.origin.pose,
-            o.origin
-                .line
-                .map(|l| format!(" (line {l})"))
-                .unwrap_or_default(),
+            "  outlier: {} residual {} ({:.1} robust σ){}",
+            o.origin,
             with_units(&o.residual, &o.units),
             o.standardized,
             if cal.dropped.contains(&o.origin) {
@@ -878,6 +985,14 @@ fn print_summary(r: &Report, measurement: &MeasurementModel) {
     for w in &cal.warnings {
         println!("warning: {}\n  hint: {}", w.message, w.hint);
     }
+}
+
+/// Errors of the distances between poses, before and after.
+pub fn print_distances(d: &pkmcal::DistanceAccuracy) {
+    println!(
+        "  {} distances between poses: error max {:.4} mm, RMS {:.4} mm before; max {:.4} mm, RMS {:.4} mm after",
+        d.count, d.before_max, d.before_rms, d.after_max, d.after_rms
+    );
 }
 
 pub struct AnalyzeConfig {
@@ -894,6 +1009,8 @@ pub struct AnalyzeConfig {
     pub frame: String,
     /// `--axes`: the tool axes measured, when not all.
     pub axes: Option<String>,
+    /// `--distances`: distances measured between pairs of poses.
+    pub distances: Option<PathBuf>,
 }
 
 pub fn run_analyze(c: AnalyzeConfig) -> Result<()> {
@@ -901,7 +1018,7 @@ pub fn run_analyze(c: AnalyzeConfig) -> Result<()> {
         mech,
         measurement,
         data,
-        ..
+        units,
     } = read_measured(
         c.mechanism.as_deref(),
         &c.data,
@@ -917,16 +1034,28 @@ pub fn run_analyze(c: AnalyzeConfig) -> Result<()> {
     };
     let free = free_set(mech, &measurement, c.free.as_deref(), c.fix.as_deref())?;
     let force = force_arg(mech, c.force.as_deref())?;
+    let n_data = data.len();
+    let data: Vec<Measurement> = match &c.distances {
+        Some(p) => {
+            let pairs = read_distances(p, mech, &measurement, &units)?;
+            data.into_iter().chain(pairs).collect()
+        }
+        None => data,
+    };
     let id = pkmcal::analyze(mech, &measurement, &data, &params, c.model, &free, &force)
-        .with_context(|| format!("analysing {}", c.data.display()))?;
+        .map_err(|e| located_in(e, &c.data, c.distances.as_deref()))?;
     if let Some(r) = &c.report {
         crate::output::stage(r, serde_json::to_string_pretty(&id)?.as_bytes())?;
     }
     println!(
-        "identifiability of {} free parameters from {} poses of {} ({} model)",
+        "identifiability of {} free parameters from {} poses of {}{} ({} model)",
         free.len(),
-        data.len(),
+        n_data,
         c.data.display(),
+        match &c.distances {
+            Some(p) => format!(" and {} distances of {}", data.len() - n_data, p.display()),
+            None => String::new(),
+        },
         c.model.name()
     );
     println!(

@@ -277,18 +277,30 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         &|| bar.inc(1),
     )?;
     bar.finish_and_clear();
+    let units = crate::fileunits::of(a.mech.mechanism.as_deref())?;
+    let distances = match &a.distances_out {
+        None => None,
+        Some(path) => {
+            if path == &a.out {
+                return crate::output::usage("--distances-out must differ from --out");
+            }
+            let pairs = distance_pairs(&targets);
+            let rows = pkmcal::simulate_distances(
+                &mech,
+                &measurement,
+                &truth,
+                &pairs,
+                noise.length,
+                a.seed.wrapping_add(1),
+            )
+            .map_err(|e| crate::output::Usage(format!("--distances-out: {e}")))?;
+            Some((path, distances_csv(&mech, &rows, &units), rows.len()))
+        }
+    };
     let base = *measurement.frame() == pkmcal::Frame::Base;
     crate::output::stage(
         &a.out,
-        &with_frame_comment(
-            data_csv(
-                &mech,
-                &measurement,
-                &data,
-                &crate::fileunits::of(a.mech.mechanism.as_deref())?,
-            ),
-            base,
-        ),
+        &with_frame_comment(data_csv(&mech, &measurement, &data, &units), base),
     )?;
     let angles = measurement.units().contains(&pkmcal::Unit::Radian);
     eprintln!(
@@ -304,7 +316,62 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         a.seed,
         a.out.display()
     );
+    if let Some((path, bytes, n)) = distances {
+        crate::output::stage(path, &bytes)?;
+        eprintln!(
+            "simulated {n} distances between pairs of those poses -> {}",
+            path.display()
+        );
+    }
     Ok(())
+}
+
+/// Pairs of simulated targets whose distances are measured: each target of
+/// the first half with its opposite in the second (long distances, which
+/// fix the scale), and neighbours (short ones).
+fn distance_pairs(targets: &[Vec<f64>]) -> Vec<(Vec<f64>, Vec<f64>)> {
+    let n = targets.len();
+    let half = n / 2;
+    let long = (0..half).map(|i| (i, i + half));
+    let short = (0..n.saturating_sub(1)).step_by(2).map(|i| (i, i + 1));
+    long.chain(short)
+        .map(|(i, j)| (targets[i].clone(), targets[j].clone()))
+        .collect()
+}
+
+/// Distances between pairs of poses as `calibrate --distances` reads them:
+/// `<actuator>_1 …, <actuator>_2 …, distance`, in the file's units.
+pub fn distances_csv(
+    mech: &Mech,
+    rows: &[pkmcal::Measurement],
+    units: &pkmcal::FileUnits,
+) -> Vec<u8> {
+    let spec = mech.spec();
+    use crate::fileunits as fu;
+    let commands = fu::commands(spec, units);
+    let factors: Vec<f64> = commands
+        .iter()
+        .chain(&commands)
+        .copied()
+        .chain(fu::readings(&[pkmcal::Unit::Millimetre], units))
+        .collect();
+    let names = spec.actuated_names();
+    let mut header: Vec<String> = names.iter().map(|s| format!("{s}_1")).collect();
+    header.extend(names.iter().map(|s| format!("{s}_2")));
+    header.push(pkmcal::DISTANCE_AXIS.to_string());
+    let rows: Vec<Vec<f64>> = rows
+        .iter()
+        .map(|m| {
+            m.commands
+                .iter()
+                .chain(m.partner.as_deref().unwrap_or_default())
+                .chain(&m.measured)
+                .zip(&factors)
+                .map(|(v, f)| fu::to_file(*v, *f))
+                .collect()
+        })
+        .collect();
+    fu::with_comment(csv_bytes(&header, &rows), units)
 }
 
 /// What `simulate` measures: a ball bar (`--setup`), target points

@@ -634,6 +634,7 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
             origin: Some(pkmcal::Origin {
                 pose: i + 1,
                 line: None,
+                distance: false,
             }),
         })
         .collect();

@@ -187,6 +187,11 @@ pub struct SimulateArgs {
     /// probe); the file then has only their columns.
     #[arg(long, value_name = "AXES", conflicts_with = "setup")]
     pub axes: Option<String>,
+    /// Also write distances between pairs of the simulated poses (as
+    /// measured with calipers; same length noise) to this file, in the
+    /// format `calibrate --distances` reads.
+    #[arg(long, value_name = "PAIRS.csv")]
+    pub distances_out: Option<PathBuf>,
 }
 
 #[derive(clap::Args)]
@@ -282,6 +287,13 @@ pub struct CalibrateArgs {
     /// height probe); the data file then needs only their columns.
     #[arg(long, value_name = "AXES")]
     pub axes: Option<String>,
+    /// Distances measured between pairs of poses (calipers on a printed
+    /// object, a gauge), fitted with the data: CSV with the commands of both
+    /// poses (`<actuator>_1`, `<actuator>_2` for every actuated joint) and
+    /// `distance` in mm (optional `sigma_distance`; otherwise their noise is
+    /// estimated apart from the data's).
+    #[arg(long, value_name = "PAIRS.csv")]
+    pub distances: Option<PathBuf>,
 }
 
 #[derive(clap::Args)]
@@ -320,6 +332,11 @@ pub struct AnalyzeArgs {
     /// height probe); the data file then needs only their columns.
     #[arg(long, value_name = "AXES")]
     pub axes: Option<String>,
+    /// Distances measured between pairs of poses (calipers on a printed
+    /// object, a gauge), analysed with the data: CSV with `<actuator>_1`,
+    /// `<actuator>_2` and `distance` columns (see calibrate).
+    #[arg(long, value_name = "PAIRS.csv")]
+    pub distances: Option<PathBuf>,
 }
 
 #[derive(clap::Args)]
@@ -718,6 +735,7 @@ fn run(command: Command) -> anyhow::Result<()> {
                 report_dir: a.report_dir,
                 quiet: a.quiet,
                 setup: a.setup,
+                distances: a.distances,
             })
         }),
         Command::Analyze(a) => a.model.parse().map_err(Into::into).and_then(|model| {
@@ -733,6 +751,7 @@ fn run(command: Command) -> anyhow::Result<()> {
                 setup: a.setup,
                 frame: a.frame,
                 axes: a.axes,
+                distances: a.distances,
             })
         }),
         Command::Compensate(a) => a.model.parse().map_err(Into::into).and_then(|model| {

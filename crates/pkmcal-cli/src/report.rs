@@ -384,12 +384,17 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
     );
     let _ = write!(
         h,
-        "<table class=\"kv\"><tr><td>mechanism</td><td>{}</td></tr><tr><td>joints</td><td>{} (actuated: {})</td></tr><tr><td>data</td><td>{} ({} poses)</td></tr><tr><td>model</td><td>{}</td></tr><tr><td>solver</td><td>{} after {} iterations, {} evaluations</td></tr><tr><td>noise</td><td>{}</td></tr><tr><td>instrument frame</td><td>{}</td></tr><tr><td>pkmcal</td><td>{}</td></tr></table>",
+        "<table class=\"kv\"><tr><td>mechanism</td><td>{}</td></tr><tr><td>joints</td><td>{} (actuated: {})</td></tr><tr><td>data</td><td>{} ({} poses{})</td></tr><tr><td>model</td><td>{}</td></tr><tr><td>solver</td><td>{} after {} iterations, {} evaluations</td></tr><tr><td>noise</td><td>{}</td></tr><tr><td>instrument frame</td><td>{}</td></tr><tr><td>pkmcal</td><td>{}</td></tr></table>",
         escape(&spec.name),
         escape(&spec.joints.join(", ")),
         escape(&spec.actuated_names().join(", ")),
         escape(r.data_name),
         cal.poses,
+        if cal.distances > 0 {
+            format!(", {} distances between poses", cal.distances)
+        } else {
+            String::new()
+        },
         match cal.model {
             Model::Rigid => "rigid (no compliance)",
             Model::Linear => "linear (paper eq. 11)",
@@ -459,6 +464,13 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
         "</table><p>Improvement on the calibration poses: maximum distance error {:.1} %, RMS {:.1} %.</p>",
         r.accuracy.improvement_max_percent, r.accuracy.improvement_rms_percent
     );
+    if let Some(d) = &r.accuracy.distances {
+        let _ = write!(
+            h,
+            "<p>{} distances between poses (calipers, a gauge): error max {:.4} mm, RMS {:.4} mm before; max {:.4} mm, RMS {:.4} mm after.</p>",
+            d.count, d.before_max, d.before_rms, d.after_max, d.after_rms
+        );
+    }
     h.push_str("<h2>Parameters</h2><table><tr><th>parameter</th><th>unit</th><th>nominal</th><th>identified</th><th>change</th><th>σ</th><th></th></tr>");
     for p in &cal.parameters {
         let class = if p.free { "" } else { " class=\"fixed\"" };

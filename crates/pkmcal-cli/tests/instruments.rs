@@ -298,3 +298,159 @@ fn frame_gauge_is_one_warning() {
         6
     );
 }
+
+/// Probe heights and caliper distances between poses on a delta: simulate
+/// writes both files, calibrate fits them together (the distances their own
+/// noise group, their errors before and after printed and in the report),
+/// analyze reads both, and a bad distance is named by its file, line and
+/// number.
+#[test]
+fn distances_between_poses_with_probe_heights() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mech = example("linear-delta");
+    std::fs::write(
+        d.join("truth.toml"),
+        "delta_radius = 130.5\narm_a = 250.6\narm_b = 249.7\nda = 0.4\n",
+    )
+    .unwrap();
+    ok(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            &mech,
+            "--truth",
+            "truth.toml",
+            "--grid",
+            "20",
+            "--probe",
+            "--noise",
+            "0.005",
+            "--out",
+            "probes.csv",
+            "--distances-out",
+            "pairs.csv",
+        ],
+    );
+    let (header, rows) = read_csv(&d.join("pairs.csv"));
+    assert_eq!(
+        header,
+        ["a_1", "b_1", "c_1", "a_2", "b_2", "c_2", "distance"]
+    );
+    assert_eq!(rows.len(), 20);
+    let free = "delta_radius,angle_a,angle_b,da,db,dc,arm_a,arm_b,arm_c";
+    let out = ok(
+        d,
+        &[
+            "calibrate",
+            "--mechanism",
+            &mech,
+            "--data",
+            "probes.csv",
+            "--distances",
+            "pairs.csv",
+            "--free",
+            free,
+            "--out",
+            "p.toml",
+            "--report",
+            "r.json",
+            "--report-dir",
+            "rep",
+        ],
+    );
+    assert!(
+        out.contains("20 poses and 20 distances between poses"),
+        "{out}"
+    );
+    assert!(
+        out.contains("noise of lengths (distance, 20 coordinates)"),
+        "{out}"
+    );
+    assert!(
+        out.contains("20 distances between poses: error max"),
+        "{out}"
+    );
+    let r = json(&d.join("r.json"));
+    let dist = &r["accuracy"]["distances"];
+    assert!(dist["before_max"].as_f64().unwrap() > 0.3, "{dist}");
+    assert!(dist["after_max"].as_f64().unwrap() < 0.03, "{dist}");
+    let param = |n: &str| {
+        r["parameters"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|p| p["name"] == n)
+            .unwrap()["identified"]
+            .as_f64()
+            .unwrap()
+    };
+    // Five σ of the noise's effect (σ about 0.02 mm on the arms).
+    assert!((param("arm_a") - 250.6).abs() < 0.1, "{}", param("arm_a"));
+    assert!((param("delta_radius") - 130.5).abs() < 0.05);
+    let html = std::fs::read_to_string(d.join("rep/report.html")).unwrap();
+    assert!(html.contains("20 distances between poses"));
+    let out = ok(
+        d,
+        &[
+            "analyze",
+            "--mechanism",
+            &mech,
+            "--data",
+            "probes.csv",
+            "--distances",
+            "pairs.csv",
+            "--free",
+            free,
+        ],
+    );
+    assert!(out.contains("and 20 distances of pairs.csv"), "{out}");
+    assert!(
+        out.contains("all 9 free parameters are identifiable"),
+        "{out}"
+    );
+    // A pair the delta cannot reach is named in its own file.
+    let text = std::fs::read_to_string(d.join("pairs.csv")).unwrap();
+    let mut lines: Vec<String> = text.lines().map(String::from).collect();
+    let k = lines.iter().position(|l| l.starts_with("a_1")).unwrap() + 4;
+    let mut f: Vec<&str> = lines[k].split(',').collect();
+    f[1] = "900";
+    lines[k] = f.join(",");
+    std::fs::write(d.join("bad.csv"), lines.join("\n")).unwrap();
+    fails(
+        d,
+        &[
+            "calibrate",
+            "--mechanism",
+            &mech,
+            "--data",
+            "probes.csv",
+            "--distances",
+            "bad.csv",
+            "--out",
+            "q.toml",
+        ],
+        1,
+        &format!("bad.csv:{}: distance 4:", k + 1),
+    );
+    assert!(!d.join("q.toml").exists());
+    // Overwriting the measurements is refused.
+    fails(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            &mech,
+            "--grid",
+            "4",
+            "--probe",
+            "--out",
+            "same.csv",
+            "--distances-out",
+            "same.csv",
+        ],
+        2,
+        "--distances-out must differ from --out",
+    );
+}

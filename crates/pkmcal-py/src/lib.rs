@@ -96,6 +96,7 @@ fn at(i: usize) -> impl Fn(pkmcal::Error) -> pkmcal::Error {
         e.at_pose(Origin {
             pose: i,
             line: None,
+            distance: false,
         })
     }
 }
@@ -901,6 +902,7 @@ fn measurements(
             origin: Some(Origin {
                 pose: i,
                 line: None,
+                distance: false,
             }),
         })
         .collect())

@@ -927,10 +927,7 @@ pub struct Warning {
 fn pose_list(poses: &[Origin]) -> String {
     poses
         .iter()
-        .map(|o| match o.line {
-            Some(l) => format!("pose {} (line {l})", o.pose),
-            None => format!("pose {}", o.pose),
-        })
+        .map(Origin::to_string)
         .collect::<Vec<_>>()
         .join(", ")
 }
@@ -1057,8 +1054,10 @@ pub struct Calibration {
     pub iterations: usize,
     /// Residual evaluations (of the final fit).
     pub evaluations: usize,
-    /// Number of poses.
+    /// Number of poses (rows read by the instrument).
     pub poses: usize,
+    /// Number of distances measured between two poses.
+    pub distances: usize,
     /// Sum of squared standardised residuals `Σ (r/σ)²` at the solution.
     pub sum_of_squares: f64,
     /// Standard deviation of unit weight `√(Σ (r/σ)² / (m − n))`
@@ -1758,7 +1757,8 @@ fn calibrate_once<M: Mechanism>(
         termination: report.termination,
         iterations: report.iterations,
         evaluations: report.evaluations,
-        poses: data.len(),
+        poses: data.iter().filter(|d| d.partner.is_none()).count(),
+        distances: data.iter().filter(|d| d.partner.is_some()).count(),
         sum_of_squares: report.sum_of_squares,
         unit_weight_sigma: s2.sqrt(),
         noise: vec![],

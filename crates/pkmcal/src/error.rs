@@ -53,12 +53,15 @@ pub enum Error {
 
     /// Something went wrong at one measured pose: which pose (data-file
     /// numbering when the data carry it), its line, and what.
-    #[error("pose {pose}{}: {source}", line.map(|l| format!(" (line {l})")).unwrap_or_default())]
+    #[error("{} {pose}{}: {source}", if *distance { "distance" } else { "pose" }, line.map(|l| format!(" (line {l})")).unwrap_or_default())]
     Pose {
         /// Pose number (1-based).
         pose: usize,
         /// Line in the data file, when known.
         line: Option<u64>,
+        /// Whether the row is a distance between two poses (`pose` is then
+        /// its number among the distances).
+        distance: bool,
         /// What went wrong there.
         source: Box<Error>,
     },
@@ -72,6 +75,7 @@ impl Error {
             e => Error::Pose {
                 pose: origin.pose,
                 line: origin.line,
+                distance: origin.distance,
                 source: Box::new(e),
             },
         }

@@ -78,7 +78,7 @@ pub use kinematics::{
     check_params, forward_kinematics, inverse_kinematics, reference_configuration, solve_closure,
 };
 pub use linearized::{Linearization, joint_errors, linearize, load_vector, projection};
-pub use measurement::{Frame, Instrument, MeasurementModel, MeasurementSummary};
+pub use measurement::{DISTANCE_AXIS, Frame, Instrument, MeasurementModel, MeasurementSummary};
 pub use mechanism::{Mechanism, Params, Scalar, Spec};
 pub use models::{
     Equilibrium, Model, Pose, Prediction, equilibrium, predict, predict_pose, predict_pose_warm,

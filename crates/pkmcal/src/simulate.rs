@@ -44,6 +44,22 @@ pub struct Origin {
     pub pose: usize,
     /// Line in the data file.
     pub line: Option<u64>,
+    /// Whether the row is a distance between two poses
+    /// ([`Measurement::partner`]); `pose` is then its number among the
+    /// distances (their own file's numbering in the command-line tool).
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub distance: bool,
+}
+
+impl std::fmt::Display for Origin {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let what = if self.distance { "distance" } else { "pose" };
+        write!(f, "{what} {}", self.pose)?;
+        if let Some(l) = self.line {
+            write!(f, " (line {l})")?;
+        }
+        Ok(())
+    }
 }
 
 impl Measurement {
@@ -60,9 +76,11 @@ pub fn numbered(data: &[Measurement]) -> Vec<Measurement> {
         .enumerate()
         .map(|(i, m)| {
             let mut m = m.clone();
+            let distance = m.partner.is_some();
             m.origin.get_or_insert(Origin {
                 pose: i + 1,
                 line: None,
+                distance,
             });
             m
         })

@@ -639,7 +639,7 @@ fn distance_rows_are_checked() {
         .unwrap()
         .to_string();
     assert!(
-        e.contains("distances between poses") && e.contains("pose 1"),
+        e.contains("distances between poses") && e.contains("distance 1"),
         "{e}"
     );
     let delta = spatial("linear-delta");
@@ -660,5 +660,5 @@ fn distance_rows_are_checked() {
             .err()
             .unwrap()
             .to_string();
-    assert!(e.contains("distance") && e.contains("pose 2"), "{e}");
+    assert!(e.contains("distance 2: readings (distance)"), "{e}");
 }
