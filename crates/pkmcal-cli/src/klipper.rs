@@ -50,6 +50,10 @@ const DEFAULT_ANGLES: [f64; 3] = [210.0, 330.0, 90.0];
 /// tower angles, the three endstops.
 pub const KLIPPER_FREE: [&str; 6] = ["delta_radius", "angle_a", "angle_b", "da", "db", "dc"];
 
+/// What Klipper adds to [`KLIPPER_FREE`] when distances were measured on its
+/// calibration object (its extended calibration): the three arm lengths.
+pub const KLIPPER_EXTENDED: [&str; 3] = ["arm_a", "arm_b", "arm_c"];
+
 /// Stiffness written for the carriages (N/mm): a linear delta is not
 /// redundant, so it changes no prediction without a load.
 const CARRIAGE_STIFFNESS: f64 = 2000.0;
@@ -251,7 +255,20 @@ pub struct Probe {
     pub steps: [f64; 3],
 }
 
+/// A distance measured on Klipper's calibration object (`DELTA_ANALYZE`),
+/// saved as `distance{N}` between two stable positions.
+#[derive(Debug, Clone)]
+pub struct Distance {
+    /// `distance{N}`.
+    pub name: String,
+    /// The measured distance (mm).
+    pub distance: f64,
+    /// Steps from each tower's endstop at the two ends.
+    pub steps: [[f64; 3]; 2],
+}
+
 /// A Klipper linear delta: its geometry and its saved probe results.
+
 #[derive(Debug, Clone)]
 pub struct KlipperDelta {
     /// `delta_radius` (mm).
@@ -269,8 +286,8 @@ pub struct KlipperDelta {
     pub probe_radius: f64,
     /// The saved probe results.
     pub probes: Vec<Probe>,
-    /// How many `distance{N}` measurements the file holds (not used yet).
-    pub distances: usize,
+    /// The saved distances measured on the calibration object.
+    pub distances: Vec<Distance>,
 }
 
 impl KlipperDelta {
@@ -395,7 +412,7 @@ pub fn delta_from_config(ini: &Ini) -> Result<KlipperDelta> {
         step_distances: [0.0; 3],
         probe_radius: radius,
         probes: vec![],
-        distances: 0,
+        distances: vec![],
     };
     for (i, t) in TOWERS.iter().enumerate() {
         let s = sec(t);
@@ -463,11 +480,20 @@ pub fn delta_from_config(ini: &Ini) -> Result<KlipperDelta> {
             });
         }
     }
-    while ini
-        .get("delta_calibrate", &format!("distance{}", d.distances))
-        .is_some()
-    {
-        d.distances += 1;
+    for n in 0.. {
+        let key = format!("distance{n}");
+        let Some(v) = ini.number("delta_calibrate", &key)? else {
+            break;
+        };
+        let steps = [
+            ini.triple("delta_calibrate", &format!("{key}_pos1"))?,
+            ini.triple("delta_calibrate", &format!("{key}_pos2"))?,
+        ];
+        d.distances.push(Distance {
+            name: key,
+            distance: v,
+            steps,
+        });
     }
     if d.probes.len() < KLIPPER_FREE.len() {
         bail!(
@@ -637,7 +663,26 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
                 distance: false,
             }),
         })
+        .chain(
+            delta
+                .distances
+                .iter()
+                .enumerate()
+                .map(|(i, d)| pkmcal::Measurement {
+                    target: None,
+                    commands: delta.carriage_heights(&d.steps[0]).to_vec(),
+                    partner: Some(delta.carriage_heights(&d.steps[1]).to_vec()),
+                    measured: vec![d.distance],
+                    sigma: vec![],
+                    origin: Some(pkmcal::Origin {
+                        pose: i + 1,
+                        line: None,
+                        distance: true,
+                    }),
+                }),
+        )
         .collect();
+    let heights = &data[..delta.probes.len()];
     let measurement = MeasurementModel::probe(spec)?;
     let mut free_names: Vec<String> = vec![];
     for n in c
@@ -649,7 +694,12 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
     {
         match n {
             "" => {}
-            "default" => free_names.extend(spec.default_free.iter().cloned()),
+            "default" => {
+                free_names.extend(spec.default_free.iter().cloned());
+                if !delta.distances.is_empty() {
+                    free_names.extend(KLIPPER_EXTENDED.map(String::from));
+                }
+            }
             _ => free_names.push(n.to_string()),
         }
     }
@@ -666,31 +716,37 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
     let nominal = Params::nominal(spec);
     let cal = pkmcal::calibrate(&mech, &measurement, &data, &nominal, &opts).map_err(|e| {
         let e = anyhow::Error::from(e);
-        match data_pose(&e) {
-            Some(i) => e.context(format!(
-                "probe `{}` of {}",
-                delta.probes[i].name,
-                c.config.display()
-            )),
-            None => e,
-        }
+        let name = match data_pose(&e) {
+            Some((i, false)) => &delta.probes[i].name,
+            Some((i, true)) => &delta.distances[i].name,
+            None => return e,
+        };
+        e.context(format!("`{name}` of {}", c.config.display()))
     })?;
-    let before = height_errors(&mech, &measurement, &nominal, measurement.nominal(), &data)?;
-    let after = height_errors(&mech, &measurement, &cal.params, &cal.measurement, &data)?;
+    let before = height_errors(
+        &mech,
+        &measurement,
+        &nominal,
+        measurement.nominal(),
+        heights,
+    )?;
+    let after = height_errors(&mech, &measurement, &cal.params, &cal.measurement, heights)?;
     let new = delta.identified(spec, &cal.params)?;
     println!(
-        "{} probe heights from {} (Klipper), {} parameters free: {}",
-        data.len(),
+        "{} probe heights{} from {} (Klipper), {} parameters free: {}",
+        heights.len(),
+        if delta.distances.is_empty() {
+            String::new()
+        } else {
+            format!(
+                " and {} distances measured on the calibration object",
+                delta.distances.len()
+            )
+        },
         c.config.display(),
         free_names.len(),
         free_names.join(" ")
     );
-    if delta.distances > 0 {
-        println!(
-            "note: the {} distance measurements (distance0 …) are not used yet; the fit uses the probe heights",
-            delta.distances
-        );
-    }
     println!("{}", cal.termination.reason());
     println!(
         "height errors: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm",
@@ -699,6 +755,20 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
         max_abs(&after),
         rms(&after)
     );
+    if !delta.distances.is_empty() {
+        let (acc, _, _) = pkmcal::calibration_accuracy(&mech, &measurement, &data, &cal, &[])?;
+        if let Some(d) = acc.distances {
+            println!(
+                "distance errors: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm (noise σ: heights {}, distances {}, estimated apart)",
+                d.before_max,
+                d.before_rms,
+                d.after_max,
+                d.after_rms,
+                noise_of(&cal, "probe"),
+                noise_of(&cal, pkmcal::DISTANCE_AXIS)
+            );
+        }
+    }
     for w in &cal.warnings {
         println!("warning: {}\n  hint: {}", w.message, w.hint);
     }
@@ -743,7 +813,7 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
     if let Some(dir) = &c.out_dir {
         output::create_dir(dir)?;
         let mut csv = String::from("# frame: base\na,b,c,probe\n");
-        for m in &data {
+        for m in heights {
             let _ = writeln!(
                 csv,
                 "{:?},{:?},{:?},{:?}",
@@ -753,6 +823,18 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
         let [m_file, d_file, p_file] = OUT_DIR_FILES;
         output::stage(&dir.join(m_file), toml.as_bytes())?;
         output::stage(&dir.join(d_file), csv.as_bytes())?;
+        if !delta.distances.is_empty() {
+            let mut csv = String::from("a_1,b_1,c_1,a_2,b_2,c_2,distance\n");
+            for m in &data[heights.len()..] {
+                let b = m.partner.as_deref().unwrap_or_default();
+                let _ = writeln!(
+                    csv,
+                    "{:?},{:?},{:?},{:?},{:?},{:?},{:?}",
+                    m.commands[0], m.commands[1], m.commands[2], b[0], b[1], b[2], m.measured[0]
+                );
+            }
+            output::stage(&dir.join(DISTANCES_FILE), csv.as_bytes())?;
+        }
         output::stage(
             &dir.join(p_file),
             crate::io::params_to_string(
@@ -765,8 +847,13 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
             )
             .as_bytes(),
         )?;
+        let dist = if delta.distances.is_empty() {
+            String::new()
+        } else {
+            format!(" --distances {}/{DISTANCES_FILE}", dir.display())
+        };
         println!(
-            "mechanism, probe data and parameters -> {} (e.g. `pkmcal calibrate --mechanism {0}/mechanism.toml --data {0}/probes.csv`)",
+            "mechanism, probe data and parameters -> {} (e.g. `pkmcal calibrate --mechanism {0}/mechanism.toml --data {0}/probes.csv{dist}`)",
             dir.display()
         );
     }
@@ -775,12 +862,23 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
 
 /// The files `--out-dir` holds.
 pub const OUT_DIR_FILES: [&str; 3] = ["mechanism.toml", "probes.csv", "calibration.toml"];
+/// And the distances, when the configuration saves any.
+pub const DISTANCES_FILE: &str = "distances.csv";
 
-/// The pose index (from 0) an error is about, if any.
-fn data_pose(e: &anyhow::Error) -> Option<usize> {
+/// The row an error is about, if any: its index (from 0) among the probe
+/// heights or (`true`) the distances.
+fn data_pose(e: &anyhow::Error) -> Option<(usize, bool)> {
     e.chain()
         .find_map(|c| match c.downcast_ref::<pkmcal::Error>() {
-            Some(pkmcal::Error::Pose { pose, .. }) => Some(pose - 1),
+            Some(pkmcal::Error::Pose { pose, distance, .. }) => Some((pose - 1, *distance)),
             _ => None,
         })
+}
+
+/// The noise σ of a group of readings, for the summary.
+fn noise_of(cal: &pkmcal::Calibration, axis: &str) -> String {
+    cal.noise
+        .iter()
+        .find(|g| g.axes.iter().any(|a| a == axis))
+        .map_or("—".into(), |g| format!("{:.1} µm", g.sigma * 1e3))
 }

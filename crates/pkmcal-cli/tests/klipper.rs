@@ -14,6 +14,10 @@ const RECOVERED: f64 = 1e-4;
 /// Klipper's forward kinematics with the written values puts every probe
 /// point on the bed (mm).
 const ON_THE_BED: f64 = 1e-4;
+/// The values identified with the arm lengths from heights and distances
+/// rounded to 1 µm and 0.001 step (mm, degrees): the arms correlate with the
+/// endstops, which amplifies the rounding.
+const ARMS_RECOVERED: f64 = 2e-4;
 
 /// A printer: delta_radius, tower angles (°), arm lengths, endstops, step
 /// distance.
@@ -247,6 +251,130 @@ fn klipper_probe_heights_give_klippers_values_back() {
     for i in 0..3 {
         assert!(close(new2.endstops[i], new.endstops[i]), "{again}");
     }
+}
+
+/// A printer whose arms differ from the configuration's: only distances
+/// measured on a printed object see them.
+const TRUTH_ARMS: Printer = Printer {
+    arms: [333.4, 332.7, 333.2],
+    ..TRUTH
+};
+
+/// The pairs of points Klipper's calibration object (`calibrate_size.stl`,
+/// `DELTA_ANALYZE`) is measured between: from the centre's ridge to each
+/// outer pillar, and between neighbouring outer pillars.
+fn object_pairs() -> Vec<([f64; 3], [f64; 3])> {
+    let angles = [210.0_f64, 270.0, 330.0, 30.0, 90.0, 150.0];
+    let xy: Vec<[f64; 2]> = angles
+        .iter()
+        .map(|a| [a.to_radians().cos(), a.to_radians().sin()])
+        .collect();
+    let (ridge, outer) = (4.5, 65.0);
+    let mut pairs: Vec<([f64; 3], [f64; 3])> = xy
+        .iter()
+        .map(|[x, y]| {
+            (
+                [x * ridge, y * ridge, 0.0],
+                [x * (outer + ridge), y * (outer + ridge), 0.0],
+            )
+        })
+        .collect();
+    for k in 0..6 {
+        let [sx, sy] = [xy[k][0] * outer, xy[k][1] * outer];
+        let [ax, ay] = xy[(k + 2) % 6];
+        pairs.push((
+            [ax * ridge + sx, ay * ridge + sy, 0.0],
+            [ax * (outer + ridge) + sx, ay * (outer + ridge) + sy, 0.0],
+        ));
+    }
+    pairs
+}
+
+/// Probe heights and the calibration object's distances (Klipper's extended
+/// calibration): the arm lengths come back with the rest, by default, and
+/// the distances are reported before and after.
+#[test]
+fn klipper_distances_identify_the_arm_lengths() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("steppers.cfg"), "").unwrap();
+    let mut s = config(d);
+    // The probe heights of the printer with the other arms.
+    let mut lines: Vec<String> = s.lines().map(String::from).collect();
+    lines.retain(|l| !l.starts_with("#*# height"));
+    s = lines.join("\n") + "\n";
+    for (n, p) in probe_points().into_iter().enumerate() {
+        let st = TRUTH_ARMS.steps(p);
+        s.push_str(&format!(
+            "#*# height{n} = 0.0\n#*# height{n}_pos = {:.3},{:.3},{:.3}\n",
+            st[0], st[1], st[2]
+        ));
+    }
+    // The object printed with the configured geometry, where the nozzle
+    // really went measured with calipers.
+    for (n, (a, b)) in object_pairs().into_iter().enumerate() {
+        let (sa, sb) = (NOMINAL.steps(a), NOMINAL.steps(b));
+        let round = |v: [f64; 3]| v.map(|x| (x * 1000.0).round() / 1000.0);
+        let (sa, sb) = (round(sa), round(sb));
+        let (pa, pb) = (TRUTH_ARMS.position(sa), TRUTH_ARMS.position(sb));
+        let dist = (0..3).map(|k| (pa[k] - pb[k]).powi(2)).sum::<f64>().sqrt();
+        s.push_str(&format!(
+            "#*# distance{n} = {dist:.6}\n#*# distance{n}_pos1 = {:.3},{:.3},{:.3}\n#*# distance{n}_pos2 = {:.3},{:.3},{:.3}\n",
+            sa[0], sa[1], sa[2], sb[0], sb[1], sb[2]
+        ));
+    }
+    std::fs::write(d.join("printer.cfg"), &s).unwrap();
+    let out = ok(
+        d,
+        &[
+            "klipper",
+            "--config",
+            "printer.cfg",
+            "--out",
+            "new.cfg",
+            "--out-dir",
+            "kd",
+        ],
+    );
+    assert!(
+        out.contains("13 probe heights and 12 distances measured on the calibration object"),
+        "{out}"
+    );
+    assert!(out.contains("arm_a arm_b arm_c"), "{out}");
+    assert!(out.contains("distance errors: before max"), "{out}");
+    let new = saved(&std::fs::read_to_string(d.join("new.cfg")).unwrap());
+    let close = |a: f64, b: f64| (a - b).abs() < ARMS_RECOVERED;
+    assert!(close(new.radius, TRUTH_ARMS.radius), "{out}");
+    for i in 0..3 {
+        assert!(close(new.arms[i], TRUTH_ARMS.arms[i]), "arm {i}: {out}");
+        assert!(
+            close(new.angles[i], TRUTH_ARMS.angles[i]),
+            "angle {i}: {out}"
+        );
+        assert!(
+            close(new.endstops[i], TRUTH_ARMS.endstops[i]),
+            "endstop {i}: {out}"
+        );
+    }
+    // The distances go to the other commands too.
+    assert!(d.join("kd/distances.csv").exists());
+    let cal = ok(
+        d,
+        &[
+            "calibrate",
+            "--mechanism",
+            "kd/mechanism.toml",
+            "--data",
+            "kd/probes.csv",
+            "--distances",
+            "kd/distances.csv",
+            "--free",
+            "delta_radius,angle_a,angle_b,da,db,dc,arm_a,arm_b,arm_c",
+            "--out",
+            "again.toml",
+        ],
+    );
+    assert!(cal.contains("13 poses and 12 distances"), "{cal}");
 }
 
 #[test]
