@@ -73,7 +73,7 @@ impl Motion {
     }
 }
 
-/// Revolute or prismatic.
+/// Revolute, prismatic, universal or spherical.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum SpatialJointKind {
@@ -81,6 +81,16 @@ pub enum SpatialJointKind {
     Revolute,
     /// Translation along the axis (coordinate in mm).
     Prismatic,
+    /// Two rotations, about `axis` then about `axis2` (in the frame the first
+    /// one turned): revolute joints `<name>_1` and `<name>_2`, the second at
+    /// the first's centre. Its errors are parameters like any joint's: the
+    /// second axis's offset `<name>_2.x …` and tilts `<name>_2.tilt1 …`
+    /// (nominally 0). Passive.
+    Universal,
+    /// Three rotations, about `axis`, `axis2`, `axis3`: revolute joints
+    /// `<name>_1`, `<name>_2`, `<name>_3` about one centre. Passive. (A
+    /// spherical joint that meets the platform is the leg's `end`.)
+    Spherical,
 }
 
 /// How a leg's chain meets the platform.
@@ -111,6 +121,14 @@ pub struct SpatialJoint {
     pub at: [Value; 3],
     /// Direction of the joint's axis in the current frame (normalised).
     pub axis: [f64; 3],
+    /// Universal and spherical joints: the second axis, in the frame the
+    /// first rotation turned; perpendicular to `axis` if left out.
+    #[serde(default)]
+    pub axis2: Option<[f64; 3]>,
+    /// Spherical joints: the third axis; perpendicular to the first two if
+    /// left out.
+    #[serde(default)]
+    pub axis3: Option<[f64; 3]>,
     /// The axis's two tilts (rad); 0 if left out.
     #[serde(default)]
     pub tilt: Option<[Value; 2]>,
@@ -220,7 +238,7 @@ pub struct SpatialDescription {
 
 #[derive(Debug, Clone, PartialEq)]
 struct JointIx {
-    kind: SpatialJointKind,
+    prismatic: bool,
     /// Index in `q`.
     q: usize,
     at: [usize; 3],
@@ -275,6 +293,73 @@ pub struct SpatialMechanism {
     /// against its joints, the platform held) at the reference: its working
     /// mode. Empty when some leg has not as many joints as equations.
     leg_signs: Vec<i8>,
+}
+
+/// A leg's joints with every universal and spherical joint written as the
+/// revolute joints it is (`<name>_1`, `<name>_2`[, `<name>_3`]).
+fn expand_joints(leg: &SpatialLeg) -> Result<Vec<SpatialJoint>> {
+    let mut out = Vec::with_capacity(leg.joints.len());
+    for j in &leg.joints {
+        let (ln, jn) = (&leg.name, &j.name);
+        let n = match j.kind {
+            SpatialJointKind::Revolute | SpatialJointKind::Prismatic => {
+                if j.axis2.is_some() || j.axis3.is_some() {
+                    return bad(format!(
+                        "leg `{ln}`, joint `{jn}`: `axis2` and `axis3` are for universal and spherical joints"
+                    ));
+                }
+                out.push(j.clone());
+                continue;
+            }
+            SpatialJointKind::Universal => 2,
+            SpatialJointKind::Spherical => 3,
+        };
+        if j.actuated || j.stiffness.is_some() {
+            return bad(format!(
+                "leg `{ln}`, joint `{jn}`: a {} joint is passive; drive a revolute or prismatic joint",
+                if n == 2 { "universal" } else { "spherical" }
+            ));
+        }
+        if n == 2 && j.axis3.is_some() {
+            return bad(format!(
+                "leg `{ln}`, joint `{jn}`: a universal joint has two axes; remove `axis3`"
+            ));
+        }
+        for (k, a) in [Some(j.axis), j.axis2, j.axis3].iter().enumerate().take(n) {
+            if let Some(a) = a {
+                let len2: f64 = a.iter().map(|v| v * v).sum();
+                if !(len2.is_finite() && len2 > 1e-18) {
+                    let key = ["axis", "axis2", "axis3"][k];
+                    return bad(format!(
+                        "leg `{ln}`, joint `{jn}`: `{key}` must be a non-zero direction [x, y, z]"
+                    ));
+                }
+            }
+        }
+        let first = normalized(j.axis);
+        let second = normalized(j.axis2.unwrap_or_else(|| axis_basis(first)[1]));
+        if cross(first, second).iter().map(|v| v * v).sum::<f64>() < 1e-12 {
+            return bad(format!(
+                "leg `{ln}`, joint `{jn}`: `axis2` must not be parallel to `axis`"
+            ));
+        }
+        let third = normalized(j.axis3.unwrap_or_else(|| cross(first, second)));
+        let axes = [first, second, third];
+        for (k, axis) in axes.iter().enumerate().take(n) {
+            out.push(SpatialJoint {
+                name: format!("{jn}_{}", k + 1),
+                kind: SpatialJointKind::Revolute,
+                at: if k == 0 { j.at.clone() } else { origin() },
+                axis: *axis,
+                axis2: None,
+                axis3: None,
+                tilt: if k == 0 { j.tilt.clone() } else { None },
+                actuated: false,
+                stiffness: None,
+            });
+        }
+    }
+    Ok(out)
 }
 
 fn bad<T>(m: String) -> Result<T> {
@@ -546,8 +631,9 @@ impl SpatialMechanism {
                 Some(v) => Some(names.add(v, format!("{ln}.angle"), Unit::Radian)?),
                 None => None,
             };
-            let mut joints = Vec::with_capacity(leg.joints.len());
-            for j in &leg.joints {
+            let expanded = expand_joints(leg)?;
+            let mut joints = Vec::with_capacity(expanded.len());
+            for j in &expanded {
                 claim(&j.name, &format!("leg `{ln}`: joint"))?;
                 let jn = &j.name;
                 let len2: f64 = j.axis.iter().map(|v| v * v).sum();
@@ -569,10 +655,8 @@ impl SpatialMechanism {
                 ];
                 let q = joint_names.len();
                 joint_names.push(jn.clone());
-                joint_units.push(match j.kind {
-                    SpatialJointKind::Revolute => Unit::Radian,
-                    SpatialJointKind::Prismatic => mm,
-                });
+                let prismatic = j.kind == SpatialJointKind::Prismatic;
+                joint_units.push(if prismatic { mm } else { Unit::Radian });
                 let unit = if j.kind == SpatialJointKind::Revolute {
                     "N·m/rad"
                 } else {
@@ -597,7 +681,7 @@ impl SpatialMechanism {
                     (false, None) => {}
                 }
                 joints.push(JointIx {
-                    kind: j.kind,
+                    prismatic: j.kind == SpatialJointKind::Prismatic,
                     q,
                     at,
                     tilt,
@@ -985,15 +1069,14 @@ impl SpatialMechanism {
                 p[k] += at[k];
             }
             let u = j.axis(rho);
-            match j.kind {
-                SpatialJointKind::Revolute => r = mat_mul(&r, &rotation_about(u, q(j.q))),
-                SpatialJointKind::Prismatic => {
-                    let du = apply(&r, u);
-                    let t = q(j.q);
-                    for k in 0..3 {
-                        p[k] += du[k] * t;
-                    }
+            if j.prismatic {
+                let du = apply(&r, u);
+                let t = q(j.q);
+                for k in 0..3 {
+                    p[k] += du[k] * t;
                 }
+            } else {
+                r = mat_mul(&r, &rotation_about(u, q(j.q)));
             }
         }
         let e = apply(&r, leg.end_at.map(rho));
@@ -1262,5 +1345,61 @@ impl Mechanism for SpatialMechanism {
         let s = crate::kinematics::branch_signs(self, q, rho);
         (self.branch[0] == 0 || s[0] == self.branch[0])
             && (self.branch[1] == 0 || s[1] == self.branch[1])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn leg_with(kind: SpatialJointKind, axis2: Option<[f64; 3]>) -> SpatialLeg {
+        SpatialLeg {
+            name: "l".into(),
+            angle: None,
+            joints: vec![SpatialJoint {
+                name: "s".into(),
+                kind,
+                at: [Value::Number(1.0), Value::Number(2.0), Value::Number(3.0)],
+                axis: [0.0, 0.0, 2.0],
+                axis2,
+                axis3: None,
+                tilt: None,
+                actuated: false,
+                stiffness: None,
+            }],
+            end: LegEnd {
+                kind: EndKind::Spherical,
+                at: origin(),
+                platform: origin(),
+                length: None,
+                name: None,
+                actuated: false,
+                stiffness: None,
+            },
+        }
+    }
+
+    /// A spherical joint is three revolute joints about one centre, with
+    /// mutually perpendicular axes unless given; a universal joint two.
+    #[test]
+    fn spherical_and_universal_joints_expand_to_revolute_ones() {
+        let s = expand_joints(&leg_with(SpatialJointKind::Spherical, None)).unwrap();
+        let names: Vec<&str> = s.iter().map(|j| j.name.as_str()).collect();
+        assert_eq!(names, ["s_1", "s_2", "s_3"]);
+        assert!(s.iter().all(|j| j.kind == SpatialJointKind::Revolute));
+        assert_eq!(s[0].at[2], Value::Number(3.0));
+        assert_eq!(s[1].at, origin());
+        let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        for (a, b) in [(0, 1), (0, 2), (1, 2)] {
+            assert!(dot(s[a].axis, s[b].axis).abs() < 1e-15);
+        }
+        assert!((dot(s[0].axis, s[0].axis) - 1.0).abs() < 1e-15);
+        let u = expand_joints(&leg_with(
+            SpatialJointKind::Universal,
+            Some([1.0, 0.0, 0.0]),
+        ))
+        .unwrap();
+        assert_eq!(u.len(), 2);
+        assert_eq!(u[1].axis, [1.0, 0.0, 0.0]);
     }
 }

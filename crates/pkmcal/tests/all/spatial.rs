@@ -54,8 +54,11 @@ fn jittered(spec: &pkmcal::Spec, rng: &mut rand::rngs::StdRng) -> Vec<f64> {
 /// and joints away from closure; the first ones equal central differences.
 #[test]
 fn per_leg_derivatives_equal_automatic_and_central_ones() {
-    for name in EXAMPLES {
-        let m = spatial(name);
+    let mechanisms = EXAMPLES
+        .iter()
+        .map(|n| (*n, spatial(n)))
+        .chain([("U-P-S hexapod", ups_hexapod())]);
+    for (name, m) in mechanisms {
         let spec = m.spec();
         let (nq, ng) = (spec.joints.len(), spec.n_geometric());
         let rho = perturbed_by_unit(spec, 3, 0.5, 0.01).values[..ng].to_vec();
@@ -661,4 +664,157 @@ fn distance_rows_are_checked() {
             .unwrap()
             .to_string();
     assert!(e.contains("distance 2: readings (distance)"), "{e}");
+}
+
+/// The hexapod of `examples/gough-stewart-6` written with universal joints:
+/// each leg a universal joint at the base (`u{i}`, about x then y), an
+/// actuated prismatic joint along the leg, and a spherical end on the
+/// platform (U-P-S).
+fn ups_hexapod() -> SpatialMechanism {
+    let t = table("gough-stewart-6");
+    let legs = t["leg"].as_array().unwrap();
+    let mut s = String::from("[platform]\nmotion = \"full\"\n");
+    let mut assembly = String::from("[assembly]\npose = [0.0, 0.0, 700.0, 0.0, 0.0, 0.0]\n");
+    for (i, leg) in legs.iter().enumerate() {
+        let n = i + 1;
+        let v = |k: &str| -> Vec<f64> {
+            leg[k]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x.as_float().unwrap())
+                .collect()
+        };
+        let (a, b) = (v("base"), v("platform"));
+        s.push_str(&format!(
+            "[[leg]]\nname = \"leg{n}\"\n\
+             [[leg.joint]]\nname = \"u{n}\"\nkind = \"universal\"\nat = [\"a{n}x\", \"a{n}y\", \"a{n}z\"]\naxis = [1.0, 0.0, 0.0]\naxis2 = [0.0, 1.0, 0.0]\n\
+             [[leg.joint]]\nname = \"L{n}\"\nkind = \"prismatic\"\naxis = [0.0, 0.0, 1.0]\nactuated = true\nstiffness = 50000.0\n\
+             [leg.end]\nkind = \"spherical\"\nplatform = [\"b{n}x\", \"b{n}y\", \"b{n}z\"]\n"
+        ));
+        let d = [b[0] - a[0], b[1] - a[1], b[2] + 700.0 - a[2]];
+        let len = d.iter().map(|x| x * x).sum::<f64>().sqrt();
+        assembly.push_str(&format!(
+            "u{n}_1 = {}\nu{n}_2 = {}\nL{n} = {len}\n",
+            (-d[1]).atan2(d[2]),
+            (d[0] / len).asin()
+        ));
+    }
+    let mut params = String::from("[parameters]\n");
+    for (i, leg) in legs.iter().enumerate() {
+        let n = i + 1;
+        for (key, p) in [("base", 'a'), ("platform", 'b')] {
+            for (k, c) in ["x", "y", "z"].iter().enumerate() {
+                let v = leg[key].as_array().unwrap()[k].as_float().unwrap();
+                params.push_str(&format!("{p}{n}{c} = {v}\n"));
+            }
+        }
+    }
+    s.push_str(&params);
+    s.push_str(&assembly);
+    s.push_str(
+        "[workspace]\nx = [-80.0, 80.0]\ny = [-80.0, 80.0]\nz = [640.0, 760.0]\n\
+         rx = [-0.12, 0.12]\nry = [-0.12, 0.12]\nrz = [-0.15, 0.15]\n",
+    );
+    let d: SpatialDescription = toml::from_str(&s).unwrap_or_else(|e| panic!("{e}\n{s}"));
+    SpatialMechanism::new(&d).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// Universal joints inside a chain: the U-P-S hexapod predicts the built-in
+/// platform's poses (same commands) and inverse kinematics; its derivatives
+/// equal central differences; the universal joint's second axis carries
+/// its own error parameters; a bad universal joint is refused by name.
+#[test]
+fn universal_joints_make_a_ups_hexapod_like_the_builtin() {
+    let builtin = gough_stewart("gough-stewart-6");
+    let ups = ups_hexapod();
+    let (bs, us) = (builtin.spec(), ups.spec());
+    assert!(us.joints.iter().any(|j| j == "u3_2"));
+    for n in ["u3_2.x", "u3_2.tilt1", "u3_1.tilt2"] {
+        assert!(us.param_index(n).is_ok(), "{n}");
+    }
+    let truth = perturbed_by_unit(bs, 4, 0.5, 0.0);
+    let mut truth_u = Params::nominal(us);
+    for (i, name) in bs.param_names().iter().enumerate() {
+        let name = match name.strip_prefix('k') {
+            Some(n) => format!("kL{n}"),
+            None => name.to_string(),
+        };
+        truth_u.set(us, &name, truth.values[i]).unwrap();
+    }
+    for t in common::spread(&builtin, 12) {
+        let qb = pkmcal::inverse_kinematics(&builtin, truth.geometric(), &t).unwrap();
+        let qu = pkmcal::inverse_kinematics(&ups, truth_u.geometric(), &t).unwrap();
+        let lengths: Vec<f64> = us.actuated.iter().map(|&j| qu[j]).collect();
+        assert!(
+            qb[..6]
+                .iter()
+                .zip(&lengths)
+                .all(|(a, b)| (a - b).abs() < SAME_MECHANISM),
+            "{qb:?} {lengths:?}"
+        );
+        let commands: Vec<f64> = qb[..6].iter().map(|l| l - 0.2).collect();
+        let pb = pkmcal::predict(&builtin, &truth, &commands, Model::Exact, &[]).unwrap();
+        let pu = pkmcal::predict(&ups, &truth_u, &commands, Model::Exact, &[]).unwrap();
+        assert!(
+            pb.x.iter()
+                .zip(&pu.x)
+                .all(|(a, b)| (a - b).abs() < SAME_MECHANISM),
+            "{:?} {:?}",
+            pb.x,
+            pu.x
+        );
+    }
+    // (Its derivatives are checked with the examples' in
+    // per_leg_derivatives_equal_automatic_and_central_ones.)
+    // A universal joint is passive, has two axes, and they differ.
+    let joint = |t: &mut toml::Table| -> toml::Table {
+        leg(t, 1).get_mut("joint").unwrap().as_array_mut().unwrap()[0]
+            .as_table_mut()
+            .unwrap()
+            .clone()
+    };
+    let with = |edits: &[(&str, Option<toml::Value>)]| {
+        let edits = edits.to_vec();
+        refused(
+            move |t| {
+                let mut j = joint(t);
+                j.insert("kind".into(), "universal".into());
+                for (k, v) in edits {
+                    match v {
+                        Some(v) => j.insert(k.into(), v),
+                        None => j.remove(k),
+                    };
+                }
+                leg(t, 1).get_mut("joint").unwrap().as_array_mut().unwrap()[0] = j.into();
+            },
+            "linear-delta",
+        )
+    };
+    let e = with(&[]);
+    assert!(
+        e.contains("leg `tower_b`, joint `b`") && e.contains("passive"),
+        "{e}"
+    );
+    let axis = |v: [f64; 3]| Some(toml::Value::Array(v.iter().map(|x| (*x).into()).collect()));
+    let passive = [("actuated", None), ("stiffness", None)];
+    let e = with(&[
+        passive[0].clone(),
+        passive[1].clone(),
+        ("axis3", axis([1.0, 0.0, 0.0])),
+    ]);
+    assert!(
+        e.contains("joint `b`") && e.contains("remove `axis3`"),
+        "{e}"
+    );
+    let e = with(&[
+        passive[0].clone(),
+        passive[1].clone(),
+        ("axis", axis([0.0, 0.0, 1.0])),
+        ("axis2", axis([0.0, 0.0, -2.0])),
+    ]);
+    assert!(
+        e.contains("joint `b`") && e.contains("not be parallel"),
+        "{e}"
+    );
 }
