@@ -308,13 +308,22 @@ impl KlipperDelta {
     /// The spatial description of this printer (TOML), in the names of
     /// `examples/linear-delta`.
     pub fn mechanism_toml(&self) -> String {
+        self.description_toml(
+            "a Klipper printer.cfg by `pkmcal klipper`",
+            "[stepper_a], [stepper_b], [stepper_c]",
+            "Klipper",
+        )
+    }
+
+    /// [`KlipperDelta::mechanism_toml`] saying where it came from.
+    pub fn description_toml(&self, origin: &str, towers: &str, firmware: &str) -> String {
         let mut s = String::new();
         let _ = writeln!(
             s,
-            "# A linear delta printer read from a Klipper printer.cfg by `pkmcal klipper`\n\
-             # (towers a, b, c = [stepper_a], [stepper_b], [stepper_c]; commands are\n\
+            "# A linear delta printer read from {origin}\n\
+             # (towers a, b, c = {towers}; commands are\n\
              # carriage heights in mm; da, db, dc are endstop errors in carriage height).\n\
-             type = \"spatial\"\nname = \"Linear delta printer (from Klipper)\"\n\
+             type = \"spatial\"\nname = \"Linear delta printer (from {firmware})\"\n\
              free = [{}]\n\n[platform]\nmotion = \"translation\"\n",
             KLIPPER_FREE.map(|n| format!("\"{n}\"")).join(", ")
         );

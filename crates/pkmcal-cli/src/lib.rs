@@ -12,4 +12,5 @@ pub mod io;
 pub mod klipper;
 pub mod output;
 pub mod report;
+pub mod reprap;
 pub mod usecal;

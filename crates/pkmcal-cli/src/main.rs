@@ -47,6 +47,10 @@ enum Command {
     /// Calibrate a linear delta printer from its Klipper printer.cfg (the probe
     /// results DELTA_CALIBRATE saved) and write Klipper's values back.
     Klipper(KlipperArgs),
+    /// Calibrate a linear delta printer run by RepRapFirmware from its M665/M666
+    /// settings and heights probed with G30 S-1; print (and write) the new
+    /// M665/M666 lines.
+    Reprap(ReprapArgs),
     /// Run the paper's case study on the built-in reference mechanism.
     Demo(DemoArgs),
 }
@@ -72,6 +76,29 @@ pub struct KlipperArgs {
     /// (calibration.toml) here, for the other commands.
     #[arg(long, value_name = "DIR")]
     pub out_dir: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+pub struct ReprapArgs {
+    /// The G-code file that sets the delta's geometry: config.g, or
+    /// config-override.g (every M665 and M666 line is read, later ones
+    /// overriding).
+    #[arg(long, value_name = "config.g")]
+    pub config: PathBuf,
+    /// The probe results: CSV with columns x, y (where the probe touched,
+    /// mm) and z (the height at which it triggered, as `G30 S-1` reports it,
+    /// mm).
+    #[arg(long, value_name = "PROBES.csv")]
+    pub probes: PathBuf,
+    /// Parameters to identify, comma separated: RepRapFirmware's 6 factors
+    /// (`default`: delta_radius, angle_a, angle_b and the endstop errors da,
+    /// db, dc) or more (arm_a, arm_b, arm_c for the diagonals; bed.rx, bed.ry
+    /// for the bed tilts M666 A B).
+    #[arg(long, value_name = "NAMES")]
+    pub free: Option<String>,
+    /// Write the new M665 and M666 lines here (never over --config).
+    #[arg(long, value_name = "NEW.g")]
+    pub out: Option<PathBuf>,
 }
 
 /// The mechanism option shared by every subcommand.
@@ -669,10 +696,15 @@ fn check_paths(command: &Command) -> anyhow::Result<()> {
             let mut out: Vec<PathBuf> = a.out.iter().cloned().collect();
             if let Some(d) = &a.out_dir {
                 out.extend(output::in_dir(d, &pkmcal_cli::klipper::OUT_DIR_FILES)?);
+                out.extend(output::in_dir(d, &[pkmcal_cli::klipper::DISTANCES_FILE])?);
                 dirs.push(d.clone());
             }
             (vec![Some(a.config.clone())], out)
         }
+        Command::Reprap(a) => (
+            vec![Some(a.config.clone()), Some(a.probes.clone())],
+            a.out.iter().cloned().collect(),
+        ),
         Command::Demo(a) => {
             let mut out = output::in_dir(&a.out_dir, commands::DEMO_FILES)?;
             out.extend(output::in_dir(&a.out_dir.join("report"), report::FILES)?);
@@ -825,6 +857,12 @@ fn run(command: Command) -> anyhow::Result<()> {
                 out_dir: a.out_dir,
             })
         }
+        Command::Reprap(a) => pkmcal_cli::reprap::run_reprap(pkmcal_cli::reprap::ReprapConfig {
+            config: a.config,
+            probes: a.probes,
+            free: a.free,
+            out: a.out,
+        }),
         Command::Demo(a) => commands::demo(a),
     }
 }

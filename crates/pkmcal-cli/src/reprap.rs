@@ -1,0 +1,373 @@
+//! `pkmcal reprap`: calibrate a linear delta printer run by RepRapFirmware
+//! from its `M665`/`M666` settings and heights probed with `G30 S-1`, and
+//! give the new `M665`/`M666` lines.
+//!
+//! RepRapFirmware's delta (`LinearDeltaKinematics`): tower `i` stands at the
+//! angle `210°, 330°, 90°` plus the `M665 X Y Z` corrections, on the circle of
+//! radius `M665 R`, with the diagonal rod `M665 L` (one value or three). A
+//! carriage's height for the nozzle at `(x, y, z)` is
+//! `√(L_i² − (x − t_xi)² − (y − t_yi)²) + z + x·xtilt + y·ytilt` (tilts from
+//! `M666 A B` in percent), and homing puts it at
+//! `H + √(L_i² − R²) + E_i` (`M665 H`, `M666 X Y Z`). A probe that triggers at
+//! height `zp` over `(x, y)` had the carriages at those heights for
+//! `(x, y, zp)`, with the nozzle on the bed: the commands and the reading 0 of
+//! a pkmcal probe. The identified geometry goes back as RepRapFirmware keeps
+//! it: the homed carriage heights split into `H` and endstop adjustments of
+//! mean 0 (its `NormaliseEndstopAdjustments`), the bed's tilts as `A B`.
+
+use crate::io::Csv;
+use crate::klipper::{KLIPPER_FREE, KlipperDelta};
+use crate::output;
+use anyhow::{Context, Result, bail};
+use pkmcal::{CalibrationOptions, MeasurementModel, Mechanism, Model, Params};
+use std::fmt::Write;
+use std::path::PathBuf;
+
+/// RepRapFirmware's standard tower angles (degrees), before corrections.
+const STANDARD_ANGLES: [f64; 3] = [210.0, 330.0, 90.0];
+/// Towers as RepRapFirmware names them in `M665`/`M666` (and pkmcal's).
+const TOWERS: [(char, &str); 3] = [('X', "a"), ('Y', "b"), ('Z', "c")];
+
+/// A RepRapFirmware linear delta: what `M665` and `M666` set.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RrfDelta {
+    /// Diagonal rod lengths (mm), `M665 L`.
+    pub diagonals: [f64; 3],
+    /// Delta radius (mm), `M665 R`.
+    pub radius: f64,
+    /// Homed height (mm), `M665 H`.
+    pub homed_height: f64,
+    /// Printable radius (mm), `M665 B`.
+    pub print_radius: f64,
+    /// Tower angle corrections (degrees), `M665 X Y Z`.
+    pub corrections: [f64; 3],
+    /// Endstop adjustments (mm), `M666 X Y Z`.
+    pub endstops: [f64; 3],
+    /// Bed tilts (fractions: `M666 A B` / 100).
+    pub tilt: [f64; 2],
+}
+
+impl Default for RrfDelta {
+    /// RepRapFirmware's defaults.
+    fn default() -> Self {
+        Self {
+            diagonals: [215.0; 3],
+            radius: 105.6,
+            homed_height: 240.0,
+            print_radius: 80.0,
+            corrections: [0.0; 3],
+            endstops: [0.0; 3],
+            tilt: [0.0; 2],
+        }
+    }
+}
+
+impl RrfDelta {
+    /// The towers' positions (mm).
+    pub fn towers(&self) -> [[f64; 2]; 3] {
+        std::array::from_fn(|i| {
+            let a = (STANDARD_ANGLES[i] + self.corrections[i]).to_radians();
+            [self.radius * a.cos(), self.radius * a.sin()]
+        })
+    }
+
+    /// The carriage heights (mm) for the nozzle at `p`.
+    pub fn carriage_heights(&self, p: [f64; 3]) -> [f64; 3] {
+        let t = self.towers();
+        std::array::from_fn(|i| {
+            (self.diagonals[i].powi(2) - (p[0] - t[i][0]).powi(2) - (p[1] - t[i][1]).powi(2)).sqrt()
+                + p[2]
+                + p[0] * self.tilt[0]
+                + p[1] * self.tilt[1]
+        })
+    }
+
+    /// The carriages' heights when homed (mm).
+    pub fn homed_carriages(&self) -> [f64; 3] {
+        std::array::from_fn(|i| {
+            self.homed_height
+                + (self.diagonals[i].powi(2) - self.radius.powi(2)).sqrt()
+                + self.endstops[i]
+        })
+    }
+
+    /// The same geometry in the form `pkmcal klipper` writes descriptions
+    /// (tower angles, radius, arms; endstop errors 0).
+    fn as_klipper(&self) -> KlipperDelta {
+        KlipperDelta {
+            radius: self.radius,
+            angles: std::array::from_fn(|i| STANDARD_ANGLES[i] + self.corrections[i]),
+            arms: self.diagonals,
+            endstops: [0.0; 3],
+            step_distances: [0.0; 3],
+            probe_radius: self.print_radius,
+            probes: vec![],
+            distances: vec![],
+        }
+    }
+
+    /// The spatial description of this printer (TOML).
+    pub fn mechanism_toml(&self) -> String {
+        self.as_klipper().description_toml(
+            "RepRapFirmware's M665/M666 by `pkmcal reprap`",
+            "the X, Y, Z towers",
+            "RepRapFirmware",
+        )
+    }
+
+    /// The bed plane's parameters (`bed.z bed.rx bed.ry`) of these tilts:
+    /// the bed where the firmware's z is 0, `z = x·xtilt + y·ytilt`.
+    pub fn bed(&self) -> [f64; 3] {
+        [0.0, self.tilt[1].atan(), -self.tilt[0].atan()]
+    }
+
+    /// The firmware's values for identified parameters `p` and bed `bed`:
+    /// the homed carriage heights move by the endstop errors, and are split
+    /// into `H` and adjustments of mean 0 as RepRapFirmware does.
+    pub fn identified(&self, spec: &pkmcal::Spec, p: &Params, bed: &[f64]) -> Result<Self> {
+        let mut out = self.clone();
+        out.radius = p.get(spec, "delta_radius")?;
+        let homed = self.homed_carriages();
+        let mut k = [0.0; 3];
+        for (i, (_, t)) in TOWERS.iter().enumerate() {
+            let arm = p.get(spec, &format!("arm_{t}"))?;
+            if arm.is_nan() || arm <= out.radius {
+                bail!(
+                    "the identified arm_{t} = {arm:.3} mm is not longer than delta_radius = {:.3} mm; the probe data cannot support this parameter set (use fewer free parameters)",
+                    out.radius
+                );
+            }
+            out.diagonals[i] = arm;
+            out.corrections[i] =
+                p.get(spec, &format!("angle_{t}"))?.to_degrees() - STANDARD_ANGLES[i];
+            k[i] = homed[i] + p.get(spec, &format!("d{t}"))?
+                - (arm * arm - out.radius * out.radius).sqrt();
+        }
+        out.homed_height = k.iter().sum::<f64>() / 3.0;
+        out.endstops = k.map(|v| v - out.homed_height);
+        out.tilt = [-bed[2].tan(), bed[1].tan()];
+        Ok(out)
+    }
+
+    /// The `M665` and `M666` lines of these values, as RepRapFirmware writes
+    /// them to `config-override.g`.
+    pub fn gcode(&self) -> String {
+        let d = &self.diagonals;
+        let l = if d[1] == d[0] && d[2] == d[0] {
+            format!("{:.3}", d[0])
+        } else {
+            format!("{:.3}:{:.3}:{:.3}", d[0], d[1], d[2])
+        };
+        format!(
+            "M665 L{l} R{:.3} H{:.3} B{:.1} X{:.3} Y{:.3} Z{:.3}\nM666 X{:.3} Y{:.3} Z{:.3} A{:.2} B{:.2}\n",
+            self.radius,
+            self.homed_height,
+            self.print_radius,
+            self.corrections[0],
+            self.corrections[1],
+            self.corrections[2],
+            self.endstops[0],
+            self.endstops[1],
+            self.endstops[2],
+            self.tilt[0] * 100.0,
+            self.tilt[1] * 100.0
+        )
+    }
+}
+
+/// The delta settings of a RepRapFirmware G-code file (`config.g`,
+/// `config-override.g`): every `M665` and `M666` in order, later ones
+/// overriding, other lines ignored; RepRapFirmware's defaults for what no
+/// line sets.
+pub fn delta_from_gcode(text: &str, file: &str) -> Result<RrfDelta> {
+    let mut d = RrfDelta::default();
+    let mut seen = false;
+    for (n, raw) in text.lines().enumerate() {
+        let line = raw.split(';').next().unwrap_or("").trim();
+        let mut words = line.split_whitespace();
+        let Some(code) = words.next() else { continue };
+        let code = code.to_ascii_uppercase();
+        if code != "M665" && code != "M666" {
+            continue;
+        }
+        seen = true;
+        for w in words {
+            let mut chars = w.chars();
+            let Some(letter) = chars.next().map(|c| c.to_ascii_uppercase()) else {
+                continue;
+            };
+            let value = chars.as_str();
+            let bad = || {
+                anyhow::anyhow!(
+                    "{file}:{}: `{w}` in `{line}`: the value of {letter} must be a number{}",
+                    n + 1,
+                    if letter == 'L' {
+                        " or three separated by ':'"
+                    } else {
+                        ""
+                    }
+                )
+            };
+            let number = |v: &str| -> Result<f64> {
+                v.parse::<f64>()
+                    .ok()
+                    .filter(|x| x.is_finite())
+                    .ok_or_else(bad)
+            };
+            match (code.as_str(), letter) {
+                ("M665", 'L') => {
+                    let v: Vec<f64> = value.split(':').map(number).collect::<Result<_>>()?;
+                    d.diagonals = match v.len() {
+                        1 => [v[0]; 3],
+                        3 => [v[0], v[1], v[2]],
+                        _ => bail!(
+                            "{file}:{}: M665 L takes one diagonal or three (L215:215.2:214.9); more towers are not supported",
+                            n + 1
+                        ),
+                    };
+                }
+                ("M665", 'R') => d.radius = number(value)?,
+                ("M665", 'H') => d.homed_height = number(value)?,
+                ("M665", 'B') => d.print_radius = number(value)?,
+                ("M665", 'X') => d.corrections[0] = number(value)?,
+                ("M665", 'Y') => d.corrections[1] = number(value)?,
+                ("M665", 'Z') => d.corrections[2] = number(value)?,
+                ("M666", 'X') => d.endstops[0] = number(value)?,
+                ("M666", 'Y') => d.endstops[1] = number(value)?,
+                ("M666", 'Z') => d.endstops[2] = number(value)?,
+                ("M666", 'A') => d.tilt[0] = number(value)? * 0.01,
+                ("M666", 'B') => d.tilt[1] = number(value)? * 0.01,
+                _ => {}
+            }
+        }
+    }
+    if !seen {
+        bail!(
+            "{file}: no M665 or M666 line; give the file that sets the delta's geometry (config.g, or config-override.g after M500)"
+        );
+    }
+    if !(d.radius > 0.0 && d.diagonals.iter().all(|l| *l > d.radius) && d.print_radius > 0.0) {
+        bail!(
+            "{file}: M665 needs a positive delta radius R, diagonals L longer than R and a positive print radius B (got R{} L{:?} B{})",
+            d.radius,
+            d.diagonals,
+            d.print_radius
+        );
+    }
+    Ok(d)
+}
+
+/// What `pkmcal reprap` does.
+pub struct ReprapConfig {
+    /// The G-code file with M665/M666.
+    pub config: PathBuf,
+    /// The probe results: x, y (mm) and the height z (mm) where the probe
+    /// triggered.
+    pub probes: PathBuf,
+    /// Parameters to identify (names of the linear delta; `default` allowed).
+    pub free: Option<String>,
+    /// Where to write the new M665/M666 lines.
+    pub out: Option<PathBuf>,
+}
+
+/// Run `pkmcal reprap`.
+pub fn run_reprap(c: ReprapConfig) -> Result<()> {
+    let text = std::fs::read_to_string(&c.config)
+        .with_context(|| format!("cannot read {}", c.config.display()))?;
+    let delta = delta_from_gcode(&text, &c.config.display().to_string())?;
+    let csv = Csv::read(&c.probes)?;
+    csv.require_rows()?;
+    let points = csv.named(&["x".to_string(), "y".to_string(), "z".to_string()])?;
+    let toml = delta.mechanism_toml();
+    let mech = crate::io::mechanism_from_str(&toml)
+        .context("the M665/M666 geometry does not describe a delta that assembles")?;
+    let spec = mech.spec();
+    let data: Vec<pkmcal::Measurement> = points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| pkmcal::Measurement {
+            target: None,
+            commands: delta.carriage_heights([p[0], p[1], p[2]]).to_vec(),
+            partner: None,
+            measured: vec![0.0],
+            sigma: vec![],
+            origin: Some(pkmcal::Origin {
+                pose: i + 1,
+                line: Some(csv.line(i)),
+                distance: false,
+            }),
+        })
+        .collect();
+    let bed = delta.bed();
+    let measurement = MeasurementModel::probe(spec)?.with_own(&bed)?;
+    let mut free_names: Vec<String> = vec![];
+    for n in c
+        .free
+        .as_deref()
+        .unwrap_or("default")
+        .split(',')
+        .map(str::trim)
+    {
+        match n {
+            "" => {}
+            "default" => free_names.extend(KLIPPER_FREE.map(String::from)),
+            _ => free_names.push(n.to_string()),
+        }
+    }
+    free_names.dedup();
+    let mut opts = CalibrationOptions::new(spec, Model::Exact);
+    opts.free = free_names
+        .iter()
+        .map(|n| {
+            measurement
+                .index_of(spec, n)
+                .map_err(|e| output::Usage(format!("in --free: {e}")))
+        })
+        .collect::<std::result::Result<_, _>>()?;
+    let nominal = Params::nominal(spec);
+    let cal = pkmcal::calibrate(&mech, &measurement, &data, &nominal, &opts)
+        .map_err(|e| crate::calibrate::located(e, &c.probes))?;
+    let (acc, before, after) = pkmcal::calibration_accuracy(&mech, &measurement, &data, &cal, &[])
+        .map_err(|e| crate::calibrate::located(e, &c.probes))?;
+    let new = delta.identified(spec, &cal.params, &cal.measurement)?;
+    let heights = |e: &[Vec<f64>]| -> (f64, f64) {
+        let v: Vec<f64> = e.iter().map(|r| r[0]).collect();
+        let max = v.iter().fold(0.0_f64, |m, x| m.max(x.abs()));
+        let rms = (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
+        (max, rms)
+    };
+    let ((bm, br), (am, ar)) = (heights(&before), heights(&after));
+    println!(
+        "{} probe heights from {} with the geometry of {} (RepRapFirmware), {} parameters free: {}",
+        acc.poses,
+        c.probes.display(),
+        c.config.display(),
+        free_names.len(),
+        free_names.join(" ")
+    );
+    println!("{}", cal.termination.reason());
+    println!(
+        "height errors: before max {bm:.4} mm, RMS {br:.4} mm; after max {am:.4} mm, RMS {ar:.4} mm"
+    );
+    for w in &cal.warnings {
+        println!("warning: {}\n  hint: {}", w.message, w.hint);
+    }
+    println!("\nbefore:\n{}after:\n{}", delta.gcode(), new.gcode());
+    let mut note = String::new();
+    let _ = writeln!(
+        note,
+        "; Delta parameters identified by pkmcal {} from {} ({} probe points)",
+        env!("CARGO_PKG_VERSION"),
+        c.probes.display(),
+        acc.poses
+    );
+    note.push_str(&new.gcode());
+    if let Some(out) = &c.out {
+        output::stage(out, note.as_bytes())?;
+        println!(
+            "new M665/M666 -> {} (put them in config-override.g, or in config.g in place of the old ones)",
+            out.display()
+        );
+    }
+    Ok(())
+}
