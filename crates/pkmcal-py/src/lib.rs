@@ -855,6 +855,88 @@ fn sigma_arg(
 }
 
 /// Commands and readings as the library's measurements, rows numbered from 0.
+/// Distances measured between pairs of poses: a tuple ``(commands_1,
+/// commands_2, distance)`` or ``(commands_1, commands_2, distance, sigma)``,
+/// each commands array of shape ``(n, actuators)``, distances ``(n,)`` in mm.
+fn distances_arg(
+    m: &PyMechanism,
+    mm: &MeasurementModel,
+    obj: Option<&Bound<'_, PyAny>>,
+) -> PyResult<Vec<pkmcal::Measurement>> {
+    let Some(obj) = obj.filter(|o| !o.is_none()) else {
+        return Ok(vec![]);
+    };
+    let expected = "distances: expected a tuple (commands_1, commands_2, distance) or (commands_1, commands_2, distance, sigma)";
+    let t = obj.cast::<PyTuple>().map_err(|_| usage(expected))?;
+    if !(3..=4).contains(&t.len()) {
+        return Err(usage(expected));
+    }
+    mm.check_distances().map_err(lib_err)?;
+    let a = rows(
+        &t.get_item(0)?,
+        "distances commands_1",
+        &m.actuators(),
+        false,
+    )?
+    .to_vecs();
+    let b = rows(
+        &t.get_item(1)?,
+        "distances commands_2",
+        &m.actuators(),
+        false,
+    )?
+    .to_vecs();
+    let one = |i: usize, what: &str| -> PyResult<Vec<f64>> {
+        let item = t.get_item(i)?;
+        let v: Vec<f64> = match item.extract::<Vec<f64>>() {
+            Ok(v) => v,
+            Err(_) => rows(&item, what, &[pkmcal::DISTANCE_AXIS.to_string()], false)?
+                .to_vecs()
+                .into_iter()
+                .map(|v| v[0])
+                .collect(),
+        };
+        if let Some(x) = v.iter().find(|x| !x.is_finite()) {
+            return Err(usage(format!("{what}: {x} is not a finite number (mm)")));
+        }
+        Ok(v)
+    };
+    let d = one(2, "distances distance")?;
+    let s = if t.len() == 4 {
+        Some(one(3, "distances sigma")?)
+    } else {
+        None
+    };
+    if a.len() != b.len() || a.len() != d.len() || s.as_ref().is_some_and(|s| s.len() != d.len()) {
+        return Err(usage(format!(
+            "distances: commands_1 has {} rows, commands_2 {}, distance {}; give one of each per pair",
+            a.len(),
+            b.len(),
+            d.len()
+        )));
+    }
+    if let Some(v) = s.iter().flatten().find(|v| !(v.is_finite() && **v > 0.0)) {
+        return Err(usage(format!("distances sigma must be positive, got {v}")));
+    }
+    Ok(a.into_iter()
+        .zip(b)
+        .zip(d)
+        .enumerate()
+        .map(|(i, ((a, b), d))| pkmcal::Measurement {
+            target: None,
+            commands: a,
+            partner: Some(b),
+            measured: vec![d],
+            sigma: s.as_ref().map_or(vec![], |s| vec![Some(s[i])]),
+            origin: Some(Origin {
+                pose: i + 1,
+                line: None,
+                distance: true,
+            }),
+        })
+        .collect())
+}
+
 fn measurements(
     m: &PyMechanism,
     mm: &MeasurementModel,
@@ -1303,6 +1385,25 @@ impl PyCalibration {
     #[getter]
     fn after(&self) -> PyErrorStats {
         (&self.accuracy.after).into()
+    }
+    /// Errors of the distances measured between two poses (``distances=``),
+    /// mm: a dict with ``count``, ``before_max``, ``before_rms``,
+    /// ``after_max``, ``after_rms`` and the arrays ``before``, ``after``
+    /// (measured minus predicted); ``None`` without distances.
+    #[getter]
+    fn distances<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(d) = &self.accuracy.distances else {
+            return Ok(None);
+        };
+        let out = PyDict::new(py);
+        out.set_item("count", d.count)?;
+        out.set_item("before_max", d.before_max)?;
+        out.set_item("before_rms", d.before_rms)?;
+        out.set_item("after_max", d.after_max)?;
+        out.set_item("after_rms", d.after_rms)?;
+        out.set_item("before", PyArray1::from_slice(py, &d.before))?;
+        out.set_item("after", PyArray1::from_slice(py, &d.after))?;
+        Ok(Some(out))
     }
     /// Improvement of the largest and the RMS distance error, in percent:
     /// ``(max, rms)``.
@@ -1767,8 +1868,12 @@ fn simulate<'py>(
 /// starting parameters. ``loss``: ``"squared"``, ``"huber"`` or ``"cauchy"``.
 /// Validation: ``validation=(commands, measured)``, or ``holdout=0.2``
 /// (a fraction held out, seeded), and/or ``kfold=5``.
+/// ``distances=(commands_1, commands_2, distance[, sigma])``: distances
+/// measured between pairs of poses (calipers on a printed object, mm),
+/// fitted with the readings (their noise estimated apart); their errors are
+/// in ``Calibration.distances``.
 #[pyfunction]
-#[pyo3(signature = (mechanism, commands, measured, *, sigma = None, targets = None, model = "exact", free = None, fix = None, start = None, loss = "squared", loss_scale = None, outlier_threshold = 4.0, drop_outliers = false, force = None, axes = None, points = None, ballbar = None, frame = "base", validation = None, holdout = None, kfold = None, seed = 1))]
+#[pyo3(signature = (mechanism, commands, measured, *, sigma = None, targets = None, model = "exact", free = None, fix = None, start = None, loss = "squared", loss_scale = None, outlier_threshold = 4.0, drop_outliers = false, force = None, axes = None, points = None, ballbar = None, frame = "base", validation = None, holdout = None, kfold = None, seed = 1, distances = None))]
 #[allow(clippy::too_many_arguments)]
 fn calibrate<'py>(
     py: Python<'py>,
@@ -1794,11 +1899,13 @@ fn calibrate<'py>(
     holdout: Option<f64>,
     kfold: Option<usize>,
     seed: u64,
+    distances: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<PyCalibration> {
     let m = mech_ref(mechanism);
     let spec = m.spec();
     let mm = measurement_arg(m, axes, points, ballbar, frame)?;
     let all = measurements(m, &mm, commands, measured, sigma, targets, "")?;
+    let pairs = distances_arg(m, &mm, distances)?;
     let start = params_arg(m, start, "start")?;
     let mut opts = CalibrationOptions::new(spec, parse_model(model)?);
     opts.free = free_arg(m, &mm, free, fix)?;
@@ -1868,6 +1975,8 @@ fn calibrate<'py>(
             }
             (None, h) => (all.clone(), h),
         };
+        // The distances all go into the fit, after the poses.
+        let train: Vec<pkmcal::Measurement> = train.into_iter().chain(pairs).collect();
         let cal = pkmcal::calibrate(mech, &mm, &train, &start, &opts)?;
         let kept: Vec<pkmcal::Measurement> = train
             .iter()
@@ -1876,6 +1985,9 @@ fn calibrate<'py>(
             .collect();
         let (accuracy, before, after) =
             pkmcal::calibration_accuracy(mech, &mm, &kept, &cal, &opts.force)?;
+        // The figures show the poses (the distances are in `distances`).
+        let kept: Vec<pkmcal::Measurement> =
+            kept.into_iter().filter(|d| d.partner.is_none()).collect();
         let validation = match held {
             Some((source, data)) => Some(Validation {
                 source,

@@ -195,3 +195,28 @@ def test_spatial_delta_and_probe_heights():
     assert abs(cal.parameters["da"] - 0.3) < 1e-6
     with pytest.raises(pkmcal.PkmcalError, match="bed plane"):
         pkmcal.calibrate(delta, commands, measured, axes=["probe"], frame="free")
+
+
+def test_distances_between_poses_with_probe_heights():
+    """Caliper distances between pairs of poses fitted with probe heights
+    (distances=): the arm lengths come back, and the distance errors are
+    reported before and after."""
+    delta = pkmcal.Mechanism(EXAMPLES / "linear-delta" / "mechanism.toml")
+    truth = {"delta_radius": 130.4, "da": 0.3, "arm_a": 250.5, "arm_b": 249.6}
+    targets = pkmcal.plan(delta, 24).targets
+    commands, measured = pkmcal.simulate(delta, targets, truth, axes=["probe"])
+    a, b = targets[:12], targets[12:]
+    ca, xa = pkmcal.simulate(delta, a, truth)
+    cb, xb = pkmcal.simulate(delta, b, truth)
+    d = np.linalg.norm(xa - xb, axis=1)
+    free = ["delta_radius", "angle_a", "angle_b", "da", "db", "dc", "arm_a", "arm_b", "arm_c"]
+    cal = pkmcal.calibrate(
+        delta, commands, measured, axes=["probe"], free=free, distances=(ca, cb, d)
+    )
+    assert abs(cal.parameters["arm_a"] - 250.5) < 1e-6
+    assert abs(cal.parameters["arm_b"] - 249.6) < 1e-6
+    dist = cal.distances
+    assert dist["count"] == 12 and dist["before_max"] > 0.1 and dist["after_max"] < 1e-6
+    assert dist["after"].shape == (12,)
+    with pytest.raises(pkmcal.PkmcalError, match="distances"):
+        pkmcal.calibrate(delta, commands, measured, axes=["probe"], distances=(ca, cb))

@@ -1,7 +1,7 @@
 """Type stubs of pkmcal (the extension module ``pkmcal._pkmcal``)."""
 
 import os
-from typing import Any, Literal, Mapping, Optional, Sequence, Tuple, Union
+from typing import Any, Dict, Literal, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -144,6 +144,8 @@ class Calibration:
     @property
     def after(self) -> ErrorStats: ...
     @property
+    def distances(self) -> Optional[Dict[str, Any]]: ...
+    @property
     def improvement(self) -> Tuple[float, float]: ...
     @property
     def validation(self) -> Optional[Tuple[ErrorStats, ErrorStats]]: ...
@@ -252,6 +254,7 @@ def calibrate(
     holdout: Optional[float] = None,
     kfold: Optional[int] = None,
     seed: int = 1,
+    distances: Optional[Tuple[ArrayLike, ...]] = None,
 ) -> Calibration: ...
 def analyze(
     mechanism: Mechanism,
