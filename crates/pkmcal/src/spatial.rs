@@ -1145,8 +1145,237 @@ impl SpatialMechanism {
     }
 }
 
+impl SpatialMechanism {
+    /// A leg's equations and their first derivatives with respect to the
+    /// variables of `v = [q; ρ]` in `cols`, in closed form (docs/model.md
+    /// eq. 3 differentiated by hand). The chain's end `e` moves:
+    ///
+    /// * with a revolute joint by `w × (e − o)` (world axis `w` through the
+    ///   joint's origin `o`), with a prismatic one by `w`;
+    /// * with a joint's position `at` by the columns of the frame before it,
+    ///   with the end offset by those of the last frame, with the leg's
+    ///   `angle` by `z × e`;
+    /// * with an axis tilt `t` through `δu = (I − u uᵀ) ∂v/∂t / |v|`
+    ///   (`v = n + tan t₁ e₁ + tan t₂ e₂`): a prismatic joint moves what
+    ///   follows by `R δu q`, a revolute one turns it by the derivative of
+    ///   Rodrigues' formula, `(δu × s) sin q + (δu (u·s) + u (δu·s))(1 − cos q)`
+    ///   for the rest `s` of the chain in the joint's frame.
+    ///
+    /// The platform point `p + R(rx, ry, rz) b` (`R = Rz Ry Rx`) moves with
+    /// `x y z` by the unit vectors, with `rz, ry, rx` by `ω × (R b)`,
+    /// `ω = z, Rz y, Rz Ry x`, and with `b` by the columns of `R`.
+    /// Equations `e − w` (spherical end) or `|w − e| − L` (rod). The tests
+    /// check every column against automatic differentiation to 1e-12.
+    fn leg_closed_derivatives(
+        &self,
+        leg: &LegIx,
+        q: &[f64],
+        rho: &[f64],
+        cols: &std::ops::Range<usize>,
+        g: &mut [f64],
+        dg: &mut nalgebra::DMatrix<f64>,
+    ) {
+        let nq = q.len();
+        let mut r = match leg.angle {
+            Some(a) => rotation_about([0.0, 0.0, 1.0], rho[a]),
+            None => identity(),
+        };
+        let mut p = [0.0; 3];
+        /// One chain joint: its frame before and after, world axis, origin,
+        /// local axis.
+        #[derive(Clone, Copy)]
+        struct Step {
+            before: Mat<f64>,
+            after: Mat<f64>,
+            w: [f64; 3],
+            o: [f64; 3],
+            u: [f64; 3],
+        }
+        let zero = [[0.0; 3]; 3];
+        let mut steps = [Step {
+            before: zero,
+            after: zero,
+            w: [0.0; 3],
+            o: [0.0; 3],
+            u: [0.0; 3],
+        }; MAX_CHAIN];
+        for (k, j) in leg.joints.iter().enumerate() {
+            let at = apply(&r, j.at.map(|i| rho[i]));
+            for c in 0..3 {
+                p[c] += at[c];
+            }
+            let u = j.axis(&|i| rho[i]);
+            let w = apply(&r, u);
+            let (before, o) = (r, p);
+            if j.prismatic {
+                for c in 0..3 {
+                    p[c] += w[c] * q[j.q];
+                }
+            } else {
+                r = mat_mul(&r, &rotation_about(u, q[j.q]));
+            }
+            steps[k] = Step {
+                before,
+                after: r,
+                w,
+                o,
+                u,
+            };
+        }
+        let ea = apply(&r, leg.end_at.map(|i| rho[i]));
+        let e = [0, 1, 2].map(|c| p[c] + ea[c]);
+        let b = leg.platform.map(|i| rho[i]);
+        let np = self.motion.coordinates();
+        let pose: [f64; 6] = std::array::from_fn(|k| if k < np { q[self.pose0 + k] } else { 0.0 });
+        let unit = |c: usize| std::array::from_fn::<f64, 3, _>(|k| if k == c { 1.0 } else { 0.0 });
+        let column = |m: &Mat<f64>, c: usize| [m[0][c], m[1][c], m[2][c]];
+        // R b, R, and ∂w/∂(platform coordinate k).
+        let (rb, rot, dw): ([f64; 3], Mat<f64>, [[f64; 3]; 6]) = match self.motion {
+            Motion::Translation => (
+                b,
+                identity(),
+                [unit(0), unit(1), unit(2), [0.0; 3], [0.0; 3], [0.0; 3]],
+            ),
+            Motion::Full => {
+                let rot = crate::gough_stewart::rotation(pose[3], pose[4], pose[5]);
+                let rb = apply(&rot, b);
+                let (sc, cc) = pose[5].sin_cos();
+                let (sb, cb) = pose[4].sin_cos();
+                let wx = [cc * cb, sc * cb, -sb];
+                let wy = [-sc, cc, 0.0];
+                let wz = [0.0, 0.0, 1.0];
+                (
+                    rb,
+                    rot,
+                    [
+                        unit(0),
+                        unit(1),
+                        unit(2),
+                        cross(wx, rb),
+                        cross(wy, rb),
+                        cross(wz, rb),
+                    ],
+                )
+            }
+        };
+        let w = [0, 1, 2].map(|c| pose[c] + rb[c]);
+        // The equations, and how a change of the end (de) and of the
+        // platform point (dw) enters them.
+        let (u, length) = match leg.rod {
+            None => ([0.0; 3], 0.0),
+            Some(rod) => {
+                let diff = [w[0] - e[0], w[1] - e[1], w[2] - e[2]];
+                let len = (diff[0] * diff[0] + diff[1] * diff[1] + diff[2] * diff[2]).sqrt();
+                let l = match rod {
+                    Rod::Fixed(i) => rho[i],
+                    Rod::Joint(i) => q[i],
+                };
+                (diff.map(|c| c / len), len - l)
+            }
+        };
+        match leg.rod {
+            None => {
+                for c in 0..3 {
+                    g[leg.row + c] = e[c] - w[c];
+                }
+            }
+            Some(_) => g[leg.row] = length,
+        }
+        let mut add = |var: usize, de: [f64; 3], dwv: [f64; 3]| {
+            if !cols.contains(&var) {
+                return;
+            }
+            let cc = var - cols.start;
+            match leg.rod {
+                None => {
+                    for c in 0..3 {
+                        dg[(leg.row + c, cc)] += de[c] - dwv[c];
+                    }
+                }
+                Some(_) => {
+                    dg[(leg.row, cc)] += (0..3).map(|c| u[c] * (dwv[c] - de[c])).sum::<f64>();
+                }
+            }
+        };
+        let none = [0.0; 3];
+        let rel = |o: [f64; 3]| [e[0] - o[0], e[1] - o[1], e[2] - o[2]];
+        for (k, j) in leg.joints.iter().enumerate() {
+            let st = steps[k];
+            // The joint's own coordinate.
+            let d = if j.prismatic {
+                st.w
+            } else {
+                cross(st.w, rel(st.o))
+            };
+            add(j.q, d, none);
+            // Its position.
+            for c in 0..3 {
+                add(nq + j.at[c], column(&st.before, c), none);
+            }
+            // Its axis tilts.
+            let v = {
+                let [n, e1, e2] = j.basis;
+                let (t1, t2) = (rho[j.tilt[0]].tan(), rho[j.tilt[1]].tan());
+                [0, 1, 2].map(|c| n[c] + t1 * e1[c] + t2 * e2[c])
+            };
+            let vlen = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            let s_local = if j.prismatic {
+                [0.0; 3]
+            } else {
+                // The rest of the chain in the joint's frame (after it).
+                let d = rel(st.o);
+                let a = st.after;
+                [0, 1, 2].map(|c| a[0][c] * d[0] + a[1][c] * d[1] + a[2][c] * d[2])
+            };
+            let (sq, cq) = q[j.q].sin_cos();
+            for (t, basis) in [(j.tilt[0], j.basis[1]), (j.tilt[1], j.basis[2])] {
+                let sec2 = 1.0 + rho[t].tan().powi(2);
+                let dv = basis.map(|c| c * sec2);
+                let along = st.u[0] * dv[0] + st.u[1] * dv[1] + st.u[2] * dv[2];
+                let du = [0, 1, 2].map(|c| (dv[c] - st.u[c] * along) / vlen);
+                let de = if j.prismatic {
+                    apply(&st.before, du).map(|c| c * q[j.q])
+                } else {
+                    let us = st.u[0] * s_local[0] + st.u[1] * s_local[1] + st.u[2] * s_local[2];
+                    let dus = du[0] * s_local[0] + du[1] * s_local[1] + du[2] * s_local[2];
+                    let x = cross(du, s_local);
+                    let local =
+                        [0, 1, 2].map(|c| x[c] * sq + (du[c] * us + st.u[c] * dus) * (1.0 - cq));
+                    apply(&st.before, local)
+                };
+                add(nq + t, de, none);
+            }
+        }
+        if let Some(a) = leg.angle {
+            add(nq + a, cross([0.0, 0.0, 1.0], e), none);
+        }
+        for c in 0..3 {
+            add(nq + leg.end_at[c], column(&r, c), none);
+            add(nq + leg.platform[c], none, column(&rot, c));
+        }
+        for (k, d) in dw.iter().enumerate().take(np) {
+            add(self.pose0 + k, none, *d);
+        }
+        if let Some(rod) = leg.rod {
+            let var = match rod {
+                Rod::Fixed(i) => nq + i,
+                Rod::Joint(i) => i,
+            };
+            if cols.contains(&var) {
+                dg[(leg.row, var - cols.start)] -= 1.0;
+            }
+        }
+    }
+}
+
+/// Most joints in one leg's chain with closed-form first derivatives
+/// (longer chains use automatic differentiation).
+const MAX_CHAIN: usize = 12;
+
 /// Chunk size of the per-leg automatic differentiation.
 const CHUNK: usize = 8;
+/// A variable outside the chunk being differentiated.
+const NOT_SEEDED: u8 = u8::MAX;
 
 impl SpatialMechanism {
     /// Second derivatives of leg `leg`'s equations with respect to its joint
@@ -1220,12 +1449,17 @@ impl Mechanism for SpatialMechanism {
         use num_dual::DualSVec64;
         type D = DualSVec64<CHUNK>;
         let v: Vec<f64> = q.iter().chain(rho).copied().collect();
+        let mut slot = vec![NOT_SEEDED; v.len()];
         let (nc, nt) = (self.spec.n_constraints, self.tool.len());
         let mut g = vec![0.0; nc];
         let mut dg = DMatrix::zeros(nc, cols.len());
         let mut dx = DMatrix::zeros(nt, cols.len());
         let mut out = [D::from_re(0.0); 3];
         for leg in &self.legs {
+            if leg.joints.len() <= MAX_CHAIN {
+                self.leg_closed_derivatives(leg, q, rho, &cols, &mut g, &mut dg);
+                continue;
+            }
             let local: Vec<usize> = leg
                 .vars
                 .iter()
@@ -1240,11 +1474,18 @@ impl Mechanism for SpatialMechanism {
                 continue;
             }
             for chunk in local.chunks(CHUNK) {
-                let seed = |i: usize, x: f64| match chunk.iter().position(|&c| c == i) {
-                    Some(k) => D::from_re(x).derivative(k),
-                    None => D::from_re(x),
+                // Each variable's place in the chunk, looked up on every read.
+                for (k, &c) in chunk.iter().enumerate() {
+                    slot[c] = k as u8;
+                }
+                let seed = |i: usize, x: f64| match slot[i] {
+                    NOT_SEEDED => D::from_re(x),
+                    k => D::from_re(x).derivative(k as usize),
                 };
                 self.leg_eval(leg, &v, &seed, &mut out);
+                for &c in chunk {
+                    slot[c] = NOT_SEEDED;
+                }
                 for r in 0..n {
                     g[leg.row + r] = out[r].re;
                     let e = out[r].eps.unwrap_generic(Const::<CHUNK>, U1);
