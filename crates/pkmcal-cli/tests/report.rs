@@ -128,6 +128,71 @@ fn chromium() -> Option<String> {
     .map(|p| p.to_string())
 }
 
+/// Seconds one headless Chromium run may take before it is killed (it
+/// renders the page in about 2 s; now and then it hangs without writing the
+/// screenshot).
+const BROWSER_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(60);
+/// Runs tried before the test fails.
+const BROWSER_ATTEMPTS: usize = 3;
+
+/// A screenshot of `page` by headless Chromium into `shot`: each run with
+/// its own profile and process group, killed with its children past
+/// [`BROWSER_TIMEOUT`], retried up to [`BROWSER_ATTEMPTS`] times.
+fn screenshot(
+    browser: &std::path::Path,
+    page: &std::path::Path,
+    shot: &std::path::Path,
+    dir: &std::path::Path,
+) -> bool {
+    use std::os::unix::process::CommandExt;
+    for attempt in 0..BROWSER_ATTEMPTS {
+        let _ = std::fs::remove_file(shot);
+        let mut child = std::process::Command::new(browser)
+            .args([
+                "--headless",
+                "--no-sandbox",
+                "--disable-gpu",
+                "--disable-quic",
+                "--no-first-run",
+                "--disable-background-networking",
+                "--disable-component-update",
+                "--disable-sync",
+                "--disable-dev-shm-usage",
+                "--hide-scrollbars",
+                "--window-size=1200,2400",
+            ])
+            .arg(format!(
+                "--user-data-dir={}",
+                dir.join(format!("profile{attempt}")).display()
+            ))
+            .arg(format!("--screenshot={}", shot.display()))
+            .arg(format!("file://{}", page.display()))
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .process_group(0)
+            .spawn()
+            .expect("chromium starts");
+        let start = std::time::Instant::now();
+        loop {
+            match child.try_wait().expect("chromium can be waited for") {
+                Some(status) if status.success() && shot.exists() => return true,
+                Some(_) => break,
+                None if start.elapsed() > BROWSER_TIMEOUT => {
+                    // The whole group: the browser and its helpers.
+                    let _ = std::process::Command::new("kill")
+                        .args(["-KILL", &format!("-{}", child.id())])
+                        .status();
+                    let _ = child.wait();
+                    eprintln!("chromium hung (attempt {}); retrying", attempt + 1);
+                    break;
+                }
+                None => std::thread::sleep(std::time::Duration::from_millis(100)),
+            }
+        }
+    }
+    false
+}
+
 #[test]
 fn report_renders_in_headless_chromium() {
     let Some(browser) = chromium() else {
@@ -147,28 +212,12 @@ fn report_renders_in_headless_chromium() {
     std::fs::write(d.join("t.toml"), "l11 = 280.3\n").unwrap();
     calibrated_report(d);
     let shot = d.join("shot.png");
-    let profile = d.join("profile");
-    let status = std::process::Command::new(browser)
-        .args([
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--disable-quic",
-            "--no-first-run",
-            "--disable-background-networking",
-            "--disable-component-update",
-            "--disable-sync",
-            "--hide-scrollbars",
-            "--window-size=1200,2400",
-        ])
-        .arg(format!("--user-data-dir={}", profile.display()))
-        .arg(format!("--screenshot={}", shot.display()))
-        .arg(format!("file://{}", d.join("rep/report.html").display()))
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .status()
-        .expect("chromium runs");
-    assert!(status.success());
+    let page = d.join("rep/report.html");
+    assert!(
+        screenshot(Path::new(&browser), &page, &shot, d),
+        "Chromium did not render {} in {BROWSER_ATTEMPTS} attempts of {BROWSER_TIMEOUT:?}",
+        page.display()
+    );
     let (w, h, pixels) = read_png(&shot);
     assert_eq!((w, h), (1200, 2400));
     let ink = pixels.iter().filter(|p| **p != [255, 255, 255]).count();
