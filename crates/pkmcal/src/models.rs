@@ -255,6 +255,54 @@ pub fn prepare_pose<M: Mechanism>(
     })
 }
 
+/// The rigid model's prediction of a pose: forward kinematics of the
+/// independent commands plus encoder offsets, from `start`.
+fn rigid_from<M: Mechanism>(
+    mech: &M,
+    pose: &Pose,
+    params: &Params,
+    start: &[f64],
+) -> Result<Prediction> {
+    let spec = mech.spec();
+    let rho = params.geometric();
+    let q_u: Vec<f64> = independent_actuators(spec)
+        .iter()
+        .map(|&a| pose.commands[a] + params.offsets()[a])
+        .collect();
+    let q = forward_kinematics(mech, rho, &q_u, start)?;
+    let x = jacobians(mech, &q, rho, 0..0).x;
+    let deflection = spec
+        .actuated
+        .iter()
+        .enumerate()
+        .map(|(a, &j)| q[j] - pose.commands[a] - params.offsets()[a])
+        .collect();
+    Ok(Prediction {
+        q,
+        x,
+        deflection,
+        torque: vec![0.0; spec.n_actuated()],
+        iterations: 0,
+        multipliers: vec![],
+    })
+}
+
+/// The model that computes `model`'s prediction: the exact model is the
+/// rigid one when nothing loads the actuators, a mechanism with no more
+/// actuators than degrees of freedom and no external force (eq. 1 and 3:
+/// the actuators cannot fight, so every joint torque is zero and every
+/// deflection too). The rigid model needs no second derivatives.
+pub(crate) fn effective_model(spec: &crate::Spec, model: Model, force: &[f64]) -> Model {
+    if model == Model::Exact
+        && spec.n_actuated() == spec.dof()
+        && force.iter().all(|f| *f == 0.0)
+    {
+        Model::Rigid
+    } else {
+        model
+    }
+}
+
 /// Prediction of one prepared pose with one model (docs/model.md §4).
 /// `force` is the external load on the tool, a wrench ([`crate::load`]: N
 /// along each length coordinate, N·m about each angle's axis), empty for none.
@@ -267,31 +315,8 @@ pub fn predict_pose<M: Mechanism>(
 ) -> Result<Prediction> {
     let spec = mech.spec();
     let force = effective_force(mech, pose, force)?;
-    let rho = params.geometric();
-    let ind = independent_actuators(spec);
-    match model {
-        Model::Rigid => {
-            let q_u: Vec<f64> = ind
-                .iter()
-                .map(|&a| pose.commands[a] + params.offsets()[a])
-                .collect();
-            let q = forward_kinematics(mech, rho, &q_u, &pose.nominal_q)?;
-            let x = jacobians(mech, &q, rho, 0..0).x;
-            let deflection = spec
-                .actuated
-                .iter()
-                .enumerate()
-                .map(|(a, &j)| q[j] - pose.commands[a] - params.offsets()[a])
-                .collect();
-            Ok(Prediction {
-                q,
-                x,
-                deflection,
-                torque: vec![0.0; spec.n_actuated()],
-                iterations: 0,
-                multipliers: vec![],
-            })
-        }
+    match effective_model(spec, model, &force) {
+        Model::Rigid => rigid_from(mech, pose, params, &pose.nominal_q),
         Model::Linear => linear_prediction(mech, pose, params, &force),
         Model::Exact => {
             let lin = linear_prediction(mech, pose, params, &force)?;
@@ -344,11 +369,20 @@ pub fn predict_pose_warm<M: Mechanism>(
     force: &[f64],
     warm: Option<&[f64]>,
 ) -> Result<Prediction> {
-    if let (Model::Exact, Some(w)) = (model, warm) {
-        let f = effective_force(mech, pose, force)?;
-        if let Ok(p) = exact_from(mech, pose, params, &f, w) {
-            return Ok(p);
+    let f = effective_force(mech, pose, force)?;
+    match (effective_model(mech.spec(), model, &f), warm) {
+        (Model::Exact, Some(w)) => {
+            if let Ok(p) = exact_from(mech, pose, params, &f, w) {
+                return Ok(p);
+            }
         }
+        (Model::Rigid, Some(w)) => {
+            // Forward kinematics from the neighbouring solution.
+            if let Ok(p) = rigid_from(mech, pose, params, w) {
+                return Ok(p);
+            }
+        }
+        _ => {}
     }
     predict_pose(mech, pose, params, model, force)
 }

@@ -59,7 +59,7 @@ pub fn sensitivity_at<M: Mechanism>(
     let force = crate::models::effective_force(mech, pose, force)?;
     let ind = independent_actuators(spec);
     let mut jac = DMatrix::zeros(nx, np);
-    match model {
+    match crate::models::effective_model(spec, model, &force) {
         Model::Rigid | Model::Linear => {
             let lin = linearize(mech, &prediction.q, rho, &spec.independent)?;
             // ∂x/∂ρ at fixed independent joints.

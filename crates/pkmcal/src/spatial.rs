@@ -482,6 +482,16 @@ impl SpatialMechanism {
         type D = DualSVec64<3>;
         let cols = leg.unknowns();
         let n = leg.rows();
+        if leg.joints.len() <= MAX_CHAIN {
+            let nc = self.spec.n_constraints;
+            let mut g = vec![0.0; nc];
+            let mut dg = nalgebra::DMatrix::zeros(nc, cols.len());
+            self.leg_closed_derivatives(leg, q, rho, &cols, &mut g, &mut dg);
+            return (
+                nalgebra::DVector::from_column_slice(&g[leg.row..leg.row + n]),
+                dg.rows(leg.row, n).into_owned(),
+            );
+        }
         let mut out = [D::from_re(0.0); 3];
         let seed = |i: usize, x: f64| {
             if cols.contains(&i) {
