@@ -234,6 +234,61 @@ pub fn forward_kinematics<M: Mechanism>(
     Ok(q)
 }
 
+/// Most stages of [`forward_kinematics_from_nominal`]'s walk in the
+/// parameters.
+pub const PARAMETER_STAGES: usize = 64;
+
+/// [`forward_kinematics`] under parameters `rho` from `start`, a
+/// configuration that closes under the nominal parameters: directly, and if
+/// that fails by continuation in the parameters, walking them from nominal
+/// to `rho` in stages (halved when a stage fails, at most
+/// [`PARAMETER_STAGES`]), each solved from the last. Parameters far from
+/// nominal (an identification wandering along a poorly determined
+/// direction) can move the assembled configuration further than one Newton
+/// continuation in the joints reaches.
+pub fn forward_kinematics_from_nominal<M: Mechanism>(
+    mech: &M,
+    rho: &[f64],
+    q_u: &[f64],
+    start: &[f64],
+) -> Result<Vec<f64>> {
+    let first = match forward_kinematics(mech, rho, q_u, start) {
+        Ok(q) => return Ok(q),
+        Err(e) => e,
+    };
+    let spec = mech.spec();
+    let nominal = &spec.nominal[..spec.n_geometric()];
+    let from: Vec<f64> = spec.independent.iter().map(|&i| start[i]).collect();
+    let mut q = start.to_vec();
+    let (mut t, mut step) = (0.0_f64, 0.25_f64);
+    let mut stages = 0;
+    while t < 1.0 {
+        let next = (t + step).min(1.0);
+        let r: Vec<f64> = nominal
+            .iter()
+            .zip(rho)
+            .map(|(a, b)| a + next * (b - a))
+            .collect();
+        let u: Vec<f64> = from
+            .iter()
+            .zip(q_u)
+            .map(|(a, b)| a + next * (b - a))
+            .collect();
+        stages += 1;
+        if stages > PARAMETER_STAGES {
+            return Err(first);
+        }
+        match forward_kinematics(mech, &r, &u, &q) {
+            Ok(s) => {
+                q = s;
+                t = next;
+            }
+            Err(_) => step /= 2.0,
+        }
+    }
+    Ok(q)
+}
+
 /// Check parameter values for a mechanism before using them: finite and
 /// within range ([`crate::Params::validate`]), the mechanism's own rules
 /// ([`Mechanism::check_params`], e.g. positive lengths), and the mechanism

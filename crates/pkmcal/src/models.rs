@@ -269,7 +269,7 @@ fn rigid_from<M: Mechanism>(
         .iter()
         .map(|&a| pose.commands[a] + params.offsets()[a])
         .collect();
-    let q = forward_kinematics(mech, rho, &q_u, start)?;
+    let q = crate::kinematics::forward_kinematics_from_nominal(mech, rho, &q_u, start)?;
     let x = jacobians(mech, &q, rho, 0..0).x;
     let deflection = spec
         .actuated
@@ -293,10 +293,7 @@ fn rigid_from<M: Mechanism>(
 /// the actuators cannot fight, so every joint torque is zero and every
 /// deflection too). The rigid model needs no second derivatives.
 pub(crate) fn effective_model(spec: &crate::Spec, model: Model, force: &[f64]) -> Model {
-    if model == Model::Exact
-        && spec.n_actuated() == spec.dof()
-        && force.iter().all(|f| *f == 0.0)
-    {
+    if model == Model::Exact && spec.n_actuated() == spec.dof() && force.iter().all(|f| *f == 0.0) {
         Model::Rigid
     } else {
         model
@@ -456,7 +453,7 @@ fn linear_prediction<M: Mechanism>(
         .zip(independent_actuators(spec))
         .map(|(&j, a)| pose.nominal_q[j] + dq[a])
         .collect();
-    let q = forward_kinematics(mech, rho, &q_u, &pose.nominal_q)?;
+    let q = crate::kinematics::forward_kinematics_from_nominal(mech, rho, &q_u, &pose.nominal_q)?;
     let x = jacobians(mech, &q, rho, 0..0).x;
     let torque = crate::linearized::torques(params.stiffness(), &offsets, dq.as_slice());
     let deflection = torque

@@ -818,3 +818,34 @@ fn universal_joints_make_a_ups_hexapod_like_the_builtin() {
         "{e}"
     );
 }
+
+/// A poorly conditioned free set (the 3-PRS with its link lengths free too:
+/// each trades with its radius and its slider offset) lets the fit wander
+/// tens of millimetres along the valley; predictions from the nominal
+/// configuration then need the continuation in the parameters, and the
+/// calibration completes, reporting those parameters with standard
+/// deviations of the same size (it stopped at pose 1 before).
+#[test]
+fn a_wandering_fit_still_assembles_every_pose() {
+    let m = spatial("3-prs");
+    let spec = m.spec();
+    let tool = pkmcal::MeasurementModel::tool(spec);
+    let data = pkmcal::simulate(
+        &m,
+        &tool,
+        &Params::nominal(spec),
+        &common::spread(&m, 60),
+        pkmcal::Noise::lengths(0.002),
+        1,
+    )
+    .unwrap();
+    let mut opts = pkmcal::CalibrationOptions::new(spec, Model::Exact);
+    for n in ["l1", "l2", "l3"] {
+        opts.free.push(spec.param_index(n).unwrap());
+    }
+    let cal = pkmcal::calibrate(&m, &tool, &data, &Params::nominal(spec), &opts).unwrap();
+    assert!(cal.identifiability.condition_number > 1e5);
+    let l1 = cal.parameters.iter().find(|p| p.name == "l1").unwrap();
+    assert!(l1.std_dev > 1.0, "{l1:?}");
+    assert!((l1.identified - 250.0).abs() < 5.0 * l1.std_dev, "{l1:?}");
+}
