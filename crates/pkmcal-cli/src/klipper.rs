@@ -693,35 +693,13 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
         .collect();
     let heights = &data[..delta.probes.len()];
     let measurement = MeasurementModel::probe(spec)?;
-    let mut free_names: Vec<String> = vec![];
-    for n in c
-        .free
-        .as_deref()
-        .unwrap_or("default")
-        .split(',')
-        .map(str::trim)
-    {
-        match n {
-            "" => {}
-            "default" => {
-                free_names.extend(spec.default_free.iter().cloned());
-                if !delta.distances.is_empty() {
-                    free_names.extend(KLIPPER_EXTENDED.map(String::from));
-                }
-            }
-            _ => free_names.push(n.to_string()),
-        }
+    let mut default: Vec<String> = spec.default_free.clone();
+    if !delta.distances.is_empty() {
+        default.extend(KLIPPER_EXTENDED.map(String::from));
     }
-    free_names.dedup();
     let mut opts = CalibrationOptions::new(spec, Model::Exact);
-    opts.free = free_names
-        .iter()
-        .map(|n| {
-            measurement
-                .index_of(spec, n)
-                .map_err(|e| output::Usage(format!("in --free: {e}")))
-        })
-        .collect::<std::result::Result<_, _>>()?;
+    let free_names;
+    (free_names, opts.free) = free_list(c.free.as_deref(), &default, spec, &measurement)?;
     let nominal = Params::nominal(spec);
     let cal = pkmcal::calibrate(&mech, &measurement, &data, &nominal, &opts).map_err(|e| {
         let e = anyhow::Error::from(e);
@@ -867,6 +845,35 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// A `--free` list of a firmware command (`default` standing for
+/// `default`'s names): the names, and their indices in the identification
+/// vector of `measurement`.
+pub fn free_list(
+    free: Option<&str>,
+    default: &[String],
+    spec: &pkmcal::Spec,
+    measurement: &MeasurementModel,
+) -> Result<(Vec<String>, Vec<usize>)> {
+    let mut names: Vec<String> = vec![];
+    for n in free.unwrap_or("default").split(',').map(str::trim) {
+        match n {
+            "" => {}
+            "default" => names.extend(default.iter().cloned()),
+            _ => names.push(n.to_string()),
+        }
+    }
+    names.dedup();
+    let indices = names
+        .iter()
+        .map(|n| {
+            measurement
+                .index_of(spec, n)
+                .map_err(|e| output::Usage(format!("in --free: {e}")))
+        })
+        .collect::<std::result::Result<_, _>>()?;
+    Ok((names, indices))
 }
 
 /// The files `--out-dir` holds.

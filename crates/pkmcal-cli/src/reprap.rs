@@ -300,30 +300,14 @@ pub fn run_reprap(c: ReprapConfig) -> Result<()> {
         .collect();
     let bed = delta.bed();
     let measurement = MeasurementModel::probe(spec)?.with_own(&bed)?;
-    let mut free_names: Vec<String> = vec![];
-    for n in c
-        .free
-        .as_deref()
-        .unwrap_or("default")
-        .split(',')
-        .map(str::trim)
-    {
-        match n {
-            "" => {}
-            "default" => free_names.extend(KLIPPER_FREE.map(String::from)),
-            _ => free_names.push(n.to_string()),
-        }
-    }
-    free_names.dedup();
     let mut opts = CalibrationOptions::new(spec, Model::Exact);
-    opts.free = free_names
-        .iter()
-        .map(|n| {
-            measurement
-                .index_of(spec, n)
-                .map_err(|e| output::Usage(format!("in --free: {e}")))
-        })
-        .collect::<std::result::Result<_, _>>()?;
+    let free_names;
+    (free_names, opts.free) = crate::klipper::free_list(
+        c.free.as_deref(),
+        &KLIPPER_FREE.map(String::from),
+        spec,
+        &measurement,
+    )?;
     let nominal = Params::nominal(spec);
     let cal = pkmcal::calibrate(&mech, &measurement, &data, &nominal, &opts)
         .map_err(|e| crate::calibrate::located(e, &c.probes))?;
