@@ -287,6 +287,9 @@ pub struct SpatialMechanism {
     /// lengths.
     length: f64,
     atlas: crate::workspace::Atlas,
+    /// The closed-form start of forward kinematics, when the mechanism has
+    /// one (then the atlas is not built).
+    trilateration: Option<Trilateration>,
     /// [`crate::kinematics::branch_signs`] at the reference configuration.
     branch: [i8; 2],
     /// Sign of each leg's own inverse-kinematics determinant (its equations
@@ -465,6 +468,51 @@ impl LegIx {
     }
 }
 
+/// A translating platform held by legs that are each a chain of actuated
+/// joints ending in a fixed rod (linear and rotary deltas): the actuators fix
+/// each chain's end, so the platform point of each leg lies on a sphere, and
+/// three spheres meet in two points (closed-form forward kinematics).
+#[derive(Debug, Clone, PartialEq)]
+struct Trilateration {
+    /// The three legs whose spheres are intersected.
+    legs: [usize; 3],
+    /// The side of the spheres' centres' plane the platform is on in the
+    /// reference configuration (its assembly mode), `1.0` or `-1.0`.
+    side: f64,
+}
+
+/// The two points at distances `r` from the three centres `c`: the foot on
+/// the centres' plane, the plane's unit normal `(c1 − c0) × (c2 − c0)` and the
+/// height along it, or `None` when the spheres do not meet (or the centres
+/// are collinear).
+fn sphere_intersection(c: [[f64; 3]; 3], r: [f64; 3]) -> Option<([f64; 3], [f64; 3], f64)> {
+    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let (u, v) = (sub(c[1], c[0]), sub(c[2], c[0]));
+    let d = dot(u, u).sqrt();
+    if d.is_nan() || d <= 0.0 {
+        return None;
+    }
+    let ex = u.map(|x| x / d);
+    let i = dot(ex, v);
+    let w = [0, 1, 2].map(|k| v[k] - i * ex[k]);
+    let j = dot(w, w).sqrt();
+    if j.is_nan() || j <= 1e-9 * d {
+        return None;
+    }
+    let ey = w.map(|x| x / j);
+    let ez = cross(ex, ey);
+    let x = (r[0] * r[0] - r[1] * r[1] + d * d) / (2.0 * d);
+    let y = (r[0] * r[0] - r[2] * r[2] + i * i + j * j) / (2.0 * j) - i * x / j;
+    let h2 = r[0] * r[0] - x * x - y * y;
+    // Slightly negative: the spheres (almost) touch; the Newton polish decides.
+    if h2.is_nan() || h2 < -1e-6 * r[0] * r[0] {
+        return None;
+    }
+    let foot = [0, 1, 2].map(|k| c[0][k] + x * ex[k] + y * ey[k]);
+    Some((foot, ez, h2.max(0.0).sqrt()))
+}
+
 /// Most Newton iterations of one leg's inverse kinematics.
 const LEG_NEWTON: usize = 50;
 
@@ -511,6 +559,81 @@ impl SpatialMechanism {
             out[r].eps.unwrap_generic(Const::<3>, U1)[c]
         });
         (g, j)
+    }
+
+    /// Each leg's sphere for the actuator values in `q` (the platform
+    /// coordinates of `q` must be 0): the centre (chain end less the platform
+    /// point) and the rod's length.
+    fn leg_sphere(&self, leg: &LegIx, q: &[f64], rho: &[f64]) -> Option<([f64; 3], f64)> {
+        let Some(Rod::Fixed(l)) = leg.rod else {
+            return None;
+        };
+        let (e, b) = self.leg_points(leg, q, rho);
+        Some(([0, 1, 2].map(|k| e[k] - b[k]), rho[l]))
+    }
+
+    /// The closed-form start of [`Trilateration`] if the mechanism allows it:
+    /// the three legs whose centres span the largest triangle at `q0`, and
+    /// the side the platform is on there.
+    fn trilateration_at(&self, q0: &[f64], rho: &[f64]) -> Option<Trilateration> {
+        let chains_actuated = self.legs.iter().all(|leg| {
+            matches!(leg.rod, Some(Rod::Fixed(_)))
+                && leg.joints.iter().all(|j| self.spec.actuated.contains(&j.q))
+        });
+        if self.motion != Motion::Translation || self.legs.len() < 3 || !chains_actuated {
+            return None;
+        }
+        let mut q = q0.to_vec();
+        q[self.pose0..self.pose0 + 3].fill(0.0);
+        let spheres: Vec<([f64; 3], f64)> = self
+            .legs
+            .iter()
+            .map(|leg| self.leg_sphere(leg, &q, rho))
+            .collect::<Option<_>>()?;
+        let n = spheres.len();
+        let mut best: Option<(f64, [usize; 3])> = None;
+        for a in 0..n {
+            for b in a + 1..n {
+                for c in b + 1..n {
+                    let [p, r, s] = [a, b, c].map(|i| spheres[i].0);
+                    let u = [0, 1, 2].map(|k| r[k] - p[k]);
+                    let v = [0, 1, 2].map(|k| s[k] - p[k]);
+                    let area = cross(u, v).iter().map(|x| x * x).sum::<f64>();
+                    if best.is_none_or(|(m, _)| area > m) {
+                        best = Some((area, [a, b, c]));
+                    }
+                }
+            }
+        }
+        let legs = best?.1;
+        let (foot, normal, _) =
+            sphere_intersection(legs.map(|i| spheres[i].0), legs.map(|i| spheres[i].1))?;
+        let p0 = &q0[self.pose0..self.pose0 + 3];
+        let side: f64 = (0..3).map(|k| (p0[k] - foot[k]) * normal[k]).sum();
+        (side.abs() > 1e-9 * self.length).then_some(Trilateration {
+            legs,
+            side: side.signum(),
+        })
+    }
+
+    /// The configuration of `commands` (one per actuated joint) in closed
+    /// form ([`Trilateration`]), on the reference configuration's side.
+    fn trilaterate(&self, t: &Trilateration, commands: &[f64], rho: &[f64]) -> Option<Vec<f64>> {
+        let mut q = self.spec.reference_q.clone();
+        for (&j, &c) in self.spec.actuated.iter().zip(commands) {
+            q[j] = c;
+        }
+        q[self.pose0..self.pose0 + 3].fill(0.0);
+        let mut c = [[0.0; 3]; 3];
+        let mut r = [0.0; 3];
+        for (k, &i) in t.legs.iter().enumerate() {
+            (c[k], r[k]) = self.leg_sphere(&self.legs[i], &q, rho)?;
+        }
+        let (foot, normal, h) = sphere_intersection(c, r)?;
+        for k in 0..3 {
+            q[self.pose0 + k] = foot[k] + t.side * h * normal[k];
+        }
+        Some(q)
     }
 
     /// Sign of the determinant of leg `i`'s equations against its joints.
@@ -945,6 +1068,7 @@ impl SpatialMechanism {
             tool,
             length,
             atlas: Default::default(),
+            trilateration: None,
             branch: [0, 0],
             leg_signs: vec![],
         };
@@ -1037,8 +1161,11 @@ impl SpatialMechanism {
                 .map(|i| mech.leg_sign(i, &q0, &rho))
                 .collect();
         }
-        // The atlas covers every reachable pose (min_conditioning still 0).
-        mech.atlas = crate::workspace::Atlas::build(&mech, ATLAS_POINTS);
+        mech.trilateration = mech.trilateration_at(&q0, &rho);
+        if mech.trilateration.is_none() {
+            // The atlas covers every reachable pose (min_conditioning still 0).
+            mech.atlas = crate::workspace::Atlas::build(&mech, ATLAS_POINTS);
+        }
         mech.spec.min_conditioning = crate::workspace::RELATIVE_CONDITIONING
             * crate::workspace::conditioning(&mech, &q0, &rho);
         Ok(mech)
@@ -1570,8 +1697,11 @@ impl Mechanism for SpatialMechanism {
         Some(self.ik_by_leg(target, rho))
     }
 
-    fn configuration_guess(&self, commands: &[f64], _rho: &[f64]) -> Option<Vec<f64>> {
-        self.atlas.nearest(commands)
+    fn configuration_guess(&self, commands: &[f64], rho: &[f64]) -> Option<Vec<f64>> {
+        match &self.trilateration {
+            Some(t) => self.trilaterate(t, commands, rho),
+            None => self.atlas.nearest(commands),
+        }
     }
 
     /// Fixed rod lengths must be positive.

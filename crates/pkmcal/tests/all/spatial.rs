@@ -849,3 +849,38 @@ fn a_wandering_fit_still_assembles_every_pose() {
     assert!(l1.std_dev > 1.0, "{l1:?}");
     assert!((l1.identified - 250.0).abs() < 5.0 * l1.std_dev, "{l1:?}");
 }
+
+/// On the deltas (a translating platform, legs of actuated joints and rods)
+/// forward kinematics starts from the closed-form intersection of the legs'
+/// spheres: it is the configuration itself, on the reference's assembly
+/// mode, and commands the legs cannot meet give no start and a clear error.
+#[test]
+fn deltas_start_forward_kinematics_in_closed_form() {
+    for name in ["linear-delta", "linear-delta-4", "rotary-delta"] {
+        let m = spatial(name);
+        let spec = m.spec();
+        let rho = &spec.nominal[..spec.n_geometric()];
+        for t in common::spread(&m, 25) {
+            let q = pkmcal::inverse_kinematics(&m, rho, &t).unwrap();
+            let commands: Vec<f64> = spec.actuated.iter().map(|&j| q[j]).collect();
+            let guess = m.configuration_guess(&commands, rho).expect(name);
+            assert!(
+                guess
+                    .iter()
+                    .zip(&q)
+                    .all(|(a, b)| (a - b).abs() < SAME_MECHANISM),
+                "{name}: {guess:?} {q:?}"
+            );
+        }
+        // Pull one actuator far out: the spheres no longer meet.
+        let mut far: Vec<f64> = spec.actuated.iter().map(|&j| spec.reference_q[j]).collect();
+        far[0] += if spec.joint_units[spec.actuated[0]] == pkmcal::Unit::Radian {
+            3.0
+        } else {
+            1e4
+        };
+        assert!(m.configuration_guess(&far, rho).is_none(), "{name}");
+        let err = pkmcal::predict(&m, &Params::nominal(spec), &far, Model::Rigid, &[]);
+        assert!(err.is_err(), "{name}: {err:?}");
+    }
+}
