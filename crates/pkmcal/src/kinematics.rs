@@ -20,6 +20,9 @@ pub const MAX_IK_STAGES: usize = 1000;
 /// Most continuation stages of one forward-kinematics solve: the work is
 /// bounded whatever the distance asked for.
 pub const MAX_CONTINUATION_STAGES: usize = 20_000;
+/// How many mm of a length joint weigh like one rad of a revolute joint when
+/// steps are limited (the ratio of the continuation stages).
+const MM_PER_RAD: f64 = CONTINUATION_STEP_MM / CONTINUATION_STEP;
 /// Largest Newton iterations per solve.
 const MAX_NEWTON: usize = 40;
 /// Relative pivot size below which a Jacobian counts as singular.
@@ -57,8 +60,22 @@ pub fn solve_closure<M: Mechanism>(
         if !big.is_finite() {
             big = f64::INFINITY;
         }
-        // Damped step: never more than 0.5 rad at once.
-        let scale = if big > 0.5 { 0.5 / big } else { 1.0 };
+        // Damped step: never more than 0.5 rad, or 50 mm on a length, at
+        // once (a length step measured in rad at MM_PER_RAD).
+        let turn = free
+            .iter()
+            .zip(step.iter())
+            .map(|(&i, d)| match spec.joint_units[i] {
+                crate::Unit::Radian => d.abs(),
+                _ => d.abs() / MM_PER_RAD,
+            })
+            .fold(0.0, f64::max);
+        let turn = if turn.is_finite() {
+            turn
+        } else {
+            f64::INFINITY
+        };
+        let scale = if turn > 0.5 { 0.5 / turn } else { 1.0 };
         for (k, &i) in free.iter().enumerate() {
             q[i] -= scale * step[k];
         }
@@ -193,25 +210,12 @@ pub fn forward_kinematics<M: Mechanism>(
     }
     let mut q = start.to_vec();
     let from: Vec<f64> = ind.iter().map(|&i| start[i]).collect();
-    // Stages of at most 0.1 rad on a revolute joint, 10 mm on a prismatic one.
     let span = from
         .iter()
         .zip(q_u)
         .map(|(a, b)| (a - b).abs())
         .fold(0.0, f64::max);
-    let stages = from
-        .iter()
-        .zip(q_u)
-        .zip(ind)
-        .map(|((a, b), &i)| {
-            let step = match spec.joint_units[i] {
-                crate::Unit::Radian => CONTINUATION_STEP,
-                _ => CONTINUATION_STEP_MM,
-            };
-            ((a - b) / step).abs()
-        })
-        .fold(0.0, f64::max)
-        .ceil();
+    let stages = continuation_stages(spec, start, q_u);
     if stages.is_nan() || stages > MAX_CONTINUATION_STAGES as f64 {
         return Err(Error::InvalidRequest(format!(
             "the joint values {q_u:?} are {span:.4e} away from the start configuration; no machine moves that far between two poses (check the units: rad and mm)"
@@ -232,6 +236,24 @@ pub fn forward_kinematics<M: Mechanism>(
         });
     }
     Ok(q)
+}
+
+/// How many continuation stages [`forward_kinematics`] takes from `start`
+/// to the independent joint values `q_u`: stages of at most 0.1 rad on a
+/// revolute joint, 10 mm on a prismatic one (NaN for non-finite values).
+pub(crate) fn continuation_stages(spec: &crate::Spec, start: &[f64], q_u: &[f64]) -> f64 {
+    spec.independent
+        .iter()
+        .zip(q_u)
+        .map(|(&i, b)| {
+            let step = match spec.joint_units[i] {
+                crate::Unit::Radian => CONTINUATION_STEP,
+                _ => CONTINUATION_STEP_MM,
+            };
+            ((start[i] - b) / step).abs()
+        })
+        .fold(0.0, f64::max)
+        .ceil()
 }
 
 /// Most stages of [`forward_kinematics_from_nominal`]'s walk in the

@@ -70,8 +70,9 @@ pub struct Pose {
     /// Nominal configuration: forward kinematics of the independent commands
     /// with nominal parameters.
     pub nominal_q: Vec<f64>,
-    /// Φ, J_p, Γ, H, J_f at the nominal configuration.
-    pub lin: Linearization,
+    /// Φ, J_p, Γ, H, J_f at the nominal configuration (computed on first use:
+    /// only the linear model needs them).
+    lin: OnceLock<Result<Linearization>>,
     /// Second derivatives of each constraint and tool coordinate with respect
     /// to the joints at the nominal configuration (computed on first use by the
     /// exact model; Newton's curvature there is good to ~1e-6 relative).
@@ -79,6 +80,23 @@ pub struct Pose {
 }
 
 impl Pose {
+    /// Φ, J_p, Γ, H, J_f at the nominal configuration (eq. 4–7, 9), the
+    /// linear model's matrices.
+    pub fn lin<M: Mechanism>(&self, mech: &M) -> Result<&Linearization> {
+        let spec = mech.spec();
+        self.lin
+            .get_or_init(|| {
+                linearize(
+                    mech,
+                    &self.nominal_q,
+                    &spec.nominal[..spec.n_geometric()],
+                    &spec.independent,
+                )
+            })
+            .as_ref()
+            .map_err(Clone::clone)
+    }
+
     /// Per-output joint Hessians at the nominal configuration.
     pub fn hessians<M: Mechanism>(&self, mech: &M) -> &[DMatrix<f64>] {
         self.hessians.get_or_init(|| {
@@ -183,7 +201,7 @@ pub(crate) fn independent_actuators(spec: &crate::Spec) -> Vec<usize> {
 }
 
 /// Prepare a pose: nominal forward kinematics of the independent commands
-/// (from `start`, or from the reference configuration) and the linearisation.
+/// (from `start`, or from the reference configuration); the linearisation is computed on first use ([`Pose::lin`]).
 pub fn prepare_pose<M: Mechanism>(
     mech: &M,
     commands: &[f64],
@@ -214,7 +232,16 @@ pub fn prepare_pose<M: Mechanism>(
     let mut best: Option<(f64, Vec<f64>)> = None;
     let mut first_error = None;
     let guess = mech.configuration_guess(commands, rho);
-    let candidates = [guess, start.map(<[f64]>::to_vec), None];
+    let mut candidates = [guess, start.map(<[f64]>::to_vec), None];
+    // The nearer of the guess and the caller's start first (fewer
+    // continuation stages): a stored configuration is often farther than
+    // the previous pose of a sequence.
+    if let [Some(g), Some(s), _] = &candidates
+        && crate::kinematics::continuation_stages(spec, s, &q_u)
+            < crate::kinematics::continuation_stages(spec, g, &q_u)
+    {
+        candidates.swap(0, 1);
+    }
     for (i, s) in candidates.into_iter().enumerate() {
         let s = match s {
             Some(s) => s,
@@ -246,11 +273,10 @@ pub fn prepare_pose<M: Mechanism>(
         Some((_, q)) => q,
         None => return Err(first_error.expect("at least one attempt was made")),
     };
-    let lin = linearize(mech, &nominal_q, rho, &spec.independent)?;
     Ok(Pose {
         commands: commands.to_vec(),
         nominal_q,
-        lin,
+        lin: OnceLock::new(),
         hessians: OnceLock::new(),
     })
 }
@@ -445,8 +471,9 @@ fn linear_prediction<M: Mechanism>(
         .map(|(a, &j)| params.offsets()[a] + pose.commands[a] - pose.nominal_q[j])
         .collect();
     let drho: Vec<f64> = rho.iter().zip(nominal).map(|(a, b)| a - b).collect();
-    let p = load_vector(&pose.lin, force);
-    let dq = joint_errors(&pose.lin, params.stiffness(), &offsets, &drho, &p)?;
+    let lin = pose.lin(mech)?;
+    let p = load_vector(lin, force);
+    let dq = joint_errors(lin, params.stiffness(), &offsets, &drho, &p)?;
     let q_u: Vec<f64> = spec
         .independent
         .iter()

@@ -94,7 +94,7 @@ fn linear_qu_derivatives<M: Mechanism>(
     let (ng, na) = (spec.n_geometric(), spec.n_actuated());
     let np = spec.n_params();
     let ind = independent_actuators(spec);
-    let lin = &pose.lin;
+    let lin = pose.lin(mech)?;
     let k = params.stiffness();
     let kd = DMatrix::from_diagonal(&DVector::from_column_slice(k));
     let gamma = &lin.gamma;

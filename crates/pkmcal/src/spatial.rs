@@ -534,7 +534,8 @@ impl SpatialMechanism {
             let nc = self.spec.n_constraints;
             let mut g = vec![0.0; nc];
             let mut dg = nalgebra::DMatrix::zeros(nc, cols.len());
-            self.leg_closed_derivatives(leg, q, rho, &cols, &mut g, &mut dg);
+            let frame = self.platform_frame(q);
+            self.leg_closed_derivatives(leg, q, rho, &cols, &frame, (&mut g, &mut dg));
             return (
                 nalgebra::DVector::from_column_slice(&g[leg.row..leg.row + n]),
                 dg.rows(leg.row, n).into_owned(),
@@ -1309,8 +1310,8 @@ impl SpatialMechanism {
         q: &[f64],
         rho: &[f64],
         cols: &std::ops::Range<usize>,
-        g: &mut [f64],
-        dg: &mut nalgebra::DMatrix<f64>,
+        frame: &PlatformFrame,
+        (g, dg): (&mut [f64], &mut nalgebra::DMatrix<f64>),
     ) {
         let nq = q.len();
         let mut r = match leg.angle {
@@ -1363,38 +1364,19 @@ impl SpatialMechanism {
         let e = [0, 1, 2].map(|c| p[c] + ea[c]);
         let b = leg.platform.map(|i| rho[i]);
         let np = self.motion.coordinates();
-        let pose: [f64; 6] = std::array::from_fn(|k| if k < np { q[self.pose0 + k] } else { 0.0 });
+        let PlatformFrame { pose, rot, omega } = *frame;
         let unit = |c: usize| std::array::from_fn::<f64, 3, _>(|k| if k == c { 1.0 } else { 0.0 });
         let column = |m: &Mat<f64>, c: usize| [m[0][c], m[1][c], m[2][c]];
-        // R b, R, and ∂w/∂(platform coordinate k).
-        let (rb, rot, dw): ([f64; 3], Mat<f64>, [[f64; 3]; 6]) = match self.motion {
-            Motion::Translation => (
-                b,
-                identity(),
-                [unit(0), unit(1), unit(2), [0.0; 3], [0.0; 3], [0.0; 3]],
-            ),
-            Motion::Full => {
-                let rot = crate::gough_stewart::rotation(pose[3], pose[4], pose[5]);
-                let rb = apply(&rot, b);
-                let (sc, cc) = pose[5].sin_cos();
-                let (sb, cb) = pose[4].sin_cos();
-                let wx = [cc * cb, sc * cb, -sb];
-                let wy = [-sc, cc, 0.0];
-                let wz = [0.0, 0.0, 1.0];
-                (
-                    rb,
-                    rot,
-                    [
-                        unit(0),
-                        unit(1),
-                        unit(2),
-                        cross(wx, rb),
-                        cross(wy, rb),
-                        cross(wz, rb),
-                    ],
-                )
-            }
-        };
+        // R b, and ∂w/∂(platform coordinate k).
+        let rb = apply(&rot, b);
+        let dw: [[f64; 3]; 6] = [
+            unit(0),
+            unit(1),
+            unit(2),
+            cross(omega[0], rb),
+            cross(omega[1], rb),
+            cross(omega[2], rb),
+        ];
         let w = [0, 1, 2].map(|c| pose[c] + rb[c]);
         // The equations, and how a change of the end (de) and of the
         // platform point (dw) enters them.
@@ -1505,6 +1487,39 @@ impl SpatialMechanism {
     }
 }
 
+/// The platform's pose, rotation and the world axes of its three angles
+/// (`ω_k`, so that `∂(R b)/∂(angle k) = ω_k × R b`), shared by every leg.
+#[derive(Clone, Copy)]
+struct PlatformFrame {
+    pose: [f64; 6],
+    rot: Mat<f64>,
+    omega: [[f64; 3]; 3],
+}
+
+impl SpatialMechanism {
+    /// The [`PlatformFrame`] of configuration `q`.
+    fn platform_frame(&self, q: &[f64]) -> PlatformFrame {
+        let np = self.motion.coordinates();
+        let pose: [f64; 6] = std::array::from_fn(|k| if k < np { q[self.pose0 + k] } else { 0.0 });
+        match self.motion {
+            Motion::Translation => PlatformFrame {
+                pose,
+                rot: identity(),
+                omega: [[0.0; 3]; 3],
+            },
+            Motion::Full => {
+                let (sc, cc) = pose[5].sin_cos();
+                let (sb, cb) = pose[4].sin_cos();
+                PlatformFrame {
+                    pose,
+                    rot: crate::gough_stewart::rotation(pose[3], pose[4], pose[5]),
+                    omega: [[cc * cb, sc * cb, -sb], [-sc, cc, 0.0], [0.0, 0.0, 1.0]],
+                }
+            }
+        }
+    }
+}
+
 /// Most joints in one leg's chain with closed-form first derivatives
 /// (longer chains use automatic differentiation).
 const MAX_CHAIN: usize = 12;
@@ -1585,18 +1600,29 @@ impl Mechanism for SpatialMechanism {
         use nalgebra::{Const, DMatrix, U1};
         use num_dual::DualSVec64;
         type D = DualSVec64<CHUNK>;
-        let v: Vec<f64> = q.iter().chain(rho).copied().collect();
-        let mut slot = vec![NOT_SEEDED; v.len()];
         let (nc, nt) = (self.spec.n_constraints, self.tool.len());
         let mut g = vec![0.0; nc];
         let mut dg = DMatrix::zeros(nc, cols.len());
         let mut dx = DMatrix::zeros(nt, cols.len());
-        let mut out = [D::from_re(0.0); 3];
+        let frame = self.platform_frame(q);
         for leg in &self.legs {
             if leg.joints.len() <= MAX_CHAIN {
-                self.leg_closed_derivatives(leg, q, rho, &cols, &mut g, &mut dg);
-                continue;
+                self.leg_closed_derivatives(leg, q, rho, &cols, &frame, (&mut g, &mut dg));
             }
+        }
+        // Longer chains: automatic differentiation of the leg.
+        let mut long = self
+            .legs
+            .iter()
+            .filter(|l| l.joints.len() > MAX_CHAIN)
+            .peekable();
+        let v: Vec<f64> = match long.peek() {
+            Some(_) => q.iter().chain(rho).copied().collect(),
+            None => vec![],
+        };
+        let mut slot = vec![NOT_SEEDED; v.len()];
+        let mut out = [D::from_re(0.0); 3];
+        for leg in long {
             let local: Vec<usize> = leg
                 .vars
                 .iter()

@@ -116,11 +116,21 @@ fn check_invariance<M: Mechanism>(m: &M, truth: &Params, poses: usize, far: &[f6
     // The "before" errors are judged after the best rigid registration, not
     // against a tracker 1 m away.
     assert!(acc_far.before.distance_max < 5.0, "{:?}", acc_far.before);
-    // Pretending the data were in the base frame cannot fit them.
+    // Pretending the data were in the base frame cannot fit them, unless the
+    // geometry absorbs the frame: a platform whose every base joint centre is
+    // free is the same machine described in the tracker's frame (its centres
+    // then move by about the frame's metre).
     if let Ok(c) = calibrate(m, &tool, &seen_from(m, &data, far), &start, &opts) {
+        let moved_by = c
+            .params
+            .geometric()
+            .iter()
+            .zip(near.params.geometric())
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
         assert!(
-            c.noise[0].residual_rms > 100.0 * near.noise[0].residual_rms,
-            "{:?}",
+            c.noise[0].residual_rms > 100.0 * near.noise[0].residual_rms || moved_by > 100.0,
+            "{:?}, parameters moved by {moved_by} mm",
             c.noise
         );
     }
