@@ -231,28 +231,52 @@ pub fn prepare_pose<M: Mechanism>(
     };
     let mut best: Option<(f64, Vec<f64>)> = None;
     let mut first_error = None;
-    let guess = mech.configuration_guess(commands, rho);
-    let mut candidates = [guess, start.map(<[f64]>::to_vec), None];
-    // The nearer of the guess and the caller's start first (fewer
-    // continuation stages): a stored configuration is often farther than
-    // the previous pose of a sequence.
-    if let [Some(g), Some(s), _] = &candidates
-        && crate::kinematics::continuation_stages(spec, s, &q_u)
-            < crate::kinematics::continuation_stages(spec, g, &q_u)
-    {
-        candidates.swap(0, 1);
+    // The caller's start first when it is one continuation stage away (the
+    // previous pose of a sequence; no search for a stored configuration),
+    // else the nearer of the two first.
+    #[derive(Clone, Copy)]
+    enum Start {
+        Guess,
+        Caller,
+        Reference,
     }
-    for (i, s) in candidates.into_iter().enumerate() {
-        let s = match s {
-            Some(s) => s,
-            None if i == 2 => match reference_configuration(mech, rho) {
+    let stages = |s: &[f64]| crate::kinematics::continuation_stages(spec, s, &q_u);
+    let caller_stages = start.map(stages);
+    let mut guess = None;
+    let mut guessed = false;
+    let order = if caller_stages.is_some_and(|n| n <= 1.0) {
+        [Start::Caller, Start::Guess, Start::Reference]
+    } else {
+        guess = mech.configuration_guess(commands, rho);
+        guessed = true;
+        match (&guess, caller_stages) {
+            (Some(g), Some(n)) if n < stages(g) => [Start::Caller, Start::Guess, Start::Reference],
+            _ => [Start::Guess, Start::Caller, Start::Reference],
+        }
+    };
+    for which in order {
+        let s = match which {
+            Start::Guess => {
+                if !guessed {
+                    guess = mech.configuration_guess(commands, rho);
+                    guessed = true;
+                }
+                match guess.take() {
+                    Some(g) => g,
+                    None => continue,
+                }
+            }
+            Start::Caller => match start {
+                Some(s) => s.to_vec(),
+                None => continue,
+            },
+            Start::Reference => match reference_configuration(mech, rho) {
                 Ok(r) => r,
                 Err(e) => {
                     first_error.get_or_insert(e);
                     continue;
                 }
             },
-            None => continue,
         };
         match forward_kinematics(mech, rho, &q_u, &s) {
             Ok(q) => {
@@ -342,6 +366,12 @@ pub fn predict_pose<M: Mechanism>(
         Model::Rigid => rigid_from(mech, pose, params, &pose.nominal_q),
         Model::Linear => linear_prediction(mech, pose, params, &force),
         Model::Exact => {
+            // From the nominal configuration (parameter errors are small),
+            // else from the linear model's pose (one more forward kinematics
+            // and the linearisation).
+            if let Ok(p) = exact_from(mech, pose, params, &force, &pose.nominal_q) {
+                return Ok(p);
+            }
             let lin = linear_prediction(mech, pose, params, &force)?;
             exact_from(mech, pose, params, &force, &lin.q)
         }
