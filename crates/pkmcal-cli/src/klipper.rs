@@ -628,7 +628,8 @@ fn height_errors(
     bed: &[f64],
     data: &[pkmcal::Measurement],
 ) -> Result<Vec<f64>> {
-    data.iter()
+    use rayon::prelude::*;
+    data.par_iter()
         .map(|m| {
             let pr = pkmcal::predict(mech, p, &m.commands, Model::Exact, &[])?;
             let mut y = [0.0];

@@ -87,6 +87,9 @@ impl Mechanism for AnyMechanism {
     fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
         each!(self, m => m.on_branch(q, rho))
     }
+    fn on_branch_near(&self, q: &[f64], rho: &[f64], jac: &crate::autodiff::Jacobians) -> bool {
+        each!(self, m => m.on_branch_near(q, rho, jac))
+    }
     fn check_params(&self, rho: &[f64]) -> Result<()> {
         each!(self, m => m.check_params(rho))
     }

@@ -541,4 +541,8 @@ impl Mechanism for GoughStewart {
     fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
         self.branch == 0 || crate::kinematics::branch_signs(self, q, rho)[0] == self.branch
     }
+
+    fn on_branch_near(&self, _q: &[f64], _rho: &[f64], jac: &crate::autodiff::Jacobians) -> bool {
+        self.branch == 0 || crate::kinematics::branch_signs_of(&self.spec, jac)[0] == self.branch
+    }
 }

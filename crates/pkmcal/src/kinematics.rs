@@ -36,6 +36,18 @@ pub fn solve_closure<M: Mechanism>(
     q: &mut [f64],
     fixed: &[usize],
 ) -> Result<usize> {
+    solve_closure_keeping(mech, rho, q, fixed).map(|(n, _)| n)
+}
+
+/// [`solve_closure`], also returning the derivatives (joint columns) of its
+/// last iteration, within Newton's tolerance of the solution (`None` when it
+/// stopped on the residual instead).
+fn solve_closure_keeping<M: Mechanism>(
+    mech: &M,
+    rho: &[f64],
+    q: &mut [f64],
+    fixed: &[usize],
+) -> Result<(usize, Option<crate::autodiff::Jacobians>)> {
     let spec = mech.spec();
     let nq = spec.joints.len();
     let free: Vec<usize> = (0..nq).filter(|i| !fixed.contains(i)).collect();
@@ -80,14 +92,14 @@ pub fn solve_closure<M: Mechanism>(
             q[i] -= scale * step[k];
         }
         if big < STEP_TOL || (big < 1e-9 && big >= last) {
-            return Ok(it + 1);
+            return Ok((it + 1, Some(j)));
         }
         last = big;
     }
     let g = jacobians(mech, q, rho, 0..0).g;
     let scale = rho.iter().fold(1.0f64, |m, v| m.max(v.abs()));
     if g.iter().all(|v| v.abs() < 1e-8 * scale * scale) {
-        return Ok(MAX_NEWTON);
+        return Ok((MAX_NEWTON, None));
     }
     Err(Error::NoConvergence {
         what: "loop closure".into(),
@@ -152,9 +164,12 @@ pub(crate) fn solve_scaled(a: DMatrix<f64>, b: DMatrix<f64>) -> Option<DMatrix<f
 /// changes only through a singularity, so a configuration whose signs differ
 /// from the reference configuration's is on another branch.
 pub fn branch_signs<M: Mechanism>(mech: &M, q: &[f64], rho: &[f64]) -> [i8; 2] {
-    let spec = mech.spec();
-    let nq = q.len();
-    let j = jacobians(mech, q, rho, 0..nq);
+    branch_signs_of(mech.spec(), &jacobians(mech, q, rho, 0..q.len()))
+}
+
+/// [`branch_signs`] from the derivatives (joint columns) at the configuration.
+pub fn branch_signs_of(spec: &crate::Spec, j: &crate::autodiff::Jacobians) -> [i8; 2] {
+    let nq = spec.joints.len();
     let dependent: Vec<usize> = (0..nq).filter(|i| !spec.independent.contains(i)).collect();
     let sign = |d: f64| {
         if d > 0.0 {
@@ -222,14 +237,19 @@ pub fn forward_kinematics<M: Mechanism>(
         )));
     }
     let stages = (stages as usize).max(1);
+    let mut last = None;
     for s in 1..=stages {
         let t = s as f64 / stages as f64;
         for (k, &i) in ind.iter().enumerate() {
             q[i] = from[k] + t * (q_u[k] - from[k]);
         }
-        solve_closure(mech, rho, &mut q, ind)?;
+        last = solve_closure_keeping(mech, rho, &mut q, ind)?.1;
     }
-    if !mech.on_branch(&q, rho) {
+    let on_branch = match &last {
+        Some(j) => mech.on_branch_near(&q, rho, j),
+        None => mech.on_branch(&q, rho),
+    };
+    if !on_branch {
         return Err(Error::Singular {
             q,
             reason: "the path from the start configuration crossed a singularity and left the assembly branch".into(),

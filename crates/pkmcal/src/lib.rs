@@ -77,7 +77,9 @@ pub use gough_stewart::{GoughStewart, GoughStewartAssembly, GoughStewartDescript
 pub use kinematics::{
     check_params, forward_kinematics, inverse_kinematics, reference_configuration, solve_closure,
 };
-pub use linearized::{Linearization, joint_errors, linearize, load_vector, projection};
+pub use linearized::{
+    Linearization, joint_errors, linearize, load_vector, projection, tool_derivatives,
+};
 pub use measurement::{DISTANCE_AXIS, Frame, Instrument, MeasurementModel, MeasurementSummary};
 pub use mechanism::{Mechanism, Params, Scalar, Spec};
 pub use models::{

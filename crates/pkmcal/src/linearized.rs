@@ -108,6 +108,43 @@ pub fn linearize<M: Mechanism>(
     })
 }
 
+/// `J_f` (eq. 9) and the tool's derivatives in ρ at fixed `q_u` (the
+/// `jf` and `jx_rho` of [`linearize`]) without the joints' sensitivities:
+/// with `Y = ∂x/∂q_v (∂g/∂q_v)⁻¹` (one solve with as many right-hand sides as
+/// tool coordinates), `J_f = ∂x/∂q_u − Y ∂g/∂q_u` and
+/// `∂x/∂ρ = ∂x/∂ρ|_q − Y ∂g/∂ρ` (eq. 5 substituted into the tool map).
+pub fn tool_derivatives<M: Mechanism>(
+    mech: &M,
+    q: &[f64],
+    rho: &[f64],
+    independent: &[usize],
+) -> Result<(DMatrix<f64>, DMatrix<f64>)> {
+    let spec = mech.spec();
+    let nq = spec.joints.len();
+    let nr = rho.len();
+    let dependent: Vec<usize> = (0..nq).filter(|i| !independent.contains(i)).collect();
+    if dependent.len() != spec.n_constraints {
+        return Err(Error::InvalidRequest(format!(
+            "{} independent joints given, the mechanism has {} degrees of freedom",
+            independent.len(),
+            spec.dof()
+        )));
+    }
+    let j = jacobians(mech, q, rho, 0..nq + nr);
+    let gq = j.dg.columns(0, nq);
+    let xq = j.dx.columns(0, nq);
+    // Yᵀ = (∂g/∂q_v)⁻ᵀ (∂x/∂q_v)ᵀ.
+    let yt = checked_lu(gq.select_columns(&dependent).transpose())
+        .and_then(|lu| lu.solve(&xq.select_columns(&dependent).transpose()))
+        .ok_or_else(|| Error::Singular {
+            q: q.to_vec(),
+            reason: "∂g/∂q_v is singular (the dependent joints are not determined)".into(),
+        })?;
+    let jf = xq.select_columns(independent) - yt.tr_mul(&gq.select_columns(independent));
+    let jx_rho = j.dx.columns(nq, nr) - yt.tr_mul(&j.dg.columns(nq, nr));
+    Ok((jf, jx_rho))
+}
+
 fn solve_square_multi(a: DMatrix<f64>, b: DMatrix<f64>) -> Option<DMatrix<f64>> {
     checked_lu(a)?.solve(&b)
 }

@@ -381,6 +381,14 @@ pub trait Mechanism: Send + Sync {
     fn on_branch(&self, _q: &[f64], _rho: &[f64]) -> bool {
         true
     }
+
+    /// [`Mechanism::on_branch`] given the derivatives (joint columns) at a
+    /// configuration within Newton's tolerance of `q` (the last iteration of
+    /// forward kinematics), for mechanisms that judge the branch from them.
+    /// The default ignores them.
+    fn on_branch_near(&self, q: &[f64], rho: &[f64], _jac: &crate::autodiff::Jacobians) -> bool {
+        self.on_branch(q, rho)
+    }
 }
 
 /// A full parameter vector `[ρ, Δq, k]` of a mechanism.

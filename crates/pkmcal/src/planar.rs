@@ -895,6 +895,10 @@ impl Mechanism for PlanarLinkage {
         self.branch == [0, 0] || crate::kinematics::branch_signs(self, q, rho) == self.branch
     }
 
+    fn on_branch_near(&self, _q: &[f64], _rho: &[f64], jac: &crate::autodiff::Jacobians) -> bool {
+        self.branch == [0, 0] || crate::kinematics::branch_signs_of(&self.spec, jac) == self.branch
+    }
+
     fn tool<D: Scalar>(&self, q: &[D], rho: &[D], x: &mut [D]) {
         let p = self.poses(q, rho);
         let t = world(

@@ -6,7 +6,7 @@
 use crate::autodiff::jacobians;
 use crate::error::{Error, Result};
 use crate::kinematics::solve_scaled;
-use crate::linearized::{linearize, load_vector};
+use crate::linearized::load_vector;
 use crate::mechanism::{Mechanism, Params};
 use crate::models::{Model, Pose, Prediction, independent_actuators, predict_pose};
 use nalgebra::{DMatrix, DVector};
@@ -59,21 +59,25 @@ pub fn sensitivity_at<M: Mechanism>(
     let force = crate::models::effective_force(mech, pose, force)?;
     let ind = independent_actuators(spec);
     let mut jac = DMatrix::zeros(nx, np);
-    match crate::models::effective_model(spec, model, &force) {
+    let effective = crate::models::effective_model(spec, model, &force);
+    match effective {
         Model::Rigid | Model::Linear => {
-            let lin = linearize(mech, &prediction.q, rho, &spec.independent)?;
+            let (jf, jx_rho) =
+                crate::linearized::tool_derivatives(mech, &prediction.q, rho, &spec.independent)?;
             // ∂x/∂ρ at fixed independent joints.
-            jac.columns_mut(0, ng).copy_from(&lin.jx_rho);
+            jac.columns_mut(0, ng).copy_from(&jx_rho);
             // ∂q_u/∂p, then through J_f.
             let mut dqu = DMatrix::zeros(spec.dof(), np);
-            if model == Model::Rigid {
+            // The model that computes (the exact and linear models are the
+            // rigid one when nothing loads the actuators).
+            if effective == Model::Rigid {
                 for (k, &a) in ind.iter().enumerate() {
                     dqu[(k, ng + a)] = 1.0;
                 }
             } else {
                 dqu = linear_qu_derivatives(mech, pose, params, &force)?;
             }
-            jac += &lin.jf * dqu;
+            jac += &jf * dqu;
             Ok(Sensitivity {
                 prediction,
                 jacobian: jac,

@@ -1418,6 +1418,9 @@ impl SpatialMechanism {
         };
         let none = [0.0; 3];
         let rel = |o: [f64; 3]| [e[0] - o[0], e[1] - o[1], e[2] - o[2]];
+        // Only joint columns asked (forward kinematics, branch checks): the
+        // parameters' blocks (tilts and all) are skipped.
+        let params_wanted = cols.end > nq;
         for (k, j) in leg.joints.iter().enumerate() {
             let st = steps[k];
             // The joint's own coordinate.
@@ -1427,6 +1430,9 @@ impl SpatialMechanism {
                 cross(st.w, rel(st.o))
             };
             add(j.q, d, none);
+            if !params_wanted {
+                continue;
+            }
             // Its position.
             for c in 0..3 {
                 add(nq + j.at[c], column(&st.before, c), none);
@@ -1465,12 +1471,14 @@ impl SpatialMechanism {
                 add(nq + t, de, none);
             }
         }
-        if let Some(a) = leg.angle {
-            add(nq + a, cross([0.0, 0.0, 1.0], e), none);
-        }
-        for c in 0..3 {
-            add(nq + leg.end_at[c], column(&r, c), none);
-            add(nq + leg.platform[c], none, column(&rot, c));
+        if params_wanted {
+            if let Some(a) = leg.angle {
+                add(nq + a, cross([0.0, 0.0, 1.0], e), none);
+            }
+            for c in 0..3 {
+                add(nq + leg.end_at[c], column(&r, c), none);
+                add(nq + leg.platform[c], none, column(&rot, c));
+            }
         }
         for (k, d) in dw.iter().enumerate().take(np) {
             add(self.pose0 + k, none, *d);
@@ -1749,7 +1757,17 @@ impl Mechanism for SpatialMechanism {
     /// The assembly and working modes of the reference configuration: the
     /// same signs of the forward and inverse kinematics determinants.
     fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
-        let s = crate::kinematics::branch_signs(self, q, rho);
+        self.same_branch(crate::kinematics::branch_signs(self, q, rho))
+    }
+
+    fn on_branch_near(&self, _q: &[f64], _rho: &[f64], jac: &crate::autodiff::Jacobians) -> bool {
+        self.same_branch(crate::kinematics::branch_signs_of(&self.spec, jac))
+    }
+}
+
+impl SpatialMechanism {
+    /// Whether determinant signs `s` are the reference configuration's.
+    fn same_branch(&self, s: [i8; 2]) -> bool {
         (self.branch[0] == 0 || s[0] == self.branch[0])
             && (self.branch[1] == 0 || s[1] == self.branch[1])
     }

@@ -27,6 +27,8 @@ const PER_LEG_REL: f64 = 1e-12;
 const CENTRAL_DIFF_REL: f64 = 1e-6;
 /// Two descriptions of one mechanism agree (mm, rad).
 const SAME_MECHANISM: f64 = 1e-9;
+/// The adjoint and the direct linearisation agree (relative).
+const ADJOINT_REL: f64 = 1e-9;
 /// Identification recovers simulated errors to within this (mm, rad).
 const RECOVERED: f64 = 1e-6;
 
@@ -882,5 +884,36 @@ fn deltas_start_forward_kinematics_in_closed_form() {
         assert!(m.configuration_guess(&far, rho).is_none(), "{name}");
         let err = pkmcal::predict(&m, &Params::nominal(spec), &far, Model::Rigid, &[]);
         assert!(err.is_err(), "{name}: {err:?}");
+    }
+}
+
+/// The tool's derivatives by the adjoint ([`pkmcal::tool_derivatives`], one
+/// solve per tool coordinate) equal the linearisation's (a solve per
+/// parameter), on every kind of mechanism, at perturbed parameters.
+#[test]
+fn tool_derivatives_by_the_adjoint_equal_the_linearisation() {
+    fn check<M: Mechanism>(name: &str, m: &M) {
+        let spec = m.spec();
+        let truth = perturbed_by_unit(spec, 3, 0.3, 0.002);
+        let rho = truth.geometric();
+        for t in common::spread(m, 6) {
+            let q = pkmcal::inverse_kinematics(m, rho, &t).unwrap();
+            let lin = pkmcal::linearize(m, &q, rho, &spec.independent).unwrap();
+            let (jf, jx) = pkmcal::tool_derivatives(m, &q, rho, &spec.independent).unwrap();
+            for (a, b) in lin
+                .jf
+                .iter()
+                .zip(jf.iter())
+                .chain(lin.jx_rho.iter().zip(jx.iter()))
+            {
+                assert!(close(*b, *a, ADJOINT_REL), "{name}: {a} vs {b}");
+            }
+        }
+    }
+    check("jeong-kim-2dof", &pkmcal::reference::JeongKim2Dof::new());
+    check("4-rrr", &common::planar("4-rrr"));
+    check("gough-stewart-8", &gough_stewart("gough-stewart-8"));
+    for name in EXAMPLES {
+        check(name, &spatial(name));
     }
 }
