@@ -258,7 +258,8 @@ pub struct PlanOptions {
 /// A measurement plan and how it compares with a plain grid of the same size.
 #[derive(Debug, Clone)]
 pub struct Plan {
-    /// The chosen poses, in the order chosen.
+    /// The chosen poses, in the candidates' (lattice) order: the same set
+    /// gives the same file, whichever path the selection took.
     pub poses: Vec<WorkspacePoint>,
     /// Observability of the chosen poses and the condition number of their
     /// column-scaled identification Jacobian.
@@ -329,7 +330,8 @@ pub fn plan<M: Mechanism>(
         points: cands.points[..candidates].to_vec(),
         rows: cands.rows[..candidates].to_vec(),
     };
-    let chosen = plan_poses_with_progress(&pool, opts.count, opts.criterion, tick)?;
+    let mut chosen = plan_poses_with_progress(&pool, opts.count, opts.criterion, tick)?;
+    chosen.sort_unstable();
     let (observability, condition) = plan_observability(&cands, &chosen);
     let grid_idx: Vec<usize> = (candidates..cands.points.len()).collect();
     let (grid_observability, grid_condition) = plan_observability(&cands, &grid_idx);

@@ -255,6 +255,19 @@ impl Mechanism for JeongKim2Dof {
         ])
     }
 
+    /// Closed form through the platform points: `∂g_k/∂v = 2 (P_i − P_j) ·
+    /// (∂P_i/∂v − ∂P_j/∂v)` (less `2 D_k` on `D_k`), and the tool
+    /// `P1 + (Ptx I + Pty J) u`, `u = (P2 − P1)/|P2 − P1|`, through
+    /// `∂u = (I − u uᵀ) ∂(P2 − P1) / |P2 − P1|` (`J` turns by +90°).
+    fn first_derivatives(
+        &self,
+        q: &[f64],
+        r: &[f64],
+        cols: std::ops::Range<usize>,
+    ) -> Option<crate::autodiff::Jacobians> {
+        Some(closed_form_jacobians(q, r, cols))
+    }
+
     /// Analytic second derivatives by the chain rule through the platform
     /// points `P = (P1, P2, P3)`: `∇²φ = Aᵀ ∇²_P φ̃ A + Σ_c ∂φ̃/∂P_c ∇²P_c`
     /// plus the tool offsets' mixed terms, with `A = ∂P/∂[q; ρ]`.
@@ -400,6 +413,91 @@ pub fn demo_truth() -> crate::Params {
 
 /// See [`Mechanism::weighted_hessian`] for [`JeongKim2Dof`]. Columns: the five
 /// joints, then the 16 geometric parameters.
+/// [`JeongKim2Dof::first_derivatives`].
+fn closed_form_jacobians(
+    q: &[f64],
+    r: &[f64],
+    cols: std::ops::Range<usize>,
+) -> crate::autodiff::Jacobians {
+    use nalgebra::DMatrix;
+    const NQ: usize = 5;
+    const NV: usize = 21;
+    let e = |a: f64| [a.cos(), a.sin()];
+    let ep = |a: f64| [-a.sin(), a.cos()];
+    let rho = |k: usize| NQ + k;
+    let [p1, p2, p3] = JeongKim2Dof::points(q, r);
+    let (a1, b1) = (q[0], q[0] + q[3]);
+    let (a2, b2) = (q[1], q[1] + q[4]);
+    let a3 = q[2];
+    let (ea1, eb1, epa1, epb1) = (e(a1), e(b1), ep(a1), ep(b1));
+    let (ea2, eb2, epa2, epb2) = (e(a2), e(b2), ep(a2), ep(b2));
+    // ∂P_i/∂v, dense over the 21 variables (zeros elsewhere).
+    let mut a = [[[0.0; 2]; NV]; 3];
+    let comb =
+        |x: [f64; 2], s: f64, y: [f64; 2], t: f64| [x[0] * s + y[0] * t, x[1] * s + y[1] * t];
+    a[0][0] = comb(epa1, r[0], epb1, r[1]);
+    a[0][3] = epb1.map(|c| c * r[1]);
+    a[0][rho(0)] = ea1;
+    a[0][rho(1)] = eb1;
+    a[0][rho(5)] = [1.0, 0.0];
+    a[0][rho(6)] = [0.0, 1.0];
+    a[1][1] = comb(epa2, r[2], epb2, r[3]);
+    a[1][4] = epb2.map(|c| c * r[3]);
+    a[1][rho(2)] = ea2;
+    a[1][rho(3)] = eb2;
+    a[1][rho(7)] = [1.0, 0.0];
+    a[1][rho(8)] = [0.0, 1.0];
+    a[2][2] = ep(a3).map(|c| c * r[4]);
+    a[2][rho(4)] = e(a3);
+    a[2][rho(9)] = [1.0, 0.0];
+    a[2][rho(10)] = [0.0, 1.0];
+    let p = [p1, p2, p3];
+    let mut g = vec![0.0; 3];
+    let mut dg = DMatrix::zeros(3, cols.len());
+    for (k, (i, j)) in [(0usize, 1usize), (1, 2), (2, 0)].into_iter().enumerate() {
+        let d = [p[i][0] - p[j][0], p[i][1] - p[j][1]];
+        g[k] = d[0] * d[0] + d[1] * d[1] - r[11 + k] * r[11 + k];
+        for (c, v) in cols.clone().enumerate() {
+            let mut val =
+                2.0 * (d[0] * (a[i][v][0] - a[j][v][0]) + d[1] * (a[i][v][1] - a[j][v][1]));
+            if v == rho(11 + k) {
+                val -= 2.0 * r[11 + k];
+            }
+            dg[(k, c)] = val;
+        }
+    }
+    let d = [p2[0] - p1[0], p2[1] - p1[1]];
+    let n = (d[0] * d[0] + d[1] * d[1]).sqrt();
+    let u = [d[0] / n, d[1] / n];
+    let ju = [-u[1], u[0]];
+    let x = vec![
+        p1[0] + r[14] * u[0] + r[15] * ju[0],
+        p1[1] + r[14] * u[1] + r[15] * ju[1],
+    ];
+    let mut dx = DMatrix::zeros(2, cols.len());
+    for (c, v) in cols.clone().enumerate() {
+        let dd = [a[1][v][0] - a[0][v][0], a[1][v][1] - a[0][v][1]];
+        let along = u[0] * dd[0] + u[1] * dd[1];
+        let du = [(dd[0] - u[0] * along) / n, (dd[1] - u[1] * along) / n];
+        // (Ptx I + Pty J) du, J du = (−du_y, du_x).
+        let mut col = [
+            a[0][v][0] + r[14] * du[0] - r[15] * du[1],
+            a[0][v][1] + r[14] * du[1] + r[15] * du[0],
+        ];
+        if v == rho(14) {
+            col[0] += u[0];
+            col[1] += u[1];
+        }
+        if v == rho(15) {
+            col[0] += ju[0];
+            col[1] += ju[1];
+        }
+        dx[(0, c)] = col[0];
+        dx[(1, c)] = col[1];
+    }
+    crate::autodiff::Jacobians { g, x, dg, dx }
+}
+
 fn analytic_weighted_hessian(
     q: &[f64],
     r: &[f64],

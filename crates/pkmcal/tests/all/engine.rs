@@ -463,6 +463,53 @@ fn gough_stewart_closed_form_derivatives_equal_automatic_ones() {
     }
 }
 
+/// The reference mechanism's closed-form Jacobians equal automatic
+/// differentiation's on every column range, at perturbed parameters and
+/// configurations away from closure.
+#[test]
+fn reference_closed_form_derivatives_equal_automatic_ones() {
+    use rand::{RngExt, SeedableRng};
+    let m = JeongKim2Dof::new();
+    let spec = m.spec();
+    let n = spec.joints.len() + spec.n_geometric();
+    let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+    for seed in 0..5 {
+        let rho = common::perturbed(spec, seed, 0.5, 1e-3).values[..spec.n_geometric()].to_vec();
+        let mut q = spec.reference_q.clone();
+        for v in &mut q {
+            *v += rng.random_range(-0.2..0.2);
+        }
+        for cols in [0..n, 0..spec.joints.len(), 3..17, n - 5..n, 0..0] {
+            let closed = jacobians(&m, &q, &rho, cols.clone());
+            let auto = pkmcal::autodiff::automatic_jacobians(&m, &q, &rho, cols.clone());
+            let close = |a: f64, b: f64| (a - b).abs() <= CLOSED_FORM_REL * (1.0 + b.abs());
+            assert!(closed.g.iter().zip(&auto.g).all(|(a, b)| close(*a, *b)));
+            assert!(closed.x.iter().zip(&auto.x).all(|(a, b)| close(*a, *b)));
+            assert_eq!(closed.dg.shape(), auto.dg.shape());
+            assert!(
+                closed
+                    .dg
+                    .iter()
+                    .zip(auto.dg.iter())
+                    .all(|(a, b)| close(*a, *b)),
+                "dg {cols:?}\n{}\n{}",
+                closed.dg,
+                auto.dg
+            );
+            assert!(
+                closed
+                    .dx
+                    .iter()
+                    .zip(auto.dx.iter())
+                    .all(|(a, b)| close(*a, *b)),
+                "dx {cols:?}\n{}\n{}",
+                closed.dx,
+                auto.dx
+            );
+        }
+    }
+}
+
 /// The Gough–Stewart closed-form second derivatives (the equilibrium's
 /// curvature and the exact model's identification Hessian) equal automatic
 /// differentiation's.
