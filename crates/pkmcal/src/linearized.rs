@@ -58,14 +58,7 @@ pub fn linearize<M: Mechanism>(
     let spec = mech.spec();
     let nq = spec.joints.len();
     let nr = rho.len();
-    let dependent: Vec<usize> = (0..nq).filter(|i| !independent.contains(i)).collect();
-    if dependent.len() != spec.n_constraints {
-        return Err(Error::InvalidRequest(format!(
-            "{} independent joints given, the mechanism has {} degrees of freedom",
-            independent.len(),
-            spec.dof()
-        )));
-    }
+    let dependent = dependent_joints(spec, independent)?;
     let j = jacobians(mech, q, rho, 0..nq + nr);
     let gq = j.dg.columns(0, nq);
     let gu = gq.select_columns(independent);
@@ -122,14 +115,7 @@ pub fn tool_derivatives<M: Mechanism>(
     let spec = mech.spec();
     let nq = spec.joints.len();
     let nr = rho.len();
-    let dependent: Vec<usize> = (0..nq).filter(|i| !independent.contains(i)).collect();
-    if dependent.len() != spec.n_constraints {
-        return Err(Error::InvalidRequest(format!(
-            "{} independent joints given, the mechanism has {} degrees of freedom",
-            independent.len(),
-            spec.dof()
-        )));
-    }
+    let dependent = dependent_joints(spec, independent)?;
     let j = jacobians(mech, q, rho, 0..nq + nr);
     let gq = j.dg.columns(0, nq);
     let xq = j.dx.columns(0, nq);
@@ -143,6 +129,21 @@ pub fn tool_derivatives<M: Mechanism>(
     let jf = xq.select_columns(independent) - yt.tr_mul(&gq.select_columns(independent));
     let jx_rho = j.dx.columns(nq, nr) - yt.tr_mul(&j.dg.columns(nq, nr));
     Ok((jf, jx_rho))
+}
+
+/// The joints not in `independent`, as many as constraints.
+fn dependent_joints(spec: &crate::Spec, independent: &[usize]) -> Result<Vec<usize>> {
+    let dependent: Vec<usize> = (0..spec.joints.len())
+        .filter(|i| !independent.contains(i))
+        .collect();
+    if dependent.len() != spec.n_constraints {
+        return Err(Error::InvalidRequest(format!(
+            "{} independent joints given, the mechanism has {} degrees of freedom",
+            independent.len(),
+            spec.dof()
+        )));
+    }
+    Ok(dependent)
 }
 
 fn solve_square_multi(a: DMatrix<f64>, b: DMatrix<f64>) -> Option<DMatrix<f64>> {
