@@ -15,6 +15,12 @@ const CONTINUATION_STEP: f64 = 0.1;
 const CONTINUATION_STEP_MM: f64 = 10.0;
 /// Tool travel (mm, or rad) of one inverse-kinematics continuation stage.
 const IK_STAGE: f64 = 10.0;
+/// The stage tried first: most paths need no shorter one.
+const IK_STAGE_LONG: f64 = 50.0;
+/// Newton's step (rad or mm) below which an intermediate inverse-kinematics
+/// stage counts as reached: the next stage starts within its quadratic
+/// convergence, and the last one converges to [`STEP_TOL`].
+const INTERMEDIATE_TOL: f64 = 1e-3;
 /// Most inverse-kinematics continuation stages (10 m of travel).
 pub const MAX_IK_STAGES: usize = 1000;
 /// Most continuation stages of one forward-kinematics solve: the work is
@@ -72,22 +78,7 @@ fn solve_closure_keeping<M: Mechanism>(
         if !big.is_finite() {
             big = f64::INFINITY;
         }
-        // Damped step: never more than 0.5 rad, or 50 mm on a length, at
-        // once (a length step measured in rad at MM_PER_RAD).
-        let turn = free
-            .iter()
-            .zip(step.iter())
-            .map(|(&i, d)| match spec.joint_units[i] {
-                crate::Unit::Radian => d.abs(),
-                _ => d.abs() / MM_PER_RAD,
-            })
-            .fold(0.0, f64::max);
-        let turn = if turn.is_finite() {
-            turn
-        } else {
-            f64::INFINITY
-        };
-        let scale = if turn > 0.5 { 0.5 / turn } else { 1.0 };
+        let scale = damping(spec, &free, step.as_slice());
         for (k, &i) in free.iter().enumerate() {
             q[i] -= scale * step[k];
         }
@@ -107,6 +98,26 @@ fn solve_closure_keeping<M: Mechanism>(
             "the legs cannot be assembled at joints {q:?} (residual {g:?}); the actuator values are probably outside the workspace"
         ),
     })
+}
+
+/// The factor of a damped Newton step `step` on the joints `joints`: never
+/// more than 0.5 rad, or 50 mm on a length, at once (a length step measured
+/// in rad at [`MM_PER_RAD`]).
+fn damping(spec: &crate::Spec, joints: &[usize], step: &[f64]) -> f64 {
+    let turn = joints
+        .iter()
+        .zip(step)
+        .map(|(&i, d)| match spec.joint_units[i] {
+            crate::Unit::Radian => d.abs(),
+            _ => d.abs() / MM_PER_RAD,
+        })
+        .fold(0.0, f64::max);
+    let turn = if turn.is_finite() {
+        turn
+    } else {
+        f64::INFINITY
+    };
+    if turn > 0.5 { 0.5 / turn } else { 1.0 }
 }
 
 /// LU factorisation (partial pivoting) of a square matrix, or `None` when a
@@ -389,14 +400,34 @@ pub fn inverse_kinematics<M: Mechanism>(mech: &M, rho: &[f64], target: &[f64]) -
                 .into(),
         ));
     }
-    let mut q = reference_configuration(mech, rho)?;
+    // Long stages first (few Newton iterations); if that path leaves the
+    // branch or Newton fails on it, the short stages, which follow the
+    // branch more closely.
+    let start = reference_configuration(mech, rho)?;
+    ik_continuation(mech, rho, target, &start, IK_STAGE_LONG)
+        .or_else(|_| ik_continuation(mech, rho, target, &start, IK_STAGE))
+}
+
+/// Newton inverse kinematics from the reference configuration, the target
+/// approached from the reference configuration `start` in straight-line
+/// stages of at most `stage` (mm or rad).
+fn ik_continuation<M: Mechanism>(
+    mech: &M,
+    rho: &[f64],
+    target: &[f64],
+    start: &[f64],
+    stage: f64,
+) -> Result<Vec<f64>> {
+    let spec = mech.spec();
+    let nq = spec.joints.len();
+    let mut q = start.to_vec();
     let x0 = jacobians(mech, &q, rho, 0..0).x;
     let span = x0
         .iter()
         .zip(target)
         .map(|(a, b)| (a - b).abs())
         .fold(0.0, f64::max);
-    let stages = (span / IK_STAGE).ceil();
+    let stages = (span / stage).ceil();
     if stages.is_nan() || stages > MAX_IK_STAGES as f64 {
         return Err(Error::Unreachable {
             target: target.to_vec(),
@@ -406,6 +437,7 @@ pub fn inverse_kinematics<M: Mechanism>(mech: &M, rho: &[f64], target: &[f64]) -
         });
     }
     let stages = (stages as usize).max(1);
+    let all: Vec<usize> = (0..nq).collect();
     for s in 1..=stages {
         let t = s as f64 / stages as f64;
         let goal: Vec<f64> = x0
@@ -433,11 +465,18 @@ pub fn inverse_kinematics<M: Mechanism>(mech: &M, rho: &[f64], target: &[f64]) -
                 reason: "the path from the reference configuration meets a singularity".into(),
             })?;
             let big = step.amax();
-            let scale = if big > 0.5 { 0.5 / big } else { 1.0 };
+            let scale = damping(spec, &all, step.as_slice());
             for i in 0..nq {
                 q[i] -= scale * step[i];
             }
-            if big < STEP_TOL * 10.0 {
+            // The intermediate stages only keep the path on its branch: they
+            // stop well before Newton's full precision.
+            let tol = if s < stages {
+                INTERMEDIATE_TOL
+            } else {
+                STEP_TOL * 10.0
+            };
+            if big < tol {
                 converged = true;
                 break;
             }

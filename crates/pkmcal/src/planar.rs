@@ -656,49 +656,62 @@ impl PlanarLinkage {
     }
 }
 
-/// A body pose `[x, y, θ]` with the derivative of each component in every
-/// variable of `[q; ρ]`.
+/// A body pose `[x, y, θ]` with the derivative of each component in the
+/// first `nd` variables of `[q; ρ]` (all of them, or the joints only).
 #[derive(Clone)]
-struct PoseDerivative {
-    p: [f64; 3],
-    d: [Vec<f64>; 3],
+struct PoseDerivative<D> {
+    p: [D; 3],
+    d: [Vec<D>; 3],
 }
 
-impl PoseDerivative {
-    fn ground(nv: usize) -> Self {
+impl<D: Scalar> PoseDerivative<D> {
+    fn ground(nd: usize) -> Self {
+        let zero = D::from(0.0);
         Self {
-            p: [0.0; 3],
-            d: [vec![0.0; nv], vec![0.0; nv], vec![0.0; nv]],
+            p: [zero; 3],
+            d: [vec![zero; nd], vec![zero; nd], vec![zero; nd]],
         }
     }
 
-    /// The point `(x, y)` of the body's frame (parameters `ix`, `iy` of
+    /// The point `(x, y)` of the body's frame (variables `ix`, `iy` of
     /// `[q; ρ]`) in the ground frame, with its derivatives.
-    fn world(&self, x: f64, y: f64, ix: usize, iy: usize) -> ([f64; 2], [Vec<f64>; 2]) {
+    fn world(&self, x: D, y: D, ix: usize, iy: usize) -> ([D; 2], [Vec<D>; 2]) {
         let (s, c) = self.p[2].sin_cos();
         let pt = [self.p[0] + c * x - s * y, self.p[1] + s * x + c * y];
-        let (kx, ky) = (-s * x - c * y, c * x - s * y);
+        let (kx, ky) = (-(s * x) - c * y, c * x - s * y);
         let mut dx = self.d[0].clone();
         let mut dy = self.d[1].clone();
         for ((a, b), t) in dx.iter_mut().zip(dy.iter_mut()).zip(&self.d[2]) {
-            *a += kx * t;
-            *b += ky * t;
+            *a += kx * *t;
+            *b += ky * *t;
         }
-        dx[ix] += c;
-        dx[iy] -= s;
-        dy[ix] += s;
-        dy[iy] += c;
+        if ix < dx.len() {
+            dx[ix] += c;
+            dy[ix] += s;
+        }
+        if iy < dx.len() {
+            dx[iy] -= s;
+            dy[iy] += c;
+        }
         (pt, [dx, dy])
     }
 }
 
+/// Constraint and tool values with their derivatives in the first `nd`
+/// variables of `[q; ρ]`: one row per output.
+struct ClosedForm<D> {
+    g: Vec<D>,
+    x: Vec<D>,
+    dg: Vec<Vec<D>>,
+    dx: Vec<Vec<D>>,
+}
+
 impl PlanarLinkage {
-    /// Body poses with their derivatives (the closed form of
-    /// [`PlanarLinkage::poses`]).
-    fn pose_derivatives(&self, q: &[f64], rho: &[f64]) -> Vec<PoseDerivative> {
+    /// Body poses with their derivatives in the first `nd` variables of
+    /// `[q; ρ]` (the closed form of [`PlanarLinkage::poses`]).
+    fn pose_derivatives<D: Scalar>(&self, q: &[D], rho: &[D], nd: usize) -> Vec<PoseDerivative<D>> {
         let nq = q.len();
-        let nv = nq + rho.len();
-        let mut out = vec![PoseDerivative::ground(nv); self.n_bodies];
+        let mut out = vec![PoseDerivative::ground(nd); self.n_bodies];
         for (i, j) in self.joints.iter().enumerate() {
             if j.closing.is_some() {
                 continue;
@@ -709,7 +722,9 @@ impl PlanarLinkage {
             let mut dth = parent.d[2].clone();
             let child = match j.kind {
                 JointKind::Revolute => {
-                    dth[i] += 1.0;
+                    if i < nd {
+                        dth[i] += D::from(1.0);
+                    }
                     PoseDerivative {
                         p: [a[0], a[1], parent.p[2] + q[i]],
                         d: [dax, day, dth],
@@ -718,16 +733,21 @@ impl PlanarLinkage {
                 JointKind::Prismatic => {
                     let axis = j.axis.expect("prismatic");
                     let ang = parent.p[2] + rho[axis];
-                    dth[nq + axis] += 1.0;
+                    if nq + axis < nd {
+                        dth[nq + axis] += D::from(1.0);
+                    }
                     let (sa, ca) = ang.sin_cos();
                     let mut dx = dax;
                     let mut dy = day;
+                    let (ks, kc) = (sa * q[i], ca * q[i]);
                     for ((x, y), t) in dx.iter_mut().zip(dy.iter_mut()).zip(&dth) {
-                        *x -= sa * q[i] * t;
-                        *y += ca * q[i] * t;
+                        *x -= ks * *t;
+                        *y += kc * *t;
                     }
-                    dx[i] += ca;
-                    dy[i] += sa;
+                    if i < nd {
+                        dx[i] += ca;
+                        dy[i] += sa;
+                    }
                     PoseDerivative {
                         p: [a[0] + ca * q[i], a[1] + sa * q[i], ang],
                         d: [dx, dy, dth],
@@ -739,24 +759,19 @@ impl PlanarLinkage {
         out
     }
 
-    fn closed_form_jacobians(
-        &self,
-        q: &[f64],
-        rho: &[f64],
-        cols: std::ops::Range<usize>,
-    ) -> crate::autodiff::Jacobians {
-        use nalgebra::DMatrix;
+    /// The closing joints' equations and the tool map with their
+    /// derivatives in the first `nd` variables of `[q; ρ]`, in any scalar:
+    /// plain numbers for the first derivatives, dual numbers over it for the
+    /// second ([`PlanarLinkage::second_derivatives`]).
+    fn closed_form<D: Scalar>(&self, q: &[D], rho: &[D], nd: usize) -> ClosedForm<D> {
         let nq = q.len();
-        let p = self.pose_derivatives(q, rho);
+        let p = self.pose_derivatives(q, rho, nd);
         let m = self.spec.n_constraints;
-        let nx = self.spec.tool_axes.len();
-        let mut g = vec![0.0; m];
-        let mut dg = DMatrix::zeros(m, cols.len());
-        let put = |dm: &mut DMatrix<f64>, r: usize, d: &[f64]| {
-            for (k, c) in cols.clone().enumerate() {
-                dm[(r, k)] = d[c];
-            }
-        };
+        let zero = D::from(0.0);
+        let length = D::from(self.length);
+        let mut g = vec![zero; m];
+        let mut dg = vec![vec![]; m];
+        let sub = |u: &[D], v: &[D]| -> Vec<D> { u.iter().zip(v).map(|(a, b)| *a - *b).collect() };
         let mut k = 0;
         for (i, j) in self.joints.iter().enumerate() {
             let Some(c) = &j.closing else { continue };
@@ -768,45 +783,51 @@ impl PlanarLinkage {
                 nq + c.child_at[0],
                 nq + c.child_at[1],
             );
-            let sub = |u: &[f64], v: &[f64]| -> Vec<f64> {
-                u.iter().zip(v).map(|(a, b)| a - b).collect()
-            };
             match j.kind {
                 JointKind::Revolute => {
                     g[k] = a[0] - b[0];
                     g[k + 1] = a[1] - b[1];
-                    g[k + 2] = (pc.p[2] - pp.p[2] - q[i]) * self.length;
-                    put(&mut dg, k, &sub(&dax, &dbx));
-                    put(&mut dg, k + 1, &sub(&day, &dby));
+                    g[k + 2] = (pc.p[2] - pp.p[2] - q[i]) * length;
+                    dg[k] = sub(&dax, &dbx);
+                    dg[k + 1] = sub(&day, &dby);
                     let mut dt = sub(&pc.d[2], &pp.d[2]);
-                    dt[i] -= 1.0;
-                    dt.iter_mut().for_each(|v| *v *= self.length);
-                    put(&mut dg, k + 2, &dt);
+                    if i < nd {
+                        dt[i] -= D::from(1.0);
+                    }
+                    dt.iter_mut().for_each(|v| *v *= length);
+                    dg[k + 2] = dt;
                 }
                 JointKind::Prismatic => {
                     let axis = j.axis.expect("prismatic");
                     let ca_idx = c.child_angle.expect("prismatic");
                     let ang = pp.p[2] + rho[axis];
                     let mut dang = pp.d[2].clone();
-                    dang[nq + axis] += 1.0;
+                    if nq + axis < nd {
+                        dang[nq + axis] += D::from(1.0);
+                    }
                     let (sn, cs) = ang.sin_cos();
                     g[k] = a[0] + cs * q[i] - b[0];
                     g[k + 1] = a[1] + sn * q[i] - b[1];
-                    g[k + 2] = (pc.p[2] - ang - rho[ca_idx]) * self.length;
+                    g[k + 2] = (pc.p[2] - ang - rho[ca_idx]) * length;
                     let mut d0 = sub(&dax, &dbx);
                     let mut d1 = sub(&day, &dby);
+                    let (ks, kc) = (sn * q[i], cs * q[i]);
                     for ((x, y), t) in d0.iter_mut().zip(d1.iter_mut()).zip(&dang) {
-                        *x -= sn * q[i] * t;
-                        *y += cs * q[i] * t;
+                        *x -= ks * *t;
+                        *y += kc * *t;
                     }
-                    d0[i] += cs;
-                    d1[i] += sn;
-                    put(&mut dg, k, &d0);
-                    put(&mut dg, k + 1, &d1);
+                    if i < nd {
+                        d0[i] += cs;
+                        d1[i] += sn;
+                    }
+                    dg[k] = d0;
+                    dg[k + 1] = d1;
                     let mut dt = sub(&pc.d[2], &dang);
-                    dt[nq + ca_idx] -= 1.0;
-                    dt.iter_mut().for_each(|v| *v *= self.length);
-                    put(&mut dg, k + 2, &dt);
+                    if nq + ca_idx < nd {
+                        dt[nq + ca_idx] -= D::from(1.0);
+                    }
+                    dt.iter_mut().for_each(|v| *v *= length);
+                    dg[k + 2] = dt;
                 }
             }
             k += 3;
@@ -819,14 +840,70 @@ impl PlanarLinkage {
             nq + self.tool_at[1],
         );
         let mut x = vec![t[0], t[1]];
-        let mut dx = DMatrix::zeros(nx, cols.len());
-        put(&mut dx, 0, &dtx);
-        put(&mut dx, 1, &dty);
+        let mut dx = vec![dtx, dty];
         if self.orientation {
             x.push(tb.p[2]);
-            put(&mut dx, 2, &tb.d[2]);
+            dx.push(tb.d[2].clone());
         }
-        crate::autodiff::Jacobians { g, x, dg, dx }
+        ClosedForm { g, x, dg, dx }
+    }
+
+    fn closed_form_jacobians(
+        &self,
+        q: &[f64],
+        rho: &[f64],
+        cols: std::ops::Range<usize>,
+    ) -> crate::autodiff::Jacobians {
+        use nalgebra::DMatrix;
+        let f = self.closed_form(q, rho, cols.end);
+        let pick = |rows: &[Vec<f64>]| {
+            DMatrix::from_fn(rows.len(), cols.len(), |r, k| rows[r][cols.start + k])
+        };
+        crate::autodiff::Jacobians {
+            dg: pick(&f.dg),
+            dx: pick(&f.dx),
+            g: f.g,
+            x: f.x,
+        }
+    }
+
+    /// Second derivatives by forward-mode differentiation of the closed-form
+    /// first derivatives in the joints: `∂/∂v_c (∂y_o/∂q_i)` for every output
+    /// `o` (constraints, then tool), joint `i` and column `c` of `cols`,
+    /// passed to `sink(o, i, c − cols.start, value)`.
+    fn second_derivatives(
+        &self,
+        q: &[f64],
+        rho: &[f64],
+        cols: std::ops::Range<usize>,
+        mut sink: impl FnMut(usize, usize, usize, f64),
+    ) {
+        use nalgebra::{Const, U1};
+        use num_dual::DualSVec64;
+        const C: usize = 8;
+        let nq = q.len();
+        let v0: Vec<f64> = q.iter().chain(rho).copied().collect();
+        let mut v: Vec<DualSVec64<C>> = v0.iter().map(|&a| DualSVec64::from_re(a)).collect();
+        let mut start = cols.start;
+        while start < cols.end {
+            let end = (start + C).min(cols.end);
+            for (k, i) in (start..end).enumerate() {
+                v[i] = DualSVec64::from_re(v0[i]).derivative(k);
+            }
+            let f = self.closed_form(&v[..nq], &v[nq..], nq);
+            for (o, row) in f.dg.iter().chain(&f.dx).enumerate() {
+                for (i, d) in row.iter().enumerate() {
+                    let e = d.eps.unwrap_generic(Const::<C>, U1);
+                    for k in 0..end - start {
+                        sink(o, i, start - cols.start + k, e[k]);
+                    }
+                }
+            }
+            for i in start..end {
+                v[i] = DualSVec64::from_re(v0[i]);
+            }
+            start = end;
+        }
     }
 }
 
@@ -881,6 +958,35 @@ impl Mechanism for PlanarLinkage {
         cols: std::ops::Range<usize>,
     ) -> Option<crate::autodiff::Jacobians> {
         Some(self.closed_form_jacobians(q, rho, cols))
+    }
+
+    /// Forward-mode dual numbers over the closed-form first derivatives
+    /// (`∇_q φ = Gᵀλ + Xᵀμ` differentiated in every column) instead of
+    /// hyper-dual numbers over the loop closure.
+    fn weighted_hessian(
+        &self,
+        q: &[f64],
+        rho: &[f64],
+        lambda: &[f64],
+        mu: &[f64],
+    ) -> nalgebra::DMatrix<f64> {
+        let nq = q.len();
+        let mut out = nalgebra::DMatrix::zeros(nq, nq + rho.len());
+        let weights: Vec<f64> = lambda.iter().chain(mu).copied().collect();
+        self.second_derivatives(q, rho, 0..nq + rho.len(), |o, i, c, v| {
+            out[(i, c)] += weights[o] * v
+        });
+        out
+    }
+
+    /// The per-output joint Hessians by the same forward-mode route as
+    /// [`Mechanism::weighted_hessian`].
+    fn joint_hessians(&self, q: &[f64], rho: &[f64]) -> Vec<nalgebra::DMatrix<f64>> {
+        let nq = q.len();
+        let n_out = self.spec.n_constraints + self.spec.tool_axes.len();
+        let mut out = vec![nalgebra::DMatrix::zeros(nq, nq); n_out];
+        self.second_derivatives(q, rho, 0..nq, |o, i, c, v| out[o][(i, c)] = v);
+        out
     }
 
     /// The tool point (and with `orientation`, the tool body's angle).

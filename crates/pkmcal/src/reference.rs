@@ -282,13 +282,13 @@ impl Mechanism for JeongKim2Dof {
     }
 
     fn joint_hessians(&self, q: &[f64], r: &[f64]) -> Vec<nalgebra::DMatrix<f64>> {
+        // The points' derivatives once, weighted per output; joint columns only.
+        let points = PointDerivatives::new(q, r);
         (0..5)
             .map(|o| {
                 let mut w = [0.0; 5];
                 w[o] = 1.0;
-                analytic_weighted_hessian(q, r, &w[..3], &w[3..])
-                    .columns(0, 5)
-                    .into_owned()
+                points.weighted_hessian(r, &w[..3], &w[3..], 5)
             })
             .collect()
     }
@@ -504,127 +504,167 @@ fn analytic_weighted_hessian(
     lambda: &[f64],
     mu: &[f64],
 ) -> nalgebra::DMatrix<f64> {
-    use nalgebra::{DMatrix, Matrix2, Vector2};
-    const NQ: usize = 5;
-    const NV: usize = 21;
-    let e = |a: f64| Vector2::new(a.cos(), a.sin());
-    let ep = |a: f64| Vector2::new(-a.sin(), a.cos());
-    // Indices into v = [q1..q5, ρ].
-    let rho = |k: usize| NQ + k;
-    let [p1, p2, p3] = JeongKim2Dof::points(q, r).map(|p| Vector2::new(p[0], p[1]));
-    // A = ∂P/∂v: per point, a list of (column, derivative).
-    let (a1, b1) = (q[0], q[0] + q[3]);
-    let (a2, b2) = (q[1], q[1] + q[4]);
-    let a3 = q[2];
-    let first: [Vec<(usize, Vector2<f64>)>; 3] = [
-        vec![
-            (0, ep(a1) * r[0] + ep(b1) * r[1]),
-            (3, ep(b1) * r[1]),
-            (rho(0), e(a1)),
-            (rho(1), e(b1)),
-            (rho(5), Vector2::new(1.0, 0.0)),
-            (rho(6), Vector2::new(0.0, 1.0)),
-        ],
-        vec![
-            (1, ep(a2) * r[2] + ep(b2) * r[3]),
-            (4, ep(b2) * r[3]),
-            (rho(2), e(a2)),
-            (rho(3), e(b2)),
-            (rho(7), Vector2::new(1.0, 0.0)),
-            (rho(8), Vector2::new(0.0, 1.0)),
-        ],
-        vec![
-            (2, ep(a3) * r[4]),
-            (rho(4), e(a3)),
-            (rho(9), Vector2::new(1.0, 0.0)),
-            (rho(10), Vector2::new(0.0, 1.0)),
-        ],
-    ];
-    // Second derivatives of each point, rows in q: (row, column, value).
-    let second: [Vec<(usize, usize, Vector2<f64>)>; 3] = [
-        vec![
-            (0, 0, -(e(a1) * r[0] + e(b1) * r[1])),
-            (0, 3, -e(b1) * r[1]),
-            (3, 0, -e(b1) * r[1]),
-            (3, 3, -e(b1) * r[1]),
-            (0, rho(0), ep(a1)),
-            (0, rho(1), ep(b1)),
-            (3, rho(1), ep(b1)),
-        ],
-        vec![
-            (1, 1, -(e(a2) * r[2] + e(b2) * r[3])),
-            (1, 4, -e(b2) * r[3]),
-            (4, 1, -e(b2) * r[3]),
-            (4, 4, -e(b2) * r[3]),
-            (1, rho(2), ep(a2)),
-            (1, rho(3), ep(b2)),
-            (4, rho(3), ep(b2)),
-        ],
-        vec![(2, 2, -e(a3) * r[4]), (2, rho(4), ep(a3))],
-    ];
-    // Outer function φ̃(P, D, Pt): gradient and Hessian in P (2×2 blocks).
-    let p = [p1, p2, p3];
-    let mut grad = [Vector2::zeros(); 3];
-    let mut hess = [[Matrix2::zeros(); 3]; 3];
-    for (k, (i, j)) in [(0usize, 1usize), (1, 2), (2, 0)].into_iter().enumerate() {
-        let d = p[i] - p[j];
-        grad[i] += d * (2.0 * lambda[k]);
-        grad[j] -= d * (2.0 * lambda[k]);
-        let h = Matrix2::identity() * (2.0 * lambda[k]);
-        hess[i][i] += h;
-        hess[j][j] += h;
-        hess[i][j] -= h;
-        hess[j][i] -= h;
+    PointDerivatives::new(q, r).weighted_hessian(r, lambda, mu, 21)
+}
+
+/// The platform points `P1, P2, P3` at a configuration with their first and
+/// second derivatives (`A = ∂P/∂[q; ρ]` and `∇²P`, sparse), shared by every
+/// weighting of [`analytic_weighted_hessian`].
+struct PointDerivatives {
+    p: [nalgebra::Vector2<f64>; 3],
+    /// Per point: (column of `[q; ρ]`, derivative).
+    first: [Vec<(usize, nalgebra::Vector2<f64>)>; 3],
+    /// Per point: (joint row, column, second derivative).
+    second: [Vec<(usize, usize, nalgebra::Vector2<f64>)>; 3],
+}
+
+impl PointDerivatives {
+    fn new(q: &[f64], r: &[f64]) -> Self {
+        use nalgebra::Vector2;
+        const NQ: usize = 5;
+        let e = |a: f64| Vector2::new(a.cos(), a.sin());
+        let ep = |a: f64| Vector2::new(-a.sin(), a.cos());
+        // Indices into v = [q1..q5, ρ].
+        let rho = |k: usize| NQ + k;
+        let [p1, p2, p3] = JeongKim2Dof::points(q, r).map(|p| Vector2::new(p[0], p[1]));
+        // A = ∂P/∂v: per point, a list of (column, derivative).
+        let (a1, b1) = (q[0], q[0] + q[3]);
+        let (a2, b2) = (q[1], q[1] + q[4]);
+        let a3 = q[2];
+        let first: [Vec<(usize, Vector2<f64>)>; 3] = [
+            vec![
+                (0, ep(a1) * r[0] + ep(b1) * r[1]),
+                (3, ep(b1) * r[1]),
+                (rho(0), e(a1)),
+                (rho(1), e(b1)),
+                (rho(5), Vector2::new(1.0, 0.0)),
+                (rho(6), Vector2::new(0.0, 1.0)),
+            ],
+            vec![
+                (1, ep(a2) * r[2] + ep(b2) * r[3]),
+                (4, ep(b2) * r[3]),
+                (rho(2), e(a2)),
+                (rho(3), e(b2)),
+                (rho(7), Vector2::new(1.0, 0.0)),
+                (rho(8), Vector2::new(0.0, 1.0)),
+            ],
+            vec![
+                (2, ep(a3) * r[4]),
+                (rho(4), e(a3)),
+                (rho(9), Vector2::new(1.0, 0.0)),
+                (rho(10), Vector2::new(0.0, 1.0)),
+            ],
+        ];
+        // Second derivatives of each point, rows in q: (row, column, value).
+        let second: [Vec<(usize, usize, Vector2<f64>)>; 3] = [
+            vec![
+                (0, 0, -(e(a1) * r[0] + e(b1) * r[1])),
+                (0, 3, -e(b1) * r[1]),
+                (3, 0, -e(b1) * r[1]),
+                (3, 3, -e(b1) * r[1]),
+                (0, rho(0), ep(a1)),
+                (0, rho(1), ep(b1)),
+                (3, rho(1), ep(b1)),
+            ],
+            vec![
+                (1, 1, -(e(a2) * r[2] + e(b2) * r[3])),
+                (1, 4, -e(b2) * r[3]),
+                (4, 1, -e(b2) * r[3]),
+                (4, 4, -e(b2) * r[3]),
+                (1, rho(2), ep(a2)),
+                (1, rho(3), ep(b2)),
+                (4, rho(3), ep(b2)),
+            ],
+            vec![(2, 2, -e(a3) * r[4]), (2, rho(4), ep(a3))],
+        ];
+        Self {
+            p: [p1, p2, p3],
+            first,
+            second,
+        }
     }
-    // Tool: μ·Pt = μ·P1 + z·u, u = (P2 − P1)/n, z = Ptx μ + Pty Rᵀμ.
-    let w = Vector2::new(mu[0], mu[1]);
-    let rt_w = Vector2::new(w[1], -w[0]);
-    let z = w * r[14] + rt_w * r[15];
-    let d = p2 - p1;
-    let n = d.norm();
-    let u = d / n;
-    let proj = (Matrix2::identity() - u * u.transpose()) / n;
-    let gz = proj * z;
-    grad[0] += w - gz;
-    grad[1] += gz;
-    let zu = z.dot(&u);
-    let hz = -(u * z.transpose() + z * u.transpose() + Matrix2::identity() * zu
-        - u * u.transpose() * (3.0 * zu))
-        / (n * n);
-    hess[0][0] += hz;
-    hess[1][1] += hz;
-    hess[0][1] -= hz;
-    hess[1][0] -= hz;
-    // Mixed P–Pt terms: ∂(∇_P φ̃)/∂Ptx = ∓ proj μ, ∂/∂Pty = ∓ proj Rᵀμ.
-    let gx = proj * w;
-    let gy = proj * rt_w;
-    let mut out = DMatrix::zeros(NQ, NV);
-    // Aᵀ H A, rows restricted to joints.
-    for (i, fi) in first.iter().enumerate() {
-        for (j, fj) in first.iter().enumerate() {
-            let h = hess[i][j];
-            if h == Matrix2::zeros() {
-                continue;
-            }
-            for &(ri, ai) in fi.iter().filter(|(c, _)| *c < NQ) {
-                for &(cj, aj) in fj {
-                    out[(ri, cj)] += ai.dot(&(h * aj));
+
+    /// `Σ λ_k ∇²g_k + Σ μ_i ∇²x_i`, rows the joints, the first `nv` columns of
+    /// `[q; ρ]` (5: the joints only; 21: every column).
+    fn weighted_hessian(
+        &self,
+        r: &[f64],
+        lambda: &[f64],
+        mu: &[f64],
+        nv: usize,
+    ) -> nalgebra::DMatrix<f64> {
+        use nalgebra::{DMatrix, Matrix2, Vector2};
+        const NQ: usize = 5;
+        let rho = |k: usize| NQ + k;
+        let (first, second) = (&self.first, &self.second);
+        let p = self.p;
+        let [p1, p2, _] = p;
+        // Outer function φ̃(P, D, Pt): gradient and Hessian in P (2×2 blocks).
+        let mut grad = [Vector2::zeros(); 3];
+        let mut hess = [[Matrix2::zeros(); 3]; 3];
+        for (k, (i, j)) in [(0usize, 1usize), (1, 2), (2, 0)].into_iter().enumerate() {
+            let d = p[i] - p[j];
+            grad[i] += d * (2.0 * lambda[k]);
+            grad[j] -= d * (2.0 * lambda[k]);
+            let h = Matrix2::identity() * (2.0 * lambda[k]);
+            hess[i][i] += h;
+            hess[j][j] += h;
+            hess[i][j] -= h;
+            hess[j][i] -= h;
+        }
+        // Tool: μ·Pt = μ·P1 + z·u, u = (P2 − P1)/n, z = Ptx μ + Pty Rᵀμ.
+        let w = Vector2::new(mu[0], mu[1]);
+        let rt_w = Vector2::new(w[1], -w[0]);
+        let z = w * r[14] + rt_w * r[15];
+        let d = p2 - p1;
+        let n = d.norm();
+        let u = d / n;
+        let proj = (Matrix2::identity() - u * u.transpose()) / n;
+        let gz = proj * z;
+        grad[0] += w - gz;
+        grad[1] += gz;
+        let zu = z.dot(&u);
+        let hz = -(u * z.transpose() + z * u.transpose() + Matrix2::identity() * zu
+            - u * u.transpose() * (3.0 * zu))
+            / (n * n);
+        hess[0][0] += hz;
+        hess[1][1] += hz;
+        hess[0][1] -= hz;
+        hess[1][0] -= hz;
+        // Mixed P–Pt terms: ∂(∇_P φ̃)/∂Ptx = ∓ proj μ, ∂/∂Pty = ∓ proj Rᵀμ.
+        let gx = proj * w;
+        let gy = proj * rt_w;
+        let mut out = DMatrix::zeros(NQ, nv);
+        // Aᵀ H A, rows restricted to joints.
+        for (i, fi) in first.iter().enumerate() {
+            for (j, fj) in first.iter().enumerate() {
+                let h = hess[i][j];
+                if h == Matrix2::zeros() {
+                    continue;
+                }
+                for &(ri, ai) in fi.iter().filter(|(c, _)| *c < NQ) {
+                    for &(cj, aj) in fj.iter().filter(|(c, _)| *c < nv) {
+                        out[(ri, cj)] += ai.dot(&(h * aj));
+                    }
                 }
             }
         }
-    }
-    // Σ ∂φ̃/∂P ∇²P.
-    for (k, list) in second.iter().enumerate() {
-        for &(ri, cj, v) in list {
-            out[(ri, cj)] += grad[k].dot(&v);
+        // Σ ∂φ̃/∂P ∇²P.
+        for (k, list) in second.iter().enumerate() {
+            for &(ri, cj, v) in list.iter().filter(|(_, c, _)| *c < nv) {
+                out[(ri, cj)] += grad[k].dot(&v);
+            }
         }
-    }
-    // Pt columns.
-    for (k, sign) in [(0usize, -1.0), (1, 1.0)] {
-        for &(ri, ai) in first[k].iter().filter(|(c, _)| *c < NQ) {
-            out[(ri, rho(14))] += sign * ai.dot(&gx);
-            out[(ri, rho(15))] += sign * ai.dot(&gy);
+        if nv <= rho(15) {
+            return out;
         }
+        // Pt columns.
+        for (k, sign) in [(0usize, -1.0), (1, 1.0)] {
+            for &(ri, ai) in first[k].iter().filter(|(c, _)| *c < NQ) {
+                out[(ri, rho(14))] += sign * ai.dot(&gx);
+                out[(ri, rho(15))] += sign * ai.dot(&gy);
+            }
+        }
+        out
     }
-    out
 }

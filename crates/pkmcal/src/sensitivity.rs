@@ -195,25 +195,31 @@ fn exact_sensitivity<M: Mechanism>(
     }
     fz.view_mut((0, nq), (nq, m)).copy_from(&gq.transpose());
     fz.view_mut((nq, 0), (m, nq)).copy_from(&gq);
-    let mut fp = DMatrix::zeros(nq + m, np);
-    fp.view_mut((0, 0), (nq, ng))
-        .copy_from(&lag.columns(nq, ng));
-    fp.view_mut((nq, 0), (m, ng))
-        .copy_from(&j.dg.columns(nq, ng));
-    for (a, &jt) in spec.actuated.iter().enumerate() {
-        fp[(jt, ng + a)] = -k[a];
-        fp[(jt, ng + na + a)] = -(commands[a] + params.offsets()[a] - q[jt]);
-    }
     let singular = || Error::Singular {
         q: q.clone(),
         reason: "the equilibrium (KKT) system is singular".into(),
     };
-    let dz = -solve_scaled(fz, fp).ok_or_else(singular)?;
-    let dq = dz.rows(0, nq);
-    let mut jac = &xq * dq;
-    let xrho = j.dx.columns(nq, ng);
+    // By the adjoint: `∂x/∂p = X_q dq/dp = −[X_q 0] F_z⁻¹ F_p = −Yᵀ F_p`
+    // with `F_zᵀ Y = [X_q 0]ᵀ`: one solve per tool coordinate instead of one
+    // per parameter.
+    let mut e = DMatrix::zeros(nq + m, nx);
+    e.view_mut((0, 0), (nq, nx)).copy_from(&xq.transpose());
+    let y = solve_scaled(fz.transpose(), e).ok_or_else(singular)?;
+    // F_p's blocks: ρ columns `[∂²L/∂q∂ρ; ∂g/∂ρ]`; the offset and stiffness
+    // columns are nonzero only on the actuated joints' rows
+    // (`−k_a` and `−(c_a + Δq_a − q_a)`).
+    let mut jac = DMatrix::zeros(nx, np);
     let mut left = jac.columns_mut(0, ng);
-    left += xrho;
+    left.gemm_tr(-1.0, &y.rows(0, nq), &lag.columns(nq, ng), 0.0);
+    left.gemm_tr(-1.0, &y.rows(nq, m), &j.dg.columns(nq, ng), 1.0);
+    left += j.dx.columns(nq, ng);
+    for (a, &jt) in spec.actuated.iter().enumerate() {
+        let stretch = commands[a] + params.offsets()[a] - q[jt];
+        for r in 0..nx {
+            jac[(r, ng + a)] = k[a] * y[(jt, r)];
+            jac[(r, ng + na + a)] = stretch * y[(jt, r)];
+        }
+    }
     debug_assert_eq!(jac.nrows(), nx);
     Ok(Sensitivity {
         prediction,

@@ -507,6 +507,29 @@ fn reference_closed_form_derivatives_equal_automatic_ones() {
                 auto.dx
             );
         }
+        // Second derivatives: per output in the joints (the equilibrium's
+        // curvature), weighted over every column (the sensitivities).
+        let nq = spec.joints.len();
+        let close = |a: f64, b: f64| (a - b).abs() <= CLOSED_FORM_REL * (1.0 + b.abs());
+        let closed = m.joint_hessians(&q, &rho);
+        let auto = output_hessians(&m, &q, &rho, 0..nq, 0..nq);
+        assert_eq!(closed.len(), auto.len());
+        for (c, a) in closed.iter().zip(&auto) {
+            assert_eq!(c.shape(), a.shape());
+            assert!(
+                c.iter().zip(a.iter()).all(|(x, y)| close(*x, *y)),
+                "joint\n{c}\n{a}"
+            );
+        }
+        let weights: Vec<f64> = (0..5).map(|_| rng.random_range(-2.0..2.0)).collect();
+        let closed = m.weighted_hessian(&q, &rho, &weights[..3], &weights[3..]);
+        let h = output_hessians(&m, &q, &rho, 0..nq, 0..n);
+        let auto = pkmcal::autodiff::weighted_sum(&h, &weights);
+        assert_eq!(closed.shape(), auto.shape());
+        assert!(
+            closed.iter().zip(auto.iter()).all(|(x, y)| close(*x, *y)),
+            "weighted"
+        );
     }
 }
 

@@ -306,7 +306,7 @@ y = [120.0, 200.0]
 /// at perturbed parameters and joints away from closure.
 #[test]
 fn planar_closed_form_derivatives_equal_automatic_ones() {
-    use pkmcal::autodiff::{automatic_jacobians, jacobians};
+    use pkmcal::autodiff::{automatic_jacobians, jacobians, output_hessians};
     use rand::{RngExt, SeedableRng};
     let mut linkages: Vec<PlanarLinkage> = ["five-bar", "3-rrr", "4-rrr", "jeong-kim-planar"]
         .iter()
@@ -348,6 +348,32 @@ fn planar_closed_form_derivatives_equal_automatic_ones() {
                     "{name} dx {cols:?}"
                 );
             }
+            // Second derivatives (forward mode over the closed form) against
+            // hyper-dual numbers over the loop closure.
+            let name = &spec.name;
+            let nq = spec.joints.len();
+            let closed = l.joint_hessians(&q, &rho);
+            let auto = output_hessians(l, &q, &rho, 0..nq, 0..nq);
+            assert_eq!(closed.len(), auto.len());
+            for (c, a) in closed.iter().zip(&auto) {
+                assert_eq!(c.shape(), a.shape());
+                assert!(
+                    c.iter().zip(a.iter()).all(|(x, y)| close(*x, *y)),
+                    "{name} joint"
+                );
+            }
+            let weights: Vec<f64> = (0..auto.len())
+                .map(|_| rng.random_range(-2.0..2.0))
+                .collect();
+            let m = spec.n_constraints;
+            let closed = l.weighted_hessian(&q, &rho, &weights[..m], &weights[m..]);
+            let h = output_hessians(l, &q, &rho, 0..nq, 0..n);
+            let auto = pkmcal::autodiff::weighted_sum(&h, &weights);
+            assert_eq!(closed.shape(), auto.shape());
+            assert!(
+                closed.iter().zip(auto.iter()).all(|(x, y)| close(*x, *y)),
+                "{name} weighted"
+            );
         }
     }
 }
