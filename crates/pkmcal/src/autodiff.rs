@@ -185,7 +185,8 @@ pub fn weighted_sum(hessians: &[DMatrix<f64>], weights: &[f64]) -> DMatrix<f64> 
     let mut out = DMatrix::zeros(hessians[0].nrows(), hessians[0].ncols());
     for (h, &w) in hessians.iter().zip(weights) {
         if w != 0.0 {
-            out += h * w;
+            // In place: `out += h * w` would allocate the product.
+            out.zip_apply(h, |o, v| *o += v * w);
         }
     }
     out

@@ -20,7 +20,8 @@ use rand::seq::SliceRandom;
 use rayon::prelude::*;
 use serde::Serialize;
 use std::cell::RefCell;
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
+use std::sync::{Arc, Mutex};
 
 /// Singular values below this fraction of the largest (of the column-scaled
 /// identification Jacobian) count as unidentifiable directions.
@@ -177,8 +178,9 @@ struct Row {
 pub struct IdentificationProblem<'a, M: Mechanism> {
     mech: &'a M,
     measurement: &'a MeasurementModel,
-    /// Every pose: each row's first, then the second poses of distances.
-    poses: Vec<Pose>,
+    /// Every pose: each row's first, then the second poses of distances
+    /// (shared with the other problems of a calibration, [`PoseCache`]).
+    poses: Vec<Arc<Pose>>,
     /// Where each pose came from (its row's origin).
     pose_origins: Vec<Origin>,
     rows: Vec<Row>,
@@ -193,6 +195,47 @@ pub struct IdentificationProblem<'a, M: Mechanism> {
     jacobian_cache: RefCell<Option<CachedJacobian>>,
 }
 
+/// Poses prepared once and shared by the identification problems of one
+/// calibration (the gross-error screening, each reweighted fit, each refit
+/// after an outlier is dropped), by their row's origin (and whether it is a
+/// distance's second pose). Their nominal forward kinematics and joint
+/// Hessians are then computed once per calibration.
+#[derive(Default)]
+pub(crate) struct PoseCache(Mutex<HashMap<PoseKey, CachedPose>>);
+
+/// The commands a pose was prepared for, and the pose.
+type CachedPose = (Vec<f64>, Arc<Pose>);
+
+/// A row's origin, and whether the pose is a distance's second.
+type PoseKey = (Origin, bool);
+
+impl PoseCache {
+    /// A cached pose is used only for the same commands (a Monte Carlo
+    /// study shares one cache between runs measuring the same plan).
+    fn get_or_prepare(
+        cache: Option<&Self>,
+        key: PoseKey,
+        commands: &[f64],
+        prepare: impl FnOnce() -> Result<Pose>,
+    ) -> Result<Arc<Pose>> {
+        let Some(cache) = cache else {
+            return prepare().map(Arc::new);
+        };
+        if let Some((c, p)) = cache.0.lock().expect("not poisoned").get(&key)
+            && c == commands
+        {
+            return Ok(p.clone());
+        }
+        let pose = Arc::new(prepare()?);
+        cache
+            .0
+            .lock()
+            .expect("not poisoned")
+            .insert(key, (commands.to_vec(), pose.clone()));
+        Ok(pose)
+    }
+}
+
 impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
     /// Prepare every pose (nominal configuration and linearisation).
     pub fn new(
@@ -202,8 +245,21 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         model: Model,
         force: &[f64],
     ) -> Result<Self> {
+        Self::with_cache(mech, measurement, data, model, force, None)
+    }
+
+    /// [`IdentificationProblem::new`], taking the poses already prepared
+    /// from `cache` and leaving the new ones there.
+    fn with_cache(
+        mech: &'a M,
+        measurement: &'a MeasurementModel,
+        data: &[Measurement],
+        model: Model,
+        force: &[f64],
+        cache: Option<&PoseCache>,
+    ) -> Result<Self> {
         let data = numbered(data);
-        let mut poses: Vec<Pose> = Vec::with_capacity(data.len());
+        let mut poses: Vec<Arc<Pose>> = Vec::with_capacity(data.len());
         let mut pose_origins: Vec<Origin> = Vec::with_capacity(data.len());
         let mut rows: Vec<Row> = Vec::with_capacity(data.len());
         let mut offset = 0;
@@ -240,8 +296,10 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
                 }
             }
             let start = poses.last().map(|p| p.nominal_q.clone());
-            let pose =
-                prepare_pose(mech, &m.commands, start.as_deref()).map_err(|e| e.at_pose(origin))?;
+            let pose = PoseCache::get_or_prepare(cache, (origin, false), &m.commands, || {
+                prepare_pose(mech, &m.commands, start.as_deref())
+            })
+            .map_err(|e| e.at_pose(origin))?;
             poses.push(pose);
             pose_origins.push(origin);
             if let Some(b) = &m.partner {
@@ -257,8 +315,10 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         }
         for (i, commands) in seconds {
             let origin = pose_origins[i];
-            let pose = prepare_pose(mech, commands, Some(&poses[i].nominal_q))
-                .map_err(|e| e.at_pose(origin))?;
+            let pose = PoseCache::get_or_prepare(cache, (origin, true), commands, || {
+                prepare_pose(mech, commands, Some(&poses[i].nominal_q))
+            })
+            .map_err(|e| e.at_pose(origin))?;
             rows[i].second = Some(poses.len());
             poses.push(pose);
             pose_origins.push(origin);
@@ -311,7 +371,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
 
     /// The prepared poses: each row's (first) pose in row order, then the
     /// second poses of the distance rows.
-    pub fn poses(&self) -> &[Pose] {
+    pub fn poses(&self) -> &[Arc<Pose>] {
         &self.poses
     }
 
@@ -1126,6 +1186,19 @@ pub fn calibrate<M: Mechanism>(
     start: &Params,
     opts: &CalibrationOptions,
 ) -> Result<Calibration> {
+    calibrate_cached(mech, measurement, data, start, opts, &PoseCache::default())
+}
+
+/// [`calibrate`] with the poses prepared in `cache` (those missing are
+/// prepared and left there).
+pub(crate) fn calibrate_cached<M: Mechanism>(
+    mech: &M,
+    measurement: &MeasurementModel,
+    data: &[Measurement],
+    start: &Params,
+    opts: &CalibrationOptions,
+    cache: &PoseCache,
+) -> Result<Calibration> {
     let data = numbered(data);
     check_sigma(measurement, &data)?;
     let cap = (data.len() as f64 * MAX_DROPPED_FRACTION).floor() as usize;
@@ -1135,7 +1208,7 @@ pub fn calibrate<M: Mechanism>(
     // Gross errors (a misread, a swapped column) would drag the first,
     // unweighted fit to parameters where poses cannot be assembled: find
     // them first, drop them when asked to, name them otherwise.
-    for g in gross_errors(mech, measurement, &kept, start, opts)? {
+    for g in gross_errors(mech, measurement, &kept, start, opts, cache)? {
         if !opts.drop_outliers || dropped.len() >= cap {
             return Err(Error::InvalidRequest(format!(
                 "the measurement is {:.4e} mm from the nominal prediction, where the median pose is {:.4e} mm: a gross error (a misread, a swapped column, another pose's row); fix or remove it, or calibrate with --drop-outliers",
@@ -1147,7 +1220,7 @@ pub fn calibrate<M: Mechanism>(
         dropped.push(g.origin);
     }
     loop {
-        let mut cal = calibrate_weighted(mech, measurement, &kept, start, opts)?;
+        let mut cal = calibrate_weighted(mech, measurement, &kept, start, opts, cache)?;
         let more = opts.drop_outliers && !cal.outliers.is_empty() && dropped.len() < cap;
         if !more {
             if !dropped.is_empty() {
@@ -1210,9 +1283,17 @@ fn gross_errors<M: Mechanism>(
     data: &[Measurement],
     start: &Params,
     opts: &CalibrationOptions,
+    cache: &PoseCache,
 ) -> Result<Vec<Gross>> {
     let spec = mech.spec();
-    let problem = IdentificationProblem::new(mech, measurement, data, opts.model, &opts.force)?;
+    let problem = IdentificationProblem::with_cache(
+        mech,
+        measurement,
+        data,
+        opts.model,
+        &opts.force,
+        Some(cache),
+    )?;
     let Ok(predicted) = problem.predict(start) else {
         return Ok(vec![]);
     };
@@ -1301,6 +1382,7 @@ fn calibrate_weighted<M: Mechanism>(
     data: &[Measurement],
     start: &Params,
     opts: &CalibrationOptions,
+    cache: &PoseCache,
 ) -> Result<Calibration> {
     let mut noise = NoiseModel::new(data, measurement);
     let mut cal = calibrate_once(
@@ -1312,6 +1394,7 @@ fn calibrate_weighted<M: Mechanism>(
         opts,
         &noise.sigmas(),
         None,
+        Some(cache),
     )?;
     // The free set and identifiability of the first fit hold for the refits.
     let mut refit_opts = opts.clone();
@@ -1326,6 +1409,7 @@ fn calibrate_weighted<M: Mechanism>(
             &refit_opts,
             sigma,
             Some(&cal.free),
+            Some(cache),
         )?;
         next.identifiability = cal.identifiability.clone();
         for (p, first) in next.parameters.iter_mut().zip(&cal.parameters) {
@@ -1555,6 +1639,7 @@ fn calibrate_once<M: Mechanism>(
     opts: &CalibrationOptions,
     sigma: &[f64],
     exact_free: Option<&[usize]>,
+    cache: Option<&PoseCache>,
 ) -> Result<Calibration> {
     let spec = mech.spec();
     let nx = measurement.len();
@@ -1608,7 +1693,8 @@ fn calibrate_once<M: Mechanism>(
             }
         )));
     }
-    let problem = IdentificationProblem::new(mech, measurement, data, opts.model, &opts.force)?;
+    let problem =
+        IdentificationProblem::with_cache(mech, measurement, data, opts.model, &opts.force, cache)?;
     let m0 = measurement_start(&problem, m_given, start, data)?;
     let nf = m0.len();
     let cols = Columns::with_measurement(spec, measurement, &m0);

@@ -142,30 +142,100 @@ pub(crate) fn checked_lu(
 /// scaled matrix. For systems whose blocks have very different units, such as
 /// the equilibrium's KKT matrix (stiffness next to constraint gradients).
 pub(crate) fn solve_scaled(a: DMatrix<f64>, b: DMatrix<f64>) -> Option<DMatrix<f64>> {
+    // In place on the column-major storage of the two owned matrices: these
+    // systems are small (tens of unknowns) and solved once per Newton
+    // iteration, where nalgebra's strided row views and its LU's copies
+    // cost more than the arithmetic.
     let n = a.nrows();
-    let mut a = a;
-    let mut b = b;
+    let nb = b.ncols();
+    let (mut a, mut b) = (a, b);
+    let av = a.as_mut_slice();
+    let bv = b.as_mut_slice();
     for i in 0..n {
-        let r = a.row(i).amax();
+        let r = (0..n).fold(0.0f64, |m, j| m.max(av[i + j * n].abs()));
         if !(r > 0.0 && r.is_finite()) {
             return None;
         }
-        a.row_mut(i).unscale_mut(r);
-        b.row_mut(i).unscale_mut(r);
+        for j in 0..n {
+            av[i + j * n] /= r;
+        }
+        for j in 0..nb {
+            bv[i + j * n] /= r;
+        }
     }
     let mut c = vec![1.0; n];
+    let mut scale = 0.0f64;
     for (j, cj) in c.iter_mut().enumerate() {
-        *cj = a.column(j).amax();
+        let col = &mut av[j * n..(j + 1) * n];
+        *cj = col.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         if *cj <= 0.0 || cj.is_nan() {
             return None;
         }
-        a.column_mut(j).unscale_mut(*cj);
+        col.iter_mut().for_each(|v| *v /= *cj);
+        scale = scale.max(col.iter().fold(0.0f64, |m, v| m.max(v.abs())));
     }
-    let mut x = checked_lu(a)?.solve(&b)?;
-    for (j, cj) in c.iter().enumerate() {
-        x.row_mut(j).unscale_mut(*cj);
+    if scale.is_nan() || scale <= 0.0 {
+        return None;
     }
-    Some(x)
+    // LU with partial pivoting; rows of `b` swapped along.
+    let mut min_pivot = f64::INFINITY;
+    for k in 0..n {
+        let mut p = k;
+        for i in k + 1..n {
+            if av[i + k * n].abs() > av[p + k * n].abs() {
+                p = i;
+            }
+        }
+        if p != k {
+            for j in 0..n {
+                av.swap(k + j * n, p + j * n);
+            }
+            for j in 0..nb {
+                bv.swap(k + j * n, p + j * n);
+            }
+        }
+        let pivot = av[k + k * n];
+        min_pivot = min_pivot.min(pivot.abs());
+        if pivot == 0.0 {
+            continue;
+        }
+        for i in k + 1..n {
+            av[i + k * n] /= pivot;
+        }
+        for j in k + 1..n {
+            let y = av[k + j * n];
+            if y == 0.0 {
+                continue;
+            }
+            for i in k + 1..n {
+                av[i + j * n] -= av[i + k * n] * y;
+            }
+        }
+    }
+    // (A NaN pivot fails too.)
+    if min_pivot.is_nan() || min_pivot < SINGULAR_RCOND * scale {
+        return None;
+    }
+    for j in 0..nb {
+        let x = &mut bv[j * n..(j + 1) * n];
+        for k in 0..n {
+            let xk = x[k];
+            for i in k + 1..n {
+                x[i] -= av[i + k * n] * xk;
+            }
+        }
+        for k in (0..n).rev() {
+            x[k] /= av[k + k * n];
+            let xk = x[k];
+            for i in 0..k {
+                x[i] -= av[i + k * n] * xk;
+            }
+        }
+        for (v, cj) in x.iter_mut().zip(&c) {
+            *v /= cj;
+        }
+    }
+    Some(b)
 }
 
 /// Signs of the determinants that identify an assembly branch: of the

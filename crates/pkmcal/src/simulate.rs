@@ -38,7 +38,7 @@ pub struct Measurement {
 }
 
 /// Where a pose came from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
 pub struct Origin {
     /// Pose number in the data file (1-based, file order).
     pub pose: usize,
@@ -159,8 +159,31 @@ pub fn simulate_with_progress<M: Mechanism>(
 ) -> Result<Vec<Measurement>> {
     let noise = noise.into();
     let mut rng = StdRng::seed_from_u64(seed);
-    let spec = mech.spec();
-    let normals = measurement
+    let normals = noise_normals(measurement, noise)?;
+    let mut out = Vec::with_capacity(targets.len());
+    for target in targets {
+        let (commands, pose) = prepare_target(mech, target)?;
+        out.push(measure(
+            mech,
+            measurement,
+            truth,
+            target,
+            commands,
+            &pose,
+            &normals,
+            &mut rng,
+        )?);
+        progress();
+    }
+    Ok(out)
+}
+
+/// The noise's distribution on each axis of `measurement`.
+pub(crate) fn noise_normals(
+    measurement: &MeasurementModel,
+    noise: Noise,
+) -> Result<Vec<Normal<f64>>> {
+    measurement
         .units()
         .iter()
         .map(|u| {
@@ -176,31 +199,49 @@ pub fn simulate_with_progress<M: Mechanism>(
                 ))
             })
         })
-        .collect::<Result<Vec<_>>>()?;
-    let mut out = Vec::with_capacity(targets.len());
-    for target in targets {
-        // Nominal inverse kinematics gives the commands and the exact nominal
-        // configuration.
-        let q = inverse_kinematics(mech, &spec.nominal[..spec.n_geometric()], target)?;
-        let commands: Vec<f64> = spec.actuated.iter().map(|&j| q[j]).collect();
-        let pose = prepare_pose(mech, &commands, Some(&q))?;
-        let p = predict_pose(mech, &pose, truth, Model::Exact, &[])?;
-        let mut read = vec![0.0; measurement.len()];
-        measurement.observe(&p.x, measurement.nominal(), &mut read);
-        let measured = read
-            .iter()
-            .zip(&normals)
-            .map(|(y, n)| y + n.sample(&mut rng))
-            .collect();
-        out.push(Measurement {
-            target: Some(target.clone()),
-            commands,
-            measured,
-            ..Default::default()
-        });
-        progress();
-    }
-    Ok(out)
+        .collect()
+}
+
+/// The commands of a target (nominal inverse kinematics) and its prepared
+/// pose (the exact nominal configuration).
+pub(crate) fn prepare_target<M: Mechanism>(
+    mech: &M,
+    target: &[f64],
+) -> Result<(Vec<f64>, crate::models::Pose)> {
+    let spec = mech.spec();
+    let q = inverse_kinematics(mech, &spec.nominal[..spec.n_geometric()], target)?;
+    let commands: Vec<f64> = spec.actuated.iter().map(|&j| q[j]).collect();
+    let pose = prepare_pose(mech, &commands, Some(&q))?;
+    Ok((commands, pose))
+}
+
+/// The simulated reading of a prepared target: the true parameters' exact
+/// prediction observed by `measurement`, plus one draw of each axis' noise.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn measure<M: Mechanism>(
+    mech: &M,
+    measurement: &MeasurementModel,
+    truth: &Params,
+    target: &[f64],
+    commands: Vec<f64>,
+    pose: &crate::models::Pose,
+    normals: &[Normal<f64>],
+    rng: &mut StdRng,
+) -> Result<Measurement> {
+    let p = predict_pose(mech, pose, truth, Model::Exact, &[])?;
+    let mut read = vec![0.0; measurement.len()];
+    measurement.observe(&p.x, measurement.nominal(), &mut read);
+    let measured = read
+        .iter()
+        .zip(normals)
+        .map(|(y, n)| y + n.sample(rng))
+        .collect();
+    Ok(Measurement {
+        target: Some(target.to_vec()),
+        commands,
+        measured,
+        ..Default::default()
+    })
 }
 
 /// Simulated distances between pairs of poses (a printed object or a gauge
@@ -224,12 +265,8 @@ pub fn simulate_distances<M: Mechanism>(
     }
     let normal = Normal::new(0.0, noise_mm).expect("checked");
     let mut rng = StdRng::seed_from_u64(seed);
-    let spec = mech.spec();
-    let nominal = &spec.nominal[..spec.n_geometric()];
     let at = |target: &[f64]| -> Result<(Vec<f64>, Vec<f64>)> {
-        let q = inverse_kinematics(mech, nominal, target)?;
-        let commands: Vec<f64> = spec.actuated.iter().map(|&j| q[j]).collect();
-        let pose = prepare_pose(mech, &commands, Some(&q))?;
+        let (commands, pose) = prepare_target(mech, target)?;
         Ok((
             commands,
             predict_pose(mech, &pose, truth, Model::Exact, &[])?.x,
