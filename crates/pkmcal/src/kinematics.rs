@@ -104,20 +104,29 @@ fn solve_closure_keeping<M: Mechanism>(
 /// more than 0.5 rad, or 50 mm on a length, at once (a length step measured
 /// in rad at [`MM_PER_RAD`]).
 fn damping(spec: &crate::Spec, joints: &[usize], step: &[f64]) -> f64 {
+    let turn = step_turn(spec, joints.iter().copied(), step);
+    if turn > 0.5 { 0.5 / turn } else { 1.0 }
+}
+
+/// The largest joint step of `step` (on `joints`, in order) in rad, a
+/// length step counted at [`MM_PER_RAD`]; infinite when a step is not finite.
+pub(crate) fn step_turn(
+    spec: &crate::Spec,
+    joints: impl Iterator<Item = usize>,
+    step: &[f64],
+) -> f64 {
     let turn = joints
-        .iter()
         .zip(step)
-        .map(|(&i, d)| match spec.joint_units[i] {
+        .map(|(i, d)| match spec.joint_units[i] {
             crate::Unit::Radian => d.abs(),
             _ => d.abs() / MM_PER_RAD,
         })
         .fold(0.0, f64::max);
-    let turn = if turn.is_finite() {
+    if turn.is_finite() {
         turn
     } else {
         f64::INFINITY
-    };
-    if turn > 0.5 { 0.5 / turn } else { 1.0 }
+    }
 }
 
 /// LU factorisation (partial pivoting) of a square matrix, or `None` when a

@@ -642,7 +642,9 @@ pub fn equilibrium<M: Mechanism>(
         if !big.is_finite() {
             break;
         }
-        let scale = if big > 0.2 { 0.2 / big } else { 1.0 };
+        // At most 0.2 rad, or 20 mm on a length, per iteration.
+        let turn = crate::kinematics::step_turn(spec, 0..nq, step.as_slice());
+        let scale = if turn > 0.2 { 0.2 / turn } else { 1.0 };
         for i in 0..nq {
             q[i] -= scale * step[i];
         }
