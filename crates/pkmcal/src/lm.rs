@@ -181,23 +181,35 @@ pub(crate) fn qrfac(a: &mut DMatrix<f64>) -> (Vec<usize>, Vec<f64>, Vec<f64>) {
                 a[(i, j)] /= ajnorm;
             }
             a[(j, j)] += 1.0;
-            for k in j + 1..n {
-                let mut sum = 0.0;
-                for i in j..m {
-                    sum += a[(i, j)] * a[(i, k)];
-                }
-                let temp = sum / a[(j, j)];
-                for i in j..m {
-                    a[(i, k)] -= temp * a[(i, j)];
-                }
-                if rdiag[k] != 0.0 {
-                    let t = a[(j, k)] / rdiag[k];
-                    rdiag[k] *= (1.0 - t * t).max(0.0).sqrt();
-                    if 0.05 * (rdiag[k] / wa[k]).powi(2) <= eps {
-                        rdiag[k] = a.view((j + 1, k), (m - j - 1, 1)).norm();
-                        wa[k] = rdiag[k];
+            // The Householder reflection applied to the later columns, on
+            // contiguous column slices (the same operations in the same
+            // order as indexed access, without its bounds checks).
+            let mut recompute = vec![];
+            {
+                let (left, right) = a.as_mut_slice().split_at_mut((j + 1) * m);
+                let v = &left[j * m + j..(j + 1) * m];
+                for k in j + 1..n {
+                    let col = &mut right[(k - j - 1) * m + j..(k - j) * m];
+                    let mut sum = 0.0;
+                    for (x, y) in v.iter().zip(col.iter()) {
+                        sum += x * y;
+                    }
+                    let temp = sum / v[0];
+                    for (y, x) in col.iter_mut().zip(v) {
+                        *y -= temp * x;
+                    }
+                    if rdiag[k] != 0.0 {
+                        let t = col[0] / rdiag[k];
+                        rdiag[k] *= (1.0 - t * t).max(0.0).sqrt();
+                        if 0.05 * (rdiag[k] / wa[k]).powi(2) <= eps {
+                            recompute.push(k);
+                        }
                     }
                 }
+            }
+            for k in recompute {
+                rdiag[k] = a.view((j + 1, k), (m - j - 1, 1)).norm();
+                wa[k] = rdiag[k];
             }
         }
         rdiag[j] = -ajnorm;
