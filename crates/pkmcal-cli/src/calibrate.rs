@@ -863,8 +863,27 @@ pub fn print_identifiability(id: &Identifiability, fixed: &str) {
             None => println!("  unidentifiable: {}", u.combination),
         }
     }
-    for c in &id.correlations {
-        println!("  correlated: {} and {} (r = {:+.3})", c.a, c.b, c.r);
+    print_correlations(&id.correlations, "correlated");
+}
+
+/// Pairs of correlated parameters printed before the rest are only counted
+/// (a hexapod with every joint centre free has over a hundred).
+const PRINTED_CORRELATIONS: usize = 10;
+
+/// The strongest correlations (largest |r| first), at most
+/// [`PRINTED_CORRELATIONS`], and how many more the reports hold.
+fn print_correlations(all: &[pkmcal::calibration::Correlation], label: &str) {
+    let mut sorted: Vec<&pkmcal::calibration::Correlation> = all.iter().collect();
+    sorted.sort_by(|a, b| b.r.abs().total_cmp(&a.r.abs()));
+    for c in sorted.iter().take(PRINTED_CORRELATIONS) {
+        println!("  {label}: {} and {} (r = {:+.3})", c.a, c.b, c.r);
+    }
+    if sorted.len() > PRINTED_CORRELATIONS {
+        println!(
+            "  {label}: {} more pairs with |r| > {} (all of them in --report's JSON)",
+            sorted.len() - PRINTED_CORRELATIONS,
+            pkmcal::calibration::CORRELATION_REPORT
+        );
     }
 }
 
@@ -928,12 +947,7 @@ fn print_summary(r: &Report, measurement: &MeasurementModel) {
     }
     println!();
     print_identifiability(&cal.identifiability, "fixed");
-    for c in &cal.correlations {
-        println!(
-            "  correlated at the solution: {} and {} (r = {:+.3})",
-            c.a, c.b, c.r
-        );
-    }
+    print_correlations(&cal.correlations, "correlated at the solution");
     println!();
     print_stats_header(axes, units);
     print_stats("calibration, before", &r.accuracy.before);

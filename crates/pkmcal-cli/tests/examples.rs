@@ -235,6 +235,67 @@ fn gough_stewart_measured_at_target_points() {
 }
 
 #[test]
+fn many_correlated_pairs_are_capped_in_the_summary() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mech = example("gough-stewart-8");
+    std::fs::write(d.join("truth.toml"), "a1x = 489.4\nb3z = 0.3\ndL2 = 0.2\n").unwrap();
+    ok(
+        d,
+        &[
+            "simulate",
+            "--quiet",
+            "--mechanism",
+            &mech,
+            "--truth",
+            "truth.toml",
+            "--grid",
+            "60",
+            "--noise",
+            "0.002",
+            "--out",
+            "data.csv",
+        ],
+    );
+    let summary = ok(
+        d,
+        &[
+            "calibrate",
+            "--quiet",
+            "--mechanism",
+            &mech,
+            "--data",
+            "data.csv",
+            "--out",
+            "cal.toml",
+            "--report",
+            "cal.json",
+        ],
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("cal.json")).unwrap()).unwrap();
+    // Every joint centre free: many correlated pairs. The summary prints the
+    // strongest ten and counts the rest; the report holds them all.
+    let pairs = report["identifiability"]["correlations"]
+        .as_array()
+        .unwrap()
+        .len();
+    let printed = summary
+        .lines()
+        .filter(|l| l.trim_start().starts_with("correlated:") && l.contains(" and "))
+        .count();
+    assert!(
+        pairs > 10,
+        "{pairs} correlated pairs: the case no longer tests the cap"
+    );
+    assert_eq!(printed, 10, "{summary}");
+    assert!(
+        summary.contains(&format!("{} more pairs with |r| > 0.9", pairs - 10)),
+        "{summary}"
+    );
+}
+
+#[test]
 fn bad_mechanism_files_name_the_file_and_the_fix() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
