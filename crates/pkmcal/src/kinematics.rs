@@ -221,7 +221,8 @@ pub(crate) fn solve_scaled(a: DMatrix<f64>, b: DMatrix<f64>) -> Option<DMatrix<f
             }
         }
     }
-    // (A NaN pivot fails too.)
+    // (A NaN entry gives a NaN solution, which the callers reject as a
+    // failed step, as they did with nalgebra's LU.)
     if min_pivot.is_nan() || min_pivot < SINGULAR_RCOND * scale {
         return None;
     }
