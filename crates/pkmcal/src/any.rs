@@ -78,6 +78,16 @@ impl Mechanism for AnyMechanism {
     ) -> Option<crate::autodiff::Jacobians> {
         each!(self, m => m.first_derivatives(q, rho, cols))
     }
+
+    fn first_derivatives_into(
+        &self,
+        q: &[f64],
+        rho: &[f64],
+        cols: std::ops::Range<usize>,
+        out: &mut crate::autodiff::Jacobians,
+    ) -> bool {
+        each!(self, m => m.first_derivatives_into(q, rho, cols, out))
+    }
     fn weighted_hessian(&self, q: &[f64], rho: &[f64], lambda: &[f64], mu: &[f64]) -> DMatrix<f64> {
         each!(self, m => m.weighted_hessian(q, rho, lambda, mu))
     }

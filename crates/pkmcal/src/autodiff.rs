@@ -30,6 +30,46 @@ pub struct Jacobians {
     pub dx: DMatrix<f64>,
 }
 
+impl Jacobians {
+    /// Empty buffers, to be filled by [`jacobians_into`].
+    pub fn empty() -> Self {
+        Self {
+            g: vec![],
+            x: vec![],
+            dg: DMatrix::zeros(0, 0),
+            dx: DMatrix::zeros(0, 0),
+        }
+    }
+
+    /// Size the buffers for `ng` constraints, `nx` tool coordinates and
+    /// `nc` columns, reusing their storage when the sizes already fit.
+    pub fn resize(&mut self, ng: usize, nx: usize, nc: usize) {
+        self.g.resize(ng, 0.0);
+        self.x.resize(nx, 0.0);
+        if self.dg.shape() != (ng, nc) {
+            self.dg = DMatrix::zeros(ng, nc);
+        }
+        if self.dx.shape() != (nx, nc) {
+            self.dx = DMatrix::zeros(nx, nc);
+        }
+    }
+}
+
+/// [`jacobians`] into `out`, reusing its buffers where the mechanism's
+/// closed form can ([`Mechanism::first_derivatives_into`]): the form for
+/// loops that evaluate the derivatives at every iteration.
+pub fn jacobians_into<M: Mechanism>(
+    mech: &M,
+    q: &[f64],
+    rho: &[f64],
+    cols: Range<usize>,
+    out: &mut Jacobians,
+) {
+    if !mech.first_derivatives_into(q, rho, cols.clone(), out) {
+        *out = automatic_jacobians(mech, q, rho, cols);
+    }
+}
+
 /// Values and exact first derivatives of `g` and `x` with respect to the columns
 /// `cols` of `v = [q; ρ]` (docs/model.md eq. 4: ∂g/∂q, ∂g/∂ρ; eq. 9: ∂x/∂q).
 /// Uses the mechanism's closed-form derivatives

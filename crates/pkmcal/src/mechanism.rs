@@ -338,6 +338,26 @@ pub trait Mechanism: Send + Sync {
         None
     }
 
+    /// [`Mechanism::first_derivatives`] into `out`, reusing its buffers;
+    /// `false` (and `out` untouched) when there is no closed form. The
+    /// default moves [`Mechanism::first_derivatives`]'s result in; override
+    /// it where the closed form can write in place (no allocation).
+    fn first_derivatives_into(
+        &self,
+        q: &[f64],
+        rho: &[f64],
+        cols: std::ops::Range<usize>,
+        out: &mut crate::autodiff::Jacobians,
+    ) -> bool {
+        match self.first_derivatives(q, rho, cols) {
+            Some(j) => {
+                *out = j;
+                true
+            }
+            None => false,
+        }
+    }
+
     /// Second derivatives of `φ = λᵀg + μᵀx` with respect to the joints (rows)
     /// and to `[q; ρ]` (columns): `n_joints × (n_joints + n_geometric)`. The
     /// exact model's identification Jacobian needs them at every pose. The

@@ -13,9 +13,9 @@
 //! q_r,nominal`; the linear model adds it to `Δq` so that it stays the
 //! first-order expansion of the exact model.
 
-use crate::autodiff::{jacobians, weighted_sum};
+use crate::autodiff::{jacobians, jacobians_into};
 use crate::error::{Error, Result};
-use crate::kinematics::{forward_kinematics, reference_configuration, solve_scaled};
+use crate::kinematics::{forward_kinematics, reference_configuration, solve_scaled_in_place};
 use crate::linearized::{Linearization, joint_errors, linearize, load_vector};
 use crate::mechanism::{Mechanism, Params};
 use nalgebra::{DMatrix, DVector};
@@ -394,7 +394,8 @@ fn exact_from<M: Mechanism>(
         start,
         Some(pose.hessians(mech)),
     )?;
-    let x = jacobians(mech, &eq.q, params.geometric(), 0..0).x;
+    let mut x = vec![0.0; mech.spec().tool_axes.len()];
+    mech.tool(&eq.q, params.geometric(), &mut x);
     let deflection = eq
         .torque
         .iter()
@@ -599,46 +600,84 @@ pub fn equilibrium<M: Mechanism>(
         }
     };
     let mut q = start.to_vec();
-    let mut lambda: Option<DVector<f64>> = None;
+    // The multipliers, estimated at the first iteration.
+    let mut lam = vec![0.0; m];
     let mut last = f64::INFINITY;
+    // The iteration's buffers, allocated once: the KKT matrix (factorised in
+    // place), its right-hand side (overwritten by the step), ∇E.
+    let n = nq + m;
+    let mut kkt = DMatrix::zeros(n, n);
+    let mut step = DMatrix::zeros(n, 1);
+    let mut grad_e = vec![0.0; nq];
+    let mut weights = vec![0.0; m + w.len()];
+    weights[m..].copy_from_slice(&w);
+    let mut j = crate::autodiff::Jacobians::empty();
     for it in 1..=MAX_EQUILIBRIUM_ITERATIONS {
-        let j = jacobians(mech, &q, rho, 0..nq);
+        jacobians_into(mech, &q, rho, 0..nq, &mut j);
         // ∇E = −Sᵀτ + Xqᵀ w.
-        let mut grad_e = j.dx.transpose() * DVector::from_column_slice(&w);
+        let nx = w.len();
+        grad_e.fill(0.0);
+        for (ge, dx) in grad_e
+            .iter_mut()
+            .zip(j.dx.as_slice().chunks_exact(nx.max(1)))
+        {
+            *ge = dx.iter().zip(&w).map(|(d, w)| d * w).sum();
+        }
         for (a, &jt) in spec.actuated.iter().enumerate() {
             grad_e[jt] -= k[a] * (motor[a] - q[jt]);
         }
-        let lam = match lambda.take() {
-            Some(l) => l,
+        if it == 1 {
             // Least-squares multipliers at the start: Gᵀλ ≈ −∇E.
-            None => {
-                let ggt = &j.dg * j.dg.transpose();
-                ggt.lu()
-                    .solve(&(-(&j.dg * &grad_e)))
-                    .unwrap_or_else(|| DVector::zeros(m))
+            let ggt = &j.dg * j.dg.transpose();
+            let ge = DVector::from_column_slice(&grad_e);
+            if let Some(l) = ggt.lu().solve(&(-(&j.dg * ge))) {
+                lam.copy_from_slice(l.as_slice());
             }
-        };
-        let mut kkt = DMatrix::zeros(nq + m, nq + m);
-        let weights: Vec<f64> = lam.iter().chain(&w).copied().collect();
-        let hess = weighted_sum(hessians, &weights);
-        kkt.view_mut((0, 0), (nq, nq)).copy_from(&hess);
+        }
+        // W = SᵀKS + Σ λ_k ∇²g_k + Σ w_i ∇²x_i, then the constraint blocks.
+        weights[..m].copy_from_slice(&lam);
+        kkt.as_mut_slice().fill(0.0);
+        for (h, &wt) in hessians.iter().zip(&weights) {
+            if wt != 0.0 {
+                let cols = kkt.as_mut_slice().chunks_exact_mut(n);
+                for (o, v) in cols.zip(h.as_slice().chunks_exact(nq)) {
+                    for (o, v) in o.iter_mut().zip(v) {
+                        *o += v * wt;
+                    }
+                }
+            }
+        }
         for (a, &jt) in spec.actuated.iter().enumerate() {
             kkt[(jt, jt)] += k[a];
         }
-        kkt.view_mut((0, nq), (nq, m)).copy_from(&j.dg.transpose());
-        kkt.view_mut((nq, 0), (m, nq)).copy_from(&j.dg);
-        let mut rhs = DVector::zeros(nq + m);
-        rhs.rows_mut(0, nq)
-            .copy_from(&(grad_e + j.dg.transpose() * &lam));
-        rhs.rows_mut(nq, m)
-            .copy_from(&DVector::from_column_slice(&j.g));
-        let step = solve_scaled(kkt, DMatrix::from_column_slice(nq + m, 1, rhs.as_slice()))
-            .map(|x| x.column(0).into_owned())
-            .ok_or_else(|| Error::Singular {
+        for c in 0..nq {
+            for r in 0..m {
+                kkt[(nq + r, c)] = j.dg[(r, c)];
+                kkt[(c, nq + r)] = j.dg[(r, c)];
+            }
+        }
+        step.as_mut_slice().fill(0.0);
+        debug_assert!(hessians.iter().all(|h| h.shape() == (nq, nq)));
+        for ((st, ge), dg) in step
+            .iter_mut()
+            .zip(&grad_e)
+            .zip(j.dg.as_slice().chunks_exact(m.max(1)))
+        {
+            let t: f64 = dg.iter().zip(&lam).map(|(d, l)| d * l).sum();
+            *st = ge + t;
+        }
+        for (r, g) in j.g.iter().enumerate() {
+            step[nq + r] = *g;
+        }
+        if !solve_scaled_in_place(&mut kkt, &mut step) {
+            return Err(Error::Singular {
                 q: q.clone(),
                 reason: "the equilibrium (KKT) system is singular".into(),
-            })?;
-        let big = step.rows(0, nq).amax();
+            });
+        }
+        let big = step.as_slice()[..nq]
+            .iter()
+            .fold(0.0f64, |m, v| m.max(v.abs()));
         if !big.is_finite() {
             break;
         }
@@ -648,7 +687,9 @@ pub fn equilibrium<M: Mechanism>(
         for i in 0..nq {
             q[i] -= scale * step[i];
         }
-        lambda = Some(lam - step.rows(nq, m) * scale);
+        for (r, l) in lam.iter_mut().enumerate() {
+            *l -= step[nq + r] * scale;
+        }
         // Convergence is at least linear with a small rate r = big/last; the
         // error left after this step is about r·big.
         let rate = if last.is_finite() { big / last } else { 1.0 };
@@ -664,7 +705,7 @@ pub fn equilibrium<M: Mechanism>(
                 .collect();
             return Ok(Equilibrium {
                 q,
-                lambda: lambda.expect("set above").as_slice().to_vec(),
+                lambda: lam,
                 torque,
                 iterations: it,
             });

@@ -268,6 +268,17 @@ impl Mechanism for JeongKim2Dof {
         Some(closed_form_jacobians(q, r, cols))
     }
 
+    fn first_derivatives_into(
+        &self,
+        q: &[f64],
+        r: &[f64],
+        cols: std::ops::Range<usize>,
+        out: &mut crate::autodiff::Jacobians,
+    ) -> bool {
+        closed_form_jacobians_into(q, r, cols, out);
+        true
+    }
+
     /// Analytic second derivatives by the chain rule through the platform
     /// points `P = (P1, P2, P3)`: `∇²φ = Aᵀ ∇²_P φ̃ A + Σ_c ∂φ̃/∂P_c ∇²P_c`
     /// plus the tool offsets' mixed terms, with `A = ∂P/∂[q; ρ]`.
@@ -419,18 +430,41 @@ fn closed_form_jacobians(
     r: &[f64],
     cols: std::ops::Range<usize>,
 ) -> crate::autodiff::Jacobians {
-    use nalgebra::DMatrix;
+    let mut out = crate::autodiff::Jacobians::empty();
+    closed_form_jacobians_into(q, r, cols, &mut out);
+    out
+}
+
+/// [`closed_form_jacobians`] into `out`'s buffers.
+fn closed_form_jacobians_into(
+    q: &[f64],
+    r: &[f64],
+    cols: std::ops::Range<usize>,
+    out: &mut crate::autodiff::Jacobians,
+) {
     const NQ: usize = 5;
     const NV: usize = 21;
-    let e = |a: f64| [a.cos(), a.sin()];
-    let ep = |a: f64| [-a.sin(), a.cos()];
     let rho = |k: usize| NQ + k;
-    let [p1, p2, p3] = JeongKim2Dof::points(q, r);
-    let (a1, b1) = (q[0], q[0] + q[3]);
-    let (a2, b2) = (q[1], q[1] + q[4]);
-    let a3 = q[2];
-    let (ea1, eb1, epa1, epb1) = (e(a1), e(b1), ep(a1), ep(b1));
-    let (ea2, eb2, epa2, epb2) = (e(a2), e(b2), ep(a2), ep(b2));
+    // Each angle's sine and cosine once (as in `JeongKim2Dof::points`):
+    // unit vectors `e(a) = (cos a, sin a)` and `e'(a) = (−sin a, cos a)`.
+    let sc = |a: f64| {
+        let (s, c) = a.sin_cos();
+        ([c, s], [-s, c])
+    };
+    let (ea1, epa1) = sc(q[0]);
+    let (eb1, epb1) = sc(q[0] + q[3]);
+    let (ea2, epa2) = sc(q[1]);
+    let (eb2, epb2) = sc(q[1] + q[4]);
+    let (ea3, epa3) = sc(q[2]);
+    let p1 = [
+        r[5] + r[0] * ea1[0] + r[1] * eb1[0],
+        r[6] + r[0] * ea1[1] + r[1] * eb1[1],
+    ];
+    let p2 = [
+        r[7] + r[2] * ea2[0] + r[3] * eb2[0],
+        r[8] + r[2] * ea2[1] + r[3] * eb2[1],
+    ];
+    let p3 = [r[9] + r[4] * ea3[0], r[10] + r[4] * ea3[1]];
     // ∂P_i/∂v, dense over the 21 variables (zeros elsewhere).
     let mut a = [[[0.0; 2]; NV]; 3];
     let comb =
@@ -447,13 +481,13 @@ fn closed_form_jacobians(
     a[1][rho(3)] = eb2;
     a[1][rho(7)] = [1.0, 0.0];
     a[1][rho(8)] = [0.0, 1.0];
-    a[2][2] = ep(a3).map(|c| c * r[4]);
-    a[2][rho(4)] = e(a3);
+    a[2][2] = epa3.map(|c| c * r[4]);
+    a[2][rho(4)] = ea3;
     a[2][rho(9)] = [1.0, 0.0];
     a[2][rho(10)] = [0.0, 1.0];
     let p = [p1, p2, p3];
-    let mut g = vec![0.0; 3];
-    let mut dg = DMatrix::zeros(3, cols.len());
+    out.resize(3, 2, cols.len());
+    let crate::autodiff::Jacobians { g, x, dg, dx } = out;
     for (k, (i, j)) in [(0usize, 1usize), (1, 2), (2, 0)].into_iter().enumerate() {
         let d = [p[i][0] - p[j][0], p[i][1] - p[j][1]];
         g[k] = d[0] * d[0] + d[1] * d[1] - r[11 + k] * r[11 + k];
@@ -470,11 +504,8 @@ fn closed_form_jacobians(
     let n = (d[0] * d[0] + d[1] * d[1]).sqrt();
     let u = [d[0] / n, d[1] / n];
     let ju = [-u[1], u[0]];
-    let x = vec![
-        p1[0] + r[14] * u[0] + r[15] * ju[0],
-        p1[1] + r[14] * u[1] + r[15] * ju[1],
-    ];
-    let mut dx = DMatrix::zeros(2, cols.len());
+    x[0] = p1[0] + r[14] * u[0] + r[15] * ju[0];
+    x[1] = p1[1] + r[14] * u[1] + r[15] * ju[1];
     for (c, v) in cols.clone().enumerate() {
         let dd = [a[1][v][0] - a[0][v][0], a[1][v][1] - a[0][v][1]];
         let along = u[0] * dd[0] + u[1] * dd[1];
@@ -495,7 +526,6 @@ fn closed_form_jacobians(
         dx[(0, c)] = col[0];
         dx[(1, c)] = col[1];
     }
-    crate::autodiff::Jacobians { g, x, dg, dx }
 }
 
 fn analytic_weighted_hessian(
