@@ -171,6 +171,9 @@ const BOUND_ROUNDING: f64 = 100.0;
 /// slope_j ‖A v_j‖²` therefore bounds the score of `M + AᵀA` from above.
 fn tangent(m: &DMatrix<f64>, reg: f64, criterion: PlanCriterion) -> Option<Tangent> {
     let n = m.nrows();
+    if m.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
     let mut mr = m.clone();
     for i in 0..n {
         mr[(i, i)] += reg;
