@@ -131,19 +131,13 @@ pub(crate) fn step_turn(
 
 /// LU factorisation (partial pivoting) of a square matrix, or `None` when a
 /// pivot falls below [`SINGULAR_RCOND`] times the largest entry (singular).
-pub(crate) fn checked_lu(
-    a: DMatrix<f64>,
-) -> Option<nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn>> {
+pub(crate) fn checked_lu(a: DMatrix<f64>) -> Option<crate::lu::Lu> {
     let scale = a.amax();
     if scale.is_nan() || scale <= 0.0 {
         return None;
     }
-    let lu = a.lu();
-    let n = lu.lu_internal().nrows();
-    let min = (0..n)
-        .map(|i| lu.lu_internal()[(i, i)].abs())
-        .fold(f64::INFINITY, f64::min);
-    (min >= SINGULAR_RCOND * scale).then_some(lu)
+    let lu = crate::lu::Lu::new(a);
+    (lu.min_pivot() >= SINGULAR_RCOND * scale).then_some(lu)
 }
 
 /// Solve `A X = B` (square `A`) after scaling `A`'s rows, then its columns, to
@@ -311,14 +305,14 @@ pub fn branch_signs_of(spec: &crate::Spec, j: &crate::autodiff::Jacobians) -> [i
             0
         }
     };
-    let fk = sign(j.dg.select_columns(&dependent).determinant());
+    let fk = sign(crate::lu::determinant(j.dg.select_columns(&dependent)));
     let ik = if spec.n_constraints + spec.tool_axes.len() == nq {
         let mut a = DMatrix::zeros(nq, nq);
         a.view_mut((0, 0), (spec.n_constraints, nq))
             .copy_from(&j.dg);
         a.view_mut((spec.n_constraints, 0), (spec.tool_axes.len(), nq))
             .copy_from(&j.dx);
-        sign(a.determinant())
+        sign(crate::lu::determinant(a))
     } else {
         0
     };

@@ -45,6 +45,7 @@ pub mod kinematics;
 pub mod linearized;
 pub mod lm;
 pub mod load;
+pub mod lu;
 pub mod measurement;
 pub mod mechanism;
 pub mod models;

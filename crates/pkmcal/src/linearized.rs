@@ -121,7 +121,7 @@ pub fn tool_derivatives<M: Mechanism>(
     let xq = j.dx.columns(0, nq);
     // Yᵀ = (∂g/∂q_v)⁻ᵀ (∂x/∂q_v)ᵀ.
     let yt = checked_lu(gq.select_columns(&dependent).transpose())
-        .and_then(|lu| lu.solve(&xq.select_columns(&dependent).transpose()))
+        .and_then(|lu| lu.solve_matrix(&xq.select_columns(&dependent).transpose()))
         .ok_or_else(|| Error::Singular {
             q: q.to_vec(),
             reason: "∂g/∂q_v is singular (the dependent joints are not determined)".into(),
@@ -147,7 +147,7 @@ fn dependent_joints(spec: &crate::Spec, independent: &[usize]) -> Result<Vec<usi
 }
 
 fn solve_square_multi(a: DMatrix<f64>, b: DMatrix<f64>) -> Option<DMatrix<f64>> {
-    checked_lu(a)?.solve(&b)
+    checked_lu(a)?.solve_matrix(&b)
 }
 
 /// Λ = Γ (ΓᵀKΓ)⁻¹ ΓᵀK (eq. 11): the K-weighted projection onto feasible
@@ -193,7 +193,10 @@ pub fn joint_errors(
     let lambda = projection(&lin.gamma, k)?;
     let kd = DMatrix::from_diagonal(&DVector::from_column_slice(k));
     let gkg = lin.gamma.transpose() * &kd * &lin.gamma;
-    let load = &lin.gamma * gkg.lu().solve(p).unwrap_or_else(|| DVector::zeros(p.len()));
+    let load = &lin.gamma
+        * crate::lu::Lu::new(gkg)
+            .solve(p)
+            .unwrap_or_else(|| DVector::zeros(p.len()));
     let dq = &lambda * DVector::from_column_slice(offsets)
         + (DMatrix::identity(l, l) - &lambda) * (&lin.h * DVector::from_column_slice(drho))
         - load;

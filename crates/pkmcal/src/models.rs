@@ -630,7 +630,7 @@ pub fn equilibrium<M: Mechanism>(
             // Least-squares multipliers at the start: Gᵀλ ≈ −∇E.
             let ggt = &j.dg * j.dg.transpose();
             let ge = DVector::from_column_slice(&grad_e);
-            if let Some(l) = ggt.lu().solve(&(-(&j.dg * ge))) {
+            if let Some(l) = crate::lu::Lu::new(ggt).solve(&(-(&j.dg * ge))) {
                 lam.copy_from_slice(l.as_slice());
             }
         }

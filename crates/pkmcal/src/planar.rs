@@ -656,214 +656,374 @@ impl PlanarLinkage {
     }
 }
 
-/// A body pose `[x, y, θ]` with the derivative of each component in the
-/// first `nd` variables of `[q; ρ]` (all of them, or the joints only).
-#[derive(Clone)]
-struct PoseDerivative<D> {
-    p: [D; 3],
-    d: [Vec<D>; 3],
-}
-
-impl<D: Scalar> PoseDerivative<D> {
-    fn ground(nd: usize) -> Self {
-        let zero = D::from(0.0);
-        Self {
-            p: [zero; 3],
-            d: [vec![zero; nd], vec![zero; nd], vec![zero; nd]],
-        }
-    }
-
-    /// The point `(x, y)` of the body's frame (variables `ix`, `iy` of
-    /// `[q; ρ]`) in the ground frame, with its derivatives.
-    fn world(&self, x: D, y: D, ix: usize, iy: usize) -> ([D; 2], [Vec<D>; 2]) {
-        let (s, c) = self.p[2].sin_cos();
-        let pt = [self.p[0] + c * x - s * y, self.p[1] + s * x + c * y];
-        let (kx, ky) = (-(s * x) - c * y, c * x - s * y);
-        let mut dx = self.d[0].clone();
-        let mut dy = self.d[1].clone();
-        for ((a, b), t) in dx.iter_mut().zip(dy.iter_mut()).zip(&self.d[2]) {
-            *a += kx * *t;
-            *b += ky * *t;
-        }
-        if ix < dx.len() {
-            dx[ix] += c;
-            dy[ix] += s;
-        }
-        if iy < dx.len() {
-            dx[iy] -= s;
-            dy[iy] += c;
-        }
-        (pt, [dx, dy])
-    }
-}
-
-/// Constraint and tool values with their derivatives in the first `nd`
-/// variables of `[q; ρ]`: one row per output.
+/// The closing joints' equations and the tool map with their derivatives in
+/// the first `nd` variables of `[q; ρ]`, and the body poses they are built
+/// from, in flat buffers that one evaluation after another reuses: row `r`
+/// of a derivative block is `[r·nd, (r + 1)·nd)`.
 struct ClosedForm<D> {
+    nd: usize,
+    /// Body poses `[x, y, θ]`.
+    p: Vec<[D; 3]>,
+    /// Their derivatives: body `b`'s component `c` is row `3b + c`.
+    dp: Vec<D>,
+    /// Three rows of scratch.
+    scratch: Vec<D>,
     g: Vec<D>,
     x: Vec<D>,
-    dg: Vec<Vec<D>>,
-    dx: Vec<Vec<D>>,
+    /// `∂g/∂v`, one row per constraint.
+    dg: Vec<D>,
+    /// `∂x/∂v`, one row per tool coordinate.
+    dx: Vec<D>,
+}
+
+impl<D> ClosedForm<D> {
+    const fn new() -> Self {
+        Self {
+            nd: 0,
+            p: Vec::new(),
+            dp: Vec::new(),
+            scratch: Vec::new(),
+            g: Vec::new(),
+            x: Vec::new(),
+            dg: Vec::new(),
+            dx: Vec::new(),
+        }
+    }
+}
+
+thread_local! {
+    /// The first derivatives' buffers, one set per thread (the mechanism is
+    /// shared and immutable).
+    static FIRST: std::cell::RefCell<ClosedForm<f64>> =
+        const { std::cell::RefCell::new(ClosedForm::new()) };
+}
+
+/// Size `v` to `n` zeros, keeping its storage.
+fn zeros<D: Scalar>(v: &mut Vec<D>, n: usize) {
+    v.clear();
+    v.resize(n, D::from(0.0));
+}
+
+/// The point `(x, y)` of a body's frame (variables `ix`, `iy` of `[q; ρ]`)
+/// in the ground frame; its derivatives go to `ox`, `oy` from the body's
+/// pose `p` and pose derivatives `d` (three rows of `ox.len()`).
+#[allow(clippy::too_many_arguments)]
+fn world_derivative<D: Scalar>(
+    p: &[D; 3],
+    d: &[D],
+    x: D,
+    y: D,
+    ix: usize,
+    iy: usize,
+    ox: &mut [D],
+    oy: &mut [D],
+) -> [D; 2] {
+    let nd = ox.len();
+    let (s, c) = p[2].sin_cos();
+    let pt = [p[0] + c * x - s * y, p[1] + s * x + c * y];
+    let (kx, ky) = (-(s * x) - c * y, c * x - s * y);
+    let (d0, rest) = d.split_at(nd);
+    let (d1, d2) = rest.split_at(nd);
+    for v in 0..nd {
+        ox[v] = d0[v] + kx * d2[v];
+        oy[v] = d1[v] + ky * d2[v];
+    }
+    if ix < nd {
+        ox[ix] += c;
+        oy[ix] += s;
+    }
+    if iy < nd {
+        ox[iy] -= s;
+        oy[iy] += c;
+    }
+    pt
+}
+
+/// Three consecutive rows of `nd` of `v`, from row `r`.
+fn rows3<D>(v: &mut [D], r: usize, nd: usize) -> (&mut [D], &mut [D], &mut [D]) {
+    let (a, rest) = v[r * nd..(r + 3) * nd].split_at_mut(nd);
+    let (b, c) = rest.split_at_mut(nd);
+    (a, b, c)
 }
 
 impl PlanarLinkage {
-    /// Body poses with their derivatives in the first `nd` variables of
-    /// `[q; ρ]` (the closed form of [`PlanarLinkage::poses`]).
-    fn pose_derivatives<D: Scalar>(&self, q: &[D], rho: &[D], nd: usize) -> Vec<PoseDerivative<D>> {
+    /// Fill `f` with the closed form in the first `nd` variables of
+    /// `[q; ρ]`, in any scalar: plain numbers for the first derivatives,
+    /// dual numbers over it for the second
+    /// ([`PlanarLinkage::second_derivatives`]). The body poses and their
+    /// derivatives are propagated along the tree joints (the chain rule of
+    /// [`PlanarLinkage::poses`]), then the closing joints' equations and the
+    /// tool map are differentiated from them.
+    fn closed_form_into<D: Scalar>(&self, q: &[D], rho: &[D], nd: usize, f: &mut ClosedForm<D>) {
         let nq = q.len();
-        let mut out = vec![PoseDerivative::ground(nd); self.n_bodies];
+        let zero = D::from(0.0);
+        let one = D::from(1.0);
+        let body = |b: usize| 3 * b * nd..3 * (b + 1) * nd;
+        f.nd = nd;
+        f.p.clear();
+        f.p.resize(self.n_bodies, [zero; 3]);
+        zeros(&mut f.dp, 3 * self.n_bodies * nd);
+        zeros(&mut f.scratch, 3 * nd);
         for (i, j) in self.joints.iter().enumerate() {
             if j.closing.is_some() {
                 continue;
             }
-            let parent = &out[j.parent];
-            let (a, [dax, day]) =
-                parent.world(rho[j.at[0]], rho[j.at[1]], nq + j.at[0], nq + j.at[1]);
-            let mut dth = parent.d[2].clone();
-            let child = match j.kind {
+            let pp = f.p[j.parent];
+            let dpp = &f.dp[body(j.parent)];
+            let (s0, s1, s2) = rows3(&mut f.scratch, 0, nd);
+            let a = world_derivative(
+                &pp,
+                dpp,
+                rho[j.at[0]],
+                rho[j.at[1]],
+                nq + j.at[0],
+                nq + j.at[1],
+                s0,
+                s1,
+            );
+            s2.copy_from_slice(&dpp[2 * nd..]);
+            f.p[j.child] = match j.kind {
                 JointKind::Revolute => {
                     if i < nd {
-                        dth[i] += D::from(1.0);
+                        s2[i] += one;
                     }
-                    PoseDerivative {
-                        p: [a[0], a[1], parent.p[2] + q[i]],
-                        d: [dax, day, dth],
-                    }
+                    [a[0], a[1], pp[2] + q[i]]
                 }
                 JointKind::Prismatic => {
                     let axis = j.axis.expect("prismatic");
-                    let ang = parent.p[2] + rho[axis];
+                    let ang = pp[2] + rho[axis];
                     if nq + axis < nd {
-                        dth[nq + axis] += D::from(1.0);
+                        s2[nq + axis] += one;
                     }
                     let (sa, ca) = ang.sin_cos();
-                    let mut dx = dax;
-                    let mut dy = day;
                     let (ks, kc) = (sa * q[i], ca * q[i]);
-                    for ((x, y), t) in dx.iter_mut().zip(dy.iter_mut()).zip(&dth) {
-                        *x -= ks * *t;
-                        *y += kc * *t;
+                    for v in 0..nd {
+                        s0[v] -= ks * s2[v];
+                        s1[v] += kc * s2[v];
                     }
                     if i < nd {
-                        dx[i] += ca;
-                        dy[i] += sa;
+                        s0[i] += ca;
+                        s1[i] += sa;
                     }
-                    PoseDerivative {
-                        p: [a[0] + ca * q[i], a[1] + sa * q[i], ang],
-                        d: [dx, dy, dth],
-                    }
+                    [a[0] + ca * q[i], a[1] + sa * q[i], ang]
                 }
             };
-            out[j.child] = child;
+            f.dp[body(j.child)].copy_from_slice(&f.scratch);
         }
-        out
-    }
-
-    /// The closing joints' equations and the tool map with their
-    /// derivatives in the first `nd` variables of `[q; ρ]`, in any scalar:
-    /// plain numbers for the first derivatives, dual numbers over it for the
-    /// second ([`PlanarLinkage::second_derivatives`]).
-    fn closed_form<D: Scalar>(&self, q: &[D], rho: &[D], nd: usize) -> ClosedForm<D> {
-        let nq = q.len();
-        let p = self.pose_derivatives(q, rho, nd);
         let m = self.spec.n_constraints;
-        let zero = D::from(0.0);
         let length = D::from(self.length);
-        let mut g = vec![zero; m];
-        let mut dg = vec![vec![]; m];
-        let sub = |u: &[D], v: &[D]| -> Vec<D> { u.iter().zip(v).map(|(a, b)| *a - *b).collect() };
+        zeros(&mut f.g, m);
+        zeros(&mut f.dg, m * nd);
         let mut k = 0;
         for (i, j) in self.joints.iter().enumerate() {
             let Some(c) = &j.closing else { continue };
-            let (pp, pc) = (&p[j.parent], &p[j.child]);
-            let (a, [dax, day]) = pp.world(rho[j.at[0]], rho[j.at[1]], nq + j.at[0], nq + j.at[1]);
-            let (b, [dbx, dby]) = pc.world(
+            let (pp, pc) = (f.p[j.parent], f.p[j.child]);
+            let (dpp, dpc) = (&f.dp[body(j.parent)], &f.dp[body(j.child)]);
+            let (r0, r1, r2) = rows3(&mut f.dg, k, nd);
+            let a = world_derivative(
+                &pp,
+                dpp,
+                rho[j.at[0]],
+                rho[j.at[1]],
+                nq + j.at[0],
+                nq + j.at[1],
+                r0,
+                r1,
+            );
+            let (s0, s1, s2) = rows3(&mut f.scratch, 0, nd);
+            let b = world_derivative(
+                &pc,
+                dpc,
                 rho[c.child_at[0]],
                 rho[c.child_at[1]],
                 nq + c.child_at[0],
                 nq + c.child_at[1],
+                s0,
+                s1,
             );
+            for v in 0..nd {
+                r0[v] -= s0[v];
+                r1[v] -= s1[v];
+            }
             match j.kind {
                 JointKind::Revolute => {
-                    g[k] = a[0] - b[0];
-                    g[k + 1] = a[1] - b[1];
-                    g[k + 2] = (pc.p[2] - pp.p[2] - q[i]) * length;
-                    dg[k] = sub(&dax, &dbx);
-                    dg[k + 1] = sub(&day, &dby);
-                    let mut dt = sub(&pc.d[2], &pp.d[2]);
-                    if i < nd {
-                        dt[i] -= D::from(1.0);
+                    f.g[k] = a[0] - b[0];
+                    f.g[k + 1] = a[1] - b[1];
+                    f.g[k + 2] = (pc[2] - pp[2] - q[i]) * length;
+                    for v in 0..nd {
+                        r2[v] = dpc[2 * nd + v] - dpp[2 * nd + v];
                     }
-                    dt.iter_mut().for_each(|v| *v *= length);
-                    dg[k + 2] = dt;
+                    if i < nd {
+                        r2[i] -= one;
+                    }
                 }
                 JointKind::Prismatic => {
                     let axis = j.axis.expect("prismatic");
                     let ca_idx = c.child_angle.expect("prismatic");
-                    let ang = pp.p[2] + rho[axis];
-                    let mut dang = pp.d[2].clone();
+                    let ang = pp[2] + rho[axis];
+                    s2.copy_from_slice(&dpp[2 * nd..]);
                     if nq + axis < nd {
-                        dang[nq + axis] += D::from(1.0);
+                        s2[nq + axis] += one;
                     }
                     let (sn, cs) = ang.sin_cos();
-                    g[k] = a[0] + cs * q[i] - b[0];
-                    g[k + 1] = a[1] + sn * q[i] - b[1];
-                    g[k + 2] = (pc.p[2] - ang - rho[ca_idx]) * length;
-                    let mut d0 = sub(&dax, &dbx);
-                    let mut d1 = sub(&day, &dby);
+                    f.g[k] = a[0] + cs * q[i] - b[0];
+                    f.g[k + 1] = a[1] + sn * q[i] - b[1];
+                    f.g[k + 2] = (pc[2] - ang - rho[ca_idx]) * length;
                     let (ks, kc) = (sn * q[i], cs * q[i]);
-                    for ((x, y), t) in d0.iter_mut().zip(d1.iter_mut()).zip(&dang) {
-                        *x -= ks * *t;
-                        *y += kc * *t;
+                    for v in 0..nd {
+                        r0[v] -= ks * s2[v];
+                        r1[v] += kc * s2[v];
                     }
                     if i < nd {
-                        d0[i] += cs;
-                        d1[i] += sn;
+                        r0[i] += cs;
+                        r1[i] += sn;
                     }
-                    dg[k] = d0;
-                    dg[k + 1] = d1;
-                    let mut dt = sub(&pc.d[2], &dang);
+                    for v in 0..nd {
+                        r2[v] = dpc[2 * nd + v] - s2[v];
+                    }
                     if nq + ca_idx < nd {
-                        dt[nq + ca_idx] -= D::from(1.0);
+                        r2[nq + ca_idx] -= one;
                     }
-                    dt.iter_mut().for_each(|v| *v *= length);
-                    dg[k + 2] = dt;
                 }
             }
+            r2.iter_mut().for_each(|v| *v *= length);
             k += 3;
         }
-        let tb = &p[self.tool_body];
-        let (t, [dtx, dty]) = tb.world(
+        let nx = 2 + usize::from(self.orientation);
+        zeros(&mut f.x, nx);
+        zeros(&mut f.dx, 3 * nd);
+        let tb = f.p[self.tool_body];
+        let dtb = &f.dp[body(self.tool_body)];
+        let (r0, r1, r2) = rows3(&mut f.dx, 0, nd);
+        let t = world_derivative(
+            &tb,
+            dtb,
             rho[self.tool_at[0]],
             rho[self.tool_at[1]],
             nq + self.tool_at[0],
             nq + self.tool_at[1],
+            r0,
+            r1,
         );
-        let mut x = vec![t[0], t[1]];
-        let mut dx = vec![dtx, dty];
+        f.x[0] = t[0];
+        f.x[1] = t[1];
         if self.orientation {
-            x.push(tb.p[2]);
-            dx.push(tb.d[2].clone());
+            f.x[2] = tb[2];
+            r2.copy_from_slice(&dtb[2 * nd..]);
         }
-        ClosedForm { g, x, dg, dx }
+        f.dx.truncate(nx * nd);
     }
 
-    fn closed_form_jacobians(
+    /// The first derivatives in `cols` into `out` (the per-thread buffers
+    /// of [`FIRST`], no allocation once they have grown).
+    fn closed_form_jacobians_into(
         &self,
         q: &[f64],
         rho: &[f64],
         cols: std::ops::Range<usize>,
-    ) -> crate::autodiff::Jacobians {
-        use nalgebra::DMatrix;
-        let f = self.closed_form(q, rho, cols.end);
-        let pick = |rows: &[Vec<f64>]| {
-            DMatrix::from_fn(rows.len(), cols.len(), |r, k| rows[r][cols.start + k])
-        };
-        crate::autodiff::Jacobians {
-            dg: pick(&f.dg),
-            dx: pick(&f.dx),
-            g: f.g,
-            x: f.x,
+        out: &mut crate::autodiff::Jacobians,
+    ) {
+        FIRST.with_borrow_mut(|f| {
+            self.closed_form_into(q, rho, cols.end, f);
+            let (m, nx, nd) = (f.g.len(), f.x.len(), f.nd);
+            out.resize(m, nx, cols.len());
+            out.g.copy_from_slice(&f.g);
+            out.x.copy_from_slice(&f.x);
+            for (k, c) in cols.enumerate() {
+                for r in 0..m {
+                    out.dg[(r, k)] = f.dg[r * nd + c];
+                }
+                for r in 0..nx {
+                    out.dx[(r, k)] = f.dx[r * nd + c];
+                }
+            }
+        })
+    }
+
+    /// The gradient of `φ = Σ_o w_o y_o` (outputs `y`: the constraints, then
+    /// the tool coordinates) in `[q; ρ]` into `grad`, by reverse mode over
+    /// [`PlanarLinkage::poses`]: the outputs' weights flow back through the
+    /// closing joints and the tool to the body poses, then along the tree
+    /// joints in reverse order. In any scalar: dual numbers seeded on the
+    /// joints make it the weighted Hessian's rows
+    /// ([`Mechanism::weighted_hessian`]).
+    fn weighted_gradient<D: Scalar>(&self, q: &[D], rho: &[D], w: &[D], grad: &mut [D]) {
+        let nq = q.len();
+        let zero = D::from(0.0);
+        let p = self.poses(q, rho);
+        let mut bar = vec![[zero; 3]; self.n_bodies];
+        grad.iter_mut().for_each(|g| *g = zero);
+        let (gq, gr) = grad.split_at_mut(nq);
+        let length = D::from(self.length);
+        let mut k = 0;
+        for (i, j) in self.joints.iter().enumerate() {
+            let Some(c) = &j.closing else { continue };
+            let (wa, wb, wt) = (w[k], w[k + 1], w[k + 2] * length);
+            let (pp, pc) = (p[j.parent], p[j.child]);
+            let (pa, ra) = world_adjoint(&pp, rho[j.at[0]], rho[j.at[1]], [wa, wb]);
+            add3(&mut bar[j.parent], pa);
+            gr[j.at[0]] += ra[0];
+            gr[j.at[1]] += ra[1];
+            let (pb, rb) = world_adjoint(&pc, rho[c.child_at[0]], rho[c.child_at[1]], [-wa, -wb]);
+            add3(&mut bar[j.child], pb);
+            gr[c.child_at[0]] += rb[0];
+            gr[c.child_at[1]] += rb[1];
+            bar[j.child][2] += wt;
+            match j.kind {
+                JointKind::Revolute => {
+                    bar[j.parent][2] -= wt;
+                    gq[i] -= wt;
+                }
+                JointKind::Prismatic => {
+                    let axis = j.axis.expect("prismatic");
+                    let (sn, cs) = (pp[2] + rho[axis]).sin_cos();
+                    gq[i] += wa * cs + wb * sn;
+                    let ang = wb * (cs * q[i]) - wa * (sn * q[i]) - wt;
+                    bar[j.parent][2] += ang;
+                    gr[axis] += ang;
+                    gr[c.child_angle.expect("prismatic")] -= wt;
+                }
+            }
+            k += 3;
+        }
+        let m = self.spec.n_constraints;
+        let tb = self.tool_body;
+        let (pt, rt) = world_adjoint(
+            &p[tb],
+            rho[self.tool_at[0]],
+            rho[self.tool_at[1]],
+            [w[m], w[m + 1]],
+        );
+        add3(&mut bar[tb], pt);
+        gr[self.tool_at[0]] += rt[0];
+        gr[self.tool_at[1]] += rt[1];
+        if self.orientation {
+            bar[tb][2] += w[m + 2];
+        }
+        for (i, j) in self.joints.iter().enumerate().rev() {
+            if j.closing.is_some() {
+                continue;
+            }
+            let cb = bar[j.child];
+            let pp = p[j.parent];
+            let th = match j.kind {
+                JointKind::Revolute => {
+                    gq[i] += cb[2];
+                    cb[2]
+                }
+                JointKind::Prismatic => {
+                    let axis = j.axis.expect("prismatic");
+                    let (sa, ca) = (pp[2] + rho[axis]).sin_cos();
+                    gq[i] += cb[0] * ca + cb[1] * sa;
+                    let ang = cb[2] + cb[1] * (ca * q[i]) - cb[0] * (sa * q[i]);
+                    gr[axis] += ang;
+                    ang
+                }
+            };
+            let (pa, ra) = world_adjoint(&pp, rho[j.at[0]], rho[j.at[1]], [cb[0], cb[1]]);
+            add3(&mut bar[j.parent], [pa[0], pa[1], pa[2] + th]);
+            gr[j.at[0]] += ra[0];
+            gr[j.at[1]] += ra[1];
         }
     }
 
@@ -884,14 +1044,15 @@ impl PlanarLinkage {
         let nq = q.len();
         let v0: Vec<f64> = q.iter().chain(rho).copied().collect();
         let mut v: Vec<DualSVec64<C>> = v0.iter().map(|&a| DualSVec64::from_re(a)).collect();
+        let mut f = ClosedForm::new();
         let mut start = cols.start;
         while start < cols.end {
             let end = (start + C).min(cols.end);
             for (k, i) in (start..end).enumerate() {
                 v[i] = DualSVec64::from_re(v0[i]).derivative(k);
             }
-            let f = self.closed_form(&v[..nq], &v[nq..], nq);
-            for (o, row) in f.dg.iter().chain(&f.dx).enumerate() {
+            self.closed_form_into(&v[..nq], &v[nq..], nq, &mut f);
+            for (o, row) in f.dg.chunks(nq).chain(f.dx.chunks(nq)).enumerate() {
                 for (i, d) in row.iter().enumerate() {
                     let e = d.eps.unwrap_generic(Const::<C>, U1);
                     for k in 0..end - start {
@@ -904,6 +1065,22 @@ impl PlanarLinkage {
             }
             start = end;
         }
+    }
+}
+
+/// The adjoint of [`world`]: for the weights `u` of the point's two
+/// coordinates, those of the body's pose and of the point's coordinates in
+/// the body frame.
+fn world_adjoint<D: Scalar>(pose: &[D; 3], x: D, y: D, u: [D; 2]) -> ([D; 3], [D; 2]) {
+    let (s, c) = pose[2].sin_cos();
+    let th = u[0] * (-(s * x) - c * y) + u[1] * (c * x - s * y);
+    ([u[0], u[1], th], [u[0] * c + u[1] * s, u[1] * c - u[0] * s])
+}
+
+/// `a += b`, component by component.
+fn add3<D: Scalar>(a: &mut [D; 3], b: [D; 3]) {
+    for (x, y) in a.iter_mut().zip(b) {
+        *x += y;
     }
 }
 
@@ -957,12 +1134,28 @@ impl Mechanism for PlanarLinkage {
         rho: &[f64],
         cols: std::ops::Range<usize>,
     ) -> Option<crate::autodiff::Jacobians> {
-        Some(self.closed_form_jacobians(q, rho, cols))
+        let mut out = crate::autodiff::Jacobians::empty();
+        self.closed_form_jacobians_into(q, rho, cols, &mut out);
+        Some(out)
     }
 
-    /// Forward-mode dual numbers over the closed-form first derivatives
-    /// (`∇_q φ = Gᵀλ + Xᵀμ` differentiated in every column) instead of
-    /// hyper-dual numbers over the loop closure.
+    /// [`Mechanism::first_derivatives`] into `out`'s buffers.
+    fn first_derivatives_into(
+        &self,
+        q: &[f64],
+        rho: &[f64],
+        cols: std::ops::Range<usize>,
+        out: &mut crate::autodiff::Jacobians,
+    ) -> bool {
+        self.closed_form_jacobians_into(q, rho, cols, out);
+        true
+    }
+
+    /// Forward-over-reverse: dual numbers seeded on the joints, eight at a
+    /// time, through the reverse-mode gradient of `φ = λᵀg + μᵀx`
+    /// ([`PlanarLinkage::weighted_gradient`]); each pass gives eight rows.
+    /// The cost is a few passes over the bodies, whatever the number of
+    /// parameters.
     fn weighted_hessian(
         &self,
         q: &[f64],
@@ -970,12 +1163,36 @@ impl Mechanism for PlanarLinkage {
         lambda: &[f64],
         mu: &[f64],
     ) -> nalgebra::DMatrix<f64> {
+        use nalgebra::{Const, U1};
+        use num_dual::DualSVec64;
+        const C: usize = 8;
         let nq = q.len();
-        let mut out = nalgebra::DMatrix::zeros(nq, nq + rho.len());
-        let weights: Vec<f64> = lambda.iter().chain(mu).copied().collect();
-        self.second_derivatives(q, rho, 0..nq + rho.len(), |o, i, c, v| {
-            out[(i, c)] += weights[o] * v
-        });
+        let n = nq + rho.len();
+        let mut out = nalgebra::DMatrix::zeros(nq, n);
+        let mut qd: Vec<DualSVec64<C>> = q.iter().map(|&a| DualSVec64::from_re(a)).collect();
+        let rd: Vec<DualSVec64<C>> = rho.iter().map(|&a| DualSVec64::from_re(a)).collect();
+        let w: Vec<DualSVec64<C>> = lambda
+            .iter()
+            .chain(mu)
+            .map(|&a| DualSVec64::from_re(a))
+            .collect();
+        let mut grad = vec![DualSVec64::from_re(0.0); n];
+        for start in (0..nq).step_by(C) {
+            let end = (start + C).min(nq);
+            for (k, i) in (start..end).enumerate() {
+                qd[i] = DualSVec64::from_re(q[i]).derivative(k);
+            }
+            self.weighted_gradient(&qd, &rd, &w, &mut grad);
+            for (c, g) in grad.iter().enumerate() {
+                let e = g.eps.unwrap_generic(Const::<C>, U1);
+                for k in 0..end - start {
+                    out[(start + k, c)] = e[k];
+                }
+            }
+            for i in start..end {
+                qd[i] = DualSVec64::from_re(q[i]);
+            }
+        }
         out
     }
 

@@ -179,8 +179,7 @@ fn exact_sensitivity<M: Mechanism>(
     let lambda = if prediction.multipliers.len() == m {
         DVector::from_column_slice(&prediction.multipliers)
     } else {
-        (&gq * gq.transpose())
-            .lu()
+        crate::lu::Lu::new(&gq * gq.transpose())
             .solve(&(&gq * rhs))
             .ok_or_else(|| Error::Singular {
                 q: q.clone(),

@@ -640,7 +640,7 @@ impl SpatialMechanism {
     /// Sign of the determinant of leg `i`'s equations against its joints.
     fn leg_sign(&self, i: usize, q: &[f64], rho: &[f64]) -> i8 {
         let (_, j) = self.leg_system(&self.legs[i], q, rho);
-        let d = j.determinant();
+        let d = crate::lu::determinant(j);
         if d > 0.0 {
             1
         } else if d < 0.0 {
