@@ -153,6 +153,9 @@ fn enorm(v: &[f64]) -> f64 {
     v.iter().map(|a| a * a).sum::<f64>().sqrt()
 }
 
+/// Columns whose Householder dot products [`qrfac`] computes side by side.
+const BLOCK: usize = 8;
+
 /// QR factorisation with column pivoting (MINPACK `qrfac`). On return `a`
 /// holds R in its upper triangle (diagonal in `rdiag`) and the Householder
 /// vectors below; `ipvt[j]` is the original column of column j; `acnorm` the
@@ -183,28 +186,47 @@ pub(crate) fn qrfac(a: &mut DMatrix<f64>) -> (Vec<usize>, Vec<f64>, Vec<f64>) {
             a[(j, j)] += 1.0;
             // The Householder reflection applied to the later columns, on
             // contiguous column slices (the same operations in the same
-            // order as indexed access, without its bounds checks).
+            // order as indexed access, without its bounds checks). The dot
+            // products of up to eight columns run side by side, each summed
+            // in its own order: the same bits, without one long chain of
+            // dependent additions.
             let mut recompute = vec![];
             {
                 let (left, right) = a.as_mut_slice().split_at_mut((j + 1) * m);
                 let v = &left[j * m + j..(j + 1) * m];
-                for k in j + 1..n {
-                    let col = &mut right[(k - j - 1) * m + j..(k - j) * m];
-                    let mut sum = 0.0;
-                    for (x, y) in v.iter().zip(col.iter()) {
-                        sum += x * y;
-                    }
-                    let temp = sum / v[0];
-                    for (y, x) in col.iter_mut().zip(v) {
-                        *y -= temp * x;
-                    }
-                    if rdiag[k] != 0.0 {
-                        let t = col[0] / rdiag[k];
-                        rdiag[k] *= (1.0 - t * t).max(0.0).sqrt();
-                        if 0.05 * (rdiag[k] / wa[k]).powi(2) <= eps {
-                            recompute.push(k);
+                let len = v.len();
+                let mut k = j + 1;
+                while k < n {
+                    let w = (n - k).min(BLOCK);
+                    let first = (k - j - 1) * m + j;
+                    let mut sums = [0.0f64; BLOCK];
+                    {
+                        let cols: [&[f64]; BLOCK] = std::array::from_fn(|t| {
+                            let s = first + t.min(w - 1) * m;
+                            &right[s..s + len]
+                        });
+                        for (i, x) in v.iter().enumerate() {
+                            for t in 0..BLOCK {
+                                sums[t] += x * cols[t][i];
+                            }
                         }
                     }
+                    for (t, sum) in sums.iter().take(w).enumerate() {
+                        let col = &mut right[first + t * m..first + t * m + len];
+                        let temp = sum / v[0];
+                        for (y, x) in col.iter_mut().zip(v) {
+                            *y -= temp * x;
+                        }
+                        let kk = k + t;
+                        if rdiag[kk] != 0.0 {
+                            let t = col[0] / rdiag[kk];
+                            rdiag[kk] *= (1.0 - t * t).max(0.0).sqrt();
+                            if 0.05 * (rdiag[kk] / wa[kk]).powi(2) <= eps {
+                                recompute.push(kk);
+                            }
+                        }
+                    }
+                    k += w;
                 }
             }
             for k in recompute {
