@@ -1394,6 +1394,7 @@ fn calibrate_weighted<M: Mechanism>(
         opts,
         &noise.sigmas(),
         None,
+        None,
         Some(cache),
     )?;
     // The free set and identifiability of the first fit hold for the refits.
@@ -1409,6 +1410,7 @@ fn calibrate_weighted<M: Mechanism>(
             &refit_opts,
             sigma,
             Some(&cal.free),
+            Some(&cal.identifiability),
             Some(cache),
         )?;
         next.identifiability = cal.identifiability.clone();
@@ -1639,6 +1641,7 @@ fn calibrate_once<M: Mechanism>(
     opts: &CalibrationOptions,
     sigma: &[f64],
     exact_free: Option<&[usize]>,
+    known: Option<&Identifiability>,
     cache: Option<&PoseCache>,
 ) -> Result<Calibration> {
     let spec = mech.spec();
@@ -1736,8 +1739,12 @@ fn calibrate_once<M: Mechanism>(
     let mut x0: Vec<f64> = start.values.iter().chain(&m0).copied().collect();
     // Identifiability at the start.
     let (_, jac) = problem.residuals_and_jacobian(&x0)?;
-    let (mut identifiability, mut free) =
-        analyze_identifiability(&cols, &weigh(jac)?, &requested, data.len(), opts.auto_fix);
+    let weighted = weigh(jac)?;
+    let (mut identifiability, mut free) = match known {
+        // A refit keeps the first fit's analysis (its free set is `exact_free`).
+        Some(ident) if !opts.auto_fix => (ident.clone(), requested.clone()),
+        _ => analyze_identifiability(&cols, &weighted, &requested, data.len(), opts.auto_fix),
+    };
     // Stiffness acts only where the actuators fight, which they do not at
     // nominal parameters: judge its identifiability where they do, at the
     // solution without it.

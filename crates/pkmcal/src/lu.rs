@@ -25,40 +25,7 @@ impl Lu {
         let n = a.nrows();
         assert_eq!(n, a.ncols(), "LU of a non-square matrix");
         let mut swaps = Vec::new();
-        let s = a.as_mut_slice();
-        for i in 0..n {
-            let col = &s[i * n..(i + 1) * n];
-            let (mut piv, mut max) = (i, col[i].abs());
-            for (r, v) in col.iter().enumerate().skip(i + 1) {
-                if v.abs() > max {
-                    max = v.abs();
-                    piv = r;
-                }
-            }
-            let diag = col[piv];
-            if diag == 0.0 {
-                continue;
-            }
-            if piv != i {
-                swaps.push((i, piv));
-                for c in 0..=i {
-                    s.swap(c * n + i, c * n + piv);
-                }
-            }
-            let inv = 1.0 / diag;
-            let (left, right) = s.split_at_mut((i + 1) * n);
-            let coeffs = &mut left[i * n + i + 1..];
-            coeffs.iter_mut().for_each(|c| *c *= inv);
-            for col in right.chunks_exact_mut(n) {
-                if piv != i {
-                    col.swap(i, piv);
-                }
-                let p = col[i];
-                for (y, c) in col[i + 1..].iter_mut().zip(coeffs.iter()) {
-                    *y -= p * c;
-                }
-            }
-        }
+        factor(a.as_mut_slice(), n, |i, p| swaps.push((i, p)));
         Self { lu: a, swaps }
     }
 
@@ -88,29 +55,10 @@ impl Lu {
     /// Solve `A x = b` in place (`b` one column of `n`); `false` when `U`
     /// has a zero on its diagonal.
     pub fn solve_in_place(&self, b: &mut [f64]) -> bool {
-        let n = self.n();
-        let s = self.lu.as_slice();
         for &(i, p) in &self.swaps {
             b.swap(i, p);
         }
-        for i in 0..n.saturating_sub(1) {
-            let c = b[i];
-            for (y, l) in b[i + 1..].iter_mut().zip(&s[i * n + i + 1..(i + 1) * n]) {
-                *y -= c * l;
-            }
-        }
-        for i in (0..n).rev() {
-            let d = s[i * n + i];
-            if d == 0.0 {
-                return false;
-            }
-            let c = b[i] / d;
-            b[i] = c;
-            for (y, u) in b[..i].iter_mut().zip(&s[i * n..i * n + i]) {
-                *y -= c * u;
-            }
-        }
-        true
+        substitute(self.lu.as_slice(), self.n(), b)
     }
 
     /// `A⁻¹ b`, or `None` when `U` has a zero on its diagonal.
@@ -132,6 +80,78 @@ impl Lu {
             .all(|c| self.solve_in_place(c))
             .then_some(x)
     }
+}
+
+/// Solve `A x = b` in place, `A`'s storage receiving its factors: the
+/// same operations as [`Lu::new`] then [`Lu::solve_in_place`], without a
+/// copy of `A` (for buffers a caller keeps).
+pub fn solve_in_place(a: &mut DMatrix<f64>, b: &mut [f64]) -> bool {
+    let n = a.nrows();
+    assert_eq!(n, a.ncols(), "LU of a non-square matrix");
+    factor(a.as_mut_slice(), n, |i, p| b.swap(i, p));
+    substitute(a.as_slice(), n, b)
+}
+
+/// The factorisation of [`Lu::new`] on the column-major `n × n` slice `s`,
+/// reporting each row swap `(i, pivot)` as it is made.
+fn factor(s: &mut [f64], n: usize, mut on_swap: impl FnMut(usize, usize)) {
+    for i in 0..n {
+        let col = &s[i * n..(i + 1) * n];
+        let (mut piv, mut max) = (i, col[i].abs());
+        for (r, v) in col.iter().enumerate().skip(i + 1) {
+            if v.abs() > max {
+                max = v.abs();
+                piv = r;
+            }
+        }
+        let diag = col[piv];
+        if diag == 0.0 {
+            continue;
+        }
+        if piv != i {
+            on_swap(i, piv);
+            for c in 0..=i {
+                s.swap(c * n + i, c * n + piv);
+            }
+        }
+        let inv = 1.0 / diag;
+        let (left, right) = s.split_at_mut((i + 1) * n);
+        let coeffs = &mut left[i * n + i + 1..];
+        coeffs.iter_mut().for_each(|c| *c *= inv);
+        for col in right.chunks_exact_mut(n) {
+            if piv != i {
+                col.swap(i, piv);
+            }
+            let p = col[i];
+            for (y, c) in col[i + 1..].iter_mut().zip(coeffs.iter()) {
+                *y -= p * c;
+            }
+        }
+    }
+}
+
+/// Forward then back substitution with the factors in `s` (`n × n`,
+/// column-major) on the already permuted `b`; `false` when `U` has a zero on
+/// its diagonal.
+fn substitute(s: &[f64], n: usize, b: &mut [f64]) -> bool {
+    for i in 0..n.saturating_sub(1) {
+        let c = b[i];
+        for (y, l) in b[i + 1..].iter_mut().zip(&s[i * n + i + 1..(i + 1) * n]) {
+            *y -= c * l;
+        }
+    }
+    for i in (0..n).rev() {
+        let d = s[i * n + i];
+        if d == 0.0 {
+            return false;
+        }
+        let c = b[i] / d;
+        b[i] = c;
+        for (y, u) in b[..i].iter_mut().zip(&s[i * n..i * n + i]) {
+            *y -= c * u;
+        }
+    }
+    true
 }
 
 /// The determinant of a square matrix as nalgebra's `determinant` computes
@@ -180,6 +200,13 @@ mod tests {
             assert_eq!(determinant(a.clone()).to_bits(), a.determinant().to_bits());
             assert_eq!(ours.solve(&b), theirs.solve(&b), "solve, trial {trial}");
             assert_eq!(ours.solve_matrix(&bm), theirs.solve(&bm), "trial {trial}");
+            let (mut a2, mut b2) = (a.clone(), b.clone());
+            let solved = solve_in_place(&mut a2, b2.as_mut_slice());
+            assert_eq!(
+                solved.then_some(b2),
+                theirs.solve(&b),
+                "in place, trial {trial}"
+            );
         }
     }
 }

@@ -576,68 +576,156 @@ pub fn equilibrium<M: Mechanism>(
     check_commands(spec, commands)?;
     // Generalised forces on the tool coordinates ([`crate::load`]).
     check_load(spec, force)?;
-    let force: Vec<f64> = if force.is_empty() {
-        vec![0.0; spec.tool_axes.len()]
-    } else {
-        force.to_vec()
-    };
-    let nq = spec.joints.len();
-    let m = spec.n_constraints;
-    let rho = params.geometric();
-    let k = params.stiffness();
-    let w: Vec<f64> = force.iter().map(|f| -f * spec.work_scale).collect();
-    let motor: Vec<f64> = commands
-        .iter()
-        .zip(params.offsets())
-        .map(|(c, o)| c + o)
-        .collect();
     let own;
     let hessians = match hessians {
         Some(h) => h,
         None => {
-            own = mech.joint_hessians(start, rho);
+            own = mech.joint_hessians(start, params.geometric());
             &own
         }
     };
+    // The iteration's buffers live in a per-thread workspace: the hot path
+    // allocates only its results (a nested call, which nothing makes today,
+    // would get buffers of its own).
+    EQUILIBRIUM_WORK.with(|cell| match cell.try_borrow_mut() {
+        Ok(mut ws) => equilibrium_in(mech, params, commands, force, start, hessians, &mut ws),
+        Err(_) => equilibrium_in(
+            mech,
+            params,
+            commands,
+            force,
+            start,
+            hessians,
+            &mut EquilibriumWork::default(),
+        ),
+    })
+}
+
+/// The buffers of [`equilibrium`]'s Newton iterations, reused from one call
+/// to the next on a thread (Pinocchio's `Data` to the mechanism's `Model`).
+#[derive(Default)]
+struct EquilibriumWork {
+    /// `−force · work_scale`.
+    w: Vec<f64>,
+    /// Commands plus encoder offsets.
+    motor: Vec<f64>,
+    /// The KKT matrix, factorised in place.
+    kkt: DMatrix<f64>,
+    /// Its right-hand side, overwritten by the step.
+    step: DMatrix<f64>,
+    /// ∇E.
+    grad_e: Vec<f64>,
+    /// The weights of the output Hessians: `[λ; w]`.
+    weights: Vec<f64>,
+    /// Derivatives at the current configuration.
+    j: Option<crate::autodiff::Jacobians>,
+    /// `Gᵀ`, `G Gᵀ`, `∇E` and `−G ∇E` of the least-squares multipliers.
+    gt: DMatrix<f64>,
+    ggt: DMatrix<f64>,
+    ge: DVector<f64>,
+    rhs: DVector<f64>,
+}
+
+thread_local! {
+    static EQUILIBRIUM_WORK: std::cell::RefCell<EquilibriumWork> =
+        std::cell::RefCell::new(EquilibriumWork::default());
+}
+
+/// Size a matrix to `r × c`, keeping its storage when the shape fits.
+fn shape(m: &mut DMatrix<f64>, r: usize, c: usize) {
+    if m.shape() != (r, c) {
+        *m = DMatrix::zeros(r, c);
+    }
+}
+
+/// [`equilibrium`] in the workspace `ws`.
+fn equilibrium_in<M: Mechanism>(
+    mech: &M,
+    params: &Params,
+    commands: &[f64],
+    force: &[f64],
+    start: &[f64],
+    hessians: &[DMatrix<f64>],
+    ws: &mut EquilibriumWork,
+) -> Result<Equilibrium> {
+    let spec = mech.spec();
+    let nq = spec.joints.len();
+    let m = spec.n_constraints;
+    let nx = spec.tool_axes.len();
+    let rho = params.geometric();
+    let k = params.stiffness();
+    ws.w.clear();
+    if force.is_empty() {
+        ws.w.resize(nx, -0.0 * spec.work_scale);
+    } else {
+        ws.w.extend(force.iter().map(|f| -f * spec.work_scale));
+    }
+    ws.motor.clear();
+    ws.motor
+        .extend(commands.iter().zip(params.offsets()).map(|(c, o)| c + o));
     let mut q = start.to_vec();
     // The multipliers, estimated at the first iteration.
     let mut lam = vec![0.0; m];
     let mut last = f64::INFINITY;
-    // The iteration's buffers, allocated once: the KKT matrix (factorised in
-    // place), its right-hand side (overwritten by the step), ∇E.
     let n = nq + m;
-    let mut kkt = DMatrix::zeros(n, n);
-    let mut step = DMatrix::zeros(n, 1);
-    let mut grad_e = vec![0.0; nq];
-    let mut weights = vec![0.0; m + w.len()];
-    weights[m..].copy_from_slice(&w);
-    let mut j = crate::autodiff::Jacobians::empty();
+    shape(&mut ws.kkt, n, n);
+    shape(&mut ws.step, n, 1);
+    ws.grad_e.clear();
+    ws.grad_e.resize(nq, 0.0);
+    ws.weights.clear();
+    ws.weights.resize(m, 0.0);
+    ws.weights.extend_from_slice(&ws.w);
+    let EquilibriumWork {
+        w,
+        motor,
+        kkt,
+        step,
+        grad_e,
+        weights,
+        j,
+        gt,
+        ggt,
+        ge,
+        rhs,
+    } = ws;
+    let j = j.get_or_insert_with(crate::autodiff::Jacobians::empty);
     for it in 1..=MAX_EQUILIBRIUM_ITERATIONS {
-        jacobians_into(mech, &q, rho, 0..nq, &mut j);
+        jacobians_into(mech, &q, rho, 0..nq, j);
         // ∇E = −Sᵀτ + Xqᵀ w.
-        let nx = w.len();
         grad_e.fill(0.0);
         for (ge, dx) in grad_e
             .iter_mut()
             .zip(j.dx.as_slice().chunks_exact(nx.max(1)))
         {
-            *ge = dx.iter().zip(&w).map(|(d, w)| d * w).sum();
+            *ge = dx.iter().zip(w.iter()).map(|(d, w)| d * w).sum();
         }
         for (a, &jt) in spec.actuated.iter().enumerate() {
             grad_e[jt] -= k[a] * (motor[a] - q[jt]);
         }
         if it == 1 {
-            // Least-squares multipliers at the start: Gᵀλ ≈ −∇E.
-            let ggt = &j.dg * j.dg.transpose();
-            let ge = DVector::from_column_slice(&grad_e);
-            if let Some(l) = crate::lu::Lu::new(ggt).solve(&(-(&j.dg * ge))) {
-                lam.copy_from_slice(l.as_slice());
+            // Least-squares multipliers at the start: Gᵀλ ≈ −∇E (the same
+            // products as `&G * Gᵀ` and `G * ∇E`, into the workspace).
+            shape(gt, nq, m);
+            j.dg.transpose_to(gt);
+            shape(ggt, m, m);
+            j.dg.mul_to(gt, ggt);
+            if ge.len() != nq {
+                *ge = DVector::zeros(nq);
+            }
+            ge.as_mut_slice().copy_from_slice(grad_e);
+            if rhs.len() != m {
+                *rhs = DVector::zeros(m);
+            }
+            j.dg.mul_to(ge, rhs);
+            rhs.neg_mut();
+            if crate::lu::solve_in_place(ggt, rhs.as_mut_slice()) {
+                lam.copy_from_slice(rhs.as_slice());
             }
         }
         // W = SᵀKS + Σ λ_k ∇²g_k + Σ w_i ∇²x_i, then the constraint blocks.
         weights[..m].copy_from_slice(&lam);
         kkt.as_mut_slice().fill(0.0);
-        for (h, &wt) in hessians.iter().zip(&weights) {
+        for (h, &wt) in hessians.iter().zip(weights.iter()) {
             if wt != 0.0 {
                 let cols = kkt.as_mut_slice().chunks_exact_mut(n);
                 for (o, v) in cols.zip(h.as_slice().chunks_exact(nq)) {
@@ -660,7 +748,7 @@ pub fn equilibrium<M: Mechanism>(
         debug_assert!(hessians.iter().all(|h| h.shape() == (nq, nq)));
         for ((st, ge), dg) in step
             .iter_mut()
-            .zip(&grad_e)
+            .zip(grad_e.iter())
             .zip(j.dg.as_slice().chunks_exact(m.max(1)))
         {
             let t: f64 = dg.iter().zip(&lam).map(|(d, l)| d * l).sum();
@@ -669,7 +757,7 @@ pub fn equilibrium<M: Mechanism>(
         for (r, g) in j.g.iter().enumerate() {
             step[nq + r] = *g;
         }
-        if !solve_scaled_in_place(&mut kkt, &mut step) {
+        if !solve_scaled_in_place(kkt, step) {
             return Err(Error::Singular {
                 q: q.clone(),
                 reason: "the equilibrium (KKT) system is singular".into(),
