@@ -5,7 +5,8 @@ use anyhow::{Context, Result, bail};
 use pkmcal::calibration::{CrossValidation, Identifiability};
 use pkmcal::{
     Accuracy, Calibration, CalibrationOptions, ErrorStats, Frame, Measurement, MeasurementModel,
-    Mechanism, Model, Params, calibrate, calibration_accuracy, holdout_split,
+    Mechanism, Model, Params, PoseCache, calibrate_with_cache, calibration_accuracy,
+    calibration_accuracy_with_cache, holdout_split,
 };
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -606,7 +607,10 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
     let train: Vec<Measurement> = train.into_iter().chain(pairs).collect();
     // Every pose carries its data-file number and line, so errors, outliers
     // and dropped poses name them without translation.
-    let cal = calibrate(mech, &measurement, &train, &start, &opts).map_err(locate)?;
+    // The poses are prepared once, for the fit and its statistics.
+    let cache = PoseCache::new();
+    let cal =
+        calibrate_with_cache(mech, &measurement, &train, &start, &opts, &cache).map_err(locate)?;
     // Statistics over the poses the fit kept (dropped outliers are listed).
     let kept: Vec<Measurement> = train
         .iter()
@@ -614,7 +618,8 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
         .cloned()
         .collect();
     let (acc, before, after) =
-        calibration_accuracy(mech, &measurement, &kept, &cal, &opts.force).map_err(locate)?;
+        calibration_accuracy_with_cache(mech, &measurement, &kept, &cal, &opts.force, &cache)
+            .map_err(locate)?;
     // The figures show the poses (the distances are in the summary).
     let kept: Vec<Measurement> = kept.into_iter().filter(|m| m.partner.is_none()).collect();
     let validation = match &held {

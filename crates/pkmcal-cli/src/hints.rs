@@ -50,8 +50,11 @@ pub fn check_data<M: Mechanism>(
     let sample: Vec<&Measurement> = data.iter().step_by(step).collect();
     let commands: Vec<&[f64]> = sample.iter().map(|m| m.commands.as_slice()).collect();
     let check = Assembly::new(mech);
-    let predicted: Vec<Option<pkmcal::Prediction>> =
-        commands.iter().map(|c| check.assembles(c)).collect();
+    // The sample's poses in parallel (each a forward kinematics from scratch).
+    let predicted: Vec<Option<pkmcal::Prediction>> = {
+        use rayon::prelude::*;
+        commands.par_iter().map(|c| check.assembles(c)).collect()
+    };
     let failed = predicted.iter().filter(|p| p.is_none()).count();
     let file = path.display();
     if failed as f64 >= FAILING_SHARE * sample.len() as f64 {

@@ -199,9 +199,11 @@ pub struct IdentificationProblem<'a, M: Mechanism> {
 /// calibration (the gross-error screening, each reweighted fit, each refit
 /// after an outlier is dropped), by their row's origin (and whether it is a
 /// distance's second pose). Their nominal forward kinematics and joint
-/// Hessians are then computed once per calibration.
+/// Hessians are then computed once per calibration; pass the same cache to
+/// [`calibrate_with_cache`] and [`calibration_accuracy_with_cache`] to
+/// compute them once for both.
 #[derive(Default)]
-pub(crate) struct PoseCache(Mutex<HashMap<PoseKey, CachedPose>>);
+pub struct PoseCache(Mutex<HashMap<PoseKey, CachedPose>>);
 
 /// The commands a pose was prepared for, and the pose.
 type CachedPose = (Vec<f64>, Arc<Pose>);
@@ -210,6 +212,11 @@ type CachedPose = (Vec<f64>, Arc<Pose>);
 type PoseKey = (Origin, bool);
 
 impl PoseCache {
+    /// An empty cache.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
     /// A cached pose is used only for the same commands (a Monte Carlo
     /// study shares one cache between runs measuring the same plan).
     fn get_or_prepare(
@@ -1186,12 +1193,12 @@ pub fn calibrate<M: Mechanism>(
     start: &Params,
     opts: &CalibrationOptions,
 ) -> Result<Calibration> {
-    calibrate_cached(mech, measurement, data, start, opts, &PoseCache::default())
+    calibrate_with_cache(mech, measurement, data, start, opts, &PoseCache::default())
 }
 
 /// [`calibrate`] with the poses prepared in `cache` (those missing are
 /// prepared and left there).
-pub(crate) fn calibrate_cached<M: Mechanism>(
+pub fn calibrate_with_cache<M: Mechanism>(
     mech: &M,
     measurement: &MeasurementModel,
     data: &[Measurement],
@@ -2097,6 +2104,21 @@ pub fn accuracy<M: Mechanism>(
     model: Model,
     force: &[f64],
 ) -> Result<(Accuracy, ErrorVectors, ErrorVectors)> {
+    accuracy_cached(mech, measurement, data, params, m, model, force, None)
+}
+
+/// [`accuracy`] with the poses prepared in `cache`.
+#[allow(clippy::too_many_arguments)]
+fn accuracy_cached<M: Mechanism>(
+    mech: &M,
+    measurement: &MeasurementModel,
+    data: &[Measurement],
+    params: &Params,
+    m: &[f64],
+    model: Model,
+    force: &[f64],
+    cache: Option<&PoseCache>,
+) -> Result<(Accuracy, ErrorVectors, ErrorVectors)> {
     let spec = mech.spec();
     let nominal = Params::nominal(spec);
     let all = numbered(data);
@@ -2105,7 +2127,8 @@ pub fn accuracy<M: Mechanism>(
     let distances = if pairs.is_empty() {
         None
     } else {
-        let problem = IdentificationProblem::new(mech, measurement, &pairs, model, force)?;
+        let problem =
+            IdentificationProblem::with_cache(mech, measurement, &pairs, model, force, cache)?;
         let errors = |p: &Params| -> Result<Vec<f64>> {
             Ok(problem
                 .predict_distances(p)?
@@ -2128,7 +2151,7 @@ pub fn accuracy<M: Mechanism>(
         })
     };
     let data = &data[..];
-    let problem = IdentificationProblem::new(mech, measurement, data, model, force)?;
+    let problem = IdentificationProblem::with_cache(mech, measurement, data, model, force, cache)?;
     let nominal_pred = problem.predict(&nominal)?;
     let pred = problem.predict(params)?;
     let reference: Vec<Vec<f64>> = data
@@ -2184,7 +2207,21 @@ pub fn calibration_accuracy<M: Mechanism>(
     cal: &Calibration,
     force: &[f64],
 ) -> Result<(Accuracy, ErrorVectors, ErrorVectors)> {
-    accuracy(
+    calibration_accuracy_with_cache(mech, measurement, data, cal, force, &PoseCache::default())
+}
+
+/// [`calibration_accuracy`] with the poses prepared in `cache` (the one the
+/// calibration was given to [`calibrate_with_cache`]: the data's poses are
+/// then prepared once for both).
+pub fn calibration_accuracy_with_cache<M: Mechanism>(
+    mech: &M,
+    measurement: &MeasurementModel,
+    data: &[Measurement],
+    cal: &Calibration,
+    force: &[f64],
+    cache: &PoseCache,
+) -> Result<(Accuracy, ErrorVectors, ErrorVectors)> {
+    accuracy_cached(
         mech,
         measurement,
         data,
@@ -2192,6 +2229,7 @@ pub fn calibration_accuracy<M: Mechanism>(
         &cal.measurement,
         cal.model,
         force,
+        Some(cache),
     )
 }
 

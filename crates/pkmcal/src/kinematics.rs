@@ -66,8 +66,9 @@ fn solve_closure_keeping<M: Mechanism>(
         )));
     }
     let mut last = f64::INFINITY;
+    let mut j = crate::autodiff::Jacobians::empty();
     for it in 0..MAX_NEWTON {
-        let j = jacobians(mech, q, rho, 0..nq);
+        crate::autodiff::jacobians_into(mech, q, rho, 0..nq, &mut j);
         let gv = j.dg.select_columns(&free);
         let step =
             solve_square(gv, DVector::from_column_slice(&j.g)).ok_or_else(|| Error::Singular {
@@ -552,6 +553,7 @@ fn ik_continuation<M: Mechanism>(
     }
     let stages = (stages as usize).max(1);
     let all: Vec<usize> = (0..nq).collect();
+    let mut j = crate::autodiff::Jacobians::empty();
     for s in 1..=stages {
         let t = s as f64 / stages as f64;
         let goal: Vec<f64> = x0
@@ -561,7 +563,7 @@ fn ik_continuation<M: Mechanism>(
             .collect();
         let mut converged = false;
         for _ in 0..MAX_NEWTON {
-            let j = jacobians(mech, &q, rho, 0..nq);
+            crate::autodiff::jacobians_into(mech, &q, rho, 0..nq, &mut j);
             let mut a = DMatrix::zeros(nq, nq);
             a.view_mut((0, 0), (spec.n_constraints, nq))
                 .copy_from(&j.dg);

@@ -65,7 +65,8 @@ pub use any::AnyMechanism;
 pub use ballbar::{Setup, trilaterate};
 pub use calibration::{
     Accuracy, Calibration, CalibrationOptions, DistanceAccuracy, Identifiability, Loss, Outlier,
-    ParameterCovariance, accuracy, analyze, calibrate, calibration_accuracy, cross_validate,
+    ParameterCovariance, PoseCache, accuracy, analyze, calibrate, calibrate_with_cache,
+    calibration_accuracy, calibration_accuracy_with_cache, cross_validate,
     cross_validate_with_progress, holdout_split, predict_with_uncertainty, tool_covariance,
 };
 pub use compensation::{

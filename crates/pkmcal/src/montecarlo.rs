@@ -2,7 +2,7 @@
 //! random parameter errors and measurement noise, simulated measurements,
 //! calibration, and the resulting accuracy on unseen poses and parameters.
 
-use crate::calibration::{CalibrationOptions, PoseCache, calibrate_cached};
+use crate::calibration::{CalibrationOptions, PoseCache, calibrate_with_cache};
 use crate::error::Result;
 use crate::measurement::MeasurementModel;
 use crate::mechanism::{Mechanism, Params};
@@ -137,7 +137,8 @@ pub fn monte_carlo<M: Mechanism>(
                     measure(mech, &tool, &truth, target, c, pose, &normals, &mut noise)
                 })
                 .collect::<Result<Vec<_>>>()?;
-            let cal = calibrate_cached(mech, &tool, &data, &nominal, &opts.calibration, &cache)?;
+            let cal =
+                calibrate_with_cache(mech, &tool, &data, &nominal, &opts.calibration, &cache)?;
             // Accuracy on the unseen poses: the truth's exact prediction
             // (noise-free) minus the calibrated model's, in the base frame.
             let errors = unseen
