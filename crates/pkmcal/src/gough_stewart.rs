@@ -433,20 +433,6 @@ impl Mechanism for GoughStewart {
         rho: &[f64],
         cols: std::ops::Range<usize>,
     ) -> Option<crate::autodiff::Jacobians> {
-        let mut out = crate::autodiff::Jacobians::empty();
-        self.first_derivatives_into(q, rho, cols, &mut out);
-        Some(out)
-    }
-
-    /// The closed form into `out`'s buffers: each leg's gradient is its unit
-    /// vector `u` (pose columns, joint centres) and `−1` on its length.
-    fn first_derivatives_into(
-        &self,
-        q: &[f64],
-        rho: &[f64],
-        cols: std::ops::Range<usize>,
-        out: &mut crate::autodiff::Jacobians,
-    ) -> bool {
         use nalgebra::{DMatrix, Vector3};
         let n = self.n;
         let nq = n + 6;
@@ -455,9 +441,9 @@ impl Mechanism for GoughStewart {
             RotationDerivatives::new(pose[3], pose[4], pose[5], false);
         let p = Vector3::new(pose[0], pose[1], pose[2]);
         let (c0, width) = (cols.start, cols.len());
-        out.resize(n, 6, width);
-        out.dg.fill(0.0);
-        out.dx.fill(0.0);
+        let mut g = vec![0.0; n];
+        let mut dg = DMatrix::zeros(n, width);
+        let mut dx = DMatrix::zeros(6, width);
         let put = |m: &mut DMatrix<f64>, row: usize, col: usize, v: f64| {
             if col >= cols.start && col < cols.end {
                 m[(row, col - c0)] = v;
@@ -472,24 +458,28 @@ impl Mechanism for GoughStewart {
             );
             let w = p + r * b - a;
             let len = w.norm();
-            out.g[i] = len - q[i];
+            g[i] = len - q[i];
             let u = if len > 0.0 { w / len } else { Vector3::zeros() };
-            put(&mut out.dg, i, i, -1.0);
+            put(&mut dg, i, i, -1.0);
             for k in 0..3 {
-                put(&mut out.dg, i, n + k, u[k]);
-                put(&mut out.dg, i, n + 3 + k, u.dot(&(dr[k] * b)));
-                put(&mut out.dg, i, nq + 3 * i + k, -u[k]);
+                put(&mut dg, i, n + k, u[k]);
+                put(&mut dg, i, n + 3 + k, u.dot(&(dr[k] * b)));
+                put(&mut dg, i, nq + 3 * i + k, -u[k]);
             }
             let rtu = r.transpose() * u;
             for k in 0..3 {
-                put(&mut out.dg, i, nq + 3 * n + 3 * i + k, rtu[k]);
+                put(&mut dg, i, nq + 3 * n + 3 * i + k, rtu[k]);
             }
         }
         for k in 0..6 {
-            put(&mut out.dx, k, n + k, 1.0);
+            put(&mut dx, k, n + k, 1.0);
         }
-        out.x.copy_from_slice(pose);
-        true
+        Some(crate::autodiff::Jacobians {
+            g,
+            x: pose.to_vec(),
+            dg,
+            dx,
+        })
     }
 
     fn weighted_hessian(
