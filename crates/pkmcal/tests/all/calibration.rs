@@ -119,6 +119,30 @@ fn exact_model_recovers_the_truth_from_noise_free_data() {
     assert!(cal.noise[0].sigma < 1e-7);
 }
 
+/// A calibration and its statistics sharing one `PoseCache` give what they
+/// give apart: the same parameters, the same before/after errors.
+#[test]
+fn a_shared_pose_cache_changes_no_result() {
+    let mech = JeongKim2Dof::new();
+    let spec = mech.spec();
+    let tool = MeasurementModel::tool(spec);
+    let d = data(30, 0.002, 4);
+    let opts = CalibrationOptions::new(spec, Model::Exact);
+    let start = Params::nominal(spec);
+    let apart = calibrate(&mech, &tool, &d, &start, &opts).unwrap();
+    let cache = PoseCache::new();
+    let shared = calibrate_with_cache(&mech, &tool, &d, &start, &opts, &cache).unwrap();
+    assert_eq!(apart.params.values, shared.params.values);
+    assert_eq!(apart.covariance, shared.covariance);
+    let (a, before_a, after_a) = calibration_accuracy(&mech, &tool, &d, &apart, &[]).unwrap();
+    let (b, before_b, after_b) =
+        calibration_accuracy_with_cache(&mech, &tool, &d, &shared, &[], &cache).unwrap();
+    assert_eq!(a, b);
+    assert_eq!(before_a, before_b);
+    assert_eq!(after_a, after_b);
+    assert!(a.after.distance_rms < a.before.distance_rms);
+}
+
 #[test]
 fn compliance_aware_models_reach_the_noise_floor_where_rigid_cannot() {
     let mech = JeongKim2Dof::new();
