@@ -704,20 +704,19 @@ fn zeros<D: Scalar>(v: &mut Vec<D>, n: usize) {
     v.resize(n, D::from(0.0));
 }
 
-/// The point `(x, y)` of a body's frame (variables `ix`, `iy` of `[q; ρ]`)
-/// in the ground frame; its derivatives go to `ox`, `oy` from the body's
-/// pose `p` and pose derivatives `d` (three rows of `ox.len()`).
-#[allow(clippy::too_many_arguments)]
+/// The point of a body's frame at the parameters `at` (`ρ[at[0]]`,
+/// `ρ[at[1]]`, variables `nq + at[k]` of `[q; ρ]`) in the ground frame; its
+/// derivatives go to `ox`, `oy` from the body's pose `p` and pose
+/// derivatives `d` (three rows of `ox.len()`).
 fn world_derivative<D: Scalar>(
-    p: &[D; 3],
-    d: &[D],
-    x: D,
-    y: D,
-    ix: usize,
-    iy: usize,
+    (p, d): (&[D; 3], &[D]),
+    rho: &[D],
+    nq: usize,
+    at: [usize; 2],
     ox: &mut [D],
     oy: &mut [D],
 ) -> [D; 2] {
+    let (x, y, ix, iy) = (rho[at[0]], rho[at[1]], nq + at[0], nq + at[1]);
     let nd = ox.len();
     let (s, c) = p[2].sin_cos();
     let pt = [p[0] + c * x - s * y, p[1] + s * x + c * y];
@@ -771,16 +770,7 @@ impl PlanarLinkage {
             let pp = f.p[j.parent];
             let dpp = &f.dp[body(j.parent)];
             let (s0, s1, s2) = rows3(&mut f.scratch, 0, nd);
-            let a = world_derivative(
-                &pp,
-                dpp,
-                rho[j.at[0]],
-                rho[j.at[1]],
-                nq + j.at[0],
-                nq + j.at[1],
-                s0,
-                s1,
-            );
+            let a = world_derivative((&pp, dpp), rho, nq, j.at, s0, s1);
             s2.copy_from_slice(&dpp[2 * nd..]);
             f.p[j.child] = match j.kind {
                 JointKind::Revolute => {
@@ -820,27 +810,9 @@ impl PlanarLinkage {
             let (pp, pc) = (f.p[j.parent], f.p[j.child]);
             let (dpp, dpc) = (&f.dp[body(j.parent)], &f.dp[body(j.child)]);
             let (r0, r1, r2) = rows3(&mut f.dg, k, nd);
-            let a = world_derivative(
-                &pp,
-                dpp,
-                rho[j.at[0]],
-                rho[j.at[1]],
-                nq + j.at[0],
-                nq + j.at[1],
-                r0,
-                r1,
-            );
+            let a = world_derivative((&pp, dpp), rho, nq, j.at, r0, r1);
             let (s0, s1, s2) = rows3(&mut f.scratch, 0, nd);
-            let b = world_derivative(
-                &pc,
-                dpc,
-                rho[c.child_at[0]],
-                rho[c.child_at[1]],
-                nq + c.child_at[0],
-                nq + c.child_at[1],
-                s0,
-                s1,
-            );
+            let b = world_derivative((&pc, dpc), rho, nq, c.child_at, s0, s1);
             for v in 0..nd {
                 r0[v] -= s0[v];
                 r1[v] -= s1[v];
@@ -895,16 +867,7 @@ impl PlanarLinkage {
         let tb = f.p[self.tool_body];
         let dtb = &f.dp[body(self.tool_body)];
         let (r0, r1, r2) = rows3(&mut f.dx, 0, nd);
-        let t = world_derivative(
-            &tb,
-            dtb,
-            rho[self.tool_at[0]],
-            rho[self.tool_at[1]],
-            nq + self.tool_at[0],
-            nq + self.tool_at[1],
-            r0,
-            r1,
-        );
+        let t = world_derivative((&tb, dtb), rho, nq, self.tool_at, r0, r1);
         f.x[0] = t[0];
         f.x[1] = t[1];
         if self.orientation {
