@@ -6,15 +6,10 @@ use pkmcal::*;
 use rand::{RngExt, SeedableRng};
 use std::hint::black_box;
 
+mod common;
+
 fn platform(name: &str) -> GoughStewart {
-    let path = format!(
-        "{}/../../examples/{name}/mechanism.toml",
-        env!("CARGO_MANIFEST_DIR")
-    );
-    let mut t: toml::Table = std::fs::read_to_string(path).unwrap().parse().unwrap();
-    t.remove("type");
-    t.remove("target");
-    GoughStewart::new(&t.try_into().unwrap()).unwrap()
+    GoughStewart::new(&common::example_table(name).try_into().unwrap()).unwrap()
 }
 
 fn bench(c: &mut Criterion) {

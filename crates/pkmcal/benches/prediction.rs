@@ -8,16 +8,8 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use pkmcal::*;
 use std::hint::black_box;
 
-fn table(name: &str) -> toml::Table {
-    let path = format!(
-        "{}/../../examples/{name}/mechanism.toml",
-        env!("CARGO_MANIFEST_DIR")
-    );
-    let mut t: toml::Table = std::fs::read_to_string(path).unwrap().parse().unwrap();
-    t.remove("type");
-    t.remove("target");
-    t
-}
+mod common;
+use common::example_table as table;
 
 /// Poses prepared at 50 spread targets, and parameters off nominal.
 fn setup<M: Mechanism>(m: &M) -> (Vec<Pose>, Params) {
