@@ -1206,6 +1206,18 @@ pub fn calibrate_with_cache<M: Mechanism>(
     opts: &CalibrationOptions,
     cache: &PoseCache,
 ) -> Result<Calibration> {
+    crate::on_pool(|| calibrate_on(mech, measurement, data, start, opts, cache))
+}
+
+/// [`calibrate_with_cache`] on the calling thread.
+fn calibrate_on<M: Mechanism>(
+    mech: &M,
+    measurement: &MeasurementModel,
+    data: &[Measurement],
+    start: &Params,
+    opts: &CalibrationOptions,
+    cache: &PoseCache,
+) -> Result<Calibration> {
     let data = numbered(data);
     check_sigma(measurement, &data)?;
     let cap = (data.len() as f64 * MAX_DROPPED_FRACTION).floor() as usize;
@@ -2221,16 +2233,18 @@ pub fn calibration_accuracy_with_cache<M: Mechanism>(
     force: &[f64],
     cache: &PoseCache,
 ) -> Result<(Accuracy, ErrorVectors, ErrorVectors)> {
-    accuracy_cached(
-        mech,
-        measurement,
-        data,
-        &cal.params,
-        &cal.measurement,
-        cal.model,
-        force,
-        Some(cache),
-    )
+    crate::on_pool(|| {
+        accuracy_cached(
+            mech,
+            measurement,
+            data,
+            &cal.params,
+            &cal.measurement,
+            cal.model,
+            force,
+            Some(cache),
+        )
+    })
 }
 
 /// Split indices into a training and a held-out part (`fraction` held out),

@@ -106,3 +106,17 @@ pub use workspace::{
     WorkspacePoint, grid_targets, nominal_commands, random_targets, sample_workspace,
     spread_targets,
 };
+
+/// Runs `f` on a thread of rayon's pool (at once when called from one):
+/// work that evaluates poses in parallel many times over (a calibration:
+/// each evaluation of the fit is a parallel section) then starts each
+/// section on a worker, which takes its share at once, instead of on a
+/// thread outside the pool, which hands the whole section over and sleeps
+/// until it is done. Measured in BENCHMARKS.md (issue 12).
+pub(crate) fn on_pool<R: Send>(f: impl FnOnce() -> R + Send) -> R {
+    if rayon::current_thread_index().is_some() {
+        f()
+    } else {
+        rayon::scope(|_| f())
+    }
+}

@@ -356,6 +356,16 @@ pub fn plan_poses_with_progress(
     criterion: PlanCriterion,
     tick: &(dyn Fn() + Sync),
 ) -> Result<Vec<usize>> {
+    crate::on_pool(|| choose(c, count, criterion, tick))
+}
+
+/// [`plan_poses_with_progress`] on the calling thread.
+fn choose(
+    c: &Candidates,
+    count: usize,
+    criterion: PlanCriterion,
+    tick: &(dyn Fn() + Sync),
+) -> Result<Vec<usize>> {
     let nc = c.rows.len();
     if count == 0 || count > nc {
         return Err(Error::InvalidRequest(format!(
