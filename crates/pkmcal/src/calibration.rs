@@ -1404,7 +1404,9 @@ fn calibrate_weighted<M: Mechanism>(
     cache: &PoseCache,
 ) -> Result<Calibration> {
     let mut noise = NoiseModel::new(data, measurement);
-    let mut cal = calibrate_once(
+    // `(JᵀJ)⁺` of `cal.jacobian` (the fit's own, for the leverages) while
+    // that Jacobian is the fit's.
+    let (mut cal, cov) = calibrate_once(
         mech,
         measurement,
         data,
@@ -1419,8 +1421,9 @@ fn calibrate_weighted<M: Mechanism>(
     // The free set and identifiability of the first fit hold for the refits.
     let mut refit_opts = opts.clone();
     refit_opts.auto_fix = false;
-    let refit = |cal: &Calibration, sigma: &[f64]| -> Result<Calibration> {
-        let mut next = calibrate_once(
+    let mut cov = Some(cov);
+    let refit = |cal: &Calibration, sigma: &[f64]| -> Result<(Calibration, DMatrix<f64>)> {
+        let (mut next, cov) = calibrate_once(
             mech,
             measurement,
             data,
@@ -1452,16 +1455,21 @@ fn calibrate_weighted<M: Mechanism>(
             .collect();
         warnings.extend(next.warnings.drain(..).filter(solver_kind));
         next.warnings = warnings;
-        Ok(next)
+        Ok((next, cov))
+    };
+    let lev = |cal: &Calibration, cov: &Option<DMatrix<f64>>| match cov {
+        Some(c) => leverages_with(&cal.jacobian, c),
+        None => leverages(&cal.jacobian),
     };
     if noise.estimated_groups() > 0 {
         // One estimated group and nothing given: the weights are uniform
         // whatever its σ, so one estimate after the fit is exact.
         let uniform = noise.estimated_groups() == 1 && !noise.any_given();
         if uniform {
-            let h = leverages(&cal.jacobian);
+            let h = lev(&cal, &cov);
             noise.update(&cal.residuals, &h);
             rescale(&mut cal, &noise.sigmas());
+            cov = None;
         } else {
             // Iterate the estimates on the fit linearised at the current
             // solution (the reweighted solution moves by a fraction of the
@@ -1469,9 +1477,10 @@ fn calibrate_weighted<M: Mechanism>(
             // repeat while the refit still moves the estimates.
             for _ in 0..VCE_MAX_REFITS {
                 linearized_vce(&mut noise, &cal);
-                cal = refit(&cal, &noise.sigmas())?;
+                let (next, c) = refit(&cal, &noise.sigmas())?;
+                (cal, cov) = (next, Some(c));
                 let mut check = noise.clone();
-                if check.update(&cal.residuals, &leverages(&cal.jacobian)) < VCE_TOL {
+                if check.update(&cal.residuals, &lev(&cal, &cov)) < VCE_TOL {
                     break;
                 }
             }
@@ -1495,7 +1504,8 @@ fn calibrate_weighted<M: Mechanism>(
                 .zip(&robust)
                 .map(|(s, w)| s / w.max(f64::MIN_POSITIVE).sqrt())
                 .collect();
-            cal = refit(&cal, &sigma)?;
+            let (next, c) = refit(&cal, &sigma)?;
+            (cal, cov) = (next, Some(c));
             if change < 1e-3 {
                 break;
             }
@@ -1510,7 +1520,7 @@ fn calibrate_weighted<M: Mechanism>(
     }
     // Studentised: a pose that pulls the fit towards itself (high leverage)
     // shows a small residual for a large error.
-    let h = leverages(&cal.jacobian);
+    let h = lev(&cal, &cov);
     let student: Vec<f64> = base
         .iter()
         .zip(&h)
@@ -1662,7 +1672,7 @@ fn calibrate_once<M: Mechanism>(
     exact_free: Option<&[usize]>,
     known: Option<&Identifiability>,
     cache: Option<&PoseCache>,
-) -> Result<Calibration> {
+) -> Result<(Calibration, DMatrix<f64>)> {
     let spec = mech.spec();
     let nx = measurement.len();
     let np = spec.n_params();
@@ -1815,14 +1825,14 @@ fn calibrate_once<M: Mechanism>(
     let frame = m_values[measurement.frame_range()].to_vec();
     let dof = m.saturating_sub(free.len()).max(1);
     let s2 = report.sum_of_squares / dof as f64;
-    let (cov_unit, rank) = lm::covariance(&report.jacobian, 1e-12);
+    let (cov_unit, rank) = report.covariance(1e-12);
     if rank < free.len() {
         warnings.push(Warning::new(WarningKind::RankDeficient {
             rank,
             free: free.len(),
         }));
     }
-    let covariance = cov_unit * s2;
+    let covariance = &cov_unit * s2;
     let mut parameters = vec![];
     for (i, name) in cols.names.iter().enumerate() {
         let k = free.iter().position(|&f| f == i);
@@ -1858,40 +1868,43 @@ fn calibrate_once<M: Mechanism>(
             .map(|&a| mech_free.iter().map(|&b| covariance[(a, b)]).collect())
             .collect(),
     };
-    Ok(Calibration {
-        parameter_covariance,
-        model: opts.model,
-        params,
-        frame: (!frame.is_empty()).then_some(frame),
-        measurement: m_values,
-        converged: report.termination.converged(),
-        termination_reason: report.termination.reason(),
-        termination: report.termination,
-        iterations: report.iterations,
-        evaluations: report.evaluations,
-        poses: data.iter().filter(|d| d.partner.is_none()).count(),
-        distances: data.iter().filter(|d| d.partner.is_some()).count(),
-        sum_of_squares: report.sum_of_squares,
-        unit_weight_sigma: s2.sqrt(),
-        noise: vec![],
-        parameters,
-        identifiability,
-        covariance,
-        free,
-        correlations,
-        loss: opts.loss,
-        outliers: vec![],
-        dropped: vec![],
-        residuals: report
-            .residuals
-            .iter()
-            .zip(sigma)
-            .map(|(v, s)| v * s)
-            .collect(),
-        sigmas: sigma.to_vec(),
-        jacobian: report.jacobian,
-        warnings,
-    })
+    Ok((
+        Calibration {
+            parameter_covariance,
+            model: opts.model,
+            params,
+            frame: (!frame.is_empty()).then_some(frame),
+            measurement: m_values,
+            converged: report.termination.converged(),
+            termination_reason: report.termination.reason(),
+            termination: report.termination,
+            iterations: report.iterations,
+            evaluations: report.evaluations,
+            poses: data.iter().filter(|d| d.partner.is_none()).count(),
+            distances: data.iter().filter(|d| d.partner.is_some()).count(),
+            sum_of_squares: report.sum_of_squares,
+            unit_weight_sigma: s2.sqrt(),
+            noise: vec![],
+            parameters,
+            identifiability,
+            covariance,
+            free,
+            correlations,
+            loss: opts.loss,
+            outliers: vec![],
+            dropped: vec![],
+            residuals: report
+                .residuals
+                .iter()
+                .zip(sigma)
+                .map(|(v, s)| v * s)
+                .collect(),
+            sigmas: sigma.to_vec(),
+            jacobian: report.jacobian,
+            warnings,
+        },
+        cov_unit,
+    ))
 }
 
 /// The measurement model's parameters to start from: `given`, else its

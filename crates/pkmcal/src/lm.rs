@@ -147,6 +147,34 @@ pub struct Report {
     pub jacobian: DMatrix<f64>,
     /// Indices of the free parameters (columns of `jacobian`).
     pub free: Vec<usize>,
+    /// The solver's QR factorisation of `jacobian` when its last one was of
+    /// that Jacobian (the usual case: the last step was negligible), for
+    /// [`Report::covariance`].
+    factored: Option<Box<Factored>>,
+}
+
+/// A matrix and its QR factorisation with column pivoting as [`qrfac`] leaves
+/// them.
+#[derive(Debug, Clone)]
+struct Factored {
+    /// The matrix factored.
+    of: DMatrix<f64>,
+    /// [`qrfac`]'s output in place of the matrix.
+    qr: DMatrix<f64>,
+    ipvt: Vec<usize>,
+    rdiag: Vec<f64>,
+}
+
+impl Report {
+    /// [`covariance`] of `jacobian`: from the solver's last factorisation
+    /// when that was of this Jacobian (the same numbers, one QR fewer),
+    /// else by a new one.
+    pub fn covariance(&self, tol: f64) -> (DMatrix<f64>, usize) {
+        match &self.factored {
+            Some(f) if f.of == self.jacobian => covariance_of(&f.qr, &f.ipvt, &f.rdiag, tol),
+            _ => covariance(&self.jacobian, tol),
+        }
+    }
 }
 
 fn enorm(v: &[f64]) -> f64 {
@@ -504,7 +532,13 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
     let n = free.len();
     let mut x: Vec<f64> = free.iter().map(|&i| x0[i]).collect();
     s.project(&mut x);
-    let finish = |s: &Scaled<P>, x: &[f64], t: Termination, it, r: DVector<f64>, j| Report {
+    let finish_factored = |s: &Scaled<P>,
+                           x: &[f64],
+                           t: Termination,
+                           it,
+                           r: DVector<f64>,
+                           j,
+                           factored: Option<Box<Factored>>| Report {
         x: s.full(x),
         termination: t,
         iterations: it,
@@ -513,6 +547,10 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
         residuals: r,
         jacobian: j,
         free: free.clone(),
+        factored,
+    };
+    let finish = |s: &Scaled<P>, x: &[f64], t: Termination, it, r: DVector<f64>, j| {
+        finish_factored(s, x, t, it, r, j, None)
     };
     let (mut fvec, _) = match s.eval(&x, false) {
         Ok(v) => v,
@@ -697,18 +735,27 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
             if let Some(t) = done {
                 // Report the Jacobian at the final point; the one of the
                 // previous point serves when the last step was negligible.
-                let j = if last_step <= FINAL_JACOBIAN_STEP * xnorm {
-                    jac_at_x
+                let at_x = |jac_at_x: DMatrix<f64>| {
+                    let f = Factored {
+                        of: jac_at_x.clone(),
+                        qr: fjac.clone(),
+                        ipvt: ipvt.clone(),
+                        rdiag: rdiag.clone(),
+                    };
+                    (jac_at_x, Some(Box::new(f)))
+                };
+                let (j, factored) = if last_step <= FINAL_JACOBIAN_STEP * xnorm {
+                    at_x(jac_at_x)
                 } else {
                     match s.eval(&x, true) {
                         Ok((_, Some(j))) => {
                             s.evaluations -= 1;
-                            j
+                            (j, None)
                         }
-                        _ => jac_at_x,
+                        _ => at_x(jac_at_x),
                     }
                 };
-                return finish(&s, &x, t, iter - 1, fvec, j);
+                return finish_factored(&s, &x, t, iter - 1, fvec, j, factored);
             }
             if ratio >= 1e-4 {
                 break;
@@ -722,9 +769,19 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
 /// pivot falls below `tol·|R₁₁|` are rank-deficient and get zero rows and
 /// columns. Returns the matrix and the numerical rank.
 pub fn covariance(jacobian: &DMatrix<f64>, tol: f64) -> (DMatrix<f64>, usize) {
-    let n = jacobian.ncols();
     let mut a = jacobian.clone();
     let (ipvt, rdiag, _) = qrfac(&mut a);
+    covariance_of(&a, &ipvt, &rdiag, tol)
+}
+
+/// [`covariance`] from [`qrfac`]'s factorisation of the Jacobian.
+fn covariance_of(
+    a: &DMatrix<f64>,
+    ipvt: &[usize],
+    rdiag: &[f64],
+    tol: f64,
+) -> (DMatrix<f64>, usize) {
+    let n = a.ncols();
     let mut r = DMatrix::zeros(n, n);
     for j in 0..n {
         for i in 0..j.min(a.nrows()) {
