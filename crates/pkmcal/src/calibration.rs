@@ -1227,7 +1227,21 @@ fn calibrate_on<M: Mechanism>(
     // Gross errors (a misread, a swapped column) would drag the first,
     // unweighted fit to parameters where poses cannot be assembled: find
     // them first, drop them when asked to, name them otherwise.
-    for g in gross_errors(mech, measurement, &kept, start, opts, cache)? {
+    // One identification problem per set of poses: its last predictions
+    // start the next evaluation's equilibria, from the screening to the last
+    // refit.
+    let problem_of = |kept: &[Measurement]| {
+        IdentificationProblem::with_cache(
+            mech,
+            measurement,
+            kept,
+            opts.model,
+            &opts.force,
+            Some(cache),
+        )
+    };
+    let mut problem = problem_of(&kept)?;
+    for g in gross_errors(&problem, &kept, start)? {
         if !opts.drop_outliers || dropped.len() >= cap {
             return Err(Error::InvalidRequest(format!(
                 "the measurement is {:.4e} mm from the nominal prediction, where the median pose is {:.4e} mm: a gross error (a misread, a swapped column, another pose's row); fix or remove it, or calibrate with --drop-outliers",
@@ -1238,8 +1252,11 @@ fn calibrate_on<M: Mechanism>(
         kept.retain(|m| m.origin != Some(g.origin));
         dropped.push(g.origin);
     }
+    if !dropped.is_empty() {
+        problem = problem_of(&kept)?;
+    }
     loop {
-        let mut cal = calibrate_weighted(mech, measurement, &kept, start, opts, cache)?;
+        let mut cal = calibrate_weighted(&problem, &kept, start, opts)?;
         let more = opts.drop_outliers && !cal.outliers.is_empty() && dropped.len() < cap;
         if !more {
             if !dropped.is_empty() {
@@ -1271,6 +1288,7 @@ fn calibrate_on<M: Mechanism>(
         kept.retain(|m| m.origin != Some(worst.origin));
         dropped.push(worst.origin);
         found.push(worst);
+        problem = problem_of(&kept)?;
     }
 }
 
@@ -1297,26 +1315,16 @@ pub const GROSS_EXTENT_SHARE: f64 = 0.02;
 /// Poses whose readings are grossly far from the nominal prediction (a free
 /// frame registered first), worst first.
 fn gross_errors<M: Mechanism>(
-    mech: &M,
-    measurement: &MeasurementModel,
+    problem: &IdentificationProblem<'_, M>,
     data: &[Measurement],
     start: &Params,
-    opts: &CalibrationOptions,
-    cache: &PoseCache,
 ) -> Result<Vec<Gross>> {
-    let spec = mech.spec();
-    let problem = IdentificationProblem::with_cache(
-        mech,
-        measurement,
-        data,
-        opts.model,
-        &opts.force,
-        Some(cache),
-    )?;
+    let spec = problem.mech.spec();
+    let measurement = problem.measurement;
     let Ok(predicted) = problem.predict(start) else {
         return Ok(vec![]);
     };
-    let Ok(m0) = measurement_start(&problem, None, start, data) else {
+    let Ok(m0) = measurement_start(problem, None, start, data) else {
         return Ok(vec![]);
     };
     let lengths: Vec<usize> = (0..measurement.len())
@@ -1396,19 +1404,17 @@ fn check_sigma(measurement: &MeasurementModel, data: &[Measurement]) -> Result<(
 
 /// One weighted fit: noise groups estimated, robust reweighting, outliers.
 fn calibrate_weighted<M: Mechanism>(
-    mech: &M,
-    measurement: &MeasurementModel,
+    problem: &IdentificationProblem<'_, M>,
     data: &[Measurement],
     start: &Params,
     opts: &CalibrationOptions,
-    cache: &PoseCache,
 ) -> Result<Calibration> {
+    let measurement = problem.measurement;
     let mut noise = NoiseModel::new(data, measurement);
     // `(JᵀJ)⁺` of `cal.jacobian` (the fit's own, for the leverages) while
     // that Jacobian is the fit's.
     let (mut cal, cov) = calibrate_once(
-        mech,
-        measurement,
+        problem,
         data,
         start,
         None,
@@ -1416,7 +1422,6 @@ fn calibrate_weighted<M: Mechanism>(
         &noise.sigmas(),
         None,
         None,
-        Some(cache),
     )?;
     // The free set and identifiability of the first fit hold for the refits.
     let mut refit_opts = opts.clone();
@@ -1424,8 +1429,7 @@ fn calibrate_weighted<M: Mechanism>(
     let mut cov = Some(cov);
     let refit = |cal: &Calibration, sigma: &[f64]| -> Result<(Calibration, DMatrix<f64>)> {
         let (mut next, cov) = calibrate_once(
-            mech,
-            measurement,
+            problem,
             data,
             &cal.params,
             Some(&cal.measurement),
@@ -1433,7 +1437,6 @@ fn calibrate_weighted<M: Mechanism>(
             sigma,
             Some(&cal.free),
             Some(&cal.identifiability),
-            Some(cache),
         )?;
         next.identifiability = cal.identifiability.clone();
         for (p, first) in next.parameters.iter_mut().zip(&cal.parameters) {
@@ -1662,8 +1665,7 @@ fn find_outliers(
 /// nominal values, the frame registered when free).
 #[allow(clippy::too_many_arguments)]
 fn calibrate_once<M: Mechanism>(
-    mech: &M,
-    measurement: &MeasurementModel,
+    problem: &IdentificationProblem<'_, M>,
     data: &[Measurement],
     start: &Params,
     m_given: Option<&[f64]>,
@@ -1671,8 +1673,8 @@ fn calibrate_once<M: Mechanism>(
     sigma: &[f64],
     exact_free: Option<&[usize]>,
     known: Option<&Identifiability>,
-    cache: Option<&PoseCache>,
 ) -> Result<(Calibration, DMatrix<f64>)> {
+    let (mech, measurement) = (problem.mech, problem.measurement);
     let spec = mech.spec();
     let nx = measurement.len();
     let np = spec.n_params();
@@ -1725,9 +1727,7 @@ fn calibrate_once<M: Mechanism>(
             }
         )));
     }
-    let problem =
-        IdentificationProblem::with_cache(mech, measurement, data, opts.model, &opts.force, cache)?;
-    let m0 = measurement_start(&problem, m_given, start, data)?;
+    let m0 = measurement_start(problem, m_given, start, data)?;
     let nf = m0.len();
     let cols = Columns::with_measurement(spec, measurement, &m0);
     let mut requested = opts.free.clone();
@@ -1786,7 +1786,7 @@ fn calibrate_once<M: Mechanism>(
         let mut solver = opts.solver.clone();
         solver.free = Some(mask(np + nf, &free));
         solver.weights = Some(weights.clone());
-        x0 = lm::minimize(&problem, &x0, &solver).x;
+        x0 = lm::minimize(problem, &x0, &solver).x;
         let (_, jac) = problem.residuals_and_jacobian(&x0)?;
         (identifiability, free) =
             analyze_identifiability(&cols, &weigh(jac)?, &requested, data.len(), opts.auto_fix);
@@ -1814,7 +1814,7 @@ fn calibrate_once<M: Mechanism>(
     let mut solver = opts.solver.clone();
     solver.free = Some(mask(np + nf, &free));
     solver.weights = Some(weights.clone());
-    let report = lm::minimize(&problem, &x0, &solver);
+    let report = lm::minimize(problem, &x0, &solver);
     if !report.termination.converged() {
         warnings.push(Warning::new(WarningKind::NotConverged {
             reason: report.termination.reason(),
