@@ -719,6 +719,7 @@ fn check_paths(command: &Command) -> anyhow::Result<()> {
 }
 
 fn main() -> ExitCode {
+    keep_freed_memory();
     let cli = Cli::parse();
     output::install_cleanup();
     let result = fileunits::set_cli(cli.units.as_deref())
@@ -738,6 +739,27 @@ fn main() -> ExitCode {
         }
     }
 }
+
+/// glibc gives the free memory at the top of a thread's heap back to the
+/// system as soon as it exceeds 128 KB, and takes it back page by page (a
+/// system call and page faults) at the next allocation: a calibration frees
+/// and allocates its Jacobians (hundreds of KB) at every evaluation, on the
+/// pool's threads, and paid about 460 `mprotect` calls and 400 page faults
+/// for it on gough-stewart-8. Freed memory is kept up to 64 MB instead (the
+/// peak is unchanged). Measured in BENCHMARKS.md (issue 12).
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+fn keep_freed_memory() {
+    // SAFETY: `mallopt` only sets parameters of the allocator; called
+    // first thing in `main`, before any other thread exists.
+    unsafe {
+        libc::mallopt(libc::M_TRIM_THRESHOLD, 64 << 20);
+        libc::mallopt(libc::M_TOP_PAD, 16 << 20);
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 4 << 20);
+    }
+}
+
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+fn keep_freed_memory() {}
 
 /// Runs the command on a thread of rayon's pool (with the main thread's
 /// stack size): the library's parallel sections (the poses of each
