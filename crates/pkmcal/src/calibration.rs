@@ -7,7 +7,9 @@ use crate::error::{Error, Result};
 use crate::lm::{self, Problem, Termination};
 use crate::measurement::{Frame, MeasurementModel};
 use crate::mechanism::{Mechanism, Params, Spec};
-use crate::models::{Model, Pose, Prediction, predict_pose_warm, prepare_pose};
+use crate::models::{
+    Ahead, Model, Pose, Prediction, pose_ahead, predict_pose_warm, prepare_pose, prepare_pose_ahead,
+};
 use crate::noise::{NoiseGroup, NoiseModel, VCE_MAX_ROUNDS, VCE_TOL, leverages, leverages_with};
 use crate::sensitivity::{sensitivity, sensitivity_at};
 use crate::simulate::{Measurement, Origin, numbered};
@@ -217,6 +219,16 @@ impl PoseCache {
         Self::default()
     }
 
+    /// Whether `cache` holds the pose of `key` for these commands.
+    fn holds(cache: Option<&Self>, key: PoseKey, commands: &[f64]) -> bool {
+        cache.is_some_and(|c| {
+            c.0.lock()
+                .expect("not poisoned")
+                .get(&key)
+                .is_some_and(|(c, _)| c == commands)
+        })
+    }
+
     /// A cached pose is used only for the same commands (a Monte Carlo
     /// study shares one cache between runs measuring the same plan).
     fn get_or_prepare(
@@ -241,6 +253,42 @@ impl PoseCache {
             .insert(key, (commands.to_vec(), pose.clone()));
         Ok(pose)
     }
+}
+
+/// A row's readings: as many as the measurement model takes, finite and
+/// within range (a distance only where the model measures distances).
+fn check_row(measurement: &MeasurementModel, m: &Measurement) -> Result<()> {
+    let origin = m.origin.expect("numbered");
+    let len = measurement.row_len(m);
+    if m.partner.is_some() {
+        measurement
+            .check_distances()
+            .map_err(|e| e.at_pose(origin))?;
+    }
+    if m.measured.len() != len {
+        let what = if m.partner.is_some() {
+            "readings (distance)".to_string()
+        } else {
+            format!("readings ({})", measurement.axes().join(" "))
+        };
+        return Err(Error::Dimension {
+            what,
+            expected: len,
+            got: m.measured.len(),
+        }
+        .at_pose(origin));
+    }
+    for (a, v) in m.measured.iter().enumerate() {
+        let (u, axis) = (measurement.row_unit(m, a), measurement.row_axis(m, a));
+        if !(v.is_finite() && v.abs() <= u.max_magnitude()) {
+            return Err(Error::InvalidRequest(format!(
+                "measured `{axis}` = {v:?} {u} is not a finite value within ±{:e} {u}; check the measurement",
+                u.max_magnitude()
+            ))
+            .at_pose(origin));
+        }
+    }
+    Ok(())
 }
 
 impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
@@ -271,40 +319,36 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         let mut rows: Vec<Row> = Vec::with_capacity(data.len());
         let mut offset = 0;
         let mut seconds: Vec<(usize, &[f64])> = vec![];
+        // The rows checked first (the first that fails is reported after the
+        // poses before it are prepared, as when each row was checked, then
+        // prepared, in turn).
+        let mut invalid = None;
         for (i, m) in data.iter().enumerate() {
+            if let Err(e) = check_row(measurement, m) {
+                invalid = Some((i, e));
+                break;
+            }
+        }
+        let valid = &data[..invalid.as_ref().map_or(data.len(), |(i, _)| *i)];
+        // Each pose starts from the one before; what does not depend on that
+        // start is done ahead, in parallel.
+        let mut ahead: Vec<Option<Ahead>> = valid
+            .par_iter()
+            .map(|m| {
+                let key = (m.origin.expect("numbered"), false);
+                if PoseCache::holds(cache, key, &m.commands) {
+                    None
+                } else {
+                    pose_ahead(mech, &m.commands)
+                }
+            })
+            .collect();
+        for (i, m) in valid.iter().enumerate() {
             let origin = m.origin.expect("numbered");
             let len = measurement.row_len(m);
-            if m.partner.is_some() {
-                measurement
-                    .check_distances()
-                    .map_err(|e| e.at_pose(origin))?;
-            }
-            if m.measured.len() != len {
-                let what = if m.partner.is_some() {
-                    "readings (distance)".to_string()
-                } else {
-                    format!("readings ({})", measurement.axes().join(" "))
-                };
-                return Err(Error::Dimension {
-                    what,
-                    expected: len,
-                    got: m.measured.len(),
-                }
-                .at_pose(origin));
-            }
-            for (a, v) in m.measured.iter().enumerate() {
-                let (u, axis) = (measurement.row_unit(m, a), measurement.row_axis(m, a));
-                if !(v.is_finite() && v.abs() <= u.max_magnitude()) {
-                    return Err(Error::InvalidRequest(format!(
-                        "measured `{axis}` = {v:?} {u} is not a finite value within ±{:e} {u}; check the measurement",
-                        u.max_magnitude()
-                    ))
-                    .at_pose(origin));
-                }
-            }
             let start = poses.last().map(|p| p.nominal_q.clone());
             let pose = PoseCache::get_or_prepare(cache, (origin, false), &m.commands, || {
-                prepare_pose(mech, &m.commands, start.as_deref())
+                prepare_pose_ahead(mech, &m.commands, start.as_deref(), ahead[i].take())
             })
             .map_err(|e| e.at_pose(origin))?;
             poses.push(pose);
@@ -319,6 +363,9 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
                 len,
             });
             offset += len;
+        }
+        if let Some((_, e)) = invalid {
+            return Err(e);
         }
         for (i, commands) in seconds {
             let origin = pose_origins[i];

@@ -207,6 +207,63 @@ pub fn prepare_pose<M: Mechanism>(
     commands: &[f64],
     start: Option<&[f64]>,
 ) -> Result<Pose> {
+    prepare_pose_ahead(mech, commands, start, None)
+}
+
+/// The part of [`prepare_pose`] that does not depend on the caller's start,
+/// done ahead (in parallel over a sequence of poses, each of which starts
+/// from the one before): the mechanism's guess and, when forward kinematics
+/// from it agrees with the commands, the pose `prepare_pose` returns
+/// whenever it tries the guess first.
+pub(crate) struct Ahead {
+    guess: Option<Vec<f64>>,
+    pose: Option<Pose>,
+}
+
+/// [`Ahead`] for `commands` (`None` for commands `prepare_pose` rejects).
+pub(crate) fn pose_ahead<M: Mechanism>(mech: &M, commands: &[f64]) -> Option<Ahead> {
+    let spec = mech.spec();
+    check_commands(spec, commands).ok()?;
+    let reduced = reduced_commands(spec, commands);
+    let commands = reduced.as_slice();
+    let rho = &spec.nominal[..spec.n_geometric()];
+    let q_u: Vec<f64> = independent_actuators(spec)
+        .iter()
+        .map(|&a| commands[a])
+        .collect();
+    let guess = mech.configuration_guess(commands, rho);
+    let pose = guess.as_ref().and_then(|g| {
+        let q = forward_kinematics(mech, rho, &q_u, g).ok()?;
+        (commands_mismatch(spec, commands, &q) < CONSISTENT).then(|| Pose {
+            commands: commands.to_vec(),
+            nominal_q: q,
+            lin: OnceLock::new(),
+            hessians: OnceLock::new(),
+        })
+    });
+    Some(Ahead { guess, pose })
+}
+
+/// Largest difference between the actuated joints of `q` and the commands.
+fn commands_mismatch(spec: &crate::Spec, commands: &[f64], q: &[f64]) -> f64 {
+    spec.actuated
+        .iter()
+        .zip(commands)
+        .map(|(&j, c)| (q[j] - c).abs())
+        .fold(0.0, f64::max)
+}
+
+/// Forward kinematics whose actuated joints agree with the (redundant)
+/// commands to this (mm or rad) is taken at once.
+const CONSISTENT: f64 = 1e-6;
+
+/// [`prepare_pose`] with the work of [`pose_ahead`] done (the same result).
+pub(crate) fn prepare_pose_ahead<M: Mechanism>(
+    mech: &M,
+    commands: &[f64],
+    start: Option<&[f64]>,
+    ahead: Option<Ahead>,
+) -> Result<Pose> {
     let spec = mech.spec();
     check_commands(spec, commands)?;
     let reduced = reduced_commands(spec, commands);
@@ -221,13 +278,15 @@ pub fn prepare_pose<M: Mechanism>(
     // may find other assembly modes from a poor start, so keep the solution
     // that agrees best with the redundant commands (for consistent commands,
     // exactly), and stop at the first that agrees to `CONSISTENT`.
-    const CONSISTENT: f64 = 1e-6;
-    let mismatch = |q: &[f64]| {
-        spec.actuated
-            .iter()
-            .zip(commands)
-            .map(|(&j, c)| (q[j] - c).abs())
-            .fold(0.0, f64::max)
+    let mismatch = |q: &[f64]| commands_mismatch(spec, commands, q);
+    let (mut ahead_guess, ahead_pose) = match ahead {
+        Some(a) => (Some(a.guess), a.pose),
+        None => (None, None),
+    };
+    let mut guess_of = || {
+        ahead_guess
+            .take()
+            .unwrap_or_else(|| mech.configuration_guess(commands, rho))
     };
     let mut best: Option<(f64, Vec<f64>)> = None;
     let mut first_error = None;
@@ -247,18 +306,24 @@ pub fn prepare_pose<M: Mechanism>(
     let order = if caller_stages.is_some_and(|n| n <= 1.0) {
         [Start::Caller, Start::Guess, Start::Reference]
     } else {
-        guess = mech.configuration_guess(commands, rho);
+        guess = guess_of();
         guessed = true;
         match (&guess, caller_stages) {
             (Some(g), Some(n)) if n < stages(g) => [Start::Caller, Start::Guess, Start::Reference],
-            _ => [Start::Guess, Start::Caller, Start::Reference],
+            _ => {
+                // The guess first: the pose found ahead from it is the answer.
+                if let Some(p) = ahead_pose {
+                    return Ok(p);
+                }
+                [Start::Guess, Start::Caller, Start::Reference]
+            }
         }
     };
     for which in order {
         let s = match which {
             Start::Guess => {
                 if !guessed {
-                    guess = mech.configuration_guess(commands, rho);
+                    guess = guess_of();
                     guessed = true;
                 }
                 match guess.take() {
@@ -806,4 +871,68 @@ fn equilibrium_in<M: Mechanism>(
             "Newton on the KKT system did not converge from {start:?}; the commands may be far from consistent with the geometry or near a singularity"
         ),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn example(name: &str) -> toml::Table {
+        let path = format!(
+            "{}/../../examples/{name}/mechanism.toml",
+            env!("CARGO_MANIFEST_DIR")
+        );
+        let mut t: toml::Table = std::fs::read_to_string(path).unwrap().parse().unwrap();
+        t.remove("type");
+        t.remove("target");
+        t
+    }
+
+    /// Poses prepared with the start-independent work done ahead are, bit
+    /// for bit, those prepared in turn from the pose before (on a planar
+    /// linkage and a Gough–Stewart platform, near and far successors, and
+    /// commands that cannot be assembled).
+    fn same_ahead<M: Mechanism>(mech: &M) {
+        let spec = mech.spec();
+        let targets = crate::workspace::spread_targets(mech, 30).unwrap();
+        let mut commands: Vec<Vec<f64>> = targets
+            .iter()
+            .map(|p| spec.actuated.iter().map(|&j| p.q[j]).collect())
+            .collect();
+        // A near successor (one continuation stage away), and one beyond reach.
+        let near: Vec<f64> = commands[3].iter().map(|c| c + 1e-3).collect();
+        commands.insert(4, near);
+        commands.insert(9, commands[8].iter().map(|c| c + 1e4).collect());
+        let mut prev: Option<Vec<f64>> = None;
+        let mut prev_ahead: Option<Vec<f64>> = None;
+        let mut from_guess = 0;
+        for c in &commands {
+            let a = prepare_pose(mech, c, prev.as_deref());
+            let ahead = pose_ahead(mech, c);
+            from_guess += ahead.as_ref().is_some_and(|a| a.pose.is_some()) as usize;
+            let b = prepare_pose_ahead(mech, c, prev_ahead.as_deref(), ahead);
+            match (a, b) {
+                (Ok(a), Ok(b)) => {
+                    assert_eq!(a.nominal_q, b.nominal_q);
+                    assert_eq!(a.commands, b.commands);
+                    prev = Some(a.nominal_q);
+                    prev_ahead = Some(b.nominal_q);
+                }
+                (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string()),
+                (a, b) => panic!("prepared in turn: {a:?}; ahead: {b:?}"),
+            }
+        }
+        assert!(
+            from_guess > commands.len() / 2,
+            "{from_guess} poses from the guess"
+        );
+    }
+
+    #[test]
+    fn poses_prepared_ahead_are_those_prepared_in_turn() {
+        same_ahead(&crate::PlanarLinkage::new(&example("4-rrr").try_into().unwrap()).unwrap());
+        same_ahead(
+            &crate::GoughStewart::new(&example("gough-stewart-8").try_into().unwrap()).unwrap(),
+        );
+    }
 }

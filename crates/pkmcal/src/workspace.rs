@@ -381,9 +381,11 @@ impl Atlas {
                 .map(|((x, c), s)| ((x - c) * s).powi(2))
                 .sum::<f64>()
         };
+        // Each distance once (the first of equal ones, as `min_by`).
         self.entries
             .iter()
-            .min_by(|a, b| d(&a.0).total_cmp(&d(&b.0)))
-            .map(|e| e.1.clone())
+            .map(|e| (d(&e.0), e))
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, e)| e.1.clone())
     }
 }
