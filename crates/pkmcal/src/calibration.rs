@@ -1598,17 +1598,15 @@ const VCE_MAX_REFITS: usize = 4;
 fn linearized_vce(noise: &mut NoiseModel, cal: &Calibration) {
     // Unweighted Jacobian of the free parameters.
     let mut j = cal.jacobian.clone();
-    for (i, s) in cal.sigmas.iter().enumerate() {
-        j.row_mut(i).scale_mut(*s);
-    }
+    lm::scale_rows(&mut j, &cal.sigmas);
     let r0 = DVector::from_column_slice(&cal.residuals);
     for _ in 0..VCE_MAX_ROUNDS {
         let s = noise.sigmas();
         let mut jw = j.clone();
         let mut rw = r0.clone();
-        for (i, si) in s.iter().enumerate() {
-            jw.row_mut(i).unscale_mut(*si);
-            rw[i] /= si;
+        lm::unscale_rows(&mut jw, &s);
+        for (ri, si) in rw.iter_mut().zip(&s) {
+            *ri /= si;
         }
         let (c, _) = lm::covariance(&jw, 1e-12);
         let step = -(&c * (jw.transpose() * &rw));
@@ -1802,9 +1800,7 @@ fn calibrate_once<M: Mechanism>(
         }));
     }
     let weigh = |mut jac: DMatrix<f64>| -> Result<DMatrix<f64>> {
-        for (i, wi) in weights.iter().enumerate() {
-            jac.row_mut(i).scale_mut(*wi);
-        }
+        lm::scale_rows(&mut jac, &weights);
         if jac.iter().any(|v| !v.is_finite()) {
             return Err(Error::InvalidRequest(
                 "the weighted identification Jacobian is not finite: a standard deviation is too small for the values measured; check the sigma columns and the data".into(),

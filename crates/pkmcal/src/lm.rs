@@ -177,6 +177,33 @@ impl Report {
     }
 }
 
+/// Multiply each row `i` of `m` by `w[i]`, column by column (the products
+/// of scaling each row, in storage order).
+pub(crate) fn scale_rows(m: &mut DMatrix<f64>, w: &[f64]) {
+    let n = m.nrows();
+    if n == 0 {
+        return;
+    }
+    for col in m.as_mut_slice().chunks_exact_mut(n) {
+        for (v, wi) in col.iter_mut().zip(w) {
+            *v *= wi;
+        }
+    }
+}
+
+/// Divide each row `i` of `m` by `w[i]`, column by column.
+pub(crate) fn unscale_rows(m: &mut DMatrix<f64>, w: &[f64]) {
+    let n = m.nrows();
+    if n == 0 {
+        return;
+    }
+    for col in m.as_mut_slice().chunks_exact_mut(n) {
+        for (v, wi) in col.iter_mut().zip(w) {
+            *v /= wi;
+        }
+    }
+}
+
 fn enorm(v: &[f64]) -> f64 {
     v.iter().map(|a| a * a).sum::<f64>().sqrt()
 }
@@ -497,11 +524,11 @@ impl<P: Problem> Scaled<'_, P> {
         }
         let mut j = j.map(|j| j.select_columns(&self.free));
         if let Some(w) = self.weights {
-            for (i, wi) in w.iter().enumerate() {
-                r[i] *= wi;
-                if let Some(j) = j.as_mut() {
-                    j.row_mut(i).scale_mut(*wi);
-                }
+            for (ri, wi) in r.iter_mut().zip(w) {
+                *ri *= wi;
+            }
+            if let Some(j) = j.as_mut() {
+                scale_rows(j, w);
             }
         }
         if let Some(j) = &j
