@@ -23,6 +23,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 use std::cell::RefCell;
 use std::collections::{BTreeMap, HashMap};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 
 /// Singular values below this fraction of the largest (of the column-scaled
@@ -156,6 +157,9 @@ impl CalibrationOptions {
 
 /// Parameters, residuals and Jacobian of the last Jacobian evaluation.
 type CachedJacobian = (Vec<f64>, DVector<f64>, DMatrix<f64>);
+
+/// An identification problem's kept evaluations ([`IdentificationProblem::saved`]).
+type Saved = (Option<(Vec<f64>, Vec<Prediction>)>, Option<CachedJacobian>);
 
 /// One data row of an [`IdentificationProblem`]: a pose read by the
 /// instrument, or two poses whose distance was measured.
@@ -421,6 +425,22 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         let out = out?;
         *self.cache.borrow_mut() = Some((params.values.clone(), out.clone()));
         Ok(out)
+    }
+
+    /// The last predictions and Jacobian kept (they start the next
+    /// evaluation), to be put back with [`Self::restore`].
+    fn saved(&self) -> Saved {
+        (
+            self.cache.borrow().clone(),
+            self.jacobian_cache.borrow().clone(),
+        )
+    }
+
+    /// Put back what [`Self::saved`] returned: the evaluations since then
+    /// leave no trace in the next ones.
+    fn restore(&self, saved: Saved) {
+        *self.cache.borrow_mut() = saved.0;
+        *self.jacobian_cache.borrow_mut() = saved.1;
     }
 
     /// The prepared poses: each row's (first) pose in row order, then the
@@ -1812,10 +1832,47 @@ fn calibrate_once<M: Mechanism>(
     // Identifiability at the start.
     let (_, jac) = problem.residuals_and_jacobian(&x0)?;
     let weighted = weigh(jac)?;
+    let mut solver = opts.solver.clone();
+    solver.weights = Some(weights.clone());
+    // The fit of the requested parameters, computed while identifiability is
+    // analysed (on another thread) and kept when the analysis frees them all
+    // (as it usually does); stopped, and its evaluations undone, when it
+    // fixes one.
+    let mut speculative = None;
     let (mut identifiability, mut free) = match known {
         // A refit keeps the first fit's analysis (its free set is `exact_free`).
         Some(ident) if !opts.auto_fix => (ident.clone(), requested.clone()),
-        _ => analyze_identifiability(&cols, &weighted, &requested, data.len(), opts.auto_fix),
+        _ => {
+            let saved = problem.saved();
+            let cancel = Arc::new(AtomicBool::new(false));
+            let mut fit = solver.clone();
+            fit.free = Some(mask(np + nf, &requested));
+            fit.cancel = Some(cancel.clone());
+            let mut analysis = None;
+            let report = rayon::in_place_scope(|s| {
+                s.spawn(|_| {
+                    let a = analyze_identifiability(
+                        &cols,
+                        &weighted,
+                        &requested,
+                        data.len(),
+                        opts.auto_fix,
+                    );
+                    if a.1 != requested {
+                        cancel.store(true, Ordering::Relaxed);
+                    }
+                    analysis = Some(a);
+                });
+                lm::minimize(problem, &x0, &fit)
+            });
+            let (ident, free) = analysis.expect("the scope waits for the analysis");
+            if free == requested {
+                speculative = Some(report);
+            } else {
+                problem.restore(saved);
+            }
+            (ident, free)
+        }
     };
     // Stiffness acts only where the actuators fight, which they do not at
     // nominal parameters: judge its identifiability where they do, at the
@@ -1854,10 +1911,11 @@ fn calibrate_once<M: Mechanism>(
             fixed: u.fixed.clone(),
         }));
     }
-    let mut solver = opts.solver.clone();
     solver.free = Some(mask(np + nf, &free));
-    solver.weights = Some(weights.clone());
-    let report = lm::minimize(problem, &x0, &solver);
+    let report = match speculative {
+        Some(r) => r,
+        None => lm::minimize(problem, &x0, &solver),
+    };
     if !report.termination.converged() {
         warnings.push(Warning::new(WarningKind::NotConverged {
             reason: report.termination.reason(),

@@ -11,6 +11,8 @@
 
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 /// A least-squares problem: residuals `r(x)` and their Jacobian, evaluated
 /// together (one shared inner solve). Implement it to use [`minimize`].
@@ -54,6 +56,11 @@ pub struct Options {
     pub max_evaluations: usize,
     /// Initial trust-region radius factor (MINPACK `factor`).
     pub factor: f64,
+    /// Set from another thread to stop the fit before its next evaluation
+    /// ([`Termination::Cancelled`]): a calibration fits speculatively while
+    /// it analyses identifiability, and stops the fit when the analysis
+    /// fixes a parameter.
+    pub cancel: Option<Arc<AtomicBool>>,
 }
 
 impl Default for Options {
@@ -68,6 +75,7 @@ impl Default for Options {
             gtol: 0.0,
             max_evaluations: 2000,
             factor: 100.0,
+            cancel: None,
         }
     }
 }
@@ -92,6 +100,8 @@ pub enum Termination {
     NothingFree,
     /// The model could not be evaluated at the start.
     EvaluationFailed(String),
+    /// Stopped through [`Options::cancel`].
+    Cancelled,
 }
 
 impl Termination {
@@ -121,6 +131,7 @@ impl Termination {
                 "stopped: evaluation budget exhausted before convergence; check the data or start closer".into()
             }
             Self::NothingFree => "nothing to fit: no parameter is free".into(),
+            Self::Cancelled => "stopped: cancelled by the caller".into(),
             Self::EvaluationFailed(r) => format!(
                 "the model cannot be evaluated at the start ({r}); check the data and the starting parameters"
             ),
@@ -612,7 +623,22 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
     let mut diag = vec![0.0; n];
     let mut iter = 1;
     let mut wa1 = vec![0.0; n];
+    let cancelled = || {
+        opts.cancel
+            .as_ref()
+            .is_some_and(|c| c.load(Ordering::Relaxed))
+    };
     loop {
+        if cancelled() {
+            return finish(
+                &s,
+                &x,
+                Termination::Cancelled,
+                iter - 1,
+                fvec,
+                DMatrix::zeros(m, n),
+            );
+        }
         // Jacobian at x (recomputed with the residuals: one shared solve).
         let (fv, fjac) = match s.eval(&x, true) {
             Ok((f, Some(j))) => (f, j),
@@ -697,6 +723,16 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
             let pnorm = enorm(&(0..n).map(|j| diag[j] * step[j]).collect::<Vec<_>>());
             if iter == 1 {
                 delta = delta.min(pnorm);
+            }
+            if cancelled() {
+                return finish(
+                    &s,
+                    &x,
+                    Termination::Cancelled,
+                    iter - 1,
+                    fvec,
+                    DMatrix::zeros(m, n),
+                );
             }
             let trial = s.eval(&wa2, false);
             let (fnorm1, fvec1) = match trial {

@@ -84,3 +84,31 @@ fn nist_strd_certified_values() {
         "only {first_passes} of 27 from the first start\n{report}"
     );
 }
+
+/// A fit whose cancel flag is set stops with `Cancelled` (not converged);
+/// the flag left clear changes nothing; and the covariance from the report
+/// (the solver's last QR) is the one of a new QR of its Jacobian.
+#[test]
+fn cancelling_stops_the_fit_and_a_clear_flag_changes_nothing() {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let p = nist::load("Misra1a");
+    let plain = minimize(&p, &p.starts[1], &Options::default());
+    let flag = Arc::new(AtomicBool::new(false));
+    let opts = Options {
+        cancel: Some(flag.clone()),
+        ..Options::default()
+    };
+    let clear = minimize(&p, &p.starts[1], &opts);
+    assert_eq!(plain.x, clear.x);
+    assert_eq!(plain.evaluations, clear.evaluations);
+    assert_eq!(
+        plain.covariance(RANK_TOL),
+        covariance(&plain.jacobian, RANK_TOL)
+    );
+    flag.store(true, Ordering::Relaxed);
+    let stopped = minimize(&p, &p.starts[1], &opts);
+    assert_eq!(stopped.termination, pkmcal::lm::Termination::Cancelled);
+    assert!(!stopped.termination.converged());
+    assert_eq!(stopped.x, p.starts[1]);
+}
