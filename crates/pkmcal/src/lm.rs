@@ -628,16 +628,19 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
             .as_ref()
             .is_some_and(|c| c.load(Ordering::Relaxed))
     };
+    let stopped = |s: &Scaled<P>, x: &[f64], iter: usize, fvec| {
+        finish(
+            s,
+            x,
+            Termination::Cancelled,
+            iter - 1,
+            fvec,
+            DMatrix::zeros(m, n),
+        )
+    };
     loop {
         if cancelled() {
-            return finish(
-                &s,
-                &x,
-                Termination::Cancelled,
-                iter - 1,
-                fvec,
-                DMatrix::zeros(m, n),
-            );
+            return stopped(&s, &x, iter, fvec);
         }
         // Jacobian at x (recomputed with the residuals: one shared solve).
         let (fv, fjac) = match s.eval(&x, true) {
@@ -725,14 +728,7 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
                 delta = delta.min(pnorm);
             }
             if cancelled() {
-                return finish(
-                    &s,
-                    &x,
-                    Termination::Cancelled,
-                    iter - 1,
-                    fvec,
-                    DMatrix::zeros(m, n),
-                );
+                return stopped(&s, &x, iter, fvec);
             }
             let trial = s.eval(&wa2, false);
             let (fnorm1, fvec1) = match trial {

@@ -224,13 +224,9 @@ pub(crate) struct Ahead {
 pub(crate) fn pose_ahead<M: Mechanism>(mech: &M, commands: &[f64]) -> Option<Ahead> {
     let spec = mech.spec();
     check_commands(spec, commands).ok()?;
-    let reduced = reduced_commands(spec, commands);
+    let (reduced, q_u) = pose_commands(spec, commands);
     let commands = reduced.as_slice();
     let rho = &spec.nominal[..spec.n_geometric()];
-    let q_u: Vec<f64> = independent_actuators(spec)
-        .iter()
-        .map(|&a| commands[a])
-        .collect();
     let guess = mech.configuration_guess(commands, rho);
     let pose = guess.as_ref().and_then(|g| {
         let q = forward_kinematics(mech, rho, &q_u, g).ok()?;
@@ -242,6 +238,17 @@ pub(crate) fn pose_ahead<M: Mechanism>(mech: &M, commands: &[f64]) -> Option<Ahe
         })
     });
     Some(Ahead { guess, pose })
+}
+
+/// A pose's commands as [`prepare_pose`] uses them ([`reduced_commands`]),
+/// and the independent joints' values among them.
+fn pose_commands(spec: &crate::Spec, commands: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    let reduced = reduced_commands(spec, commands);
+    let q_u = independent_actuators(spec)
+        .iter()
+        .map(|&a| reduced[a])
+        .collect();
+    (reduced, q_u)
 }
 
 /// Largest difference between the actuated joints of `q` and the commands.
@@ -266,13 +273,9 @@ pub(crate) fn prepare_pose_ahead<M: Mechanism>(
 ) -> Result<Pose> {
     let spec = mech.spec();
     check_commands(spec, commands)?;
-    let reduced = reduced_commands(spec, commands);
+    let (reduced, q_u) = pose_commands(spec, commands);
     let commands = reduced.as_slice();
     let rho = &spec.nominal[..spec.n_geometric()];
-    let q_u: Vec<f64> = independent_actuators(spec)
-        .iter()
-        .map(|&a| commands[a])
-        .collect();
     // Candidate starts: the mechanism's own guess from all commands, the
     // caller's configuration, the reference configuration. Forward kinematics
     // may find other assembly modes from a poor start, so keep the solution
