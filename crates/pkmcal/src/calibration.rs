@@ -1842,6 +1842,10 @@ fn calibrate_once<M: Mechanism>(
     let (mut identifiability, mut free) = match known {
         // A refit keeps the first fit's analysis (its free set is `exact_free`).
         Some(ident) if !opts.auto_fix => (ident.clone(), requested.clone()),
+        // The caller's own cancel flag governs every fit: no speculation.
+        _ if opts.solver.cancel.is_some() => {
+            analyze_identifiability(&cols, &weighted, &requested, data.len(), opts.auto_fix)
+        }
         _ => {
             let saved = problem.saved();
             let cancel = Arc::new(AtomicBool::new(false));

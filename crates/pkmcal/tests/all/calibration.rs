@@ -143,6 +143,43 @@ fn a_shared_pose_cache_changes_no_result() {
     assert!(a.after.distance_rms < a.before.distance_rms);
 }
 
+/// The caller's cancel flag, set, stops every fit of a calibration (the
+/// first fit included, which otherwise runs beside the identifiability
+/// analysis with a flag of its own): nothing moves from the start.
+#[test]
+fn a_set_cancel_flag_stops_every_fit() {
+    use std::sync::Arc;
+    use std::sync::atomic::AtomicBool;
+    let mech = JeongKim2Dof::new();
+    let spec = mech.spec();
+    let tool = MeasurementModel::tool(spec);
+    let d = data(30, 0.002, 4);
+    let start = Params::nominal(spec);
+    let mut opts = CalibrationOptions::new(spec, Model::Exact);
+    opts.solver.cancel = Some(Arc::new(AtomicBool::new(true)));
+    let cal = calibrate(&mech, &tool, &d, &start, &opts).unwrap();
+    assert_eq!(cal.params.values, start.values);
+    assert!(
+        cal.warnings.iter().any(|w| matches!(
+            w.kind,
+            pkmcal::calibration::WarningKind::NotConverged { .. }
+        )),
+        "{:?}",
+        cal.warnings
+    );
+    opts.solver.cancel = Some(Arc::new(AtomicBool::new(false)));
+    let free = calibrate(&mech, &tool, &d, &start, &opts).unwrap();
+    let plain = calibrate(
+        &mech,
+        &tool,
+        &d,
+        &start,
+        &CalibrationOptions::new(spec, Model::Exact),
+    )
+    .unwrap();
+    assert_eq!(free.params.values, plain.params.values);
+}
+
 #[test]
 fn compliance_aware_models_reach_the_noise_floor_where_rigid_cannot() {
     let mech = JeongKim2Dof::new();
