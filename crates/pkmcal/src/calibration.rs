@@ -1839,13 +1839,14 @@ fn calibrate_once<M: Mechanism>(
     // (as it usually does); stopped, and its evaluations undone, when it
     // fixes one.
     let mut speculative = None;
+    let analyze = |jac: &DMatrix<f64>| {
+        analyze_identifiability(&cols, jac, &requested, data.len(), opts.auto_fix)
+    };
     let (mut identifiability, mut free) = match known {
         // A refit keeps the first fit's analysis (its free set is `exact_free`).
         Some(ident) if !opts.auto_fix => (ident.clone(), requested.clone()),
         // The caller's own cancel flag governs every fit: no speculation.
-        _ if opts.solver.cancel.is_some() => {
-            analyze_identifiability(&cols, &weighted, &requested, data.len(), opts.auto_fix)
-        }
+        _ if opts.solver.cancel.is_some() => analyze(&weighted),
         _ => {
             let saved = problem.saved();
             let cancel = Arc::new(AtomicBool::new(false));
@@ -1855,13 +1856,7 @@ fn calibrate_once<M: Mechanism>(
             let mut analysis = None;
             let report = rayon::in_place_scope(|s| {
                 s.spawn(|_| {
-                    let a = analyze_identifiability(
-                        &cols,
-                        &weighted,
-                        &requested,
-                        data.len(),
-                        opts.auto_fix,
-                    );
+                    let a = analyze(&weighted);
                     if a.1 != requested {
                         cancel.store(true, Ordering::Relaxed);
                     }
@@ -1887,13 +1882,11 @@ fn calibrate_once<M: Mechanism>(
         .filter(|k| requested.contains(k) && !free.contains(k))
         .collect();
     if opts.auto_fix && !idle.is_empty() && !free.is_empty() {
-        let mut solver = opts.solver.clone();
-        solver.free = Some(mask(np + nf, &free));
-        solver.weights = Some(weights.clone());
-        x0 = lm::minimize(problem, &x0, &solver).x;
+        let mut fit = solver.clone();
+        fit.free = Some(mask(np + nf, &free));
+        x0 = lm::minimize(problem, &x0, &fit).x;
         let (_, jac) = problem.residuals_and_jacobian(&x0)?;
-        (identifiability, free) =
-            analyze_identifiability(&cols, &weigh(jac)?, &requested, data.len(), opts.auto_fix);
+        (identifiability, free) = analyze(&weigh(jac)?);
     }
     // Directions that move the instrument frame with the mechanism are one
     // matter (the gauge), said once.

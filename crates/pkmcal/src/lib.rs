@@ -107,6 +107,20 @@ pub use workspace::{
     spread_targets,
 };
 
+/// The mechanism file of `examples/<name>` as a table (without `type` and
+/// the targets), for a description's `try_into` in unit tests.
+#[cfg(test)]
+pub(crate) fn example_table(name: &str) -> toml::Table {
+    let path = format!(
+        "{}/../../examples/{name}/mechanism.toml",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let mut t: toml::Table = std::fs::read_to_string(path).unwrap().parse().unwrap();
+    t.remove("type");
+    t.remove("target");
+    t
+}
+
 /// Runs `f` on a thread of rayon's pool (at once when called from one):
 /// work that evaluates poses in parallel many times over (a calibration:
 /// each evaluation of the fit is a parallel section) then starts each

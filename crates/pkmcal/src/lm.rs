@@ -191,26 +191,23 @@ impl Report {
 /// Multiply each row `i` of `m` by `w[i]`, column by column (the products
 /// of scaling each row, in storage order).
 pub(crate) fn scale_rows(m: &mut DMatrix<f64>, w: &[f64]) {
-    let n = m.nrows();
-    if n == 0 {
-        return;
-    }
-    for col in m.as_mut_slice().chunks_exact_mut(n) {
-        for (v, wi) in col.iter_mut().zip(w) {
-            *v *= wi;
-        }
-    }
+    by_rows(m, w, |v, wi| *v *= wi);
 }
 
 /// Divide each row `i` of `m` by `w[i]`, column by column.
 pub(crate) fn unscale_rows(m: &mut DMatrix<f64>, w: &[f64]) {
+    by_rows(m, w, |v, wi| *v /= wi);
+}
+
+/// `op(entry, w[row])` on every entry of `m`, in storage order.
+fn by_rows(m: &mut DMatrix<f64>, w: &[f64], op: impl Fn(&mut f64, f64)) {
     let n = m.nrows();
     if n == 0 {
         return;
     }
     for col in m.as_mut_slice().chunks_exact_mut(n) {
         for (v, wi) in col.iter_mut().zip(w) {
-            *v /= wi;
+            op(v, *wi);
         }
     }
 }
@@ -794,12 +791,13 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
             if let Some(t) = done {
                 // Report the Jacobian at the final point; the one of the
                 // previous point serves when the last step was negligible.
-                let at_x = |jac_at_x: DMatrix<f64>| {
+                // The factorisation goes with the report (the fit ends here).
+                let at_x = move |jac_at_x: DMatrix<f64>| {
                     let f = Factored {
                         of: jac_at_x.clone(),
-                        qr: fjac.clone(),
-                        ipvt: ipvt.clone(),
-                        rdiag: rdiag.clone(),
+                        qr: fjac,
+                        ipvt,
+                        rdiag,
                     };
                     (jac_at_x, Some(Box::new(f)))
                 };

@@ -879,17 +879,7 @@ fn equilibrium_in<M: Mechanism>(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn example(name: &str) -> toml::Table {
-        let path = format!(
-            "{}/../../examples/{name}/mechanism.toml",
-            env!("CARGO_MANIFEST_DIR")
-        );
-        let mut t: toml::Table = std::fs::read_to_string(path).unwrap().parse().unwrap();
-        t.remove("type");
-        t.remove("target");
-        t
-    }
+    use crate::example_table as example;
 
     /// Poses prepared with the start-independent work done ahead are, bit
     /// for bit, those prepared in turn from the pose before (on a planar

@@ -250,10 +250,7 @@ mod tests {
     }
 
     fn hexapod() -> crate::GoughStewart {
-        let text = include_str!("../../../examples/gough-stewart-6/mechanism.toml");
-        let mut t: toml::Table = text.parse().unwrap();
-        t.remove("type");
-        t.remove("target");
+        let t = crate::example_table("gough-stewart-6");
         crate::GoughStewart::new(&t.try_into().unwrap()).unwrap()
     }
 
