@@ -611,6 +611,21 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
     let cache = PoseCache::new();
     let cal =
         calibrate_with_cache(mech, &measurement, &train, &start, &opts, &cache).map_err(locate)?;
+    // The parameters are staged at once: their temporary is written and
+    // flushed to disk while the accuracy is computed (nothing is renamed
+    // into place unless everything succeeds).
+    let header = format!(
+        "pkmcal {} calibration ({} model) of {} from {}\nsolver: {}",
+        env!("CARGO_PKG_VERSION"),
+        c.model.name(),
+        spec.name,
+        c.data.display(),
+        cal.termination_reason
+    );
+    crate::output::stage(
+        &c.out,
+        crate::io::params_to_string(spec, &cal.params, &header).as_bytes(),
+    )?;
     // Statistics over the poses the fit kept (dropped outliers are listed).
     let kept: Vec<Measurement> = train
         .iter()
@@ -649,15 +664,6 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
         }
         None => None,
     };
-    let header = format!(
-        "pkmcal {} calibration ({} model) of {} from {}\nsolver: {}",
-        env!("CARGO_PKG_VERSION"),
-        c.model.name(),
-        spec.name,
-        c.data.display(),
-        cal.termination_reason
-    );
-    let params_text = crate::io::params_to_string(spec, &cal.params, &header);
     let report = Report {
         pkmcal_version: env!("CARGO_PKG_VERSION"),
         mechanism: spec.name.clone(),
@@ -668,11 +674,8 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
         validation,
         cross_validation,
     };
-    let json = serde_json::to_string_pretty(&report)?;
-    // Write everything only after every computation succeeded.
-    crate::output::stage(&c.out, params_text.as_bytes())?;
     if let Some(r) = &c.report {
-        crate::output::stage(r, json.as_bytes())?;
+        crate::output::stage(r, serde_json::to_string_pretty(&report)?.as_bytes())?;
     }
     if let Some(dir) = &c.report_dir {
         crate::report::write_report_dir(

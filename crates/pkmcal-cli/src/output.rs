@@ -33,6 +33,20 @@ pub fn usage<T>(message: impl Into<String>) -> Result<T> {
 struct Staged {
     tmp: PathBuf,
     dest: PathBuf,
+    /// The thread writing a whole output ([`stage`]) and flushing it to
+    /// disk, joined at [`commit`].
+    writing: Option<std::thread::JoinHandle<std::io::Result<()>>>,
+}
+
+impl Staged {
+    /// Wait for the temporary's writer, if any; its result.
+    fn written(&mut self) -> std::io::Result<()> {
+        match self.writing.take().map(std::thread::JoinHandle::join) {
+            None | Some(Ok(Ok(()))) => Ok(()),
+            Some(Ok(Err(e))) => Err(e),
+            Some(Err(_)) => Err(std::io::Error::other("the writing thread panicked")),
+        }
+    }
 }
 
 struct State {
@@ -272,22 +286,53 @@ fn sweep_stale(dest: &Path) {
     }
 }
 
-/// Stage `bytes` for `dest`: written to a temporary now, renamed at
-/// [`commit`].
+/// Stage `bytes` for `dest`: the temporary is created now, written and
+/// flushed to disk (`fsync`) on a thread of its own while the run goes on
+/// (the flush takes about 0.5 ms, a twentieth of a small calibration), and
+/// renamed at [`commit`], which waits for it and reports a failed write.
 pub fn stage(dest: &Path, bytes: &[u8]) -> Result<()> {
     if is_stdout(dest) {
         state().stdout.extend_from_slice(bytes);
         return Ok(());
     }
-    let (mut f, _) = stage_file(dest)?;
-    f.write_all(bytes)
-        .and_then(|_| f.sync_all())
-        .with_context(|| format!("cannot write {}", dest.display()))
+    let (f, tmp) = stage_file(dest)?;
+    let bytes: std::sync::Arc<[u8]> = bytes.into();
+    let write = |mut f: std::fs::File, bytes: &[u8]| f.write_all(bytes).and_then(|()| f.sync_all());
+    let mine = bytes.clone();
+    match std::thread::Builder::new()
+        .name("write".into())
+        .spawn(move || write(f, &mine))
+    {
+        Ok(handle) => {
+            if let Some(s) = state().staged.iter_mut().find(|x| x.dest == dest) {
+                s.writing = Some(handle);
+            }
+            Ok(())
+        }
+        // No thread to be had (the closure and its file are gone): written
+        // here, through the temporary's path.
+        Err(_) => std::fs::OpenOptions::new()
+            .write(true)
+            .truncate(true)
+            .open(&tmp)
+            .and_then(|f| write(f, &bytes))
+            .with_context(|| format!("cannot write {}", dest.display())),
+    }
 }
 
 /// A temporary file for `dest`, registered for [`commit`] (for outputs
 /// written as they are computed).
 pub fn stage_file(dest: &Path) -> Result<(std::fs::File, PathBuf)> {
+    // A second output for the same destination replaces the first: its
+    // writer (same temporary) finishes first.
+    let earlier = state()
+        .staged
+        .iter_mut()
+        .find(|x| x.dest == dest)
+        .and_then(|x| x.writing.take());
+    if let Some(h) = earlier {
+        let _ = h.join();
+    }
     sweep_stale(dest);
     let tmp = temporary(dest)?;
     let f =
@@ -297,6 +342,7 @@ pub fn stage_file(dest: &Path) -> Result<(std::fs::File, PathBuf)> {
     s.staged.push(Staged {
         tmp: tmp.clone(),
         dest: dest.to_path_buf(),
+        writing: None,
     });
     Ok((f, tmp))
 }
@@ -319,7 +365,19 @@ pub fn writer(dest: &Path) -> Result<Box<dyn Write>> {
 
 /// Rename every staged temporary into place.
 pub fn commit() -> Result<()> {
-    let staged = std::mem::take(&mut state().staged);
+    let mut staged = std::mem::take(&mut state().staged);
+    let mut failed = None;
+    for s in staged.iter_mut() {
+        if let Err(e) = s.written() {
+            failed.get_or_insert((s.dest.clone(), e));
+        }
+    }
+    if let Some((dest, e)) = failed {
+        for s in &staged {
+            let _ = std::fs::remove_file(&s.tmp);
+        }
+        return Err(e).with_context(|| format!("cannot write {}", dest.display()));
+    }
     for (k, s) in staged.iter().enumerate() {
         if let Err(e) = std::fs::rename(&s.tmp, &s.dest) {
             for rest in &staged[k..] {
@@ -343,7 +401,8 @@ pub fn commit() -> Result<()> {
 pub fn discard() {
     let mut s = state();
     s.stdout.clear();
-    for x in s.staged.drain(..) {
+    for mut x in s.staged.drain(..) {
+        let _ = x.written();
         let _ = std::fs::remove_file(&x.tmp);
     }
     for d in s.created.drain(..) {

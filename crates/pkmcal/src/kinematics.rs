@@ -325,6 +325,21 @@ pub(crate) fn solve_square(a: DMatrix<f64>, b: DVector<f64>) -> Option<DVector<f
     checked_lu(a)?.solve(&b)
 }
 
+/// [`solve_square`] in place: `b` becomes the solution and `a` its LU
+/// factors (the same operations, so the same bits); `false` when `A` is
+/// singular (by [`checked_lu`]'s test).
+pub(crate) fn solve_square_in_place(a: &mut DMatrix<f64>, b: &mut [f64]) -> bool {
+    let scale = a.amax();
+    if scale.is_nan() || scale <= 0.0 {
+        return false;
+    }
+    let solved = crate::lu::solve_in_place(a, b);
+    let min_pivot = (0..a.nrows())
+        .map(|i| a[(i, i)].abs())
+        .fold(f64::INFINITY, f64::min);
+    min_pivot >= SINGULAR_RCOND * scale && solved
+}
+
 /// Forward kinematics: the full joint vector with the independent joints
 /// (`spec().independent`) at `q_u`, by Newton from `start` with continuation
 /// (the independent joints move from their start values to `q_u` in stages, so
@@ -486,6 +501,18 @@ pub fn reference_configuration<M: Mechanism>(mech: &M, rho: &[f64]) -> Result<Ve
 /// otherwise Newton on `[g; x − target] = 0` with continuation from the
 /// reference configuration.
 pub fn inverse_kinematics<M: Mechanism>(mech: &M, rho: &[f64], target: &[f64]) -> Result<Vec<f64>> {
+    inverse_kinematics_from(mech, rho, target, || reference_configuration(mech, rho))
+}
+
+/// [`inverse_kinematics`] with the reference configuration from `reference`
+/// (asked only when there is no closed form): many targets under the same
+/// parameters share one.
+pub(crate) fn inverse_kinematics_from<M: Mechanism>(
+    mech: &M,
+    rho: &[f64],
+    target: &[f64],
+    reference: impl FnOnce() -> Result<Vec<f64>>,
+) -> Result<Vec<f64>> {
     let spec = mech.spec();
     if target.len() != spec.tool_axes.len() {
         return Err(Error::Dimension {
@@ -518,7 +545,7 @@ pub fn inverse_kinematics<M: Mechanism>(mech: &M, rho: &[f64], target: &[f64]) -
     // Long stages first (few Newton iterations); if that path leaves the
     // branch or Newton fails on it, the short stages, which follow the
     // branch more closely.
-    let start = reference_configuration(mech, rho)?;
+    let start = reference()?;
     ik_continuation(mech, rho, target, &start, IK_STAGE_LONG)
         .or_else(|_| ik_continuation(mech, rho, target, &start, IK_STAGE))
 }
@@ -554,34 +581,38 @@ fn ik_continuation<M: Mechanism>(
     let stages = (stages as usize).max(1);
     let all: Vec<usize> = (0..nq).collect();
     let mut j = crate::autodiff::Jacobians::empty();
+    // Newton's system `[∂g/∂q; ∂x/∂q] step = [g; x − goal]`, in buffers
+    // kept from one iteration to the next (every entry is rewritten).
+    let mut a = DMatrix::zeros(nq, nq);
+    let mut step = vec![0.0; nq];
+    let mut goal = vec![0.0; x0.len()];
     for s in 1..=stages {
         let t = s as f64 / stages as f64;
-        let goal: Vec<f64> = x0
-            .iter()
-            .zip(target)
-            .map(|(a, b)| a + t * (b - a))
-            .collect();
+        for (g, (a, b)) in goal.iter_mut().zip(x0.iter().zip(target)) {
+            *g = a + t * (b - a);
+        }
         let mut converged = false;
         for _ in 0..MAX_NEWTON {
             crate::autodiff::jacobians_into(mech, &q, rho, 0..nq, &mut j);
-            let mut a = DMatrix::zeros(nq, nq);
             a.view_mut((0, 0), (spec.n_constraints, nq))
                 .copy_from(&j.dg);
             a.view_mut((spec.n_constraints, 0), (target.len(), nq))
                 .copy_from(&j.dx);
-            let mut b = DVector::zeros(nq);
-            for (i, v) in j.g.iter().enumerate() {
-                b[i] = *v;
+            step[..spec.n_constraints].copy_from_slice(&j.g);
+            for (b, (x, t)) in step[spec.n_constraints..]
+                .iter_mut()
+                .zip(j.x.iter().zip(&goal))
+            {
+                *b = x - t;
             }
-            for (i, (x, t)) in j.x.iter().zip(&goal).enumerate() {
-                b[spec.n_constraints + i] = x - t;
+            if !solve_square_in_place(&mut a, &mut step) {
+                return Err(Error::Unreachable {
+                    target: target.to_vec(),
+                    reason: "the path from the reference configuration meets a singularity".into(),
+                });
             }
-            let step = solve_square(a, b).ok_or_else(|| Error::Unreachable {
-                target: target.to_vec(),
-                reason: "the path from the reference configuration meets a singularity".into(),
-            })?;
-            let big = step.amax();
-            let scale = damping(spec, &all, step.as_slice());
+            let big = nalgebra::DVectorView::from_slice(&step, nq).amax();
+            let scale = damping(spec, &all, &step);
             for i in 0..nq {
                 q[i] -= scale * step[i];
             }

@@ -116,7 +116,13 @@ pub fn lattice_spacing(spec: &crate::Spec, spacing: f64, max_points: usize) -> f
 pub fn workspace_point<M: Mechanism>(mech: &M, target: &[f64]) -> Result<WorkspacePoint> {
     let spec = mech.spec();
     let rho = &spec.nominal[..spec.n_geometric()];
-    let q = inverse_kinematics(mech, rho, target)?;
+    point_from(mech, target, inverse_kinematics(mech, rho, target)?)
+}
+
+/// The [`WorkspacePoint`] of `target` reached at `q` (nominal parameters).
+fn point_from<M: Mechanism>(mech: &M, target: &[f64], q: Vec<f64>) -> Result<WorkspacePoint> {
+    let spec = mech.spec();
+    let rho = &spec.nominal[..spec.n_geometric()];
     let conditioning = conditioning(mech, &q, rho);
     Ok(WorkspacePoint {
         target: target.to_vec(),
@@ -132,14 +138,50 @@ pub fn workspace_point<M: Mechanism>(mech: &M, target: &[f64]) -> Result<Workspa
 pub fn sample_workspace<M: Mechanism>(mech: &M, spacing: f64) -> Vec<WorkspacePoint> {
     use rayon::prelude::*;
     let spec = mech.spec();
+    let reference = Reference::new(mech, &spec.nominal[..spec.n_geometric()]);
     lattice_targets(spec, spacing)
         .into_par_iter()
         .filter_map(|target| {
-            workspace_point(mech, &target)
+            let q = reference.inverse_kinematics(&target).ok()?;
+            point_from(mech, &target, q)
                 .ok()
                 .filter(|p| p.conditioning >= spec.min_conditioning)
         })
         .collect()
+}
+
+/// The inverse kinematics of many targets under the same parameters, from
+/// one reference configuration (computed when the first target without a
+/// closed form needs it): what [`inverse_kinematics`] does for each.
+struct Reference<'a, M> {
+    mech: &'a M,
+    rho: &'a [f64],
+    q: std::sync::OnceLock<Option<Vec<f64>>>,
+}
+
+impl<'a, M: Mechanism> Reference<'a, M> {
+    fn new(mech: &'a M, rho: &'a [f64]) -> Self {
+        Self {
+            mech,
+            rho,
+            q: std::sync::OnceLock::new(),
+        }
+    }
+
+    fn inverse_kinematics(&self, target: &[f64]) -> Result<Vec<f64>> {
+        crate::kinematics::inverse_kinematics_from(self.mech, self.rho, target, || {
+            self.q
+                .get_or_init(|| {
+                    crate::kinematics::reference_configuration(self.mech, self.rho).ok()
+                })
+                .clone()
+                .ok_or_else(|| {
+                    crate::Error::InvalidMechanism(
+                        "the reference configuration does not close with these parameters".into(),
+                    )
+                })
+        })
+    }
 }
 
 /// The points of the lattice of [`sample_workspace`], in order.
@@ -340,13 +382,14 @@ impl Atlas {
         let dims = spec.workspace_box.len() as f64;
         let spacing = scaled_extent(spec) / (points.max(2) as f64).powf(1.0 / dims);
         let rho = &spec.nominal[..spec.n_geometric()];
+        let reference = Reference::new(mech, rho);
         // The lattice of [`sample_workspace`]; the conditioning is only
         // computed when a threshold asks for it (none while a mechanism
         // builds its atlas).
         let entries = lattice_targets(spec, spacing)
             .into_par_iter()
             .filter_map(|target| {
-                let q = inverse_kinematics(mech, rho, &target).ok()?;
+                let q = reference.inverse_kinematics(&target).ok()?;
                 if spec.min_conditioning > 0.0 {
                     let c = conditioning(mech, &q, rho);
                     if c.is_nan() || c < spec.min_conditioning {
