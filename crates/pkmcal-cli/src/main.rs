@@ -720,17 +720,9 @@ fn check_paths(command: &Command) -> anyhow::Result<()> {
 
 fn main() -> ExitCode {
     keep_freed_memory();
-    // The pool's threads start, and the clean-up handlers are installed,
-    // while the command line is parsed (each takes about 0.3 ms).
-    let setup = std::thread::Builder::new().name("setup".into()).spawn(|| {
-        output::install_cleanup();
-        start_pool();
-    });
     let cli = Cli::parse();
-    if setup.map(|h| h.join()).is_err() {
-        output::install_cleanup();
-        start_pool();
-    }
+    output::install_cleanup();
+    start_pool();
     let result = fileunits::set_cli(cli.units.as_deref())
         .and_then(|()| check_paths(&cli.command))
         .and_then(|()| in_pool(cli.command));

@@ -411,14 +411,21 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             .collect();
         let (mech, model, force, origins) =
             (self.mech, self.model, &self.force, &self.pose_origins);
+        // From scratch at nominal parameters (a calibration's start, the
+        // accuracy before it): each pose's prediction is made once.
+        let at_nominal = cached.is_none() && params.values == mech.spec().nominal;
         let out: Result<Vec<Prediction>> = self
             .poses
             .par_iter()
             .zip(warm.par_iter())
             .enumerate()
             .map(|(i, (pose, warm))| {
-                predict_pose_warm(mech, pose, params, model, force, *warm)
-                    .map_err(|e| e.at_pose(origins[i]))
+                if at_nominal {
+                    pose.predict_at_nominal(mech, params, model, force)
+                } else {
+                    predict_pose_warm(mech, pose, params, model, force, *warm)
+                }
+                .map_err(|e| e.at_pose(origins[i]))
             })
             .collect();
         drop(cached);

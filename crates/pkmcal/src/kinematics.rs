@@ -698,3 +698,40 @@ pub fn choose_independent<M: Mechanism>(mech: &M, q: &[f64], rho: &[f64]) -> Vec
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng, rngs::StdRng};
+
+    /// The in-place solve is [`solve_square`] bit for bit, singular systems
+    /// included (a zero column, a tiny pivot, a NaN entry).
+    #[test]
+    fn square_solves_in_place_are_the_allocating_ones() {
+        let mut rng = StdRng::seed_from_u64(7);
+        for n in 1..=14 {
+            for case in 0..4 {
+                let mut a = DMatrix::from_fn(n, n, |_, _| rng.random_range(-3.0..3.0));
+                let b = DVector::from_fn(n, |_, _| rng.random_range(-3.0..3.0));
+                match case {
+                    1 => a.column_mut(n / 2).fill(0.0),
+                    2 => {
+                        // The last column nearly the first (a tiny pivot).
+                        let c = a.column(0) + a.column(n - 1) * 1e-12;
+                        a.column_mut(n - 1).copy_from(&c);
+                    }
+                    3 => a[(n - 1, 0)] = f64::NAN,
+                    _ => {}
+                }
+                let expected = solve_square(a.clone(), b.clone());
+                let (mut a2, mut x) = (a.clone(), b.as_slice().to_vec());
+                let solved = solve_square_in_place(&mut a2, &mut x);
+                assert_eq!(solved, expected.is_some(), "n {n} case {case}");
+                if let Some(e) = expected {
+                    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(e.as_slice()), bits(&x), "n {n} case {case}");
+                }
+            }
+        }
+    }
+}

@@ -77,9 +77,38 @@ pub struct Pose {
     /// to the joints at the nominal configuration (computed on first use by the
     /// exact model; Newton's curvature there is good to ~1e-6 relative).
     hessians: OnceLock<Vec<DMatrix<f64>>>,
+    /// The prediction at nominal parameters from the nominal configuration
+    /// (no warm start), with the model and load it was made for: a
+    /// calibration that starts at nominal parameters and the accuracy it
+    /// reports before calibration make it once ([`Pose::predict_at_nominal`]).
+    at_nominal: OnceLock<(Model, Vec<f64>, Prediction)>,
 }
 
 impl Pose {
+    /// [`predict_pose`] at nominal parameters `nominal` (the caller's, equal
+    /// to `Params::nominal`), computed once per model and load: the first
+    /// computed is kept, any other is computed each time. The same
+    /// prediction, bit for bit, as `predict_pose`.
+    pub(crate) fn predict_at_nominal<M: Mechanism>(
+        &self,
+        mech: &M,
+        nominal: &Params,
+        model: Model,
+        force: &[f64],
+    ) -> Result<Prediction> {
+        debug_assert_eq!(nominal.values, mech.spec().nominal);
+        if let Some((m, f, p)) = self.at_nominal.get()
+            && *m == model
+            && f == force
+        {
+            return Ok(p.clone());
+        }
+        let p = predict_pose(mech, self, nominal, model, force)?;
+        // (Another thread may have kept its own, the same, first.)
+        let _ = self.at_nominal.set((model, force.to_vec(), p.clone()));
+        Ok(p)
+    }
+
     /// Φ, J_p, Γ, H, J_f at the nominal configuration (eq. 4–7, 9), the
     /// linear model's matrices.
     pub fn lin<M: Mechanism>(&self, mech: &M) -> Result<&Linearization> {
@@ -235,6 +264,7 @@ pub(crate) fn pose_ahead<M: Mechanism>(mech: &M, commands: &[f64]) -> Option<Ahe
             nominal_q: q,
             lin: OnceLock::new(),
             hessians: OnceLock::new(),
+            at_nominal: OnceLock::new(),
         })
     });
     Some(Ahead { guess, pose })
@@ -370,6 +400,7 @@ pub(crate) fn prepare_pose_ahead<M: Mechanism>(
         nominal_q,
         lin: OnceLock::new(),
         hessians: OnceLock::new(),
+        at_nominal: OnceLock::new(),
     })
 }
 
@@ -927,5 +958,39 @@ mod tests {
         same_ahead(
             &crate::GoughStewart::new(&example("gough-stewart-8").try_into().unwrap()).unwrap(),
         );
+    }
+
+    /// A pose's prediction at nominal parameters, kept for one model and
+    /// load, is `predict_pose`'s bit for bit, for that model and load and for
+    /// others asked afterwards (which are not served the kept one).
+    #[test]
+    fn predictions_kept_at_nominal_are_predict_pose_s() {
+        let mech = crate::PlanarLinkage::new(&example("4-rrr").try_into().unwrap()).unwrap();
+        let spec = mech.spec();
+        let nominal = Params::nominal(spec);
+        let bits = |p: &Prediction| {
+            [&p.q, &p.x, &p.torque]
+                .iter()
+                .flat_map(|v| v.iter().map(|x| x.to_bits()))
+                .collect::<Vec<_>>()
+        };
+        let load = [5.0, -3.0, 0.0];
+        for target in crate::workspace::spread_targets(&mech, 5).unwrap() {
+            let c: Vec<f64> = spec.actuated.iter().map(|&j| target.q[j]).collect();
+            let pose = prepare_pose(&mech, &c, Some(&target.q)).unwrap();
+            for (model, force) in [
+                (Model::Exact, &[][..]),
+                (Model::Exact, &[][..]),
+                (Model::Linear, &[][..]),
+                (Model::Exact, &load[..]),
+                (Model::Exact, &[][..]),
+            ] {
+                let kept = pose
+                    .predict_at_nominal(&mech, &nominal, model, force)
+                    .unwrap();
+                let fresh = predict_pose(&mech, &pose, &nominal, model, force).unwrap();
+                assert_eq!(bits(&kept), bits(&fresh), "{model:?} {force:?}");
+            }
+        }
     }
 }

@@ -377,3 +377,22 @@ fn planar_closed_form_derivatives_equal_automatic_ones() {
         }
     }
 }
+
+/// A workspace lattice's inverse kinematics share one reference
+/// configuration: every point is, bit for bit, the one inverse kinematics
+/// finds for its target alone (on the 4-RRR and the five-bar, whose inverse
+/// kinematics is Newton from the reference configuration).
+#[test]
+fn lattice_points_are_each_targets_own_inverse_kinematics() {
+    for name in ["4-rrr", "five-bar"] {
+        let mech = planar(name);
+        let points = pkmcal::sample_workspace(&mech, 20.0);
+        assert!(points.len() > 20, "{name}: {} points", points.len());
+        for p in &points {
+            let alone = pkmcal::workspace::workspace_point(&mech, &p.target).unwrap();
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&alone.q), bits(&p.q), "{name} at {:?}", p.target);
+            assert_eq!(alone.conditioning.to_bits(), p.conditioning.to_bits());
+        }
+    }
+}
