@@ -365,19 +365,26 @@ pub fn writer(dest: &Path) -> Result<Box<dyn Write>> {
 
 /// Rename every staged temporary into place.
 pub fn commit() -> Result<()> {
-    let mut staged = std::mem::take(&mut state().staged);
-    let mut failed = None;
-    for s in staged.iter_mut() {
-        if let Err(e) = s.written() {
-            failed.get_or_insert((s.dest.clone(), e));
+    // The writers finish first, their temporaries still registered (so that
+    // Ctrl-C meanwhile removes them).
+    let writers: Vec<Staged> = state()
+        .staged
+        .iter_mut()
+        .filter_map(|s| {
+            s.writing.take().map(|w| Staged {
+                tmp: s.tmp.clone(),
+                dest: s.dest.clone(),
+                writing: Some(w),
+            })
+        })
+        .collect();
+    for mut w in writers {
+        if let Err(e) = w.written() {
+            discard();
+            return Err(e).with_context(|| format!("cannot write {}", w.dest.display()));
         }
     }
-    if let Some((dest, e)) = failed {
-        for s in &staged {
-            let _ = std::fs::remove_file(&s.tmp);
-        }
-        return Err(e).with_context(|| format!("cannot write {}", dest.display()));
-    }
+    let staged = std::mem::take(&mut state().staged);
     for (k, s) in staged.iter().enumerate() {
         if let Err(e) = std::fs::rename(&s.tmp, &s.dest) {
             for rest in &staged[k..] {
