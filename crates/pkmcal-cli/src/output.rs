@@ -55,12 +55,16 @@ struct State {
     created: Vec<PathBuf>,
     /// Whole outputs for standard output (`-`), written on commit.
     stdout: Vec<u8>,
+    /// Whether [`commit`] has started renaming (it holds the state while it
+    /// does: an interruption waits for the outputs to be in place).
+    committed: bool,
 }
 
 static STATE: Mutex<State> = Mutex::new(State {
     staged: vec![],
     created: vec![],
     stdout: vec![],
+    committed: false,
 });
 
 fn state() -> std::sync::MutexGuard<'static, State> {
@@ -71,7 +75,11 @@ fn state() -> std::sync::MutexGuard<'static, State> {
 pub fn install_cleanup() {
     let _ = ctrlc::set_handler(|| {
         discard();
-        eprintln!("interrupted: no output was written");
+        if state().committed {
+            eprintln!("interrupted after the outputs were written (they are complete)");
+        } else {
+            eprintln!("interrupted: no output was written");
+        }
         std::process::exit(130);
     });
     let default = std::panic::take_hook();
@@ -384,7 +392,12 @@ pub fn commit() -> Result<()> {
             return Err(e).with_context(|| format!("cannot write {}", w.dest.display()));
         }
     }
-    let staged = std::mem::take(&mut state().staged);
+    // The renames hold the state: Ctrl-C or SIGTERM meanwhile waits until
+    // every output is in place (then reports it), instead of exiting with
+    // some renamed and the others' temporaries left behind.
+    let mut guard = state();
+    guard.committed = true;
+    let staged = std::mem::take(&mut guard.staged);
     for (k, s) in staged.iter().enumerate() {
         if let Err(e) = std::fs::rename(&s.tmp, &s.dest) {
             for rest in &staged[k..] {
@@ -393,7 +406,8 @@ pub fn commit() -> Result<()> {
             return Err(e).with_context(|| format!("cannot write {}", s.dest.display()));
         }
     }
-    state().created.clear();
+    guard.created.clear();
+    drop(guard);
     let out = std::mem::take(&mut state().stdout);
     if !out.is_empty() {
         let mut o = std::io::stdout().lock();
