@@ -350,6 +350,72 @@ fn an_interrupted_run_leaves_no_temporary() {
     no_temporaries(d);
 }
 
+/// SIGTERM at moments spread over a run that writes many outputs (the
+/// parameters and a report directory): each run either leaves every earlier
+/// file as it was and no temporary (exit 130), or puts the whole new set in
+/// place (exit 0; or 130 when the signal came during the renames, which it
+/// waits for and reports). Never a temporary left, never part of the set.
+#[test]
+fn an_interruption_at_any_moment_leaves_the_old_files_or_the_whole_new_set() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    ok(
+        d,
+        &[
+            "simulate", "--grid", "35", "--noise", "0.002", "--out", "d.csv",
+        ],
+    );
+    let args = [
+        "calibrate",
+        "--data",
+        "d.csv",
+        "--out",
+        "p.toml",
+        "--report-dir",
+        "rep",
+        "--quiet",
+    ];
+    let start = std::time::Instant::now();
+    ok(d, &args);
+    let whole = start.elapsed();
+    let files = std::fs::read_dir(d.join("rep")).unwrap().count();
+    for k in 0..12 {
+        std::fs::write(d.join("p.toml"), "mine").unwrap();
+        let _ = std::fs::remove_dir_all(d.join("rep"));
+        let child = std::process::Command::new(env!("CARGO_BIN_EXE_pkmcal"))
+            .args(args)
+            .current_dir(d)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(whole.mul_f64(0.3 + 0.07 * k as f64));
+        let _ = std::process::Command::new("kill")
+            .args(["-TERM", &child.id().to_string()])
+            .status();
+        let o = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        let params = read(d, "p.toml");
+        let report = std::fs::read_dir(d.join("rep")).map_or(0, |r| r.count());
+        let complete = params.starts_with("# pkmcal") && report == files;
+        match o.status.code() {
+            Some(0) => assert!(complete, "run {k}: {report} of {files} report files"),
+            Some(130) if err.contains("after the outputs were written") => {
+                assert!(complete, "run {k}: {err}")
+            }
+            Some(130) => {
+                assert_eq!(params, "mine", "run {k}: {err}");
+                assert_eq!(report, 0, "run {k}: {err}");
+            }
+            c => panic!("run {k}: exit {c:?}: {err}"),
+        }
+        no_temporaries(d);
+        if d.join("rep").exists() {
+            no_temporaries(&d.join("rep"));
+        }
+    }
+}
+
 #[test]
 fn bad_option_values_are_usage_errors() {
     let dir = tempfile::tempdir().unwrap();
