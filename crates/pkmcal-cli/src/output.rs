@@ -74,12 +74,22 @@ fn state() -> std::sync::MutexGuard<'static, State> {
 /// Remove the temporaries on Ctrl-C, SIGTERM and panics.
 pub fn install_cleanup() {
     let _ = ctrlc::set_handler(|| {
-        discard();
-        if state().committed {
-            eprintln!("interrupted after the outputs were written (they are complete)");
-        } else {
-            eprintln!("interrupted: no output was written");
-        }
+        // The state stays held until the exit: the run cannot stage or
+        // commit anything after the temporaries are removed.
+        let mut s = state();
+        let committed = s.committed;
+        discard_in(&mut s);
+        // (Not `eprintln!`: with standard error closed it would panic, and
+        // the panic hook wait for the state held here.)
+        let _ = writeln!(
+            std::io::stderr(),
+            "{}",
+            if committed {
+                "interrupted after the outputs were written (they are complete)"
+            } else {
+                "interrupted: no output was written"
+            }
+        );
         std::process::exit(130);
     });
     let default = std::panic::take_hook();
@@ -247,8 +257,10 @@ pub fn create_dir(dir: &Path) -> Result<()> {
         missing.push(p.to_path_buf());
         d = p.parent();
     }
+    // Created and registered under the state (an interruption removes it).
+    let mut s = state();
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    state().created.extend(missing);
+    s.created.extend(missing);
     Ok(())
 }
 
@@ -341,11 +353,12 @@ pub fn stage_file(dest: &Path) -> Result<(std::fs::File, PathBuf)> {
     if let Some(h) = earlier {
         let _ = h.join();
     }
+    // Created and registered under the state (an interruption removes it).
+    let mut s = state();
     sweep_stale(dest);
     let tmp = temporary(dest)?;
     let f =
         std::fs::File::create(&tmp).with_context(|| format!("cannot write {}", dest.display()))?;
-    let mut s = state();
     s.staged.retain(|x| x.dest != dest);
     s.staged.push(Staged {
         tmp: tmp.clone(),
@@ -420,7 +433,11 @@ pub fn commit() -> Result<()> {
 
 /// Remove every staged temporary and the directories this run created.
 pub fn discard() {
-    let mut s = state();
+    discard_in(&mut state());
+}
+
+/// [`discard`] with the state held.
+fn discard_in(s: &mut State) {
     s.stdout.clear();
     for mut x in s.staged.drain(..) {
         let _ = x.written();

@@ -399,13 +399,23 @@ fn an_interruption_at_any_moment_leaves_the_old_files_or_the_whole_new_set() {
         let report = std::fs::read_dir(d.join("rep")).map_or(0, |r| r.count());
         let complete = params.starts_with("# pkmcal") && report == files;
         match o.status.code() {
-            Some(0) => assert!(complete, "run {k}: {report} of {files} report files"),
+            Some(0) => assert!(
+                complete,
+                "run {k}: {report} of {files} report files, params {:?}, {err}",
+                &params[..params.len().min(20)]
+            ),
             Some(130) if err.contains("after the outputs were written") => {
                 assert!(complete, "run {k}: {err}")
             }
             Some(130) => {
                 assert_eq!(params, "mine", "run {k}: {err}");
-                assert_eq!(report, 0, "run {k}: {err}");
+                let names: Vec<String> = std::fs::read_dir(d.join("rep"))
+                    .map(|r| {
+                        r.map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                            .collect()
+                    })
+                    .unwrap_or_default();
+                assert_eq!(report, 0, "run {k}: {err} {names:?}");
             }
             c => panic!("run {k}: exit {c:?}: {err}"),
         }
