@@ -722,7 +722,6 @@ fn main() -> ExitCode {
     keep_freed_memory();
     let cli = Cli::parse();
     output::install_cleanup();
-    start_pool();
     let result = fileunits::set_cli(cli.units.as_deref())
         .and_then(|()| check_paths(&cli.command))
         .and_then(|()| in_pool(cli.command));
@@ -762,22 +761,17 @@ fn keep_freed_memory() {
 #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
 fn keep_freed_memory() {}
 
-/// Starts rayon's global pool, its threads with the main thread's stack
-/// size ([`in_pool`]).
-fn start_pool() {
+/// Runs the command on a thread of rayon's pool (with the main thread's
+/// stack size): the library's parallel sections (the poses of each
+/// evaluation of a calibration, a hundred or so per fit) then start on a
+/// worker, which takes its share at once, instead of on the main thread,
+/// which hands the whole section to the pool and sleeps until it is done
+/// (measured in BENCHMARKS.md, issue 12).
+fn in_pool(command: Command) -> anyhow::Result<()> {
     // Only fails when a pool exists already, which it does not this early.
     let _ = rayon::ThreadPoolBuilder::new()
         .stack_size(MAIN_STACK)
         .build_global();
-}
-
-/// Runs the command on a thread of rayon's pool ([`start_pool`]): the
-/// library's parallel sections (the poses of each evaluation of a
-/// calibration, a hundred or so per fit) then start on a worker, which takes
-/// its share at once, instead of on the main thread, which hands the whole
-/// section to the pool and sleeps until it is done (measured in
-/// BENCHMARKS.md, issue 12).
-fn in_pool(command: Command) -> anyhow::Result<()> {
     rayon::scope(move |_| run(command))
 }
 

@@ -38,14 +38,12 @@ struct Staged {
     writing: Option<std::thread::JoinHandle<std::io::Result<()>>>,
 }
 
-impl Staged {
-    /// Wait for the temporary's writer, if any; its result.
-    fn written(&mut self) -> std::io::Result<()> {
-        match self.writing.take().map(std::thread::JoinHandle::join) {
-            None | Some(Ok(Ok(()))) => Ok(()),
-            Some(Ok(Err(e))) => Err(e),
-            Some(Err(_)) => Err(std::io::Error::other("the writing thread panicked")),
-        }
+/// Wait for a temporary's writer, if any; its result.
+fn written(writing: Option<std::thread::JoinHandle<std::io::Result<()>>>) -> std::io::Result<()> {
+    match writing.map(std::thread::JoinHandle::join) {
+        None | Some(Ok(Ok(()))) => Ok(()),
+        Some(Ok(Err(e))) => Err(e),
+        Some(Err(_)) => Err(std::io::Error::other("the writing thread panicked")),
     }
 }
 
@@ -388,21 +386,15 @@ pub fn writer(dest: &Path) -> Result<Box<dyn Write>> {
 pub fn commit() -> Result<()> {
     // The writers finish first, their temporaries still registered (so that
     // Ctrl-C meanwhile removes them).
-    let writers: Vec<Staged> = state()
+    let writers: Vec<_> = state()
         .staged
         .iter_mut()
-        .filter_map(|s| {
-            s.writing.take().map(|w| Staged {
-                tmp: s.tmp.clone(),
-                dest: s.dest.clone(),
-                writing: Some(w),
-            })
-        })
+        .filter_map(|s| s.writing.take().map(|w| (s.dest.clone(), w)))
         .collect();
-    for mut w in writers {
-        if let Err(e) = w.written() {
+    for (dest, w) in writers {
+        if let Err(e) = written(Some(w)) {
             discard();
-            return Err(e).with_context(|| format!("cannot write {}", w.dest.display()));
+            return Err(e).with_context(|| format!("cannot write {}", dest.display()));
         }
     }
     // The renames hold the state: Ctrl-C or SIGTERM meanwhile waits until
@@ -439,8 +431,8 @@ pub fn discard() {
 /// [`discard`] with the state held.
 fn discard_in(s: &mut State) {
     s.stdout.clear();
-    for mut x in s.staged.drain(..) {
-        let _ = x.written();
+    for x in s.staged.drain(..) {
+        let _ = written(x.writing);
         let _ = std::fs::remove_file(&x.tmp);
     }
     for d in s.created.drain(..) {

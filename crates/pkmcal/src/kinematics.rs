@@ -322,12 +322,14 @@ pub fn branch_signs_of(spec: &crate::Spec, j: &crate::autodiff::Jacobians) -> [i
 
 /// Solve a square system by LU with a singularity check on the pivots.
 pub(crate) fn solve_square(a: DMatrix<f64>, b: DVector<f64>) -> Option<DVector<f64>> {
-    checked_lu(a)?.solve(&b)
+    let (mut a, mut x) = (a, b);
+    solve_square_in_place(&mut a, x.as_mut_slice()).then_some(x)
 }
 
-/// [`solve_square`] in place: `b` becomes the solution and `a` its LU
-/// factors (the same operations, so the same bits); `false` when `A` is
-/// singular (by [`checked_lu`]'s test).
+/// `A x = b` in place: `b` becomes the solution and `a` its LU factors;
+/// `false` when `A` is singular (by [`checked_lu`]'s test). The same
+/// operations as [`checked_lu`] then [`crate::lu::Lu::solve`], so the same
+/// bits.
 pub(crate) fn solve_square_in_place(a: &mut DMatrix<f64>, b: &mut [f64]) -> bool {
     let scale = a.amax();
     if scale.is_nan() || scale <= 0.0 {
@@ -704,8 +706,8 @@ mod tests {
     use super::*;
     use rand::{RngExt, SeedableRng, rngs::StdRng};
 
-    /// The in-place solve is [`solve_square`] bit for bit, singular systems
-    /// included (a zero column, a tiny pivot, a NaN entry).
+    /// The in-place solve is [`checked_lu`] then its solve, bit for bit,
+    /// singular systems included (a zero column, a tiny pivot, a NaN entry).
     #[test]
     fn square_solves_in_place_are_the_allocating_ones() {
         let mut rng = StdRng::seed_from_u64(7);
@@ -723,7 +725,7 @@ mod tests {
                     3 => a[(n - 1, 0)] = f64::NAN,
                     _ => {}
                 }
-                let expected = solve_square(a.clone(), b.clone());
+                let expected = checked_lu(a.clone()).and_then(|lu| lu.solve(&b));
                 let (mut a2, mut x) = (a.clone(), b.as_slice().to_vec());
                 let solved = solve_square_in_place(&mut a2, &mut x);
                 assert_eq!(solved, expected.is_some(), "n {n} case {case}");
