@@ -698,9 +698,9 @@ thread_local! {
         const { std::cell::RefCell::new(ClosedForm::new()) };
 }
 
-/// Size `v` to `n` zeros, keeping its storage.
-fn zeros<D: Scalar>(v: &mut Vec<D>, n: usize) {
-    v.clear();
+/// `v` resized to `n` entries, the kept ones left as they are (each caller
+/// writes every entry before reading it).
+fn sized<D: Scalar>(v: &mut Vec<D>, n: usize) {
     v.resize(n, D::from(0.0));
 }
 
@@ -761,8 +761,12 @@ impl PlanarLinkage {
         f.nd = nd;
         f.p.clear();
         f.p.resize(self.n_bodies, [zero; 3]);
-        zeros(&mut f.dp, 3 * self.n_bodies * nd);
-        zeros(&mut f.scratch, 3 * nd);
+        // Every row below is written before it is read (each body but the
+        // ground is placed by one tree joint, after its parent), but the
+        // ground's, which are zero: sized, not cleared.
+        sized(&mut f.dp, 3 * self.n_bodies * nd);
+        f.dp[body(0)].fill(zero);
+        sized(&mut f.scratch, 3 * nd);
         for (i, j) in self.joints.iter().enumerate() {
             if j.closing.is_some() {
                 continue;
@@ -802,8 +806,8 @@ impl PlanarLinkage {
         }
         let m = self.spec.n_constraints;
         let length = D::from(self.length);
-        zeros(&mut f.g, m);
-        zeros(&mut f.dg, m * nd);
+        sized(&mut f.g, m);
+        sized(&mut f.dg, m * nd);
         let mut k = 0;
         for (i, j) in self.joints.iter().enumerate() {
             let Some(c) = &j.closing else { continue };
@@ -862,8 +866,8 @@ impl PlanarLinkage {
             k += 3;
         }
         let nx = 2 + usize::from(self.orientation);
-        zeros(&mut f.x, nx);
-        zeros(&mut f.dx, 3 * nd);
+        sized(&mut f.x, nx);
+        sized(&mut f.dx, 3 * nd);
         let tb = f.p[self.tool_body];
         let dtb = &f.dp[body(self.tool_body)];
         let (r0, r1, r2) = rows3(&mut f.dx, 0, nd);
