@@ -361,14 +361,20 @@ pub(crate) fn solve_square(a: DMatrix<f64>, b: DVector<f64>) -> Option<DVector<f
 /// operations as [`checked_lu`] then [`crate::lu::Lu::solve`], so the same
 /// bits.
 pub(crate) fn solve_square_in_place(a: &mut DMatrix<f64>, b: &mut [f64]) -> bool {
-    let scale = a.amax();
+    // `amax` skips NaN entries as this does, and where every entry is NaN
+    // both scales are rejected (NaN there, 0 here).
+    let scale = largest_magnitude(a.as_slice());
     if scale.is_nan() || scale <= 0.0 {
         return false;
     }
     let solved = crate::lu::solve_in_place(a, b);
-    let min_pivot = (0..a.nrows())
-        .map(|i| a[(i, i)].abs())
-        .fold(f64::INFINITY, f64::min);
+    let n = a.nrows();
+    // The smallest pivot, NaN skipped as `f64::min` skips it.
+    let min_pivot = a
+        .as_slice()
+        .iter()
+        .step_by(n + 1)
+        .fold(f64::INFINITY, |m, v| if v.abs() < m { v.abs() } else { m });
     min_pivot >= SINGULAR_RCOND * scale && solved
 }
 
