@@ -35,6 +35,22 @@ pub trait Problem {
 /// reported as the final one (its change is of this order).
 const FINAL_JACOBIAN_STEP: f64 = 1e-9;
 
+/// Most Gauss–Newton steps of the final polish ([`polish`]).
+const POLISH_STEPS: usize = 3;
+/// Largest polish step relative to the scaled parameter norm: the polish
+/// only settles the last digits, it never replaces the trust region.
+const POLISH_MAX_STEP: f64 = 1e-6;
+/// Relative increase of the sum of squares a polish step may bring (sums
+/// of squares that differ by this much are equal to rounding on fits of
+/// thousands of residuals).
+const POLISH_SLACK: f64 = 1e-10;
+/// Scaled polish step (relative) after which a further one would move the
+/// point by rounding only.
+const POLISH_SETTLED: f64 = 1e-12;
+/// Pivots of R below this fraction of the largest give no polish step
+/// (directions the data leave undetermined stay where the fit left them).
+const POLISH_RANK_TOL: f64 = 1e-12;
+
 /// Options of [`minimize`].
 #[derive(Debug, Clone)]
 pub struct Options {
@@ -377,6 +393,24 @@ fn qrsolv(
     }
 }
 
+/// `v ← Qᵀ v` by the Householder vectors [`qrfac`] leaves below R in `qr`.
+fn apply_qt(qr: &DMatrix<f64>, v: &mut [f64]) {
+    let (m, n) = qr.shape();
+    for j in 0..m.min(n) {
+        let col = &qr.as_slice()[j * m..(j + 1) * m];
+        if col[j] != 0.0 {
+            let mut sum = 0.0;
+            for (h, vi) in col[j..].iter().zip(&v[j..]) {
+                sum += h * vi;
+            }
+            let temp = -sum / col[j];
+            for (h, vi) in col[j..].iter().zip(&mut v[j..]) {
+                *vi += h * temp;
+            }
+        }
+    }
+}
+
 /// The Levenberg–Marquardt parameter (MINPACK `lmpar`): returns `par` and the
 /// step `x` with `‖D x‖ ≈ delta` (or the Gauss–Newton step if shorter).
 fn lmpar(
@@ -670,20 +704,8 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
                 delta = opts.factor;
             }
         }
-        // Qᵀ f.
         let mut wa4: Vec<f64> = fvec.iter().copied().collect();
-        for j in 0..m.min(n) {
-            if fjac[(j, j)] != 0.0 {
-                let mut sum = 0.0;
-                for i in j..m {
-                    sum += fjac[(i, j)] * wa4[i];
-                }
-                let temp = -sum / fjac[(j, j)];
-                for i in j..m {
-                    wa4[i] += fjac[(i, j)] * temp;
-                }
-            }
-        }
+        apply_qt(&fjac, &mut wa4);
         let mut r = DMatrix::zeros(n, n);
         for j in 0..n {
             for i in 0..j.min(m) {
@@ -807,16 +829,109 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
                     match s.eval(&x, true) {
                         Ok((_, Some(j))) => {
                             s.evaluations -= 1;
-                            (j, None)
+                            let mut qr = j.clone();
+                            let (ipvt, rdiag, _) = qrfac(&mut qr);
+                            let f = Factored {
+                                of: j.clone(),
+                                qr,
+                                ipvt,
+                                rdiag,
+                            };
+                            (j, Some(Box::new(f)))
                         }
                         _ => at_x(jac_at_x),
                     }
                 };
+                if t.converged()
+                    && let Some(f) = &factored
+                {
+                    polish(&mut s, f, &diag, &mut x, &mut fvec, opts);
+                }
                 return finish_factored(&s, &x, t, iter - 1, fvec, j, factored);
             }
             if ratio >= 1e-4 {
                 break;
             }
+        }
+    }
+}
+
+/// The final polish of a converged fit: up to [`POLISH_STEPS`] Gauss–Newton
+/// steps `x ← x − J⁺ r(x)` on the last Jacobian's factorisation, each kept
+/// when it is small ([`POLISH_MAX_STEP`]) and the sum of squares does not
+/// grow beyond rounding ([`POLISH_SLACK`]).
+///
+/// The trust region stops when sums of squares no longer tell points apart,
+/// which in a fit's weakest directions happens up to `√ε·cond(J)` (relative)
+/// from the minimum: two builds whose arithmetic differs in the last bit
+/// stop at different points there. The Gauss–Newton step is computed from
+/// the gradient `Jᵀr`, which is accurate to `ε·cond(J)`, so the polished
+/// point is the minimum to that precision, whichever way the fit came.
+fn polish<P: Problem>(
+    s: &mut Scaled<P>,
+    f: &Factored,
+    diag: &[f64],
+    x: &mut Vec<f64>,
+    fvec: &mut DVector<f64>,
+    opts: &Options,
+) {
+    let (m, n) = f.qr.shape();
+    let k = m.min(n);
+    let r11 = f.rdiag.first().map_or(0.0, |v| v.abs());
+    let rank = (0..k)
+        .take_while(|&j| f.rdiag[j].abs() > POLISH_RANK_TOL * r11)
+        .count();
+    if rank == 0 {
+        return;
+    }
+    let mut ss = fvec.norm_squared();
+    let mut qtf = vec![0.0; m];
+    let mut z = vec![0.0; n];
+    for _ in 0..POLISH_STEPS {
+        if opts
+            .cancel
+            .as_ref()
+            .is_some_and(|c| c.load(Ordering::Relaxed))
+        {
+            return;
+        }
+        qtf.copy_from_slice(fvec.as_slice());
+        apply_qt(&f.qr, &mut qtf);
+        // R₁₁ z = (Qᵀr)₁ on the well-determined pivots, zero on the rest.
+        z.fill(0.0);
+        for j in (0..rank).rev() {
+            let mut sum = qtf[j];
+            for (l, zl) in z.iter().enumerate().take(rank).skip(j + 1) {
+                sum -= f.qr[(j, l)] * zl;
+            }
+            z[j] = sum / f.rdiag[j];
+        }
+        let mut trial = x.clone();
+        for j in 0..rank {
+            trial[f.ipvt[j]] -= z[j];
+        }
+        s.project(&mut trial);
+        let xnorm = enorm(&(0..n).map(|j| diag[j] * x[j]).collect::<Vec<_>>());
+        let pnorm = enorm(
+            &(0..n)
+                .map(|j| diag[j] * (trial[j] - x[j]))
+                .collect::<Vec<_>>(),
+        );
+        if pnorm == 0.0 || pnorm > POLISH_MAX_STEP * xnorm {
+            return;
+        }
+        let Ok((r1, _)) = s.eval(&trial, false) else {
+            return;
+        };
+        let ss1 = r1.norm_squared();
+        if ss1.is_nan() || ss1 > ss * (1.0 + POLISH_SLACK) {
+            return;
+        }
+        *x = trial;
+        *fvec = r1;
+        ss = ss1;
+        if pnorm <= POLISH_SETTLED * xnorm {
+            return;
         }
     }
 }
