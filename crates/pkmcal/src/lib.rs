@@ -42,6 +42,7 @@ pub mod error;
 pub mod frame;
 pub mod gough_stewart;
 pub mod kinematics;
+mod kkt;
 pub mod linearized;
 pub mod lm;
 pub mod load;

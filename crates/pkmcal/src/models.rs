@@ -15,7 +15,7 @@
 
 use crate::autodiff::{jacobians, jacobians_into};
 use crate::error::{Error, Result};
-use crate::kinematics::{forward_kinematics, reference_configuration, solve_scaled_in_place};
+use crate::kinematics::{forward_kinematics, reference_configuration};
 use crate::linearized::{Linearization, joint_errors, linearize, load_vector};
 use crate::mechanism::{Mechanism, Params};
 use nalgebra::{DMatrix, DVector};
@@ -723,6 +723,8 @@ struct EquilibriumWork {
     ggt: DMatrix<f64>,
     ge: DVector<f64>,
     rhs: DVector<f64>,
+    /// The buffers of the KKT solve on the constraints' null space.
+    kkt_work: crate::kkt::KktWork,
 }
 
 thread_local! {
@@ -786,6 +788,7 @@ fn equilibrium_in<M: Mechanism>(
         ggt,
         ge,
         rhs,
+        kkt_work,
     } = ws;
     let j = j.get_or_insert_with(crate::autodiff::Jacobians::empty);
     for it in 1..=MAX_EQUILIBRIUM_ITERATIONS {
@@ -856,7 +859,7 @@ fn equilibrium_in<M: Mechanism>(
         for (r, g) in j.g.iter().enumerate() {
             step[nq + r] = *g;
         }
-        if !solve_scaled_in_place(kkt, step) {
+        if !crate::kkt::solve_kkt_in_place(kkt, step, nq, &spec.independent, kkt_work) {
             return Err(Error::Singular {
                 q: q.clone(),
                 reason: "the equilibrium (KKT) system is singular".into(),

@@ -1,0 +1,468 @@
+//! The KKT systems of the exact model (docs/model.md section 4): each Newton
+//! step of the equilibrium and the adjoint of its implicit derivatives solve
+//!
+//! ```text
+//! [W  Gᵀ] [x]   [a]
+//! [G  0 ] [y] = [b]
+//! ```
+//!
+//! with `W` the Hessian of the Lagrangian in the joints (`nq × nq`, the
+//! stiffness on the actuated joints' diagonal) and `G` the constraint
+//! Jacobian (`m × nq`). They are solved on the null space of `G`, which the
+//! mechanism's independent joints `U` parametrise: with `D` the dependent
+//! joints and `G_D` (`m × m`) their columns of `G`,
+//!
+//! ```text
+//! x_D = s₀ + S x_U,        S = −G_D⁻¹ G_U,  s₀ = G_D⁻¹ b
+//! (Zᵀ W Z) x_U = Zᵀ (a − W [0; s₀]),         Z = [I; S]
+//! y = G_D⁻ᵀ (a − W x)_D
+//! ```
+//!
+//! an LU of `G_D` and of the `(nq − m)`-square reduced Hessian instead of one
+//! of the whole `(nq + m)`-square system, whose zero block and mixed units
+//! (stiffness next to constraint gradients) the LU cannot exploit: on the
+//! 4-RRR's 21 × 21 system about a third of the operations. Where `G_D` or
+//! the reduced Hessian is nearly singular (the independent joints do not
+//! parametrise the constraints well at this configuration), the whole
+//! system is solved by the scaled LU of
+//! [`crate::kinematics::solve_scaled_in_place`], which also decides whether
+//! it is singular.
+
+use crate::kinematics::solve_scaled_in_place;
+use nalgebra::DMatrix;
+
+/// A pivot of `G_D` below this fraction of its largest entry sends the
+/// system to the whole LU: the null-space basis `S` would be large and its
+/// products lose digits.
+const DEPENDENT_RCOND: f64 = 1e-7;
+
+/// A pivot of the reduced Hessian below this fraction of its largest entry
+/// sends the system to the whole LU (which judges singularity).
+const REDUCED_RCOND: f64 = 1e-9;
+
+/// Solve `[W Gᵀ; G 0] [x; y] = [a; b]` in place: `kkt` (`n × n`, `n = nq +
+/// m`) holds the matrix (only its `W` and `G` blocks are read), `rhs` (`n ×
+/// k`) the right-hand sides, which become the solutions. `independent`: the
+/// `nq − m` joints that parametrise the constraints (the spec's independent
+/// joints). Returns `false` when the system is singular (`kkt` and `rhs` then
+/// overwritten). See the module's documentation.
+pub(crate) fn solve_kkt_in_place(
+    kkt: &mut DMatrix<f64>,
+    rhs: &mut DMatrix<f64>,
+    nq: usize,
+    independent: &[usize],
+    work: &mut KktWork,
+) -> bool {
+    let n = kkt.nrows();
+    let usable = n > nq
+        && independent.len() + (n - nq) == nq
+        && !independent.is_empty()
+        && independent.iter().all(|&u| u < nq);
+    (usable && work.null_space(kkt, rhs, nq, independent)) || solve_scaled_in_place(kkt, rhs)
+}
+
+/// The null-space solve's buffers (column-major), kept with the other
+/// buffers of the equilibrium's Newton iterations.
+#[derive(Default)]
+pub(crate) struct KktWork {
+    /// The dependent joints `D`, in order.
+    dep: Vec<usize>,
+    /// `G_D`, then its LU factors.
+    gd: Vec<f64>,
+    /// The row swapped with row `k` at step `k` of `G_D`'s LU.
+    gd_piv: Vec<usize>,
+    /// `[S | s₀]` (`m × (nu + k)`).
+    s: Vec<f64>,
+    /// `W Z` (`nq × nu`).
+    wz: Vec<f64>,
+    /// The reduced Hessian `Zᵀ W Z`, then its LU factors.
+    h: Vec<f64>,
+    h_piv: Vec<usize>,
+    /// `a − W [0; s₀]` for one right-hand side (`nq`).
+    t: Vec<f64>,
+    /// The solution `x` for one right-hand side (`nq`), then `W x`.
+    x: Vec<f64>,
+    wx: Vec<f64>,
+    /// The reduced right-hand side, then `x_U` (`nu`), and `y` (`m`).
+    c: Vec<f64>,
+    y: Vec<f64>,
+}
+
+/// `v` sized to `n` entries (every one is written before it is read).
+fn sized<T: Copy + Default>(v: &mut Vec<T>, n: usize) {
+    v.resize(n, T::default());
+}
+
+/// LU with partial pivoting of the `n × n` column-major `a` in place (unit
+/// lower factor below the diagonal), the swaps in `piv`; `false` when a
+/// pivot is below `rcond` times the largest entry (or not a number).
+fn factor(a: &mut [f64], piv: &mut [usize], n: usize, rcond: f64) -> bool {
+    let scale = a.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    if !(scale > 0.0 && scale.is_finite()) {
+        return false;
+    }
+    let tiny = rcond * scale;
+    for k in 0..n {
+        let colk = &a[k * n..(k + 1) * n];
+        let (mut p, mut big) = (k, colk[k].abs());
+        for (i, v) in colk.iter().enumerate().skip(k + 1) {
+            if v.abs() > big {
+                (p, big) = (i, v.abs());
+            }
+        }
+        if big.is_nan() || big < tiny {
+            return false;
+        }
+        piv[k] = p;
+        if p != k {
+            for col in a.chunks_exact_mut(n) {
+                col.swap(k, p);
+            }
+        }
+        let (done, rest) = a.split_at_mut((k + 1) * n);
+        let pivot = done[k * n + k];
+        let lk = &mut done[k * n + k + 1..];
+        lk.iter_mut().for_each(|v| *v /= pivot);
+        for col in rest.chunks_exact_mut(n) {
+            let y = col[k];
+            if y != 0.0 {
+                for (v, l) in col[k + 1..].iter_mut().zip(lk.iter()) {
+                    *v -= l * y;
+                }
+            }
+        }
+    }
+    true
+}
+
+/// Solve `A z = b` in place from [`factor`]'s factors of `A`.
+fn solve(lu: &[f64], piv: &[usize], n: usize, b: &mut [f64]) {
+    for (k, &p) in piv.iter().enumerate() {
+        b.swap(k, p);
+    }
+    for k in 0..n {
+        let v = b[k];
+        if v != 0.0 {
+            for (bi, l) in b[k + 1..n].iter_mut().zip(&lu[k * n + k + 1..(k + 1) * n]) {
+                *bi -= l * v;
+            }
+        }
+    }
+    for k in (0..n).rev() {
+        b[k] /= lu[k * n + k];
+        let v = b[k];
+        for (bi, u) in b[..k].iter_mut().zip(&lu[k * n..k * n + k]) {
+            *bi -= u * v;
+        }
+    }
+}
+
+/// Solve `Aᵀ z = b` in place from [`factor`]'s factors of `A` (`PA = LU`,
+/// so `Aᵀ = Uᵀ Lᵀ P`).
+fn solve_transposed(lu: &[f64], piv: &[usize], n: usize, b: &mut [f64]) {
+    for k in 0..n {
+        let col = &lu[k * n..k * n + k];
+        let s: f64 = col.iter().zip(&b[..k]).map(|(u, z)| u * z).sum();
+        b[k] = (b[k] - s) / lu[k * n + k];
+    }
+    for k in (0..n).rev() {
+        let col = &lu[k * n + k + 1..(k + 1) * n];
+        let s: f64 = col.iter().zip(&b[k + 1..n]).map(|(l, z)| l * z).sum();
+        b[k] -= s;
+    }
+    for (k, &p) in piv.iter().enumerate().rev() {
+        b.swap(k, p);
+    }
+}
+
+impl KktWork {
+    /// The null-space solve; `false` (nothing written) when `G_D` or the
+    /// reduced Hessian is nearly singular.
+    fn null_space(
+        &mut self,
+        kkt: &DMatrix<f64>,
+        rhs: &mut DMatrix<f64>,
+        nq: usize,
+        u: &[usize],
+    ) -> bool {
+        let n = kkt.nrows();
+        let m = n - nq;
+        let nu = u.len();
+        let k = rhs.ncols();
+        let a = kkt.as_slice();
+        // W's column `c` (`nq` entries) and G's entry `(r, c)`.
+        let wcol = |c: usize| &a[c * n..c * n + nq];
+        let g = |r: usize, c: usize| a[c * n + nq + r];
+        self.dep.clear();
+        self.dep.extend((0..nq).filter(|j| !u.contains(j)));
+        if self.dep.len() != m {
+            return false;
+        }
+        let KktWork {
+            dep,
+            gd,
+            gd_piv,
+            s,
+            wz,
+            h,
+            h_piv,
+            t,
+            x,
+            wx,
+            c,
+            y,
+        } = self;
+        // G_D and its LU.
+        sized(gd, m * m);
+        for (j, &d) in dep.iter().enumerate() {
+            for r in 0..m {
+                gd[j * m + r] = g(r, d);
+            }
+        }
+        sized(gd_piv, m);
+        if !factor(gd, gd_piv, m, DEPENDENT_RCOND) {
+            return false;
+        }
+        // [S | s₀] = G_D⁻¹ [−G_U | b].
+        sized(s, m * (nu + k));
+        for (j, &uj) in u.iter().enumerate() {
+            let col = &mut s[j * m..(j + 1) * m];
+            for (r, v) in col.iter_mut().enumerate() {
+                *v = -g(r, uj);
+            }
+            solve(gd, gd_piv, m, col);
+        }
+        let b = rhs.as_slice();
+        for col_k in 0..k {
+            let col = &mut s[(nu + col_k) * m..(nu + col_k + 1) * m];
+            col.copy_from_slice(&b[col_k * n + nq..(col_k + 1) * n]);
+            solve(gd, gd_piv, m, col);
+        }
+        // W Z = W_:U + W_:D S, and Zᵀ W Z = (W Z)_U + Sᵀ (W Z)_D.
+        sized(wz, nq * nu);
+        for (j, &uj) in u.iter().enumerate() {
+            let out = &mut wz[j * nq..(j + 1) * nq];
+            out.copy_from_slice(wcol(uj));
+            for (i, &d) in dep.iter().enumerate() {
+                let sij = s[j * m + i];
+                if sij != 0.0 {
+                    for (o, w) in out.iter_mut().zip(wcol(d)) {
+                        *o += w * sij;
+                    }
+                }
+            }
+        }
+        sized(h, nu * nu);
+        for j in 0..nu {
+            let wzj = &wz[j * nq..(j + 1) * nq];
+            for (r, &ur) in u.iter().enumerate() {
+                let sr = &s[r * m..(r + 1) * m];
+                let v: f64 = sr.iter().zip(dep.iter()).map(|(s, &d)| s * wzj[d]).sum();
+                h[j * nu + r] = wzj[ur] + v;
+            }
+        }
+        sized(h_piv, nu);
+        if !factor(h, h_piv, nu, REDUCED_RCOND) {
+            return false;
+        }
+        // Each right-hand side in turn; the solutions are written into `rhs`
+        // only when every one is finite.
+        sized(t, nq);
+        sized(x, nq * k);
+        sized(wx, nq);
+        sized(c, nu);
+        sized(y, m * k);
+        for col_k in 0..k {
+            let acol = &b[col_k * n..col_k * n + nq];
+            let s0 = &s[(nu + col_k) * m..(nu + col_k + 1) * m];
+            // t = a − W_:D s₀; c = t_U + Sᵀ t_D.
+            t.copy_from_slice(acol);
+            for (i, &d) in dep.iter().enumerate() {
+                let si = s0[i];
+                if si != 0.0 {
+                    for (o, w) in t.iter_mut().zip(wcol(d)) {
+                        *o -= w * si;
+                    }
+                }
+            }
+            for (r, &ur) in u.iter().enumerate() {
+                let sr = &s[r * m..(r + 1) * m];
+                let v: f64 = sr.iter().zip(dep.iter()).map(|(s, &d)| s * t[d]).sum();
+                c[r] = t[ur] + v;
+            }
+            solve(h, h_piv, nu, c);
+            // x_U, then x_D = s₀ + S x_U.
+            let xk = &mut x[col_k * nq..(col_k + 1) * nq];
+            for (r, &ur) in u.iter().enumerate() {
+                xk[ur] = c[r];
+            }
+            for (i, &d) in dep.iter().enumerate() {
+                let v: f64 = (0..nu).map(|j| s[j * m + i] * c[j]).sum();
+                xk[d] = s0[i] + v;
+            }
+            // y = G_D⁻ᵀ (a − W x)_D.
+            wx.iter_mut().for_each(|v| *v = 0.0);
+            for (cidx, &xc) in xk.iter().enumerate() {
+                if xc != 0.0 {
+                    for (o, w) in wx.iter_mut().zip(wcol(cidx)) {
+                        *o += w * xc;
+                    }
+                }
+            }
+            let yk = &mut y[col_k * m..(col_k + 1) * m];
+            for (i, &d) in dep.iter().enumerate() {
+                yk[i] = acol[d] - wx[d];
+            }
+            solve_transposed(gd, gd_piv, m, yk);
+        }
+        if !x.iter().chain(y.iter()).all(|v| v.is_finite()) {
+            return false;
+        }
+        let out = rhs.as_mut_slice();
+        for col_k in 0..k {
+            out[col_k * n..col_k * n + nq].copy_from_slice(&x[col_k * nq..(col_k + 1) * nq]);
+            out[col_k * n + nq..(col_k + 1) * n].copy_from_slice(&y[col_k * m..(col_k + 1) * m]);
+        }
+        true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+
+    /// Agreement of the two routes on well-conditioned random systems
+    /// (each block, `x` and `y`, relative to its own size).
+    const AGREE: f64 = 1e-9;
+    /// Backward error of the null-space solution: `‖A z − b‖∞` relative to
+    /// `‖A‖∞ ‖z‖∞ + ‖b‖∞` (the whole LU's is about `ε`; the products with
+    /// `S` lose up to `cond(G_D)` of it, which Newton steps afford: the
+    /// equilibrium's accuracy is set by its residual, not by its steps).
+    const BACKWARD: f64 = 1e-11;
+
+    /// A random KKT system: `W` symmetric with a stiff diagonal on some
+    /// joints, `G` with entries of a few hundred (mm), `G_D` well away from
+    /// singular.
+    fn system(
+        rng: &mut rand::rngs::StdRng,
+        nq: usize,
+        m: usize,
+        k: usize,
+    ) -> (DMatrix<f64>, DMatrix<f64>) {
+        let n = nq + m;
+        let mut a = DMatrix::zeros(n, n);
+        for i in 0..nq {
+            for j in 0..=i {
+                let v = rng.random_range(-50.0..50.0);
+                a[(i, j)] = v;
+                a[(j, i)] = v;
+            }
+            a[(i, i)] += if i % 2 == 0 { 3e5 } else { 1e3 };
+        }
+        for r in 0..m {
+            for c in 0..nq {
+                let v = rng.random_range(-300.0..300.0);
+                a[(nq + r, c)] = v;
+                a[(c, nq + r)] = v;
+            }
+        }
+        let b = DMatrix::from_fn(n, k, |_, _| rng.random_range(-1.0..1.0));
+        (a, b)
+    }
+
+    #[test]
+    fn the_null_space_solve_agrees_with_the_whole_lu() {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        let mut used = 0;
+        for &(nq, m, k) in &[(5, 3, 1), (12, 9, 1), (12, 9, 3), (14, 8, 6), (9, 6, 2)] {
+            for _ in 0..50 {
+                let (a, b) = system(&mut rng, nq, m, k);
+                let independent: Vec<usize> = (m..nq).collect();
+                let mut whole = (a.clone(), b.clone());
+                assert!(solve_scaled_in_place(&mut whole.0, &mut whole.1));
+                let mut ns = b.clone();
+                let fast = KktWork::default().null_space(&a, &mut ns, nq, &independent);
+                used += usize::from(fast);
+                if !fast {
+                    continue;
+                }
+                for (block, rows) in [("x", 0..nq), ("y", nq..nq + m)] {
+                    let size = whole.1.rows(rows.start, rows.len()).amax();
+                    let diff = (ns.rows(rows.start, rows.len())
+                        - whole.1.rows(rows.start, rows.len()))
+                    .amax();
+                    assert!(
+                        diff <= AGREE * size,
+                        "{nq}+{m}, {block}: differ by {diff:e} (size {size:e})"
+                    );
+                }
+                let norm_a = a.row_iter().map(|r| r.abs().sum()).fold(0.0, f64::max);
+                let residual = (&a * &ns - &b).amax();
+                assert!(
+                    residual <= BACKWARD * (norm_a * ns.amax() + b.amax()),
+                    "{nq}+{m}: residual {residual:e}"
+                );
+                // And through the public entry.
+                let mut a2 = a.clone();
+                let mut b2 = b.clone();
+                assert!(solve_kkt_in_place(
+                    &mut a2,
+                    &mut b2,
+                    nq,
+                    &independent,
+                    &mut KktWork::default()
+                ));
+                assert_eq!(b2, ns);
+            }
+        }
+        assert!(used > 200, "null-space route taken {used} times of 250");
+    }
+
+    #[test]
+    fn a_singular_dependent_block_goes_to_the_whole_lu() {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(3);
+        let (nq, m) = (5, 2);
+        let (mut a, b) = system(&mut rng, nq, m, 1);
+        // G's columns of joints 0 and 1 (the dependent ones) made parallel:
+        // G_D singular, the whole system not.
+        for r in 0..m {
+            let v = a[(nq + r, 0)];
+            a[(nq + r, 1)] = 2.0 * v;
+            a[(1, nq + r)] = 2.0 * v;
+        }
+        let independent = [2, 3, 4];
+        let mut ns = b.clone();
+        assert!(!KktWork::default().null_space(&a, &mut ns, nq, &independent));
+        assert_eq!(ns, b, "nothing written");
+        let mut whole = (a.clone(), b.clone());
+        assert!(solve_scaled_in_place(&mut whole.0, &mut whole.1));
+        let mut via = (a.clone(), b.clone());
+        assert!(solve_kkt_in_place(
+            &mut via.0,
+            &mut via.1,
+            nq,
+            &independent,
+            &mut KktWork::default()
+        ));
+        assert_eq!(via.1, whole.1);
+        // A singular system stays singular.
+        let mut s = a.clone();
+        for r in 0..m {
+            s[(nq + r, 2)] = 0.0;
+            s[(nq + r, 3)] = 0.0;
+            s[(nq + r, 4)] = 0.0;
+            s[(2, nq + r)] = 0.0;
+            s[(3, nq + r)] = 0.0;
+            s[(4, nq + r)] = 0.0;
+        }
+        let mut rhs = b.clone();
+        assert!(!solve_kkt_in_place(
+            &mut s,
+            &mut rhs,
+            nq,
+            &independent,
+            &mut KktWork::default()
+        ));
+    }
+}
