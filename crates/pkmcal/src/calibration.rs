@@ -159,7 +159,10 @@ impl CalibrationOptions {
 type CachedJacobian = (Vec<f64>, DVector<f64>, DMatrix<f64>);
 
 /// An identification problem's kept evaluations ([`IdentificationProblem::saved`]).
-type Saved = (Option<(Vec<f64>, Vec<Prediction>)>, Option<CachedJacobian>);
+type Saved = (Option<CachedPredictions>, Option<CachedJacobian>);
+
+/// Parameters and the predictions at every pose under them.
+type CachedPredictions = (Vec<f64>, Arc<Vec<Prediction>>);
 
 /// One data row of an [`IdentificationProblem`]: a pose read by the
 /// instrument, or two poses whose distance was measured.
@@ -195,8 +198,9 @@ pub struct IdentificationProblem<'a, M: Mechanism> {
     model: Model,
     force: Vec<f64>,
     /// The last parameters evaluated and their predictions: a Jacobian at an
-    /// accepted trial point reuses them, and equilibria start from them.
-    cache: RefCell<Option<(Vec<f64>, Vec<Prediction>)>>,
+    /// accepted trial point reuses them, and equilibria start from them
+    /// (shared with the callers, not copied).
+    cache: RefCell<Option<CachedPredictions>>,
     /// The last Jacobian evaluated, with its parameters.
     jacobian_cache: RefCell<Option<CachedJacobian>>,
 }
@@ -397,12 +401,12 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
     }
 
     /// Predictions at every pose, warm-started from (or taken from) the cache.
-    fn predictions(&self, params: &Params) -> Result<Vec<Prediction>> {
+    fn predictions(&self, params: &Params) -> Result<Arc<Vec<Prediction>>> {
         let cached = self.cache.borrow();
         if let Some((x, p)) = cached.as_ref()
             && *x == params.values
         {
-            return Ok(p.clone());
+            return Ok(Arc::clone(p));
         }
         // Poses in parallel (each independent; assembled in order, so the
         // result does not depend on the threads).
@@ -429,8 +433,8 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             })
             .collect();
         drop(cached);
-        let out = out?;
-        *self.cache.borrow_mut() = Some((params.values.clone(), out.clone()));
+        let out = Arc::new(out?);
+        *self.cache.borrow_mut() = Some((params.values.clone(), Arc::clone(&out)));
         Ok(out)
     }
 
@@ -470,9 +474,8 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
     /// Predicted tool coordinates (base frame) at each row's (first) pose
     /// under `params`.
     pub fn predict(&self, params: &Params) -> Result<Vec<Vec<f64>>> {
-        let mut p = self.predictions(params)?;
-        p.truncate(self.rows.len());
-        Ok(p.into_iter().map(|p| p.x).collect())
+        let p = self.predictions(params)?;
+        Ok(p[..self.rows.len()].iter().map(|p| p.x.clone()).collect())
     }
 
     /// Predicted distance of each row that pairs two poses (`None` for the
@@ -552,10 +555,10 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         let sens: Result<Vec<_>> = self
             .poses
             .par_iter()
-            .zip(predictions.into_par_iter())
+            .zip(predictions.par_iter())
             .enumerate()
             .map(|(i, (pose, pred))| {
-                sensitivity_at(mech, pose, &params, model, force, pred)
+                sensitivity_at(mech, pose, &params, model, force, pred.clone())
                     .map_err(|e| e.at_pose(origins[i]))
             })
             .collect();

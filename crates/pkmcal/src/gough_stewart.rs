@@ -543,6 +543,7 @@ impl Mechanism for GoughStewart {
     }
 
     fn on_branch_near(&self, _q: &[f64], _rho: &[f64], jac: &crate::autodiff::Jacobians) -> bool {
-        self.branch == 0 || crate::kinematics::branch_signs_of(&self.spec, jac)[0] == self.branch
+        self.branch == 0
+            || crate::kinematics::forward_branch_sign_of(&self.spec, jac) == self.branch
     }
 }

@@ -323,20 +323,29 @@ pub fn branch_signs<M: Mechanism>(mech: &M, q: &[f64], rho: &[f64]) -> [i8; 2] {
     branch_signs_of(mech.spec(), &jacobians(mech, q, rho, 0..q.len()))
 }
 
+/// The sign of a determinant (0 for zero or NaN).
+fn sign(d: f64) -> i8 {
+    if d > 0.0 {
+        1
+    } else if d < 0.0 {
+        -1
+    } else {
+        0
+    }
+}
+
+/// The forward-kinematics sign of [`branch_signs_of`] alone (its first),
+/// for mechanisms whose branch that one sign fixes.
+pub fn forward_branch_sign_of(spec: &crate::Spec, j: &crate::autodiff::Jacobians) -> i8 {
+    let nq = spec.joints.len();
+    let dependent: Vec<usize> = (0..nq).filter(|i| !spec.independent.contains(i)).collect();
+    sign(crate::lu::determinant(j.dg.select_columns(&dependent)))
+}
+
 /// [`branch_signs`] from the derivatives (joint columns) at the configuration.
 pub fn branch_signs_of(spec: &crate::Spec, j: &crate::autodiff::Jacobians) -> [i8; 2] {
     let nq = spec.joints.len();
-    let dependent: Vec<usize> = (0..nq).filter(|i| !spec.independent.contains(i)).collect();
-    let sign = |d: f64| {
-        if d > 0.0 {
-            1
-        } else if d < 0.0 {
-            -1
-        } else {
-            0
-        }
-    };
-    let fk = sign(crate::lu::determinant(j.dg.select_columns(&dependent)));
+    let fk = forward_branch_sign_of(spec, j);
     let ik = if spec.n_constraints + spec.tool_axes.len() == nq {
         let mut a = DMatrix::zeros(nq, nq);
         a.view_mut((0, 0), (spec.n_constraints, nq))
