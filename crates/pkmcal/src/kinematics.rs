@@ -597,6 +597,23 @@ pub(crate) fn inverse_kinematics_from<M: Mechanism>(
         .or_else(|_| ik_continuation(mech, rho, target, &start, IK_STAGE))
 }
 
+/// Inverse kinematics from `neighbour`, a configuration whose tool is near
+/// `target` (one lattice step): the closed form where the mechanism has
+/// one, else one continuation stage from there, on the reference's branch
+/// ([`Mechanism::on_branch`]) or an error (the caller then takes the path
+/// from the reference configuration).
+pub(crate) fn inverse_kinematics_near<M: Mechanism>(
+    mech: &M,
+    rho: &[f64],
+    target: &[f64],
+    neighbour: &[f64],
+) -> Result<Vec<f64>> {
+    if let Some(r) = mech.inverse_kinematics_closed(target, rho) {
+        return r;
+    }
+    ik_continuation(mech, rho, target, neighbour, IK_STAGE_LONG)
+}
+
 /// Newton inverse kinematics from the reference configuration, the target
 /// approached from the reference configuration `start` in straight-line
 /// stages of at most `stage` (mm or rad).

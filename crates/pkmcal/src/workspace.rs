@@ -383,20 +383,35 @@ impl Atlas {
         let spacing = scaled_extent(spec) / (points.max(2) as f64).powf(1.0 / dims);
         let rho = &spec.nominal[..spec.n_geometric()];
         let reference = Reference::new(mech, rho);
-        // The lattice of [`sample_workspace`]; the conditioning is only
-        // computed when a threshold asks for it (none while a mechanism
-        // builds its atlas).
+        // The lattice of [`sample_workspace`], walked row by row (rows in
+        // parallel): each point's inverse kinematics starts from its
+        // neighbour's solution, one lattice step away, and from the
+        // reference configuration only at a row's start or after a point
+        // that failed — a few Newton iterations instead of a continuation
+        // across the workspace. The conditioning is only computed when a
+        // threshold asks for it (none while a mechanism builds its atlas).
+        let row = lattice_axes(spec, spacing)
+            .first()
+            .map_or(1, |a| a.len().max(1));
+        let reference = &reference;
         let entries = lattice_targets(spec, spacing)
-            .into_par_iter()
-            .filter_map(|target| {
-                let q = reference.inverse_kinematics(&target).ok()?;
-                if spec.min_conditioning > 0.0 {
-                    let c = conditioning(mech, &q, rho);
-                    if c.is_nan() || c < spec.min_conditioning {
-                        return None;
+            .par_chunks(row)
+            .flat_map_iter(|targets| {
+                let mut previous: Option<Vec<f64>> = None;
+                targets.iter().filter_map(move |target| {
+                    let near = previous.as_deref().and_then(|p| {
+                        crate::kinematics::inverse_kinematics_near(mech, rho, target, p).ok()
+                    });
+                    previous = near.or_else(|| reference.inverse_kinematics(target).ok());
+                    let q = previous.clone()?;
+                    if spec.min_conditioning > 0.0 {
+                        let c = conditioning(mech, &q, rho);
+                        if c.is_nan() || c < spec.min_conditioning {
+                            return None;
+                        }
                     }
-                }
-                Some((spec.actuated.iter().map(|&j| q[j]).collect(), q))
+                    Some((spec.actuated.iter().map(|&j| q[j]).collect(), q))
+                })
             })
             .collect();
         Self {
