@@ -67,19 +67,31 @@ fn solve_closure_keeping<M: Mechanism>(
     }
     let mut last = f64::INFINITY;
     let mut j = crate::autodiff::Jacobians::empty();
+    // The square system's matrix and right-hand side, sized once per solve.
+    let n = free.len();
+    let mut gv = DMatrix::zeros(n, n);
+    let mut step = vec![0.0; n];
     for it in 0..MAX_NEWTON {
         crate::autodiff::jacobians_into(mech, q, rho, 0..nq, &mut j);
-        let gv = j.dg.select_columns(&free);
-        let step =
-            solve_square(gv, DVector::from_column_slice(&j.g)).ok_or_else(|| Error::Singular {
+        for (c, &f) in free.iter().enumerate() {
+            gv.column_mut(c).copy_from(&j.dg.column(f));
+        }
+        step.copy_from_slice(&j.g);
+        if !solve_square_in_place(&mut gv, &mut step) {
+            return Err(Error::Singular {
                 q: q.to_vec(),
                 reason: "the loop-closure Jacobian of the dependent joints is singular".into(),
-            })?;
-        let mut big = step.amax();
+            });
+        }
+        // nalgebra's `amax`: NaN entries after the first skipped.
+        let mut big = step
+            .iter()
+            .skip(1)
+            .fold(step.first().map_or(0.0, |v| v.abs()), |a, b| a.max(b.abs()));
         if !big.is_finite() {
             big = f64::INFINITY;
         }
-        let scale = damping(spec, &free, step.as_slice());
+        let scale = damping(spec, &free, &step);
         for (k, &i) in free.iter().enumerate() {
             q[i] -= scale * step[k];
         }
