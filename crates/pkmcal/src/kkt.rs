@@ -46,6 +46,7 @@ const REDUCED_RCOND: f64 = 1e-9;
 /// `nq − m` joints that parametrise the constraints (the spec's independent
 /// joints). Returns `false` when the system is singular (`kkt` and `rhs` then
 /// overwritten). See the module's documentation.
+#[inline]
 pub(crate) fn solve_kkt_in_place(
     kkt: &mut DMatrix<f64>,
     rhs: &mut DMatrix<f64>,
@@ -57,8 +58,25 @@ pub(crate) fn solve_kkt_in_place(
     let usable = n > nq
         && independent.len() + (n - nq) == nq
         && !independent.is_empty()
-        && independent.iter().all(|&u| u < nq);
+        && independent.iter().all(|&u| u < nq)
+        && null_space_pays(nq, n - nq);
     (usable && work.null_space(kkt, rhs, nq, independent)) || solve_scaled_in_place(kkt, rhs)
+}
+
+/// Whether the null-space solve is taken for `nq` joints and `m`
+/// constraints: where its multiplications (the LUs of `G_D` and of the
+/// reduced Hessian, `S`, `W Z`, `Zᵀ W Z`) number at most half of the whole
+/// system's LU. Below that, its gathers and extra passes cost what the
+/// multiplications save (measured in BENCHMARKS.md, issue 12: the 4-RRR's
+/// 12 + 9 system gains, the reference's 5 + 3 and an 8-leg platform's
+/// 14 + 8 do not).
+pub(crate) fn null_space_pays(nq: usize, m: usize) -> bool {
+    // Three times each count, in integers: the whole LU (nq + m)³/3; the
+    // null space m³/3 + 2m²·nu + nq²·nu + nq·nu² + nu³/3.
+    let nu = nq.saturating_sub(m);
+    let whole = (nq + m).pow(3);
+    let null = m.pow(3) + 6 * m * m * nu + 3 * nq * nq * nu + 3 * nq * nu * nu + nu.pow(3);
+    2 * null <= whole
 }
 
 /// The null-space solve's buffers (column-major), kept with the other
@@ -403,7 +421,8 @@ mod tests {
                     residual <= BACKWARD * (norm_a * ns.amax() + b.amax()),
                     "{nq}+{m}: residual {residual:e}"
                 );
-                // And through the public entry.
+                // And through the public entry: the null-space route where
+                // it pays, else the whole LU.
                 let mut a2 = a.clone();
                 let mut b2 = b.clone();
                 assert!(solve_kkt_in_place(
@@ -413,10 +432,24 @@ mod tests {
                     &independent,
                     &mut KktWork::default()
                 ));
-                assert_eq!(b2, ns);
+                if null_space_pays(nq, m) {
+                    assert_eq!(b2, ns);
+                } else {
+                    assert_eq!(b2, whole.1);
+                }
             }
         }
         assert!(used > 200, "null-space route taken {used} times of 250");
+    }
+
+    /// The route by size, as measured: the 4-RRR's system (12 joints, 9
+    /// constraints) on the null space; the reference's (5 + 3) and an 8-leg
+    /// platform's (14 + 8) by the whole LU.
+    #[test]
+    fn the_null_space_route_is_taken_where_it_pays() {
+        assert!(null_space_pays(12, 9));
+        assert!(!null_space_pays(5, 3));
+        assert!(!null_space_pays(14, 8));
     }
 
     #[test]
