@@ -814,24 +814,10 @@ pub fn analyze_identifiability(
                 }
             })
             .collect();
-        let mut scaled = sub.clone();
-        for (k, n) in norms.iter().enumerate() {
-            if *n > 0.0 {
-                scaled.column_mut(k).unscale_mut(*n);
-            }
-        }
-        // Fewer residuals than free parameters: zero rows make the matrix
-        // square, so that the SVD also gives the null space (as many zero
-        // singular values as missing rows, each with its direction).
-        if scaled.nrows() < scaled.ncols() {
-            let (m, n) = scaled.shape();
-            scaled = scaled.insert_rows(m, n - m, 0.0);
-        }
-        let svd = scaled.clone().svd(false, true);
-        let mut order: Vec<usize> = (0..svd.singular_values.len()).collect();
-        order.sort_by(|&a, &b| svd.singular_values[b].total_cmp(&svd.singular_values[a]));
-        let sv: Vec<f64> = order.iter().map(|&i| svd.singular_values[i]).collect();
-        let vt = svd.v_t.expect("requested");
+        let (singular_values, vt, factored) = scaled_svd(&sub, &norms);
+        let mut order: Vec<usize> = (0..singular_values.len()).collect();
+        order.sort_by(|&a, &b| singular_values[b].total_cmp(&singular_values[a]));
+        let sv: Vec<f64> = order.iter().map(|&i| singular_values[i]).collect();
         if first_sv.is_none() {
             first_sv = Some(sv.clone());
         }
@@ -849,7 +835,7 @@ pub fn analyze_identifiability(
             .collect();
         if dirs.is_empty() {
             for &i in &order {
-                if svd.singular_values[i] <= RANK_TOL * smax {
+                if singular_values[i] <= RANK_TOL * smax {
                     dirs.push(vt.row(i).iter().copied().collect());
                 }
             }
@@ -861,7 +847,10 @@ pub fn analyze_identifiability(
             let rank = sv.iter().filter(|s| **s > RANK_TOL * smax).count();
             let kept: Vec<f64> = sv[..rank].to_vec();
             let cov = if rank == free.len() {
-                let (c, _) = lm::covariance(&sub, 1e-14);
+                let (c, _) = match &factored {
+                    Some((qr, ipvt, rdiag)) => lm::covariance_of(qr, ipvt, rdiag, 1e-14),
+                    None => lm::covariance(&sub, 1e-14),
+                };
                 correlations(cols, &free, &c)
             } else {
                 vec![]
@@ -901,6 +890,53 @@ pub fn analyze_identifiability(
         ));
         free.remove(k);
     }
+}
+
+/// A pivoted QR of a Jacobian ([`lm::qrfac`]: factors, column order, R's
+/// diagonal).
+type Factored = (DMatrix<f64>, Vec<usize>, Vec<f64>);
+
+/// The singular values and right singular vectors (`Vᵀ`, one row per
+/// value) of `sub` with each column `k` divided by `norms[k]` (left as it is
+/// where that is 0), and the pivoted QR they came from. With at least as
+/// many rows as columns, from `sub`'s QR: `sub P = Q R` makes the scaled
+/// matrix `Q (R D⁻¹) Pᵀ` (`D` the norms in pivot order), whose singular
+/// values and right vectors are those of the square `R D⁻¹`, columns put
+/// back in order — an SVD of `n × n` instead of `m × n`, and the QR serves
+/// the covariance. With fewer rows, zero rows make the matrix square, so
+/// that the SVD also gives the null space (as many zero singular values as
+/// missing rows, each with its direction).
+fn scaled_svd(sub: &DMatrix<f64>, norms: &[f64]) -> (Vec<f64>, DMatrix<f64>, Option<Factored>) {
+    let (m, n) = sub.shape();
+    let divisor = |k: usize| if norms[k] > 0.0 { norms[k] } else { 1.0 };
+    if m < n {
+        let mut scaled = sub.clone();
+        for k in 0..n {
+            scaled.column_mut(k).unscale_mut(divisor(k));
+        }
+        let scaled = scaled.insert_rows(m, n - m, 0.0);
+        let svd = scaled.svd(false, true);
+        let vt = svd.v_t.expect("requested");
+        return (svd.singular_values.iter().copied().collect(), vt, None);
+    }
+    let mut qr = sub.clone();
+    let (ipvt, rdiag, _) = lm::qrfac(&mut qr);
+    let rs = DMatrix::from_fn(n, n, |i, k| {
+        let v = match i.cmp(&k) {
+            std::cmp::Ordering::Less => qr[(i, k)],
+            std::cmp::Ordering::Equal => rdiag[k],
+            std::cmp::Ordering::Greater => 0.0,
+        };
+        v / divisor(ipvt[k])
+    });
+    let svd = rs.svd(false, true);
+    let vt_pivoted = svd.v_t.expect("requested");
+    let mut vt = DMatrix::zeros(vt_pivoted.nrows(), n);
+    for (k, &c) in ipvt.iter().enumerate() {
+        vt.set_column(c, &vt_pivoted.column(k));
+    }
+    let sv = svd.singular_values.iter().copied().collect();
+    (sv, vt, Some((qr, ipvt, rdiag)))
 }
 
 /// Which free parameter (position in `free`) to fix for the unidentifiable
@@ -2456,4 +2492,66 @@ pub fn cross_validate_with_progress<M: Mechanism>(
         fold_rms,
         pooled: error_stats(&pooled, measurement.units()),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::RngExt;
+
+    /// Relative agreement of the singular values found through the QR with
+    /// those of the scaled matrix itself (both backward stable: rounding
+    /// times the condition number at most).
+    const SVD_AGREE: f64 = 1e-12;
+
+    /// [`scaled_svd`] through the QR gives the singular values and right
+    /// singular vectors of the scaled matrix: on random tall matrices with
+    /// columns of very different sizes, a zero column and two nearly
+    /// dependent columns, and on a wide one (the zero-row path).
+    #[test]
+    fn the_svd_through_the_qr_is_that_of_the_scaled_matrix() {
+        let mut rng = StdRng::seed_from_u64(11);
+        for (m, n) in [(60, 7), (120, 12), (7, 7), (4, 6)] {
+            let mut a = DMatrix::from_fn(m, n, |_, c| {
+                rng.random_range(-1.0..1.0) * 10f64.powi(c as i32 % 5 - 2)
+            });
+            a.column_mut(1).fill(0.0);
+            let c3 = a.column(3).into_owned();
+            a.column_mut(4).copy_from(&(c3 * 2.0));
+            a[(0, 4)] += 1e-6;
+            let norms: Vec<f64> = (0..n).map(|k| a.column(k).norm()).collect();
+            let (sv, vt, _) = scaled_svd(&a, &norms);
+            let mut scaled = a.clone();
+            for (k, s) in norms.iter().enumerate() {
+                if *s > 0.0 {
+                    scaled.column_mut(k).unscale_mut(*s);
+                }
+            }
+            let direct = scaled.clone().svd(false, false).singular_values;
+            let mut ours = sv.clone();
+            let mut theirs: Vec<f64> = direct.iter().copied().collect();
+            ours.sort_by(|a, b| b.total_cmp(a));
+            theirs.sort_by(|a, b| b.total_cmp(a));
+            for (o, t) in ours.iter().zip(&theirs) {
+                assert!(
+                    (o - t).abs() <= SVD_AGREE * theirs[0],
+                    "{m}x{n}: {o} vs {t}"
+                );
+            }
+            // Each right vector: ‖scaled v‖ is its singular value, v a unit vector.
+            for (i, s) in sv.iter().enumerate() {
+                let v = vt.row(i).transpose();
+                assert!(
+                    (v.norm() - 1.0).abs() < SVD_AGREE,
+                    "{m}x{n}: |v| = {}",
+                    v.norm()
+                );
+                let image = (&scaled * &v).norm();
+                assert!(
+                    (image - s).abs() <= SVD_AGREE * theirs[0],
+                    "{m}x{n}: {image} vs {s}"
+                );
+            }
+        }
+    }
 }

@@ -947,7 +947,7 @@ pub fn covariance(jacobian: &DMatrix<f64>, tol: f64) -> (DMatrix<f64>, usize) {
 }
 
 /// [`covariance`] from [`qrfac`]'s factorisation of the Jacobian.
-fn covariance_of(
+pub(crate) fn covariance_of(
     a: &DMatrix<f64>,
     ipvt: &[usize],
     rdiag: &[f64],
