@@ -27,6 +27,11 @@ use std::collections::BTreeMap;
 /// Workspace configurations kept for starting forward kinematics.
 const ATLAS_POINTS: usize = 800;
 
+/// Gauss–Newton steps on the platform pose that bring a stored
+/// configuration nearer the commanded leg lengths before forward kinematics
+/// starts from it ([`GoughStewart::refine_guess`]).
+const GUESS_STEPS: usize = 3;
+
 /// Names of the pose coordinates, in order.
 pub const POSE_AXES: [&str; 6] = ["x", "y", "z", "rx", "ry", "rz"];
 
@@ -235,6 +240,65 @@ impl GoughStewart {
     }
 
     /// Inverse kinematics in closed form: leg lengths for a pose.
+    /// The stored configuration `q` (nearest the commands) moved nearer the
+    /// commanded leg lengths: up to [`GUESS_STEPS`] Gauss–Newton steps on
+    /// the platform pose (the legs' lengths are linear in it to first
+    /// order, their gradients the unit leg vectors), each followed by the
+    /// closed-form inverse kinematics so that the configuration stays
+    /// assembled, each kept only while the largest length mismatch shrinks;
+    /// the stored configuration itself where the result has left the
+    /// reference's assembly mode. Forward kinematics then starts one short
+    /// continuation stage away instead of several: the same solution on the
+    /// same branch, found in fewer Newton iterations.
+    fn refine_guess(&self, stored: Vec<f64>, commands: &[f64], rho: &[f64]) -> Vec<f64> {
+        use nalgebra::{Matrix6, Vector6};
+        let n = self.n;
+        if commands.len() != n || stored.len() != n + 6 {
+            return stored;
+        }
+        let mut q = stored.clone();
+        let mismatch = |q: &[f64]| {
+            q[..n]
+                .iter()
+                .zip(commands)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max)
+        };
+        let mut worst = mismatch(&q);
+        for _ in 0..GUESS_STEPS {
+            if worst.is_nan() || worst <= 0.0 {
+                break;
+            }
+            let Some(j) = self.first_derivatives(&q, rho, n..n + 6) else {
+                break;
+            };
+            // Normal equations of J Δp = c − L (J: n × 6, ∂|w_i|/∂pose).
+            let mut jtj = Matrix6::<f64>::zeros();
+            let mut jtr = Vector6::<f64>::zeros();
+            for i in 0..n {
+                let row = Vector6::from_fn(|k, _| j.dg[(i, k)]);
+                jtj += row * row.transpose();
+                jtr += row * (commands[i] - q[i]);
+            }
+            let Some(step) = jtj.lu().solve(&jtr) else {
+                break;
+            };
+            let pose: Vec<f64> = (0..6).map(|k| q[n + k] + step[k]).collect();
+            let Ok(next) = self.ik(&pose, rho) else {
+                break;
+            };
+            let m = mismatch(&next);
+            if m.is_nan() || m >= worst {
+                break;
+            }
+            (q, worst) = (next, m);
+        }
+        if q != stored && !self.on_branch(&q, rho) {
+            return stored;
+        }
+        q
+    }
+
     fn ik(&self, pose: &[f64], rho: &[f64]) -> Result<Vec<f64>> {
         let n = self.n;
         let mut q = Vec::with_capacity(n + 6);
@@ -532,8 +596,9 @@ impl Mechanism for GoughStewart {
         Some(self.ik(target, rho))
     }
 
-    fn configuration_guess(&self, commands: &[f64], _rho: &[f64]) -> Option<Vec<f64>> {
-        self.atlas.nearest(commands)
+    fn configuration_guess(&self, commands: &[f64], rho: &[f64]) -> Option<Vec<f64>> {
+        let q = self.atlas.nearest(commands)?;
+        Some(self.refine_guess(q, commands, rho))
     }
 
     /// The assembly mode of the reference pose: the same sign of the forward

@@ -463,6 +463,61 @@ fn gough_stewart_closed_form_derivatives_equal_automatic_ones() {
     }
 }
 
+/// Gough–Stewart starts for forward kinematics (the stored configuration
+/// nearest the commands, refined by Gauss–Newton steps on the pose) lie
+/// this close to the commanded leg lengths (mm) inside the workspace.
+const GUESS_NEAR: f64 = 1e-3;
+
+/// Forward kinematics from such a start finds the configuration the
+/// commands came from, to this (mm and rad).
+const SAME_CONFIGURATION: f64 = 1e-9;
+
+/// Each platform's start for forward kinematics is within [`GUESS_NEAR`]
+/// of the commanded leg lengths (the stored configurations alone are tens
+/// of mm away), assembled, and leads to the configuration the commands
+/// came from, at nominal and at perturbed parameters.
+#[test]
+fn gough_stewart_starts_forward_kinematics_at_the_commanded_lengths() {
+    for name in ["gough-stewart-6", "gough-stewart-8"] {
+        let gs = common::gough_stewart(name);
+        let spec = gs.spec();
+        let ng = spec.n_geometric();
+        for rho in [
+            spec.nominal[..ng].to_vec(),
+            common::perturbed(spec, 5, 0.5, 1e-3).values[..ng].to_vec(),
+        ] {
+            for target in common::spread(&gs, 40) {
+                let q = inverse_kinematics(&gs, &rho, &target).unwrap();
+                let commands: Vec<f64> = spec.actuated.iter().map(|&j| q[j]).collect();
+                let start = gs.configuration_guess(&commands, &rho).unwrap();
+                let mismatch = spec
+                    .actuated
+                    .iter()
+                    .zip(&commands)
+                    .map(|(&j, c)| (start[j] - c).abs())
+                    .fold(0.0, f64::max);
+                assert!(
+                    mismatch < GUESS_NEAR,
+                    "{name} {target:?}: {mismatch} mm away"
+                );
+                let closure = jacobians(&gs, &start, &rho, 0..0).g;
+                assert!(
+                    closure.iter().all(|g| g.abs() < GUESS_NEAR),
+                    "{name}: not assembled"
+                );
+                let q_u: Vec<f64> = spec.independent.iter().map(|&i| q[i]).collect();
+                let found = forward_kinematics(&gs, &rho, &q_u, &start).unwrap();
+                let off = found
+                    .iter()
+                    .zip(&q)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f64::max);
+                assert!(off < SAME_CONFIGURATION, "{name} {target:?}: {off}");
+            }
+        }
+    }
+}
+
 /// The reference mechanism's closed-form Jacobians equal automatic
 /// differentiation's on every column range, at perturbed parameters and
 /// configurations away from closure.
