@@ -604,7 +604,12 @@ impl Mechanism for GoughStewart {
     /// The assembly mode of the reference pose: the same sign of the forward
     /// kinematics determinant ([`crate::kinematics::branch_signs`]).
     fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
-        self.branch == 0 || crate::kinematics::branch_signs(self, q, rho)[0] == self.branch
+        // The forward sign alone ([`crate::kinematics::branch_signs`]'s
+        // first), without the inverse one's 12 × 12 determinant.
+        self.branch == 0 || {
+            let j = crate::autodiff::jacobians(self, q, rho, 0..q.len());
+            crate::kinematics::forward_branch_sign_of(&self.spec, &j) == self.branch
+        }
     }
 
     fn on_branch_near(&self, _q: &[f64], _rho: &[f64], jac: &crate::autodiff::Jacobians) -> bool {

@@ -369,6 +369,11 @@ pub fn grid_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<Workspac
 pub struct Atlas {
     /// `(actuator values, joint vector)` per entry.
     entries: Vec<(Vec<f64>, Vec<f64>)>,
+    /// The entries' actuator values by actuator (all the entries' first,
+    /// then all their second, …), for [`Atlas::nearest`]'s scan: each
+    /// entry's distance is still summed actuator by actuator, in order, and
+    /// the entries side by side vectorise.
+    by_actuator: Vec<f64>,
     /// Weight of each actuator in the distance ([`crate::Spec::joint_scale`]).
     scale: Vec<f64>,
 }
@@ -413,8 +418,11 @@ impl Atlas {
                     Some((spec.actuated.iter().map(|&j| q[j]).collect(), q))
                 })
             })
-            .collect();
+            .collect::<Vec<(Vec<f64>, Vec<f64>)>>();
         Self {
+            by_actuator: (0..spec.n_actuated())
+                .flat_map(|a| entries.iter().map(move |e| e.0[a]))
+                .collect(),
             entries,
             scale: spec.actuated.iter().map(|&j| spec.joint_scale(j)).collect(),
         }
@@ -432,18 +440,74 @@ impl Atlas {
 
     /// The configuration whose actuators are nearest `commands`.
     pub fn nearest(&self, commands: &[f64]) -> Option<Vec<f64>> {
-        let d = |a: &[f64]| {
-            a.iter()
-                .zip(commands)
-                .zip(&self.scale)
-                .map(|((x, c), s)| ((x - c) * s).powi(2))
-                .sum::<f64>()
+        // The sums of squares of the scaled differences, actuator by
+        // actuator (as `Iterator::sum` adds them, from −0), over the
+        // commands given (at most one per actuator).
+        let mut d = vec![-0.0f64; self.entries.len()];
+        let columns = self.by_actuator.chunks_exact(self.entries.len().max(1));
+        for ((column, c), s) in columns.zip(commands).zip(&self.scale) {
+            for (d, x) in d.iter_mut().zip(column) {
+                *d += ((x - c) * s).powi(2);
+            }
+        }
+        // The first of equal distances kept (as `min_by`).
+        let mut best: Option<(f64, usize)> = None;
+        for (i, &di) in d.iter().enumerate() {
+            if best.is_none_or(|(b, _)| di.total_cmp(&b) == std::cmp::Ordering::Less) {
+                best = Some((di, i));
+            }
+        }
+        best.map(|(_, i)| self.entries[i].1.clone())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+
+    /// [`Atlas::nearest`] returns what a scan of the entries one by one
+    /// returns (each distance summed actuator by actuator, the first of
+    /// equal ones kept): on the reference mechanism's atlas, at random
+    /// commands, at every entry's own commands, halfway between two entries
+    /// (a tie) and with fewer commands than actuators.
+    #[test]
+    fn the_nearest_entry_is_the_one_a_plain_scan_finds() {
+        let mech = crate::reference::JeongKim2Dof::default();
+        let atlas = Atlas::build(&mech, 200);
+        assert!(atlas.len() > 50, "{} entries", atlas.len());
+        let scan = |commands: &[f64]| {
+            let d = |a: &[f64]| {
+                a.iter()
+                    .zip(commands)
+                    .zip(&atlas.scale)
+                    .map(|((x, c), s)| ((x - c) * s).powi(2))
+                    .sum::<f64>()
+            };
+            atlas
+                .entries
+                .iter()
+                .map(|e| (d(&e.0), e))
+                .min_by(|a, b| a.0.total_cmp(&b.0))
+                .map(|(_, e)| e.1.clone())
         };
-        // Each distance once (the first of equal ones, as `min_by`).
-        self.entries
-            .iter()
-            .map(|e| (d(&e.0), e))
-            .min_by(|a, b| a.0.total_cmp(&b.0))
-            .map(|(_, e)| e.1.clone())
+        let mut rng = rand::rngs::StdRng::seed_from_u64(9);
+        let mut queries: Vec<Vec<f64>> = (0..200)
+            .map(|_| {
+                atlas.entries[rng.random_range(0..atlas.len())]
+                    .0
+                    .iter()
+                    .map(|v| v + rng.random_range(-0.2..0.2))
+                    .collect()
+            })
+            .collect();
+        queries.extend(atlas.entries.iter().map(|e| e.0.clone()));
+        let (a, b) = (&atlas.entries[0].0, &atlas.entries[1].0);
+        queries.push(a.iter().zip(b).map(|(x, y)| 0.5 * (x + y)).collect());
+        queries.push(a[..1].to_vec());
+        queries.push(vec![]);
+        for q in &queries {
+            assert_eq!(atlas.nearest(q), scan(q), "{q:?}");
+        }
     }
 }
