@@ -239,8 +239,7 @@ impl GoughStewart {
         self.n
     }
 
-    /// Inverse kinematics in closed form: leg lengths for a pose.
-    /// The stored configuration `q` (nearest the commands) moved nearer the
+    /// The stored configuration (nearest the commands) moved nearer the
     /// commanded leg lengths: up to [`GUESS_STEPS`] Gauss–Newton steps on
     /// the platform pose (the legs' lengths are linear in it to first
     /// order, their gradients the unit leg vectors), each followed by the
@@ -299,6 +298,7 @@ impl GoughStewart {
         q
     }
 
+    /// Inverse kinematics in closed form: leg lengths for a pose.
     fn ik(&self, pose: &[f64], rho: &[f64]) -> Result<Vec<f64>> {
         let n = self.n;
         let mut q = Vec::with_capacity(n + 6);
