@@ -478,6 +478,41 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         Ok(p[..self.rows.len()].iter().map(|p| p.x.clone()).collect())
     }
 
+    /// The predictions cached at `params` (the fit's last evaluation, when
+    /// it was there), with the poses, model and load they are for.
+    fn final_predictions(&self, params: &Params) -> Option<FinalPredictions> {
+        let cached = self.cache.borrow();
+        let (x, p) = cached.as_ref()?;
+        (*x == params.values).then(|| FinalPredictions {
+            poses: self.poses.clone(),
+            model: self.model,
+            force: self.force.clone(),
+            predictions: (x.clone(), Arc::clone(p)),
+        })
+    }
+
+    /// Take `known` as the last evaluation when it is for this problem's
+    /// poses (the same prepared ones, or prepared alike: the same commands
+    /// and nominal configurations, bit for bit), model and load, at
+    /// `params`.
+    fn seed(&self, known: &FinalPredictions, params: &Params) {
+        let alike = |a: &Arc<Pose>, b: &Arc<Pose>| {
+            Arc::ptr_eq(a, b) || (a.commands == b.commands && a.nominal_q == b.nominal_q)
+        };
+        let same = known.poses.len() == self.poses.len()
+            && known
+                .poses
+                .iter()
+                .zip(&self.poses)
+                .all(|(a, b)| alike(a, b))
+            && known.model == self.model
+            && known.force == self.force
+            && known.predictions.0 == params.values;
+        if same {
+            *self.cache.borrow_mut() = Some(known.predictions.clone());
+        }
+    }
+
     /// Predicted distance of each row that pairs two poses (`None` for the
     /// other rows) under `params`.
     pub fn predict_distances(&self, params: &Params) -> Result<Vec<Option<f64>>> {
@@ -1283,6 +1318,22 @@ pub struct Calibration {
     pub jacobian: DMatrix<f64>,
     /// Warnings.
     pub warnings: Vec<Warning>,
+    /// The fit's predictions at the identified parameters, when its last
+    /// evaluation was there: [`calibration_accuracy_with_cache`] then
+    /// computes them no second time.
+    #[serde(skip)]
+    pub(crate) final_predictions: Option<FinalPredictions>,
+}
+
+/// A calibration's predictions at its identified parameters and what they
+/// were computed for: the prepared poses (shared through a [`PoseCache`]),
+/// the model and the load.
+#[derive(Debug, Clone)]
+pub(crate) struct FinalPredictions {
+    poses: Vec<Arc<Pose>>,
+    model: Model,
+    force: Vec<f64>,
+    predictions: CachedPredictions,
 }
 
 /// Largest share of the poses that dropping outliers may remove.
@@ -1388,6 +1439,7 @@ fn calibrate_on<M: Mechanism>(
             cal.dropped = dropped;
             found.append(&mut cal.outliers);
             cal.outliers = found;
+            cal.final_predictions = problem.final_predictions(&cal.params);
             return Ok(cal);
         }
         // Drop the worst pose only, then refit: one gross error can make its
@@ -2046,6 +2098,7 @@ fn calibrate_once<M: Mechanism>(
             sigmas: sigma.to_vec(),
             jacobian: report.jacobian,
             warnings,
+            final_predictions: None,
         },
         cov_unit,
     ))
@@ -2273,7 +2326,7 @@ pub fn accuracy<M: Mechanism>(
     model: Model,
     force: &[f64],
 ) -> Result<(Accuracy, ErrorVectors, ErrorVectors)> {
-    accuracy_cached(mech, measurement, data, params, m, model, force, None)
+    accuracy_cached(mech, measurement, data, params, m, model, force, None, None)
 }
 
 /// [`accuracy`] with the poses prepared in `cache`.
@@ -2287,6 +2340,7 @@ fn accuracy_cached<M: Mechanism>(
     model: Model,
     force: &[f64],
     cache: Option<&PoseCache>,
+    known: Option<&FinalPredictions>,
 ) -> Result<(Accuracy, ErrorVectors, ErrorVectors)> {
     let spec = mech.spec();
     let nominal = Params::nominal(spec);
@@ -2322,6 +2376,9 @@ fn accuracy_cached<M: Mechanism>(
     let data = &data[..];
     let problem = IdentificationProblem::with_cache(mech, measurement, data, model, force, cache)?;
     let nominal_pred = problem.predict(&nominal)?;
+    if let Some(k) = known {
+        problem.seed(k, params);
+    }
     let pred = problem.predict(params)?;
     let reference: Vec<Vec<f64>> = data
         .iter()
@@ -2381,7 +2438,8 @@ pub fn calibration_accuracy<M: Mechanism>(
 
 /// [`calibration_accuracy`] with the poses prepared in `cache` (the one the
 /// calibration was given to [`calibrate_with_cache`]: the data's poses are
-/// then prepared once for both).
+/// then prepared once for both, and the predictions at the identified
+/// parameters, when the fit's last evaluation was there, are the fit's).
 pub fn calibration_accuracy_with_cache<M: Mechanism>(
     mech: &M,
     measurement: &MeasurementModel,
@@ -2400,6 +2458,7 @@ pub fn calibration_accuracy_with_cache<M: Mechanism>(
             cal.model,
             force,
             Some(cache),
+            cal.final_predictions.as_ref(),
         )
     })
 }

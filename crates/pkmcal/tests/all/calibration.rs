@@ -148,6 +148,88 @@ fn a_shared_pose_cache_changes_no_result() {
     assert!(a.after.distance_rms < a.before.distance_rms);
 }
 
+/// The errors after a calibration, from the fit's own predictions at the
+/// identified parameters (what `calibration_accuracy_with_cache` takes when
+/// the fit's last evaluation was there), agree with predictions computed
+/// afresh to this (mm).
+const SAME_ERRORS: f64 = 1e-9;
+
+/// `calibration_accuracy_with_cache` gives the errors that `accuracy`,
+/// computing every prediction afresh, gives: on the reference and, with a
+/// load-free platform's pose and orientation readings, on gough-stewart-6.
+#[test]
+fn the_accuracy_after_a_fit_is_that_of_fresh_predictions() {
+    use pkmcal::calibration::ErrorVectors;
+    let check = |a: &(Accuracy, ErrorVectors, ErrorVectors),
+                 b: &(Accuracy, ErrorVectors, ErrorVectors),
+                 what: &str| {
+        for (u, v) in [(&a.1, &b.1), (&a.2, &b.2)] {
+            for (x, y) in u.iter().zip(v.iter()) {
+                for (p, q) in x.iter().zip(y) {
+                    assert!((p - q).abs() <= SAME_ERRORS, "{what}: {p} vs {q}");
+                }
+            }
+        }
+        assert!((a.0.after.distance_rms - b.0.after.distance_rms).abs() <= SAME_ERRORS);
+    };
+    let mech = JeongKim2Dof::new();
+    let spec = mech.spec();
+    let tool = MeasurementModel::tool(spec);
+    let d = data(30, 0.002, 4);
+    let opts = CalibrationOptions::new(spec, Model::Exact);
+    let cache = PoseCache::new();
+    let cal =
+        calibrate_with_cache(&mech, &tool, &d, &Params::nominal(spec), &opts, &cache).unwrap();
+    let reused = calibration_accuracy_with_cache(&mech, &tool, &d, &cal, &[], &cache).unwrap();
+    let fresh = pkmcal::calibration::accuracy(
+        &mech,
+        &tool,
+        &d,
+        &cal.params,
+        &cal.measurement,
+        cal.model,
+        &[],
+    )
+    .unwrap();
+    check(&reused, &fresh, "reference");
+    // Another data set's accuracy with this calibration: nothing reused.
+    let other = data(20, 0.002, 5);
+    let a = calibration_accuracy_with_cache(&mech, &tool, &other, &cal, &[], &cache).unwrap();
+    let b = pkmcal::calibration::accuracy(
+        &mech,
+        &tool,
+        &other,
+        &cal.params,
+        &cal.measurement,
+        cal.model,
+        &[],
+    )
+    .unwrap();
+    assert_eq!(a.1, b.1);
+    assert_eq!(a.2, b.2);
+
+    let gs = common::gough_stewart("gough-stewart-6");
+    let spec = gs.spec();
+    let tool = MeasurementModel::tool(spec);
+    let truth = common::perturbed_by_unit(spec, 7, 0.3, 1e-3);
+    let d = simulate(&gs, &tool, &truth, &common::spread(&gs, 40), 0.002, 3).unwrap();
+    let opts = CalibrationOptions::new(spec, Model::Exact);
+    let cache = PoseCache::new();
+    let cal = calibrate_with_cache(&gs, &tool, &d, &Params::nominal(spec), &opts, &cache).unwrap();
+    let reused = calibration_accuracy_with_cache(&gs, &tool, &d, &cal, &[], &cache).unwrap();
+    let fresh = pkmcal::calibration::accuracy(
+        &gs,
+        &tool,
+        &d,
+        &cal.params,
+        &cal.measurement,
+        cal.model,
+        &[],
+    )
+    .unwrap();
+    check(&reused, &fresh, "gough-stewart-6");
+}
+
 /// The caller's cancel flag, set, stops every fit of a calibration (the
 /// first fit included, which otherwise runs beside the identifiability
 /// analysis with a flag of its own): nothing moves from the start.
