@@ -450,14 +450,11 @@ impl Atlas {
                 *d += ((x - c) * s).powi(2);
             }
         }
-        // The first of equal distances kept (as `min_by`).
-        let mut best: Option<(f64, usize)> = None;
-        for (i, &di) in d.iter().enumerate() {
-            if best.is_none_or(|(b, _)| di.total_cmp(&b) == std::cmp::Ordering::Less) {
-                best = Some((di, i));
-            }
-        }
-        best.map(|(_, i)| self.entries[i].1.clone())
+        // The first of equal distances (`min_by` keeps it).
+        d.iter()
+            .enumerate()
+            .min_by(|a, b| a.1.total_cmp(b.1))
+            .map(|(i, _)| self.entries[i].1.clone())
     }
 }
 

@@ -154,15 +154,42 @@ fn a_shared_pose_cache_changes_no_result() {
 /// afresh to this (mm).
 const SAME_ERRORS: f64 = 1e-9;
 
+type AccuracyOf = (
+    Accuracy,
+    pkmcal::calibration::ErrorVectors,
+    pkmcal::calibration::ErrorVectors,
+);
+
+/// The accuracy of `cal` on `d` through `calibration_accuracy_with_cache`
+/// (with the calibration's cache) and through `accuracy` (every
+/// prediction afresh).
+fn reused_and_fresh<M: Mechanism>(
+    mech: &M,
+    cal: &Calibration,
+    cache: &PoseCache,
+    d: &[Measurement],
+) -> (AccuracyOf, AccuracyOf) {
+    let tool = MeasurementModel::tool(mech.spec());
+    let reused = calibration_accuracy_with_cache(mech, &tool, d, cal, &[], cache).unwrap();
+    let fresh = pkmcal::calibration::accuracy(
+        mech,
+        &tool,
+        d,
+        &cal.params,
+        &cal.measurement,
+        cal.model,
+        &[],
+    )
+    .unwrap();
+    (reused, fresh)
+}
+
 /// `calibration_accuracy_with_cache` gives the errors that `accuracy`,
 /// computing every prediction afresh, gives: on the reference and, with a
 /// load-free platform's pose and orientation readings, on gough-stewart-6.
 #[test]
 fn the_accuracy_after_a_fit_is_that_of_fresh_predictions() {
-    use pkmcal::calibration::ErrorVectors;
-    let check = |a: &(Accuracy, ErrorVectors, ErrorVectors),
-                 b: &(Accuracy, ErrorVectors, ErrorVectors),
-                 what: &str| {
+    let check = |(a, b): &(AccuracyOf, AccuracyOf), what: &str| {
         for (u, v) in [(&a.1, &b.1), (&a.2, &b.2)] {
             for (x, y) in u.iter().zip(v.iter()) {
                 for (p, q) in x.iter().zip(y) {
@@ -180,31 +207,9 @@ fn the_accuracy_after_a_fit_is_that_of_fresh_predictions() {
     let cache = PoseCache::new();
     let cal =
         calibrate_with_cache(&mech, &tool, &d, &Params::nominal(spec), &opts, &cache).unwrap();
-    let reused = calibration_accuracy_with_cache(&mech, &tool, &d, &cal, &[], &cache).unwrap();
-    let fresh = pkmcal::calibration::accuracy(
-        &mech,
-        &tool,
-        &d,
-        &cal.params,
-        &cal.measurement,
-        cal.model,
-        &[],
-    )
-    .unwrap();
-    check(&reused, &fresh, "reference");
+    check(&reused_and_fresh(&mech, &cal, &cache, &d), "reference");
     // Another data set's accuracy with this calibration: nothing reused.
-    let other = data(20, 0.002, 5);
-    let a = calibration_accuracy_with_cache(&mech, &tool, &other, &cal, &[], &cache).unwrap();
-    let b = pkmcal::calibration::accuracy(
-        &mech,
-        &tool,
-        &other,
-        &cal.params,
-        &cal.measurement,
-        cal.model,
-        &[],
-    )
-    .unwrap();
+    let (a, b) = reused_and_fresh(&mech, &cal, &cache, &data(20, 0.002, 5));
     assert_eq!(a.1, b.1);
     assert_eq!(a.2, b.2);
 
@@ -216,18 +221,7 @@ fn the_accuracy_after_a_fit_is_that_of_fresh_predictions() {
     let opts = CalibrationOptions::new(spec, Model::Exact);
     let cache = PoseCache::new();
     let cal = calibrate_with_cache(&gs, &tool, &d, &Params::nominal(spec), &opts, &cache).unwrap();
-    let reused = calibration_accuracy_with_cache(&gs, &tool, &d, &cal, &[], &cache).unwrap();
-    let fresh = pkmcal::calibration::accuracy(
-        &gs,
-        &tool,
-        &d,
-        &cal.params,
-        &cal.measurement,
-        cal.model,
-        &[],
-    )
-    .unwrap();
-    check(&reused, &fresh, "gough-stewart-6");
+    check(&reused_and_fresh(&gs, &cal, &cache, &d), "gough-stewart-6");
 }
 
 /// The caller's cancel flag, set, stops every fit of a calibration (the
