@@ -66,12 +66,49 @@ struct Entry {
     value: String,
     line: usize,
     file: String,
+    /// Read from an included file (not the configuration named).
+    included: bool,
+    /// Read from the SAVE_CONFIG block.
+    autosave: bool,
 }
 
 /// A Klipper configuration: every option, the SAVE_CONFIG block's last.
 #[derive(Debug, Default)]
 pub struct Ini {
     entries: Vec<Entry>,
+    /// Included files read so far (bounded by [`MAX_INCLUDED_FILES`]).
+    files: usize,
+}
+
+/// The most included files one configuration may read in all (a printer's
+/// folder holds tens; includes that fan out could otherwise read millions).
+const MAX_INCLUDED_FILES: usize = 1000;
+
+/// The files `[include spec]` in `file` names, as Klipper resolves them:
+/// relative to the including file's directory; a pattern (`*`, `?`, `[`)
+/// expanded and sorted, an empty match allowed; a plain name must exist.
+fn included_files(file: &Path, spec: &str) -> Result<Vec<PathBuf>> {
+    let path = file.parent().unwrap_or(Path::new(".")).join(spec);
+    if !spec.contains(['*', '?', '[']) {
+        if !path.exists() {
+            bail!("the included file {} does not exist", path.display());
+        }
+        return Ok(vec![path]);
+    }
+    let pattern = path.to_string_lossy().into_owned();
+    // Python's glob, which Klipper uses: hidden files only by a leading dot.
+    let options = glob::MatchOptions {
+        case_sensitive: true,
+        require_literal_separator: true,
+        require_literal_leading_dot: true,
+    };
+    let mut found: Vec<PathBuf> = glob::glob_with(&pattern, options)
+        .context("not a valid pattern")?
+        .filter_map(std::result::Result::ok)
+        .collect();
+    // Sorted as Python sorts the names (by code point).
+    found.sort_by(|a, b| a.to_string_lossy().cmp(&b.to_string_lossy()));
+    Ok(found)
 }
 
 impl Ini {
@@ -193,17 +230,21 @@ fn parse_into(ini: &mut Ini, text: &str, file: &Path, depth: usize) -> Result<()
                 .trim();
             if let Some(inc) = s.strip_prefix("include ") {
                 let inc = inc.trim();
-                if inc.contains(['*', '?', '[']) {
-                    bail!(
-                        "{name}:{}: [include {inc}]: patterns are not followed; name the file",
-                        i + 1
-                    );
+                for path in included_files(file, inc)
+                    .with_context(|| format!("{name}:{}: [include {inc}]", i + 1))?
+                {
+                    ini.files += 1;
+                    if ini.files > MAX_INCLUDED_FILES {
+                        bail!(
+                            "{name}:{}: [include {inc}]: more than {MAX_INCLUDED_FILES} included files are read in all (files included many times over?)",
+                            i + 1
+                        );
+                    }
+                    let text = crate::output::read_to_string(&path).with_context(|| {
+                        format!("{name}:{}: cannot read included {}", i + 1, path.display())
+                    })?;
+                    parse_into(ini, &text, &path, depth + 1)?;
                 }
-                let path = file.parent().unwrap_or(Path::new(".")).join(inc);
-                let text = std::fs::read_to_string(&path).with_context(|| {
-                    format!("{name}:{}: cannot read included {}", i + 1, path.display())
-                })?;
-                parse_into(ini, &text, &path, depth + 1)?;
                 section = None;
             } else {
                 section = Some(s.to_string());
@@ -223,6 +264,8 @@ fn parse_into(ini: &mut Ini, text: &str, file: &Path, depth: usize) -> Result<()
             value: t[sep + 1..].trim().to_string(),
             line: i + 1,
             file: name.clone(),
+            included: depth > 0,
+            autosave: false,
         });
         last = Some(ini.entries.len() - 1);
     }
@@ -239,7 +282,10 @@ pub fn parse_config(text: &str, file: &Path) -> Result<Ini> {
         let mut saved = Ini::default();
         parse_into(&mut saved, &b, file, 0)
             .with_context(|| format!("in the SAVE_CONFIG block of {}", file.display()))?;
-        ini.entries.extend(saved.entries);
+        ini.entries.extend(saved.entries.into_iter().map(|e| Entry {
+            autosave: true,
+            ..e
+        }));
     }
     Ok(ini)
 }
@@ -514,10 +560,8 @@ pub fn delta_from_config(ini: &Ini) -> Result<KlipperDelta> {
     Ok(d)
 }
 
-/// The configuration text with Klipper's values replaced by `new`, as
-/// Klipper's SAVE_CONFIG writes them: in the SAVE_CONFIG block (created if
-/// missing), the same options in the regular part commented out.
-pub fn updated_config(text: &str, new: &KlipperDelta) -> String {
+/// The values `klipper` writes: (section, option, value).
+fn klipper_values(new: &KlipperDelta) -> Vec<(String, String, String)> {
     let mut values: Vec<(String, String, String)> = vec![(
         "printer".into(),
         "delta_radius".into(),
@@ -537,51 +581,57 @@ pub fn updated_config(text: &str, new: &KlipperDelta) -> String {
             format!("{:.6}", new.endstops[i]),
         ));
     }
-    let (regular, block) = split_autosave(text);
-    // The block's sections, in order, with the new values set.
-    let mut sections: Vec<(String, Vec<(String, String)>)> = vec![];
-    let mut current: Option<usize> = None;
-    for line in block.as_deref().unwrap_or("").lines() {
-        let t = line.trim();
-        if t.is_empty() {
-            continue;
-        }
-        if let Some(s) = t.strip_prefix('[').and_then(|s| s.strip_suffix(']')) {
-            sections.push((s.trim().to_string(), vec![]));
-            current = Some(sections.len() - 1);
-        } else if let (Some(c), Some(sep)) = (current, t.find([':', '='])) {
-            sections[c]
-                .1
-                .push((t[..sep].trim().to_string(), t[sep + 1..].trim().to_string()));
-        }
-    }
-    for (sec, key, v) in &values {
-        let i = match sections.iter().position(|s| s.0 == *sec) {
-            Some(i) => i,
-            None => {
-                sections.push((sec.clone(), vec![]));
-                sections.len() - 1
-            }
-        };
-        match sections[i].1.iter_mut().find(|(k, _)| k == key) {
-            Some(kv) => kv.1 = v.clone(),
-            None => sections[i].1.push((key.clone(), v.clone())),
-        }
-    }
-    // Comment out the regular part's definitions of the saved options.
-    let saved = |sec: &str, key: &str| {
-        sections
+    values
+}
+
+/// The option name of a regular line, as Klipper's `_strip_duplicates`
+/// reads it: the line cut at its first `#` or `;`, then the leading word
+/// characters, lower case (configparser's option names).
+fn option_name(pruned: &str) -> String {
+    pruned
+        .chars()
+        .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+        .collect::<String>()
+        .to_lowercase()
+}
+
+/// The configuration text with Klipper's values replaced by `new`, as
+/// Klipper's SAVE_CONFIG would make them take effect: set in the SAVE_CONFIG
+/// block (created if missing), the same options in the regular part
+/// commented out (with their continuation lines). Every other byte comes
+/// out as it went in: other options, multi-line values (saved bed meshes,
+/// scanner models), comments, line endings. An option that an included file
+/// defines is refused, as Klipper's SAVE_CONFIG refuses it (the new value
+/// would be ignored at the next start).
+pub fn updated_config(text: &str, new: &KlipperDelta, ini: &Ini) -> Result<String> {
+    let values = klipper_values(new);
+    for (sec, key, _) in &values {
+        if let Some(e) = ini
+            .entries
             .iter()
-            .any(|(s, kv)| s == sec && kv.iter().any(|(k, _)| k == key))
+            .find(|e| e.included && !e.autosave && e.section == *sec && e.key == *key)
+        {
+            bail!(
+                "{}:{}: [{sec}] {key} is set in an included file, where a saved value cannot override it (Klipper's SAVE_CONFIG refuses it too); remove it there, or set the new value there by hand, and run again without --out",
+                e.file,
+                e.line
+            );
+        }
+    }
+    let eol = if text.contains("\r\n") { "\r\n" } else { "\n" };
+    let (regular, block) = match text.find(AUTOSAVE_HEADER) {
+        Some(pos) => (&text[..pos], Some(&text[pos..])),
+        None => (text, None),
     };
-    let mut out = String::new();
+    // The regular part: the saved options commented out.
+    let set = |sec: &str, key: &str| values.iter().any(|(s, k, _)| s == sec && k == key);
+    let mut out = String::with_capacity(text.len() + 1024);
     let mut section = String::new();
     let mut dup = false;
-    for line in regular.lines() {
-        let pruned = strip_comment(line).trim_end();
+    for line in regular.split_inclusive('\n') {
+        let pruned = line[..line.find(['#', ';']).unwrap_or(line.len())].trim_end();
         if pruned.is_empty() {
             out.push_str(line);
-            out.push('\n');
             continue;
         }
         if pruned.starts_with(char::is_whitespace) {
@@ -589,34 +639,169 @@ pub fn updated_config(text: &str, new: &KlipperDelta) -> String {
                 out.push('#');
             }
             out.push_str(line);
-            out.push('\n');
             continue;
         }
         dup = false;
-        if let Some(s) = pruned.strip_prefix('[').and_then(|s| s.strip_suffix(']')) {
-            section = s.trim().to_string();
-        } else if let Some(sep) = pruned.find([':', '=']) {
-            let key = pruned[..sep].trim().to_lowercase();
-            if saved(&section, &key) {
-                dup = true;
-                out.push('#');
-            }
+        if let Some(s) = pruned.strip_prefix('[') {
+            section = s.strip_suffix(']').unwrap_or(s).trim().to_string();
+        } else if set(&section, &option_name(pruned)) {
+            dup = true;
+            out.push('#');
         }
         out.push_str(line);
-        out.push('\n');
     }
-    let mut data = out.trim_end().to_string();
-    data.push_str("\n\n");
-    data.push_str(AUTOSAVE_HEADER);
-    data.push_str("\n#*# DO NOT EDIT THIS BLOCK OR BELOW. The contents are auto-generated.\n#*#\n");
-    for (s, kv) in &sections {
-        let _ = writeln!(data, "#*# [{s}]");
-        for (k, v) in kv {
-            let _ = writeln!(data, "#*# {k} = {v}");
+    let Some(block) = block else {
+        // No block yet: one written as Klipper writes it.
+        let mut data = out.trim_end().to_string();
+        data.push_str(eol);
+        data.push_str(eol);
+        data.push_str(AUTOSAVE_HEADER);
+        data.push_str(eol);
+        data.push_str("#*# DO NOT EDIT THIS BLOCK OR BELOW. The contents are auto-generated.");
+        data.push_str(eol);
+        data.push_str("#*#");
+        data.push_str(eol);
+        let mut sections: Vec<&str> = vec![];
+        for (s, _, _) in &values {
+            if !sections.contains(&s.as_str()) {
+                sections.push(s);
+            }
         }
-        data.push_str("#*#\n");
+        for s in sections {
+            let _ = write!(data, "#*# [{s}]{eol}");
+            for (_, k, v) in values.iter().filter(|(x, _, _)| x == s) {
+                let _ = write!(data, "#*# {k} = {v}{eol}");
+            }
+            let _ = write!(data, "#*#{eol}");
+        }
+        return Ok(data);
+    };
+    out.push_str(&updated_block(block, &values, eol));
+    Ok(out)
+}
+
+/// The SAVE_CONFIG block (from its header line on) with `values` set, line
+/// by line: each definition of a set option replaced (its continuation lines
+/// dropped), a missing option added at the end of its section, a missing
+/// section added at the end; every other line as it was.
+fn updated_block(block: &str, values: &[(String, String, String)], eol: &str) -> String {
+    #[derive(PartialEq)]
+    enum Kind {
+        Other,
+        Section(String),
+        Option(String),
+        Continuation,
     }
-    data
+    let lines: Vec<&str> = block.split_inclusive('\n').collect();
+    let kinds: Vec<Kind> = lines
+        .iter()
+        .enumerate()
+        .map(|(i, l)| {
+            let l = l.trim_end_matches(['\n', '\r']);
+            let Some(c) = l.strip_prefix("#*#") else {
+                return Kind::Other;
+            };
+            let c = c.strip_prefix(' ').unwrap_or(c);
+            let pruned = c[..c.find(['#', ';']).unwrap_or(c.len())].trim_end();
+            if i == 0 || pruned.is_empty() {
+                Kind::Other
+            } else if pruned.starts_with(char::is_whitespace) {
+                Kind::Continuation
+            } else if let Some(s) = pruned.strip_prefix('[') {
+                Kind::Section(s.strip_suffix(']').unwrap_or(s).trim().to_string())
+            } else {
+                Kind::Option(option_name(pruned))
+            }
+        })
+        .collect();
+    // Each line's section, and what replaces or follows it.
+    let mut section_of = vec![String::new(); lines.len()];
+    let mut current = String::new();
+    for (i, k) in kinds.iter().enumerate() {
+        if let Kind::Section(s) = k {
+            current = s.clone();
+        }
+        section_of[i] = current.clone();
+    }
+    let mut replace: Vec<Option<String>> = vec![None; lines.len()];
+    let mut drop = vec![false; lines.len()];
+    let mut after: Vec<Vec<String>> = vec![vec![]; lines.len()];
+    let mut appended: Vec<(String, Vec<String>)> = vec![];
+    for (sec, key, value) in values {
+        let mut found = false;
+        let mut in_option = false;
+        for i in 0..lines.len() {
+            match &kinds[i] {
+                Kind::Option(k) if section_of[i] == *sec && k == key => {
+                    let l = lines[i].trim_end_matches(['\n', '\r']);
+                    let c = l["#*#".len()..].trim_start();
+                    let name: String = c
+                        .chars()
+                        .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+                        .collect();
+                    let end = &lines[i][l.len()..];
+                    replace[i] = Some(format!("#*# {name} = {value}{end}"));
+                    found = true;
+                    in_option = true;
+                }
+                Kind::Continuation if in_option => drop[i] = true,
+                Kind::Continuation | Kind::Other => {}
+                _ => in_option = false,
+            }
+        }
+        if found {
+            continue;
+        }
+        // The last option or continuation line of the section's last
+        // occurrence; a new section at the end if there is none.
+        let last = (0..lines.len()).rev().find(|&i| {
+            section_of[i] == *sec
+                && matches!(
+                    kinds[i],
+                    Kind::Option(_) | Kind::Continuation | Kind::Section(_)
+                )
+        });
+        let line = format!("#*# {key} = {value}{eol}");
+        match last {
+            Some(i) => after[i].push(line),
+            None => match appended.iter_mut().find(|(s, _)| s == sec) {
+                Some((_, l)) => l.push(line),
+                None => appended.push((sec.clone(), vec![line])),
+            },
+        }
+    }
+    let mut out = String::with_capacity(block.len() + 1024);
+    for (i, l) in lines.iter().enumerate() {
+        if drop[i] {
+            continue;
+        }
+        // A last line without its end of line gets one before anything follows.
+        let text = replace[i].as_deref().unwrap_or(l);
+        out.push_str(text);
+        if !after[i].is_empty() && !text.ends_with('\n') {
+            out.push_str(eol);
+        }
+        for a in &after[i] {
+            out.push_str(a);
+        }
+    }
+    if !appended.is_empty() {
+        if !out.ends_with('\n') {
+            out.push_str(eol);
+        }
+        // Sections are separated by an empty `#*#` line, as Klipper writes them.
+        if !out.trim_end().ends_with("\n#*#") {
+            let _ = write!(out, "#*#{eol}");
+        }
+        for (s, l) in appended {
+            let _ = write!(out, "#*# [{s}]{eol}");
+            for x in l {
+                out.push_str(&x);
+            }
+            let _ = write!(out, "#*#{eol}");
+        }
+    }
+    out
 }
 
 /// Height errors (mm) of every probe for the printer's parameters `p` and
@@ -649,7 +834,7 @@ fn max_abs(v: &[f64]) -> f64 {
 
 /// Run `pkmcal klipper`.
 pub fn run_klipper(c: KlipperConfig) -> Result<()> {
-    let text = std::fs::read_to_string(&c.config)
+    let text = crate::output::read_to_string(&c.config)
         .with_context(|| format!("cannot read Klipper configuration {}", c.config.display()))?;
     let ini = parse_config(&text, &c.config)?;
     let delta = delta_from_config(&ini).with_context(|| format!("in {}", c.config.display()))?;
@@ -792,7 +977,7 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
         }
     }
     if let Some(out) = &c.out {
-        output::stage(out, updated_config(&text, &new).as_bytes())?;
+        output::stage(out, updated_config(&text, &new, &ini)?.as_bytes())?;
         println!(
             "\nupdated configuration -> {} (values in its SAVE_CONFIG block)",
             out.display()

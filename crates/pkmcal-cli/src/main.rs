@@ -632,7 +632,9 @@ fn check_paths(command: &Command) -> anyhow::Result<()> {
                 a.targets.clone(),
                 a.setup.clone(),
             ],
-            vec![a.out.clone()],
+            std::iter::once(a.out.clone())
+                .chain(a.distances_out.clone())
+                .collect(),
         ),
         Command::Trilaterate(a) => (
             vec![m(&a.mech), a.setup.clone(), Some(a.data.clone())],
@@ -652,6 +654,7 @@ fn check_paths(command: &Command) -> anyhow::Result<()> {
                     a.start.clone(),
                     a.validate.clone(),
                     a.setup.clone(),
+                    a.distances.clone(),
                 ],
                 out,
             )
@@ -662,6 +665,7 @@ fn check_paths(command: &Command) -> anyhow::Result<()> {
                 Some(a.data.clone()),
                 a.params.clone(),
                 a.setup.clone(),
+                a.distances.clone(),
             ],
             a.report.iter().cloned().collect(),
         ),
@@ -722,6 +726,7 @@ fn main() -> ExitCode {
     keep_freed_memory();
     let cli = Cli::parse();
     output::install_cleanup();
+    output::track_inputs();
     let result = fileunits::set_cli(cli.units.as_deref())
         .and_then(|()| check_paths(&cli.command))
         .and_then(|()| in_pool(cli.command));

@@ -69,6 +69,83 @@ fn state() -> std::sync::MutexGuard<'static, State> {
     STATE.lock().unwrap_or_else(|e| e.into_inner())
 }
 
+/// The files this run has read (or declared it will read), each with the
+/// keys it is known by; no output may be one of them. Kept only where a
+/// process is one run ([`track_inputs`]: the CLI), not in the Python
+/// package, where writing a file read earlier is the user's choice.
+struct Inputs {
+    tracking: bool,
+    files: Vec<(PathBuf, Vec<Key>)>,
+}
+
+static INPUTS: Mutex<Inputs> = Mutex::new(Inputs {
+    tracking: false,
+    files: vec![],
+});
+
+fn inputs() -> std::sync::MutexGuard<'static, Inputs> {
+    INPUTS.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Make this process one run: every file read through [`input`] (or
+/// declared to [`check`]) counts as an input, which no output may replace.
+pub fn track_inputs() {
+    inputs().tracking = true;
+}
+
+/// Register `path` as an input of the run: a file read, however it was
+/// named or reached (an option, a file named inside another, an include).
+/// Every reader of the file side calls this where it opens a file.
+pub fn input(path: &Path) {
+    let mut i = inputs();
+    if !i.tracking || is_stdout(path) {
+        return;
+    }
+    let Ok(k) = keys(path, &[]) else {
+        return;
+    };
+    if !i.files.iter().any(|(_, known)| known == &k) {
+        i.files.push((path.to_path_buf(), k));
+    }
+}
+
+/// Read a whole input file, registered first ([`input`]).
+pub fn read(path: &Path) -> std::io::Result<Vec<u8>> {
+    input(path);
+    std::fs::read(path)
+}
+
+/// Read a whole input text file, registered first ([`input`]).
+pub fn read_to_string(path: &Path) -> std::io::Result<String> {
+    input(path);
+    std::fs::read_to_string(path)
+}
+
+/// Open an input file to stream it, registered first ([`input`]).
+pub fn open(path: &Path) -> std::io::Result<std::fs::File> {
+    input(path);
+    std::fs::File::open(path)
+}
+
+/// The input `dest` would replace, if any.
+fn input_hit(dest: &Path, created: &[PathBuf]) -> Option<PathBuf> {
+    let k = keys(dest, created).ok()?;
+    inputs()
+        .files
+        .iter()
+        .find(|(_, ik)| k.iter().any(|a| ik.contains(a)))
+        .map(|(p, _)| p.clone())
+}
+
+fn also_an_input(dest: &Path, input: &Path) -> anyhow::Error {
+    Usage(format!(
+        "{} is also an input ({}); write the output to another file",
+        dest.display(),
+        input.display()
+    ))
+    .into()
+}
+
 /// Remove the temporaries on Ctrl-C, SIGTERM and panics.
 pub fn install_cleanup() {
     let _ = ctrlc::set_handler(|| {
@@ -187,6 +264,7 @@ fn keys(path: &Path, created: &[PathBuf]) -> Result<Vec<Key>> {
 pub fn check(inputs: &[&Path], outputs: &[&Path], dirs: &[PathBuf]) -> Result<()> {
     let mut input_keys = vec![];
     for i in inputs {
+        input(i);
         if let Ok(k) = keys(i, &[]) {
             input_keys.push((i, k));
         }
@@ -262,7 +340,16 @@ pub fn create_dir(dir: &Path) -> Result<()> {
     Ok(())
 }
 
-fn temporary(dest: &Path) -> Result<PathBuf> {
+/// The longest part of a destination's name a temporary's name keeps (a
+/// legal 255-byte name plus the suffix would exceed the file system's limit).
+const TEMPORARY_NAME_KEEP: usize = 160;
+
+/// A fresh temporary for `dest`, created (never opened if it exists, so no
+/// file, an input included, is ever truncated or reused): `.NAME.tmp-PID-N`
+/// next to `dest`, `N` counting up from a per-run start.
+fn temporary(dest: &Path) -> Result<(std::fs::File, PathBuf)> {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static NEXT: AtomicU64 = AtomicU64::new(0);
     let name = dest
         .file_name()
         .with_context(|| format!("{} is not a file name", dest.display()))?;
@@ -270,15 +357,40 @@ fn temporary(dest: &Path) -> Result<PathBuf> {
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
-    Ok(dir.join(format!(
-        ".{}.tmp-{}",
-        name.to_string_lossy(),
-        std::process::id()
-    )))
+    let name = name.to_string_lossy();
+    let mut cut = name.len().min(TEMPORARY_NAME_KEEP);
+    while !name.is_char_boundary(cut) {
+        cut -= 1;
+    }
+    let start = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.subsec_nanos() as u64);
+    loop {
+        let n = NEXT.fetch_add(1, Ordering::Relaxed);
+        let tmp = dir.join(format!(
+            ".{}.tmp-{}-{}",
+            &name[..cut],
+            std::process::id(),
+            start.wrapping_add(n)
+        ));
+        if input_hit(&tmp, &[]).is_some() {
+            continue;
+        }
+        match std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&tmp)
+        {
+            Ok(f) => return Ok((f, tmp)),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists && n < 1000 => continue,
+            Err(e) => return Err(e).with_context(|| format!("cannot write {}", dest.display())),
+        }
+    }
 }
 
 /// Remove temporaries of `dest` left by runs that were killed (SIGKILL
-/// cannot be caught): `.NAME.tmp-PID` whose process no longer exists.
+/// cannot be caught): `.NAME.tmp-PID` or `.NAME.tmp-PID-N` whose process no
+/// longer exists, and that are no input of this run.
 fn sweep_stale(dest: &Path) {
     let (Some(name), dir) = (
         dest.file_name(),
@@ -288,17 +400,31 @@ fn sweep_stale(dest: &Path) {
     ) else {
         return;
     };
-    let prefix = format!(".{}.tmp-", name.to_string_lossy());
+    let name = name.to_string_lossy();
+    let mut cut = name.len().min(TEMPORARY_NAME_KEEP);
+    while !name.is_char_boundary(cut) {
+        cut -= 1;
+    }
+    let prefix = format!(".{}.tmp-", &name[..cut]);
     let Ok(entries) = std::fs::read_dir(dir) else {
         return;
     };
     for e in entries.flatten() {
         let n = e.file_name().to_string_lossy().into_owned();
-        let Some(pid) = n.strip_prefix(&prefix).and_then(|p| p.parse::<u32>().ok()) else {
+        let Some(rest) = n.strip_prefix(&prefix) else {
+            continue;
+        };
+        let (pid, nonce) = rest.split_once('-').unwrap_or((rest, "0"));
+        let (Ok(pid), Ok(_)) = (pid.parse::<u32>(), nonce.parse::<u64>()) else {
             continue;
         };
         let alive = pid == std::process::id() || Path::new(&format!("/proc/{pid}")).exists();
-        if !alive && Path::new("/proc/self").exists() {
+        let regular = e.file_type().is_ok_and(|t| t.is_file());
+        if !alive
+            && regular
+            && Path::new("/proc/self").exists()
+            && input_hit(&e.path(), &[]).is_none()
+        {
             let _ = std::fs::remove_file(e.path());
         }
     }
@@ -353,10 +479,14 @@ pub fn stage_file(dest: &Path) -> Result<(std::fs::File, PathBuf)> {
     }
     // Created and registered under the state (an interruption removes it).
     let mut s = state();
+    if let Some(i) = input_hit(dest, &s.created) {
+        return Err(also_an_input(dest, &i));
+    }
     sweep_stale(dest);
-    let tmp = temporary(dest)?;
-    let f =
-        std::fs::File::create(&tmp).with_context(|| format!("cannot write {}", dest.display()))?;
+    let (f, tmp) = temporary(dest)?;
+    if let Some(old) = s.staged.iter().find(|x| x.dest == dest) {
+        let _ = std::fs::remove_file(&old.tmp);
+    }
     s.staged.retain(|x| x.dest != dest);
     s.staged.push(Staged {
         tmp: tmp.clone(),
@@ -382,7 +512,12 @@ pub fn writer(dest: &Path) -> Result<Box<dyn Write>> {
     Ok(Box::new(std::io::BufWriter::new(f)))
 }
 
-/// Rename every staged temporary into place.
+/// Rename every staged temporary into place, all or nothing: every
+/// destination is checked first (no input of the run, whatever read it; a
+/// replaceable file), each file a destination replaces is kept aside (a hard
+/// link, else a copy) until every rename has succeeded, and a failed rename
+/// puts the old files back. If even that fails, the error says which files
+/// are new and where the old ones are.
 pub fn commit() -> Result<()> {
     // The writers finish first, their temporaries still registered (so that
     // Ctrl-C meanwhile removes them).
@@ -398,9 +533,27 @@ pub fn commit() -> Result<()> {
         }
     }
     // The renames hold the state: Ctrl-C or SIGTERM meanwhile waits until
-    // every output is in place (then reports it), instead of exiting with
-    // some renamed and the others' temporaries left behind.
+    // every output is in place or every old file is back (then reports it),
+    // instead of exiting halfway.
     let mut guard = state();
+    if let Err(e) = replaceable(&guard) {
+        discard_in(&mut guard);
+        return Err(e);
+    }
+    // Each replaced file kept aside first.
+    let mut kept: Vec<Option<PathBuf>> = vec![];
+    for s in &guard.staged {
+        match keep_aside(&s.dest) {
+            Ok(k) => kept.push(k),
+            Err(e) => {
+                for k in kept.iter().flatten() {
+                    let _ = std::fs::remove_file(k);
+                }
+                discard_in(&mut guard);
+                return Err(e);
+            }
+        }
+    }
     guard.committed = true;
     let staged = std::mem::take(&mut guard.staged);
     for (k, s) in staged.iter().enumerate() {
@@ -408,8 +561,21 @@ pub fn commit() -> Result<()> {
             for rest in &staged[k..] {
                 let _ = std::fs::remove_file(&rest.tmp);
             }
-            return Err(e).with_context(|| format!("cannot write {}", s.dest.display()));
+            let undone = roll_back(&staged[..k], &kept[..k]);
+            for k in kept[k..].iter().flatten() {
+                let _ = std::fs::remove_file(k);
+            }
+            guard.committed = false;
+            discard_in(&mut guard);
+            let e = Err::<(), _>(e).with_context(|| format!("cannot write {}", s.dest.display()));
+            return match undone {
+                Ok(()) => e.context("no output was written (the files replaced so far are back)"),
+                Err(left) => e.context(left),
+            };
         }
+    }
+    for k in kept.iter().flatten() {
+        let _ = std::fs::remove_file(k);
     }
     guard.created.clear();
     drop(guard);
@@ -421,6 +587,132 @@ pub fn commit() -> Result<()> {
             .context("cannot write to standard output")?;
     }
     Ok(())
+}
+
+/// Every staged destination can be replaced: it is no input of the run (an
+/// input read after the output was planned included), no two are the same
+/// file, each is a regular file or absent, and its directory lets this user
+/// replace it (a sticky directory keeps other users' files).
+fn replaceable(s: &State) -> Result<()> {
+    let mut seen: Vec<(&Path, Vec<Key>)> = vec![];
+    for x in &s.staged {
+        if let Some(i) = input_hit(&x.dest, &s.created) {
+            return Err(also_an_input(&x.dest, &i));
+        }
+        let k = keys(&x.dest, &s.created)?;
+        if let Some((p, _)) = seen.iter().find(|(_, pk)| k.iter().any(|a| pk.contains(a))) {
+            return usage(format!(
+                "{} and {} are the same file; give each output its own path",
+                p.display(),
+                x.dest.display()
+            ));
+        }
+        seen.push((&x.dest, k));
+        if let Ok(meta) = std::fs::symlink_metadata(&x.dest) {
+            if !meta.file_type().is_file() {
+                return usage(format!(
+                    "{} exists and is not a regular file (a directory, a pipe, a device or a link); give a file path",
+                    x.dest.display()
+                ));
+            }
+            if !may_replace(&x.dest, &meta) {
+                return Err(anyhow::anyhow!(
+                    "cannot write {}: it belongs to another user in a directory that keeps each user's files (sticky); no output was written",
+                    x.dest.display()
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Whether this user may rename over the existing file `dest`: in a sticky
+/// directory only the file's or the directory's owner (or root) may.
+#[cfg(unix)]
+fn may_replace(dest: &Path, meta: &std::fs::Metadata) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    let dir = dest
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let Ok(d) = std::fs::metadata(dir) else {
+        return true;
+    };
+    // The effective user is the owner of a file this process creates: the
+    // process's own temporaries show it without an unsafe call.
+    let me = current_uid();
+    const STICKY: u32 = 0o1000;
+    d.mode() & STICKY == 0 || me == Some(0) || me == Some(meta.uid()) || me == Some(d.uid())
+}
+
+#[cfg(not(unix))]
+fn may_replace(_: &Path, _: &std::fs::Metadata) -> bool {
+    true
+}
+
+/// The effective user id, read from `/proc/self` (owned by it); `None`
+/// where that cannot be read (then no destination is refused for it).
+#[cfg(unix)]
+fn current_uid() -> Option<u32> {
+    use std::os::unix::fs::MetadataExt;
+    std::fs::metadata("/proc/self").ok().map(|m| m.uid())
+}
+
+/// Keep the file `dest` would replace: a hard link beside it (else a copy)
+/// named `.NAME.tmp-PID-N`; `None` when there is no such file.
+fn keep_aside(dest: &Path) -> Result<Option<PathBuf>> {
+    if std::fs::symlink_metadata(dest).is_err() {
+        return Ok(None);
+    }
+    let (f, aside) = temporary(dest)?;
+    drop(f);
+    let _ = std::fs::remove_file(&aside);
+    if std::fs::hard_link(dest, &aside).is_ok() {
+        return Ok(Some(aside));
+    }
+    match std::fs::copy(dest, &aside) {
+        Ok(_) => Ok(Some(aside)),
+        Err(e) => {
+            let _ = std::fs::remove_file(&aside);
+            Err(e).with_context(|| {
+                format!(
+                    "cannot keep the old {} aside while the outputs are written; no output was written",
+                    dest.display()
+                )
+            })
+        }
+    }
+}
+
+/// Undo the renames of `done`: each old file back from where it was kept,
+/// each new one removed where there was none. On failure, a message that
+/// names the new files left and where the old ones are.
+fn roll_back(done: &[Staged], kept: &[Option<PathBuf>]) -> std::result::Result<(), String> {
+    let mut left = vec![];
+    for (s, k) in done.iter().zip(kept).rev() {
+        let back = match k {
+            Some(k) => std::fs::rename(k, &s.dest),
+            None => std::fs::remove_file(&s.dest),
+        };
+        if back.is_err() {
+            left.push(match k {
+                Some(k) => format!(
+                    "{} is new; the old file is {}",
+                    s.dest.display(),
+                    k.display()
+                ),
+                None => format!("{} is new (there was none before)", s.dest.display()),
+            });
+        }
+    }
+    if left.is_empty() {
+        Ok(())
+    } else {
+        Err(format!(
+            "some outputs could not be put back: {}",
+            left.join("; ")
+        ))
+    }
 }
 
 /// Remove every staged temporary and the directories this run created.
@@ -435,7 +727,59 @@ fn discard_in(s: &mut State) {
         let _ = written(x.writing);
         let _ = std::fs::remove_file(&x.tmp);
     }
-    for d in s.created.drain(..) {
+    // Deepest first: a directory is empty only once those inside it are gone.
+    let mut created = std::mem::take(&mut s.created);
+    created.sort_by_key(|d| std::cmp::Reverse(d.components().count()));
+    for d in created {
         let _ = std::fs::remove_dir(&d);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Directories a run created are removed deepest first, however they
+    /// were created (the demo makes its directory, then `report` inside).
+    #[test]
+    fn discard_removes_nested_directories() {
+        let dir = tempfile::tempdir().unwrap();
+        let top = dir.path().join("a/b/demo");
+        create_dir(&top).unwrap();
+        create_dir(&top.join("report")).unwrap();
+        discard();
+        assert!(!dir.path().join("a").exists());
+    }
+
+    /// A failed commit puts back every file it had replaced and removes the
+    /// new ones it had created.
+    #[test]
+    fn roll_back_restores_the_old_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::write(d.join("old.toml"), "old").unwrap();
+        let kept = keep_aside(&d.join("old.toml")).unwrap();
+        assert!(kept.is_some());
+        assert_eq!(keep_aside(&d.join("none.toml")).unwrap(), None);
+        std::fs::write(d.join("t1"), "new").unwrap();
+        std::fs::rename(d.join("t1"), d.join("old.toml")).unwrap();
+        std::fs::write(d.join("none.toml"), "new").unwrap();
+        let done = [
+            Staged {
+                tmp: d.join("t1"),
+                dest: d.join("old.toml"),
+                writing: None,
+            },
+            Staged {
+                tmp: d.join("t2"),
+                dest: d.join("none.toml"),
+                writing: None,
+            },
+        ];
+        roll_back(&done, &[kept, None]).unwrap();
+        assert_eq!(std::fs::read_to_string(d.join("old.toml")).unwrap(), "old");
+        assert!(!d.join("none.toml").exists());
+        let left: Vec<_> = std::fs::read_dir(d).unwrap().collect();
+        assert_eq!(left.len(), 1);
     }
 }

@@ -272,7 +272,7 @@ pub struct ReprapConfig {
 
 /// Run `pkmcal reprap`.
 pub fn run_reprap(c: ReprapConfig) -> Result<()> {
-    let text = std::fs::read_to_string(&c.config)
+    let text = crate::output::read_to_string(&c.config)
         .with_context(|| format!("cannot read {}", c.config.display()))?;
     let delta = delta_from_gcode(&text, &c.config.display().to_string())?;
     let csv = Csv::read(&c.probes)?;

@@ -451,6 +451,6 @@ fn distances_between_poses_with_probe_heights() {
             "same.csv",
         ],
         2,
-        "--distances-out must differ from --out",
+        "same file",
     );
 }

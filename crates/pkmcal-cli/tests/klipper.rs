@@ -433,3 +433,204 @@ fn klipper_refuses_what_it_cannot_use() {
     fails(d, &["klipper", "--config", "nope.cfg"], 1, "nope.cfg");
     assert!(!d.join("new.cfg").exists());
 }
+
+/// Klipper's option names that `klipper` writes.
+const WRITTEN: [&str; 4] = ["delta_radius", "angle", "arm_length", "position_endstop"];
+
+/// Whether a line (of the regular part or the SAVE_CONFIG block, commented
+/// out or not) sets one of the options `klipper` writes.
+fn sets_written(line: &str) -> bool {
+    let l = line.trim_start_matches(['#', '*', ' ']);
+    WRITTEN.iter().any(|k| {
+        l.strip_prefix(k)
+            .is_some_and(|r| r.trim_start().starts_with([':', '=']))
+    })
+}
+
+/// `output` is `input` with only the written options changed: the same
+/// lines in the same order once those are left out, the same line endings,
+/// and at the end at most new `#*# [section]` and `#*#` lines.
+fn only_written_options_changed(input: &str, output: &str) -> Result<(), String> {
+    let keep = |t: &str| -> Vec<String> {
+        t.split_inclusive('\n')
+            .filter(|l| !sets_written(l))
+            .map(String::from)
+            .collect()
+    };
+    let (a, b) = (keep(input), keep(output));
+    if b.len() < a.len() {
+        return Err(format!("{} lines lost", a.len() - b.len()));
+    }
+    for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+        // The last line of the input may have had no end of line.
+        if x != y && !(i + 1 == a.len() && y.trim_end_matches(['\r', '\n']) == x) {
+            return Err(format!("line changed: {x:?} -> {y:?}"));
+        }
+    }
+    for extra in &b[a.len()..] {
+        let t = extra.trim_end();
+        let section = ["printer", "stepper_a", "stepper_b", "stepper_c"]
+            .iter()
+            .any(|s| t == format!("#*# [{s}]"));
+        if !(section || t == "#*#" || t.is_empty()) {
+            return Err(format!("line added: {extra:?}"));
+        }
+    }
+    Ok(())
+}
+
+/// The write-back keeps every byte it does not calibrate: saved bed meshes
+/// and scanner models (multi-line values), macros, comments, other
+/// sections, CRLF line endings; the calibrated options are set in the block
+/// and commented out in the regular part (issue 39, 1).
+#[test]
+fn klipper_write_back_keeps_every_other_byte() {
+    for crlf in [false, true] {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let mut cfg = config(d).replace(
+            "[printer]\nkinematics: delta\n",
+            "[printer]\nkinematics: delta\n[stepper_b]\nangle: 329.7\n  \n[printer]\n",
+        );
+        cfg.push_str(
+            "#*#\n#*# [printer]\n#*# delta_radius = 174.75\n#*#\n#*# [bed_mesh default]\n#*# version = 1\n#*# points =\n\
+             #*# \t-0.052500, -0.030000, 0.010000\n#*# \t-0.020000, 0.000000, 0.035000\n#*# \t0.012500, 0.027500, 0.050000\n\
+             #*# x_count = 3\n#*#\n#*# [scanner model default]\n#*# model_coef = 1.5,\n#*# \t1.8,\n#*# \t0.7\n#*# domain = 0.1,5.0\n",
+        );
+        if crlf {
+            cfg = cfg.replace('\n', "\r\n");
+        }
+        std::fs::write(d.join("printer.cfg"), &cfg).unwrap();
+        ok(
+            d,
+            &["klipper", "--config", "printer.cfg", "--out", "new.cfg"],
+        );
+        let new = std::fs::read_to_string(d.join("new.cfg")).unwrap();
+        only_written_options_changed(&cfg, &new).unwrap();
+        assert!(new.contains("#*# \t0.012500, 0.027500, 0.050000"), "{new}");
+        assert!(new.contains("#*# \t1.8,"));
+        assert!(new.contains("#angle: 329.7"));
+        let eols = new.matches('\n').count();
+        assert_eq!(new.matches("\r\n").count(), if crlf { eols } else { 0 });
+        // Klipper's values in the block: the truth.
+        let p = saved(&new.replace('\r', ""));
+        assert!((p.radius - TRUTH.radius).abs() < RECOVERED, "{}", p.radius);
+        // Written back again, the file changes only in those values.
+        std::fs::rename(d.join("new.cfg"), d.join("again.cfg")).unwrap();
+        ok(d, &["klipper", "--config", "again.cfg", "--out", "new.cfg"]);
+        let again = std::fs::read_to_string(d.join("again.cfg")).unwrap();
+        only_written_options_changed(&again, &std::fs::read_to_string(d.join("new.cfg")).unwrap())
+            .unwrap();
+    }
+}
+
+/// Includes as Klipper resolves them: a pattern is sorted and may match
+/// nothing, a plain name must exist; a calibrated option set in an included
+/// file is refused by name and line, as Klipper's SAVE_CONFIG refuses it.
+#[test]
+fn klipper_includes_are_read_as_klipper_reads_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let cfg = config(d);
+    std::fs::create_dir(d.join("macros")).unwrap();
+    std::fs::write(d.join("macros/b.cfg"), "[gcode_macro B]\ngcode:\n  G28\n").unwrap();
+    std::fs::write(d.join("macros/a.cfg"), "[gcode_macro A]\ngcode:\n  G28\n").unwrap();
+    let with_glob = cfg.replacen(
+        "[include steppers.cfg]",
+        "[include steppers.cfg]\n[include macros/*.cfg]\n[include ./none/*.cfg]",
+        1,
+    );
+    std::fs::write(d.join("printer.cfg"), &with_glob).unwrap();
+    ok(
+        d,
+        &["klipper", "--config", "printer.cfg", "--out", "new.cfg"],
+    );
+    let new = std::fs::read_to_string(d.join("new.cfg")).unwrap();
+    only_written_options_changed(&with_glob, &new).unwrap();
+    // A plain name that does not exist.
+    std::fs::write(
+        d.join("printer.cfg"),
+        cfg.replacen("[include steppers.cfg]", "[include missing.cfg]", 1),
+    )
+    .unwrap();
+    fails(
+        d,
+        &["klipper", "--config", "printer.cfg"],
+        1,
+        "missing.cfg does not exist",
+    );
+    // An endstop in the included file: the saved value would be ignored.
+    std::fs::write(d.join("printer.cfg"), &cfg).unwrap();
+    let mut steppers = std::fs::read_to_string(d.join("steppers.cfg")).unwrap();
+    steppers.push_str("position_endstop: 297.1\n");
+    std::fs::write(d.join("steppers.cfg"), &steppers).unwrap();
+    fails(
+        d,
+        &["klipper", "--config", "printer.cfg", "--out", "new2.cfg"],
+        1,
+        "steppers.cfg:8: [stepper_c] position_endstop is set in an included file",
+    );
+    assert!(!d.join("new2.cfg").exists());
+}
+
+/// Real users' Klipper configurations (`../shared/data/real-configs`, beside
+/// the checkout in CI): every one is read, calibrated and written back with
+/// nothing changed but the calibrated values (saved bed meshes, scanner
+/// models, macros and comments byte for byte).
+#[test]
+fn real_klipper_configurations_are_written_back_byte_for_byte() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data/real-configs/klipper");
+    if !root.exists() {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "{} is missing in CI",
+            root.display()
+        );
+        eprintln!("SKIPPED: no real configurations at {}", root.display());
+        return;
+    }
+    let mut files = vec![];
+    let mut stack = vec![root.join("cases"), root.join("fullfiles")];
+    while let Some(dir) = stack.pop() {
+        for e in std::fs::read_dir(&dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else if p.file_name().is_some_and(|n| n == "printer.cfg") {
+                files.push(p);
+            }
+        }
+    }
+    files.sort();
+    assert!(files.len() >= 70, "{} files", files.len());
+    let out = tempfile::tempdir().unwrap();
+    let mut failed = vec![];
+    for (i, f) in files.iter().enumerate() {
+        let dest = out.path().join(format!("{i}.cfg"));
+        let o = common::run(
+            out.path(),
+            &[
+                "klipper",
+                "--config",
+                f.to_str().unwrap(),
+                "--out",
+                dest.to_str().unwrap(),
+            ],
+        );
+        if !o.status.success() {
+            failed.push(format!(
+                "{}: {}",
+                f.display(),
+                String::from_utf8_lossy(&o.stderr)
+            ));
+            continue;
+        }
+        let input = String::from_utf8_lossy(&std::fs::read(f).unwrap()).into_owned();
+        let output = std::fs::read_to_string(&dest).unwrap();
+        if let Err(e) = only_written_options_changed(&input, &output) {
+            failed.push(format!("{}: {e}", f.display()));
+        }
+    }
+    assert!(failed.is_empty(), "{}", failed.join("\n"));
+}

@@ -3,6 +3,7 @@
 
 mod common;
 use common::{fails, ok, run};
+use std::os::unix::fs::FileTypeExt;
 use std::path::Path;
 
 /// A calibration data file, a commands file and a parameter file.
@@ -964,4 +965,231 @@ fn a_full_standard_output_is_an_error_not_a_panic() {
             "p.csv",
         ],
     );
+}
+
+/// Every file a command reads is an input, whatever option names it:
+/// measured distances, a second output path spelled differently, a
+/// temporary-looking input name (issue 34, A).
+#[test]
+fn inputs_named_by_any_option_are_never_replaced() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    files(d);
+    let mech = common::example("linear-delta");
+    ok(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            &mech,
+            "--grid",
+            "20",
+            "--probe",
+            "--noise",
+            "0.005",
+            "--out",
+            "probes.csv",
+            "--distances-out",
+            "pairs.csv",
+        ],
+    );
+    let pairs = read(d, "pairs.csv");
+    for args in [
+        vec![
+            "calibrate",
+            "--mechanism",
+            &mech,
+            "--data",
+            "probes.csv",
+            "--distances",
+            "pairs.csv",
+            "--out",
+            "pairs.csv",
+        ],
+        vec![
+            "calibrate",
+            "--mechanism",
+            &mech,
+            "--data",
+            "probes.csv",
+            "--distances",
+            "pairs.csv",
+            "--out",
+            "p.toml",
+            "--report",
+            "./pairs.csv",
+        ],
+        vec![
+            "analyze",
+            "--mechanism",
+            &mech,
+            "--data",
+            "probes.csv",
+            "--distances",
+            "pairs.csv",
+            "--report",
+            "pairs.csv",
+        ],
+    ] {
+        fails(d, &args, 2, "also an input");
+        assert_eq!(read(d, "pairs.csv"), pairs, "{args:?}");
+        assert!(!d.join("p.toml").exists(), "{args:?}");
+    }
+    // simulate --distances-out: an input, a link, a pipe, a device, a
+    // directory, the other output; nothing written by any of them.
+    std::fs::write(
+        d.join("targets.csv"),
+        "target_x,target_y,target_z\n0,0,100\n10,0,100\n0,10,110\n",
+    )
+    .unwrap();
+    let targets = read(d, "targets.csv");
+    std::os::unix::fs::symlink(d.join("v.csv"), d.join("link.csv")).unwrap();
+    assert!(
+        std::process::Command::new("mkfifo")
+            .arg(d.join("fifo"))
+            .status()
+            .unwrap()
+            .success()
+    );
+    std::fs::create_dir(d.join("adir")).unwrap();
+    for (target, needle) in [
+        ("targets.csv", "also an input"),
+        ("link.csv", "symbolic link"),
+        ("fifo", "not a regular file"),
+        ("/dev/full", "not a regular file"),
+        ("adir", "not a regular file"),
+        ("./new.csv", "same file"),
+    ] {
+        fails(
+            d,
+            &[
+                "simulate",
+                "--mechanism",
+                &mech,
+                "--targets",
+                "targets.csv",
+                "--probe",
+                "--out",
+                "new.csv",
+                "--distances-out",
+                target,
+            ],
+            2,
+            needle,
+        );
+        assert!(!d.join("new.csv").exists(), "{target}");
+        assert_eq!(read(d, "targets.csv"), targets);
+    }
+    assert!(
+        std::fs::symlink_metadata(d.join("link.csv"))
+            .unwrap()
+            .file_type()
+            .is_symlink()
+    );
+    assert!(
+        std::fs::symlink_metadata("/dev/full")
+            .unwrap()
+            .file_type()
+            .is_char_device() // std::os::unix::fs::FileTypeExt
+            || !Path::new("/dev/full").exists()
+    );
+    // An input whose name looks like a temporary of the output (a dead
+    // process's): read, not swept, not renamed.
+    let commands = read(d, "c.csv");
+    std::fs::write(d.join(".h1.csv.tmp-4194999"), &commands).unwrap();
+    std::fs::write(d.join(".h1.csv.tmp-4194999-7"), &commands).unwrap();
+    ok(
+        d,
+        &[
+            "predict",
+            "--commands",
+            ".h1.csv.tmp-4194999",
+            "--out",
+            "h1.csv",
+        ],
+    );
+    assert_eq!(read(d, ".h1.csv.tmp-4194999"), commands);
+    assert!(d.join("h1.csv").exists());
+    // A name as long as the file system allows (the temporary's is cut).
+    let long = format!("{}.csv", "p".repeat(250));
+    ok(d, &["predict", "--commands", "c.csv", "--out", &long]);
+    assert!(d.join(&long).exists());
+}
+
+/// An input reached through another file (a Klipper include) is an input:
+/// `--out` onto it is refused and the file is kept (issue 34, A3).
+#[test]
+fn an_included_file_is_an_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let printer = std::fs::read_to_string(format!(
+        "{}/../../examples/klipper-delta/printer.cfg",
+        env!("CARGO_MANIFEST_DIR")
+    ))
+    .unwrap();
+    // Macros in an included file.
+    std::fs::write(d.join("macros.cfg"), "[gcode_macro HOME]\ngcode:\n  G28\n").unwrap();
+    let start = printer.find("[printer]").unwrap();
+    let main = format!(
+        "{}[include macros.cfg]\n\n{}",
+        &printer[..start],
+        &printer[start..]
+    );
+    std::fs::write(d.join("printer.cfg"), &main).unwrap();
+    let macros = read(d, "macros.cfg");
+    fails(
+        d,
+        &["klipper", "--config", "printer.cfg", "--out", "macros.cfg"],
+        2,
+        "also an input",
+    );
+    assert_eq!(read(d, "macros.cfg"), macros);
+    assert_eq!(read(d, "printer.cfg"), main);
+    no_temporaries_but(d, &[]);
+}
+
+/// No hidden temporary of this run in `d` (names in `keep` are the test's own).
+fn no_temporaries_but(d: &Path, keep: &[&str]) {
+    let left: Vec<String> = std::fs::read_dir(d)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.contains(".tmp-") && !keep.contains(&n.as_str()))
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
+}
+
+/// A demo interrupted or failing leaves no directory it created behind,
+/// however deep (issue 34, B6).
+#[test]
+fn an_interrupted_demo_leaves_no_directory() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_pkmcal"))
+        .args(["demo", "--out-dir", "a/b/demo"])
+        .current_dir(d)
+        .stderr(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Interrupt once the output directory exists.
+    let start = std::time::Instant::now();
+    while !d.join("a/b/demo").exists() {
+        if start.elapsed().as_secs() > 60 || child.try_wait().unwrap().is_some() {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    let pid = child.id().to_string();
+    let _ = std::process::Command::new("kill")
+        .args(["-INT", &pid])
+        .status();
+    let o = child.wait_with_output().unwrap();
+    if o.status.code() == Some(130) {
+        let left: Vec<_> = std::fs::read_dir(d).unwrap().collect();
+        assert!(left.is_empty(), "{left:?}");
+    } else {
+        // The demo finished before the signal: its whole set is there.
+        assert!(o.status.success());
+        assert!(d.join("a/b/demo/report/report.html").exists());
+    }
 }
