@@ -178,15 +178,94 @@ impl RrfDelta {
 /// The delta settings of a RepRapFirmware G-code file (`config.g`,
 /// `config-override.g`): every `M665` and `M666` in order, later ones
 /// overriding, other lines ignored; RepRapFirmware's defaults for what no
-/// line sets.
+/// line sets. `M501` (load `config-override.g`) is refused: read the file
+/// with [`delta_from_config_file`], which follows it as the firmware does.
 pub fn delta_from_gcode(text: &str, file: &str) -> Result<RrfDelta> {
+    delta_from_text(text, file, &mut |n| {
+        bail!(
+            "{file}:{n}: M501 loads config-override.g, whose M665/M666 values the firmware runs; give the configuration's path so that it can be read beside it"
+        )
+    })
+}
+
+/// The name of the file `M501` loads, beside `config.g`.
+pub const OVERRIDE_FILE: &str = "config-override.g";
+
+/// The delta settings the firmware runs after `config.g` at `path`: its
+/// `M665`/`M666` lines in order, and at an `M501` line those of
+/// `config-override.g` in the same folder (as RepRapFirmware loads it from
+/// `/sys`), later lines overriding earlier ones. A missing
+/// `config-override.g` after `M501` is an error naming both: the geometry
+/// would otherwise be stale and undo the saved calibration.
+pub fn delta_from_config_file(path: &std::path::Path) -> Result<RrfDelta> {
+    let text = crate::output::read_to_string(path)
+        .with_context(|| format!("cannot read {}", path.display()))?;
+    let file = path.display().to_string();
+    let override_path = path
+        .parent()
+        .unwrap_or(std::path::Path::new("."))
+        .join(OVERRIDE_FILE);
+    delta_from_text(&text, &file, &mut |n| {
+        if path.file_name().is_some_and(|f| f == OVERRIDE_FILE) {
+            bail!("{file}:{n}: M501 inside {OVERRIDE_FILE} itself; remove that line");
+        }
+        let t = crate::output::read_to_string(&override_path).with_context(|| {
+            format!(
+                "{file}:{n}: M501 loads {OVERRIDE_FILE}, which holds the calibration the firmware runs, but {} cannot be read; copy it from the printer's /sys folder beside {file}, or remove the M501 line if the printer has none",
+                override_path.display()
+            )
+        })?;
+        Ok(Some((t, override_path.display().to_string())))
+    })
+}
+
+/// The walk of [`delta_from_gcode`]: `m501(line)` gives the text and name
+/// of the file `M501` loads (its lines applied at that line), or an error.
+fn delta_from_text(
+    text: &str,
+    file: &str,
+    m501: &mut dyn FnMut(usize) -> Result<Option<(String, String)>>,
+) -> Result<RrfDelta> {
     let mut d = RrfDelta::default();
+    let seen = apply_lines(&mut d, text, file, m501)?;
+    if !seen {
+        bail!(
+            "{file}: no M665 or M666 line; give the file that sets the delta's geometry (config.g, or config-override.g after M500)"
+        );
+    }
+    if !(d.radius > 0.0 && d.diagonals.iter().all(|l| *l > d.radius) && d.print_radius > 0.0) {
+        bail!(
+            "{file}: M665 needs a positive delta radius R, diagonals L longer than R and a positive print radius B (got R{} L{:?} B{})",
+            d.radius,
+            d.diagonals,
+            d.print_radius
+        );
+    }
+    Ok(d)
+}
+
+/// Apply the `M665`/`M666` lines of `text` to `d` in order (and, at `M501`,
+/// those of the file `m501` loads); whether any was found.
+fn apply_lines(
+    d: &mut RrfDelta,
+    text: &str,
+    file: &str,
+    m501: &mut dyn FnMut(usize) -> Result<Option<(String, String)>>,
+) -> Result<bool> {
     let mut seen = false;
     for (n, raw) in text.lines().enumerate() {
         let line = raw.split(';').next().unwrap_or("").trim();
         let mut words = line.split_whitespace();
         let Some(code) = words.next() else { continue };
         let code = code.to_ascii_uppercase();
+        if code == "M501" {
+            if let Some((t, f)) = m501(n + 1)? {
+                seen |= apply_lines(d, &t, &f, &mut |k| {
+                    bail!("{f}:{k}: M501 inside {OVERRIDE_FILE} itself; remove that line")
+                })?;
+            }
+            continue;
+        }
         if code != "M665" && code != "M666" {
             continue;
         }
@@ -241,20 +320,7 @@ pub fn delta_from_gcode(text: &str, file: &str) -> Result<RrfDelta> {
             }
         }
     }
-    if !seen {
-        bail!(
-            "{file}: no M665 or M666 line; give the file that sets the delta's geometry (config.g, or config-override.g after M500)"
-        );
-    }
-    if !(d.radius > 0.0 && d.diagonals.iter().all(|l| *l > d.radius) && d.print_radius > 0.0) {
-        bail!(
-            "{file}: M665 needs a positive delta radius R, diagonals L longer than R and a positive print radius B (got R{} L{:?} B{})",
-            d.radius,
-            d.diagonals,
-            d.print_radius
-        );
-    }
-    Ok(d)
+    Ok(seen)
 }
 
 /// What `pkmcal reprap` does.
@@ -272,9 +338,7 @@ pub struct ReprapConfig {
 
 /// Run `pkmcal reprap`.
 pub fn run_reprap(c: ReprapConfig) -> Result<()> {
-    let text = crate::output::read_to_string(&c.config)
-        .with_context(|| format!("cannot read {}", c.config.display()))?;
-    let delta = delta_from_gcode(&text, &c.config.display().to_string())?;
+    let delta = delta_from_config_file(&c.config)?;
     let csv = Csv::read(&c.probes)?;
     csv.require_rows()?;
     let points = csv.named(&["x".to_string(), "y".to_string(), "z".to_string()])?;
@@ -349,7 +413,7 @@ pub fn run_reprap(c: ReprapConfig) -> Result<()> {
     if let Some(out) = &c.out {
         output::stage(out, note.as_bytes())?;
         println!(
-            "new M665/M666 -> {} (put them in config-override.g, or in config.g in place of the old ones)",
+            "new M665/M666 -> {} (replace the M665 and M666 lines of the file the firmware takes them from with these two, and keep that file's other lines: config-override.g when config.g runs M501, else config.g)",
             out.display()
         );
     }

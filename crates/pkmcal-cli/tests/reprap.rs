@@ -255,3 +255,78 @@ fn reprap_probe_heights_give_the_printer_back() {
         "",
     );
 }
+
+/// `M501` in config.g loads config-override.g, whose M665/M666 the firmware
+/// runs: `reprap` reads it there, as the firmware does, so the fit starts
+/// from the saved calibration (a stale config.g geometry would be written
+/// back over it); without the file it refuses, naming both (issue 39, 6).
+#[test]
+fn reprap_reads_config_override_at_m501() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // config.g holds a stale geometry; the calibration the printer runs is
+    // in config-override.g, loaded by M501; a line after M501 overrides B.
+    std::fs::write(
+        d.join("config.g"),
+        "M665 L350 R180 H456 B140\nM666 X1 Y-1 Z0\nM501 ; load saved parameters\nM665 B150\n",
+    )
+    .unwrap();
+    std::fs::write(
+        d.join("config-override.g"),
+        "; config-override.g file generated in response to M500\nM307 H0 A340.0 C140.0 D5.5\nM665 L360 R190 H420 B100 X0 Y0 Z0\nM666 X0 Y0 Z0 A0 B0\n",
+    )
+    .unwrap();
+    let mut csv = String::from("x,y,z\n");
+    for [x, y] in points() {
+        csv.push_str(&format!("{x},{y},{:.9}\n", probe(x, y)));
+    }
+    std::fs::write(d.join("probes.csv"), csv).unwrap();
+    let out = ok(
+        d,
+        &[
+            "reprap",
+            "--config",
+            "config.g",
+            "--probes",
+            "probes.csv",
+            "--free",
+            "default,bed.rx,bed.ry",
+            "--out",
+            "new.g",
+        ],
+    );
+    let new = parse(&std::fs::read_to_string(d.join("new.g")).unwrap());
+    for i in 0..3 {
+        assert!(
+            (new.homed()[i] - TRUTH.homed()[i]).abs() < RECOVERED,
+            "homed {i}: {out}"
+        );
+    }
+    assert!(
+        out.contains("config-override.g when config.g runs M501"),
+        "{out}"
+    );
+    // The override is an input: never an output.
+    fails(
+        d,
+        &[
+            "reprap",
+            "--config",
+            "config.g",
+            "--probes",
+            "probes.csv",
+            "--out",
+            "config-override.g",
+        ],
+        2,
+        "also an input",
+    );
+    // Without it: refused, naming the M501 line and the missing file.
+    std::fs::remove_file(d.join("config-override.g")).unwrap();
+    fails(
+        d,
+        &["reprap", "--config", "config.g", "--probes", "probes.csv"],
+        1,
+        "config.g:3: M501 loads config-override.g",
+    );
+}
