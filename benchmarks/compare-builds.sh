@@ -1,7 +1,9 @@
 #!/bin/bash
 # Compare calibrations and predictions of two builds on every shipped example
 # (40 simulated poses each): identified parameters and predictions, max
-# differences, and the calibration's wall time.
+# differences, and the calibration's wall time. Exits 1 when any parameter
+# file or prediction differs by a single byte (a change meant to be bit for
+# bit the same must pass it).
 #   OLD=/path/to/other/pkmcal bash benchmarks/compare-builds.sh
 set -u
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
@@ -9,6 +11,7 @@ OLD=${OLD:?set OLD to the pkmcal binary of the other build}
 NEW=${NEW:-$ROOT/target/release/pkmcal}
 EX=$ROOT/examples
 W=$(mktemp -d); trap 'rm -rf "$W"' EXIT; cd "$W"
+status=0
 for ex in jeong-kim-2dof jeong-kim-planar five-bar 3-rrr 4-rrr gough-stewart-6 gough-stewart-8 linear-delta linear-delta-4 rotary-delta 3-prs spatial-gough-stewart-6; do
   M=$EX/$ex/mechanism.toml
   printf '' > t.toml
@@ -33,4 +36,8 @@ def pred(f):
 pa,pb=pred(f'{ex}.OLD.pred.csv'),pred(f'{ex}.NEW.pred.csv')
 print(f"  {ex}: params max diff {max(abs(x-y) for x,y in zip(a,b)):.2e}; predictions max diff {max(abs(x-y) for r,s in zip(pa,pb) for x,y in zip(r,s)):.2e}")
 PY
+  for f in toml pred.csv; do
+    if ! cmp -s $ex.OLD.$f $ex.NEW.$f || [ ! -s $ex.NEW.$f ]; then echo "  $ex: $f DIFFERENT"; status=1; fi
+  done
 done
+exit $status
