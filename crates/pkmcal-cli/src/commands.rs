@@ -527,7 +527,7 @@ pub fn demo(a: DemoArgs) -> Result<()> {
     use crate::calibrate::{print_identifiability, print_stats, print_stats_header};
     let mech: Mech = pkmcal::JeongKim2Dof::new().into();
     let spec = mech.spec();
-    let truth = pkmcal::reference::demo_truth();
+    let truth = pkmcal::kinds::reference::demo_truth();
     let dir = &a.out_dir;
     // The demo's own calibrations read its files internally; only what it
     // writes follows --units.

@@ -1055,7 +1055,7 @@ pub fn progress(len: u64, quiet: bool, what: &str, min_items: u64) -> indicatif:
 }
 
 /// Measurement noise from `--noise MM` and `--angle-noise RAD` (default: the
-/// length noise over [`pkmcal::simulate::DEFAULT_ANGLE_LEVER_MM`]).
+/// length noise over [`pkmcal::measurement::data::DEFAULT_ANGLE_LEVER_MM`]).
 pub fn noise_arg(mm: f64, rad: Option<f64>) -> pkmcal::Noise {
     // The ranges are checked by the option parser (`values::length_noise`,
     // `values::angle_noise`).

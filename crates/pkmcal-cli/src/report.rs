@@ -7,7 +7,7 @@ use crate::figures::{self, Figure, ParamBar};
 use crate::io::Mech;
 use anyhow::Result;
 use base64::Engine;
-use pkmcal::calibration::{CrossValidation, ErrorVectors, RANK_TOL};
+use pkmcal::identify::calibration::{CrossValidation, ErrorVectors, RANK_TOL};
 use pkmcal::{
     Accuracy, Calibration, ErrorStats, Measurement, Mechanism, Model, prepare_pose,
     sample_workspace, tool_covariance,
@@ -53,7 +53,7 @@ const MAP_SWEEP_POINTS: usize = 41;
 /// angles are not pooled.
 fn miss_and_sigma(mech: &Mech, cal: &pkmcal::Calibration, target: &[f64]) -> Option<(f64, f64)> {
     let spec = mech.spec();
-    let p = pkmcal::workspace::workspace_point(mech, target).ok()?;
+    let p = pkmcal::apply::workspace::workspace_point(mech, target).ok()?;
     if p.conditioning < spec.min_conditioning {
         return None;
     }
@@ -269,7 +269,7 @@ pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
         })
         .collect::<pkmcal::Result<_>>()?;
     // The workspace lattice behind the plan view, within a point budget.
-    let spacing = pkmcal::workspace::lattice_spacing(spec, MAP_SPACING_MM, MAP_POINTS);
+    let spacing = pkmcal::engine::atlas::lattice_spacing(spec, MAP_SPACING_MM, MAP_POINTS);
     let lattice = sample_workspace(r.mech, spacing);
     let (slices, sweeps) = map_data(r.mech, cal)?;
     let unit_weight = cal.unit_weight_sigma.max(f64::MIN_POSITIVE);

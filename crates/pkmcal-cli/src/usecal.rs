@@ -256,7 +256,7 @@ pub fn parse_grid(
                     return Err(bad("needs START ≤ STOP and a positive STEP").into());
                 }
                 let count = ((b - a) / step + 1e-9).floor() as usize + 1;
-                if count > pkmcal::compensation::MAX_GRID_NODES {
+                if count > pkmcal::apply::compensation::MAX_GRID_NODES {
                     return Err(bad("too many nodes; use a larger step").into());
                 }
                 axes.push((
@@ -523,10 +523,10 @@ pub fn run_plan(c: PlanConfig) -> Result<()> {
         return crate::output::usage("--candidates must be a positive spacing in mm");
     }
     let bar = crate::io::progress(0, c.quiet, "planning steps", 0);
-    let plan = pkmcal::planning::plan(
+    let plan = pkmcal::apply::planning::plan(
         &mech,
         &params,
-        &pkmcal::planning::PlanOptions {
+        &pkmcal::apply::planning::PlanOptions {
             count: c.count,
             criterion: c.criterion,
             model: c.model,
@@ -584,7 +584,8 @@ pub fn run_plan(c: PlanConfig) -> Result<()> {
                 notes.push_str(&format!(
                     ", coarsened from {} mm to stay within {} lattice points",
                     c.candidates,
-                    pkmcal::planning::MAX_CANDIDATE_LATTICE.min(c.max_candidates.saturating_mul(4))
+                    pkmcal::apply::planning::MAX_CANDIDATE_LATTICE
+                        .min(c.max_candidates.saturating_mul(4))
                 ));
             }
             if lattice_points > n_candidates {

@@ -9,7 +9,9 @@ use numpy::{
     AllowTypeChange, IntoPyArray, PyArray1, PyArrayLikeDyn, PyReadonlyArrayDyn,
     PyUntypedArrayMethods,
 };
-use pkmcal::calibration::{Calibration as LibCalibration, CrossValidation, Identifiability};
+use pkmcal::identify::calibration::{
+    Calibration as LibCalibration, CrossValidation, Identifiability,
+};
 use pkmcal::{
     AnyMechanism, CalibrationOptions, Frame, Loss, MeasurementModel, Mechanism as _, Model, Noise,
     Origin, Params,
@@ -1091,8 +1093,8 @@ impl PyWarning {
     }
 }
 
-fn warning(w: &pkmcal::calibration::Warning) -> PyWarning {
-    use pkmcal::calibration::WarningKind as K;
+fn warning(w: &pkmcal::identify::calibration::Warning) -> PyWarning {
+    use pkmcal::identify::calibration::WarningKind as K;
     PyWarning {
         kind: match w.kind {
             K::StiffnessRatios { .. } => "stiffness_ratios",
@@ -1186,7 +1188,7 @@ impl PyIdentifiability {
 
 fn observability<'py>(
     py: Python<'py>,
-    o: &pkmcal::calibration::Observability,
+    o: &pkmcal::identify::calibration::Observability,
 ) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     for (k, v) in [
@@ -1247,8 +1249,8 @@ struct PyCalibration {
     measurement: MeasurementModel,
     cal: LibCalibration,
     data: Vec<pkmcal::Measurement>,
-    before: pkmcal::calibration::ErrorVectors,
-    after: pkmcal::calibration::ErrorVectors,
+    before: pkmcal::identify::calibration::ErrorVectors,
+    after: pkmcal::identify::calibration::ErrorVectors,
     accuracy: pkmcal::Accuracy,
     validation: Option<Validation>,
     cross_validation: Option<CrossValidation>,

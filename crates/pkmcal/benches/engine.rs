@@ -2,7 +2,7 @@
 //! prediction of 10,000 poses (one core).
 
 use criterion::{BatchSize, Criterion, criterion_group, criterion_main};
-use pkmcal::reference::demo_truth;
+use pkmcal::kinds::reference::demo_truth;
 use pkmcal::*;
 use std::hint::black_box;
 

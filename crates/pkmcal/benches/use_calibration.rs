@@ -2,7 +2,7 @@
 //! Monte Carlo calibrations per second.
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use pkmcal::reference::demo_truth;
+use pkmcal::kinds::reference::demo_truth;
 use pkmcal::*;
 use rayon::prelude::*;
 use std::hint::black_box;

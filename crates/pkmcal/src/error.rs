@@ -69,7 +69,7 @@ pub enum Error {
 
 impl Error {
     /// This error located at a measured pose.
-    pub fn at_pose(self, origin: crate::simulate::Origin) -> Error {
+    pub fn at_pose(self, origin: crate::error::Origin) -> Error {
         match self {
             e @ Error::Pose { .. } => e,
             e => Error::Pose {
@@ -84,3 +84,28 @@ impl Error {
 
 /// Result type of the library.
 pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// Where a pose came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
+pub struct Origin {
+    /// Pose number in the data file (1-based, file order).
+    pub pose: usize,
+    /// Line in the data file.
+    pub line: Option<u64>,
+    /// Whether the row is a distance between two poses
+    /// ([`Measurement::partner`]); `pose` is then its number among the
+    /// distances (their own file's numbering in the command-line tool).
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub distance: bool,
+}
+
+impl std::fmt::Display for Origin {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let what = if self.distance { "distance" } else { "pose" };
+        write!(f, "{what} {}", self.pose)?;
+        if let Some(l) = self.line {
+            write!(f, " (line {l})")?;
+        }
+        Ok(())
+    }
+}

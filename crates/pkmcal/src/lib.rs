@@ -11,11 +11,11 @@
 //! | relation | function |
 //! |---|---|
 //! | eq. 3 loop closure, tool map | [`Mechanism::constraints`], [`Mechanism::tool`] |
-//! | eq. 4 derivatives | [`autodiff::jacobians`] |
+//! | eq. 4 derivatives | [`mechanism::autodiff::jacobians`] |
 //! | eq. 5–7, 9: Φ, J_p, Γ, H, J_f | [`linearize`] |
 //! | eq. 10 load `P` | [`load_vector`] |
 //! | eq. 11 Λ and joint errors | [`projection`], [`joint_errors`] |
-//! | eq. 2 torques | [`linearized::torques`] |
+//! | eq. 2 torques | [`engine::linearized::torques`] |
 //! | exact equilibrium | [`equilibrium`] |
 //! | three forward models | [`predict_pose`], [`Model`] |
 //!
@@ -33,80 +33,63 @@
 //! assert!(p.torque.iter().any(|t| t.abs() > 1.0)); // the actuators fight
 //! ```
 
-pub mod any;
-pub mod autodiff;
-pub mod ballbar;
-pub mod calibration;
-pub mod compensation;
+pub mod apply;
+pub mod engine;
 pub mod error;
-pub mod frame;
-pub mod gough_stewart;
-pub mod kinematics;
-mod kkt;
-pub mod linearized;
+pub mod identify;
+pub mod kinds;
+pub mod linalg;
 pub mod lm;
-pub mod load;
-pub mod lu;
 pub mod measurement;
 pub mod mechanism;
-pub mod models;
-pub mod montecarlo;
-pub mod noise;
-pub mod planar;
-pub mod planning;
-pub mod reference;
-pub mod sensitivity;
-pub mod simulate;
-pub mod spatial;
-pub mod stats;
 pub mod units;
-pub mod workspace;
 
-pub use any::AnyMechanism;
-pub use ballbar::{Setup, trilaterate};
-pub use calibration::{
+pub use apply::compensation::{
+    Compensation, CompensationOptions, CorrectionGrid, GridAxis, InterpolationError, Predistortion,
+    compensate, controller_commands, correction_grid, interpolation_error, predistort,
+};
+pub use apply::montecarlo::{
+    MonteCarloOptions, MonteCarloSummary, monte_carlo, validation_targets,
+};
+pub use apply::planning::{
+    Plan, PlanCriterion, PlanOptions, candidate_jacobians, plan, plan_observability, plan_poses,
+    plan_poses_with_progress,
+};
+pub use apply::simulate::{simulate, simulate_distances, simulate_with_progress};
+pub use apply::workspace::{
+    WorkspacePoint, grid_targets, nominal_commands, random_targets, sample_workspace,
+    spread_targets,
+};
+pub use engine::kinematics::{
+    check_params, forward_kinematics, inverse_kinematics, reference_configuration, solve_closure,
+};
+pub use engine::linearized::{
+    Linearization, joint_errors, linearize, load_vector, projection, tool_derivatives,
+};
+pub use engine::models::{
+    Equilibrium, Model, Pose, Prediction, equilibrium, predict, predict_pose, predict_pose_warm,
+    prepare_pose,
+};
+pub use error::{Error, Origin, Result};
+pub use identify::calibration::{
     Accuracy, Calibration, CalibrationOptions, DistanceAccuracy, Identifiability, Loss, Outlier,
     ParameterCovariance, PoseCache, accuracy, analyze, calibrate, calibrate_with_cache,
     calibration_accuracy, calibration_accuracy_with_cache, cross_validate,
     cross_validate_with_progress, holdout_split, predict_with_uncertainty, tool_covariance,
 };
-pub use compensation::{
-    Compensation, CompensationOptions, CorrectionGrid, GridAxis, InterpolationError, Predistortion,
-    compensate, controller_commands, correction_grid, interpolation_error, predistort,
-};
-pub use error::{Error, Result};
-pub use frame::ToolLayout;
-pub use gough_stewart::{GoughStewart, GoughStewartAssembly, GoughStewartDescription};
-pub use kinematics::{
-    check_params, forward_kinematics, inverse_kinematics, reference_configuration, solve_closure,
-};
-pub use linearized::{
-    Linearization, joint_errors, linearize, load_vector, projection, tool_derivatives,
-};
+pub use identify::noise::NoiseGroup;
+pub use identify::stats::{ErrorStats, error_stats, improvement_percent};
+pub use kinds::any::AnyMechanism;
+pub use kinds::gough_stewart::{GoughStewart, GoughStewartAssembly, GoughStewartDescription};
+pub use kinds::planar::{PlanarDescription, PlanarLinkage};
+pub use kinds::reference::JeongKim2Dof;
+pub use kinds::spatial::{SpatialDescription, SpatialMechanism};
+pub use measurement::ballbar::{Setup, trilaterate};
+pub use measurement::data::{Measurement, Noise};
 pub use measurement::{DISTANCE_AXIS, Frame, Instrument, MeasurementModel, MeasurementSummary};
+pub use mechanism::tool::ToolLayout;
 pub use mechanism::{Mechanism, Params, Scalar, Spec};
-pub use models::{
-    Equilibrium, Model, Pose, Prediction, equilibrium, predict, predict_pose, predict_pose_warm,
-    prepare_pose,
-};
-pub use montecarlo::{MonteCarloOptions, MonteCarloSummary, monte_carlo, validation_targets};
-pub use noise::NoiseGroup;
-pub use planar::{PlanarDescription, PlanarLinkage};
-pub use planning::{
-    Plan, PlanCriterion, PlanOptions, candidate_jacobians, plan, plan_observability, plan_poses,
-    plan_poses_with_progress,
-};
-pub use reference::JeongKim2Dof;
-pub use simulate::{
-    Measurement, Noise, Origin, simulate, simulate_distances, simulate_with_progress,
-};
-pub use spatial::{SpatialDescription, SpatialMechanism};
-pub use stats::{ErrorStats, error_stats, improvement_percent};
 pub use units::{AngleUnit, FileUnits, LengthUnit, ParamKind, PartialUnits, Quantity, Role, Unit};
-pub use workspace::{
-    WorkspacePoint, grid_targets, nominal_commands, random_targets, sample_workspace,
-    spread_targets,
-};
 
 /// The mechanism file of `examples/<name>` as a table (without `type` and
 /// the targets), for a description's `try_into` in unit tests.

@@ -399,6 +399,12 @@ impl PartialUnits {
     }
 }
 
+/// N·mm → N·m: a tool force (N) times a length in mm gives 1e-3 N·m.
+pub const MM_TO_M: f64 = 1e-3;
+
+/// N·m to N·mm.
+pub const M_TO_MM: f64 = 1e3;
+
 #[cfg(test)]
 mod tests {
     use super::*;

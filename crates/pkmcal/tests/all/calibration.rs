@@ -3,9 +3,9 @@
 
 use crate::common;
 
-use pkmcal::calibration::{Columns, IdentificationProblem, analyze_identifiability};
-use pkmcal::reference::{JeongKim2Dof, demo_truth};
-use pkmcal::sensitivity::sensitivity;
+use pkmcal::engine::sensitivity::sensitivity;
+use pkmcal::identify::calibration::{Columns, IdentificationProblem, analyze_identifiability};
+use pkmcal::kinds::reference::{JeongKim2Dof, demo_truth};
 use pkmcal::*;
 
 /// Exact Jacobian against Richardson-extrapolated central differences,
@@ -156,8 +156,8 @@ const SAME_ERRORS: f64 = 1e-9;
 
 type AccuracyOf = (
     Accuracy,
-    pkmcal::calibration::ErrorVectors,
-    pkmcal::calibration::ErrorVectors,
+    pkmcal::identify::calibration::ErrorVectors,
+    pkmcal::identify::calibration::ErrorVectors,
 );
 
 /// The accuracy of `cal` on `d` through `calibration_accuracy_with_cache`
@@ -171,7 +171,7 @@ fn reused_and_fresh<M: Mechanism>(
 ) -> (AccuracyOf, AccuracyOf) {
     let tool = MeasurementModel::tool(mech.spec());
     let reused = calibration_accuracy_with_cache(mech, &tool, d, cal, &[], cache).unwrap();
-    let fresh = pkmcal::calibration::accuracy(
+    let fresh = pkmcal::identify::calibration::accuracy(
         mech,
         &tool,
         d,
@@ -243,7 +243,7 @@ fn a_set_cancel_flag_stops_every_fit() {
     assert!(
         cal.warnings.iter().any(|w| matches!(
             w.kind,
-            pkmcal::calibration::WarningKind::NotConverged { .. }
+            pkmcal::identify::calibration::WarningKind::NotConverged { .. }
         )),
         "{:?}",
         cal.warnings

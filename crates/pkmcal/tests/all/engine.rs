@@ -4,8 +4,8 @@
 use crate::common;
 
 use nalgebra::{DMatrix, DVector};
-use pkmcal::autodiff::{jacobians, output_hessians};
-use pkmcal::reference::{DEMO_ERRORS, JeongKim2Dof, demo_truth};
+use pkmcal::kinds::reference::{DEMO_ERRORS, JeongKim2Dof, demo_truth};
+use pkmcal::mechanism::autodiff::{jacobians, output_hessians};
 use pkmcal::*;
 use proptest::prelude::*;
 
@@ -126,7 +126,7 @@ proptest! {
         let analytic = mech.weighted_hessian(&q, &rho, &lambda, &mu);
         let h = output_hessians(&mech, &q, &rho, 0..5, 0..21);
         let weights: Vec<f64> = lambda.iter().chain(&mu).copied().collect();
-        let ad = pkmcal::autodiff::weighted_sum(&h, &weights);
+        let ad = pkmcal::mechanism::autodiff::weighted_sum(&h, &weights);
         assert_close(&analytic, &ad, 1e-12, "weighted Hessian");
     }
 
@@ -434,7 +434,8 @@ fn gough_stewart_closed_form_derivatives_equal_automatic_ones() {
             }
             for cols in [0..n, 0..spec.joints.len(), 3..17, n - 5..n, 0..0] {
                 let closed = jacobians(&gs, &q, &rho, cols.clone());
-                let auto = pkmcal::autodiff::automatic_jacobians(&gs, &q, &rho, cols.clone());
+                let auto =
+                    pkmcal::mechanism::autodiff::automatic_jacobians(&gs, &q, &rho, cols.clone());
                 let close = |a: f64, b: f64| (a - b).abs() <= CLOSED_FORM_REL * (1.0 + b.abs());
                 assert!(
                     closed.g.iter().zip(&auto.g).all(|(a, b)| close(*a, *b)),
@@ -536,7 +537,7 @@ fn reference_closed_form_derivatives_equal_automatic_ones() {
         }
         for cols in [0..n, 0..spec.joints.len(), 3..17, n - 5..n, 0..0] {
             let closed = jacobians(&m, &q, &rho, cols.clone());
-            let auto = pkmcal::autodiff::automatic_jacobians(&m, &q, &rho, cols.clone());
+            let auto = pkmcal::mechanism::autodiff::automatic_jacobians(&m, &q, &rho, cols.clone());
             let close = |a: f64, b: f64| (a - b).abs() <= CLOSED_FORM_REL * (1.0 + b.abs());
             assert!(closed.g.iter().zip(&auto.g).all(|(a, b)| close(*a, *b)));
             assert!(closed.x.iter().zip(&auto.x).all(|(a, b)| close(*a, *b)));
@@ -579,7 +580,7 @@ fn reference_closed_form_derivatives_equal_automatic_ones() {
         let weights: Vec<f64> = (0..5).map(|_| rng.random_range(-2.0..2.0)).collect();
         let closed = m.weighted_hessian(&q, &rho, &weights[..3], &weights[3..]);
         let h = output_hessians(&m, &q, &rho, 0..nq, 0..n);
-        let auto = pkmcal::autodiff::weighted_sum(&h, &weights);
+        let auto = pkmcal::mechanism::autodiff::weighted_sum(&h, &weights);
         assert_eq!(closed.shape(), auto.shape());
         assert!(
             closed.iter().zip(auto.iter()).all(|(x, y)| close(*x, *y)),
@@ -614,7 +615,7 @@ fn gough_stewart_closed_form_hessians_equal_automatic_ones() {
             let closed = gs.weighted_hessian(&q, &rho, &lambda, &mu);
             let h = output_hessians(&gs, &q, &rho, 0..nq, 0..nq + ng);
             let weights: Vec<f64> = lambda.iter().chain(&mu).copied().collect();
-            let auto = pkmcal::autodiff::weighted_sum(&h, &weights);
+            let auto = pkmcal::mechanism::autodiff::weighted_sum(&h, &weights);
             assert_eq!(closed.shape(), auto.shape());
             assert!(
                 closed.iter().zip(auto.iter()).all(|(a, b)| close(*a, *b)),

@@ -4,7 +4,7 @@
 
 use crate::common;
 use common::{gough_stewart, perturbed, spread};
-use pkmcal::frame::{observe, to_base};
+use pkmcal::measurement::frame::{observe, to_base};
 use pkmcal::{
     CalibrationOptions, Frame, JeongKim2Dof, Measurement, MeasurementModel, Mechanism, Model,
     Noise, Params, calibrate, calibration_accuracy, simulate,

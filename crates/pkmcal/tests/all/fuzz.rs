@@ -8,7 +8,7 @@
 //! `PKMCAL_FUZZ_CASES=100000 cargo test --release -p pkmcal --test all fuzz`.
 
 use crate::common;
-use pkmcal::reference::JeongKim2Dof;
+use pkmcal::kinds::reference::JeongKim2Dof;
 use pkmcal::*;
 use proptest::prelude::*;
 use std::sync::OnceLock;
@@ -115,7 +115,7 @@ proptest! {
             if let Ok(p) = predict_pose(mech, &pose, &params, model, &force) {
                 prop_assert!(finite(&p.x) || !finite(&force), "{:?}", p.x);
             }
-            let _ = pkmcal::sensitivity::sensitivity(mech, &pose, &params, model, &force);
+            let _ = pkmcal::engine::sensitivity::sensitivity(mech, &pose, &params, model, &force);
         }
     }
 

@@ -4,6 +4,7 @@
 
 mod common;
 
+mod architecture;
 mod calibration;
 mod engine;
 mod frame;

@@ -4,8 +4,8 @@
 
 use crate::common;
 use common::{gough_stewart, perturbed, planar, spread};
-use pkmcal::calibration::IdentificationProblem;
-use pkmcal::reference::JeongKim2Dof;
+use pkmcal::identify::calibration::IdentificationProblem;
+use pkmcal::kinds::reference::JeongKim2Dof;
 use pkmcal::*;
 
 /// Exact Jacobian against central differences, relative to the largest
@@ -230,7 +230,7 @@ fn ball_offset_on_a_platform_is_identified() {
         .into_iter()
         .map(|m| {
             let p = &m.measured;
-            let r = pkmcal::gough_stewart::rotation(p[3], p[4], p[5]);
+            let r = pkmcal::linalg::pose::rotation(p[3], p[4], p[5]);
             let t = [10.0, -5.0, 30.0];
             let ball: Vec<f64> = (0..3)
                 .map(|i| p[i] + (0..3).map(|j| r[i][j] * t[j]).sum::<f64>())

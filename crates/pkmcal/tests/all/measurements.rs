@@ -2,7 +2,7 @@
 
 use crate::common;
 
-use pkmcal::reference::{JeongKim2Dof, demo_truth};
+use pkmcal::kinds::reference::{JeongKim2Dof, demo_truth};
 use pkmcal::*;
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};

@@ -306,7 +306,7 @@ y = [120.0, 200.0]
 /// at perturbed parameters and joints away from closure.
 #[test]
 fn planar_closed_form_derivatives_equal_automatic_ones() {
-    use pkmcal::autodiff::{automatic_jacobians, jacobians, output_hessians};
+    use pkmcal::mechanism::autodiff::{automatic_jacobians, jacobians, output_hessians};
     use rand::{RngExt, SeedableRng};
     let mut linkages: Vec<PlanarLinkage> = ["five-bar", "3-rrr", "4-rrr", "jeong-kim-planar"]
         .iter()
@@ -368,7 +368,7 @@ fn planar_closed_form_derivatives_equal_automatic_ones() {
             let m = spec.n_constraints;
             let closed = l.weighted_hessian(&q, &rho, &weights[..m], &weights[m..]);
             let h = output_hessians(l, &q, &rho, 0..nq, 0..n);
-            let auto = pkmcal::autodiff::weighted_sum(&h, &weights);
+            let auto = pkmcal::mechanism::autodiff::weighted_sum(&h, &weights);
             assert_eq!(closed.shape(), auto.shape());
             assert!(
                 closed.iter().zip(auto.iter()).all(|(x, y)| close(*x, *y)),
@@ -389,7 +389,7 @@ fn lattice_points_are_each_targets_own_inverse_kinematics() {
         let points = pkmcal::sample_workspace(&mech, 20.0);
         assert!(points.len() > 20, "{name}: {} points", points.len());
         for p in &points {
-            let alone = pkmcal::workspace::workspace_point(&mech, &p.target).unwrap();
+            let alone = pkmcal::apply::workspace::workspace_point(&mech, &p.target).unwrap();
             let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
             assert_eq!(bits(&alone.q), bits(&p.q), "{name} at {:?}", p.target);
             assert_eq!(alone.conditioning.to_bits(), p.conditioning.to_bits());

@@ -6,7 +6,7 @@
 
 use crate::common;
 use common::{gough_stewart, perturbed_by_unit, spatial, table};
-use pkmcal::autodiff::{automatic_jacobians, jacobians, output_hessians, weighted_sum};
+use pkmcal::mechanism::autodiff::{automatic_jacobians, jacobians, output_hessians, weighted_sum};
 use pkmcal::{Mechanism, Model, Params, SpatialDescription, SpatialMechanism};
 use rand::{RngExt, SeedableRng};
 
@@ -539,9 +539,14 @@ fn distances_between_poses_identify_a_deltas_arm_lengths() {
     let data: Vec<pkmcal::Measurement> = heights.iter().chain(&distances).cloned().collect();
 
     // Exact Jacobian of mixed rows.
-    let problem =
-        pkmcal::calibration::IdentificationProblem::new(&m, &probe, &data, Model::Exact, &[])
-            .unwrap();
+    let problem = pkmcal::identify::calibration::IdentificationProblem::new(
+        &m,
+        &probe,
+        &data,
+        Model::Exact,
+        &[],
+    )
+    .unwrap();
     assert_eq!(problem.n_readings(), heights.len() + distances.len());
     let x: Vec<f64> = truth
         .values
@@ -639,10 +644,16 @@ fn distance_rows_are_checked() {
         measured: vec![0.0],
         ..Default::default()
     };
-    let e = pkmcal::calibration::IdentificationProblem::new(&m, &tool, &[row], Model::Exact, &[])
-        .err()
-        .unwrap()
-        .to_string();
+    let e = pkmcal::identify::calibration::IdentificationProblem::new(
+        &m,
+        &tool,
+        &[row],
+        Model::Exact,
+        &[],
+    )
+    .err()
+    .unwrap()
+    .to_string();
     assert!(
         e.contains("distances between poses") && e.contains("distance 1"),
         "{e}"
@@ -660,11 +671,16 @@ fn distance_rows_are_checked() {
     )
     .unwrap();
     rows[1].measured.push(1.0);
-    let e =
-        pkmcal::calibration::IdentificationProblem::new(&delta, &probe, &rows, Model::Exact, &[])
-            .err()
-            .unwrap()
-            .to_string();
+    let e = pkmcal::identify::calibration::IdentificationProblem::new(
+        &delta,
+        &probe,
+        &rows,
+        Model::Exact,
+        &[],
+    )
+    .err()
+    .unwrap()
+    .to_string();
     assert!(e.contains("distance 2: readings (distance)"), "{e}");
 }
 
@@ -910,7 +926,10 @@ fn tool_derivatives_by_the_adjoint_equal_the_linearisation() {
             }
         }
     }
-    check("jeong-kim-2dof", &pkmcal::reference::JeongKim2Dof::new());
+    check(
+        "jeong-kim-2dof",
+        &pkmcal::kinds::reference::JeongKim2Dof::new(),
+    );
     check("4-rrr", &common::planar("4-rrr"));
     check("gough-stewart-8", &gough_stewart("gough-stewart-8"));
     for name in EXAMPLES {

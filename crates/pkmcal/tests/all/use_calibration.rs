@@ -2,8 +2,8 @@
 
 use crate::common;
 
-use pkmcal::linearized::linearize;
-use pkmcal::reference::{JeongKim2Dof, demo_truth};
+use pkmcal::engine::linearized::linearize;
+use pkmcal::kinds::reference::{JeongKim2Dof, demo_truth};
 use pkmcal::*;
 
 /// Compensated commands must reach the target under the exact model (mm).
@@ -117,7 +117,7 @@ fn planned_poses_beat_a_plain_grid() {
     points.extend(grid_targets(&mech, 20).unwrap());
     let c =
         candidate_jacobians(&mech, points, &Params::nominal(spec), Model::Exact, &free).unwrap();
-    let pool = pkmcal::planning::Candidates {
+    let pool = pkmcal::apply::planning::Candidates {
         points: c.points[..n].to_vec(),
         rows: c.rows[..n].to_vec(),
     };
@@ -126,7 +126,7 @@ fn planned_poses_beat_a_plain_grid() {
     for (crit, value) in [
         (
             PlanCriterion::O1,
-            (|o: &pkmcal::calibration::Observability| o.o1) as fn(&_) -> f64,
+            (|o: &pkmcal::identify::calibration::Observability| o.o1) as fn(&_) -> f64,
         ),
         (PlanCriterion::O3, |o| o.o3),
         (PlanCriterion::O5, |o| o.o5),

@@ -2,7 +2,7 @@
 //! reachable poses.
 #![allow(dead_code)]
 
-use pkmcal::reference::JeongKim2Dof;
+use pkmcal::kinds::reference::JeongKim2Dof;
 use pkmcal::{Mechanism, Scalar, Spec, spread_targets};
 
 /// The reference mechanism with only `q1, q2` actuated (non-redundant).

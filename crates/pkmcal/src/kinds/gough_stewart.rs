@@ -19,6 +19,7 @@
 //!   joints (the rigid model drives them).
 
 use crate::error::{Error, Result};
+use crate::linalg::pose::{rotation, transform};
 use crate::mechanism::{Mechanism, Scalar, Spec};
 use crate::units::Unit;
 use serde::Deserialize;
@@ -91,31 +92,9 @@ pub struct GoughStewartDescription {
 pub struct GoughStewart {
     spec: Spec,
     n: usize,
-    atlas: crate::workspace::Atlas,
+    atlas: crate::engine::atlas::Atlas,
     /// Sign of the forward-kinematics determinant at the reference pose.
     branch: i8,
-}
-
-/// `R = Rz(c) Ry(b) Rx(a)`, row-major.
-pub fn rotation<D: Scalar>(a: D, b: D, c: D) -> [[D; 3]; 3] {
-    let (sa, ca) = a.sin_cos();
-    let (sb, cb) = b.sin_cos();
-    let (sc, cc) = c.sin_cos();
-    [
-        [cc * cb, cc * sb * sa - sc * ca, cc * sb * ca + sc * sa],
-        [sc * cb, sc * sb * sa + cc * ca, sc * sb * ca - cc * sa],
-        [-sb, cb * sa, cb * ca],
-    ]
-}
-
-/// `p + R v` for a pose `[x, y, z, rx, ry, rz]`.
-pub(crate) fn transform<D: Scalar>(pose: &[D], v: [D; 3]) -> [D; 3] {
-    let r = rotation(pose[3], pose[4], pose[5]);
-    let mut out = [pose[0], pose[1], pose[2]];
-    for (i, o) in out.iter_mut().enumerate() {
-        *o += r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2];
-    }
-    out
 }
 
 impl GoughStewart {
@@ -164,7 +143,8 @@ impl GoughStewart {
         let mut joints: Vec<String> = (1..=n).map(|i| format!("L{i}")).collect();
         joints.extend(POSE_AXES.iter().map(|s| s.to_string()));
         let tool_axes: Vec<String> = POSE_AXES.iter().map(|s| s.to_string()).collect();
-        let workspace_box = crate::workspace::box_from_description(&tool_axes, &d.workspace)?;
+        let workspace_box =
+            crate::kinds::description::box_from_description(&tool_axes, &d.workspace)?;
         let free = match &d.free {
             Some(f) => f.clone(),
             None => geometric.iter().chain(&offsets).cloned().collect(),
@@ -188,7 +168,7 @@ impl GoughStewart {
                     .collect(),
                 geometric_units: vec![Unit::Millimetre; 6 * n],
                 tool_units: POSE_UNITS.to_vec(),
-                tool_layout: crate::frame::ToolLayout::SpatialPose,
+                tool_layout: crate::mechanism::tool::ToolLayout::SpatialPose,
                 nominal,
                 reference_q: vec![0.0; n + 6],
                 default_free: free,
@@ -218,19 +198,19 @@ impl GoughStewart {
         gs.spec.reference_q = gs.ik(&d.assembly.pose, &rho)?;
         gs.spec.validate()?;
         // The first six legs must determine the pose at the reference.
-        let j = crate::autodiff::jacobians(&gs, &gs.spec.reference_q, &rho, 0..n + 6);
+        let j = crate::mechanism::autodiff::jacobians(&gs, &gs.spec.reference_q, &rho, 0..n + 6);
         let dep: Vec<usize> = (6..n + 6).collect();
-        if crate::kinematics::checked_lu(j.dg.select_columns(&dep)).is_none() {
+        if crate::linalg::solve::checked_lu(j.dg.select_columns(&dep)).is_none() {
             return bad(
                 "the reference pose is singular for the first six legs; move it or reorder the legs"
                     .into(),
             );
         }
-        gs.branch = crate::kinematics::branch_signs(&gs, &gs.spec.reference_q, &rho)[0];
+        gs.branch = crate::engine::kinematics::branch_signs(&gs, &gs.spec.reference_q, &rho)[0];
         // The atlas covers every reachable pose (min_conditioning still 0).
-        gs.atlas = crate::workspace::Atlas::build(&gs, ATLAS_POINTS);
-        gs.spec.min_conditioning = crate::workspace::RELATIVE_CONDITIONING
-            * crate::workspace::conditioning(&gs, &gs.spec.reference_q, &rho);
+        gs.atlas = crate::engine::atlas::Atlas::build(&gs, ATLAS_POINTS);
+        gs.spec.min_conditioning = crate::engine::atlas::RELATIVE_CONDITIONING
+            * crate::engine::atlas::conditioning(&gs, &gs.spec.reference_q, &rho);
         Ok(gs)
     }
 
@@ -496,7 +476,7 @@ impl Mechanism for GoughStewart {
         q: &[f64],
         rho: &[f64],
         cols: std::ops::Range<usize>,
-    ) -> Option<crate::autodiff::Jacobians> {
+    ) -> Option<crate::mechanism::autodiff::Jacobians> {
         use nalgebra::{DMatrix, Vector3};
         let n = self.n;
         let nq = n + 6;
@@ -538,7 +518,7 @@ impl Mechanism for GoughStewart {
         for k in 0..6 {
             put(&mut dx, k, n + k, 1.0);
         }
-        Some(crate::autodiff::Jacobians {
+        Some(crate::mechanism::autodiff::Jacobians {
             g,
             x: pose.to_vec(),
             dg,
@@ -602,18 +582,23 @@ impl Mechanism for GoughStewart {
     }
 
     /// The assembly mode of the reference pose: the same sign of the forward
-    /// kinematics determinant ([`crate::kinematics::branch_signs`]).
+    /// kinematics determinant ([`crate::engine::kinematics::branch_signs`]).
     fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
-        // The forward sign alone ([`crate::kinematics::branch_signs`]'s
+        // The forward sign alone ([`crate::engine::kinematics::branch_signs`]'s
         // first), without the inverse one's 12 × 12 determinant.
         self.branch == 0 || {
-            let j = crate::autodiff::jacobians(self, q, rho, 0..q.len());
-            crate::kinematics::forward_branch_sign_of(&self.spec, &j) == self.branch
+            let j = crate::mechanism::autodiff::jacobians(self, q, rho, 0..q.len());
+            crate::engine::kinematics::forward_branch_sign_of(&self.spec, &j) == self.branch
         }
     }
 
-    fn on_branch_near(&self, _q: &[f64], _rho: &[f64], jac: &crate::autodiff::Jacobians) -> bool {
+    fn on_branch_near(
+        &self,
+        _q: &[f64],
+        _rho: &[f64],
+        jac: &crate::mechanism::autodiff::Jacobians,
+    ) -> bool {
         self.branch == 0
-            || crate::kinematics::forward_branch_sign_of(&self.spec, jac) == self.branch
+            || crate::engine::kinematics::forward_branch_sign_of(&self.spec, jac) == self.branch
     }
 }

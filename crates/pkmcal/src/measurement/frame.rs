@@ -21,95 +21,11 @@
 //! [`ToolLayout`], declared by the mechanism.
 
 use crate::error::{Error, Result};
-use crate::gough_stewart::rotation;
+use crate::linalg::pose::{euler, rotation};
 use crate::mechanism::Scalar;
-use crate::units::Unit;
+use crate::mechanism::tool::ToolLayout;
 use nalgebra::{DMatrix, Matrix3, Vector3};
 use num_dual::Dual64;
-use serde::Serialize;
-
-/// What the tool coordinates are, geometrically: how a change of frame acts
-/// on them.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case", tag = "kind")]
-pub enum ToolLayout {
-    /// A planar position `x, y` (mm).
-    PlanarPoint,
-    /// A planar pose `x, y` (mm), `phi` (rad).
-    PlanarPose,
-    /// A spatial pose `x, y, z` (mm), `rx, ry, rz` (rad), `R = Rz Ry Rx`.
-    SpatialPose,
-    /// `count` points of dimension `dim` (2 or 3), coordinates in order.
-    Points {
-        /// Dimension of each point.
-        dim: usize,
-        /// Number of points.
-        count: usize,
-    },
-    /// Readings that do not depend on a frame (distances).
-    Readings,
-}
-
-impl ToolLayout {
-    /// Number of frame parameters: 3 in the plane, 6 in space, 0 for
-    /// frame-free readings.
-    pub fn frame_size(self) -> usize {
-        match self {
-            ToolLayout::PlanarPoint | ToolLayout::PlanarPose => 3,
-            ToolLayout::Points { dim: 2, .. } => 3,
-            ToolLayout::SpatialPose | ToolLayout::Points { .. } => 6,
-            ToolLayout::Readings => 0,
-        }
-    }
-
-    /// Dimension of the tool point (the position part of the tool
-    /// coordinates, where a ball-bar ball sits): 2 in the plane, 3 in space;
-    /// `None` for several points or readings.
-    pub fn point_dim(self) -> Option<usize> {
-        match self {
-            ToolLayout::PlanarPoint | ToolLayout::PlanarPose => Some(2),
-            ToolLayout::SpatialPose => Some(3),
-            ToolLayout::Points { dim, count: 1 } => Some(dim),
-            _ => None,
-        }
-    }
-
-    /// Names of the frame parameters.
-    pub fn frame_names(self) -> Vec<String> {
-        let names: &[&str] = if self.frame_size() == 3 {
-            &["frame.x", "frame.y", "frame.phi"]
-        } else if self.frame_size() == 6 {
-            &[
-                "frame.x", "frame.y", "frame.z", "frame.rx", "frame.ry", "frame.rz",
-            ]
-        } else {
-            &[]
-        };
-        names.iter().map(|s| s.to_string()).collect()
-    }
-
-    /// Units of the frame parameters.
-    pub fn frame_units(self) -> Vec<Unit> {
-        match self.frame_size() {
-            3 => vec![Unit::Millimetre, Unit::Millimetre, Unit::Radian],
-            6 => [Unit::Millimetre; 3]
-                .into_iter()
-                .chain([Unit::Radian; 3])
-                .collect(),
-            _ => vec![],
-        }
-    }
-
-    /// The points of a tool vector: start index of each, and its dimension.
-    fn points(self, n: usize) -> (Vec<usize>, usize) {
-        match self {
-            ToolLayout::PlanarPoint | ToolLayout::PlanarPose => (vec![0], 2),
-            ToolLayout::SpatialPose => (vec![0], 3),
-            ToolLayout::Points { dim, count } => ((0..count).map(|k| k * dim).collect(), dim),
-            ToolLayout::Readings => (vec![], n.min(1)),
-        }
-    }
-}
 
 /// Tool coordinates `x` (base frame) as the instrument at `frame` sees them.
 pub fn observe<D: Scalar>(layout: ToolLayout, x: &[D], frame: &[D], y: &mut [D]) {
@@ -220,14 +136,6 @@ pub fn to_base(layout: ToolLayout, y: &[f64], frame: &[f64]) -> Vec<f64> {
         _ => {}
     }
     x
-}
-
-fn euler(m: &dyn Fn(usize, usize) -> f64) -> (f64, f64, f64) {
-    (
-        m(2, 1).atan2(m(2, 2)),
-        (-m(2, 0)).clamp(-1.0, 1.0).asin(),
-        m(1, 0).atan2(m(0, 0)),
-    )
 }
 
 /// The frame that best maps the measured positions onto `reference` (base

@@ -2,13 +2,14 @@
 //! random parameter errors and measurement noise, simulated measurements,
 //! calibration, and the resulting accuracy on unseen poses and parameters.
 
-use crate::calibration::{CalibrationOptions, PoseCache, calibrate_with_cache};
+use crate::apply::simulate::{measure, noise_normals, prepare_target};
+use crate::engine::models::{Model, Pose, predict_pose};
 use crate::error::Result;
+use crate::identify::calibration::{CalibrationOptions, PoseCache, calibrate_with_cache};
+use crate::identify::stats::{ErrorStats, error_stats};
 use crate::measurement::MeasurementModel;
+use crate::measurement::data::Noise;
 use crate::mechanism::{Mechanism, Params};
-use crate::models::{Model, Pose, predict_pose};
-use crate::simulate::{Noise, measure, noise_normals, prepare_target};
-use crate::stats::{ErrorStats, error_stats};
 use crate::units::{ParamKind, Unit};
 use rand::SeedableRng;
 use rand::rngs::StdRng;
@@ -24,7 +25,7 @@ pub fn validation_targets<M: Mechanism>(
     count: usize,
     seed: u64,
 ) -> Result<Vec<Vec<f64>>> {
-    crate::workspace::random_targets(mech, count, seed ^ 0x5eed)
+    crate::apply::workspace::random_targets(mech, count, seed ^ 0x5eed)
 }
 
 /// Settings of a Monte Carlo study.

@@ -25,10 +25,10 @@
 //! the reduced Hessian is nearly singular (the independent joints do not
 //! parametrise the constraints well at this configuration), the whole
 //! system is solved by the scaled LU of
-//! [`crate::kinematics::solve_scaled_in_place`], which also decides whether
+//! [`crate::linalg::solve::solve_scaled_in_place`], which also decides whether
 //! it is singular.
 
-use crate::kinematics::solve_scaled_in_place;
+use crate::linalg::solve::solve_scaled_in_place;
 use nalgebra::DMatrix;
 
 /// A pivot of `G_D` below this fraction of its largest entry sends the

@@ -13,10 +13,10 @@
 //! q_r,nominal`; the linear model adds it to `Δq` so that it stays the
 //! first-order expansion of the exact model.
 
-use crate::autodiff::{jacobians, jacobians_into};
+use crate::engine::kinematics::{forward_kinematics, reference_configuration};
+use crate::engine::linearized::{Linearization, joint_errors, linearize, load_vector};
 use crate::error::{Error, Result};
-use crate::kinematics::{forward_kinematics, reference_configuration};
-use crate::linearized::{Linearization, joint_errors, linearize, load_vector};
+use crate::mechanism::autodiff::{jacobians, jacobians_into};
 use crate::mechanism::{Mechanism, Params};
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
@@ -332,7 +332,7 @@ pub(crate) fn prepare_pose_ahead<M: Mechanism>(
         Caller,
         Reference,
     }
-    let stages = |s: &[f64]| crate::kinematics::continuation_stages(spec, s, &q_u);
+    let stages = |s: &[f64]| crate::engine::kinematics::continuation_stages(spec, s, &q_u);
     let caller_stages = start.map(stages);
     let mut guess = None;
     let mut guessed = false;
@@ -418,7 +418,7 @@ fn rigid_from<M: Mechanism>(
         .iter()
         .map(|&a| pose.commands[a] + params.offsets()[a])
         .collect();
-    let q = crate::kinematics::forward_kinematics_from_nominal(mech, rho, &q_u, start)?;
+    let q = crate::engine::kinematics::forward_kinematics_from_nominal(mech, rho, &q_u, start)?;
     let x = jacobians(mech, &q, rho, 0..0).x;
     let deflection = spec
         .actuated
@@ -450,7 +450,7 @@ pub(crate) fn effective_model(spec: &crate::Spec, model: Model, force: &[f64]) -
 }
 
 /// Prediction of one prepared pose with one model (docs/model.md §4).
-/// `force` is the external load on the tool, a wrench ([`crate::load`]: N
+/// `force` is the external load on the tool, a wrench ([`crate::engine::load`]: N
 /// along each length coordinate, N·m about each angle's axis), empty for none.
 pub fn predict_pose<M: Mechanism>(
     mech: &M,
@@ -540,7 +540,7 @@ pub fn predict_pose_warm<M: Mechanism>(
     predict_pose(mech, pose, params, model, force)
 }
 
-/// The generalised forces of the load `force` (a wrench, [`crate::load`])
+/// The generalised forces of the load `force` (a wrench, [`crate::engine::load`])
 /// at the pose's nominal configuration.
 pub(crate) fn effective_force<M: Mechanism>(
     mech: &M,
@@ -561,7 +561,11 @@ pub(crate) fn effective_force<M: Mechanism>(
         0..0,
     )
     .x;
-    Ok(crate::load::generalized_forces(spec.tool_layout, &x, force))
+    Ok(crate::engine::load::generalized_forces(
+        spec.tool_layout,
+        &x,
+        force,
+    ))
 }
 
 fn check_load(spec: &crate::Spec, force: &[f64]) -> Result<()> {
@@ -610,9 +614,14 @@ fn linear_prediction<M: Mechanism>(
         .zip(independent_actuators(spec))
         .map(|(&j, a)| pose.nominal_q[j] + dq[a])
         .collect();
-    let q = crate::kinematics::forward_kinematics_from_nominal(mech, rho, &q_u, &pose.nominal_q)?;
+    let q = crate::engine::kinematics::forward_kinematics_from_nominal(
+        mech,
+        rho,
+        &q_u,
+        &pose.nominal_q,
+    )?;
     let x = jacobians(mech, &q, rho, 0..0).x;
-    let torque = crate::linearized::torques(params.stiffness(), &offsets, dq.as_slice());
+    let torque = crate::engine::linearized::torques(params.stiffness(), &offsets, dq.as_slice());
     let deflection = torque
         .iter()
         .zip(params.stiffness())
@@ -657,7 +666,7 @@ pub const EQUILIBRIUM_TOL: f64 = 1e-14;
 ///
 /// from `start` (a configuration near the solution, e.g. the linear model's).
 /// The curvature `∇²(λᵀg + 10⁻³ wᵀx)` uses per-output Hessians `hessians`
-/// (from [`crate::autodiff::output_hessians`] at a nearby configuration, e.g.
+/// (from [`crate::mechanism::autodiff::output_hessians`] at a nearby configuration, e.g.
 /// [`Pose::hessians`]; computed at `start` when `None`): their error is of the
 /// order of the distance to the solution, so convergence stays quadratic-like
 /// in practice while each iteration needs only first derivatives. Its
@@ -673,7 +682,7 @@ pub fn equilibrium<M: Mechanism>(
 ) -> Result<Equilibrium> {
     let spec = mech.spec();
     check_commands(spec, commands)?;
-    // Generalised forces on the tool coordinates ([`crate::load`]).
+    // Generalised forces on the tool coordinates ([`crate::engine::load`]).
     check_load(spec, force)?;
     let own;
     let hessians = match hessians {
@@ -717,14 +726,14 @@ struct EquilibriumWork {
     /// The weights of the output Hessians: `[λ; w]`.
     weights: Vec<f64>,
     /// Derivatives at the current configuration.
-    j: Option<crate::autodiff::Jacobians>,
+    j: Option<crate::mechanism::autodiff::Jacobians>,
     /// `Gᵀ`, `G Gᵀ`, `∇E` and `−G ∇E` of the least-squares multipliers.
     gt: DMatrix<f64>,
     ggt: DMatrix<f64>,
     ge: DVector<f64>,
     rhs: DVector<f64>,
     /// The buffers of the KKT solve on the constraints' null space.
-    kkt_work: crate::kkt::KktWork,
+    kkt_work: crate::linalg::kkt::KktWork,
 }
 
 thread_local! {
@@ -790,7 +799,7 @@ fn equilibrium_in<M: Mechanism>(
         rhs,
         kkt_work,
     } = ws;
-    let j = j.get_or_insert_with(crate::autodiff::Jacobians::empty);
+    let j = j.get_or_insert_with(crate::mechanism::autodiff::Jacobians::empty);
     for it in 1..=MAX_EQUILIBRIUM_ITERATIONS {
         jacobians_into(mech, &q, rho, 0..nq, j);
         // ∇E = −Sᵀτ + Xqᵀ w.
@@ -820,7 +829,7 @@ fn equilibrium_in<M: Mechanism>(
             }
             j.dg.mul_to(ge, rhs);
             rhs.neg_mut();
-            if crate::lu::solve_in_place(ggt, rhs.as_mut_slice()) {
+            if crate::linalg::lu::solve_in_place(ggt, rhs.as_mut_slice()) {
                 lam.copy_from_slice(rhs.as_slice());
             }
         }
@@ -859,7 +868,7 @@ fn equilibrium_in<M: Mechanism>(
         for (r, g) in j.g.iter().enumerate() {
             step[nq + r] = *g;
         }
-        if !crate::kkt::solve_kkt_in_place(kkt, step, nq, &spec.independent, kkt_work) {
+        if !crate::linalg::kkt::solve_kkt_in_place(kkt, step, nq, &spec.independent, kkt_work) {
             return Err(Error::Singular {
                 q: q.clone(),
                 reason: "the equilibrium (KKT) system is singular".into(),
@@ -872,7 +881,7 @@ fn equilibrium_in<M: Mechanism>(
             break;
         }
         // At most 0.2 rad, or 20 mm on a length, per iteration.
-        let turn = crate::kinematics::step_turn(spec, 0..nq, step.as_slice());
+        let turn = crate::engine::kinematics::step_turn(spec, 0..nq, step.as_slice());
         let scale = if turn > 0.2 { 0.2 / turn } else { 1.0 };
         for i in 0..nq {
             q[i] -= scale * step[i];
@@ -921,7 +930,7 @@ mod tests {
     /// commands that cannot be assembled).
     fn same_ahead<M: Mechanism>(mech: &M) {
         let spec = mech.spec();
-        let targets = crate::workspace::spread_targets(mech, 30).unwrap();
+        let targets = crate::apply::workspace::spread_targets(mech, 30).unwrap();
         let mut commands: Vec<Vec<f64>> = targets
             .iter()
             .map(|p| spec.actuated.iter().map(|&j| p.q[j]).collect())
@@ -978,7 +987,7 @@ mod tests {
                 .collect::<Vec<_>>()
         };
         let load = [5.0, -3.0, 0.0];
-        for target in crate::workspace::spread_targets(&mech, 5).unwrap() {
+        for target in crate::apply::workspace::spread_targets(&mech, 5).unwrap() {
             let c: Vec<f64> = spec.actuated.iter().map(|&j| target.q[j]).collect();
             let pose = prepare_pose(&mech, &c, Some(&target.q)).unwrap();
             for (model, force) in [

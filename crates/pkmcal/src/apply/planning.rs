@@ -2,19 +2,19 @@
 //! observable (greedy selection, then DETMAX-style exchange), on the
 //! information matrix `M = Σ AᵀA` of column-scaled identification Jacobians.
 
-use crate::calibration::{Observability, observability};
+use crate::apply::workspace::WorkspacePoint;
+use crate::engine::models::{Model, prepare_pose};
+use crate::engine::sensitivity::sensitivity;
 use crate::error::{Error, Result};
+use crate::identify::calibration::{Observability, observability};
 use crate::mechanism::{Mechanism, Params};
-use crate::models::{Model, prepare_pose};
-use crate::sensitivity::sensitivity;
-use crate::workspace::WorkspacePoint;
 use nalgebra::DMatrix;
 use rayon::prelude::*;
 use serde::Serialize;
 
 /// Most lattice points over the workspace box that `plan` evaluates as
 /// candidates: a finer `--candidates` spacing is coarsened to respect it
-/// ([`crate::workspace::lattice_spacing`]), so planning time is bounded.
+/// ([`crate::engine::atlas::lattice_spacing`]), so planning time is bounded.
 pub const MAX_CANDIDATE_LATTICE: usize = 20_000;
 
 /// The observability index a plan maximises.
@@ -445,7 +445,7 @@ pub struct Plan {
     pub observability: Observability,
     /// Condition number of the chosen poses.
     pub condition: f64,
-    /// A plain grid of `count` poses ([`crate::workspace::grid_targets`]).
+    /// A plain grid of `count` poses ([`crate::apply::workspace::grid_targets`]).
     pub grid: Vec<WorkspacePoint>,
     /// Observability of the grid, with the same column scaling.
     pub grid_observability: Observability,
@@ -460,7 +460,7 @@ pub struct Plan {
 }
 
 /// Plan `opts.count` poses over the mechanism's usable workspace at
-/// `params`: candidates on a lattice ([`crate::workspace::sample_workspace`]),
+/// `params`: candidates on a lattice ([`crate::apply::workspace::sample_workspace`]),
 /// thinned evenly to `opts.max_candidates`, chosen by [`plan_poses`];
 /// `tick` is called after each greedy step and exchange position.
 pub fn plan<M: Mechanism>(
@@ -490,12 +490,12 @@ pub fn plan<M: Mechanism>(
             "the number of candidates must be at least 1".into(),
         ));
     }
-    let spacing = crate::workspace::lattice_spacing(
+    let spacing = crate::engine::atlas::lattice_spacing(
         spec,
         opts.spacing,
         MAX_CANDIDATE_LATTICE.min(opts.max_candidates.saturating_mul(4)),
     );
-    let mut points = crate::workspace::sample_workspace(mech, spacing);
+    let mut points = crate::apply::workspace::sample_workspace(mech, spacing);
     let lattice_points = points.len();
     if points.len() > opts.max_candidates {
         let (keep, n) = (opts.max_candidates, points.len());
@@ -503,7 +503,7 @@ pub fn plan<M: Mechanism>(
     }
     let candidates = points.len();
     // The plain grid of the same size, judged with the same column scaling.
-    points.extend(crate::workspace::grid_targets(mech, opts.count)?);
+    points.extend(crate::apply::workspace::grid_targets(mech, opts.count)?);
     let cands = candidate_jacobians(mech, points, params, opts.model, &opts.free)?;
     let pool = Candidates {
         points: cands.points[..candidates].to_vec(),

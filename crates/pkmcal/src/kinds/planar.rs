@@ -27,8 +27,9 @@
 //!   where `N` is `J` without a leading `q` (`q1` → `dq1`, `k1`). Revolute
 //!   actuators: N·m/rad; prismatic ones: N/mm (one kind per linkage).
 
+use crate::engine::kinematics::solve_closure;
 use crate::error::{Error, Result};
-use crate::kinematics::solve_closure;
+use crate::kinds::description::{ActuatorNames, Names, Value, actuator_names, bad};
 use crate::mechanism::{Mechanism, Scalar, Spec};
 use crate::units::Unit;
 use serde::Deserialize;
@@ -36,17 +37,6 @@ use std::collections::BTreeMap;
 
 /// Workspace configurations kept for starting forward kinematics.
 const ATLAS_POINTS: usize = 400;
-
-/// A number of the geometry: a value, or the name of a parameter whose value
-/// is in [`PlanarDescription::parameters`].
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(untagged)]
-pub enum Value {
-    /// A value; the parameter gets a derived name.
-    Number(f64),
-    /// A named parameter.
-    Name(String),
-}
 
 /// Revolute or prismatic.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -168,109 +158,9 @@ pub struct PlanarLinkage {
     tool_body: usize,
     tool_at: [usize; 2],
     orientation: bool,
-    atlas: crate::workspace::Atlas,
-    /// [`crate::kinematics::branch_signs`] at the reference configuration.
+    atlas: crate::engine::atlas::Atlas,
+    /// [`crate::engine::kinematics::branch_signs`] at the reference configuration.
     branch: [i8; 2],
-}
-
-/// Collects parameter names and nominal values in order of first use.
-pub(crate) struct Names<'a> {
-    pub(crate) names: Vec<String>,
-    pub(crate) values: Vec<f64>,
-    pub(crate) units: Vec<Unit>,
-    pub(crate) given: &'a BTreeMap<String, f64>,
-}
-
-impl Names<'_> {
-    pub(crate) fn add(&mut self, v: &Value, derived: String, unit: Unit) -> Result<usize> {
-        let (name, value) = match v {
-            Value::Number(x) => (derived, *x),
-            Value::Name(n) => {
-                let x = *self.given.get(n).ok_or_else(|| {
-                    Error::InvalidMechanism(format!(
-                        "parameter `{n}` has no value; add `{n} = …` to [parameters]"
-                    ))
-                })?;
-                (n.clone(), x)
-            }
-        };
-        if !value.is_finite() {
-            return Err(Error::InvalidMechanism(format!(
-                "parameter `{name}` = {value} must be a finite number"
-            )));
-        }
-        if let Some(i) = self.names.iter().position(|n| *n == name) {
-            if matches!(v, Value::Number(_)) {
-                return Err(Error::InvalidMechanism(format!(
-                    "the derived parameter name `{name}` is already used; rename that parameter"
-                )));
-            }
-            if self.units[i] != unit {
-                return Err(Error::InvalidMechanism(format!(
-                    "parameter `{name}` is used as a length (mm) and as an angle (rad); give the two numbers different names"
-                )));
-            }
-            return Ok(i);
-        }
-        self.names.push(name);
-        self.values.push(value);
-        self.units.push(unit);
-        Ok(self.names.len() - 1)
-    }
-}
-
-fn bad<T>(m: String) -> Result<T> {
-    Err(Error::InvalidMechanism(m))
-}
-
-/// The encoder offsets' and stiffnesses' names, the full nominal vector and
-/// the default free set of a described mechanism.
-pub(crate) struct ActuatorNames {
-    pub(crate) offsets: Vec<String>,
-    pub(crate) stiffness: Vec<String>,
-    pub(crate) nominal: Vec<f64>,
-    pub(crate) free: Vec<String>,
-}
-
-/// [`ActuatorNames`] from the geometric parameters `names`, the joints'
-/// names, the actuated joints with their stiffness, and the description's
-/// `free` (all geometric parameters and encoder offsets if left out).
-pub(crate) fn actuator_names(
-    names: &Names,
-    joint_names: &[String],
-    actuated: &[usize],
-    stiffness: &[f64],
-    free: &Option<Vec<String>>,
-) -> ActuatorNames {
-    let offsets: Vec<String> = actuated
-        .iter()
-        .map(|&i| format!("d{}", joint_names[i]))
-        .collect();
-    let mut nominal = names.values.clone();
-    nominal.extend(std::iter::repeat_n(0.0, actuated.len()));
-    nominal.extend(stiffness);
-    let free = match free {
-        Some(f) => f.clone(),
-        None => names.names.iter().chain(&offsets).cloned().collect(),
-    };
-    ActuatorNames {
-        stiffness: actuated
-            .iter()
-            .map(|&i| stiffness_name(&joint_names[i]))
-            .collect(),
-        offsets,
-        nominal,
-        free,
-    }
-}
-
-/// Stiffness parameter name of an actuated joint: `k` + the name without a
-/// leading `q`.
-pub fn stiffness_name(joint: &str) -> String {
-    match joint.strip_prefix('q') {
-        Some(rest) if !rest.is_empty() => format!("k{rest}"),
-        _ => format!("k{joint}"),
-    }
 }
 
 impl PlanarLinkage {
@@ -419,7 +309,7 @@ impl PlanarLinkage {
             );
         }
         let work_scale = match kinds[0] {
-            JointKind::Revolute => crate::linearized::MM_TO_M,
+            JointKind::Revolute => crate::units::MM_TO_M,
             JointKind::Prismatic => 1.0,
         };
         let mut stiffness = Vec::new();
@@ -463,7 +353,8 @@ impl PlanarLinkage {
                 }
             ));
         }
-        let workspace_box = crate::workspace::box_from_description(&tool_axes, &d.workspace)?;
+        let workspace_box =
+            crate::kinds::description::box_from_description(&tool_axes, &d.workspace)?;
         let joint_names: Vec<String> = d.joints.iter().map(|j| j.name.clone()).collect();
         let ActuatorNames {
             offsets,
@@ -518,9 +409,9 @@ impl PlanarLinkage {
                     })
                     .collect(),
                 tool_layout: if d.tool.orientation {
-                    crate::frame::ToolLayout::PlanarPose
+                    crate::mechanism::tool::ToolLayout::PlanarPose
                 } else {
-                    crate::frame::ToolLayout::PlanarPoint
+                    crate::mechanism::tool::ToolLayout::PlanarPoint
                 },
                 tool_axes,
                 nominal,
@@ -575,8 +466,12 @@ impl PlanarLinkage {
         }
         let rho = linkage.spec.nominal[..linkage.spec.geometric.len()].to_vec();
         linkage.fill_closing(&mut q0, &rho);
-        linkage.spec.independent =
-            crate::kinematics::independent_joints(&linkage, d.independent.as_deref(), &q0, &rho)?;
+        linkage.spec.independent = crate::engine::kinematics::independent_joints(
+            &linkage,
+            d.independent.as_deref(),
+            &q0,
+            &rho,
+        )?;
         linkage.spec.joint_scale = d
             .joints
             .iter()
@@ -596,11 +491,12 @@ impl PlanarLinkage {
             ))
         })?;
         linkage.spec.reference_q = q0;
-        linkage.branch = crate::kinematics::branch_signs(&linkage, &linkage.spec.reference_q, &rho);
+        linkage.branch =
+            crate::engine::kinematics::branch_signs(&linkage, &linkage.spec.reference_q, &rho);
         // The atlas covers every reachable pose (min_conditioning still 0).
-        linkage.atlas = crate::workspace::Atlas::build(&linkage, ATLAS_POINTS);
-        linkage.spec.min_conditioning = crate::workspace::RELATIVE_CONDITIONING
-            * crate::workspace::conditioning(&linkage, &linkage.spec.reference_q, &rho);
+        linkage.atlas = crate::engine::atlas::Atlas::build(&linkage, ATLAS_POINTS);
+        linkage.spec.min_conditioning = crate::engine::atlas::RELATIVE_CONDITIONING
+            * crate::engine::atlas::conditioning(&linkage, &linkage.spec.reference_q, &rho);
         Ok(linkage)
     }
 
@@ -888,7 +784,7 @@ impl PlanarLinkage {
         q: &[f64],
         rho: &[f64],
         cols: std::ops::Range<usize>,
-        out: &mut crate::autodiff::Jacobians,
+        out: &mut crate::mechanism::autodiff::Jacobians,
     ) {
         FIRST.with_borrow_mut(|f| {
             self.closed_form_into(q, rho, cols.end, f);
@@ -1100,8 +996,8 @@ impl Mechanism for PlanarLinkage {
         q: &[f64],
         rho: &[f64],
         cols: std::ops::Range<usize>,
-    ) -> Option<crate::autodiff::Jacobians> {
-        let mut out = crate::autodiff::Jacobians::empty();
+    ) -> Option<crate::mechanism::autodiff::Jacobians> {
+        let mut out = crate::mechanism::autodiff::Jacobians::empty();
         self.closed_form_jacobians_into(q, rho, cols, &mut out);
         Some(out)
     }
@@ -1112,7 +1008,7 @@ impl Mechanism for PlanarLinkage {
         q: &[f64],
         rho: &[f64],
         cols: std::ops::Range<usize>,
-        out: &mut crate::autodiff::Jacobians,
+        out: &mut crate::mechanism::autodiff::Jacobians,
     ) -> bool {
         self.closed_form_jacobians_into(q, rho, cols, out);
         true
@@ -1179,14 +1075,21 @@ impl Mechanism for PlanarLinkage {
     }
 
     /// Same determinant signs as the reference configuration
-    /// ([`crate::kinematics::branch_signs`]): no leg has flipped through a
+    /// ([`crate::engine::kinematics::branch_signs`]): no leg has flipped through a
     /// singularity.
     fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
-        self.branch == [0, 0] || crate::kinematics::branch_signs(self, q, rho) == self.branch
+        self.branch == [0, 0]
+            || crate::engine::kinematics::branch_signs(self, q, rho) == self.branch
     }
 
-    fn on_branch_near(&self, _q: &[f64], _rho: &[f64], jac: &crate::autodiff::Jacobians) -> bool {
-        self.branch == [0, 0] || crate::kinematics::branch_signs_of(&self.spec, jac) == self.branch
+    fn on_branch_near(
+        &self,
+        _q: &[f64],
+        _rho: &[f64],
+        jac: &crate::mechanism::autodiff::Jacobians,
+    ) -> bool {
+        self.branch == [0, 0]
+            || crate::engine::kinematics::branch_signs_of(&self.spec, jac) == self.branch
     }
 
     fn tool<D: Scalar>(&self, q: &[D], rho: &[D], x: &mut [D]) {

@@ -40,8 +40,8 @@
 //!   prismatic ones and actuated rods: N/mm (one kind per mechanism).
 
 use crate::error::{Error, Result};
+use crate::kinds::description::{ActuatorNames, Names, Value, actuator_names};
 use crate::mechanism::{Mechanism, Scalar, Spec};
-use crate::planar::{ActuatorNames, Names, Value, actuator_names};
 use crate::units::Unit;
 use serde::Deserialize;
 use std::collections::BTreeMap;
@@ -286,11 +286,11 @@ pub struct SpatialMechanism {
     /// Characteristic length (mm): the mean of the joint offsets and rod
     /// lengths.
     length: f64,
-    atlas: crate::workspace::Atlas,
+    atlas: crate::engine::atlas::Atlas,
     /// The closed-form start of forward kinematics, when the mechanism has
     /// one (then the atlas is not built).
     trilateration: Option<Trilateration>,
-    /// [`crate::kinematics::branch_signs`] at the reference configuration.
+    /// [`crate::engine::kinematics::branch_signs`] at the reference configuration.
     branch: [i8; 2],
     /// Sign of each leg's own inverse-kinematics determinant (its equations
     /// against its joints, the platform held) at the reference: its working
@@ -640,7 +640,7 @@ impl SpatialMechanism {
     /// Sign of the determinant of leg `i`'s equations against its joints.
     fn leg_sign(&self, i: usize, q: &[f64], rho: &[f64]) -> i8 {
         let (_, j) = self.leg_system(&self.legs[i], q, rho);
-        let d = crate::lu::determinant(j);
+        let d = crate::linalg::lu::determinant(j);
         if d > 0.0 {
             1
         } else if d < 0.0 {
@@ -679,7 +679,7 @@ impl SpatialMechanism {
             for _ in 0..LEG_NEWTON {
                 let (g, a) = self.leg_system(leg, &q, rho);
                 residual = g.amax();
-                let step = crate::kinematics::solve_square(a, g).ok_or_else(|| {
+                let step = crate::linalg::solve::solve_square(a, g).ok_or_else(|| {
                     unreachable(format!("leg `{name}` meets a singularity on the way"))
                 })?;
                 let big = step.amax();
@@ -700,7 +700,7 @@ impl SpatialMechanism {
                 for (k, c) in cols.clone().enumerate() {
                     q[c] -= scale * step[k];
                 }
-                if big < 10.0 * crate::kinematics::STEP_TOL {
+                if big < 10.0 * crate::engine::kinematics::STEP_TOL {
                     converged = true;
                     break;
                 }
@@ -976,7 +976,8 @@ impl SpatialMechanism {
                 pose_axes.join(" ")
             ));
         }
-        let workspace_box = crate::workspace::box_from_description(&tool_axes, &d.workspace)?;
+        let workspace_box =
+            crate::kinds::description::box_from_description(&tool_axes, &d.workspace)?;
         let ActuatorNames {
             offsets,
             stiffness: stiffness_names,
@@ -1027,9 +1028,11 @@ impl SpatialMechanism {
             .map(|&k| if k >= 3 { radius } else { 1.0 })
             .collect();
         let tool_layout = match (motion, tool.len()) {
-            (Motion::Translation, 3) => crate::frame::ToolLayout::Points { dim: 3, count: 1 },
-            (Motion::Full, 6) => crate::frame::ToolLayout::SpatialPose,
-            _ => crate::frame::ToolLayout::Readings,
+            (Motion::Translation, 3) => {
+                crate::mechanism::tool::ToolLayout::Points { dim: 3, count: 1 }
+            }
+            (Motion::Full, 6) => crate::mechanism::tool::ToolLayout::SpatialPose,
+            _ => crate::mechanism::tool::ToolLayout::Readings,
         };
         let mut mech = SpatialMechanism {
             spec: Spec {
@@ -1054,7 +1057,7 @@ impl SpatialMechanism {
                 default_free: free,
                 workspace_box,
                 work_scale: if revolute_actuator[0] {
-                    crate::linearized::MM_TO_M
+                    crate::units::MM_TO_M
                 } else {
                     1.0
                 },
@@ -1132,20 +1135,24 @@ impl SpatialMechanism {
         mech.spec.reference_q = q0.clone();
         mech.spec.validate()?;
         let fixed: Vec<usize> = mech.tool.iter().map(|&k| pose0 + k).collect();
-        crate::kinematics::solve_closure(&mech, &rho, &mut q0, &fixed).map_err(|e| {
+        crate::engine::kinematics::solve_closure(&mech, &rho, &mut q0, &fixed).map_err(|e| {
             Error::InvalidMechanism(format!(
                 "the [assembly] configuration does not close ({e}); check the lengths, the pose and the joint values (a leg that cannot reach the platform there, or guesses far from the wanted assembly)"
             ))
         })?;
-        mech.spec.independent =
-            crate::kinematics::independent_joints(&mech, d.independent.as_deref(), &q0, &rho)?;
+        mech.spec.independent = crate::engine::kinematics::independent_joints(
+            &mech,
+            d.independent.as_deref(),
+            &q0,
+            &rho,
+        )?;
         mech.spec.reference_q = q0.clone();
         mech.spec.validate()?;
-        let j = crate::autodiff::jacobians(&mech, &q0, &rho, 0..nq);
+        let j = crate::mechanism::autodiff::jacobians(&mech, &q0, &rho, 0..nq);
         let dep: Vec<usize> = (0..nq)
             .filter(|i| !mech.spec.independent.contains(i))
             .collect();
-        if crate::kinematics::checked_lu(j.dg.select_columns(&dep)).is_none() {
+        if crate::linalg::solve::checked_lu(j.dg.select_columns(&dep)).is_none() {
             return bad(format!(
                 "the reference configuration is singular: the actuators {} do not determine the platform there; move [assembly] `pose` away from the singularity or choose `independent`",
                 mech.spec
@@ -1156,7 +1163,7 @@ impl SpatialMechanism {
                     .join(", ")
             ));
         }
-        mech.branch = crate::kinematics::branch_signs(&mech, &q0, &rho);
+        mech.branch = crate::engine::kinematics::branch_signs(&mech, &q0, &rho);
         if mech.legs.iter().all(|l| l.unknowns().len() == l.rows()) {
             mech.leg_signs = (0..mech.legs.len())
                 .map(|i| mech.leg_sign(i, &q0, &rho))
@@ -1165,10 +1172,10 @@ impl SpatialMechanism {
         mech.trilateration = mech.trilateration_at(&q0, &rho);
         if mech.trilateration.is_none() {
             // The atlas covers every reachable pose (min_conditioning still 0).
-            mech.atlas = crate::workspace::Atlas::build(&mech, ATLAS_POINTS);
+            mech.atlas = crate::engine::atlas::Atlas::build(&mech, ATLAS_POINTS);
         }
-        mech.spec.min_conditioning = crate::workspace::RELATIVE_CONDITIONING
-            * crate::workspace::conditioning(&mech, &q0, &rho);
+        mech.spec.min_conditioning = crate::engine::atlas::RELATIVE_CONDITIONING
+            * crate::engine::atlas::conditioning(&mech, &q0, &rho);
         Ok(mech)
     }
 
@@ -1229,7 +1236,7 @@ impl SpatialMechanism {
         let b = leg.platform.map(rho);
         let w = match self.motion {
             Motion::Translation => [0, 1, 2].map(|k| pose[k] + b[k]),
-            Motion::Full => crate::gough_stewart::transform(&pose, b),
+            Motion::Full => crate::linalg::pose::transform(&pose, b),
         };
         (end, w)
     }
@@ -1520,7 +1527,7 @@ impl SpatialMechanism {
                 let (sb, cb) = pose[4].sin_cos();
                 PlatformFrame {
                     pose,
-                    rot: crate::gough_stewart::rotation(pose[3], pose[4], pose[5]),
+                    rot: crate::linalg::pose::rotation(pose[3], pose[4], pose[5]),
                     omega: [[cc * cb, sc * cb, -sb], [-sc, cc, 0.0], [0.0, 0.0, 1.0]],
                 }
             }
@@ -1604,7 +1611,7 @@ impl Mechanism for SpatialMechanism {
         q: &[f64],
         rho: &[f64],
         cols: std::ops::Range<usize>,
-    ) -> Option<crate::autodiff::Jacobians> {
+    ) -> Option<crate::mechanism::autodiff::Jacobians> {
         use nalgebra::{Const, DMatrix, U1};
         use num_dual::DualSVec64;
         type D = DualSVec64<CHUNK>;
@@ -1674,7 +1681,7 @@ impl Mechanism for SpatialMechanism {
                 dx[(r, c - cols.start)] = 1.0;
             }
         }
-        Some(crate::autodiff::Jacobians { g, x, dg, dx })
+        Some(crate::mechanism::autodiff::Jacobians { g, x, dg, dx })
     }
 
     fn weighted_hessian(
@@ -1757,11 +1764,16 @@ impl Mechanism for SpatialMechanism {
     /// The assembly and working modes of the reference configuration: the
     /// same signs of the forward and inverse kinematics determinants.
     fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
-        self.same_branch(crate::kinematics::branch_signs(self, q, rho))
+        self.same_branch(crate::engine::kinematics::branch_signs(self, q, rho))
     }
 
-    fn on_branch_near(&self, _q: &[f64], _rho: &[f64], jac: &crate::autodiff::Jacobians) -> bool {
-        self.same_branch(crate::kinematics::branch_signs_of(&self.spec, jac))
+    fn on_branch_near(
+        &self,
+        _q: &[f64],
+        _rho: &[f64],
+        jac: &crate::mechanism::autodiff::Jacobians,
+    ) -> bool {
+        self.same_branch(crate::engine::kinematics::branch_signs_of(&self.spec, jac))
     }
 }
 

@@ -96,15 +96,15 @@ impl JeongKim2Dof {
             joint_units: vec![Unit::Radian; 5],
             geometric_units: vec![Unit::Millimetre; GEOMETRIC.len()],
             tool_units: vec![Unit::Millimetre; 2],
-            tool_layout: crate::frame::ToolLayout::PlanarPoint,
+            tool_layout: crate::mechanism::tool::ToolLayout::PlanarPoint,
             nominal,
             reference_q: REFERENCE_Q_DEG.map(f64::to_radians).to_vec(),
             default_free: PAPER_FREE.map(String::from).to_vec(),
             workspace_box: vec![[-140.0, 250.0], [0.0, 420.0]],
-            work_scale: crate::linearized::MM_TO_M,
+            work_scale: crate::units::MM_TO_M,
             joint_scale: vec![],
             axis_scale: vec![],
-            min_conditioning: crate::workspace::MIN_CONDITIONING,
+            min_conditioning: crate::engine::atlas::MIN_CONDITIONING,
         }
     }
 
@@ -264,7 +264,7 @@ impl Mechanism for JeongKim2Dof {
         q: &[f64],
         r: &[f64],
         cols: std::ops::Range<usize>,
-    ) -> Option<crate::autodiff::Jacobians> {
+    ) -> Option<crate::mechanism::autodiff::Jacobians> {
         Some(closed_form_jacobians(q, r, cols))
     }
 
@@ -273,7 +273,7 @@ impl Mechanism for JeongKim2Dof {
         q: &[f64],
         r: &[f64],
         cols: std::ops::Range<usize>,
-        out: &mut crate::autodiff::Jacobians,
+        out: &mut crate::mechanism::autodiff::Jacobians,
     ) -> bool {
         closed_form_jacobians_into(q, r, cols, out);
         true
@@ -429,8 +429,8 @@ fn closed_form_jacobians(
     q: &[f64],
     r: &[f64],
     cols: std::ops::Range<usize>,
-) -> crate::autodiff::Jacobians {
-    let mut out = crate::autodiff::Jacobians::empty();
+) -> crate::mechanism::autodiff::Jacobians {
+    let mut out = crate::mechanism::autodiff::Jacobians::empty();
     closed_form_jacobians_into(q, r, cols, &mut out);
     out
 }
@@ -440,7 +440,7 @@ fn closed_form_jacobians_into(
     q: &[f64],
     r: &[f64],
     cols: std::ops::Range<usize>,
-    out: &mut crate::autodiff::Jacobians,
+    out: &mut crate::mechanism::autodiff::Jacobians,
 ) {
     const NQ: usize = 5;
     const NV: usize = 21;
@@ -487,7 +487,7 @@ fn closed_form_jacobians_into(
     a[2][rho(10)] = [0.0, 1.0];
     let p = [p1, p2, p3];
     out.resize(3, 2, cols.len());
-    let crate::autodiff::Jacobians { g, x, dg, dx } = out;
+    let crate::mechanism::autodiff::Jacobians { g, x, dg, dx } = out;
     for (k, (i, j)) in [(0usize, 1usize), (1, 2), (2, 0)].into_iter().enumerate() {
         let d = [p[i][0] - p[j][0], p[i][1] - p[j][1]];
         g[k] = d[0] * d[0] + d[1] * d[1] - r[11 + k] * r[11 + k];

@@ -3,17 +3,20 @@
 //! three forward models, with identifiability analysis before fitting,
 //! uncertainty after, and validation on held-out poses.
 
-use crate::error::{Error, Result};
-use crate::lm::{self, Problem, Termination};
-use crate::measurement::{Frame, MeasurementModel};
-use crate::mechanism::{Mechanism, Params, Spec};
-use crate::models::{
+use crate::engine::models::{
     Ahead, Model, Pose, Prediction, pose_ahead, predict_pose_warm, prepare_pose, prepare_pose_ahead,
 };
-use crate::noise::{NoiseGroup, NoiseModel, VCE_MAX_ROUNDS, VCE_TOL, leverages, leverages_with};
-use crate::sensitivity::{sensitivity, sensitivity_at};
-use crate::simulate::{Measurement, Origin, numbered};
-use crate::stats::{ErrorStats, error_stats, improvement_percent};
+use crate::engine::sensitivity::{sensitivity, sensitivity_at};
+use crate::error::Origin;
+use crate::error::{Error, Result};
+use crate::identify::noise::{
+    NoiseGroup, NoiseModel, VCE_MAX_ROUNDS, VCE_TOL, leverages, leverages_with,
+};
+use crate::identify::stats::{ErrorStats, error_stats, improvement_percent};
+use crate::lm::{self, Problem, Termination};
+use crate::measurement::data::{Measurement, numbered};
+use crate::measurement::{Frame, MeasurementModel};
+use crate::mechanism::{Mechanism, Params, Spec};
 use crate::units::{ParamKind, Unit};
 use nalgebra::{DMatrix, DVector};
 use rand::SeedableRng;
@@ -1252,7 +1255,7 @@ pub struct Calibration {
     #[serde(skip)]
     pub params: Params,
     /// Identified (or given) pose of the instrument frame in the base frame
-    /// ([`crate::frame`]); `None` when the data are in the base frame. Also
+    /// ([`crate::measurement::frame`]); `None` when the data are in the base frame. Also
     /// in `parameters`, kind `instrument`.
     pub frame: Option<Vec<f64>>,
     /// Identified (or given) values of all the measurement model's
@@ -1344,7 +1347,7 @@ pub const MAX_DROPPED_FRACTION: f64 = 0.2;
 ///
 /// Weighting: each measured coordinate is weighted by 1/σ, its known σ
 /// ([`Measurement::sigma`]) or its group's, estimated from the residuals
-/// ([`crate::noise`]): lengths and angles each get their own.
+/// ([`crate::identify::noise`]): lengths and angles each get their own.
 /// With a robust [`Loss`], iteratively reweighted least squares: standardise
 /// the residuals by their group's robust scale, reweight by `ψ(u)/u`, refit,
 /// until the weights settle. Poses beyond `outlier_threshold` are reported;
@@ -2171,7 +2174,7 @@ pub fn analyze<M: Mechanism>(
             "the identification Jacobian is not finite at these parameters".into(),
         ));
     }
-    let default = crate::simulate::Noise::lengths(1.0);
+    let default = crate::measurement::data::Noise::lengths(1.0);
     let mut row = 0;
     for m in &data {
         for a in 0..measurement.row_len(m) {

@@ -3,12 +3,12 @@
 //! Jacobian of eq. 12, by implicit differentiation of the loop closure and of
 //! the equilibrium (never finite differences around a nested solve).
 
-use crate::autodiff::jacobians;
+use crate::engine::linearized::load_vector;
+use crate::engine::models::{Model, Pose, Prediction, independent_actuators, predict_pose};
 use crate::error::{Error, Result};
-use crate::kinematics::solve_scaled;
-use crate::linearized::load_vector;
+use crate::linalg::solve::solve_scaled;
+use crate::mechanism::autodiff::jacobians;
 use crate::mechanism::{Mechanism, Params};
-use crate::models::{Model, Pose, Prediction, independent_actuators, predict_pose};
 use nalgebra::{DMatrix, DVector};
 
 /// A prediction with its derivatives.
@@ -56,14 +56,18 @@ pub fn sensitivity_at<M: Mechanism>(
     let nx = spec.tool_axes.len();
     let np = spec.n_params();
     let rho = params.geometric();
-    let force = crate::models::effective_force(mech, pose, force)?;
+    let force = crate::engine::models::effective_force(mech, pose, force)?;
     let ind = independent_actuators(spec);
     let mut jac = DMatrix::zeros(nx, np);
-    let effective = crate::models::effective_model(spec, model, &force);
+    let effective = crate::engine::models::effective_model(spec, model, &force);
     match effective {
         Model::Rigid | Model::Linear => {
-            let (jf, jx_rho) =
-                crate::linearized::tool_derivatives(mech, &prediction.q, rho, &spec.independent)?;
+            let (jf, jx_rho) = crate::engine::linearized::tool_derivatives(
+                mech,
+                &prediction.q,
+                rho,
+                &spec.independent,
+            )?;
             // ∂x/∂ρ at fixed independent joints.
             jac.columns_mut(0, ng).copy_from(&jx_rho);
             // ∂q_u/∂p, then through J_f.
@@ -179,7 +183,7 @@ fn exact_sensitivity<M: Mechanism>(
     let lambda = if prediction.multipliers.len() == m {
         DVector::from_column_slice(&prediction.multipliers)
     } else {
-        crate::lu::Lu::new(&gq * gq.transpose())
+        crate::linalg::lu::Lu::new(&gq * gq.transpose())
             .solve(&(&gq * rhs))
             .ok_or_else(|| Error::Singular {
                 q: q.clone(),

@@ -12,7 +12,7 @@
 //! | `BallBar` | distances `|b − s_j| + d` from the ball `b` to sockets `s_j` | `s1x s1y [s1z] … dbar`, and `ball.x ball.y [ball.z]` on a tool with an orientation |
 //! | `Probe` | the tool point's height above a bed plane, `z − h(x, y)` (a z-probe, a dial gauge on a surface plate) | `bed.z` (mm), `bed.rx bed.ry` (rad) |
 //!
-//! followed by the instrument frame's parameters (`frame.x …`, [`crate::frame`])
+//! followed by the instrument frame's parameters (`frame.x …`, [`crate::measurement::frame`])
 //! unless the data are in the base frame ([`Frame::Base`]). A ball bar has no
 //! frame of its own: its sockets fix it. Identification appends `m` to the
 //! mechanism's parameters; the instrument's own are fixed unless freed by
@@ -21,10 +21,14 @@
 //! A new instrument (distances between two poses, say) is one new variant:
 //! its readings, names, units and parameters below.
 
-use crate::ballbar::Setup;
+pub mod ballbar;
+pub mod data;
+pub mod frame;
+
 use crate::error::{Error, Result};
-use crate::frame::{self, ToolLayout};
-use crate::gough_stewart::transform;
+use crate::linalg::pose::transform;
+use crate::measurement::ballbar::Setup;
+use crate::mechanism::tool::ToolLayout;
 use crate::mechanism::{Scalar, Spec};
 use crate::units::Unit;
 use nalgebra::DMatrix;
@@ -37,7 +41,7 @@ pub enum Frame {
     /// The data are in the base frame (ball-bar sockets at known places, a
     /// frame already registered).
     Base,
-    /// At this known pose ([`crate::frame`]: `x, y, phi` or
+    /// At this known pose ([`crate::measurement::frame`]: `x, y, phi` or
     /// `x, y, z, rx, ry, rz`).
     Known(Vec<f64>),
     /// Unknown (a tracker or camera where it was put): identified with the
@@ -672,7 +676,7 @@ impl MeasurementModel {
 
     /// The model's parameters `own` (its own, the frame's ignored) with the
     /// frame found by rigid registration of the readings onto those of tools
-    /// at `predicted` (Kabsch/Horn, [`crate::frame::register`]): a start near
+    /// at `predicted` (Kabsch/Horn, [`crate::measurement::frame::register`]): a start near
     /// the solution wherever the instrument stands. Models whose readings are
     /// not whole positions (a subset of axes) keep the frame of `own`.
     pub fn registered(

@@ -2,10 +2,11 @@
 //! Newton on `g(q, ρ) = 0`, docs/model.md eq. 3) and inverse (tool position → all
 //! joints, closed form where the mechanism has one, Newton otherwise).
 
-use crate::autodiff::jacobians;
 use crate::error::{Error, Result};
+use crate::linalg::solve::{checked_lu, solve_square_in_place};
 use crate::mechanism::Mechanism;
-use nalgebra::{DMatrix, DVector};
+use crate::mechanism::autodiff::jacobians;
+use nalgebra::DMatrix;
 
 /// Newton stops when the largest joint step is below this (rad or mm).
 pub const STEP_TOL: f64 = 1e-13;
@@ -31,9 +32,6 @@ pub const MAX_CONTINUATION_STAGES: usize = 20_000;
 const MM_PER_RAD: f64 = CONTINUATION_STEP_MM / CONTINUATION_STEP;
 /// Largest Newton iterations per solve.
 const MAX_NEWTON: usize = 40;
-/// Relative pivot size below which a Jacobian counts as singular.
-pub const SINGULAR_RCOND: f64 = 1e-9;
-
 /// Solve `g(q, ρ) = 0` for the joints not in `fixed`, starting from `q`
 /// (modified in place). `fixed` must hold as many joints as degrees of freedom.
 pub fn solve_closure<M: Mechanism>(
@@ -53,7 +51,7 @@ fn solve_closure_keeping<M: Mechanism>(
     rho: &[f64],
     q: &mut [f64],
     fixed: &[usize],
-) -> Result<(usize, Option<crate::autodiff::Jacobians>)> {
+) -> Result<(usize, Option<crate::mechanism::autodiff::Jacobians>)> {
     let spec = mech.spec();
     let nq = spec.joints.len();
     let free: Vec<usize> = (0..nq).filter(|i| !fixed.contains(i)).collect();
@@ -66,13 +64,13 @@ fn solve_closure_keeping<M: Mechanism>(
         )));
     }
     let mut last = f64::INFINITY;
-    let mut j = crate::autodiff::Jacobians::empty();
+    let mut j = crate::mechanism::autodiff::Jacobians::empty();
     // The square system's matrix and right-hand side, sized once per solve.
     let n = free.len();
     let mut gv = DMatrix::zeros(n, n);
     let mut step = vec![0.0; n];
     for it in 0..MAX_NEWTON {
-        crate::autodiff::jacobians_into(mech, q, rho, 0..nq, &mut j);
+        crate::mechanism::autodiff::jacobians_into(mech, q, rho, 0..nq, &mut j);
         for (c, &f) in free.iter().enumerate() {
             gv.column_mut(c).copy_from(&j.dg.column(f));
         }
@@ -142,189 +140,6 @@ pub(crate) fn step_turn(
     }
 }
 
-/// LU factorisation (partial pivoting) of a square matrix, or `None` when a
-/// pivot falls below [`SINGULAR_RCOND`] times the largest entry (singular).
-pub(crate) fn checked_lu(a: DMatrix<f64>) -> Option<crate::lu::Lu> {
-    let scale = a.amax();
-    if scale.is_nan() || scale <= 0.0 {
-        return None;
-    }
-    let lu = crate::lu::Lu::new(a);
-    (lu.min_pivot() >= SINGULAR_RCOND * scale).then_some(lu)
-}
-
-/// Solve `A X = B` (square `A`) after scaling `A`'s rows, then its columns, to
-/// unit largest entry, with the singularity check of [`checked_lu`] on the
-/// scaled matrix. For systems whose blocks have very different units, such as
-/// the equilibrium's KKT matrix (stiffness next to constraint gradients).
-pub(crate) fn solve_scaled(a: DMatrix<f64>, b: DMatrix<f64>) -> Option<DMatrix<f64>> {
-    let (mut a, mut b) = (a, b);
-    solve_scaled_in_place(&mut a, &mut b).then_some(b)
-}
-
-/// [`solve_scaled`] in place: `b` becomes the solution and `a` its scaled
-/// LU factors; `false` (with `a` and `b` overwritten) when `A` is singular.
-pub(crate) fn solve_scaled_in_place(a: &mut DMatrix<f64>, b: &mut DMatrix<f64>) -> bool {
-    let n = a.nrows();
-    if n == 0 {
-        return true;
-    }
-    let (av, bv) = (a.as_mut_slice(), b.as_mut_slice());
-    // Small sizes get loops compiled for their size (unrolled): about 1.4x
-    // faster on the reference's 8 x 8 KKT system.
-    match n {
-        4 => scaled_lu_solve(4, av, bv),
-        5 => scaled_lu_solve(5, av, bv),
-        6 => scaled_lu_solve(6, av, bv),
-        7 => scaled_lu_solve(7, av, bv),
-        8 => scaled_lu_solve(8, av, bv),
-        9 => scaled_lu_solve(9, av, bv),
-        10 => scaled_lu_solve(10, av, bv),
-        11 => scaled_lu_solve(11, av, bv),
-        12 => scaled_lu_solve(12, av, bv),
-        _ => scaled_lu_solve(n, av, bv),
-    }
-}
-
-#[inline(always)]
-fn scaled_lu_solve(n: usize, av: &mut [f64], bv: &mut [f64]) -> bool {
-    // In place on the column-major storage of the two owned matrices: these
-    // systems are small (tens of unknowns) and solved once per Newton
-    // iteration, where nalgebra's strided row views and its LU's copies
-    // cost more than the arithmetic. (Scaling by powers of two, as LAPACK's
-    // `dgeequb`, would save the divisions, but changes the last bits of
-    // the results, and with them near-tie choices of `plan`.)
-    let mut rows_buf = [0.0; SMALL_SYSTEM];
-    let mut rows_vec = vec![];
-    let r: &mut [f64] = if n <= SMALL_SYSTEM {
-        &mut rows_buf[..n]
-    } else {
-        rows_vec.resize(n, 0.0);
-        &mut rows_vec
-    };
-    // The maxima below skip NaN entries, as `f64::max` does, in a form
-    // that compiles to one vector instruction (`f64::max`'s NaN handling
-    // does not): every running maximum starts at zero and is never NaN.
-    for col in av.chunks_exact(n) {
-        for (ri, v) in r.iter_mut().zip(col) {
-            *ri = larger(*ri, v.abs());
-        }
-    }
-    // (Without an early exit, so that the check is one vector pass.)
-    if r.iter()
-        .fold(false, |bad, ri| bad | !(*ri > 0.0 && ri.is_finite()))
-    {
-        return false;
-    }
-    for col in av.chunks_exact_mut(n).chain(bv.chunks_exact_mut(n)) {
-        for (v, ri) in col.iter_mut().zip(r.iter()) {
-            *v /= ri;
-        }
-    }
-    // The column factors, kept (in `r`) to unscale the solution. Each
-    // scaled column's largest entry is then exactly 1 (its largest entry
-    // divided by itself; the rows' scaling left every entry finite or NaN),
-    // so the scaled matrix's largest entry, the scale of the singularity
-    // test, is 1.
-    for (col, cj) in av.chunks_exact_mut(n).zip(r.iter_mut()) {
-        let big = largest_magnitude(col);
-        if big <= 0.0 || big.is_nan() {
-            return false;
-        }
-        *cj = big;
-        col.iter_mut().for_each(|v| *v /= big);
-    }
-    // LU with partial pivoting; rows of `b` swapped along.
-    let mut min_pivot = f64::INFINITY;
-    for k in 0..n {
-        let colk = &av[k * n..(k + 1) * n];
-        let (mut p, mut big) = (k, colk[k].abs());
-        for (i, v) in colk.iter().enumerate().skip(k + 1) {
-            if v.abs() > big {
-                (p, big) = (i, v.abs());
-            }
-        }
-        if p != k {
-            for col in av.chunks_exact_mut(n).chain(bv.chunks_exact_mut(n)) {
-                col.swap(k, p);
-            }
-        }
-        let pivot = av[k + k * n];
-        // (`f64::min` keeps the non-NaN operand, as this comparison does.)
-        if pivot.abs() < min_pivot {
-            min_pivot = pivot.abs();
-        }
-        if pivot == 0.0 {
-            continue;
-        }
-        let (done, rest) = av.split_at_mut((k + 1) * n);
-        let lk = &mut done[k * n + k + 1..];
-        lk.iter_mut().for_each(|v| *v /= pivot);
-        for col in rest.chunks_exact_mut(n) {
-            let y = col[k];
-            if y == 0.0 {
-                continue;
-            }
-            for (v, l) in col[k + 1..].iter_mut().zip(lk.iter()) {
-                *v -= l * y;
-            }
-        }
-    }
-    // (A NaN entry gives a NaN solution, which the callers reject as a
-    // failed step, as they did with nalgebra's LU.)
-    if min_pivot.is_nan() || min_pivot < SINGULAR_RCOND {
-        return false;
-    }
-    for x in bv.chunks_exact_mut(n) {
-        for k in 0..n {
-            let xk = x[k];
-            let col = &av[k * n..(k + 1) * n];
-            for (v, l) in x[k + 1..].iter_mut().zip(&col[k + 1..]) {
-                *v -= l * xk;
-            }
-        }
-        for k in (0..n).rev() {
-            let col = &av[k * n..(k + 1) * n];
-            x[k] /= col[k];
-            let xk = x[k];
-            for (v, u) in x[..k].iter_mut().zip(&col[..k]) {
-                *v -= u * xk;
-            }
-        }
-        for (v, cj) in x.iter_mut().zip(r.iter()) {
-            *v /= cj;
-        }
-    }
-    true
-}
-
-/// `m.max(v)` for a running maximum `m` that is not NaN: a NaN `v` is
-/// skipped, as `f64::max` skips it.
-#[inline(always)]
-fn larger(m: f64, v: f64) -> f64 {
-    if v > m { v } else { m }
-}
-
-/// The largest magnitude in `v` (NaN entries skipped; 0 when empty), in four
-/// lanes: a maximum does not depend on the order it is taken in, so this is
-/// the sequential `fold` of [`larger`], bit for bit, in fewer dependent
-/// steps.
-#[inline(always)]
-fn largest_magnitude(v: &[f64]) -> f64 {
-    let mut lanes = [0.0f64; 4];
-    let mut chunks = v.chunks_exact(4);
-    for c in &mut chunks {
-        for (l, x) in lanes.iter_mut().zip(c) {
-            *l = larger(*l, x.abs());
-        }
-    }
-    let m = larger(larger(lanes[0], lanes[1]), larger(lanes[2], lanes[3]));
-    chunks.remainder().iter().fold(m, |m, x| larger(m, x.abs()))
-}
-
-/// Systems up to this size keep their scale factors on the stack.
-const SMALL_SYSTEM: usize = 32;
-
 /// Signs of the determinants that identify an assembly branch: of the
 /// constraint Jacobian with respect to the dependent joints (forward
 /// kinematics), and of `[∂g/∂q; ∂x/∂q]` (inverse kinematics) when the tool has
@@ -348,14 +163,16 @@ fn sign(d: f64) -> i8 {
 
 /// The forward-kinematics sign of [`branch_signs_of`] alone (its first),
 /// for mechanisms whose branch that one sign fixes.
-pub fn forward_branch_sign_of(spec: &crate::Spec, j: &crate::autodiff::Jacobians) -> i8 {
+pub fn forward_branch_sign_of(spec: &crate::Spec, j: &crate::mechanism::autodiff::Jacobians) -> i8 {
     let nq = spec.joints.len();
     let dependent: Vec<usize> = (0..nq).filter(|i| !spec.independent.contains(i)).collect();
-    sign(crate::lu::determinant(j.dg.select_columns(&dependent)))
+    sign(crate::linalg::lu::determinant(
+        j.dg.select_columns(&dependent),
+    ))
 }
 
 /// [`branch_signs`] from the derivatives (joint columns) at the configuration.
-pub fn branch_signs_of(spec: &crate::Spec, j: &crate::autodiff::Jacobians) -> [i8; 2] {
+pub fn branch_signs_of(spec: &crate::Spec, j: &crate::mechanism::autodiff::Jacobians) -> [i8; 2] {
     let nq = spec.joints.len();
     let fk = forward_branch_sign_of(spec, j);
     let ik = if spec.n_constraints + spec.tool_axes.len() == nq {
@@ -364,39 +181,11 @@ pub fn branch_signs_of(spec: &crate::Spec, j: &crate::autodiff::Jacobians) -> [i
             .copy_from(&j.dg);
         a.view_mut((spec.n_constraints, 0), (spec.tool_axes.len(), nq))
             .copy_from(&j.dx);
-        sign(crate::lu::determinant(a))
+        sign(crate::linalg::lu::determinant(a))
     } else {
         0
     };
     [fk, ik]
-}
-
-/// Solve a square system by LU with a singularity check on the pivots.
-pub(crate) fn solve_square(a: DMatrix<f64>, b: DVector<f64>) -> Option<DVector<f64>> {
-    let (mut a, mut x) = (a, b);
-    solve_square_in_place(&mut a, x.as_mut_slice()).then_some(x)
-}
-
-/// `A x = b` in place: `b` becomes the solution and `a` its LU factors;
-/// `false` when `A` is singular (by [`checked_lu`]'s test). The same
-/// operations as [`checked_lu`] then [`crate::lu::Lu::solve`], so the same
-/// bits.
-pub(crate) fn solve_square_in_place(a: &mut DMatrix<f64>, b: &mut [f64]) -> bool {
-    // `amax` skips NaN entries as this does, and where every entry is NaN
-    // both scales are rejected (NaN there, 0 here).
-    let scale = largest_magnitude(a.as_slice());
-    if scale.is_nan() || scale <= 0.0 {
-        return false;
-    }
-    let solved = crate::lu::solve_in_place(a, b);
-    let n = a.nrows();
-    // The smallest pivot, NaN skipped as `f64::min` skips it.
-    let min_pivot = a
-        .as_slice()
-        .iter()
-        .step_by(n + 1)
-        .fold(f64::INFINITY, |m, v| if v.abs() < m { v.abs() } else { m });
-    min_pivot >= SINGULAR_RCOND * scale && solved
 }
 
 /// Forward kinematics: the full joint vector with the independent joints
@@ -656,7 +445,7 @@ fn ik_continuation<M: Mechanism>(
     }
     let stages = (stages as usize).max(1);
     let all: Vec<usize> = (0..nq).collect();
-    let mut j = crate::autodiff::Jacobians::empty();
+    let mut j = crate::mechanism::autodiff::Jacobians::empty();
     // Newton's system `[∂g/∂q; ∂x/∂q] step = [g; x − goal]`, in buffers
     // kept from one iteration to the next (every entry is rewritten).
     let mut a = DMatrix::zeros(nq, nq);
@@ -669,7 +458,7 @@ fn ik_continuation<M: Mechanism>(
         }
         let mut converged = false;
         for _ in 0..MAX_NEWTON {
-            crate::autodiff::jacobians_into(mech, &q, rho, 0..nq, &mut j);
+            crate::mechanism::autodiff::jacobians_into(mech, &q, rho, 0..nq, &mut j);
             a.view_mut((0, 0), (spec.n_constraints, nq))
                 .copy_from(&j.dg);
             a.view_mut((spec.n_constraints, 0), (target.len(), nq))
@@ -770,70 +559,6 @@ pub fn choose_independent<M: Mechanism>(mech: &M, q: &[f64], rho: &[f64]) -> Vec
                     pick[m] = pick[m - 1] + 1;
                 }
                 break;
-            }
-        }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use rand::{RngExt, SeedableRng, rngs::StdRng};
-
-    /// The scaled solve's maxima are `f64::max`'s sequential folds, bit for
-    /// bit: NaN entries skipped, signed zeros, every length and remainder.
-    #[test]
-    fn lane_maxima_are_the_sequential_folds() {
-        let mut rng = StdRng::seed_from_u64(11);
-        for len in 0..40 {
-            for case in 0..4 {
-                let v: Vec<f64> = (0..len)
-                    .map(|i| match (case, i % 5) {
-                        (1, 0) => f64::NAN,
-                        (2, _) => -0.0,
-                        (3, 1) => f64::INFINITY,
-                        _ => rng.random_range(-1e3..1e3),
-                    })
-                    .collect();
-                let sequential = v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
-                assert_eq!(
-                    largest_magnitude(&v).to_bits(),
-                    sequential.to_bits(),
-                    "{v:?}"
-                );
-                let running = v.iter().fold(0.0f64, |m, x| larger(m, x.abs()));
-                assert_eq!(running.to_bits(), sequential.to_bits());
-            }
-        }
-    }
-
-    /// The in-place solve is [`checked_lu`] then its solve, bit for bit,
-    /// singular systems included (a zero column, a tiny pivot, a NaN entry).
-    #[test]
-    fn square_solves_in_place_are_the_allocating_ones() {
-        let mut rng = StdRng::seed_from_u64(7);
-        for n in 1..=14 {
-            for case in 0..4 {
-                let mut a = DMatrix::from_fn(n, n, |_, _| rng.random_range(-3.0..3.0));
-                let b = DVector::from_fn(n, |_, _| rng.random_range(-3.0..3.0));
-                match case {
-                    1 => a.column_mut(n / 2).fill(0.0),
-                    2 => {
-                        // The last column nearly the first (a tiny pivot).
-                        let c = a.column(0) + a.column(n - 1) * 1e-12;
-                        a.column_mut(n - 1).copy_from(&c);
-                    }
-                    3 => a[(n - 1, 0)] = f64::NAN,
-                    _ => {}
-                }
-                let expected = checked_lu(a.clone()).and_then(|lu| lu.solve(&b));
-                let (mut a2, mut x) = (a.clone(), b.as_slice().to_vec());
-                let solved = solve_square_in_place(&mut a2, &mut x);
-                assert_eq!(solved, expected.is_some(), "n {n} case {case}");
-                if let Some(e) = expected {
-                    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-                    assert_eq!(bits(e.as_slice()), bits(&x), "n {n} case {case}");
-                }
             }
         }
     }

@@ -4,19 +4,19 @@
 //! A mechanism is plain data ([`Spec`]) plus two functions written once, generic
 //! over the scalar type, so that every derivative the method needs (∂g/∂q, ∂g/∂ρ,
 //! ∂x/∂q, ∂x/∂ρ and the second derivatives of the equilibrium) comes exactly from
-//! forward-mode automatic differentiation ([`crate::autodiff`]).
+//! forward-mode automatic differentiation ([`crate::mechanism::autodiff`]).
 //!
 //! Parameter vectors are laid out as `[ρ (geometric), Δq (encoder offsets, one per
 //! actuated joint), k (stiffness, one per actuated joint)]`; [`Spec::param_names`]
 //! gives the names in that order.
 
+pub mod autodiff;
+pub mod tool;
+
 use crate::error::{Error, Result};
 use crate::units::{ParamKind, Unit};
-use num_dual::DualNum;
 
-/// The scalar type mechanism functions are written for: `f64` or a dual number.
-pub trait Scalar: DualNum<Primitive = f64> + Copy + Send + Sync {}
-impl<T: DualNum<Primitive = f64> + Copy + Send + Sync> Scalar for T {}
+pub use crate::linalg::Scalar;
 
 /// The plain description of a mechanism: names, indices, nominal values.
 #[derive(Debug, Clone, PartialEq)]
@@ -50,7 +50,7 @@ pub struct Spec {
     pub tool_units: Vec<Unit>,
     /// What the tool coordinates are geometrically (how a change of the
     /// instrument's frame acts on them).
-    pub tool_layout: crate::frame::ToolLayout,
+    pub tool_layout: crate::mechanism::tool::ToolLayout,
     /// Nominal values of all parameters, in [`Spec::param_names`] order.
     pub nominal: Vec<f64>,
     /// A configuration of the nominal mechanism on the wanted assembly branch.
@@ -60,7 +60,7 @@ pub struct Spec {
     /// Box `[min, max]` per tool axis that contains the workspace (mm).
     pub workspace_box: Vec<[f64; 2]>,
     /// Factor that turns the work of a tool force (N × mm) into the unit of the
-    /// elastic energy `½ k δ²`: [`crate::linearized::MM_TO_M`] (10⁻³) when the
+    /// elastic energy `½ k δ²`: [`crate::units::MM_TO_M`] (10⁻³) when the
     /// stiffness is in N·m/rad (revolute actuators, energy in N·m), 1 when it is
     /// in N/mm (prismatic actuators, energy in N·mm). Only the load term uses it.
     pub work_scale: f64,
@@ -72,10 +72,10 @@ pub struct Spec {
     /// is judged and the workspace is sampled (e.g. a platform radius for an
     /// orientation in rad); empty means 1 for every axis.
     pub axis_scale: Vec<f64>,
-    /// Smallest inverse condition number ([`crate::workspace::conditioning`])
-    /// of a usable workspace pose: [`crate::workspace::MIN_CONDITIONING`] for
+    /// Smallest inverse condition number ([`crate::engine::atlas::conditioning`])
+    /// of a usable workspace pose: [`crate::engine::atlas::MIN_CONDITIONING`] for
     /// the reference mechanism; for a described mechanism, a fraction
-    /// ([`crate::workspace::RELATIVE_CONDITIONING`]) of its reference pose's.
+    /// ([`crate::engine::atlas::RELATIVE_CONDITIONING`]) of its reference pose's.
     pub min_conditioning: f64,
 }
 
@@ -231,11 +231,11 @@ impl Spec {
             return bad("joints, geometric parameters and tool axes are in mm or rad".into());
         }
         let layout_size = match self.tool_layout {
-            crate::frame::ToolLayout::PlanarPoint => Some(2),
-            crate::frame::ToolLayout::PlanarPose => Some(3),
-            crate::frame::ToolLayout::SpatialPose => Some(6),
-            crate::frame::ToolLayout::Points { dim, count } => Some(dim * count),
-            crate::frame::ToolLayout::Readings => None,
+            crate::mechanism::tool::ToolLayout::PlanarPoint => Some(2),
+            crate::mechanism::tool::ToolLayout::PlanarPose => Some(3),
+            crate::mechanism::tool::ToolLayout::SpatialPose => Some(6),
+            crate::mechanism::tool::ToolLayout::Points { dim, count } => Some(dim * count),
+            crate::mechanism::tool::ToolLayout::Readings => None,
         };
         if layout_size.is_some_and(|n| n != self.tool_axes.len()) {
             return bad(format!(
@@ -327,14 +327,14 @@ pub trait Mechanism: Send + Sync {
     /// Values and exact first derivatives of the constraints and the tool map
     /// with respect to the columns `cols` of `[q; ρ]`, when the mechanism has
     /// them in closed form (cheaper than automatic differentiation). The
-    /// default (`None`) makes [`crate::autodiff::jacobians`] differentiate
+    /// default (`None`) makes [`crate::mechanism::autodiff::jacobians`] differentiate
     /// automatically; the tests compare the two.
     fn first_derivatives(
         &self,
         _q: &[f64],
         _rho: &[f64],
         _cols: std::ops::Range<usize>,
-    ) -> Option<crate::autodiff::Jacobians> {
+    ) -> Option<crate::mechanism::autodiff::Jacobians> {
         None
     }
 
@@ -347,7 +347,7 @@ pub trait Mechanism: Send + Sync {
         q: &[f64],
         rho: &[f64],
         cols: std::ops::Range<usize>,
-        out: &mut crate::autodiff::Jacobians,
+        out: &mut crate::mechanism::autodiff::Jacobians,
     ) -> bool {
         match self.first_derivatives(q, rho, cols) {
             Some(j) => {
@@ -374,9 +374,9 @@ pub trait Mechanism: Send + Sync {
         Self: Sized,
     {
         let nq = q.len();
-        let h = crate::autodiff::output_hessians(self, q, rho, 0..nq, 0..nq + rho.len());
+        let h = crate::mechanism::autodiff::output_hessians(self, q, rho, 0..nq, 0..nq + rho.len());
         let weights: Vec<f64> = lambda.iter().chain(mu).copied().collect();
-        crate::autodiff::weighted_sum(&h, &weights)
+        crate::mechanism::autodiff::weighted_sum(&h, &weights)
     }
 
     /// Second derivatives of each constraint, then each tool coordinate, with
@@ -387,7 +387,7 @@ pub trait Mechanism: Send + Sync {
     where
         Self: Sized,
     {
-        crate::autodiff::output_hessians(self, q, rho, 0..q.len(), 0..q.len())
+        crate::mechanism::autodiff::output_hessians(self, q, rho, 0..q.len(), 0..q.len())
     }
 
     /// Check parameter values beyond finiteness (e.g. lengths that must be
@@ -406,7 +406,12 @@ pub trait Mechanism: Send + Sync {
     /// configuration within Newton's tolerance of `q` (the last iteration of
     /// forward kinematics), for mechanisms that judge the branch from them.
     /// The default ignores them.
-    fn on_branch_near(&self, q: &[f64], rho: &[f64], _jac: &crate::autodiff::Jacobians) -> bool {
+    fn on_branch_near(
+        &self,
+        q: &[f64],
+        rho: &[f64],
+        _jac: &crate::mechanism::autodiff::Jacobians,
+    ) -> bool {
         self.on_branch(q, rho)
     }
 }

@@ -18,10 +18,8 @@
 //! Points and readings (target points, ball-bar distances) are measurement
 //! outputs, not a body the load acts on: their load is taken as given.
 
-use crate::frame::ToolLayout;
-
-/// N·m to N·mm.
-const M_TO_MM: f64 = 1e3;
+use crate::mechanism::tool::ToolLayout;
+use crate::units::M_TO_MM;
 
 /// Generalised forces on the tool coordinates (N on lengths, N·mm per rad on
 /// angles) of a wrench `load` (N, N·m) at tool coordinates `x`.
@@ -47,7 +45,7 @@ pub fn generalized_forces(layout: ToolLayout, x: &[f64], load: &[f64]) -> Vec<f6
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::gough_stewart::rotation;
+    use crate::linalg::pose::rotation;
 
     /// The work of a moment over a small rotation equals `Q·δ(angles)`.
     #[test]

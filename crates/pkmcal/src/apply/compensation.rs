@@ -10,13 +10,14 @@
 //! `null(Γᵀ)` (it does no work on feasible motions, so the pose stays). The
 //! commands follow from eq. 2: `c = q_r* − Δq + K⁻¹τ`.
 
-use crate::autodiff::jacobians;
+use crate::apply::workspace::nominal_commands;
+use crate::engine::kinematics::inverse_kinematics;
+use crate::engine::linearized::{linearize, load_vector};
+use crate::engine::models::Model;
 use crate::error::{Error, Result};
-use crate::kinematics::{checked_lu, inverse_kinematics};
-use crate::linearized::{linearize, load_vector};
+use crate::linalg::solve::checked_lu;
+use crate::mechanism::autodiff::jacobians;
 use crate::mechanism::{Mechanism, Params};
-use crate::models::Model;
-use crate::workspace::nominal_commands;
 use nalgebra::{DMatrix, DVector};
 
 /// Commands for one target.
@@ -40,7 +41,7 @@ pub struct Compensation {
 /// What the commands must achieve besides the position.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct CompensationOptions {
-    /// External load on the tool, a wrench ([`crate::load`]: N along lengths,
+    /// External load on the tool, a wrench ([`crate::engine::load`]: N along lengths,
     /// N·m about angles); empty for none.
     pub force: Vec<f64>,
     /// Desired actuator torques (N·m) whose internal part (the projection on
@@ -112,7 +113,8 @@ pub fn compensate<M: Mechanism>(
         })?;
         let mut tau = DVector::zeros(l);
         if loaded {
-            let q_load = crate::load::generalized_forces(spec.tool_layout, target, &opts.force);
+            let q_load =
+                crate::engine::load::generalized_forces(spec.tool_layout, target, &opts.force);
             let p = load_vector(&lin, &q_load);
             tau += &kd * gamma * (&m * p);
         }
@@ -244,8 +246,8 @@ pub fn predistort<M: Mechanism>(
         // The controller's configuration starts forward kinematics: the
         // real machine is near it.
         let (commands, q) = controller_configuration(mech, controller, &sent)?;
-        let pose = crate::models::prepare_pose(mech, &commands, Some(&q))?;
-        let reached = crate::models::predict_pose(mech, &pose, real, model, &opts.force)?;
+        let pose = crate::engine::models::prepare_pose(mech, &commands, Some(&q))?;
+        let reached = crate::engine::models::predict_pose(mech, &pose, real, model, &opts.force)?;
         residual = 0.0;
         for ((s, x), t) in sent.iter_mut().zip(&reached.x).zip(target) {
             let e = x - t;
@@ -449,7 +451,7 @@ pub fn correction_grid<M: Mechanism>(
             compensate(mech, params, &grid.target(n), model, opts)
                 .ok()
                 .filter(|c| {
-                    crate::workspace::conditioning(mech, &c.q, params.geometric())
+                    crate::engine::atlas::conditioning(mech, &c.q, params.geometric())
                         >= spec.min_conditioning
                 })
         })
@@ -530,7 +532,8 @@ pub fn interpolation_error<M: Mechanism>(
                 .zip(&corr)
                 .map(|(c, d)| c + d)
                 .collect();
-            let reached = crate::models::predict(mech, params, &sent, model, &opts.force).ok()?;
+            let reached =
+                crate::engine::models::predict(mech, params, &sent, model, &opts.force).ok()?;
             let dc: Vec<f64> = sent
                 .iter()
                 .zip(&exact.commands)

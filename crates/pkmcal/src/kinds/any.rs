@@ -2,11 +2,11 @@
 //! program (the CLI) can choose the kind at run time from a description.
 
 use crate::Result;
-use crate::gough_stewart::GoughStewart;
+use crate::kinds::gough_stewart::GoughStewart;
+use crate::kinds::planar::PlanarLinkage;
+use crate::kinds::reference::JeongKim2Dof;
+use crate::kinds::spatial::SpatialMechanism;
 use crate::mechanism::{Mechanism, Scalar, Spec};
-use crate::planar::PlanarLinkage;
-use crate::reference::JeongKim2Dof;
-use crate::spatial::SpatialMechanism;
 use nalgebra::DMatrix;
 
 /// A mechanism of any shipped kind; it implements [`Mechanism`] by delegation.
@@ -75,7 +75,7 @@ impl Mechanism for AnyMechanism {
         q: &[f64],
         rho: &[f64],
         cols: std::ops::Range<usize>,
-    ) -> Option<crate::autodiff::Jacobians> {
+    ) -> Option<crate::mechanism::autodiff::Jacobians> {
         each!(self, m => m.first_derivatives(q, rho, cols))
     }
 
@@ -84,7 +84,7 @@ impl Mechanism for AnyMechanism {
         q: &[f64],
         rho: &[f64],
         cols: std::ops::Range<usize>,
-        out: &mut crate::autodiff::Jacobians,
+        out: &mut crate::mechanism::autodiff::Jacobians,
     ) -> bool {
         each!(self, m => m.first_derivatives_into(q, rho, cols, out))
     }
@@ -97,7 +97,12 @@ impl Mechanism for AnyMechanism {
     fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
         each!(self, m => m.on_branch(q, rho))
     }
-    fn on_branch_near(&self, q: &[f64], rho: &[f64], jac: &crate::autodiff::Jacobians) -> bool {
+    fn on_branch_near(
+        &self,
+        q: &[f64],
+        rho: &[f64],
+        jac: &crate::mechanism::autodiff::Jacobians,
+    ) -> bool {
         each!(self, m => m.on_branch_near(q, rho, jac))
     }
     fn check_params(&self, rho: &[f64]) -> Result<()> {

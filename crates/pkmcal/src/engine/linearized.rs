@@ -13,14 +13,11 @@
 //! tool (N, e.g. a payload's weight `m·g`); the paper's `Q + N` (the force the
 //! actuators must deliver at the tool) is its negative.
 
-use crate::autodiff::jacobians;
 use crate::error::{Error, Result};
-use crate::kinematics::checked_lu;
+use crate::linalg::solve::checked_lu;
 use crate::mechanism::Mechanism;
+use crate::mechanism::autodiff::jacobians;
 use nalgebra::{DMatrix, DVector};
-
-/// N·mm → N·m: a tool force (N) times a length in mm gives 1e-3 N·m.
-pub const MM_TO_M: f64 = 1e-3;
 
 /// The paper's matrices at one configuration.
 #[derive(Debug, Clone)]
@@ -164,7 +161,7 @@ pub fn projection(gamma: &DMatrix<f64>, k: &[f64]) -> Result<DMatrix<f64>> {
 
 /// The generalised load `P` of eq. 10 (N·m, or N for prismatic actuation; see
 /// [`crate::Spec::work_scale`]) for generalised forces `force` on the tool
-/// coordinates (N on lengths, N·mm per rad on angles: [`crate::load`] maps a
+/// coordinates (N on lengths, N·mm per rad on angles: [`crate::engine::load`] maps a
 /// wrench to them): `P = J_fᵀ (Q + N)` with `Q + N = −force`.
 /// An empty `force` means no load; otherwise it has one value per tool axis.
 pub fn load_vector(lin: &Linearization, force: &[f64]) -> DVector<f64> {
@@ -194,7 +191,7 @@ pub fn joint_errors(
     let kd = DMatrix::from_diagonal(&DVector::from_column_slice(k));
     let gkg = lin.gamma.transpose() * &kd * &lin.gamma;
     let load = &lin.gamma
-        * crate::lu::Lu::new(gkg)
+        * crate::linalg::lu::Lu::new(gkg)
             .solve(p)
             .unwrap_or_else(|| DVector::zeros(p.len()));
     let dq = &lambda * DVector::from_column_slice(offsets)

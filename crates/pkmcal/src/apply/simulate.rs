@@ -1,135 +1,16 @@
 //! Simulated measurements: commands from nominal inverse kinematics, tool
 //! positions from the true parameters (exact model) plus Gaussian noise.
 
+use crate::engine::kinematics::inverse_kinematics;
+use crate::engine::models::{Model, predict_pose, prepare_pose};
 use crate::error::Result;
-use crate::kinematics::inverse_kinematics;
 use crate::measurement::MeasurementModel;
+use crate::measurement::data::{Measurement, Noise};
 use crate::mechanism::{Mechanism, Params};
-use crate::models::{Model, predict_pose, prepare_pose};
-use crate::units::{Quantity, Unit};
+
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 use rand_distr::{Distribution, Normal};
-
-/// One measured pose: what was commanded, what was measured, how well, and
-/// where it came from. Every subset of a data set (held-out poses, folds,
-/// poses left after dropping outliers) keeps each pose's σ and origin.
-#[derive(Debug, Clone, PartialEq, Default)]
-pub struct Measurement {
-    /// The target the commands were computed for (tool coordinates), if known.
-    pub target: Option<Vec<f64>>,
-    /// Actuator commands (each in its joint's unit, rad or mm).
-    pub commands: Vec<f64>,
-    /// The commands of a second pose when the row is a distance between two
-    /// poses (a printed object or a gauge measured with calipers): `measured`
-    /// is then one value, the distance between the tool points at `commands`
-    /// and at `partner` (mm, [`crate::measurement::DISTANCE_AXIS`]), whatever
-    /// the instrument of the other rows.
-    pub partner: Option<Vec<f64>>,
-    /// Measured coordinates (each in its axis's unit, mm or rad).
-    pub measured: Vec<f64>,
-    /// Known standard deviation of each measured coordinate (same unit);
-    /// `None` where it is to be estimated from the residuals. Empty: none
-    /// known.
-    pub sigma: Vec<Option<f64>>,
-    /// Where the pose came from, for messages and reports; `None`: its
-    /// position in the data given to the library.
-    pub origin: Option<Origin>,
-}
-
-/// Where a pose came from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
-pub struct Origin {
-    /// Pose number in the data file (1-based, file order).
-    pub pose: usize,
-    /// Line in the data file.
-    pub line: Option<u64>,
-    /// Whether the row is a distance between two poses
-    /// ([`Measurement::partner`]); `pose` is then its number among the
-    /// distances (their own file's numbering in the command-line tool).
-    #[serde(skip_serializing_if = "std::ops::Not::not")]
-    pub distance: bool,
-}
-
-impl std::fmt::Display for Origin {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let what = if self.distance { "distance" } else { "pose" };
-        write!(f, "{what} {}", self.pose)?;
-        if let Some(l) = self.line {
-            write!(f, " (line {l})")?;
-        }
-        Ok(())
-    }
-}
-
-impl Measurement {
-    /// The known standard deviation of coordinate `axis`, if any.
-    pub fn sigma_of(&self, axis: usize) -> Option<f64> {
-        self.sigma.get(axis).copied().flatten()
-    }
-}
-
-/// `data` with every pose's [`Origin`] filled in (its 1-based position where
-/// none was given), so that subsets still name the original poses.
-pub fn numbered(data: &[Measurement]) -> Vec<Measurement> {
-    data.iter()
-        .enumerate()
-        .map(|(i, m)| {
-            let mut m = m.clone();
-            let distance = m.partner.is_some();
-            m.origin.get_or_insert(Origin {
-                pose: i + 1,
-                line: None,
-                distance,
-            });
-            m
-        })
-        .collect()
-}
-
-/// Standard deviations of simulated measurement noise, per kind of
-/// coordinate: a length noise never lands on an angle.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Noise {
-    /// On every length coordinate (positions, distances), mm.
-    pub length: f64,
-    /// On every angle coordinate (orientations), rad.
-    pub angle: f64,
-}
-
-/// The default angle noise of [`Noise::lengths`]: the length noise over this
-/// lever arm (mm), e.g. 10 µrad for 2 µm.
-pub const DEFAULT_ANGLE_LEVER_MM: f64 = 200.0;
-
-impl Noise {
-    /// No noise.
-    pub const NONE: Noise = Noise {
-        length: 0.0,
-        angle: 0.0,
-    };
-    /// Length noise `mm` and the angle noise of a tracker of that quality:
-    /// `mm /` [`DEFAULT_ANGLE_LEVER_MM`] rad.
-    pub fn lengths(mm: f64) -> Self {
-        Noise {
-            length: mm,
-            angle: mm / DEFAULT_ANGLE_LEVER_MM,
-        }
-    }
-    /// The standard deviation for a coordinate in `unit`.
-    pub fn for_unit(&self, unit: Unit) -> f64 {
-        match unit.quantity() {
-            Quantity::Angle => self.angle,
-            _ => self.length,
-        }
-    }
-}
-
-impl From<f64> for Noise {
-    /// [`Noise::lengths`].
-    fn from(mm: f64) -> Self {
-        Noise::lengths(mm)
-    }
-}
 
 /// Simulate measurements at `targets` (tool coordinates) for a mechanism
 /// whose true parameters are `truth`, read by the instrument `measurement` at
@@ -207,7 +88,7 @@ pub(crate) fn noise_normals(
 pub(crate) fn prepare_target<M: Mechanism>(
     mech: &M,
     target: &[f64],
-) -> Result<(Vec<f64>, crate::models::Pose)> {
+) -> Result<(Vec<f64>, crate::engine::models::Pose)> {
     let spec = mech.spec();
     let q = inverse_kinematics(mech, &spec.nominal[..spec.n_geometric()], target)?;
     let commands: Vec<f64> = spec.actuated.iter().map(|&j| q[j]).collect();
@@ -224,7 +105,7 @@ pub(crate) fn measure<M: Mechanism>(
     truth: &Params,
     target: &[f64],
     commands: Vec<f64>,
-    pose: &crate::models::Pose,
+    pose: &crate::engine::models::Pose,
     normals: &[Normal<f64>],
     rng: &mut StdRng,
 ) -> Result<Measurement> {

@@ -16,7 +16,7 @@
 //! 1/σ makes the fit the maximum-likelihood one whatever the units.
 
 use crate::measurement::MeasurementModel;
-use crate::simulate::Measurement;
+use crate::measurement::data::Measurement;
 use crate::units::Unit;
 use nalgebra::DMatrix;
 use serde::Serialize;

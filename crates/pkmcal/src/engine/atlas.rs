@@ -1,10 +1,10 @@
-//! The reachable, well-conditioned workspace: where targets and measurement
-//! poses may be placed.
+//! The usable workspace as the engine sees it: the inverse condition number
+//! of a configuration, the lattice over the workspace box, and the atlas of
+//! known configurations that starts forward kinematics near its answer.
 
-use crate::error::{Error, Result};
-use crate::kinematics::inverse_kinematics;
-use crate::linearized::linearize;
-use crate::mechanism::{Mechanism, Params};
+use crate::engine::linearized::linearize;
+use crate::error::Result;
+use crate::mechanism::Mechanism;
 
 /// Smallest inverse condition number (of `∂g/∂q_v` and of `J_f`) accepted for a
 /// usable pose.
@@ -14,18 +14,6 @@ pub const MIN_CONDITIONING: f64 = 0.2;
 /// mechanism needs to be usable (0.45 × 0.444 ≈ [`MIN_CONDITIONING`] for the
 /// reference mechanism).
 pub const RELATIVE_CONDITIONING: f64 = 0.45;
-
-/// A reachable tool position with its nominal joints.
-#[derive(Debug, Clone, PartialEq)]
-pub struct WorkspacePoint {
-    /// Tool coordinates (mm).
-    pub target: Vec<f64>,
-    /// Joint vector from inverse kinematics (nominal parameters).
-    pub q: Vec<f64>,
-    /// Inverse condition number, the smaller of `∂g/∂q_v` and `J_f`'s (0 at a
-    /// singularity, 1 at best).
-    pub conditioning: f64,
-}
 
 fn inverse_condition(m: &nalgebra::DMatrix<f64>) -> f64 {
     if m.iter().any(|v| !v.is_finite()) {
@@ -46,7 +34,7 @@ pub fn conditioning<M: Mechanism>(mech: &M, q: &[f64], rho: &[f64]) -> f64 {
     };
     let nq = spec.joints.len();
     let dependent: Vec<usize> = (0..nq).filter(|i| !spec.independent.contains(i)).collect();
-    let j = crate::autodiff::jacobians(mech, q, rho, 0..nq);
+    let j = crate::mechanism::autodiff::jacobians(mech, q, rho, 0..nq);
     // Joints and tool axes in mm-equivalent units (Spec::joint_scale,
     // Spec::axis_scale), so that mixed units do not pass for ill-conditioning.
     let mut gv = j.dg.select_columns(&dependent);
@@ -69,7 +57,7 @@ pub const MAX_LATTICE_POINTS: usize = 200_000;
 
 /// Lattice coordinates per axis: spacing `spacing` mm-equivalent
 /// ([`crate::Spec::axis_scale`]), coarsened to at most [`MAX_LATTICE_POINTS`].
-fn lattice_axes(spec: &crate::Spec, spacing: f64) -> Vec<Vec<f64>> {
+pub(crate) fn lattice_axes(spec: &crate::Spec, spacing: f64) -> Vec<Vec<f64>> {
     axes_at(spec, lattice_spacing(spec, spacing, MAX_LATTICE_POINTS))
 }
 
@@ -111,56 +99,17 @@ pub fn lattice_spacing(spec: &crate::Spec, spacing: f64, max_points: usize) -> f
     }
 }
 
-/// Evaluate one target: inverse kinematics and conditioning (nominal
-/// parameters). An error if it is unreachable.
-pub fn workspace_point<M: Mechanism>(mech: &M, target: &[f64]) -> Result<WorkspacePoint> {
-    let spec = mech.spec();
-    let rho = &spec.nominal[..spec.n_geometric()];
-    point_from(mech, target, inverse_kinematics(mech, rho, target)?)
-}
-
-/// The [`WorkspacePoint`] of `target` reached at `q` (nominal parameters).
-fn point_from<M: Mechanism>(mech: &M, target: &[f64], q: Vec<f64>) -> Result<WorkspacePoint> {
-    let spec = mech.spec();
-    let rho = &spec.nominal[..spec.n_geometric()];
-    let conditioning = conditioning(mech, &q, rho);
-    Ok(WorkspacePoint {
-        target: target.to_vec(),
-        q,
-        conditioning,
-    })
-}
-
-/// All lattice points with spacing `spacing` (mm; an axis in other units is
-/// spaced by `spacing / axis_scale`) in the mechanism's workspace box that are
-/// reachable with conditioning ≥ [`crate::Spec::min_conditioning`]. The spacing is
-/// coarsened if the lattice would exceed [`MAX_LATTICE_POINTS`].
-pub fn sample_workspace<M: Mechanism>(mech: &M, spacing: f64) -> Vec<WorkspacePoint> {
-    use rayon::prelude::*;
-    let spec = mech.spec();
-    let reference = Reference::new(mech, &spec.nominal[..spec.n_geometric()]);
-    lattice_targets(spec, spacing)
-        .into_par_iter()
-        .filter_map(|target| {
-            let q = reference.inverse_kinematics(&target).ok()?;
-            point_from(mech, &target, q)
-                .ok()
-                .filter(|p| p.conditioning >= spec.min_conditioning)
-        })
-        .collect()
-}
-
 /// The inverse kinematics of many targets under the same parameters, from
 /// one reference configuration (computed when the first target without a
 /// closed form needs it): what [`inverse_kinematics`] does for each.
-struct Reference<'a, M> {
+pub(crate) struct Reference<'a, M> {
     mech: &'a M,
     rho: &'a [f64],
     q: std::sync::OnceLock<Option<Vec<f64>>>,
 }
 
 impl<'a, M: Mechanism> Reference<'a, M> {
-    fn new(mech: &'a M, rho: &'a [f64]) -> Self {
+    pub(crate) fn new(mech: &'a M, rho: &'a [f64]) -> Self {
         Self {
             mech,
             rho,
@@ -168,11 +117,11 @@ impl<'a, M: Mechanism> Reference<'a, M> {
         }
     }
 
-    fn inverse_kinematics(&self, target: &[f64]) -> Result<Vec<f64>> {
-        crate::kinematics::inverse_kinematics_from(self.mech, self.rho, target, || {
+    pub(crate) fn inverse_kinematics(&self, target: &[f64]) -> Result<Vec<f64>> {
+        crate::engine::kinematics::inverse_kinematics_from(self.mech, self.rho, target, || {
             self.q
                 .get_or_init(|| {
-                    crate::kinematics::reference_configuration(self.mech, self.rho).ok()
+                    crate::engine::kinematics::reference_configuration(self.mech, self.rho).ok()
                 })
                 .clone()
                 .ok_or_else(|| {
@@ -185,7 +134,7 @@ impl<'a, M: Mechanism> Reference<'a, M> {
 }
 
 /// The points of the lattice of [`sample_workspace`], in order.
-fn lattice_targets(spec: &crate::Spec, spacing: f64) -> Vec<Vec<f64>> {
+pub(crate) fn lattice_targets(spec: &crate::Spec, spacing: f64) -> Vec<Vec<f64>> {
     let axes = lattice_axes(spec, spacing);
     let mut out = Vec::new();
     let mut idx = vec![0usize; axes.len()];
@@ -203,160 +152,12 @@ fn lattice_targets(spec: &crate::Spec, spacing: f64) -> Vec<Vec<f64>> {
     out
 }
 
-/// `count` targets spread evenly over the usable workspace: farthest-point
-/// sampling of a fine lattice, starting from the point nearest the centroid.
-/// Deterministic.
-pub fn spread_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<WorkspacePoint>> {
-    let spec = mech.spec();
-    let extent = scaled_extent(spec);
-    let dims = spec.workspace_box.len() as i32;
-    // About 40 lattice points per target, at least 3600 (60 per axis in 2-D).
-    let spacing = extent / (40.0 * count as f64).max(3600.0).powf(1.0 / dims as f64);
-    let pool = sample_workspace(mech, spacing);
-    if pool.len() < count {
-        return Err(too_few(spec, pool.len(), count));
-    }
-    let d2 = |a: &[f64], b: &[f64]| {
-        a.iter()
-            .zip(b)
-            .enumerate()
-            .map(|(k, (x, y))| ((x - y) * spec.axis_scale(k)).powi(2))
-            .sum::<f64>()
-    };
-    let n = spec.tool_axes.len();
-    let centroid: Vec<f64> = (0..n)
-        .map(|k| pool.iter().map(|p| p.target[k]).sum::<f64>() / pool.len() as f64)
-        .collect();
-    let first = (0..pool.len())
-        .min_by(|&a, &b| d2(&pool[a].target, &centroid).total_cmp(&d2(&pool[b].target, &centroid)))
-        .expect("pool is not empty");
-    let mut chosen = vec![first];
-    let mut nearest: Vec<f64> = pool
-        .iter()
-        .map(|p| d2(&p.target, &pool[first].target))
-        .collect();
-    while chosen.len() < count {
-        let next = (0..pool.len())
-            .max_by(|&a, &b| nearest[a].total_cmp(&nearest[b]))
-            .expect("pool is not empty");
-        chosen.push(next);
-        for (i, p) in pool.iter().enumerate() {
-            nearest[i] = nearest[i].min(d2(&p.target, &pool[next].target));
-        }
-    }
-    Ok(chosen.into_iter().map(|i| pool[i].clone()).collect())
-}
-
-/// The workspace box of a described mechanism: one `[min, max]` per tool
-/// axis from the description's `[workspace]` table, in axis order.
-pub(crate) fn box_from_description(
-    axes: &[String],
-    given: &std::collections::BTreeMap<String, [f64; 2]>,
-) -> Result<Vec<[f64; 2]>> {
-    let bad = |m: String| Err(Error::InvalidMechanism(m));
-    if let Some(k) = given.keys().find(|k| !axes.contains(k)) {
-        return bad(format!(
-            "[workspace]: unknown tool axis `{k}` (axes: {})",
-            axes.join(", ")
-        ));
-    }
-    let mut out = Vec::with_capacity(axes.len());
-    for a in axes {
-        let Some(r) = given.get(a) else {
-            return bad(format!(
-                "[workspace] needs `{a} = [min, max]` (one interval per tool axis: {})",
-                axes.join(", ")
-            ));
-        };
-        if !(r[0].is_finite() && r[1].is_finite() && r[0] < r[1]) {
-            return bad(format!(
-                "[workspace]: `{a}` must be [min, max] with min < max"
-            ));
-        }
-        out.push(*r);
-    }
-    Ok(out)
-}
-
-/// The largest extent of the workspace box, in mm-equivalent units.
-/// The error for a workspace with too few usable points: none at all means
-/// the box misses the reachable, well-conditioned region.
-fn too_few(spec: &crate::Spec, found: usize, count: usize) -> Error {
-    if found == 0 {
-        Error::InvalidRequest(format!(
-            "no reachable, well-conditioned pose of `{}` lies in its workspace box {:?}; check the box (`[workspace]`) against the mechanism's reach",
-            spec.name, spec.workspace_box
-        ))
-    } else {
-        Error::InvalidRequest(format!(
-            "only {found} usable workspace points were found for {count} targets; ask for fewer"
-        ))
-    }
-}
-
-fn scaled_extent(spec: &crate::Spec) -> f64 {
+pub(crate) fn scaled_extent(spec: &crate::Spec) -> f64 {
     spec.workspace_box
         .iter()
         .enumerate()
         .map(|(k, [a, b])| (b - a) * spec.axis_scale(k))
         .fold(0.0, f64::max)
-}
-
-/// Commands (one per actuator) that put the nominal mechanism's tool at
-/// `target`: nominal inverse kinematics.
-pub fn nominal_commands<M: Mechanism>(mech: &M, target: &[f64]) -> Result<Vec<f64>> {
-    let spec = mech.spec();
-    let nominal = Params::nominal(spec);
-    let q = inverse_kinematics(mech, nominal.geometric(), target)?;
-    Ok(spec.actuated.iter().map(|&j| q[j]).collect())
-}
-
-/// `count` distinct usable targets drawn at random (seeded) from a 5 mm
-/// lattice of the usable workspace: unseen poses for validation.
-pub fn random_targets<M: Mechanism>(mech: &M, count: usize, seed: u64) -> Result<Vec<Vec<f64>>> {
-    use rand::SeedableRng;
-    use rand::seq::SliceRandom;
-    let mut pool = sample_workspace(mech, 5.0);
-    if pool.len() < count {
-        return Err(too_few(mech.spec(), pool.len(), count));
-    }
-    pool.shuffle(&mut rand::rngs::StdRng::seed_from_u64(seed));
-    Ok(pool.into_iter().take(count).map(|p| p.target).collect())
-}
-
-/// A plain grid of `count` usable targets: the coarsest square lattice over the
-/// workspace box with at least `count` usable points, thinned evenly to
-/// `count`. The baseline measurement plan.
-pub fn grid_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<WorkspacePoint>> {
-    let spec = mech.spec();
-    let extent = scaled_extent(spec);
-    let dims = spec.workspace_box.len() as f64;
-    let finest = if dims <= 2.0 {
-        extent / 400.0
-    } else {
-        extent / (200.0 * count as f64).powf(1.0 / dims)
-    };
-    let (mut lo, mut hi) = (finest, extent);
-    // Bisection on the spacing; `lo` is known to give `count` usable points
-    // once it has moved. The finest lattice (up to 160,000 points, seconds
-    // of inverse kinematics on a planar linkage) is sampled only when it
-    // never does.
-    let mut verified = false;
-    for _ in 0..30 {
-        let mid = 0.5 * (lo + hi);
-        if sample_workspace(mech, mid).len() >= count {
-            lo = mid;
-            verified = true;
-        } else {
-            hi = mid;
-        }
-    }
-    let lattice = sample_workspace(mech, lo);
-    if !verified && lattice.len() < count {
-        return Err(too_few(spec, lattice.len(), count));
-    }
-    let n = lattice.len();
-    Ok((0..count).map(|i| lattice[i * n / count].clone()).collect())
 }
 
 /// Known configurations spread over the usable workspace, for starting forward
@@ -405,7 +206,8 @@ impl Atlas {
                 let mut previous: Option<Vec<f64>> = None;
                 targets.iter().filter_map(move |target| {
                     let near = previous.as_deref().and_then(|p| {
-                        crate::kinematics::inverse_kinematics_near(mech, rho, target, p).ok()
+                        crate::engine::kinematics::inverse_kinematics_near(mech, rho, target, p)
+                            .ok()
                     });
                     previous = near.or_else(|| reference.inverse_kinematics(target).ok());
                     let q = previous.clone()?;
@@ -470,7 +272,7 @@ mod tests {
     /// (a tie) and with fewer commands than actuators.
     #[test]
     fn the_nearest_entry_is_the_one_a_plain_scan_finds() {
-        let mech = crate::reference::JeongKim2Dof::default();
+        let mech = crate::kinds::reference::JeongKim2Dof::default();
         let atlas = Atlas::build(&mech, 200);
         assert!(atlas.len() > 50, "{} entries", atlas.len());
         let scan = |commands: &[f64]| {

@@ -1,0 +1,9 @@
+//! Using a mechanism and its calibration: simulated measurements,
+//! compensated commands and correction tables, measurement planning, Monte
+//! Carlo studies of a plan, and the usable workspace's targets.
+
+pub mod compensation;
+pub mod montecarlo;
+pub mod planning;
+pub mod simulate;
+pub mod workspace;

@@ -1,0 +1,14 @@
+//! Linear algebra and the numbers the rest is written in: the scalar type
+//! (`f64` or a dual number), LU factorisations and checked square solves,
+//! the equilibrium's KKT solve, and the pose convention (rotations).
+
+use num_dual::DualNum;
+
+pub(crate) mod kkt;
+pub mod lu;
+pub mod pose;
+pub(crate) mod solve;
+
+/// The scalar type mechanism functions are written for: `f64` or a dual number.
+pub trait Scalar: DualNum<Primitive = f64> + Copy + Send + Sync {}
+impl<T: DualNum<Primitive = f64> + Copy + Send + Sync> Scalar for T {}
