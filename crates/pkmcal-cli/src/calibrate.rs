@@ -2,7 +2,7 @@
 
 use crate::io::{Csv, Mech, read_mechanism, read_params};
 use anyhow::{Context, Result, bail};
-use pkmcal::identify::calibration::{CrossValidation, Identifiability};
+use pkmcal::identify::{CrossValidation, Identifiability};
 use pkmcal::{
     Accuracy, Calibration, CalibrationOptions, ErrorStats, Frame, Measurement, MeasurementModel,
     Mechanism, Model, Params, PoseCache, calibrate_with_cache, calibration_accuracy,
@@ -880,8 +880,8 @@ const PRINTED_CORRELATIONS: usize = 10;
 
 /// The strongest correlations (largest |r| first), at most
 /// [`PRINTED_CORRELATIONS`], and how many more the reports hold.
-fn print_correlations(all: &[pkmcal::identify::calibration::Correlation], label: &str) {
-    let mut sorted: Vec<&pkmcal::identify::calibration::Correlation> = all.iter().collect();
+fn print_correlations(all: &[pkmcal::identify::Correlation], label: &str) {
+    let mut sorted: Vec<&pkmcal::identify::Correlation> = all.iter().collect();
     sorted.sort_by(|a, b| b.r.abs().total_cmp(&a.r.abs()));
     for c in sorted.iter().take(PRINTED_CORRELATIONS) {
         println!("  {label}: {} and {} (r = {:+.3})", c.a, c.b, c.r);
@@ -890,7 +890,7 @@ fn print_correlations(all: &[pkmcal::identify::calibration::Correlation], label:
         println!(
             "  {label}: {} more pairs with |r| > {} (all of them in --report's JSON)",
             sorted.len() - PRINTED_CORRELATIONS,
-            pkmcal::identify::calibration::CORRELATION_REPORT
+            pkmcal::identify::CORRELATION_REPORT
         );
     }
 }

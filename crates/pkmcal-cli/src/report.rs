@@ -7,7 +7,7 @@ use crate::figures::{self, Figure, ParamBar};
 use crate::io::Mech;
 use anyhow::Result;
 use base64::Engine;
-use pkmcal::identify::calibration::{CrossValidation, ErrorVectors, RANK_TOL};
+use pkmcal::identify::{CrossValidation, ErrorVectors, RANK_TOL};
 use pkmcal::{
     Accuracy, Calibration, ErrorStats, Measurement, Mechanism, Model, prepare_pose,
     sample_workspace, tool_covariance,

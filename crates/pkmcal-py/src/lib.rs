@@ -9,9 +9,7 @@ use numpy::{
     AllowTypeChange, IntoPyArray, PyArray1, PyArrayLikeDyn, PyReadonlyArrayDyn,
     PyUntypedArrayMethods,
 };
-use pkmcal::identify::calibration::{
-    Calibration as LibCalibration, CrossValidation, Identifiability,
-};
+use pkmcal::identify::{Calibration as LibCalibration, CrossValidation, Identifiability};
 use pkmcal::{
     AnyMechanism, CalibrationOptions, Frame, Loss, MeasurementModel, Mechanism as _, Model, Noise,
     Origin, Params,
@@ -1093,8 +1091,8 @@ impl PyWarning {
     }
 }
 
-fn warning(w: &pkmcal::identify::calibration::Warning) -> PyWarning {
-    use pkmcal::identify::calibration::WarningKind as K;
+fn warning(w: &pkmcal::identify::Warning) -> PyWarning {
+    use pkmcal::identify::WarningKind as K;
     PyWarning {
         kind: match w.kind {
             K::StiffnessRatios { .. } => "stiffness_ratios",
@@ -1188,7 +1186,7 @@ impl PyIdentifiability {
 
 fn observability<'py>(
     py: Python<'py>,
-    o: &pkmcal::identify::calibration::Observability,
+    o: &pkmcal::identify::Observability,
 ) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     for (k, v) in [
@@ -1249,8 +1247,8 @@ struct PyCalibration {
     measurement: MeasurementModel,
     cal: LibCalibration,
     data: Vec<pkmcal::Measurement>,
-    before: pkmcal::identify::calibration::ErrorVectors,
-    after: pkmcal::identify::calibration::ErrorVectors,
+    before: pkmcal::identify::ErrorVectors,
+    after: pkmcal::identify::ErrorVectors,
     accuracy: pkmcal::Accuracy,
     validation: Option<Validation>,
     cross_validation: Option<CrossValidation>,

@@ -71,14 +71,14 @@ pub use engine::models::{
     prepare_pose,
 };
 pub use error::{Error, Origin, Result};
-pub use identify::calibration::{
+pub use identify::noise::NoiseGroup;
+pub use identify::stats::{ErrorStats, error_stats, improvement_percent};
+pub use identify::{
     Accuracy, Calibration, CalibrationOptions, DistanceAccuracy, Identifiability, Loss, Outlier,
     ParameterCovariance, PoseCache, accuracy, analyze, calibrate, calibrate_with_cache,
     calibration_accuracy, calibration_accuracy_with_cache, cross_validate,
     cross_validate_with_progress, holdout_split, predict_with_uncertainty, tool_covariance,
 };
-pub use identify::noise::NoiseGroup;
-pub use identify::stats::{ErrorStats, error_stats, improvement_percent};
 pub use kinds::any::AnyMechanism;
 pub use kinds::gough_stewart::{GoughStewart, GoughStewartAssembly, GoughStewartDescription};
 pub use kinds::planar::{PlanarDescription, PlanarLinkage};
@@ -91,19 +91,11 @@ pub use mechanism::tool::ToolLayout;
 pub use mechanism::{Mechanism, Params, Scalar, Spec};
 pub use units::{AngleUnit, FileUnits, LengthUnit, ParamKind, PartialUnits, Quantity, Role, Unit};
 
-/// The mechanism file of `examples/<name>` as a table (without `type` and
-/// the targets), for a description's `try_into` in unit tests.
 #[cfg(test)]
-pub(crate) fn example_table(name: &str) -> toml::Table {
-    let path = format!(
-        "{}/../../examples/{name}/mechanism.toml",
-        env!("CARGO_MANIFEST_DIR")
-    );
-    let mut t: toml::Table = std::fs::read_to_string(path).unwrap().parse().unwrap();
-    t.remove("type");
-    t.remove("target");
-    t
-}
+#[path = "../tests/support/examples.rs"]
+mod examples;
+#[cfg(test)]
+pub(crate) use examples::example_table;
 
 /// Runs `f` on a thread of rayon's pool (at once when called from one):
 /// work that evaluates poses in parallel many times over (a calibration:

@@ -5,6 +5,8 @@
 //! bounds and a termination reason. Non-convergence is a [`Termination`], not
 //! an error.
 //!
+//! (A long file: the solver and its MINPACK kernels are one job.)
+//!
 //! Written here because no Rust crate offers masks, bounds, covariance and a
 //! rank-revealing QR together (the `levenberg-marquardt` crate has the MINPACK
 //! core but neither masks, bounds nor covariance).

@@ -1,14 +1,5 @@
 //! What the benchmarks share: the shipped examples' mechanism descriptions.
 
-/// The mechanism file of `examples/<name>` as a table (without `type` and
-/// the targets), for a description's `try_into`.
-pub fn example_table(name: &str) -> toml::Table {
-    let path = format!(
-        "{}/../../examples/{name}/mechanism.toml",
-        env!("CARGO_MANIFEST_DIR")
-    );
-    let mut t: toml::Table = std::fs::read_to_string(path).unwrap().parse().unwrap();
-    t.remove("type");
-    t.remove("target");
-    t
-}
+#[path = "../../tests/support/examples.rs"]
+mod examples;
+pub use examples::example_table;

@@ -5,8 +5,8 @@
 use crate::apply::simulate::{measure, noise_normals, prepare_target};
 use crate::engine::models::{Model, Pose, predict_pose};
 use crate::error::Result;
-use crate::identify::calibration::{CalibrationOptions, PoseCache, calibrate_with_cache};
 use crate::identify::stats::{ErrorStats, error_stats};
+use crate::identify::{CalibrationOptions, PoseCache, calibrate_with_cache};
 use crate::measurement::MeasurementModel;
 use crate::measurement::data::Noise;
 use crate::mechanism::{Mechanism, Params};

@@ -6,7 +6,7 @@ use crate::apply::workspace::WorkspacePoint;
 use crate::engine::models::{Model, prepare_pose};
 use crate::engine::sensitivity::sensitivity;
 use crate::error::{Error, Result};
-use crate::identify::calibration::{Observability, observability};
+use crate::identify::{Observability, observability};
 use crate::mechanism::{Mechanism, Params};
 use nalgebra::DMatrix;
 use rayon::prelude::*;

@@ -1,6 +1,9 @@
 //! The three forward models of docs/model.md §4: for actuator commands and a
 //! parameter set, where is the tool?
 //!
+//! (A long file: the three models and the exact equilibrium they share are
+//! one job.)
+//!
 //! * [`Model::Rigid`]: the independent actuated joints sit at `command + Δq`;
 //!   loop closure gives the rest; the other actuators are ignored.
 //! * [`Model::Linear`]: the paper's eq. 11 evaluated at the nominal configuration

@@ -1,7 +1,33 @@
 //! Identification (docs/model.md eq. 12): the least-squares problem, its
-//! identifiability, noise groups and weights, robust losses and outliers,
-//! the fit, uncertainty and validation.
+//! identifiability, noise groups and weights, gross errors, robust losses
+//! and outliers, the fit, uncertainty and validation.
 
-pub mod calibration;
+pub mod driver;
+pub mod gross;
+pub mod identifiability;
+pub mod loss;
 pub mod noise;
+pub mod problem;
+pub mod result;
 pub mod stats;
+pub mod uncertainty;
+pub mod validation;
+pub mod weights;
+
+pub use driver::{
+    CalibrationOptions, MAX_DROPPED_FRACTION, analyze, calibrate, calibrate_with_cache,
+};
+pub use gross::{GROSS_EXTENT_SHARE, GROSS_FACTOR, MIN_SIGMA};
+pub(crate) use identifiability::observability;
+pub use identifiability::{
+    CORRELATION_REPORT, Columns, Correlation, Identifiability, Observability, RANK_TOL,
+    Unidentifiable, ZERO_COLUMN, analyze_identifiability,
+};
+pub use loss::{Loss, OUTLIER_FLOOR_MM, OUTLIER_FLOOR_RAD, Outlier};
+pub use problem::{IdentificationProblem, PoseCache};
+pub use result::{Calibration, ParameterResult, Warning, WarningKind};
+pub use uncertainty::{ParameterCovariance, predict_with_uncertainty, tool_covariance};
+pub use validation::{
+    Accuracy, CrossValidation, DistanceAccuracy, ErrorVectors, accuracy, calibration_accuracy,
+    calibration_accuracy_with_cache, cross_validate, cross_validate_with_progress, holdout_split,
+};

@@ -1,7 +1,8 @@
 //! Gough–Stewart platforms with `n ≥ 6` prismatic legs (general `n`-`n`
-//! geometry; with 7 or more legs the platform is redundantly actuated), and
-//! [`PointTargets`], the measurement of target points on a moving platform
-//! (laser tracker).
+//! geometry; with 7 or more legs the platform is redundantly actuated). Its
+//! target points, measured by a laser tracker, are the measurement model
+//! [`crate::measurement::Instrument::Targets`]. (A long file: the platform's
+//! builder and its exact leg derivatives are one job.)
 //!
 //! Conventions (docs/mechanisms.md):
 //!

@@ -3,6 +3,9 @@
 //! a [`Mechanism`] ([`PlanarLinkage`]) whose loop closure (docs/model.md eq. 3) and
 //! parameter names are derived from the description.
 //!
+//! (A long file: the planar description's builder and its exact derivatives
+//! are one job.)
+//!
 //! Conventions (docs/mechanisms.md explains them with examples):
 //!
 //! - Every body has a frame. The ground frame is the measurement frame. Joints

@@ -1,6 +1,9 @@
 //! The reference mechanism of docs/model.md §10 (paper §3): a planar 2-DOF parallel
 //! mechanism with three actuated base revolute joints (Jeong & Kim).
 //!
+//! (A long file: the reference mechanism, its closed forms and its
+//! hand-written derivatives are one job.)
+//!
 //! Joints `q1..q5`: `q1, q2, q3` actuated at `B1, B2, B3`; `q4, q5` the passive
 //! elbows of legs 1 and 2; leg 3 is a single link. With `e(a) = (cos a, sin a)`:
 //!

@@ -3,6 +3,9 @@
 //! [`Mechanism`] ([`SpatialMechanism`]) whose loop closure (docs/model.md
 //! eq. 3) and parameter names are derived from the description.
 //!
+//! (A long file: the spatial description's builder, its joints and their
+//! exact derivatives are one job.)
+//!
 //! Conventions (docs/mechanisms.md explains them with examples):
 //!
 //! - The base frame is the measurement frame. The platform (the moving body)

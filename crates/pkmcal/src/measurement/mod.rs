@@ -1,6 +1,8 @@
 //! Measurement models: what the instrument observes of the tool, with its own
 //! parameters and exact derivatives (docs/model.md §7).
 //!
+//! (A long file: every measurement model with its derivatives is one job.)
+//!
 //! The mechanism predicts its tool coordinates `x` (base frame) at a pose; a
 //! [`MeasurementModel`] turns them into what the instrument reads,
 //! `y = h(x, m)`, where `m` are the instrument's parameters:

@@ -39,18 +39,6 @@ impl ToolLayout {
         }
     }
 
-    /// Dimension of the tool point (the position part of the tool
-    /// coordinates, where a ball-bar ball sits): 2 in the plane, 3 in space;
-    /// `None` for several points or readings.
-    pub fn point_dim(self) -> Option<usize> {
-        match self {
-            ToolLayout::PlanarPoint | ToolLayout::PlanarPose => Some(2),
-            ToolLayout::SpatialPose => Some(3),
-            ToolLayout::Points { dim, count: 1 } => Some(dim),
-            _ => None,
-        }
-    }
-
     /// Names of the frame parameters.
     pub fn frame_names(self) -> Vec<String> {
         let names: &[&str] = if self.frame_size() == 3 {

@@ -4,7 +4,7 @@
 use crate::common;
 
 use pkmcal::engine::sensitivity::sensitivity;
-use pkmcal::identify::calibration::{Columns, IdentificationProblem, analyze_identifiability};
+use pkmcal::identify::{Columns, IdentificationProblem, analyze_identifiability};
 use pkmcal::kinds::reference::{JeongKim2Dof, demo_truth};
 use pkmcal::*;
 
@@ -156,8 +156,8 @@ const SAME_ERRORS: f64 = 1e-9;
 
 type AccuracyOf = (
     Accuracy,
-    pkmcal::identify::calibration::ErrorVectors,
-    pkmcal::identify::calibration::ErrorVectors,
+    pkmcal::identify::ErrorVectors,
+    pkmcal::identify::ErrorVectors,
 );
 
 /// The accuracy of `cal` on `d` through `calibration_accuracy_with_cache`
@@ -171,7 +171,7 @@ fn reused_and_fresh<M: Mechanism>(
 ) -> (AccuracyOf, AccuracyOf) {
     let tool = MeasurementModel::tool(mech.spec());
     let reused = calibration_accuracy_with_cache(mech, &tool, d, cal, &[], cache).unwrap();
-    let fresh = pkmcal::identify::calibration::accuracy(
+    let fresh = pkmcal::identify::accuracy(
         mech,
         &tool,
         d,
@@ -241,10 +241,9 @@ fn a_set_cancel_flag_stops_every_fit() {
     let cal = calibrate(&mech, &tool, &d, &start, &opts).unwrap();
     assert_eq!(cal.params.values, start.values);
     assert!(
-        cal.warnings.iter().any(|w| matches!(
-            w.kind,
-            pkmcal::identify::calibration::WarningKind::NotConverged { .. }
-        )),
+        cal.warnings
+            .iter()
+            .any(|w| matches!(w.kind, pkmcal::identify::WarningKind::NotConverged { .. })),
         "{:?}",
         cal.warnings
     );

@@ -4,7 +4,7 @@
 
 use crate::common;
 use common::{gough_stewart, perturbed, planar, spread};
-use pkmcal::identify::calibration::IdentificationProblem;
+use pkmcal::identify::IdentificationProblem;
 use pkmcal::kinds::reference::JeongKim2Dof;
 use pkmcal::*;
 

@@ -5,7 +5,7 @@
 
 use crate::common;
 use common::{gough_stewart, perturbed, planar, spread};
-use pkmcal::identify::calibration::WarningKind;
+use pkmcal::identify::WarningKind;
 use pkmcal::{
     CalibrationOptions, JeongKim2Dof, Mechanism, Model, Noise, ParamKind, Params, Unit, accuracy,
     calibrate, cross_validate, simulate,

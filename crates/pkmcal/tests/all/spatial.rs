@@ -539,14 +539,8 @@ fn distances_between_poses_identify_a_deltas_arm_lengths() {
     let data: Vec<pkmcal::Measurement> = heights.iter().chain(&distances).cloned().collect();
 
     // Exact Jacobian of mixed rows.
-    let problem = pkmcal::identify::calibration::IdentificationProblem::new(
-        &m,
-        &probe,
-        &data,
-        Model::Exact,
-        &[],
-    )
-    .unwrap();
+    let problem =
+        pkmcal::identify::IdentificationProblem::new(&m, &probe, &data, Model::Exact, &[]).unwrap();
     assert_eq!(problem.n_readings(), heights.len() + distances.len());
     let x: Vec<f64> = truth
         .values
@@ -644,16 +638,10 @@ fn distance_rows_are_checked() {
         measured: vec![0.0],
         ..Default::default()
     };
-    let e = pkmcal::identify::calibration::IdentificationProblem::new(
-        &m,
-        &tool,
-        &[row],
-        Model::Exact,
-        &[],
-    )
-    .err()
-    .unwrap()
-    .to_string();
+    let e = pkmcal::identify::IdentificationProblem::new(&m, &tool, &[row], Model::Exact, &[])
+        .err()
+        .unwrap()
+        .to_string();
     assert!(
         e.contains("distances between poses") && e.contains("distance 1"),
         "{e}"
@@ -671,16 +659,10 @@ fn distance_rows_are_checked() {
     )
     .unwrap();
     rows[1].measured.push(1.0);
-    let e = pkmcal::identify::calibration::IdentificationProblem::new(
-        &delta,
-        &probe,
-        &rows,
-        Model::Exact,
-        &[],
-    )
-    .err()
-    .unwrap()
-    .to_string();
+    let e = pkmcal::identify::IdentificationProblem::new(&delta, &probe, &rows, Model::Exact, &[])
+        .err()
+        .unwrap()
+        .to_string();
     assert!(e.contains("distance 2: readings (distance)"), "{e}");
 }
 

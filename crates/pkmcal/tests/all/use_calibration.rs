@@ -126,7 +126,7 @@ fn planned_poses_beat_a_plain_grid() {
     for (crit, value) in [
         (
             PlanCriterion::O1,
-            (|o: &pkmcal::identify::calibration::Observability| o.o1) as fn(&_) -> f64,
+            (|o: &pkmcal::identify::Observability| o.o1) as fn(&_) -> f64,
         ),
         (PlanCriterion::O3, |o| o.o3),
         (PlanCriterion::O5, |o| o.o5),

@@ -5,6 +5,10 @@
 use pkmcal::kinds::reference::JeongKim2Dof;
 use pkmcal::{Mechanism, Scalar, Spec, spread_targets};
 
+#[path = "../../support/examples.rs"]
+mod examples;
+pub use examples::example_table as table;
+
 /// The reference mechanism with only `q1, q2` actuated (non-redundant).
 pub struct NonRedundant {
     inner: JeongKim2Dof,
@@ -58,18 +62,6 @@ pub fn targets(n: usize) -> Vec<Vec<f64>> {
         .into_iter()
         .map(|p| p.target)
         .collect()
-}
-
-/// An example's mechanism file as a table (without `type` and targets).
-pub fn table(name: &str) -> toml::Table {
-    let path = format!(
-        "{}/../../examples/{name}/mechanism.toml",
-        env!("CARGO_MANIFEST_DIR")
-    );
-    let mut t: toml::Table = std::fs::read_to_string(&path).unwrap().parse().unwrap();
-    t.remove("type");
-    t.remove("target");
-    t
 }
 
 pub fn planar(name: &str) -> pkmcal::PlanarLinkage {

@@ -1,0 +1,653 @@
+//! Identification of parameter errors and encoder offsets (docs/model.md eq. 12):
+//! minimise `Σ_i ‖x̂_i − h(c_i, p)‖²` over the free parameters with one of the
+//! three forward models, with identifiability analysis before fitting,
+//! uncertainty after, and validation on held-out poses.
+
+use super::gross::{check_sigma, gross_errors};
+use super::identifiability::{
+    Columns, Identifiability, Unidentifiable, analyze_identifiability, correlations,
+};
+use super::loss::{Loss, Outlier};
+use super::problem::{IdentificationProblem, PoseCache, mask};
+use super::result::{Calibration, ParameterResult, Warning, WarningKind};
+use super::uncertainty::ParameterCovariance;
+use super::weights::calibrate_weighted;
+use crate::engine::models::Model;
+use crate::error::Origin;
+use crate::error::{Error, Result};
+use crate::lm;
+use crate::measurement::data::{Measurement, numbered};
+use crate::measurement::{Frame, MeasurementModel};
+use crate::mechanism::{Mechanism, Params, Spec};
+use nalgebra::DMatrix;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Settings of a calibration.
+#[derive(Debug, Clone)]
+pub struct CalibrationOptions {
+    /// Loss applied to the standardised residuals (iteratively reweighted).
+    pub loss: Loss,
+    /// Poses with a standardised residual above this are reported as outliers.
+    pub outlier_threshold: f64,
+    /// Drop the outliers and refit.
+    pub drop_outliers: bool,
+    /// Forward model used for identification.
+    pub model: Model,
+    /// Indices of the parameters to identify.
+    pub free: Vec<usize>,
+    /// External force applied to the tool during the measurements (N).
+    pub force: Vec<f64>,
+    /// Fix unidentifiable parameters automatically (with a warning).
+    pub auto_fix: bool,
+    /// Solver settings (tolerances, bounds; `free` and `weights` are set here).
+    pub solver: lm::Options,
+}
+
+impl CalibrationOptions {
+    /// The mechanism's default free set with the given model.
+    pub fn new(spec: &Spec, model: Model) -> Self {
+        Self {
+            loss: Loss::Squared,
+            outlier_threshold: 4.0,
+            drop_outliers: false,
+            model,
+            free: spec
+                .default_free
+                .iter()
+                .filter_map(|n| spec.param_index(n).ok())
+                .collect(),
+            force: vec![],
+            auto_fix: true,
+            solver: lm::Options {
+                ftol: 1e-12,
+                xtol: 1e-12,
+                max_evaluations: 200,
+                ..lm::Options::default()
+            },
+        }
+    }
+}
+
+/// Largest share of the poses that dropping outliers may remove.
+pub const MAX_DROPPED_FRACTION: f64 = 0.2;
+
+/// Identify the free parameters from measurements (eq. 12), starting from
+/// `start` (usually nominal).
+///
+/// Weighting: each measured coordinate is weighted by 1/σ, its known σ
+/// ([`Measurement::sigma`]) or its group's, estimated from the residuals
+/// ([`crate::identify::noise`]): lengths and angles each get their own.
+/// With a robust [`Loss`], iteratively reweighted least squares: standardise
+/// the residuals by their group's robust scale, reweight by `ψ(u)/u`, refit,
+/// until the weights settle. Poses beyond `outlier_threshold` are reported;
+/// with `drop_outliers` the worst is removed and the fit repeated, until none
+/// is left or [`MAX_DROPPED_FRACTION`] of the poses are gone.
+pub fn calibrate<M: Mechanism>(
+    mech: &M,
+    measurement: &MeasurementModel,
+    data: &[Measurement],
+    start: &Params,
+    opts: &CalibrationOptions,
+) -> Result<Calibration> {
+    calibrate_with_cache(mech, measurement, data, start, opts, &PoseCache::default())
+}
+
+/// [`calibrate`] with the poses prepared in `cache` (those missing are
+/// prepared and left there).
+pub fn calibrate_with_cache<M: Mechanism>(
+    mech: &M,
+    measurement: &MeasurementModel,
+    data: &[Measurement],
+    start: &Params,
+    opts: &CalibrationOptions,
+    cache: &PoseCache,
+) -> Result<Calibration> {
+    crate::on_pool(|| calibrate_on(mech, measurement, data, start, opts, cache))
+}
+
+/// [`calibrate_with_cache`] on the calling thread.
+fn calibrate_on<M: Mechanism>(
+    mech: &M,
+    measurement: &MeasurementModel,
+    data: &[Measurement],
+    start: &Params,
+    opts: &CalibrationOptions,
+    cache: &PoseCache,
+) -> Result<Calibration> {
+    let data = numbered(data);
+    check_sigma(measurement, &data)?;
+    let cap = (data.len() as f64 * MAX_DROPPED_FRACTION).floor() as usize;
+    let mut kept = data;
+    let mut dropped: Vec<Origin> = vec![];
+    let mut found: Vec<Outlier> = vec![];
+    // Gross errors (a misread, a swapped column) would drag the first,
+    // unweighted fit to parameters where poses cannot be assembled: find
+    // them first, drop them when asked to, name them otherwise.
+    // One identification problem per set of poses: its last predictions
+    // start the next evaluation's equilibria, from the screening to the last
+    // refit.
+    let problem_of = |kept: &[Measurement]| {
+        IdentificationProblem::with_cache(
+            mech,
+            measurement,
+            kept,
+            opts.model,
+            &opts.force,
+            Some(cache),
+        )
+    };
+    let mut problem = problem_of(&kept)?;
+    for g in gross_errors(&problem, &kept, start)? {
+        if !opts.drop_outliers || dropped.len() >= cap {
+            return Err(Error::InvalidRequest(format!(
+                "the measurement is {:.4e} mm from the nominal prediction, where the median pose is {:.4e} mm: a gross error (a misread, a swapped column, another pose's row); fix or remove it, or calibrate with --drop-outliers",
+                g.distance, g.median
+            ))
+            .at_pose(g.origin));
+        }
+        kept.retain(|m| m.origin != Some(g.origin));
+        dropped.push(g.origin);
+    }
+    if !dropped.is_empty() {
+        problem = problem_of(&kept)?;
+    }
+    loop {
+        let mut cal = calibrate_weighted(&problem, &kept, start, opts)?;
+        let more = opts.drop_outliers && !cal.outliers.is_empty() && dropped.len() < cap;
+        if !more {
+            if !dropped.is_empty() {
+                cal.warnings.push(Warning::new(WarningKind::Dropped {
+                    poses: dropped.clone(),
+                }));
+            }
+            if !cal.outliers.is_empty() {
+                cal.warnings.push(Warning::new(WarningKind::Outliers {
+                    poses: cal.outliers.iter().map(|o| o.origin).collect(),
+                    threshold: opts.outlier_threshold,
+                    robust_loss: opts.loss != Loss::Squared,
+                    dropping: opts.drop_outliers,
+                }));
+            }
+            cal.dropped = dropped;
+            found.append(&mut cal.outliers);
+            cal.outliers = found;
+            cal.final_predictions = problem.final_predictions(&cal.params);
+            return Ok(cal);
+        }
+        // Drop the worst pose only, then refit: one gross error can make its
+        // neighbours look bad (masking), and a second one can hide behind it.
+        let worst = cal
+            .outliers
+            .iter()
+            .max_by(|a, b| a.standardized.total_cmp(&b.standardized))
+            .expect("not empty")
+            .clone();
+        kept.retain(|m| m.origin != Some(worst.origin));
+        dropped.push(worst.origin);
+        found.push(worst);
+        problem = problem_of(&kept)?;
+    }
+}
+
+/// One least-squares fit with the residuals weighted by 1/`sigma`, from the
+/// mechanism's `start` and the measurement model's `m_given` (default: its
+/// nominal values, the frame registered when free).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn calibrate_once<M: Mechanism>(
+    problem: &IdentificationProblem<'_, M>,
+    data: &[Measurement],
+    start: &Params,
+    m_given: Option<&[f64]>,
+    opts: &CalibrationOptions,
+    sigma: &[f64],
+    exact_free: Option<&[usize]>,
+    known: Option<&Identifiability>,
+) -> Result<(Calibration, DMatrix<f64>)> {
+    let (mech, measurement) = (problem.mech, problem.measurement);
+    let spec = mech.spec();
+    let np = spec.n_params();
+    let mut warnings = vec![];
+    let frame_free = *measurement.frame() == Frame::Free;
+    let m = check_request(problem, data, opts, exact_free)?;
+    let m0 = measurement_start(problem, m_given, start, data)?;
+    let nf = m0.len();
+    let cols = Columns::with_measurement(spec, measurement, &m0);
+    let mut requested = opts.free.clone();
+    if frame_free {
+        requested.extend(measurement.frame_range().map(|i| np + i));
+    }
+    if let Some(f) = exact_free {
+        requested = f.to_vec();
+    }
+    if sigma.len() != m || sigma.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
+        return Err(Error::InvalidRequest(
+            "one positive finite standard deviation per measured coordinate is needed".into(),
+        ));
+    }
+    let weights: Vec<f64> = sigma.iter().map(|v| 1.0 / v).collect();
+    let stiff: Vec<usize> = (spec.n_geometric() + spec.n_actuated()..np).collect();
+    fix_a_stiffness_ratio(opts, &stiff, &cols, &mut requested, &mut warnings);
+    let mut x0: Vec<f64> = start.values.iter().chain(&m0).copied().collect();
+    let mut solver = opts.solver.clone();
+    solver.weights = Some(weights.clone());
+    let (identifiability, free, speculative) = free_set(
+        problem, data, opts, &solver, &cols, &requested, &stiff, &weights, nf, known, &mut x0,
+    )?;
+    identifiability_warnings(opts, frame_free, &identifiability, &mut warnings);
+    solver.free = Some(mask(np + nf, &free));
+    let report = match speculative {
+        Some(r) => r,
+        None => lm::minimize(problem, &x0, &solver),
+    };
+    if !report.termination.converged() {
+        warnings.push(Warning::new(WarningKind::NotConverged {
+            reason: report.termination.reason(),
+        }));
+    }
+    let fit = Fit {
+        report,
+        identifiability,
+        free,
+        requested,
+        warnings,
+    };
+    assemble(problem, data, opts, sigma, &cols, m, fit)
+}
+
+/// The checks before a fit: something free, indices in range, more readings
+/// than free parameters. The number of readings.
+fn check_request<M: Mechanism>(
+    problem: &IdentificationProblem<'_, M>,
+    data: &[Measurement],
+    opts: &CalibrationOptions,
+    exact_free: Option<&[usize]>,
+) -> Result<usize> {
+    let (mech, measurement) = (problem.mech, problem.measurement);
+    let spec = mech.spec();
+    let nx = measurement.len();
+    let np = spec.n_params();
+    let frame_free = *measurement.frame() == Frame::Free;
+    if opts.free.is_empty() && !frame_free {
+        return Err(Error::InvalidRequest(
+            "no parameter is free; free at least one with --free".into(),
+        ));
+    }
+    if let Some(&i) = opts
+        .free
+        .iter()
+        .find(|&&i| i >= np + measurement.n_params())
+    {
+        return Err(Error::InvalidRequest(format!(
+            "free parameter index {i} is out of range: the mechanism has {np} parameters and the measurement model {}",
+            measurement.n_params()
+        )));
+    }
+    let n_free_frame = if frame_free {
+        measurement.frame_range().len()
+    } else {
+        0
+    };
+    let m: usize = data.iter().map(|d| measurement.row_len(d)).sum();
+    let n_requested = exact_free.map_or(opts.free.len() + n_free_frame, <[usize]>::len);
+    if m <= n_requested {
+        return Err(Error::InvalidRequest(format!(
+            "{} {} give {m} readings for {n_requested} free parameters{}; measure more poses (at least {}) or identify fewer parameters (--free NAMES, --fix NAMES){}",
+            data.len(),
+            if data.iter().any(|d| d.partner.is_some()) {
+                "rows"
+            } else {
+                "poses"
+            },
+            if n_free_frame > 0 {
+                " (with the instrument frame's)"
+            } else {
+                ""
+            },
+            n_requested / nx + 1,
+            if nx < spec.tool_axes.len() {
+                format!(
+                    "; {} alone cannot see every parameter of the default set: `analyze` names the combinations they cannot separate",
+                    measurement.axes().join(", ")
+                )
+            } else {
+                String::new()
+            }
+        )));
+    }
+    Ok(m)
+}
+
+/// With every stiffness free and no load, only their ratios act: the first
+/// is fixed (with a warning).
+fn fix_a_stiffness_ratio(
+    opts: &CalibrationOptions,
+    stiff: &[usize],
+    cols: &Columns,
+    requested: &mut Vec<usize>,
+    warnings: &mut Vec<Warning>,
+) {
+    let unloaded = opts.force.iter().all(|f| *f == 0.0);
+    if opts.auto_fix && unloaded && !stiff.is_empty() && stiff.iter().all(|k| requested.contains(k))
+    {
+        // Only the ratios act without a load: fix exactly one.
+        let k = stiff[0];
+        requested.retain(|&i| i != k);
+        warnings.push(Warning::new(WarningKind::StiffnessRatios {
+            fixed: cols.names[k].clone(),
+        }));
+    }
+}
+
+/// The free set the data can identify, from `requested`: identifiability
+/// analysed at the start (the fit of `requested` computed meanwhile on
+/// another thread, kept when the analysis frees them all), and for
+/// stiffness again at the solution without it (moving `x0` there). The
+/// analysis, the free set and the speculative fit if it was kept.
+#[allow(clippy::too_many_arguments)]
+fn free_set<M: Mechanism>(
+    problem: &IdentificationProblem<'_, M>,
+    data: &[Measurement],
+    opts: &CalibrationOptions,
+    solver: &lm::Options,
+    cols: &Columns,
+    requested: &[usize],
+    stiff: &[usize],
+    weights: &[f64],
+    nf: usize,
+    known: Option<&Identifiability>,
+    x0: &mut Vec<f64>,
+) -> Result<(Identifiability, Vec<usize>, Option<lm::Report>)> {
+    let np = problem.mech.spec().n_params();
+    let weigh = |mut jac: DMatrix<f64>| -> Result<DMatrix<f64>> {
+        lm::scale_rows(&mut jac, weights);
+        if jac.iter().any(|v| !v.is_finite()) {
+            return Err(Error::InvalidRequest(
+                "the weighted identification Jacobian is not finite: a standard deviation is too small for the values measured; check the sigma columns and the data".into(),
+            ));
+        }
+        Ok(jac)
+    };
+    // Identifiability at the start.
+    let (_, jac) = problem.residuals_and_jacobian(x0)?;
+    let weighted = weigh(jac)?;
+    // The fit of the requested parameters, computed while identifiability is
+    // analysed (on another thread) and kept when the analysis frees them all
+    // (as it usually does); stopped, and its evaluations undone, when it
+    // fixes one.
+    let mut speculative = None;
+    let analyze = |jac: &DMatrix<f64>| {
+        analyze_identifiability(cols, jac, requested, data.len(), opts.auto_fix)
+    };
+    let (mut identifiability, mut free) = match known {
+        // A refit keeps the first fit's analysis (its free set is `exact_free`).
+        Some(ident) if !opts.auto_fix => (ident.clone(), requested.to_vec()),
+        // The caller's own cancel flag governs every fit: no speculation.
+        _ if opts.solver.cancel.is_some() => analyze(&weighted),
+        _ => {
+            let saved = problem.saved();
+            let cancel = Arc::new(AtomicBool::new(false));
+            let mut fit = solver.clone();
+            fit.free = Some(mask(np + nf, requested));
+            fit.cancel = Some(cancel.clone());
+            let mut analysis = None;
+            let report = rayon::in_place_scope(|s| {
+                s.spawn(|_| {
+                    let a = analyze(&weighted);
+                    if a.1 != requested {
+                        cancel.store(true, Ordering::Relaxed);
+                    }
+                    analysis = Some(a);
+                });
+                lm::minimize(problem, x0, &fit)
+            });
+            let (ident, free) = analysis.expect("the scope waits for the analysis");
+            if free == requested {
+                speculative = Some(report);
+            } else {
+                problem.restore(saved);
+            }
+            (ident, free)
+        }
+    };
+    // Stiffness acts only where the actuators fight, which they do not at
+    // nominal parameters: judge its identifiability where they do, at the
+    // solution without it.
+    let idle: Vec<usize> = stiff
+        .iter()
+        .copied()
+        .filter(|k| requested.contains(k) && !free.contains(k))
+        .collect();
+    if opts.auto_fix && !idle.is_empty() && !free.is_empty() {
+        let mut fit = solver.clone();
+        fit.free = Some(mask(np + nf, &free));
+        *x0 = lm::minimize(problem, x0, &fit).x;
+        let (_, jac) = problem.residuals_and_jacobian(x0)?;
+        (identifiability, free) = analyze(&weigh(jac)?);
+    }
+    Ok((identifiability, free, speculative))
+}
+
+/// The warnings of an identifiability analysis: the instrument frame's
+/// gauge once, then each other unidentifiable direction.
+fn identifiability_warnings(
+    opts: &CalibrationOptions,
+    frame_free: bool,
+    identifiability: &Identifiability,
+    warnings: &mut Vec<Warning>,
+) {
+    // Directions that move the instrument frame with the mechanism are one
+    // matter (the gauge), said once.
+    let (gauge, other): (Vec<&Unidentifiable>, Vec<&Unidentifiable>) = identifiability
+        .unidentifiable
+        .iter()
+        .partition(|u| frame_free && u.terms.iter().any(|(n, _)| n.starts_with("frame.")));
+    if !gauge.is_empty() {
+        warnings.push(Warning::new(WarningKind::FrameGauge {
+            model: opts.model,
+            fixed: gauge.iter().filter_map(|u| u.fixed.clone()).collect(),
+            unfixed: gauge.iter().filter(|u| u.fixed.is_none()).count(),
+        }));
+    }
+    for u in other {
+        warnings.push(Warning::new(WarningKind::Unidentifiable {
+            model: opts.model,
+            combination: u.combination.clone(),
+            fixed: u.fixed.clone(),
+        }));
+    }
+}
+
+/// A finished fit and what the free set's analysis left.
+struct Fit {
+    report: lm::Report,
+    identifiability: Identifiability,
+    free: Vec<usize>,
+    requested: Vec<usize>,
+    warnings: Vec<Warning>,
+}
+
+/// The calibration of a finished fit: parameters with their standard
+/// deviations, covariance (scaled by the variance of unit weight, `m`
+/// readings), correlations; and the unscaled covariance of the free
+/// parameters.
+fn assemble<M: Mechanism>(
+    problem: &IdentificationProblem<'_, M>,
+    data: &[Measurement],
+    opts: &CalibrationOptions,
+    sigma: &[f64],
+    cols: &Columns,
+    m: usize,
+    fit: Fit,
+) -> Result<(Calibration, DMatrix<f64>)> {
+    let (mech, measurement) = (problem.mech, problem.measurement);
+    let spec = mech.spec();
+    let np = spec.n_params();
+    let Fit {
+        report,
+        identifiability,
+        free,
+        requested,
+        mut warnings,
+    } = fit;
+    let params = Params::new(spec, report.x[..np].to_vec())?;
+    let m_values = report.x[np..].to_vec();
+    let frame = m_values[measurement.frame_range()].to_vec();
+    let dof = m.saturating_sub(free.len()).max(1);
+    let s2 = report.sum_of_squares / dof as f64;
+    let (cov_unit, rank) = report.covariance(1e-12);
+    if rank < free.len() {
+        warnings.push(Warning::new(WarningKind::RankDeficient {
+            rank,
+            free: free.len(),
+        }));
+    }
+    let covariance = &cov_unit * s2;
+    let mut parameters = vec![];
+    for (i, name) in cols.names.iter().enumerate() {
+        let k = free.iter().position(|&f| f == i);
+        let note = if k.is_none() && requested.contains(&i) {
+            Some("unidentifiable: fixed at its starting value".into())
+        } else {
+            None
+        };
+        parameters.push(ParameterResult {
+            name: name.clone(),
+            unit: cols.units[i],
+            kind: cols.kinds[i],
+            nominal: cols.nominal[i],
+            identified: report.x[i],
+            change: report.x[i] - cols.nominal[i],
+            std_dev: k.map_or(0.0, |k| covariance[(k, k)].max(0.0).sqrt()),
+            free: k.is_some(),
+            note,
+        });
+    }
+    let correlations = correlations(cols, &free, &covariance);
+    // The mechanism's part travels with the parameters into predictions
+    // (the marginal covariance is the sub-matrix); the instrument's stays in
+    // the parameter table.
+    let mech_free: Vec<usize> = (0..free.len()).filter(|&a| free[a] < np).collect();
+    let parameter_covariance = ParameterCovariance {
+        names: mech_free
+            .iter()
+            .map(|&a| cols.names[free[a]].clone())
+            .collect(),
+        matrix: mech_free
+            .iter()
+            .map(|&a| mech_free.iter().map(|&b| covariance[(a, b)]).collect())
+            .collect(),
+    };
+    Ok((
+        Calibration {
+            parameter_covariance,
+            model: opts.model,
+            params,
+            frame: (!frame.is_empty()).then_some(frame),
+            measurement: m_values,
+            converged: report.termination.converged(),
+            termination_reason: report.termination.reason(),
+            termination: report.termination,
+            iterations: report.iterations,
+            evaluations: report.evaluations,
+            poses: data.iter().filter(|d| d.partner.is_none()).count(),
+            distances: data.iter().filter(|d| d.partner.is_some()).count(),
+            sum_of_squares: report.sum_of_squares,
+            unit_weight_sigma: s2.sqrt(),
+            noise: vec![],
+            parameters,
+            identifiability,
+            covariance,
+            free,
+            correlations,
+            loss: opts.loss,
+            outliers: vec![],
+            dropped: vec![],
+            residuals: report
+                .residuals
+                .iter()
+                .zip(sigma)
+                .map(|(v, s)| v * s)
+                .collect(),
+            sigmas: sigma.to_vec(),
+            jacobian: report.jacobian,
+            warnings,
+            final_predictions: None,
+        },
+        cov_unit,
+    ))
+}
+
+/// The measurement model's parameters to start from: `given`, else its
+/// nominal values with a free frame registered onto the readings predicted
+/// under `params`.
+pub(super) fn measurement_start<M: Mechanism>(
+    problem: &IdentificationProblem<'_, M>,
+    given: Option<&[f64]>,
+    params: &Params,
+    data: &[Measurement],
+) -> Result<Vec<f64>> {
+    let measurement = problem.measurement();
+    if let Some(g) = given {
+        return Ok(g.to_vec());
+    }
+    if *measurement.frame() != Frame::Free {
+        return Ok(measurement.nominal().to_vec());
+    }
+    let (predicted, measured): (Vec<Vec<f64>>, Vec<Vec<f64>>) = problem
+        .predict(params)?
+        .into_iter()
+        .zip(data)
+        .filter(|(_, m)| m.partner.is_none())
+        .map(|(p, m)| (p, m.measured.clone()))
+        .unzip();
+    measurement.registered(measurement.nominal(), &predicted, &measured)
+}
+
+/// Identifiability analysis alone (no fit), at `params` and the measurement
+/// model's nominal values (a free frame registered). Rows are weighted by the
+/// data's σ where given, otherwise by the default noise ratio of lengths and
+/// angles ([`crate::Noise::lengths`]), so that mm and rad do not meet
+/// unscaled. `free` indexes the mechanism's parameters then the model's; a
+/// free frame's are added. Every unidentifiable direction is listed with the
+/// parameter that [`calibrate`] would fix for it.
+pub fn analyze<M: Mechanism>(
+    mech: &M,
+    measurement: &MeasurementModel,
+    data: &[Measurement],
+    params: &Params,
+    model: Model,
+    free: &[usize],
+    force: &[f64],
+) -> Result<Identifiability> {
+    let spec = mech.spec();
+    let data = numbered(data);
+    check_sigma(measurement, &data)?;
+    let problem = IdentificationProblem::new(mech, measurement, &data, model, force)?;
+    let np = spec.n_params();
+    let m0 = measurement_start(&problem, None, params, &data)?;
+    let mut free = free.to_vec();
+    if *measurement.frame() == Frame::Free {
+        free.extend(measurement.frame_range().map(|i| np + i));
+    }
+    let x: Vec<f64> = params.values.iter().chain(&m0).copied().collect();
+    let (_, mut jac) = problem.residuals_and_jacobian(&x)?;
+    if jac.iter().any(|v| !v.is_finite()) {
+        return Err(Error::InvalidRequest(
+            "the identification Jacobian is not finite at these parameters".into(),
+        ));
+    }
+    let default = crate::measurement::data::Noise::lengths(1.0);
+    let mut row = 0;
+    for m in &data {
+        for a in 0..measurement.row_len(m) {
+            let s = m
+                .sigma_of(a)
+                .unwrap_or_else(|| default.for_unit(measurement.row_unit(m, a)));
+            jac.row_mut(row).unscale_mut(s);
+            row += 1;
+        }
+    }
+    let cols = Columns::with_measurement(spec, measurement, &m0);
+    Ok(analyze_identifiability(&cols, &jac, &free, data.len(), true).0)
+}

@@ -1,0 +1,537 @@
+//! The identification least-squares problem (docs/model.md eq. 12): residuals
+//! of the measurement model's predicted readings, their exact Jacobian, and
+//! the caches that share poses and evaluations within one calibration.
+
+use super::result::FinalPredictions;
+use crate::engine::models::{
+    Ahead, Model, Pose, Prediction, pose_ahead, predict_pose_warm, prepare_pose, prepare_pose_ahead,
+};
+use crate::engine::sensitivity::sensitivity_at;
+use crate::error::Origin;
+use crate::error::{Error, Result};
+use crate::lm::Problem;
+use crate::measurement::MeasurementModel;
+use crate::measurement::data::{Measurement, numbered};
+use crate::mechanism::{Mechanism, Params};
+use nalgebra::{DMatrix, DVector};
+use rayon::prelude::*;
+use std::cell::RefCell;
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
+/// Parameters, residuals and Jacobian of the last Jacobian evaluation.
+type CachedJacobian = (Vec<f64>, DVector<f64>, DMatrix<f64>);
+
+/// An identification problem's kept evaluations ([`IdentificationProblem::saved`]).
+type Saved = (Option<CachedPredictions>, Option<CachedJacobian>);
+
+/// Parameters and the predictions at every pose under them.
+pub(super) type CachedPredictions = (Vec<f64>, Arc<Vec<Prediction>>);
+
+/// One data row of an [`IdentificationProblem`]: a pose read by the
+/// instrument, or two poses whose distance was measured.
+#[derive(Debug, Clone, Copy)]
+struct Row {
+    /// Index of its (first) pose.
+    first: usize,
+    /// Index of the second pose of a distance.
+    second: Option<usize>,
+    /// Index of its first reading in the residual vector.
+    offset: usize,
+    /// Number of readings.
+    len: usize,
+}
+
+/// The identification least-squares problem: residuals are the readings
+/// predicted by the measurement model minus those measured, row by row (a
+/// row is a pose, or two poses whose distance was measured,
+/// [`Measurement::partner`]). The parameter vector is the mechanism's
+/// `[ρ, Δq, k]` followed by the measurement model's
+/// ([`MeasurementModel::param_names`]).
+pub struct IdentificationProblem<'a, M: Mechanism> {
+    pub(super) mech: &'a M,
+    pub(super) measurement: &'a MeasurementModel,
+    /// Every pose: each row's first, then the second poses of distances
+    /// (shared with the other problems of a calibration, [`PoseCache`]).
+    poses: Vec<Arc<Pose>>,
+    /// Where each pose came from (its row's origin).
+    pose_origins: Vec<Origin>,
+    rows: Vec<Row>,
+    n_readings: usize,
+    measured: Vec<Vec<f64>>,
+    model: Model,
+    force: Vec<f64>,
+    /// The last parameters evaluated and their predictions: a Jacobian at an
+    /// accepted trial point reuses them, and equilibria start from them
+    /// (shared with the callers, not copied).
+    cache: RefCell<Option<CachedPredictions>>,
+    /// The last Jacobian evaluated, with its parameters.
+    jacobian_cache: RefCell<Option<CachedJacobian>>,
+}
+
+/// Poses prepared once and shared by the identification problems of one
+/// calibration (the gross-error screening, each reweighted fit, each refit
+/// after an outlier is dropped), by their row's origin (and whether it is a
+/// distance's second pose). Their nominal forward kinematics and joint
+/// Hessians are then computed once per calibration; pass the same cache to
+/// [`calibrate_with_cache`] and [`calibration_accuracy_with_cache`] to
+/// compute them once for both.
+#[derive(Default)]
+pub struct PoseCache(Mutex<HashMap<PoseKey, CachedPose>>);
+
+/// The commands a pose was prepared for, and the pose.
+type CachedPose = (Vec<f64>, Arc<Pose>);
+
+/// A row's origin, and whether the pose is a distance's second.
+type PoseKey = (Origin, bool);
+
+impl PoseCache {
+    /// An empty cache.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Whether `cache` holds the pose of `key` for these commands.
+    fn holds(cache: Option<&Self>, key: PoseKey, commands: &[f64]) -> bool {
+        cache.is_some_and(|c| {
+            c.0.lock()
+                .expect("not poisoned")
+                .get(&key)
+                .is_some_and(|(c, _)| c == commands)
+        })
+    }
+
+    /// A cached pose is used only for the same commands (a Monte Carlo
+    /// study shares one cache between runs measuring the same plan).
+    fn get_or_prepare(
+        cache: Option<&Self>,
+        key: PoseKey,
+        commands: &[f64],
+        prepare: impl FnOnce() -> Result<Pose>,
+    ) -> Result<Arc<Pose>> {
+        let Some(cache) = cache else {
+            return prepare().map(Arc::new);
+        };
+        if let Some((c, p)) = cache.0.lock().expect("not poisoned").get(&key)
+            && c == commands
+        {
+            return Ok(p.clone());
+        }
+        let pose = Arc::new(prepare()?);
+        cache
+            .0
+            .lock()
+            .expect("not poisoned")
+            .insert(key, (commands.to_vec(), pose.clone()));
+        Ok(pose)
+    }
+}
+
+/// A row's readings: as many as the measurement model takes, finite and
+/// within range (a distance only where the model measures distances).
+fn check_row(measurement: &MeasurementModel, m: &Measurement) -> Result<()> {
+    let origin = m.origin.expect("numbered");
+    let len = measurement.row_len(m);
+    if m.partner.is_some() {
+        measurement
+            .check_distances()
+            .map_err(|e| e.at_pose(origin))?;
+    }
+    if m.measured.len() != len {
+        let what = if m.partner.is_some() {
+            "readings (distance)".to_string()
+        } else {
+            format!("readings ({})", measurement.axes().join(" "))
+        };
+        return Err(Error::Dimension {
+            what,
+            expected: len,
+            got: m.measured.len(),
+        }
+        .at_pose(origin));
+    }
+    for (a, v) in m.measured.iter().enumerate() {
+        let (u, axis) = (measurement.row_unit(m, a), measurement.row_axis(m, a));
+        if !(v.is_finite() && v.abs() <= u.max_magnitude()) {
+            return Err(Error::InvalidRequest(format!(
+                "measured `{axis}` = {v:?} {u} is not a finite value within ±{:e} {u}; check the measurement",
+                u.max_magnitude()
+            ))
+            .at_pose(origin));
+        }
+    }
+    Ok(())
+}
+
+impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
+    /// Prepare every pose (nominal configuration and linearisation).
+    pub fn new(
+        mech: &'a M,
+        measurement: &'a MeasurementModel,
+        data: &[Measurement],
+        model: Model,
+        force: &[f64],
+    ) -> Result<Self> {
+        Self::with_cache(mech, measurement, data, model, force, None)
+    }
+
+    /// [`IdentificationProblem::new`], taking the poses already prepared
+    /// from `cache` and leaving the new ones there.
+    pub(super) fn with_cache(
+        mech: &'a M,
+        measurement: &'a MeasurementModel,
+        data: &[Measurement],
+        model: Model,
+        force: &[f64],
+        cache: Option<&PoseCache>,
+    ) -> Result<Self> {
+        let data = numbered(data);
+        let mut poses: Vec<Arc<Pose>> = Vec::with_capacity(data.len());
+        let mut pose_origins: Vec<Origin> = Vec::with_capacity(data.len());
+        let mut rows: Vec<Row> = Vec::with_capacity(data.len());
+        let mut offset = 0;
+        let mut seconds: Vec<(usize, &[f64])> = vec![];
+        // The rows checked first (the first that fails is reported after the
+        // poses before it are prepared, as when each row was checked, then
+        // prepared, in turn).
+        let mut invalid = None;
+        for (i, m) in data.iter().enumerate() {
+            if let Err(e) = check_row(measurement, m) {
+                invalid = Some((i, e));
+                break;
+            }
+        }
+        let valid = &data[..invalid.as_ref().map_or(data.len(), |(i, _)| *i)];
+        // Each pose starts from the one before; what does not depend on that
+        // start is done ahead, in parallel.
+        let mut ahead: Vec<Option<Ahead>> = valid
+            .par_iter()
+            .map(|m| {
+                let key = (m.origin.expect("numbered"), false);
+                if PoseCache::holds(cache, key, &m.commands) {
+                    None
+                } else {
+                    pose_ahead(mech, &m.commands)
+                }
+            })
+            .collect();
+        for (i, m) in valid.iter().enumerate() {
+            let origin = m.origin.expect("numbered");
+            let len = measurement.row_len(m);
+            let start = poses.last().map(|p| p.nominal_q.clone());
+            let pose = PoseCache::get_or_prepare(cache, (origin, false), &m.commands, || {
+                prepare_pose_ahead(mech, &m.commands, start.as_deref(), ahead[i].take())
+            })
+            .map_err(|e| e.at_pose(origin))?;
+            poses.push(pose);
+            pose_origins.push(origin);
+            if let Some(b) = &m.partner {
+                seconds.push((i, b));
+            }
+            rows.push(Row {
+                first: i,
+                second: None,
+                offset,
+                len,
+            });
+            offset += len;
+        }
+        if let Some((_, e)) = invalid {
+            return Err(e);
+        }
+        for (i, commands) in seconds {
+            let origin = pose_origins[i];
+            let pose = PoseCache::get_or_prepare(cache, (origin, true), commands, || {
+                prepare_pose(mech, commands, Some(&poses[i].nominal_q))
+            })
+            .map_err(|e| e.at_pose(origin))?;
+            rows[i].second = Some(poses.len());
+            poses.push(pose);
+            pose_origins.push(origin);
+        }
+        Ok(Self {
+            mech,
+            measurement,
+            poses,
+            pose_origins,
+            rows,
+            n_readings: offset,
+            measured: data.iter().map(|m| m.measured.clone()).collect(),
+            model,
+            force: force.to_vec(),
+            cache: RefCell::new(None),
+            jacobian_cache: RefCell::new(None),
+        })
+    }
+
+    /// Predictions at every pose, warm-started from (or taken from) the cache.
+    fn predictions(&self, params: &Params) -> Result<Arc<Vec<Prediction>>> {
+        let cached = self.cache.borrow();
+        if let Some((x, p)) = cached.as_ref()
+            && *x == params.values
+        {
+            return Ok(Arc::clone(p));
+        }
+        // Poses in parallel (each independent; assembled in order, so the
+        // result does not depend on the threads).
+        let warm: Vec<Option<&[f64]>> = (0..self.poses.len())
+            .map(|i| cached.as_ref().map(|(_, p)| p[i].q.as_slice()))
+            .collect();
+        let (mech, model, force, origins) =
+            (self.mech, self.model, &self.force, &self.pose_origins);
+        // From scratch at nominal parameters (a calibration's start, the
+        // accuracy before it): each pose's prediction is made once.
+        let at_nominal = cached.is_none() && params.values == mech.spec().nominal;
+        let out: Result<Vec<Prediction>> = self
+            .poses
+            .par_iter()
+            .zip(warm.par_iter())
+            .enumerate()
+            .map(|(i, (pose, warm))| {
+                if at_nominal {
+                    pose.predict_at_nominal(mech, params, model, force)
+                } else {
+                    predict_pose_warm(mech, pose, params, model, force, *warm)
+                }
+                .map_err(|e| e.at_pose(origins[i]))
+            })
+            .collect();
+        drop(cached);
+        let out = Arc::new(out?);
+        *self.cache.borrow_mut() = Some((params.values.clone(), Arc::clone(&out)));
+        Ok(out)
+    }
+
+    /// The last predictions and Jacobian kept (they start the next
+    /// evaluation), to be put back with [`Self::restore`].
+    pub(super) fn saved(&self) -> Saved {
+        (
+            self.cache.borrow().clone(),
+            self.jacobian_cache.borrow().clone(),
+        )
+    }
+
+    /// Put back what [`Self::saved`] returned: the evaluations since then
+    /// leave no trace in the next ones.
+    pub(super) fn restore(&self, saved: Saved) {
+        *self.cache.borrow_mut() = saved.0;
+        *self.jacobian_cache.borrow_mut() = saved.1;
+    }
+
+    /// The prepared poses: each row's (first) pose in row order, then the
+    /// second poses of the distance rows.
+    pub fn poses(&self) -> &[Arc<Pose>] {
+        &self.poses
+    }
+
+    /// The measurement model.
+    pub fn measurement(&self) -> &MeasurementModel {
+        self.measurement
+    }
+
+    /// Number of readings (residuals): the instrument's per pose row, one
+    /// per distance row.
+    pub fn n_readings(&self) -> usize {
+        self.n_readings
+    }
+
+    /// Predicted tool coordinates (base frame) at each row's (first) pose
+    /// under `params`.
+    pub fn predict(&self, params: &Params) -> Result<Vec<Vec<f64>>> {
+        let p = self.predictions(params)?;
+        Ok(p[..self.rows.len()].iter().map(|p| p.x.clone()).collect())
+    }
+
+    /// The predictions cached at `params` (the fit's last evaluation, when
+    /// it was there), with the poses, model and load they are for.
+    pub(super) fn final_predictions(&self, params: &Params) -> Option<FinalPredictions> {
+        let cached = self.cache.borrow();
+        let (x, p) = cached.as_ref()?;
+        (*x == params.values).then(|| FinalPredictions {
+            poses: self.poses.clone(),
+            model: self.model,
+            force: self.force.clone(),
+            predictions: (x.clone(), Arc::clone(p)),
+        })
+    }
+
+    /// Take `known` as the last evaluation when it is for this problem's
+    /// poses (the same prepared ones, or prepared alike: the same commands
+    /// and nominal configurations, bit for bit), model and load, at
+    /// `params`.
+    pub(super) fn seed(&self, known: &FinalPredictions, params: &Params) {
+        let alike = |a: &Arc<Pose>, b: &Arc<Pose>| {
+            Arc::ptr_eq(a, b) || (a.commands == b.commands && a.nominal_q == b.nominal_q)
+        };
+        let same = known.poses.len() == self.poses.len()
+            && known
+                .poses
+                .iter()
+                .zip(&self.poses)
+                .all(|(a, b)| alike(a, b))
+            && known.model == self.model
+            && known.force == self.force
+            && known.predictions.0 == params.values;
+        if same {
+            *self.cache.borrow_mut() = Some(known.predictions.clone());
+        }
+    }
+
+    /// Predicted distance of each row that pairs two poses (`None` for the
+    /// other rows) under `params`.
+    pub fn predict_distances(&self, params: &Params) -> Result<Vec<Option<f64>>> {
+        let p = self.predictions(params)?;
+        Ok(self
+            .rows
+            .iter()
+            .map(|r| {
+                r.second
+                    .map(|b| self.measurement.distance(&p[r.first].x, &p[b].x))
+            })
+            .collect())
+    }
+
+    /// Split a full parameter vector into the mechanism's and the
+    /// measurement model's.
+    fn split(&self, x: &[f64]) -> Result<(Params, Vec<f64>)> {
+        let n = self.mech.spec().n_params();
+        let nm = self.measurement.n_params();
+        if x.len() != n + nm {
+            return Err(Error::Dimension {
+                what: "identification parameter vector".into(),
+                expected: n + nm,
+                got: x.len(),
+            });
+        }
+        Ok((
+            Params::new(self.mech.spec(), x[..n].to_vec())?,
+            x[n..].to_vec(),
+        ))
+    }
+
+    /// Residuals (predicted minus measured readings) under a full parameter
+    /// vector.
+    pub fn residuals(&self, x: &[f64]) -> Result<DVector<f64>> {
+        let (params, m) = self.split(x)?;
+        let mut r = DVector::zeros(self.n_readings);
+        let mut y = vec![0.0; self.measurement.len()];
+        let predictions = self.predictions(&params)?;
+        for (row, measured) in self.rows.iter().zip(&self.measured) {
+            let xa = &predictions[row.first].x;
+            match row.second {
+                Some(b) => {
+                    r[row.offset] = self.measurement.distance(xa, &predictions[b].x) - measured[0];
+                }
+                None => {
+                    self.measurement.observe(xa, &m, &mut y);
+                    for a in 0..row.len {
+                        r[row.offset + a] = y[a] - measured[a];
+                    }
+                }
+            }
+        }
+        Ok(r)
+    }
+
+    /// Residuals and the Jacobian (every parameter of the full vector):
+    /// `∂h/∂x · ∂x/∂p` for the mechanism's, `∂h/∂m` for the model's; a
+    /// distance row's is `∂d/∂x_a · ∂x_a/∂p + ∂d/∂x_b · ∂x_b/∂p`.
+    pub fn residuals_and_jacobian(&self, x: &[f64]) -> Result<(DVector<f64>, DMatrix<f64>)> {
+        if let Some((key, r, j)) = self.jacobian_cache.borrow().as_ref()
+            && key == x
+        {
+            return Ok((r.clone(), j.clone()));
+        }
+        let (params, m) = self.split(x)?;
+        let np = self.mech.spec().n_params();
+        let nm = m.len();
+        let mut r = DVector::zeros(self.n_readings);
+        let mut j = DMatrix::zeros(self.n_readings, np + nm);
+        let predictions = self.predictions(&params)?;
+        // Poses in parallel, assembled in order.
+        let (mech, model, force, origins) =
+            (self.mech, self.model, &self.force, &self.pose_origins);
+        let sens: Result<Vec<_>> = self
+            .poses
+            .par_iter()
+            .zip(predictions.par_iter())
+            .enumerate()
+            .map(|(i, (pose, pred))| {
+                sensitivity_at(mech, pose, &params, model, force, pred.clone())
+                    .map_err(|e| e.at_pose(origins[i]))
+            })
+            .collect();
+        let sens = sens?;
+        for (row, measured) in self.rows.iter().zip(&self.measured) {
+            let sa = &sens[row.first];
+            match row.second {
+                Some(b) => {
+                    let sb = &sens[b];
+                    let (d, da, db) = self
+                        .measurement
+                        .distance_jacobian(&sa.prediction.x, &sb.prediction.x);
+                    r[row.offset] = d - measured[0];
+                    let ga = DMatrix::from_row_slice(1, da.len(), &da);
+                    let gb = DMatrix::from_row_slice(1, db.len(), &db);
+                    let jx = ga * &sa.jacobian + gb * &sb.jacobian;
+                    j.view_mut((row.offset, 0), (1, np)).copy_from(&jx);
+                }
+                None => {
+                    let (y, dx, dm) = self.measurement.observe_jacobian(&sa.prediction.x, &m);
+                    for a in 0..row.len {
+                        r[row.offset + a] = y[a] - measured[a];
+                    }
+                    let jx = dx * &sa.jacobian;
+                    j.view_mut((row.offset, 0), (row.len, np)).copy_from(&jx);
+                    j.view_mut((row.offset, np), (row.len, nm)).copy_from(&dm);
+                }
+            }
+        }
+        *self.jacobian_cache.borrow_mut() = Some((x.to_vec(), r.clone(), j.clone()));
+        Ok((r, j))
+    }
+
+    /// Residuals and the Jacobian under the mechanism's `params` and the
+    /// measurement model's nominal values.
+    pub fn jacobian(&self, params: &Params) -> Result<(DVector<f64>, DMatrix<f64>)> {
+        let x: Vec<f64> = params
+            .values
+            .iter()
+            .chain(self.measurement.nominal())
+            .copied()
+            .collect();
+        self.residuals_and_jacobian(&x)
+    }
+}
+
+impl<M: Mechanism> Problem for IdentificationProblem<'_, M> {
+    fn n_params(&self) -> usize {
+        self.mech.spec().n_params() + self.measurement.n_params()
+    }
+    fn n_residuals(&self) -> usize {
+        self.n_readings
+    }
+    fn evaluate(
+        &self,
+        x: &[f64],
+        jacobian: bool,
+    ) -> std::result::Result<(DVector<f64>, Option<DMatrix<f64>>), String> {
+        let (params, _) = self.split(x).map_err(|e| e.to_string())?;
+        if params.stiffness().iter().any(|k| *k <= 0.0) {
+            return Err("non-positive stiffness".into());
+        }
+        if jacobian {
+            let (r, j) = self.residuals_and_jacobian(x).map_err(|e| e.to_string())?;
+            return Ok((r, Some(j)));
+        }
+        Ok((self.residuals(x).map_err(|e| e.to_string())?, None))
+    }
+}
+
+pub(super) fn mask(n: usize, free: &[usize]) -> Vec<bool> {
+    let mut m = vec![false; n];
+    for &i in free {
+        m[i] = true;
+    }
+    m
+}

@@ -1,0 +1,310 @@
+//! What a calibration returns: the identified parameters with their
+//! uncertainty, typed warnings, and the calibration itself.
+
+use super::identifiability::{Correlation, Identifiability};
+use super::loss::{Loss, Outlier};
+use super::problem::CachedPredictions;
+use super::uncertainty::ParameterCovariance;
+use crate::engine::models::{Model, Pose};
+use crate::error::Origin;
+use crate::identify::noise::NoiseGroup;
+use crate::lm::Termination;
+use crate::mechanism::Params;
+use crate::units::{ParamKind, Unit};
+use nalgebra::DMatrix;
+use serde::Serialize;
+use std::sync::Arc;
+
+/// One row of the parameter table.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct ParameterResult {
+    /// Name.
+    pub name: String,
+    /// Unit of the values (declared by the mechanism).
+    pub unit: Unit,
+    /// Role of the parameter (geometry, encoder offset, stiffness, instrument).
+    pub kind: ParamKind,
+    /// Nominal value.
+    pub nominal: f64,
+    /// Identified value (the starting value if fixed).
+    pub identified: f64,
+    /// Identified minus nominal.
+    pub change: f64,
+    /// Standard deviation (0 when fixed).
+    pub std_dev: f64,
+    /// Whether it was identified.
+    pub free: bool,
+    /// Why it is fixed, when it was requested free.
+    pub note: Option<String>,
+}
+
+/// What a warning is about, with its data: the CLI and other callers match on
+/// the kind, never on the message.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum WarningKind {
+    /// All stiffness parameters were free without an external load: only
+    /// their ratios are identifiable, so `fixed` was fixed.
+    StiffnessRatios {
+        /// The stiffness fixed.
+        fixed: String,
+    },
+    /// A direction of parameter space that the data cannot see.
+    Unidentifiable {
+        /// Model used.
+        model: Model,
+        /// The combination, e.g. `0.71·l11 − 0.71·B1x`.
+        combination: String,
+        /// The parameter fixed to remove it, if any.
+        fixed: Option<String>,
+    },
+    /// The instrument frame is identified and, with it, parameters that
+    /// also place the mechanism in space (e.g. base joint centres): the
+    /// directions that only move everything together are unidentifiable, and
+    /// `fixed` were fixed to remove them (they then define the base frame).
+    FrameGauge {
+        /// Model used.
+        model: Model,
+        /// The parameters fixed, one per direction.
+        fixed: Vec<String>,
+        /// Directions that no parameter could remove (none when fixing).
+        unfixed: usize,
+    },
+    /// The fit did not converge.
+    NotConverged {
+        /// The solver's reason.
+        reason: String,
+    },
+    /// The Jacobian at the solution is rank deficient.
+    RankDeficient {
+        /// Its rank.
+        rank: usize,
+        /// Free parameters.
+        free: usize,
+    },
+    /// Poses with residuals beyond the outlier threshold at the final fit.
+    Outliers {
+        /// Where they came from.
+        poses: Vec<Origin>,
+        /// The threshold (robust standard deviations).
+        threshold: f64,
+        /// Whether a robust loss was in use.
+        robust_loss: bool,
+        /// Whether dropping was requested (and stopped at the cap).
+        dropping: bool,
+    },
+    /// Poses dropped as outliers before the final fit.
+    Dropped {
+        /// Where they came from.
+        poses: Vec<Origin>,
+    },
+}
+
+/// A warning: its kind (with data), what happened and what to do.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Warning {
+    /// What it is about.
+    #[serde(flatten)]
+    pub kind: WarningKind,
+    /// What happened.
+    pub message: String,
+    /// What to do.
+    pub hint: String,
+}
+
+fn pose_list(poses: &[Origin]) -> String {
+    poses
+        .iter()
+        .map(Origin::to_string)
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+impl Warning {
+    /// The warning of `kind`, with its message and hint.
+    pub fn new(kind: WarningKind) -> Self {
+        let (message, hint) = match &kind {
+            WarningKind::StiffnessRatios { fixed } => (
+                format!(
+                    "all stiffness parameters are free without an external load: only their ratios are identifiable, so `{fixed}` is fixed at its starting value"
+                ),
+                format!(
+                    "give `{fixed}` its measured value (--start), or calibrate with a known tool load"
+                ),
+            ),
+            WarningKind::Unidentifiable {
+                model,
+                combination,
+                fixed,
+            } => (
+                match fixed {
+                    Some(f) => format!(
+                        "unidentifiable with the {} model: {combination} (fixed `{f}` at its starting value)",
+                        model.name()
+                    ),
+                    None => format!("unidentifiable with the {} model: {combination}", model.name()),
+                },
+                "these parameters cannot be separated by these measurements at these poses; fix one of them, or add poses or measurements that see them".into(),
+            ),
+            WarningKind::FrameGauge {
+                model,
+                fixed,
+                unfixed,
+            } => (
+                format!(
+                    "the instrument frame is identified together with parameters that also place the mechanism: {} directions move both together and are unidentifiable with the {} model{}",
+                    fixed.len() + unfixed,
+                    model.name(),
+                    if fixed.is_empty() {
+                        String::new()
+                    } else {
+                        format!(
+                            "; fixed {} at their starting values (they now define the base frame)",
+                            fixed
+                                .iter()
+                                .map(|f| format!("`{f}`"))
+                                .collect::<Vec<_>>()
+                                .join(", ")
+                        )
+                    }
+                ),
+                "to choose which parameters define the base frame, fix them yourself (--fix), or measure in the base frame (--frame base); the combinations are listed under identifiability".into(),
+            ),
+            WarningKind::NotConverged { reason } => (
+                format!("the fit did not converge: {reason}"),
+                "check the data for outliers or wrong columns, or start closer".into(),
+            ),
+            WarningKind::RankDeficient { rank, free } => (
+                format!(
+                    "the Jacobian at the solution has rank {rank} for {free} free parameters; their uncertainties are not defined"
+                ),
+                "fix parameters named in the identifiability report".into(),
+            ),
+            WarningKind::Outliers {
+                poses,
+                threshold,
+                robust_loss,
+                dropping,
+            } => (
+                format!(
+                    "{} pose(s) with residuals beyond {threshold} robust standard deviations: {}",
+                    poses.len(),
+                    pose_list(poses)
+                ),
+                if *dropping {
+                    "the drop limit (20 % of the poses) is reached; inspect these measurements".into()
+                } else if *robust_loss {
+                    "the robust loss already limits their influence; inspect them, or refit without them (--drop-outliers)".into()
+                } else {
+                    "inspect them; a robust loss (huber, cauchy) limits their influence, dropping refits without them".into()
+                },
+            ),
+            WarningKind::Dropped { poses } => (
+                format!(
+                    "{} outlier pose(s) dropped before the final fit: {}",
+                    poses.len(),
+                    pose_list(poses)
+                ),
+                "check those measurements (a misread, a bumped instrument) before trusting the result".into(),
+            ),
+        };
+        Self {
+            kind,
+            message,
+            hint,
+        }
+    }
+}
+
+/// Everything a calibration produces.
+#[derive(Debug, Clone, Serialize)]
+pub struct Calibration {
+    /// Model used.
+    pub model: Model,
+    /// Identified parameters of the mechanism (full vector).
+    #[serde(skip)]
+    pub params: Params,
+    /// Identified (or given) pose of the instrument frame in the base frame
+    /// ([`crate::measurement::frame`]); `None` when the data are in the base frame. Also
+    /// in `parameters`, kind `instrument`.
+    pub frame: Option<Vec<f64>>,
+    /// Identified (or given) values of all the measurement model's
+    /// parameters ([`MeasurementModel::param_names`]), the frame's last.
+    #[serde(skip)]
+    pub measurement: Vec<f64>,
+    /// Why the solver stopped.
+    pub termination: Termination,
+    /// Readable reason.
+    pub termination_reason: String,
+    /// Whether it converged.
+    pub converged: bool,
+    /// Solver iterations (of the final fit).
+    pub iterations: usize,
+    /// Residual evaluations (of the final fit).
+    pub evaluations: usize,
+    /// Number of poses (rows read by the instrument).
+    pub poses: usize,
+    /// Number of distances measured between two poses.
+    pub distances: usize,
+    /// Sum of squared standardised residuals `Σ (r/σ)²` at the solution.
+    pub sum_of_squares: f64,
+    /// Standard deviation of unit weight `√(Σ (r/σ)² / (m − n))`
+    /// (dimensionless): about 1 when the noise levels are right.
+    pub unit_weight_sigma: f64,
+    /// Noise of each group of like coordinates: estimated from the residuals
+    /// or given in the data.
+    pub noise: Vec<NoiseGroup>,
+    /// Parameter table.
+    pub parameters: Vec<ParameterResult>,
+    /// Identifiability (at the starting parameters, or where the actuators
+    /// fight when stiffness is free; see [`calibrate`]).
+    pub identifiability: Identifiability,
+    /// Covariance of the free parameters (scaled by the unit-weight
+    /// variance), in `free` order.
+    #[serde(skip)]
+    pub covariance: DMatrix<f64>,
+    /// Free parameter indices actually identified.
+    #[serde(skip)]
+    pub free: Vec<usize>,
+    /// The covariance with parameter names (serialised as `covariance`).
+    #[serde(rename = "covariance")]
+    pub parameter_covariance: ParameterCovariance,
+    /// Correlations above 0.9 at the solution.
+    pub correlations: Vec<Correlation>,
+    /// Loss used.
+    pub loss: Loss,
+    /// Poses with residuals beyond the outlier threshold: those dropped (with
+    /// their residual when they were dropped), then those left in the final
+    /// fit.
+    pub outliers: Vec<Outlier>,
+    /// Poses dropped as outliers before the final fit.
+    pub dropped: Vec<Origin>,
+    /// Residuals at the solution, predicted minus measured, pose-major (each
+    /// in its axis's unit).
+    #[serde(skip)]
+    pub residuals: Vec<f64>,
+    /// Standard deviation each residual was weighted with (same order).
+    #[serde(skip)]
+    pub sigmas: Vec<f64>,
+    /// Weighted Jacobian of the free parameters at the solution.
+    #[serde(skip)]
+    pub jacobian: DMatrix<f64>,
+    /// Warnings.
+    pub warnings: Vec<Warning>,
+    /// The fit's predictions at the identified parameters, when its last
+    /// evaluation was there: [`calibration_accuracy_with_cache`] then
+    /// computes them no second time.
+    #[serde(skip)]
+    pub(crate) final_predictions: Option<FinalPredictions>,
+}
+
+/// A calibration's predictions at its identified parameters and what they
+/// were computed for: the prepared poses (shared through a [`PoseCache`]),
+/// the model and the load.
+#[derive(Debug, Clone)]
+pub(crate) struct FinalPredictions {
+    pub(super) poses: Vec<Arc<Pose>>,
+    pub(super) model: Model,
+    pub(super) force: Vec<f64>,
+    pub(super) predictions: CachedPredictions,
+}

@@ -1,0 +1,194 @@
+//! Weights: the fit repeated with noise levels re-estimated per noise group
+//! (variance-component estimation) until they settle.
+
+use super::driver::{CalibrationOptions, calibrate_once};
+use super::loss::{Loss, MAX_REWEIGHTS, find_outliers, group_scales, standardized};
+use super::problem::IdentificationProblem;
+use super::result::{Calibration, Warning, WarningKind};
+use crate::error::Result;
+use crate::identify::noise::{NoiseModel, VCE_MAX_ROUNDS, VCE_TOL, leverages, leverages_with};
+use crate::lm;
+use crate::measurement::data::Measurement;
+use crate::mechanism::{Mechanism, Params};
+use nalgebra::{DMatrix, DVector};
+
+/// One weighted fit: noise groups estimated, robust reweighting, outliers.
+pub(super) fn calibrate_weighted<M: Mechanism>(
+    problem: &IdentificationProblem<'_, M>,
+    data: &[Measurement],
+    start: &Params,
+    opts: &CalibrationOptions,
+) -> Result<Calibration> {
+    let measurement = problem.measurement;
+    let mut noise = NoiseModel::new(data, measurement);
+    // `(JᵀJ)⁺` of `cal.jacobian` (the fit's own, for the leverages) while
+    // that Jacobian is the fit's.
+    let (mut cal, cov) = calibrate_once(
+        problem,
+        data,
+        start,
+        None,
+        opts,
+        &noise.sigmas(),
+        None,
+        None,
+    )?;
+    // The free set and identifiability of the first fit hold for the refits.
+    let mut refit_opts = opts.clone();
+    refit_opts.auto_fix = false;
+    let mut cov = Some(cov);
+    let refit = |cal: &Calibration, sigma: &[f64]| -> Result<(Calibration, DMatrix<f64>)> {
+        let (mut next, cov) = calibrate_once(
+            problem,
+            data,
+            &cal.params,
+            Some(&cal.measurement),
+            &refit_opts,
+            sigma,
+            Some(&cal.free),
+            Some(&cal.identifiability),
+        )?;
+        next.identifiability = cal.identifiability.clone();
+        for (p, first) in next.parameters.iter_mut().zip(&cal.parameters) {
+            p.note = first.note.clone();
+        }
+        // Identifiability warnings from the first fit, the solver's from
+        // this one.
+        let solver_kind = |w: &Warning| {
+            matches!(
+                w.kind,
+                WarningKind::NotConverged { .. } | WarningKind::RankDeficient { .. }
+            )
+        };
+        let mut warnings: Vec<Warning> = cal
+            .warnings
+            .iter()
+            .filter(|w| !solver_kind(w))
+            .cloned()
+            .collect();
+        warnings.extend(next.warnings.drain(..).filter(solver_kind));
+        next.warnings = warnings;
+        Ok((next, cov))
+    };
+    let lev = |cal: &Calibration, cov: &Option<DMatrix<f64>>| match cov {
+        Some(c) => leverages_with(&cal.jacobian, c),
+        None => leverages(&cal.jacobian),
+    };
+    if noise.estimated_groups() > 0 {
+        // One estimated group and nothing given: the weights are uniform
+        // whatever its σ, so one estimate after the fit is exact.
+        let uniform = noise.estimated_groups() == 1 && !noise.any_given();
+        if uniform {
+            let h = lev(&cal, &cov);
+            noise.update(&cal.residuals, &h);
+            rescale(&mut cal, &noise.sigmas());
+            cov = None;
+        } else {
+            // Iterate the estimates on the fit linearised at the current
+            // solution (the reweighted solution moves by a fraction of the
+            // noise, where the problem is linear), then refit once with them;
+            // repeat while the refit still moves the estimates.
+            for _ in 0..VCE_MAX_REFITS {
+                linearized_vce(&mut noise, &cal);
+                let (next, c) = refit(&cal, &noise.sigmas())?;
+                (cal, cov) = (next, Some(c));
+                let mut check = noise.clone();
+                if check.update(&cal.residuals, &lev(&cal, &cov)) < VCE_TOL {
+                    break;
+                }
+            }
+        }
+    }
+    let base = noise.sigmas();
+    let keys = noise.keys();
+    if opts.loss != Loss::Squared {
+        let mut robust = vec![1.0; base.len()];
+        for _ in 0..MAX_REWEIGHTS {
+            let u = standardized(&cal.residuals, &base, &keys);
+            let next: Vec<f64> = u.iter().map(|ui| opts.loss.weight(*ui)).collect();
+            let change = next
+                .iter()
+                .zip(&robust)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            robust = next;
+            let sigma: Vec<f64> = base
+                .iter()
+                .zip(&robust)
+                .map(|(s, w)| s / w.max(f64::MIN_POSITIVE).sqrt())
+                .collect();
+            let (next, c) = refit(&cal, &sigma)?;
+            (cal, cov) = (next, Some(c));
+            if change < 1e-3 {
+                break;
+            }
+        }
+        // Report robust noise levels: the outliers must not inflate them.
+        let scales = group_scales(&cal.residuals, &base, &keys);
+        for (g, s) in noise.sigma.iter_mut().enumerate() {
+            if let Some(f) = scales.get(&g).filter(|f| **f > 0.0) {
+                *s *= f;
+            }
+        }
+    }
+    // Studentised: a pose that pulls the fit towards itself (high leverage)
+    // shows a small residual for a large error.
+    let h = lev(&cal, &cov);
+    let student: Vec<f64> = base
+        .iter()
+        .zip(&h)
+        .map(|(s, hi)| s * (1.0 - hi).max(1e-6).sqrt())
+        .collect();
+    let u = standardized(&cal.residuals, &student, &keys);
+    cal.outliers = find_outliers(
+        measurement,
+        data,
+        &cal.residuals,
+        &u,
+        opts.outlier_threshold,
+    );
+    cal.noise = noise.report(&cal.residuals);
+    cal.loss = opts.loss;
+    Ok(cal)
+}
+
+/// Refits of the noise estimation (each after a linearised estimation).
+const VCE_MAX_REFITS: usize = 4;
+
+/// Variance-component estimation on the fit linearised at `cal`'s solution:
+/// residuals `r0 + J δp(σ)` with `δp` the weighted least-squares step under
+/// the current σ, iterated until the σ settle.
+fn linearized_vce(noise: &mut NoiseModel, cal: &Calibration) {
+    // Unweighted Jacobian of the free parameters.
+    let mut j = cal.jacobian.clone();
+    lm::scale_rows(&mut j, &cal.sigmas);
+    let r0 = DVector::from_column_slice(&cal.residuals);
+    for _ in 0..VCE_MAX_ROUNDS {
+        let s = noise.sigmas();
+        let mut jw = j.clone();
+        let mut rw = r0.clone();
+        lm::unscale_rows(&mut jw, &s);
+        for (ri, si) in rw.iter_mut().zip(&s) {
+            *ri /= si;
+        }
+        let (c, _) = lm::covariance(&jw, 1e-12);
+        let step = -(&c * (jw.transpose() * &rw));
+        let r = &r0 + &j * &step;
+        let h = leverages_with(&jw, &c);
+        if noise.update(r.as_slice(), &h) < VCE_TOL {
+            break;
+        }
+    }
+}
+
+/// Scale a calibration's weighted quantities to new uniform-ratio σ: the
+/// solution is unchanged (all weights scale alike), the statistics follow.
+fn rescale(cal: &mut Calibration, sigma: &[f64]) {
+    let f = sigma
+        .first()
+        .map_or(1.0, |s| cal.sigmas.first().map_or(1.0, |o| o / s));
+    cal.sum_of_squares *= f * f;
+    cal.unit_weight_sigma *= f;
+    cal.jacobian.scale_mut(f);
+    cal.sigmas = sigma.to_vec();
+}
