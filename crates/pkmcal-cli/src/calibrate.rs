@@ -5,8 +5,7 @@ use anyhow::{Context, Result, bail};
 use pkmcal::identify::{CrossValidation, Identifiability};
 use pkmcal::{
     Accuracy, Calibration, CalibrationOptions, ErrorStats, Frame, Measurement, MeasurementModel,
-    Mechanism, Model, Params, PoseCache, calibrate_with_cache, calibration_accuracy,
-    calibration_accuracy_with_cache, holdout_split,
+    Mechanism, Model, Params,
 };
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -277,10 +276,10 @@ pub fn located(e: pkmcal::Error, file: &Path) -> anyhow::Error {
     }
 }
 
-/// Resolve `--free` / `--fix` lists into indices of the identification
-/// vector: the mechanism's parameters, then the measurement model's (socket
-/// positions, target points…). `all` frees both; the instrument frame's
-/// follow `--frame`.
+/// The free set from `--free` and `--fix` (comma-separated names, `all`,
+/// `default`), resolved by the library ([`pkmcal::identify::resolve_free_set`])
+/// and worded for the command line: a name it does not know is a usage
+/// error naming the option.
 pub fn free_set<M: Mechanism>(
     mech: &M,
     measurement: &MeasurementModel,
@@ -288,66 +287,42 @@ pub fn free_set<M: Mechanism>(
     fix: Option<&str>,
 ) -> Result<Vec<usize>> {
     let spec = mech.spec();
-    let names = |s: &str| -> Vec<String> {
-        s.split(',')
-            .map(|t| t.trim().to_string())
-            .filter(|t| !t.is_empty())
-            .collect()
+    free_set_with_default(spec, measurement, &spec.default_free, free, fix)
+}
+
+/// [`free_set`] with another default set (a firmware's own).
+pub fn free_set_with_default(
+    spec: &pkmcal::Spec,
+    measurement: &MeasurementModel,
+    default: &[String],
+    free: Option<&str>,
+    fix: Option<&str>,
+) -> Result<Vec<usize>> {
+    use pkmcal::identify::{FreeSetError, NameList};
+    let names = |s: &str| -> Vec<String> { s.split(',').map(|t| t.trim().to_string()).collect() };
+    let flag = |l: NameList| match l {
+        NameList::Free => "--free",
+        NameList::Fix => "--fix",
     };
-    let frame: Vec<usize> = measurement
-        .frame_range()
-        .map(|i| spec.n_params() + i)
-        .collect();
-    let index = |n: &str, option: &str| -> Result<usize> {
-        let i = measurement
-            .index_of(spec, n)
-            .map_err(|e| crate::output::Usage(format!("in {option}: {e}")))?;
-        if frame.contains(&i) {
-            bail!(
-                "in {option}: `{n}` belongs to the instrument frame, which --frame sets (free: identified; base: the data are in the base frame)"
-            );
-        }
-        Ok(i)
-    };
-    let mut set: Vec<usize> = match free {
-        None => spec
-            .default_free
-            .iter()
-            .map(|n| spec.param_index(n))
-            .collect::<pkmcal::Result<_>>()?,
-        Some(list) => {
-            let mut out = vec![];
-            for n in names(list) {
-                match n.as_str() {
-                    "all" => {
-                        out.extend(0..spec.n_params());
-                        out.extend(
-                            (0..measurement.frame_range().start).map(|i| spec.n_params() + i),
-                        );
-                    }
-                    "default" | "paper" => {
-                        for d in &spec.default_free {
-                            out.push(spec.param_index(d)?);
-                        }
-                    }
-                    _ => out.push(index(&n, "--free")?),
+    let free = free.map(names);
+    let fix = fix.map(names).unwrap_or_default();
+    pkmcal::identify::resolve_free_set(spec, measurement, default, free.as_deref(), &fix).map_err(
+        |e| {
+            crate::output::Usage(match e {
+                FreeSetError::Unknown { list, error } => {
+                    format!("in {}: {error}", flag(list))
                 }
-            }
-            out
-        }
-    };
-    if let Some(list) = fix {
-        for n in names(list) {
-            let i = index(&n, "--fix")?;
-            set.retain(|&k| k != i);
-        }
-    }
-    set.sort_unstable();
-    set.dedup();
-    if set.is_empty() {
-        bail!("no parameter is left free; name some with --free");
-    }
-    Ok(set)
+                FreeSetError::FrameParameter { list, name } => format!(
+                    "in {}: `{name}` belongs to the instrument frame, which --frame sets (free: identified; base: the data are in the base frame)",
+                    flag(list)
+                ),
+                FreeSetError::Empty => {
+                    "no parameter is left free; name some with --free".to_string()
+                }
+            })
+            .into()
+        },
+    )
 }
 
 /// Validation results in the report.
@@ -571,49 +546,50 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
     opts.loss = c.loss;
     opts.outlier_threshold = c.outlier_threshold;
     opts.drop_outliers = c.drop_outliers;
-    // Validation data: a description, the file it came from, the poses.
-    type Held = Option<(String, PathBuf, Vec<Measurement>)>;
-    let (train, held): (Vec<Measurement>, Held) = match (&c.validate, c.holdout) {
+    let validation_plan = match (&c.validate, c.holdout) {
         (Some(_), Some(_)) => {
             return crate::output::usage("give either --validate FILE or --holdout F, not both");
         }
-        (Some(v), None) => (
-            all.clone(),
-            Some((
-                v.display().to_string(),
-                v.clone(),
-                read_data(v, mech, &measurement, &units)?,
-            )),
-        ),
-        (None, Some(f)) => {
-            let (tr, he) = holdout_split(all.len(), f, c.seed)?;
-            (
-                tr.iter().map(|&i| all[i].clone()).collect(),
-                Some((
-                    format!(
-                        "{} held-out poses of {} (seed {})",
-                        he.len(),
-                        c.data.display(),
-                        c.seed
-                    ),
-                    c.data.clone(),
-                    he.iter().map(|&i| all[i].clone()).collect(),
-                )),
-            )
+        (Some(v), None) => {
+            pkmcal::identify::ValidationPlan::Given(read_data(v, mech, &measurement, &units)?)
         }
-        (None, None) => (all.clone(), None),
+        (None, Some(f)) => pkmcal::identify::ValidationPlan::Holdout(f),
+        (None, None) => pkmcal::identify::ValidationPlan::None,
     };
-    // The distances all go into the fit, after the poses.
-    let train: Vec<Measurement> = train.into_iter().chain(pairs).collect();
+    let study_opts = pkmcal::identify::StudyOptions {
+        calibration: opts,
+        validation: validation_plan,
+        kfold: c.kfold,
+        seed: c.seed,
+    };
+    let bar = crate::io::progress(
+        c.kfold.unwrap_or(0) as u64,
+        c.quiet || c.kfold.is_none(),
+        "folds",
+        1,
+    );
     // Every pose carries its data-file number and line, so errors, outliers
     // and dropped poses name them without translation.
-    // The poses are prepared once, for the fit and its statistics.
-    let cache = PoseCache::new();
-    let cal =
-        calibrate_with_cache(mech, &measurement, &train, &start, &opts, &cache).map_err(locate)?;
-    // The parameters are staged at once: their temporary is written and
-    // flushed to disk while the accuracy is computed (nothing is renamed
-    // into place unless everything succeeds).
+    let study = pkmcal::identify::study(
+        mech,
+        &measurement,
+        &all,
+        pairs,
+        &start,
+        &study_opts,
+        &|| bar.inc(1),
+    )
+    .map_err(|e| {
+        use pkmcal::identify::StudyStage;
+        match (e.stage, &c.validate) {
+            (StudyStage::Fit, _) => locate(e.error),
+            (StudyStage::Validation, Some(v)) => located(e.error, v),
+            (StudyStage::Validation, None) => located(e.error, &c.data),
+            _ => anyhow::Error::from(e.error),
+        }
+    })?;
+    bar.finish_and_clear();
+    let cal = &study.calibration;
     let header = format!(
         "pkmcal {} calibration ({} model) of {} from {}\nsolver: {}",
         env!("CARGO_PKG_VERSION"),
@@ -626,50 +602,26 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
         &c.out,
         crate::io::params_to_string(spec, &cal.params, &header).as_bytes(),
     )?;
-    // Statistics over the poses the fit kept (dropped outliers are listed).
-    let kept: Vec<Measurement> = train
-        .iter()
-        .filter(|m| m.origin.is_none_or(|o| !cal.dropped.contains(&o)))
-        .cloned()
-        .collect();
-    let (acc, before, after) =
-        calibration_accuracy_with_cache(mech, &measurement, &kept, &cal, &opts.force, &cache)
-            .map_err(locate)?;
-    // The figures show the poses (the distances are in the summary).
-    let kept: Vec<Measurement> = kept.into_iter().filter(|m| m.partner.is_none()).collect();
-    let validation = match &held {
-        Some((source, path, data)) => Some(Validation {
-            source: source.clone(),
-            accuracy: calibration_accuracy(mech, &measurement, data, &cal, &opts.force)
-                .map_err(|e| located(e, path))?
-                .0,
-        }),
-        None => None,
-    };
-    let cross_validation = match c.kfold {
-        Some(k) => {
-            let bar = crate::io::progress(k as u64, c.quiet, "folds", 1);
-            let cv = pkmcal::cross_validate_with_progress(
-                mech,
-                &measurement,
-                &train,
-                &start,
-                &opts,
-                k,
-                c.seed,
-                &|| bar.inc(1),
-            )?;
-            bar.finish_and_clear();
-            Some(cv)
-        }
-        None => None,
-    };
+    let (before, after, kept) = (&study.before, &study.after, &study.poses);
+    let validation = study.validation.as_ref().map(|v| Validation {
+        source: match (v.source, &c.validate) {
+            (pkmcal::identify::ValidationSource::Given, Some(p)) => p.display().to_string(),
+            (pkmcal::identify::ValidationSource::Given, None) => "validation poses".to_string(),
+            (pkmcal::identify::ValidationSource::HeldOut { count, seed }, _) => format!(
+                "{count} held-out poses of {} (seed {seed})",
+                c.data.display()
+            ),
+        },
+        accuracy: v.accuracy.clone(),
+    });
+    let cross_validation = study.cross_validation.clone();
+    let acc = study.accuracy.clone();
     let report = Report {
         pkmcal_version: env!("CARGO_PKG_VERSION"),
         mechanism: spec.name.clone(),
         data: c.data.display().to_string(),
         measurement: measurement.summary(),
-        calibration: &cal,
+        calibration: cal,
         accuracy: acc,
         validation,
         cross_validation,
@@ -684,10 +636,10 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
                 mech,
                 measurement: &measurement,
                 data_name: &c.data.display().to_string(),
-                cal: &cal,
-                data: &kept,
-                before: &before,
-                after: &after,
+                cal,
+                data: kept,
+                before,
+                after,
                 accuracy: &report.accuracy,
                 validation: report.validation.as_ref(),
                 cross_validation: report.cross_validation.as_ref(),

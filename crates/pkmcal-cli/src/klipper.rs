@@ -1033,32 +1033,33 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
     Ok(())
 }
 
-/// A `--free` list of a firmware command (`default` standing for
-/// `default`'s names): the names, and their indices in the identification
-/// vector of `measurement`.
+/// A `--free` list of a firmware command (`default` standing for the
+/// firmware's own default set `default`; `all` for every parameter): the
+/// names, and their indices in the identification vector of `measurement`.
 pub fn free_list(
     free: Option<&str>,
     default: &[String],
     spec: &pkmcal::Spec,
     measurement: &MeasurementModel,
 ) -> Result<(Vec<String>, Vec<usize>)> {
+    let set = crate::calibrate::free_set_with_default(spec, measurement, default, free, None)?;
+    // In the order given (the default set's where it stands), each once.
+    let all = measurement.all_names(spec);
     let mut names: Vec<String> = vec![];
     for n in free.unwrap_or("default").split(',').map(str::trim) {
         match n {
-            "" => {}
             "default" => names.extend(default.iter().cloned()),
+            "all" => names.extend(set.iter().map(|&i| all[i].clone())),
+            "" => {}
             _ => names.push(n.to_string()),
         }
     }
-    names.dedup();
+    let mut seen = std::collections::BTreeSet::new();
+    names.retain(|n| seen.insert(n.clone()));
     let indices = names
         .iter()
-        .map(|n| {
-            measurement
-                .index_of(spec, n)
-                .map_err(|e| output::Usage(format!("in --free: {e}")))
-        })
-        .collect::<std::result::Result<_, _>>()?;
+        .map(|n| measurement.index_of(spec, n))
+        .collect::<pkmcal::Result<Vec<usize>>>()?;
     Ok((names, indices))
 }
 

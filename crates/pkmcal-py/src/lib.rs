@@ -641,17 +641,28 @@ fn free_arg(
     free: Option<&Bound<'_, PyAny>>,
     fix: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<Vec<usize>> {
-    let free = names_arg(free, "free")?;
-    let fix = names_arg(fix, "fix")?;
-    pkmcal_cli::calibrate::free_set(&*m.mech, measurement, free.as_deref(), fix.as_deref()).map_err(
-        |e| {
-            usage(
-                format!("{e:#}")
-                    .replace("--free", "free")
-                    .replace("--fix", "fix"),
-            )
-        },
-    )
+    use pkmcal::identify::{FreeSetError, NameList};
+    let split = |s: Option<String>| -> Option<Vec<String>> {
+        s.map(|s| s.split(',').map(|t| t.trim().to_string()).collect())
+    };
+    let free = split(names_arg(free, "free")?);
+    let fix = split(names_arg(fix, "fix")?).unwrap_or_default();
+    let spec = m.spec();
+    let word = |l: NameList| match l {
+        NameList::Free => "free",
+        NameList::Fix => "fix",
+    };
+    pkmcal::identify::resolve_free_set(spec, measurement, &spec.default_free, free.as_deref(), &fix)
+        .map_err(|e| {
+            usage(match e {
+                FreeSetError::Unknown { list, error } => format!("in {}: {error}", word(list)),
+                FreeSetError::FrameParameter { list, name } => format!(
+                    "in {}: `{name}` belongs to the instrument frame, which frame= sets (\"free\": identified; \"base\": the data are in the base frame)",
+                    word(list)
+                ),
+                FreeSetError::Empty => "no parameter is left free; name some with free=".into(),
+            })
+        })
 }
 
 fn wrench(m: &PyMechanism, f: Option<Vec<f64>>, what: &str) -> PyResult<Vec<f64>> {
@@ -1961,59 +1972,38 @@ fn calibrate<'py>(
         return Err(usage(format!("kfold must be at least 2, got {k}")));
     }
     let mech = &*m.mech;
-    let result = py.detach(|| -> pkmcal::Result<_> {
-        let (train, held) = match (holdout, held) {
-            (Some(f), _) => {
-                let (tr, he) = pkmcal::holdout_split(all.len(), f, seed)?;
-                (
-                    tr.iter().map(|&i| all[i].clone()).collect(),
-                    Some((
-                        format!("{} held-out poses (seed {seed})", he.len()),
-                        he.iter().map(|&i| all[i].clone()).collect::<Vec<_>>(),
-                    )),
-                )
-            }
-            (None, h) => (all.clone(), h),
-        };
-        // The distances all go into the fit, after the poses.
-        let train: Vec<pkmcal::Measurement> = train.into_iter().chain(pairs).collect();
-        let cal = pkmcal::calibrate(mech, &mm, &train, &start, &opts)?;
-        let kept: Vec<pkmcal::Measurement> = train
-            .iter()
-            .filter(|d| d.origin.is_none_or(|o| !cal.dropped.contains(&o)))
-            .cloned()
-            .collect();
-        let (accuracy, before, after) =
-            pkmcal::calibration_accuracy(mech, &mm, &kept, &cal, &opts.force)?;
-        // The figures show the poses (the distances are in `distances`).
-        let kept: Vec<pkmcal::Measurement> =
-            kept.into_iter().filter(|d| d.partner.is_none()).collect();
-        let validation = match held {
-            Some((source, data)) => Some(Validation {
-                source,
-                accuracy: pkmcal::calibration_accuracy(mech, &mm, &data, &cal, &opts.force)?.0,
-            }),
-            None => None,
-        };
-        let cross_validation = match kfold {
-            Some(k) => Some(pkmcal::cross_validate(
-                mech, &mm, &train, &start, &opts, k, seed,
-            )?),
-            None => None,
-        };
-        Ok(PyCalibration {
-            mech: m.mech.clone(),
-            measurement: mm.clone(),
-            cal,
-            data: kept,
-            before,
-            after,
-            accuracy,
-            validation,
-            cross_validation,
-        })
-    });
-    result.map_err(lib_err)
+    let study_opts = pkmcal::identify::StudyOptions {
+        calibration: opts,
+        validation: match (holdout, held) {
+            (Some(f), _) => pkmcal::identify::ValidationPlan::Holdout(f),
+            (None, Some((_, data))) => pkmcal::identify::ValidationPlan::Given(data),
+            (None, None) => pkmcal::identify::ValidationPlan::None,
+        },
+        kfold,
+        seed,
+    };
+    let result =
+        py.detach(|| pkmcal::identify::study(mech, &mm, &all, pairs, &start, &study_opts, &|| {}));
+    let study = result.map_err(|e| lib_err(e.error))?;
+    Ok(PyCalibration {
+        mech: m.mech.clone(),
+        measurement: mm.clone(),
+        validation: study.validation.as_ref().map(|v| Validation {
+            source: match v.source {
+                pkmcal::identify::ValidationSource::Given => "validation arrays".into(),
+                pkmcal::identify::ValidationSource::HeldOut { count, seed } => {
+                    format!("{count} held-out poses (seed {seed})")
+                }
+            },
+            accuracy: v.accuracy.clone(),
+        }),
+        cal: study.calibration,
+        data: study.poses,
+        before: study.before,
+        after: study.after,
+        accuracy: study.accuracy,
+        cross_validation: study.cross_validation,
+    })
 }
 
 /// Identifiability of the free parameters from poses and readings at

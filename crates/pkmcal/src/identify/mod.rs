@@ -10,6 +10,7 @@ pub mod noise;
 pub mod problem;
 pub mod result;
 pub mod stats;
+pub mod study;
 pub mod uncertainty;
 pub mod validation;
 pub mod weights;
@@ -26,6 +27,10 @@ pub use identifiability::{
 pub use loss::{Loss, OUTLIER_FLOOR_MM, OUTLIER_FLOOR_RAD, Outlier};
 pub use problem::{IdentificationProblem, PoseCache};
 pub use result::{Calibration, ParameterResult, Warning, WarningKind};
+pub use study::{
+    FreeSetError, NameList, Study, StudyError, StudyOptions, StudyStage, StudyValidation,
+    ValidationPlan, ValidationSource, resolve_free_set, study,
+};
 pub use uncertainty::{ParameterCovariance, predict_with_uncertainty, tool_covariance};
 pub use validation::{
     Accuracy, CrossValidation, DistanceAccuracy, ErrorVectors, accuracy, calibration_accuracy,
