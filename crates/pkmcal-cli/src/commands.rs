@@ -196,7 +196,7 @@ pub fn predict(a: PredictArgs) -> Result<()> {
     }
     w.flush()?;
     bar.finish_and_clear();
-    eprintln!(
+    pkmcal_cli::note!(
         "predicted {total} poses with the {} model -> {}",
         model.name(),
         a.out.display()
@@ -303,7 +303,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         &with_frame_comment(data_csv(&mech, &measurement, &data, &units), base),
     )?;
     let angles = measurement.units().contains(&pkmcal::Unit::Radian);
-    eprintln!(
+    pkmcal_cli::note!(
         "simulated {} poses, {} (noise {} mm on lengths{}, seed {}) -> {}",
         data.len(),
         measurement.describe(),
@@ -318,7 +318,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
     );
     if let Some((path, bytes, n)) = distances {
         crate::output::stage(path, &bytes)?;
-        eprintln!(
+        pkmcal_cli::note!(
             "simulated {n} distances between pairs of those poses -> {}",
             path.display()
         );
@@ -460,7 +460,7 @@ pub fn trilaterate(a: crate::TrilaterateArgs) -> Result<()> {
             true,
         ),
     )?;
-    eprintln!(
+    pkmcal_cli::note!(
         "trilaterated {} poses from {} sockets -> {}",
         rows.len(),
         setup.sockets.len(),

@@ -451,7 +451,7 @@ pub fn run_gcode(c: GcodeConfig) -> Result<()> {
     }
     crate::output::stage(&c.out, out.as_bytes())?;
     let (f, u) = pkmcal::Unit::Millimetre.readable(worst);
-    eprintln!(
+    crate::note!(
         "rewrote {moves} moves as {segments} pre-distorted moves (largest shift {:.3} {u}, {} model) -> {}",
         worst * f,
         c.model.name(),

@@ -3,6 +3,17 @@
 //! the Python package (`crates/pkmcal-py`) are built on it; the mathematics
 //! lives in the `pkmcal` library crate, which knows no files.
 
+/// `eprintln!` for messages: a standard error that cannot be written (closed,
+/// full, a broken pipe) loses the message, never the run (`eprintln!` would
+/// panic and the run's outputs be discarded).
+#[macro_export]
+macro_rules! note {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr(), $($t)*);
+    }};
+}
+
 pub mod calibrate;
 pub mod figures;
 pub mod fileunits;

@@ -498,8 +498,8 @@ pub struct MonteCarloArgs {
     /// Measurement plan: CSV with target_<axis> columns (e.g. from `plan`).
     #[arg(long, value_name = "POSES.csv")]
     pub poses: PathBuf,
-    /// Number of simulated calibrations.
-    #[arg(value_parser = values::count, long, default_value_t = 200)]
+    /// Number of simulated calibrations (at most 1,000,000).
+    #[arg(value_parser = values::runs, long, default_value_t = 200)]
     pub runs: usize,
     /// Measurement noise on each length coordinate, mm.
     #[arg(value_parser = values::length_noise, long, default_value_t = 0.002, value_name = "MM")]
@@ -600,6 +600,17 @@ mod values {
         (v >= 1)
             .then_some(v)
             .ok_or_else(|| "must be at least 1".to_string())
+    }
+    pub fn runs(s: &str) -> Result<usize, String> {
+        let v = count(s)?;
+        (v <= pkmcal::apply::montecarlo::MAX_RUNS)
+            .then_some(v)
+            .ok_or_else(|| {
+                format!(
+                    "at most {} runs (each is kept in memory); run several studies with other seeds for more",
+                    pkmcal::apply::montecarlo::MAX_RUNS
+                )
+            })
     }
     pub fn folds(s: &str) -> Result<usize, String> {
         let v = count(s)?;
@@ -735,7 +746,7 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             output::discard();
-            eprintln!("error: {e:#}");
+            pkmcal_cli::note!("error: {e:#}");
             if e.downcast_ref::<output::Usage>().is_some() {
                 ExitCode::from(2)
             } else {

@@ -179,7 +179,7 @@ pub fn install_cleanup() {
             .or_else(|| info.payload().downcast_ref::<&str>().copied())
             .unwrap_or("");
         if let Some(cause) = message.strip_prefix("failed printing to stdout: ") {
-            eprintln!("error: cannot write to standard output: {cause}");
+            crate::note!("error: cannot write to standard output: {cause}");
             std::process::exit(1);
         }
         default(info);

@@ -172,7 +172,7 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
                         done += 1;
                     }
                     Err(e) if c.skip_unreachable => {
-                        eprintln!("{}:{line}: skipped: {e}", targets.display());
+                        crate::note!("{}:{line}: skipped: {e}", targets.display());
                         skipped += 1;
                     }
                     Err(e) => bail!(
@@ -186,7 +186,7 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
         Ok((done, skipped))
     })();
     let (done, skipped) = result?;
-    eprintln!(
+    crate::note!(
         "{} {done} targets{} ({} model) -> {}",
         if c.cartesian {
             "pre-distorted"
@@ -461,13 +461,13 @@ fn run_grid(
         out.into_bytes()
     };
     crate::output::stage(&c.out, &bytes)?;
-    eprintln!(
+    crate::note!(
         "correction grid {describe}: {reachable} of {} nodes reachable and usable ({} model) -> {}",
         grid.len(),
         c.model.name(),
         c.out.display()
     );
-    eprintln!(
+    crate::note!(
         "interpolation error at {} cell centres: {}",
         err.points,
         interpolation_summary(&err)

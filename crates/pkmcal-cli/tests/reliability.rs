@@ -1193,3 +1193,44 @@ fn an_interrupted_demo_leaves_no_directory() {
         assert!(d.join("a/b/demo/report/report.html").exists());
     }
 }
+
+/// Counts that no machine could hold are refused as usage errors, not a
+/// panic or an abort (issue 34, C7).
+#[test]
+fn huge_run_counts_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    files(d);
+    for runs in ["18446744073709551615", "1000000000"] {
+        fails(
+            d,
+            &["montecarlo", "--poses", "d.csv", "--runs", runs],
+            2,
+            "at most 1000000 runs",
+        );
+    }
+}
+
+/// A standard error that cannot be written (full) loses the messages, not
+/// the run: exit 0 and the outputs in place (issue 34, C8).
+#[test]
+fn an_unwritable_standard_error_loses_messages_not_the_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    files(d);
+    for args in [
+        vec!["predict", "--commands", "c.csv", "--out", "p.csv"],
+        vec!["calibrate", "--data", "d.csv", "--out", "cal.toml"],
+        vec!["simulate", "--grid", "5", "--out", "s.csv"],
+        vec!["compensate", "--targets", "t.csv", "--out", "k.csv"],
+    ] {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_pkmcal"))
+            .args(&args)
+            .current_dir(d)
+            .stderr(std::fs::File::create("/dev/full").unwrap())
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(0), "{args:?}");
+        assert!(d.join(args[args.len() - 1]).exists(), "{args:?}");
+    }
+}

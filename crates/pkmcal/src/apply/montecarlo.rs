@@ -86,6 +86,12 @@ fn percentile(v: &mut [f64], p: f64) -> f64 {
     v[k]
 }
 
+/// The most runs one study makes: each run is kept (its parameter errors),
+/// so memory grows with them (about 200 bytes a run on the reference, some
+/// hundred MB at the bound), and at thousands of calibrations a second this
+/// is minutes already.
+pub const MAX_RUNS: usize = 1_000_000;
+
 /// Run the study: calibrate from measurements at `poses` (targets), judge on
 /// `validation` targets. `progress` is called after each run (from any thread).
 pub fn monte_carlo<M: Mechanism>(
@@ -95,6 +101,12 @@ pub fn monte_carlo<M: Mechanism>(
     opts: &MonteCarloOptions,
     progress: &(dyn Fn() + Sync),
 ) -> Result<(Vec<Run>, MonteCarloSummary)> {
+    if opts.runs > MAX_RUNS {
+        return Err(crate::error::Error::InvalidRequest(format!(
+            "{} runs asked for; at most {MAX_RUNS} are made (each is kept in memory)",
+            opts.runs
+        )));
+    }
     let spec = mech.spec();
     let nominal = Params::nominal(spec);
     let free = &opts.calibration.free;
