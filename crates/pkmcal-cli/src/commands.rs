@@ -110,7 +110,20 @@ pub fn predict(a: PredictArgs) -> Result<()> {
         .collect();
     let cols = input.columns(&names)?;
     let covariance = match &a.uncertainty {
-        Some(path) => Some(read_covariance(path)?),
+        Some(path) => {
+            let c = read_covariance(path)?;
+            // Checked against this mechanism here, so that a report of
+            // another mechanism, or a malformed matrix, is blamed on the
+            // report and not on a row of the commands.
+            c.resolve(spec).with_context(|| {
+                format!(
+                    "{}: its `covariance` cannot serve {} (give the report of a calibration of this mechanism)",
+                    path.display(),
+                    spec.name
+                )
+            })?;
+            Some(c)
+        }
         None => None,
     };
     let settings = PredictSettings {

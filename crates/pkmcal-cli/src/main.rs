@@ -652,6 +652,11 @@ fn check_paths(command: &Command) -> anyhow::Result<()> {
             vec![a.out.clone()],
         ),
         Command::Calibrate(a) => {
+            if output::is_stdout(&a.out) || a.report.as_deref().is_some_and(output::is_stdout) {
+                return output::usage(
+                    "calibrate prints its summary on standard output: write the parameters (--out) and the report (--report) to files",
+                );
+            }
             let mut out = vec![a.out.clone()];
             out.extend(a.report.clone());
             if let Some(d) = &a.report_dir {

@@ -271,6 +271,13 @@ pub fn check(inputs: &[&Path], outputs: &[&Path], dirs: &[PathBuf]) -> Result<()
     }
     let mut seen: Vec<(&Path, Vec<Key>)> = vec![];
     for o in outputs.iter().filter(|o| !is_stdout(o)) {
+        let text = o.as_os_str().to_string_lossy();
+        if text.ends_with('/') || text.ends_with("/.") || text.ends_with("/..") {
+            return usage(format!(
+                "{} names a directory; give the path of a file",
+                o.display()
+            ));
+        }
         if let Ok(meta) = std::fs::symlink_metadata(o) {
             let t = meta.file_type();
             if t.is_symlink() {

@@ -1234,3 +1234,169 @@ fn an_unwritable_standard_error_loses_messages_not_the_run() {
         assert!(d.join(args[args.len() - 1]).exists(), "{args:?}");
     }
 }
+
+/// Options and reports that were taken silently or blamed on the wrong
+/// file (issue 34, E13, E16, E18): each is refused with the exit code of
+/// its kind (2: the command line; 1: a file's contents), naming the culprit.
+#[test]
+fn the_culprit_is_named_with_the_right_exit_code() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    files(d);
+    // The command line: exit 2.
+    fails(
+        d,
+        &["calibrate", "--data", "d.csv", "--out", "newdir/"],
+        2,
+        "names a directory",
+    );
+    fails(
+        d,
+        &["predict", "--commands", "c.csv", "--out", "out/."],
+        2,
+        "names a directory",
+    );
+    fails(
+        d,
+        &[
+            "predict",
+            "--units",
+            "angle=deg,angle=rad",
+            "--commands",
+            "c.csv",
+            "--out",
+            "p.csv",
+        ],
+        2,
+        "given twice",
+    );
+    fails(
+        d,
+        &["calibrate", "--data", "d.csv", "--out", "-"],
+        2,
+        "summary on standard output",
+    );
+    fails(
+        d,
+        &[
+            "calibrate",
+            "--data",
+            "d.csv",
+            "--free",
+            "",
+            "--out",
+            "p.toml",
+        ],
+        2,
+        "no parameter is left free",
+    );
+    fails(
+        d,
+        &[
+            "calibrate",
+            "--data",
+            "d.csv",
+            "--fix",
+            "l111",
+            "--out",
+            "p.toml",
+        ],
+        2,
+        "in --fix: unknown parameter `l111`",
+    );
+    // A calibration report whose covariance is not one: blamed on the report.
+    ok(
+        d,
+        &[
+            "calibrate",
+            "--data",
+            "d.csv",
+            "--out",
+            "cal.toml",
+            "--report",
+            "r.json",
+        ],
+    );
+    let report: serde_json::Value = serde_json::from_str(&read(d, "r.json")).unwrap();
+    let mut bad = report.clone();
+    bad["covariance"]["matrix"][0][0] = serde_json::json!(-1.0);
+    std::fs::write(d.join("neg.json"), bad.to_string()).unwrap();
+    let mut twice = report.clone();
+    let first = twice["covariance"]["names"][0].clone();
+    twice["covariance"]["names"][1] = first;
+    std::fs::write(d.join("twice.json"), twice.to_string()).unwrap();
+    for (f, needle) in [("neg.json", "negative variance"), ("twice.json", "twice")] {
+        fails(
+            d,
+            &[
+                "predict",
+                "--params",
+                "cal.toml",
+                "--uncertainty",
+                f,
+                "--commands",
+                "c.csv",
+                "--out",
+                "p.csv",
+            ],
+            1,
+            &format!("{f}: its `covariance` cannot serve"),
+        );
+        fails(
+            d,
+            &[
+                "predict",
+                "--params",
+                "cal.toml",
+                "--uncertainty",
+                f,
+                "--commands",
+                "c.csv",
+                "--out",
+                "p.csv",
+            ],
+            1,
+            needle,
+        );
+    }
+    // A report of another mechanism: blamed on the report.
+    let mech = common::example("linear-delta");
+    std::fs::write(d.join("abc.csv"), "a,b,c\n300,300,300\n").unwrap();
+    fails(
+        d,
+        &[
+            "predict",
+            "--mechanism",
+            &mech,
+            "--uncertainty",
+            "r.json",
+            "--commands",
+            "abc.csv",
+            "--out",
+            "p.csv",
+        ],
+        1,
+        "r.json: its `covariance` cannot serve",
+    );
+    // An infinite condition number is written as such, not as null.
+    ok(
+        d,
+        &[
+            "calibrate",
+            "--data",
+            "d.csv",
+            "--model",
+            "rigid",
+            "--free",
+            "default,dq3",
+            "--out",
+            "rigid.toml",
+            "--report",
+            "rigid.json",
+        ],
+    );
+    let rigid: serde_json::Value = serde_json::from_str(&read(d, "rigid.json")).unwrap();
+    // (The rigid model never sees the third actuator: `dq3` is
+    // unidentifiable, the analysis rank deficient.)
+    assert_eq!(rigid["identifiability"]["condition_number"], "inf");
+}

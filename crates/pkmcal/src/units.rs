@@ -354,6 +354,7 @@ impl PartialUnits {
     pub fn parse(text: &str) -> crate::error::Result<Self> {
         let bad = |m: String| crate::error::Error::InvalidRequest(m);
         let mut out = PartialUnits::default();
+        let mut seen: Vec<&str> = vec![];
         for item in text.split(',').map(str::trim).filter(|s| !s.is_empty()) {
             let (k, v) = item.split_once('=').ok_or_else(|| {
                 bad(format!(
@@ -361,11 +362,18 @@ impl PartialUnits {
                 ))
             })?;
             let v = v.trim();
+            if seen.contains(&k.trim()) {
+                return Err(bad(format!(
+                    "`{}` is given twice; give each unit once",
+                    k.trim()
+                )));
+            }
+            seen.push(k.trim());
             match k.trim() {
                 "angle" => {
                     out.angle = Some(match v {
-                        "rad" => AngleUnit::Radian,
-                        "deg" | "°" => AngleUnit::Degree,
+                        "rad" | "radian" | "radians" => AngleUnit::Radian,
+                        "deg" | "degree" | "degrees" | "°" => AngleUnit::Degree,
                         _ => return Err(bad(format!("angle unit `{v}`: use rad or deg"))),
                     })
                 }
@@ -408,6 +416,16 @@ pub const M_TO_MM: f64 = 1e3;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A key given twice is refused (it would silently take the last);
+    /// spelled-out angle units are read.
+    #[test]
+    fn units_are_given_once() {
+        assert!(PartialUnits::parse("angle=deg,angle=rad").is_err());
+        assert!(PartialUnits::parse("length=m, length=m").is_err());
+        let u = PartialUnits::parse("angle=degree,length=m").unwrap();
+        assert_eq!(u.angle, Some(AngleUnit::Degree));
+    }
 
     #[test]
     fn readable_scales() {

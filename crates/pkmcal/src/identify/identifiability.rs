@@ -60,6 +60,15 @@ pub struct Correlation {
     pub r: f64,
 }
 
+/// A number, or `"inf"` for +∞ (JSON has no infinity).
+fn number_or_inf<S: serde::Serializer>(v: &f64, s: S) -> std::result::Result<S::Ok, S::Error> {
+    if *v == f64::INFINITY {
+        s.serialize_str("inf")
+    } else {
+        s.serialize_f64(*v)
+    }
+}
+
 /// Identifiability of the free parameters from the poses.
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct Identifiability {
@@ -69,7 +78,9 @@ pub struct Identifiability {
     pub singular_values: Vec<f64>,
     /// Numerical rank.
     pub rank: usize,
-    /// σ₁ / σ_L (infinite when rank deficient).
+    /// σ₁ / σ_L (infinite when rank deficient; written `"inf"` in JSON,
+    /// which has no infinity, rather than a `null` that reads as missing).
+    #[serde(serialize_with = "number_or_inf")]
     pub condition_number: f64,
     /// Observability indices O1–O5 (over the identifiable part).
     pub observability: Observability,

@@ -36,6 +36,25 @@ impl ParameterCovariance {
                 "the covariance has non-finite entries".into(),
             ));
         }
+        if let Some(a) = (0..n).find(|&a| self.matrix[a][a] < 0.0) {
+            return Err(Error::InvalidRequest(format!(
+                "the covariance gives `{}` a negative variance ({:e}); it is not a covariance",
+                self.names[a], self.matrix[a][a]
+            )));
+        }
+        for (a, name) in self.names.iter().enumerate() {
+            if name.trim().is_empty() {
+                return Err(Error::InvalidRequest(format!(
+                    "the covariance's name {} is empty",
+                    a + 1
+                )));
+            }
+            if self.names[..a].contains(name) {
+                return Err(Error::InvalidRequest(format!(
+                    "the covariance names `{name}` twice"
+                )));
+            }
+        }
         let frame = spec.tool_layout.frame_names();
         let keep: Vec<usize> = (0..n)
             .filter(|&a| !frame.contains(&self.names[a]))
@@ -65,6 +84,16 @@ pub fn tool_covariance<M: Mechanism>(
     let s = sensitivity(mech, pose, params, model, force)?;
     let j = s.jacobian.select_columns(&idx);
     let cov = &j * c * j.transpose();
+    // A covariance that overflows here, or is not positive semi-definite
+    // enough to give non-negative variances, gives no standard deviation:
+    // an error, never a σ of 0 or NaN.
+    if let Some(a) = (0..cov.nrows()).find(|&a| !(cov[(a, a)].is_finite() && cov[(a, a)] >= 0.0)) {
+        return Err(Error::InvalidRequest(format!(
+            "the parameters' covariance gives tool coordinate {} a variance of {:e}; it is not a covariance of these parameters (check the report it came from)",
+            a + 1,
+            cov[(a, a)]
+        )));
+    }
     Ok((s.prediction, cov))
 }
 
