@@ -222,7 +222,7 @@ const PREDICT_BATCH_ROWS: usize = 1 << 14;
 
 /// The parameter covariance stored in a calibration report (`covariance`).
 fn read_covariance(path: &Path) -> Result<pkmcal::ParameterCovariance> {
-    let text = crate::output::read_to_string(path)
+    let text = crate::output::read_to_string(path, crate::output::InputKind::Description)
         .with_context(|| format!("cannot read calibration report {}", path.display()))?;
     let v: serde_json::Value = serde_json::from_str(&text)
         .with_context(|| format!("{}: not a JSON calibration report", path.display()))?;

@@ -32,7 +32,7 @@ struct UnitsTable {
 pub fn of(mechanism: Option<&Path>) -> Result<FileUnits> {
     let mut u = FileUnits::default();
     if let Some(p) = mechanism {
-        let text = crate::output::read_to_string(p)
+        let text = crate::output::read_to_string(p, crate::output::InputKind::Description)
             .with_context(|| format!("cannot read mechanism file {}", p.display()))?;
         let t: UnitsTable = toml::from_str(&text).with_context(|| {
             format!(

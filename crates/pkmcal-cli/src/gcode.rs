@@ -165,7 +165,7 @@ pub fn run_gcode(c: GcodeConfig) -> Result<()> {
     {
         return crate::output::usage("--max-segment must be a positive length in mm");
     }
-    let text = crate::output::read_to_string(&c.input)
+    let text = crate::output::read_to_string(&c.input, crate::output::InputKind::Data)
         .with_context(|| format!("cannot read G-code file {}", c.input.display()))?;
     let file = c.input.display();
     // Programmed position in G-code units of each tool axis (None: unknown);

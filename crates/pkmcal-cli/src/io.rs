@@ -26,8 +26,8 @@ pub const BASE_FRAME_COMMENT: &str = "# frame: base";
 
 impl Csv {
     pub fn read(path: &Path) -> Result<Self> {
-        let bytes =
-            crate::output::read(path).with_context(|| format!("cannot open {}", path.display()))?;
+        let bytes = crate::output::read(path, crate::output::InputKind::Data)
+            .with_context(|| format!("cannot open {}", path.display()))?;
         let base_frame = String::from_utf8_lossy(&bytes)
             .lines()
             .any(|l| l.trim() == BASE_FRAME_COMMENT);
@@ -683,7 +683,7 @@ pub fn csv_bytes(header: &[String], rows: &[Vec<f64>]) -> Vec<u8> {
 /// ([`pkmcal::check_params`]: finite, in range, lengths positive, the
 /// mechanism still assembles), naming the file.
 pub fn read_params<M: pkmcal::Mechanism>(path: &Path, mech: &M) -> Result<Params> {
-    let text = crate::output::read_to_string(path)
+    let text = crate::output::read_to_string(path, crate::output::InputKind::Description)
         .with_context(|| format!("cannot read parameter file {}", path.display()))?;
     let p = params_from_str(&text, mech.spec())
         .with_context(|| format!("in parameter file {}", path.display()))?;
@@ -786,7 +786,7 @@ pub fn read_setup(setup: Option<&Path>, mechanism: Option<&Path>) -> Result<Opti
     let setup_file = setup;
     let file: Option<SetupFile> = match (setup, mechanism) {
         (Some(p), _) => {
-            let text = crate::output::read_to_string(p)
+            let text = crate::output::read_to_string(p, crate::output::InputKind::Description)
                 .with_context(|| format!("cannot read setup file {}", p.display()))?;
             Some(toml::from_str(&text).with_context(|| {
                 format!(
@@ -796,7 +796,7 @@ pub fn read_setup(setup: Option<&Path>, mechanism: Option<&Path>) -> Result<Opti
             })?)
         }
         (None, Some(m)) => {
-            let text = crate::output::read_to_string(m)
+            let text = crate::output::read_to_string(m, crate::output::InputKind::Description)
                 .with_context(|| format!("cannot read mechanism file {}", m.display()))?;
             // The mechanism file itself was checked when it was read; only
             // its `[ballbar]` table matters here, and a mistake in it is
@@ -854,7 +854,7 @@ pub fn read_mechanism(path: Option<&Path>) -> Result<Mech> {
     let Some(path) = path else {
         return Ok(JeongKim2Dof::new().into());
     };
-    let text = crate::output::read_to_string(path)
+    let text = crate::output::read_to_string(path, crate::output::InputKind::Description)
         .with_context(|| format!("cannot read mechanism file {}", path.display()))?;
     mechanism_from_str(&text).with_context(|| format!("in mechanism file {}", path.display()))
 }
@@ -921,7 +921,7 @@ pub fn read_targets(mechanism: Option<&Path>) -> Result<Vec<Vec<f64>>> {
     let Some(m) = mechanism else {
         return Ok(vec![]);
     };
-    let text = crate::output::read_to_string(m)
+    let text = crate::output::read_to_string(m, crate::output::InputKind::Description)
         .with_context(|| format!("cannot read mechanism file {}", m.display()))?;
     targets_from_str(&text).with_context(|| format!("in mechanism file {}", m.display()))
 }

@@ -78,7 +78,12 @@ pub struct Ini {
     entries: Vec<Entry>,
     /// Included files read so far (bounded by [`MAX_INCLUDED_FILES`]).
     files: usize,
+    /// Their bytes (bounded by [`MAX_INCLUDED_BYTES`]).
+    bytes: usize,
 }
+
+/// The most bytes the included files of one configuration may hold in all.
+const MAX_INCLUDED_BYTES: usize = 64 << 20;
 
 /// The most included files one configuration may read in all (a printer's
 /// folder holds tens; includes that fan out could otherwise read millions).
@@ -240,9 +245,19 @@ fn parse_into(ini: &mut Ini, text: &str, file: &Path, depth: usize) -> Result<()
                             i + 1
                         );
                     }
-                    let text = crate::output::read_to_string(&path).with_context(|| {
-                        format!("{name}:{}: cannot read included {}", i + 1, path.display())
-                    })?;
+                    let text =
+                        crate::output::read_to_string(&path, crate::output::InputKind::Description)
+                            .with_context(|| {
+                                format!("{name}:{}: cannot read included {}", i + 1, path.display())
+                            })?;
+                    ini.bytes += text.len();
+                    if ini.bytes > MAX_INCLUDED_BYTES {
+                        bail!(
+                            "{name}:{}: [include {inc}]: the included files hold more than {} MiB in all (files included many times over?)",
+                            i + 1,
+                            MAX_INCLUDED_BYTES >> 20
+                        );
+                    }
                     parse_into(ini, &text, &path, depth + 1)?;
                 }
                 section = None;
@@ -834,7 +849,7 @@ fn max_abs(v: &[f64]) -> f64 {
 
 /// Run `pkmcal klipper`.
 pub fn run_klipper(c: KlipperConfig) -> Result<()> {
-    let text = crate::output::read_to_string(&c.config)
+    let text = crate::output::read_to_string(&c.config, crate::output::InputKind::Description)
         .with_context(|| format!("cannot read Klipper configuration {}", c.config.display()))?;
     let ini = parse_config(&text, &c.config)?;
     let delta = delta_from_config(&ini).with_context(|| format!("in {}", c.config.display()))?;

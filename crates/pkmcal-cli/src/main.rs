@@ -21,6 +21,12 @@ struct Cli {
     /// Overrides the mechanism file's [units]; default mm and rad.
     #[arg(long, global = true, value_name = "KEY=UNIT,…")]
     units: Option<String>,
+    /// The largest file read whole, in MiB, for every kind of file (default:
+    /// 16 for mechanism, parameter, setup and firmware files and reports,
+    /// 256 for data files and G-code; streamed commands and targets have no
+    /// size limit, only 1 MiB per line).
+    #[arg(long, global = true, value_name = "MB", value_parser = clap::value_parser!(u64).range(1..=1 << 20))]
+    max_input_mb: Option<u64>,
 }
 
 #[derive(Subcommand)]
@@ -743,6 +749,9 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     output::install_cleanup();
     output::track_inputs();
+    if let Some(mb) = cli.max_input_mb {
+        output::set_max_input_mb(mb);
+    }
     let result = fileunits::set_cli(cli.units.as_deref())
         .and_then(|()| check_paths(&cli.command))
         .and_then(|()| in_pool(cli.command));

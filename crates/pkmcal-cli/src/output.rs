@@ -109,22 +109,109 @@ pub fn input(path: &Path) {
     }
 }
 
-/// Read a whole input file, registered first ([`input`]).
-pub fn read(path: &Path) -> std::io::Result<Vec<u8>> {
-    input(path);
-    std::fs::read(path)
+/// What a file read whole is, for its size limit ([`read`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum InputKind {
+    /// A description or setting: a mechanism, parameter, setup or units
+    /// file, a calibration report, a firmware configuration.
+    Description,
+    /// Data read whole: a measurement CSV, a G-code program.
+    Data,
 }
 
-/// Read a whole input text file, registered first ([`input`]).
-pub fn read_to_string(path: &Path) -> std::io::Result<String> {
-    input(path);
-    std::fs::read_to_string(path)
+/// The largest description read whole, by default (MiB): a mechanism file
+/// or a printer's configuration is kilobytes.
+pub const MAX_DESCRIPTION_MB: u64 = 16;
+/// The largest data file read whole, by default (MiB): 10⁶ measured poses
+/// are about 100 MB. (Commands and targets are streamed: no limit but a
+/// line's, [`MAX_LINE_BYTES`].)
+pub const MAX_DATA_MB: u64 = 256;
+/// The longest line of a streamed file.
+pub const MAX_LINE_BYTES: usize = 1 << 20;
+
+/// A size limit for every file read whole (`--max-input-mb`), replacing the
+/// defaults of [`InputKind`].
+static MAX_INPUT_MB: std::sync::OnceLock<u64> = std::sync::OnceLock::new();
+
+/// Set the size limit of files read whole (MiB), for every kind.
+pub fn set_max_input_mb(mb: u64) {
+    let _ = MAX_INPUT_MB.set(mb);
 }
 
-/// Open an input file to stream it, registered first ([`input`]).
-pub fn open(path: &Path) -> std::io::Result<std::fs::File> {
+fn limit_of(kind: InputKind) -> u64 {
+    MAX_INPUT_MB.get().copied().unwrap_or(match kind {
+        InputKind::Description => MAX_DESCRIPTION_MB,
+        InputKind::Data => MAX_DATA_MB,
+    })
+}
+
+/// Read a whole input file, registered first ([`input`]), at most its
+/// kind's size limit (a larger file, or an endless one such as `/dev/zero`,
+/// is an error that says how to raise the limit).
+pub fn read(path: &Path, kind: InputKind) -> std::io::Result<Vec<u8>> {
+    use std::io::Read;
     input(path);
-    std::fs::File::open(path)
+    let mb = limit_of(kind);
+    let limit = mb.saturating_mul(1 << 20);
+    let mut out = vec![];
+    std::fs::File::open(path)?
+        .take(limit.saturating_add(1))
+        .read_to_end(&mut out)?;
+    if out.len() as u64 > limit {
+        return Err(std::io::Error::other(format!(
+            "it is larger than {mb} MiB, more than a {} should be; if it really is this large, raise the limit with --max-input-mb",
+            match kind {
+                InputKind::Description => "description or setting",
+                InputKind::Data => "data file",
+            }
+        )));
+    }
+    Ok(out)
+}
+
+/// Read a whole input text file ([`read`]).
+pub fn read_to_string(path: &Path, kind: InputKind) -> std::io::Result<String> {
+    String::from_utf8(read(path, kind)?)
+        .map_err(|_| std::io::Error::new(std::io::ErrorKind::InvalidData, "it is not UTF-8 text"))
+}
+
+/// Open an input file to stream it, registered first ([`input`]); each of
+/// its lines at most [`MAX_LINE_BYTES`] long.
+pub fn open(path: &Path) -> std::io::Result<LineLimit<std::fs::File>> {
+    input(path);
+    Ok(LineLimit {
+        inner: std::fs::File::open(path)?,
+        run: 0,
+    })
+}
+
+/// A reader that fails on a line longer than [`MAX_LINE_BYTES`], so that a
+/// stream without line ends (`/dev/zero`) cannot grow a record without
+/// bound.
+pub struct LineLimit<R> {
+    inner: R,
+    /// Bytes since the last line end.
+    run: usize,
+}
+
+impl<R: std::io::Read> std::io::Read for LineLimit<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        for &b in &buf[..n] {
+            if b == b'\n' || b == b'\r' {
+                self.run = 0;
+            } else {
+                self.run += 1;
+                if self.run > MAX_LINE_BYTES {
+                    return Err(std::io::Error::other(format!(
+                        "a line is longer than {} MiB; this is not a table of numbers",
+                        MAX_LINE_BYTES >> 20
+                    )));
+                }
+            }
+        }
+        Ok(n)
+    }
 }
 
 /// The input `dest` would replace, if any.

@@ -198,7 +198,7 @@ pub const OVERRIDE_FILE: &str = "config-override.g";
 /// `config-override.g` after `M501` is an error naming both: the geometry
 /// would otherwise be stale and undo the saved calibration.
 pub fn delta_from_config_file(path: &std::path::Path) -> Result<RrfDelta> {
-    let text = crate::output::read_to_string(path)
+    let text = crate::output::read_to_string(path, crate::output::InputKind::Description)
         .with_context(|| format!("cannot read {}", path.display()))?;
     let file = path.display().to_string();
     let override_path = path
@@ -209,7 +209,7 @@ pub fn delta_from_config_file(path: &std::path::Path) -> Result<RrfDelta> {
         if path.file_name().is_some_and(|f| f == OVERRIDE_FILE) {
             bail!("{file}:{n}: M501 inside {OVERRIDE_FILE} itself; remove that line");
         }
-        let t = crate::output::read_to_string(&override_path).with_context(|| {
+        let t = crate::output::read_to_string(&override_path, crate::output::InputKind::Description).with_context(|| {
             format!(
                 "{file}:{n}: M501 loads {OVERRIDE_FILE}, which holds the calibration the firmware runs, but {} cannot be read; copy it from the printer's /sys folder beside {file}, or remove the M501 line if the printer has none",
                 override_path.display()

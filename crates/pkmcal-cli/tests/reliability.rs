@@ -1400,3 +1400,120 @@ fn the_culprit_is_named_with_the_right_exit_code() {
     // unidentifiable, the analysis rank deficient.)
     assert_eq!(rigid["identifiability"]["condition_number"], "inf");
 }
+
+/// Inputs are read with bounds: a file read whole up to its kind's limit
+/// (`--max-input-mb` raises it), a streamed file line by line up to 1 MiB a
+/// line; `/dev/zero` under every option is an error, not gigabytes
+/// (issue 34, D9).
+#[test]
+fn inputs_are_read_within_bounds() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    files(d);
+    ok(d, &["calibrate", "--data", "d.csv", "--out", "cal.toml"]);
+    for (args, needle) in [
+        (
+            vec!["calibrate", "--data", "/dev/zero", "--out", "x.toml"],
+            "larger than 256 MiB",
+        ),
+        (
+            vec!["predict", "--commands", "/dev/zero", "--out", "p.csv"],
+            "longer than 1 MiB",
+        ),
+        (
+            vec!["compensate", "--targets", "/dev/zero", "--out", "p.csv"],
+            "longer than 1 MiB",
+        ),
+        (
+            vec![
+                "simulate",
+                "--mechanism",
+                "/dev/zero",
+                "--grid",
+                "3",
+                "--out",
+                "s.csv",
+            ],
+            "larger than 16 MiB",
+        ),
+        (
+            vec![
+                "predict",
+                "--params",
+                "/dev/zero",
+                "--commands",
+                "c.csv",
+                "--out",
+                "p.csv",
+            ],
+            "larger than 16 MiB",
+        ),
+        (
+            vec!["reprap", "--config", "/dev/zero", "--probes", "d.csv"],
+            "larger than 16 MiB",
+        ),
+        (
+            vec!["klipper", "--config", "/dev/zero"],
+            "larger than 16 MiB",
+        ),
+        (
+            vec![
+                "gcode",
+                "--params",
+                "cal.toml",
+                "--in",
+                "/dev/zero",
+                "--out",
+                "o.gcode",
+            ],
+            "larger than 256 MiB",
+        ),
+    ] {
+        fails(d, &args, 1, needle);
+    }
+    // A data file over a lowered limit, then read with it raised.
+    let big = read(d, "d.csv").repeat(2000);
+    std::fs::write(d.join("big.csv"), &big).unwrap();
+    assert!(big.len() > 1 << 20);
+    fails(
+        d,
+        &["analyze", "--data", "big.csv", "--max-input-mb", "1"],
+        1,
+        "--max-input-mb",
+    );
+    // (Repeated headers are comment-free rows of text: the reader gets past
+    // the size and stops at their content.)
+    let o = run(d, &["analyze", "--data", "big.csv", "--max-input-mb", "8"]);
+    assert!(
+        !String::from_utf8_lossy(&o.stderr).contains("--max-input-mb"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+/// A Klipper configuration's includes are bounded in number and bytes:
+/// files that include each other many times over are an error, not a
+/// minute of reading (issue 39, 4).
+#[test]
+fn klipper_includes_are_bounded() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // 9 levels of 12 includes each: 12^8 reads without a bound.
+    for level in 0..9 {
+        let mut text = String::new();
+        if level < 8 {
+            for _ in 0..12 {
+                text.push_str(&format!("[include l{}.cfg]\n", level + 1));
+            }
+        } else {
+            text.push_str("[gcode_macro M]\ngcode:\n  G28\n");
+        }
+        std::fs::write(d.join(format!("l{level}.cfg")), text).unwrap();
+    }
+    fails(
+        d,
+        &["klipper", "--config", "l0.cfg"],
+        1,
+        "included files are read in all",
+    );
+}
