@@ -7,8 +7,10 @@
 //! tool's `phi` → `C`; lengths in mm (`G21`, or inches after `G20`), angles
 //! in degrees (the G-code convention). Supported: `G90`/`G91` (absolute or
 //! relative), `G20`/`G21`, `M82`/`M83` and `G92 E` (extrusion, split with
-//! the segments), comments `;…` and `(…)`. Refused with the line: arcs
-//! (`G2`/`G3`), `G92` on a tool axis. `G28` (homing) forgets the position
+//! the segments), comments `;…` and `(…)` at the end of a line. Refused with
+//! the line, because firmwares read them differently or not at all: words
+//! after a `(…)` comment, lines ended by a carriage return alone, checksums
+//! (`*71`); and arcs (`G2`/`G3`), `G92` on a tool axis. `G28` (homing) forgets the position
 //! until the next move gives every axis again.
 
 use anyhow::{Context, Result};
@@ -69,6 +71,9 @@ struct Piece {
 
 /// Most pieces one move is split into (`--max-segment`).
 const MAX_PIECES: usize = 100_000;
+/// Most pieces a whole program is split into (each is kept until the
+/// program is written: about 200 bytes a piece).
+const MAX_TOTAL_PIECES: usize = 2_000_000;
 
 /// `G0`/`G1` (and their zero-padded forms).
 fn is_linear(v: &str) -> bool {
@@ -90,6 +95,22 @@ fn split(line: &str) -> Result<Line<'_>, String> {
         Some(i) => (&line[..i], &line[i..]),
         None => (line, ""),
     };
+    // Words after a parenthesised comment are read differently by each
+    // firmware (Klipper refuses the line, RepRapFirmware reads them, Marlin
+    // only when built with PAREN_COMMENTS): refused, never guessed.
+    if comment.starts_with('(') {
+        let after = match comment.find(')') {
+            Some(k) => &comment[k + 1..],
+            None => "",
+        };
+        let after = after.split(';').next().unwrap_or("");
+        if !after.trim().is_empty() {
+            return Err(format!(
+                "words after a (comment): `{}`; firmwares read them differently (Klipper refuses the line, RepRapFirmware reads them, Marlin only with PAREN_COMMENTS); move the comment to the end of the line",
+                after.trim()
+            ));
+        }
+    }
     let mut words = vec![];
     let b = code.as_bytes();
     let mut i = 0;
@@ -168,6 +189,16 @@ pub fn run_gcode(c: GcodeConfig) -> Result<()> {
     let text = crate::output::read_to_string(&c.input, crate::output::InputKind::Data)
         .with_context(|| format!("cannot read G-code file {}", c.input.display()))?;
     let file = c.input.display();
+    if let Some(k) = text
+        .as_bytes()
+        .windows(2)
+        .position(|w| w[0] == b'\r' && w[1] != b'\n')
+    {
+        let line = text[..=k].matches('\n').count() + 1;
+        return Err(anyhow::anyhow!(
+            "{file}:{line}: a line ends in a carriage return alone (old Mac style), which firmwares read differently; convert the file to \\n or \\r\\n line ends"
+        ));
+    }
     // Programmed position in G-code units of each tool axis (None: unknown);
     // rotations not programmed stay at 0.
     let mut pos: Vec<Option<f64>> = (0..nx).map(|k| angle[k].then_some(0.0)).collect();
@@ -310,6 +341,11 @@ pub fn run_gcode(c: GcodeConfig) -> Result<()> {
             }
             _ => 1,
         };
+        if pieces_out.len() + pieces > MAX_TOTAL_PIECES {
+            return Err(here(format!(
+                "the program would be split into more than {MAX_TOTAL_PIECES} pieces in all; use a larger --max-segment"
+            )));
+        }
         let g = format!("G{}", motion.unwrap_or(1));
         // Words kept as they are (feed rate, other codes).
         let others: Vec<String> = l

@@ -892,3 +892,96 @@ fn readme_walkthrough_from_a_tracker_export_to_controller_corrections() {
     let g = std::fs::read_to_string(d.join("part-cal.gcode")).unwrap();
     assert_eq!(g.lines().filter(|l| l.starts_with("G1")).count(), 28, "{g}");
 }
+
+/// What firmwares read differently is refused with its line, never written
+/// compensated for the wrong point: words after a parenthesised comment, a
+/// comment before the move, lines ended by a carriage return alone; and a
+/// program is split into a bounded number of pieces in all (issue 34, F15,
+/// D10).
+#[test]
+fn gcode_that_firmwares_read_differently_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("cal.toml"), CAL).unwrap();
+    for (program, needle) in [
+        (
+            "G21 G90\nG1 X5 Y190\nG1 X5 (note) Y200\n",
+            "part.gcode:3: words after a (comment): `Y200`",
+        ),
+        (
+            "G21 G90\nG1 X5 Y190\n(go) G1 X30 Y200\n",
+            "part.gcode:3: words after a (comment): `G1 X30 Y200`",
+        ),
+        (
+            "G21 G90\rG1 X5 Y190\rG1 X6 Y200\r",
+            "part.gcode:1: a line ends in a carriage return alone",
+        ),
+        (
+            "G21 G90\nG1 X5 Y190\nG1 X5 Y200 *71\n",
+            "part.gcode:3: unexpected `*`",
+        ),
+    ] {
+        std::fs::write(d.join("part.gcode"), program).unwrap();
+        fails(
+            d,
+            &[
+                "gcode",
+                "--params",
+                "cal.toml",
+                "--in",
+                "part.gcode",
+                "--out",
+                "o.gcode",
+            ],
+            1,
+            needle,
+        );
+        assert!(!d.join("o.gcode").exists());
+    }
+    // A comment at the end of the line, in either form, is kept as it is.
+    std::fs::write(
+        d.join("part.gcode"),
+        "G21 G90\r\nG1 X5 Y190 (start)\r\nG1 X6 Y200 ; next\r\n",
+    )
+    .unwrap();
+    ok(
+        d,
+        &[
+            "gcode",
+            "--params",
+            "cal.toml",
+            "--in",
+            "part.gcode",
+            "--out",
+            "o.gcode",
+        ],
+    );
+    let out = std::fs::read_to_string(d.join("o.gcode")).unwrap();
+    assert!(out.contains("(start)") && out.contains("; next"), "{out}");
+    // 401 moves of 20 mm at 1 µm: 8 million pieces, refused by the bound.
+    let mut long = String::from("G21 G90\nG1 X0 Y180\n");
+    for k in 0..400 {
+        long.push_str(if k % 2 == 0 {
+            "G1 X10 Y197\n"
+        } else {
+            "G1 X0 Y180\n"
+        });
+    }
+    std::fs::write(d.join("long.gcode"), long).unwrap();
+    fails(
+        d,
+        &[
+            "gcode",
+            "--params",
+            "cal.toml",
+            "--in",
+            "long.gcode",
+            "--max-segment",
+            "0.001",
+            "--out",
+            "o2.gcode",
+        ],
+        1,
+        "pieces in all",
+    );
+}
