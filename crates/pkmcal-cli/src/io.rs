@@ -983,6 +983,14 @@ fn jeong_kim_from_str(text: &str) -> Result<JeongKim2Dof> {
         if range[0].is_nan() || range[1].is_nan() || range[0] >= range[1] {
             bail!("[workspace]: `{axis}` must be [min, max] with min < max");
         }
+        if range[1] - range[0] < pkmcal::kinds::description::MIN_BOX_WIDTH {
+            bail!(
+                "[workspace]: `{axis}` = [{}, {}] is narrower than {:e} mm; give the range the tool moves over",
+                range[0],
+                range[1],
+                pkmcal::kinds::description::MIN_BOX_WIDTH
+            );
+        }
         spec.workspace_box[k] = range;
     }
     if let Some(free) = file.free {

@@ -126,7 +126,15 @@ fn map_data(
     let per_slice = MAP_SLICE_POINTS.min(MAP_TOTAL_POINTS / planes.len().max(1) as f64);
     for (a, b) in planes {
         let (ea, eb) = (bx[a][1] - bx[a][0], bx[b][1] - bx[b][0]);
-        let spacing = (ea * eb / per_slice).sqrt();
+        let mut spacing = (ea * eb / per_slice).sqrt();
+        // A box much thinner along one axis than the other: the lattice is
+        // bounded by points, the thin axis then a single row.
+        if spacing.is_nan()
+            || spacing <= 0.0
+            || (ea / spacing + 1.0) * (eb / spacing + 1.0) > 4.0 * per_slice
+        {
+            spacing = ea.max(eb) / per_slice.sqrt();
+        }
         let (na, nb) = ((ea / spacing) as usize + 1, (eb / spacing) as usize + 1);
         let targets: Vec<Vec<f64>> = (0..na)
             .flat_map(|i| (0..nb).map(move |j| (i, j)))

@@ -1517,3 +1517,81 @@ fn klipper_includes_are_bounded() {
         "included files are read in all",
     );
 }
+
+/// A workspace box thinner than 1e-6 along an axis is refused where it is
+/// read; a thin one that is allowed still gives bounded lattices (the
+/// report's maps were 22 GB for x = [0, 1e-12]) (issue 34, D11).
+#[test]
+fn degenerate_workspace_boxes_are_refused_and_thin_ones_bounded() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let text = std::fs::read_to_string(common::example("gough-stewart-6")).unwrap();
+    let thin = text.replace("x = [-80.0, 80.0]", "x = [0.0, 1e-12]");
+    assert_ne!(thin, text);
+    std::fs::write(d.join("thin.toml"), &thin).unwrap();
+    fails(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            "thin.toml",
+            "--grid",
+            "20",
+            "--out",
+            "s.csv",
+        ],
+        1,
+        "is narrower than 1e-6",
+    );
+    std::fs::write(
+        d.join("jk.toml"),
+        "type = \"jeong-kim-2dof\"\n[workspace]\nx = [0.0, 1e-12]\n",
+    )
+    .unwrap();
+    fails(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            "jk.toml",
+            "--grid",
+            "20",
+            "--out",
+            "s.csv",
+        ],
+        1,
+        "is narrower than 1e-6",
+    );
+    // 1e-3 mm wide: allowed; the report's maps stay bounded.
+    let narrow = text.replace("x = [-80.0, 80.0]", "x = [0.0, 0.001]");
+    std::fs::write(d.join("narrow.toml"), &narrow).unwrap();
+    ok(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            "narrow.toml",
+            "--grid",
+            "60",
+            "--noise",
+            "0.002",
+            "--out",
+            "n.csv",
+        ],
+    );
+    ok(
+        d,
+        &[
+            "calibrate",
+            "--mechanism",
+            "narrow.toml",
+            "--data",
+            "n.csv",
+            "--out",
+            "n.toml",
+            "--report-dir",
+            "rep",
+        ],
+    );
+    assert!(d.join("rep/report.html").exists());
+}

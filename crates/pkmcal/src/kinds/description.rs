@@ -118,6 +118,11 @@ pub fn stiffness_name(joint: &str) -> String {
     }
 }
 
+/// The narrowest interval of a workspace box (mm or rad): a box thinner
+/// than this along an axis is a typing mistake, and lattices over it would
+/// be all rows and no columns.
+pub const MIN_BOX_WIDTH: f64 = 1e-6;
+
 /// The workspace box of a described mechanism: one `[min, max]` per tool
 /// axis from the description's `[workspace]` table, in axis order.
 pub(crate) fn box_from_description(
@@ -142,6 +147,12 @@ pub(crate) fn box_from_description(
         if !(r[0].is_finite() && r[1].is_finite() && r[0] < r[1]) {
             return bad(format!(
                 "[workspace]: `{a}` must be [min, max] with min < max"
+            ));
+        }
+        if r[1] - r[0] < MIN_BOX_WIDTH {
+            return bad(format!(
+                "[workspace]: `{a}` = [{}, {}] is narrower than {MIN_BOX_WIDTH:e} (mm or rad); give the range the tool moves over",
+                r[0], r[1]
             ));
         }
         out.push(*r);
