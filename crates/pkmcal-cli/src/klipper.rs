@@ -37,6 +37,9 @@ pub struct KlipperConfig {
     pub out_dir: Option<PathBuf>,
 }
 
+/// The largest length a printer's configuration may give (mm): 100 m.
+const MAX_KLIPPER_LENGTH_MM: f64 = 1e5;
+
 /// Klipper's SAVE_CONFIG header line.
 const AUTOSAVE_HEADER: &str = "#*# <---------------------- SAVE_CONFIG ---------------------->";
 
@@ -76,6 +79,8 @@ struct Entry {
 #[derive(Debug, Default)]
 pub struct Ini {
     entries: Vec<Entry>,
+    /// The configuration's own file (for messages about what it lacks).
+    file: String,
     /// Included files read so far (bounded by [`MAX_INCLUDED_FILES`]).
     files: usize,
     /// Their bytes (bounded by [`MAX_INCLUDED_BYTES`]).
@@ -117,12 +122,37 @@ fn included_files(file: &Path, spec: &str) -> Result<Vec<PathBuf>> {
 }
 
 impl Ini {
-    /// The value of `key` in `[section]` (the last definition wins).
+    /// The value of `key` in `[section]` as Klipper reads it: the last
+    /// definition in the regular part (its includes at their place) wins, and
+    /// the SAVE_CONFIG block's only when the regular part has none (Klipper
+    /// comments out the block's duplicates at start, `_strip_duplicates`).
     fn get(&self, section: &str, key: &str) -> Option<&Entry> {
-        self.entries
-            .iter()
-            .rev()
-            .find(|e| e.section == section && e.key == key)
+        let of = |saved: bool| {
+            self.entries
+                .iter()
+                .rev()
+                .find(|e| e.autosave == saved && e.section == section && e.key == key)
+        };
+        of(false).or_else(|| of(true))
+    }
+
+    /// A length (mm) that must be positive and below 100 m, with its place
+    /// in an error.
+    fn length(&self, section: &str, key: &str, positive: bool) -> Result<Option<f64>> {
+        let Some(v) = self.number(section, key)? else {
+            return Ok(None);
+        };
+        let e = self.get(section, key).expect("a number has an entry");
+        if v.abs() > MAX_KLIPPER_LENGTH_MM || (positive && v <= 0.0) {
+            bail!(
+                "{}:{}: [{section}] {key} = {} mm must be {}at most {MAX_KLIPPER_LENGTH_MM:e} mm in size",
+                e.file,
+                e.line,
+                e.value.trim(),
+                if positive { "positive and " } else { "" }
+            );
+        }
+        Ok(Some(v))
     }
 
     fn has_section(&self, section: &str) -> bool {
@@ -150,7 +180,7 @@ impl Ini {
     fn triple(&self, section: &str, key: &str) -> Result<[f64; 3]> {
         let e = self
             .get(section, key)
-            .with_context(|| format!("[{section}] has no `{key}`"))?;
+            .with_context(|| format!("{}: [{section}] has no `{key}`", self.file))?;
         let v: Vec<f64> = e
             .value
             .split(',')
@@ -174,12 +204,14 @@ fn split_autosave(text: &str) -> (String, Option<String>) {
     match text.find(AUTOSAVE_HEADER) {
         None => (text.to_string(), None),
         Some(pos) => {
+            // Line for line (the notice blanked), so that the block's
+            // lines keep their numbers ([`parse_config`] adds the offset).
             let block = text[pos..]
                 .lines()
                 .skip(1)
                 .map(|l| l.strip_prefix("#*#").unwrap_or(l))
                 .map(|l| l.strip_prefix(' ').unwrap_or(l))
-                .filter(|l| !l.starts_with("DO NOT EDIT"))
+                .map(|l| if l.starts_with("DO NOT EDIT") { "" } else { l })
                 .collect::<Vec<_>>()
                 .join("\n");
             (text[..pos].to_string(), Some(block))
@@ -187,12 +219,14 @@ fn split_autosave(text: &str) -> (String, Option<String>) {
     }
 }
 
-/// A line without its inline comment (`#` or `;` at the start or after
-/// white space, as Klipper's parser reads them).
+/// A line without its comment, as Klipper reads it: cut at the first `#`
+/// anywhere (its `_parse_config`), then at a `;` that starts the line or
+/// follows white space (configparser's inline comments).
 fn strip_comment(line: &str) -> &str {
+    let line = &line[..line.find('#').unwrap_or(line.len())];
     let b = line.as_bytes();
     for (i, c) in b.iter().enumerate() {
-        if (*c == b'#' || *c == b';') && (i == 0 || b[i - 1].is_ascii_whitespace()) {
+        if *c == b';' && (i == 0 || b[i - 1].is_ascii_whitespace()) {
             return &line[..i];
         }
     }
@@ -208,6 +242,11 @@ fn parse_into(ini: &mut Ini, text: &str, file: &Path, depth: usize) -> Result<()
         );
     }
     let name = file.display().to_string();
+    if text.starts_with('\u{feff}') {
+        bail!(
+            "{name}:1: the file starts with a byte-order mark (a UTF-8 BOM), which Klipper does not read (its first line would be outside any section); save the file as UTF-8 without BOM"
+        );
+    }
     let mut section: Option<String> = None;
     let mut last: Option<usize> = None;
     for (i, raw) in text.lines().enumerate() {
@@ -291,14 +330,20 @@ fn parse_into(ini: &mut Ini, text: &str, file: &Path, depth: usize) -> Result<()
 /// the SAVE_CONFIG block.
 pub fn parse_config(text: &str, file: &Path) -> Result<Ini> {
     let (regular, block) = split_autosave(text);
-    let mut ini = Ini::default();
+    let mut ini = Ini {
+        file: file.display().to_string(),
+        ..Ini::default()
+    };
     parse_into(&mut ini, &regular, file, 0)?;
     if let Some(b) = block {
         let mut saved = Ini::default();
         parse_into(&mut saved, &b, file, 0)
             .with_context(|| format!("in the SAVE_CONFIG block of {}", file.display()))?;
+        // The block starts on the line after its header.
+        let offset = regular.matches('\n').count() + 1;
         ini.entries.extend(saved.entries.into_iter().map(|e| Entry {
             autosave: true,
+            line: e.line + offset,
             ..e
         }));
     }
@@ -460,20 +505,20 @@ pub fn delta_from_config(ini: &Ini) -> Result<KlipperDelta> {
             e.value
         ),
         None => bail!(
-            "[printer] has no `kinematics`; `pkmcal klipper` reads delta printers (kinematics: delta)"
+            "{}: [printer] has no `kinematics`; `pkmcal klipper` reads delta printers (kinematics: delta)",
+            ini.file
         ),
     }
     let radius = ini
-        .number("printer", "delta_radius")?
-        .filter(|r| *r > 0.0)
-        .context("[printer] needs a positive `delta_radius`")?;
+        .length("printer", "delta_radius", true)?
+        .with_context(|| format!("{}: [printer] needs a positive `delta_radius`", ini.file))?;
     let sec = |t: &str| format!("stepper_{t}");
     let arm_a = ini
-        .number("stepper_a", "arm_length")?
-        .context("[stepper_a] needs `arm_length`")?;
+        .length("stepper_a", "arm_length", true)?
+        .with_context(|| format!("{}: [stepper_a] needs `arm_length`", ini.file))?;
     let end_a = ini
-        .number("stepper_a", "position_endstop")?
-        .context("[stepper_a] needs `position_endstop`")?;
+        .length("stepper_a", "position_endstop", false)?
+        .with_context(|| format!("{}: [stepper_a] needs `position_endstop`", ini.file))?;
     let mut d = KlipperDelta {
         radius,
         angles: DEFAULT_ANGLES,
@@ -487,32 +532,48 @@ pub fn delta_from_config(ini: &Ini) -> Result<KlipperDelta> {
     for (i, t) in TOWERS.iter().enumerate() {
         let s = sec(t);
         if !ini.has_section(&s) {
-            bail!("the configuration has no [{s}] section");
+            bail!("{}: the configuration has no [{s}] section", ini.file);
         }
         if let Some(a) = ini.number(&s, "angle")? {
             d.angles[i] = a;
         }
-        if let Some(a) = ini.number(&s, "arm_length")? {
+        if let Some(a) = ini.length(&s, "arm_length", true)? {
             d.arms[i] = a;
         }
         if d.arms[i] <= radius {
             bail!(
-                "[{s}] arm_length = {} must be longer than delta_radius = {radius} (Klipper's own rule)",
+                "{}: [{s}] arm_length = {} must be longer than delta_radius = {radius} (Klipper's own rule)",
+                ini.file,
                 d.arms[i]
             );
         }
-        if let Some(e) = ini.number(&s, "position_endstop")? {
+        if let Some(e) = ini.length(&s, "position_endstop", false)? {
             d.endstops[i] = e;
         }
         let rotation = ini
             .number(&s, "rotation_distance")?
             .filter(|v| *v > 0.0)
-            .with_context(|| format!("[{s}] needs a positive `rotation_distance` (mm)"))?;
+            .with_context(|| {
+                format!(
+                    "{}: [{s}] needs a positive `rotation_distance` (mm)",
+                    ini.file
+                )
+            })?;
         let micro = ini
             .number(&s, "microsteps")?
             .filter(|v| *v >= 1.0)
-            .with_context(|| format!("[{s}] needs `microsteps`"))?;
+            .with_context(|| format!("{}: [{s}] needs `microsteps`", ini.file))?;
         let full = ini.number(&s, "full_steps_per_rotation")?.unwrap_or(200.0);
+        if !(full >= 1.0 && full.fract() == 0.0 && full % 4.0 == 0.0) {
+            let e = ini
+                .get(&s, "full_steps_per_rotation")
+                .expect("a number has an entry");
+            bail!(
+                "{}:{}: [{s}] full_steps_per_rotation = {full} must be a positive whole multiple of 4 (Klipper's own rule)",
+                e.file,
+                e.line
+            );
+        }
         let mut gear = 1.0;
         if let Some(e) = ini.get(&s, "gear_ratio") {
             for pair in e.value.split(',') {
@@ -520,9 +581,9 @@ pub fn delta_from_config(ini: &Ini) -> Result<KlipperDelta> {
                     .split(':')
                     .filter_map(|x| x.trim().parse().ok())
                     .collect();
-                if v.len() != 2 || v[1] == 0.0 {
+                if v.len() != 2 || !(v[0] > 0.0 && v[1] > 0.0 && (v[0] / v[1]).is_finite()) {
                     bail!(
-                        "{}:{}: [{s}] gear_ratio = `{}` must be pairs `a:b` separated by commas",
+                        "{}:{}: [{s}] gear_ratio = `{}` must be pairs `a:b` of positive numbers separated by commas",
                         e.file,
                         e.line,
                         e.value
@@ -567,7 +628,8 @@ pub fn delta_from_config(ini: &Ini) -> Result<KlipperDelta> {
     }
     if d.probes.len() < KLIPPER_FREE.len() {
         bail!(
-            "[delta_calibrate] holds {} probe results (height0, height0_pos, …); at least {} are needed: run DELTA_CALIBRATE in Klipper, then SAVE_CONFIG, and read the saved printer.cfg",
+            "{}: [delta_calibrate] holds {} probe results (height0, height0_pos, …); at least {} are needed: run DELTA_CALIBRATE in Klipper, then SAVE_CONFIG, and read the saved printer.cfg",
+            ini.file,
             d.probes.len(),
             KLIPPER_FREE.len()
         );
@@ -852,7 +914,7 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
     let text = crate::output::read_to_string(&c.config, crate::output::InputKind::Description)
         .with_context(|| format!("cannot read Klipper configuration {}", c.config.display()))?;
     let ini = parse_config(&text, &c.config)?;
-    let delta = delta_from_config(&ini).with_context(|| format!("in {}", c.config.display()))?;
+    let delta = delta_from_config(&ini)?;
     let toml = delta.mechanism_toml();
     let mech = crate::io::mechanism_from_str(&toml)
         .context("the printer's geometry does not describe a delta that assembles")?;

@@ -634,3 +634,85 @@ fn real_klipper_configurations_are_written_back_byte_for_byte() {
     }
     assert!(failed.is_empty(), "{}", failed.join("\n"));
 }
+
+/// The configuration means what it means to Klipper: an option set in the
+/// regular part and in the SAVE_CONFIG block takes the regular value (Klipper
+/// comments out the block's copy at start); a `#` anywhere starts a comment;
+/// a byte-order mark, impossible stepper values and lengths out of range are
+/// refused with their file and line (issue 39, 3 and 4).
+#[test]
+fn klipper_reads_duplicates_comments_and_values_as_klipper_does() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let cfg = config(d);
+    // The block sets the truth's endstops; the regular part re-enables a
+    // different value for stepper_a, which Klipper runs.
+    let mut both = cfg.replace(
+        "position_endstop: 297.05   # at the top",
+        "position_endstop: 290.0#no space before the comment",
+    );
+    both.push_str("#*#\n#*# [stepper_a]\n#*# position_endstop = 297.05\n");
+    std::fs::write(d.join("both.cfg"), &both).unwrap();
+    let out = ok(d, &["klipper", "--config", "both.cfg"]);
+    let row = out
+        .lines()
+        .find(|l| l.contains("[stepper_a] position_endstop"))
+        .unwrap()
+        .to_string();
+    assert!(row.contains("290.000000"), "{row}");
+    // A BOM.
+    std::fs::write(d.join("bom.cfg"), format!("\u{feff}{cfg}")).unwrap();
+    fails(
+        d,
+        &["klipper", "--config", "bom.cfg"],
+        1,
+        "bom.cfg:1: the file starts with a byte-order mark",
+    );
+    // Values Klipper refuses, named with their line (the block's too).
+    for (from, to, needle) in [
+        (
+            "rotation_distance: 40\n",
+            "rotation_distance: 40\nfull_steps_per_rotation: 0\n",
+            "bad.cfg:6: [stepper_a] full_steps_per_rotation = 0",
+        ),
+        (
+            "rotation_distance: 40\n",
+            "rotation_distance: 40\ngear_ratio: 0:1\n",
+            "bad.cfg:6: [stepper_a] gear_ratio",
+        ),
+        (
+            "position_endstop: 297.05   # at the top",
+            "position_endstop: 1e300",
+            "bad.cfg:6: [stepper_a] position_endstop = 1e300 mm",
+        ),
+        (
+            "delta_radius: 174.75\n",
+            "delta_radius: 174.75\ndelta_radius: 0\n",
+            "bad.cfg:14: [printer] delta_radius = 0 mm must be positive",
+        ),
+    ] {
+        let bad = cfg.replacen(from, to, 1);
+        assert_ne!(bad, cfg, "{from}");
+        std::fs::write(d.join("bad.cfg"), &bad).unwrap();
+        fails(d, &["klipper", "--config", "bad.cfg"], 1, needle);
+    }
+    // A bad value in the SAVE_CONFIG block names its line in the file.
+    let mut saved_bad = cfg.clone();
+    let n = saved_bad.lines().count() + 2;
+    saved_bad.push_str("#*#\n#*# [printer]\n#*# delta_radius = -5\n");
+    std::fs::write(d.join("bad.cfg"), &saved_bad).unwrap();
+    let printer_line = cfg
+        .lines()
+        .position(|l| l.starts_with("delta_radius"))
+        .unwrap();
+    // (The regular part's delta_radius wins; remove it to reach the block's.)
+    let mut lines: Vec<&str> = saved_bad.lines().collect();
+    lines.remove(printer_line);
+    std::fs::write(d.join("bad.cfg"), lines.join("\n") + "\n").unwrap();
+    fails(
+        d,
+        &["klipper", "--config", "bad.cfg"],
+        1,
+        &format!("bad.cfg:{}: [printer] delta_radius = -5 mm", n),
+    );
+}
