@@ -25,6 +25,24 @@ use std::path::PathBuf;
 
 /// RepRapFirmware's standard tower angles (degrees), before corrections.
 const STANDARD_ANGLES: [f64; 3] = [210.0, 330.0, 90.0];
+/// The parameters `M665`/`M666` hold: the radius, the tower angle
+/// corrections, the diagonals, the endstop adjustments (with `H`), the bed
+/// tilts.
+const RRF_FREE: [&str; 12] = [
+    "delta_radius",
+    "angle_a",
+    "angle_b",
+    "angle_c",
+    "arm_a",
+    "arm_b",
+    "arm_c",
+    "da",
+    "db",
+    "dc",
+    "bed.rx",
+    "bed.ry",
+];
+
 /// Towers as RepRapFirmware names them in `M665`/`M666` (and pkmcal's).
 const TOWERS: [(char, &str); 3] = [('X', "a"), ('Y', "b"), ('Z', "c")];
 
@@ -152,25 +170,37 @@ impl RrfDelta {
     /// The `M665` and `M666` lines of these values, as RepRapFirmware writes
     /// them to `config-override.g`.
     pub fn gcode(&self) -> String {
+        // Fixed decimals as the firmware writes them, never `-0.000`.
+        let f = |v: f64, decimals: usize| -> String {
+            let t = format!("{v:.decimals$}");
+            if t.trim_start_matches('-')
+                .chars()
+                .all(|c| c == '0' || c == '.')
+            {
+                t.trim_start_matches('-').to_string()
+            } else {
+                t
+            }
+        };
         let d = &self.diagonals;
         let l = if d[1] == d[0] && d[2] == d[0] {
-            format!("{:.3}", d[0])
+            f(d[0], 3)
         } else {
-            format!("{:.3}:{:.3}:{:.3}", d[0], d[1], d[2])
+            format!("{}:{}:{}", f(d[0], 3), f(d[1], 3), f(d[2], 3))
         };
         format!(
-            "M665 L{l} R{:.3} H{:.3} B{:.1} X{:.3} Y{:.3} Z{:.3}\nM666 X{:.3} Y{:.3} Z{:.3} A{:.2} B{:.2}\n",
-            self.radius,
-            self.homed_height,
-            self.print_radius,
-            self.corrections[0],
-            self.corrections[1],
-            self.corrections[2],
-            self.endstops[0],
-            self.endstops[1],
-            self.endstops[2],
-            self.tilt[0] * 100.0,
-            self.tilt[1] * 100.0
+            "M665 L{l} R{} H{} B{} X{} Y{} Z{}\nM666 X{} Y{} Z{} A{} B{}\n",
+            f(self.radius, 3),
+            f(self.homed_height, 3),
+            f(self.print_radius, 1),
+            f(self.corrections[0], 3),
+            f(self.corrections[1], 3),
+            f(self.corrections[2], 3),
+            f(self.endstops[0], 3),
+            f(self.endstops[1], 3),
+            f(self.endstops[2], 3),
+            f(self.tilt[0] * 100.0, 2),
+            f(self.tilt[1] * 100.0, 2)
         )
     }
 }
@@ -244,6 +274,34 @@ fn delta_from_text(
     Ok(d)
 }
 
+/// The words of a G-code line, as the firmware reads them with or without
+/// spaces between them (`M665 L361 R180` and `M665L361R180`): a letter
+/// starts a word, its number runs to the next letter.
+fn words_of(line: &str) -> Vec<String> {
+    let mut out: Vec<String> = vec![];
+    let chars: Vec<char> = line.chars().collect();
+    for (i, &c) in chars.iter().enumerate() {
+        // An exponent (`1e3`) stays in its number, to be refused there.
+        let exponent = matches!(c, 'e' | 'E')
+            && i > 0
+            && chars[i - 1].is_ascii_digit()
+            && chars
+                .get(i + 1)
+                .is_some_and(|n| n.is_ascii_digit() || *n == '-' || *n == '+');
+        if c.is_ascii_alphabetic() && !exponent {
+            out.push(c.to_string());
+        } else if c.is_whitespace() {
+            continue;
+        } else if let Some(w) = out.last_mut() {
+            w.push(c);
+        } else {
+            out.push(c.to_string());
+        }
+    }
+    // `M665`: the code is a letter and its digits, like any word.
+    out
+}
+
 /// Apply the `M665`/`M666` lines of `text` to `d` in order (and, at `M501`,
 /// those of the file `m501` loads); whether any was found.
 fn apply_lines(
@@ -254,10 +312,24 @@ fn apply_lines(
 ) -> Result<bool> {
     let mut seen = false;
     for (n, raw) in text.lines().enumerate() {
+        // A byte-order mark, a line number (`N10`) and a checksum (`*71`)
+        // are not part of the command.
+        let raw = if n == 0 {
+            raw.trim_start_matches('\u{feff}')
+        } else {
+            raw
+        };
         let line = raw.split(';').next().unwrap_or("").trim();
-        let mut words = line.split_whitespace();
-        let Some(code) = words.next() else { continue };
-        let code = code.to_ascii_uppercase();
+        let line = line.split('*').next().unwrap_or("").trim();
+        let owned = words_of(line);
+        let mut words = owned.iter().map(String::as_str);
+        let mut code = words.next().unwrap_or("").to_ascii_uppercase();
+        if code.starts_with('N') && code[1..].chars().all(|c| c.is_ascii_digit()) {
+            code = words.next().unwrap_or("").to_ascii_uppercase();
+        }
+        if code.is_empty() {
+            continue;
+        }
         if code == "M501" {
             if let Some((t, f)) = m501(n + 1)? {
                 seen |= apply_lines(d, &t, &f, &mut |k| {
@@ -292,6 +364,23 @@ fn apply_lines(
                     .ok()
                     .filter(|x| x.is_finite())
                     .ok_or_else(bad)
+            };
+            // What the firmware could hold: lengths within 100 m, angle
+            // corrections within a turn, tilts within 100 %.
+            let limit = match (code.as_str(), letter) {
+                ("M665", 'X' | 'Y' | 'Z') => 360.0,
+                ("M666", 'A' | 'B') => 100.0,
+                _ => 1e5,
+            };
+            let number = |v: &str| -> Result<f64> {
+                let x = number(v)?;
+                if x.abs() > limit {
+                    bail!(
+                        "{file}:{}: `{w}` in `{line}`: {letter} = {v} is beyond what a printer holds (at most {limit} in size)",
+                        n + 1
+                    );
+                }
+                Ok(x)
             };
             match (code.as_str(), letter) {
                 ("M665", 'L') => {
@@ -365,13 +454,39 @@ pub fn run_reprap(c: ReprapConfig) -> Result<()> {
     let bed = delta.bed();
     let measurement = MeasurementModel::probe(spec)?.with_own(&bed)?;
     let mut opts = CalibrationOptions::new(spec, Model::Exact);
+    // `all` is every parameter M665/M666 hold; a parameter they cannot
+    // hold is refused by name (the fit would report an accuracy that the
+    // written lines do not give).
+    let free_text = c.free.as_deref().map(|f| {
+        f.split(',')
+            .map(|n| {
+                if n.trim() == "all" {
+                    RRF_FREE.join(",")
+                } else {
+                    n.to_string()
+                }
+            })
+            .collect::<Vec<_>>()
+            .join(",")
+    });
     let free_names;
     (free_names, opts.free) = crate::klipper::free_list(
-        c.free.as_deref(),
+        free_text.as_deref(),
         &KLIPPER_FREE.map(String::from),
         spec,
         &measurement,
     )?;
+    if let Some(n) = free_names.iter().find(|n| !RRF_FREE.contains(&n.as_str())) {
+        return crate::output::usage(format!(
+            "in --free: `{n}` has no place in M665/M666, so RepRapFirmware could not run what the fit finds{}; the parameters they hold are {}",
+            if n == "bed.z" {
+                " (a bed height is the endstops' common shift: da, db, dc take it)"
+            } else {
+                ""
+            },
+            RRF_FREE.join(", ")
+        ));
+    }
     let nominal = Params::nominal(spec);
     let cal = pkmcal::calibrate(&mech, &measurement, &data, &nominal, &opts)
         .map_err(|e| crate::calibrate::located(e, &c.probes))?;

@@ -226,12 +226,12 @@ fn reprap_probe_heights_give_the_printer_back() {
         1,
         "no M665 or M666 line",
     );
-    std::fs::write(d.join("bad.g"), "M665 L360 R1x0\n").unwrap();
+    std::fs::write(d.join("bad.g"), "M665 L360 R1..0\n").unwrap();
     fails(
         d,
         &["reprap", "--config", "bad.g", "--probes", "probes.csv"],
         1,
-        "bad.g:1: `R1x0`",
+        "bad.g:1: `R1..0`",
     );
     std::fs::write(d.join("xy.csv"), "x,y\n0,0\n").unwrap();
     fails(
@@ -329,4 +329,84 @@ fn reprap_reads_config_override_at_m501() {
         1,
         "config.g:3: M501 loads config-override.g",
     );
+}
+
+/// `reprap` never reports a fit it cannot write: only what M665/M666 hold
+/// may be free (`all` means them); lines are read as the firmware reads
+/// them (no spaces, line numbers, checksums, a BOM), values beyond a
+/// printer's are refused with their line, and nothing is written as
+/// `-0.000` (issue 39, 6).
+#[test]
+fn reprap_fits_only_what_the_firmware_holds() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("config.g"),
+        "\u{feff}; delta\nN10 M665L360R190H420B150X0Y0Z0*71\nM666 X0 Y0 Z0 A0 B0\n",
+    )
+    .unwrap();
+    let mut csv = String::from("x,y,z\n");
+    for [x, y] in points() {
+        csv.push_str(&format!("{x},{y},{:.9}\n", probe(x, y)));
+    }
+    std::fs::write(d.join("probes.csv"), csv).unwrap();
+    for free in ["default,bed.z", "default,a.tilt1", "ka"] {
+        let o = common::run(
+            d,
+            &[
+                "reprap",
+                "--config",
+                "config.g",
+                "--probes",
+                "probes.csv",
+                "--free",
+                free,
+            ],
+        );
+        assert_eq!(o.status.code(), Some(2), "{free}");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains("has no place in M665/M666"), "{free}: {err}");
+    }
+    let out = ok(
+        d,
+        &[
+            "reprap",
+            "--config",
+            "config.g",
+            "--probes",
+            "probes.csv",
+            "--free",
+            "all",
+            "--out",
+            "new.g",
+        ],
+    );
+    assert!(out.contains("12 parameters free"), "{out}");
+    let new = std::fs::read_to_string(d.join("new.g")).unwrap();
+    assert!(
+        !new.contains("-0.000 ") && !new.contains("-0.00\n"),
+        "{new}"
+    );
+    let got = parse(&new);
+    for i in 0..3 {
+        assert!(
+            (got.homed()[i] - TRUTH.homed()[i]).abs() < RECOVERED,
+            "homed {i}: {out}"
+        );
+    }
+    for (text, needle) in [
+        ("M665 L360 R190 H1e300 B150\n", "config.g:1: `H1e300`"),
+        (
+            "M665 L360 R190 H420 B150\nM666 A1e10\n",
+            "config.g:2: `A1e10`",
+        ),
+    ] {
+        std::fs::write(d.join("config.g"), text).unwrap();
+        fails(
+            d,
+            &["reprap", "--config", "config.g", "--probes", "probes.csv"],
+            1,
+            needle,
+        );
+    }
 }
