@@ -325,6 +325,24 @@ pub fn free_set_with_default(
     )
 }
 
+/// A warning's hint in the command line's terms: the library's hints name
+/// no option; where a hint is an option to give, it is named here.
+pub fn cli_hint(w: &pkmcal::identify::Warning) -> String {
+    use pkmcal::identify::WarningKind as K;
+    match &w.kind {
+        K::StiffnessRatios { fixed } => format!(
+            "give `{fixed}` its measured value (--start P.toml), or calibrate with a known tool load (--force)"
+        ),
+        K::FrameGauge { .. } => "to choose which parameters define the base frame, fix them yourself (--fix NAMES), or measure in the base frame (--frame base); the combinations are listed under identifiability".into(),
+        K::Outliers {
+            robust_loss: true,
+            dropping: false,
+            ..
+        } => "the robust loss already limits their influence; inspect them, or refit without them (--drop-outliers)".into(),
+        _ => w.hint.clone(),
+    }
+}
+
 /// Validation results in the report.
 #[derive(Serialize)]
 pub struct Validation {
@@ -957,7 +975,7 @@ fn print_summary(r: &Report, measurement: &MeasurementModel) {
         );
     }
     for w in &cal.warnings {
-        println!("warning: {}\n  hint: {}", w.message, w.hint);
+        println!("warning: {}\n  hint: {}", w.message, cli_hint(w));
     }
 }
 

@@ -1020,7 +1020,11 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
         }
     }
     for w in &cal.warnings {
-        println!("warning: {}\n  hint: {}", w.message, w.hint);
+        println!(
+            "warning: {}\n  hint: {}",
+            w.message,
+            crate::calibrate::cli_hint(w)
+        );
     }
     println!(
         "\n  {:<28} {:>14} {:>14}",

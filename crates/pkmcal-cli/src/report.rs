@@ -433,7 +433,7 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
             h,
             "<div class=\"warn\"><b>warning:</b> {}<br><i>{}</i></div>",
             escape(&w.message),
-            escape(&w.hint)
+            escape(&crate::calibrate::cli_hint(w))
         );
     }
     h.push_str("<h2>Accuracy</h2><table><tr><th>distance error, mm</th>");

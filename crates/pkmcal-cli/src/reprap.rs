@@ -513,7 +513,11 @@ pub fn run_reprap(c: ReprapConfig) -> Result<()> {
         "height errors: before max {bm:.4} mm, RMS {br:.4} mm; after max {am:.4} mm, RMS {ar:.4} mm"
     );
     for w in &cal.warnings {
-        println!("warning: {}\n  hint: {}", w.message, w.hint);
+        println!(
+            "warning: {}\n  hint: {}",
+            w.message,
+            crate::calibrate::cli_hint(w)
+        );
     }
     println!("\nbefore:\n{}after:\n{}", delta.gcode(), new.gcode());
     let mut note = String::new();

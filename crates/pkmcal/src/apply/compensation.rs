@@ -83,7 +83,7 @@ pub fn compensate<M: Mechanism>(
     }
     if model == Model::Linear {
         return Err(Error::InvalidRequest(
-            "compensation inverts the exact model (or the rigid one); use --model exact".into(),
+            "compensation inverts the exact model (or the rigid one); use the exact model".into(),
         ));
     }
     if let Some(v) = opts

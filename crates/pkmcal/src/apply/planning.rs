@@ -369,7 +369,7 @@ fn choose(
     let nc = c.rows.len();
     if count == 0 || count > nc {
         return Err(Error::InvalidRequest(format!(
-            "cannot choose {count} poses from {nc} candidates; use a finer --candidates spacing or fewer poses"
+            "cannot choose {count} poses from {nc} candidates; use a finer candidate spacing or fewer poses"
         )));
     }
     let n = c.rows[0].ncols();

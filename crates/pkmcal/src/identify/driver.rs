@@ -141,7 +141,7 @@ fn calibrate_on<M: Mechanism>(
     for g in gross_errors(&problem, &kept, start)? {
         if !opts.drop_outliers || dropped.len() >= cap {
             return Err(Error::InvalidRequest(format!(
-                "the measurement is {:.4e} mm from the nominal prediction, where the median pose is {:.4e} mm: a gross error (a misread, a swapped column, another pose's row); fix or remove it, or calibrate with --drop-outliers",
+                "the measurement is {:.4e} mm from the nominal prediction, where the median pose is {:.4e} mm: a gross error (a misread, a swapped column, another pose's row); fix or remove it, or calibrate dropping outliers",
                 g.distance, g.median
             ))
             .at_pose(g.origin));
@@ -270,7 +270,7 @@ fn check_request<M: Mechanism>(
     let frame_free = *measurement.frame() == Frame::Free;
     if opts.free.is_empty() && !frame_free {
         return Err(Error::InvalidRequest(
-            "no parameter is free; free at least one with --free".into(),
+            "no parameter is free; free at least one".into(),
         ));
     }
     if let Some(&i) = opts
@@ -292,7 +292,7 @@ fn check_request<M: Mechanism>(
     let n_requested = exact_free.map_or(opts.free.len() + n_free_frame, <[usize]>::len);
     if m <= n_requested {
         return Err(Error::InvalidRequest(format!(
-            "{} {} give {m} readings for {n_requested} free parameters{}; measure more poses (at least {}) or identify fewer parameters (--free NAMES, --fix NAMES){}",
+            "{} {} give {m} readings for {n_requested} free parameters{}; measure more poses (at least {}) or identify fewer parameters{}",
             data.len(),
             if data.iter().any(|d| d.partner.is_some()) {
                 "rows"

@@ -129,7 +129,7 @@ impl Warning {
                     "all stiffness parameters are free without an external load: only their ratios are identifiable, so `{fixed}` is fixed at its starting value"
                 ),
                 format!(
-                    "give `{fixed}` its measured value (--start), or calibrate with a known tool load"
+                    "give `{fixed}` its measured value as the start, or calibrate with a known tool load"
                 ),
             ),
             WarningKind::Unidentifiable {
@@ -168,7 +168,7 @@ impl Warning {
                         )
                     }
                 ),
-                "to choose which parameters define the base frame, fix them yourself (--fix), or measure in the base frame (--frame base); the combinations are listed under identifiability".into(),
+                "to choose which parameters define the base frame, fix them yourself, or measure in the base frame; the combinations are listed under identifiability".into(),
             ),
             WarningKind::NotConverged { reason } => (
                 format!("the fit did not converge: {reason}"),
@@ -194,7 +194,7 @@ impl Warning {
                 if *dropping {
                     "the drop limit (20 % of the poses) is reached; inspect these measurements".into()
                 } else if *robust_loss {
-                    "the robust loss already limits their influence; inspect them, or refit without them (--drop-outliers)".into()
+                    "the robust loss already limits their influence; inspect them, or refit without them (dropping outliers)".into()
                 } else {
                     "inspect them; a robust loss (huber, cauchy) limits their influence, dropping refits without them".into()
                 },

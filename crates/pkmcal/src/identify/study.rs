@@ -436,4 +436,51 @@ mod tests {
             assert!(!e.to_string().contains("--"), "{e}");
         }
     }
+
+    /// No warning's message or hint names a command-line option: each front
+    /// end words its options itself.
+    #[test]
+    fn warnings_name_no_option() {
+        use super::super::result::{Warning, WarningKind as K};
+        use crate::engine::models::Model;
+        let o = crate::error::Origin {
+            pose: 3,
+            line: Some(7),
+            distance: false,
+        };
+        let kinds = vec![
+            K::StiffnessRatios { fixed: "k1".into() },
+            K::Unidentifiable {
+                model: Model::Rigid,
+                combination: "dq3".into(),
+                fixed: Some("dq3".into()),
+            },
+            K::FrameGauge {
+                model: Model::Exact,
+                fixed: vec!["B1x".into()],
+                unfixed: 1,
+            },
+            K::NotConverged {
+                reason: "evaluations".into(),
+            },
+            K::RankDeficient { rank: 3, free: 4 },
+            K::Outliers {
+                poses: vec![o],
+                threshold: 4.0,
+                robust_loss: true,
+                dropping: false,
+            },
+            K::Outliers {
+                poses: vec![o],
+                threshold: 4.0,
+                robust_loss: false,
+                dropping: true,
+            },
+            K::Dropped { poses: vec![o] },
+        ];
+        for k in kinds {
+            let w = Warning::new(k);
+            assert!(!w.message.contains("--") && !w.hint.contains("--"), "{w:?}");
+        }
+    }
 }
