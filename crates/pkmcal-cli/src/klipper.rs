@@ -81,6 +81,8 @@ pub struct Ini {
     entries: Vec<Entry>,
     /// The configuration's own file (for messages about what it lacks).
     file: String,
+    /// (section, option) -> the last regular and the last saved entry.
+    index: std::collections::HashMap<(String, String), (Option<usize>, Option<usize>)>,
     /// Included files read so far (bounded by [`MAX_INCLUDED_FILES`]).
     files: usize,
     /// Their bytes (bounded by [`MAX_INCLUDED_BYTES`]).
@@ -127,13 +129,26 @@ impl Ini {
     /// the SAVE_CONFIG block's only when the regular part has none (Klipper
     /// comments out the block's duplicates at start, `_strip_duplicates`).
     fn get(&self, section: &str, key: &str) -> Option<&Entry> {
-        let of = |saved: bool| {
-            self.entries
-                .iter()
-                .rev()
-                .find(|e| e.autosave == saved && e.section == section && e.key == key)
-        };
-        of(false).or_else(|| of(true))
+        let &(regular, saved) = self.index.get(&(section.to_string(), key.to_string()))?;
+        regular.or(saved).map(|i| &self.entries[i])
+    }
+
+    /// Index the entries by option: the last regular and the last saved
+    /// definition of each (lookups in constant time: a block of 20,000
+    /// probe results is read in linear time).
+    fn build_index(&mut self) {
+        self.index.clear();
+        for (i, e) in self.entries.iter().enumerate() {
+            let slot = self
+                .index
+                .entry((e.section.clone(), e.key.clone()))
+                .or_insert((None, None));
+            if e.autosave {
+                slot.1 = Some(i);
+            } else {
+                slot.0 = Some(i);
+            }
+        }
     }
 
     /// A length (mm) that must be positive and below 100 m, with its place
@@ -347,6 +362,7 @@ pub fn parse_config(text: &str, file: &Path) -> Result<Ini> {
             ..e
         }));
     }
+    ini.build_index();
     Ok(ini)
 }
 
