@@ -182,6 +182,7 @@ pub fn open(path: &Path) -> std::io::Result<LineLimit<std::fs::File>> {
     Ok(LineLimit {
         inner: std::fs::File::open(path)?,
         run: 0,
+        cr: false,
     })
 }
 
@@ -192,13 +193,43 @@ pub struct LineLimit<R> {
     inner: R,
     /// Bytes since the last line end.
     run: usize,
+    /// Whether the last byte read was a `\r`.
+    cr: bool,
 }
 
 impl<R: std::io::Read> std::io::Read for LineLimit<R> {
+    /// Line ends read as `\n`, whichever the file uses (`\n`, `\r\n`, or
+    /// `\r` alone, as old Mac files have), so that lines are counted right.
     fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
-        let n = self.inner.read(buf)?;
-        for &b in &buf[..n] {
-            if b == b'\n' || b == b'\r' {
+        loop {
+            let n = self.inner.read(buf)?;
+            if n == 0 {
+                return Ok(0);
+            }
+            let mut w = 0;
+            for r in 0..n {
+                let b = buf[r];
+                if b == b'\n' && self.cr {
+                    // The `\n` of a `\r\n`: the `\r` already ended the line.
+                    self.cr = false;
+                    continue;
+                }
+                self.cr = b == b'\r';
+                buf[w] = if self.cr { b'\n' } else { b };
+                w += 1;
+            }
+            if w > 0 {
+                self.check(&buf[..w])?;
+                return Ok(w);
+            }
+        }
+    }
+}
+
+impl<R> LineLimit<R> {
+    fn check(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+        for &b in bytes {
+            if b == b'\n' {
                 self.run = 0;
             } else {
                 self.run += 1;
@@ -210,7 +241,7 @@ impl<R: std::io::Read> std::io::Read for LineLimit<R> {
                 }
             }
         }
-        Ok(n)
+        Ok(())
     }
 }
 

@@ -1595,3 +1595,48 @@ fn degenerate_workspace_boxes_are_refused_and_thin_ones_bounded() {
     );
     assert!(d.join("rep/report.html").exists());
 }
+
+/// Files with a carriage return alone as line end (old Mac files) are read
+/// line by line: comments found, errors on the right line, read and
+/// streamed alike (issue 34, E14).
+#[test]
+fn carriage_return_line_ends_are_lines() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    files(d);
+    let cr = read(d, "d.csv").replace('\n', "\r");
+    assert!(cr.starts_with("# frame: base\r") || cr.contains('\r'));
+    std::fs::write(d.join("cr.csv"), &cr).unwrap();
+    let lf = ok(d, &["calibrate", "--data", "d.csv", "--out", "a.toml"]);
+    let crs = ok(d, &["calibrate", "--data", "cr.csv", "--out", "b.toml"]);
+    let tail = |s: &str| {
+        s.lines()
+            .skip(1)
+            .filter(|l| !l.contains(".toml"))
+            .collect::<Vec<_>>()
+            .join("\n")
+    };
+    assert_eq!(tail(&lf), tail(&crs));
+    std::fs::write(
+        d.join("c4.csv"),
+        "# commands\rq1,q2,q3\r1.46,3.56,-2.59\r1.46,oops,-2.59\r",
+    )
+    .unwrap();
+    fails(
+        d,
+        &["predict", "--commands", "c4.csv", "--out", "p.csv"],
+        1,
+        "c4.csv:4",
+    );
+    let mut bad = cr.clone();
+    let lines: Vec<&str> = cr.split('\r').collect();
+    let n = lines.len() - 2;
+    bad = bad.replacen(lines[n], "1,2,3,x,y", 1);
+    std::fs::write(d.join("cr-bad.csv"), bad).unwrap();
+    fails(
+        d,
+        &["calibrate", "--data", "cr-bad.csv", "--out", "c.toml"],
+        1,
+        &format!("cr-bad.csv:{}", n + 1),
+    );
+}
