@@ -271,7 +271,12 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
             if n == 0 {
                 return crate::output::usage("--grid needs at least one target");
             }
-            pkmcal::spread_targets(&mech, n)?
+            pkmcal::spread_targets(&mech, n)
+                .map_err(anyhow::Error::from)
+                .with_context(|| match &a.mech.mechanism {
+                    Some(m) => format!("with the [workspace] box of {}", m.display()),
+                    None => "with the built-in mechanism's workspace box".into(),
+                })?
                 .into_iter()
                 .map(|p| p.target)
                 .collect()

@@ -955,6 +955,15 @@ pub fn targets_from_str(text: &str) -> Result<Vec<Vec<f64>>> {
     let t: MechanismTargets = toml::from_str(text).context(
         "each [[target]] needs `at = [x, y, z]` (tool frame, mm; `[x, y]` on a planar tool)",
     )?;
+    for (k, t) in t.target.iter().enumerate() {
+        if !(matches!(t.at.len(), 2 | 3) && t.at.iter().all(|v| v.is_finite())) {
+            bail!(
+                "[[target]] {}: `at = {:?}` must be 2 or 3 finite coordinates (tool frame, mm)",
+                k + 1,
+                t.at
+            );
+        }
+    }
     Ok(t.target.into_iter().map(|t| t.at).collect())
 }
 

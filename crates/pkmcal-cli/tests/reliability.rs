@@ -1640,3 +1640,51 @@ fn carriage_return_line_ends_are_lines() {
         &format!("cr-bad.csv:{}", n + 1),
     );
 }
+
+/// Mistakes in a mechanism file are blamed on the file: a target point that
+/// is not finite, a workspace box out of reach (issue 34, E13).
+#[test]
+fn mechanism_file_mistakes_name_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let text = std::fs::read_to_string(common::example("gough-stewart-6")).unwrap();
+    std::fs::write(
+        d.join("nan.toml"),
+        format!("{text}\n[[target]]\nat = [nan, 0.0, 0.0]\n"),
+    )
+    .unwrap();
+    fails(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            "nan.toml",
+            "--grid",
+            "5",
+            "--measure-targets",
+            "--out",
+            "t.csv",
+        ],
+        1,
+        "in mechanism file nan.toml: [[target]] 4",
+    );
+    std::fs::write(
+        d.join("far.toml"),
+        text.replace("z = [640.0, 760.0]", "z = [5000.0, 5100.0]"),
+    )
+    .unwrap();
+    fails(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            "far.toml",
+            "--grid",
+            "5",
+            "--out",
+            "t.csv",
+        ],
+        1,
+        "with the [workspace] box of far.toml",
+    );
+}
