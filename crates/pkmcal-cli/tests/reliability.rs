@@ -1688,3 +1688,40 @@ fn mechanism_file_mistakes_name_the_file() {
         "with the [workspace] box of far.toml",
     );
 }
+
+/// An instrument frame beyond any instrument's place is refused, not
+/// written as positions of -1e300 (issue 34, F17).
+#[test]
+fn an_instrument_frame_out_of_range_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for frame in ["1e300,0,0", "0,0,1e4"] {
+        fails(
+            d,
+            &[
+                "simulate",
+                "--grid",
+                "5",
+                "--instrument-frame",
+                frame,
+                "--out",
+                "t.csv",
+            ],
+            2,
+            "is beyond any instrument's place",
+        );
+    }
+    assert!(!d.join("t.csv").exists());
+    ok(
+        d,
+        &[
+            "simulate",
+            "--grid",
+            "5",
+            "--instrument-frame",
+            "1000,-500,0.5",
+            "--out",
+            "t.csv",
+        ],
+    );
+}

@@ -377,6 +377,28 @@ impl MeasurementModel {
                         got: f.len(),
                     });
                 }
+                // A frame farther than a length can be, or turned by more
+                // than a few turns, is a mistake (positions of 1e300 mm).
+                let units = layout.frame_units();
+                if let Some((k, v)) = f.iter().enumerate().find(|(k, v)| {
+                    let limit = if units[*k] == Unit::Radian {
+                        crate::units::MAX_ANGLE_RAD
+                    } else {
+                        crate::units::MAX_LENGTH_MM
+                    };
+                    v.abs() > limit
+                }) {
+                    return Err(Error::InvalidRequest(format!(
+                        "instrument frame: {} = {v:e} {} is beyond any instrument's place (at most {:e})",
+                        layout.frame_names()[k],
+                        units[k],
+                        if units[k] == Unit::Radian {
+                            crate::units::MAX_ANGLE_RAD
+                        } else {
+                            crate::units::MAX_LENGTH_MM
+                        }
+                    )));
+                }
                 self.nominal.extend(f);
             }
             Frame::Free => self.nominal.extend(vec![0.0; size]),
