@@ -255,7 +255,13 @@ pub fn parse_grid(
                 if step <= 0.0 || b < a {
                     return Err(bad("needs START ≤ STOP and a positive STEP").into());
                 }
-                let count = ((b - a) / step + 1e-9).floor() as usize + 1;
+                // Counted in floating point first: a tiny step must not wrap
+                // the count around.
+                let steps = ((b - a) / step + 1e-9).floor();
+                if steps.is_nan() || steps >= pkmcal::apply::compensation::MAX_GRID_NODES as f64 {
+                    return Err(bad("too many nodes; use a larger step").into());
+                }
+                let count = steps as usize + 1;
                 if count > pkmcal::apply::compensation::MAX_GRID_NODES {
                     return Err(bad("too many nodes; use a larger step").into());
                 }

@@ -1725,3 +1725,24 @@ fn an_instrument_frame_out_of_range_is_refused() {
         ],
     );
 }
+
+/// A grid step so small that its node count would wrap around is refused as
+/// a usage error naming the option (issue 34, E13).
+#[test]
+fn a_tiny_grid_step_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    fails(
+        d,
+        &[
+            "compensate",
+            "--grid",
+            "x=-100:100:1e-300,y=100:200:10",
+            "--out",
+            "g.json",
+        ],
+        2,
+        "--grid: `x=-100:100:1e-300`: too many nodes",
+    );
+    assert!(!d.join("g.json").exists());
+}
