@@ -1201,6 +1201,14 @@ fn huge_run_counts_are_refused() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     files(d);
+    // A plan of more poses than any lattice holds: an error, not an
+    // overflow.
+    fails(
+        d,
+        &["plan", "--count", "18446744073709551615", "--out", "p.csv"],
+        1,
+        "ask for fewer",
+    );
     for runs in ["18446744073709551615", "1000000000"] {
         fails(
             d,

@@ -471,7 +471,7 @@ pub fn plan<M: Mechanism>(
 ) -> Result<Plan> {
     let spec = mech.spec();
     let nx = spec.tool_axes.len();
-    if opts.count * nx <= opts.free.len() {
+    if opts.count.saturating_mul(nx) <= opts.free.len() {
         return Err(Error::InvalidRequest(format!(
             "{} poses give too few coordinates for {} free parameters; plan at least {}",
             opts.count,
