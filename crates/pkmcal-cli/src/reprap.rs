@@ -435,6 +435,34 @@ pub fn run_reprap(c: ReprapConfig) -> Result<()> {
     let mech = crate::io::mechanism_from_str(&toml)
         .context("the M665/M666 geometry does not describe a delta that assembles")?;
     let spec = mech.spec();
+    // A probe point the printer of these M665/M666 values cannot reach (a
+    // diagonal shorter than the distance to its tower) is named here, with
+    // the geometry, not later as a command of NaN.
+    for (i, p) in points.iter().enumerate() {
+        if delta
+            .carriage_heights([p[0], p[1], p[2]])
+            .iter()
+            .any(|h| !h.is_finite())
+        {
+            bail!(
+                "{}:{}: the probe point ({}, {}) is out of reach of the printer {} describes (diagonals {:?} mm, radius {} mm{}); check the file or the probe points",
+                c.probes.display(),
+                csv.line(i),
+                p[0],
+                p[1],
+                c.config.display(),
+                delta.diagonals,
+                delta.radius,
+                if delta.diagonals == RrfDelta::default().diagonals
+                    && delta.radius == RrfDelta::default().radius
+                {
+                    ": RepRapFirmware's defaults, as if no M665 set them"
+                } else {
+                    ""
+                }
+            );
+        }
+    }
     let data: Vec<pkmcal::Measurement> = points
         .iter()
         .enumerate()

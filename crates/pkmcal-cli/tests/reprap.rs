@@ -409,4 +409,14 @@ fn reprap_fits_only_what_the_firmware_holds() {
             needle,
         );
     }
+    // Only M666: RepRapFirmware's default geometry, and a probe point it
+    // cannot reach is named with it, not as a command of NaN.
+    std::fs::write(d.join("config.g"), "M666 X0.1 Y0 Z-0.1\n").unwrap();
+    std::fs::write(d.join("far.csv"), "x,y,z\n0,0,0\n150,0,0\n").unwrap();
+    fails(
+        d,
+        &["reprap", "--config", "config.g", "--probes", "far.csv"],
+        1,
+        "far.csv:3: the probe point (150, 0) is out of reach",
+    );
 }
