@@ -1754,3 +1754,79 @@ fn a_tiny_grid_step_is_refused() {
     );
     assert!(!d.join("g.json").exists());
 }
+
+/// A distance between a pose and itself, or a negative distance, is named
+/// with its line in the distances file (issue 34, E13, E18).
+#[test]
+fn impossible_distances_are_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mech = common::example("linear-delta");
+    ok(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            &mech,
+            "--grid",
+            "20",
+            "--probe",
+            "--noise",
+            "0.005",
+            "--out",
+            "probes.csv",
+            "--distances-out",
+            "pairs.csv",
+        ],
+    );
+    let pairs = read(d, "pairs.csv");
+    let lines: Vec<&str> = pairs.lines().collect();
+    let header = lines.iter().position(|l| l.starts_with("a_1")).unwrap();
+    let row: Vec<&str> = lines[header + 2].split(',').collect();
+    // The second pose made the first's, then a negative distance.
+    let same = format!(
+        "{},{},{},{},{},{},{}",
+        row[0], row[1], row[2], row[0], row[1], row[2], row[6]
+    );
+    let negative = format!(
+        "{},{},{},{},{},{},-{}",
+        row[0], row[1], row[2], row[3], row[4], row[5], row[6]
+    );
+    for (bad_row, needle) in [(same, "the same commands"), (negative, "is negative")] {
+        let mut l: Vec<String> = lines.iter().map(|s| s.to_string()).collect();
+        l[header + 2] = bad_row;
+        std::fs::write(d.join("bad.csv"), l.join("\n") + "\n").unwrap();
+        fails(
+            d,
+            &[
+                "calibrate",
+                "--mechanism",
+                &mech,
+                "--data",
+                "probes.csv",
+                "--distances",
+                "bad.csv",
+                "--out",
+                "c.toml",
+            ],
+            1,
+            &format!("bad.csv:{}", header + 3),
+        );
+        fails(
+            d,
+            &[
+                "calibrate",
+                "--mechanism",
+                &mech,
+                "--data",
+                "probes.csv",
+                "--distances",
+                "bad.csv",
+                "--out",
+                "c.toml",
+            ],
+            1,
+            needle,
+        );
+    }
+}

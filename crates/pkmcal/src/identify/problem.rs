@@ -132,10 +132,23 @@ impl PoseCache {
 fn check_row(measurement: &MeasurementModel, m: &Measurement) -> Result<()> {
     let origin = m.origin.expect("numbered");
     let len = measurement.row_len(m);
-    if m.partner.is_some() {
+    if let Some(partner) = &m.partner {
         measurement
             .check_distances()
             .map_err(|e| e.at_pose(origin))?;
+        if *partner == m.commands {
+            return Err(Error::InvalidRequest(
+                "its two poses have the same commands: the distance between a pose and itself is always 0; check the pair".into(),
+            )
+            .at_pose(origin));
+        }
+        if m.measured.first().is_some_and(|d| *d < 0.0) {
+            return Err(Error::InvalidRequest(format!(
+                "the measured distance {:?} mm is negative; a distance is at least 0",
+                m.measured[0]
+            ))
+            .at_pose(origin));
+        }
     }
     if m.measured.len() != len {
         let what = if m.partner.is_some() {
