@@ -238,7 +238,7 @@ pub struct TrilaterateArgs {
     #[arg(long, value_name = "DATA.csv")]
     pub data: PathBuf,
     /// Standard deviation of one reading (mm), for the positions' uncertainty.
-    #[arg(value_parser = values::positive, long, default_value_t = 0.002, value_name = "MM")]
+    #[arg(value_parser = values::sigma_mm, long, default_value_t = 0.002, value_name = "MM")]
     pub sigma: f64,
     /// Output CSV: targets and commands if present, x, y, sigma_x, sigma_y.
     #[arg(long, value_name = "OUT.csv")]
@@ -577,6 +577,19 @@ mod values {
         (v > 0.0)
             .then_some(v)
             .ok_or_else(|| format!("{v} must be positive"))
+    }
+    /// A standard deviation of a length reading, mm: the library's bounds.
+    pub fn sigma_mm(s: &str) -> Result<f64, String> {
+        let v = number(s)?;
+        (pkmcal::identify::MIN_SIGMA..=MAX_LENGTH_MM)
+            .contains(&v)
+            .then_some(v)
+            .ok_or_else(|| {
+                format!(
+                    "{v} mm must be between {:e} and {MAX_LENGTH_MM:e} mm",
+                    pkmcal::identify::MIN_SIGMA
+                )
+            })
     }
     pub fn fraction(s: &str) -> Result<f64, String> {
         let v = number(s)?;

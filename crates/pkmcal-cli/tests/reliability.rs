@@ -1830,3 +1830,28 @@ fn impossible_distances_are_named() {
         );
     }
 }
+
+/// An impossible σ on the command line is a usage error naming the option,
+/// not blamed on a data row (issue 34, E13).
+#[test]
+fn an_impossible_sigma_names_the_option() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    files(d);
+    for sigma in ["2e6", "0", "1e-300"] {
+        fails(
+            d,
+            &[
+                "trilaterate",
+                "--data",
+                "d.csv",
+                "--sigma",
+                sigma,
+                "--out",
+                "t.csv",
+            ],
+            2,
+            "--sigma",
+        );
+    }
+}
