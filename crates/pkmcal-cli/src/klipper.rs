@@ -35,7 +35,25 @@ pub struct KlipperConfig {
     pub out: Option<PathBuf>,
     /// Where to write the mechanism, the probe data and the parameters.
     pub out_dir: Option<PathBuf>,
+    /// How heights and distances are weighed against each other.
+    pub weighting: Weighting,
 }
+
+/// How probe heights and calibration-object distances are weighed against
+/// each other in one fit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Weighting {
+    /// A noise level each, estimated from the residuals (variance
+    /// components).
+    Estimated,
+    /// Klipper's fixed ratio (`delta_calibrate.py`): the heights' squares
+    /// weigh `n_distances / (0.5 · n_probed)` times the distances'
+    /// (`n_probed` counts the probed heights, not the manual ones).
+    Klipper,
+}
+
+/// Klipper's `MEASURE_WEIGHT`.
+const KLIPPER_MEASURE_WEIGHT: f64 = 0.5;
 
 /// The largest length a printer's configuration may give (mm): 100 m.
 const MAX_KLIPPER_LENGTH_MM: f64 = 1e5;
@@ -970,6 +988,26 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
                 }),
         )
         .collect();
+    let mut data = data;
+    if c.weighting == Weighting::Klipper && !delta.distances.is_empty() {
+        // Klipper's cost `z_weight · Σ heights² + Σ distances²` as known
+        // standard deviations: σ_distance 1 (in mm; only the ratio acts),
+        // σ_height 1/√z_weight.
+        let probed = delta
+            .probes
+            .iter()
+            .filter(|p| !p.name.starts_with("manual"))
+            .count()
+            .max(1);
+        let z_weight = delta.distances.len() as f64 / (KLIPPER_MEASURE_WEIGHT * probed as f64);
+        for m in &mut data {
+            m.sigma = vec![Some(if m.partner.is_some() {
+                1.0
+            } else {
+                1.0 / z_weight.sqrt()
+            })];
+        }
+    }
     let heights = &data[..delta.probes.len()];
     let measurement = MeasurementModel::probe(spec)?;
     let mut default: Vec<String> = spec.default_free.clone();
@@ -1024,14 +1062,17 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
     if !delta.distances.is_empty() {
         let (acc, _, _) = pkmcal::calibration_accuracy(&mech, &measurement, &data, &cal, &[])?;
         if let Some(d) = acc.distances {
+            let weighing = match c.weighting {
+                Weighting::Estimated => format!(
+                    "noise σ: heights {}, distances {}, estimated apart",
+                    noise_of(&cal, "probe"),
+                    noise_of(&cal, pkmcal::DISTANCE_AXIS)
+                ),
+                Weighting::Klipper => "heights and distances weighed as Klipper weighs them".into(),
+            };
             println!(
-                "distance errors: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm (noise σ: heights {}, distances {}, estimated apart)",
-                d.before_max,
-                d.before_rms,
-                d.after_max,
-                d.after_rms,
-                noise_of(&cal, "probe"),
-                noise_of(&cal, pkmcal::DISTANCE_AXIS)
+                "distance errors: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm ({weighing})",
+                d.before_max, d.before_rms, d.after_max, d.after_rms,
             );
         }
     }

@@ -82,6 +82,12 @@ pub struct KlipperArgs {
     /// (calibration.toml) here, for the other commands.
     #[arg(long, value_name = "DIR")]
     pub out_dir: Option<PathBuf>,
+    /// How probe heights and DELTA_ANALYZE distances are weighed against
+    /// each other: `estimated` (a noise level each, estimated from the
+    /// residuals) or `klipper` (Klipper's fixed ratio: heights weigh
+    /// n_distances / (0.5 · n_probed) times a distance).
+    #[arg(long, value_enum, default_value = "estimated")]
+    pub weighting: pkmcal_cli::klipper::Weighting,
 }
 
 #[derive(clap::Args)]
@@ -938,6 +944,7 @@ fn run(command: Command) -> anyhow::Result<()> {
                 free: a.free,
                 out: a.out,
                 out_dir: a.out_dir,
+                weighting: a.weighting,
             })
         }
         Command::Reprap(a) => pkmcal_cli::reprap::run_reprap(pkmcal_cli::reprap::ReprapConfig {
