@@ -576,6 +576,27 @@ impl<R: std::io::Read> LineCounter<R> {
     }
 }
 
+/// Most column names a message lists (a file may have a million).
+const MAX_LISTED: usize = 30;
+
+/// `headers` for a message: the first [`MAX_LISTED`], then how many more.
+fn listed(headers: &[String]) -> String {
+    let shown: Vec<&str> = headers
+        .iter()
+        .take(MAX_LISTED)
+        .map(String::as_str)
+        .collect();
+    if headers.len() > MAX_LISTED {
+        format!(
+            "{}, … ({} more)",
+            shown.join(", "),
+            headers.len() - MAX_LISTED
+        )
+    } else {
+        shown.join(", ")
+    }
+}
+
 /// Index of column `name` in `headers` of file `path`; an error naming the
 /// file and the columns found if it is missing or appears more than once.
 pub fn column_index(path: &Path, headers: &[String], name: &str, delimiter: u8) -> Result<usize> {
@@ -615,6 +636,7 @@ pub fn column_index(path: &Path, headers: &[String], name: &str, delimiter: u8) 
                 .zip(&dist)
                 .filter(|(_, d)| **d == best && best <= (norm(name).len() / 3).max(1))
                 .map(|(h, _)| h.as_str())
+                .take(MAX_LISTED / 6)
                 .collect();
             bail!(
                 "{}: missing column `{}`{} (columns found, {}: {})",
@@ -626,7 +648,7 @@ pub fn column_index(path: &Path, headers: &[String], name: &str, delimiter: u8) 
                     format!("; did you mean `{}`?", near.join("`, `"))
                 },
                 delimiter_name(delimiter),
-                headers.join(", ")
+                listed(headers)
             )
         }
         _ => bail!(

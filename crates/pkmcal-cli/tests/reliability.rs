@@ -1855,3 +1855,23 @@ fn an_impossible_sigma_names_the_option() {
         );
     }
 }
+
+/// A missing column in a file of very many columns is a short message
+/// (the first columns and how many more), not megabytes (issue 34, E18).
+#[test]
+fn a_missing_column_among_many_is_a_short_message() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let names: Vec<String> = std::iter::once("x".to_string())
+        .chain(std::iter::once("y".to_string()))
+        .chain((0..100_000).map(|i| format!("c{i}")))
+        .collect();
+    let ones = vec!["1"; names.len()].join(",");
+    std::fs::write(d.join("wide.csv"), format!("{}\n{ones}\n", names.join(","))).unwrap();
+    let o = run(d, &["calibrate", "--data", "wide.csv", "--out", "c.toml"]);
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("missing column `q1`"), "{err}");
+    assert!(err.contains("(99972 more)"), "{err}");
+    assert!(err.len() < 2000, "{} bytes", err.len());
+}
