@@ -7,28 +7,6 @@ use serde::Deserialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-/// `\r\n` and a lone `\r` (old Mac files) as `\n`: lines are then counted
-/// right and comment lines found, whichever line ends a file uses.
-fn unify_line_ends(bytes: Vec<u8>) -> Vec<u8> {
-    if !bytes.contains(&b'\r') {
-        return bytes;
-    }
-    let mut out = Vec::with_capacity(bytes.len());
-    let mut i = 0;
-    while i < bytes.len() {
-        if bytes[i] == b'\r' {
-            out.push(b'\n');
-            if bytes.get(i + 1) == Some(&b'\n') {
-                i += 1;
-            }
-        } else {
-            out.push(bytes[i]);
-        }
-        i += 1;
-    }
-    out
-}
-
 /// A CSV file read whole, with its header.
 pub struct Csv {
     pub path: PathBuf,
@@ -51,7 +29,9 @@ impl Csv {
         let bytes = crate::output::read(path, crate::output::InputKind::Data)
             .with_context(|| format!("cannot open {}", path.display()))?;
         // Line ends as `\n`, whichever the file uses (`\r` alone included).
-        let bytes = unify_line_ends(bytes);
+        let mut bytes = bytes;
+        let n = crate::output::LineEnds::default().unify(&mut bytes);
+        bytes.truncate(n);
         let base_frame = String::from_utf8_lossy(&bytes)
             .lines()
             .any(|l| l.trim() == BASE_FRAME_COMMENT);

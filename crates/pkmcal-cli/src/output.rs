@@ -182,7 +182,7 @@ pub fn open(path: &Path) -> std::io::Result<LineLimit<std::fs::File>> {
     Ok(LineLimit {
         inner: std::fs::File::open(path)?,
         run: 0,
-        cr: false,
+        ends: LineEnds::default(),
     })
 }
 
@@ -193,8 +193,36 @@ pub struct LineLimit<R> {
     inner: R,
     /// Bytes since the last line end.
     run: usize,
-    /// Whether the last byte read was a `\r`.
+    /// Line ends as `\n`.
+    ends: LineEnds,
+}
+
+/// `\r\n` and a lone `\r` (old Mac files) as `\n`, over one buffer or a
+/// stream of them: lines are then counted right and comment lines found,
+/// whichever line ends a file uses.
+#[derive(Debug, Default)]
+pub struct LineEnds {
+    /// Whether the last byte seen was a `\r`.
     cr: bool,
+}
+
+impl LineEnds {
+    /// Rewrite `buf` in place, its line ends as `\n`; its new length.
+    pub fn unify(&mut self, buf: &mut [u8]) -> usize {
+        let mut w = 0;
+        for r in 0..buf.len() {
+            let b = buf[r];
+            if b == b'\n' && self.cr {
+                // The `\n` of a `\r\n`: the `\r` already ended the line.
+                self.cr = false;
+                continue;
+            }
+            self.cr = b == b'\r';
+            buf[w] = if self.cr { b'\n' } else { b };
+            w += 1;
+        }
+        w
+    }
 }
 
 impl<R: std::io::Read> std::io::Read for LineLimit<R> {
@@ -206,18 +234,7 @@ impl<R: std::io::Read> std::io::Read for LineLimit<R> {
             if n == 0 {
                 return Ok(0);
             }
-            let mut w = 0;
-            for r in 0..n {
-                let b = buf[r];
-                if b == b'\n' && self.cr {
-                    // The `\n` of a `\r\n`: the `\r` already ended the line.
-                    self.cr = false;
-                    continue;
-                }
-                self.cr = b == b'\r';
-                buf[w] = if self.cr { b'\n' } else { b };
-                w += 1;
-            }
+            let w = self.ends.unify(&mut buf[..n]);
             if w > 0 {
                 self.check(&buf[..w])?;
                 return Ok(w);
@@ -475,26 +492,15 @@ const TEMPORARY_NAME_KEEP: usize = 160;
 fn temporary(dest: &Path) -> Result<(std::fs::File, PathBuf)> {
     use std::sync::atomic::{AtomicU64, Ordering};
     static NEXT: AtomicU64 = AtomicU64::new(0);
-    let name = dest
-        .file_name()
-        .with_context(|| format!("{} is not a file name", dest.display()))?;
-    let dir = dest
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let name = name.to_string_lossy();
-    let mut cut = name.len().min(TEMPORARY_NAME_KEEP);
-    while !name.is_char_boundary(cut) {
-        cut -= 1;
-    }
+    let (dir, prefix) =
+        temporary_prefix(dest).with_context(|| format!("{} is not a file name", dest.display()))?;
     let start = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.subsec_nanos() as u64);
-    loop {
+    for attempt in 0.. {
         let n = NEXT.fetch_add(1, Ordering::Relaxed);
         let tmp = dir.join(format!(
-            ".{}.tmp-{}-{}",
-            &name[..cut],
+            "{prefix}{}-{}",
             std::process::id(),
             start.wrapping_add(n)
         ));
@@ -507,31 +513,39 @@ fn temporary(dest: &Path) -> Result<(std::fs::File, PathBuf)> {
             .open(&tmp)
         {
             Ok(f) => return Ok((f, tmp)),
-            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists && n < 1000 => continue,
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists && attempt < 1000 => {
+                continue;
+            }
             Err(e) => return Err(e).with_context(|| format!("cannot write {}", dest.display())),
         }
     }
+    unreachable!("the loop returns")
+}
+
+/// The directory of `dest`'s temporaries and their name's start,
+/// `.NAME.tmp-` (`NAME` cut to [`TEMPORARY_NAME_KEEP`] bytes); `None` when
+/// `dest` has no file name.
+fn temporary_prefix(dest: &Path) -> Option<(PathBuf, String)> {
+    let name = dest.file_name()?.to_string_lossy();
+    let dir = dest
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let mut cut = name.len().min(TEMPORARY_NAME_KEEP);
+    while !name.is_char_boundary(cut) {
+        cut -= 1;
+    }
+    Some((dir.to_path_buf(), format!(".{}.tmp-", &name[..cut])))
 }
 
 /// Remove temporaries of `dest` left by runs that were killed (SIGKILL
 /// cannot be caught): `.NAME.tmp-PID` or `.NAME.tmp-PID-N` whose process no
 /// longer exists, and that are no input of this run.
 fn sweep_stale(dest: &Path) {
-    let (Some(name), dir) = (
-        dest.file_name(),
-        dest.parent()
-            .filter(|p| !p.as_os_str().is_empty())
-            .unwrap_or(Path::new(".")),
-    ) else {
+    let Some((dir, prefix)) = temporary_prefix(dest) else {
         return;
     };
-    let name = name.to_string_lossy();
-    let mut cut = name.len().min(TEMPORARY_NAME_KEEP);
-    while !name.is_char_boundary(cut) {
-        cut -= 1;
-    }
-    let prefix = format!(".{}.tmp-", &name[..cut]);
-    let Ok(entries) = std::fs::read_dir(dir) else {
+    let Ok(entries) = std::fs::read_dir(&dir) else {
         return;
     };
     for e in entries.flatten() {

@@ -129,6 +129,16 @@ fn points() -> Vec<[f64; 2]> {
     p
 }
 
+/// The truth's probe heights at [`points`], as `G30 S-1` reports them, in
+/// `probes.csv` under `d`.
+fn write_probes(d: &std::path::Path) {
+    let mut csv = String::from("x,y,z\n");
+    for [x, y] in points() {
+        csv.push_str(&format!("{x},{y},{:.9}\n", probe(x, y)));
+    }
+    std::fs::write(d.join("probes.csv"), csv).unwrap();
+}
+
 /// `M665 L R H B X Y Z` and `M666 X Y Z A B` of a written file.
 fn parse(text: &str) -> Rrf {
     let mut r = NOMINAL;
@@ -173,11 +183,7 @@ fn reprap_probe_heights_give_the_printer_back() {
         "; delta\nM665 L360 R190 H420 B150 X0 Y0 Z0 ; geometry\nM666 X0 Y0 Z0 A0 B0\nM558 P5 ; probe\n",
     )
     .unwrap();
-    let mut csv = String::from("x,y,z\n");
-    for [x, y] in points() {
-        csv.push_str(&format!("{x},{y},{:.9}\n", probe(x, y)));
-    }
-    std::fs::write(d.join("probes.csv"), csv).unwrap();
+    write_probes(d);
     let out = ok(
         d,
         &[
@@ -276,11 +282,7 @@ fn reprap_reads_config_override_at_m501() {
         "; config-override.g file generated in response to M500\nM307 H0 A340.0 C140.0 D5.5\nM665 L360 R190 H420 B100 X0 Y0 Z0\nM666 X0 Y0 Z0 A0 B0\n",
     )
     .unwrap();
-    let mut csv = String::from("x,y,z\n");
-    for [x, y] in points() {
-        csv.push_str(&format!("{x},{y},{:.9}\n", probe(x, y)));
-    }
-    std::fs::write(d.join("probes.csv"), csv).unwrap();
+    write_probes(d);
     let out = ok(
         d,
         &[
@@ -345,11 +347,7 @@ fn reprap_fits_only_what_the_firmware_holds() {
         "\u{feff}; delta\nN10 M665L360R190H420B150X0Y0Z0*71\nM666 X0 Y0 Z0 A0 B0\n",
     )
     .unwrap();
-    let mut csv = String::from("x,y,z\n");
-    for [x, y] in points() {
-        csv.push_str(&format!("{x},{y},{:.9}\n", probe(x, y)));
-    }
-    std::fs::write(d.join("probes.csv"), csv).unwrap();
+    write_probes(d);
     for free in ["default,bed.z", "default,a.tilt1", "ka"] {
         let o = common::run(
             d,
