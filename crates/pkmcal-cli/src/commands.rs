@@ -1,9 +1,10 @@
 //! The subcommands: each reads its inputs, calls the library, writes outputs.
 
-use crate::io::{Csv, Mech, csv_bytes, read_mechanism, read_params};
 use crate::{DemoArgs, PredictArgs, SimulateArgs};
 use anyhow::{Context, Result, bail};
 use pkmcal::{ErrorStats, Mechanism, Model, Params, Prediction, predict_pose, prepare_pose};
+use pkmcal_io::Run;
+use pkmcal_io::io::{Csv, Mech, csv_bytes, read_mechanism, read_params};
 use rayon::prelude::*;
 use std::path::Path;
 
@@ -28,7 +29,7 @@ pub fn predict_rows(
     settings: &PredictSettings,
     commands: &[Vec<f64>],
     where_: &(dyn Fn(usize) -> String + Sync),
-    bar: &indicatif::ProgressBar,
+    bar: &dyn pkmcal_io::Progress,
 ) -> Result<Vec<Row>> {
     let PredictSettings {
         params,
@@ -72,23 +73,23 @@ pub fn predict_rows(
     Ok(all)
 }
 
-fn load_params<M: Mechanism>(path: Option<&Path>, mech: &M) -> Result<Params> {
+fn load_params<M: Mechanism>(run: &Run<'_>, path: Option<&Path>, mech: &M) -> Result<Params> {
     match path {
-        Some(p) => read_params(p, mech),
+        Some(p) => read_params(run, p, mech),
         None => Ok(Params::nominal(mech.spec())),
     }
 }
 
-pub fn predict(a: PredictArgs) -> Result<()> {
-    let mech = read_mechanism(a.mech.mechanism.as_deref())?;
+pub fn predict(run: &Run<'_>, a: PredictArgs) -> Result<()> {
+    let mech = read_mechanism(run, a.mech.mechanism.as_deref())?;
     let spec = mech.spec();
-    let params = load_params(a.params.as_deref(), &mech)?;
+    let params = load_params(run, a.params.as_deref(), &mech)?;
     let model: Model = a.model.parse()?;
     let force = match &a.force {
         Some(s) => {
-            let f = crate::io::parse_load(s, "--force")?;
+            let f = pkmcal_io::io::parse_load(s, "--force")?;
             if f.len() != spec.tool_axes.len() {
-                return crate::output::usage(format!(
+                return pkmcal_io::output::usage(format!(
                     "--force needs {} values ({}), got {}",
                     spec.tool_axes.len(),
                     spec.tool_axes.join(","),
@@ -101,8 +102,8 @@ pub fn predict(a: PredictArgs) -> Result<()> {
     };
     // Streamed in batches (memory flat in the rows, a pipe works), each
     // batch predicted on all cores.
-    let mut input = crate::io::CsvStream::open(&a.commands)?;
-    crate::io::commands_belong(&input.path, &input.headers, spec)?;
+    let mut input = pkmcal_io::io::CsvStream::open(run, &a.commands)?;
+    pkmcal_io::io::commands_belong(&input.path, &input.headers, spec)?;
     let names: Vec<String> = spec
         .actuated_names()
         .iter()
@@ -111,7 +112,7 @@ pub fn predict(a: PredictArgs) -> Result<()> {
     let cols = input.columns(&names)?;
     let covariance = match &a.uncertainty {
         Some(path) => {
-            let c = read_covariance(path)?;
+            let c = read_covariance(run, path)?;
             // Checked against this mechanism here, so that a report of
             // another mechanism, or a malformed matrix, is blamed on the
             // report and not on a row of the commands.
@@ -139,15 +140,15 @@ pub fn predict(a: PredictArgs) -> Result<()> {
         names
             .iter()
             .zip(spec.command_units())
-            .map(|(n, u)| crate::usecal::load_column(n, u)),
+            .map(|(n, u)| pkmcal_io::usecal::load_column(n, u)),
     );
     if covariance.is_some() {
         header.extend(spec.tool_axes.iter().map(|a| format!("sigma_{a}")));
     }
-    let units = crate::fileunits::of(a.mech.mechanism.as_deref())?;
+    let units = pkmcal_io::fileunits::of(run, a.mech.mechanism.as_deref())?;
     let (cf, tf) = (
-        crate::fileunits::commands(spec, &units),
-        crate::fileunits::tool(spec, &units),
+        pkmcal_io::fileunits::commands(spec, &units),
+        pkmcal_io::fileunits::tool(spec, &units),
     );
     // Output factors, column by column: commands, tool, deflections (in the
     // commands' unit), torques (N·m or N), σ (tool).
@@ -159,10 +160,10 @@ pub fn predict(a: PredictArgs) -> Result<()> {
         .chain(std::iter::repeat_n(1.0, names.len()))
         .chain(tf.iter().copied())
         .collect();
-    let bar = crate::io::progress(0, a.quiet, "poses", 0);
-    let mut w = crate::output::writer(&a.out)?;
+    let bar = run.bar(0, a.quiet, "poses", 0);
+    let mut w = run.files.writer(&a.out)?;
     use std::io::Write;
-    if let Some(c) = crate::fileunits::comment(&units) {
+    if let Some(c) = pkmcal_io::fileunits::comment(&units) {
         writeln!(w, "{c}")?;
     }
     writeln!(w, "{}", header.join(","))?;
@@ -175,16 +176,16 @@ pub fn predict(a: PredictArgs) -> Result<()> {
         }
         bar.inc_length(batch.len() as u64);
         let mut commands: Vec<Vec<f64>> = batch.iter().map(|(_, c)| c.clone()).collect();
-        crate::fileunits::to_internal(&mut commands, &cf);
+        pkmcal_io::fileunits::to_internal(&mut commands, &cf);
         let path = input.path.clone();
         let preds = predict_rows(
             &mech,
             &settings,
             &commands,
             &|r| format!("{}:{}", path.display(), batch[r].0),
-            &bar,
+            &*bar,
         )
-        .map_err(|e| crate::hints::explain_failure(e, &mech, &commands, &units))?;
+        .map_err(|e| pkmcal_io::hints::explain_failure(e, &mech, &commands, &units))?;
         for (c, (p, sigma)) in commands.iter().zip(&preds) {
             line.clear();
             for (k, v) in c
@@ -200,7 +201,7 @@ pub fn predict(a: PredictArgs) -> Result<()> {
                 }
                 line.push_str(&format!(
                     "{}",
-                    crate::fileunits::to_file(*v, out_factors[k])
+                    pkmcal_io::fileunits::to_file(*v, out_factors[k])
                 ));
             }
             writeln!(w, "{line}")?;
@@ -208,8 +209,8 @@ pub fn predict(a: PredictArgs) -> Result<()> {
         total += batch.len();
     }
     w.flush()?;
-    bar.finish_and_clear();
-    pkmcal_cli::note!(
+    bar.finish();
+    pkmcal_io::note!(
         "predicted {total} poses with the {} model -> {}",
         model.name(),
         a.out.display()
@@ -221,8 +222,10 @@ pub fn predict(a: PredictArgs) -> Result<()> {
 const PREDICT_BATCH_ROWS: usize = 1 << 14;
 
 /// The parameter covariance stored in a calibration report (`covariance`).
-fn read_covariance(path: &Path) -> Result<pkmcal::ParameterCovariance> {
-    let text = crate::output::read_to_string(path, crate::output::InputKind::Description)
+fn read_covariance(run: &Run<'_>, path: &Path) -> Result<pkmcal::ParameterCovariance> {
+    let text = run
+        .files
+        .read_to_string(path, pkmcal_io::output::InputKind::Description)
         .with_context(|| format!("cannot read calibration report {}", path.display()))?;
     let v: serde_json::Value = serde_json::from_str(&text)
         .with_context(|| format!("{}: not a JSON calibration report", path.display()))?;
@@ -245,20 +248,20 @@ fn target_names(mech: &Mech) -> Vec<String> {
         .collect()
 }
 
-pub fn simulate(a: SimulateArgs) -> Result<()> {
-    let mech = read_mechanism(a.mech.mechanism.as_deref())?;
-    let truth = load_params(a.truth.as_deref(), &mech)?;
-    let noise = crate::io::noise_arg(a.noise, a.angle_noise);
+pub fn simulate(run: &Run<'_>, a: SimulateArgs) -> Result<()> {
+    let mech = read_mechanism(run, a.mech.mechanism.as_deref())?;
+    let truth = load_params(run, a.truth.as_deref(), &mech)?;
+    let noise = pkmcal_io::io::noise_arg(a.noise, a.angle_noise);
     let targets: Vec<Vec<f64>> = match (&a.targets, a.grid) {
         (Some(path), _) => {
-            let csv = Csv::read(path)?;
+            let csv = Csv::read(run, path)?;
             csv.require_rows()?;
             let mut t = csv.named(&target_names(&mech))?;
-            crate::fileunits::to_internal(
+            pkmcal_io::fileunits::to_internal(
                 &mut t,
-                &crate::fileunits::tool(
+                &pkmcal_io::fileunits::tool(
                     mech.spec(),
-                    &crate::fileunits::of(a.mech.mechanism.as_deref())?,
+                    &pkmcal_io::fileunits::of(run, a.mech.mechanism.as_deref())?,
                 ),
             );
             for (i, target) in t.iter().enumerate() {
@@ -269,7 +272,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         }
         (None, Some(n)) => {
             if n == 0 {
-                return crate::output::usage("--grid needs at least one target");
+                return pkmcal_io::output::usage("--grid needs at least one target");
             }
             pkmcal::spread_targets(&mech, n)
                 .map_err(anyhow::Error::from)
@@ -283,8 +286,8 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         }
         (None, None) => bail!("give --targets FILE or --grid N"),
     };
-    let measurement = simulated_measurement(&mech, &a)?;
-    let bar = crate::io::progress(targets.len() as u64, a.quiet, "poses", 0);
+    let measurement = simulated_measurement(run, &mech, &a)?;
+    let bar = run.bar(targets.len() as u64, a.quiet, "poses", 0);
     let data = pkmcal::simulate_with_progress(
         &mech,
         &measurement,
@@ -294,13 +297,13 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         a.seed,
         &|| bar.inc(1),
     )?;
-    bar.finish_and_clear();
-    let units = crate::fileunits::of(a.mech.mechanism.as_deref())?;
+    bar.finish();
+    let units = pkmcal_io::fileunits::of(run, a.mech.mechanism.as_deref())?;
     let distances = match &a.distances_out {
         None => None,
         Some(path) => {
             if path == &a.out {
-                return crate::output::usage("--distances-out must differ from --out");
+                return pkmcal_io::output::usage("--distances-out must differ from --out");
             }
             let pairs = distance_pairs(&targets);
             let rows = pkmcal::simulate_distances(
@@ -311,17 +314,17 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
                 noise.length,
                 a.seed.wrapping_add(1),
             )
-            .map_err(|e| crate::output::Usage(format!("--distances-out: {e}")))?;
+            .map_err(|e| pkmcal_io::output::Usage(format!("--distances-out: {e}")))?;
             Some((path, distances_csv(&mech, &rows, &units), rows.len()))
         }
     };
     let base = *measurement.frame() == pkmcal::Frame::Base;
-    crate::output::stage(
+    run.files.stage(
         &a.out,
         &with_frame_comment(data_csv(&mech, &measurement, &data, &units), base),
     )?;
     let angles = measurement.units().contains(&pkmcal::Unit::Radian);
-    pkmcal_cli::note!(
+    pkmcal_io::note!(
         "simulated {} poses, {} (noise {} mm on lengths{}, seed {}) -> {}",
         data.len(),
         measurement.describe(),
@@ -335,8 +338,8 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
         a.out.display()
     );
     if let Some((path, bytes, n)) = distances {
-        crate::output::stage(path, &bytes)?;
-        pkmcal_cli::note!(
+        run.files.stage(path, &bytes)?;
+        pkmcal_io::note!(
             "simulated {n} distances between pairs of those poses -> {}",
             path.display()
         );
@@ -365,7 +368,7 @@ pub fn distances_csv(
     units: &pkmcal::FileUnits,
 ) -> Vec<u8> {
     let spec = mech.spec();
-    use crate::fileunits as fu;
+    use pkmcal_io::fileunits as fu;
     let commands = fu::commands(spec, units);
     let factors: Vec<f64> = commands
         .iter()
@@ -395,19 +398,23 @@ pub fn distances_csv(
 /// What `simulate` measures: a ball bar (`--setup`), target points
 /// (`--measure-targets`), some tool axes (`--axes`) or the whole tool; from
 /// an instrument at `--instrument-frame` if given.
-fn simulated_measurement(mech: &Mech, a: &SimulateArgs) -> Result<pkmcal::MeasurementModel> {
+fn simulated_measurement(
+    run: &Run<'_>,
+    mech: &Mech,
+    a: &SimulateArgs,
+) -> Result<pkmcal::MeasurementModel> {
     let spec = mech.spec();
     let m = if let Some(p) = &a.setup {
-        let setup = crate::io::read_setup(Some(p), None)?
+        let setup = pkmcal_io::io::read_setup(run, Some(p), None)?
             .with_context(|| format!("{}: no ball-bar setup", p.display()))?;
         pkmcal::MeasurementModel::ball_bar(spec, &setup)?
     } else if a.probe {
         pkmcal::MeasurementModel::probe(spec)
-            .map_err(|e| crate::output::Usage(format!("--probe: {e}")))?
+            .map_err(|e| pkmcal_io::output::Usage(format!("--probe: {e}")))?
     } else if a.measure_targets {
-        let points = crate::io::read_targets(a.mech.mechanism.as_deref())?;
+        let points = pkmcal_io::io::read_targets(run, a.mech.mechanism.as_deref())?;
         if points.is_empty() {
-            return crate::output::usage(
+            return pkmcal_io::output::usage(
                 "--measure-targets needs target points in the mechanism file: [[target]] at = [x, y, z] (tool frame, mm; [x, y] for a planar tool)",
             );
         }
@@ -415,39 +422,39 @@ fn simulated_measurement(mech: &Mech, a: &SimulateArgs) -> Result<pkmcal::Measur
     } else if let Some(axes) = &a.axes {
         let names: Vec<&str> = axes.split(',').map(str::trim).collect();
         pkmcal::MeasurementModel::tool_axes(spec, &names)
-            .map_err(|e| crate::output::Usage(format!("in --axes: {e}")))?
+            .map_err(|e| pkmcal_io::output::Usage(format!("in --axes: {e}")))?
     } else {
         pkmcal::MeasurementModel::tool(spec)
     };
     match &a.instrument_frame {
         None => Ok(m),
         Some(s) => {
-            let f = crate::io::parse_list(s, "--instrument-frame")?;
+            let f = pkmcal_io::io::parse_list(s, "--instrument-frame")?;
             m.in_frame(pkmcal::Frame::Known(f))
-                .map_err(|e| crate::output::Usage(format!("in --instrument-frame: {e}")).into())
+                .map_err(|e| pkmcal_io::output::Usage(format!("in --instrument-frame: {e}")).into())
         }
     }
 }
 
 /// `trilaterate`: bar readings to positions with their standard deviations.
-pub fn trilaterate(a: crate::TrilaterateArgs) -> Result<()> {
-    let mech = read_mechanism(a.mech.mechanism.as_deref())?;
+pub fn trilaterate(run: &Run<'_>, a: crate::TrilaterateArgs) -> Result<()> {
+    let mech = read_mechanism(run, a.mech.mechanism.as_deref())?;
     let spec = mech.spec();
-    let setup = crate::io::read_setup(a.setup.as_deref(), a.mech.mechanism.as_deref())?
+    let setup = pkmcal_io::io::read_setup(run, a.setup.as_deref(), a.mech.mechanism.as_deref())?
         .context("give the socket positions with --setup S.toml (or a [ballbar] table in the mechanism file)")?;
     // Checks the setup against the tool point.
     pkmcal::MeasurementModel::ball_bar(spec, &setup)?;
     if !(a.sigma.is_finite() && a.sigma >= 0.0) {
-        return crate::output::usage("--sigma must be a non-negative number of mm");
+        return pkmcal_io::output::usage("--sigma must be a non-negative number of mm");
     }
-    let csv = Csv::read(&a.data)?;
+    let csv = Csv::read(run, &a.data)?;
     csv.require_rows()?;
     let dnames: Vec<String> = (1..=setup.sockets.len()).map(|j| format!("d{j}")).collect();
-    let units = crate::fileunits::of(a.mech.mechanism.as_deref())?;
+    let units = pkmcal_io::fileunits::of(run, a.mech.mechanism.as_deref())?;
     let mut readings = csv.named(&dnames)?;
     let d_factor = units.factor(pkmcal::Unit::Millimetre, pkmcal::Role::Reading);
-    crate::fileunits::to_internal(&mut readings, &vec![d_factor; dnames.len()]);
-    let tf = crate::fileunits::tool(spec, &units);
+    pkmcal_io::fileunits::to_internal(&mut readings, &vec![d_factor; dnames.len()]);
+    let tf = pkmcal_io::fileunits::tool(spec, &units);
     // Pass through targets and commands when present (in the file's units).
     let mut keep: Vec<String> = target_names(&mech);
     keep.extend(spec.actuated_names().iter().map(|s| s.to_string()));
@@ -471,14 +478,14 @@ pub fn trilaterate(a: crate::TrilaterateArgs) -> Result<()> {
     header.extend(spec.tool_axes.iter().cloned());
     header.extend(spec.tool_axes.iter().map(|a| format!("sigma_{a}")));
     // Sockets are placed in the base frame, so are the positions.
-    crate::output::stage(
+    run.files.stage(
         &a.out,
         &with_frame_comment(
-            crate::fileunits::with_comment(csv_bytes(&header, &rows), &units),
+            pkmcal_io::fileunits::with_comment(csv_bytes(&header, &rows), &units),
             true,
         ),
     )?;
-    pkmcal_cli::note!(
+    pkmcal_io::note!(
         "trilaterated {} poses from {} sockets -> {}",
         rows.len(),
         setup.sockets.len(),
@@ -496,7 +503,7 @@ pub fn data_csv(
     units: &pkmcal::FileUnits,
 ) -> Vec<u8> {
     let spec = mech.spec();
-    use crate::fileunits as fu;
+    use pkmcal_io::fileunits as fu;
     let factors: Vec<f64> = fu::tool(spec, units)
         .into_iter()
         .chain(fu::commands(spec, units))
@@ -541,16 +548,16 @@ pub const DEMO_FILES: &[&str] = &[
     "report-exact.json",
 ];
 
-pub fn demo(a: DemoArgs) -> Result<()> {
-    use crate::calibrate::{print_identifiability, print_stats, print_stats_header};
+pub fn demo(run: &Run<'_>, a: DemoArgs) -> Result<()> {
+    use pkmcal_io::calibrate::{print_identifiability, print_stats, print_stats_header};
     let mech: Mech = pkmcal::JeongKim2Dof::new().into();
     let spec = mech.spec();
     let truth = pkmcal::kinds::reference::demo_truth();
     let dir = &a.out_dir;
     // The demo's own calibrations read its files internally; only what it
     // writes follows --units.
-    let units = crate::fileunits::of(None)?;
-    crate::output::create_dir(dir)?;
+    let units = pkmcal_io::fileunits::of(run, None)?;
+    run.files.create_dir(dir)?;
     let targets: Vec<Vec<f64>> = pkmcal::spread_targets(&mech, 35)?
         .into_iter()
         .map(|p| p.target)
@@ -559,17 +566,17 @@ pub fn demo(a: DemoArgs) -> Result<()> {
     let data = pkmcal::simulate(&mech, &tool, &truth, &targets, DEMO_NOISE_MM, a.seed)?;
     let vtargets = pkmcal::random_targets(&mech, DEMO_VALIDATION_POSES, a.seed + 1)?;
     let vdata = pkmcal::simulate(&mech, &tool, &truth, &vtargets, DEMO_NOISE_MM, a.seed + 2)?;
-    crate::output::stage(
+    run.files.stage(
         &dir.join("measurements.csv"),
         &with_frame_comment(data_csv(&mech, &tool, &data, &units), true),
     )?;
-    crate::output::stage(
+    run.files.stage(
         &dir.join("validation.csv"),
         &with_frame_comment(data_csv(&mech, &tool, &vdata, &units), true),
     )?;
-    crate::output::stage(
+    run.files.stage(
         &dir.join("truth.toml"),
-        crate::io::params_to_string(spec, &truth, "true parameters of the demo (simulated)")
+        pkmcal_io::io::params_to_string(spec, &truth, "true parameters of the demo (simulated)")
             .as_bytes(),
     )?;
     println!("pkmcal demo: the paper's case study on the {}", spec.name);
@@ -591,13 +598,14 @@ pub fn demo(a: DemoArgs) -> Result<()> {
         let (acc, before, after) = pkmcal::calibration_accuracy(&mech, &tool, &data, &cal, &[])?;
         let (vacc, _, _) = pkmcal::calibration_accuracy(&mech, &tool, &vdata, &cal, &[])?;
         if model == Model::Exact {
-            let validation = crate::calibrate::Validation {
+            let validation = pkmcal_io::calibrate::Validation {
                 source: format!("{DEMO_VALIDATION_POSES} unseen poses"),
                 accuracy: vacc.clone(),
             };
-            crate::report::write_report_dir(
+            pkmcal_io::report::write_report_dir(
+                run,
                 &dir.join("report"),
-                &crate::report::ReportInputs {
+                &pkmcal_io::report::ReportInputs {
                     mech: &mech,
                     measurement: &tool,
                     data_name: "measurements.csv (simulated)",
@@ -625,16 +633,16 @@ pub fn demo(a: DemoArgs) -> Result<()> {
             vacc.after,
         ));
         let name = model.name();
-        crate::output::stage(
+        run.files.stage(
             &dir.join(format!("params-{name}.toml")),
-            crate::io::params_to_string(
+            pkmcal_io::io::params_to_string(
                 spec,
                 &cal.params,
                 &format!("demo calibration, {name} model: {}", cal.termination_reason),
             )
             .as_bytes(),
         )?;
-        crate::output::stage(
+        run.files.stage(
             &dir.join(format!("report-{name}.json")),
             serde_json::to_string_pretty(&cal)?.as_bytes(),
         )?;
@@ -691,7 +699,7 @@ pub fn with_frame_comment(bytes: Vec<u8>, base: bool) -> Vec<u8> {
     if !base {
         return bytes;
     }
-    let mut out = format!("{}\n", crate::io::BASE_FRAME_COMMENT).into_bytes();
+    let mut out = format!("{}\n", pkmcal_io::io::BASE_FRAME_COMMENT).into_bytes();
     out.extend(bytes);
     out
 }

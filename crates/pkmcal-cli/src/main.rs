@@ -2,8 +2,9 @@
 //! library, writes files. No kinematics here.
 
 mod commands;
+mod progress;
 
-use pkmcal_cli::{calibrate, fileunits, gcode, hints, io, output, report, usecal};
+use pkmcal_io::{Run, calibrate, gcode, output, report, usecal};
 
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
@@ -86,8 +87,8 @@ pub struct KlipperArgs {
     /// each other: `estimated` (a noise level each, estimated from the
     /// residuals) or `klipper` (Klipper's fixed ratio: heights weigh
     /// n_distances / (0.5 · n_probed) times a distance).
-    #[arg(long, value_enum, default_value = "estimated")]
-    pub weighting: pkmcal_cli::klipper::Weighting,
+    #[arg(long, default_value = "estimated", value_parser = values::weighting)]
+    pub weighting: pkmcal_io::klipper::Weighting,
 }
 
 #[derive(clap::Args)]
@@ -637,6 +638,9 @@ mod values {
                 )
             })
     }
+    pub fn weighting(s: &str) -> Result<pkmcal_io::klipper::Weighting, String> {
+        s.parse()
+    }
     pub fn folds(s: &str) -> Result<usize, String> {
         let v = count(s)?;
         (v >= 2)
@@ -647,7 +651,7 @@ mod values {
 
 /// The files a command reads and writes, checked before any work
 /// ([`output::check`]).
-fn check_paths(command: &Command) -> anyhow::Result<()> {
+fn check_paths(run: &Run, command: &Command) -> anyhow::Result<()> {
     use std::path::Path;
     let m = |a: &MechanismArg| a.mechanism.clone();
     let mut dirs: Vec<PathBuf> = vec![];
@@ -740,8 +744,8 @@ fn check_paths(command: &Command) -> anyhow::Result<()> {
         Command::Klipper(a) => {
             let mut out: Vec<PathBuf> = a.out.iter().cloned().collect();
             if let Some(d) = &a.out_dir {
-                out.extend(output::in_dir(d, &pkmcal_cli::klipper::OUT_DIR_FILES)?);
-                out.extend(output::in_dir(d, &[pkmcal_cli::klipper::DISTANCES_FILE])?);
+                out.extend(output::in_dir(d, &pkmcal_io::klipper::OUT_DIR_FILES)?);
+                out.extend(output::in_dir(d, &[pkmcal_io::klipper::DISTANCES_FILE])?);
                 dirs.push(d.clone());
             }
             (vec![Some(a.config.clone())], out)
@@ -760,26 +764,35 @@ fn check_paths(command: &Command) -> anyhow::Result<()> {
     let inputs: Vec<PathBuf> = inputs.into_iter().flatten().collect();
     let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
     let outputs: Vec<&Path> = outputs.iter().map(PathBuf::as_path).collect();
-    output::check(&inputs, &outputs, &dirs)
+    run.files.check(&inputs, &outputs, &dirs)
 }
 
 fn main() -> ExitCode {
     keep_freed_memory();
     let cli = Cli::parse();
-    output::install_cleanup();
-    output::track_inputs();
-    if let Some(mb) = cli.max_input_mb {
-        output::set_max_input_mb(mb);
-    }
-    let result = fileunits::set_cli(cli.units.as_deref())
-        .and_then(|()| check_paths(&cli.command))
-        .and_then(|()| in_pool(cli.command));
-    let result = result.and_then(|()| output::commit());
+    // One run per process: its files live as long as the process, and the
+    // Ctrl-C handler and the panic hook clean them up.
+    let files: &'static pkmcal_io::Files = Box::leak(Box::new(
+        pkmcal_io::Files::new()
+            .tracking_inputs()
+            .with_max_input_mb(cli.max_input_mb),
+    ));
+    install_cleanup(files);
+    let result = units_option(cli.units.as_deref()).and_then(|units| {
+        let run = Run {
+            files,
+            units,
+            bars: &progress::TerminalBars,
+        };
+        check_paths(&run, &cli.command)?;
+        in_pool(&run, cli.command)?;
+        files.commit()
+    });
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            output::discard();
-            pkmcal_cli::note!("error: {e:#}");
+            files.discard();
+            pkmcal_io::note!("error: {e:#}");
             if e.downcast_ref::<output::Usage>().is_some() {
                 ExitCode::from(2)
             } else {
@@ -787,6 +800,54 @@ fn main() -> ExitCode {
             }
         }
     }
+}
+
+/// The `--units` option, read (a usage error names it).
+fn units_option(text: Option<&str>) -> anyhow::Result<pkmcal::PartialUnits> {
+    Ok(match text {
+        Some(t) => {
+            pkmcal::PartialUnits::parse(t).map_err(|e| output::Usage(format!("--units: {e}")))?
+        }
+        None => pkmcal::PartialUnits::default(),
+    })
+}
+
+/// Remove the run's temporaries on Ctrl-C, SIGTERM and panics.
+fn install_cleanup(files: &'static pkmcal_io::Files) {
+    let _ = ctrlc::set_handler(move || {
+        // The files stay held until the exit: the run cannot stage or
+        // commit anything after the temporaries are removed.
+        files.interrupt(|committed| {
+            // (Not `eprintln!`: with standard error closed it would panic,
+            // and the panic hook wait for the state held here.)
+            pkmcal_io::note!(
+                "{}",
+                if committed {
+                    "interrupted after the outputs were written (they are complete)"
+                } else {
+                    "interrupted: no output was written"
+                }
+            );
+            std::process::exit(130);
+        });
+    });
+    let default = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        files.discard();
+        // `println!` panics when standard output is closed (`| head`) or
+        // full: a one-line error and exit 1, not a panic report.
+        let message = info
+            .payload()
+            .downcast_ref::<String>()
+            .map(String::as_str)
+            .or_else(|| info.payload().downcast_ref::<&str>().copied())
+            .unwrap_or("");
+        if let Some(cause) = message.strip_prefix("failed printing to stdout: ") {
+            pkmcal_io::note!("error: cannot write to standard output: {cause}");
+            std::process::exit(1);
+        }
+        default(info);
+    }));
 }
 
 /// glibc gives the free memory at the top of a thread's heap back to the
@@ -816,143 +877,165 @@ fn keep_freed_memory() {}
 /// worker, which takes its share at once, instead of on the main thread,
 /// which hands the whole section to the pool and sleeps until it is done
 /// (measured in BENCHMARKS.md, issue 12).
-fn in_pool(command: Command) -> anyhow::Result<()> {
+fn in_pool(run: &Run, command: Command) -> anyhow::Result<()> {
     // Only fails when a pool exists already, which it does not this early.
     let _ = rayon::ThreadPoolBuilder::new()
         .stack_size(MAIN_STACK)
         .build_global();
-    rayon::scope(move |_| run(command))
+    rayon::scope(move |_| run_command(run, command))
 }
 
 /// Stack of the pool's threads: what the main thread has on Linux, so that
 /// deeply nested input (a TOML file) is read as it was on the main thread.
 const MAIN_STACK: usize = 8 << 20;
 
-fn run(command: Command) -> anyhow::Result<()> {
+fn run_command(run: &Run, command: Command) -> anyhow::Result<()> {
     match command {
-        Command::Predict(a) => commands::predict(a),
-        Command::Simulate(a) => commands::simulate(a),
+        Command::Predict(a) => commands::predict(run, a),
+        Command::Simulate(a) => commands::simulate(run, a),
         Command::Calibrate(a) => a.model.parse().map_err(Into::into).and_then(|model| {
             let loss = pkmcal::Loss::named(&a.loss, a.loss_scale)?;
-            calibrate::run_calibrate(calibrate::CalibrateConfig {
-                loss,
-                outlier_threshold: a.outlier_threshold,
-                drop_outliers: a.drop_outliers,
-                frame: a.frame,
-                axes: a.axes,
-                mechanism: a.mech.mechanism,
-                data: a.data,
-                model,
-                free: a.params_set.free,
-                fix: a.params_set.fix,
-                start: a.start,
-                force: a.force,
-                out: a.out,
-                report: a.report,
-                validate: a.validate,
-                holdout: a.holdout,
-                seed: a.seed,
-                kfold: a.kfold,
-                report_dir: a.report_dir,
-                quiet: a.quiet,
-                setup: a.setup,
-                distances: a.distances,
-            })
+            calibrate::run_calibrate(
+                run,
+                calibrate::CalibrateConfig {
+                    loss,
+                    outlier_threshold: a.outlier_threshold,
+                    drop_outliers: a.drop_outliers,
+                    frame: a.frame,
+                    axes: a.axes,
+                    mechanism: a.mech.mechanism,
+                    data: a.data,
+                    model,
+                    free: a.params_set.free,
+                    fix: a.params_set.fix,
+                    start: a.start,
+                    force: a.force,
+                    out: a.out,
+                    report: a.report,
+                    validate: a.validate,
+                    holdout: a.holdout,
+                    seed: a.seed,
+                    kfold: a.kfold,
+                    report_dir: a.report_dir,
+                    quiet: a.quiet,
+                    setup: a.setup,
+                    distances: a.distances,
+                },
+            )
         }),
         Command::Analyze(a) => a.model.parse().map_err(Into::into).and_then(|model| {
-            calibrate::run_analyze(calibrate::AnalyzeConfig {
-                mechanism: a.mech.mechanism,
-                data: a.data,
-                model,
-                free: a.params_set.free,
-                fix: a.params_set.fix,
-                params: a.params,
-                force: a.force,
-                report: a.report,
-                setup: a.setup,
-                frame: a.frame,
-                axes: a.axes,
-                distances: a.distances,
-            })
+            calibrate::run_analyze(
+                run,
+                calibrate::AnalyzeConfig {
+                    mechanism: a.mech.mechanism,
+                    data: a.data,
+                    model,
+                    free: a.params_set.free,
+                    fix: a.params_set.fix,
+                    params: a.params,
+                    force: a.force,
+                    report: a.report,
+                    setup: a.setup,
+                    frame: a.frame,
+                    axes: a.axes,
+                    distances: a.distances,
+                },
+            )
         }),
         Command::Compensate(a) => a.model.parse().map_err(Into::into).and_then(|model| {
-            usecal::run_compensate(usecal::CompensateConfig {
-                mechanism: a.mech.mechanism,
-                params: a.params,
-                targets: a.targets,
-                grid: a.grid,
-                cartesian: a.cartesian,
-                controller: a.controller,
-                model,
-                load: a.load,
-                preload: a.preload,
-                skip_unreachable: a.skip_unreachable,
-                out: a.out,
-            })
+            usecal::run_compensate(
+                run,
+                usecal::CompensateConfig {
+                    mechanism: a.mech.mechanism,
+                    params: a.params,
+                    targets: a.targets,
+                    grid: a.grid,
+                    cartesian: a.cartesian,
+                    controller: a.controller,
+                    model,
+                    load: a.load,
+                    preload: a.preload,
+                    skip_unreachable: a.skip_unreachable,
+                    out: a.out,
+                },
+            )
         }),
         Command::Plan(a) => (|| {
-            usecal::run_plan(usecal::PlanConfig {
-                mechanism: a.mech.mechanism,
-                count: a.count,
-                candidates: a.candidates,
-                max_candidates: a.max_candidates,
-                quiet: a.quiet,
-                criterion: a.criterion.parse()?,
-                model: a.model.parse()?,
-                params: a.params,
-                free: a.params_set.free,
-                fix: a.params_set.fix,
-                out: a.out,
-                grid_out: a.grid_out,
-            })
+            usecal::run_plan(
+                run,
+                usecal::PlanConfig {
+                    mechanism: a.mech.mechanism,
+                    count: a.count,
+                    candidates: a.candidates,
+                    max_candidates: a.max_candidates,
+                    quiet: a.quiet,
+                    criterion: a.criterion.parse()?,
+                    model: a.model.parse()?,
+                    params: a.params,
+                    free: a.params_set.free,
+                    fix: a.params_set.fix,
+                    out: a.out,
+                    grid_out: a.grid_out,
+                },
+            )
         })(),
         Command::Montecarlo(a) => (|| {
-            usecal::run_montecarlo(usecal::MonteCarloConfig {
-                mechanism: a.mech.mechanism,
-                poses: a.poses,
-                runs: a.runs,
-                noise: a.noise,
-                seed: a.seed,
-                model: a.model.parse()?,
-                free: a.params_set.free,
-                fix: a.params_set.fix,
-                length_error: a.length_error,
-                angle_error: a.angle_error,
-                angle_noise: a.angle_noise,
-                validation: a.validation,
-                out: a.out,
-                quiet: a.quiet,
-            })
+            usecal::run_montecarlo(
+                run,
+                usecal::MonteCarloConfig {
+                    mechanism: a.mech.mechanism,
+                    poses: a.poses,
+                    runs: a.runs,
+                    noise: a.noise,
+                    seed: a.seed,
+                    model: a.model.parse()?,
+                    free: a.params_set.free,
+                    fix: a.params_set.fix,
+                    length_error: a.length_error,
+                    angle_error: a.angle_error,
+                    angle_noise: a.angle_noise,
+                    validation: a.validation,
+                    out: a.out,
+                    quiet: a.quiet,
+                },
+            )
         })(),
-        Command::Trilaterate(a) => commands::trilaterate(a),
+        Command::Trilaterate(a) => commands::trilaterate(run, a),
         Command::Gcode(a) => a.model.parse().map_err(Into::into).and_then(|model| {
-            gcode::run_gcode(gcode::GcodeConfig {
-                mechanism: a.mech.mechanism,
-                params: a.params,
-                controller: a.controller,
-                model,
-                load: a.load,
-                input: a.input,
-                offset: a.offset,
-                max_segment: a.max_segment,
-                out: a.out,
-            })
+            gcode::run_gcode(
+                run,
+                gcode::GcodeConfig {
+                    mechanism: a.mech.mechanism,
+                    params: a.params,
+                    controller: a.controller,
+                    model,
+                    load: a.load,
+                    input: a.input,
+                    offset: a.offset,
+                    max_segment: a.max_segment,
+                    out: a.out,
+                },
+            )
         }),
-        Command::Klipper(a) => {
-            pkmcal_cli::klipper::run_klipper(pkmcal_cli::klipper::KlipperConfig {
+        Command::Klipper(a) => pkmcal_io::klipper::run_klipper(
+            run,
+            pkmcal_io::klipper::KlipperConfig {
                 config: a.config,
                 free: a.free,
                 out: a.out,
                 out_dir: a.out_dir,
                 weighting: a.weighting,
-            })
-        }
-        Command::Reprap(a) => pkmcal_cli::reprap::run_reprap(pkmcal_cli::reprap::ReprapConfig {
-            config: a.config,
-            probes: a.probes,
-            free: a.free,
-            out: a.out,
-        }),
-        Command::Demo(a) => commands::demo(a),
+            },
+        ),
+        Command::Reprap(a) => pkmcal_io::reprap::run_reprap(
+            run,
+            pkmcal_io::reprap::ReprapConfig {
+                config: a.config,
+                probes: a.probes,
+                free: a.free,
+                out: a.out,
+            },
+        ),
+        Command::Demo(a) => commands::demo(run, a),
     }
 }

@@ -14,7 +14,7 @@ use pkmcal::{
     AnyMechanism, CalibrationOptions, Frame, Loss, MeasurementModel, Mechanism as _, Model, Noise,
     Origin, Params,
 };
-use pkmcal_cli::calibrate::Validation;
+use pkmcal_io::calibrate::Validation;
 use pyo3::create_exception;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -64,19 +64,19 @@ fn usage(message: impl Into<String>) -> PyErr {
     raise(message.into(), None)
 }
 
-/// Outputs are staged and renamed into place only when complete (the CLI's
-/// `output` module); its state is per process, so writers take turns.
-static OUTPUT: std::sync::Mutex<()> = std::sync::Mutex::new(());
+/// Outputs are staged and renamed into place only when complete
+/// (`pkmcal_io::Files`): each call that writes is a run of its own, with its
+/// own files, so calls from several threads never share a staging area.
+fn written(write: impl FnOnce(&pkmcal_io::Run) -> anyhow::Result<()>) -> PyResult<()> {
+    let files = pkmcal_io::Files::new();
+    let run = pkmcal_io::Run::quiet(&files);
+    // A failure drops `files`, which removes what it staged.
+    write(&run).and_then(|()| files.commit()).map_err(cli_err)
+}
 
-fn written(write: impl FnOnce() -> anyhow::Result<()>) -> PyResult<()> {
-    let _turn = OUTPUT.lock().unwrap_or_else(|e| e.into_inner());
-    match write().and_then(|()| pkmcal_cli::output::commit()) {
-        Ok(()) => Ok(()),
-        Err(e) => {
-            pkmcal_cli::output::discard();
-            Err(cli_err(e))
-        }
-    }
+/// A run that only reads (no unit override, no progress display).
+fn reading<T>(read: impl FnOnce(&pkmcal_io::Run) -> T) -> T {
+    read(&pkmcal_io::Run::quiet(&pkmcal_io::Files::new()))
 }
 
 /// A path from a `str` or an `os.PathLike`.
@@ -334,11 +334,11 @@ fn toml_value(v: &Bound<'_, PyAny>, path: &str) -> PyResult<toml::Value> {
 
 impl PyMechanism {
     fn from_text(text: &str, source: String) -> PyResult<Self> {
-        let mech = pkmcal_cli::io::mechanism_from_str(text)
+        let mech = pkmcal_io::io::mechanism_from_str(text)
             .map_err(|e| cli_err(e.context(format!("in mechanism description {source}"))))?;
-        let targets = pkmcal_cli::io::targets_from_str(text)
+        let targets = pkmcal_io::io::targets_from_str(text)
             .map_err(|e| cli_err(e.context(format!("in mechanism description {source}"))))?;
-        let setup = pkmcal_cli::io::setup_from_str(text)
+        let setup = pkmcal_io::io::setup_from_str(text)
             .map_err(|e| cli_err(e.context(format!("in mechanism description {source}"))))?;
         Ok(Self {
             mech: Arc::new(mech),
@@ -605,7 +605,10 @@ fn params_arg(m: &PyMechanism, p: Option<&Bound<'_, PyAny>>, what: &str) -> PyRe
         }
         params
     } else if let Ok(path) = p.extract::<String>() {
-        return pkmcal_cli::io::read_params(std::path::Path::new(&path), &*m.mech).map_err(cli_err);
+        return reading(|run| {
+            pkmcal_io::io::read_params(run, std::path::Path::new(&path), &*m.mech)
+        })
+        .map_err(cli_err);
     } else {
         return Err(usage(format!(
             "{what}: expected a dict of parameter values by name, a Calibration or a parameter file path"
@@ -1014,7 +1017,7 @@ fn noise_arg(length: f64, angle: Option<f64>) -> PyResult<Noise> {
             "angle_noise must be a non-negative angle in rad, got {a}"
         )));
     }
-    Ok(pkmcal_cli::io::noise_arg(length, angle))
+    Ok(pkmcal_io::io::noise_arg(length, angle))
 }
 
 // ---------------------------------------------------------------- results
@@ -1242,7 +1245,7 @@ impl PyFigure {
         } else {
             self.svg.as_bytes().to_vec()
         };
-        written(|| pkmcal_cli::output::stage(std::path::Path::new(&p), &bytes))
+        written(|run| run.files.stage(std::path::Path::new(&p), &bytes))
     }
     fn __repr__(&self) -> String {
         format!("<Figure {}: {}>", self.name, self.title)
@@ -1544,13 +1547,13 @@ impl PyCalibration {
             spec.name,
             self.cal.termination_reason
         );
-        pkmcal_cli::io::params_to_string(spec, &self.cal.params, &header)
+        pkmcal_io::io::params_to_string(spec, &self.cal.params, &header)
     }
     /// The report's figures: errors per pose, parameter changes, workspace
     /// errors and maps, residuals, singular values.
     fn figures(&self, py: Python<'_>) -> PyResult<Vec<PyFigure>> {
         let figs = py
-            .detach(|| pkmcal_cli::report::figures(&self.inputs()))
+            .detach(|| pkmcal_io::report::figures(&self.inputs()))
             .map_err(cli_err)?;
         Ok(figs
             .into_iter()
@@ -1568,15 +1571,15 @@ impl PyCalibration {
     fn save_report(&self, py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<()> {
         let p = path_arg(path)?;
         py.detach(|| {
-            written(|| {
-                pkmcal_cli::report::write_report_dir(std::path::Path::new(&p), &self.inputs())
+            written(|run| {
+                pkmcal_io::report::write_report_dir(run, std::path::Path::new(&p), &self.inputs())
             })
         })
     }
     /// The summary as an HTML table (a notebook shows it).
     fn _repr_html_(&self) -> String {
         use std::fmt::Write;
-        let esc = pkmcal_cli::report::escape;
+        let esc = pkmcal_io::report::escape;
         let mut h = format!(
             "<p><b>Calibration of {}</b> ({} model, {} poses, {}): distance error RMS {:.4} → {:.4} mm, max {:.4} → {:.4} mm</p>",
             esc(&self.mech.spec().name),
@@ -1633,8 +1636,8 @@ impl PyCalibration {
 }
 
 impl PyCalibration {
-    fn inputs(&self) -> pkmcal_cli::report::ReportInputs<'_> {
-        pkmcal_cli::report::ReportInputs {
+    fn inputs(&self) -> pkmcal_io::report::ReportInputs<'_> {
+        pkmcal_io::report::ReportInputs {
             mech: &self.mech,
             measurement: &self.measurement,
             data_name: "Python arrays",

@@ -17,7 +17,6 @@
 
 use crate::io::Csv;
 use crate::klipper::{KLIPPER_FREE, KlipperDelta};
-use crate::output;
 use anyhow::{Context, Result, bail};
 use pkmcal::{CalibrationOptions, MeasurementModel, Mechanism, Model, Params};
 use std::fmt::Write;
@@ -227,8 +226,10 @@ pub const OVERRIDE_FILE: &str = "config-override.g";
 /// `/sys`), later lines overriding earlier ones. A missing
 /// `config-override.g` after `M501` is an error naming both: the geometry
 /// would otherwise be stale and undo the saved calibration.
-pub fn delta_from_config_file(path: &std::path::Path) -> Result<RrfDelta> {
-    let text = crate::output::read_to_string(path, crate::output::InputKind::Description)
+pub fn delta_from_config_file(run: &crate::Run<'_>, path: &std::path::Path) -> Result<RrfDelta> {
+    let text = run
+        .files
+        .read_to_string(path, crate::output::InputKind::Description)
         .with_context(|| format!("cannot read {}", path.display()))?;
     let file = path.display().to_string();
     let override_path = path
@@ -239,7 +240,7 @@ pub fn delta_from_config_file(path: &std::path::Path) -> Result<RrfDelta> {
         if path.file_name().is_some_and(|f| f == OVERRIDE_FILE) {
             bail!("{file}:{n}: M501 inside {OVERRIDE_FILE} itself; remove that line");
         }
-        let t = crate::output::read_to_string(&override_path, crate::output::InputKind::Description).with_context(|| {
+        let t = run.files.read_to_string(&override_path, crate::output::InputKind::Description).with_context(|| {
             format!(
                 "{file}:{n}: M501 loads {OVERRIDE_FILE}, which holds the calibration the firmware runs, but {} cannot be read; copy it from the printer's /sys folder beside {file}, or remove the M501 line if the printer has none",
                 override_path.display()
@@ -426,9 +427,9 @@ pub struct ReprapConfig {
 }
 
 /// Run `pkmcal reprap`.
-pub fn run_reprap(c: ReprapConfig) -> Result<()> {
-    let delta = delta_from_config_file(&c.config)?;
-    let csv = Csv::read(&c.probes)?;
+pub fn run_reprap(run: &crate::Run<'_>, c: ReprapConfig) -> Result<()> {
+    let delta = delta_from_config_file(run, &c.config)?;
+    let csv = Csv::read(run, &c.probes)?;
     csv.require_rows()?;
     let points = csv.named(&["x".to_string(), "y".to_string(), "z".to_string()])?;
     let toml = delta.mechanism_toml();
@@ -558,7 +559,7 @@ pub fn run_reprap(c: ReprapConfig) -> Result<()> {
     );
     note.push_str(&new.gcode());
     if let Some(out) = &c.out {
-        output::stage(out, note.as_bytes())?;
+        run.files.stage(out, note.as_bytes())?;
         println!(
             "new M665/M666 -> {} (replace the M665 and M666 lines of the file the firmware takes them from with these two, and keep that file's other lines: config-override.g when config.g runs M501, else config.g)",
             out.display()

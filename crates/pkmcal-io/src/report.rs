@@ -557,13 +557,16 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
 }
 
 /// Write the figures and `report.html` into `dir`.
-pub fn write_report_dir(dir: &Path, r: &ReportInputs) -> Result<()> {
-    crate::output::create_dir(dir)?;
+pub fn write_report_dir(run: &crate::Run<'_>, dir: &Path, r: &ReportInputs) -> Result<()> {
+    run.files.create_dir(dir)?;
     let figs = figures(r)?;
     for f in &figs {
-        crate::output::stage(&dir.join(format!("{}.svg", f.name)), f.svg.as_bytes())?;
-        crate::output::stage(&dir.join(format!("{}.png", f.name)), &f.png)?;
+        run.files
+            .stage(&dir.join(format!("{}.svg", f.name)), f.svg.as_bytes())?;
+        run.files
+            .stage(&dir.join(format!("{}.png", f.name)), &f.png)?;
     }
-    crate::output::stage(&dir.join("report.html"), html(r, &figs).as_bytes())?;
+    run.files
+        .stage(&dir.join("report.html"), html(r, &figs).as_bytes())?;
     Ok(())
 }

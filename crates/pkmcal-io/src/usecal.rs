@@ -41,15 +41,15 @@ pub fn load_column(name: &str, unit: pkmcal::Unit) -> String {
 /// write to a temporary file renamed over `out` only when all succeeded.
 /// With `grid`, a correction table instead; with `cartesian`, the targets to
 /// send to a closed controller.
-pub fn run_compensate(c: CompensateConfig) -> Result<()> {
-    let mech = read_mechanism(c.mechanism.as_deref())?;
+pub fn run_compensate(run: &crate::Run<'_>, c: CompensateConfig) -> Result<()> {
+    let mech = read_mechanism(run, c.mechanism.as_deref())?;
     let spec = mech.spec();
     let params = match &c.params {
-        Some(p) => read_params(p, &mech)?,
+        Some(p) => read_params(run, p, &mech)?,
         None => Params::nominal(spec),
     };
     let controller = match &c.controller {
-        Some(p) => read_params(p, &mech)?,
+        Some(p) => read_params(run, p, &mech)?,
         None => Params::nominal(spec),
     };
     let nx = spec.tool_axes.len();
@@ -78,9 +78,9 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
             "--preload needs actuator commands; a closed controller given tool targets cannot hold one (drop --cartesian or --preload)",
         );
     }
-    let units = crate::fileunits::of(c.mechanism.as_deref())?;
+    let units = crate::fileunits::of(run, c.mechanism.as_deref())?;
     if let Some(g) = &c.grid {
-        return run_grid(&mech, &params, g, &c, &opts, &units);
+        return run_grid(run, &mech, &params, g, &c, &opts, &units);
     }
     let Some(targets) = &c.targets else {
         return crate::output::usage("give --targets T.csv or --grid AXIS=START:STOP:STEP,…");
@@ -90,7 +90,7 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
         crate::fileunits::tool(spec, &units),
     );
     // Read once, in batches (a pipe works; memory flat in the rows).
-    let mut input = crate::io::CsvStream::open(targets)?;
+    let mut input = crate::io::CsvStream::open(run, targets)?;
     let names: Vec<String> = spec
         .tool_axes
         .iter()
@@ -99,7 +99,7 @@ pub fn run_compensate(c: CompensateConfig) -> Result<()> {
     let cols = input.columns(&names)?;
     let act = spec.actuated_names();
     let cmd_units = spec.command_units();
-    let mut w = crate::output::writer(&c.out)?;
+    let mut w = run.files.writer(&c.out)?;
     let result = (|| -> Result<(usize, usize)> {
         let mut header: Vec<String> = names.clone();
         // Output factors, column by column.
@@ -315,6 +315,7 @@ struct GridActuator {
 }
 
 fn run_grid(
+    run: &crate::Run<'_>,
     mech: &crate::io::Mech,
     params: &Params,
     text: &str,
@@ -466,7 +467,7 @@ fn run_grid(
         }
         out.into_bytes()
     };
-    crate::output::stage(&c.out, &bytes)?;
+    run.files.stage(&c.out, &bytes)?;
     crate::note!(
         "correction grid {describe}: {reachable} of {} nodes reachable and usable ({} model) -> {}",
         grid.len(),
@@ -512,11 +513,11 @@ pub struct PlanConfig {
     pub grid_out: Option<PathBuf>,
 }
 
-pub fn run_plan(c: PlanConfig) -> Result<()> {
-    let mech = read_mechanism(c.mechanism.as_deref())?;
+pub fn run_plan(run: &crate::Run<'_>, c: PlanConfig) -> Result<()> {
+    let mech = read_mechanism(run, c.mechanism.as_deref())?;
     let spec = mech.spec();
     let params = match &c.params {
-        Some(p) => read_params(p, &mech)?,
+        Some(p) => read_params(run, p, &mech)?,
         None => Params::nominal(spec),
     };
     let free = free_set(
@@ -528,7 +529,7 @@ pub fn run_plan(c: PlanConfig) -> Result<()> {
     if !(c.candidates.is_finite() && c.candidates > 0.0) {
         return crate::output::usage("--candidates must be a positive spacing in mm");
     }
-    let bar = crate::io::progress(0, c.quiet, "planning steps", 0);
+    let bar = run.bar(0, c.quiet, "planning steps", 0);
     let plan = pkmcal::apply::planning::plan(
         &mech,
         &params,
@@ -545,7 +546,7 @@ pub fn run_plan(c: PlanConfig) -> Result<()> {
             bar.inc(1);
         },
     )?;
-    bar.finish_and_clear();
+    bar.finish();
     let (spacing, lattice_points, n_candidates) =
         (plan.spacing, plan.lattice_points, plan.candidates);
     let mut header: Vec<String> = spec
@@ -554,7 +555,7 @@ pub fn run_plan(c: PlanConfig) -> Result<()> {
         .map(|a| format!("target_{a}"))
         .collect();
     header.extend(spec.actuated_names().iter().map(|s| s.to_string()));
-    let units = crate::fileunits::of(c.mechanism.as_deref())?;
+    let units = crate::fileunits::of(run, c.mechanism.as_deref())?;
     let factors: Vec<f64> = crate::fileunits::tool(spec, &units)
         .into_iter()
         .chain(crate::fileunits::commands(spec, &units))
@@ -575,9 +576,9 @@ pub fn run_plan(c: PlanConfig) -> Result<()> {
     let file = |set: &[pkmcal::WorkspacePoint]| {
         crate::fileunits::with_comment(csv_bytes(&header, &rows(set)), &units)
     };
-    crate::output::stage(&c.out, &file(&plan.poses))?;
+    run.files.stage(&c.out, &file(&plan.poses))?;
     if let Some(g) = &c.grid_out {
-        crate::output::stage(g, &file(&plan.grid))?;
+        run.files.stage(g, &file(&plan.grid))?;
     }
     println!(
         "planned {} poses of {} candidates (spacing {:.4} mm{}) maximising {:?} for {} free parameters ({} model)",
@@ -642,8 +643,8 @@ pub struct MonteCarloConfig {
     pub quiet: bool,
 }
 
-pub fn run_montecarlo(c: MonteCarloConfig) -> Result<()> {
-    let mech = read_mechanism(c.mechanism.as_deref())?;
+pub fn run_montecarlo(run: &crate::Run<'_>, c: MonteCarloConfig) -> Result<()> {
+    let mech = read_mechanism(run, c.mechanism.as_deref())?;
     let spec = mech.spec();
     if c.runs == 0 {
         return crate::output::usage("--runs must be at least 1");
@@ -657,7 +658,7 @@ pub fn run_montecarlo(c: MonteCarloConfig) -> Result<()> {
             bail!("{name} must be a non-negative number");
         }
     }
-    let csv = Csv::read(&c.poses)?;
+    let csv = Csv::read(run, &c.poses)?;
     csv.require_rows()?;
     let names: Vec<String> = spec
         .tool_axes
@@ -667,7 +668,7 @@ pub fn run_montecarlo(c: MonteCarloConfig) -> Result<()> {
     let mut poses = csv.named(&names)?;
     crate::fileunits::to_internal(
         &mut poses,
-        &crate::fileunits::tool(spec, &crate::fileunits::of(c.mechanism.as_deref())?),
+        &crate::fileunits::tool(spec, &crate::fileunits::of(run, c.mechanism.as_deref())?),
     );
     for (i, t) in poses.iter().enumerate() {
         pkmcal::nominal_commands(&mech, t)
@@ -681,7 +682,7 @@ pub fn run_montecarlo(c: MonteCarloConfig) -> Result<()> {
         c.fix.as_deref(),
     )?;
     let validation = pkmcal::validation_targets(&mech, c.validation, c.seed)?;
-    let bar = crate::io::progress(c.runs as u64, c.quiet, "calibrations", 1);
+    let bar = run.bar(c.runs as u64, c.quiet, "calibrations", 1);
     let opts = MonteCarloOptions {
         runs: c.runs,
         noise,
@@ -692,7 +693,7 @@ pub fn run_montecarlo(c: MonteCarloConfig) -> Result<()> {
     };
     let start = std::time::Instant::now();
     let (runs, summary) = monte_carlo(&mech, &poses, &validation, &opts, &|| bar.inc(1))?;
-    bar.finish_and_clear();
+    bar.finish();
     let secs = start.elapsed().as_secs_f64();
     println!(
         "{} simulated calibrations ({} model) from {} poses of {}: {} converged ({:.0} calibrations/s)",
@@ -749,7 +750,7 @@ pub fn run_montecarlo(c: MonteCarloConfig) -> Result<()> {
                 .collect()
             })
             .collect();
-        crate::output::stage(out, &csv_bytes(&header, &rows))?;
+        run.files.stage(out, &csv_bytes(&header, &rows))?;
         println!("runs -> {}", out.display());
     }
     Ok(())

@@ -1,26 +1,12 @@
-//! Units of the numbers in data files: `--units` on the command line over a
-//! mechanism file's `[units]` table over the internal units (mm, rad).
+//! Units of the numbers in data files: the run's units (`--units` on the
+//! command line) over a mechanism file's `[units]` table over the internal
+//! units (mm, rad).
 //! Numbers are converted on read (`internal = file × factor`) and back on
 //! write; parameter files and reports stay in mm and rad, which they name.
 
 use anyhow::{Context, Result};
 use pkmcal::{FileUnits, PartialUnits, Role, Spec, Unit};
 use std::path::Path;
-use std::sync::OnceLock;
-
-static CLI: OnceLock<PartialUnits> = OnceLock::new();
-
-/// Record the `--units` option (once, before any command runs).
-pub fn set_cli(text: Option<&str>) -> Result<()> {
-    let u = match text {
-        Some(t) => {
-            PartialUnits::parse(t).map_err(|e| crate::output::Usage(format!("--units: {e}")))?
-        }
-        None => PartialUnits::default(),
-    };
-    let _ = CLI.set(u);
-    Ok(())
-}
 
 #[derive(serde::Deserialize)]
 struct UnitsTable {
@@ -28,11 +14,13 @@ struct UnitsTable {
 }
 
 /// The data-file units for a command run with `mechanism`: its `[units]`
-/// table, then `--units`.
-pub fn of(mechanism: Option<&Path>) -> Result<FileUnits> {
+/// table, then the run's units (`--units`).
+pub fn of(run: &crate::Run<'_>, mechanism: Option<&Path>) -> Result<FileUnits> {
     let mut u = FileUnits::default();
     if let Some(p) = mechanism {
-        let text = crate::output::read_to_string(p, crate::output::InputKind::Description)
+        let text = run
+            .files
+            .read_to_string(p, crate::output::InputKind::Description)
             .with_context(|| format!("cannot read mechanism file {}", p.display()))?;
         let t: UnitsTable = toml::from_str(&text).with_context(|| {
             format!(
@@ -46,9 +34,7 @@ pub fn of(mechanism: Option<&Path>) -> Result<FileUnits> {
                 .with_context(|| format!("in mechanism file {}", p.display()))?;
         }
     }
-    if let Some(cli) = CLI.get() {
-        u = u.with(cli);
-    }
+    u = u.with(&run.units);
     Ok(u)
 }
 

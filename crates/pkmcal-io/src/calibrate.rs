@@ -13,12 +13,13 @@ use std::path::{Path, PathBuf};
 /// Read a measurement file: commands and the readings of `measurement`,
 /// optional targets and standard deviations.
 pub fn read_data<M: Mechanism>(
+    run: &crate::Run<'_>,
     path: &Path,
     mech: &M,
     measurement: &MeasurementModel,
     units: &pkmcal::FileUnits,
 ) -> Result<Vec<Measurement>> {
-    data_from(&Csv::read(path)?, mech, measurement, units)
+    data_from(&Csv::read(run, path)?, mech, measurement, units)
 }
 
 /// [`read_data`] from an already parsed table: every pose carries its σ
@@ -91,12 +92,13 @@ pub fn data_from<M: Mechanism>(
 /// points, and optionally `sigma_distance`. Each row is numbered in its file
 /// as a distance ([`pkmcal::Origin::distance`], see [`located_in`]).
 pub fn read_distances<M: Mechanism>(
+    run: &crate::Run<'_>,
     path: &Path,
     mech: &M,
     measurement: &MeasurementModel,
     units: &pkmcal::FileUnits,
 ) -> Result<Vec<Measurement>> {
-    let csv = Csv::read(path)?;
+    let csv = Csv::read(run, path)?;
     csv.require_rows()?;
     measurement
         .check_distances()
@@ -410,6 +412,7 @@ fn force_arg<M: Mechanism>(mech: &M, s: Option<&str>) -> Result<Vec<f64>> {
 /// the file says `# frame: base`; base for readings that do not fix a frame,
 /// a subset of axes or bar lengths).
 pub fn measurement_of(
+    run: &crate::Run<'_>,
     csv: &Csv,
     mech: &Mech,
     setup: Option<&Path>,
@@ -431,7 +434,7 @@ pub fn measurement_of(
     } else if has("probe") {
         MeasurementModel::probe(spec).with_context(|| format!("probe heights in {file}"))?
     } else if has("t1x") {
-        let t = crate::io::read_targets(mechanism)?;
+        let t = crate::io::read_targets(run, mechanism)?;
         if t.is_empty() {
             bail!(
                 "{file} holds target-point positions (t1x…); describe the targets in the mechanism file: [[target]] at = [x, y, z] (tool frame, mm)"
@@ -439,7 +442,7 @@ pub fn measurement_of(
         }
         MeasurementModel::targets(spec, &t).with_context(|| format!("targets for {file}"))?
     } else if has("d1") {
-        let setup = crate::io::read_setup(setup, mechanism)?.with_context(|| {
+        let setup = crate::io::read_setup(run, setup, mechanism)?.with_context(|| {
             format!(
                 "{file} holds ball-bar distances (d1…); give the socket positions with --setup S.toml (or a [ballbar] table in the mechanism file)"
             )
@@ -514,16 +517,17 @@ struct Measured {
 }
 
 fn read_measured(
+    run: &crate::Run<'_>,
     mechanism: Option<&Path>,
     data: &Path,
     setup: Option<&Path>,
     frame: &str,
     axes: Option<&str>,
 ) -> Result<Measured> {
-    let mech = read_mechanism(mechanism)?;
-    let csv = Csv::read(data)?;
-    let measurement = measurement_of(&csv, &mech, setup, mechanism, frame, axes)?;
-    let units = crate::fileunits::of(mechanism)?;
+    let mech = read_mechanism(run, mechanism)?;
+    let csv = Csv::read(run, data)?;
+    let measurement = measurement_of(run, &csv, &mech, setup, mechanism, frame, axes)?;
+    let units = crate::fileunits::of(run, mechanism)?;
     let data = data_from(&csv, &mech, &measurement, &units)?;
     crate::hints::check_data(&mech, &measurement, &data, &units, &csv.path)?;
     Ok(Measured {
@@ -534,13 +538,14 @@ fn read_measured(
     })
 }
 
-pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
+pub fn run_calibrate(run: &crate::Run<'_>, c: CalibrateConfig) -> Result<()> {
     let Measured {
         mech,
         measurement,
         data: all,
         units,
     } = read_measured(
+        run,
         c.mechanism.as_deref(),
         &c.data,
         c.setup.as_deref(),
@@ -550,11 +555,11 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
     let spec = mech.spec();
     let mech = &mech;
     let start = match &c.start {
-        Some(p) => read_params(p, mech)?,
+        Some(p) => read_params(run, p, mech)?,
         None => Params::nominal(spec),
     };
     let pairs = match &c.distances {
-        Some(p) => read_distances(p, mech, &measurement, &units)?,
+        Some(p) => read_distances(run, p, mech, &measurement, &units)?,
         None => vec![],
     };
     let locate = |e: pkmcal::Error| located_in(e, &c.data, c.distances.as_deref());
@@ -569,7 +574,7 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
             return crate::output::usage("give either --validate FILE or --holdout F, not both");
         }
         (Some(v), None) => {
-            pkmcal::identify::ValidationPlan::Given(read_data(v, mech, &measurement, &units)?)
+            pkmcal::identify::ValidationPlan::Given(read_data(run, v, mech, &measurement, &units)?)
         }
         (None, Some(f)) => pkmcal::identify::ValidationPlan::Holdout(f),
         (None, None) => pkmcal::identify::ValidationPlan::None,
@@ -580,7 +585,7 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
         kfold: c.kfold,
         seed: c.seed,
     };
-    let bar = crate::io::progress(
+    let bar = run.bar(
         c.kfold.unwrap_or(0) as u64,
         c.quiet || c.kfold.is_none(),
         "folds",
@@ -606,7 +611,7 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
             _ => anyhow::Error::from(e.error),
         }
     })?;
-    bar.finish_and_clear();
+    bar.finish();
     let cal = &study.calibration;
     let header = format!(
         "pkmcal {} calibration ({} model) of {} from {}\nsolver: {}",
@@ -616,7 +621,7 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
         c.data.display(),
         cal.termination_reason
     );
-    crate::output::stage(
+    run.files.stage(
         &c.out,
         crate::io::params_to_string(spec, &cal.params, &header).as_bytes(),
     )?;
@@ -645,10 +650,12 @@ pub fn run_calibrate(c: CalibrateConfig) -> Result<()> {
         cross_validation,
     };
     if let Some(r) = &c.report {
-        crate::output::stage(r, serde_json::to_string_pretty(&report)?.as_bytes())?;
+        run.files
+            .stage(r, serde_json::to_string_pretty(&report)?.as_bytes())?;
     }
     if let Some(dir) = &c.report_dir {
         crate::report::write_report_dir(
+            run,
             dir,
             &crate::report::ReportInputs {
                 mech,
@@ -1005,13 +1012,14 @@ pub struct AnalyzeConfig {
     pub distances: Option<PathBuf>,
 }
 
-pub fn run_analyze(c: AnalyzeConfig) -> Result<()> {
+pub fn run_analyze(run: &crate::Run<'_>, c: AnalyzeConfig) -> Result<()> {
     let Measured {
         mech,
         measurement,
         data,
         units,
     } = read_measured(
+        run,
         c.mechanism.as_deref(),
         &c.data,
         c.setup.as_deref(),
@@ -1021,7 +1029,7 @@ pub fn run_analyze(c: AnalyzeConfig) -> Result<()> {
     let mech = &mech;
     let spec = mech.spec();
     let params = match &c.params {
-        Some(p) => read_params(p, mech)?,
+        Some(p) => read_params(run, p, mech)?,
         None => Params::nominal(spec),
     };
     let free = free_set(mech, &measurement, c.free.as_deref(), c.fix.as_deref())?;
@@ -1029,7 +1037,7 @@ pub fn run_analyze(c: AnalyzeConfig) -> Result<()> {
     let n_data = data.len();
     let data: Vec<Measurement> = match &c.distances {
         Some(p) => {
-            let pairs = read_distances(p, mech, &measurement, &units)?;
+            let pairs = read_distances(run, p, mech, &measurement, &units)?;
             data.into_iter().chain(pairs).collect()
         }
         None => data,
@@ -1037,7 +1045,8 @@ pub fn run_analyze(c: AnalyzeConfig) -> Result<()> {
     let id = pkmcal::analyze(mech, &measurement, &data, &params, c.model, &free, &force)
         .map_err(|e| located_in(e, &c.data, c.distances.as_deref()))?;
     if let Some(r) = &c.report {
-        crate::output::stage(r, serde_json::to_string_pretty(&id)?.as_bytes())?;
+        run.files
+            .stage(r, serde_json::to_string_pretty(&id)?.as_bytes())?;
     }
     println!(
         "identifiability of {} free parameters from {} poses of {}{} ({} model)",

@@ -19,7 +19,6 @@
 //! and the `#*#` SAVE_CONFIG block at the end, whose values override. (Written
 //! here: no INI crate reads that block, and the dialect is a few rules.)
 
-use crate::output;
 use anyhow::{Context, Result, bail};
 use pkmcal::{CalibrationOptions, MeasurementModel, Mechanism, Model, Params};
 use std::fmt::Write as _;
@@ -41,7 +40,7 @@ pub struct KlipperConfig {
 
 /// How probe heights and calibration-object distances are weighed against
 /// each other in one fit.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Weighting {
     /// A noise level each, estimated from the residuals (variance
     /// components).
@@ -50,6 +49,25 @@ pub enum Weighting {
     /// weigh `n_distances / (0.5 · n_probed)` times the distances'
     /// (`n_probed` counts the probed heights, not the manual ones).
     Klipper,
+}
+
+impl Weighting {
+    /// The names a front end takes, in order.
+    pub const NAMES: [&str; 2] = ["estimated", "klipper"];
+}
+
+impl std::str::FromStr for Weighting {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "estimated" => Ok(Weighting::Estimated),
+            "klipper" => Ok(Weighting::Klipper),
+            _ => Err(format!(
+                "unknown weighting `{s}`; one of {}",
+                Weighting::NAMES.join(", ")
+            )),
+        }
+    }
 }
 
 /// Klipper's `MEASURE_WEIGHT`.
@@ -267,7 +285,13 @@ fn strip_comment(line: &str) -> &str {
 }
 
 /// Parse one file's options into `ini` (following `[include …]`).
-fn parse_into(ini: &mut Ini, text: &str, file: &Path, depth: usize) -> Result<()> {
+fn parse_into(
+    run: &crate::Run<'_>,
+    ini: &mut Ini,
+    text: &str,
+    file: &Path,
+    depth: usize,
+) -> Result<()> {
     if depth > 8 {
         bail!(
             "{}: [include] nests more than 8 deep (a file includes itself?)",
@@ -317,11 +341,12 @@ fn parse_into(ini: &mut Ini, text: &str, file: &Path, depth: usize) -> Result<()
                             i + 1
                         );
                     }
-                    let text =
-                        crate::output::read_to_string(&path, crate::output::InputKind::Description)
-                            .with_context(|| {
-                                format!("{name}:{}: cannot read included {}", i + 1, path.display())
-                            })?;
+                    let text = run
+                        .files
+                        .read_to_string(&path, crate::output::InputKind::Description)
+                        .with_context(|| {
+                            format!("{name}:{}: cannot read included {}", i + 1, path.display())
+                        })?;
                     ini.bytes += text.len();
                     if ini.bytes > MAX_INCLUDED_BYTES {
                         bail!(
@@ -330,7 +355,7 @@ fn parse_into(ini: &mut Ini, text: &str, file: &Path, depth: usize) -> Result<()
                             MAX_INCLUDED_BYTES >> 20
                         );
                     }
-                    parse_into(ini, &text, &path, depth + 1)?;
+                    parse_into(run, ini, &text, &path, depth + 1)?;
                 }
                 section = None;
             } else {
@@ -361,16 +386,16 @@ fn parse_into(ini: &mut Ini, text: &str, file: &Path, depth: usize) -> Result<()
 
 /// Read a Klipper configuration: the regular part (with its includes), then
 /// the SAVE_CONFIG block.
-pub fn parse_config(text: &str, file: &Path) -> Result<Ini> {
+pub fn parse_config(run: &crate::Run<'_>, text: &str, file: &Path) -> Result<Ini> {
     let (regular, block) = split_autosave(text);
     let mut ini = Ini {
         file: file.display().to_string(),
         ..Ini::default()
     };
-    parse_into(&mut ini, &regular, file, 0)?;
+    parse_into(run, &mut ini, &regular, file, 0)?;
     if let Some(b) = block {
         let mut saved = Ini::default();
-        parse_into(&mut saved, &b, file, 0)
+        parse_into(run, &mut saved, &b, file, 0)
             .with_context(|| format!("in the SAVE_CONFIG block of {}", file.display()))?;
         // The block starts on the line after its header.
         let offset = regular.matches('\n').count() + 1;
@@ -944,10 +969,12 @@ fn max_abs(v: &[f64]) -> f64 {
 }
 
 /// Run `pkmcal klipper`.
-pub fn run_klipper(c: KlipperConfig) -> Result<()> {
-    let text = crate::output::read_to_string(&c.config, crate::output::InputKind::Description)
+pub fn run_klipper(run: &crate::Run<'_>, c: KlipperConfig) -> Result<()> {
+    let text = run
+        .files
+        .read_to_string(&c.config, crate::output::InputKind::Description)
         .with_context(|| format!("cannot read Klipper configuration {}", c.config.display()))?;
-    let ini = parse_config(&text, &c.config)?;
+    let ini = parse_config(run, &text, &c.config)?;
     let delta = delta_from_config(&ini)?;
     let toml = delta.mechanism_toml();
     let mech = crate::io::mechanism_from_str(&toml)
@@ -1115,14 +1142,15 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
         }
     }
     if let Some(out) = &c.out {
-        output::stage(out, updated_config(&text, &new, &ini)?.as_bytes())?;
+        run.files
+            .stage(out, updated_config(&text, &new, &ini)?.as_bytes())?;
         println!(
             "\nupdated configuration -> {} (values in its SAVE_CONFIG block)",
             out.display()
         );
     }
     if let Some(dir) = &c.out_dir {
-        output::create_dir(dir)?;
+        run.files.create_dir(dir)?;
         let mut csv = String::from("# frame: base\na,b,c,probe\n");
         for m in heights {
             let _ = writeln!(
@@ -1132,8 +1160,8 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
             );
         }
         let [m_file, d_file, p_file] = OUT_DIR_FILES;
-        output::stage(&dir.join(m_file), toml.as_bytes())?;
-        output::stage(&dir.join(d_file), csv.as_bytes())?;
+        run.files.stage(&dir.join(m_file), toml.as_bytes())?;
+        run.files.stage(&dir.join(d_file), csv.as_bytes())?;
         if !delta.distances.is_empty() {
             let mut csv = String::from("a_1,b_1,c_1,a_2,b_2,c_2,distance\n");
             for m in &data[heights.len()..] {
@@ -1144,9 +1172,9 @@ pub fn run_klipper(c: KlipperConfig) -> Result<()> {
                     m.commands[0], m.commands[1], m.commands[2], b[0], b[1], b[2], m.measured[0]
                 );
             }
-            output::stage(&dir.join(DISTANCES_FILE), csv.as_bytes())?;
+            run.files.stage(&dir.join(DISTANCES_FILE), csv.as_bytes())?;
         }
-        output::stage(
+        run.files.stage(
             &dir.join(p_file),
             crate::io::params_to_string(
                 spec,

@@ -143,12 +143,12 @@ fn split(line: &str) -> Result<Line<'_>, String> {
     Ok(Line { words, comment })
 }
 
-pub fn run_gcode(c: GcodeConfig) -> Result<()> {
-    let mech = crate::io::read_mechanism(c.mechanism.as_deref())?;
+pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
+    let mech = crate::io::read_mechanism(run, c.mechanism.as_deref())?;
     let spec = mech.spec();
-    let real = crate::io::read_params(&c.params, &mech)?;
+    let real = crate::io::read_params(run, &c.params, &mech)?;
     let controller = match &c.controller {
-        Some(p) => crate::io::read_params(p, &mech)?,
+        Some(p) => crate::io::read_params(run, p, &mech)?,
         None => Params::nominal(spec),
     };
     let nx = spec.tool_axes.len();
@@ -186,7 +186,9 @@ pub fn run_gcode(c: GcodeConfig) -> Result<()> {
     {
         return crate::output::usage("--max-segment must be a positive length in mm");
     }
-    let text = crate::output::read_to_string(&c.input, crate::output::InputKind::Data)
+    let text = run
+        .files
+        .read_to_string(&c.input, crate::output::InputKind::Data)
         .with_context(|| format!("cannot read G-code file {}", c.input.display()))?;
     let file = c.input.display();
     if let Some(k) = text
@@ -485,7 +487,7 @@ pub fn run_gcode(c: GcodeConfig) -> Result<()> {
         out.push('\n');
         segments += 1;
     }
-    crate::output::stage(&c.out, out.as_bytes())?;
+    run.files.stage(&c.out, out.as_bytes())?;
     let (f, u) = pkmcal::Unit::Millimetre.readable(worst);
     crate::note!(
         "rewrote {moves} moves as {segments} pre-distorted moves (largest shift {:.3} {u}, {} model) -> {}",

@@ -25,8 +25,10 @@ pub struct Csv {
 pub const BASE_FRAME_COMMENT: &str = "# frame: base";
 
 impl Csv {
-    pub fn read(path: &Path) -> Result<Self> {
-        let bytes = crate::output::read(path, crate::output::InputKind::Data)
+    pub fn read(run: &crate::Run<'_>, path: &Path) -> Result<Self> {
+        let bytes = run
+            .files
+            .read(path, crate::output::InputKind::Data)
             .with_context(|| format!("cannot open {}", path.display()))?;
         // Line ends as `\n`, whichever the file uses (`\r` alone included).
         let mut bytes = bytes;
@@ -210,10 +212,12 @@ pub struct CsvStream {
 }
 
 impl CsvStream {
-    pub fn open(path: &Path) -> Result<Self> {
+    pub fn open(run: &crate::Run<'_>, path: &Path) -> Result<Self> {
         use std::io::BufRead;
-        let file =
-            crate::output::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+        let file = run
+            .files
+            .open(path)
+            .with_context(|| format!("cannot open {}", path.display()))?;
         // The delimiter from the first buffer (it holds the header line).
         let mut buffered = std::io::BufReader::with_capacity(1 << 16, Uncomment::new(file));
         let delimiter = detect_delimiter(
@@ -708,8 +712,14 @@ pub fn csv_bytes(header: &[String], rows: &[Vec<f64>]) -> Vec<u8> {
 /// Read a parameter file for `mech` and check the values
 /// ([`pkmcal::check_params`]: finite, in range, lengths positive, the
 /// mechanism still assembles), naming the file.
-pub fn read_params<M: pkmcal::Mechanism>(path: &Path, mech: &M) -> Result<Params> {
-    let text = crate::output::read_to_string(path, crate::output::InputKind::Description)
+pub fn read_params<M: pkmcal::Mechanism>(
+    run: &crate::Run<'_>,
+    path: &Path,
+    mech: &M,
+) -> Result<Params> {
+    let text = run
+        .files
+        .read_to_string(path, crate::output::InputKind::Description)
         .with_context(|| format!("cannot read parameter file {}", path.display()))?;
     let p = params_from_str(&text, mech.spec())
         .with_context(|| format!("in parameter file {}", path.display()))?;
@@ -808,11 +818,17 @@ pub struct SetupFile {
 
 /// The ball-bar setup: from `--setup`, else from the mechanism file's
 /// `[ballbar]` table; `None` when neither gives one.
-pub fn read_setup(setup: Option<&Path>, mechanism: Option<&Path>) -> Result<Option<pkmcal::Setup>> {
+pub fn read_setup(
+    run: &crate::Run<'_>,
+    setup: Option<&Path>,
+    mechanism: Option<&Path>,
+) -> Result<Option<pkmcal::Setup>> {
     let setup_file = setup;
     let file: Option<SetupFile> = match (setup, mechanism) {
         (Some(p), _) => {
-            let text = crate::output::read_to_string(p, crate::output::InputKind::Description)
+            let text = run
+                .files
+                .read_to_string(p, crate::output::InputKind::Description)
                 .with_context(|| format!("cannot read setup file {}", p.display()))?;
             Some(toml::from_str(&text).with_context(|| {
                 format!(
@@ -822,7 +838,9 @@ pub fn read_setup(setup: Option<&Path>, mechanism: Option<&Path>) -> Result<Opti
             })?)
         }
         (None, Some(m)) => {
-            let text = crate::output::read_to_string(m, crate::output::InputKind::Description)
+            let text = run
+                .files
+                .read_to_string(m, crate::output::InputKind::Description)
                 .with_context(|| format!("cannot read mechanism file {}", m.display()))?;
             // The mechanism file itself was checked when it was read; only
             // its `[ballbar]` table matters here, and a mistake in it is
@@ -876,11 +894,13 @@ pub type Mech = AnyMechanism;
 pub const MECHANISM_TYPES: &str = "jeong-kim-2dof, planar, gough-stewart, spatial";
 
 /// Read a mechanism file, or the built-in reference when `path` is `None`.
-pub fn read_mechanism(path: Option<&Path>) -> Result<Mech> {
+pub fn read_mechanism(run: &crate::Run<'_>, path: Option<&Path>) -> Result<Mech> {
     let Some(path) = path else {
         return Ok(JeongKim2Dof::new().into());
     };
-    let text = crate::output::read_to_string(path, crate::output::InputKind::Description)
+    let text = run
+        .files
+        .read_to_string(path, crate::output::InputKind::Description)
         .with_context(|| format!("cannot read mechanism file {}", path.display()))?;
     mechanism_from_str(&text).with_context(|| format!("in mechanism file {}", path.display()))
 }
@@ -943,11 +963,13 @@ struct MechanismTargets {
 
 /// The target points (`[[target]] at = [x, y, z]`, or `[x, y]` on a planar
 /// tool; tool frame, mm) of a mechanism file; empty when it has none.
-pub fn read_targets(mechanism: Option<&Path>) -> Result<Vec<Vec<f64>>> {
+pub fn read_targets(run: &crate::Run<'_>, mechanism: Option<&Path>) -> Result<Vec<Vec<f64>>> {
     let Some(m) = mechanism else {
         return Ok(vec![]);
     };
-    let text = crate::output::read_to_string(m, crate::output::InputKind::Description)
+    let text = run
+        .files
+        .read_to_string(m, crate::output::InputKind::Description)
         .with_context(|| format!("cannot read mechanism file {}", m.display()))?;
     targets_from_str(&text).with_context(|| format!("in mechanism file {}", m.display()))
 }
@@ -1072,31 +1094,6 @@ pub fn parse_list(s: &str, what: &str) -> Result<Vec<f64>> {
         .collect()
 }
 
-/// Work items below which no progress bar is shown (it would only flicker).
-const PROGRESS_MIN_ITEMS: u64 = 2000;
-
-/// A progress bar on stderr, hidden when stderr is not a terminal, with
-/// `--quiet`, or for small jobs (`min_items`; 0 for the default).
-pub fn progress(len: u64, quiet: bool, what: &str, min_items: u64) -> indicatif::ProgressBar {
-    use std::io::IsTerminal;
-    let bar = indicatif::ProgressBar::new(len);
-    let min = if min_items == 0 {
-        PROGRESS_MIN_ITEMS
-    } else {
-        min_items
-    };
-    if quiet || len < min || !std::io::stderr().is_terminal() {
-        bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
-    }
-    bar.set_style(
-        indicatif::ProgressStyle::with_template(&format!(
-            "{{bar:40}} {{pos}}/{{len}} {what} ({{eta}})"
-        ))
-        .expect("valid template"),
-    );
-    bar
-}
-
 /// Measurement noise from `--noise MM` and `--angle-noise RAD` (default: the
 /// length noise over [`pkmcal::measurement::data::DEFAULT_ANGLE_LEVER_MM`]).
 pub fn noise_arg(mm: f64, rad: Option<f64>) -> pkmcal::Noise {
@@ -1143,7 +1140,7 @@ mod fuzz {
         let dir = tempfile::tempdir().expect("temp dir");
         let p = dir.path().join("f.csv");
         std::fs::write(&p, text).expect("write");
-        let csv = Csv::read(&p)?;
+        let csv = Csv::read(&crate::Run::quiet(&crate::Files::new()), &p)?;
         csv.require_rows()?;
         csv.named(&["q1".into(), "q2".into(), "x".into()])
     }

@@ -1,0 +1,46 @@
+//! Progress bars on a terminal (indicatif), for the file side's [`Bars`].
+
+use pkmcal_io::{Bars, Progress};
+
+/// Work items below which no progress bar is shown (it would only flicker).
+const PROGRESS_MIN_ITEMS: u64 = 2000;
+
+/// A bar on standard error, hidden when standard error is not a terminal,
+/// with `--quiet`, or for small jobs.
+pub struct TerminalBars;
+
+struct Bar(indicatif::ProgressBar);
+
+impl Progress for Bar {
+    fn inc(&self, n: u64) {
+        self.0.inc(n);
+    }
+    fn inc_length(&self, n: u64) {
+        self.0.inc_length(n);
+    }
+    fn finish(&self) {
+        self.0.finish_and_clear();
+    }
+}
+
+impl Bars for TerminalBars {
+    fn bar(&self, len: u64, quiet: bool, what: &str, min_items: u64) -> Box<dyn Progress> {
+        use std::io::IsTerminal;
+        let bar = indicatif::ProgressBar::new(len);
+        let min = if min_items == 0 {
+            PROGRESS_MIN_ITEMS
+        } else {
+            min_items
+        };
+        if quiet || len < min || !std::io::stderr().is_terminal() {
+            bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+        }
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(&format!(
+                "{{bar:40}} {{pos}}/{{len}} {what} ({{eta}})"
+            ))
+            .expect("valid template"),
+        );
+        Box::new(Bar(bar))
+    }
+}
