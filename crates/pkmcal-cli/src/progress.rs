@@ -7,7 +7,10 @@ const PROGRESS_MIN_ITEMS: u64 = 2000;
 
 /// A bar on standard error, hidden when standard error is not a terminal,
 /// with `--quiet`, or for small jobs.
-pub struct TerminalBars;
+pub struct TerminalBars {
+    /// `--quiet`: no bar at all.
+    pub quiet: bool,
+}
 
 struct Bar(indicatif::ProgressBar);
 
@@ -32,7 +35,7 @@ impl Bars for TerminalBars {
         } else {
             min_items
         };
-        if quiet || len < min || !std::io::stderr().is_terminal() {
+        if self.quiet || quiet || len < min || !std::io::stderr().is_terminal() {
             bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
         }
         bar.set_style(

@@ -432,6 +432,22 @@ fn klipper_refuses_what_it_cannot_use() {
     // A missing file.
     fails(d, &["klipper", "--config", "nope.cfg"], 1, "nope.cfg");
     assert!(!d.join("new.cfg").exists());
+    // `--fix` takes names out of the free set, as on the other commands, and
+    // an unknown one is refused by name.
+    let fixed = ok(
+        d,
+        &["klipper", "--config", "printer.cfg", "--fix", "angle_b,dc"],
+    );
+    assert!(
+        fixed.contains("4 parameters free: delta_radius angle_a da db"),
+        "{fixed}"
+    );
+    fails(
+        d,
+        &["klipper", "--config", "printer.cfg", "--fix", "radius"],
+        2,
+        "unknown parameter `radius`",
+    );
 }
 
 /// Klipper's option names that `klipper` writes.

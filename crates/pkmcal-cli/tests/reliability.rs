@@ -511,13 +511,27 @@ fn bad_option_values_are_usage_errors() {
                 "calibrate",
                 "--data",
                 "d.csv",
-                "--force",
+                "--load",
                 "a,b",
                 "--out",
                 "p.toml",
             ],
-            "--force",
+            "--load",
         ),
+        (
+            &[
+                "calibrate",
+                "--data",
+                "d.csv",
+                "--load",
+                "1,2,3",
+                "--out",
+                "p.toml",
+            ],
+            "--load",
+        ),
+        // The old spelling is still read, and the message names the option
+        // by its name.
         (
             &[
                 "calibrate",
@@ -528,7 +542,19 @@ fn bad_option_values_are_usage_errors() {
                 "--out",
                 "p.toml",
             ],
-            "--force",
+            "--load",
+        ),
+        (
+            &[
+                "predict",
+                "--commands",
+                "d.csv",
+                "--force",
+                "x",
+                "--out",
+                "o.csv",
+            ],
+            "--load",
         ),
         (&["montecarlo", "--poses", "d.csv", "--runs", "0"], "--runs"),
         (

@@ -333,7 +333,7 @@ pub fn cli_hint(w: &pkmcal::identify::Warning) -> String {
     use pkmcal::identify::WarningKind as K;
     match &w.kind {
         K::StiffnessRatios { fixed } => format!(
-            "give `{fixed}` its measured value (--start P.toml), or calibrate with a known tool load (--force)"
+            "give `{fixed}` its measured value (--start P.toml), or calibrate with a known tool load (--load)"
         ),
         K::FrameGauge { .. } => "to choose which parameters define the base frame, fix them yourself (--fix NAMES), or measure in the base frame (--frame base); the combinations are listed under identifiability".into(),
         K::Outliers {
@@ -377,7 +377,8 @@ pub struct CalibrateConfig {
     pub free: Option<String>,
     pub fix: Option<String>,
     pub start: Option<PathBuf>,
-    pub force: Option<String>,
+    /// The tool load (`--load`), one value per tool axis; empty for none.
+    pub load: Vec<f64>,
     pub out: PathBuf,
     pub report: Option<PathBuf>,
     pub validate: Option<PathBuf>,
@@ -385,7 +386,6 @@ pub struct CalibrateConfig {
     pub seed: u64,
     pub kfold: Option<usize>,
     pub report_dir: Option<PathBuf>,
-    pub quiet: bool,
     pub setup: Option<PathBuf>,
     pub loss: pkmcal::Loss,
     pub outlier_threshold: f64,
@@ -396,10 +396,6 @@ pub struct CalibrateConfig {
     pub axes: Option<String>,
     /// `--distances`: distances measured between pairs of poses.
     pub distances: Option<PathBuf>,
-}
-
-fn force_arg<M: Mechanism>(mech: &M, s: Option<&str>) -> Result<Vec<f64>> {
-    crate::io::load_option(s, "--force", mech.spec().tool_axes.len())
 }
 
 /// The measurement model of a data file, from its columns: the whole tool
@@ -565,7 +561,7 @@ pub fn run_calibrate(run: &crate::Run<'_>, c: CalibrateConfig) -> Result<()> {
     let locate = |e: pkmcal::Error| located_in(e, &c.data, c.distances.as_deref());
     let mut opts = CalibrationOptions::new(spec, c.model);
     opts.free = free_set(mech, &measurement, c.free.as_deref(), c.fix.as_deref())?;
-    opts.force = force_arg(mech, c.force.as_deref())?;
+    opts.force = crate::io::checked_load(c.load.clone(), spec)?;
     opts.loss = c.loss;
     opts.outlier_threshold = c.outlier_threshold;
     opts.drop_outliers = c.drop_outliers;
@@ -585,12 +581,7 @@ pub fn run_calibrate(run: &crate::Run<'_>, c: CalibrateConfig) -> Result<()> {
         kfold: c.kfold,
         seed: c.seed,
     };
-    let bar = run.bar(
-        c.kfold.unwrap_or(0) as u64,
-        c.quiet || c.kfold.is_none(),
-        "folds",
-        1,
-    );
+    let bar = run.bar(c.kfold.unwrap_or(0) as u64, c.kfold.is_none(), "folds", 1);
     // Every pose carries its data-file number and line, so errors, outliers
     // and dropped poses name them without translation.
     let study = pkmcal::identify::study(
@@ -1001,7 +992,8 @@ pub struct AnalyzeConfig {
     pub free: Option<String>,
     pub fix: Option<String>,
     pub params: Option<PathBuf>,
-    pub force: Option<String>,
+    /// The tool load (`--load`), one value per tool axis; empty for none.
+    pub load: Vec<f64>,
     pub report: Option<PathBuf>,
     pub setup: Option<PathBuf>,
     /// `auto`, `free` or `base`.
@@ -1033,7 +1025,7 @@ pub fn run_analyze(run: &crate::Run<'_>, c: AnalyzeConfig) -> Result<()> {
         None => Params::nominal(spec),
     };
     let free = free_set(mech, &measurement, c.free.as_deref(), c.fix.as_deref())?;
-    let force = force_arg(mech, c.force.as_deref())?;
+    let force = crate::io::checked_load(c.load.clone(), mech.spec())?;
     let n_data = data.len();
     let data: Vec<Measurement> = match &c.distances {
         Some(p) => {

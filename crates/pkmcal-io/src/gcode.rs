@@ -24,7 +24,8 @@ pub struct GcodeConfig {
     pub params: PathBuf,
     pub controller: Option<PathBuf>,
     pub model: Model,
-    pub load: Option<String>,
+    /// The tool load (`--load`), one value per tool axis; empty for none.
+    pub load: Vec<f64>,
     pub input: PathBuf,
     pub offset: Option<String>,
     pub max_segment: Option<f64>,
@@ -152,7 +153,7 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
         None => Params::nominal(spec),
     };
     let nx = spec.tool_axes.len();
-    let force = crate::io::load_option(c.load.as_deref(), "--load", nx)?;
+    let force = crate::io::checked_load(c.load.clone(), spec)?;
     let opts = CompensationOptions {
         force,
         preload: vec![],

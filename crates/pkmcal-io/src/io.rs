@@ -1056,19 +1056,22 @@ fn jeong_kim_from_str(text: &str) -> Result<JeongKim2Dof> {
     Ok(JeongKim2Dof::with_spec(spec)?)
 }
 
-/// Parse `a,b,c` into numbers.
-/// [`parse_list`] of load values (N, N·m), each within
-/// [`pkmcal::units::MAX_LOAD`].
-/// An optional load option with exactly `n` values (empty when absent).
-pub fn load_option(s: Option<&str>, what: &str, n: usize) -> Result<Vec<f64>> {
-    let Some(s) = s else { return Ok(vec![]) };
-    let f = parse_load(s, what)?;
-    if f.len() != n {
-        return crate::output::usage(format!("{what} needs {n} values, got {}", f.len()));
+/// A tool load (`--load`) for `spec`: empty (no load) or one value per
+/// tool axis; a usage error otherwise.
+pub fn checked_load(load: Vec<f64>, spec: &Spec) -> Result<Vec<f64>> {
+    let n = spec.tool_axes.len();
+    if !load.is_empty() && load.len() != n {
+        return crate::output::usage(format!(
+            "--load needs {n} values ({}), got {}",
+            spec.tool_axes.join(","),
+            load.len()
+        ));
     }
-    Ok(f)
+    Ok(load)
 }
 
+/// [`parse_list`] of load values (N, N·m), each within
+/// [`pkmcal::units::MAX_LOAD`].
 pub fn parse_load(s: &str, what: &str) -> Result<Vec<f64>> {
     let v = parse_list(s, what)?;
     if let Some(x) = v.iter().find(|x| x.abs() > pkmcal::units::MAX_LOAD) {
@@ -1080,6 +1083,7 @@ pub fn parse_load(s: &str, what: &str) -> Result<Vec<f64>> {
     Ok(v)
 }
 
+/// Parse `a,b,c` into numbers.
 pub fn parse_list(s: &str, what: &str) -> Result<Vec<f64>> {
     s.split(',')
         .map(|t| {
@@ -1104,6 +1108,127 @@ pub fn noise_arg(mm: f64, rad: Option<f64>) -> pkmcal::Noise {
         noise.angle = r;
     }
     noise
+}
+
+/// The parameter values of a parameter file ([`read_params`]), or the
+/// nominal ones without one.
+pub fn params_or_nominal<M: Mechanism>(
+    run: &crate::Run<'_>,
+    path: Option<&Path>,
+    mech: &M,
+) -> Result<Params> {
+    match path {
+        Some(p) => read_params(run, p, mech),
+        None => Ok(Params::nominal(mech.spec())),
+    }
+}
+
+/// The parameter covariance stored in a calibration report (`covariance`).
+pub fn read_covariance(run: &crate::Run<'_>, path: &Path) -> Result<pkmcal::ParameterCovariance> {
+    let text = run
+        .files
+        .read_to_string(path, crate::output::InputKind::Description)
+        .with_context(|| format!("cannot read calibration report {}", path.display()))?;
+    let v: serde_json::Value = serde_json::from_str(&text)
+        .with_context(|| format!("{}: not a JSON calibration report", path.display()))?;
+    let c = v.get("covariance").with_context(|| {
+        format!(
+            "{}: no `covariance` entry; pass the report written by `pkmcal calibrate --report`",
+            path.display()
+        )
+    })?;
+    serde_json::from_value(c.clone())
+        .with_context(|| format!("{}: malformed `covariance` entry", path.display()))
+}
+
+/// Target columns `target_<axis>`.
+pub fn target_names(mech: &Mech) -> Vec<String> {
+    mech.spec()
+        .tool_axes
+        .iter()
+        .map(|a| format!("target_{a}"))
+        .collect()
+}
+
+/// Distances between pairs of poses as `calibrate --distances` reads them:
+/// `<actuator>_1 …, <actuator>_2 …, distance`, in the file's units.
+pub fn distances_csv(
+    mech: &Mech,
+    rows: &[pkmcal::Measurement],
+    units: &pkmcal::FileUnits,
+) -> Vec<u8> {
+    let spec = mech.spec();
+    use crate::fileunits as fu;
+    let commands = fu::commands(spec, units);
+    let factors: Vec<f64> = commands
+        .iter()
+        .chain(&commands)
+        .copied()
+        .chain(fu::readings(&[pkmcal::Unit::Millimetre], units))
+        .collect();
+    let names = spec.actuated_names();
+    let mut header: Vec<String> = names.iter().map(|s| format!("{s}_1")).collect();
+    header.extend(names.iter().map(|s| format!("{s}_2")));
+    header.push(pkmcal::DISTANCE_AXIS.to_string());
+    let rows: Vec<Vec<f64>> = rows
+        .iter()
+        .map(|m| {
+            m.commands
+                .iter()
+                .chain(m.partner.as_deref().unwrap_or_default())
+                .chain(&m.measured)
+                .zip(&factors)
+                .map(|(v, f)| fu::to_file(*v, *f))
+                .collect()
+        })
+        .collect();
+    fu::with_comment(csv_bytes(&header, &rows), units)
+}
+
+/// Measurement file: target_*, commands, measured tool coordinates, in the
+/// data-file `units` (with a comment line naming them unless internal).
+pub fn data_csv(
+    mech: &Mech,
+    measurement: &pkmcal::MeasurementModel,
+    data: &[pkmcal::Measurement],
+    units: &pkmcal::FileUnits,
+) -> Vec<u8> {
+    let spec = mech.spec();
+    use crate::fileunits as fu;
+    let factors: Vec<f64> = fu::tool(spec, units)
+        .into_iter()
+        .chain(fu::commands(spec, units))
+        .chain(fu::readings(measurement.units(), units))
+        .collect();
+    let mut header = target_names(mech);
+    header.extend(spec.actuated_names().iter().map(|s| s.to_string()));
+    header.extend(measurement.axes().iter().cloned());
+    let rows: Vec<Vec<f64>> = data
+        .iter()
+        .map(|m| {
+            let nan = vec![f64::NAN; spec.tool_axes.len()];
+            m.target
+                .as_ref()
+                .unwrap_or(&nan)
+                .iter()
+                .chain(&m.commands)
+                .chain(&m.measured)
+                .zip(&factors)
+                .map(|(v, f)| fu::to_file(*v, *f))
+                .collect()
+        })
+        .collect();
+    fu::with_comment(csv_bytes(&header, &rows), units)
+}
+
+/// CSV bytes with the comment that declares them in the base frame.
+pub fn with_frame_comment(bytes: Vec<u8>, base: bool) -> Vec<u8> {
+    if !base {
+        return bytes;
+    }
+    let mut out = format!("{}\n", crate::io::BASE_FRAME_COMMENT).into_bytes();
+    out.extend(bytes);
+    out
 }
 
 /// Fuzzing of the readers: random and mutated CSV, parameter, mechanism and

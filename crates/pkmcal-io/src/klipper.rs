@@ -30,6 +30,8 @@ pub struct KlipperConfig {
     pub config: PathBuf,
     /// Parameters to identify (names of the linear delta; `default` allowed).
     pub free: Option<String>,
+    /// Parameters to keep fixed (removed from the free set).
+    pub fix: Option<String>,
     /// Where to write the updated `printer.cfg`.
     pub out: Option<PathBuf>,
     /// Where to write the mechanism, the probe data and the parameters.
@@ -1043,7 +1045,13 @@ pub fn run_klipper(run: &crate::Run<'_>, c: KlipperConfig) -> Result<()> {
     }
     let mut opts = CalibrationOptions::new(spec, Model::Exact);
     let free_names;
-    (free_names, opts.free) = free_list(c.free.as_deref(), &default, spec, &measurement)?;
+    (free_names, opts.free) = free_list(
+        c.free.as_deref(),
+        c.fix.as_deref(),
+        &default,
+        spec,
+        &measurement,
+    )?;
     let nominal = Params::nominal(spec);
     let cal = pkmcal::calibrate(&mech, &measurement, &data, &nominal, &opts).map_err(|e| {
         let e = anyhow::Error::from(e);
@@ -1204,11 +1212,12 @@ pub fn run_klipper(run: &crate::Run<'_>, c: KlipperConfig) -> Result<()> {
 /// names, and their indices in the identification vector of `measurement`.
 pub fn free_list(
     free: Option<&str>,
+    fix: Option<&str>,
     default: &[String],
     spec: &pkmcal::Spec,
     measurement: &MeasurementModel,
 ) -> Result<(Vec<String>, Vec<usize>)> {
-    let set = crate::calibrate::free_set_with_default(spec, measurement, default, free, None)?;
+    let set = crate::calibrate::free_set_with_default(spec, measurement, default, free, fix)?;
     // In the order given (the default set's where it stands), each once.
     let all = measurement.all_names(spec);
     let mut names: Vec<String> = vec![];
@@ -1222,6 +1231,12 @@ pub fn free_list(
     }
     let mut seen = std::collections::BTreeSet::new();
     names.retain(|n| seen.insert(n.clone()));
+    // Those `fix` removes (checked above) out.
+    names.retain(|n| {
+        measurement
+            .index_of(spec, n)
+            .is_ok_and(|i| set.contains(&i))
+    });
     let indices = names
         .iter()
         .map(|n| measurement.index_of(spec, n))

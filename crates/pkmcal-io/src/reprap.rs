@@ -422,6 +422,8 @@ pub struct ReprapConfig {
     pub probes: PathBuf,
     /// Parameters to identify (names of the linear delta; `default` allowed).
     pub free: Option<String>,
+    /// Parameters to keep fixed (removed from the free set).
+    pub fix: Option<String>,
     /// Where to write the new M665/M666 lines.
     pub out: Option<PathBuf>,
 }
@@ -501,6 +503,7 @@ pub fn run_reprap(run: &crate::Run<'_>, c: ReprapConfig) -> Result<()> {
     let free_names;
     (free_names, opts.free) = crate::klipper::free_list(
         free_text.as_deref(),
+        c.fix.as_deref(),
         &KLIPPER_FREE.map(String::from),
         spec,
         &measurement,

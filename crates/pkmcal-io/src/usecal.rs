@@ -22,7 +22,8 @@ pub struct CompensateConfig {
     pub cartesian: bool,
     pub controller: Option<PathBuf>,
     pub model: Model,
-    pub load: Option<String>,
+    /// The tool load (`--load`), one value per tool axis; empty for none.
+    pub load: Vec<f64>,
     pub preload: Option<String>,
     pub skip_unreachable: bool,
     pub out: PathBuf,
@@ -52,9 +53,8 @@ pub fn run_compensate(run: &crate::Run<'_>, c: CompensateConfig) -> Result<()> {
         Some(p) => read_params(run, p, &mech)?,
         None => Params::nominal(spec),
     };
-    let nx = spec.tool_axes.len();
     let opts = CompensationOptions {
-        force: crate::io::load_option(c.load.as_deref(), "--load", nx)?,
+        force: crate::io::checked_load(c.load.clone(), spec)?,
         preload: match &c.preload {
             Some(s) => {
                 let t = crate::io::parse_load(s, "--preload")?;
@@ -503,7 +503,6 @@ pub struct PlanConfig {
     pub count: usize,
     pub candidates: f64,
     pub max_candidates: usize,
-    pub quiet: bool,
     pub criterion: PlanCriterion,
     pub model: Model,
     pub params: Option<PathBuf>,
@@ -529,7 +528,7 @@ pub fn run_plan(run: &crate::Run<'_>, c: PlanConfig) -> Result<()> {
     if !(c.candidates.is_finite() && c.candidates > 0.0) {
         return crate::output::usage("--candidates must be a positive spacing in mm");
     }
-    let bar = run.bar(0, c.quiet, "planning steps", 0);
+    let bar = run.bar(0, false, "planning steps", 0);
     let plan = pkmcal::apply::planning::plan(
         &mech,
         &params,
@@ -640,7 +639,6 @@ pub struct MonteCarloConfig {
     pub angle_noise: Option<f64>,
     pub validation: usize,
     pub out: Option<PathBuf>,
-    pub quiet: bool,
 }
 
 pub fn run_montecarlo(run: &crate::Run<'_>, c: MonteCarloConfig) -> Result<()> {
@@ -682,7 +680,7 @@ pub fn run_montecarlo(run: &crate::Run<'_>, c: MonteCarloConfig) -> Result<()> {
         c.fix.as_deref(),
     )?;
     let validation = pkmcal::validation_targets(&mech, c.validation, c.seed)?;
-    let bar = run.bar(c.runs as u64, c.quiet, "calibrations", 1);
+    let bar = run.bar(c.runs as u64, false, "calibrations", 1);
     let opts = MonteCarloOptions {
         runs: c.runs,
         noise,

@@ -1,0 +1,184 @@
+//! Options several commands share, checked into typed values where clap
+//! reads them (a bad value exits 2, naming the option), and the files each
+//! command declares before any work.
+
+use clap::builder::{PossibleValuesParser, TypedValueParser};
+use std::path::PathBuf;
+
+/// The files a command reads and writes, checked before any work
+/// (`Files::check`: no output is an input or another output).
+#[derive(Default)]
+pub struct Paths {
+    pub inputs: Vec<PathBuf>,
+    pub outputs: Vec<PathBuf>,
+    /// Output directories the command creates.
+    pub dirs: Vec<PathBuf>,
+}
+
+impl Paths {
+    /// Inputs (absent ones skipped) and outputs.
+    pub fn new(
+        inputs: impl IntoIterator<Item = Option<PathBuf>>,
+        outputs: impl IntoIterator<Item = PathBuf>,
+    ) -> Self {
+        Paths {
+            inputs: inputs.into_iter().flatten().collect(),
+            outputs: outputs.into_iter().collect(),
+            dirs: vec![],
+        }
+    }
+}
+
+/// The mechanism option of every command that works on a mechanism.
+#[derive(clap::Args)]
+pub struct MechanismArg {
+    /// Mechanism file (TOML); the built-in reference mechanism if omitted.
+    #[arg(long, value_name = "M.toml")]
+    pub mechanism: Option<PathBuf>,
+}
+
+/// Which parameters to identify.
+#[derive(clap::Args)]
+pub struct FreeArgs {
+    /// Parameters to identify, comma separated (`all`, `default` allowed); default: the mechanism's default set (the paper's 16 for the reference).
+    #[arg(long, value_name = "NAMES")]
+    pub free: Option<String>,
+    /// Parameters to keep fixed, comma separated (removed from the free set).
+    #[arg(long, value_name = "NAMES")]
+    pub fix: Option<String>,
+}
+
+/// A tool load: one value per tool coordinate (N, N·m).
+#[derive(Debug, Clone)]
+pub struct Wrench(pub Vec<f64>);
+
+/// The tool load, on every command that predicts, fits or inverts the model
+/// (`--load`; `--force` is its old spelling).
+#[derive(clap::Args)]
+pub struct LoadArg {
+    /// External load on the tool (a payload's weight, the measuring force),
+    /// one value per tool coordinate, a wrench: a force in N along each
+    /// length coordinate, a moment in N·m about each angle coordinate's axis
+    /// (phi: the plane's normal; rx, ry, rz: the base x, y, z axes), e.g.
+    /// `0,-9.81`.
+    #[arg(long, alias = "force", value_name = "F1,F2,…", allow_hyphen_values = true, value_parser = values::load)]
+    pub load: Option<Wrench>,
+}
+
+impl LoadArg {
+    /// The values, empty without a load.
+    pub fn values(&self) -> Vec<f64> {
+        self.load.clone().map(|w| w.0).unwrap_or_default()
+    }
+}
+
+/// The forward models a command may use, by name.
+pub const MODELS: [&str; 3] = ["exact", "linear", "rigid"];
+/// The models that can be inverted (compensation).
+pub const INVERTIBLE_MODELS: [&str; 2] = ["exact", "rigid"];
+
+/// A model among `names`, read into [`pkmcal::Model`].
+pub fn model(names: &'static [&'static str]) -> impl TypedValueParser<Value = pkmcal::Model> {
+    PossibleValuesParser::new(names).try_map(|s| s.parse::<pkmcal::Model>())
+}
+
+/// Option values checked by the parser (a bad value exits 2, naming the
+/// option).
+pub mod values {
+    /// Largest noise or error on a length that makes sense (mm).
+    pub const MAX_LENGTH_MM: f64 = 1000.0;
+    /// Largest noise or error on an angle that makes sense (rad).
+    pub const MAX_ANGLE_RAD: f64 = 1.0;
+
+    fn number(s: &str) -> Result<f64, String> {
+        s.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite())
+            .ok_or_else(|| format!("`{s}` is not a finite number"))
+    }
+    pub fn positive(s: &str) -> Result<f64, String> {
+        let v = number(s)?;
+        (v > 0.0)
+            .then_some(v)
+            .ok_or_else(|| format!("{v} must be positive"))
+    }
+    /// A standard deviation of a length reading, mm: the library's bounds.
+    pub fn sigma_mm(s: &str) -> Result<f64, String> {
+        let v = number(s)?;
+        (pkmcal::identify::MIN_SIGMA..=MAX_LENGTH_MM)
+            .contains(&v)
+            .then_some(v)
+            .ok_or_else(|| {
+                format!(
+                    "{v} mm must be between {:e} and {MAX_LENGTH_MM:e} mm",
+                    pkmcal::identify::MIN_SIGMA
+                )
+            })
+    }
+    pub fn fraction(s: &str) -> Result<f64, String> {
+        let v = number(s)?;
+        (v > 0.0 && v < 1.0)
+            .then_some(v)
+            .ok_or_else(|| format!("{v} must be between 0 and 1 (exclusive)"))
+    }
+    pub fn length_noise(s: &str) -> Result<f64, String> {
+        let v = number(s)?;
+        (0.0..=MAX_LENGTH_MM)
+            .contains(&v)
+            .then_some(v)
+            .ok_or_else(|| format!("{v} mm must be between 0 and {MAX_LENGTH_MM} mm"))
+    }
+    pub fn angle_noise(s: &str) -> Result<f64, String> {
+        let v = number(s)?;
+        (0.0..=MAX_ANGLE_RAD)
+            .contains(&v)
+            .then_some(v)
+            .ok_or_else(|| format!("{v} rad must be between 0 and {MAX_ANGLE_RAD} rad"))
+    }
+    pub fn count(s: &str) -> Result<usize, String> {
+        let v: usize = s
+            .trim()
+            .parse()
+            .map_err(|_| format!("`{s}` is not a whole number"))?;
+        (v >= 1)
+            .then_some(v)
+            .ok_or_else(|| "must be at least 1".to_string())
+    }
+    pub fn runs(s: &str) -> Result<usize, String> {
+        let v = count(s)?;
+        (v <= pkmcal::apply::montecarlo::MAX_RUNS)
+            .then_some(v)
+            .ok_or_else(|| {
+                format!(
+                    "at most {} runs (each is kept in memory); run several studies with other seeds for more",
+                    pkmcal::apply::montecarlo::MAX_RUNS
+                )
+            })
+    }
+    pub fn folds(s: &str) -> Result<usize, String> {
+        let v = count(s)?;
+        (v >= 2)
+            .then_some(v)
+            .ok_or_else(|| "k-fold cross-validation needs at least 2 folds".to_string())
+    }
+    pub fn weighting(s: &str) -> Result<pkmcal_io::klipper::Weighting, String> {
+        s.parse()
+    }
+    /// A tool load (wrench): comma-separated finite numbers, each within
+    /// [`pkmcal::units::MAX_LOAD`] (N, N·m); its length is checked against
+    /// the mechanism's tool axes where the mechanism is known.
+    pub fn load(s: &str) -> Result<super::Wrench, String> {
+        let v = s
+            .split(',')
+            .map(|t| number(t).map_err(|_| format!("`{}` is not a finite number", t.trim())))
+            .collect::<Result<Vec<f64>, String>>()?;
+        if let Some(x) = v.iter().find(|x| x.abs() > pkmcal::units::MAX_LOAD) {
+            return Err(format!(
+                "{x:?} is beyond ±{:e} (N, N·m); no machine bears that",
+                pkmcal::units::MAX_LOAD
+            ));
+        }
+        Ok(super::Wrench(v))
+    }
+}

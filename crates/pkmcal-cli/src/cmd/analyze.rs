@@ -1,0 +1,81 @@
+//! `analyze`: the identifiability of the parameters from a data set, without
+//! fitting.
+
+use crate::args;
+use anyhow::Result;
+use pkmcal_io::Run;
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    pub mech: args::MechanismArg,
+    /// Measurements (only the commands are used).
+    #[arg(long, value_name = "DATA.csv")]
+    pub data: PathBuf,
+    /// Forward model.
+    #[arg(long, default_value = "exact", value_parser = args::model(&args::MODELS))]
+    pub model: pkmcal::Model,
+    #[command(flatten)]
+    pub params_set: args::FreeArgs,
+    /// Parameter values at which to analyse; nominal if omitted.
+    #[arg(long, value_name = "P.toml")]
+    pub params: Option<PathBuf>,
+    #[command(flatten)]
+    pub load: args::LoadArg,
+    /// Output: JSON report of the analysis.
+    #[arg(long, value_name = "REPORT.json")]
+    pub report: Option<PathBuf>,
+    /// Ball-bar setup for data with distances d1, d2, …
+    #[arg(long, value_name = "S.toml")]
+    pub setup: Option<PathBuf>,
+    /// Where the measuring instrument stands (as for `calibrate`): `free`
+    /// adds its frame's parameters to the analysis, `base` leaves them out,
+    /// `auto` reads the data file's `# frame: base`.
+    #[arg(long, default_value = "auto", value_parser = ["auto", "free", "base"])]
+    pub frame: String,
+    /// Only these tool axes were measured (comma-separated, e.g. `z` for a
+    /// height probe); the data file then needs only their columns.
+    #[arg(long, value_name = "AXES")]
+    pub axes: Option<String>,
+    /// Distances measured between pairs of poses (calipers on a printed
+    /// object, a gauge), analysed with the data: CSV with `<actuator>_1`,
+    /// `<actuator>_2` and `distance` columns (see calibrate).
+    #[arg(long, value_name = "PAIRS.csv")]
+    pub distances: Option<PathBuf>,
+}
+
+impl Args {
+    pub fn paths(&self) -> Result<args::Paths> {
+        Ok(args::Paths::new(
+            [
+                self.mech.mechanism.clone(),
+                Some(self.data.clone()),
+                self.params.clone(),
+                self.setup.clone(),
+                self.distances.clone(),
+            ],
+            self.report.clone(),
+        ))
+    }
+}
+
+pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
+    pkmcal_io::calibrate::run_analyze(
+        run,
+        pkmcal_io::calibrate::AnalyzeConfig {
+            mechanism: a.mech.mechanism,
+            data: a.data,
+            model: a.model,
+            free: a.params_set.free,
+            fix: a.params_set.fix,
+            params: a.params,
+            load: a.load.values(),
+            report: a.report,
+            setup: a.setup,
+            frame: a.frame,
+            axes: a.axes,
+            distances: a.distances,
+        },
+    )
+}

@@ -1,0 +1,146 @@
+//! `calibrate`: identify parameter errors and encoder offsets from measured
+//! positions (eq. 12), validate, report.
+
+use crate::args;
+use anyhow::Result;
+use pkmcal_io::Run;
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    pub mech: args::MechanismArg,
+    /// Measurements: CSV with the commands (one column per actuated joint) and
+    /// the measured tool coordinates (q1,q2,q3 and x,y for the reference), or
+    /// ball-bar readings d1..dk (with --setup); optional target_<axis> and
+    /// sigma_<axis> columns (any subset; the others are estimated).
+    #[arg(long, value_name = "DATA.csv")]
+    pub data: PathBuf,
+    /// Forward model used for identification.
+    #[arg(long, default_value = "exact", value_parser = args::model(&args::MODELS))]
+    pub model: pkmcal::Model,
+    #[command(flatten)]
+    pub params_set: args::FreeArgs,
+    /// Starting (and fixed) parameter values; nominal if omitted.
+    #[arg(long, value_name = "P.toml")]
+    pub start: Option<PathBuf>,
+    #[command(flatten)]
+    pub load: args::LoadArg,
+    /// Output: identified parameters (flat TOML, readable by --params).
+    #[arg(long, value_name = "PARAMS.toml")]
+    pub out: PathBuf,
+    /// Output: JSON report.
+    #[arg(long, value_name = "REPORT.json")]
+    pub report: Option<PathBuf>,
+    /// Validate on a separate measurement file.
+    #[arg(long, value_name = "FILE")]
+    pub validate: Option<PathBuf>,
+    /// Hold out this fraction of the poses for validation.
+    #[arg(value_parser = args::values::fraction, long, value_name = "F")]
+    pub holdout: Option<f64>,
+    /// Seed of the hold-out split and of the cross-validation folds.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// k-fold cross-validation on the calibration poses.
+    #[arg(value_parser = args::values::folds, long, value_name = "K")]
+    pub kfold: Option<usize>,
+    /// Write figures (SVG, PNG) and a self-contained report.html here.
+    #[arg(long, value_name = "DIR")]
+    pub report_dir: Option<PathBuf>,
+    /// Ball-bar setup (sockets, bar offset) for data with distances d1, d2, …
+    #[arg(long, value_name = "S.toml")]
+    pub setup: Option<PathBuf>,
+    /// Loss on the standardised residuals: squared, huber or cauchy.
+    #[arg(long, default_value = "squared", value_parser = ["squared", "huber", "cauchy"])]
+    pub loss: String,
+    /// Tuning constant of the robust loss, in robust standard deviations
+    /// (default: 1.345 for huber, 2.385 for cauchy).
+    #[arg(value_parser = args::values::positive, long, value_name = "K")]
+    pub loss_scale: Option<f64>,
+    /// Poses beyond this many robust standard deviations are reported as outliers.
+    #[arg(value_parser = args::values::positive, long, default_value_t = 4.0, value_name = "T")]
+    pub outlier_threshold: f64,
+    /// Drop the outliers and refit.
+    #[arg(long)]
+    pub drop_outliers: bool,
+    /// Where the measuring instrument stands: `free` (a tracker or camera
+    /// where it was put: its frame is identified with the rest), `base` (the
+    /// data are in the base frame, e.g. trilaterated from ball-bar sockets at
+    /// known places), `auto`: base when the data file says `# frame: base`
+    /// (simulate and trilaterate write it), otherwise free. Ball-bar
+    /// readings carry no frame.
+    #[arg(long, default_value = "auto", value_parser = ["auto", "free", "base"])]
+    pub frame: String,
+    /// Only these tool axes were measured (comma-separated, e.g. `z` for a
+    /// height probe); the data file then needs only their columns.
+    #[arg(long, value_name = "AXES")]
+    pub axes: Option<String>,
+    /// Distances measured between pairs of poses (calipers on a printed
+    /// object, a gauge), fitted with the data: CSV with the commands of both
+    /// poses (`<actuator>_1`, `<actuator>_2` for every actuated joint) and
+    /// `distance` in mm (optional `sigma_distance`; otherwise their noise is
+    /// estimated apart from the data's).
+    #[arg(long, value_name = "PAIRS.csv")]
+    pub distances: Option<PathBuf>,
+}
+
+impl Args {
+    pub fn paths(&self) -> Result<args::Paths> {
+        use pkmcal_io::output::{in_dir, is_stdout, usage};
+        if is_stdout(&self.out) || self.report.as_deref().is_some_and(is_stdout) {
+            return usage(
+                "calibrate prints its summary on standard output: write the parameters (--out) and the report (--report) to files",
+            );
+        }
+        let mut out = vec![self.out.clone()];
+        out.extend(self.report.clone());
+        let mut dirs = vec![];
+        if let Some(d) = &self.report_dir {
+            out.extend(in_dir(d, pkmcal_io::report::FILES)?);
+            dirs.push(d.clone());
+        }
+        let mut p = args::Paths::new(
+            [
+                self.mech.mechanism.clone(),
+                Some(self.data.clone()),
+                self.start.clone(),
+                self.validate.clone(),
+                self.setup.clone(),
+                self.distances.clone(),
+            ],
+            out,
+        );
+        p.dirs = dirs;
+        Ok(p)
+    }
+}
+
+pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
+    let loss = pkmcal::Loss::named(&a.loss, a.loss_scale)?;
+    pkmcal_io::calibrate::run_calibrate(
+        run,
+        pkmcal_io::calibrate::CalibrateConfig {
+            loss,
+            outlier_threshold: a.outlier_threshold,
+            drop_outliers: a.drop_outliers,
+            frame: a.frame,
+            axes: a.axes,
+            mechanism: a.mech.mechanism,
+            data: a.data,
+            model: a.model,
+            free: a.params_set.free,
+            fix: a.params_set.fix,
+            start: a.start,
+            load: a.load.values(),
+            out: a.out,
+            report: a.report,
+            validate: a.validate,
+            holdout: a.holdout,
+            seed: a.seed,
+            kfold: a.kfold,
+            report_dir: a.report_dir,
+            setup: a.setup,
+            distances: a.distances,
+        },
+    )
+}

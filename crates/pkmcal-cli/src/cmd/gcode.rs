@@ -1,0 +1,67 @@
+//! `gcode`: rewrite a G-code program's moves so that a controller running the
+//! nominal kinematics makes the calibrated machine reach the programmed points.
+
+use crate::args;
+use anyhow::Result;
+use pkmcal_io::Run;
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    pub mech: args::MechanismArg,
+    /// Calibrated parameters (flat TOML): the real machine.
+    #[arg(long, value_name = "P.toml")]
+    pub params: PathBuf,
+    /// The controller's own parameter values (flat TOML); nominal if omitted.
+    #[arg(long, value_name = "P.toml")]
+    pub controller: Option<PathBuf>,
+    /// Model of the real machine: exact (deflections included) or rigid.
+    #[arg(long, default_value = "exact", value_parser = args::model(&args::INVERTIBLE_MODELS))]
+    pub model: pkmcal::Model,
+    #[command(flatten)]
+    pub load: args::LoadArg,
+    /// The G-code program to rewrite.
+    #[arg(long = "in", value_name = "PROGRAM.gcode")]
+    pub input: PathBuf,
+    /// Added to the programmed coordinates to give tool coordinates (mm; degrees for angles), one per tool axis.
+    #[arg(long, value_name = "X,Y,…", allow_hyphen_values = true)]
+    pub offset: Option<String>,
+    /// Split moves longer than this (mm) so that the correction follows the path.
+    #[arg(long, value_name = "MM")]
+    pub max_segment: Option<f64>,
+    /// The rewritten program (`-` for standard output).
+    #[arg(long, value_name = "OUT.gcode")]
+    pub out: PathBuf,
+}
+
+impl Args {
+    pub fn paths(&self) -> Result<args::Paths> {
+        Ok(args::Paths::new(
+            [
+                self.mech.mechanism.clone(),
+                Some(self.params.clone()),
+                self.controller.clone(),
+                Some(self.input.clone()),
+            ],
+            [self.out.clone()],
+        ))
+    }
+}
+
+pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
+    pkmcal_io::gcode::run_gcode(
+        run,
+        pkmcal_io::gcode::GcodeConfig {
+            mechanism: a.mech.mechanism,
+            params: a.params,
+            controller: a.controller,
+            model: a.model,
+            load: a.load.values(),
+            input: a.input,
+            offset: a.offset,
+            max_segment: a.max_segment,
+            out: a.out,
+        },
+    )
+}

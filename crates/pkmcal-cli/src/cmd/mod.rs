@@ -1,0 +1,15 @@
+//! One module per command: its arguments (clap), the files it declares, and
+//! its run.
+
+pub mod analyze;
+pub mod calibrate;
+pub mod compensate;
+pub mod demo;
+pub mod gcode;
+pub mod klipper;
+pub mod montecarlo;
+pub mod plan;
+pub mod predict;
+pub mod reprap;
+pub mod simulate;
+pub mod trilaterate;
