@@ -1901,3 +1901,110 @@ fn a_missing_column_among_many_is_a_short_message() {
     assert!(err.contains("(99972 more)"), "{err}");
     assert!(err.len() < 2000, "{} bytes", err.len());
 }
+
+/// The longest a command may take here before the test calls it stuck (s).
+const STUCK_AFTER_S: u64 = 120;
+
+/// The mechanism file is read once per command, whatever reads its parts
+/// (the mechanism, `[[target]]`, `[ballbar]`, `[units]`): given as a named
+/// pipe that is written once, a command that opened it twice would wait
+/// forever for a second writer.
+#[test]
+fn the_mechanism_file_is_read_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let example = std::fs::read_to_string(common::example("gough-stewart-6")).unwrap();
+    // Tracker data on target points with data-file units: every part of the
+    // description is used.
+    std::fs::write(d.join("m.toml"), &example).unwrap();
+    ok(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            "m.toml",
+            "--grid",
+            "30",
+            "--measure-targets",
+            "--noise",
+            "0.001",
+            "--out",
+            "data.csv",
+        ],
+    );
+    assert!(
+        example.contains("[[target]]"),
+        "the example has target points"
+    );
+    for args in [
+        &[
+            "calibrate",
+            "--mechanism",
+            "pipe.toml",
+            "--data",
+            "data.csv",
+            "--out",
+            "p.toml",
+        ][..],
+        &[
+            "simulate",
+            "--mechanism",
+            "pipe.toml",
+            "--grid",
+            "5",
+            "--measure-targets",
+            "--out",
+            "s.csv",
+        ][..],
+        &[
+            "predict",
+            "--mechanism",
+            "pipe.toml",
+            "--commands",
+            "data.csv",
+            "--out",
+            "o.csv",
+        ][..],
+    ] {
+        let _ = std::fs::remove_file(d.join("pipe.toml"));
+        let status = std::process::Command::new("mkfifo")
+            .arg(d.join("pipe.toml"))
+            .status()
+            .unwrap();
+        assert!(status.success());
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_pkmcal"))
+            .args(args)
+            .current_dir(d)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        // One writer, once.
+        let pipe = d.join("pipe.toml");
+        let text = example.clone();
+        let writer = std::thread::spawn(move || std::fs::write(pipe, text));
+        let start = std::time::Instant::now();
+        let status = loop {
+            if let Some(s) = child.try_wait().unwrap() {
+                break s;
+            }
+            if start.elapsed().as_secs() > STUCK_AFTER_S {
+                let _ = child.kill();
+                // Unblock the writer, if it still waits, and fail.
+                let _ = std::fs::read(d.join("pipe.toml"));
+                panic!("pkmcal {args:?} opened the mechanism file more than once");
+            }
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        };
+        writer.join().unwrap().unwrap();
+        let mut err = String::new();
+        use std::io::Read;
+        child
+            .stderr
+            .take()
+            .unwrap()
+            .read_to_string(&mut err)
+            .unwrap();
+        assert!(status.success(), "pkmcal {args:?}: {err}");
+    }
+}

@@ -1,6 +1,6 @@
 //! `calibrate` and `analyze`: read data, identify, validate, report.
 
-use crate::io::{Csv, Mech, read_mechanism, read_params};
+use crate::io::{Csv, Description, Mech, read_description, read_params};
 use anyhow::{Context, Result, bail};
 use pkmcal::identify::{CrossValidation, Identifiability};
 use pkmcal::{
@@ -410,13 +410,12 @@ pub struct CalibrateConfig {
 pub fn measurement_of(
     run: &crate::Run<'_>,
     csv: &Csv,
-    mech: &Mech,
+    description: &Description,
     setup: Option<&Path>,
-    mechanism: Option<&Path>,
     frame: &str,
     axes: Option<&str>,
 ) -> Result<MeasurementModel> {
-    let spec = mech.spec();
+    let spec = description.mech.spec();
     let has = |h: &str| csv.headers.iter().any(|c| c == h);
     let whole = spec.tool_axes.iter().all(|a| has(a));
     let some: Vec<&String> = spec.tool_axes.iter().filter(|a| has(a)).collect();
@@ -430,15 +429,15 @@ pub fn measurement_of(
     } else if has("probe") {
         MeasurementModel::probe(spec).with_context(|| format!("probe heights in {file}"))?
     } else if has("t1x") {
-        let t = crate::io::read_targets(run, mechanism)?;
+        let t = &description.targets;
         if t.is_empty() {
             bail!(
                 "{file} holds target-point positions (t1x…); describe the targets in the mechanism file: [[target]] at = [x, y, z] (tool frame, mm)"
             );
         }
-        MeasurementModel::targets(spec, &t).with_context(|| format!("targets for {file}"))?
+        MeasurementModel::targets(spec, t).with_context(|| format!("targets for {file}"))?
     } else if has("d1") {
-        let setup = crate::io::read_setup(run, setup, mechanism)?.with_context(|| {
+        let setup = crate::io::read_setup(run, setup, description)?.with_context(|| {
             format!(
                 "{file} holds ball-bar distances (d1…); give the socket positions with --setup S.toml (or a [ballbar] table in the mechanism file)"
             )
@@ -469,38 +468,28 @@ pub fn measurement_of(
             spec.tool_axes.join(", ")
         );
     };
-    let positions =
-        m.is_whole_tool() || matches!(m.instrument(), pkmcal::Instrument::Targets { .. });
-    let choice = match frame {
-        "free" => Frame::Free,
-        "base" => Frame::Base,
-        _ if positions && !csv.base_frame => Frame::Free,
-        _ => Frame::Base,
+    // The frame rule is the library's; the words are the command line's.
+    let request = match frame {
+        "free" => pkmcal::FrameRequest::Free,
+        "base" => pkmcal::FrameRequest::Base,
+        _ => pkmcal::FrameRequest::Auto {
+            data_in_base: csv.base_frame,
+        },
     };
-    let no_frame = matches!(
-        m.instrument(),
-        pkmcal::Instrument::BallBar { .. } | pkmcal::Instrument::Probe
-    );
-    if matches!(m.instrument(), pkmcal::Instrument::Probe) && frame == "free" {
-        return crate::output::usage(
+    match pkmcal::requested_frame(&m, spec, request) {
+        Ok(None) => Ok(m),
+        Ok(Some(f)) => Ok(m.in_frame(f)?),
+        Err(pkmcal::FrameRequestError::Probe) => crate::output::usage(
             "--frame free: probed heights fix no instrument frame; the bed plane's height and tilts are the parameters bed.z, bed.rx, bed.ry (free them with --free default,bed.rx,bed.ry)",
-        );
-    }
-    if !no_frame && !positions && frame == "free" {
-        return crate::output::usage(format!(
+        ),
+        Err(pkmcal::FrameRequestError::PartialAxes { axes }) => crate::output::usage(format!(
             "--frame free needs whole positions to register the instrument frame; {file} reads only {}",
-            m.axes().join(", ")
-        ));
-    }
-    if no_frame && choice == Frame::Free && frame == "free" {
-        return crate::output::usage(
+            axes.join(", ")
+        )),
+        Err(pkmcal::FrameRequestError::BallBar) => crate::output::usage(
             "--frame free: a ball bar's sockets are in the base frame; drop --frame",
-        );
+        ),
     }
-    if no_frame || spec.tool_layout.frame_size() == 0 {
-        return Ok(m);
-    }
-    Ok(m.in_frame(choice)?)
 }
 
 /// What `calibrate` and `analyze` read first: the mechanism, the data file,
@@ -520,10 +509,11 @@ fn read_measured(
     frame: &str,
     axes: Option<&str>,
 ) -> Result<Measured> {
-    let mech = read_mechanism(run, mechanism)?;
+    let description = read_description(run, mechanism)?;
     let csv = Csv::read(run, data)?;
-    let measurement = measurement_of(run, &csv, &mech, setup, mechanism, frame, axes)?;
-    let units = crate::fileunits::of(run, mechanism)?;
+    let measurement = measurement_of(run, &csv, &description, setup, frame, axes)?;
+    let units = crate::fileunits::of(run, &description);
+    let mech = description.mech;
     let data = data_from(&csv, &mech, &measurement, &units)?;
     crate::hints::check_data(&mech, &measurement, &data, &units, &csv.path)?;
     Ok(Measured {

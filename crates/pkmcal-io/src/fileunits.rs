@@ -4,38 +4,16 @@
 //! Numbers are converted on read (`internal = file × factor`) and back on
 //! write; parameter files and reports stay in mm and rad, which they name.
 
-use anyhow::{Context, Result};
-use pkmcal::{FileUnits, PartialUnits, Role, Spec, Unit};
-use std::path::Path;
+use pkmcal::{FileUnits, Role, Spec, Unit};
 
-#[derive(serde::Deserialize)]
-struct UnitsTable {
-    units: Option<PartialUnits>,
-}
-
-/// The data-file units for a command run with `mechanism`: its `[units]`
-/// table, then the run's units (`--units`).
-pub fn of(run: &crate::Run<'_>, mechanism: Option<&Path>) -> Result<FileUnits> {
+/// The data-file units for a command run with the mechanism description
+/// `d`: its `[units]` table, then the run's units (`--units`).
+pub fn of(run: &crate::Run<'_>, d: &crate::io::Description) -> FileUnits {
     let mut u = FileUnits::default();
-    if let Some(p) = mechanism {
-        let text = run
-            .files
-            .read_to_string(p, crate::output::InputKind::Description)
-            .with_context(|| format!("cannot read mechanism file {}", p.display()))?;
-        let t: UnitsTable = toml::from_str(&text).with_context(|| {
-            format!(
-                "in mechanism file {}: [units] takes angle = \"rad\" | \"deg\", length = \"mm\" | \"m\" | \"um\", counts_per_rev, counts_per_mm",
-                p.display()
-            )
-        })?;
-        if let Some(file) = t.units {
-            u = u.with(&file);
-            u.validate()
-                .with_context(|| format!("in mechanism file {}", p.display()))?;
-        }
+    if let Some(file) = &d.units {
+        u = u.with(file);
     }
-    u = u.with(&run.units);
-    Ok(u)
+    u.with(&run.units)
 }
 
 /// Factors of the actuator commands, in actuator order.

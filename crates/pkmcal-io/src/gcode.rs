@@ -145,7 +145,7 @@ fn split(line: &str) -> Result<Line<'_>, String> {
 }
 
 pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
-    let mech = crate::io::read_mechanism(run, c.mechanism.as_deref())?;
+    let mech = crate::io::read_description(run, c.mechanism.as_deref())?.mech;
     let spec = mech.spec();
     let real = crate::io::read_params(run, &c.params, &mech)?;
     let controller = match &c.controller {

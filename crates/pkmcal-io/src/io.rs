@@ -797,10 +797,10 @@ struct MechanismFile {
     #[serde(default)]
     workspace: BTreeMap<String, [f64; 2]>,
     free: Option<Vec<String>>,
-    /// Ball-bar setup, read by `read_setup`.
+    /// Ball-bar setup, read by `setup_from_str`.
     #[allow(dead_code)]
     ballbar: Option<SetupFile>,
-    /// Data-file units, read by `fileunits::of`.
+    /// Data-file units, read by `units_from_str`.
     #[allow(dead_code)]
     units: Option<pkmcal::PartialUnits>,
 }
@@ -816,50 +816,26 @@ pub struct SetupFile {
     bar_offset: f64,
 }
 
-/// The ball-bar setup: from `--setup`, else from the mechanism file's
-/// `[ballbar]` table; `None` when neither gives one.
+/// The ball-bar setup: from the setup file `setup` (`--setup`), else from
+/// the description's `[ballbar]` table; `None` when neither gives one.
 pub fn read_setup(
     run: &crate::Run<'_>,
     setup: Option<&Path>,
-    mechanism: Option<&Path>,
+    description: &Description,
 ) -> Result<Option<pkmcal::Setup>> {
-    let setup_file = setup;
-    let file: Option<SetupFile> = match (setup, mechanism) {
-        (Some(p), _) => {
-            let text = run
-                .files
-                .read_to_string(p, crate::output::InputKind::Description)
-                .with_context(|| format!("cannot read setup file {}", p.display()))?;
-            Some(toml::from_str(&text).with_context(|| {
-                format!(
-                    "in setup file {}: expected `sockets = [[x, y], …]` and optional `bar_offset`",
-                    p.display()
-                )
-            })?)
-        }
-        (None, Some(m)) => {
-            let text = run
-                .files
-                .read_to_string(m, crate::output::InputKind::Description)
-                .with_context(|| format!("cannot read mechanism file {}", m.display()))?;
-            // The mechanism file itself was checked when it was read; only
-            // its `[ballbar]` table matters here, and a mistake in it is
-            // reported, not taken for "no table".
-            let table: toml::Table = toml::from_str(&text)
-                .with_context(|| format!("in mechanism file {}", m.display()))?;
-            match table.get("ballbar") {
-                None => None,
-                Some(v) => Some(v.clone().try_into::<SetupFile>().with_context(|| {
-                    format!(
-                        "in the [ballbar] table of {}: expected `sockets = [[x, y], …]` and optional `bar_offset`",
-                        m.display()
-                    )
-                })?),
-            }
-        }
-        (None, None) => None,
+    let Some(p) = setup else {
+        return Ok(description.ballbar.clone());
     };
-    let Some(f) = file else { return Ok(None) };
+    let text = run
+        .files
+        .read_to_string(p, crate::output::InputKind::Description)
+        .with_context(|| format!("cannot read setup file {}", p.display()))?;
+    let f: SetupFile = toml::from_str(&text).with_context(|| {
+        format!(
+            "in setup file {}: expected `sockets = [[x, y], …]` and optional `bar_offset`",
+            p.display()
+        )
+    })?;
     let setup = pkmcal::Setup {
         sockets: f.sockets,
         bar_offset: f.bar_offset,
@@ -868,17 +844,8 @@ pub fn read_setup(
     let dim = setup.sockets.first().map_or(2, Vec::len).clamp(2, 3);
     setup
         .validate(dim)
-        .with_context(|| match setup_path_name(setup_file, mechanism) {
-            Some(p) => format!("in ball-bar setup {p}"),
-            None => "in the ball-bar setup".into(),
-        })?;
+        .with_context(|| format!("in ball-bar setup {}", p.display()))?;
     Ok(Some(setup))
-}
-
-fn setup_path_name(setup: Option<&Path>, mechanism: Option<&Path>) -> Option<String> {
-    setup
-        .map(|p| p.display().to_string())
-        .or_else(|| mechanism.map(|m| format!("the [ballbar] table of {}", m.display())))
 }
 
 #[derive(Deserialize)]
@@ -893,16 +860,84 @@ pub type Mech = AnyMechanism;
 /// The mechanism kinds a description file can give in `type`.
 pub const MECHANISM_TYPES: &str = "jeong-kim-2dof, planar, gough-stewart, spatial";
 
-/// Read a mechanism file, or the built-in reference when `path` is `None`.
-pub fn read_mechanism(run: &crate::Run<'_>, path: Option<&Path>) -> Result<Mech> {
+/// A mechanism description, read and parsed once per command: the mechanism
+/// and every table the other readers use, each checked where the file is
+/// read so that a mistake names it.
+pub struct Description {
+    /// The file; `None` for the built-in reference mechanism.
+    pub path: Option<PathBuf>,
+    /// The mechanism.
+    pub mech: Mech,
+    /// The target points (`[[target]]`, tool frame, mm); empty without.
+    pub targets: Vec<Vec<f64>>,
+    /// The ball-bar setup of its `[ballbar]` table, if any.
+    pub ballbar: Option<pkmcal::Setup>,
+    /// The data-file units of its `[units]` table, if any.
+    pub units: Option<pkmcal::PartialUnits>,
+}
+
+/// A description's parts from its text (what [`read_description`] reads).
+pub struct DescriptionParts {
+    pub mech: Mech,
+    pub targets: Vec<Vec<f64>>,
+    pub ballbar: Option<pkmcal::Setup>,
+    pub units: Option<pkmcal::PartialUnits>,
+}
+
+/// Every part of a mechanism description's text, each checked.
+pub fn description_from_str(text: &str) -> Result<DescriptionParts> {
+    let mech = mechanism_from_str(text)?;
+    let targets = targets_from_str(text)?;
+    let ballbar = setup_from_str(text)?;
+    let units = units_from_str(text)?;
+    Ok(DescriptionParts {
+        mech,
+        targets,
+        ballbar,
+        units,
+    })
+}
+
+/// The `[units]` table of a description's text, checked; `None` without.
+pub fn units_from_str(text: &str) -> Result<Option<pkmcal::PartialUnits>> {
+    #[derive(Deserialize)]
+    struct UnitsTable {
+        units: Option<pkmcal::PartialUnits>,
+    }
+    let t: UnitsTable = toml::from_str(text).context(
+        "[units] takes angle = \"rad\" | \"deg\", length = \"mm\" | \"m\" | \"um\", counts_per_rev, counts_per_mm",
+    )?;
+    if let Some(u) = &t.units {
+        pkmcal::FileUnits::default().with(u).validate()?;
+    }
+    Ok(t.units)
+}
+
+/// Read a mechanism file, every part of it, once; the built-in reference
+/// when `path` is `None`.
+pub fn read_description(run: &crate::Run<'_>, path: Option<&Path>) -> Result<Description> {
     let Some(path) = path else {
-        return Ok(JeongKim2Dof::new().into());
+        return Ok(Description {
+            path: None,
+            mech: JeongKim2Dof::new().into(),
+            targets: vec![],
+            ballbar: None,
+            units: None,
+        });
     };
     let text = run
         .files
         .read_to_string(path, crate::output::InputKind::Description)
         .with_context(|| format!("cannot read mechanism file {}", path.display()))?;
-    mechanism_from_str(&text).with_context(|| format!("in mechanism file {}", path.display()))
+    let p = description_from_str(&text)
+        .with_context(|| format!("in mechanism file {}", path.display()))?;
+    Ok(Description {
+        path: Some(path.to_path_buf()),
+        mech: p.mech,
+        targets: p.targets,
+        ballbar: p.ballbar,
+        units: p.units,
+    })
 }
 
 /// The description as a TOML table, its `type`, and the table without the
@@ -959,19 +994,6 @@ struct TargetEntry {
 struct MechanismTargets {
     #[serde(default)]
     target: Vec<TargetEntry>,
-}
-
-/// The target points (`[[target]] at = [x, y, z]`, or `[x, y]` on a planar
-/// tool; tool frame, mm) of a mechanism file; empty when it has none.
-pub fn read_targets(run: &crate::Run<'_>, mechanism: Option<&Path>) -> Result<Vec<Vec<f64>>> {
-    let Some(m) = mechanism else {
-        return Ok(vec![]);
-    };
-    let text = run
-        .files
-        .read_to_string(m, crate::output::InputKind::Description)
-        .with_context(|| format!("cannot read mechanism file {}", m.display()))?;
-    targets_from_str(&text).with_context(|| format!("in mechanism file {}", m.display()))
 }
 
 /// The target points (`[[target]]`) of a mechanism description's text.

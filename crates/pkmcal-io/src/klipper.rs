@@ -1053,8 +1053,25 @@ pub fn run_klipper(run: &crate::Run<'_>, c: KlipperConfig) -> Result<()> {
         &measurement,
     )?;
     let nominal = Params::nominal(spec);
-    let cal = pkmcal::calibrate(&mech, &measurement, &data, &nominal, &opts).map_err(|e| {
-        let e = anyhow::Error::from(e);
+    // The study every front end runs: the heights as poses, the distances
+    // measured on the calibration object as distances between poses.
+    let (poses, distances) = data.split_at(delta.probes.len());
+    let study = pkmcal::identify::study(
+        &mech,
+        &measurement,
+        poses,
+        distances.to_vec(),
+        &nominal,
+        &pkmcal::identify::StudyOptions {
+            calibration: opts.clone(),
+            validation: pkmcal::identify::ValidationPlan::None,
+            kfold: None,
+            seed: 0,
+        },
+        &|| {},
+    )
+    .map_err(|e| {
+        let e = anyhow::Error::from(e.error);
         let name = match data_pose(&e) {
             Some((i, false)) => &delta.probes[i].name,
             Some((i, true)) => &delta.distances[i].name,
@@ -1062,6 +1079,7 @@ pub fn run_klipper(run: &crate::Run<'_>, c: KlipperConfig) -> Result<()> {
         };
         e.context(format!("`{name}` of {}", c.config.display()))
     })?;
+    let cal = &study.calibration;
     let before = height_errors(
         &mech,
         &measurement,
@@ -1094,22 +1112,21 @@ pub fn run_klipper(run: &crate::Run<'_>, c: KlipperConfig) -> Result<()> {
         max_abs(&after),
         rms(&after)
     );
-    if !delta.distances.is_empty() {
-        let (acc, _, _) = pkmcal::calibration_accuracy(&mech, &measurement, &data, &cal, &[])?;
-        if let Some(d) = acc.distances {
-            let weighing = match c.weighting {
-                Weighting::Estimated => format!(
-                    "noise σ: heights {}, distances {}, estimated apart",
-                    noise_of(&cal, "probe"),
-                    noise_of(&cal, pkmcal::DISTANCE_AXIS)
-                ),
-                Weighting::Klipper => "heights and distances weighed as Klipper weighs them".into(),
-            };
-            println!(
-                "distance errors: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm ({weighing})",
-                d.before_max, d.before_rms, d.after_max, d.after_rms,
-            );
-        }
+    if !delta.distances.is_empty()
+        && let Some(d) = &study.accuracy.distances
+    {
+        let weighing = match c.weighting {
+            Weighting::Estimated => format!(
+                "noise σ: heights {}, distances {}, estimated apart",
+                noise_of(cal, "probe"),
+                noise_of(cal, pkmcal::DISTANCE_AXIS)
+            ),
+            Weighting::Klipper => "heights and distances weighed as Klipper weighs them".into(),
+        };
+        println!(
+            "distance errors: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm ({weighing})",
+            d.before_max, d.before_rms, d.after_max, d.after_rms,
+        );
     }
     for w in &cal.warnings {
         println!(

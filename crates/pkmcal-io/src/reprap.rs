@@ -520,10 +520,28 @@ pub fn run_reprap(run: &crate::Run<'_>, c: ReprapConfig) -> Result<()> {
         ));
     }
     let nominal = Params::nominal(spec);
-    let cal = pkmcal::calibrate(&mech, &measurement, &data, &nominal, &opts)
-        .map_err(|e| crate::calibrate::located(e, &c.probes))?;
-    let (acc, before, after) = pkmcal::calibration_accuracy(&mech, &measurement, &data, &cal, &[])
-        .map_err(|e| crate::calibrate::located(e, &c.probes))?;
+    // The study every front end runs, on the probed heights.
+    let study = pkmcal::identify::study(
+        &mech,
+        &measurement,
+        &data,
+        vec![],
+        &nominal,
+        &pkmcal::identify::StudyOptions {
+            calibration: opts,
+            validation: pkmcal::identify::ValidationPlan::None,
+            kfold: None,
+            seed: 0,
+        },
+        &|| {},
+    )
+    .map_err(|e| crate::calibrate::located(e.error, &c.probes))?;
+    let (cal, acc, before, after) = (
+        &study.calibration,
+        &study.accuracy,
+        &study.before,
+        &study.after,
+    );
     let new = delta.identified(spec, &cal.params, &cal.measurement)?;
     let heights = |e: &[Vec<f64>]| -> (f64, f64) {
         let v: Vec<f64> = e.iter().map(|r| r[0]).collect();
@@ -531,7 +549,7 @@ pub fn run_reprap(run: &crate::Run<'_>, c: ReprapConfig) -> Result<()> {
         let rms = (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
         (max, rms)
     };
-    let ((bm, br), (am, ar)) = (heights(&before), heights(&after));
+    let ((bm, br), (am, ar)) = (heights(before), heights(after));
     println!(
         "{} probe heights from {} with the geometry of {} (RepRapFirmware), {} parameters free: {}",
         acc.poses,

@@ -1,7 +1,7 @@
 //! `compensate`, `plan` and `montecarlo`: using a calibration.
 
 use crate::calibrate::free_set;
-use crate::io::{Csv, csv_bytes, read_mechanism, read_params};
+use crate::io::{Csv, csv_bytes, read_description, read_params};
 use anyhow::{Context, Result, bail};
 use pkmcal::{
     CalibrationOptions, CompensationOptions, Mechanism, Model, MonteCarloOptions, Params,
@@ -43,7 +43,9 @@ pub fn load_column(name: &str, unit: pkmcal::Unit) -> String {
 /// With `grid`, a correction table instead; with `cartesian`, the targets to
 /// send to a closed controller.
 pub fn run_compensate(run: &crate::Run<'_>, c: CompensateConfig) -> Result<()> {
-    let mech = read_mechanism(run, c.mechanism.as_deref())?;
+    let description = read_description(run, c.mechanism.as_deref())?;
+    let units = crate::fileunits::of(run, &description);
+    let mech = description.mech;
     let spec = mech.spec();
     let params = match &c.params {
         Some(p) => read_params(run, p, &mech)?,
@@ -70,15 +72,11 @@ pub fn run_compensate(run: &crate::Run<'_>, c: CompensateConfig) -> Result<()> {
             None => vec![],
         },
     };
-    if c.model == Model::Linear {
-        bail!("compensation inverts the exact model (or the rigid one); use --model exact");
-    }
     if c.cartesian && !opts.preload.is_empty() {
         return crate::output::usage(
             "--preload needs actuator commands; a closed controller given tool targets cannot hold one (drop --cartesian or --preload)",
         );
     }
-    let units = crate::fileunits::of(run, c.mechanism.as_deref())?;
     if let Some(g) = &c.grid {
         return run_grid(run, &mech, &params, g, &c, &opts, &units);
     }
@@ -513,7 +511,9 @@ pub struct PlanConfig {
 }
 
 pub fn run_plan(run: &crate::Run<'_>, c: PlanConfig) -> Result<()> {
-    let mech = read_mechanism(run, c.mechanism.as_deref())?;
+    let description = read_description(run, c.mechanism.as_deref())?;
+    let units = crate::fileunits::of(run, &description);
+    let mech = description.mech;
     let spec = mech.spec();
     let params = match &c.params {
         Some(p) => read_params(run, p, &mech)?,
@@ -554,7 +554,6 @@ pub fn run_plan(run: &crate::Run<'_>, c: PlanConfig) -> Result<()> {
         .map(|a| format!("target_{a}"))
         .collect();
     header.extend(spec.actuated_names().iter().map(|s| s.to_string()));
-    let units = crate::fileunits::of(run, c.mechanism.as_deref())?;
     let factors: Vec<f64> = crate::fileunits::tool(spec, &units)
         .into_iter()
         .chain(crate::fileunits::commands(spec, &units))
@@ -642,7 +641,9 @@ pub struct MonteCarloConfig {
 }
 
 pub fn run_montecarlo(run: &crate::Run<'_>, c: MonteCarloConfig) -> Result<()> {
-    let mech = read_mechanism(run, c.mechanism.as_deref())?;
+    let description = read_description(run, c.mechanism.as_deref())?;
+    let units = crate::fileunits::of(run, &description);
+    let mech = description.mech;
     let spec = mech.spec();
     if c.runs == 0 {
         return crate::output::usage("--runs must be at least 1");
@@ -664,10 +665,7 @@ pub fn run_montecarlo(run: &crate::Run<'_>, c: MonteCarloConfig) -> Result<()> {
         .map(|a| format!("target_{a}"))
         .collect();
     let mut poses = csv.named(&names)?;
-    crate::fileunits::to_internal(
-        &mut poses,
-        &crate::fileunits::tool(spec, &crate::fileunits::of(run, c.mechanism.as_deref())?),
-    );
+    crate::fileunits::to_internal(&mut poses, &crate::fileunits::tool(spec, &units));
     for (i, t) in poses.iter().enumerate() {
         pkmcal::nominal_commands(&mech, t)
             .with_context(|| format!("{}:{}", c.poses.display(), csv.line(i)))?;

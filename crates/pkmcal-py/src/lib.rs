@@ -11,8 +11,8 @@ use numpy::{
 };
 use pkmcal::identify::{Calibration as LibCalibration, CrossValidation, Identifiability};
 use pkmcal::{
-    AnyMechanism, CalibrationOptions, Frame, Loss, MeasurementModel, Mechanism as _, Model, Noise,
-    Origin, Params,
+    AnyMechanism, CalibrationOptions, Loss, MeasurementModel, Mechanism as _, Model, Noise, Origin,
+    Params,
 };
 use pkmcal_io::calibrate::Validation;
 use pyo3::create_exception;
@@ -334,16 +334,13 @@ fn toml_value(v: &Bound<'_, PyAny>, path: &str) -> PyResult<toml::Value> {
 
 impl PyMechanism {
     fn from_text(text: &str, source: String) -> PyResult<Self> {
-        let mech = pkmcal_io::io::mechanism_from_str(text)
-            .map_err(|e| cli_err(e.context(format!("in mechanism description {source}"))))?;
-        let targets = pkmcal_io::io::targets_from_str(text)
-            .map_err(|e| cli_err(e.context(format!("in mechanism description {source}"))))?;
-        let setup = pkmcal_io::io::setup_from_str(text)
+        // Every part of the description, read once as the CLI reads it.
+        let parts = pkmcal_io::io::description_from_str(text)
             .map_err(|e| cli_err(e.context(format!("in mechanism description {source}"))))?;
         Ok(Self {
-            mech: Arc::new(mech),
-            targets,
-            setup,
+            mech: Arc::new(parts.mech),
+            targets: parts.targets,
+            setup: parts.ballbar,
             source,
             text: Some(text.to_string()),
         })
@@ -758,43 +755,30 @@ fn measurement_arg(
     } else {
         MeasurementModel::tool(spec)
     };
-    let ballbar_instrument = matches!(mm.instrument(), pkmcal::Instrument::BallBar { .. });
-    let positions =
-        mm.is_whole_tool() || matches!(mm.instrument(), pkmcal::Instrument::Targets { .. });
-    let choice = match frame {
-        "base" => Frame::Base,
-        "free" => {
-            if ballbar_instrument {
-                return Err(usage(
-                    "frame=\"free\": a ball bar's sockets are in the base frame; use frame=\"base\"",
-                ));
-            }
-            if matches!(mm.instrument(), pkmcal::Instrument::Probe) {
-                return Err(usage(
-                    "frame=\"free\": probed heights fix no instrument frame; the bed plane's height and tilts are the parameters bed.z, bed.rx, bed.ry (free them by name)",
-                ));
-            }
-            if !positions {
-                return Err(usage(format!(
-                    "frame=\"free\" needs whole positions to register the instrument frame; the instrument reads only {}",
-                    mm.axes().join(", ")
-                )));
-            }
-            Frame::Free
-        }
+    // The frame rule is the library's; the words are Python's.
+    let request = match frame {
+        "base" => pkmcal::FrameRequest::Base,
+        "free" => pkmcal::FrameRequest::Free,
         other => {
             return Err(usage(format!(
                 "frame: unknown `{other}`; use \"base\" (readings in the base frame) or \"free\" (an instrument frame identified with the rest)"
             )));
         }
     };
-    if ballbar_instrument
-        || matches!(mm.instrument(), pkmcal::Instrument::Probe)
-        || spec.tool_layout.frame_size() == 0
-    {
-        return Ok(mm);
+    match pkmcal::requested_frame(&mm, spec, request) {
+        Ok(None) => Ok(mm),
+        Ok(Some(f)) => mm.in_frame(f).map_err(lib_err),
+        Err(pkmcal::FrameRequestError::BallBar) => Err(usage(
+            "frame=\"free\": a ball bar's sockets are in the base frame; use frame=\"base\"",
+        )),
+        Err(pkmcal::FrameRequestError::Probe) => Err(usage(
+            "frame=\"free\": probed heights fix no instrument frame; the bed plane's height and tilts are the parameters bed.z, bed.rx, bed.ry (free them by name)",
+        )),
+        Err(pkmcal::FrameRequestError::PartialAxes { axes }) => Err(usage(format!(
+            "frame=\"free\" needs whole positions to register the instrument frame; the instrument reads only {}",
+            axes.join(", ")
+        ))),
     }
-    mm.in_frame(choice).map_err(lib_err)
 }
 
 /// Ball-bar socket centres: an array (k, 2) or (k, 3) of finite numbers.

@@ -86,7 +86,10 @@ pub use kinds::reference::JeongKim2Dof;
 pub use kinds::spatial::{SpatialDescription, SpatialMechanism};
 pub use measurement::ballbar::{Setup, trilaterate};
 pub use measurement::data::{Measurement, Noise};
-pub use measurement::{DISTANCE_AXIS, Frame, Instrument, MeasurementModel, MeasurementSummary};
+pub use measurement::{
+    DISTANCE_AXIS, Frame, FrameRequest, FrameRequestError, Instrument, MeasurementModel,
+    MeasurementSummary, requested_frame,
+};
 pub use mechanism::tool::ToolLayout;
 pub use mechanism::{Mechanism, Params, Scalar, Spec};
 pub use units::{AngleUnit, FileUnits, LengthUnit, ParamKind, PartialUnits, Quantity, Role, Unit};

@@ -58,7 +58,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     let dir = &a.out_dir;
     // The demo's own calibrations read its files internally; only what it
     // writes follows --units.
-    let units = pkmcal_io::fileunits::of(run, None)?;
+    let units = pkmcal_io::fileunits::of(run, &pkmcal_io::io::read_description(run, None)?);
     run.files.create_dir(dir)?;
     let targets: Vec<Vec<f64>> = pkmcal::spread_targets(&mech, 35)?
         .into_iter()

@@ -5,7 +5,7 @@ use crate::args;
 use anyhow::{Context, Result};
 use pkmcal::{Mechanism, Model, Params, Prediction, predict_pose, prepare_pose};
 use pkmcal_io::Run;
-use pkmcal_io::io::{Mech, read_mechanism};
+use pkmcal_io::io::{Mech, read_description};
 use rayon::prelude::*;
 use std::path::PathBuf;
 
@@ -114,7 +114,9 @@ pub fn predict_rows(
 }
 
 pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
-    let mech = read_mechanism(run, a.mech.mechanism.as_deref())?;
+    let description = read_description(run, a.mech.mechanism.as_deref())?;
+    let units = pkmcal_io::fileunits::of(run, &description);
+    let mech = description.mech;
     let spec = mech.spec();
     let params = pkmcal_io::io::params_or_nominal(run, a.params.as_deref(), &mech)?;
     let model: Model = a.model;
@@ -164,7 +166,6 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     if covariance.is_some() {
         header.extend(spec.tool_axes.iter().map(|a| format!("sigma_{a}")));
     }
-    let units = pkmcal_io::fileunits::of(run, a.mech.mechanism.as_deref())?;
     let (cf, tf) = (
         pkmcal_io::fileunits::commands(spec, &units),
         pkmcal_io::fileunits::tool(spec, &units),

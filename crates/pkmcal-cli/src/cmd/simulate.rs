@@ -5,7 +5,7 @@ use crate::args;
 use anyhow::{Context, Result, bail};
 use pkmcal::Mechanism;
 use pkmcal_io::Run;
-use pkmcal_io::io::{Csv, Mech, read_mechanism};
+use pkmcal_io::io::{Csv, Description, read_description};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -90,23 +90,22 @@ impl Args {
 }
 
 pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
-    let mech = read_mechanism(run, a.mech.mechanism.as_deref())?;
-    let truth = pkmcal_io::io::params_or_nominal(run, a.truth.as_deref(), &mech)?;
+    let description = read_description(run, a.mech.mechanism.as_deref())?;
+    let units = pkmcal_io::fileunits::of(run, &description);
+    let mech = &description.mech;
+    let truth = pkmcal_io::io::params_or_nominal(run, a.truth.as_deref(), mech)?;
     let noise = pkmcal_io::io::noise_arg(a.noise, a.angle_noise);
     let targets: Vec<Vec<f64>> = match (&a.targets, a.grid) {
         (Some(path), _) => {
             let csv = Csv::read(run, path)?;
             csv.require_rows()?;
-            let mut t = csv.named(&pkmcal_io::io::target_names(&mech))?;
+            let mut t = csv.named(&pkmcal_io::io::target_names(mech))?;
             pkmcal_io::fileunits::to_internal(
                 &mut t,
-                &pkmcal_io::fileunits::tool(
-                    mech.spec(),
-                    &pkmcal_io::fileunits::of(run, a.mech.mechanism.as_deref())?,
-                ),
+                &pkmcal_io::fileunits::tool(mech.spec(), &units),
             );
             for (i, target) in t.iter().enumerate() {
-                pkmcal::nominal_commands(&mech, target)
+                pkmcal::nominal_commands(mech, target)
                     .with_context(|| format!("{}:{}", path.display(), csv.line(i)))?;
             }
             t
@@ -115,7 +114,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             if n == 0 {
                 return pkmcal_io::output::usage("--grid needs at least one target");
             }
-            pkmcal::spread_targets(&mech, n)
+            pkmcal::spread_targets(mech, n)
                 .map_err(anyhow::Error::from)
                 .with_context(|| match &a.mech.mechanism {
                     Some(m) => format!("with the [workspace] box of {}", m.display()),
@@ -127,10 +126,10 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         }
         (None, None) => bail!("give --targets FILE or --grid N"),
     };
-    let measurement = simulated_measurement(run, &mech, &a)?;
+    let measurement = simulated_measurement(run, &description, &a)?;
     let bar = run.bar(targets.len() as u64, false, "poses", 0);
     let data = pkmcal::simulate_with_progress(
-        &mech,
+        mech,
         &measurement,
         &truth,
         &targets,
@@ -139,7 +138,6 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         &|| bar.inc(1),
     )?;
     bar.finish();
-    let units = pkmcal_io::fileunits::of(run, a.mech.mechanism.as_deref())?;
     let distances = match &a.distances_out {
         None => None,
         Some(path) => {
@@ -148,7 +146,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             }
             let pairs = distance_pairs(&targets);
             let rows = pkmcal::simulate_distances(
-                &mech,
+                mech,
                 &measurement,
                 &truth,
                 &pairs,
@@ -158,7 +156,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             .map_err(|e| pkmcal_io::output::Usage(format!("--distances-out: {e}")))?;
             Some((
                 path,
-                pkmcal_io::io::distances_csv(&mech, &rows, &units),
+                pkmcal_io::io::distances_csv(mech, &rows, &units),
                 rows.len(),
             ))
         }
@@ -167,7 +165,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     run.files.stage(
         &a.out,
         &pkmcal_io::io::with_frame_comment(
-            pkmcal_io::io::data_csv(&mech, &measurement, &data, &units),
+            pkmcal_io::io::data_csv(mech, &measurement, &data, &units),
             base,
         ),
     )?;
@@ -211,23 +209,27 @@ fn distance_pairs(targets: &[Vec<f64>]) -> Vec<(Vec<f64>, Vec<f64>)> {
 /// What `simulate` measures: a ball bar (`--setup`), target points
 /// (`--measure-targets`), some tool axes (`--axes`) or the whole tool; from
 /// an instrument at `--instrument-frame` if given.
-fn simulated_measurement(run: &Run<'_>, mech: &Mech, a: &Args) -> Result<pkmcal::MeasurementModel> {
-    let spec = mech.spec();
+fn simulated_measurement(
+    run: &Run<'_>,
+    description: &Description,
+    a: &Args,
+) -> Result<pkmcal::MeasurementModel> {
+    let spec = description.mech.spec();
     let m = if let Some(p) = &a.setup {
-        let setup = pkmcal_io::io::read_setup(run, Some(p), None)?
+        let setup = pkmcal_io::io::read_setup(run, Some(p), description)?
             .with_context(|| format!("{}: no ball-bar setup", p.display()))?;
         pkmcal::MeasurementModel::ball_bar(spec, &setup)?
     } else if a.probe {
         pkmcal::MeasurementModel::probe(spec)
             .map_err(|e| pkmcal_io::output::Usage(format!("--probe: {e}")))?
     } else if a.measure_targets {
-        let points = pkmcal_io::io::read_targets(run, a.mech.mechanism.as_deref())?;
+        let points = &description.targets;
         if points.is_empty() {
             return pkmcal_io::output::usage(
                 "--measure-targets needs target points in the mechanism file: [[target]] at = [x, y, z] (tool frame, mm; [x, y] for a planar tool)",
             );
         }
-        pkmcal::MeasurementModel::targets(spec, &points)?
+        pkmcal::MeasurementModel::targets(spec, points)?
     } else if let Some(axes) = &a.axes {
         let names: Vec<&str> = axes.split(',').map(str::trim).collect();
         pkmcal::MeasurementModel::tool_axes(spec, &names)

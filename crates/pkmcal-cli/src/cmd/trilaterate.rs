@@ -5,7 +5,7 @@ use crate::args;
 use anyhow::{Context, Result};
 use pkmcal::Mechanism;
 use pkmcal_io::Run;
-use pkmcal_io::io::{Csv, csv_bytes, read_mechanism};
+use pkmcal_io::io::{Csv, csv_bytes, read_description};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -41,9 +41,11 @@ impl Args {
 
 /// `trilaterate`: bar readings to positions with their standard deviations.
 pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
-    let mech = read_mechanism(run, a.mech.mechanism.as_deref())?;
+    let description = read_description(run, a.mech.mechanism.as_deref())?;
+    let units = pkmcal_io::fileunits::of(run, &description);
+    let mech = &description.mech;
     let spec = mech.spec();
-    let setup = pkmcal_io::io::read_setup(run, a.setup.as_deref(), a.mech.mechanism.as_deref())?
+    let setup = pkmcal_io::io::read_setup(run, a.setup.as_deref(), &description)?
         .context("give the socket positions with --setup S.toml (or a [ballbar] table in the mechanism file)")?;
     // Checks the setup against the tool point.
     pkmcal::MeasurementModel::ball_bar(spec, &setup)?;
@@ -53,13 +55,12 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     let csv = Csv::read(run, &a.data)?;
     csv.require_rows()?;
     let dnames: Vec<String> = (1..=setup.sockets.len()).map(|j| format!("d{j}")).collect();
-    let units = pkmcal_io::fileunits::of(run, a.mech.mechanism.as_deref())?;
     let mut readings = csv.named(&dnames)?;
     let d_factor = units.factor(pkmcal::Unit::Millimetre, pkmcal::Role::Reading);
     pkmcal_io::fileunits::to_internal(&mut readings, &vec![d_factor; dnames.len()]);
     let tf = pkmcal_io::fileunits::tool(spec, &units);
     // Pass through targets and commands when present (in the file's units).
-    let mut keep: Vec<String> = pkmcal_io::io::target_names(&mech);
+    let mut keep: Vec<String> = pkmcal_io::io::target_names(mech);
     keep.extend(spec.actuated_names().iter().map(|s| s.to_string()));
     keep.retain(|n| csv.headers.contains(n));
     let kept = csv.named(&keep)?;

@@ -51,6 +51,101 @@ pub enum Frame {
     Free,
 }
 
+/// What a user asks of the instrument frame (each front end words it:
+/// `--frame` on the command line, `frame=` in Python).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameRequest {
+    /// Free for whole positions and target points, unless the data say they
+    /// are in the base frame (`data_in_base`); the base frame otherwise.
+    Auto {
+        /// The data declare themselves in the base frame (a data file's
+        /// `# frame: base`).
+        data_in_base: bool,
+    },
+    /// An instrument frame identified with the rest.
+    Free,
+    /// The data are in the base frame.
+    Base,
+}
+
+/// Why a [`FrameRequest`] cannot be met. Typed, so that each front end says
+/// what to change in its own terms.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum FrameRequestError {
+    /// A free frame for a ball bar, whose sockets are in the base frame.
+    BallBar,
+    /// A free frame for probed heights, which fix no instrument frame (the
+    /// bed plane's height and tilts are the parameters `bed.z`, `bed.rx`,
+    /// `bed.ry`).
+    Probe,
+    /// A free frame for readings of only some tool axes, which cannot
+    /// register a frame.
+    PartialAxes {
+        /// The axes read.
+        axes: Vec<String>,
+    },
+}
+
+impl std::fmt::Display for FrameRequestError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            FrameRequestError::BallBar => {
+                write!(f, "a ball bar's sockets are in the base frame")
+            }
+            FrameRequestError::Probe => write!(
+                f,
+                "probed heights fix no instrument frame; the bed plane's height and tilts are the parameters bed.z, bed.rx, bed.ry"
+            ),
+            FrameRequestError::PartialAxes { axes } => write!(
+                f,
+                "a free frame needs whole positions to register the instrument frame; the instrument reads only {}",
+                axes.join(", ")
+            ),
+        }
+    }
+}
+
+impl std::error::Error for FrameRequestError {}
+
+/// The frame rule, the same for every front end: the [`Frame`] that
+/// `request` gives `measurement`, or `None` where the instrument carries no
+/// frame (a ball bar, a probe, a tool without a pose frame). Whole positions
+/// and target points take a free frame unless the data are in the base
+/// frame; readings of some axes take the base frame.
+pub fn requested_frame(
+    measurement: &MeasurementModel,
+    spec: &Spec,
+    request: FrameRequest,
+) -> std::result::Result<Option<Frame>, FrameRequestError> {
+    let positions = measurement.is_whole_tool()
+        || matches!(measurement.instrument(), Instrument::Targets { .. });
+    if request == FrameRequest::Free {
+        match measurement.instrument() {
+            Instrument::BallBar { .. } => return Err(FrameRequestError::BallBar),
+            Instrument::Probe => return Err(FrameRequestError::Probe),
+            _ if !positions => {
+                return Err(FrameRequestError::PartialAxes {
+                    axes: measurement.axes().to_vec(),
+                });
+            }
+            _ => {}
+        }
+    }
+    if matches!(
+        measurement.instrument(),
+        Instrument::BallBar { .. } | Instrument::Probe
+    ) || spec.tool_layout.frame_size() == 0
+    {
+        return Ok(None);
+    }
+    Ok(Some(match request {
+        FrameRequest::Free => Frame::Free,
+        FrameRequest::Base => Frame::Base,
+        FrameRequest::Auto { data_in_base } if positions && !data_in_base => Frame::Free,
+        FrameRequest::Auto { .. } => Frame::Base,
+    }))
+}
+
 /// What the instrument observes.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Instrument {

@@ -165,3 +165,93 @@ fn a_spatial_tracker_frame_1_m_and_2_degrees_away_changes_nothing() {
     let a = 2f64.to_radians() / 3f64.sqrt();
     check_invariance(&m, &truth, 50, &[800.0, -500.0, 300.0, a, -a, a]);
 }
+
+/// The frame rule every front end applies (`requested_frame`): whole
+/// positions and target points take a free frame unless the data are in the
+/// base frame; some axes, a ball bar and a probe carry none or the base
+/// frame; a free frame is refused, typed, where it cannot be identified.
+#[test]
+fn the_frame_rule_is_one_rule() {
+    use pkmcal::{FrameRequest, FrameRequestError, requested_frame};
+    let auto = |base| FrameRequest::Auto { data_in_base: base };
+    // A hexapod's whole pose.
+    let g = gough_stewart("gough-stewart-6");
+    let spec = g.spec();
+    let tool = MeasurementModel::tool(spec);
+    assert_eq!(
+        requested_frame(&tool, spec, auto(false)),
+        Ok(Some(Frame::Free))
+    );
+    assert_eq!(
+        requested_frame(&tool, spec, auto(true)),
+        Ok(Some(Frame::Base))
+    );
+    assert_eq!(
+        requested_frame(&tool, spec, FrameRequest::Base),
+        Ok(Some(Frame::Base))
+    );
+    assert_eq!(
+        requested_frame(&tool, spec, FrameRequest::Free),
+        Ok(Some(Frame::Free))
+    );
+    // Some axes: the base frame, never a free one.
+    let z = MeasurementModel::tool_axes(spec, &["z"]).unwrap();
+    assert_eq!(
+        requested_frame(&z, spec, auto(false)),
+        Ok(Some(Frame::Base))
+    );
+    assert_eq!(
+        requested_frame(&z, spec, FrameRequest::Free),
+        Err(FrameRequestError::PartialAxes {
+            axes: vec!["z".to_string()]
+        })
+    );
+    // Target points are positions.
+    let t = MeasurementModel::targets(
+        spec,
+        &[
+            vec![10.0, 0.0, 0.0],
+            vec![0.0, 10.0, 0.0],
+            vec![0.0, 0.0, 10.0],
+        ],
+    )
+    .unwrap();
+    assert_eq!(
+        requested_frame(&t, spec, auto(false)),
+        Ok(Some(Frame::Free))
+    );
+    // A probe carries no frame, and refuses a free one.
+    let d = common::spatial("linear-delta");
+    let probe = MeasurementModel::probe(d.spec()).unwrap();
+    assert_eq!(requested_frame(&probe, d.spec(), auto(false)), Ok(None));
+    assert_eq!(
+        requested_frame(&probe, d.spec(), FrameRequest::Free),
+        Err(FrameRequestError::Probe)
+    );
+    // A ball bar carries none either.
+    let r = JeongKim2Dof::new();
+    let setup = pkmcal::Setup {
+        sockets: vec![vec![0.0, 0.0], vec![400.0, 0.0], vec![200.0, 300.0]],
+        bar_offset: 0.0,
+    };
+    let bar = MeasurementModel::ball_bar(r.spec(), &setup).unwrap();
+    assert_eq!(
+        requested_frame(&bar, r.spec(), FrameRequest::Base),
+        Ok(None)
+    );
+    assert_eq!(
+        requested_frame(&bar, r.spec(), FrameRequest::Free),
+        Err(FrameRequestError::BallBar)
+    );
+    // No library message names a front end's option.
+    for e in [
+        FrameRequestError::BallBar,
+        FrameRequestError::Probe,
+        FrameRequestError::PartialAxes {
+            axes: vec!["z".into()],
+        },
+    ] {
+        let m = e.to_string();
+        assert!(!m.contains("--") && !m.contains('='), "{m}");
+    }
+}
