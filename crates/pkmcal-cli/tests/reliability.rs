@@ -1374,7 +1374,7 @@ fn the_culprit_is_named_with_the_right_exit_code() {
                 "p.csv",
             ],
             1,
-            &format!("{f}: its `covariance` cannot serve"),
+            &format!("{f}: this calibration cannot serve"),
         );
         fails(
             d,
@@ -1410,8 +1410,51 @@ fn the_culprit_is_named_with_the_right_exit_code() {
             "p.csv",
         ],
         1,
-        "r.json: its `covariance` cannot serve",
+        "r.json: this calibration cannot serve",
     );
+    fails(
+        d,
+        &[
+            "predict",
+            "--mechanism",
+            &mech,
+            "--uncertainty",
+            "r.json",
+            "--commands",
+            "abc.csv",
+            "--out",
+            "p.csv",
+        ],
+        1,
+        "another mechanism",
+    );
+    // The report is a versioned calibration record: one of a newer pkmcal,
+    // or of another format, is refused by name.
+    let mut newer = report.clone();
+    newer["version"] = serde_json::json!(99);
+    std::fs::write(d.join("newer.json"), newer.to_string()).unwrap();
+    let mut other = report.clone();
+    other["format"] = serde_json::json!("something else");
+    std::fs::write(d.join("other.json"), other.to_string()).unwrap();
+    for (f, needle) in [
+        ("newer.json", "version 99, newer"),
+        ("other.json", "no calibration record"),
+    ] {
+        fails(
+            d,
+            &[
+                "predict",
+                "--uncertainty",
+                f,
+                "--commands",
+                "c.csv",
+                "--out",
+                "p.csv",
+            ],
+            1,
+            needle,
+        );
+    }
     // An infinite condition number is written as such, not as null.
     ok(
         d,

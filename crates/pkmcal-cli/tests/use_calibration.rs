@@ -224,3 +224,84 @@ fn planning_a_platform_is_bounded_and_beats_the_grid() {
     assert!(o5("planned") > o5("plain grid"), "{out}");
     assert_eq!(read_csv(&d.join("p.csv")).1.len(), 50);
 }
+
+/// A calibration report is a versioned record of the calibration: it names
+/// its format, version and mechanism identity, and `predict --uncertainty`
+/// takes its parameters (unless --params gives others) and its covariance:
+/// the same predictions as with the parameter file, with standard deviations.
+#[test]
+fn the_calibration_record_serves_predict() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("truth.toml"), "l11 = 280.3\ndq3 = 0.002\n").unwrap();
+    ok(
+        d,
+        &[
+            "simulate",
+            "--truth",
+            "truth.toml",
+            "--grid",
+            "30",
+            "--noise",
+            "0.002",
+            "--out",
+            "data.csv",
+        ],
+    );
+    ok(
+        d,
+        &[
+            "calibrate",
+            "--data",
+            "data.csv",
+            "--out",
+            "cal.toml",
+            "--report",
+            "r.json",
+        ],
+    );
+    let r = common::json(&d.join("r.json"));
+    assert_eq!(r["format"], "pkmcal calibration");
+    assert_eq!(r["version"], 1);
+    assert!(
+        r["mechanism_identity"]
+            .as_str()
+            .is_some_and(|s| s.starts_with("fnv1a64:")),
+        "{}",
+        r["mechanism_identity"]
+    );
+    ok(
+        d,
+        &[
+            "predict",
+            "--params",
+            "cal.toml",
+            "--uncertainty",
+            "r.json",
+            "--commands",
+            "data.csv",
+            "--out",
+            "with-params.csv",
+        ],
+    );
+    ok(
+        d,
+        &[
+            "predict",
+            "--uncertainty",
+            "r.json",
+            "--commands",
+            "data.csv",
+            "--out",
+            "from-record.csv",
+        ],
+    );
+    let (h, rows) = read_csv(&d.join("from-record.csv"));
+    assert!(h.iter().any(|c| c == "sigma_x"), "{h:?}");
+    let (_, with_params) = read_csv(&d.join("with-params.csv"));
+    // The parameter file holds the values to the last digit printed (the
+    // shortest round trip), the record too: the same predictions.
+    assert_eq!(rows, with_params);
+    let sx = h.iter().position(|c| c == "sigma_x").unwrap();
+    assert!(rows.iter().all(|r| r[sx] > 0.0 && r[sx] < 0.01), "{rows:?}");
+}

@@ -346,7 +346,7 @@ pub fn cli_hint(w: &pkmcal::identify::Warning) -> String {
 }
 
 /// Validation results in the report.
-#[derive(Serialize)]
+#[derive(Serialize, Clone)]
 pub struct Validation {
     /// Where the validation poses came from.
     pub source: String,
@@ -354,11 +354,19 @@ pub struct Validation {
     pub accuracy: Accuracy,
 }
 
-/// The JSON report of `calibrate`.
+/// The JSON report of `calibrate` (and of Python's `Calibration.save`): a
+/// versioned calibration record ([`pkmcal::identify::CalibrationRecord`]
+/// reads it back) with everything a reader wants to see.
 #[derive(Serialize)]
 pub struct Report<'a> {
+    /// [`pkmcal::identify::CALIBRATION_FORMAT`].
+    pub format: &'static str,
+    /// [`pkmcal::identify::CALIBRATION_VERSION`].
+    pub version: u32,
     pub pkmcal_version: &'static str,
     pub mechanism: String,
+    /// [`pkmcal::identify::mechanism_identity`] of the mechanism.
+    pub mechanism_identity: String,
     pub data: String,
     /// What the instrument read.
     pub measurement: pkmcal::MeasurementSummary,
@@ -367,6 +375,39 @@ pub struct Report<'a> {
     pub accuracy: Accuracy,
     pub validation: Option<Validation>,
     pub cross_validation: Option<CrossValidation>,
+}
+
+impl<'a> Report<'a> {
+    /// The report of a calibration of the mechanism `spec` from `data` (a
+    /// file's name, or a description of arrays).
+    pub fn new(
+        spec: &pkmcal::Spec,
+        data: String,
+        measurement: &MeasurementModel,
+        calibration: &'a Calibration,
+        accuracy: Accuracy,
+        validation: Option<Validation>,
+        cross_validation: Option<CrossValidation>,
+    ) -> Self {
+        Report {
+            format: pkmcal::identify::CALIBRATION_FORMAT,
+            version: pkmcal::identify::CALIBRATION_VERSION,
+            pkmcal_version: env!("CARGO_PKG_VERSION"),
+            mechanism: spec.name.clone(),
+            mechanism_identity: pkmcal::identify::mechanism_identity(spec),
+            data,
+            measurement: measurement.summary(),
+            calibration,
+            accuracy,
+            validation,
+            cross_validation,
+        }
+    }
+
+    /// The report as JSON text (the calibration record's file).
+    pub fn to_json(&self) -> Result<String> {
+        Ok(serde_json::to_string_pretty(self)?)
+    }
 }
 
 /// Arguments of `calibrate`, already parsed by clap.
@@ -620,19 +661,17 @@ pub fn run_calibrate(run: &crate::Run<'_>, c: CalibrateConfig) -> Result<()> {
     });
     let cross_validation = study.cross_validation.clone();
     let acc = study.accuracy.clone();
-    let report = Report {
-        pkmcal_version: env!("CARGO_PKG_VERSION"),
-        mechanism: spec.name.clone(),
-        data: c.data.display().to_string(),
-        measurement: measurement.summary(),
-        calibration: cal,
-        accuracy: acc,
+    let report = Report::new(
+        spec,
+        c.data.display().to_string(),
+        &measurement,
+        cal,
+        acc,
         validation,
         cross_validation,
-    };
+    );
     if let Some(r) = &c.report {
-        run.files
-            .stage(r, serde_json::to_string_pretty(&report)?.as_bytes())?;
+        run.files.stage(r, report.to_json()?.as_bytes())?;
     }
     if let Some(dir) = &c.report_dir {
         crate::report::write_report_dir(

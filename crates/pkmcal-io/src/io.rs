@@ -1145,22 +1145,28 @@ pub fn params_or_nominal<M: Mechanism>(
     }
 }
 
-/// The parameter covariance stored in a calibration report (`covariance`).
-pub fn read_covariance(run: &crate::Run<'_>, path: &Path) -> Result<pkmcal::ParameterCovariance> {
+/// A calibration record (a `calibrate --report`, a Python
+/// `Calibration.save`): its header, parameters and covariance, checked as
+/// JSON here (the mechanism it serves is checked by
+/// [`pkmcal::identify::CalibrationRecord::check`]).
+pub fn read_calibration_record(
+    run: &crate::Run<'_>,
+    path: &Path,
+) -> Result<pkmcal::identify::CalibrationRecord> {
     let text = run
         .files
         .read_to_string(path, crate::output::InputKind::Description)
         .with_context(|| format!("cannot read calibration report {}", path.display()))?;
     let v: serde_json::Value = serde_json::from_str(&text)
         .with_context(|| format!("{}: not a JSON calibration report", path.display()))?;
-    let c = v.get("covariance").with_context(|| {
-        format!(
-            "{}: no `covariance` entry; pass the report written by `pkmcal calibrate --report`",
+    if v.get("covariance").is_none() {
+        bail!(
+            "{}: no `covariance` entry; pass the report written by `pkmcal calibrate --report` or Python's Calibration.save",
             path.display()
-        )
-    })?;
-    serde_json::from_value(c.clone())
-        .with_context(|| format!("{}: malformed `covariance` entry", path.display()))
+        );
+    }
+    serde_json::from_value(v)
+        .with_context(|| format!("{}: malformed calibration report", path.display()))
 }
 
 /// Target columns `target_<axis>`.

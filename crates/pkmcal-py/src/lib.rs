@@ -577,9 +577,29 @@ fn params_arg(m: &PyMechanism, p: Option<&Bound<'_, PyAny>>, what: &str) -> PyRe
     let Some(p) = p.filter(|p| !p.is_none()) else {
         return Ok(Params::nominal(spec));
     };
+    if let Ok(s) = p.cast::<PySavedCalibration>() {
+        let s = s.get();
+        return s
+            .record
+            .params(spec)
+            .and_then(|params| {
+                s.record.check(spec)?;
+                Ok(params)
+            })
+            .map_err(|e| {
+                usage(format!(
+                    "{what}: {}: this calibration cannot serve {}: {e}",
+                    s.source, spec.name
+                ))
+            });
+    }
     if let Ok(c) = p.cast::<PyCalibration>() {
         let c = c.get();
-        if c.mech.spec().param_names() != spec.param_names() {
+        // The same rule as for a calibration read back: the same
+        // mechanism identity (joints, parameters, nominal values).
+        if pkmcal::identify::mechanism_identity(c.mech.spec())
+            != pkmcal::identify::mechanism_identity(spec)
+        {
             return Err(usage(format!(
                 "{what}: this calibration is of another mechanism ({})",
                 c.mech.spec().name
@@ -669,6 +689,21 @@ fn wrench(m: &PyMechanism, f: Option<Vec<f64>>, what: &str) -> PyResult<Vec<f64>
     match f {
         None => Ok(vec![]),
         Some(v) => finite_list(&v, what, m.spec().tool_axes.len()),
+    }
+}
+
+/// The tool load: ``load=`` (the CLI's ``--load``), or ``force=``, its old
+/// name, still read; not both.
+fn load_arg(
+    m: &PyMechanism,
+    load: Option<Vec<f64>>,
+    force: Option<Vec<f64>>,
+) -> PyResult<Vec<f64>> {
+    match (load, force) {
+        (Some(_), Some(_)) => Err(usage(
+            "give the tool load once: load= (force= is its old name)",
+        )),
+        (l, f) => wrench(m, l.or(f), "load"),
     }
 }
 
@@ -926,8 +961,9 @@ fn distances_arg(
             partner: Some(b),
             measured: vec![d],
             sigma: s.as_ref().map_or(vec![], |s| vec![Some(s[i])]),
+            // Numbered as the rows of the arrays, from 0, as the poses are.
             origin: Some(Origin {
-                pose: i + 1,
+                pose: i,
                 line: None,
                 distance: true,
             }),
@@ -1550,6 +1586,28 @@ impl PyCalibration {
             })
             .collect())
     }
+    /// Write the calibration record to ``path``: the JSON report
+    /// ``pkmcal calibrate --report`` writes (versioned, with the mechanism's
+    /// identity and the covariance), which :func:`load_calibration` and
+    /// ``pkmcal predict --uncertainty`` read back.
+    fn save(&self, py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<()> {
+        let p = path_arg(path)?;
+        py.detach(|| {
+            let report = pkmcal_io::calibrate::Report::new(
+                self.mech.spec(),
+                "Python arrays".into(),
+                &self.measurement,
+                &self.cal,
+                self.accuracy.clone(),
+                self.validation.clone(),
+                self.cross_validation.clone(),
+            );
+            written(|run| {
+                run.files
+                    .stage(std::path::Path::new(&p), report.to_json()?.as_bytes())
+            })
+        })
+    }
     /// Write the report (report.html with every figure as SVG and PNG) into
     /// the directory ``path`` (created if needed).
     fn save_report(&self, py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<()> {
@@ -1634,6 +1692,82 @@ impl PyCalibration {
             cross_validation: self.cross_validation.as_ref(),
         }
     }
+}
+
+/// A calibration read back from its record (:meth:`Calibration.save`, or
+/// ``pkmcal calibrate --report``): the identified parameters and their
+/// covariance, and the identity of the mechanism it is of. Pass it as
+/// ``params`` (with ``uncertainty=True`` for standard deviations); it serves
+/// only the mechanism it is of.
+#[pyclass(frozen, module = "pkmcal", name = "SavedCalibration")]
+struct PySavedCalibration {
+    record: pkmcal::identify::CalibrationRecord,
+    /// The file it was read from.
+    source: String,
+}
+
+#[pymethods]
+impl PySavedCalibration {
+    /// The calibrated mechanism's name.
+    #[getter]
+    fn mechanism(&self) -> String {
+        self.record.mechanism.clone()
+    }
+    /// The mechanism's identity (its joints, parameters and nominal values).
+    #[getter]
+    fn mechanism_identity(&self) -> String {
+        self.record.mechanism_identity.clone()
+    }
+    /// The record's version (0 for a report written before versions).
+    #[getter]
+    fn version(&self) -> u32 {
+        self.record.version
+    }
+    /// The model the parameters were identified with.
+    #[getter]
+    fn model(&self) -> &'static str {
+        self.record.model.name()
+    }
+    /// Every parameter's identified value, by name.
+    #[getter]
+    fn parameters(&self) -> std::collections::BTreeMap<String, f64> {
+        self.record
+            .parameters
+            .iter()
+            .map(|p| (p.name.clone(), p.identified))
+            .collect()
+    }
+    /// Covariance of the identified parameters (``covariance_names`` order).
+    #[getter]
+    fn covariance<'py>(&self, py: Python<'py>) -> Bound<'py, PyAny> {
+        let c = &self.record.covariance;
+        out2(py, c.matrix.concat(), c.names.len(), false)
+    }
+    /// Row and column names of ``covariance``.
+    #[getter]
+    fn covariance_names(&self) -> Vec<String> {
+        self.record.covariance.names.clone()
+    }
+    fn __repr__(&self) -> String {
+        format!(
+            "<SavedCalibration of {} ({} model, version {}) from {}>",
+            self.record.mechanism,
+            self.record.model.name(),
+            self.record.version,
+            self.source
+        )
+    }
+}
+
+/// Read a calibration record (:meth:`Calibration.save`, ``pkmcal calibrate
+/// --report``).
+#[pyfunction]
+fn load_calibration(path: &Bound<'_, PyAny>) -> PyResult<PySavedCalibration> {
+    let p = path_arg(path)?;
+    let record =
+        reading(|run| pkmcal_io::io::read_calibration_record(run, std::path::Path::new(&p)))
+            .map_err(cli_err)?;
+    Ok(PySavedCalibration { record, source: p })
 }
 
 /// Predicted tool positions and what the model computed with them.
@@ -1727,49 +1861,62 @@ impl PyPlan {
 ///
 /// ``params``: None (nominal), a dict name → value (others nominal), a
 /// :class:`Calibration` or a parameter file path. ``model``: ``"exact"``
-/// (default), ``"linear"`` or ``"rigid"``. ``force``: a constant wrench on
+/// (default), ``"linear"`` or ``"rigid"``. ``load``: a constant wrench on
 /// the tool (N along lengths, N·m about angles). ``uncertainty=True`` (with a
 /// Calibration) adds the covariance of each position.
 #[pyfunction]
-#[pyo3(signature = (mechanism, commands, params = None, *, model = None, force = None, uncertainty = false))]
+#[pyo3(signature = (mechanism, commands, params = None, *, model = None, load = None, force = None, uncertainty = false))]
 fn predict<'py>(
     py: Python<'py>,
     mechanism: &Bound<'py, PyMechanism>,
     commands: &Bound<'py, PyAny>,
     params: Option<&Bound<'py, PyAny>>,
     model: Option<&str>,
+    load: Option<Vec<f64>>,
     force: Option<Vec<f64>>,
     uncertainty: bool,
 ) -> PyResult<PyPrediction> {
     let m = mech_ref(mechanism);
     let spec = m.spec();
     let cal = params.and_then(|p| p.cast::<PyCalibration>().ok());
-    let model = match (model, &cal) {
+    let saved = params.and_then(|p| p.cast::<PySavedCalibration>().ok());
+    // The model and covariance of a calibration, or of one read back.
+    let (cal_model, cal_covariance) = match (&cal, &saved) {
+        (Some(c), _) => (
+            Some(c.get().cal.model),
+            Some(c.get().cal.parameter_covariance.clone()),
+        ),
+        (None, Some(s)) => (
+            Some(s.get().record.model),
+            Some(s.get().record.covariance.clone()),
+        ),
+        (None, None) => (None, None),
+    };
+    let model = match (model, cal_model) {
         (Some(s), _) => parse_model(s)?,
-        (None, Some(c)) => c.get().cal.model,
+        (None, Some(m)) => m,
         (None, None) => Model::Exact,
     };
-    if uncertainty && cal.is_none() {
+    if uncertainty && cal_covariance.is_none() {
         return Err(usage(
-            "uncertainty=True needs params=<a Calibration>: the covariance comes from its parameters",
+            "uncertainty=True needs params=<a Calibration or SavedCalibration>: the covariance comes from its parameters",
         ));
     }
     let p = params_arg(m, params, "params")?;
-    let force = wrench(m, force, "force")?;
+    let force = load_arg(m, load, force)?;
     let r = rows(commands, "commands", &m.actuators(), false)?;
-    let cal_ref = cal.as_ref().map(|c| &c.get().cal);
     let mech = &*m.mech;
-    let out: Vec<(pkmcal::Prediction, Option<DMatrix<f64>>)> = per_row(py, &r, |c| match cal_ref
-        .filter(|_| uncertainty)
-    {
-        Some(cal) => {
-            let pose = pkmcal::prepare_pose(mech, c, None)?;
-            let (pr, cov) =
-                pkmcal::tool_covariance(mech, &pose, &p, model, &force, &cal.parameter_covariance)?;
-            Ok((pr, Some(cov)))
-        }
-        None => Ok((pkmcal::predict(mech, &p, c, model, &force)?, None)),
-    })?;
+    let cov_ref = cal_covariance.as_ref().filter(|_| uncertainty);
+    let out: Vec<(pkmcal::Prediction, Option<DMatrix<f64>>)> =
+        per_row(py, &r, |c| match cov_ref {
+            Some(covariance) => {
+                let pose = pkmcal::prepare_pose(mech, c, None)?;
+                let (pr, cov) =
+                    pkmcal::tool_covariance(mech, &pose, &p, model, &force, covariance)?;
+                Ok((pr, Some(cov)))
+            }
+            None => Ok((pkmcal::predict(mech, &p, c, model, &force)?, None)),
+        })?;
     let nx = spec.tool_axes.len();
     let na = spec.n_actuated();
     let nj = spec.joints.len();
@@ -1871,7 +2018,7 @@ fn simulate<'py>(
 /// fitted with the readings (their noise estimated apart); their errors are
 /// in ``Calibration.distances``.
 #[pyfunction]
-#[pyo3(signature = (mechanism, commands, measured, *, sigma = None, targets = None, model = "exact", free = None, fix = None, start = None, loss = "squared", loss_scale = None, outlier_threshold = 4.0, drop_outliers = false, force = None, axes = None, points = None, ballbar = None, frame = "base", validation = None, holdout = None, kfold = None, seed = 1, distances = None))]
+#[pyo3(signature = (mechanism, commands, measured, *, sigma = None, targets = None, model = "exact", free = None, fix = None, start = None, loss = "squared", loss_scale = None, outlier_threshold = 4.0, drop_outliers = false, load = None, force = None, axes = None, points = None, ballbar = None, frame = "base", validation = None, holdout = None, kfold = None, seed = 1, distances = None))]
 #[allow(clippy::too_many_arguments)]
 fn calibrate<'py>(
     py: Python<'py>,
@@ -1888,6 +2035,7 @@ fn calibrate<'py>(
     loss_scale: Option<f64>,
     outlier_threshold: f64,
     drop_outliers: bool,
+    load: Option<Vec<f64>>,
     force: Option<Vec<f64>>,
     axes: Option<Vec<String>>,
     points: Option<&Bound<'py, PyAny>>,
@@ -1907,7 +2055,7 @@ fn calibrate<'py>(
     let start = params_arg(m, start, "start")?;
     let mut opts = CalibrationOptions::new(spec, parse_model(model)?);
     opts.free = free_arg(m, &mm, free, fix)?;
-    opts.force = wrench(m, force, "force")?;
+    opts.force = load_arg(m, load, force)?;
     opts.loss = Loss::named(loss, loss_scale).map_err(lib_err)?;
     if !(outlier_threshold.is_finite() && outlier_threshold > 0.0) {
         return Err(usage(format!(
@@ -1997,7 +2145,7 @@ fn calibrate<'py>(
 /// ``params`` (nominal by default), without fitting: rank, singular values
 /// and the combinations the data cannot see. Arguments as :func:`calibrate`.
 #[pyfunction]
-#[pyo3(signature = (mechanism, commands, measured, *, params = None, sigma = None, model = "exact", free = None, fix = None, force = None, axes = None, points = None, ballbar = None, frame = "base"))]
+#[pyo3(signature = (mechanism, commands, measured, *, params = None, sigma = None, model = "exact", free = None, fix = None, load = None, force = None, axes = None, points = None, ballbar = None, frame = "base"))]
 #[allow(clippy::too_many_arguments)]
 fn analyze<'py>(
     py: Python<'py>,
@@ -2009,6 +2157,7 @@ fn analyze<'py>(
     model: &str,
     free: Option<&Bound<'py, PyAny>>,
     fix: Option<&Bound<'py, PyAny>>,
+    load: Option<Vec<f64>>,
     force: Option<Vec<f64>>,
     axes: Option<Vec<String>>,
     points: Option<&Bound<'py, PyAny>>,
@@ -2021,7 +2170,7 @@ fn analyze<'py>(
     let params = params_arg(m, params, "params")?;
     let model = parse_model(model)?;
     let free = free_arg(m, &mm, free, fix)?;
-    let force = wrench(m, force, "force")?;
+    let force = load_arg(m, load, force)?;
     let mech = &*m.mech;
     let id = py
         .detach(|| pkmcal::analyze(mech, &mm, &data, &params, model, &free, &force))
@@ -2031,12 +2180,12 @@ fn analyze<'py>(
 
 /// Commands that bring the tool to each row of ``targets`` under ``params``
 /// (a Calibration, a dict or None), deflections included (``model="exact"``)
-/// or not (``"rigid"``); ``force``: a wrench on the tool; ``preload``:
+/// or not (``"rigid"``); ``load``: a wrench on the tool; ``preload``:
 /// actuator loads whose internal part is held. An unreachable or singular
 /// target raises, naming its row; with ``skip_unreachable=True`` its row is
 /// NaN and listed in ``skipped``.
 #[pyfunction]
-#[pyo3(signature = (mechanism, targets, params = None, *, model = "exact", force = None, preload = None, skip_unreachable = false))]
+#[pyo3(signature = (mechanism, targets, params = None, *, model = "exact", load = None, force = None, preload = None, skip_unreachable = false))]
 #[allow(clippy::too_many_arguments)]
 fn compensate<'py>(
     py: Python<'py>,
@@ -2044,6 +2193,7 @@ fn compensate<'py>(
     targets: &Bound<'py, PyAny>,
     params: Option<&Bound<'py, PyAny>>,
     model: &str,
+    load: Option<Vec<f64>>,
     force: Option<Vec<f64>>,
     preload: Option<Vec<f64>>,
     skip_unreachable: bool,
@@ -2053,7 +2203,7 @@ fn compensate<'py>(
     let p = params_arg(m, params, "params")?;
     let model = parse_model(model)?;
     let opts = pkmcal::CompensationOptions {
-        force: wrench(m, force, "force")?,
+        force: load_arg(m, load, force)?,
         preload: match preload {
             None => vec![],
             Some(v) => finite_list(&v, "preload", spec.n_actuated())?,
@@ -2263,6 +2413,8 @@ fn _pkmcal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyPrediction>()?;
     m.add_class::<PyCompensation>()?;
     m.add_class::<PyPlan>()?;
+    m.add_class::<PySavedCalibration>()?;
+    m.add_function(wrap_pyfunction!(load_calibration, m)?)?;
     m.add_function(wrap_pyfunction!(predict, m)?)?;
     m.add_function(wrap_pyfunction!(nominal_commands, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;

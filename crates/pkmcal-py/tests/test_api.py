@@ -220,3 +220,40 @@ def test_distances_between_poses_with_probe_heights():
     assert dist["after"].shape == (12,)
     with pytest.raises(pkmcal.PkmcalError, match="distances"):
         pkmcal.calibrate(delta, commands, measured, axes=["probe"], distances=(ca, cb))
+    # A bad distance row is named by its row, from 0, as the poses are.
+    same = cb.copy()
+    same[5] = ca[5]
+    with pytest.raises(pkmcal.PkmcalError) as e:
+        pkmcal.calibrate(delta, commands, measured, axes=["probe"], free=free, distances=(ca, same, d))
+    assert e.value.pose == 5, str(e.value)
+    assert "distance 5" in str(e.value), str(e.value)
+
+
+def test_a_calibration_saved_and_read_back(tmp_path):
+    """Calibration.save writes the calibration record (the CLI's report);
+    load_calibration reads it back exactly; it serves predict (with its
+    covariance) on its own mechanism only, and the CLI reads it too."""
+    mech = pkmcal.Mechanism()
+    targets = pkmcal.plan(mech, 25).targets
+    commands, measured = pkmcal.simulate(mech, targets, {"l11": 280.3, "dq3": 0.002}, noise=0.002)
+    cal = pkmcal.calibrate(mech, commands, measured)
+    path = tmp_path / "cal.json"
+    cal.save(path)
+    saved = pkmcal.load_calibration(path)
+    assert saved.version == 1 and saved.mechanism == mech.name
+    assert saved.mechanism_identity.startswith("fnv1a64:")
+    assert saved.model == cal.model
+    assert saved.parameters == cal.parameters
+    assert np.array_equal(saved.covariance, cal.covariance)
+    a = pkmcal.predict(mech, commands, cal, uncertainty=True)
+    b = pkmcal.predict(mech, commands, saved, uncertainty=True)
+    assert np.array_equal(a.x, b.x)
+    assert np.array_equal(a.covariance, b.covariance)
+    # Only its own mechanism.
+    delta = pkmcal.Mechanism(EXAMPLES / "linear-delta" / "mechanism.toml")
+    with pytest.raises(pkmcal.PkmcalError, match="another mechanism"):
+        pkmcal.predict(delta, [[300.0, 300.0, 300.0]], saved)
+    # A report of another kind is refused.
+    (tmp_path / "other.json").write_text('{"format": "x", "version": 1}')
+    with pytest.raises(pkmcal.PkmcalError):
+        pkmcal.load_calibration(tmp_path / "other.json")

@@ -78,8 +78,16 @@ def test_options(ref):
         pkmcal.calibrate(mech, c, y, frame="tracker")
     with pytest.raises(pkmcal.PkmcalError, match="either validation"):
         pkmcal.calibrate(mech, c, y, validation=(c, y), holdout=0.2)
-    with pytest.raises(pkmcal.PkmcalError, match="force: expected 2 values"):
+    with pytest.raises(pkmcal.PkmcalError, match="load: expected 2 values"):
+        pkmcal.predict(mech, c, load=[1.0, 2.0, 3.0])
+    # force= is the old name of load=, still read; not both.
+    with pytest.raises(pkmcal.PkmcalError, match="load: expected 2 values"):
         pkmcal.predict(mech, c, force=[1.0, 2.0, 3.0])
+    with pytest.raises(pkmcal.PkmcalError, match="once"):
+        pkmcal.predict(mech, c, load=[1.0, 2.0], force=[1.0, 2.0])
+    assert np.array_equal(
+        pkmcal.predict(mech, c, load=[1.0, 2.0]).x, pkmcal.predict(mech, c, force=[1.0, 2.0]).x
+    )
     with pytest.raises(pkmcal.PkmcalError, match="uncertainty=True needs"):
         pkmcal.predict(mech, c, uncertainty=True)
     with pytest.raises(pkmcal.PkmcalError, match="one number cannot be the σ"):

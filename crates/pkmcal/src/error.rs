@@ -88,7 +88,10 @@ pub type Result<T, E = Error> = std::result::Result<T, E>;
 /// Where a pose came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
 pub struct Origin {
-    /// Pose number in the data file (1-based, file order).
+    /// The pose's number as its front end numbers its users' rows: the
+    /// command-line tool by file order from 1 (with the file `line`), the
+    /// Python package by array row from 0; the same way for poses and
+    /// distances.
     pub pose: usize,
     /// Line in the data file.
     pub line: Option<u64>,

@@ -7,7 +7,7 @@ use pkmcal::{Mechanism, Model, Params, Prediction, predict_pose, prepare_pose};
 use pkmcal_io::Run;
 use pkmcal_io::io::{Mech, read_description};
 use rayon::prelude::*;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -25,8 +25,10 @@ pub struct Args {
     pub commands: PathBuf,
     #[command(flatten)]
     pub load: args::LoadArg,
-    /// Calibration report (from `calibrate --report`) whose parameter covariance
-    /// gives each prediction's standard deviation (columns sigma_<axis>).
+    /// Calibration report (from `calibrate --report`, or Python's
+    /// Calibration.save) whose parameter covariance gives each prediction's
+    /// standard deviation (columns sigma_<axis>); its parameters are used
+    /// unless --params gives others. It must be of this mechanism.
     #[arg(long, value_name = "REPORT.json")]
     pub uncertainty: Option<PathBuf>,
     /// Output CSV.
@@ -118,7 +120,6 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     let units = pkmcal_io::fileunits::of(run, &description);
     let mech = description.mech;
     let spec = mech.spec();
-    let params = pkmcal_io::io::params_or_nominal(run, a.params.as_deref(), &mech)?;
     let model: Model = a.model;
     let force = pkmcal_io::io::checked_load(a.load.values(), spec)?;
     // Streamed in batches (memory flat in the rows, a pipe works), each
@@ -131,23 +132,34 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         .map(|s| s.to_string())
         .collect();
     let cols = input.columns(&names)?;
-    let covariance = match &a.uncertainty {
+    // The calibration record is read and checked against this mechanism
+    // first, so that a report of another mechanism, or a malformed one, is
+    // blamed on the report and not on a row of the commands.
+    let record = match &a.uncertainty {
         Some(path) => {
-            let c = pkmcal_io::io::read_covariance(run, path)?;
-            // Checked against this mechanism here, so that a report of
-            // another mechanism, or a malformed matrix, is blamed on the
-            // report and not on a row of the commands.
-            c.resolve(spec).with_context(|| {
-                format!(
-                    "{}: its `covariance` cannot serve {} (give the report of a calibration of this mechanism)",
+            let r = pkmcal_io::io::read_calibration_record(run, path)?;
+            r.check(spec).map_err(|e| {
+                anyhow::anyhow!(
+                    "{}: this calibration cannot serve {}: {e}; give the report of a calibration of this mechanism",
                     path.display(),
                     spec.name
                 )
             })?;
-            Some(c)
+            Some(r)
         }
         None => None,
     };
+    // The parameters: --params, else the record's, else nominal.
+    let params = match (&a.params, &record) {
+        (None, Some(r)) => r.params(spec).map_err(|e| {
+            anyhow::anyhow!(
+                "{}: {e}",
+                a.uncertainty.as_deref().unwrap_or(Path::new("")).display()
+            )
+        })?,
+        _ => pkmcal_io::io::params_or_nominal(run, a.params.as_deref(), &mech)?,
+    };
+    let covariance = record.map(|r| r.covariance);
     let settings = PredictSettings {
         params: &params,
         model,

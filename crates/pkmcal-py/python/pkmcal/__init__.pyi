@@ -11,7 +11,7 @@ __version__: str
 ArrayLike = npt.ArrayLike
 Array = npt.NDArray[np.float64]
 ModelName = Literal["exact", "linear", "rigid"]
-Params = Union[None, Mapping[str, float], "Calibration", str]
+Params = Union[None, Mapping[str, float], "Calibration", "SavedCalibration", str]
 Names = Union[None, str, Sequence[str]]
 
 class PkmcalError(ValueError):
@@ -178,6 +178,7 @@ class Calibration:
     @property
     def dropped(self) -> list[int]: ...
     def to_toml(self) -> str: ...
+    def save(self, path: Union[str, os.PathLike]) -> None: ...
     def _repr_html_(self) -> str: ...
     def figures(self) -> list[Figure]: ...
     def save_report(self, path: Union[str, os.PathLike]) -> None: ...
@@ -208,12 +209,32 @@ class Plan:
     spacing: float
     candidates: int
 
+class SavedCalibration:
+    """A calibration read back by :func:`load_calibration`; pass it as ``params``."""
+
+    @property
+    def mechanism(self) -> str: ...
+    @property
+    def mechanism_identity(self) -> str: ...
+    @property
+    def version(self) -> int: ...
+    @property
+    def model(self) -> ModelName: ...
+    @property
+    def parameters(self) -> dict[str, float]: ...
+    @property
+    def covariance(self) -> Array: ...
+    @property
+    def covariance_names(self) -> list[str]: ...
+
+def load_calibration(path: Union[str, os.PathLike]) -> SavedCalibration: ...
 def predict(
     mechanism: Mechanism,
     commands: ArrayLike,
     params: Params = None,
     *,
     model: Optional[ModelName] = None,
+    load: Optional[Sequence[float]] = None,
     force: Optional[Sequence[float]] = None,
     uncertainty: bool = False,
 ) -> Prediction: ...
@@ -245,6 +266,7 @@ def calibrate(
     loss_scale: Optional[float] = None,
     outlier_threshold: float = 4.0,
     drop_outliers: bool = False,
+    load: Optional[Sequence[float]] = None,
     force: Optional[Sequence[float]] = None,
     axes: Optional[Sequence[str]] = None,
     points: Union[None, ArrayLike, Literal["mechanism"]] = None,
@@ -266,6 +288,7 @@ def analyze(
     model: ModelName = "exact",
     free: Names = None,
     fix: Names = None,
+    load: Optional[Sequence[float]] = None,
     force: Optional[Sequence[float]] = None,
     axes: Optional[Sequence[str]] = None,
     points: Union[None, ArrayLike, Literal["mechanism"]] = None,
@@ -278,6 +301,7 @@ def compensate(
     params: Params = None,
     *,
     model: Literal["exact", "rigid"] = "exact",
+    load: Optional[Sequence[float]] = None,
     force: Optional[Sequence[float]] = None,
     preload: Optional[Sequence[float]] = None,
     skip_unreachable: bool = False,

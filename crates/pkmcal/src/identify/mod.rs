@@ -8,6 +8,7 @@ pub mod identifiability;
 pub mod loss;
 pub mod noise;
 pub mod problem;
+pub mod record;
 pub mod result;
 pub mod stats;
 pub mod study;
@@ -26,6 +27,10 @@ pub use identifiability::{
 };
 pub use loss::{Loss, OUTLIER_FLOOR_MM, OUTLIER_FLOOR_RAD, Outlier};
 pub use problem::{IdentificationProblem, PoseCache};
+pub use record::{
+    CALIBRATION_FORMAT, CALIBRATION_VERSION, CalibrationRecord, RecordError, RecordedParameter,
+    mechanism_identity,
+};
 pub use result::{Calibration, ParameterResult, Warning, WarningKind};
 pub use study::{
     FreeSetError, NameList, Study, StudyError, StudyOptions, StudyStage, StudyValidation,

@@ -14,5 +14,6 @@ mod measurements;
 mod nist_strd;
 mod noise;
 mod planar;
+mod record;
 mod spatial;
 mod use_calibration;

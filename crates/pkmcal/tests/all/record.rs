@@ -1,0 +1,114 @@
+//! The calibration record: a mechanism's identity, and a record that comes
+//! back from JSON exactly and serves only the mechanism it is of.
+
+use crate::common;
+use pkmcal::identify::{CALIBRATION_VERSION, CalibrationRecord, RecordError, mechanism_identity};
+use pkmcal::kinds::reference::{JeongKim2Dof, demo_truth};
+use pkmcal::*;
+
+#[test]
+fn the_identity_is_what_the_model_is() {
+    let mech = JeongKim2Dof::new();
+    let id = mechanism_identity(mech.spec());
+    assert!(id.starts_with("fnv1a64:") && id.len() == 8 + 16, "{id}");
+    // A name, a workspace box or a default free set is not the model.
+    let mut renamed = mech.spec().clone();
+    renamed.name = "another name".into();
+    renamed.workspace_box[0][1] += 10.0;
+    renamed.default_free.clear();
+    assert_eq!(mechanism_identity(&renamed), id);
+    // A nominal value is, to the last bit.
+    let mut longer = mech.spec().clone();
+    longer.nominal[0] = f64::from_bits(longer.nominal[0].to_bits() + 1);
+    assert_ne!(mechanism_identity(&longer), id);
+    // Every shipped example has its own.
+    let ids: Vec<String> = ["gough-stewart-6", "gough-stewart-8"]
+        .iter()
+        .map(|n| mechanism_identity(common::gough_stewart(n).spec()))
+        .chain(
+            ["linear-delta", "rotary-delta"]
+                .iter()
+                .map(|n| mechanism_identity(common::spatial(n).spec())),
+        )
+        .chain([id.clone()])
+        .collect();
+    for (i, a) in ids.iter().enumerate() {
+        assert!(!ids[i + 1..].contains(a), "{ids:?}");
+    }
+}
+
+#[test]
+fn a_record_comes_back_exactly_and_serves_only_its_mechanism() {
+    let mech = JeongKim2Dof::new();
+    let spec = mech.spec();
+    let poses: Vec<Vec<f64>> = spread_targets(&mech, 30)
+        .unwrap()
+        .into_iter()
+        .map(|p| p.target)
+        .collect();
+    let tool = MeasurementModel::tool(spec);
+    let data = simulate(
+        &mech,
+        &tool,
+        &demo_truth(),
+        &poses,
+        Noise::lengths(0.002),
+        7,
+    )
+    .unwrap();
+    let cal = calibrate(
+        &mech,
+        &tool,
+        &data,
+        &Params::nominal(spec),
+        &CalibrationOptions::new(spec, Model::Exact),
+    )
+    .unwrap();
+    let record = CalibrationRecord::new(spec, &cal);
+    assert_eq!(record.version, CALIBRATION_VERSION);
+    let back: CalibrationRecord =
+        serde_json::from_str(&serde_json::to_string_pretty(&record).unwrap()).unwrap();
+    assert_eq!(back, record);
+    assert_eq!(back.check(spec), Ok(()));
+    assert_eq!(back.params(spec).unwrap().values, cal.params.values);
+    // Another mechanism.
+    let other = common::gough_stewart("gough-stewart-6");
+    assert!(matches!(
+        back.check(other.spec()),
+        Err(RecordError::OtherMechanism { .. })
+    ));
+    // The same mechanism with another nominal value.
+    let mut moved = spec.clone();
+    moved.nominal[0] += 0.1;
+    assert!(matches!(
+        back.check(&moved),
+        Err(RecordError::OtherMechanism { .. })
+    ));
+    // A newer version, another format.
+    let newer = CalibrationRecord {
+        version: CALIBRATION_VERSION + 1,
+        ..back.clone()
+    };
+    assert_eq!(
+        newer.check(spec),
+        Err(RecordError::Version {
+            found: CALIBRATION_VERSION + 1
+        })
+    );
+    let other_format = CalibrationRecord {
+        format: "x".into(),
+        ..back.clone()
+    };
+    assert!(matches!(
+        other_format.check(spec),
+        Err(RecordError::Format(_))
+    ));
+    // A report written before versions: read by names.
+    let legacy = CalibrationRecord {
+        format: String::new(),
+        version: 0,
+        mechanism_identity: String::new(),
+        ..back.clone()
+    };
+    assert_eq!(legacy.check(spec), Ok(()));
+}
