@@ -1866,6 +1866,7 @@ impl PyPlan {
 /// Calibration) adds the covariance of each position.
 #[pyfunction]
 #[pyo3(signature = (mechanism, commands, params = None, *, model = None, load = None, force = None, uncertainty = false))]
+#[allow(clippy::too_many_arguments)]
 fn predict<'py>(
     py: Python<'py>,
     mechanism: &Bound<'py, PyMechanism>,
