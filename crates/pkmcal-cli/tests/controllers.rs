@@ -270,7 +270,20 @@ fn data_in_other_units_calibrate_alike_and_wrong_units_are_named() {
     for (a, b) in values("a.toml").iter().zip(values("b.toml")) {
         assert!((a - b).abs() <= 1e-7 * a.abs().max(1.0), "{a} vs {b}");
     }
-    // The same file read as mm and rad: the unit is named with the fix.
+    // Its own units line is read: no option needed.
+    ok(d, &["calibrate", "--data", "m.csv", "--out", "c.toml"]);
+    for (a, b) in values("a.toml").iter().zip(values("c.toml")) {
+        assert!((a - b).abs() <= 1e-7 * a.abs().max(1.0), "{a} vs {b}");
+    }
+    std::fs::remove_file(d.join("c.toml")).unwrap();
+    // The same numbers without the line (an instrument's export), read as
+    // mm and rad: the unit is named with the fix.
+    let bare: String = text
+        .lines()
+        .filter(|l| !l.starts_with("# units:"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(d.join("m.csv"), bare).unwrap();
     fails(
         d,
         &["calibrate", "--data", "m.csv", "--out", "c.toml"],
@@ -772,17 +785,12 @@ fn readme_walkthrough_from_a_tracker_export_to_controller_corrections() {
             "sim.csv",
         ],
     );
-    // sed -e '/^#/!{s/,/;/g; s/\./,/g}'
+    // sed -e '/^#/d; s/,/;/g; s/\./,/g' (an export has no comment lines)
     let text: String = std::fs::read_to_string(d.join("sim.csv"))
         .unwrap()
         .lines()
-        .map(|l| {
-            if l.starts_with('#') {
-                l.to_string()
-            } else {
-                l.replace(',', ";").replace('.', ",")
-            }
-        })
+        .filter(|l| !l.starts_with('#'))
+        .map(|l| l.replace(',', ";").replace('.', ","))
         .map(|l| l + "\n")
         .collect();
     std::fs::write(d.join("tracker.csv"), text).unwrap();

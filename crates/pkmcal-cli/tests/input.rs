@@ -354,3 +354,167 @@ fn spreadsheet_exports_are_read() {
         "missing column `q1`; did you mean `q_1`?",
     );
 }
+
+/// The files the README promises to read: single-space separated (numpy's
+/// `savetxt`), a byte order mark before a comment line, upper-case headers
+/// (`sigma_X` too). Each gives the same calibration, bit for bit, as the
+/// comma-separated file it was made from; the streamed reader (`predict`)
+/// reads them too. Headers that differ only in case are refused by name.
+#[test]
+fn files_as_users_write_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    ok(
+        d,
+        &[
+            "simulate", "--grid", "20", "--noise", "0.002", "--out", "data.csv",
+        ],
+    );
+    let text = std::fs::read_to_string(d.join("data.csv")).unwrap();
+    let lines: Vec<&str> = text.lines().filter(|l| !l.starts_with('#')).collect();
+    // A σ column per axis, to check upper-case σ columns.
+    let with_sigma: Vec<String> = lines
+        .iter()
+        .enumerate()
+        .map(|(i, l)| {
+            if i == 0 {
+                format!("{l},sigma_x")
+            } else {
+                format!("{l},0.002")
+            }
+        })
+        .collect();
+    std::fs::write(d.join("comma.csv"), with_sigma.join("\n") + "\n").unwrap();
+    let spaced: Vec<String> = with_sigma.iter().map(|l| l.replace(',', " ")).collect();
+    std::fs::write(d.join("space.csv"), spaced.join("\n") + "\n").unwrap();
+    std::fs::write(
+        d.join("bom.csv"),
+        format!(
+            "\u{feff}# exported by a spreadsheet\n{}\n",
+            with_sigma.join("\n")
+        ),
+    )
+    .unwrap();
+    let mut upper = with_sigma.clone();
+    upper[0] = upper[0].to_uppercase();
+    std::fs::write(d.join("upper.csv"), upper.join("\n") + "\n").unwrap();
+    ok(
+        d,
+        &["calibrate", "--data", "comma.csv", "--out", "comma.toml"],
+    );
+    let want = std::fs::read_to_string(d.join("comma.toml")).unwrap();
+    for f in ["space.csv", "bom.csv", "upper.csv"] {
+        ok(d, &["calibrate", "--data", f, "--out", "p.toml"]);
+        let got = std::fs::read_to_string(d.join("p.toml")).unwrap();
+        // The header comment names the data file; the values are the same.
+        let values = |t: &str| -> Vec<String> {
+            t.lines()
+                .filter(|l| !l.starts_with('#'))
+                .map(String::from)
+                .collect()
+        };
+        assert_eq!(values(&got), values(&want), "{f}");
+        ok(d, &["predict", "--commands", f, "--out", "pred.csv"]);
+    }
+    // Names that differ only in case: which is meant is not guessed.
+    let mut both = with_sigma.clone();
+    both[0] = both[0].replace("target_x", "X");
+    std::fs::write(d.join("both.csv"), both.join("\n") + "\n").unwrap();
+    fails(
+        d,
+        &["calibrate", "--data", "both.csv", "--out", "p.toml"],
+        1,
+        "differ only in case",
+    );
+}
+
+/// A data file pkmcal wrote in other units names them on its first line,
+/// and is read back by that line, without options; `--units` still wins,
+/// with a note where it disagrees with the line.
+#[test]
+fn a_file_written_with_units_is_read_back_without_options() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    ok(
+        d,
+        &[
+            "simulate",
+            "--grid",
+            "20",
+            "--noise",
+            "0.002",
+            "--units",
+            "angle=deg,length=m",
+            "--out",
+            "data.csv",
+        ],
+    );
+    assert!(
+        std::fs::read_to_string(d.join("data.csv"))
+            .unwrap()
+            .contains("# units: angles in deg, lengths in m")
+    );
+    ok(
+        d,
+        &["calibrate", "--data", "data.csv", "--out", "bare.toml"],
+    );
+    ok(
+        d,
+        &[
+            "calibrate",
+            "--data",
+            "data.csv",
+            "--units",
+            "angle=deg,length=m",
+            "--out",
+            "given.toml",
+        ],
+    );
+    let values = |f: &str| -> Vec<String> {
+        std::fs::read_to_string(d.join(f))
+            .unwrap()
+            .lines()
+            .filter(|l| !l.starts_with('#'))
+            .map(String::from)
+            .collect()
+    };
+    assert_eq!(values("bare.toml"), values("given.toml"));
+    // The streamed reader, too: the commands in degrees, the output in the
+    // run's units (here mm and rad).
+    ok(
+        d,
+        &["predict", "--commands", "data.csv", "--out", "pred.csv"],
+    );
+    // An option that disagrees wins, and says so.
+    let o = run(
+        d,
+        &[
+            "calibrate",
+            "--data",
+            "data.csv",
+            "--units",
+            "angle=rad",
+            "--out",
+            "p.toml",
+        ],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("data.csv says angles in deg (given: rad)"),
+        "{err}"
+    );
+    // A units line pkmcal does not write is refused, naming file and line.
+    std::fs::write(
+        d.join("odd.csv"),
+        std::fs::read_to_string(d.join("data.csv"))
+            .unwrap()
+            .replace("angles in deg", "angles in grad"),
+    )
+    .unwrap();
+    fails(
+        d,
+        &["calibrate", "--data", "odd.csv", "--out", "p.toml"],
+        1,
+        "odd.csv, line 2",
+    );
+}

@@ -19,7 +19,10 @@ pub fn read_data<M: Mechanism>(
     measurement: &MeasurementModel,
     units: &pkmcal::FileUnits,
 ) -> Result<Vec<Measurement>> {
-    data_from(&Csv::read(run, path)?, mech, measurement, units)
+    let csv = Csv::read(run, path)?;
+    // The file's own units line over `units` (the run's), `--units` over both.
+    let units = crate::fileunits::for_file(run, units, csv.units.as_ref(), &csv.path);
+    data_from(&csv, mech, measurement, &units)
 }
 
 /// [`read_data`] from an already parsed table: every pose carries its σ
@@ -51,7 +54,7 @@ pub fn data_from<M: Mechanism>(
         .iter()
         .map(|a| format!("target_{a}"))
         .collect();
-    let has_targets = target_names.iter().all(|n| csv.headers.contains(n));
+    let has_targets = target_names.iter().all(|n| csv.has(n));
     let targets = if has_targets {
         let mut t = csv.named(&target_names)?;
         fu::to_internal(&mut t, &fu::tool(spec, units));
@@ -99,6 +102,7 @@ pub fn read_distances<M: Mechanism>(
     units: &pkmcal::FileUnits,
 ) -> Result<Vec<Measurement>> {
     let csv = Csv::read(run, path)?;
+    let units = &crate::fileunits::for_file(run, units, csv.units.as_ref(), &csv.path);
     csv.require_rows()?;
     measurement
         .check_distances()
@@ -120,7 +124,7 @@ pub fn read_distances<M: Mechanism>(
     let mut d = csv.named(&[pkmcal::DISTANCE_AXIS.to_string()])?;
     fu::to_internal(&mut d, &length);
     let sigma_name = format!("sigma_{}", pkmcal::DISTANCE_AXIS);
-    let sigma = if csv.headers.contains(&sigma_name) {
+    let sigma = if csv.has(&sigma_name) {
         let mut s = csv.named(&[sigma_name])?;
         fu::to_internal(&mut s, &length);
         Some(s)
@@ -186,12 +190,15 @@ pub fn sigma_from(
         .iter()
         .enumerate()
         .map(|(k, a)| (k, format!("sigma_{a}")))
-        .filter(|(_, n)| csv.headers.contains(n))
+        .filter(|(_, n)| csv.has(n))
         .collect();
     let unknown: Vec<&String> = csv
         .headers
         .iter()
-        .filter(|h| h.starts_with("sigma_") && !per_axis.iter().any(|(_, n)| n == *h))
+        .filter(|h| {
+            h.to_ascii_lowercase().starts_with("sigma_")
+                && !per_axis.iter().any(|(_, n)| n.eq_ignore_ascii_case(h))
+        })
         .collect();
     if !unknown.is_empty() {
         bail!(
@@ -207,7 +214,7 @@ pub fn sigma_from(
             axes.join(", sigma_")
         );
     }
-    let common = csv.headers.iter().any(|h| h == "sigma");
+    let common = csv.has("sigma");
     if common && !per_axis.is_empty() {
         bail!(
             "{}: give either one `sigma` column or per-axis `sigma_<axis>` columns, not both",
@@ -457,7 +464,8 @@ pub fn measurement_of(
     axes: Option<&str>,
 ) -> Result<MeasurementModel> {
     let spec = description.mech.spec();
-    let has = |h: &str| csv.headers.iter().any(|c| c == h);
+    // Regardless of case, as every column is found.
+    let has = |h: &str| csv.has(h);
     let whole = spec.tool_axes.iter().all(|a| has(a));
     let some: Vec<&String> = spec.tool_axes.iter().filter(|a| has(a)).collect();
     let file = csv.path.display();
@@ -554,9 +562,10 @@ fn read_measured(
     let csv = Csv::read(run, data)?;
     let measurement = measurement_of(run, &csv, &description, setup, frame, axes)?;
     let units = crate::fileunits::of(run, &description);
+    let file_units = crate::fileunits::for_file(run, &units, csv.units.as_ref(), &csv.path);
     let mech = description.mech;
-    let data = data_from(&csv, &mech, &measurement, &units)?;
-    crate::hints::check_data(&mech, &measurement, &data, &units, &csv.path)?;
+    let data = data_from(&csv, &mech, &measurement, &file_units)?;
+    crate::hints::check_data(&mech, &measurement, &data, &file_units, &csv.path)?;
     Ok(Measured {
         mech,
         measurement,

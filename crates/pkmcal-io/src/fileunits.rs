@@ -6,6 +6,76 @@
 
 use pkmcal::{FileUnits, Role, Spec, Unit};
 
+/// The comment line that says which units a data file is in
+/// (`# units: angles in deg, lengths in m`), written atop every data file
+/// pkmcal writes in other units than mm and rad, and read back.
+pub const UNITS_COMMENT: &str = "# units:";
+
+/// The units a line declares, if it is a units comment line ([`UNITS_COMMENT`]).
+pub fn units_line(line: &str) -> Option<pkmcal::Result<FileUnits>> {
+    line.trim()
+        .strip_prefix(UNITS_COMMENT)
+        .map(|rest| FileUnits::from_description(rest.trim()))
+}
+
+/// The units of one data file: the file's own units line (`line`) when it
+/// has one, else the mechanism's `[units]` (`base`, which already holds
+/// them and the run's units); the run's units (`--units`) over either. Where
+/// the file's line and the run's units disagree, a note says so (the run's
+/// units win).
+pub fn for_file(
+    run: &crate::Run<'_>,
+    base: &FileUnits,
+    line: Option<&FileUnits>,
+    path: &std::path::Path,
+) -> FileUnits {
+    let Some(line) = line else {
+        return *base;
+    };
+    let given = &run.units;
+    let mut differ = vec![];
+    if let Some(a) = given.angle.filter(|a| *a != line.angle) {
+        differ.push(format!(
+            "angles in {} (given: {})",
+            line.angle.symbol(),
+            a.symbol()
+        ));
+    }
+    if let Some(l) = given.length.filter(|l| *l != line.length) {
+        differ.push(format!(
+            "lengths in {} (given: {})",
+            line.length.symbol(),
+            l.symbol()
+        ));
+    }
+    if let Some(c) = given
+        .counts_per_rev
+        .filter(|c| Some(*c) != line.counts_per_rev)
+    {
+        differ.push(format!(
+            "counts per rev {:?} (given: {c})",
+            line.counts_per_rev
+        ));
+    }
+    if let Some(c) = given
+        .counts_per_mm
+        .filter(|c| Some(*c) != line.counts_per_mm)
+    {
+        differ.push(format!(
+            "counts per mm {:?} (given: {c})",
+            line.counts_per_mm
+        ));
+    }
+    if !differ.is_empty() {
+        crate::note!(
+            "note: {} says {}; the units given to this run win",
+            path.display(),
+            differ.join(", ")
+        );
+    }
+    line.with(given)
+}
+
 /// The data-file units for a command run with the mechanism description
 /// `d`: its `[units]` table, then the run's units (`--units`).
 pub fn of(run: &crate::Run<'_>, d: &crate::io::Description) -> FileUnits {
@@ -63,7 +133,7 @@ pub fn comment(u: &FileUnits) -> Option<String> {
     if u.is_internal() {
         return None;
     }
-    Some(format!("# units: {}", u.describe()))
+    Some(format!("{UNITS_COMMENT} {}", u.describe()))
 }
 
 /// `bytes` with the units comment line in front.

@@ -18,11 +18,33 @@ pub struct Csv {
     pub base_frame: bool,
     /// The field delimiter found ([`detect_delimiter`]).
     pub delimiter: u8,
+    /// The units its own `# units:` line declares
+    /// ([`crate::fileunits::UNITS_COMMENT`]), if it has one.
+    pub units: Option<pkmcal::FileUnits>,
 }
 
 /// The comment line that declares a data file's measurements to be in the
 /// mechanism's base frame.
 pub const BASE_FRAME_COMMENT: &str = "# frame: base";
+
+/// The units a data file's own `# units:` line declares (the first such
+/// comment line); an error naming the file and line if it is not one pkmcal
+/// writes.
+fn declared_units(path: &Path, text: &str) -> Result<Option<pkmcal::FileUnits>> {
+    for (k, line) in text.lines().enumerate() {
+        if let Some(u) = crate::fileunits::units_line(line) {
+            return u.map(Some).with_context(|| {
+                format!(
+                    "{}, line {}: the units line `{}`",
+                    path.display(),
+                    k + 1,
+                    line.trim()
+                )
+            });
+        }
+    }
+    Ok(None)
+}
 
 impl Csv {
     pub fn read(run: &crate::Run<'_>, path: &Path) -> Result<Self> {
@@ -30,13 +52,18 @@ impl Csv {
             .files
             .read(path, crate::output::InputKind::Data)
             .with_context(|| format!("cannot open {}", path.display()))?;
-        // Line ends as `\n`, whichever the file uses (`\r` alone included).
-        let mut bytes = bytes;
+        // Line ends as `\n`, whichever the file uses (`\r` alone included);
+        // a byte order mark is no part of the first line.
+        let mut bytes = match bytes.strip_prefix(UTF8_BOM) {
+            Some(rest) => rest.to_vec(),
+            None => bytes,
+        };
         let n = crate::output::LineEnds::default().unify(&mut bytes);
         bytes.truncate(n);
         let base_frame = String::from_utf8_lossy(&bytes)
             .lines()
             .any(|l| l.trim() == BASE_FRAME_COMMENT);
+        let units = declared_units(path, &String::from_utf8_lossy(&bytes))?;
         let mut text = Vec::with_capacity(bytes.len());
         std::io::Read::read_to_end(&mut Uncomment::new(bytes.as_slice()), &mut text)
             .with_context(|| format!("cannot read {}", path.display()))?;
@@ -89,6 +116,7 @@ impl Csv {
             rows,
             base_frame,
             delimiter: found,
+            units,
         })
     }
 
@@ -96,6 +124,12 @@ impl Csv {
     /// ([`commands_belong`]).
     pub fn check_commands_belong(&self, spec: &pkmcal::Spec) -> Result<()> {
         commands_belong(&self.path, &self.headers, spec)
+    }
+
+    /// Whether the file has a column `name`, regardless of case (as
+    /// [`Csv::column`] finds it).
+    pub fn has(&self, name: &str) -> bool {
+        self.headers.iter().any(|h| h.eq_ignore_ascii_case(name))
     }
 
     /// Index of a column by name; an error naming the file and the columns
@@ -205,6 +239,9 @@ pub fn commands_belong(path: &Path, headers: &[String], spec: &pkmcal::Spec) -> 
 pub struct CsvStream {
     pub path: PathBuf,
     pub headers: Vec<String>,
+    /// The units its own `# units:` line declares, if it has one (among the
+    /// comment lines above its header).
+    pub units: Option<pkmcal::FileUnits>,
     rdr: csv::Reader<Tee<Box<dyn std::io::Read>>>,
     lines: LineCounter<Copied>,
     rows: usize,
@@ -218,6 +255,26 @@ impl CsvStream {
             .files
             .open(path)
             .with_context(|| format!("cannot open {}", path.display()))?;
+        // A byte order mark is no part of the first line.
+        let mut file = std::io::BufReader::with_capacity(1 << 16, file);
+        if file
+            .fill_buf()
+            .with_context(|| format!("cannot read {}", path.display()))?
+            .starts_with(UTF8_BOM)
+        {
+            file.consume(UTF8_BOM.len());
+        }
+        // A units line among the comment lines above the header.
+        let head = file
+            .fill_buf()
+            .with_context(|| format!("cannot read {}", path.display()))?;
+        let head = String::from_utf8_lossy(head);
+        let above: String = head
+            .lines()
+            .take_while(|l| l.trim().is_empty() || l.trim_start().starts_with('#'))
+            .map(|l| format!("{l}\n"))
+            .collect();
+        let units = declared_units(path, &above)?;
         // The delimiter from the first buffer (it holds the header line).
         let mut buffered = std::io::BufReader::with_capacity(1 << 16, Uncomment::new(file));
         let delimiter = detect_delimiter(
@@ -254,6 +311,7 @@ impl CsvStream {
         Ok(Self {
             path: path.to_path_buf(),
             headers,
+            units,
             rdr,
             lines,
             rows: 0,
@@ -314,6 +372,11 @@ impl CsvStream {
 pub struct Whitespace<R> {
     inner: R,
     raw: Vec<u8>,
+    /// Rewritten bytes not yet handed out (a reader may ask for one byte at
+    /// a time, as `read_to_end` does when it probes).
+    out: Vec<u8>,
+    /// The next byte of `out` to hand out.
+    at: usize,
     pending: bool,
     line_start: bool,
 }
@@ -323,6 +386,8 @@ impl<R: std::io::Read> Whitespace<R> {
         Self {
             inner,
             raw: vec![0; 1 << 15],
+            out: Vec::with_capacity(1 << 16),
+            at: 0,
             pending: false,
             line_start: true,
         }
@@ -331,45 +396,44 @@ impl<R: std::io::Read> Whitespace<R> {
 
 impl<R: std::io::Read> std::io::Read for Whitespace<R> {
     fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
-        if buf.len() < 2 {
-            return Err(std::io::Error::other("read buffer too small"));
+        if buf.is_empty() {
+            return Ok(0);
         }
-        loop {
-            // Each input byte gives at most two output bytes (a pending
-            // separator and itself).
-            let want = (buf.len() / 2).min(self.raw.len());
-            let n = self.inner.read(&mut self.raw[..want])?;
+        while self.at == self.out.len() {
+            self.out.clear();
+            self.at = 0;
+            let n = self.inner.read(&mut self.raw)?;
             if n == 0 {
                 return Ok(0);
             }
-            let mut k = 0;
             for &b in &self.raw[..n] {
                 match b {
                     b'\n' | b'\r' => {
-                        buf[k] = b;
-                        k += 1;
+                        self.out.push(b);
                         self.pending = false;
                         self.line_start = true;
                     }
                     b' ' | b'\t' => self.pending = !self.line_start,
                     _ => {
                         if self.pending {
-                            buf[k] = b',';
-                            k += 1;
+                            self.out.push(b',');
                         }
-                        buf[k] = if b == b',' { b'.' } else { b };
-                        k += 1;
+                        self.out.push(if b == b',' { b'.' } else { b });
                         self.pending = false;
                         self.line_start = false;
                     }
                 }
             }
-            if k > 0 {
-                return Ok(k);
-            }
         }
+        let k = (self.out.len() - self.at).min(buf.len());
+        buf[..k].copy_from_slice(&self.out[self.at..self.at + k]);
+        self.at += k;
+        Ok(k)
     }
 }
+
+/// The UTF-8 byte order mark some editors and spreadsheets write first.
+pub const UTF8_BOM: &[u8] = b"\xEF\xBB\xBF";
 
 /// Decimal commas read as points (for semicolon-separated files, where a
 /// comma can only be one).
@@ -584,12 +648,17 @@ fn listed(headers: &[String]) -> String {
 /// Index of column `name` in `headers` of file `path`; an error naming the
 /// file and the columns found if it is missing or appears more than once.
 pub fn column_index(path: &Path, headers: &[String], name: &str, delimiter: u8) -> Result<usize> {
-    let mut hits: Vec<usize> = (0..headers.len()).filter(|&i| headers[i] == name).collect();
-    if hits.is_empty() {
-        // `X` for `x`: headers match regardless of case when unambiguous.
-        hits = (0..headers.len())
-            .filter(|&i| headers[i].eq_ignore_ascii_case(name))
-            .collect();
+    // `X` for `x`: headers match regardless of case, when unambiguous.
+    let hits: Vec<usize> = (0..headers.len())
+        .filter(|&i| headers[i].eq_ignore_ascii_case(name))
+        .collect();
+    if let Some(&other) = hits.iter().find(|&&i| headers[i] != headers[hits[0]]) {
+        bail!(
+            "{}: columns `{}` and `{}` differ only in case, so `{name}` is ambiguous; rename one",
+            path.display(),
+            headers[hits[0]],
+            headers[other]
+        );
     }
     match hits.as_slice() {
         [i] => Ok(*i),
@@ -1262,6 +1331,34 @@ pub fn with_frame_comment(bytes: Vec<u8>, base: bool) -> Vec<u8> {
 /// Fuzzing of the readers: random and mutated CSV, parameter, mechanism and
 /// setup files must give an `Err` or an `Ok`, never a panic. Run more with
 /// `PKMCAL_FUZZ_CASES=100000 cargo test --release -p pkmcal-cli fuzz_`.
+#[cfg(test)]
+mod readers {
+    use super::*;
+
+    /// Blank-separated text reads the same whatever size of buffer the
+    /// reader is asked to fill (`read_to_end` probes with small ones).
+    #[test]
+    fn whitespace_reads_alike_in_any_buffer() {
+        let text = b"  a  b\tc\n1 2,5   3\r\n\n  4 5 6  \n";
+        let mut whole = vec![];
+        std::io::Read::read_to_end(&mut Whitespace::new(&text[..]), &mut whole).unwrap();
+        assert_eq!(whole, b"a,b,c\n1,2.5,3\r\n\n4,5,6\n");
+        for size in 1..8 {
+            let mut r = Whitespace::new(&text[..]);
+            let mut out = vec![];
+            let mut buf = vec![0; size];
+            loop {
+                let n = std::io::Read::read(&mut r, &mut buf).unwrap();
+                if n == 0 {
+                    break;
+                }
+                out.extend_from_slice(&buf[..n]);
+            }
+            assert_eq!(out, whole, "buffer of {size}");
+        }
+    }
+}
+
 #[cfg(test)]
 mod fuzz {
     use super::*;

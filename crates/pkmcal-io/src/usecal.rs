@@ -83,12 +83,17 @@ pub fn run_compensate(run: &crate::Run<'_>, c: CompensateConfig) -> Result<()> {
     let Some(targets) = &c.targets else {
         return crate::output::usage("give --targets T.csv or --grid AXIS=START:STOP:STEP,…");
     };
+    // Read once, in batches (a pipe works; memory flat in the rows); its
+    // targets in its own units (its units line, else the run's).
+    let mut input = crate::io::CsvStream::open(run, targets)?;
     let (cf, tf) = (
         crate::fileunits::commands(spec, &units),
         crate::fileunits::tool(spec, &units),
     );
-    // Read once, in batches (a pipe works; memory flat in the rows).
-    let mut input = crate::io::CsvStream::open(run, targets)?;
+    let tf_in = crate::fileunits::tool(
+        spec,
+        &crate::fileunits::for_file(run, &units, input.units.as_ref(), &input.path),
+    );
     let names: Vec<String> = spec
         .tool_axes
         .iter()
@@ -125,7 +130,7 @@ pub fn run_compensate(run: &crate::Run<'_>, c: CompensateConfig) -> Result<()> {
                 break;
             }
             for (_, t) in batch.iter_mut() {
-                for (v, f) in t.iter_mut().zip(&tf) {
+                for (v, f) in t.iter_mut().zip(&tf_in) {
                     *v *= f;
                 }
             }
@@ -665,6 +670,7 @@ pub fn run_montecarlo(run: &crate::Run<'_>, c: MonteCarloConfig) -> Result<()> {
         .map(|a| format!("target_{a}"))
         .collect();
     let mut poses = csv.named(&names)?;
+    let units = crate::fileunits::for_file(run, &units, csv.units.as_ref(), &csv.path);
     crate::fileunits::to_internal(&mut poses, &crate::fileunits::tool(spec, &units));
     for (i, t) in poses.iter().enumerate() {
         pkmcal::nominal_commands(&mech, t)

@@ -331,6 +331,48 @@ impl FileUnits {
         }
         parts.join(", ")
     }
+
+    /// The units a [`FileUnits::describe`] text names (the `# units:` line
+    /// pkmcal writes atop a data file), read back whole: what it does not
+    /// name is the internal unit, and commands are not counts.
+    pub fn from_description(text: &str) -> crate::error::Result<Self> {
+        let bad = |what: &str| {
+            crate::error::Error::InvalidRequest(format!(
+                "`{what}` is not a unit pkmcal writes (`angles in rad|deg`, `lengths in mm|m|um`, `revolute commands in counts (N per rev)`, `prismatic commands in counts (N per mm)`)"
+            ))
+        };
+        let mut u = FileUnits::default();
+        for part in text.split(", ").map(str::trim).filter(|p| !p.is_empty()) {
+            let counts = |rest: &str, per: &str| -> crate::error::Result<f64> {
+                rest.strip_prefix('(')
+                    .and_then(|r| r.strip_suffix(&format!(" per {per})")))
+                    .and_then(|n| n.parse::<f64>().ok())
+                    .ok_or_else(|| bad(part))
+            };
+            if let Some(a) = part.strip_prefix("angles in ") {
+                u.angle = match a {
+                    "rad" => AngleUnit::Radian,
+                    "deg" => AngleUnit::Degree,
+                    _ => return Err(bad(part)),
+                };
+            } else if let Some(l) = part.strip_prefix("lengths in ") {
+                u.length = match l {
+                    "mm" => LengthUnit::Millimetre,
+                    "m" => LengthUnit::Metre,
+                    "um" => LengthUnit::Micrometre,
+                    _ => return Err(bad(part)),
+                };
+            } else if let Some(r) = part.strip_prefix("revolute commands in counts ") {
+                u.counts_per_rev = Some(counts(r, "rev")?);
+            } else if let Some(r) = part.strip_prefix("prismatic commands in counts ") {
+                u.counts_per_mm = Some(counts(r, "mm")?);
+            } else {
+                return Err(bad(part));
+            }
+        }
+        u.validate()?;
+        Ok(u)
+    }
 }
 
 /// Units given explicitly (on the command line, or in a mechanism file's
@@ -416,6 +458,34 @@ pub const M_TO_MM: f64 = 1e3;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// What `describe` writes, `from_description` reads back, for every
+    /// combination of units and counts.
+    #[test]
+    fn the_units_line_reads_back() {
+        for angle in [AngleUnit::Radian, AngleUnit::Degree] {
+            for length in [
+                LengthUnit::Millimetre,
+                LengthUnit::Metre,
+                LengthUnit::Micrometre,
+            ] {
+                for counts_per_rev in [None, Some(4096.0), Some(1e-3 + 2.5)] {
+                    for counts_per_mm in [None, Some(80.0)] {
+                        let u = FileUnits {
+                            angle,
+                            length,
+                            counts_per_rev,
+                            counts_per_mm,
+                        };
+                        assert_eq!(FileUnits::from_description(&u.describe()).unwrap(), u);
+                    }
+                }
+            }
+        }
+        assert!(FileUnits::from_description("angles in grad").is_err());
+        assert!(FileUnits::from_description("lengths in ft").is_err());
+        assert!(FileUnits::from_description("revolute commands in counts (-1 per rev)").is_err());
+    }
 
     /// A key given twice is refused (it would silently take the last);
     /// spelled-out angle units are read.

@@ -192,6 +192,12 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         .chain(std::iter::repeat_n(1.0, names.len()))
         .chain(tf.iter().copied())
         .collect();
+    // The commands in their file's own units (its units line, else the
+    // run's); the output in the run's, as its units line says.
+    let cf_in = pkmcal_io::fileunits::commands(
+        spec,
+        &pkmcal_io::fileunits::for_file(run, &units, input.units.as_ref(), &input.path),
+    );
     let bar = run.bar(0, false, "poses", 0);
     let mut w = run.files.writer(&a.out)?;
     use std::io::Write;
@@ -208,7 +214,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         }
         bar.inc_length(batch.len() as u64);
         let mut commands: Vec<Vec<f64>> = batch.iter().map(|(_, c)| c.clone()).collect();
-        pkmcal_io::fileunits::to_internal(&mut commands, &cf);
+        pkmcal_io::fileunits::to_internal(&mut commands, &cf_in);
         let path = input.path.clone();
         let preds = predict_rows(
             &mech,

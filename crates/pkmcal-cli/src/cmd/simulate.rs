@@ -102,7 +102,10 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             let mut t = csv.named(&pkmcal_io::io::target_names(mech))?;
             pkmcal_io::fileunits::to_internal(
                 &mut t,
-                &pkmcal_io::fileunits::tool(mech.spec(), &units),
+                &pkmcal_io::fileunits::tool(
+                    mech.spec(),
+                    &pkmcal_io::fileunits::for_file(run, &units, csv.units.as_ref(), path),
+                ),
             );
             for (i, target) in t.iter().enumerate() {
                 pkmcal::nominal_commands(mech, target)

@@ -54,6 +54,9 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     }
     let csv = Csv::read(run, &a.data)?;
     csv.require_rows()?;
+    // In the data file's own units (its units line, else the run's), read
+    // and written: the targets and commands pass through unchanged.
+    let units = pkmcal_io::fileunits::for_file(run, &units, csv.units.as_ref(), &a.data);
     let dnames: Vec<String> = (1..=setup.sockets.len()).map(|j| format!("d{j}")).collect();
     let mut readings = csv.named(&dnames)?;
     let d_factor = units.factor(pkmcal::Unit::Millimetre, pkmcal::Role::Reading);
