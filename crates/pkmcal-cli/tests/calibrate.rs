@@ -272,4 +272,20 @@ fn demo_runs_the_case_study() {
     ] {
         assert!(dir.path().join("demo").join(f).exists(), "{f}");
     }
+    // Its reports are calibration records, as `calibrate --report` writes:
+    // predict takes one's parameters and covariance.
+    ok(
+        dir.path(),
+        &[
+            "predict",
+            "--uncertainty",
+            "demo/report-exact.json",
+            "--commands",
+            "demo/validation.csv",
+            "--out",
+            "p.csv",
+        ],
+    );
+    let p = std::fs::read_to_string(dir.path().join("p.csv")).unwrap();
+    assert!(p.lines().next().unwrap().contains("sigma_x"), "{p}");
 }

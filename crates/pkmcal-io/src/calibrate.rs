@@ -687,16 +687,12 @@ pub fn run_calibrate(run: &crate::Run<'_>, c: CalibrateConfig) -> Result<()> {
             run,
             dir,
             &crate::report::ReportInputs {
+                report: &report,
                 mech,
                 measurement: &measurement,
-                data_name: &c.data.display().to_string(),
-                cal,
                 data: kept,
                 before,
                 after,
-                accuracy: &report.accuracy,
-                validation: report.validation.as_ref(),
-                cross_validation: report.cross_validation.as_ref(),
             },
         )?;
     }

@@ -2,15 +2,13 @@
 //! `report.html` with the figures inlined, the bundled font embedded and no
 //! network resources. Every user-supplied string is escaped.
 
-use crate::calibrate::Validation;
 use crate::figures::{self, Figure, ParamBar};
 use crate::io::Mech;
 use anyhow::Result;
 use base64::Engine;
-use pkmcal::identify::{CrossValidation, ErrorVectors, RANK_TOL};
+use pkmcal::identify::{ErrorVectors, RANK_TOL};
 use pkmcal::{
-    Accuracy, Calibration, ErrorStats, Measurement, Mechanism, Model, prepare_pose,
-    sample_workspace, tool_covariance,
+    ErrorStats, Measurement, Mechanism, Model, prepare_pose, sample_workspace, tool_covariance,
 };
 use rayon::prelude::*;
 use std::fmt::Write;
@@ -203,18 +201,17 @@ fn map_data(
     Ok((slices, sweeps))
 }
 
-/// Everything the report shows.
+/// Everything the HTML report and the figures show: the JSON report (the
+/// calibration, its accuracy, validation and cross-validation: the one
+/// bundle every front end makes from a study) and what only the figures
+/// need (the mechanism, the measurement model, the poses and their errors).
 pub struct ReportInputs<'a> {
+    pub report: &'a crate::calibrate::Report<'a>,
     pub mech: &'a Mech,
     pub measurement: &'a pkmcal::MeasurementModel,
-    pub data_name: &'a str,
-    pub cal: &'a Calibration,
     pub data: &'a [Measurement],
     pub before: &'a ErrorVectors,
     pub after: &'a ErrorVectors,
-    pub accuracy: &'a Accuracy,
-    pub validation: Option<&'a Validation>,
-    pub cross_validation: Option<&'a CrossValidation>,
 }
 
 /// Escape text for HTML.
@@ -236,7 +233,7 @@ pub fn escape(s: &str) -> String {
 /// Render every figure of a calibration.
 pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
     let spec = r.mech.spec();
-    let cal = r.cal;
+    let cal = r.report.calibration;
     // Parameter groups by kind and unit (angles in mrad for readability).
     let mut groups: Vec<(String, Vec<ParamBar>)> = vec![];
     let mut keys: Vec<(pkmcal::ParamKind, pkmcal::Unit)> = vec![];
@@ -362,7 +359,7 @@ fn stats_row(html: &mut String, label: &str, s: &ErrorStats) {
 /// The report page.
 pub fn html(r: &ReportInputs, figs: &[Figure]) -> String {
     let spec = r.mech.spec();
-    let cal = r.cal;
+    let cal = r.report.calibration;
     let font = base64::engine::general_purpose::STANDARD.encode(figures::FONT_BYTES);
     let mut h = String::with_capacity(2_000_000);
     let title = format!("pkmcal calibration report — {}", spec.name);
@@ -396,7 +393,7 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
         escape(&spec.name),
         escape(&spec.joints.join(", ")),
         escape(&spec.actuated_names().join(", ")),
-        escape(r.data_name),
+        escape(&r.report.data),
         cal.poses,
         if cal.distances > 0 {
             format!(", {} distances between poses", cal.distances)
@@ -446,9 +443,13 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
         );
     }
     h.push_str("<th>min</th><th>mean</th><th>RMS</th><th>max</th></tr>");
-    stats_row(&mut h, "calibration poses, before", &r.accuracy.before);
-    stats_row(&mut h, "calibration poses, after", &r.accuracy.after);
-    if let Some(v) = r.validation {
+    stats_row(
+        &mut h,
+        "calibration poses, before",
+        &r.report.accuracy.before,
+    );
+    stats_row(&mut h, "calibration poses, after", &r.report.accuracy.after);
+    if let Some(v) = &r.report.validation {
         stats_row(
             &mut h,
             &format!("validation ({}), before", v.source),
@@ -460,7 +461,7 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
             &v.accuracy.after,
         );
     }
-    if let Some(cv) = r.cross_validation {
+    if let Some(cv) = &r.report.cross_validation {
         stats_row(
             &mut h,
             &format!("{}-fold cross-validation", cv.folds),
@@ -470,9 +471,9 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
     let _ = write!(
         h,
         "</table><p>Improvement on the calibration poses: maximum distance error {:.1} %, RMS {:.1} %.</p>",
-        r.accuracy.improvement_max_percent, r.accuracy.improvement_rms_percent
+        r.report.accuracy.improvement_max_percent, r.report.accuracy.improvement_rms_percent
     );
-    if let Some(d) = &r.accuracy.distances {
+    if let Some(d) = &r.report.accuracy.distances {
         let _ = write!(
             h,
             "<p>{} distances between poses (calipers, a gauge): error max {:.4} mm, RMS {:.4} mm before; max {:.4} mm, RMS {:.4} mm after.</p>",

@@ -1573,7 +1573,7 @@ impl PyCalibration {
     /// errors and maps, residuals, singular values.
     fn figures(&self, py: Python<'_>) -> PyResult<Vec<PyFigure>> {
         let figs = py
-            .detach(|| pkmcal_io::report::figures(&self.inputs()))
+            .detach(|| self.with_inputs(pkmcal_io::report::figures))
             .map_err(cli_err)?;
         Ok(figs
             .into_iter()
@@ -1593,19 +1593,8 @@ impl PyCalibration {
     fn save(&self, py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<()> {
         let p = path_arg(path)?;
         py.detach(|| {
-            let report = pkmcal_io::calibrate::Report::new(
-                self.mech.spec(),
-                "Python arrays".into(),
-                &self.measurement,
-                &self.cal,
-                self.accuracy.clone(),
-                self.validation.clone(),
-                self.cross_validation.clone(),
-            );
-            written(|run| {
-                run.files
-                    .stage(std::path::Path::new(&p), report.to_json()?.as_bytes())
-            })
+            let json = self.report().to_json().map_err(cli_err)?;
+            written(|run| run.files.stage(std::path::Path::new(&p), json.as_bytes()))
         })
     }
     /// Write the report (report.html with every figure as SVG and PNG) into
@@ -1614,7 +1603,9 @@ impl PyCalibration {
         let p = path_arg(path)?;
         py.detach(|| {
             written(|run| {
-                pkmcal_io::report::write_report_dir(run, std::path::Path::new(&p), &self.inputs())
+                self.with_inputs(|i| {
+                    pkmcal_io::report::write_report_dir(run, std::path::Path::new(&p), i)
+                })
             })
         })
     }
@@ -1678,19 +1669,30 @@ impl PyCalibration {
 }
 
 impl PyCalibration {
-    fn inputs(&self) -> pkmcal_io::report::ReportInputs<'_> {
-        pkmcal_io::report::ReportInputs {
+    /// The JSON report of this calibration (the calibration record).
+    fn report(&self) -> pkmcal_io::calibrate::Report<'_> {
+        pkmcal_io::calibrate::Report::new(
+            self.mech.spec(),
+            "Python arrays".into(),
+            &self.measurement,
+            &self.cal,
+            self.accuracy.clone(),
+            self.validation.clone(),
+            self.cross_validation.clone(),
+        )
+    }
+
+    /// `f` with what the HTML report and the figures show.
+    fn with_inputs<T>(&self, f: impl FnOnce(&pkmcal_io::report::ReportInputs) -> T) -> T {
+        let report = self.report();
+        f(&pkmcal_io::report::ReportInputs {
+            report: &report,
             mech: &self.mech,
             measurement: &self.measurement,
-            data_name: "Python arrays",
-            cal: &self.cal,
             data: &self.data,
             before: &self.before,
             after: &self.after,
-            accuracy: &self.accuracy,
-            validation: self.validation.as_ref(),
-            cross_validation: self.cross_validation.as_ref(),
-        }
+        })
     }
 }
 

@@ -1,7 +1,7 @@
 //! `demo`: the paper's case study on the built-in reference mechanism.
 
 use crate::args;
-use anyhow::Result;
+use anyhow::{Context, Result};
 use pkmcal::{ErrorStats, Mechanism, Model, Params};
 use pkmcal_io::Run;
 use pkmcal_io::io::Mech;
@@ -102,28 +102,52 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     let mut first = true;
     for model in Model::ALL {
         let opts = pkmcal::CalibrationOptions::new(spec, model);
-        let cal = pkmcal::calibrate(&mech, &tool, &data, &nominal, &opts)?;
-        let (acc, before, after) = pkmcal::calibration_accuracy(&mech, &tool, &data, &cal, &[])?;
-        let (vacc, _, _) = pkmcal::calibration_accuracy(&mech, &tool, &vdata, &cal, &[])?;
-        if model == Model::Exact {
-            let validation = pkmcal_io::calibrate::Validation {
+        // The study every front end runs, validated on the unseen poses.
+        let study = pkmcal::identify::study(
+            &mech,
+            &tool,
+            &data,
+            vec![],
+            &nominal,
+            &pkmcal::identify::StudyOptions {
+                calibration: opts,
+                validation: pkmcal::identify::ValidationPlan::Given(vdata.clone()),
+                kfold: None,
+                seed: a.seed,
+            },
+            &|| {},
+        )
+        .map_err(|e| anyhow::Error::from(e.error))?;
+        let cal = &study.calibration;
+        let acc = study.accuracy.clone();
+        let vacc = study
+            .validation
+            .as_ref()
+            .map(|v| v.accuracy.clone())
+            .context("the demo's study validates on its unseen poses")?;
+        let report = pkmcal_io::calibrate::Report::new(
+            spec,
+            "measurements.csv (simulated)".into(),
+            &tool,
+            cal,
+            acc.clone(),
+            Some(pkmcal_io::calibrate::Validation {
                 source: format!("{DEMO_VALIDATION_POSES} unseen poses"),
                 accuracy: vacc.clone(),
-            };
+            }),
+            None,
+        );
+        if model == Model::Exact {
             pkmcal_io::report::write_report_dir(
                 run,
                 &dir.join("report"),
                 &pkmcal_io::report::ReportInputs {
+                    report: &report,
                     mech: &mech,
                     measurement: &tool,
-                    data_name: "measurements.csv (simulated)",
-                    cal: &cal,
-                    data: &data,
-                    before: &before,
-                    after: &after,
-                    accuracy: &acc,
-                    validation: Some(&validation),
-                    cross_validation: None,
+                    data: &study.poses,
+                    before: &study.before,
+                    after: &study.after,
                 },
             )?;
         }
@@ -150,9 +174,10 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             )
             .as_bytes(),
         )?;
+        // The calibration record, as `calibrate --report` writes it.
         run.files.stage(
             &dir.join(format!("report-{name}.json")),
-            serde_json::to_string_pretty(&cal)?.as_bytes(),
+            report.to_json()?.as_bytes(),
         )?;
         println!(
             "{name:>6} model: {} ({} iterations), residual σ {:.2} µm",
