@@ -601,7 +601,7 @@ pub fn run_calibrate(run: &crate::Run<'_>, c: CalibrateConfig) -> Result<()> {
     let locate = |e: pkmcal::Error| located_in(e, &c.data, c.distances.as_deref());
     let mut opts = CalibrationOptions::new(spec, c.model);
     opts.free = free_set(mech, &measurement, c.free.as_deref(), c.fix.as_deref())?;
-    opts.force = crate::io::checked_load(c.load.clone(), spec)?;
+    opts.force = crate::io::checked_load(c.load.clone(), mech, &start)?;
     opts.loss = c.loss;
     opts.outlier_threshold = c.outlier_threshold;
     opts.drop_outliers = c.drop_outliers;
@@ -1059,7 +1059,7 @@ pub fn run_analyze(run: &crate::Run<'_>, c: AnalyzeConfig) -> Result<()> {
         None => Params::nominal(spec),
     };
     let free = free_set(mech, &measurement, c.free.as_deref(), c.fix.as_deref())?;
-    let force = crate::io::checked_load(c.load.clone(), mech.spec())?;
+    let force = crate::io::checked_load(c.load.clone(), mech, &params)?;
     let n_data = data.len();
     let data: Vec<Measurement> = match &c.distances {
         Some(p) => {

@@ -153,7 +153,7 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
         None => Params::nominal(spec),
     };
     let nx = spec.tool_axes.len();
-    let force = crate::io::checked_load(c.load.clone(), spec)?;
+    let force = crate::io::checked_load(c.load.clone(), &mech, &real)?;
     let opts = CompensationOptions {
         force,
         preload: vec![],

@@ -760,6 +760,23 @@ pub fn detect_delimiter(text: &[u8]) -> u8 {
         .unwrap_or(if words > 1 { b' ' } else { b',' })
 }
 
+/// The longest number written out in positional notation; a longer one
+/// (1e300 would take 301 digits) is written with an exponent.
+pub const MAX_POSITIONAL_DIGITS: usize = 40;
+
+/// A number as data files hold it: its shortest round-trip digits, in
+/// positional notation (`-7`, `203.00000000000006`), or with an exponent
+/// (`1e300`, `2.5e-45`) where that would be longer than
+/// [`MAX_POSITIONAL_DIGITS`]. Both read back to the same number.
+pub fn number(v: f64) -> String {
+    let s = format!("{v}");
+    if s.len() > MAX_POSITIONAL_DIGITS {
+        format!("{v:e}")
+    } else {
+        s
+    }
+}
+
 /// CSV text from a header and rows of numbers (shortest round-trip format).
 pub fn csv_bytes(header: &[String], rows: &[Vec<f64>]) -> Vec<u8> {
     let mut out = String::with_capacity(rows.len() * header.len() * 20);
@@ -770,7 +787,7 @@ pub fn csv_bytes(header: &[String], rows: &[Vec<f64>]) -> Vec<u8> {
             if i > 0 {
                 out.push(',');
             }
-            out.push_str(&format!("{v}"));
+            out.push_str(&number(*v));
         }
         out.push('\n');
     }
@@ -1147,9 +1164,11 @@ fn jeong_kim_from_str(text: &str) -> Result<JeongKim2Dof> {
     Ok(JeongKim2Dof::with_spec(spec)?)
 }
 
-/// A tool load (`--load`) for `spec`: empty (no load) or one value per
-/// tool axis; a usage error otherwise.
-pub fn checked_load(load: Vec<f64>, spec: &Spec) -> Result<Vec<f64>> {
+/// A tool load (`--load`) for `mech` with `params`: empty (no load) or one
+/// value per tool axis, and a working load
+/// ([`pkmcal::engine::load::check_load`]); a usage error otherwise.
+pub fn checked_load<M: Mechanism>(load: Vec<f64>, mech: &M, params: &Params) -> Result<Vec<f64>> {
+    let spec = mech.spec();
     let n = spec.tool_axes.len();
     if !load.is_empty() && load.len() != n {
         return crate::output::usage(format!(
@@ -1157,6 +1176,9 @@ pub fn checked_load(load: Vec<f64>, spec: &Spec) -> Result<Vec<f64>> {
             spec.tool_axes.join(","),
             load.len()
         ));
+    }
+    if let Err(e) = pkmcal::engine::load::check_load(mech, params, &load) {
+        return crate::output::usage(format!("--load: {e}"));
     }
     Ok(load)
 }
@@ -1334,6 +1356,29 @@ pub fn with_frame_comment(bytes: Vec<u8>, base: bool) -> Vec<u8> {
 #[cfg(test)]
 mod readers {
     use super::*;
+
+    /// Numbers are written in positional notation unless that is long;
+    /// every one reads back to itself.
+    #[test]
+    fn numbers_are_written_short_and_read_back() {
+        assert_eq!(number(-7.0), "-7");
+        assert_eq!(number(203.00000000000006), "203.00000000000006");
+        assert_eq!(number(1e300), "1e300");
+        assert_eq!(number(-2.5e-45), "-2.5e-45");
+        for v in [
+            0.0,
+            -0.0,
+            1e-5,
+            1.2345678901234567e-7,
+            1e16,
+            1.7976931348623157e308,
+            5e-324,
+        ] {
+            let s = number(v);
+            assert!(s.len() <= MAX_POSITIONAL_DIGITS, "{s}");
+            assert_eq!(s.parse::<f64>().unwrap().to_bits(), v.to_bits(), "{s}");
+        }
+    }
 
     /// Blank-separated text reads the same whatever size of buffer the
     /// reader is asked to fill (`read_to_end` probes with small ones).

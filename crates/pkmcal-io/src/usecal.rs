@@ -56,7 +56,7 @@ pub fn run_compensate(run: &crate::Run<'_>, c: CompensateConfig) -> Result<()> {
         None => Params::nominal(spec),
     };
     let opts = CompensationOptions {
-        force: crate::io::checked_load(c.load.clone(), spec)?,
+        force: crate::io::checked_load(c.load.clone(), &mech, &params)?,
         preload: match &c.preload {
             Some(s) => {
                 let t = crate::io::parse_load(s, "--preload")?;
@@ -169,7 +169,7 @@ pub fn run_compensate(run: &crate::Run<'_>, c: CompensateConfig) -> Result<()> {
                             .iter()
                             .chain(&vals)
                             .zip(&factors)
-                            .map(|(v, f)| format!("{}", crate::fileunits::to_file(*v, *f)))
+                            .map(|(v, f)| crate::io::number(crate::fileunits::to_file(*v, *f)))
                             .collect();
                         writeln!(w, "{}", vals.join(","))?;
                         done += 1;
@@ -452,7 +452,7 @@ fn run_grid(
             let mut fields: Vec<String> = t
                 .iter()
                 .zip(&tf)
-                .map(|(v, f)| format!("{}", crate::fileunits::to_file(*v, *f)))
+                .map(|(v, f)| crate::io::number(crate::fileunits::to_file(*v, *f)))
                 .collect();
             match node {
                 Some(comp) => fields.extend(
@@ -460,8 +460,8 @@ fn run_grid(
                         .iter()
                         .zip(&cf)
                         .chain(comp.correction.iter().zip(&cf))
-                        .map(|(v, f)| format!("{}", crate::fileunits::to_file(*v, *f)))
-                        .chain(comp.torque.iter().map(|v| format!("{v}"))),
+                        .map(|(v, f)| crate::io::number(crate::fileunits::to_file(*v, *f)))
+                        .chain(comp.torque.iter().map(|v| crate::io::number(*v))),
                 ),
                 None => fields.extend(std::iter::repeat_n(String::new(), 3 * act.len())),
             }

@@ -1907,6 +1907,8 @@ fn predict<'py>(
     }
     let p = params_arg(m, params, "params")?;
     let force = load_arg(m, load, force)?;
+    pkmcal::engine::load::check_load(&*m.mech, &p, &force)
+        .map_err(|e| usage(format!("load: {e}")))?;
     let r = rows(commands, "commands", &m.actuators(), false)?;
     let mech = &*m.mech;
     let cov_ref = cal_covariance.as_ref().filter(|_| uncertainty);
@@ -2059,6 +2061,8 @@ fn calibrate<'py>(
     let mut opts = CalibrationOptions::new(spec, parse_model(model)?);
     opts.free = free_arg(m, &mm, free, fix)?;
     opts.force = load_arg(m, load, force)?;
+    pkmcal::engine::load::check_load(&*m.mech, &start, &opts.force)
+        .map_err(|e| usage(format!("load: {e}")))?;
     opts.loss = Loss::named(loss, loss_scale).map_err(lib_err)?;
     if !(outlier_threshold.is_finite() && outlier_threshold > 0.0) {
         return Err(usage(format!(
@@ -2174,6 +2178,8 @@ fn analyze<'py>(
     let model = parse_model(model)?;
     let free = free_arg(m, &mm, free, fix)?;
     let force = load_arg(m, load, force)?;
+    pkmcal::engine::load::check_load(&*m.mech, &params, &force)
+        .map_err(|e| usage(format!("load: {e}")))?;
     let mech = &*m.mech;
     let id = py
         .detach(|| pkmcal::analyze(mech, &mm, &data, &params, model, &free, &force))
@@ -2205,8 +2211,11 @@ fn compensate<'py>(
     let spec = m.spec();
     let p = params_arg(m, params, "params")?;
     let model = parse_model(model)?;
+    let force = load_arg(m, load, force)?;
+    pkmcal::engine::load::check_load(&*m.mech, &p, &force)
+        .map_err(|e| usage(format!("load: {e}")))?;
     let opts = pkmcal::CompensationOptions {
-        force: load_arg(m, load, force)?,
+        force,
         preload: match preload {
             None => vec![],
             Some(v) => finite_list(&v, "preload", spec.n_actuated())?,

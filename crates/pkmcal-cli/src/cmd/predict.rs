@@ -121,7 +121,6 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     let mech = description.mech;
     let spec = mech.spec();
     let model: Model = a.model;
-    let force = pkmcal_io::io::checked_load(a.load.values(), spec)?;
     // Streamed in batches (memory flat in the rows, a pipe works), each
     // batch predicted on all cores.
     let mut input = pkmcal_io::io::CsvStream::open(run, &a.commands)?;
@@ -159,6 +158,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         })?,
         _ => pkmcal_io::io::params_or_nominal(run, a.params.as_deref(), &mech)?,
     };
+    let force = pkmcal_io::io::checked_load(a.load.values(), &mech, &params)?;
     let covariance = record.map(|r| r.covariance);
     let settings = PredictSettings {
         params: &params,
@@ -237,10 +237,10 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
                 if k > 0 {
                     line.push(',');
                 }
-                line.push_str(&format!(
-                    "{}",
-                    pkmcal_io::fileunits::to_file(*v, out_factors[k])
-                ));
+                line.push_str(&pkmcal_io::io::number(pkmcal_io::fileunits::to_file(
+                    *v,
+                    out_factors[k],
+                )));
             }
             writeln!(w, "{line}")?;
         }

@@ -112,3 +112,45 @@ fn a_record_comes_back_exactly_and_serves_only_its_mechanism() {
     };
     assert_eq!(legacy.check(spec), Ok(()));
 }
+
+/// A tool load is a working load or a named mistake: on every shipped
+/// mechanism a load of 10 N (and 1 N·m) passes, one of 10⁹ is refused with a
+/// message naming the load and its units.
+#[test]
+fn a_load_beyond_any_working_load_is_named() {
+    use pkmcal::engine::load::check_load;
+    fn check<M: Mechanism>(m: &M) {
+        let spec = m.spec();
+        let nominal = Params::nominal(spec);
+        let small: Vec<f64> = spec
+            .tool_units
+            .iter()
+            .map(|u| if *u == Unit::Radian { 1.0 } else { 10.0 })
+            .collect();
+        assert_eq!(check_load(m, &nominal, &small), Ok(()), "{}", spec.name);
+        assert_eq!(check_load(m, &nominal, &[]), Ok(()), "{}", spec.name);
+        let huge = vec![1e9; spec.tool_axes.len()];
+        let e = check_load(m, &nominal, &huge).unwrap_err().to_string();
+        assert!(
+            e.contains("the tool load") && e.contains("N·m"),
+            "{}: {e}",
+            spec.name
+        );
+    }
+    check(&JeongKim2Dof::new());
+    for name in ["3-rrr", "4-rrr", "five-bar", "jeong-kim-planar"] {
+        check(&common::planar(name));
+    }
+    for name in ["gough-stewart-6", "gough-stewart-8"] {
+        check(&common::gough_stewart(name));
+    }
+    for name in [
+        "3-prs",
+        "linear-delta",
+        "linear-delta-4",
+        "rotary-delta",
+        "spatial-gough-stewart-6",
+    ] {
+        check(&common::spatial(name));
+    }
+}
