@@ -85,6 +85,9 @@ def test_options(ref):
         pkmcal.predict(mech, c, force=[1.0, 2.0, 3.0])
     with pytest.raises(pkmcal.PkmcalError, match="once"):
         pkmcal.predict(mech, c, load=[1.0, 2.0], force=[1.0, 2.0])
+    # A load no machine works under (a unit slip) is named as the load.
+    with pytest.raises(pkmcal.PkmcalError, match="load: the tool load"):
+        pkmcal.predict(mech, c, load=[1e9, 1e9])
     assert np.array_equal(
         pkmcal.predict(mech, c, load=[1.0, 2.0]).x, pkmcal.predict(mech, c, force=[1.0, 2.0]).x
     )
