@@ -48,6 +48,35 @@ pub struct FreeArgs {
     pub fix: Option<String>,
 }
 
+/// What the instrument read and where it stood, for the commands that read
+/// measurements (`calibrate`, `analyze`).
+#[derive(clap::Args)]
+pub struct InstrumentArgs {
+    /// Ball-bar setup (sockets, bar offset) for data with distances d1, d2,
+    /// … (default: the mechanism file's [ballbar] table).
+    #[arg(long, value_name = "S.toml")]
+    pub setup: Option<PathBuf>,
+    /// Where the measuring instrument stands: `free` (a tracker or camera
+    /// where it was put: its frame is identified with the rest), `base` (the
+    /// data are in the base frame, e.g. trilaterated from ball-bar sockets at
+    /// known places), `auto`: base when the data file says `# frame: base`
+    /// (simulate and trilaterate write it), otherwise free. Ball-bar
+    /// readings and probe heights carry no frame.
+    #[arg(long, default_value = "auto", value_parser = PossibleValuesParser::new(pkmcal_io::calibrate::FrameChoice::NAMES).try_map(|s| s.parse::<pkmcal_io::calibrate::FrameChoice>()))]
+    pub frame: pkmcal_io::calibrate::FrameChoice,
+    /// Only these tool axes were measured (comma-separated, e.g. `z` for a
+    /// height probe); the data file then needs only their columns.
+    #[arg(long, value_name = "AXES")]
+    pub axes: Option<String>,
+    /// Distances measured between pairs of poses (calipers on a printed
+    /// object, a gauge), used with the data: CSV with the commands of both
+    /// poses (`<actuator>_1`, `<actuator>_2` for every actuated joint) and
+    /// `distance` in mm (optional `sigma_distance`; otherwise their noise is
+    /// estimated apart from the data's).
+    #[arg(long, value_name = "PAIRS.csv")]
+    pub distances: Option<PathBuf>,
+}
+
 /// A tool load: one value per tool coordinate (N, N·m).
 #[derive(Debug, Clone)]
 pub struct Wrench(pub Vec<f64>);

@@ -352,6 +352,36 @@ pub fn cli_hint(w: &pkmcal::identify::Warning) -> String {
     }
 }
 
+/// Where the instrument stands, as a user says it (`--frame`): the library's
+/// frame rule ([`pkmcal::requested_frame`]) decides the rest.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameChoice {
+    /// Free for whole positions and target points unless the data file
+    /// says `# frame: base`; the base frame otherwise.
+    Auto,
+    /// An instrument frame identified with the rest.
+    Free,
+    /// The data are in the base frame.
+    Base,
+}
+
+impl FrameChoice {
+    /// The names a front end takes, in order.
+    pub const NAMES: [&str; 3] = ["auto", "free", "base"];
+}
+
+impl std::str::FromStr for FrameChoice {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "auto" => Ok(FrameChoice::Auto),
+            "free" => Ok(FrameChoice::Free),
+            "base" => Ok(FrameChoice::Base),
+            _ => Err(format!("unknown frame `{s}`; one of auto, free, base")),
+        }
+    }
+}
+
 /// Validation results in the report.
 #[derive(Serialize, Clone)]
 pub struct Validation {
@@ -438,8 +468,8 @@ pub struct CalibrateConfig {
     pub loss: pkmcal::Loss,
     pub outlier_threshold: f64,
     pub drop_outliers: bool,
-    /// `auto`, `free` or `base`.
-    pub frame: String,
+    /// Where the instrument stands (`--frame`).
+    pub frame: FrameChoice,
     /// `--axes`: the tool axes measured, when not all.
     pub axes: Option<String>,
     /// `--distances`: distances measured between pairs of poses.
@@ -460,7 +490,7 @@ pub fn measurement_of(
     csv: &Csv,
     description: &Description,
     setup: Option<&Path>,
-    frame: &str,
+    frame: FrameChoice,
     axes: Option<&str>,
 ) -> Result<MeasurementModel> {
     let spec = description.mech.spec();
@@ -519,9 +549,9 @@ pub fn measurement_of(
     };
     // The frame rule is the library's; the words are the command line's.
     let request = match frame {
-        "free" => pkmcal::FrameRequest::Free,
-        "base" => pkmcal::FrameRequest::Base,
-        _ => pkmcal::FrameRequest::Auto {
+        FrameChoice::Free => pkmcal::FrameRequest::Free,
+        FrameChoice::Base => pkmcal::FrameRequest::Base,
+        FrameChoice::Auto => pkmcal::FrameRequest::Auto {
             data_in_base: csv.base_frame,
         },
     };
@@ -555,7 +585,7 @@ fn read_measured(
     mechanism: Option<&Path>,
     data: &Path,
     setup: Option<&Path>,
-    frame: &str,
+    frame: FrameChoice,
     axes: Option<&str>,
 ) -> Result<Measured> {
     let description = read_description(run, mechanism)?;
@@ -585,7 +615,7 @@ pub fn run_calibrate(run: &crate::Run<'_>, c: CalibrateConfig) -> Result<()> {
         c.mechanism.as_deref(),
         &c.data,
         c.setup.as_deref(),
-        &c.frame,
+        c.frame,
         c.axes.as_deref(),
     )?;
     let spec = mech.spec();
@@ -1030,8 +1060,8 @@ pub struct AnalyzeConfig {
     pub load: Vec<f64>,
     pub report: Option<PathBuf>,
     pub setup: Option<PathBuf>,
-    /// `auto`, `free` or `base`.
-    pub frame: String,
+    /// Where the instrument stands (`--frame`).
+    pub frame: FrameChoice,
     /// `--axes`: the tool axes measured, when not all.
     pub axes: Option<String>,
     /// `--distances`: distances measured between pairs of poses.
@@ -1049,7 +1079,7 @@ pub fn run_analyze(run: &crate::Run<'_>, c: AnalyzeConfig) -> Result<()> {
         c.mechanism.as_deref(),
         &c.data,
         c.setup.as_deref(),
-        &c.frame,
+        c.frame,
         c.axes.as_deref(),
     )?;
     let mech = &mech;

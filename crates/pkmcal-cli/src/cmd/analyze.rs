@@ -26,23 +26,8 @@ pub struct Args {
     /// Output: JSON report of the analysis.
     #[arg(long, value_name = "REPORT.json")]
     pub report: Option<PathBuf>,
-    /// Ball-bar setup for data with distances d1, d2, …
-    #[arg(long, value_name = "S.toml")]
-    pub setup: Option<PathBuf>,
-    /// Where the measuring instrument stands (as for `calibrate`): `free`
-    /// adds its frame's parameters to the analysis, `base` leaves them out,
-    /// `auto` reads the data file's `# frame: base`.
-    #[arg(long, default_value = "auto", value_parser = ["auto", "free", "base"])]
-    pub frame: String,
-    /// Only these tool axes were measured (comma-separated, e.g. `z` for a
-    /// height probe); the data file then needs only their columns.
-    #[arg(long, value_name = "AXES")]
-    pub axes: Option<String>,
-    /// Distances measured between pairs of poses (calipers on a printed
-    /// object, a gauge), analysed with the data: CSV with `<actuator>_1`,
-    /// `<actuator>_2` and `distance` columns (see calibrate).
-    #[arg(long, value_name = "PAIRS.csv")]
-    pub distances: Option<PathBuf>,
+    #[command(flatten)]
+    pub instrument: args::InstrumentArgs,
 }
 
 impl Args {
@@ -52,8 +37,8 @@ impl Args {
                 self.mech.mechanism.clone(),
                 Some(self.data.clone()),
                 self.params.clone(),
-                self.setup.clone(),
-                self.distances.clone(),
+                self.instrument.setup.clone(),
+                self.instrument.distances.clone(),
             ],
             self.report.clone(),
         ))
@@ -72,10 +57,10 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             params: a.params,
             load: a.load.values(),
             report: a.report,
-            setup: a.setup,
-            frame: a.frame,
-            axes: a.axes,
-            distances: a.distances,
+            setup: a.instrument.setup,
+            frame: a.instrument.frame,
+            axes: a.instrument.axes,
+            distances: a.instrument.distances,
         },
     )
 }

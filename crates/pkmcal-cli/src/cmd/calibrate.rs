@@ -47,9 +47,6 @@ pub struct Args {
     /// Write figures (SVG, PNG) and a self-contained report.html here.
     #[arg(long, value_name = "DIR")]
     pub report_dir: Option<PathBuf>,
-    /// Ball-bar setup (sockets, bar offset) for data with distances d1, d2, …
-    #[arg(long, value_name = "S.toml")]
-    pub setup: Option<PathBuf>,
     /// Loss on the standardised residuals: squared, huber or cauchy.
     #[arg(long, default_value = "squared", value_parser = ["squared", "huber", "cauchy"])]
     pub loss: String,
@@ -63,25 +60,8 @@ pub struct Args {
     /// Drop the outliers and refit.
     #[arg(long)]
     pub drop_outliers: bool,
-    /// Where the measuring instrument stands: `free` (a tracker or camera
-    /// where it was put: its frame is identified with the rest), `base` (the
-    /// data are in the base frame, e.g. trilaterated from ball-bar sockets at
-    /// known places), `auto`: base when the data file says `# frame: base`
-    /// (simulate and trilaterate write it), otherwise free. Ball-bar
-    /// readings carry no frame.
-    #[arg(long, default_value = "auto", value_parser = ["auto", "free", "base"])]
-    pub frame: String,
-    /// Only these tool axes were measured (comma-separated, e.g. `z` for a
-    /// height probe); the data file then needs only their columns.
-    #[arg(long, value_name = "AXES")]
-    pub axes: Option<String>,
-    /// Distances measured between pairs of poses (calipers on a printed
-    /// object, a gauge), fitted with the data: CSV with the commands of both
-    /// poses (`<actuator>_1`, `<actuator>_2` for every actuated joint) and
-    /// `distance` in mm (optional `sigma_distance`; otherwise their noise is
-    /// estimated apart from the data's).
-    #[arg(long, value_name = "PAIRS.csv")]
-    pub distances: Option<PathBuf>,
+    #[command(flatten)]
+    pub instrument: args::InstrumentArgs,
 }
 
 impl Args {
@@ -105,8 +85,8 @@ impl Args {
                 Some(self.data.clone()),
                 self.start.clone(),
                 self.validate.clone(),
-                self.setup.clone(),
-                self.distances.clone(),
+                self.instrument.setup.clone(),
+                self.instrument.distances.clone(),
             ],
             out,
         );
@@ -123,8 +103,8 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             loss,
             outlier_threshold: a.outlier_threshold,
             drop_outliers: a.drop_outliers,
-            frame: a.frame,
-            axes: a.axes,
+            frame: a.instrument.frame,
+            axes: a.instrument.axes,
             mechanism: a.mech.mechanism,
             data: a.data,
             model: a.model,
@@ -139,8 +119,8 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             seed: a.seed,
             kfold: a.kfold,
             report_dir: a.report_dir,
-            setup: a.setup,
-            distances: a.distances,
+            setup: a.instrument.setup,
+            distances: a.instrument.distances,
         },
     )
 }
