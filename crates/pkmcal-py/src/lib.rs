@@ -90,6 +90,69 @@ fn path_arg(path: &Bound<'_, PyAny>) -> PyResult<String> {
         .map_err(|_| usage("expected a path (str or os.PathLike)"))
 }
 
+// ---------------------------------------------------------------- threads
+
+/// The package's thread pool, its process and its size (0: one thread per
+/// core). A process forked from one that had a pool inherits the pool's
+/// handle but not its threads, so work sent to it would wait forever: a
+/// process makes its own, and a forked child leaves its parent's alone.
+static POOL: std::sync::Mutex<Option<(u32, usize, Arc<rayon::ThreadPool>)>> =
+    std::sync::Mutex::new(None);
+
+/// The threads wanted per process ([`set_threads`]; 0 for one per core).
+static THREADS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
+/// This process's pool, made or remade as needed. Called with the GIL held,
+/// so that no fork (which holds the GIL) can copy the lock while it is held.
+fn pool() -> PyResult<Arc<rayon::ThreadPool>> {
+    let mut g = POOL.lock().unwrap_or_else(|e| e.into_inner());
+    let pid = std::process::id();
+    let n = THREADS.load(std::sync::atomic::Ordering::Relaxed);
+    if let Some((p, k, pool)) = g.as_ref()
+        && *p == pid
+        && *k == n
+    {
+        return Ok(pool.clone());
+    }
+    let new = Arc::new(
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .map_err(|e| raise(format!("cannot start pkmcal's threads: {e}"), None))?,
+    );
+    if let Some((p, _, old)) = g.replace((pid, n, new.clone()))
+        && p != pid
+    {
+        // The parent's pool, copied by a fork: its threads are not here, so
+        // dropping it would wait for them forever.
+        std::mem::forget(old);
+    }
+    Ok(new)
+}
+
+/// Long computations: the GIL released, on this process's pool.
+trait InPool {
+    fn in_pool<T: Send, F: FnOnce() -> T + Send>(self, f: F) -> T;
+}
+
+impl InPool for Python<'_> {
+    fn in_pool<T: Send, F: FnOnce() -> T + Send>(self, f: F) -> T {
+        match pool() {
+            Ok(p) => self.detach(|| p.install(f)),
+            // No threads to be had: on the calling thread.
+            Err(_) => self.detach(f),
+        }
+    }
+}
+
+/// The number of threads each process computes with: ``n`` (0 for one per
+/// core, the default). In a pool of worker processes, 1 per worker keeps
+/// the cores from being oversubscribed. Takes effect at the next call.
+#[pyfunction]
+fn set_threads(n: usize) {
+    THREADS.store(n, std::sync::atomic::Ordering::Relaxed);
+}
+
 /// An error at row `i` of the arrays.
 fn at(i: usize) -> impl Fn(pkmcal::Error) -> pkmcal::Error {
     move |e| {
@@ -145,7 +208,7 @@ fn per_row<T: Send>(
     f: impl Fn(&[f64]) -> pkmcal::Result<T> + Sync,
 ) -> PyResult<Vec<T>> {
     let v = rows.view();
-    py.detach(|| {
+    py.in_pool(|| {
         (0..v.nrows())
             .into_par_iter()
             .map(|i| f(&row(&v, i)).map_err(at(i)))
@@ -1573,7 +1636,7 @@ impl PyCalibration {
     /// errors and maps, residuals, singular values.
     fn figures(&self, py: Python<'_>) -> PyResult<Vec<PyFigure>> {
         let figs = py
-            .detach(|| self.with_inputs(pkmcal_io::report::figures))
+            .in_pool(|| self.with_inputs(pkmcal_io::report::figures))
             .map_err(cli_err)?;
         Ok(figs
             .into_iter()
@@ -1592,7 +1655,7 @@ impl PyCalibration {
     /// ``pkmcal predict --uncertainty`` read back.
     fn save(&self, py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<()> {
         let p = path_arg(path)?;
-        py.detach(|| {
+        py.in_pool(|| {
             let json = self.report().to_json().map_err(cli_err)?;
             written(|run| run.files.stage(std::path::Path::new(&p), json.as_bytes()))
         })
@@ -1601,7 +1664,7 @@ impl PyCalibration {
     /// the directory ``path`` (created if needed).
     fn save_report(&self, py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<()> {
         let p = path_arg(path)?;
-        py.detach(|| {
+        py.in_pool(|| {
             written(|run| {
                 self.with_inputs(|i| {
                     pkmcal_io::report::write_report_dir(run, std::path::Path::new(&p), i)
@@ -1991,7 +2054,7 @@ fn simulate<'py>(
     let t = r.to_vecs();
     let mech = &*m.mech;
     let data = py
-        .detach(|| pkmcal::simulate(mech, &mm, &truth, &t, noise, seed))
+        .in_pool(|| pkmcal::simulate(mech, &mm, &truth, &t, noise, seed))
         .map_err(lib_err)?;
     let c: Vec<f64> = data.iter().flat_map(|d| d.commands.clone()).collect();
     let y: Vec<f64> = data.iter().flat_map(|d| d.measured.clone()).collect();
@@ -2125,7 +2188,7 @@ fn calibrate<'py>(
         seed,
     };
     let result =
-        py.detach(|| pkmcal::identify::study(mech, &mm, &all, pairs, &start, &study_opts, &|| {}));
+        py.in_pool(|| pkmcal::identify::study(mech, &mm, &all, pairs, &start, &study_opts, &|| {}));
     let study = result.map_err(|e| lib_err(e.error))?;
     Ok(PyCalibration {
         mech: m.mech.clone(),
@@ -2182,7 +2245,7 @@ fn analyze<'py>(
         .map_err(|e| usage(format!("load: {e}")))?;
     let mech = &*m.mech;
     let id = py
-        .detach(|| pkmcal::analyze(mech, &mm, &data, &params, model, &free, &force))
+        .in_pool(|| pkmcal::analyze(mech, &mm, &data, &params, model, &free, &force))
         .map_err(lib_err)?;
     Ok(PyIdentifiability { id })
 }
@@ -2284,7 +2347,7 @@ fn plan<'py>(
     };
     let mech = &*m.mech;
     let p = py
-        .detach(|| pkmcal::plan(mech, &params, &opts, &|| {}))
+        .in_pool(|| pkmcal::plan(mech, &params, &opts, &|| {}))
         .map_err(lib_err)?;
     let nx = spec.tool_axes.len();
     let targets = |s: &[pkmcal::WorkspacePoint]| -> Vec<f64> {
@@ -2359,7 +2422,7 @@ fn montecarlo<'py>(
     };
     let mech = &*m.mech;
     let (_, s) = py
-        .detach(|| -> pkmcal::Result<_> {
+        .in_pool(|| -> pkmcal::Result<_> {
             for (i, t) in poses.iter().enumerate() {
                 pkmcal::nominal_commands(mech, t).map_err(at(i))?;
             }
@@ -2427,6 +2490,7 @@ fn _pkmcal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyPlan>()?;
     m.add_class::<PySavedCalibration>()?;
     m.add_function(wrap_pyfunction!(load_calibration, m)?)?;
+    m.add_function(wrap_pyfunction!(set_threads, m)?)?;
     m.add_function(wrap_pyfunction!(predict, m)?)?;
     m.add_function(wrap_pyfunction!(nominal_commands, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;

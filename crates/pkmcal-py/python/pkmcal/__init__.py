@@ -41,6 +41,7 @@ from ._pkmcal import (
     nominal_commands,
     plan,
     predict,
+    set_threads,
     simulate,
     trilaterate,
 )
@@ -66,6 +67,7 @@ __all__ = [
     "nominal_commands",
     "plan",
     "predict",
+    "set_threads",
     "simulate",
     "trilaterate",
 ]
