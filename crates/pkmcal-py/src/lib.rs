@@ -500,7 +500,7 @@ impl PyMechanism {
     fn name(&self) -> String {
         self.spec().name.clone()
     }
-    /// Its kind: ``jeong-kim-2dof``, ``planar`` or ``gough-stewart``.
+    /// Its kind: ``jeong-kim-2dof``, ``planar``, ``gough-stewart`` or ``spatial``.
     #[getter]
     fn kind(&self) -> &'static str {
         match &*self.mech {
@@ -1925,10 +1925,12 @@ impl PyPlan {
 /// Predict the tool position reached at each row of ``commands``.
 ///
 /// ``params``: None (nominal), a dict name → value (others nominal), a
-/// :class:`Calibration` or a parameter file path. ``model``: ``"exact"``
-/// (default), ``"linear"`` or ``"rigid"``. ``load``: a constant wrench on
-/// the tool (N along lengths, N·m about angles). ``uncertainty=True`` (with a
-/// Calibration) adds the covariance of each position.
+/// :class:`Calibration`, a :class:`SavedCalibration` or a parameter file
+/// path. ``model``: ``"exact"``, ``"linear"`` or ``"rigid"``; by default the
+/// calibration's model when ``params`` is one, else ``"exact"``. ``load``: a
+/// constant wrench on the tool (N along lengths, N·m about angles;
+/// ``force=`` is its old name). ``uncertainty=True`` (with a calibration)
+/// adds the covariance of each position.
 #[pyfunction]
 #[pyo3(signature = (mechanism, commands, params = None, *, model = None, load = None, force = None, uncertainty = false))]
 #[allow(clippy::too_many_arguments)]
@@ -2077,10 +2079,20 @@ fn simulate<'py>(
 /// reading, or (n, readings) with NaN where it is to be estimated).
 /// ``frame``: ``"base"`` (default: readings in the base frame) or ``"free"``
 /// (an instrument frame identified with the rest, e.g. a laser tracker).
+/// ``targets``: (n, tool axes), the poses the commands were meant to reach
+/// (for the "before" statistics; optional). ``ballbar``: a dict
+/// ``{"sockets": (k, 2 or 3) mm, "bar_offset": mm}`` or ``"mechanism"`` for
+/// the description's ``[ballbar]``.
 /// ``free``/``fix``: parameter names (``"all"``, ``"default"``); ``start``:
-/// starting parameters. ``loss``: ``"squared"``, ``"huber"`` or ``"cauchy"``.
+/// starting parameters. ``load``: the wrench on the tool during the
+/// measurements (N, N·m; ``force=`` is its old name). ``loss``:
+/// ``"squared"``, ``"huber"`` or ``"cauchy"``, with ``loss_scale`` (robust
+/// standard deviations; default 1.345 for huber, 2.385 for cauchy);
+/// ``outlier_threshold`` (robust standard deviations, default 4) flags
+/// outliers and ``drop_outliers=True`` refits without them.
 /// Validation: ``validation=(commands, measured)``, or ``holdout=0.2``
-/// (a fraction held out, seeded), and/or ``kfold=5``.
+/// (a fraction held out, drawn with ``seed``), and/or ``kfold=5`` (folds
+/// drawn with ``seed``).
 /// ``distances=(commands_1, commands_2, distance[, sigma])``: distances
 /// measured between pairs of poses (calipers on a printed object, mm),
 /// fitted with the readings (their noise estimated apart); their errors are
