@@ -257,3 +257,11 @@ def test_a_calibration_saved_and_read_back(tmp_path):
     (tmp_path / "other.json").write_text('{"format": "x", "version": 1}')
     with pytest.raises(pkmcal.PkmcalError):
         pkmcal.load_calibration(tmp_path / "other.json")
+
+
+def test_star_import_keeps_the_builtin_warning():
+    """`from pkmcal import *` does not shadow Python's `Warning`."""
+    names = {}
+    exec("from pkmcal import *", names)
+    assert "Warning" not in names
+    assert pkmcal.Warning is not Warning

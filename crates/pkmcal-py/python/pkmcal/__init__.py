@@ -46,6 +46,8 @@ from ._pkmcal import (
     trilaterate,
 )
 
+# `Warning` stays out of `__all__`: `from pkmcal import *` must not shadow
+# Python's builtin `Warning` (it is `pkmcal.Warning`).
 __all__ = [
     "Calibration",
     "Compensation",
@@ -57,7 +59,6 @@ __all__ = [
     "Plan",
     "Prediction",
     "SavedCalibration",
-    "Warning",
     "__version__",
     "analyze",
     "calibrate",
