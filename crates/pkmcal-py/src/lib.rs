@@ -613,6 +613,26 @@ impl PyMechanism {
             None => (cls.getattr("reference")?, PyTuple::empty(py)),
         })
     }
+    /// Equal when the descriptions are: the same mechanism (names, nominal
+    /// values, workspace, assembly), target points and ball-bar setup,
+    /// wherever they were read from.
+    fn __eq__(&self, other: &Bound<'_, PyAny>) -> bool {
+        other.cast::<PyMechanism>().is_ok_and(|o| {
+            let o = o.get();
+            self.mech.spec() == o.mech.spec()
+                && self.kind() == o.kind()
+                && self.targets == o.targets
+                && self.setup == o.setup
+        })
+    }
+    /// Consistent with ``==``: from the mechanism's identity and name.
+    fn __hash__(&self) -> u64 {
+        let id = pkmcal::identify::mechanism_identity(self.spec());
+        let text = format!("{id}\u{1f}{}", self.spec().name);
+        text.bytes().fold(0xcbf2_9ce4_8422_2325_u64, |h, b| {
+            (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
+        })
+    }
     fn __repr__(&self) -> String {
         let s = self.spec();
         format!(

@@ -265,3 +265,17 @@ def test_star_import_keeps_the_builtin_warning():
     exec("from pkmcal import *", names)
     assert "Warning" not in names
     assert pkmcal.Warning is not Warning
+
+
+def test_mechanisms_compare_by_description(tmp_path):
+    """Two mechanisms read from the same description are equal (and hash
+    alike), wherever they were read from; another description is not."""
+    a, b = pkmcal.Mechanism(), pkmcal.Mechanism.reference()
+    assert a == b and hash(a) == hash(b) and len({a, b}) == 1
+    path = EXAMPLES / "gough-stewart-6" / "mechanism.toml"
+    g1, g2 = pkmcal.Mechanism(path), pkmcal.Mechanism.from_toml(path.read_text())
+    assert g1 == g2 and hash(g1) == hash(g2)
+    assert a != g1 and a != "jeong-kim-2dof"
+    import pickle
+
+    assert pickle.loads(pickle.dumps(g1)) == g1
