@@ -27,6 +27,12 @@ impl Paths {
             dirs: vec![],
         }
     }
+
+    /// The same, with output directories the command creates.
+    pub fn with_dirs(mut self, dirs: Vec<PathBuf>) -> Self {
+        self.dirs = dirs;
+        self
+    }
 }
 
 /// The mechanism option of every command that works on a mechanism.

@@ -1,11 +1,11 @@
 //! `calibrate` and `analyze`: read data, identify, validate, report.
 
-use crate::io::{Csv, Description, Mech, read_description, read_params};
+use crate::io::{Csv, Description, Mech, read_description};
 use anyhow::{Context, Result, bail};
 use pkmcal::identify::{CrossValidation, Identifiability};
 use pkmcal::{
     Accuracy, Calibration, CalibrationOptions, ErrorStats, Frame, Measurement, MeasurementModel,
-    Mechanism, Model, Params,
+    Mechanism, Model,
 };
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -620,10 +620,7 @@ pub fn run_calibrate(run: &crate::Run<'_>, c: CalibrateConfig) -> Result<()> {
     )?;
     let spec = mech.spec();
     let mech = &mech;
-    let start = match &c.start {
-        Some(p) => read_params(run, p, mech)?,
-        None => Params::nominal(spec),
-    };
+    let start = crate::io::params_or_nominal(run, c.start.as_deref(), mech)?;
     let pairs = match &c.distances {
         Some(p) => read_distances(run, p, mech, &measurement, &units)?,
         None => vec![],
@@ -1084,10 +1081,7 @@ pub fn run_analyze(run: &crate::Run<'_>, c: AnalyzeConfig) -> Result<()> {
     )?;
     let mech = &mech;
     let spec = mech.spec();
-    let params = match &c.params {
-        Some(p) => read_params(run, p, mech)?,
-        None => Params::nominal(spec),
-    };
+    let params = crate::io::params_or_nominal(run, c.params.as_deref(), mech)?;
     let free = free_set(mech, &measurement, c.free.as_deref(), c.fix.as_deref())?;
     let force = crate::io::checked_load(c.load.clone(), mech, &params)?;
     let n_data = data.len();

@@ -14,7 +14,7 @@
 //! until the next move gives every axis again.
 
 use anyhow::{Context, Result};
-use pkmcal::{CompensationOptions, Mechanism, Model, Params, predistort};
+use pkmcal::{CompensationOptions, Mechanism, Model, predistort};
 use rayon::prelude::*;
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -148,10 +148,7 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
     let mech = crate::io::read_description(run, c.mechanism.as_deref())?.mech;
     let spec = mech.spec();
     let real = crate::io::read_params(run, &c.params, &mech)?;
-    let controller = match &c.controller {
-        Some(p) => crate::io::read_params(run, p, &mech)?,
-        None => Params::nominal(spec),
-    };
+    let controller = crate::io::params_or_nominal(run, c.controller.as_deref(), &mech)?;
     let nx = spec.tool_axes.len();
     let force = crate::io::checked_load(c.load.clone(), &mech, &real)?;
     let opts = CompensationOptions {

@@ -1,7 +1,7 @@
 //! `compensate`, `plan` and `montecarlo`: using a calibration.
 
 use crate::calibrate::free_set;
-use crate::io::{Csv, csv_bytes, read_description, read_params};
+use crate::io::{Csv, csv_bytes, read_description};
 use anyhow::{Context, Result, bail};
 use pkmcal::{
     CalibrationOptions, CompensationOptions, Mechanism, Model, MonteCarloOptions, Params,
@@ -47,14 +47,8 @@ pub fn run_compensate(run: &crate::Run<'_>, c: CompensateConfig) -> Result<()> {
     let units = crate::fileunits::of(run, &description);
     let mech = description.mech;
     let spec = mech.spec();
-    let params = match &c.params {
-        Some(p) => read_params(run, p, &mech)?,
-        None => Params::nominal(spec),
-    };
-    let controller = match &c.controller {
-        Some(p) => read_params(run, p, &mech)?,
-        None => Params::nominal(spec),
-    };
+    let params = crate::io::params_or_nominal(run, c.params.as_deref(), &mech)?;
+    let controller = crate::io::params_or_nominal(run, c.controller.as_deref(), &mech)?;
     let opts = CompensationOptions {
         force: crate::io::checked_load(c.load.clone(), &mech, &params)?,
         preload: match &c.preload {
@@ -520,10 +514,7 @@ pub fn run_plan(run: &crate::Run<'_>, c: PlanConfig) -> Result<()> {
     let units = crate::fileunits::of(run, &description);
     let mech = description.mech;
     let spec = mech.spec();
-    let params = match &c.params {
-        Some(p) => read_params(run, p, &mech)?,
-        None => Params::nominal(spec),
-    };
+    let params = crate::io::params_or_nominal(run, c.params.as_deref(), &mech)?;
     let free = free_set(
         &mech,
         &pkmcal::MeasurementModel::tool(spec),

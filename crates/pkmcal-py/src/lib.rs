@@ -627,11 +627,14 @@ impl PyMechanism {
     }
     /// Consistent with ``==``: from the mechanism's identity and name.
     fn __hash__(&self) -> u64 {
-        let id = pkmcal::identify::mechanism_identity(self.spec());
-        let text = format!("{id}\u{1f}{}", self.spec().name);
-        text.bytes().fold(0xcbf2_9ce4_8422_2325_u64, |h, b| {
-            (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
-        })
+        use std::hash::{Hash, Hasher};
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        (
+            pkmcal::identify::mechanism_identity(self.spec()),
+            &self.spec().name,
+        )
+            .hash(&mut h);
+        h.finish()
     }
     fn __repr__(&self) -> String {
         let s = self.spec();

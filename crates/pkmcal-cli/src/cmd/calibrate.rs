@@ -79,7 +79,7 @@ impl Args {
             out.extend(in_dir(d, pkmcal_io::report::FILES)?);
             dirs.push(d.clone());
         }
-        let mut p = args::Paths::new(
+        Ok(args::Paths::new(
             [
                 self.mech.mechanism.clone(),
                 Some(self.data.clone()),
@@ -89,9 +89,8 @@ impl Args {
                 self.instrument.distances.clone(),
             ],
             out,
-        );
-        p.dirs = dirs;
-        Ok(p)
+        )
+        .with_dirs(dirs))
     }
 }
 

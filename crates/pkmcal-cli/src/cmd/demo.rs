@@ -25,9 +25,7 @@ impl Args {
             &self.out_dir.join("report"),
             pkmcal_io::report::FILES,
         )?);
-        let mut p = args::Paths::new([], out);
-        p.dirs = vec![self.out_dir.clone()];
-        Ok(p)
+        Ok(args::Paths::new([], out).with_dirs(vec![self.out_dir.clone()]))
     }
 }
 

@@ -48,9 +48,7 @@ impl Args {
             out.extend(pkmcal_io::output::in_dir(d, &[DISTANCES_FILE])?);
             dirs.push(d.clone());
         }
-        let mut p = args::Paths::new([Some(self.config.clone())], out);
-        p.dirs = dirs;
-        Ok(p)
+        Ok(args::Paths::new([Some(self.config.clone())], out).with_dirs(dirs))
     }
 }
 

@@ -7,7 +7,7 @@ use pkmcal::{Mechanism, Model, Params, Prediction, predict_pose, prepare_pose};
 use pkmcal_io::Run;
 use pkmcal_io::io::{Mech, read_description};
 use rayon::prelude::*;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -149,13 +149,10 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         None => None,
     };
     // The parameters: --params, else the record's, else nominal.
-    let params = match (&a.params, &record) {
-        (None, Some(r)) => r.params(spec).map_err(|e| {
-            anyhow::anyhow!(
-                "{}: {e}",
-                a.uncertainty.as_deref().unwrap_or(Path::new("")).display()
-            )
-        })?,
+    let params = match (&a.params, &record, &a.uncertainty) {
+        (None, Some(r), Some(path)) => r
+            .params(spec)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?,
         _ => pkmcal_io::io::params_or_nominal(run, a.params.as_deref(), &mech)?,
     };
     let force = pkmcal_io::io::checked_load(a.load.values(), &mech, &params)?;
