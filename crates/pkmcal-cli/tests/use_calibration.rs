@@ -1,7 +1,7 @@
 //! End-to-end tests of `compensate`, `plan` and `montecarlo`.
 
 mod common;
-use common::{fails, ok, read_csv};
+use common::{example, fails, ok, read_csv, run};
 
 #[test]
 fn compensated_commands_bring_the_tool_to_the_targets() {
@@ -304,4 +304,174 @@ fn the_calibration_record_serves_predict() {
     assert_eq!(rows, with_params);
     let sx = h.iter().position(|c| c == "sigma_x").unwrap();
     assert!(rows.iter().all(|r| r[sx] > 0.0 && r[sx] < 0.01), "{rows:?}");
+}
+
+/// Compensated commands predicted back reach their targets (mm).
+const PREDICTED_BACK: f64 = 1e-9;
+
+/// The README's flow on its own data: plan 35 poses, simulate a machine with
+/// `l11 = 280.3` and `dq3 = 0.002`, calibrate, compensate the planned
+/// targets, then predict those commands under the calibration: every row
+/// comes back to its target (eight of them lie where forward kinematics
+/// from the reference configuration alone crosses a singularity).
+#[test]
+fn predict_reads_back_what_compensate_wrote() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("truth.toml"), "l11 = 280.3\ndq3 = 0.002\n").unwrap();
+    ok(
+        d,
+        &["plan", "--quiet", "--count", "35", "--out", "plan.csv"],
+    );
+    ok(
+        d,
+        &[
+            "simulate",
+            "--quiet",
+            "--targets",
+            "plan.csv",
+            "--truth",
+            "truth.toml",
+            "--noise",
+            "0.002",
+            "--seed",
+            "1",
+            "--out",
+            "data.csv",
+        ],
+    );
+    ok(
+        d,
+        &[
+            "calibrate",
+            "--quiet",
+            "--data",
+            "data.csv",
+            "--out",
+            "cal.toml",
+        ],
+    );
+    ok(
+        d,
+        &[
+            "compensate",
+            "--quiet",
+            "--params",
+            "cal.toml",
+            "--targets",
+            "plan.csv",
+            "--out",
+            "comp.csv",
+        ],
+    );
+    ok(
+        d,
+        &[
+            "predict",
+            "--quiet",
+            "--params",
+            "cal.toml",
+            "--commands",
+            "comp.csv",
+            "--out",
+            "back.csv",
+        ],
+    );
+    let (h, comp) = read_csv(&d.join("comp.csv"));
+    let (hb, back) = read_csv(&d.join("back.csv"));
+    let col = |h: &[String], n: &str| h.iter().position(|c| c == n).unwrap();
+    assert_eq!(comp.len(), 35);
+    for (c, b) in comp.iter().zip(&back) {
+        for (t, x) in [("target_x", "x"), ("target_y", "y")] {
+            let (t, x) = (c[col(&h, t)], b[col(&hb, x)]);
+            assert!((t - x).abs() < PREDICTED_BACK, "{t} came back as {x}");
+        }
+    }
+}
+
+/// `predict --skip-unreachable` writes NaN outputs for a row whose commands
+/// do not assemble, lists it, and goes on; without it the run stops at that
+/// row's line with exit 1 and writes nothing.
+#[test]
+fn predict_skips_rows_that_do_not_assemble_when_asked() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("c.csv"),
+        "q1,q2,q3\n1.4614514491574517,3.560908006381431,-2.593867715612745\n5,5,5\n1.4614514491574517,3.560908006381431,-2.593867715612745\n",
+    )
+    .unwrap();
+    fails(
+        d,
+        &["predict", "--commands", "c.csv", "--out", "p.csv"],
+        1,
+        "c.csv:3",
+    );
+    assert!(!d.join("p.csv").exists());
+    let o = run(
+        d,
+        &[
+            "predict",
+            "--commands",
+            "c.csv",
+            "--out",
+            "p.csv",
+            "--skip-unreachable",
+        ],
+    );
+    assert!(o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("c.csv:3: skipped"), "{err}");
+    assert!(
+        err.contains("predicted 2 poses") && err.contains("skipped 1"),
+        "{err}"
+    );
+    let text = std::fs::read_to_string(d.join("p.csv")).unwrap();
+    let rows: Vec<&str> = text.lines().filter(|l| !l.starts_with('#')).collect();
+    assert_eq!(rows.len(), 4);
+    assert!(rows[2].starts_with("5,5,5,NaN,NaN"), "{}", rows[2]);
+    assert!(!rows[1].contains("NaN") && !rows[3].contains("NaN"));
+}
+
+/// On the linear delta, commands that put two legs in the other working mode
+/// (carriages b and c below the nozzle) are refused, naming a leg: the two
+/// flips no longer cancel in a product of signs. And an out-of-workspace
+/// refusal does not suggest a unit that puts the tool a metre under the bed.
+#[test]
+fn a_delta_with_two_legs_folded_the_other_way_is_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mech = example("linear-delta");
+    std::fs::write(d.join("flip.csv"), "a,b,c\n469.915,213.392,219.315\n").unwrap();
+    fails(
+        d,
+        &[
+            "predict",
+            "--mechanism",
+            &mech,
+            "--commands",
+            "flip.csv",
+            "--out",
+            "p.csv",
+        ],
+        1,
+        "is in the other working mode",
+    );
+    std::fs::write(d.join("far.csv"), "a,b,c\n900,900,1900\n").unwrap();
+    let o = run(
+        d,
+        &[
+            "predict",
+            "--mechanism",
+            &mech,
+            "--commands",
+            "far.csv",
+            "--out",
+            "p.csv",
+        ],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(!err.contains("--units"), "{err}");
+    assert!(!d.join("p.csv").exists());
 }

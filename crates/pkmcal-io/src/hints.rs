@@ -158,7 +158,8 @@ impl<'a, M: Mechanism> Assembly<'a, M> {
     }
 
     /// The `--units` option under which most of `commands` (read under
-    /// `units`, converted to internal units) assemble, if there is one.
+    /// `units`, converted to internal units) assemble with the tool near the
+    /// workspace ([`near_workspace`]), if there is one.
     pub fn other_unit(&self, commands: &[&[f64]], units: &FileUnits) -> Option<String> {
         let mut tries: Vec<(String, Vec<f64>)> = vec![];
         if self.units.contains(&Unit::Radian) && units.counts_per_rev.is_none() {
@@ -188,7 +189,8 @@ impl<'a, M: Mechanism> Assembly<'a, M> {
                 .iter()
                 .filter(|c| {
                     let c: Vec<f64> = c.iter().zip(&factors).map(|(c, f)| c * f).collect();
-                    self.assembles(&c).is_some()
+                    self.assembles(&c)
+                        .is_some_and(|p| near_workspace(self.mech.spec(), &p.x))
                 })
                 .count();
             (ok as f64 >= ASSEMBLING_SHARE * commands.len() as f64).then_some(option)
@@ -212,6 +214,18 @@ pub fn explain_failure<M: Mechanism>(
         ),
         None => e,
     }
+}
+
+/// Whether a tool position lies within the workspace box widened by its
+/// own extent on every side (at least 1 mm or rad): a unit is suggested only
+/// when the commands read in it put the tool where the machine works, not
+/// merely somewhere it assembles (a delta's carriages in µm still assemble,
+/// a metre below the bed).
+fn near_workspace(spec: &pkmcal::Spec, x: &[f64]) -> bool {
+    spec.workspace_box.iter().zip(x).all(|(&[lo, hi], &v)| {
+        let margin = (hi - lo).max(1.0);
+        v >= lo - margin && v <= hi + margin
+    })
 }
 
 /// Command factors that rescale the actuators of one unit by `f`.

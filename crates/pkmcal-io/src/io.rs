@@ -1481,3 +1481,8 @@ mod fuzz {
         }
     }
 }
+
+/// `n` and the noun in its number: "1 pose", "35 poses".
+pub fn count(n: usize, one: &str, many: &str) -> String {
+    format!("{n} {}", if n == 1 { one } else { many })
+}

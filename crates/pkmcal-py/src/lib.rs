@@ -1873,6 +1873,9 @@ struct PyPrediction {
     /// Covariance of ``x`` (n, axes, axes) from a calibration's parameter
     /// covariance, when asked for with ``uncertainty=True``; else None.
     covariance: Option<Py<PyAny>>,
+    /// Rows whose commands did not assemble the mechanism on its branch
+    /// (``skip_unreachable=True``; their outputs are NaN), from 0.
+    skipped: Vec<usize>,
 }
 
 #[pymethods]
@@ -1953,9 +1956,12 @@ impl PyPlan {
 /// calibration's model when ``params`` is one, else ``"exact"``. ``load``: a
 /// constant wrench on the tool (N along lengths, N·m about angles;
 /// ``force=`` is its old name). ``uncertainty=True`` (with a calibration)
-/// adds the covariance of each position.
+/// adds the covariance of each position. A row whose commands do not
+/// assemble the mechanism on its branch raises, naming the row; with
+/// ``skip_unreachable=True`` its outputs are NaN and it is listed in
+/// ``skipped``.
 #[pyfunction]
-#[pyo3(signature = (mechanism, commands, params = None, *, model = None, load = None, force = None, uncertainty = false))]
+#[pyo3(signature = (mechanism, commands, params = None, *, model = None, load = None, force = None, uncertainty = false, skip_unreachable = false))]
 #[allow(clippy::too_many_arguments)]
 fn predict<'py>(
     py: Python<'py>,
@@ -1966,6 +1972,7 @@ fn predict<'py>(
     load: Option<Vec<f64>>,
     force: Option<Vec<f64>>,
     uncertainty: bool,
+    skip_unreachable: bool,
 ) -> PyResult<PyPrediction> {
     let m = mech_ref(mechanism);
     let spec = m.spec();
@@ -1999,35 +2006,56 @@ fn predict<'py>(
         .map_err(|e| usage(format!("load: {e}")))?;
     let r = rows(commands, "commands", &m.actuators(), false)?;
     let mech = &*m.mech;
-    let cov_ref = cal_covariance.as_ref().filter(|_| uncertainty);
-    let out: Vec<(pkmcal::Prediction, Option<DMatrix<f64>>)> =
-        per_row(py, &r, |c| match cov_ref {
-            Some(covariance) => {
-                let pose = pkmcal::prepare_pose(mech, c, None)?;
-                let (pr, cov) =
-                    pkmcal::tool_covariance(mech, &pose, &p, model, &force, covariance)?;
-                Ok((pr, Some(cov)))
-            }
-            None => Ok((pkmcal::predict(mech, &p, c, model, &force)?, None)),
-        })?;
+    let settings = pkmcal::RowSettings {
+        params: &p,
+        model,
+        force: &force,
+        covariance: cal_covariance.as_ref().filter(|_| uncertainty),
+    };
+    let v = r.view();
+    let all: Vec<Vec<f64>> = (0..v.nrows()).map(|i| row(&v, i).into_owned()).collect();
+    let results = py.in_pool(|| pkmcal::predict_rows(mech, &settings, &all, &|_| {}));
+    let mut out: Vec<Option<pkmcal::RowPrediction>> = Vec::with_capacity(results.len());
+    for (i, res) in results.into_iter().enumerate() {
+        match res {
+            Ok(p) => out.push(Some(p)),
+            Err(_) if skip_unreachable => out.push(None),
+            Err(e) => return Err(lib_err(at(i)(e))),
+        }
+    }
+    let skipped: Vec<usize> = (0..out.len()).filter(|&i| out[i].is_none()).collect();
     let nx = spec.tool_axes.len();
     let na = spec.n_actuated();
     let nj = spec.joints.len();
-    let flat = |f: &dyn Fn(&pkmcal::Prediction) -> &Vec<f64>| -> Vec<f64> {
-        out.iter().flat_map(|(p, _)| f(p).iter().copied()).collect()
+    let flat = |f: &dyn Fn(&pkmcal::Prediction) -> &Vec<f64>, w: usize| -> Vec<f64> {
+        out.iter()
+            .flat_map(|p| match p {
+                Some(p) => f(&p.prediction).clone(),
+                None => vec![f64::NAN; w],
+            })
+            .collect()
     };
     let covariance = if uncertainty {
-        let mats: Vec<&DMatrix<f64>> = out.iter().filter_map(|(_, c)| c.as_ref()).collect();
+        let nan = DMatrix::from_element(nx, nx, f64::NAN);
+        let mats: Vec<&DMatrix<f64>> = out
+            .iter()
+            .map(|p| {
+                p.as_ref()
+                    .and_then(|p| p.covariance.as_ref())
+                    .unwrap_or(&nan)
+            })
+            .collect();
         Some(stacked(py, &mats, nx, r.single)?.unbind())
     } else {
         None
     };
     Ok(PyPrediction {
-        x: out2(py, flat(&|p| &p.x), nx, r.single).unbind(),
-        q: out2(py, flat(&|p| &p.q), nj, r.single).unbind(),
-        torque: out2(py, flat(&|p| &p.torque), na, r.single).unbind(),
-        deflection: out2(py, flat(&|p| &p.deflection), na, r.single).unbind(),
+        x: out2(py, flat(&|p| &p.x, nx), nx, r.single).unbind(),
+        q: out2(py, flat(&|p| &p.q, nj), nj, r.single).unbind(),
+        torque: out2(py, flat(&|p| &p.torque, na), na, r.single).unbind(),
+        deflection: out2(py, flat(&|p| &p.deflection, na), na, r.single).unbind(),
         covariance,
+        skipped,
     })
 }
 

@@ -146,3 +146,32 @@ def test_ball_bar_sockets():
         pkmcal.simulate(mech, [[0.0, 200.0]], ballbar={"bar_offset": 1.0})
     with pytest.raises(pkmcal.PkmcalError, match=r'ballbar: "sockets": expected shape'):
         pkmcal.simulate(mech, [[0.0, 200.0]], ballbar={"sockets": [[1.0, 2.0, 3.0, 4.0]]})
+
+
+def test_commands_that_do_not_assemble_can_be_skipped(ref):
+    mech, _, _ = ref
+    good = pkmcal.nominal_commands(mech, [[0.0, 200.0], [10.0, 190.0]])
+    commands = np.array([good[0], [5.0, 5.0, 5.0], good[1]])
+    with pytest.raises(pkmcal.PkmcalError, match="pose 1"):
+        pkmcal.predict(mech, commands)
+    pred = pkmcal.predict(mech, commands, skip_unreachable=True)
+    assert pred.skipped == [1]
+    assert np.all(np.isnan(pred.x[1])) and np.all(np.isfinite(pred.x[[0, 2]]))
+    np.testing.assert_allclose(pred.x[[0, 2]], [[0.0, 200.0], [10.0, 190.0]], atol=1e-9)
+
+
+def test_the_readme_compensated_plan_predicts_back():
+    # The README's example: plan, simulate a machine with l11 = 280.3 and
+    # dq3 = 0.002, calibrate, compensate the planned targets; predicting
+    # those commands under the calibration returns the targets (eight of the
+    # planned poses lie where forward kinematics from the reference
+    # configuration alone crosses a singularity).
+    mech = pkmcal.Mechanism()
+    targets = pkmcal.plan(mech, 35).targets
+    commands, measured = pkmcal.simulate(mech, targets, {"l11": 280.3, "dq3": 0.002}, noise=0.002, seed=1)
+    cal = pkmcal.calibrate(mech, commands, measured)
+    comp = pkmcal.compensate(mech, targets, cal)
+    back = pkmcal.predict(mech, comp.commands, cal)
+    np.testing.assert_allclose(back.x, targets, atol=1e-9)
+    c = pkmcal.nominal_commands(mech, [[232.0, 102.0]])
+    pkmcal.predict(mech, c + [0.0, -5e-4, 0.0])

@@ -38,6 +38,14 @@ pub enum Error {
     )]
     Singular { q: Vec<f64>, reason: String },
 
+    /// Forward kinematics reached a configuration on another assembly branch
+    /// (or with a leg in another working mode) than the reference
+    /// configuration's.
+    #[error(
+        "the commands put the mechanism on another assembly branch (joints {q:?}): {reason}; check the commands, or move the pose away from the singularity between the branches"
+    )]
+    OtherBranch { q: Vec<f64>, reason: String },
+
     /// The loop closure has no solution for these actuator values (the legs cannot
     /// be assembled) or Newton did not converge.
     #[error("{what} did not converge: {reason}")]

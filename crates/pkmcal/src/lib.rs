@@ -55,6 +55,7 @@ pub use apply::planning::{
     Plan, PlanCriterion, PlanOptions, candidate_jacobians, plan, plan_observability, plan_poses,
     plan_poses_with_progress,
 };
+pub use apply::rows::{RowPrediction, RowSettings, predict_rows};
 pub use apply::simulate::{simulate, simulate_distances, simulate_with_progress};
 pub use apply::workspace::{
     WorkspacePoint, grid_targets, nominal_commands, random_targets, sample_workspace,

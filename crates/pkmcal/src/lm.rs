@@ -938,6 +938,14 @@ fn polish<P: Problem>(
     }
 }
 
+/// The pivot test of every covariance ([`covariance`]): pivots below this
+/// fraction of the largest count as zero. The identifiability decision
+/// ([`crate::identify::RANK_TOL`], on the column-scaled Jacobian) chooses
+/// which parameters are free; this test, on the unscaled Jacobian, lies far
+/// below it and only guards against exact zeros, so that a parameter the
+/// decision keeps is never dropped for its unit's size.
+pub const COVARIANCE_RANK_TOL: f64 = 1e-14;
+
 /// Covariance factor `(JᵀJ)⁻¹` of the free parameters from the weighted
 /// Jacobian, by QR with column pivoting (MINPACK `covar`): columns whose
 /// pivot falls below `tol·|R₁₁|` are rank-deficient and get zero rows and

@@ -2,11 +2,10 @@
 //! commands, streamed.
 
 use crate::args;
-use anyhow::{Context, Result};
-use pkmcal::{Mechanism, Model, Params, Prediction, predict_pose, prepare_pose};
+use anyhow::Result;
+use pkmcal::{Mechanism, Model, RowSettings};
 use pkmcal_io::Run;
-use pkmcal_io::io::{Mech, read_description};
-use rayon::prelude::*;
+use pkmcal_io::io::read_description;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -31,6 +30,10 @@ pub struct Args {
     /// unless --params gives others. It must be of this mechanism.
     #[arg(long, value_name = "REPORT.json")]
     pub uncertainty: Option<PathBuf>,
+    /// Rows whose commands do not assemble the mechanism on its branch
+    /// are written with NaN outputs and listed, instead of stopping the run.
+    #[arg(long)]
+    pub skip_unreachable: bool,
     /// Output CSV.
     #[arg(long, value_name = "OUT.csv")]
     pub out: PathBuf,
@@ -48,71 +51,6 @@ impl Args {
             [self.out.clone()],
         ))
     }
-}
-
-/// Rows per sequential chunk (each chunk warm-starts from its previous row).
-const CHUNK_ROWS: usize = 512;
-
-/// A prediction and the standard deviation of each tool coordinate (empty
-/// without a covariance).
-type Row = (Prediction, Vec<f64>);
-
-/// What to predict for every row.
-pub struct PredictSettings<'a> {
-    pub params: &'a Params,
-    pub model: Model,
-    pub force: &'a [f64],
-    pub covariance: Option<&'a pkmcal::ParameterCovariance>,
-}
-
-/// Predict every row, in parallel over chunks; the error names the row's line.
-pub fn predict_rows(
-    mech: &Mech,
-    settings: &PredictSettings,
-    commands: &[Vec<f64>],
-    where_: &(dyn Fn(usize) -> String + Sync),
-    bar: &dyn pkmcal_io::Progress,
-) -> Result<Vec<Row>> {
-    let PredictSettings {
-        params,
-        model,
-        force,
-        covariance,
-    } = *settings;
-    let chunks: Vec<Result<Vec<Row>>> = commands
-        .par_chunks(CHUNK_ROWS)
-        .enumerate()
-        .map(|(ci, chunk)| {
-            let mut start: Option<Vec<f64>> = None;
-            let mut out = Vec::with_capacity(chunk.len());
-            for (k, c) in chunk.iter().enumerate() {
-                let row = ci * CHUNK_ROWS + k;
-                let pose = match start.as_deref().map(|s| prepare_pose(mech, c, Some(s))) {
-                    Some(Ok(p)) => p,
-                    _ => prepare_pose(mech, c, None)
-                        .with_context(|| format!("{}: commands {c:?}", where_(row)))?,
-                };
-                let row_result = match covariance {
-                    None => predict_pose(mech, &pose, params, model, force).map(|p| (p, vec![])),
-                    Some(cov) => pkmcal::tool_covariance(mech, &pose, params, model, force, cov)
-                        .map(|(p, c)| {
-                            let s = (0..c.nrows()).map(|a| c[(a, a)].max(0.0).sqrt()).collect();
-                            (p, s)
-                        }),
-                };
-                let p = row_result.with_context(|| format!("{}: commands {c:?}", where_(row)))?;
-                start = Some(pose.nominal_q);
-                out.push(p);
-            }
-            bar.inc(chunk.len() as u64);
-            Ok(out)
-        })
-        .collect();
-    let mut all = Vec::with_capacity(commands.len());
-    for c in chunks {
-        all.extend(c?);
-    }
-    Ok(all)
 }
 
 pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
@@ -157,7 +95,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     };
     let force = pkmcal_io::io::checked_load(a.load.values(), &mech, &params)?;
     let covariance = record.map(|r| r.covariance);
-    let settings = PredictSettings {
+    let settings = RowSettings {
         params: &params,
         model,
         force: &force,
@@ -202,7 +140,9 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         writeln!(w, "{c}")?;
     }
     writeln!(w, "{}", header.join(","))?;
+    let width = header.len();
     let mut total = 0usize;
+    let mut skipped = 0usize;
     let mut line = String::new();
     loop {
         let batch = input.batch(&cols, &names, PREDICT_BATCH_ROWS)?;
@@ -212,25 +152,41 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         bar.inc_length(batch.len() as u64);
         let mut commands: Vec<Vec<f64>> = batch.iter().map(|(_, c)| c.clone()).collect();
         pkmcal_io::fileunits::to_internal(&mut commands, &cf_in);
-        let path = input.path.clone();
-        let preds = predict_rows(
-            &mech,
-            &settings,
-            &commands,
-            &|r| format!("{}:{}", path.display(), batch[r].0),
-            &*bar,
-        )
-        .map_err(|e| pkmcal_io::hints::explain_failure(e, &mech, &commands, &units))?;
-        for (c, (p, sigma)) in commands.iter().zip(&preds) {
+        let preds = pkmcal::predict_rows(&mech, &settings, &commands, &|n| bar.inc(n));
+        let nan = vec![f64::NAN; width - names.len()];
+        let mut first_failure = None;
+        for (((line_no, _), c), r) in batch.iter().zip(&commands).zip(preds) {
+            let outputs: Vec<f64> = match r {
+                Ok(r) => {
+                    let p = &r.prediction;
+                    let sigma = r.covariance.as_ref().map_or(vec![], |c| {
+                        (0..c.nrows()).map(|a| c[(a, a)].sqrt()).collect()
+                    });
+                    p.x.iter()
+                        .chain(&p.deflection)
+                        .chain(&p.torque)
+                        .chain(&sigma)
+                        .copied()
+                        .collect()
+                }
+                Err(e) if a.skip_unreachable => {
+                    pkmcal_io::note!(
+                        "{}:{line_no}: skipped (NaN outputs): commands {c:?}: {e}",
+                        input.path.display()
+                    );
+                    skipped += 1;
+                    nan.clone()
+                }
+                Err(e) => {
+                    first_failure = Some(anyhow::anyhow!(
+                        "{}:{line_no}: commands {c:?}: {e} (use --skip-unreachable to go on past such rows)",
+                        input.path.display()
+                    ));
+                    break;
+                }
+            };
             line.clear();
-            for (k, v) in c
-                .iter()
-                .chain(&p.x)
-                .chain(&p.deflection)
-                .chain(&p.torque)
-                .chain(sigma)
-                .enumerate()
-            {
+            for (k, v) in c.iter().chain(&outputs).enumerate() {
                 if k > 0 {
                     line.push(',');
                 }
@@ -241,13 +197,24 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             }
             writeln!(w, "{line}")?;
         }
+        if let Some(e) = first_failure {
+            return Err(pkmcal_io::hints::explain_failure(
+                e, &mech, &commands, &units,
+            ));
+        }
         total += batch.len();
     }
     w.flush()?;
     bar.finish();
     pkmcal_io::note!(
-        "predicted {total} poses with the {} model -> {}",
+        "predicted {} with the {} model{} -> {}",
+        pkmcal_io::io::count(total - skipped, "pose", "poses"),
         model.name(),
+        if skipped > 0 {
+            format!(", skipped {skipped} (NaN rows)")
+        } else {
+            String::new()
+        },
         a.out.display()
     );
     Ok(())

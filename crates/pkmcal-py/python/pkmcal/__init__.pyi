@@ -189,6 +189,7 @@ class Prediction:
     torque: Array
     deflection: Array
     covariance: Optional[Array]
+    skipped: list[int]
 
 class Compensation:
     commands: Array
@@ -238,6 +239,7 @@ def predict(
     load: Optional[Sequence[float]] = None,
     force: Optional[Sequence[float]] = None,
     uncertainty: bool = False,
+    skip_unreachable: bool = False,
 ) -> Prediction: ...
 def nominal_commands(mechanism: Mechanism, targets: ArrayLike) -> Array: ...
 def simulate(

@@ -106,11 +106,7 @@ pub fn compensate<M: Mechanism>(
         let k = params.stiffness();
         let kd = DMatrix::from_diagonal(&DVector::from_column_slice(k));
         let gamma = &lin.gamma;
-        let gkg = gamma.transpose() * &kd * gamma;
-        let m = gkg.try_inverse().ok_or_else(|| Error::Singular {
-            q: q.clone(),
-            reason: "ΓᵀKΓ is singular".into(),
-        })?;
+        let m = crate::engine::linearized::stiffness_inverse(gamma, k, &q)?;
         let mut tau = DVector::zeros(l);
         if loaded {
             let q_load =

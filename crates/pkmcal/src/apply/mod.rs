@@ -5,5 +5,6 @@
 pub mod compensation;
 pub mod montecarlo;
 pub mod planning;
+pub mod rows;
 pub mod simulate;
 pub mod workspace;

@@ -498,8 +498,10 @@ pub fn plan<M: Mechanism>(
     let mut points = crate::apply::workspace::sample_workspace(mech, spacing);
     let lattice_points = points.len();
     if points.len() > opts.max_candidates {
-        let (keep, n) = (opts.max_candidates, points.len());
-        points = (0..keep).map(|k| points[k * n / keep].clone()).collect();
+        points = crate::engine::atlas::thin_evenly(points.len(), opts.max_candidates)
+            .into_iter()
+            .map(|k| points[k].clone())
+            .collect();
     }
     let candidates = points.len();
     // The plain grid of the same size, judged with the same column scaling.

@@ -170,6 +170,8 @@ pub fn grid_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<Workspac
     if !verified && lattice.len() < count {
         return Err(too_few(spec, lattice.len(), count));
     }
-    let n = lattice.len();
-    Ok((0..count).map(|i| lattice[i * n / count].clone()).collect())
+    Ok(crate::engine::atlas::thin_evenly(lattice.len(), count)
+        .into_iter()
+        .map(|i| lattice[i].clone())
+        .collect())
 }

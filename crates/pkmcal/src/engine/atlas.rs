@@ -61,6 +61,9 @@ pub(crate) fn lattice_axes(spec: &crate::Spec, spacing: f64) -> Vec<Vec<f64>> {
     axes_at(spec, lattice_spacing(spec, spacing, MAX_LATTICE_POINTS))
 }
 
+/// Each axis's coordinates at `spacing`: as many steps as fit in the box,
+/// centred in it (the leftover split between both ends), so that the lattice
+/// reaches within half a step of both ends of every axis.
 fn axes_at(spec: &crate::Spec, spacing: f64) -> Vec<Vec<f64>> {
     spec.workspace_box
         .iter()
@@ -68,8 +71,20 @@ fn axes_at(spec: &crate::Spec, spacing: f64) -> Vec<Vec<f64>> {
         .map(|(k, &[lo, hi])| {
             let step = spacing / spec.axis_scale(k);
             let n = ((hi - lo) / step).floor() as usize;
-            (0..=n).map(|i| lo + i as f64 * step).collect()
+            let first = lo + 0.5 * ((hi - lo) - n as f64 * step);
+            (0..=n).map(|i| first + i as f64 * step).collect()
         })
+        .collect()
+}
+
+/// The indices of `keep` of `n` items spread evenly and centred (the middle
+/// of each of `keep` equal runs), in order; all of them when `keep ≥ n`.
+pub fn thin_evenly(n: usize, keep: usize) -> Vec<usize> {
+    if keep >= n {
+        return (0..n).collect();
+    }
+    (0..keep)
+        .map(|k| ((2 * k + 1) as u128 * n as u128 / (2 * keep) as u128) as usize)
         .collect()
 }
 
@@ -264,6 +279,71 @@ impl Atlas {
 mod tests {
     use super::*;
     use rand::{RngExt, SeedableRng};
+
+    /// Lattice coordinates agree with their computed position to this (in
+    /// units of the box's extent).
+    const LATTICE_EPS: f64 = 1e-12;
+
+    /// Every lattice axis, for random boxes and spacings, is centred in its
+    /// box and reaches within half a step of both ends (the lattice used to
+    /// start at the minimum and stop up to a whole step short of the
+    /// maximum); a thin box gets its one coordinate.
+    #[test]
+    fn lattice_axes_are_centred_and_reach_both_ends() {
+        let mut spec = crate::kinds::reference::JeongKim2Dof::default()
+            .spec()
+            .clone();
+        let mut rng = rand::rngs::StdRng::seed_from_u64(35);
+        for _ in 0..2000 {
+            let lo: f64 = rng.random_range(-500.0..500.0);
+            let width: f64 = if rng.random_bool(0.1) {
+                0.0
+            } else {
+                rng.random_range(1e-3..400.0)
+            };
+            let lo2: f64 = rng.random_range(-500.0..500.0);
+            spec.workspace_box = vec![[lo, lo + width], [lo2, lo2 + 50.0]];
+            let spacing: f64 = rng.random_range(0.5..300.0);
+            let axes = axes_at(&spec, spacing);
+            let a = &axes[0];
+            let step = spacing / spec.axis_scale(0);
+            let tol = LATTICE_EPS * (1.0 + width + lo.abs());
+            let (first, last) = (a[0], *a.last().unwrap());
+            assert!(
+                first >= lo - tol && last <= lo + width + tol,
+                "{a:?} in [{lo}, {}]",
+                lo + width
+            );
+            assert!(
+                first - lo <= 0.5 * step + tol,
+                "{first} from {lo}, step {step}"
+            );
+            assert!(
+                lo + width - last <= 0.5 * step + tol,
+                "{last} to {}",
+                lo + width
+            );
+            assert!(
+                ((first - lo) - (lo + width - last)).abs() <= tol,
+                "not centred: {a:?}"
+            );
+        }
+    }
+
+    /// Thinning keeps `keep` distinct items in order, centred: the first as
+    /// far from the start as the last from the end (within one item).
+    #[test]
+    fn thinning_is_even_and_centred() {
+        for n in 1..200 {
+            for keep in 1..n + 3 {
+                let t = thin_evenly(n, keep);
+                assert_eq!(t.len(), keep.min(n));
+                assert!(t.windows(2).all(|w| w[0] < w[1]) && t.iter().all(|&i| i < n));
+                let (head, tail) = (t[0], n - 1 - t[t.len() - 1]);
+                assert!(head.abs_diff(tail) <= 1, "{n} {keep}: {t:?}");
+            }
+        }
+    }
 
     /// [`Atlas::nearest`] returns what a scan of the entries one by one
     /// returns (each distance summed actuator by actuator, the first of

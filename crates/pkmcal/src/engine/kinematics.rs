@@ -8,8 +8,10 @@ use crate::mechanism::Mechanism;
 use crate::mechanism::autodiff::jacobians;
 use nalgebra::DMatrix;
 
-/// Newton stops when the largest joint step is below this (rad or mm).
-pub const STEP_TOL: f64 = 1e-13;
+pub use crate::engine::newton::STEP_TOL;
+use crate::engine::newton::{
+    CLOSURE_RESIDUAL_TOL, IK_STEP_TOL, MAX_ITERATIONS as MAX_NEWTON, MAX_TURN, STALL_TOL,
+};
 /// Largest revolute joint step (rad) of one continuation stage.
 const CONTINUATION_STEP: f64 = 0.1;
 /// Largest prismatic joint step (mm) of one continuation stage.
@@ -30,8 +32,6 @@ pub const MAX_CONTINUATION_STAGES: usize = 20_000;
 /// How many mm of a length joint weigh like one rad of a revolute joint when
 /// steps are limited (the ratio of the continuation stages).
 const MM_PER_RAD: f64 = CONTINUATION_STEP_MM / CONTINUATION_STEP;
-/// Largest Newton iterations per solve.
-const MAX_NEWTON: usize = 40;
 /// Solve `g(q, ρ) = 0` for the joints not in `fixed`, starting from `q`
 /// (modified in place). `fixed` must hold as many joints as degrees of freedom.
 pub fn solve_closure<M: Mechanism>(
@@ -93,14 +93,16 @@ fn solve_closure_keeping<M: Mechanism>(
         for (k, &i) in free.iter().enumerate() {
             q[i] -= scale * step[k];
         }
-        if big < STEP_TOL || (big < 1e-9 && big >= last) {
+        if big < STEP_TOL || (big < STALL_TOL && big >= last) {
             return Ok((it + 1, Some(j)));
         }
         last = big;
     }
     let g = jacobians(mech, q, rho, 0..0).g;
     let scale = rho.iter().fold(1.0f64, |m, v| m.max(v.abs()));
-    if g.iter().all(|v| v.abs() < 1e-8 * scale * scale) {
+    if g.iter()
+        .all(|v| v.abs() < CLOSURE_RESIDUAL_TOL * scale * scale)
+    {
         return Ok((MAX_NEWTON, None));
     }
     Err(Error::NoConvergence {
@@ -112,11 +114,10 @@ fn solve_closure_keeping<M: Mechanism>(
 }
 
 /// The factor of a damped Newton step `step` on the joints `joints`: never
-/// more than 0.5 rad, or 50 mm on a length, at once (a length step measured
-/// in rad at [`MM_PER_RAD`]).
+/// more than [`MAX_TURN`] rad, or 50 mm on a length, at once (a length step
+/// measured in rad at [`MM_PER_RAD`]).
 fn damping(spec: &crate::Spec, joints: &[usize], step: &[f64]) -> f64 {
-    let turn = step_turn(spec, joints.iter().copied(), step);
-    if turn > 0.5 { 0.5 / turn } else { 1.0 }
+    crate::engine::newton::damping(step_turn(spec, joints.iter().copied(), step), MAX_TURN)
 }
 
 /// The largest joint step of `step` (on `joints`, in order) in rad, a
@@ -239,10 +240,13 @@ pub fn forward_kinematics<M: Mechanism>(
         None => mech.on_branch(&q, rho),
     };
     if !on_branch {
-        return Err(Error::Singular {
-            q,
-            reason: "the path from the start configuration crossed a singularity and left the assembly branch".into(),
-        });
+        let reason = match mech.leg_in_other_mode(&q, rho) {
+            Some(leg) => format!(
+                "leg `{leg}` is in the other working mode there (its joints fold the other way than at the reference configuration)"
+            ),
+            None => "the path from the start configuration crossed a singularity".into(),
+        };
+        return Err(Error::OtherBranch { q, reason });
     }
     Ok(q)
 }
@@ -486,7 +490,7 @@ fn ik_continuation<M: Mechanism>(
             let tol = if s < stages {
                 INTERMEDIATE_TOL
             } else {
-                STEP_TOL * 10.0
+                IK_STEP_TOL
             };
             if big < tol {
                 converged = true;
@@ -562,4 +566,93 @@ pub fn choose_independent<M: Mechanism>(mech: &M, q: &[f64], rho: &[f64]) -> Vec
             }
         }
     }
+}
+
+/// Most Gauss–Newton steps of [`commands_configuration`].
+pub const POSE_FIT_STEPS: usize = 16;
+/// Most halvings of one [`commands_configuration`] step whose pose is out of
+/// reach.
+const POSE_FIT_HALVINGS: usize = 8;
+/// [`commands_configuration`] stops when its pose step falls below this (mm,
+/// or rad on an angle axis, scaled by [`crate::Spec::axis_scale`]).
+pub const POSE_FIT_TOL: f64 = 1e-9;
+
+/// The configuration of the commands' nominal pose: the tool position whose
+/// inverse kinematics under `rho` (on the assembly branch by construction)
+/// best matches every command (least squares over the actuators, each in
+/// [`crate::Spec::joint_scale`] units; redundant commands need not agree),
+/// by Gauss–Newton on the pose from the tool position of `near`, a known
+/// configuration. Forward kinematics started there is within a continuation
+/// stage of its answer whenever the commands are (the commands' own
+/// inconsistency away), so it does not depend on a path that may cross a
+/// singularity. `None` when the mechanism has fewer tool coordinates than
+/// degrees of freedom, or inverse kinematics fails along the way.
+pub fn commands_configuration<M: Mechanism>(
+    mech: &M,
+    rho: &[f64],
+    commands: &[f64],
+    near: &[f64],
+) -> Option<Vec<f64>> {
+    let spec = mech.spec();
+    let (nq, nc, nx) = (spec.joints.len(), spec.n_constraints, spec.tool_axes.len());
+    if nc + nx != nq || commands.len() != spec.n_actuated() {
+        return None;
+    }
+    let ik = |x: &[f64], from: &[f64]| {
+        inverse_kinematics_near(mech, rho, x, from)
+            .or_else(|_| inverse_kinematics(mech, rho, x))
+            .ok()
+    };
+    let mut x = jacobians(mech, near, rho, 0..0).x;
+    let mut q = ik(&x, near)?;
+    let mut a = DMatrix::zeros(nq, nq);
+    for _ in 0..POSE_FIT_STEPS {
+        // ∂q/∂x on the branch: [∂g/∂q; ∂x/∂q] ∂q/∂x = [0; I].
+        let j = jacobians(mech, &q, rho, 0..nq);
+        a.view_mut((0, 0), (nc, nq)).copy_from(&j.dg);
+        a.view_mut((nc, 0), (nx, nq)).copy_from(&j.dx);
+        let mut rhs = DMatrix::zeros(nq, nx);
+        rhs.view_mut((nc, 0), (nx, nx)).fill_with_identity();
+        let dqdx = crate::linalg::solve::solve_scaled(a.clone(), rhs)?;
+        // The actuators' rows and misfits, scaled to mm-equivalents.
+        let na = spec.n_actuated();
+        let mut s = DMatrix::zeros(na, nx);
+        let mut r = nalgebra::DVector::zeros(na);
+        for (k, (&jt, c)) in spec.actuated.iter().zip(commands).enumerate() {
+            let w = spec.joint_scale(jt);
+            s.row_mut(k).copy_from(&(dqdx.row(jt) * w));
+            r[k] = (q[jt] - c) * w;
+        }
+        let svd = s.svd(true, true);
+        let eps = svd.singular_values.max() * crate::linalg::solve::SINGULAR_RCOND;
+        let dx = svd.solve(&r, eps).ok()?;
+        // At most one long inverse-kinematics stage at once.
+        let big = (0..nx)
+            .map(|k| (dx[k] * spec.axis_scale(k)).abs())
+            .fold(0.0, f64::max);
+        if !big.is_finite() {
+            return None;
+        }
+        // Halved while the pose it leads to is out of reach (the straight
+        // way may cut across the workspace's boundary).
+        let mut damp = if big > IK_STAGE_LONG {
+            IK_STAGE_LONG / big
+        } else {
+            1.0
+        };
+        let mut next = None;
+        for _ in 0..POSE_FIT_HALVINGS {
+            let y: Vec<f64> = x.iter().zip(dx.iter()).map(|(x, d)| x - damp * d).collect();
+            if let Some(p) = ik(&y, &q) {
+                next = Some((y, p));
+                break;
+            }
+            damp /= 2.0;
+        }
+        (x, q) = next?;
+        if big < POSE_FIT_TOL {
+            break;
+        }
+    }
+    Some(q)
 }

@@ -147,16 +147,38 @@ fn solve_square_multi(a: DMatrix<f64>, b: DMatrix<f64>) -> Option<DMatrix<f64>> 
     checked_lu(a)?.solve_matrix(&b)
 }
 
+/// `(ΓᵀKΓ)⁻¹` (eq. 11), the one place it is computed: by LU with the
+/// relative pivot test of every square solve
+/// ([`crate::linalg::solve::SINGULAR_RCOND`]). Singular when the actuators
+/// do not control every degree of freedom at the configuration `q` (named in
+/// the error; empty when unknown): an error, never zeros.
+pub fn stiffness_inverse(gamma: &DMatrix<f64>, k: &[f64], q: &[f64]) -> Result<DMatrix<f64>> {
+    let kd = DMatrix::from_diagonal(&DVector::from_column_slice(k));
+    let gkg = gamma.transpose() * &kd * gamma;
+    let n = gkg.nrows();
+    checked_lu(gkg)
+        .and_then(|lu| lu.solve_matrix(&DMatrix::identity(n, n)))
+        .ok_or_else(|| Error::Singular {
+            q: q.to_vec(),
+            reason: "ΓᵀKΓ is singular (the actuators do not control every degree of freedom)"
+                .into(),
+        })
+}
+
 /// Λ = Γ (ΓᵀKΓ)⁻¹ ΓᵀK (eq. 11): the K-weighted projection onto feasible
 /// actuated-joint motions. `Λ² = Λ`, `ΛΓ = Γ`; `Λ = I` without redundancy.
 pub fn projection(gamma: &DMatrix<f64>, k: &[f64]) -> Result<DMatrix<f64>> {
+    Ok(projection_with(
+        gamma,
+        k,
+        &stiffness_inverse(gamma, k, &[])?,
+    ))
+}
+
+/// [`projection`] from `(ΓᵀKΓ)⁻¹` already computed ([`stiffness_inverse`]).
+pub fn projection_with(gamma: &DMatrix<f64>, k: &[f64], inverse: &DMatrix<f64>) -> DMatrix<f64> {
     let kd = DMatrix::from_diagonal(&DVector::from_column_slice(k));
-    let gkg = gamma.transpose() * &kd * gamma;
-    let inv = gkg.try_inverse().ok_or_else(|| Error::Singular {
-        q: vec![],
-        reason: "ΓᵀKΓ is singular (the actuators do not control every degree of freedom)".into(),
-    })?;
-    Ok(gamma * inv * gamma.transpose() * kd)
+    gamma * inverse * gamma.transpose() * kd
 }
 
 /// The generalised load `P` of eq. 10 (N·m, or N for prismatic actuation; see
@@ -187,13 +209,9 @@ pub fn joint_errors(
     p: &DVector<f64>,
 ) -> Result<DVector<f64>> {
     let l = lin.gamma.nrows();
-    let lambda = projection(&lin.gamma, k)?;
-    let kd = DMatrix::from_diagonal(&DVector::from_column_slice(k));
-    let gkg = lin.gamma.transpose() * &kd * &lin.gamma;
-    let load = &lin.gamma
-        * crate::linalg::lu::Lu::new(gkg)
-            .solve(p)
-            .unwrap_or_else(|| DVector::zeros(p.len()));
+    let inverse = stiffness_inverse(&lin.gamma, k, &[])?;
+    let lambda = projection_with(&lin.gamma, k, &inverse);
+    let load = &lin.gamma * (&inverse * p);
     let dq = &lambda * DVector::from_column_slice(offsets)
         + (DMatrix::identity(l, l) - &lambda) * (&lin.h * DVector::from_column_slice(drho))
         - load;

@@ -9,4 +9,5 @@ pub mod kinematics;
 pub mod linearized;
 pub mod load;
 pub mod models;
+pub mod newton;
 pub mod sensitivity;

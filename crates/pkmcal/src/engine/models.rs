@@ -297,6 +297,25 @@ fn commands_mismatch(spec: &crate::Spec, commands: &[f64], q: &[f64]) -> f64 {
 /// commands to this (mm or rad) is taken at once.
 const CONSISTENT: f64 = 1e-6;
 
+/// Largest disagreement (rad; a length counts at 100 mm per rad, as
+/// continuation stages do) of forward kinematics' actuated joints with the
+/// redundant commands that the first starts may leave before the commands'
+/// nominal pose is tried too: beyond any encoder offset or compensation (a
+/// few mrad, a fraction of a mm), short of another assembly's.
+const PLAUSIBLE_MISMATCH: f64 = 0.05;
+
+/// [`commands_mismatch`] in rad-equivalents
+/// ([`crate::engine::kinematics::step_turn`]).
+fn scaled_mismatch(spec: &crate::Spec, commands: &[f64], q: &[f64]) -> f64 {
+    let d: Vec<f64> = spec
+        .actuated
+        .iter()
+        .zip(commands)
+        .map(|(&j, c)| q[j] - c)
+        .collect();
+    crate::engine::kinematics::step_turn(spec, spec.actuated.iter().copied(), &d)
+}
+
 /// [`prepare_pose`] with the work of [`pose_ahead`] done (the same result).
 pub(crate) fn prepare_pose_ahead<M: Mechanism>(
     mech: &M,
@@ -326,6 +345,8 @@ pub(crate) fn prepare_pose_ahead<M: Mechanism>(
     };
     let mut best: Option<(f64, Vec<f64>)> = None;
     let mut first_error = None;
+    // The starts tried, for the last one's nearest known configuration.
+    let mut tried: Vec<Vec<f64>> = Vec::with_capacity(3);
     // The caller's start first when it is one continuation stage away (the
     // previous pose of a sequence; no search for a stored configuration),
     // else the nearer of the two first.
@@ -379,7 +400,9 @@ pub(crate) fn prepare_pose_ahead<M: Mechanism>(
                 }
             },
         };
-        match forward_kinematics(mech, rho, &q_u, &s) {
+        let result = forward_kinematics(mech, rho, &q_u, &s);
+        tried.push(s);
+        match result {
             Ok(q) => {
                 let m = mismatch(&q);
                 if best.as_ref().is_none_or(|b| m < b.0) {
@@ -391,6 +414,40 @@ pub(crate) fn prepare_pose_ahead<M: Mechanism>(
             }
             Err(e) => {
                 first_error.get_or_insert(e);
+            }
+        }
+    }
+    // No start reached a configuration near every command (a path crossed
+    // a singularity, or the guess failed on inconsistent commands): start
+    // from the commands' nominal pose, fitted to all of them from the
+    // nearest configuration tried (the last of the bounded starts,
+    // docs/model.md §2).
+    if best
+        .as_ref()
+        .is_none_or(|b| scaled_mismatch(spec, commands, &b.1) > PLAUSIBLE_MISMATCH)
+    {
+        let near = tried
+            .iter()
+            .chain(best.as_ref().map(|b| &b.1))
+            .min_by(|a, b| {
+                scaled_mismatch(spec, commands, a).total_cmp(&scaled_mismatch(spec, commands, b))
+            })
+            .cloned();
+        let fitted = match near {
+            Some(n) => crate::engine::kinematics::commands_configuration(mech, rho, commands, &n),
+            None => None,
+        };
+        if let Some(s) = fitted {
+            match forward_kinematics(mech, rho, &q_u, &s) {
+                Ok(q) => {
+                    let m = mismatch(&q);
+                    if best.as_ref().is_none_or(|b| m < b.0) {
+                        best = Some((m, q));
+                    }
+                }
+                Err(e) => {
+                    first_error.get_or_insert(e);
+                }
             }
         }
     }
@@ -652,10 +709,10 @@ pub fn predict<M: Mechanism>(
     predict_pose(mech, &pose, params, model, force)
 }
 
-/// Largest Newton iterations of the equilibrium.
-const MAX_EQUILIBRIUM_ITERATIONS: usize = 30;
-/// The equilibrium stops when the largest joint step falls below this (rad).
-pub const EQUILIBRIUM_TOL: f64 = 1e-14;
+pub use crate::engine::newton::EQUILIBRIUM_TOL;
+use crate::engine::newton::{
+    EQUILIBRIUM_STALL_TOL, MAX_EQUILIBRIUM_ITERATIONS, MAX_EQUILIBRIUM_TURN,
+};
 
 /// Exact static equilibrium (docs/model.md §4, the "exact" model): minimise
 /// `E(q) = ½ Σ_j k_j (c_j + Δq_j − q_r,j)² + 10⁻³ wᵀ x(q)` subject to
@@ -885,7 +942,7 @@ fn equilibrium_in<M: Mechanism>(
         }
         // At most 0.2 rad, or 20 mm on a length, per iteration.
         let turn = crate::engine::kinematics::step_turn(spec, 0..nq, step.as_slice());
-        let scale = if turn > 0.2 { 0.2 / turn } else { 1.0 };
+        let scale = crate::engine::newton::damping(turn, MAX_EQUILIBRIUM_TURN);
         for i in 0..nq {
             q[i] -= scale * step[i];
         }
@@ -897,7 +954,7 @@ fn equilibrium_in<M: Mechanism>(
         let rate = if last.is_finite() { big / last } else { 1.0 };
         if big < EQUILIBRIUM_TOL
             || (rate < 0.5 && rate * big < EQUILIBRIUM_TOL)
-            || (big < 1e-10 && rate >= 1.0)
+            || (big < EQUILIBRIUM_STALL_TOL && rate >= 1.0)
         {
             let torque = spec
                 .actuated

@@ -106,13 +106,8 @@ fn linear_qu_derivatives<M: Mechanism>(
     let k = params.stiffness();
     let kd = DMatrix::from_diagonal(&DVector::from_column_slice(k));
     let gamma = &lin.gamma;
-    let m = (gamma.transpose() * &kd * gamma)
-        .try_inverse()
-        .ok_or_else(|| Error::Singular {
-            q: pose.nominal_q.clone(),
-            reason: "ΓᵀKΓ is singular".into(),
-        })?;
-    let lambda = gamma * &m * gamma.transpose() * &kd;
+    let m = crate::engine::linearized::stiffness_inverse(gamma, k, &pose.nominal_q)?;
+    let lambda = crate::engine::linearized::projection_with(gamma, k, &m);
     let eye = DMatrix::<f64>::identity(na, na);
     let ih = (&eye - &lambda) * &lin.h;
     let nominal = &spec.nominal[..ng];

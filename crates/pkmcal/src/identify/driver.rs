@@ -495,7 +495,7 @@ fn assemble<M: Mechanism>(
     let frame = m_values[measurement.frame_range()].to_vec();
     let dof = m.saturating_sub(free.len()).max(1);
     let s2 = report.sum_of_squares / dof as f64;
-    let (cov_unit, rank) = report.covariance(1e-12);
+    let (cov_unit, rank) = report.covariance(crate::lm::COVARIANCE_RANK_TOL);
     if rank < free.len() {
         warnings.push(Warning::new(WarningKind::RankDeficient {
             rank,

@@ -251,8 +251,10 @@ pub fn analyze_identifiability(
             let kept: Vec<f64> = sv[..rank].to_vec();
             let cov = if rank == free.len() {
                 let (c, _) = match &factored {
-                    Some((qr, ipvt, rdiag)) => lm::covariance_of(qr, ipvt, rdiag, 1e-14),
-                    None => lm::covariance(&sub, 1e-14),
+                    Some((qr, ipvt, rdiag)) => {
+                        lm::covariance_of(qr, ipvt, rdiag, lm::COVARIANCE_RANK_TOL)
+                    }
+                    None => lm::covariance(&sub, lm::COVARIANCE_RANK_TOL),
                 };
                 correlations(cols, &free, &c)
             } else {

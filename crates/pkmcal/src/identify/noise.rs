@@ -221,7 +221,7 @@ fn rms(v: &[f64]) -> f64 {
 /// Leverages `h_ii = J_i (JᵀJ)⁺ J_iᵀ` of a weighted Jacobian (rows: residuals,
 /// columns: free parameters).
 pub(crate) fn leverages(jac: &DMatrix<f64>) -> Vec<f64> {
-    let (c, _) = crate::lm::covariance(jac, 1e-12);
+    let (c, _) = crate::lm::covariance(jac, crate::lm::COVARIANCE_RANK_TOL);
     leverages_with(jac, &c)
 }
 

@@ -171,7 +171,7 @@ fn linearized_vce(noise: &mut NoiseModel, cal: &Calibration) {
         for (ri, si) in rw.iter_mut().zip(&s) {
             *ri /= si;
         }
-        let (c, _) = lm::covariance(&jw, 1e-12);
+        let (c, _) = lm::covariance(&jw, lm::COVARIANCE_RANK_TOL);
         let step = -(&c * (jw.transpose() * &rw));
         let r = &r0 + &j * &step;
         let h = leverages_with(&jw, &c);

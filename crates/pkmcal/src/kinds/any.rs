@@ -108,4 +108,7 @@ impl Mechanism for AnyMechanism {
     fn check_params(&self, rho: &[f64]) -> Result<()> {
         each!(self, m => m.check_params(rho))
     }
+    fn leg_in_other_mode(&self, q: &[f64], rho: &[f64]) -> Option<&str> {
+        each!(self, m => m.leg_in_other_mode(q, rho))
+    }
 }

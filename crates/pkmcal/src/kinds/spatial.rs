@@ -516,8 +516,7 @@ fn sphere_intersection(c: [[f64; 3]; 3], r: [f64; 3]) -> Option<([f64; 3], [f64;
     Some((foot, ez, h2.max(0.0).sqrt()))
 }
 
-/// Most Newton iterations of one leg's inverse kinematics.
-const LEG_NEWTON: usize = 50;
+use crate::engine::newton::MAX_LEG_ITERATIONS as LEG_NEWTON;
 
 impl SpatialMechanism {
     /// Leg `leg`'s equations and their derivatives with respect to its own
@@ -699,17 +698,20 @@ impl SpatialMechanism {
                         _ => d.abs() / self.length,
                     })
                     .fold(0.0, f64::max);
-                let scale = if turn > 0.5 { 0.5 / turn } else { 1.0 };
+                let scale = crate::engine::newton::damping(turn, crate::engine::newton::MAX_TURN);
                 for (k, c) in cols.clone().enumerate() {
                     q[c] -= scale * step[k];
                 }
-                if big < 10.0 * crate::engine::kinematics::STEP_TOL {
+                if big < crate::engine::newton::IK_STEP_TOL {
                     converged = true;
                     break;
                 }
             }
             let scale = rho.iter().fold(1.0f64, |m, v| m.max(v.abs()));
-            if !converged && (residual.is_nan() || residual >= 1e-9 * scale) {
+            if !converged
+                && (residual.is_nan()
+                    || residual >= crate::engine::newton::LEG_RESIDUAL_TOL * scale)
+            {
                 return Err(unreachable(format!(
                     "leg `{name}` cannot reach the platform there"
                 )));
@@ -1766,17 +1768,29 @@ impl Mechanism for SpatialMechanism {
 
     /// The assembly and working modes of the reference configuration: the
     /// same signs of the forward and inverse kinematics determinants.
+    /// The whole mechanism's signs, and each leg's working mode on its own
+    /// (a product of signs would let two legs' flips cancel).
     fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
         self.same_branch(crate::engine::kinematics::branch_signs(self, q, rho))
+            && self.leg_in_other_mode(q, rho).is_none()
     }
 
     fn on_branch_near(
         &self,
-        _q: &[f64],
-        _rho: &[f64],
+        q: &[f64],
+        rho: &[f64],
         jac: &crate::mechanism::autodiff::Jacobians,
     ) -> bool {
         self.same_branch(crate::engine::kinematics::branch_signs_of(&self.spec, jac))
+            && self.leg_in_other_mode(q, rho).is_none()
+    }
+
+    fn leg_in_other_mode(&self, q: &[f64], rho: &[f64]) -> Option<&str> {
+        self.leg_signs
+            .iter()
+            .enumerate()
+            .find(|&(i, &s)| s != 0 && self.leg_sign(i, q, rho) != s)
+            .map(|(i, _)| self.leg_names[i].as_str())
     }
 }
 

@@ -11,6 +11,7 @@
 //!   `d` are its parameters (named `s1x s1y … dbar`), fixed by default and
 //!   identifiable on request.
 
+use crate::engine::newton::{LSTSQ_RCOND, MAX_TRILATERATION_ITERATIONS, TRILATERATION_TOL};
 use crate::error::{Error, Result};
 use nalgebra::{DMatrix, DVector};
 
@@ -115,13 +116,11 @@ pub fn trilaterate(
                 r[0] * r[0] - r[i + 1] * r[i + 1] + si.iter().map(|v| v * v).sum::<f64>()
                     - s0.iter().map(|v| v * v).sum::<f64>()
             });
-            a.svd(true, true)
-                .solve(&b, 1e-12)
-                .map_err(|e| Error::InvalidRequest(format!("trilateration failed: {e}")))?
+            lstsq(a, &b)?
         }
     };
     let mut jac = DMatrix::zeros(k, dim);
-    for _ in 0..50 {
+    for _ in 0..MAX_TRILATERATION_ITERATIONS {
         let mut res = DVector::zeros(k);
         for (j, s) in setup.sockets.iter().enumerate() {
             let d = DVector::from_fn(dim, |i, _| x[i] - s[i]);
@@ -140,13 +139,9 @@ pub fn trilaterate(
                 "trilateration of {readings:?} diverged; check the readings and the socket positions"
             )));
         }
-        let step = jac
-            .clone()
-            .svd(true, true)
-            .solve(&res, 1e-14)
-            .map_err(|e| Error::InvalidRequest(format!("trilateration failed: {e}")))?;
+        let step = lstsq(jac.clone(), &res)?;
         x -= &step;
-        if step.amax() < 1e-12 {
+        if step.amax() < TRILATERATION_TOL {
             break;
         }
     }
@@ -163,4 +158,13 @@ pub fn trilaterate(
         });
     }
     Ok((x.iter().copied().collect(), cov))
+}
+
+/// The least-squares solution of `a x = b`, singular values below
+/// [`LSTSQ_RCOND`] times the largest dropped.
+fn lstsq(a: DMatrix<f64>, b: &DVector<f64>) -> Result<DVector<f64>> {
+    let svd = a.svd(true, true);
+    let eps = LSTSQ_RCOND * svd.singular_values.max();
+    svd.solve(b, eps)
+        .map_err(|e| Error::InvalidRequest(format!("trilateration failed: {e}")))
 }

@@ -414,6 +414,14 @@ pub trait Mechanism: Send + Sync {
     ) -> bool {
         self.on_branch(q, rho)
     }
+
+    /// The name of a leg whose working mode at `q` differs from the
+    /// reference configuration's, for mechanisms that tell working modes leg
+    /// by leg (so that a configuration off the branch is refused for its real
+    /// cause). The default (`None`) names none.
+    fn leg_in_other_mode(&self, _q: &[f64], _rho: &[f64]) -> Option<&str> {
+        None
+    }
 }
 
 /// A full parameter vector `[ρ, Δq, k]` of a mechanism.

@@ -18,8 +18,9 @@ const RECOVERY_MM: f64 = 1e-6;
 
 /// A fit restarted from its own answer stays there (mm or rad): the final
 /// Gauss–Newton polish settles the weak directions, which the trust region
-/// alone leaves a few 1e-7 mm apart on gough-stewart-8.
-const RESTART: f64 = 1e-9;
+/// alone leaves a few 1e-7 mm apart on gough-stewart-8; the polished
+/// answers agree to about 1e-9 mm there (the weakest direction's rounding).
+const RESTART: f64 = 2e-9;
 
 fn data(n: usize, noise: f64, seed: u64) -> Vec<Measurement> {
     let mech = JeongKim2Dof::new();

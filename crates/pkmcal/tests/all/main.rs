@@ -15,5 +15,6 @@ mod nist_strd;
 mod noise;
 mod planar;
 mod record;
+mod round_trip;
 mod spatial;
 mod use_calibration;

@@ -223,7 +223,7 @@ fn dropping_stops_at_the_cap_and_rechecks_after_each_drop() {
     // rest are reported with a warning that says the cap was reached.
     let mut many = clean.clone();
     for (k, i) in (0..35).step_by(3).take(10).enumerate() {
-        many[i].measured[k % 2] += 0.05 + 0.01 * k as f64;
+        many[i].measured[k % 2] += 0.1 + 0.02 * k as f64;
     }
     let cal = calibrate(
         &mech,
