@@ -405,10 +405,16 @@ pub(crate) fn prepare_pose_ahead<M: Mechanism>(
         match result {
             Ok(q) => {
                 let m = mismatch(&q);
+                // Consistent commands are answered at once; inconsistent
+                // ones (calibrated, measured) once an answer is within a
+                // plausible disagreement of every command: another start
+                // would only find the same configuration again.
+                let done =
+                    m < CONSISTENT || scaled_mismatch(spec, commands, &q) <= PLAUSIBLE_MISMATCH;
                 if best.as_ref().is_none_or(|b| m < b.0) {
                     best = Some((m, q));
                 }
-                if m < CONSISTENT {
+                if done {
                     break;
                 }
             }

@@ -9,6 +9,7 @@ mod calibration;
 mod engine;
 mod frame;
 mod fuzz;
+mod lattice;
 mod measurement_models;
 mod measurements;
 mod nist_strd;
