@@ -750,22 +750,9 @@ fn saved_values(text: &str) -> std::collections::BTreeMap<(String, String), f64>
     out
 }
 
-/// The real users' Klipper folder (`../shared/data/real-configs/klipper`,
-/// beside the checkout in CI); `None`, with a visible note, where it is
-/// absent outside CI.
+/// The real users' Klipper folder (`../shared/data/real-configs/klipper`).
 fn real_configs() -> Option<std::path::PathBuf> {
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data/real-configs/klipper");
-    if root.exists() {
-        return Some(root);
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "{} is missing in CI",
-        root.display()
-    );
-    eprintln!("SKIPPED: no real configurations at {}", root.display());
-    None
+    common::real_configs("klipper")
 }
 
 /// For each real calibration case, extended (with DELTA_ANALYZE distances)

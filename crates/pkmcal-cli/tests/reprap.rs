@@ -3,7 +3,7 @@
 //! known printer give that printer's M665/M666 back.
 
 mod common;
-use common::{fails, ok};
+use common::{fails, ok, real_configs, run};
 
 /// The identified values equal the truth (mm, degrees, percent): the probe
 /// heights are written to 1 nm.
@@ -102,10 +102,15 @@ const TRUTH: Rrf = Rrf {
 /// G30 S-1 at (x, y): the firmware (nominal values) lowers the nozzle until
 /// the probe touches the true bed; the z it reports.
 fn probe(x: f64, y: f64) -> f64 {
-    let (hn, ht) = (NOMINAL.homed(), TRUTH.homed());
+    probe_of(&TRUTH, x, y)
+}
+
+/// [`probe`] on the printer `truth`.
+fn probe_of(truth: &Rrf, x: f64, y: f64) -> f64 {
+    let (hn, ht) = (NOMINAL.homed(), truth.homed());
     let true_z = |zp: f64| {
         let c = NOMINAL.carriages([x, y, zp]);
-        TRUTH.position(std::array::from_fn(|i| c[i] - hn[i] + ht[i]))[2]
+        truth.position(std::array::from_fn(|i| c[i] - hn[i] + ht[i]))[2]
     };
     let mut z = 0.0;
     for _ in 0..50 {
@@ -417,4 +422,304 @@ fn reprap_fits_only_what_the_firmware_holds() {
         1,
         "far.csv:3: the probe point (150, 0) is out of reach",
     );
+}
+
+/// As many probe points as factors: RepRapFirmware solves the six factors
+/// exactly from six points, and so does `reprap` (it used to refuse, asking
+/// for seven); five points for six factors are refused, asking for six.
+#[test]
+fn reprap_solves_as_many_points_as_factors_exactly() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("config.g"),
+        "M665 L360 R190 H420 B150
+M666 X0 Y0 Z0
+",
+    )
+    .unwrap();
+    // A printer that differs from the file in the six factors only.
+    let truth = Rrf {
+        tilt: [0.0, 0.0],
+        corr: [0.35, -0.2, 0.0],
+        ..TRUTH
+    };
+    let mut pts = vec![[0.0, 0.0]];
+    for k in 0..5 {
+        let a = (72.0 * k as f64 + 10.0).to_radians();
+        pts.push([120.0 * a.cos(), 120.0 * a.sin()]);
+    }
+    let csv = |pts: &[[f64; 2]]| {
+        let mut csv = String::from("x,y,z\n");
+        for [x, y] in pts {
+            csv.push_str(&format!("{x},{y},{:.9}\n", probe_of(&truth, *x, *y)));
+        }
+        csv
+    };
+    std::fs::write(d.join("six.csv"), csv(&pts)).unwrap();
+    let out = ok(
+        d,
+        &[
+            "reprap", "--config", "config.g", "--probes", "six.csv", "--out", "new.g",
+        ],
+    );
+    assert!(out.contains("6 probe heights"), "{out}");
+    let new = parse(&std::fs::read_to_string(d.join("new.g")).unwrap());
+    let close = |a: f64, b: f64| (a - b).abs() < RECOVERED;
+    assert!(close(new.r, truth.r), "{out}");
+    for i in 0..3 {
+        assert!(close(new.corr[i], truth.corr[i]), "correction {i}: {out}");
+        assert!(close(new.homed()[i], truth.homed()[i]), "homed {i}: {out}");
+    }
+    std::fs::write(d.join("five.csv"), csv(&pts[..5])).unwrap();
+    fails(
+        d,
+        &["reprap", "--config", "config.g", "--probes", "five.csv"],
+        1,
+        "at least 6",
+    );
+}
+
+/// The 7- and 9-factor calibrations users' bed.g files ask for: one
+/// diagonal shared by the three towers (`--free default,diagonal`, plus the
+/// bed tilts for 9), written back as one `M665 L`; a file with three
+/// different diagonals, or `diagonal` with `arm_a`, is refused.
+#[test]
+fn reprap_fits_one_shared_diagonal() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("config.g"),
+        "M665 L360 R190 H420 B150\nM666 X0 Y0 Z0\n",
+    )
+    .unwrap();
+    for (free, tilt) in [
+        ("default,diagonal", [0.0, 0.0]),
+        ("default,diagonal,bed.rx,bed.ry", TRUTH.tilt),
+    ] {
+        let truth = Rrf {
+            l: [360.6; 3],
+            tilt,
+            ..TRUTH
+        };
+        let mut csv = String::from("x,y,z\n");
+        for [x, y] in points() {
+            csv.push_str(&format!("{x},{y},{:.9}\n", probe_of(&truth, x, y)));
+        }
+        std::fs::write(d.join("probes.csv"), csv).unwrap();
+        let out = ok(
+            d,
+            &[
+                "reprap",
+                "--config",
+                "config.g",
+                "--probes",
+                "probes.csv",
+                "--free",
+                free,
+                "--out",
+                "new.g",
+            ],
+        );
+        let text = std::fs::read_to_string(d.join("new.g")).unwrap();
+        assert!(text.contains("M665 L360.600 "), "{free}: {text}");
+        let new = parse(&text);
+        let close = |a: f64, b: f64| (a - b).abs() < RECOVERED;
+        assert!(close(new.r, truth.r), "{free}: {out}");
+        for i in 0..3 {
+            assert!(
+                close(new.corr[i], truth.corr[i]),
+                "{free}: correction {i}: {out}"
+            );
+            assert!(
+                close(new.homed()[i], truth.homed()[i]),
+                "{free}: homed {i}: {out}"
+            );
+        }
+    }
+    fails(
+        d,
+        &[
+            "reprap",
+            "--config",
+            "config.g",
+            "--probes",
+            "probes.csv",
+            "--free",
+            "default,diagonal,arm_a",
+        ],
+        2,
+        "exclude each other",
+    );
+    std::fs::write(d.join("three.g"), "M665 L360:360.2:359.9 R190 H420 B150\n").unwrap();
+    fails(
+        d,
+        &[
+            "reprap",
+            "--config",
+            "three.g",
+            "--probes",
+            "probes.csv",
+            "--free",
+            "default,diagonal",
+        ],
+        2,
+        "free arm_a, arm_b, arm_c instead",
+    );
+}
+
+/// RepRapFirmware 3's variables, as SeeMeCNC's vendor files use them:
+/// `global name = …`, `set global.name = …` and `{global.name}` in M665,
+/// with arithmetic; the firmware's object model or an unset variable is
+/// refused, naming it and the line.
+#[test]
+fn reprap_evaluates_global_variables() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    write_probes(d);
+    std::fs::write(
+        d.join("config.g"),
+        "global deltaRadius = 190            ; R\nglobal armLength = 350 ; L\nglobal name = \"Unknown\"\nset global.armLength = global.armLength + 2 * (6 - 1)\nM665 R{global.deltaRadius} L{global.armLength} B150 H{400 + 20}\nM666 X0 Y0 Z0\n",
+    )
+    .unwrap();
+    let out = ok(
+        d,
+        &["reprap", "--config", "config.g", "--probes", "probes.csv"],
+    );
+    assert!(
+        out.contains("before:\nM665 L360.000 R190.000 H420.000 B150.0"),
+        "{out}"
+    );
+    for (text, needle) in [
+        (
+            "M665 L{move.axes[0].max} R190\n",
+            "config.g:1: `move.axes[0].max`",
+        ),
+        (
+            "M665 L{global.nope} R190\n",
+            "config.g:1: `global.nope` is used before",
+        ),
+        (
+            "global name = \"x\"\nM665 L{global.name} R190\n",
+            "config.g:2: `global.name` cannot be evaluated",
+        ),
+        ("M665 L{360 R190\n", "no closing brace"),
+    ] {
+        std::fs::write(d.join("config.g"), text).unwrap();
+        fails(
+            d,
+            &["reprap", "--config", "config.g", "--probes", "probes.csv"],
+            1,
+            needle,
+        );
+    }
+}
+
+/// Every real RepRapFirmware configuration collected (25 printers, with
+/// their sources, in `../shared/data/real-configs/reprap`) is read as the
+/// firmware runs it, and written back unchanged when the bed probes flat:
+/// the same diagonals, radius and tower corrections, and the same homed
+/// carriage heights (H and the endstop adjustments split as the firmware
+/// splits them) to the 3 decimals it keeps. A configuration that runs M501
+/// without its config-override.g beside it is refused, naming both.
+#[test]
+fn real_reprap_configurations_are_read_and_written_back() {
+    let Some(root) = real_configs("reprap") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("flat.csv"),
+        "x,y,z\n0,0,0\n30,0,0\n-15,26,0\n-15,-26,0\n0,30,0\n26,-15,0\n-26,-15,0\n",
+    )
+    .unwrap();
+    let mut cases: Vec<_> = std::fs::read_dir(root.join("cases"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.join("config.g").exists())
+        .collect();
+    cases.sort();
+    assert!(cases.len() >= 25, "{} cases", cases.len());
+    let (mut written, mut refused) = (0, 0);
+    for case in &cases {
+        let config = case.join("config.g");
+        let mut o = run(
+            d,
+            &[
+                "reprap",
+                "--config",
+                config.to_str().unwrap(),
+                "--probes",
+                "flat.csv",
+            ],
+        );
+        if !o.status.success() {
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert!(
+                err.contains("M501 loads config-override.g")
+                    && !case.join("config-override.g").exists(),
+                "{}: {err}",
+                case.display()
+            );
+            refused += 1;
+            // As if the printer had saved nothing yet (an empty
+            // config-override.g): config.g's own geometry, read through its
+            // variables and expressions (SeeMeCNC's vendor files).
+            let copy = d.join("copy");
+            std::fs::create_dir_all(&copy).unwrap();
+            std::fs::copy(&config, copy.join("config.g")).unwrap();
+            std::fs::write(copy.join("config-override.g"), "").unwrap();
+            o = run(
+                d,
+                &[
+                    "reprap",
+                    "--config",
+                    "copy/config.g",
+                    "--probes",
+                    "flat.csv",
+                ],
+            );
+        }
+        let (out, err) = (
+            String::from_utf8_lossy(&o.stdout),
+            String::from_utf8_lossy(&o.stderr),
+        );
+        assert!(o.status.success(), "{}: {err}", case.display());
+        let block = |tag: &str| {
+            let i = out
+                .find(tag)
+                .unwrap_or_else(|| panic!("{}: {out}", case.display()));
+            parse(
+                &out[i..]
+                    .lines()
+                    .skip(1)
+                    .take(2)
+                    .collect::<Vec<_>>()
+                    .join("\n"),
+            )
+        };
+        let (before, after) = (block("before:"), block("after:"));
+        let same = |a: f64, b: f64| (a - b).abs() <= 1.5e-3;
+        assert!(same(before.r, after.r), "{}: {out}", case.display());
+        for i in 0..3 {
+            assert!(same(before.l[i], after.l[i]), "{}: {out}", case.display());
+            assert!(
+                same(before.corr[i], after.corr[i]),
+                "{}: {out}",
+                case.display()
+            );
+            assert!(
+                same(before.homed()[i], after.homed()[i]),
+                "{}: {out}",
+                case.display()
+            );
+        }
+        written += 1;
+    }
+    eprintln!(
+        "{written} written back unchanged, {refused} of them first refused (M501 without config-override.g)"
+    );
+    assert_eq!(written, cases.len());
+    assert!(refused >= 1);
 }

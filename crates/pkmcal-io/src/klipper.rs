@@ -95,6 +95,10 @@ pub const KLIPPER_FREE: [&str; 6] = ["delta_radius", "angle_a", "angle_b", "da",
 /// calibration object (its extended calibration): the three arm lengths.
 pub const KLIPPER_EXTENDED: [&str; 3] = ["arm_a", "arm_b", "arm_c"];
 
+/// The one diagonal rod length of a description whose towers share it
+/// ([`KlipperDelta::description_toml_with`]).
+pub const SHARED_ARM: &str = "diagonal";
+
 /// Stiffness written for the carriages (N/mm): a linear delta is not
 /// redundant, so it changes no prediction without a load.
 const CARRIAGE_STIFFNESS: f64 = 2000.0;
@@ -484,6 +488,27 @@ impl KlipperDelta {
 
     /// [`KlipperDelta::mechanism_toml`] saying where it came from.
     pub fn description_toml(&self, origin: &str, towers: &str, firmware: &str) -> String {
+        self.description_toml_with(origin, towers, firmware, false)
+    }
+
+    /// [`KlipperDelta::description_toml`], with one diagonal rod length
+    /// `diagonal` shared by the three towers when `shared_arm` (the firmware
+    /// keeps one, as RepRapFirmware's 7- and 9-factor calibrations fit it;
+    /// the first arm's length).
+    pub fn description_toml_with(
+        &self,
+        origin: &str,
+        towers: &str,
+        firmware: &str,
+        shared_arm: bool,
+    ) -> String {
+        let arm = |t: &str| {
+            if shared_arm {
+                SHARED_ARM.to_string()
+            } else {
+                format!("arm_{t}")
+            }
+        };
         let mut s = String::new();
         let _ = writeln!(
             s,
@@ -500,7 +525,8 @@ impl KlipperDelta {
                 "[[leg]]\nname = \"tower_{t}\"\nangle = \"angle_{t}\"\n[[leg.joint]]\n\
                  name = \"{t}\"\nkind = \"prismatic\"\nat = [\"delta_radius\", 0.0, 0.0]\n\
                  axis = [0.0, 0.0, 1.0]\nactuated = true\nstiffness = {CARRIAGE_STIFFNESS:?}   # N/mm\n\
-                 [leg.end]\nkind = \"rod\"\nlength = \"arm_{t}\"\nplatform = [0.0, 0.0, 0.0]\n"
+                 [leg.end]\nkind = \"rod\"\nlength = \"{}\"\nplatform = [0.0, 0.0, 0.0]\n",
+                arm(t)
             );
         }
         let _ = writeln!(s, "[parameters]\ndelta_radius = {:?}", self.radius);
@@ -512,8 +538,12 @@ impl KlipperDelta {
                 self.angles[i]
             );
         }
-        for (i, t) in TOWERS.iter().enumerate() {
-            let _ = writeln!(s, "arm_{t} = {:?}", self.arms[i]);
+        if shared_arm {
+            let _ = writeln!(s, "{SHARED_ARM} = {:?}", self.arms[0]);
+        } else {
+            for (i, t) in TOWERS.iter().enumerate() {
+                let _ = writeln!(s, "arm_{t} = {:?}", self.arms[i]);
+            }
         }
         let _ = writeln!(s, "\n[assembly]\npose = [0.0, 0.0, 10.0]");
         for (i, t) in TOWERS.iter().enumerate() {

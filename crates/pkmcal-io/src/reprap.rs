@@ -16,7 +16,7 @@
 //! mean 0 (its `NormaliseEndstopAdjustments`), the bed's tilts as `A B`.
 
 use crate::io::Csv;
-use crate::klipper::{KLIPPER_FREE, KlipperDelta};
+use crate::klipper::{KLIPPER_FREE, KlipperDelta, SHARED_ARM};
 use anyhow::{Context, Result, bail};
 use pkmcal::{CalibrationOptions, MeasurementModel, Mechanism, Model, Params};
 use std::fmt::Write;
@@ -26,7 +26,8 @@ use std::path::PathBuf;
 const STANDARD_ANGLES: [f64; 3] = [210.0, 330.0, 90.0];
 /// The parameters `M665`/`M666` hold: the radius, the tower angle
 /// corrections, the diagonals, the endstop adjustments (with `H`), the bed
-/// tilts.
+/// tilts (`all`); or, instead of the three diagonals, the one
+/// [`SHARED_ARM`] of the 7- and 9-factor calibrations.
 const RRF_FREE: [&str; 12] = [
     "delta_radius",
     "angle_a",
@@ -123,12 +124,15 @@ impl RrfDelta {
         }
     }
 
-    /// The spatial description of this printer (TOML).
-    pub fn mechanism_toml(&self) -> String {
-        self.as_klipper().description_toml(
+    /// The spatial description of this printer (TOML); with `shared_arm`,
+    /// one diagonal `diagonal` for the three towers (`M665 L` with one
+    /// value).
+    pub fn mechanism_toml(&self, shared_arm: bool) -> String {
+        self.as_klipper().description_toml_with(
             "RepRapFirmware's M665/M666 by `pkmcal reprap`",
             "the X, Y, Z towers",
             "RepRapFirmware",
+            shared_arm,
         )
     }
 
@@ -146,8 +150,13 @@ impl RrfDelta {
         out.radius = p.get(spec, "delta_radius")?;
         let homed = self.homed_carriages();
         let mut k = [0.0; 3];
+        let shared = spec.param_index(SHARED_ARM).is_ok();
         for (i, (_, t)) in TOWERS.iter().enumerate() {
-            let arm = p.get(spec, &format!("arm_{t}"))?;
+            let arm = if shared {
+                p.get(spec, SHARED_ARM)?
+            } else {
+                p.get(spec, &format!("arm_{t}"))?
+            };
             if arm.is_nan() || arm <= out.radius {
                 bail!(
                     "the identified arm_{t} = {arm:.3} mm is not longer than delta_radius = {:.3} mm; the probe data cannot support this parameter set (use fewer free parameters)",
@@ -258,7 +267,7 @@ fn delta_from_text(
     m501: &mut dyn FnMut(usize) -> Result<Option<(String, String)>>,
 ) -> Result<RrfDelta> {
     let mut d = RrfDelta::default();
-    let seen = apply_lines(&mut d, text, file, m501)?;
+    let seen = apply_lines(&mut d, text, file, m501, &mut Globals::new())?;
     if !seen {
         bail!(
             "{file}: no M665 or M666 line; give the file that sets the delta's geometry (config.g, or config-override.g after M500)"
@@ -303,6 +312,164 @@ fn words_of(line: &str) -> Vec<String> {
     out
 }
 
+/// RepRapFirmware 3's global variables met so far: a number, or why the
+/// expression that set it is not one pkmcal evaluates.
+type Globals = std::collections::HashMap<String, std::result::Result<f64, String>>;
+
+/// The `{…}` expressions of a G-code line replaced by their values (at full
+/// precision), or why one cannot be evaluated.
+fn substitute(line: &str, globals: &Globals) -> std::result::Result<String, String> {
+    let mut out = String::with_capacity(line.len());
+    let mut rest = line;
+    while let Some(open) = rest.find('{') {
+        out.push_str(&rest[..open]);
+        let Some(close) = rest[open..].find('}') else {
+            return Err(format!("`{}` has no closing brace", &rest[open..]));
+        };
+        let expr = &rest[open + 1..open + close];
+        let v = eval(expr, globals)?;
+        out.push_str(&format!("{v:?}"));
+        rest = &rest[open + close + 1..];
+    }
+    out.push_str(rest);
+    Ok(out)
+}
+
+/// The value of a RepRapFirmware expression as far as pkmcal evaluates
+/// one: numbers, `global.` variables set to numbers, `+ - * /` and
+/// parentheses. Anything else (the object model, `var`, functions, strings)
+/// is refused by name: the firmware's value is not known here.
+fn eval(expr: &str, globals: &Globals) -> std::result::Result<f64, String> {
+    struct P<'a> {
+        s: &'a [u8],
+        i: usize,
+        globals: &'a Globals,
+        expr: &'a str,
+    }
+    impl P<'_> {
+        fn ws(&mut self) {
+            while self.s.get(self.i).is_some_and(u8::is_ascii_whitespace) {
+                self.i += 1;
+            }
+        }
+        fn sum(&mut self) -> std::result::Result<f64, String> {
+            let mut v = self.product()?;
+            loop {
+                self.ws();
+                match self.s.get(self.i) {
+                    Some(b'+') => {
+                        self.i += 1;
+                        v += self.product()?;
+                    }
+                    Some(b'-') => {
+                        self.i += 1;
+                        v -= self.product()?;
+                    }
+                    _ => return Ok(v),
+                }
+            }
+        }
+        fn product(&mut self) -> std::result::Result<f64, String> {
+            let mut v = self.unary()?;
+            loop {
+                self.ws();
+                match self.s.get(self.i) {
+                    Some(b'*') => {
+                        self.i += 1;
+                        v *= self.unary()?;
+                    }
+                    Some(b'/') => {
+                        self.i += 1;
+                        v /= self.unary()?;
+                    }
+                    _ => return Ok(v),
+                }
+            }
+        }
+        fn unary(&mut self) -> std::result::Result<f64, String> {
+            self.ws();
+            match self.s.get(self.i) {
+                Some(b'-') => {
+                    self.i += 1;
+                    Ok(-self.unary()?)
+                }
+                Some(b'+') => {
+                    self.i += 1;
+                    self.unary()
+                }
+                Some(b'(') => {
+                    self.i += 1;
+                    let v = self.sum()?;
+                    self.ws();
+                    if self.s.get(self.i) != Some(&b')') {
+                        return Err(format!("`{}`: a `(` is not closed", self.expr));
+                    }
+                    self.i += 1;
+                    Ok(v)
+                }
+                Some(c) if c.is_ascii_digit() || *c == b'.' => {
+                    let start = self.i;
+                    while self
+                        .s
+                        .get(self.i)
+                        .is_some_and(|c| c.is_ascii_digit() || *c == b'.')
+                    {
+                        self.i += 1;
+                    }
+                    let t = std::str::from_utf8(&self.s[start..self.i]).unwrap_or("");
+                    t.parse()
+                        .map_err(|_| format!("`{}`: `{t}` is not a number", self.expr))
+                }
+                Some(c) if c.is_ascii_alphabetic() || *c == b'_' => {
+                    let start = self.i;
+                    while self.s.get(self.i).is_some_and(|c| {
+                        c.is_ascii_alphanumeric() || matches!(c, b'_' | b'.' | b'[' | b']')
+                    }) {
+                        self.i += 1;
+                    }
+                    let name = std::str::from_utf8(&self.s[start..self.i]).unwrap_or("");
+                    match name.strip_prefix("global.") {
+                        Some(g) => match self.globals.get(g) {
+                            Some(Ok(v)) => Ok(*v),
+                            Some(Err(why)) => Err(format!(
+                                "`{name}` cannot be evaluated where it is set: {why}"
+                            )),
+                            None => Err(format!(
+                                "`{name}` is used before any `global {g} = …` sets it"
+                            )),
+                        },
+                        None => Err(format!(
+                            "`{name}` in `{}` is the firmware's own state (its object model or a local variable), whose value pkmcal cannot know; write the number there",
+                            self.expr
+                        )),
+                    }
+                }
+                _ => Err(format!(
+                    "`{}` is not an expression pkmcal evaluates (numbers, global variables, + - * / and parentheses); write the number there",
+                    self.expr
+                )),
+            }
+        }
+    }
+    let mut p = P {
+        s: expr.as_bytes(),
+        i: 0,
+        globals,
+        expr,
+    };
+    let v = p.sum()?;
+    p.ws();
+    if p.i != p.s.len() {
+        return Err(format!(
+            "`{expr}` is not an expression pkmcal evaluates (numbers, global variables, + - * / and parentheses); write the number there"
+        ));
+    }
+    if !v.is_finite() {
+        return Err(format!("`{expr}` is not a finite number"));
+    }
+    Ok(v)
+}
+
 /// Apply the `M665`/`M666` lines of `text` to `d` in order (and, at `M501`,
 /// those of the file `m501` loads); whether any was found.
 fn apply_lines(
@@ -310,6 +477,7 @@ fn apply_lines(
     text: &str,
     file: &str,
     m501: &mut dyn FnMut(usize) -> Result<Option<(String, String)>>,
+    globals: &mut Globals,
 ) -> Result<bool> {
     let mut seen = false;
     for (n, raw) in text.lines().enumerate() {
@@ -321,7 +489,36 @@ fn apply_lines(
             raw
         };
         let line = raw.split(';').next().unwrap_or("").trim();
-        let line = line.split('*').next().unwrap_or("").trim();
+        // A checksum is `*` and digits at the end; a `*` elsewhere
+        // multiplies in an expression.
+        let line = match line.rsplit_once('*') {
+            Some((head, sum))
+                if !sum.trim().is_empty() && sum.trim().chars().all(|c| c.is_ascii_digit()) =>
+            {
+                head.trim()
+            }
+            _ => line,
+        };
+        // RepRapFirmware 3's variables: `global name = expression` and
+        // `set global.name = expression`, used as `{global.name}` in a
+        // parameter.
+        if let Some(rest) = line
+            .strip_prefix("global ")
+            .or_else(|| line.strip_prefix("set global."))
+        {
+            if let Some((name, expr)) = rest.split_once('=') {
+                globals.insert(name.trim().to_string(), eval(expr.trim(), globals));
+            }
+            continue;
+        }
+        let substituted;
+        let line = if line.contains('{') {
+            substituted =
+                substitute(line, globals).map_err(|e| anyhow::anyhow!("{file}:{}: {e}", n + 1))?;
+            substituted.as_str()
+        } else {
+            line
+        };
         let owned = words_of(line);
         let mut words = owned.iter().map(String::as_str);
         let mut code = words.next().unwrap_or("").to_ascii_uppercase();
@@ -333,9 +530,13 @@ fn apply_lines(
         }
         if code == "M501" {
             if let Some((t, f)) = m501(n + 1)? {
-                seen |= apply_lines(d, &t, &f, &mut |k| {
-                    bail!("{f}:{k}: M501 inside {OVERRIDE_FILE} itself; remove that line")
-                })?;
+                seen |= apply_lines(
+                    d,
+                    &t,
+                    &f,
+                    &mut |k| bail!("{f}:{k}: M501 inside {OVERRIDE_FILE} itself; remove that line"),
+                    globals,
+                )?;
             }
             continue;
         }
@@ -434,7 +635,35 @@ pub fn run_reprap(run: &crate::Run<'_>, c: ReprapConfig) -> Result<()> {
     let csv = Csv::read(run, &c.probes)?;
     csv.require_rows()?;
     let points = csv.named(&["x".to_string(), "y".to_string(), "z".to_string()])?;
-    let toml = delta.mechanism_toml();
+    // The shared diagonal: one `M665 L` for the three towers, fitted as one.
+    let free_names_given: Vec<&str> = c
+        .free
+        .as_deref()
+        .unwrap_or("")
+        .split(',')
+        .map(str::trim)
+        .collect();
+    let shared_arm = free_names_given.contains(&SHARED_ARM);
+    if shared_arm {
+        if let Some(n) = free_names_given
+            .iter()
+            .find(|n| n.starts_with("arm_") || **n == "all")
+        {
+            return crate::output::usage(format!(
+                "in --free: `{SHARED_ARM}` (one diagonal for the three towers) and `{n}` exclude each other; free either the shared diagonal or the three arm_a, arm_b, arm_c"
+            ));
+        }
+        if delta.diagonals.iter().any(|l| *l != delta.diagonals[0]) {
+            return crate::output::usage(format!(
+                "in --free: `{SHARED_ARM}` fits one diagonal for the three towers, but {} sets three (L{}:{}:{}); free arm_a, arm_b, arm_c instead",
+                c.config.display(),
+                delta.diagonals[0],
+                delta.diagonals[1],
+                delta.diagonals[2]
+            ));
+        }
+    }
+    let toml = delta.mechanism_toml(shared_arm);
     let mech = crate::io::mechanism_from_str(&toml)
         .context("the M665/M666 geometry does not describe a delta that assembles")?;
     let spec = mech.spec();
@@ -485,6 +714,9 @@ pub fn run_reprap(run: &crate::Run<'_>, c: ReprapConfig) -> Result<()> {
     let bed = delta.bed();
     let measurement = MeasurementModel::probe(spec)?.with_own(&bed)?;
     let mut opts = CalibrationOptions::new(spec, Model::Exact);
+    // As many probe points as factors are solved exactly, as the firmware
+    // solves them.
+    opts.exactly_determined = true;
     // `all` is every parameter M665/M666 hold; a parameter they cannot
     // hold is refused by name (the fit would report an accuracy that the
     // written lines do not give).
@@ -508,7 +740,10 @@ pub fn run_reprap(run: &crate::Run<'_>, c: ReprapConfig) -> Result<()> {
         spec,
         &measurement,
     )?;
-    if let Some(n) = free_names.iter().find(|n| !RRF_FREE.contains(&n.as_str())) {
+    if let Some(n) = free_names
+        .iter()
+        .find(|n| !RRF_FREE.contains(&n.as_str()) && *n != SHARED_ARM)
+    {
         return crate::output::usage(format!(
             "in --free: `{n}` has no place in M665/M666, so RepRapFirmware could not run what the fit finds{}; the parameters they hold are {}",
             if n == "bed.z" {
@@ -516,7 +751,7 @@ pub fn run_reprap(run: &crate::Run<'_>, c: ReprapConfig) -> Result<()> {
             } else {
                 ""
             },
-            RRF_FREE.join(", ")
+            RRF_FREE.join(", ") + ", or " + SHARED_ARM + " (one diagonal for the three towers)"
         ));
     }
     let nominal = Params::nominal(spec);

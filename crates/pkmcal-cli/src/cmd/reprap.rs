@@ -20,8 +20,9 @@ pub struct Args {
     pub probes: PathBuf,
     /// Parameters to identify, comma separated: RepRapFirmware's 6 factors
     /// (`default`: delta_radius, angle_a, angle_b and the endstop errors da,
-    /// db, dc) or more (arm_a, arm_b, arm_c for the diagonals; bed.rx, bed.ry
-    /// for the bed tilts M666 A B).
+    /// db, dc) or more (arm_a, arm_b, arm_c for the diagonals, or `diagonal`
+    /// for one shared by the three towers, as the firmware's 7- and 9-factor
+    /// calibrations fit it; bed.rx, bed.ry for the bed tilts M666 A B).
     #[arg(long, value_name = "NAMES")]
     pub free: Option<String>,
     /// Parameters to keep fixed, comma separated (removed from the free set).

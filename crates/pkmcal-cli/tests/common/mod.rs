@@ -58,3 +58,22 @@ pub fn example(name: &str) -> String {
 pub fn json(path: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
 }
+
+/// A folder of real users' configurations (`../shared/data/real-configs/<kind>`,
+/// beside the repository), if present: CI must have it; elsewhere its tests
+/// say they skipped.
+pub fn real_configs(kind: &str) -> Option<std::path::PathBuf> {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data/real-configs")
+        .join(kind);
+    if root.exists() {
+        return Some(root);
+    }
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "{} is missing in CI",
+        root.display()
+    );
+    eprintln!("SKIPPED: no real configurations at {}", root.display());
+    None
+}

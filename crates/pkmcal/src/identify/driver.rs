@@ -42,6 +42,12 @@ pub struct CalibrationOptions {
     pub auto_fix: bool,
     /// Solver settings (tolerances, bounds; `free` and `weights` are set here).
     pub solver: lm::Options,
+    /// Accept as many readings as free parameters: the fit then solves its
+    /// equations exactly, as a firmware's own calibration does from as many
+    /// probe points as factors, with nothing left to estimate the noise or
+    /// an uncertainty from (its standard deviations are NaN). By default a
+    /// fit needs at least one reading more than parameters.
+    pub exactly_determined: bool,
 }
 
 impl CalibrationOptions {
@@ -65,6 +71,7 @@ impl CalibrationOptions {
                 max_evaluations: 200,
                 ..lm::Options::default()
             },
+            exactly_determined: false,
         }
     }
 }
@@ -290,7 +297,7 @@ fn check_request<M: Mechanism>(
     };
     let m: usize = data.iter().map(|d| measurement.row_len(d)).sum();
     let n_requested = exact_free.map_or(opts.free.len() + n_free_frame, <[usize]>::len);
-    if m <= n_requested {
+    if m < n_requested || (m == n_requested && !opts.exactly_determined) {
         return Err(Error::InvalidRequest(format!(
             "{} {} give {m} readings for {n_requested} free parameters{}; measure more poses (at least {}) or identify fewer parameters{}",
             data.len(),
@@ -304,10 +311,14 @@ fn check_request<M: Mechanism>(
             } else {
                 ""
             },
-            n_requested / nx + 1,
+            if opts.exactly_determined {
+                n_requested.div_ceil(nx)
+            } else {
+                n_requested / nx + 1
+            },
             if nx < spec.tool_axes.len() {
                 format!(
-                    "; {} alone cannot see every parameter of the default set: `analyze` names the combinations they cannot separate",
+                    "; {} alone cannot see every parameter of the default set (an identifiability analysis names the combinations they cannot separate)",
                     measurement.axes().join(", ")
                 )
             } else {
@@ -493,8 +504,12 @@ fn assemble<M: Mechanism>(
     let params = Params::new(spec, report.x[..np].to_vec())?;
     let m_values = report.x[np..].to_vec();
     let frame = m_values[measurement.frame_range()].to_vec();
-    let dof = m.saturating_sub(free.len()).max(1);
-    let s2 = report.sum_of_squares / dof as f64;
+    // No reading left over (an exactly determined fit): no noise estimate,
+    // no uncertainty.
+    let s2 = match m.checked_sub(free.len()) {
+        Some(dof) if dof > 0 => report.sum_of_squares / dof as f64,
+        _ => f64::NAN,
+    };
     let (cov_unit, rank) = report.covariance(crate::lm::COVARIANCE_RANK_TOL);
     if rank < free.len() {
         warnings.push(Warning::new(WarningKind::RankDeficient {
