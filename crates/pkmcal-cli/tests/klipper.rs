@@ -835,3 +835,46 @@ fn real_basic_calibrations_are_klippers() {
 /// Agreement with Klipper's saved basic calibrations (mm, degrees): the
 /// issue's 1e-4; 28 of 30 agree to 1.7e-5, Klipper's saved precision.
 const KLIPPERS_BASIC: f64 = 1e-4;
+
+/// On a real extended calibration, the default weighting is Klipper's (the
+/// same values as `--weighting klipper`), and `--weighting estimated`
+/// prints the heights/distances variance ratio with a 95 % interval that
+/// contains Klipper's fixed ratio (issue 39, 5).
+#[test]
+fn klippers_weighting_is_the_default_and_the_estimated_ratio_has_its_interval() {
+    let Some(root) = real_configs() else {
+        return;
+    };
+    let cfg = root.join("cases/eeichhorn-v400-3/printer.cfg");
+    let cfg = cfg.to_str().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let default = ok(d, &["klipper", "--config", cfg]);
+    let klipper = ok(d, &["klipper", "--config", cfg, "--weighting", "klipper"]);
+    assert_eq!(default, klipper);
+    let estimated = ok(d, &["klipper", "--config", cfg, "--weighting", "estimated"]);
+    let line = estimated
+        .lines()
+        .find(|l| l.starts_with("variance ratio heights/distances:"))
+        .unwrap_or_else(|| panic!("{estimated}"));
+    // "…: R (95 % interval LO to HI, …); Klipper's fixed weighting takes K"
+    let num = |after: &str| -> f64 {
+        let i = line.find(after).unwrap() + after.len();
+        line[i..]
+            .trim_start()
+            .split(|c: char| !(c.is_ascii_digit() || c == '.'))
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap()
+    };
+    let (r, lo, hi, k) = (
+        num("distances:"),
+        num("interval"),
+        num(" to "),
+        num("takes"),
+    );
+    assert!(lo < r && r < hi, "{line}");
+    assert!(lo < k && k < hi, "{line}");
+    assert!(hi / lo > 10.0, "{line}");
+}

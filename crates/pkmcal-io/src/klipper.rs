@@ -1000,14 +1000,26 @@ fn max_abs(v: &[f64]) -> f64 {
     v.iter().fold(0.0, |m, x| m.max(x.abs()))
 }
 
-/// Run `pkmcal klipper`.
-pub fn run_klipper(run: &crate::Run<'_>, c: KlipperConfig) -> Result<()> {
-    let text = run
-        .files
-        .read_to_string(&c.config, crate::output::InputKind::Description)
-        .with_context(|| format!("cannot read Klipper configuration {}", c.config.display()))?;
-    let ini = parse_config(run, &text, &c.config)?;
-    let delta = delta_from_config(&ini)?;
+/// What `pkmcal klipper` fits for a printer: its description, the probe
+/// model, the readings (the probe heights as poses, then the distances
+/// measured on the calibration object as pairs of poses), the fit's options
+/// and the free parameters' names.
+pub struct KlipperProblem {
+    pub mech: crate::io::Mech,
+    pub measurement: MeasurementModel,
+    pub data: Vec<pkmcal::Measurement>,
+    pub opts: CalibrationOptions,
+    pub free_names: Vec<String>,
+}
+
+/// [`KlipperProblem`] of a printer, weighted by `weighting`, with the free
+/// set `free` (`default` when `None`) less `fix`.
+pub fn klipper_problem(
+    delta: &KlipperDelta,
+    weighting: Weighting,
+    free: Option<&str>,
+    fix: Option<&str>,
+) -> Result<KlipperProblem> {
     let toml = delta.mechanism_toml();
     let mech = crate::io::mechanism_from_str(&toml)
         .context("the printer's geometry does not describe a delta that assembles")?;
@@ -1048,17 +1060,11 @@ pub fn run_klipper(run: &crate::Run<'_>, c: KlipperConfig) -> Result<()> {
         )
         .collect();
     let mut data = data;
-    if c.weighting == Weighting::Klipper && !delta.distances.is_empty() {
+    if weighting == Weighting::Klipper && !delta.distances.is_empty() {
         // Klipper's cost `z_weight · Σ heights² + Σ distances²` as known
         // standard deviations: σ_distance 1 (in mm; only the ratio acts),
         // σ_height 1/√z_weight.
-        let probed = delta
-            .probes
-            .iter()
-            .filter(|p| !p.name.starts_with("manual"))
-            .count()
-            .max(1);
-        let z_weight = delta.distances.len() as f64 / (KLIPPER_MEASURE_WEIGHT * probed as f64);
+        let z_weight = klipper_z_weight(delta);
         for m in &mut data {
             m.sigma = vec![Some(if m.partner.is_some() {
                 1.0
@@ -1067,7 +1073,6 @@ pub fn run_klipper(run: &crate::Run<'_>, c: KlipperConfig) -> Result<()> {
             })];
         }
     }
-    let heights = &data[..delta.probes.len()];
     let measurement = MeasurementModel::probe(spec)?;
     let mut default: Vec<String> = spec.default_free.clone();
     if !delta.distances.is_empty() {
@@ -1075,13 +1080,33 @@ pub fn run_klipper(run: &crate::Run<'_>, c: KlipperConfig) -> Result<()> {
     }
     let mut opts = CalibrationOptions::new(spec, Model::Exact);
     let free_names;
-    (free_names, opts.free) = free_list(
-        c.free.as_deref(),
-        c.fix.as_deref(),
-        &default,
-        spec,
-        &measurement,
-    )?;
+    (free_names, opts.free) = free_list(free, fix, &default, spec, &measurement)?;
+    Ok(KlipperProblem {
+        mech,
+        measurement,
+        data,
+        opts,
+        free_names,
+    })
+}
+
+/// Run `pkmcal klipper`.
+pub fn run_klipper(run: &crate::Run<'_>, c: KlipperConfig) -> Result<()> {
+    let text = run
+        .files
+        .read_to_string(&c.config, crate::output::InputKind::Description)
+        .with_context(|| format!("cannot read Klipper configuration {}", c.config.display()))?;
+    let ini = parse_config(run, &text, &c.config)?;
+    let delta = delta_from_config(&ini)?;
+    let KlipperProblem {
+        mech,
+        measurement,
+        data,
+        opts,
+        free_names,
+    } = klipper_problem(&delta, c.weighting, c.free.as_deref(), c.fix.as_deref())?;
+    let spec = mech.spec();
+    let heights = &data[..delta.probes.len()];
     let nominal = Params::nominal(spec);
     // The study every front end runs: the heights as poses, the distances
     // measured on the calibration object as distances between poses.
@@ -1157,6 +1182,23 @@ pub fn run_klipper(run: &crate::Run<'_>, c: KlipperConfig) -> Result<()> {
             "distance errors: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm ({weighing})",
             d.before_max, d.before_rms, d.after_max, d.after_rms,
         );
+        // How well the data fix the weighting: the variance ratio with its
+        // interval, against Klipper's fixed ratio.
+        let group = |axis: &str| cal.noise.iter().find(|g| g.axes.iter().any(|a| a == axis));
+        if let (Some(h), Some(dg)) = (group("probe"), group(pkmcal::DISTANCE_AXIS))
+            && let Some(r) = pkmcal::variance_ratio(h, dg, VARIANCE_RATIO_LEVEL)
+        {
+            println!(
+                "variance ratio heights/distances: {:.3} ({:.0} % interval {:.3} to {:.3}, from {:.1} and {:.1} degrees of freedom); Klipper's fixed weighting takes {:.3}",
+                r.ratio,
+                100.0 * r.level,
+                r.low,
+                r.high,
+                h.redundancy.unwrap_or(f64::NAN),
+                dg.redundancy.unwrap_or(f64::NAN),
+                1.0 / klipper_z_weight(&delta)
+            );
+        }
     }
     for w in &cal.warnings {
         println!(
@@ -1215,7 +1257,8 @@ pub fn run_klipper(run: &crate::Run<'_>, c: KlipperConfig) -> Result<()> {
             );
         }
         let [m_file, d_file, p_file] = OUT_DIR_FILES;
-        run.files.stage(&dir.join(m_file), toml.as_bytes())?;
+        run.files
+            .stage(&dir.join(m_file), delta.mechanism_toml().as_bytes())?;
         run.files.stage(&dir.join(d_file), csv.as_bytes())?;
         if !delta.distances.is_empty() {
             let mut csv = String::from("a_1,b_1,c_1,a_2,b_2,c_2,distance\n");
@@ -1304,6 +1347,23 @@ fn data_pose(e: &anyhow::Error) -> Option<(usize, bool)> {
             Some(pkmcal::Error::Pose { pose, distance, .. }) => Some((pose - 1, *distance)),
             _ => None,
         })
+}
+
+/// Confidence level of the printed height/distance variance ratio.
+const VARIANCE_RATIO_LEVEL: f64 = 0.95;
+
+/// The weight of the heights in Klipper's extended calibration: its cost
+/// `z_weight · Σ heights² + Σ distances²` with `z_weight = n_distances /
+/// (0.5 · n_probed)`, which weighs them as variances `σ_height² /
+/// σ_distance² = 1 / z_weight`.
+fn klipper_z_weight(delta: &KlipperDelta) -> f64 {
+    let probed = delta
+        .probes
+        .iter()
+        .filter(|p| !p.name.starts_with("manual"))
+        .count()
+        .max(1);
+    delta.distances.len() as f64 / (KLIPPER_MEASURE_WEIGHT * probed as f64)
 }
 
 /// The noise σ of a group of readings, for the summary.

@@ -72,7 +72,7 @@ pub use engine::models::{
     prepare_pose,
 };
 pub use error::{Error, Origin, Result};
-pub use identify::noise::NoiseGroup;
+pub use identify::noise::{NoiseGroup, VarianceRatio, variance_ratio};
 pub use identify::stats::{ErrorStats, error_stats, improvement_percent};
 pub use identify::{
     Accuracy, Calibration, CalibrationOptions, DistanceAccuracy, Identifiability, Loss, Outlier,

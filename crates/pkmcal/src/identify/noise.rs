@@ -42,6 +42,46 @@ pub struct NoiseGroup {
     pub sigma: f64,
     /// Root mean square of the group's residuals at the solution.
     pub residual_rms: f64,
+    /// The group's share of the redundancy, `Σ (1 − h_ii)`: the degrees of
+    /// freedom its σ was estimated with (`None` when σ was given).
+    pub redundancy: Option<f64>,
+}
+
+/// The ratio of two groups' variances, `σ_a² / σ_b²`, with its confidence
+/// interval: each σ² estimated with its group's redundancy ν as degrees of
+/// freedom, so the ratio of estimates over the ratio of true variances
+/// follows Fisher's F(ν_a, ν_b) (Gaussian noise; the redundancy rounded
+/// down to whole degrees).
+#[derive(Debug, Clone, Copy, Serialize, PartialEq)]
+pub struct VarianceRatio {
+    /// The estimated ratio.
+    pub ratio: f64,
+    /// The interval's lower end.
+    pub low: f64,
+    /// Its upper end.
+    pub high: f64,
+    /// Its confidence level (e.g. 0.95).
+    pub level: f64,
+}
+
+/// [`VarianceRatio`] of groups `a` and `b` at confidence `level`; `None`
+/// when either σ was given, or either group has less than one degree of
+/// freedom left.
+pub fn variance_ratio(a: &NoiseGroup, b: &NoiseGroup, level: f64) -> Option<VarianceRatio> {
+    use statrs::distribution::{ContinuousCDF, FisherSnedecor};
+    let (na, nb) = (a.redundancy?.floor(), b.redundancy?.floor());
+    if !(na >= 1.0 && nb >= 1.0 && b.sigma > 0.0 && level > 0.0 && level < 1.0) {
+        return None;
+    }
+    let ratio = (a.sigma / b.sigma).powi(2);
+    let f = FisherSnedecor::new(na, nb).ok()?;
+    let tail = 0.5 * (1.0 - level);
+    Some(VarianceRatio {
+        ratio,
+        low: ratio / f.inverse_cdf(1.0 - tail),
+        high: ratio / f.inverse_cdf(tail),
+        level,
+    })
 }
 
 /// Which σ each residual (row-major, readings inner) takes.
@@ -56,6 +96,8 @@ pub(crate) struct NoiseModel {
     groups: Vec<(Unit, bool, Vec<String>)>,
     /// Current σ of each estimated group.
     pub sigma: Vec<f64>,
+    /// Each estimated group's redundancy `Σ (1 − h_ii)` at the last update.
+    redundancy: Vec<f64>,
 }
 
 impl NoiseModel {
@@ -94,6 +136,7 @@ impl NoiseModel {
             readings,
             groups,
             sigma: vec![1.0; n],
+            redundancy: vec![f64::NAN; n],
         }
     }
 
@@ -131,6 +174,7 @@ impl NoiseModel {
             }
         }
         let mut change: f64 = 0.0;
+        self.redundancy.clone_from(&red);
         for g in 0..n {
             if red[g] > 0.0 && ss[g] > 0.0 {
                 let s = (ss[g] / red[g]).sqrt();
@@ -162,6 +206,7 @@ impl NoiseModel {
                     estimated: true,
                     sigma: self.sigma[g],
                     residual_rms: rms(&v),
+                    redundancy: Some(self.redundancy[g]).filter(|r| !r.is_nan()),
                 }
             })
             .collect();
@@ -192,6 +237,7 @@ impl NoiseModel {
             estimated: false,
             sigma: rms(&s),
             residual_rms: rms(&v),
+            redundancy: None,
         }));
         out
     }
@@ -238,6 +284,29 @@ mod tests {
     use super::*;
     use rand::SeedableRng;
     use rand_distr::{Distribution, Normal};
+
+    /// The variance ratio's interval against F quantiles from tables
+    /// (F(10, 20): 0.975 quantile 2.7737, 0.025 quantile 1/3.4185).
+    #[test]
+    fn variance_ratio_interval_is_fishers() {
+        let group = |sigma: f64, nu: f64| NoiseGroup {
+            unit: Unit::Millimetre,
+            axes: vec![],
+            count: 0,
+            estimated: true,
+            sigma,
+            residual_rms: sigma,
+            redundancy: Some(nu),
+        };
+        let r = variance_ratio(&group(2.0, 10.5), &group(1.0, 20.0), 0.95).unwrap();
+        assert_eq!(r.ratio, 4.0);
+        assert!((r.low - 4.0 / 2.7737).abs() < 1e-3, "{r:?}");
+        assert!((r.high - 4.0 * 3.4185).abs() < 1e-3, "{r:?}");
+        assert!(variance_ratio(&group(2.0, 0.5), &group(1.0, 20.0), 0.95).is_none());
+        let mut given = group(1.0, 3.0);
+        given.redundancy = None;
+        assert!(variance_ratio(&given, &group(1.0, 20.0), 0.95).is_none());
+    }
 
     #[test]
     fn leverages_sum_to_the_number_of_parameters() {
