@@ -31,6 +31,56 @@ create_exception!(
 `e.pose` is the row (from 0) of the arrays where it happened, or None."
 );
 
+create_exception!(
+    pkmcal,
+    PkmcalWarning,
+    pyo3::exceptions::PyUserWarning,
+    "A calibration's warning, emitted once per call with `warnings.warn` (also in \
+`Calibration.warnings`). Subclasses: ConvergenceWarning, IdentifiabilityWarning, OutlierWarning."
+);
+create_exception!(
+    pkmcal,
+    ConvergenceWarning,
+    PkmcalWarning,
+    "The fit stopped before converging (evaluation budget, no progress)."
+);
+create_exception!(
+    pkmcal,
+    IdentifiabilityWarning,
+    PkmcalWarning,
+    "Parameters the data cannot separate were fixed, or the fit is rank deficient."
+);
+create_exception!(
+    pkmcal,
+    OutlierWarning,
+    PkmcalWarning,
+    "Readings far beyond the noise were reported or dropped."
+);
+
+/// Emit a calibration's warnings with `warnings.warn`, each once, in the
+/// category of its kind.
+fn emit_warnings(py: Python<'_>, warnings: &[pkmcal::identify::Warning]) -> PyResult<()> {
+    use pkmcal::identify::WarningKind as K;
+    let mut seen = std::collections::BTreeSet::new();
+    for w in warnings {
+        let text = format!("{} ({})", w.message, w.hint);
+        if !seen.insert(text.clone()) {
+            continue;
+        }
+        let category = match w.kind {
+            K::NotConverged { .. } => py.get_type::<ConvergenceWarning>(),
+            K::Outliers { .. } | K::Dropped { .. } => py.get_type::<OutlierWarning>(),
+            K::StiffnessRatios { .. }
+            | K::Unidentifiable { .. }
+            | K::FrameGauge { .. }
+            | K::RankDeficient { .. } => py.get_type::<IdentifiabilityWarning>(),
+        };
+        let text = std::ffi::CString::new(text.replace('\0', " ")).expect("no NUL left");
+        PyErr::warn(py, &category, &text, 1)?;
+    }
+    Ok(())
+}
+
 // ---------------------------------------------------------------- errors
 
 fn raise(message: String, pose: Option<usize>) -> PyErr {
@@ -237,6 +287,10 @@ fn rows<'py>(
 ) -> PyResult<Rows<'py>> {
     let width = columns.len();
     let shape_hint = format!("(n, {width}) with columns {}", columns.join(", "));
+    // Named columns (a pandas DataFrame, a NumPy structured array) are taken
+    // by name, in the mechanism's order, as a CSV file's are.
+    let named = columns_by_name(obj, what, columns)?;
+    let obj = named.as_ref().unwrap_or(obj);
     let arr: PyArrayLikeDyn<'py, f64, AllowTypeChange> = obj.extract().map_err(|_| {
         usage(format!(
             "{what}: expected an array of numbers of shape {shape_hint}"
@@ -272,6 +326,63 @@ fn rows<'py>(
         }
     }
     Ok(r)
+}
+
+/// The columns `columns` of `obj` in that order when `obj` names its
+/// columns (a DataFrame's `columns`, a structured array's field names),
+/// matched as a CSV file's headers are (regardless of case when
+/// unambiguous, [`pkmcal_io::io::column_index`]): a missing column is an
+/// error naming it and the names found; other columns are ignored. `None`
+/// for an array without names (its columns are taken in order).
+fn columns_by_name<'py>(
+    obj: &Bound<'py, PyAny>,
+    what: &str,
+    columns: &[String],
+) -> PyResult<Option<Bound<'py, PyAny>>> {
+    let py = obj.py();
+    let names_of = |o: Bound<'py, PyAny>| -> Option<Vec<String>> {
+        o.try_iter()
+            .ok()?
+            .map(|n| n.ok().and_then(|n| n.extract::<String>().ok()))
+            .collect()
+    };
+    let frame = obj
+        .hasattr("columns")?
+        .then(|| obj.getattr("columns").ok())
+        .flatten()
+        .filter(|_| obj.hasattr("to_numpy").unwrap_or(false));
+    let structured = obj
+        .getattr("dtype")
+        .ok()
+        .and_then(|d| d.getattr("names").ok())
+        .filter(|n| !n.is_none());
+    let (names, is_frame) = match (frame, structured) {
+        (Some(c), _) => match names_of(c) {
+            Some(n) => (n, true),
+            None => return Ok(None),
+        },
+        (None, Some(n)) => match names_of(n) {
+            Some(n) => (n, false),
+            None => return Ok(None),
+        },
+        (None, None) => return Ok(None),
+    };
+    let picked: Vec<String> = columns
+        .iter()
+        .map(|c| {
+            pkmcal_io::io::column_index(std::path::Path::new(what), &names, c, b',')
+                .map(|i| names[i].clone())
+                .map_err(|e| usage(format!("{e:#}")))
+        })
+        .collect::<PyResult<_>>()?;
+    let list = pyo3::types::PyList::new(py, &picked)?;
+    let sub = obj.get_item(list)?;
+    Ok(Some(if is_frame {
+        sub.call_method0("to_numpy")?
+    } else {
+        py.import("numpy.lib.recfunctions")?
+            .call_method1("structured_to_unstructured", (sub,))?
+    }))
 }
 
 /// A shape as Python prints it: `(35, 1)`, `(3,)`.
@@ -1190,7 +1301,8 @@ impl PyErrorStats {
 
 /// A warning of a calibration: ``kind`` (e.g. ``unidentifiable``,
 /// ``not_converged``), what happened and what to do.
-#[pyclass(frozen, module = "pkmcal", name = "Warning", get_all)]
+#[pyclass(frozen, eq, hash, module = "pkmcal", name = "Warning", get_all)]
+#[derive(PartialEq, Eq, Hash)]
 struct PyWarning {
     /// What it is about: stiffness_ratios, unidentifiable, frame_gauge,
     /// not_converged, rank_deficient, outliers, dropped.
@@ -2253,6 +2365,7 @@ fn calibrate<'py>(
     let result =
         py.in_pool(|| pkmcal::identify::study(mech, &mm, &all, pairs, &start, &study_opts, &|| {}));
     let study = result.map_err(|e| lib_err(e.error))?;
+    emit_warnings(py, &study.calibration.warnings)?;
     Ok(PyCalibration {
         mech: m.mech.clone(),
         measurement: mm.clone(),
@@ -2542,6 +2655,16 @@ fn trilaterate<'py>(
 fn _pkmcal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("PkmcalError", m.py().get_type::<PkmcalError>())?;
+    m.add("PkmcalWarning", m.py().get_type::<PkmcalWarning>())?;
+    m.add(
+        "ConvergenceWarning",
+        m.py().get_type::<ConvergenceWarning>(),
+    )?;
+    m.add(
+        "IdentifiabilityWarning",
+        m.py().get_type::<IdentifiabilityWarning>(),
+    )?;
+    m.add("OutlierWarning", m.py().get_type::<OutlierWarning>())?;
     m.add_class::<PyMechanism>()?;
     m.add_class::<PyCalibration>()?;
     m.add_class::<PyIdentifiability>()?;

@@ -279,3 +279,59 @@ def test_mechanisms_compare_by_description(tmp_path):
     import pickle
 
     assert pickle.loads(pickle.dumps(g1)) == g1
+
+
+def _reference_data():
+    mech = pkmcal.Mechanism()
+    targets = pkmcal.plan(mech, 20).targets
+    commands, measured = pkmcal.simulate(mech, targets, {"l11": 280.3, "dq3": 0.002}, noise=0.001)
+    return mech, commands, measured
+
+
+def test_named_columns_are_read_by_name_in_any_order():
+    pd = pytest.importorskip("pandas")
+    mech, commands, measured = _reference_data()
+    plain = pkmcal.calibrate(mech, commands, measured)
+    c = pd.DataFrame(commands, columns=["q1", "q2", "q3"])
+    x = pd.DataFrame(measured, columns=["x", "y"])
+    for cc, xx in [(c, x), (c[["q3", "q1", "q2"]], x[["y", "x"]]), (c, x.rename(columns={"x": "X", "y": "Y"}))]:
+        named = pkmcal.calibrate(mech, cc, xx)
+        assert named.parameters == plain.parameters
+    np.testing.assert_array_equal(
+        pkmcal.predict(mech, c[["q2", "q3", "q1"]]).x, pkmcal.predict(mech, commands).x
+    )
+    # Extra columns are ignored, as in a CSV file; a missing one is named.
+    extra = x.assign(note=1.0)[["note", "y", "x"]]
+    assert pkmcal.calibrate(mech, c, extra).parameters == plain.parameters
+    with pytest.raises(pkmcal.PkmcalError, match="measured: missing column `y`"):
+        pkmcal.calibrate(mech, c, x.rename(columns={"y": "z"}))
+
+
+def test_structured_arrays_are_read_by_name():
+    mech, commands, _ = _reference_data()
+    s = np.zeros(len(commands), dtype=[("q3", "f8"), ("q1", "f8"), ("q2", "f8")])
+    for k, n in enumerate(["q1", "q2", "q3"]):
+        s[n] = commands[:, k]
+    np.testing.assert_array_equal(pkmcal.predict(mech, s).x, pkmcal.predict(mech, commands).x)
+
+
+def test_calibration_warnings_are_python_warnings_once_per_call():
+    import warnings
+
+    mech = pkmcal.Mechanism()
+    targets = pkmcal.plan(mech, 35).targets
+    commands, measured = pkmcal.simulate(mech, targets, {"l11": 280.3, "dq3": 0.002}, noise=0.002)
+    # The rigid model cannot see dq3: one IdentifiabilityWarning.
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        cal = pkmcal.calibrate(mech, commands, measured, model="rigid")
+    ours = [w for w in caught if issubclass(w.category, pkmcal.PkmcalWarning)]
+    assert ours and all(issubclass(w.category, UserWarning) for w in ours)
+    assert any(issubclass(w.category, pkmcal.IdentifiabilityWarning) for w in ours)
+    assert len(ours) == len({str(w.message) for w in ours}) == len(set(cal.warnings))
+    assert cal.warnings[0] == cal.warnings[0] and hash(cal.warnings[0]) == hash(cal.warnings[0])
+    # A clean fit warns nothing.
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        pkmcal.calibrate(mech, commands, measured)
+    assert not [w for w in caught if issubclass(w.category, pkmcal.PkmcalWarning)]

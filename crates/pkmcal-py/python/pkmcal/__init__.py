@@ -17,17 +17,25 @@ exceptions are row indices (from 0) of the arrays given.
 Functions: predict, nominal_commands, simulate, calibrate, analyze,
 compensate, plan, montecarlo, trilaterate. Classes: Mechanism, Calibration,
 Identifiability, ErrorStats, Warning, Figure, Prediction, Compensation, Plan.
-Errors: PkmcalError (a ValueError) with the message and ``.pose``.
+Errors: PkmcalError (a ValueError) with the message and ``.pose``. A
+calibration's warnings are also emitted with ``warnings.warn``, once per call,
+as PkmcalWarning (a UserWarning) subclasses: ConvergenceWarning,
+IdentifiabilityWarning, OutlierWarning. Arrays with named columns (a pandas
+DataFrame, a NumPy structured array) are read by name.
 """
 
 from ._pkmcal import (
     Calibration,
     Compensation,
+    ConvergenceWarning,
     ErrorStats,
     Figure,
     Identifiability,
+    IdentifiabilityWarning,
     Mechanism,
+    OutlierWarning,
     PkmcalError,
+    PkmcalWarning,
     Plan,
     Prediction,
     SavedCalibration,
@@ -51,11 +59,15 @@ from ._pkmcal import (
 __all__ = [
     "Calibration",
     "Compensation",
+    "ConvergenceWarning",
     "ErrorStats",
     "Figure",
     "Identifiability",
+    "IdentifiabilityWarning",
     "Mechanism",
+    "OutlierWarning",
     "PkmcalError",
+    "PkmcalWarning",
     "Plan",
     "Prediction",
     "SavedCalibration",

@@ -19,6 +19,18 @@ class PkmcalError(ValueError):
 
     pose: Optional[int]
 
+class PkmcalWarning(UserWarning):
+    """A calibration warning, emitted once per call with ``warnings.warn``."""
+
+class ConvergenceWarning(PkmcalWarning):
+    """The fit stopped before converging."""
+
+class IdentifiabilityWarning(PkmcalWarning):
+    """Parameters the data cannot separate were fixed, or the fit is rank deficient."""
+
+class OutlierWarning(PkmcalWarning):
+    """Readings far beyond the noise were reported or dropped."""
+
 class Mechanism:
     """A parallel mechanism: the built-in reference, or one described in TOML
     (a path, TOML text or a dict)."""
@@ -79,7 +91,7 @@ class ErrorStats:
     angle_max: Optional[float]
 
 class Warning:
-    """A calibration warning: kind, message, hint."""
+    """A calibration warning: kind, message, hint (compares and hashes by value)."""
 
     kind: str
     message: str
