@@ -47,6 +47,7 @@ for name in cal.free:
     print(
         f"{name:>10} {cal.parameters[name]:14.6f} {cal.std_dev[name]:10.2e}  {cal.units[name]:<5}  {truth[name]:.6f}"
     )
+assert cal.validation is not None  # given validation arrays, there is one
 before, after = cal.validation
 print(f"unseen poses: max error {before.distance_max:.3f} mm before, {after.distance_max:.4f} mm after")
 for w in cal.warnings:
