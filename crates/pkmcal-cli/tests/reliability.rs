@@ -2051,3 +2051,44 @@ fn the_mechanism_file_is_read_once() {
         assert!(status.success(), "pkmcal {args:?}: {err}");
     }
 }
+
+/// A full disk: the run fails with exit 1, the message names the file and
+/// says that no output was written (the summary printed before the commit
+/// announced it), and the old file is intact. Needs a small tmpfs, which
+/// only root may mount; elsewhere the test says it skipped.
+#[test]
+fn a_full_disk_fails_naming_the_file_and_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let small = dir.path().join("small");
+    std::fs::create_dir(&small).unwrap();
+    let mounted = std::process::Command::new("mount")
+        .args(["-t", "tmpfs", "-o", "size=64k", "tmpfs"])
+        .arg(&small)
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !mounted {
+        eprintln!("SKIPPED: cannot mount a small tmpfs here (not root)");
+        return;
+    }
+    struct Unmount<'a>(&'a Path);
+    impl Drop for Unmount<'_> {
+        fn drop(&mut self) {
+            let _ = std::process::Command::new("umount").arg(self.0).status();
+        }
+    }
+    let _unmount = Unmount(&small);
+    std::fs::write(small.join("out.csv"), "old\n").unwrap();
+    let o = run(
+        &small,
+        &["simulate", "--quiet", "--grid", "2000", "--out", "out.csv"],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("no output was written"), "{err}");
+    assert!(
+        err.contains("out.csv") && err.contains("No space left"),
+        "{err}"
+    );
+    assert_eq!(read(&small, "out.csv"), "old\n");
+    no_temporaries(&small);
+}

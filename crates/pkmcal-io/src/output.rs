@@ -456,6 +456,9 @@ impl Files {
     /// puts the old files back. If even that fails, the error says which files
     /// are new and where the old ones are.
     pub fn commit(&self) -> Result<()> {
+        /// What a failed commit that changed nothing says (the run's
+        /// summary may already have announced its outputs).
+        const NOTHING_WRITTEN: &str = "no output was written (the outputs announced above are not there; every earlier file is as it was)";
         // The writers finish first, their temporaries still registered (so that
         // Ctrl-C meanwhile removes them).
         let writers: Vec<_> = self
@@ -467,7 +470,9 @@ impl Files {
         for (dest, w) in writers {
             if let Err(e) = written(Some(w)) {
                 self.discard();
-                return Err(e).with_context(|| format!("cannot write {}", dest.display()));
+                return Err(e)
+                    .with_context(|| format!("cannot write {}", dest.display()))
+                    .context(NOTHING_WRITTEN);
             }
         }
         // The renames hold the state: Ctrl-C or SIGTERM meanwhile waits until
@@ -476,7 +481,7 @@ impl Files {
         let mut guard = self.state();
         if let Err(e) = self.replaceable(&guard) {
             discard_in(&mut guard);
-            return Err(e);
+            return Err(e.context(NOTHING_WRITTEN));
         }
         // Each replaced file kept aside first.
         let mut kept: Vec<Option<PathBuf>> = vec![];
@@ -488,7 +493,7 @@ impl Files {
                         let _ = std::fs::remove_file(k);
                     }
                     discard_in(&mut guard);
-                    return Err(e);
+                    return Err(e.context(NOTHING_WRITTEN));
                 }
             }
         }
@@ -508,9 +513,9 @@ impl Files {
                 let e =
                     Err::<(), _>(e).with_context(|| format!("cannot write {}", s.dest.display()));
                 return match undone {
-                    Ok(()) => {
-                        e.context("no output was written (the files replaced so far are back)")
-                    }
+                    Ok(()) => e.context(
+                        "no output was written (the files replaced so far are back; the outputs announced above are not there)",
+                    ),
                     Err(left) => e.context(left),
                 };
             }
