@@ -55,6 +55,9 @@ enum Command {
     Montecarlo(cmd::montecarlo::Args),
     /// Ball-bar readings to tool positions (least squares) with uncertainties.
     Trilaterate(cmd::trilaterate::Args),
+    /// List a mechanism's parameters (name, kind, unit, nominal value, free by
+    /// default), joints, actuators and tool axes with the workspace box.
+    Parameters(cmd::parameters::Args),
     /// Calibrate a linear delta printer from its Klipper printer.cfg (the probe
     /// results DELTA_CALIBRATE saved) and write Klipper's values back.
     Klipper(cmd::klipper::Args),
@@ -204,6 +207,7 @@ impl Command {
             Command::Plan(a) => a.paths(),
             Command::Montecarlo(a) => a.paths(),
             Command::Trilaterate(a) => a.paths(),
+            Command::Parameters(a) => a.paths(),
             Command::Klipper(a) => a.paths(),
             Command::Reprap(a) => a.paths(),
             Command::Demo(a) => a.paths(),
@@ -222,6 +226,7 @@ fn run_command(run: &Run, command: Command) -> anyhow::Result<()> {
         Command::Plan(a) => cmd::plan::run(run, a),
         Command::Montecarlo(a) => cmd::montecarlo::run(run, a),
         Command::Trilaterate(a) => cmd::trilaterate::run(run, a),
+        Command::Parameters(a) => cmd::parameters::run(run, a),
         Command::Klipper(a) => cmd::klipper::run(run, a),
         Command::Reprap(a) => cmd::reprap::run(run, a),
         Command::Demo(a) => cmd::demo::run(run, a),

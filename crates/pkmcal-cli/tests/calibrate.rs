@@ -186,7 +186,7 @@ fn free_fix_kfold_and_analyze() {
             "analyze", "--data", "data.csv", "--free", "all", "--params", "p2.toml",
         ],
     );
-    assert!(out.contains("1 direction(s) cannot be identified"), "{out}");
+    assert!(out.contains("1 direction cannot be identified"), "{out}");
     assert!(
         out.contains("k1") && out.contains("k2") && out.contains("k3"),
         "{out}"

@@ -263,3 +263,72 @@ fn a_failed_run_leaves_the_earlier_output_alone() {
         .collect();
     assert_eq!(names.len(), 2, "no temporary file left: {names:?}");
 }
+
+/// `parameters` lists every parameter with its kind, unit, nominal value and
+/// default freedom, as text and as JSON, for every shipped mechanism; the
+/// JSON's names are the ones a truth file may set (a simulation with one
+/// runs) and its nominal values are the description's.
+#[test]
+fn parameters_lists_what_a_truth_file_may_set() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples");
+    let mut mechs: Vec<PathBuf> = std::fs::read_dir(&root)
+        .unwrap()
+        .map(|e| e.unwrap().path().join("mechanism.toml"))
+        .filter(|p| p.exists())
+        .collect();
+    mechs.sort();
+    assert!(mechs.len() >= 12);
+    for m in &mechs {
+        let m = m.to_str().unwrap();
+        let text = ok(d, &["parameters", "--mechanism", m]);
+        let json: serde_json::Value =
+            serde_json::from_str(&ok(d, &["parameters", "--mechanism", m, "--json"])).unwrap();
+        let params = json["parameters"].as_array().unwrap();
+        assert!(!params.is_empty(), "{m}");
+        for p in params {
+            let name = p["name"].as_str().unwrap();
+            assert!(
+                text.lines()
+                    .any(|l| l.split_whitespace().next() == Some(name)),
+                "{m}: {name} not in the text listing"
+            );
+            assert!(["geometry", "offset", "stiffness"].contains(&p["kind"].as_str().unwrap()));
+        }
+        // The first geometric parameter, moved by 0.1, is a valid truth.
+        let first = params[0]["name"].as_str().unwrap();
+        let nominal = params[0]["nominal"].as_f64().unwrap();
+        std::fs::write(
+            d.join("truth.toml"),
+            format!("{first} = {}\n", nominal + 0.1),
+        )
+        .unwrap();
+        ok(
+            d,
+            &[
+                "simulate",
+                "--quiet",
+                "--mechanism",
+                m,
+                "--grid",
+                "5",
+                "--truth",
+                "truth.toml",
+                "--out",
+                "s.csv",
+            ],
+        );
+        assert_eq!(
+            json["actuators"].as_array().unwrap().len(),
+            json["joints"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .filter(|j| j["actuated"] == true)
+                .count()
+        );
+    }
+    // The built-in reference without --mechanism.
+    assert!(ok(d, &["parameters"]).contains("dq3              encoder offset"));
+}

@@ -133,7 +133,7 @@ fn both_ball_bar_routes_agree_on_noise_free_data() {
             "default,s1x,s1y,s2x,s2y,s3x,s3y",
         ],
     );
-    assert!(out.contains("1 direction(s) cannot be identified"), "{out}");
+    assert!(out.contains("1 direction cannot be identified"), "{out}");
     // Distances without a setup: a clear message.
     fails(
         d,

@@ -2067,7 +2067,7 @@ fn a_full_disk_fails_naming_the_file_and_writes_nothing() {
         .output()
         .is_ok_and(|o| o.status.success());
     if !mounted {
-        eprintln!("SKIPPED: cannot mount a small tmpfs here (not root)");
+        common::skipped("cannot mount a small tmpfs here (not root)");
         return;
     }
     struct Unmount<'a>(&'a Path);

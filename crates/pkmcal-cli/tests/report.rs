@@ -202,9 +202,7 @@ fn report_renders_in_headless_chromium() {
             std::env::var_os("CI").is_none(),
             "CI is set but no Chromium was found: the report was not rendered"
         );
-        eprintln!(
-            "SKIPPED: no Chromium found (install Debian's `chromium` package to run this test)"
-        );
+        common::skipped("no Chromium found (install Debian's `chromium` package to run this test)");
         return;
     };
     let dir = tempfile::tempdir().unwrap();

@@ -6,7 +6,7 @@ mod common;
 use common::run;
 
 /// Every command.
-const COMMANDS: [&str; 12] = [
+const COMMANDS: [&str; 13] = [
     "predict",
     "simulate",
     "calibrate",
@@ -16,6 +16,7 @@ const COMMANDS: [&str; 12] = [
     "plan",
     "montecarlo",
     "trilaterate",
+    "parameters",
     "klipper",
     "reprap",
     "demo",

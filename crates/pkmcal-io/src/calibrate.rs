@@ -874,8 +874,8 @@ pub fn condition_text(id: &Identifiability) -> String {
     }
     let c = id.singular_values[0] / id.singular_values[id.rank - 1];
     format!(
-        "condition number {c:.3e} over the {} identifiable directions ({} unidentifiable)",
-        id.rank,
+        "condition number {c:.3e} over the {} ({} unidentifiable)",
+        crate::io::count(id.rank, "identifiable direction", "identifiable directions"),
         n - id.rank
     )
 }
@@ -1137,8 +1137,8 @@ pub fn run_analyze(run: &crate::Run<'_>, c: AnalyzeConfig) -> Result<()> {
         println!("all {} free parameters are identifiable", free.len());
     } else {
         println!(
-            "{} direction(s) cannot be identified; calibrate fixes one parameter per direction (or use --fix)",
-            id.unidentifiable.len()
+            "{} cannot be identified; calibrate fixes one parameter per direction (or use --fix)",
+            crate::io::count(id.unidentifiable.len(), "direction", "directions")
         );
     }
     Ok(())

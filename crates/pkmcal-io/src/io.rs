@@ -714,20 +714,7 @@ pub fn column_index(path: &Path, headers: &[String], name: &str, delimiter: u8) 
 }
 
 /// Levenshtein distance (for "did you mean").
-fn edit_distance(a: &str, b: &str) -> usize {
-    let b: Vec<char> = b.chars().collect();
-    let mut row: Vec<usize> = (0..=b.len()).collect();
-    for (i, ca) in a.chars().enumerate() {
-        let mut prev = row[0];
-        row[0] = i + 1;
-        for (j, cb) in b.iter().enumerate() {
-            let cur = row[j + 1];
-            row[j + 1] = (prev + usize::from(ca != *cb)).min(row[j] + 1).min(cur + 1);
-            prev = cur;
-        }
-    }
-    row[b.len()]
-}
+use pkmcal::error::edit_distance;
 
 /// How a file's fields were found to be separated, for messages.
 pub fn delimiter_name(d: u8) -> &'static str {
@@ -1485,4 +1472,11 @@ mod fuzz {
 /// `n` and the noun in its number: "1 pose", "35 poses".
 pub fn count(n: usize, one: &str, many: &str) -> String {
     format!("{n} {}", if n == 1 { one } else { many })
+}
+
+/// A mechanism's [`pkmcal::MechanismSummary`] as JSON (pretty, ending in a
+/// newline): what `pkmcal parameters --json` prints and Python's
+/// `Mechanism.summary` reads.
+pub fn summary_json(spec: &pkmcal::Spec) -> String {
+    serde_json::to_string_pretty(&pkmcal::summary(spec)).expect("plain data serialises") + "\n"
 }

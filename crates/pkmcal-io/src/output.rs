@@ -764,7 +764,7 @@ fn canonical(path: &Path, created: &[PathBuf]) -> Result<PathBuf> {
             Ok(out)
         }
         Err(_) => usage(format!(
-            "cannot write {}: the directory {} does not exist",
+            "cannot write {}: the directory {} does not exist; create it first (an output file's folder must exist, as for `cp`; only the output directories, --out-dir and --report-dir, are created with their parents)",
             path.display(),
             dir.display()
         )),

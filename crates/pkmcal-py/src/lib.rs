@@ -655,6 +655,16 @@ impl PyMechanism {
     fn tool_units(&self) -> Vec<&'static str> {
         self.spec().tool_units.iter().map(|u| u.symbol()).collect()
     }
+    /// What the mechanism is made of, as a dict: ``name``, ``dof``,
+    /// ``joints`` (name, unit, actuated, independent), ``actuators`` (the
+    /// commands' columns), ``tool_axes`` (name, unit, workspace) and
+    /// ``parameters`` (name, kind, unit, nominal, free_by_default): what
+    /// ``pkmcal parameters --json`` prints.
+    #[getter]
+    fn summary<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        py.import("json")?
+            .call_method1("loads", (pkmcal_io::io::summary_json(self.spec()),))
+    }
     /// Every parameter name: geometry, then encoder offsets, then stiffness.
     #[getter]
     fn parameters(&self) -> Vec<String> {

@@ -335,3 +335,16 @@ def test_calibration_warnings_are_python_warnings_once_per_call():
         warnings.simplefilter("always")
         pkmcal.calibrate(mech, commands, measured)
     assert not [w for w in caught if issubclass(w.category, pkmcal.PkmcalWarning)]
+
+
+def test_a_mechanism_lists_what_it_is_made_of():
+    m = pkmcal.Mechanism(EXAMPLES / "gough-stewart-6" / "mechanism.toml")
+    s = m.summary
+    assert s["dof"] == 6 and s["actuators"] == m.actuators
+    assert [p["name"] for p in s["parameters"]] == m.parameters
+    assert {p["name"]: p["nominal"] for p in s["parameters"]} == m.nominal
+    assert [p["name"] for p in s["parameters"] if p["free_by_default"]] == [
+        n for n in m.parameters if n in m.default_free
+    ]
+    assert [a["name"] for a in s["tool_axes"]] == m.tool_axes
+    np.testing.assert_array_equal([a["workspace"] for a in s["tool_axes"]], m.workspace)

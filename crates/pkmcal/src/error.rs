@@ -7,9 +7,14 @@ use thiserror::Error;
 /// the result with a reason.
 #[derive(Debug, Error, Clone, PartialEq)]
 pub enum Error {
-    /// A parameter name that the mechanism does not know.
-    #[error("unknown parameter `{name}`; known parameters are: {known}")]
-    UnknownParameter { name: String, known: String },
+    /// A parameter name that the mechanism does not know, with the nearest
+    /// known one when it is a likely typo.
+    #[error("unknown parameter `{name}`{}; known parameters are: {known}", suggestion.as_ref().map(|s| format!(" (did you mean `{s}`?)")).unwrap_or_default())]
+    UnknownParameter {
+        name: String,
+        known: String,
+        suggestion: Option<String>,
+    },
 
     /// A parameter value that is not allowed (non-finite, non-positive stiffness…).
     #[error("invalid value {value:?} for parameter `{name}`: {reason}")]
@@ -118,5 +123,42 @@ impl std::fmt::Display for Origin {
             write!(f, " (line {l})")?;
         }
         Ok(())
+    }
+}
+
+/// The edit (Levenshtein) distance between two names, in characters.
+pub fn edit_distance(a: &str, b: &str) -> usize {
+    let b: Vec<char> = b.chars().collect();
+    let mut row: Vec<usize> = (0..=b.len()).collect();
+    for (i, ca) in a.chars().enumerate() {
+        let mut prev = row[0];
+        row[0] = i + 1;
+        for (j, cb) in b.iter().enumerate() {
+            let cur = row[j + 1];
+            row[j + 1] = (prev + usize::from(ca != *cb)).min(row[j] + 1).min(cur + 1);
+            prev = cur;
+        }
+    }
+    row[b.len()]
+}
+
+/// The known name nearest `name` when it is a likely typo: at most a third
+/// of its length away (at least one edit), ignoring case, and the only one
+/// that near.
+pub fn did_you_mean<'a>(name: &str, known: impl IntoIterator<Item = &'a str>) -> Option<String> {
+    let lower = name.to_lowercase();
+    let limit = (name.chars().count() / 3).max(1);
+    let mut best: Option<(usize, &str, bool)> = None;
+    for k in known {
+        let d = edit_distance(&lower, &k.to_lowercase());
+        match best {
+            Some((b, _, _)) if d > b => {}
+            Some((b, _, _)) if d == b => best = best.map(|(b, n, _)| (b, n, true)),
+            _ => best = Some((d, k, false)),
+        }
+    }
+    match best {
+        Some((d, k, false)) if d <= limit && k != name => Some(k.to_string()),
+        _ => None,
     }
 }

@@ -92,7 +92,9 @@ pub use measurement::{
     MeasurementSummary, requested_frame,
 };
 pub use mechanism::tool::ToolLayout;
-pub use mechanism::{Mechanism, Params, Scalar, Spec};
+pub use mechanism::{
+    AxisInfo, JointInfo, Mechanism, MechanismSummary, ParameterInfo, Params, Scalar, Spec, summary,
+};
 pub use units::{AngleUnit, FileUnits, LengthUnit, ParamKind, PartialUnits, Quantity, Role, Unit};
 
 #[cfg(test)]

@@ -8,6 +8,7 @@ pub mod demo;
 pub mod gcode;
 pub mod klipper;
 pub mod montecarlo;
+pub mod parameters;
 pub mod plan;
 pub mod predict;
 pub mod reprap;

@@ -174,8 +174,8 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     )?;
     let angles = measurement.units().contains(&pkmcal::Unit::Radian);
     pkmcal_io::note!(
-        "simulated {} poses, {} (noise {} mm on lengths{}, seed {}) -> {}",
-        data.len(),
+        "simulated {}, {} (noise {} mm on lengths{}, seed {}) -> {}",
+        pkmcal_io::io::count(data.len(), "pose", "poses"),
         measurement.describe(),
         noise.length,
         if angles {

@@ -93,8 +93,8 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         ),
     )?;
     pkmcal_io::note!(
-        "trilaterated {} poses from {} sockets -> {}",
-        rows.len(),
+        "trilaterated {} from {} sockets -> {}",
+        pkmcal_io::io::count(rows.len(), "pose", "poses"),
         setup.sockets.len(),
         a.out.display()
     );

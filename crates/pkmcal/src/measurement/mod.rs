@@ -558,9 +558,13 @@ impl MeasurementModel {
         if let Some(i) = self.names.iter().position(|n| n == name) {
             return Ok(spec.n_params() + i);
         }
-        spec.param_index(name).map_err(|_| Error::UnknownParameter {
-            name: name.to_string(),
-            known: self.all_names(spec).join(" "),
+        spec.param_index(name).map_err(|_| {
+            let all = self.all_names(spec);
+            Error::UnknownParameter {
+                name: name.to_string(),
+                known: all.join(" "),
+                suggestion: crate::error::did_you_mean(name, all.iter().map(String::as_str)),
+            }
         })
     }
 

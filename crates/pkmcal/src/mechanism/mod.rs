@@ -113,6 +113,7 @@ impl Spec {
             .ok_or_else(|| Error::UnknownParameter {
                 name: name.to_string(),
                 known: self.param_names().join(" "),
+                suggestion: crate::error::did_you_mean(name, self.param_names()),
             })
     }
     /// Kind of parameter `i` (in [`Spec::param_names`] order).
@@ -525,5 +526,108 @@ impl Params {
             }
         }
         Ok(())
+    }
+}
+
+/// One parameter of a mechanism, as [`summary`] lists it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ParameterInfo {
+    /// Its name (as parameter files, `--free` and Python dicts name it).
+    pub name: String,
+    /// What it is: geometry, an encoder offset, a stiffness.
+    pub kind: ParamKind,
+    /// Its unit.
+    pub unit: Unit,
+    /// Its nominal value.
+    pub nominal: f64,
+    /// Whether a calibration identifies it unless told otherwise.
+    pub free_by_default: bool,
+}
+
+/// One joint of a mechanism, as [`summary`] lists it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct JointInfo {
+    /// Its name (an actuator's is its commands' column).
+    pub name: String,
+    /// Its unit (rad or mm).
+    pub unit: Unit,
+    /// Whether an actuator drives it.
+    pub actuated: bool,
+    /// Whether the rigid and linear models drive it (the independent joints).
+    pub independent: bool,
+}
+
+/// One tool axis and the workspace box along it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct AxisInfo {
+    /// Its name (`x`, `rz`, …).
+    pub name: String,
+    /// Its unit.
+    pub unit: Unit,
+    /// The workspace box along it, `[min, max]`.
+    pub workspace: [f64; 2],
+}
+
+/// What a mechanism is made of, for a user writing a parameter file, a data
+/// file or a free set: its parameters, joints, actuators and tool axes.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct MechanismSummary {
+    /// The mechanism's name.
+    pub name: String,
+    /// Degrees of freedom.
+    pub dof: usize,
+    /// Every joint, in order.
+    pub joints: Vec<JointInfo>,
+    /// The actuated joints' names, in the commands' column order.
+    pub actuators: Vec<String>,
+    /// The tool coordinates with their workspace box.
+    pub tool_axes: Vec<AxisInfo>,
+    /// Every parameter, in [`Spec::param_names`] order.
+    pub parameters: Vec<ParameterInfo>,
+}
+
+/// The [`MechanismSummary`] of a mechanism's description.
+pub fn summary(spec: &Spec) -> MechanismSummary {
+    MechanismSummary {
+        name: spec.name.clone(),
+        dof: spec.dof(),
+        joints: spec
+            .joints
+            .iter()
+            .enumerate()
+            .map(|(j, name)| JointInfo {
+                name: name.clone(),
+                unit: spec.joint_units[j],
+                actuated: spec.actuated.contains(&j),
+                independent: spec.independent.contains(&j),
+            })
+            .collect(),
+        actuators: spec
+            .actuated_names()
+            .iter()
+            .map(|s| s.to_string())
+            .collect(),
+        tool_axes: spec
+            .tool_axes
+            .iter()
+            .enumerate()
+            .map(|(k, name)| AxisInfo {
+                name: name.clone(),
+                unit: spec.tool_units[k],
+                workspace: spec.workspace_box[k],
+            })
+            .collect(),
+        parameters: spec
+            .param_names()
+            .iter()
+            .enumerate()
+            .map(|(i, name)| ParameterInfo {
+                name: name.to_string(),
+                kind: spec.param_kind(i),
+                unit: spec.param_unit(i),
+                nominal: spec.nominal[i],
+                free_by_default: spec.default_free.iter().any(|f| f == name),
+            })
+            .collect(),
     }
 }
