@@ -2663,6 +2663,14 @@ fn trilaterate<'py>(
 /// Kinematic calibration of (redundantly actuated) parallel mechanisms.
 #[pymodule]
 fn _pkmcal(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    // NumPy's C API is fetched here, at import, rather than by the first
+    // call that makes an array: a Ctrl-C landing during that fetch became a
+    // panic (`PanicException`, which `except Exception` does not catch).
+    // Here NumPy is imported first (an interruption is then Python's own
+    // KeyboardInterrupt, failing the import), and the capsule is fetched
+    // from the module already loaded.
+    m.py().import("numpy")?;
+    let _ = PyArray1::<f64>::zeros(m.py(), [0], false);
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("PkmcalError", m.py().get_type::<PkmcalError>())?;
     m.add("PkmcalWarning", m.py().get_type::<PkmcalWarning>())?;

@@ -11,7 +11,8 @@ use pkmcal::*;
 /// Exact Jacobian against Richardson-extrapolated central differences,
 /// relative to the largest entry of each column.
 const JACOBIAN_REL: f64 = 1e-8;
-/// Noise of the simulated measurements (mm per axis), as docs/model.md §10.
+/// Noise of the simulated measurements (mm per axis), as the demo's
+/// (README, "Measured figures").
 const NOISE_MM: f64 = 0.002;
 /// Recovery of the true parameters from noise-free data (mm).
 const RECOVERY_MM: f64 = 1e-6;
