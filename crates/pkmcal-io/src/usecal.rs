@@ -535,6 +535,7 @@ pub fn run_plan(run: &crate::Run<'_>, c: PlanConfig) -> Result<()> {
             free: free.clone(),
             spacing: c.candidates,
             max_candidates: c.max_candidates,
+            cancel: None,
         },
         &|| {
             bar.inc_length(1);

@@ -195,6 +195,51 @@ impl InPool for Python<'_> {
     }
 }
 
+/// How often a long call looks for Ctrl-C while the work runs.
+const SIGNAL_POLL: std::time::Duration = std::time::Duration::from_millis(20);
+
+/// Run `f` (given a cancel flag the library polls between its steps) on the
+/// package's pool, on a thread of its own, while this thread, the caller's,
+/// looks for Python's signals every [`SIGNAL_POLL`]: a Ctrl-C sets the flag,
+/// waits for the work to stop at its next step (one evaluation, one run, one
+/// candidate) and raises Python's KeyboardInterrupt. The GIL is released
+/// meanwhile. A panic in the work is an exception, never a crash.
+fn interruptible<T: Send>(
+    py: Python<'_>,
+    f: impl FnOnce(Arc<std::sync::atomic::AtomicBool>) -> T + Send,
+) -> PyResult<T> {
+    let cancel = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let flag = cancel.clone();
+    let pool = pool()?;
+    std::thread::scope(|scope| {
+        let work = scope.spawn(move || pool.install(|| f(flag)));
+        loop {
+            let done = py.detach(|| {
+                let start = std::time::Instant::now();
+                while !work.is_finished() && start.elapsed() < SIGNAL_POLL {
+                    std::thread::sleep(std::time::Duration::from_millis(1));
+                }
+                work.is_finished()
+            });
+            if done {
+                break;
+            }
+            if let Err(e) = py.check_signals() {
+                cancel.store(true, std::sync::atomic::Ordering::Relaxed);
+                let _ = py.detach(|| work.join());
+                return Err(e);
+            }
+        }
+        py.detach(|| work.join()).map_err(|_| {
+            raise(
+                "pkmcal's computation failed unexpectedly (an internal error); please report it"
+                    .into(),
+                None,
+            )
+        })
+    })
+}
+
 /// The number of threads each process computes with: ``n`` (0 for one per
 /// core, the default). In a pool of worker processes, 1 per worker keeps
 /// the cores from being oversubscribed. Takes effect at the next call.
@@ -2372,8 +2417,11 @@ fn calibrate<'py>(
         kfold,
         seed,
     };
-    let result =
-        py.in_pool(|| pkmcal::identify::study(mech, &mm, &all, pairs, &start, &study_opts, &|| {}));
+    let result = interruptible(py, |cancel| {
+        let mut study_opts = study_opts;
+        study_opts.calibration.solver.cancel = Some(cancel);
+        pkmcal::identify::study(mech, &mm, &all, pairs, &start, &study_opts, &|| {})
+    })?;
     let study = result.map_err(|e| lib_err(e.error))?;
     emit_warnings(py, &study.calibration.warnings)?;
     Ok(PyCalibration {
@@ -2530,11 +2578,17 @@ fn plan<'py>(
         free: free_arg(m, &MeasurementModel::tool(spec), free, fix)?,
         spacing,
         max_candidates,
+        cancel: None,
     };
     let mech = &*m.mech;
-    let p = py
-        .in_pool(|| pkmcal::plan(mech, &params, &opts, &|| {}))
-        .map_err(lib_err)?;
+    let p = interruptible(py, |cancel| {
+        let opts = pkmcal::PlanOptions {
+            cancel: Some(cancel),
+            ..opts
+        };
+        pkmcal::plan(mech, &params, &opts, &|| {})
+    })?
+    .map_err(lib_err)?;
     let nx = spec.tool_axes.len();
     let targets = |s: &[pkmcal::WorkspacePoint]| -> Vec<f64> {
         s.iter().flat_map(|w| w.target.iter().copied()).collect()
@@ -2607,15 +2661,16 @@ fn montecarlo<'py>(
         calibration: cal,
     };
     let mech = &*m.mech;
-    let (_, s) = py
-        .in_pool(|| -> pkmcal::Result<_> {
-            for (i, t) in poses.iter().enumerate() {
-                pkmcal::nominal_commands(mech, t).map_err(at(i))?;
-            }
-            let val = pkmcal::validation_targets(mech, validation, seed)?;
-            pkmcal::monte_carlo(mech, &poses, &val, &opts, &|| {})
-        })
-        .map_err(lib_err)?;
+    let (_, s) = interruptible(py, |cancel| -> pkmcal::Result<_> {
+        let mut opts = opts;
+        opts.calibration.solver.cancel = Some(cancel);
+        for (i, t) in poses.iter().enumerate() {
+            pkmcal::nominal_commands(mech, t).map_err(at(i))?;
+        }
+        let val = pkmcal::validation_targets(mech, validation, seed)?;
+        pkmcal::monte_carlo(mech, &poses, &val, &opts, &|| {})
+    })?
+    .map_err(lib_err)?;
     let d = PyDict::new(py);
     d.set_item("runs", s.runs)?;
     d.set_item("converged", s.converged)?;

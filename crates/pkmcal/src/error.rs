@@ -64,6 +64,11 @@ pub enum Error {
     #[error("{0}")]
     InvalidRequest(String),
 
+    /// The caller's cancel flag was set (a front end's Ctrl-C): the work
+    /// stopped before it finished, and nothing it computed is returned.
+    #[error("cancelled by the caller")]
+    Cancelled,
+
     /// Something went wrong at one measured pose: which pose (data-file
     /// numbering when the data carry it), its line, and what.
     #[error("{} {pose}{}: {source}", if *distance { "distance" } else { "pose" }, line.map(|l| format!(" (line {l})")).unwrap_or_default())]
@@ -160,5 +165,14 @@ pub fn did_you_mean<'a>(name: &str, known: impl IntoIterator<Item = &'a str>) ->
     match best {
         Some((d, k, false)) if d <= limit && k != name => Some(k.to_string()),
         _ => None,
+    }
+}
+
+/// `Err(Error::Cancelled)` once `cancel` is set: the check long computations
+/// make between their steps (runs, candidates, evaluations).
+pub fn check_cancel(cancel: Option<&std::sync::atomic::AtomicBool>) -> Result<()> {
+    match cancel {
+        Some(c) if c.load(std::sync::atomic::Ordering::Relaxed) => Err(Error::Cancelled),
+        _ => Ok(()),
     }
 }

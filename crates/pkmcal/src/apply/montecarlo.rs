@@ -127,6 +127,10 @@ pub fn monte_carlo<M: Mechanism>(
     let runs: Vec<Result<Run>> = (0..opts.runs)
         .into_par_iter()
         .map(|r| {
+            // The fits stop at their next evaluation once the caller's
+            // cancel flag is set (their solver shares it); the runs not yet
+            // started stop here.
+            crate::error::check_cancel(opts.calibration.solver.cancel.as_deref())?;
             let seed = opts.seed.wrapping_add(r as u64);
             let mut rng = StdRng::seed_from_u64(seed);
             let len = Normal::new(0.0, opts.length_error.max(0.0)).expect("valid σ");
@@ -173,6 +177,7 @@ pub fn monte_carlo<M: Mechanism>(
             })
         })
         .collect();
+    crate::error::check_cancel(opts.calibration.solver.cancel.as_deref())?;
     let runs: Vec<Run> = runs.into_iter().collect::<Result<_>>()?;
     let mut rms: Vec<f64> = runs.iter().map(|r| r.validation.distance_rms).collect();
     let mut max: Vec<f64> = runs.iter().map(|r| r.validation.distance_max).collect();

@@ -356,15 +356,17 @@ pub fn plan_poses_with_progress(
     criterion: PlanCriterion,
     tick: &(dyn Fn() + Sync),
 ) -> Result<Vec<usize>> {
-    crate::on_pool(|| choose(c, count, criterion, tick))
+    crate::on_pool(|| choose(c, count, criterion, tick, None))
 }
 
-/// [`plan_poses_with_progress`] on the calling thread.
+/// [`plan_poses_with_progress`] on the calling thread, stopping with
+/// [`Error::Cancelled`] at the next step once `cancel` is set.
 fn choose(
     c: &Candidates,
     count: usize,
     criterion: PlanCriterion,
     tick: &(dyn Fn() + Sync),
+    cancel: Option<&std::sync::atomic::AtomicBool>,
 ) -> Result<Vec<usize>> {
     let nc = c.rows.len();
     if count == 0 || count > nc {
@@ -388,6 +390,7 @@ fn choose(
         best_of(c, &info, m, reg, criterion, pool).0
     };
     while chosen.len() < count {
+        crate::error::check_cancel(cancel)?;
         let (_, i) = best_addition(&m, &chosen).expect("enough candidates");
         m += &info[i];
         chosen.push(i);
@@ -397,6 +400,7 @@ fn choose(
     for _pass in 0..20 {
         let mut improved = false;
         for k in 0..chosen.len() {
+            crate::error::check_cancel(cancel)?;
             let without = &m - &info[chosen[k]];
             if let Some((s, i)) = best_addition(&without, &chosen)
                 && s > current * (1.0 + 1e-12) + 1e-300
@@ -432,6 +436,9 @@ pub struct PlanOptions {
     pub spacing: f64,
     /// Most candidates scored: a larger lattice is thinned evenly.
     pub max_candidates: usize,
+    /// Set from another thread to stop the planning at its next step
+    /// ([`Error::Cancelled`]); `None` for none.
+    pub cancel: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
 }
 
 /// A measurement plan and how it compares with a plain grid of the same size.
@@ -506,12 +513,22 @@ pub fn plan<M: Mechanism>(
     let candidates = points.len();
     // The plain grid of the same size, judged with the same column scaling.
     points.extend(crate::apply::workspace::grid_targets(mech, opts.count)?);
+    crate::error::check_cancel(opts.cancel.as_deref())?;
     let cands = candidate_jacobians(mech, points, params, opts.model, &opts.free)?;
+    crate::error::check_cancel(opts.cancel.as_deref())?;
     let pool = Candidates {
         points: cands.points[..candidates].to_vec(),
         rows: cands.rows[..candidates].to_vec(),
     };
-    let mut chosen = plan_poses_with_progress(&pool, opts.count, opts.criterion, tick)?;
+    let mut chosen = crate::on_pool(|| {
+        choose(
+            &pool,
+            opts.count,
+            opts.criterion,
+            tick,
+            opts.cancel.as_deref(),
+        )
+    })?;
     chosen.sort_unstable();
     let (observability, condition) = plan_observability(&cands, &chosen);
     let grid_idx: Vec<usize> = (candidates..cands.points.len()).collect();

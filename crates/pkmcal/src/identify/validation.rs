@@ -283,6 +283,7 @@ pub fn cross_validate_with_progress<M: Mechanism>(
     let mut fold_rms = vec![];
     let mut pooled = vec![];
     for f in 0..folds {
+        crate::error::check_cancel(opts.solver.cancel.as_deref())?;
         let held: Vec<usize> = idx.iter().copied().skip(f).step_by(folds).collect();
         let train: Vec<Measurement> = idx
             .iter()

@@ -37,6 +37,7 @@ fn round_trip<M: Mechanism + Sync>(m: &M, seed: u64) {
             free,
             spacing: 6.0,
             max_candidates: 600,
+            cancel: None,
         },
         &|| {},
     )
@@ -120,6 +121,7 @@ fn the_readme_plan_compensated_predicts_back() {
             free,
             spacing: 6.0,
             max_candidates: 4000,
+            cancel: None,
         },
         &|| {},
     )
