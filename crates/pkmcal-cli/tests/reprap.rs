@@ -144,6 +144,19 @@ fn write_probes(d: &std::path::Path) {
     std::fs::write(d.join("probes.csv"), csv).unwrap();
 }
 
+/// The written printer `new` is `truth` (radius, tower corrections, homed
+/// carriage heights) to [`RECOVERED`]; `what` is said on failure.
+fn assert_recovered(new: &Rrf, truth: &Rrf, what: &str) {
+    let close = |a: f64, b: f64| (a - b).abs() < RECOVERED;
+    assert!(close(new.r, truth.r), "radius: {what}");
+    for i in 0..3 {
+        assert!(close(new.corr[i], truth.corr[i]), "correction {i}: {what}");
+        // Homing puts the carriages where the truth's do (H and the
+        // adjustments split them as RepRapFirmware does: mean 0).
+        assert!(close(new.homed()[i], truth.homed()[i]), "homed {i}: {what}");
+    }
+}
+
 /// `M665 L R H B X Y Z` and `M666 X Y Z A B` of a written file.
 fn parse(text: &str) -> Rrf {
     let mut r = NOMINAL;
@@ -205,14 +218,7 @@ fn reprap_probe_heights_give_the_printer_back() {
     );
     assert!(out.contains("17 probe heights"), "{out}");
     let new = parse(&std::fs::read_to_string(d.join("new.g")).unwrap());
-    let close = |a: f64, b: f64| (a - b).abs() < RECOVERED;
-    assert!(close(new.r, TRUTH.r), "{out}");
-    for i in 0..3 {
-        assert!(close(new.corr[i], TRUTH.corr[i]), "correction {i}: {out}");
-        // Homing puts the carriages where the truth's do (H and the
-        // adjustments split them as RepRapFirmware does: mean 0).
-        assert!(close(new.homed()[i], TRUTH.homed()[i]), "homed {i}: {out}");
-    }
+    assert_recovered(&new, &TRUTH, &out);
     assert!(new.e.iter().sum::<f64>().abs() < 3e-3, "{out}");
     for k in 0..2 {
         assert!(
@@ -465,12 +471,7 @@ M666 X0 Y0 Z0
     );
     assert!(out.contains("6 probe heights"), "{out}");
     let new = parse(&std::fs::read_to_string(d.join("new.g")).unwrap());
-    let close = |a: f64, b: f64| (a - b).abs() < RECOVERED;
-    assert!(close(new.r, truth.r), "{out}");
-    for i in 0..3 {
-        assert!(close(new.corr[i], truth.corr[i]), "correction {i}: {out}");
-        assert!(close(new.homed()[i], truth.homed()[i]), "homed {i}: {out}");
-    }
+    assert_recovered(&new, &truth, &out);
     std::fs::write(d.join("five.csv"), csv(&pts[..5])).unwrap();
     fails(
         d,
@@ -524,18 +525,7 @@ fn reprap_fits_one_shared_diagonal() {
         let text = std::fs::read_to_string(d.join("new.g")).unwrap();
         assert!(text.contains("M665 L360.600 "), "{free}: {text}");
         let new = parse(&text);
-        let close = |a: f64, b: f64| (a - b).abs() < RECOVERED;
-        assert!(close(new.r, truth.r), "{free}: {out}");
-        for i in 0..3 {
-            assert!(
-                close(new.corr[i], truth.corr[i]),
-                "{free}: correction {i}: {out}"
-            );
-            assert!(
-                close(new.homed()[i], truth.homed()[i]),
-                "{free}: homed {i}: {out}"
-            );
-        }
+        assert_recovered(&new, &truth, &format!("{free}: {out}"));
     }
     fails(
         d,

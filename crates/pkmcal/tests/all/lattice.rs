@@ -40,20 +40,16 @@ fn reaches_both_ends<M: Mechanism>(m: &M, targets: &[Vec<f64>]) {
 
 #[test]
 fn grids_reach_both_ends_of_every_axis() {
+    fn grid<M: Mechanism>(m: &M, count: usize) {
+        let g: Vec<Vec<f64>> = pkmcal::grid_targets(m, count)
+            .unwrap()
+            .into_iter()
+            .map(|p| p.target)
+            .collect();
+        reaches_both_ends(m, &g);
+    }
     for count in [35, 60, 200] {
-        let m = gough_stewart("gough-stewart-6");
-        let g: Vec<Vec<f64>> = pkmcal::grid_targets(&m, count)
-            .unwrap()
-            .into_iter()
-            .map(|p| p.target)
-            .collect();
-        reaches_both_ends(&m, &g);
-        let m = planar("4-rrr");
-        let g: Vec<Vec<f64>> = pkmcal::grid_targets(&m, count)
-            .unwrap()
-            .into_iter()
-            .map(|p| p.target)
-            .collect();
-        reaches_both_ends(&m, &g);
+        grid(&gough_stewart("gough-stewart-6"), count);
+        grid(&planar("4-rrr"), count);
     }
 }

@@ -18,31 +18,37 @@ const ROUND_TRIP: f64 = 1e-9;
 /// parameters (a target on the workspace's edge may leave it).
 const REACHABLE_SHARE: f64 = 0.8;
 
-fn round_trip<M: Mechanism + Sync>(m: &M, seed: u64) {
+/// `count` poses `plan` chooses (O5, exact model, the default free set,
+/// from at most `candidates` lattice points) at nominal parameters.
+fn planned<M: Mechanism>(m: &M, count: usize, candidates: usize) -> Vec<Vec<f64>> {
     let spec = m.spec();
-    let truth = perturbed_by_unit(spec, seed, 0.3, 0.002);
-    let nominal = Params::nominal(spec);
     let free: Vec<usize> = spec
         .default_free
         .iter()
         .map(|n| spec.param_index(n).unwrap())
         .collect();
-    let planned = pkmcal::plan(
-        m,
-        &nominal,
-        &PlanOptions {
-            count: 2 * free.len().max(spec.tool_axes.len()),
-            criterion: PlanCriterion::O5,
-            model: Model::Exact,
-            free,
-            spacing: 6.0,
-            max_candidates: 600,
-            cancel: None,
-        },
-        &|| {},
-    )
-    .unwrap();
-    let mut targets: Vec<Vec<f64>> = planned.poses.iter().map(|p| p.target.clone()).collect();
+    let opts = PlanOptions {
+        count,
+        criterion: PlanCriterion::O5,
+        model: Model::Exact,
+        free,
+        spacing: 6.0,
+        max_candidates: candidates,
+        cancel: None,
+    };
+    pkmcal::plan(m, &Params::nominal(spec), &opts, &|| {})
+        .unwrap()
+        .poses
+        .into_iter()
+        .map(|p| p.target)
+        .collect()
+}
+
+fn round_trip<M: Mechanism + Sync>(m: &M, seed: u64) {
+    let spec = m.spec();
+    let truth = perturbed_by_unit(spec, seed, 0.3, 0.002);
+    let count = 2 * spec.default_free.len().max(spec.tool_axes.len());
+    let mut targets = planned(m, count, 600);
     targets.extend(pkmcal::random_targets(m, 30, seed).unwrap());
     targets.extend(spread(m, 12));
     let mut reached = 0;
@@ -106,31 +112,11 @@ fn the_readme_plan_compensated_predicts_back() {
     let c = pkmcal::nominal_commands(&m, &[232.0, 102.0]).unwrap();
     let shifted = [c[0], c[1] - 5e-4, c[2]];
     prepare_pose(&m, &shifted, None).unwrap();
-    let free: Vec<usize> = spec
-        .default_free
-        .iter()
-        .map(|n| spec.param_index(n).unwrap())
-        .collect();
-    let planned = pkmcal::plan(
-        &m,
-        &Params::nominal(spec),
-        &PlanOptions {
-            count: 35,
-            criterion: PlanCriterion::O5,
-            model: Model::Exact,
-            free,
-            spacing: 6.0,
-            max_candidates: 4000,
-            cancel: None,
-        },
-        &|| {},
-    )
-    .unwrap();
-    for p in &planned.poses {
+    for t in planned(&m, 35, 4000) {
         let c = compensate(
             &m,
             &truth,
-            &p.target,
+            &t,
             Model::Exact,
             &CompensationOptions::default(),
         )
@@ -139,12 +125,8 @@ fn the_readme_plan_compensated_predicts_back() {
         let x = predict_pose(&m, &pose, &truth, Model::Exact, &[])
             .unwrap()
             .x;
-        for (a, b) in x.iter().zip(&p.target) {
-            assert!(
-                (a - b).abs() < ROUND_TRIP,
-                "{:?} came back as {x:?}",
-                p.target
-            );
+        for (a, b) in x.iter().zip(&t) {
+            assert!((a - b).abs() < ROUND_TRIP, "{t:?} came back as {x:?}");
         }
     }
 }
