@@ -859,9 +859,19 @@ fn params_arg(m: &PyMechanism, p: Option<&Bound<'_, PyAny>>, what: &str) -> PyRe
         }
         return Ok(c.cal.params.clone());
     }
-    let params = if let Ok(d) = p.cast::<PyDict>() {
+    // Any mapping of names to values (a dict, a pandas Series, …): its
+    // `items()`.
+    let items = if p.cast::<PyDict>().is_ok() || p.hasattr("items")? && !p.hasattr("__fspath__")? {
+        p.call_method0("items").ok()
+    } else {
+        None
+    };
+    let params = if let Some(items) = items {
         let mut params = Params::nominal(spec);
-        for (k, v) in d.iter() {
+        for kv in items.try_iter()? {
+            let (k, v): (Bound<'_, PyAny>, Bound<'_, PyAny>) = kv?
+                .extract()
+                .map_err(|_| usage(format!("{what}: expected name → value pairs")))?;
             let name: String = k
                 .extract()
                 .map_err(|_| usage(format!("{what}: keys must be parameter names")))?;
@@ -873,14 +883,15 @@ fn params_arg(m: &PyMechanism, p: Option<&Bound<'_, PyAny>>, what: &str) -> PyRe
                 .map_err(|e| usage(format!("{what}: {e}")))?;
         }
         params
-    } else if let Ok(path) = p.extract::<String>() {
+    } else if let Ok(path) = path_arg(p) {
         return reading(|run| {
             pkmcal_io::io::read_params(run, std::path::Path::new(&path), &*m.mech)
         })
         .map_err(cli_err);
     } else {
         return Err(usage(format!(
-            "{what}: expected a dict of parameter values by name, a Calibration or a parameter file path"
+            "{what}: expected parameter values by name (a dict or any mapping, e.g. a pandas Series), a Calibration, a SavedCalibration or a parameter file path (str or os.PathLike); got {}",
+            p.get_type().name()?
         )));
     };
     pkmcal::check_params(&*m.mech, &params).map_err(|e| {
@@ -1023,6 +1034,18 @@ fn measurement_arg(
                     "ballbar: expected a dict {\"sockets\": array (k, 2 or 3), \"bar_offset\": mm}",
                 )
             })?;
+            // A misspelled key is refused, not ignored.
+            for k in d.keys() {
+                let k: String = k.extract().unwrap_or_default();
+                if k != "sockets" && k != "bar_offset" {
+                    return Err(usage(format!(
+                        "ballbar: unknown key {k:?}; the keys are \"sockets\" and \"bar_offset\"{}",
+                        pkmcal::error::did_you_mean(&k, ["sockets", "bar_offset"])
+                            .map(|s| format!(" (did you mean {s:?}?)"))
+                            .unwrap_or_default()
+                    )));
+                }
+            }
             let sockets = d
                 .get_item("sockets")?
                 .ok_or_else(|| usage("ballbar: the dict needs \"sockets\""))?;
@@ -1513,10 +1536,15 @@ impl PyFigure {
     /// Write the figure to ``path``: SVG, or PNG when the name ends in ``.png``.
     fn save(&self, py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<()> {
         let p = path_arg(path)?;
-        let bytes: Vec<u8> = if p.to_ascii_lowercase().ends_with(".png") {
+        let lower = p.to_ascii_lowercase();
+        let bytes: Vec<u8> = if lower.ends_with(".png") {
             self.png.bind(py).as_bytes().to_vec()
-        } else {
+        } else if lower.ends_with(".svg") {
             self.svg.as_bytes().to_vec()
+        } else {
+            return Err(usage(format!(
+                "save: {p}: a figure is written as SVG or PNG; name the file .svg or .png"
+            )));
         };
         written(|run| run.files.stage(std::path::Path::new(&p), &bytes))
     }
@@ -2372,9 +2400,17 @@ fn calibrate<'py>(
             ));
         }
         (Some(v), None) => {
-            let t = v.cast::<PyTuple>().map_err(|_| {
-                usage("validation: expected a tuple (commands, measured) or (commands, measured, sigma)")
-            })?;
+            // A tuple or a list (any sequence that is not itself an array).
+            let t = PyTuple::new(
+                py,
+                v.try_iter()
+                    .and_then(|i| i.collect::<PyResult<Vec<_>>>())
+                    .ok()
+                    .filter(|_| !v.hasattr("shape").unwrap_or(false))
+                    .ok_or_else(|| {
+                        usage("validation: expected a tuple (commands, measured) or (commands, measured, sigma)")
+                    })?,
+            )?;
             if !(2..=3).contains(&t.len()) {
                 return Err(usage(
                     "validation: expected a tuple (commands, measured) or (commands, measured, sigma)",

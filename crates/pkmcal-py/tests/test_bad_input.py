@@ -175,3 +175,33 @@ def test_the_readme_compensated_plan_predicts_back():
     np.testing.assert_allclose(back.x, targets, atol=1e-9)
     c = pkmcal.nominal_commands(mech, [[232.0, 102.0]])
     pkmcal.predict(mech, c + [0.0, -5e-4, 0.0])
+
+
+def test_python_shapes_of_arguments_are_accepted_or_refused_in_python_words(tmp_path):
+    import pathlib
+
+    mech = pkmcal.Mechanism()
+    targets = pkmcal.plan(mech, 20).targets
+    commands, measured = pkmcal.simulate(mech, targets, {"l11": 280.1}, noise=0.001)
+    # Parameters as any mapping, or a pathlib.Path to a parameter file.
+    class Values(dict):
+        pass
+
+    a = pkmcal.predict(mech, commands, {"l11": 280.1}).x
+    np.testing.assert_array_equal(pkmcal.predict(mech, commands, Values(l11=280.1)).x, a)
+    f = tmp_path / "p.toml"
+    f.write_text("l11 = 280.1\n")
+    np.testing.assert_array_equal(pkmcal.predict(mech, commands, pathlib.Path(f)).x, a)
+    with pytest.raises(pkmcal.PkmcalError, match="got int"):
+        pkmcal.predict(mech, commands, 3)
+    # Validation as a list as well as a tuple.
+    v = [commands[:5], measured[:5]]
+    assert pkmcal.calibrate(mech, commands, measured, validation=v).validation is not None
+    # A figure is SVG or PNG, never SVG text in a .pdf.
+    fig = pkmcal.calibrate(mech, commands, measured).figures()[0]
+    with pytest.raises(pkmcal.PkmcalError, match=r"\.svg or \.png"):
+        fig.save(tmp_path / "f.pdf")
+    assert not (tmp_path / "f.pdf").exists()
+    # A misspelled ballbar key is refused, naming the right one.
+    with pytest.raises(pkmcal.PkmcalError, match='did you mean "bar_offset"'):
+        pkmcal.simulate(mech, targets, ballbar={"sockets": [[0, 0], [100, 0], [0, 100]], "bar_ofset": 1.0})
