@@ -127,8 +127,13 @@ pub(crate) fn step_turn(
     joints: impl Iterator<Item = usize>,
     step: &[f64],
 ) -> f64 {
-    let turn = joints
-        .zip(step)
+    turn_of(spec, joints.zip(step.iter().copied()))
+}
+
+/// [`step_turn`] of `(joint, step)` pairs, computed as they come (no
+/// buffer).
+pub(crate) fn turn_of(spec: &crate::Spec, steps: impl Iterator<Item = (usize, f64)>) -> f64 {
+    let turn = steps
         .map(|(i, d)| match spec.joint_units[i] {
             crate::Unit::Radian => d.abs(),
             _ => d.abs() / MM_PER_RAD,

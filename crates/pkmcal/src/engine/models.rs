@@ -307,13 +307,13 @@ const PLAUSIBLE_MISMATCH: f64 = 0.05;
 /// [`commands_mismatch`] in rad-equivalents
 /// ([`crate::engine::kinematics::step_turn`]).
 fn scaled_mismatch(spec: &crate::Spec, commands: &[f64], q: &[f64]) -> f64 {
-    let d: Vec<f64> = spec
-        .actuated
-        .iter()
-        .zip(commands)
-        .map(|(&j, c)| q[j] - c)
-        .collect();
-    crate::engine::kinematics::step_turn(spec, spec.actuated.iter().copied(), &d)
+    crate::engine::kinematics::turn_of(
+        spec,
+        spec.actuated
+            .iter()
+            .zip(commands)
+            .map(|(&j, c)| (j, q[j] - c)),
+    )
 }
 
 /// [`prepare_pose`] with the work of [`pose_ahead`] done (the same result).
