@@ -7,17 +7,63 @@
 //! tool's `phi` → `C`; lengths in mm (`G21`, or inches after `G20`), angles
 //! in degrees (the G-code convention). Supported: `G90`/`G91` (absolute or
 //! relative), `G20`/`G21`, `M82`/`M83` and `G92 E` (extrusion, split with
-//! the segments), comments `;…` and `(…)` at the end of a line. Refused with
-//! the line, because firmwares read them differently or not at all: words
-//! after a `(…)` comment, lines ended by a carriage return alone, checksums
-//! (`*71`); and arcs (`G2`/`G3`), `G92` on a tool axis. `G28` (homing) forgets the position
-//! until the next move gives every axis again.
+//! the segments), `;` comments, line numbers and checksums (written anew).
+//! `G28` (homing) forgets the position until the next move gives every axis
+//! again. Every line that is not a move of a tool axis is written back byte
+//! for byte, its line end included.
+//!
+//! Each line is read as the firmware named by [`Dialect`] reads it, and what
+//! that firmware would read differently from what the rewrite assumes is
+//! refused with its line, never guessed: arcs (`G2`/`G3`), `G92` on a tool
+//! axis, two commands on one line, and per dialect `(…)` comments, lower
+//! case, lines without a command word (modal moves).
 
 use anyhow::{Context, Result};
 use pkmcal::{CompensationOptions, Mechanism, Model, predistort};
 use rayon::prelude::*;
 use std::fmt::Write as _;
 use std::path::PathBuf;
+
+/// The firmware whose reading of G-code the rewrite follows (`--dialect`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Dialect {
+    /// Only what Klipper, RepRapFirmware and Marlin (as shipped) all read
+    /// the same way; the rest refused.
+    #[default]
+    Strict,
+    /// Klipper: `;` comments; a line with a `(` on a move is refused by
+    /// Klipper itself; lower case read; a line must start with its command.
+    Klipper,
+    /// RepRapFirmware: `(…)` comments are skipped wherever they stand (the
+    /// words on both sides are read); lower case read; a line without a
+    /// command continues the last `G0`/`G1`.
+    RepRap,
+    /// Marlin as shipped: `(` is not a comment (only with `PAREN_COMMENTS`),
+    /// lower case is not read (only with `GCODE_CASE_INSENSITIVE`), a line
+    /// must start with its command (unless `GCODE_MOTION_MODES`), a line
+    /// number must be followed by a space.
+    Marlin,
+}
+
+impl Dialect {
+    pub const ALL: [Dialect; 4] = [
+        Dialect::Strict,
+        Dialect::Klipper,
+        Dialect::RepRap,
+        Dialect::Marlin,
+    ];
+    pub fn name(self) -> &'static str {
+        match self {
+            Dialect::Strict => "strict",
+            Dialect::Klipper => "klipper",
+            Dialect::RepRap => "reprap",
+            Dialect::Marlin => "marlin",
+        }
+    }
+    pub fn from_name(s: &str) -> Option<Dialect> {
+        Dialect::ALL.into_iter().find(|d| d.name() == s)
+    }
+}
 
 pub struct GcodeConfig {
     pub mechanism: Option<PathBuf>,
@@ -29,6 +75,7 @@ pub struct GcodeConfig {
     pub input: PathBuf,
     pub offset: Option<String>,
     pub max_segment: Option<f64>,
+    pub dialect: Dialect,
     pub out: PathBuf,
 }
 
@@ -47,8 +94,12 @@ fn word_of(axis: &str) -> Option<char> {
 
 /// One line of the rewritten program, in order.
 enum Item {
-    /// A line kept as it is.
-    Raw(String),
+    /// A line kept as it is (index of its first byte, and its end, line end
+    /// included, in the program).
+    Raw(usize, usize),
+    /// A move sent as written (some axis's position not known yet): the
+    /// line, and the positions it sends (axis, G-code units).
+    AsWritten(usize, usize, Vec<(usize, f64)>),
     /// `G28`: the position sent is unknown again.
     Reset,
     /// A pre-distorted piece of a move (index into the pieces).
@@ -64,10 +115,16 @@ struct Piece {
     target: Vec<f64>,
     absolute: bool,
     scale: f64,
+    /// The line number word (`N10`), on a move not split.
+    number: Option<String>,
+    checksum: bool,
     g: String,
     e_text: Option<String>,
     others: Vec<String>,
-    comment: String,
+    comment: Vec<u8>,
+    /// The line end of the source line (`\n`, `\r\n`, or none at the end of
+    /// the file; pieces before the last end in `\n` then).
+    eol: &'static str,
 }
 
 /// Most pieces one move is split into (`--max-segment`).
@@ -76,44 +133,203 @@ const MAX_PIECES: usize = 100_000;
 /// program is written: about 200 bytes a piece).
 const MAX_TOTAL_PIECES: usize = 2_000_000;
 
-/// `G0`/`G1` (and their zero-padded forms).
-fn is_linear(v: &str) -> bool {
-    matches!(v, "0" | "00" | "1" | "01")
-}
-
 /// Digits written for lengths (mm: 0.1 µm) and angles (degrees).
 const LENGTH_DECIMALS: usize = 4;
 const ANGLE_DECIMALS: usize = 6;
 
-/// One line split into its words (letter, number text) and its comment.
-struct Line<'a> {
-    words: Vec<(char, &'a str)>,
-    comment: &'a str,
+/// A line the rewrite follows: a move, or a change of mode.
+#[derive(Debug, PartialEq)]
+struct Code {
+    /// `N10`, as written (upper case).
+    number: Option<String>,
+    /// A checksum (`*71`) was given: one is written anew.
+    checksum: bool,
+    /// The command's letter and number (`('G', 1)`); `None` for a line that
+    /// continues the last `G0`/`G1` (RepRapFirmware).
+    command: Option<(char, u32)>,
+    /// The words after the command: letter (upper case) and number text.
+    words: Vec<(char, String)>,
+    /// The comments, `(…)` ones first, then the `;` one: written after the
+    /// words.
+    comment: Vec<u8>,
 }
 
-fn split(line: &str) -> Result<Line<'_>, String> {
-    let (code, comment) = match line.find([';', '(']) {
+/// How a line is read.
+#[derive(Debug, PartialEq)]
+enum Parsed {
+    /// Written back as it is: blank, a comment, a command that neither moves
+    /// nor changes a mode the rewrite follows (`M104`, `T0`, Klipper's
+    /// `EXCLUDE_OBJECT_START NAME=…`, `M117 text`).
+    Raw,
+    Code(Code),
+}
+
+/// The commands the rewrite follows.
+fn followed(letter: char, n: u32) -> bool {
+    matches!(
+        (letter, n),
+        ('G', 0 | 1 | 2 | 3 | 20 | 21 | 28 | 90 | 91 | 92) | ('M', 82 | 83)
+    )
+}
+
+/// A command word's number: digits only (`G01` is `G1`; `G29.1`, `M486 T`
+/// are other commands).
+fn code_number(s: &[u8]) -> Option<(u32, usize)> {
+    let n = s.iter().take_while(|b| b.is_ascii_digit()).count();
+    if n == 0 || n > 6 || s.get(n) == Some(&b'.') {
+        return None;
+    }
+    let v: u32 = std::str::from_utf8(&s[..n]).ok()?.parse().ok()?;
+    Some((v, n))
+}
+
+fn trim_start(s: &[u8]) -> &[u8] {
+    let k = s.iter().take_while(|b| b.is_ascii_whitespace()).count();
+    &s[k..]
+}
+
+/// Read one line (without its line end) as `dialect` reads it.
+fn parse(line: &[u8], dialect: Dialect) -> Result<Parsed, String> {
+    use Dialect::*;
+    let (code, semi) = match line.iter().position(|&b| b == b';') {
         Some(i) => (&line[..i], &line[i..]),
-        None => (line, ""),
+        None => (line, &line[line.len()..]),
     };
-    // Words after a parenthesised comment are read differently by each
-    // firmware (Klipper refuses the line, RepRapFirmware reads them, Marlin
-    // only when built with PAREN_COMMENTS): refused, never guessed.
-    if comment.starts_with('(') {
-        let after = match comment.find(')') {
-            Some(k) => &comment[k + 1..],
-            None => "",
-        };
-        let after = after.split(';').next().unwrap_or("");
-        if !after.trim().is_empty() {
-            return Err(format!(
-                "words after a (comment): `{}`; firmwares read them differently (Klipper refuses the line, RepRapFirmware reads them, Marlin only with PAREN_COMMENTS); move the comment to the end of the line",
-                after.trim()
-            ));
+    // `(…)` comments: cut out (each leaves a space), kept for the end.
+    let mut parens: Vec<u8> = vec![];
+    let mut bare: Vec<u8> = Vec::with_capacity(code.len());
+    let mut i = 0;
+    while i < code.len() {
+        if code[i] == b'(' {
+            let end = code[i..]
+                .iter()
+                .position(|&b| b == b')')
+                .map_or(code.len(), |k| i + k + 1);
+            if !parens.is_empty() {
+                parens.push(b' ');
+            }
+            parens.extend_from_slice(&code[i..end]);
+            bare.push(b' ');
+            i = end;
+        } else {
+            bare.push(code[i]);
+            i += 1;
         }
     }
+    let s = trim_start(&bare);
+    // A line number.
+    let mut number: Option<(u8, String)> = None;
+    let mut glued = false;
+    let mut s = s;
+    if matches!(s.first(), Some(b'N' | b'n'))
+        && s.get(1).is_some_and(|b| b.is_ascii_digit() || *b == b'-')
+    {
+        let n = 1 + s[1..]
+            .iter()
+            .enumerate()
+            .take_while(|(k, b)| b.is_ascii_digit() || (*k == 0 && **b == b'-'))
+            .count();
+        number = Some((s[0], String::from_utf8_lossy(&s[..n]).to_uppercase()));
+        let rest = &s[n..];
+        // Marlin skips a line number up to the next space.
+        glued = !rest.is_empty() && !rest[0].is_ascii_whitespace();
+        s = trim_start(rest);
+    }
+    // The command word.
+    let Some(&first) = s.first() else {
+        return Ok(Parsed::Raw);
+    };
+    let letter = (first as char).to_ascii_uppercase();
+    let command = if first.is_ascii_alphabetic() {
+        match code_number(trim_start(&s[1..])) {
+            Some((n, _)) if matches!(letter, 'G' | 'M') => {
+                if !followed(letter, n) {
+                    return Ok(Parsed::Raw);
+                }
+                Some((letter, n))
+            }
+            Some(_) | None
+                if matches!(letter, 'X' | 'Y' | 'Z' | 'A' | 'B' | 'C' | 'E' | 'F')
+                    && trim_start(&s[1..])
+                        .first()
+                        .is_some_and(|b| b.is_ascii_digit() || matches!(b, b'-' | b'+' | b'.')) =>
+            {
+                // A line without a command: a modal move.
+                None
+            }
+            _ => return Ok(Parsed::Raw),
+        }
+    } else {
+        return Ok(Parsed::Raw);
+    };
+    // From here the line is one the rewrite follows: every rule of the
+    // dialect applies.
+    let shown = || String::from_utf8_lossy(line).trim().to_string();
+    if command.is_none() && dialect != RepRap {
+        return Err(format!(
+            "`{}` has no command word: {}; start the line with G1 (or use --dialect reprap if RepRapFirmware runs it)",
+            shown(),
+            match dialect {
+                Klipper => "Klipper reads it as an unknown command and does not move",
+                Marlin => "Marlin moves on it only when built with GCODE_MOTION_MODES",
+                _ =>
+                    "Klipper does not move on it, Marlin only with GCODE_MOTION_MODES, RepRapFirmware continues the last G0/G1",
+            }
+        ));
+    }
+    if glued && matches!(dialect, Strict | Marlin) {
+        return Err(format!(
+            "`{}`: a line number not followed by a space, which Marlin reads as a line without a command; write `N10 G1 …`",
+            shown()
+        ));
+    }
+    if !parens.is_empty() && dialect != RepRap {
+        return Err(format!(
+            "a (comment) on `{}`: {}; use a `;` comment at the end of the line{}",
+            shown(),
+            match dialect {
+                Klipper => "Klipper refuses the line",
+                Marlin => "Marlin reads its letters as words unless built with PAREN_COMMENTS",
+                _ =>
+                    "Klipper refuses such a line, Marlin reads its letters as words unless built with PAREN_COMMENTS, RepRapFirmware skips it",
+            },
+            if dialect == Strict {
+                ", or name the firmware with --dialect"
+            } else {
+                ""
+            }
+        ));
+    }
+    let lower = s.iter().any(|b| b.is_ascii_lowercase())
+        || number.as_ref().is_some_and(|(c, _)| *c == b'n');
+    if lower && matches!(dialect, Strict | Marlin) {
+        return Err(format!(
+            "`{}` is in lower case, which Marlin reads only when built with GCODE_CASE_INSENSITIVE; write it in upper case{}",
+            shown(),
+            if dialect == Strict {
+                ", or name the firmware with --dialect"
+            } else {
+                ""
+            }
+        ));
+    }
+    // A checksum at the end.
+    let mut checksum = false;
+    let mut body = s;
+    if let Some(k) = s.iter().position(|&b| b == b'*') {
+        let tail = std::str::from_utf8(&s[k + 1..]).unwrap_or("").trim_end();
+        if tail.is_empty() || !tail.bytes().all(|b| b.is_ascii_digit()) {
+            return Err(format!(
+                "unexpected `*` in `{}`: a checksum is `*` and digits at the end of the line",
+                shown()
+            ));
+        }
+        checksum = true;
+        body = &s[..k];
+    }
+    let body = std::str::from_utf8(body).map_err(|_| format!("`{}` is not ASCII", shown()))?;
     let mut words = vec![];
-    let b = code.as_bytes();
+    let b = body.as_bytes();
     let mut i = 0;
     while i < b.len() {
         let c = b[i] as char;
@@ -122,7 +338,7 @@ fn split(line: &str) -> Result<Line<'_>, String> {
             continue;
         }
         if !c.is_ascii_alphabetic() {
-            return Err(format!("unexpected `{c}`"));
+            return Err(format!("unexpected `{c}` in `{}`", shown()));
         }
         let start = i + 1;
         let mut j = start;
@@ -133,15 +349,43 @@ fn split(line: &str) -> Result<Line<'_>, String> {
                 || b[j].is_ascii_digit()
                 || b[j] == b' ')
         {
-            if b[j] == b' ' && j > start && !code[start..j].trim().is_empty() {
+            if b[j] == b' ' && j > start && !body[start..j].trim().is_empty() {
                 break;
             }
             j += 1;
         }
-        words.push((c.to_ascii_uppercase(), code[start..j].trim()));
+        words.push((c.to_ascii_uppercase(), body[start..j].trim().to_string()));
         i = j;
     }
-    Ok(Line { words, comment })
+    if command.is_some() {
+        words.remove(0);
+    }
+    if let Some((w, v)) = words.iter().find(|(w, _)| matches!(w, 'G' | 'M')) {
+        return Err(format!(
+            "a second command `{w}{v}` on `{}`: Klipper and Marlin read only the first; put each command on its own line",
+            shown()
+        ));
+    }
+    let mut comment = parens;
+    if !semi.is_empty() {
+        if !comment.is_empty() {
+            comment.push(b' ');
+        }
+        comment.extend_from_slice(semi);
+    }
+    Ok(Parsed::Code(Code {
+        number: number.map(|(_, n)| n),
+        checksum,
+        command,
+        words,
+        comment,
+    }))
+}
+
+/// The checksum RepRapFirmware and Marlin check: the exclusive or of the
+/// line's bytes before the `*`.
+fn checksum(line: &str) -> u8 {
+    line.bytes().fold(0, |a, b| a ^ b)
 }
 
 pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
@@ -186,15 +430,16 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
     }
     let text = run
         .files
-        .read_to_string(&c.input, crate::output::InputKind::Data)
+        .read(&c.input, crate::output::InputKind::Data)
         .with_context(|| format!("cannot read G-code file {}", c.input.display()))?;
     let file = c.input.display();
-    if let Some(k) = text
-        .as_bytes()
-        .windows(2)
-        .position(|w| w[0] == b'\r' && w[1] != b'\n')
-    {
-        let line = text[..=k].matches('\n').count() + 1;
+    if text.starts_with(&[0xEF, 0xBB, 0xBF]) {
+        return Err(anyhow::anyhow!(
+            "{file}:1: the file starts with a byte-order mark, which firmwares read as part of the first command; save it without one"
+        ));
+    }
+    if let Some(k) = text.windows(2).position(|w| w[0] == b'\r' && w[1] != b'\n') {
+        let line = text[..=k].iter().filter(|&&b| b == b'\n').count() + 1;
         return Err(anyhow::anyhow!(
             "{file}:{line}: a line ends in a carriage return alone (old Mac style), which firmwares read differently; convert the file to \\n or \\r\\n line ends"
         ));
@@ -210,13 +455,33 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
     // First pass: parse, follow the modes, cut moves into pieces (in order);
     // then every piece is pre-distorted in parallel; then the program is
     // written, relative coordinates from the pieces sent before.
-    let mut items: Vec<Item> = Vec::with_capacity(text.lines().count());
+    let mut items: Vec<Item> = vec![];
     let mut pieces_out: Vec<Piece> = vec![];
     let mut moves = 0usize;
-    for (n, raw) in text.lines().enumerate() {
+    // Moves sent as written: some axis's position was not known yet.
+    let mut unknown: Vec<usize> = vec![];
+    let mut start = 0usize;
+    for (n, whole) in text.split_inclusive(|&b| b == b'\n').enumerate() {
         let line_no = n + 1;
+        let (begin, end) = (start, start + whole.len());
+        start = end;
+        let (raw, eol) = if whole.ends_with(b"\r\n") {
+            (&whole[..whole.len() - 2], "\r\n")
+        } else if whole.ends_with(b"\n") {
+            (&whole[..whole.len() - 1], "\n")
+        } else if whole.ends_with(b"\r") {
+            (&whole[..whole.len() - 1], "\r")
+        } else {
+            (whole, "")
+        };
         let here = |m: String| anyhow::anyhow!("{file}:{line_no}: {m}");
-        let l = split(raw).map_err(|m| here(format!("{m}: not G-code")))?;
+        let l = match parse(raw, c.dialect).map_err(here)? {
+            Parsed::Raw => {
+                items.push(Item::Raw(begin, end));
+                continue;
+            }
+            Parsed::Code(l) => l,
+        };
         let num = |v: &str, w: char| -> Result<f64> {
             let x: f64 = v
                 .parse()
@@ -228,34 +493,32 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
         };
         let mut is_move = false;
         let mut g92 = false;
-        for &(w, v) in &l.words {
-            match (w, v) {
-                ('G', v) if is_linear(v) => {
-                    motion = Some(num(v, w)? as u32);
-                    is_move = true;
-                }
-                ('G', "2" | "02" | "3" | "03") => {
-                    return Err(here(
-                        "arcs (G2/G3) are not rewritten; have the CAM or slicer write them as G1 segments".into(),
-                    ));
-                }
-                ('G', "90") => absolute = true,
-                ('G', "91") => absolute = false,
-                ('G', "20") => inches = true,
-                ('G', "21") => inches = false,
-                ('G', "92") => g92 = true,
-                ('G', "28") => {
-                    for k in 0..nx {
-                        if !angle[k] {
-                            pos[k] = None;
-                        }
-                    }
-                    items.push(Item::Reset);
-                }
-                ('M', "82") => abs_e = true,
-                ('M', "83") => abs_e = false,
-                _ => {}
+        match l.command {
+            Some(('G', m @ (0 | 1))) => {
+                motion = Some(m);
+                is_move = true;
             }
+            Some(('G', 2 | 3)) => {
+                return Err(here(
+                    "arcs (G2/G3) are not rewritten; have the CAM or slicer write them as G1 segments (in PrusaSlicer, OrcaSlicer and Bambu Studio: turn arc fitting off)".into(),
+                ));
+            }
+            Some(('G', 90)) => absolute = true,
+            Some(('G', 91)) => absolute = false,
+            Some(('G', 20)) => inches = true,
+            Some(('G', 21)) => inches = false,
+            Some(('G', 92)) => g92 = true,
+            Some(('G', 28)) => {
+                for k in 0..nx {
+                    if !angle[k] {
+                        pos[k] = None;
+                    }
+                }
+                items.push(Item::Reset);
+            }
+            Some(('M', 82)) => abs_e = true,
+            Some(('M', 83)) => abs_e = false,
+            _ => {}
         }
         let has_axis = l.words.iter().any(|(w, _)| words.contains(w));
         if g92 {
@@ -267,21 +530,26 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
             if let Some((_, v)) = l.words.iter().find(|(w, _)| *w == 'E') {
                 e_pos = num(v, 'E')?;
             }
-            items.push(Item::Raw(raw.to_string()));
+            items.push(Item::Raw(begin, end));
             continue;
         }
-        let continues = !is_move
-            && has_axis
-            && motion.is_some()
-            && l.words.iter().all(|(w, _)| *w != 'G' && *w != 'M');
-        if !(is_move || continues) || !has_axis {
+        if l.command.is_none() {
+            // A modal move (RepRapFirmware): the last G0/G1 again.
+            if motion.is_none() {
+                return Err(here(
+                    "a line without a command before any G0/G1; start it with G1".into(),
+                ));
+            }
+            is_move = true;
+        }
+        if !is_move || !has_axis {
             if let Some((_, v)) = l.words.iter().find(|(w, _)| *w == 'E')
                 && is_move
             {
                 let e = num(v, 'E')?;
                 e_pos = if abs_e { e } else { e_pos + e };
             }
-            items.push(Item::Raw(raw.to_string()));
+            items.push(Item::Raw(begin, end));
             continue;
         }
         // A move: the new programmed position.
@@ -303,19 +571,28 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
                 }
             }
         }
-        if let Some(k) = pos.iter().position(Option::is_none) {
-            return Err(here(format!(
-                "a move before the position of `{}` is known (after the start or a G28); give every axis ({}) on the first move",
-                spec.tool_axes[k],
-                (0..nx)
-                    .filter(|&k| !angle[k])
-                    .map(|k| words[k].to_string())
-                    .collect::<Vec<_>>()
-                    .join(" ")
-            )));
+        if pos.iter().any(Option::is_none) {
+            // Where the machine is after the start or a homing is the
+            // firmware's (and its start macros') to know: the move is sent
+            // as written, and told.
+            let sent: Vec<(usize, f64)> = (0..nx)
+                .filter(|&k| l.words.iter().any(|(x, _)| *x == words[k]))
+                .filter_map(|k| Some((k, pos[k]? / scale)))
+                .collect();
+            if let Some((_, v)) = l.words.iter().find(|(w, _)| *w == 'E') {
+                let e = num(v, 'E')?;
+                e_pos = if abs_e { e } else { e_pos + e };
+            }
+            unknown.push(line_no);
+            items.push(Item::AsWritten(begin, end, sent));
+            continue;
         }
         let to: Vec<f64> = pos.iter().map(|p| p.unwrap_or(0.0)).collect();
-        let e_word = l.words.iter().find(|(w, _)| *w == 'E').map(|(_, v)| *v);
+        let e_word = l
+            .words
+            .iter()
+            .find(|(w, _)| *w == 'E')
+            .map(|(_, v)| v.as_str());
         let e_new = match e_word {
             Some(v) => {
                 let e = num(v, 'E')?;
@@ -341,6 +618,11 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
             }
             _ => 1,
         };
+        if pieces > 1 && l.number.is_some() {
+            return Err(here(
+                "a numbered line would be split into several moves, whose line numbers would no longer follow each other; remove the line numbers (the host that sends the file adds them) or the --max-segment".into(),
+            ));
+        }
         if pieces_out.len() + pieces > MAX_TOTAL_PIECES {
             return Err(here(format!(
                 "the program would be split into more than {MAX_TOTAL_PIECES} pieces in all; use a larger --max-segment"
@@ -351,7 +633,7 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
         let others: Vec<String> = l
             .words
             .iter()
-            .filter(|(w, v)| !(words.contains(w) || *w == 'E' || (*w == 'G' && is_linear(v))))
+            .filter(|(w, _)| !(words.contains(w) || *w == 'E'))
             .map(|(w, v)| format!("{w}{v}"))
             .collect();
         for p in 1..=pieces {
@@ -378,6 +660,7 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
                 let v = if abs_e { e_here } else { e_here - e_prev };
                 format!(" E{v:.5}")
             });
+            let last = p == pieces;
             items.push(Item::Piece(pieces_out.len()));
             pieces_out.push(Piece {
                 line_no,
@@ -386,14 +669,13 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
                 target,
                 absolute,
                 scale,
+                number: l.number.clone(),
+                checksum: l.checksum,
                 g: g.clone(),
                 e_text,
                 others: others.clone(),
-                comment: if p == pieces {
-                    l.comment.to_string()
-                } else {
-                    String::new()
-                },
+                comment: if last { l.comment.clone() } else { vec![] },
+                eol: if last || !eol.is_empty() { eol } else { "\n" },
             });
         }
         if let Some(en) = e_new {
@@ -405,13 +687,19 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
         .par_iter()
         .map(|pc| predistort(&mech, &controller, &real, &pc.target, c.model, &opts))
         .collect();
-    let mut out = String::with_capacity(text.len() * 2);
+    let mut out: Vec<u8> = Vec::with_capacity(text.len() * 2);
     let (mut segments, mut worst) = (0usize, 0.0f64);
     for item in &items {
         let k_piece = match item {
-            Item::Raw(r) => {
-                out.push_str(r);
-                out.push('\n');
+            Item::Raw(a, b) => {
+                out.extend_from_slice(&text[*a..*b]);
+                continue;
+            }
+            Item::AsWritten(a, b, sent) => {
+                out.extend_from_slice(&text[*a..*b]);
+                for &(k, v) in sent {
+                    sent_pos[k] = Some(v);
+                }
                 continue;
             }
             Item::Reset => {
@@ -454,7 +742,12 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
                 }
             })
             .collect();
-        let mut line = pc.g.clone();
+        let mut line = String::new();
+        if let Some(nw) = &pc.number {
+            line.push_str(nw);
+            line.push(' ');
+        }
+        line.push_str(&pc.g);
         for k in 0..nx {
             // Every axis: the correction moves them all.
             let v = if pc.absolute {
@@ -477,15 +770,29 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
             line.push(' ');
             line.push_str(o);
         }
-        if !pc.comment.is_empty() {
-            line.push(' ');
-            line.push_str(&pc.comment);
+        if pc.checksum {
+            let cs = checksum(&line);
+            let _ = write!(line, "*{cs}");
         }
-        out.push_str(&line);
-        out.push('\n');
+        out.extend_from_slice(line.as_bytes());
+        if !pc.comment.is_empty() {
+            out.push(b' ');
+            out.extend_from_slice(&pc.comment);
+        }
+        out.extend_from_slice(pc.eol.as_bytes());
         segments += 1;
     }
-    run.files.stage(&c.out, out.as_bytes())?;
+    if !unknown.is_empty() {
+        let shown: Vec<String> = unknown.iter().take(5).map(|l| l.to_string()).collect();
+        crate::note!(
+            "{} sent as written ({} {}{}): the position of some axis was not known yet (after the start, a G28 or a start macro only the firmware knows it); give every axis on the first move to have it corrected too",
+            crate::io::count(unknown.len(), "move", "moves"),
+            if unknown.len() == 1 { "line" } else { "lines" },
+            shown.join(", "),
+            if unknown.len() > 5 { ", …" } else { "" }
+        );
+    }
+    run.files.stage(&c.out, &out)?;
     let (f, u) = pkmcal::Unit::Millimetre.readable(worst);
     crate::note!(
         "rewrote {moves} moves as {segments} pre-distorted moves (largest shift {:.3} {u}, {} model) -> {}",
@@ -494,4 +801,52 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
         c.out.display()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Lines that neither move nor change a followed mode are written back
+    /// as they are in every dialect, whatever their words.
+    #[test]
+    fn lines_that_are_not_followed_are_raw() {
+        for line in [
+            "",
+            "; a comment (with parentheses)",
+            "EXCLUDE_OBJECT_START NAME=part_1.stl_id_0_copy_0",
+            "SET_VELOCITY_LIMIT ACCEL=5000 ACCEL_TO_DECEL=2500",
+            "START_PRINT EXTRUDER_TEMP=220 BED_TEMP=60",
+            "M117 G1 X5 (printing)",
+            "M486 S0 AObject name",
+            "T0",
+            "G4 P500",
+            "G29.1 X5",
+            "M572 D0 S0.03",
+        ] {
+            for d in Dialect::ALL {
+                assert_eq!(parse(line.as_bytes(), d), Ok(Parsed::Raw), "{line} ({d:?})");
+            }
+        }
+    }
+
+    #[test]
+    fn a_move_is_read_with_its_number_checksum_and_comment() {
+        let Ok(Parsed::Code(c)) = parse(b"N7 G01 X5 Y-.5 F1200*33 ; go", Dialect::Strict) else {
+            panic!("a move")
+        };
+        assert_eq!(c.number.as_deref(), Some("N7"));
+        assert!(c.checksum);
+        assert_eq!(c.command, Some(('G', 1)));
+        let words: Vec<(char, &str)> = c.words.iter().map(|(w, v)| (*w, v.as_str())).collect();
+        assert_eq!(words, [('X', "5"), ('Y', "-.5"), ('F', "1200")]);
+        assert_eq!(c.comment, b"; go");
+        // RepRapFirmware: (comments) anywhere, both sides read.
+        let Ok(Parsed::Code(c)) = parse(b"(a) G1 X5 (b) Y6 ; c", Dialect::RepRap) else {
+            panic!("a move")
+        };
+        assert_eq!(c.words.len(), 2);
+        assert_eq!(c.comment, b"(a) (b) ; c");
+        assert_eq!(checksum("N7 G1"), b"N7 G1".iter().fold(0, |a, b| a ^ b));
+    }
 }

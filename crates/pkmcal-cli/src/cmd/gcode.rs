@@ -30,6 +30,11 @@ pub struct Args {
     /// Split moves longer than this (mm) so that the correction follows the path.
     #[arg(long, value_name = "MM")]
     pub max_segment: Option<f64>,
+    /// Read the program as this firmware does: strict (what Klipper,
+    /// RepRapFirmware and Marlin all read alike; the rest refused), klipper,
+    /// reprap or marlin.
+    #[arg(long, default_value = "strict", value_parser = dialect)]
+    pub dialect: pkmcal_io::gcode::Dialect,
     /// The rewritten program (`-` for standard output).
     #[arg(long, value_name = "OUT.gcode")]
     pub out: PathBuf,
@@ -61,7 +66,17 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             input: a.input,
             offset: a.offset,
             max_segment: a.max_segment,
+            dialect: a.dialect,
             out: a.out,
         },
     )
+}
+
+fn dialect(s: &str) -> Result<pkmcal_io::gcode::Dialect, String> {
+    pkmcal_io::gcode::Dialect::from_name(s).ok_or_else(|| {
+        format!(
+            "unknown dialect `{s}`; choose one of {}",
+            pkmcal_io::gcode::Dialect::ALL.map(|d| d.name()).join(", ")
+        )
+    })
 }
