@@ -342,6 +342,9 @@ pub fn cli_hint(w: &pkmcal::identify::Warning) -> String {
         K::StiffnessRatios { fixed } => format!(
             "give `{fixed}` its measured value (--start P.toml), or calibrate with a known tool load (--load)"
         ),
+        K::PlanRankDeficient { .. } => {
+            "plan more poses (--count), or identify fewer parameters (--fix); `pkmcal analyze` on the planned poses names the combinations that cannot be identified".into()
+        }
         K::FrameGauge { .. } => "to choose which parameters define the base frame, fix them yourself (--fix NAMES), or measure in the base frame (--frame base); the combinations are listed under identifiability".into(),
         K::Outliers {
             robust_loss: true,

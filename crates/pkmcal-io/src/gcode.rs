@@ -803,6 +803,18 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
     Ok(())
 }
 
+/// [`parse`] for the fuzzing of the readers: a line read in a dialect must
+/// give an answer, and a followed line only upper-case word letters.
+#[cfg(test)]
+pub(crate) fn fuzz_parse(line: &[u8], dialect: Dialect) {
+    if let Ok(Parsed::Code(c)) = parse(line, dialect) {
+        assert!(
+            c.words.iter().all(|(w, _)| w.is_ascii_uppercase()),
+            "{line:?}"
+        );
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -108,6 +108,15 @@ impl Csv {
             if rec.iter().all(str::is_empty) {
                 continue;
             }
+            // Every file read whole is identification data: bounded as one
+            // identification is, before it is held.
+            if rows.len() == pkmcal::identify::MAX_POSES {
+                bail!(
+                    "{}:{line}: {}",
+                    path.display(),
+                    pkmcal::identify::too_many_poses(rows.len() + 1)
+                );
+            }
             rows.push((line, rec.iter().map(str::to_string).collect()));
         }
         Ok(Self {

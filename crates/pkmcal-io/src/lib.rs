@@ -30,6 +30,9 @@ pub mod report;
 pub mod reprap;
 pub mod usecal;
 
+#[cfg(test)]
+mod fuzz_readers;
+
 pub use output::Files;
 
 /// What one run of a front end brings to the file side: its files (inputs

@@ -614,6 +614,13 @@ pub fn run_plan(run: &crate::Run<'_>, c: PlanConfig) -> Result<()> {
             o.o1, o.o2, o.o3, o.o4, o.o5, cond
         );
     }
+    for w in &plan.warnings {
+        println!(
+            "warning: {}\n  hint: {}",
+            w.message,
+            crate::calibrate::cli_hint(w)
+        );
+    }
     println!("poses -> {}", c.out.display());
     if let Some(g) = &c.grid_out {
         println!("plain grid -> {}", g.display());

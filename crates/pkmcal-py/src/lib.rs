@@ -73,7 +73,8 @@ fn emit_warnings(py: Python<'_>, warnings: &[pkmcal::identify::Warning]) -> PyRe
             K::StiffnessRatios { .. }
             | K::Unidentifiable { .. }
             | K::FrameGauge { .. }
-            | K::RankDeficient { .. } => py.get_type::<IdentifiabilityWarning>(),
+            | K::RankDeficient { .. }
+            | K::PlanRankDeficient { .. } => py.get_type::<IdentifiabilityWarning>(),
         };
         let text = std::ffi::CString::new(text.replace('\0', " ")).expect("no NUL left");
         PyErr::warn(py, &category, &text, 1)?;
@@ -1410,6 +1411,7 @@ fn warning(w: &pkmcal::identify::Warning) -> PyWarning {
             K::FrameGauge { .. } => "frame_gauge",
             K::NotConverged { .. } => "not_converged",
             K::RankDeficient { .. } => "rank_deficient",
+            K::PlanRankDeficient { .. } => "plan_rank_deficient",
             K::Outliers { .. } => "outliers",
             K::Dropped { .. } => "dropped",
         },
@@ -2129,6 +2131,12 @@ struct PyPlan {
     spacing: f64,
     /// Candidates scored.
     candidates: usize,
+    /// Parameter directions the chosen poses determine (below the number of
+    /// free parameters: some are left unidentified; an
+    /// ``IdentifiabilityWarning`` says so).
+    rank: usize,
+    /// Number of free parameters.
+    free: usize,
 }
 
 #[pymethods]
@@ -2625,6 +2633,7 @@ fn plan<'py>(
         pkmcal::plan(mech, &params, &opts, &|| {})
     })?
     .map_err(lib_err)?;
+    emit_warnings(py, &p.warnings)?;
     let nx = spec.tool_axes.len();
     let targets = |s: &[pkmcal::WorkspacePoint]| -> Vec<f64> {
         s.iter().flat_map(|w| w.target.iter().copied()).collect()
@@ -2644,6 +2653,8 @@ fn plan<'py>(
         grid_condition: p.grid_condition,
         spacing: p.spacing,
         candidates: p.candidates,
+        rank: p.rank,
+        free: p.free,
     })
 }
 

@@ -85,3 +85,31 @@ pub fn skipped(why: &str) {
     use std::io::Write as _;
     let _ = writeln!(std::io::stderr().lock(), "SKIPPED: {why}");
 }
+
+/// Run pkmcal in `dir` with standard output and error to files: its exit
+/// code, its standard error, and its peak resident memory (kB, the kernel's
+/// own count for that child, `wait4`).
+#[allow(dead_code)]
+// The child is reaped by `wait4` below, which also gives its peak memory.
+#[allow(clippy::zombie_processes)]
+pub fn run_measured(dir: &Path, args: &[&str]) -> (Option<i32>, String, u64) {
+    use std::os::unix::process::ExitStatusExt as _;
+    let err = dir.join(".stderr");
+    let child = Command::new(BIN)
+        .args(args)
+        .current_dir(dir)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::fs::File::create(&err).expect("stderr file"))
+        .spawn()
+        .expect("pkmcal runs");
+    let mut status = 0;
+    // SAFETY: rusage is plain data that wait4 fills; the child is ours and
+    // waited for only here.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    let pid = child.id() as libc::pid_t;
+    let r = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
+    assert_eq!(r, pid, "wait4");
+    let code = std::process::ExitStatus::from_raw(status).code();
+    let stderr = std::fs::read_to_string(&err).unwrap_or_default();
+    (code, stderr, usage.ru_maxrss as u64)
+}

@@ -223,6 +223,8 @@ class Plan:
     grid_condition: float
     spacing: float
     candidates: int
+    rank: int
+    free: int
 
 class SavedCalibration:
     """A calibration read back by :func:`load_calibration`; pass it as ``params``."""

@@ -240,6 +240,18 @@ fn score_bound(t: &Tangent, a: &DMatrix<f64>) -> f64 {
     }
 }
 
+/// Each candidate's information matrix `AᵀA`, formed on demand from its
+/// rows (the same product, so the same numbers, as a stored one).
+#[derive(Clone, Copy)]
+struct Information<'a>(&'a Candidates);
+
+impl Information<'_> {
+    fn of(&self, i: usize) -> DMatrix<f64> {
+        let a = &self.0.rows[i];
+        a.transpose() * a
+    }
+}
+
 /// Most candidates scored exactly in one parallel batch.
 const MAX_BATCH: usize = 256;
 
@@ -254,14 +266,14 @@ const BOUND_REFINEMENTS: usize = 3;
 /// returns how many candidates were scored exactly.
 fn best_of(
     c: &Candidates,
-    info: &[DMatrix<f64>],
+    info: Information<'_>,
     m: &DMatrix<f64>,
     reg: f64,
     criterion: PlanCriterion,
     pool: Vec<usize>,
 ) -> (Option<(f64, usize)>, usize) {
     let order = |a: &(f64, usize), b: &(f64, usize)| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1));
-    let exact = |i: usize| (score(&(m + &info[i]), reg, criterion), i);
+    let exact = |i: usize| (score(&(m + &info.of(i)), reg, criterion), i);
     let Some(t) = tangent(m, reg, criterion) else {
         let count = pool.len();
         return (pool.into_par_iter().map(exact).max_by(order), count);
@@ -299,7 +311,7 @@ fn best_of(
             && before.map(|x| x.1) != Some(b)
             && refined < BOUND_REFINEMENTS
             && ranked.len() - next > batch
-            && let Some(mut t2) = tangent(&(m + &info[b]), reg, criterion)
+            && let Some(mut t2) = tangent(&(m + &info.of(b)), reg, criterion)
         {
             refined += 1;
             t2.base -= tangent_value(&t2, &c.rows[b]) - t2.base;
@@ -315,6 +327,25 @@ fn best_of(
         }
     }
     (best, next)
+}
+
+/// A singular value of the column-scaled identification Jacobian below this
+/// fraction of the largest counts as an undetermined direction: the
+/// information matrix `Σ AᵀA` squares the condition, so its eigenvalues
+/// below 1e-14 of the largest are rounding.
+pub const PLAN_RANK_TOL: f64 = 1e-7;
+
+/// Number of parameter directions a set of candidates determines
+/// ([`PLAN_RANK_TOL`]).
+pub fn plan_rank(c: &Candidates, set: &[usize]) -> usize {
+    let n = c.rows[0].ncols();
+    let mut m = DMatrix::zeros(n, n);
+    for &i in set {
+        m += c.rows[i].transpose() * &c.rows[i];
+    }
+    let sv = singular_values(&m);
+    let top = sv.first().copied().unwrap_or(0.0);
+    sv.iter().filter(|&&s| s > PLAN_RANK_TOL * top).count()
 }
 
 /// Observability of a set of candidates (indices into `c`).
@@ -375,9 +406,18 @@ fn choose(
         )));
     }
     let n = c.rows[0].ncols();
-    let info: Vec<DMatrix<f64>> = c.rows.iter().map(|a| a.transpose() * a).collect();
-    // A tiny ridge keeps the criterion defined while the set is rank deficient.
-    let reg = 1e-9 * info.iter().map(|m| m.trace()).sum::<f64>() / (nc * n) as f64;
+    // A tiny ridge keeps the criterion defined while the set is rank deficient
+    // (`trace AᵀA` is the squared Frobenius norm of `A`). Each candidate's
+    // information `AᵀA` is formed where it is used, not kept: kept, it would
+    // take candidates × parameters² numbers (3.6 GB for a 48-leg platform).
+    let reg = 1e-9
+        * c.rows
+            .iter()
+            .map(|a| a.transpose() * a)
+            .map(|m| m.trace())
+            .sum::<f64>()
+        / (nc * n) as f64;
+    let info = Information(c);
     let mut chosen: Vec<usize> = vec![];
     let mut m = DMatrix::zeros(n, n);
     let screening = (nc as f64) * (n as f64).powi(3) * count as f64 > EXHAUSTIVE_WORK;
@@ -387,12 +427,12 @@ fn choose(
         } else {
             (0..nc).filter(|i| !chosen.contains(i)).collect()
         };
-        best_of(c, &info, m, reg, criterion, pool).0
+        best_of(c, info, m, reg, criterion, pool).0
     };
     while chosen.len() < count {
         crate::error::check_cancel(cancel)?;
         let (_, i) = best_addition(&m, &chosen).expect("enough candidates");
-        m += &info[i];
+        m += &info.of(i);
         chosen.push(i);
         tick();
     }
@@ -401,11 +441,11 @@ fn choose(
         let mut improved = false;
         for k in 0..chosen.len() {
             crate::error::check_cancel(cancel)?;
-            let without = &m - &info[chosen[k]];
+            let without = &m - &info.of(chosen[k]);
             if let Some((s, i)) = best_addition(&without, &chosen)
                 && s > current * (1.0 + 1e-12) + 1e-300
             {
-                m = without + &info[i];
+                m = without + &info.of(i);
                 chosen[k] = i;
                 current = s;
                 improved = true;
@@ -458,6 +498,16 @@ pub struct Plan {
     pub grid_observability: Observability,
     /// Condition number of the grid.
     pub grid_condition: f64,
+    /// Number of free-parameter directions the chosen poses determine
+    /// (singular values of the column-scaled identification Jacobian above
+    /// [`PLAN_RANK_TOL`] of the largest); below the number of free
+    /// parameters, the plan leaves some unidentified.
+    pub rank: usize,
+    /// Number of free parameters.
+    pub free: usize,
+    /// What the user should know: a plan that leaves directions
+    /// undetermined ([`crate::identify::WarningKind::PlanRankDeficient`]).
+    pub warnings: Vec<crate::identify::Warning>,
     /// Lattice spacing used (mm).
     pub spacing: f64,
     /// Usable lattice points before thinning.
@@ -531,6 +581,7 @@ pub fn plan<M: Mechanism>(
     })?;
     chosen.sort_unstable();
     let (observability, condition) = plan_observability(&cands, &chosen);
+    let rank = plan_rank(&cands, &chosen);
     let grid_idx: Vec<usize> = (candidates..cands.points.len()).collect();
     let (grid_observability, grid_condition) = plan_observability(&cands, &grid_idx);
     Ok(Plan {
@@ -540,6 +591,19 @@ pub fn plan<M: Mechanism>(
         grid: grid_idx.iter().map(|&i| cands.points[i].clone()).collect(),
         grid_observability,
         grid_condition,
+        rank,
+        free: opts.free.len(),
+        warnings: if rank < opts.free.len() {
+            vec![crate::identify::Warning::new(
+                crate::identify::WarningKind::PlanRankDeficient {
+                    poses: opts.count,
+                    rank,
+                    free: opts.free.len(),
+                },
+            )]
+        } else {
+            vec![]
+        },
         spacing,
         lattice_points,
         candidates,
@@ -634,7 +698,7 @@ mod tests {
                     .iter()
                     .map(|&i| (score(&(&m + &info[i]), reg, criterion), i))
                     .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)));
-                let (best, scored) = best_of(&c, &info, &m, reg, criterion, pool.clone());
+                let (best, scored) = best_of(&c, Information(&c), &m, reg, criterion, pool.clone());
                 assert_eq!(best, every, "{criterion:?}, step {}", chosen.len());
                 if chosen.len() * nx >= n {
                     scored_full_rank.0 += scored;

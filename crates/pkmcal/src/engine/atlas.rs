@@ -2,7 +2,6 @@
 //! of a configuration, the lattice over the workspace box, and the atlas of
 //! known configurations that starts forward kinematics near its answer.
 
-use crate::engine::linearized::linearize;
 use crate::error::Result;
 use crate::mechanism::Mechanism;
 
@@ -29,7 +28,8 @@ fn inverse_condition(m: &nalgebra::DMatrix<f64>) -> f64 {
 /// singularity of the tool motion).
 pub fn conditioning<M: Mechanism>(mech: &M, q: &[f64], rho: &[f64]) -> f64 {
     let spec = mech.spec();
-    let Ok(lin) = linearize(mech, q, rho, &spec.independent) else {
+    let Ok(jf) = crate::engine::linearized::joint_tool_jacobian(mech, q, rho, &spec.independent)
+    else {
         return 0.0;
     };
     let nq = spec.joints.len();
@@ -41,7 +41,7 @@ pub fn conditioning<M: Mechanism>(mech: &M, q: &[f64], rho: &[f64]) -> f64 {
     for (c, &d) in dependent.iter().enumerate() {
         gv.column_mut(c).unscale_mut(spec.joint_scale(d));
     }
-    let mut jf = lin.jf.clone();
+    let mut jf = jf;
     for (c, &u) in spec.independent.iter().enumerate() {
         jf.column_mut(c).unscale_mut(spec.joint_scale(u));
     }

@@ -98,6 +98,38 @@ pub fn linearize<M: Mechanism>(
     })
 }
 
+/// `J_f` (eq. 9) alone, the same numbers as [`linearize`]'s `jf` (the same
+/// factorisation, and each right-hand side solved on its own), without the
+/// columns of the parameters: what a lattice point's conditioning needs. Its
+/// cost does not grow with the number of parameters (a 100-leg delta has
+/// 1,200).
+pub fn joint_tool_jacobian<M: Mechanism>(
+    mech: &M,
+    q: &[f64],
+    rho: &[f64],
+    independent: &[usize],
+) -> Result<DMatrix<f64>> {
+    let spec = mech.spec();
+    let nq = spec.joints.len();
+    let dependent = dependent_joints(spec, independent)?;
+    let j = jacobians(mech, q, rho, 0..nq);
+    let gq = j.dg.columns(0, nq);
+    let rhs = -gq.select_columns(independent);
+    let phi =
+        solve_square_multi(gq.select_columns(&dependent), rhs).ok_or_else(|| Error::Singular {
+            q: q.to_vec(),
+            reason: "∂g/∂q_v is singular (the dependent joints are not determined)".into(),
+        })?;
+    let mut dq_du = DMatrix::zeros(nq, independent.len());
+    for (k, &i) in independent.iter().enumerate() {
+        dq_du[(i, k)] = 1.0;
+    }
+    for (k, &i) in dependent.iter().enumerate() {
+        dq_du.row_mut(i).copy_from(&phi.row(k));
+    }
+    Ok(j.dx.columns(0, nq) * &dq_du)
+}
+
 /// `J_f` (eq. 9) and the tool's derivatives in ρ at fixed `q_u` (the
 /// `jf` and `jx_rho` of [`linearize`]) without the joints' sensitivities:
 /// with `Y = ∂x/∂q_v (∂g/∂q_v)⁻¹` (one solve with as many right-hand sides as

@@ -26,7 +26,7 @@ pub use identifiability::{
     Unidentifiable, ZERO_COLUMN, analyze_identifiability,
 };
 pub use loss::{Loss, OUTLIER_FLOOR_MM, OUTLIER_FLOOR_RAD, Outlier};
-pub use problem::{IdentificationProblem, PoseCache};
+pub use problem::{IdentificationProblem, MAX_POSES, PoseCache, too_many_poses};
 pub use record::{
     CALIBRATION_FORMAT, CALIBRATION_VERSION, CalibrationRecord, RecordError, RecordedParameter,
     mechanism_identity,

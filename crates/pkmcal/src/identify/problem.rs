@@ -42,6 +42,19 @@ struct Row {
     len: usize,
 }
 
+/// Most measured rows one identification takes: it keeps each pose's
+/// linearisation (7 kB a pose on the reference mechanism, 21 kB on a 6-leg
+/// Gough–Stewart platform), so that memory stays within a few gigabytes.
+pub const MAX_POSES: usize = 100_000;
+
+/// The error for `n` rows, more than [`MAX_POSES`] (`n` may be a lower
+/// bound: "more than").
+pub fn too_many_poses(n: usize) -> Error {
+    Error::InvalidRequest(format!(
+        "{n} or more measured rows, more than one identification takes ({MAX_POSES}: it keeps each pose's linearisation, kilobytes each); thin the data evenly, a few hundred well-spread poses identify every parameter"
+    ))
+}
+
 /// The identification least-squares problem: residuals are the readings
 /// predicted by the measurement model minus those measured, row by row (a
 /// row is a pose, or two poses whose distance was measured,
@@ -198,6 +211,9 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         force: &[f64],
         cache: Option<&PoseCache>,
     ) -> Result<Self> {
+        if data.len() > MAX_POSES {
+            return Err(too_many_poses(data.len()));
+        }
         let data = numbered(data);
         let mut poses: Vec<Arc<Pose>> = Vec::with_capacity(data.len());
         let mut pose_origins: Vec<Origin> = Vec::with_capacity(data.len());

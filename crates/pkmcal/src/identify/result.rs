@@ -82,6 +82,16 @@ pub enum WarningKind {
         /// Free parameters.
         free: usize,
     },
+    /// A measurement plan's poses determine fewer parameter directions than
+    /// there are free parameters.
+    PlanRankDeficient {
+        /// Poses planned.
+        poses: usize,
+        /// Directions they determine.
+        rank: usize,
+        /// Free parameters.
+        free: usize,
+    },
     /// Poses with residuals beyond the outlier threshold at the final fit.
     Outliers {
         /// Where they came from.
@@ -179,6 +189,12 @@ impl Warning {
                     "the Jacobian at the solution has rank {rank} for {free} free parameters; their uncertainties are not defined"
                 ),
                 "fix parameters named in the identifiability report".into(),
+            ),
+            WarningKind::PlanRankDeficient { poses, rank, free } => (
+                format!(
+                    "the {poses} planned poses determine only {rank} of the {free} free parameters' directions: the others cannot be identified from them"
+                ),
+                "plan more poses, or identify fewer parameters (an analysis names the combinations that cannot be identified)".into(),
             ),
             WarningKind::Outliers {
                 poses,
