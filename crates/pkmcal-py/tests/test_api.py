@@ -337,6 +337,15 @@ def test_calibration_warnings_are_python_warnings_once_per_call():
     assert not [w for w in caught if issubclass(w.category, pkmcal.PkmcalWarning)]
 
 
+def test_a_plan_that_leaves_a_direction_undetermined_says_so():
+    mech = pkmcal.Mechanism()
+    # The rigid model cannot see dq3: 15 of the 16 directions.
+    with pytest.warns(pkmcal.IdentifiabilityWarning, match="determine only 15 of the 16"):
+        p = pkmcal.plan(mech, 20, model="rigid", max_candidates=300)
+    assert (p.rank, p.free) == (15, 16)
+    assert pkmcal.plan(mech, 20, max_candidates=300).rank == 16
+
+
 def test_a_mechanism_lists_what_it_is_made_of():
     m = pkmcal.Mechanism(EXAMPLES / "gough-stewart-6" / "mechanism.toml")
     s = m.summary
