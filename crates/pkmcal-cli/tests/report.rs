@@ -251,7 +251,7 @@ fn six_axis_report_figures_are_laid_out_for_six_axes() {
             "g.csv",
         ],
     );
-    common::ok(
+    let summary = common::ok(
         d,
         &[
             "calibrate",
@@ -267,7 +267,53 @@ fn six_axis_report_figures_are_laid_out_for_six_axes() {
             "rep",
         ],
     );
+    // The terminal's accuracy table fits 140 columns: each row's ranges per
+    // axis on lines of their own (issue 36, part 5).
+    let table: Vec<&str> = summary
+        .lines()
+        .skip_while(|l| !l.trim_start().starts_with("errors"))
+        .take_while(|l| !l.contains("improvement"))
+        .collect();
+    assert!(
+        table[0].contains("(range of each axis below each row)"),
+        "{summary}"
+    );
+    assert!(table.iter().all(|l| l.chars().count() <= 140), "{table:#?}");
+    assert!(
+        table.iter().any(|l| l.trim_start().starts_with("RX ")),
+        "{table:#?}"
+    );
+    // The HTML table's column groups, the angle statistics included.
+    let html = std::fs::read_to_string(d.join("rep/report.html")).unwrap();
+    for needle in [
+        "<th colspan=\"6\">error range of each axis</th>",
+        "<th colspan=\"4\">distance error, mm</th>",
+        "<th colspan=\"2\">angle error, mrad</th>",
+    ] {
+        assert!(html.contains(needle), "{needle}");
+    }
     let svg = |f: &str| std::fs::read_to_string(d.join("rep").join(format!("{f}.svg"))).unwrap();
+    assert!(svg("parameters").contains("identified − nominal"));
+    assert!(!svg("parameters").contains("identified − start"));
+    // An instrument frame registered from a start: its changes are from it.
+    common::ok(
+        d,
+        &[
+            "calibrate",
+            "--mechanism",
+            &gs,
+            "--data",
+            "g.csv",
+            "--frame",
+            "free",
+            "--out",
+            "p.toml",
+            "--report-dir",
+            "rep2",
+        ],
+    );
+    let params = std::fs::read_to_string(d.join("rep2/parameters.svg")).unwrap();
+    assert!(params.contains("identified − start") && params.contains("identified − nominal"));
     let errors = svg("errors");
     for a in ["rx", "ry", "rz"] {
         assert!(!errors.contains(&format!("{a} error (mm)")), "{a} in mm");

@@ -747,9 +747,33 @@ pub fn column_unit(u: pkmcal::Unit) -> (f64, &'static str) {
     }
 }
 
+/// Width of the one-line table of [`print_stats`] for these axes: beyond
+/// [`MAX_TABLE_WIDTH`] (a 6-DOF tool: 250 characters) each row's ranges per
+/// axis go on lines of their own under it.
+fn table_width(units: &[pkmcal::Unit]) -> usize {
+    26 + 22 * units.len()
+        + if units.contains(&pkmcal::Unit::Millimetre) {
+            44
+        } else {
+            0
+        }
+        + if units.contains(&pkmcal::Unit::Radian) {
+            22
+        } else {
+            0
+        }
+}
+
+/// The widest accuracy table printed on one line per row.
+const MAX_TABLE_WIDTH: usize = 140;
+
 pub fn print_stats_header(axes: &[String], units: &[pkmcal::Unit]) {
     let mut h = format!("  {:<24}", "errors");
+    let stacked = table_width(units) > MAX_TABLE_WIDTH;
     for (a, u) in axes.iter().zip(units) {
+        if stacked {
+            break;
+        }
         let a = a.to_uppercase();
         let sym = column_unit(*u).1;
         h.push_str(&format!(
@@ -769,14 +793,26 @@ pub fn print_stats_header(axes: &[String], units: &[pkmcal::Unit]) {
             h.push_str(&format!(" {:>10}", format!("{t} mrad")));
         }
     }
+    if stacked {
+        h.push_str("   (range of each axis below each row)");
+    }
     println!("{h}");
 }
 
 pub fn print_stats(label: &str, s: &ErrorStats) {
+    print_stats_of(label, s, None);
+}
+
+/// [`print_stats`] with the axes' names (for the ranges printed under a
+/// row of a wide table); `None` names them X, Y, … by position.
+pub fn print_stats_of(label: &str, s: &ErrorStats, axes: Option<&[String]>) {
+    let stacked = table_width(&s.axis_units) > MAX_TABLE_WIDTH;
     let mut row = format!("  {label:<24}");
-    for ((a, b), u) in s.axis_min.iter().zip(&s.axis_max).zip(&s.axis_units) {
-        let f = column_unit(*u).0;
-        row.push_str(&format!(" {:>10.4} {:>10.4}", a * f, b * f));
+    if !stacked {
+        for ((a, b), u) in s.axis_min.iter().zip(&s.axis_max).zip(&s.axis_units) {
+            let f = column_unit(*u).0;
+            row.push_str(&format!(" {:>10.4} {:>10.4}", a * f, b * f));
+        }
     }
     if s.axis_units.contains(&pkmcal::Unit::Millimetre) {
         for v in [
@@ -792,6 +828,24 @@ pub fn print_stats(label: &str, s: &ErrorStats) {
         row.push_str(&format!(" {:>10.4} {:>10.4}", r * 1e3, m * 1e3));
     }
     println!("{row}");
+    if stacked {
+        // One line per unit: the lengths, then the angles.
+        for unit in [pkmcal::Unit::Millimetre, pkmcal::Unit::Radian] {
+            let (f, sym) = column_unit(unit);
+            let parts: Vec<String> = (0..s.axis_units.len())
+                .filter(|&k| s.axis_units[k] == unit)
+                .map(|k| {
+                    let name = axes
+                        .and_then(|a| a.get(k))
+                        .map_or_else(|| format!("axis {}", k + 1), |a| a.to_uppercase());
+                    format!("{name} {:.4} … {:.4}", s.axis_min[k] * f, s.axis_max[k] * f)
+                })
+                .collect();
+            if !parts.is_empty() {
+                println!("    {} {sym}", parts.join("   "));
+            }
+        }
+    }
 }
 
 /// Values with their units, each in a readable scale (µm, µrad…).
@@ -990,8 +1044,8 @@ fn print_summary(r: &Report, measurement: &MeasurementModel) {
     print_correlations(&cal.correlations, "correlated at the solution");
     println!();
     print_stats_header(axes, units);
-    print_stats("calibration, before", &r.accuracy.before);
-    print_stats("calibration, after", &r.accuracy.after);
+    print_stats_of("calibration, before", &r.accuracy.before, Some(axes));
+    print_stats_of("calibration, after", &r.accuracy.after, Some(axes));
     println!(
         "  improvement: max {:.1} %, RMS {:.1} %",
         r.accuracy.improvement_max_percent, r.accuracy.improvement_rms_percent
@@ -1001,8 +1055,8 @@ fn print_summary(r: &Report, measurement: &MeasurementModel) {
     }
     if let Some(v) = &r.validation {
         println!("  validation: {}", v.source);
-        print_stats("validation, before", &v.accuracy.before);
-        print_stats("validation, after", &v.accuracy.after);
+        print_stats_of("validation, before", &v.accuracy.before, Some(axes));
+        print_stats_of("validation, after", &v.accuracy.after, Some(axes));
         println!(
             "  improvement: max {:.1} %, RMS {:.1} %",
             v.accuracy.improvement_max_percent, v.accuracy.improvement_rms_percent
@@ -1018,7 +1072,7 @@ fn print_summary(r: &Report, measurement: &MeasurementModel) {
                 .collect::<Vec<_>>()
                 .join(" ")
         );
-        print_stats("cross-validation pooled", &cv.pooled);
+        print_stats_of("cross-validation pooled", &cv.pooled, Some(axes));
     }
     if cal.loss != pkmcal::Loss::Squared {
         println!("  loss {:?}", cal.loss);

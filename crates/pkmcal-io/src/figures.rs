@@ -334,13 +334,20 @@ pub struct ParamBar {
     pub sigma: f64,
 }
 
+/// What a group's changes are measured from: the nominal value, or (for the
+/// instrument's parameters, registered from a start) the starting value.
+pub const FROM_NOMINAL: &str = "identified − nominal";
+/// See [`FROM_NOMINAL`].
+pub const FROM_START: &str = "identified − start";
+
 /// Fig. 8 of the paper: identified parameter changes with ±2σ bars, one panel
-/// per unit group.
-pub fn parameter_changes(groups: &[(String, Vec<ParamBar>)]) -> Result<Figure> {
+/// per unit group; each group says what its changes are from
+/// ([`FROM_NOMINAL`], [`FROM_START`]).
+pub fn parameter_changes(groups: &[(String, &'static str, Vec<ParamBar>)]) -> Result<Figure> {
     // Panels of at most PARAMS_PER_PANEL bars, packed into rows no wider
     // than ROW_WIDTH, so that many parameters stay readable.
-    let mut panels: Vec<(String, &[ParamBar])> = vec![];
-    for (title, bars) in groups.iter().filter(|g| !g.1.is_empty()) {
+    let mut panels: Vec<(String, &'static str, &[ParamBar])> = vec![];
+    for (title, from, bars) in groups.iter().filter(|g| !g.2.is_empty()) {
         let chunks = bars.len().div_ceil(PARAMS_PER_PANEL);
         for (k, c) in bars.chunks(bars.len().div_ceil(chunks)).enumerate() {
             let t = if chunks > 1 {
@@ -348,13 +355,13 @@ pub fn parameter_changes(groups: &[(String, Vec<ParamBar>)]) -> Result<Figure> {
             } else {
                 title.clone()
             };
-            panels.push((t, c));
+            panels.push((t, from, c));
         }
     }
     let width_of = |n: usize| 120 + 55 * n as u32;
     let mut rows: Vec<Vec<usize>> = vec![];
     let mut used = u32::MAX;
-    for (i, (_, bars)) in panels.iter().enumerate() {
+    for (i, (_, _, bars)) in panels.iter().enumerate() {
         let w = width_of(bars.len());
         if used.saturating_add(w) > ROW_WIDTH {
             rows.push(vec![]);
@@ -365,14 +372,14 @@ pub fn parameter_changes(groups: &[(String, Vec<ParamBar>)]) -> Result<Figure> {
     }
     let total: u32 = rows
         .iter()
-        .map(|r| r.iter().map(|&i| width_of(panels[i].1.len())).sum::<u32>())
+        .map(|r| r.iter().map(|&i| width_of(panels[i].2.len())).sum::<u32>())
         .max()
         .unwrap_or(0)
         .max(400);
     render!(
         "parameters",
         "Identified parameter changes (paper Fig. 8)",
-        "Identified minus nominal value of each free parameter, grouped by kind and unit; black bars span ±2 standard deviations.",
+        "Identified minus nominal value of each free parameter (minus its starting value for the instrument's, registered from a start), grouped by kind and unit; black bars span ±2 standard deviations.",
         (total, PARAM_ROW_HEIGHT * rows.len().max(1) as u32),
         |root| {
             root.fill(&WHITE).map_err(err)?;
@@ -380,7 +387,7 @@ pub fn parameter_changes(groups: &[(String, Vec<ParamBar>)]) -> Result<Figure> {
             for (row, row_area) in rows.iter().zip(&row_areas) {
                 let mut rest = row_area.clone();
                 for &i in row {
-                    let (title, bars) = (&panels[i].0, panels[i].1);
+                    let (title, from, bars) = (&panels[i].0, panels[i].1, panels[i].2);
                     let (area, r) = rest.split_horizontally(width_of(bars.len()));
                     rest = r;
                     let unit = title;
@@ -409,7 +416,7 @@ pub fn parameter_changes(groups: &[(String, Vec<ParamBar>)]) -> Result<Figure> {
                                 String::new()
                             }
                         })
-                        .y_desc("identified − nominal")
+                        .y_desc(from)
                         .y_label_formatter(&tick)
                         .label_style((FONT, 13))
                         .axis_desc_style((FONT, 13))
@@ -555,22 +562,24 @@ fn arrow_panel<DB: DrawingBackend>(
                 .map(|p| Circle::new((p[0], p[1]), 3, BLACK.filled())),
         )
         .map_err(err)?;
-    // Scale bar in the lower left corner.
-    let sx = x0 + 0.05 * (x1 - x0);
-    let sy = y0 + 0.05 * (y1 - y0);
-    chart
-        .draw_series([PathElement::new(
-            vec![(sx, sy), (sx + scale * bar, sy)],
-            color.stroke_width(3),
-        )])
-        .map_err(err)?;
-    chart
-        .draw_series([Text::new(
-            format!("{} {unit} error", tick(&(bar * f))),
-            (sx, sy + 0.03 * (y1 - y0)),
-            (FONT, 13).into_font(),
-        )])
-        .map_err(err)?;
+    // The scale bar below the plot, in the bottom-left corner of the panel
+    // (under the y axis's numbers, left of the x axis's name), where no pose
+    // or vector can be.
+    let (a, _) = chart.backend_coord(&(x0, y0));
+    let (b, _) = chart.backend_coord(&(x0 + scale * bar, y0));
+    let len = (b - a).max(2);
+    let y = area.dim_in_pixel().1 as i32 - 10;
+    area.draw(&PathElement::new(
+        vec![(12, y), (12 + len, y)],
+        color.stroke_width(3),
+    ))
+    .map_err(err)?;
+    area.draw(&Text::new(
+        format!("{} {unit} error", tick(&(bar * f))),
+        (18 + len, y - 7),
+        (FONT, 13).into_font(),
+    ))
+    .map_err(err)?;
     Ok(())
 }
 
@@ -772,6 +781,9 @@ fn heat_panel<DB: DrawingBackend>(
     bar.configure_mesh()
         .disable_x_axis()
         .disable_mesh()
+        // Ticks long enough, and apart from their numbers, not to read as
+        // minus signs.
+        .set_tick_mark_size(plotters::chart::LabelAreaPosition::Right, 7)
         .y_labels(5)
         .y_label_formatter(&tick)
         .label_style((FONT, 12))

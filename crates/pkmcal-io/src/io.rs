@@ -760,13 +760,18 @@ pub fn detect_delimiter(text: &[u8]) -> u8 {
 /// (1e300 would take 301 digits) is written with an exponent.
 pub const MAX_POSITIONAL_DIGITS: usize = 40;
 
+/// Below this magnitude a number is written with an exponent
+/// (`-4.489464355827977e-14`, not `-0.00000000000004489464355827977`).
+pub const MIN_POSITIONAL: f64 = 1e-5;
+
 /// A number as data files hold it: its shortest round-trip digits, in
 /// positional notation (`-7`, `203.00000000000006`), or with an exponent
-/// (`1e300`, `2.5e-45`) where that would be longer than
-/// [`MAX_POSITIONAL_DIGITS`]. Both read back to the same number.
+/// (`1e300`, `2.5e-45`, `-4.4e-14`) where that would be longer than
+/// [`MAX_POSITIONAL_DIGITS`] or the number is below [`MIN_POSITIONAL`]. Both
+/// read back to the same number.
 pub fn number(v: f64) -> String {
     let s = format!("{v}");
-    if s.len() > MAX_POSITIONAL_DIGITS {
+    if s.len() > MAX_POSITIONAL_DIGITS || (v != 0.0 && v.abs() < MIN_POSITIONAL) {
         format!("{v:e}")
     } else {
         s
@@ -1361,6 +1366,8 @@ mod readers {
         assert_eq!(number(203.00000000000006), "203.00000000000006");
         assert_eq!(number(1e300), "1e300");
         assert_eq!(number(-2.5e-45), "-2.5e-45");
+        assert_eq!(number(-4.489464355827977e-14), "-4.489464355827977e-14");
+        assert_eq!(number(0.00012), "0.00012");
         for v in [
             0.0,
             -0.0,
@@ -1478,10 +1485,9 @@ mod fuzz {
     }
 }
 
-/// `n` and the noun in its number: "1 pose", "35 poses".
-pub fn count(n: usize, one: &str, many: &str) -> String {
-    format!("{n} {}", if n == 1 { one } else { many })
-}
+/// `n` and the noun in its number: "1 pose", "35 poses" (the library's
+/// rule, [`pkmcal::error::count`]).
+pub use pkmcal::error::count;
 
 /// A mechanism's [`pkmcal::MechanismSummary`] as JSON (pretty, ending in a
 /// newline): what `pkmcal parameters --json` prints and Python's

@@ -235,7 +235,7 @@ pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
     let spec = r.mech.spec();
     let cal = r.report.calibration;
     // Parameter groups by kind and unit (angles in mrad for readability).
-    let mut groups: Vec<(String, Vec<ParamBar>)> = vec![];
+    let mut groups: Vec<(String, &'static str, Vec<ParamBar>)> = vec![];
     let mut keys: Vec<(pkmcal::ParamKind, pkmcal::Unit)> = vec![];
     for p in cal.parameters.iter().filter(|p| p.free) {
         let (f, symbol) = match p.unit {
@@ -251,11 +251,16 @@ pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
                     pkmcal::ParamKind::Geometry => p.unit.group_name(),
                     k => k.name(),
                 };
-                groups.push((format!("{what} ({symbol})"), vec![]));
+                let from = if p.kind == pkmcal::ParamKind::Instrument {
+                    figures::FROM_START
+                } else {
+                    figures::FROM_NOMINAL
+                };
+                groups.push((format!("{what} ({symbol})"), from, vec![]));
                 groups.len() - 1
             }
         };
-        groups[g].1.push(ParamBar {
+        groups[g].2.push(ParamBar {
             name: p.name.clone(),
             change: p.change * f,
             sigma: p.std_dev * f,
@@ -338,7 +343,7 @@ pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
 fn stats_row(html: &mut String, label: &str, s: &ErrorStats) {
     let _ = write!(
         html,
-        "<tr><td>{}</td>{}<td>{:.4}</td><td>{:.4}</td><td>{:.4}</td><td>{:.4}</td></tr>",
+        "<tr><td>{}</td>{}",
         escape(label),
         s.axis_min
             .iter()
@@ -349,11 +354,18 @@ fn stats_row(html: &mut String, label: &str, s: &ErrorStats) {
                 format!("<td>{:.4} … {:.4}</td>", a * f, b * f)
             })
             .collect::<String>(),
-        s.distance_min,
-        s.distance_mean,
-        s.distance_rms,
-        s.distance_max
     );
+    if s.axis_units.contains(&pkmcal::Unit::Millimetre) {
+        let _ = write!(
+            html,
+            "<td>{:.4}</td><td>{:.4}</td><td>{:.4}</td><td>{:.4}</td>",
+            s.distance_min, s.distance_mean, s.distance_rms, s.distance_max
+        );
+    }
+    if let (Some(r), Some(m)) = (s.angle_rms, s.angle_max) {
+        let _ = write!(html, "<td>{:.4}</td><td>{:.4}</td>", r * 1e3, m * 1e3);
+    }
+    html.push_str("</tr>");
 }
 
 /// The report page.
@@ -376,6 +388,8 @@ h1 {{ font-size: 1.6em; }} h2 {{ font-size: 1.25em; border-bottom: 1px solid #cc
 table {{ border-collapse: collapse; margin: 0.5em 0 1em; font-size: 0.9em; }}
 td, th {{ border: 1px solid #ddd; padding: 3px 8px; text-align: right; }}
 td:first-child, th:first-child {{ text-align: left; }}
+th[colspan] {{ text-align: center; }}
+.wide {{ overflow-x: auto; }} .wide td {{ white-space: nowrap; }} .wide tr:nth-child(2) th {{ text-align: right; }}
 th {{ background: #f4f4f4; }}
 .fixed {{ color: #888; }} .warn {{ background: #fff4e0; border-left: 4px solid #e8a33d; padding: 0.5em 1em; margin: 0.5em 0; }}
 figure {{ margin: 1.5em 0; }} figure svg {{ max-width: 100%; height: auto; display: block; }}
@@ -433,16 +447,40 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
             escape(&crate::calibrate::cli_hint(w))
         );
     }
-    h.push_str("<h2>Accuracy</h2><table><tr><th>distance error, mm</th>");
-    for (a, u) in r.measurement.axes().iter().zip(r.measurement.units()) {
+    // Two header rows: what each group of columns is, then its columns.
+    let units = r.measurement.units();
+    let lengths = units.contains(&pkmcal::Unit::Millimetre);
+    let angles = units.contains(&pkmcal::Unit::Radian);
+    let _ = write!(
+        h,
+        "<h2>Accuracy</h2><div class=\"wide\"><table><tr><th rowspan=\"2\">poses</th><th colspan=\"{}\">error range of each axis</th>{}{}</tr><tr>",
+        units.len(),
+        if lengths {
+            "<th colspan=\"4\">distance error, mm</th>"
+        } else {
+            ""
+        },
+        if angles {
+            "<th colspan=\"2\">angle error, mrad</th>"
+        } else {
+            ""
+        }
+    );
+    for (a, u) in r.measurement.axes().iter().zip(units) {
         let _ = write!(
             h,
-            "<th>{} error range, {}</th>",
+            "<th>{}, {}</th>",
             escape(&a.to_uppercase()),
             crate::calibrate::column_unit(*u).1
         );
     }
-    h.push_str("<th>min</th><th>mean</th><th>RMS</th><th>max</th></tr>");
+    if lengths {
+        h.push_str("<th>min</th><th>mean</th><th>RMS</th><th>max</th>");
+    }
+    if angles {
+        h.push_str("<th>RMS</th><th>max</th>");
+    }
+    h.push_str("</tr>");
     stats_row(
         &mut h,
         "calibration poses, before",
@@ -470,7 +508,7 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
     }
     let _ = write!(
         h,
-        "</table><p>Improvement on the calibration poses: maximum distance error {:.1} %, RMS {:.1} %.</p>",
+        "</table></div><p>Improvement on the calibration poses: maximum distance error {:.1} %, RMS {:.1} %.</p>",
         r.report.accuracy.improvement_max_percent, r.report.accuracy.improvement_rms_percent
     );
     if let Some(d) = &r.report.accuracy.distances {

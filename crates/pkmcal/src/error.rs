@@ -176,3 +176,8 @@ pub fn check_cancel(cancel: Option<&std::sync::atomic::AtomicBool>) -> Result<()
         _ => Ok(()),
     }
 }
+
+/// `n` and the noun in its number, for messages: "1 pose", "35 poses".
+pub fn count(n: usize, one: &str, many: &str) -> String {
+    format!("{n} {}", if n == 1 { one } else { many })
+}

@@ -203,8 +203,8 @@ impl Warning {
                 dropping,
             } => (
                 format!(
-                    "{} pose(s) with residuals beyond {threshold} robust standard deviations: {}",
-                    poses.len(),
+                    "{} with residuals beyond {threshold} robust standard deviations: {}",
+                    crate::error::count(poses.len(), "pose", "poses"),
                     pose_list(poses)
                 ),
                 if *dropping {
@@ -217,8 +217,8 @@ impl Warning {
             ),
             WarningKind::Dropped { poses } => (
                 format!(
-                    "{} outlier pose(s) dropped before the final fit: {}",
-                    poses.len(),
+                    "{} dropped before the final fit: {}",
+                    crate::error::count(poses.len(), "outlier pose", "outlier poses"),
                     pose_list(poses)
                 ),
                 "check those measurements (a misread, a bumped instrument) before trusting the result".into(),
