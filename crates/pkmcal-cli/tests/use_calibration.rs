@@ -475,3 +475,57 @@ fn a_delta_with_two_legs_folded_the_other_way_is_refused_by_name() {
     assert!(!err.contains("--units"), "{err}");
     assert!(!d.join("p.csv").exists());
 }
+
+/// `predict --joints` writes every joint, the platform coordinates outside
+/// the tool axes included (a 3-PRS head's parasitic x, y, rz), in the
+/// readings' units: the ones that are tool axes equal them.
+#[test]
+fn predict_writes_every_joint_on_request() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let m = common::example("3-prs");
+    common::ok(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            &m,
+            "--grid",
+            "4",
+            "--out",
+            "s.csv",
+        ],
+    );
+    for units in ["angle=rad", "angle=deg"] {
+        common::ok(
+            d,
+            &[
+                "predict",
+                "--mechanism",
+                &m,
+                "--commands",
+                "s.csv",
+                "--joints",
+                "--units",
+                units,
+                "--out",
+                "p.csv",
+            ],
+        );
+        let (h, rows) = common::read_csv(&d.join("p.csv"));
+        let c = |n: &str| {
+            h.iter()
+                .position(|x| x == n)
+                .unwrap_or_else(|| panic!("{n} in {h:?}"))
+        };
+        for n in ["joint_x", "joint_y", "joint_rz", "joint_s1", "joint_r1"] {
+            c(n);
+        }
+        for r in &rows {
+            for a in ["z", "rx", "ry"] {
+                assert_eq!(r[c(a)], r[c(&format!("joint_{a}"))], "{a} ({units})");
+            }
+            assert_eq!(r[c("s1")], r[c("joint_s1")]);
+        }
+    }
+}

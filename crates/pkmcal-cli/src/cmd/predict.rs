@@ -34,6 +34,12 @@ pub struct Args {
     /// are written with NaN outputs and listed, instead of stopping the run.
     #[arg(long)]
     pub skip_unreachable: bool,
+    /// Also write every joint's value (`joint_<name>`, in the readings'
+    /// units): the passive joints, and every platform coordinate of a
+    /// spatial mechanism, the ones outside its tool axes included (a 3-PRS
+    /// head's parasitic x, y, rz).
+    #[arg(long)]
+    pub joints: bool,
     /// Output CSV.
     #[arg(long, value_name = "OUT.csv")]
     pub out: PathBuf,
@@ -113,6 +119,9 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     if covariance.is_some() {
         header.extend(spec.tool_axes.iter().map(|a| format!("sigma_{a}")));
     }
+    if a.joints {
+        header.extend(spec.joints.iter().map(|j| format!("joint_{j}")));
+    }
     let (cf, tf) = (
         pkmcal_io::fileunits::commands(spec, &units),
         pkmcal_io::fileunits::tool(spec, &units),
@@ -125,7 +134,16 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         .chain(&cf)
         .copied()
         .chain(std::iter::repeat_n(1.0, names.len()))
-        .chain(tf.iter().copied())
+        .chain(if covariance.is_some() {
+            tf.clone()
+        } else {
+            vec![]
+        })
+        .chain(if a.joints {
+            pkmcal_io::fileunits::readings(&spec.joint_units, &units)
+        } else {
+            vec![]
+        })
         .collect();
     // The commands in their file's own units (its units line, else the
     // run's); the output in the run's, as its units line says.
@@ -162,10 +180,12 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
                     let sigma = r.covariance.as_ref().map_or(vec![], |c| {
                         (0..c.nrows()).map(|a| c[(a, a)].sqrt()).collect()
                     });
+                    let joints: &[f64] = if a.joints { &p.q } else { &[] };
                     p.x.iter()
                         .chain(&p.deflection)
                         .chain(&p.torque)
                         .chain(&sigma)
+                        .chain(joints)
                         .copied()
                         .collect()
                 }
