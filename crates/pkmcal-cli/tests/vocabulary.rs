@@ -1,4 +1,4 @@
-//! The README's option table is the CLI's vocabulary: every option it lists
+//! The option table of docs/cli.md is the CLI's vocabulary: every option it lists
 //! is in the help of every command it names, and the old spellings it lists
 //! are still read.
 
@@ -22,21 +22,21 @@ const COMMANDS: [&str; 13] = [
     "demo",
 ];
 
-/// The rows of the README's table `| option | meaning | commands |`: the
+/// The rows of docs/cli.md's table `| option | meaning | commands |`: the
 /// options of the first cell and the commands of the third.
 fn table() -> Vec<(Vec<String>, Vec<&'static str>)> {
-    let readme = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../README.md"))
-        .expect("README.md");
+    let readme = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../docs/cli.md"))
+        .expect("docs/cli.md");
     let start = readme
         .find("| option | meaning | commands |")
-        .expect("the option table in README.md");
+        .expect("the option table in docs/cli.md");
     let mut rows = vec![];
     for line in readme[start..].lines().skip(2) {
         if !line.starts_with('|') {
             break;
         }
         let cells: Vec<&str> = line.trim_matches('|').split(" | ").map(str::trim).collect();
-        assert_eq!(cells.len(), 3, "README option table row: {line}");
+        assert_eq!(cells.len(), 3, "option table (docs/cli.md) row: {line}");
         let ticked = |cell: &str| -> Vec<String> {
             cell.split('`')
                 .skip(1)
@@ -65,13 +65,13 @@ fn table() -> Vec<(Vec<String>, Vec<&'static str>)> {
         };
         assert!(
             !options.is_empty() && !commands.is_empty(),
-            "README option table row names no option or no command: {line}"
+            "option table (docs/cli.md) row names no option or no command: {line}"
         );
         rows.push((options, commands));
     }
     assert!(
         rows.len() >= 10,
-        "the README option table has {} rows",
+        "the option table (docs/cli.md) has {} rows",
         rows.len()
     );
     rows
@@ -97,7 +97,7 @@ fn the_readme_option_table_holds_for_every_command() {
                     .any(|w| w == o);
                 assert!(
                     listed,
-                    "README says `pkmcal {c}` takes {o}; its help does not list it"
+                    "docs/cli.md says `pkmcal {c}` takes {o}; its help does not list it"
                 );
             }
         }

@@ -841,8 +841,16 @@ pub fn print_stats_of(label: &str, s: &ErrorStats, axes: Option<&[String]>) {
                     format!("{name} {:.4} … {:.4}", s.axis_min[k] * f, s.axis_max[k] * f)
                 })
                 .collect();
-            if !parts.is_empty() {
-                println!("    {} {sym}", parts.join("   "));
+            // At most three axes a line (a tracker's three target points
+            // give nine length axes).
+            let lines = parts.len().div_ceil(3);
+            for (k, chunk) in parts.chunks(3).enumerate() {
+                let end = if k + 1 == lines {
+                    format!(" {sym}")
+                } else {
+                    String::new()
+                };
+                println!("    {}{end}", chunk.join("   "));
             }
         }
     }

@@ -162,19 +162,25 @@ impl Warning {
                 unfixed,
             } => (
                 format!(
-                    "the instrument frame is identified together with parameters that also place the mechanism: {} directions move both together and are unidentifiable with the {} model{}",
-                    fixed.len() + unfixed,
+                    "the instrument frame is identified together with parameters that also place the mechanism: {} both together and {} unidentifiable with the {} model{}",
+                    crate::error::count(fixed.len() + unfixed, "direction moves", "directions move"),
+                    if fixed.len() + unfixed == 1 { "is" } else { "are" },
                     model.name(),
                     if fixed.is_empty() {
                         String::new()
                     } else {
                         format!(
-                            "; fixed {} at their starting values (they now define the base frame)",
+                            "; fixed {} at {} (now defining the base frame)",
                             fixed
                                 .iter()
                                 .map(|f| format!("`{f}`"))
                                 .collect::<Vec<_>>()
-                                .join(", ")
+                                .join(", "),
+                            if fixed.len() == 1 {
+                                "its starting value"
+                            } else {
+                                "their starting values"
+                            }
                         )
                     }
                 ),

@@ -621,7 +621,9 @@ impl MeasurementModel {
     pub fn describe(&self) -> String {
         match &self.instrument {
             Instrument::Tool { .. } => format!("tool coordinates {}", self.axes.join(" ")),
-            Instrument::Targets { points } => format!("{} target point(s)", points.len()),
+            Instrument::Targets { points } => {
+                crate::error::count(points.len(), "target point", "target points")
+            }
             Instrument::BallBar { setup, .. } => {
                 format!("ball bar, {} sockets", setup.sockets.len())
             }
