@@ -11,7 +11,7 @@ use proptest::prelude::*;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-fn cases() -> u32 {
+pub(crate) fn cases() -> u32 {
     std::env::var("PKMCAL_FUZZ_CASES")
         .ok()
         .and_then(|v| v.parse().ok())
@@ -23,7 +23,7 @@ fn root() -> PathBuf {
 }
 
 /// Apply byte edits (position, new byte, delete?) to a text.
-fn mutate(base: &[u8], edits: &[(usize, u8, bool)]) -> Vec<u8> {
+pub(crate) fn mutate(base: &[u8], edits: &[(usize, u8, bool)]) -> Vec<u8> {
     let mut b = base.to_vec();
     for &(pos, byte, delete) in edits {
         if b.is_empty() {

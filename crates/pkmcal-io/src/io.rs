@@ -1418,20 +1418,7 @@ mod fuzz {
 
     /// Apply byte edits (position, new byte, delete?) to a text.
     fn mutate(base: &str, edits: &[(usize, u8, bool)]) -> String {
-        let mut b = base.as_bytes().to_vec();
-        for &(pos, byte, delete) in edits {
-            if b.is_empty() {
-                b.push(byte);
-                continue;
-            }
-            let p = pos % b.len();
-            if delete {
-                b.remove(p);
-            } else {
-                b.insert(p, byte);
-            }
-        }
-        String::from_utf8_lossy(&b).into_owned()
+        String::from_utf8_lossy(&crate::fuzz_readers::mutate(base.as_bytes(), edits)).into_owned()
     }
 
     fn read_csv_text(text: &str) -> Result<Vec<Vec<f64>>> {
@@ -1443,13 +1430,7 @@ mod fuzz {
         csv.named(&["q1".into(), "q2".into(), "x".into()])
     }
 
-    /// Cases per reader: 1000 in the test suite, more on request.
-    fn cases() -> u32 {
-        std::env::var("PKMCAL_FUZZ_CASES")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(1000)
-    }
+    use crate::fuzz_readers::cases;
 
     proptest! {
         #![proptest_config(ProptestConfig { cases: cases(), rng_seed: proptest::test_runner::RngSeed::Fixed(11), ..ProptestConfig::default() })]

@@ -70,13 +70,9 @@ pub fn linearize<M: Mechanism>(
     })?;
     let phi = sol.columns(0, independent.len()).into_owned();
     let jp = sol.columns(independent.len(), nr).into_owned();
-    let mut dq_du = DMatrix::zeros(nq, independent.len());
+    let dq_du = joint_sensitivity(nq, independent, &dependent, &phi);
     let mut dq_drho = DMatrix::zeros(nq, nr);
-    for (k, &i) in independent.iter().enumerate() {
-        dq_du[(i, k)] = 1.0;
-    }
     for (k, &i) in dependent.iter().enumerate() {
-        dq_du.row_mut(i).copy_from(&phi.row(k));
         dq_drho.row_mut(i).copy_from(&jp.row(k));
     }
     let gamma = dq_du.select_rows(&spec.actuated);
@@ -120,6 +116,18 @@ pub fn joint_tool_jacobian<M: Mechanism>(
             q: q.to_vec(),
             reason: "∂g/∂q_v is singular (the dependent joints are not determined)".into(),
         })?;
+    let dq_du = joint_sensitivity(nq, independent, &dependent, &phi);
+    Ok(j.dx.columns(0, nq) * &dq_du)
+}
+
+/// `U [I; Φ]` (eq. 5): every joint's sensitivity to the independent joints,
+/// from `Φ` (one row per dependent joint).
+fn joint_sensitivity(
+    nq: usize,
+    independent: &[usize],
+    dependent: &[usize],
+    phi: &DMatrix<f64>,
+) -> DMatrix<f64> {
     let mut dq_du = DMatrix::zeros(nq, independent.len());
     for (k, &i) in independent.iter().enumerate() {
         dq_du[(i, k)] = 1.0;
@@ -127,7 +135,7 @@ pub fn joint_tool_jacobian<M: Mechanism>(
     for (k, &i) in dependent.iter().enumerate() {
         dq_du.row_mut(i).copy_from(&phi.row(k));
     }
-    Ok(j.dx.columns(0, nq) * &dq_du)
+    dq_du
 }
 
 /// `J_f` (eq. 9) and the tool's derivatives in ρ at fixed `q_u` (the
