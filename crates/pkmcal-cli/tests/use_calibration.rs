@@ -172,8 +172,8 @@ fn plan_then_montecarlo() {
     fails(
         d,
         &["plan", "--count", "5", "--out", "p.csv"],
-        1,
-        "too few coordinates",
+        2,
+        "--count: 5 poses give too few coordinates for 16 free parameters; plan at least 9",
     );
     fails(
         d,

@@ -524,6 +524,11 @@ pub fn run_plan(run: &crate::Run<'_>, c: PlanConfig) -> Result<()> {
     if !(c.candidates.is_finite() && c.candidates > 0.0) {
         return crate::output::usage("--candidates must be a positive spacing in mm");
     }
+    // Too few poses for the free set is the command line's (--count, --free).
+    if let Err(e) = pkmcal::apply::planning::check_count(c.count, spec.tool_axes.len(), free.len())
+    {
+        return crate::output::usage(format!("--count: {e}"));
+    }
     let bar = run.bar(0, false, "planning steps", 0);
     let plan = pkmcal::apply::planning::plan(
         &mech,

@@ -516,6 +516,19 @@ pub struct Plan {
     pub candidates: usize,
 }
 
+/// Whether `count` poses of `axes` tool coordinates each can determine
+/// `free` parameters (more coordinates than parameters); the error says how
+/// many to plan.
+pub fn check_count(count: usize, axes: usize, free: usize) -> Result<()> {
+    if count.saturating_mul(axes) <= free {
+        return Err(Error::InvalidRequest(format!(
+            "{count} poses give too few coordinates for {free} free parameters; plan at least {}",
+            free / axes.max(1) + 1
+        )));
+    }
+    Ok(())
+}
+
 /// Plan `opts.count` poses over the mechanism's usable workspace at
 /// `params`: candidates on a lattice ([`crate::apply::workspace::sample_workspace`]),
 /// thinned evenly to `opts.max_candidates`, chosen by [`plan_poses`];
@@ -527,15 +540,7 @@ pub fn plan<M: Mechanism>(
     tick: &(dyn Fn() + Sync),
 ) -> Result<Plan> {
     let spec = mech.spec();
-    let nx = spec.tool_axes.len();
-    if opts.count.saturating_mul(nx) <= opts.free.len() {
-        return Err(Error::InvalidRequest(format!(
-            "{} poses give too few coordinates for {} free parameters; plan at least {}",
-            opts.count,
-            opts.free.len(),
-            opts.free.len() / nx + 1
-        )));
-    }
+    check_count(opts.count, spec.tool_axes.len(), opts.free.len())?;
     if !(opts.spacing.is_finite() && opts.spacing > 0.0) {
         return Err(Error::InvalidRequest(format!(
             "the candidate spacing must be a positive length in mm, got {}",
