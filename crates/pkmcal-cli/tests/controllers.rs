@@ -646,33 +646,9 @@ fn gcode_moves_are_rewritten_through_the_predistortion() {
         t.push_str(&format!("{x},{y}\n"));
     }
     std::fs::write(d.join("sent.csv"), t).unwrap();
-    // The nominal controller's commands for the sent targets...
-    ok(
-        d,
-        &[
-            "compensate",
-            "--targets",
-            "sent.csv",
-            "--model",
-            "rigid",
-            "--out",
-            "q.csv",
-        ],
-    );
-    // ... drive the calibrated machine to the programmed points.
-    ok(
-        d,
-        &[
-            "predict",
-            "--params",
-            "cal.toml",
-            "--commands",
-            "q.csv",
-            "--out",
-            "p.csv",
-        ],
-    );
-    let (h, p) = read_csv(&d.join("p.csv"));
+    // The nominal controller's commands for the sent targets drive the
+    // calibrated machine to the programmed points.
+    let (h, p) = common::reached_from_sent(d, None, "cal.toml", "sent.csv");
     for (r, (x, y)) in p.iter().zip(wanted) {
         let e = (r[col(&h, "x")] - x).hypot(r[col(&h, "y")] - y);
         assert!(e < GCODE_MM, "{e} mm");

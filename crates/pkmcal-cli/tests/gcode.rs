@@ -2,7 +2,7 @@
 //! SOURCES.md) and on what each firmware reads its own way (issue 34, F15).
 
 mod common;
-use common::{example, fails, ok, read_csv, run};
+use common::{example, fails, ok, run};
 use std::path::Path;
 
 /// G-code coordinates are written to 0.1 µm; the tool lands within this of
@@ -195,35 +195,7 @@ fn real_slicer_programs_are_rewritten_byte_for_byte_around_their_moves() {
             ));
         }
         std::fs::write(d.join("sent.csv"), t).unwrap();
-        ok(
-            d,
-            &[
-                "compensate",
-                "--mechanism",
-                &mech,
-                "--targets",
-                "sent.csv",
-                "--model",
-                "rigid",
-                "--out",
-                "q.csv",
-            ],
-        );
-        ok(
-            d,
-            &[
-                "predict",
-                "--mechanism",
-                &mech,
-                "--params",
-                "cal.toml",
-                "--commands",
-                "q.csv",
-                "--out",
-                "p.csv",
-            ],
-        );
-        let (h, p) = read_csv(&d.join("p.csv"));
+        let (h, p) = common::reached_from_sent(d, Some(&mech), "cal.toml", "sent.csv");
         let c = |n: &str| h.iter().position(|x| x == n).unwrap();
         for (r, (want, _, line)) in p.iter().zip(&sampled) {
             let e = (0..3)

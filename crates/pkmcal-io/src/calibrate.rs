@@ -770,10 +770,7 @@ const MAX_TABLE_WIDTH: usize = 140;
 pub fn print_stats_header(axes: &[String], units: &[pkmcal::Unit]) {
     let mut h = format!("  {:<24}", "errors");
     let stacked = table_width(units) > MAX_TABLE_WIDTH;
-    for (a, u) in axes.iter().zip(units) {
-        if stacked {
-            break;
-        }
+    for (a, u) in axes.iter().zip(units).filter(|_| !stacked) {
         let a = a.to_uppercase();
         let sym = column_unit(*u).1;
         h.push_str(&format!(

@@ -113,3 +113,33 @@ pub fn run_measured(dir: &Path, args: &[&str]) -> (Option<i32>, String, u64) {
     let stderr = std::fs::read_to_string(&err).unwrap_or_default();
     (code, stderr, usage.ru_maxrss as u64)
 }
+
+/// Where the machine calibrated as `params` lands when a controller running
+/// the nominal (rigid) model is sent the targets of `sent` (a CSV of
+/// `target_<axis>` columns in `dir`): the controller's commands by
+/// `compensate --model rigid`, then `predict` with `params`. The predicted
+/// table (header, rows).
+#[allow(dead_code)]
+pub fn reached_from_sent(
+    dir: &Path,
+    mechanism: Option<&str>,
+    params: &str,
+    sent: &str,
+) -> (Vec<String>, Vec<Vec<f64>>) {
+    let mech: Vec<&str> = mechanism.map_or(vec![], |m| vec!["--mechanism", m]);
+    let compensate = [
+        &["compensate"][..],
+        &mech,
+        &["--targets", sent, "--model", "rigid", "--out", "q.csv"],
+    ]
+    .concat();
+    ok(dir, &compensate);
+    let predict = [
+        &["predict"][..],
+        &mech,
+        &["--params", params, "--commands", "q.csv", "--out", "p.csv"],
+    ]
+    .concat();
+    ok(dir, &predict);
+    read_csv(&dir.join("p.csv"))
+}

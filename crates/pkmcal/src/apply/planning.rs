@@ -240,16 +240,10 @@ fn score_bound(t: &Tangent, a: &DMatrix<f64>) -> f64 {
     }
 }
 
-/// Each candidate's information matrix `AᵀA`, formed on demand from its
-/// rows (the same product, so the same numbers, as a stored one).
-#[derive(Clone, Copy)]
-struct Information<'a>(&'a Candidates);
-
-impl Information<'_> {
-    fn of(&self, i: usize) -> DMatrix<f64> {
-        let a = &self.0.rows[i];
-        a.transpose() * a
-    }
+/// Candidate `i`'s information matrix `AᵀA`, formed where it is used from
+/// its rows (the same product, so the same numbers, as a stored one).
+fn information(c: &Candidates, i: usize) -> DMatrix<f64> {
+    c.rows[i].transpose() * &c.rows[i]
 }
 
 /// Most candidates scored exactly in one parallel batch.
@@ -266,14 +260,13 @@ const BOUND_REFINEMENTS: usize = 3;
 /// returns how many candidates were scored exactly.
 fn best_of(
     c: &Candidates,
-    info: Information<'_>,
     m: &DMatrix<f64>,
     reg: f64,
     criterion: PlanCriterion,
     pool: Vec<usize>,
 ) -> (Option<(f64, usize)>, usize) {
     let order = |a: &(f64, usize), b: &(f64, usize)| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1));
-    let exact = |i: usize| (score(&(m + &info.of(i)), reg, criterion), i);
+    let exact = |i: usize| (score(&(m + &information(c, i)), reg, criterion), i);
     let Some(t) = tangent(m, reg, criterion) else {
         let count = pool.len();
         return (pool.into_par_iter().map(exact).max_by(order), count);
@@ -311,7 +304,7 @@ fn best_of(
             && before.map(|x| x.1) != Some(b)
             && refined < BOUND_REFINEMENTS
             && ranked.len() - next > batch
-            && let Some(mut t2) = tangent(&(m + &info.of(b)), reg, criterion)
+            && let Some(mut t2) = tangent(&(m + &information(c, b)), reg, criterion)
         {
             refined += 1;
             t2.base -= tangent_value(&t2, &c.rows[b]) - t2.base;
@@ -338,29 +331,39 @@ pub const PLAN_RANK_TOL: f64 = 1e-7;
 /// Number of parameter directions a set of candidates determines
 /// ([`PLAN_RANK_TOL`]).
 pub fn plan_rank(c: &Candidates, set: &[usize]) -> usize {
-    let n = c.rows[0].ncols();
-    let mut m = DMatrix::zeros(n, n);
-    for &i in set {
-        m += c.rows[i].transpose() * &c.rows[i];
-    }
-    let sv = singular_values(&m);
-    let top = sv.first().copied().unwrap_or(0.0);
-    sv.iter().filter(|&&s| s > PLAN_RANK_TOL * top).count()
+    rank_of(&set_singular_values(c, set))
 }
 
 /// Observability of a set of candidates (indices into `c`).
 pub fn plan_observability(c: &Candidates, set: &[usize]) -> (Observability, f64) {
+    observability_of(&set_singular_values(c, set), set.len())
+}
+
+/// The singular values (largest first) of a set's column-scaled
+/// identification Jacobian, from its information matrix.
+fn set_singular_values(c: &Candidates, set: &[usize]) -> Vec<f64> {
     let n = c.rows[0].ncols();
     let mut m = DMatrix::zeros(n, n);
     for &i in set {
         m += c.rows[i].transpose() * &c.rows[i];
     }
-    let sv = singular_values(&m);
+    singular_values(&m)
+}
+
+/// Directions above [`PLAN_RANK_TOL`] of the largest singular value.
+fn rank_of(sv: &[f64]) -> usize {
+    let top = sv.first().copied().unwrap_or(0.0);
+    sv.iter().filter(|&&s| s > PLAN_RANK_TOL * top).count()
+}
+
+/// Observability indices and condition number of `poses` poses' singular
+/// values.
+fn observability_of(sv: &[f64], poses: usize) -> (Observability, f64) {
     let cond = match (sv.first(), sv.last()) {
         (Some(a), Some(b)) if *b > 0.0 => a / b,
         _ => f64::INFINITY,
     };
-    (observability(&sv, set.len()), cond)
+    (observability(sv, poses), cond)
 }
 
 /// Work (about `candidates × parameters³ × poses`) up to which every
@@ -410,14 +413,7 @@ fn choose(
     // (`trace AᵀA` is the squared Frobenius norm of `A`). Each candidate's
     // information `AᵀA` is formed where it is used, not kept: kept, it would
     // take candidates × parameters² numbers (3.6 GB for a 48-leg platform).
-    let reg = 1e-9
-        * c.rows
-            .iter()
-            .map(|a| a.transpose() * a)
-            .map(|m| m.trace())
-            .sum::<f64>()
-        / (nc * n) as f64;
-    let info = Information(c);
+    let reg = 1e-9 * (0..nc).map(|i| information(c, i).trace()).sum::<f64>() / (nc * n) as f64;
     let mut chosen: Vec<usize> = vec![];
     let mut m = DMatrix::zeros(n, n);
     let screening = (nc as f64) * (n as f64).powi(3) * count as f64 > EXHAUSTIVE_WORK;
@@ -427,12 +423,12 @@ fn choose(
         } else {
             (0..nc).filter(|i| !chosen.contains(i)).collect()
         };
-        best_of(c, info, m, reg, criterion, pool).0
+        best_of(c, m, reg, criterion, pool).0
     };
     while chosen.len() < count {
         crate::error::check_cancel(cancel)?;
         let (_, i) = best_addition(&m, &chosen).expect("enough candidates");
-        m += &info.of(i);
+        m += &information(c, i);
         chosen.push(i);
         tick();
     }
@@ -441,11 +437,11 @@ fn choose(
         let mut improved = false;
         for k in 0..chosen.len() {
             crate::error::check_cancel(cancel)?;
-            let without = &m - &info.of(chosen[k]);
+            let without = &m - &information(c, chosen[k]);
             if let Some((s, i)) = best_addition(&without, &chosen)
                 && s > current * (1.0 + 1e-12) + 1e-300
             {
-                m = without + &info.of(i);
+                m = without + &information(c, i);
                 chosen[k] = i;
                 current = s;
                 improved = true;
@@ -585,8 +581,9 @@ pub fn plan<M: Mechanism>(
         )
     })?;
     chosen.sort_unstable();
-    let (observability, condition) = plan_observability(&cands, &chosen);
-    let rank = plan_rank(&cands, &chosen);
+    let sv = set_singular_values(&cands, &chosen);
+    let (observability, condition) = observability_of(&sv, chosen.len());
+    let rank = rank_of(&sv);
     let grid_idx: Vec<usize> = (candidates..cands.points.len()).collect();
     let (grid_observability, grid_condition) = plan_observability(&cands, &grid_idx);
     Ok(Plan {
@@ -703,7 +700,7 @@ mod tests {
                     .iter()
                     .map(|&i| (score(&(&m + &info[i]), reg, criterion), i))
                     .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)));
-                let (best, scored) = best_of(&c, Information(&c), &m, reg, criterion, pool.clone());
+                let (best, scored) = best_of(&c, &m, reg, criterion, pool.clone());
                 assert_eq!(best, every, "{criterion:?}, step {}", chosen.len());
                 if chosen.len() * nx >= n {
                     scored_full_rank.0 += scored;
