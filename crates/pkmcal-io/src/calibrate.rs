@@ -1,6 +1,18 @@
 //! `calibrate` and `analyze`: read data, identify, validate, report.
 
+/// `writeln!` into a `String` (which cannot fail).
+macro_rules! outln {
+    ($o:expr) => {{
+        $o.push('\n');
+    }};
+    ($o:expr, $($t:tt)*) => {{
+        use std::fmt::Write as _;
+        let _ = writeln!($o, $($t)*);
+    }};
+}
+
 use crate::io::{Csv, Description, Mech, read_description};
+use crate::record::CalibrationState;
 use anyhow::{Context, Result, bail};
 use pkmcal::identify::{CrossValidation, Identifiability};
 use pkmcal::{
@@ -396,7 +408,8 @@ pub struct Validation {
 
 /// The JSON report of `calibrate` (and of Python's `Calibration.save`): a
 /// versioned calibration record ([`pkmcal::identify::CalibrationRecord`]
-/// reads it back) with everything a reader wants to see.
+/// reads it back) with everything a reader wants to see, and in `state` the
+/// whole calibration ([`crate::record`]).
 #[derive(Serialize)]
 pub struct Report<'a> {
     /// [`pkmcal::identify::CALIBRATION_FORMAT`].
@@ -412,23 +425,34 @@ pub struct Report<'a> {
     pub measurement: pkmcal::MeasurementSummary,
     #[serde(flatten)]
     pub calibration: &'a Calibration,
-    pub accuracy: Accuracy,
+    pub accuracy: &'a Accuracy,
     pub validation: Option<Validation>,
-    pub cross_validation: Option<CrossValidation>,
+    pub cross_validation: &'a Option<CrossValidation>,
+    /// The whole calibration, to read it back ([`crate::record`]).
+    #[serde(serialize_with = "write_state")]
+    pub state: &'a CalibrationState,
+}
+
+fn write_state<S: serde::Serializer>(
+    state: &&CalibrationState,
+    s: S,
+) -> std::result::Result<S::Ok, S::Error> {
+    crate::record::state_to_json(state)
+        .map_err(|e| serde::ser::Error::custom(format!("{e:#}")))?
+        .serialize(s)
 }
 
 impl<'a> Report<'a> {
-    /// The report of a calibration of the mechanism `spec` from `data` (a
-    /// file's name, or a description of arrays).
+    /// The report of the calibration `state` of the mechanism `spec` from
+    /// `data` (a file's name, or a description of arrays); `validation`
+    /// words where the validation poses came from.
     pub fn new(
         spec: &pkmcal::Spec,
         data: String,
-        measurement: &MeasurementModel,
-        calibration: &'a Calibration,
-        accuracy: Accuracy,
-        validation: Option<Validation>,
-        cross_validation: Option<CrossValidation>,
+        state: &'a CalibrationState,
+        validation: impl Fn(pkmcal::identify::ValidationSource) -> String,
     ) -> Self {
+        let study = &state.study;
         Report {
             format: pkmcal::identify::CALIBRATION_FORMAT,
             version: pkmcal::identify::CALIBRATION_VERSION,
@@ -436,11 +460,15 @@ impl<'a> Report<'a> {
             mechanism: spec.name.clone(),
             mechanism_identity: pkmcal::identify::mechanism_identity(spec),
             data,
-            measurement: measurement.summary(),
-            calibration,
-            accuracy,
-            validation,
-            cross_validation,
+            measurement: state.measurement.summary(),
+            calibration: &study.calibration,
+            accuracy: &study.accuracy,
+            validation: study.validation.as_ref().map(|v| Validation {
+                source: validation(v.source),
+                accuracy: v.accuracy.clone(),
+            }),
+            cross_validation: &study.cross_validation,
+            state,
         }
     }
 
@@ -578,6 +606,7 @@ pub fn measurement_of(
 /// its measurement model and its poses.
 struct Measured {
     mech: Mech,
+    source: crate::record::MechanismSource,
     measurement: MeasurementModel,
     data: Vec<Measurement>,
     units: pkmcal::FileUnits,
@@ -597,10 +626,12 @@ fn read_measured(
     let units = crate::fileunits::of(run, &description);
     let file_units = crate::fileunits::for_file(run, &units, csv.units.as_ref(), &csv.path);
     let mech = description.mech;
+    let source = description.source;
     let data = data_from(&csv, &mech, &measurement, &file_units)?;
     crate::hints::check_data(&mech, &measurement, &data, &file_units, &csv.path)?;
     Ok(Measured {
         mech,
+        source,
         measurement,
         data,
         units,
@@ -610,6 +641,7 @@ fn read_measured(
 pub fn run_calibrate(run: &crate::Run<'_>, c: CalibrateConfig) -> Result<()> {
     let Measured {
         mech,
+        source,
         measurement,
         data: all,
         units,
@@ -673,6 +705,12 @@ pub fn run_calibrate(run: &crate::Run<'_>, c: CalibrateConfig) -> Result<()> {
         }
     })?;
     bar.finish();
+    let state = CalibrationState {
+        mechanism: source,
+        measurement,
+        study,
+    };
+    let (measurement, study) = (&state.measurement, &state.study);
     let cal = &study.calibration;
     let header = format!(
         "pkmcal {} calibration ({} model) of {} from {}\nsolver: {}",
@@ -687,28 +725,17 @@ pub fn run_calibrate(run: &crate::Run<'_>, c: CalibrateConfig) -> Result<()> {
         crate::io::params_to_string(spec, &cal.params, &header).as_bytes(),
     )?;
     let (before, after, kept) = (&study.before, &study.after, &study.poses);
-    let validation = study.validation.as_ref().map(|v| Validation {
-        source: match (v.source, &c.validate) {
-            (pkmcal::identify::ValidationSource::Given, Some(p)) => p.display().to_string(),
-            (pkmcal::identify::ValidationSource::Given, None) => "validation poses".to_string(),
-            (pkmcal::identify::ValidationSource::HeldOut { count, seed }, _) => format!(
-                "{count} held-out poses of {} (seed {seed})",
-                c.data.display()
-            ),
-        },
-        accuracy: v.accuracy.clone(),
+    let report = Report::new(spec, c.data.display().to_string(), &state, |source| match (
+        source,
+        &c.validate,
+    ) {
+        (pkmcal::identify::ValidationSource::Given, Some(p)) => p.display().to_string(),
+        (pkmcal::identify::ValidationSource::Given, None) => "validation poses".to_string(),
+        (pkmcal::identify::ValidationSource::HeldOut { count, seed }, _) => format!(
+            "{count} held-out poses of {} (seed {seed})",
+            c.data.display()
+        ),
     });
-    let cross_validation = study.cross_validation.clone();
-    let acc = study.accuracy.clone();
-    let report = Report::new(
-        spec,
-        c.data.display().to_string(),
-        &measurement,
-        cal,
-        acc,
-        validation,
-        cross_validation,
-    );
     if let Some(r) = &c.report {
         run.files.stage(r, report.to_json()?.as_bytes())?;
     }
@@ -719,14 +746,16 @@ pub fn run_calibrate(run: &crate::Run<'_>, c: CalibrateConfig) -> Result<()> {
             &crate::report::ReportInputs {
                 report: &report,
                 mech,
-                measurement: &measurement,
+                measurement,
                 data: kept,
                 before,
                 after,
             },
         )?;
     }
-    print_summary(&report, &measurement);
+    let mut summary = String::new();
+    write_summary(&mut summary, &report, measurement, &CLI_WORDING);
+    print!("{summary}");
     println!();
     println!("identified parameters -> {}", c.out.display());
     if let Some(r) = &c.report {
@@ -767,7 +796,7 @@ fn table_width(units: &[pkmcal::Unit]) -> usize {
 /// The widest accuracy table printed on one line per row.
 const MAX_TABLE_WIDTH: usize = 140;
 
-pub fn print_stats_header(axes: &[String], units: &[pkmcal::Unit]) {
+pub fn write_stats_header(out: &mut String, axes: &[String], units: &[pkmcal::Unit]) {
     let mut h = format!("  {:<24}", "errors");
     let stacked = table_width(units) > MAX_TABLE_WIDTH;
     for (a, u) in axes.iter().zip(units).filter(|_| !stacked) {
@@ -793,16 +822,16 @@ pub fn print_stats_header(axes: &[String], units: &[pkmcal::Unit]) {
     if stacked {
         h.push_str("   (range of each axis below each row)");
     }
-    println!("{h}");
+    outln!(out, "{h}");
 }
 
-pub fn print_stats(label: &str, s: &ErrorStats) {
-    print_stats_of(label, s, None);
+pub fn write_stats(out: &mut String, label: &str, s: &ErrorStats) {
+    write_stats_of(out, label, s, None);
 }
 
 /// [`print_stats`] with the axes' names (for the ranges printed under a
 /// row of a wide table); `None` names them X, Y, … by position.
-pub fn print_stats_of(label: &str, s: &ErrorStats, axes: Option<&[String]>) {
+pub fn write_stats_of(out: &mut String, label: &str, s: &ErrorStats, axes: Option<&[String]>) {
     let stacked = table_width(&s.axis_units) > MAX_TABLE_WIDTH;
     let mut row = format!("  {label:<24}");
     if !stacked {
@@ -824,7 +853,7 @@ pub fn print_stats_of(label: &str, s: &ErrorStats, axes: Option<&[String]>) {
     if let (Some(r), Some(m)) = (s.angle_rms, s.angle_max) {
         row.push_str(&format!(" {:>10.4} {:>10.4}", r * 1e3, m * 1e3));
     }
-    println!("{row}");
+    outln!(out, "{row}");
     if stacked {
         // One line per unit: the lengths, then the angles.
         for unit in [pkmcal::Unit::Millimetre, pkmcal::Unit::Radian] {
@@ -847,7 +876,7 @@ pub fn print_stats_of(label: &str, s: &ErrorStats, axes: Option<&[String]>) {
                 } else {
                     String::new()
                 };
-                println!("    {}{end}", chunk.join("   "));
+                outln!(out, "    {}{end}", chunk.join("   "));
             }
         }
     }
@@ -867,7 +896,11 @@ pub fn with_units(values: &[f64], units: &[pkmcal::Unit]) -> String {
 }
 
 /// The instrument frame in words, when the data were measured from one.
-pub fn frame_text(cal: &Calibration, measurement: &MeasurementModel) -> Option<String> {
+pub fn frame_text(
+    cal: &Calibration,
+    measurement: &MeasurementModel,
+    wording: &Wording,
+) -> Option<String> {
     cal.frame.as_ref()?;
     let names = &measurement.param_names()[measurement.frame_range()];
     let rows: Vec<String> = cal
@@ -894,7 +927,7 @@ pub fn frame_text(cal: &Calibration, measurement: &MeasurementModel) -> Option<S
     Some(format!(
         "instrument frame in the base frame ({}): {}",
         if *measurement.frame() == Frame::Free {
-            "identified; --frame base if the data are in the base frame"
+            wording.frame_base
         } else {
             "given"
         },
@@ -921,9 +954,9 @@ pub fn noise_text(g: &pkmcal::NoiseGroup) -> String {
 }
 
 /// One line per noise group.
-pub fn print_noise(groups: &[pkmcal::NoiseGroup]) {
+pub fn write_noise(out: &mut String, groups: &[pkmcal::NoiseGroup]) {
     for g in groups {
-        println!("  {}", noise_text(g));
+        outln!(out, "  {}", noise_text(g));
     }
 }
 
@@ -944,25 +977,31 @@ pub fn condition_text(id: &Identifiability) -> String {
 
 /// The identifiability summary; `fixed` says what happened to the parameter
 /// named for each unidentifiable direction ("fixed", "calibrate fixes").
-pub fn print_identifiability(id: &Identifiability, fixed: &str) {
-    println!(
+pub fn write_identifiability(out: &mut String, id: &Identifiability, fixed: &str, all_in: &str) {
+    outln!(
+        out,
         "identifiability: rank {} of {} free, {}",
         id.rank,
         id.singular_values.len(),
         condition_text(id)
     );
     let o = &id.observability;
-    println!(
+    outln!(
+        out,
         "  observability O1 {:.4e}  O2 {:.4e}  O3 {:.4e}  O4 {:.4e}  O5 {:.4e}",
-        o.o1, o.o2, o.o3, o.o4, o.o5
+        o.o1,
+        o.o2,
+        o.o3,
+        o.o4,
+        o.o5
     );
     for u in &id.unidentifiable {
         match &u.fixed {
-            Some(f) => println!("  unidentifiable: {}  -> {fixed} {f}", u.combination),
-            None => println!("  unidentifiable: {}", u.combination),
+            Some(f) => outln!(out, "  unidentifiable: {}  -> {fixed} {f}", u.combination),
+            None => outln!(out, "  unidentifiable: {}", u.combination),
         }
     }
-    print_correlations(&id.correlations, "correlated");
+    write_correlations(out, &id.correlations, "correlated", all_in);
 }
 
 /// Pairs of correlated parameters printed before the rest are only counted
@@ -971,25 +1010,38 @@ const PRINTED_CORRELATIONS: usize = 10;
 
 /// The strongest correlations (largest |r| first), at most
 /// [`PRINTED_CORRELATIONS`], and how many more the reports hold.
-fn print_correlations(all: &[pkmcal::identify::Correlation], label: &str) {
+fn write_correlations(
+    out: &mut String,
+    all: &[pkmcal::identify::Correlation],
+    label: &str,
+    all_in: &str,
+) {
     let mut sorted: Vec<&pkmcal::identify::Correlation> = all.iter().collect();
     sorted.sort_by(|a, b| b.r.abs().total_cmp(&a.r.abs()));
     for c in sorted.iter().take(PRINTED_CORRELATIONS) {
-        println!("  {label}: {} and {} (r = {:+.3})", c.a, c.b, c.r);
+        outln!(out, "  {label}: {} and {} (r = {:+.3})", c.a, c.b, c.r);
     }
     if sorted.len() > PRINTED_CORRELATIONS {
-        println!(
-            "  {label}: {} more pairs with |r| > {} (all of them in --report's JSON)",
+        outln!(
+            out,
+            "  {label}: {} more pairs with |r| > {} (all of them in {all_in})",
             sorted.len() - PRINTED_CORRELATIONS,
             pkmcal::identify::CORRELATION_REPORT
         );
     }
 }
 
-fn print_summary(r: &Report, measurement: &MeasurementModel) {
+/// The summary of a calibration as text, in `wording`'s words.
+pub fn write_summary(
+    out: &mut String,
+    r: &Report,
+    measurement: &MeasurementModel,
+    wording: &Wording,
+) {
     let (axes, units) = (measurement.axes(), measurement.units());
     let cal = r.calibration;
-    println!(
+    outln!(
+        out,
         "calibration of {} from {} ({} poses{}, {} model)",
         r.mechanism,
         r.data,
@@ -1001,25 +1053,36 @@ fn print_summary(r: &Report, measurement: &MeasurementModel) {
         },
         cal.model.name()
     );
-    println!(
+    outln!(
+        out,
         "{} after {} iterations ({} evaluations); σ of unit weight {:.3}",
-        cal.termination_reason, cal.iterations, cal.evaluations, cal.unit_weight_sigma
+        cal.termination_reason,
+        cal.iterations,
+        cal.evaluations,
+        cal.unit_weight_sigma
     );
-    print_noise(&cal.noise);
-    println!();
+    write_noise(out, &cal.noise);
+    outln!(out);
     let width = cal
         .parameters
         .iter()
         .filter(|p| p.free || p.note.is_some())
         .map(|p| p.name.chars().count())
         .fold(6, usize::max);
-    println!(
+    outln!(
+        out,
         "  {:<width$} {:>14} {:>16} {:>14} {:>12} {:<8}",
-        "param", "nominal", "identified", "change", "±σ", "unit"
+        "param",
+        "nominal",
+        "identified",
+        "change",
+        "±σ",
+        "unit"
     );
     for p in &cal.parameters {
         if p.free || p.note.is_some() {
-            println!(
+            outln!(
+                out,
                 "  {:<width$} {:>14.6} {:>16.8} {:>+14.6e} {:>12.3e} {:<8}{}",
                 p.name,
                 p.nominal,
@@ -1040,35 +1103,45 @@ fn print_summary(r: &Report, measurement: &MeasurementModel) {
         .filter(|p| !p.free && p.note.is_none())
         .map(|p| p.name.as_str())
         .collect();
-    println!("  fixed: {}", fixed.join(" "));
-    if let Some(text) = frame_text(cal, measurement) {
-        println!("  {text}");
+    outln!(out, "  fixed: {}", fixed.join(" "));
+    if let Some(text) = frame_text(cal, measurement, wording) {
+        outln!(out, "  {text}");
     }
-    println!();
-    print_identifiability(&cal.identifiability, "fixed");
-    print_correlations(&cal.correlations, "correlated at the solution");
-    println!();
-    print_stats_header(axes, units);
-    print_stats_of("calibration, before", &r.accuracy.before, Some(axes));
-    print_stats_of("calibration, after", &r.accuracy.after, Some(axes));
-    println!(
+    outln!(out);
+    write_identifiability(out, &cal.identifiability, "fixed", wording.all_correlations);
+    write_correlations(
+        out,
+        &cal.correlations,
+        "correlated at the solution",
+        wording.all_correlations,
+    );
+    outln!(out);
+    write_stats_header(out, axes, units);
+    write_stats_of(out, "calibration, before", &r.accuracy.before, Some(axes));
+    write_stats_of(out, "calibration, after", &r.accuracy.after, Some(axes));
+    outln!(
+        out,
         "  improvement: max {:.1} %, RMS {:.1} %",
-        r.accuracy.improvement_max_percent, r.accuracy.improvement_rms_percent
+        r.accuracy.improvement_max_percent,
+        r.accuracy.improvement_rms_percent
     );
     if let Some(d) = &r.accuracy.distances {
-        print_distances(d);
+        write_distances(out, d);
     }
     if let Some(v) = &r.validation {
-        println!("  validation: {}", v.source);
-        print_stats_of("validation, before", &v.accuracy.before, Some(axes));
-        print_stats_of("validation, after", &v.accuracy.after, Some(axes));
-        println!(
+        outln!(out, "  validation: {}", v.source);
+        write_stats_of(out, "validation, before", &v.accuracy.before, Some(axes));
+        write_stats_of(out, "validation, after", &v.accuracy.after, Some(axes));
+        outln!(
+            out,
             "  improvement: max {:.1} %, RMS {:.1} %",
-            v.accuracy.improvement_max_percent, v.accuracy.improvement_rms_percent
+            v.accuracy.improvement_max_percent,
+            v.accuracy.improvement_rms_percent
         );
     }
     if let Some(cv) = &r.cross_validation {
-        println!(
+        outln!(
+            out,
             "  {}-fold cross-validation: held-out RMS per fold {}",
             cv.folds,
             cv.fold_rms
@@ -1077,13 +1150,14 @@ fn print_summary(r: &Report, measurement: &MeasurementModel) {
                 .collect::<Vec<_>>()
                 .join(" ")
         );
-        print_stats_of("cross-validation pooled", &cv.pooled, Some(axes));
+        write_stats_of(out, "cross-validation pooled", &cv.pooled, Some(axes));
     }
     if cal.loss != pkmcal::Loss::Squared {
-        println!("  loss {:?}", cal.loss);
+        outln!(out, "  loss {:?}", cal.loss);
     }
     for o in &cal.outliers {
-        println!(
+        outln!(
+            out,
             "  outlier: {} residual {} ({:.1} robust σ){}",
             o.origin,
             with_units(&o.residual, &o.units),
@@ -1096,16 +1170,75 @@ fn print_summary(r: &Report, measurement: &MeasurementModel) {
         );
     }
     for w in &cal.warnings {
-        println!("warning: {}\n  hint: {}", w.message, cli_hint(w));
+        outln!(out, "warning: {}\n  hint: {}", w.message, (wording.hint)(w));
     }
 }
 
 /// Errors of the distances between poses, before and after.
-pub fn print_distances(d: &pkmcal::DistanceAccuracy) {
-    println!(
+pub fn write_distances(out: &mut String, d: &pkmcal::DistanceAccuracy) {
+    outln!(
+        out,
         "  {} distances between poses: error max {:.4} mm, RMS {:.4} mm before; max {:.4} mm, RMS {:.4} mm after",
-        d.count, d.before_max, d.before_rms, d.after_max, d.after_rms
+        d.count,
+        d.before_max,
+        d.before_rms,
+        d.after_max,
+        d.after_rms
     );
+}
+
+/// How a front end words a summary: where it keeps what the text leaves
+/// out, and its hints.
+pub struct Wording {
+    /// After an identified instrument frame: how to say the data are in the
+    /// base frame.
+    pub frame_base: &'static str,
+    /// Where every correlated pair is listed.
+    pub all_correlations: &'static str,
+    /// A warning's hint.
+    pub hint: fn(&pkmcal::identify::Warning) -> String,
+}
+
+/// The command line's words.
+pub const CLI_WORDING: Wording = Wording {
+    frame_base: "identified; --frame base if the data are in the base frame",
+    all_correlations: "--report's JSON",
+    hint: cli_hint,
+};
+
+/// Print what [`write_stats_header`] writes.
+pub fn print_stats_header(axes: &[String], units: &[pkmcal::Unit]) {
+    let mut o = String::new();
+    write_stats_header(&mut o, axes, units);
+    print!("{o}");
+}
+
+/// Print what [`write_stats`] writes.
+pub fn print_stats(label: &str, s: &ErrorStats) {
+    let mut o = String::new();
+    write_stats(&mut o, label, s);
+    print!("{o}");
+}
+
+/// Print what [`write_noise`] writes.
+pub fn print_noise(groups: &[pkmcal::NoiseGroup]) {
+    let mut o = String::new();
+    write_noise(&mut o, groups);
+    print!("{o}");
+}
+
+/// Print what [`write_identifiability`] writes, in the command line's words.
+pub fn print_identifiability(id: &Identifiability, fixed: &str) {
+    let mut o = String::new();
+    write_identifiability(&mut o, id, fixed, CLI_WORDING.all_correlations);
+    print!("{o}");
+}
+
+/// Print what [`write_distances`] writes.
+pub fn print_distances(d: &pkmcal::DistanceAccuracy) {
+    let mut o = String::new();
+    write_distances(&mut o, d);
+    print!("{o}");
 }
 
 pub struct AnalyzeConfig {
@@ -1133,6 +1266,7 @@ pub fn run_analyze(run: &crate::Run<'_>, c: AnalyzeConfig) -> Result<()> {
         measurement,
         data,
         units,
+        ..
     } = read_measured(
         run,
         c.mechanism.as_deref(),

@@ -133,7 +133,7 @@ const LEGEND_HEIGHT: u32 = 34;
 /// One error panel: the values of one or two series at each pose.
 fn error_panel<DB: DrawingBackend>(
     area: &DrawingArea<DB, plotters::coord::Shift>,
-    n: usize,
+    numbers: &[f64],
     label: &str,
     series: &[(&[f64], RGBColor)],
 ) -> Result<()> {
@@ -144,11 +144,13 @@ fn error_panel<DB: DrawingBackend>(
             .chain([0.0]),
         0.08,
     );
+    let first = numbers.first().copied().unwrap_or(1.0);
+    let last = numbers.last().copied().unwrap_or(1.0).max(first);
     let mut chart = ChartBuilder::on(area)
         .margin(8)
         .x_label_area_size(30)
         .y_label_area_size(62)
-        .build_cartesian_2d(0.5f64..n as f64 + 0.5, lo..hi)
+        .build_cartesian_2d(first - 0.5..last + 0.5, lo..hi)
         .map_err(err)?;
     chart
         .configure_mesh()
@@ -160,12 +162,12 @@ fn error_panel<DB: DrawingBackend>(
         .y_label_formatter(&tick)
         .label_style((FONT, 12))
         .axis_desc_style((FONT, 13))
-        .light_line_style(WHITE)
+        .max_light_lines(0)
         .draw()
         .map_err(err)?;
     chart
         .draw_series(LineSeries::new(
-            [(0.5, 0.0), (n as f64 + 0.5, 0.0)],
+            [(first - 0.5, 0.0), (last + 0.5, 0.0)],
             BLACK.mix(0.4),
         ))
         .map_err(err)?;
@@ -173,15 +175,16 @@ fn error_panel<DB: DrawingBackend>(
         let color = *color;
         chart
             .draw_series(LineSeries::new(
-                vals.iter().enumerate().map(|(i, v)| (i as f64 + 1.0, *v)),
+                numbers.iter().zip(vals.iter()).map(|(x, v)| (*x, *v)),
                 color.mix(0.5),
             ))
             .map_err(err)?;
         chart
             .draw_series(
-                vals.iter()
-                    .enumerate()
-                    .map(|(i, v)| Circle::new((i as f64 + 1.0, *v), 3, color.filled())),
+                numbers
+                    .iter()
+                    .zip(vals.iter())
+                    .map(|(x, v)| Circle::new((*x, *v), 3, color.filled())),
             )
             .map_err(err)?;
     }
@@ -218,6 +221,7 @@ fn legend<DB: DrawingBackend>(
 /// when the errors after calibration are more than ten times smaller, they
 /// get panels of their own, on the right.
 pub fn errors_per_pose(
+    poses: &[usize],
     before: &[Vec<f64>],
     after: &[Vec<f64>],
     axes: &[String],
@@ -225,6 +229,9 @@ pub fn errors_per_pose(
 ) -> Result<Figure> {
     use pkmcal::Unit;
     let n = before.len();
+    // Each pose at its number, as its front end numbers it (the command
+    // line by file row from 1, Python by array row from 0).
+    let numbers: Vec<f64> = poses.iter().map(|&p| p as f64).collect();
     let lengths: Vec<usize> = (0..units.len())
         .filter(|&k| units[k] == Unit::Millimetre)
         .collect();
@@ -291,13 +298,13 @@ pub fn errors_per_pose(
                     let (av, au) = readable(a, *unit);
                     error_panel(
                         &cells[2 * r],
-                        n,
+                        &numbers,
                         &format!("{name} ({bu})"),
                         &[(&bv, BEFORE)],
                     )?;
                     error_panel(
                         &cells[2 * r + 1],
-                        n,
+                        &numbers,
                         &format!("{name} ({au})"),
                         &[(&av, AFTER)],
                     )?;
@@ -309,7 +316,7 @@ pub fn errors_per_pose(
                     let av: Vec<f64> = a.iter().map(|v| v * f).collect();
                     error_panel(
                         &cells[r],
-                        n,
+                        &numbers,
                         &format!("{name} ({u})"),
                         &[(&bv, BEFORE), (&av, AFTER)],
                     )?;
@@ -420,7 +427,7 @@ pub fn parameter_changes(groups: &[(String, &'static str, Vec<ParamBar>)]) -> Re
                         .y_label_formatter(&tick)
                         .label_style((FONT, 13))
                         .axis_desc_style((FONT, 13))
-                        .light_line_style(WHITE)
+                        .max_light_lines(0)
                         .disable_x_mesh()
                         .draw()
                         .map_err(err)?;
@@ -537,13 +544,20 @@ fn arrow_panel<DB: DrawingBackend>(
         .y_label_formatter(&tick)
         .label_style((FONT, 13))
         .axis_desc_style((FONT, 14))
-        .light_line_style(WHITE)
+        .max_light_lines(0)
         .draw()
         .map_err(err)?;
+    // A spatial lattice seen from one side puts many points on one pixel:
+    // each pixel's dot is drawn once (the same picture, a fraction of the
+    // SVG).
+    let mut seen = std::collections::HashSet::new();
+    let dots: Vec<&Vec<f64>> = workspace
+        .iter()
+        .filter(|p| seen.insert(chart.backend_coord(&(p[0], p[1]))))
+        .collect();
     chart
         .draw_series(
-            workspace
-                .iter()
+            dots.iter()
                 .map(|p| Circle::new((p[0], p[1]), 1, GREY.filled())),
         )
         .map_err(err)?;
@@ -758,7 +772,7 @@ fn heat_panel<DB: DrawingBackend>(
         .y_label_formatter(&tick)
         .label_style((FONT, 12))
         .axis_desc_style((FONT, 13))
-        .light_line_style(WHITE)
+        .max_light_lines(0)
         .draw()
         .map_err(err)?;
     let hs = slice.spacing / 2.0;
@@ -835,7 +849,7 @@ fn sweep_panel<DB: DrawingBackend>(
         .y_label_formatter(&tick)
         .label_style((FONT, 12))
         .axis_desc_style((FONT, 13))
-        .light_line_style(WHITE)
+        .max_light_lines(0)
         .draw()
         .map_err(err)?;
     chart
@@ -1030,7 +1044,7 @@ pub fn residuals(standardized: &[f64]) -> Result<Figure> {
                 .y_desc("density")
                 .label_style((FONT, 12))
                 .axis_desc_style((FONT, 13))
-                .light_line_style(WHITE)
+                .max_light_lines(0)
                 .draw()
                 .map_err(err)?;
             hist.draw_series(density.iter().enumerate().map(|(i, d)| {
@@ -1063,7 +1077,7 @@ pub fn residuals(standardized: &[f64]) -> Result<Figure> {
                 .y_desc("residual / σ")
                 .label_style((FONT, 12))
                 .axis_desc_style((FONT, 13))
-                .light_line_style(WHITE)
+                .max_light_lines(0)
                 .draw()
                 .map_err(err)?;
             qq.draw_series(LineSeries::new([(-lim, -lim), (lim, lim)], BLACK.mix(0.5)))
@@ -1128,7 +1142,7 @@ pub fn singular_values(sv: &[f64], threshold: f64) -> Result<Figure> {
                 .y_label_formatter(&|v| format!("{v:.0e}"))
                 .label_style((FONT, 12))
                 .axis_desc_style((FONT, 13))
-                .light_line_style(WHITE)
+                .max_light_lines(0)
                 .draw()
                 .map_err(err)?;
             chart

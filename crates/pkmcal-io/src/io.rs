@@ -961,6 +961,8 @@ pub struct Description {
     pub ballbar: Option<pkmcal::Setup>,
     /// The data-file units of its `[units]` table, if any.
     pub units: Option<pkmcal::PartialUnits>,
+    /// Where it came from, as a complete calibration record keeps it.
+    pub source: crate::record::MechanismSource,
 }
 
 /// A description's parts from its text (what [`read_description`] reads).
@@ -1010,6 +1012,7 @@ pub fn read_description(run: &crate::Run<'_>, path: Option<&Path>) -> Result<Des
             targets: vec![],
             ballbar: None,
             units: None,
+            source: crate::record::MechanismSource::Reference,
         });
     };
     let text = run
@@ -1024,6 +1027,7 @@ pub fn read_description(run: &crate::Run<'_>, path: Option<&Path>) -> Result<Des
         targets: p.targets,
         ballbar: p.ballbar,
         units: p.units,
+        source: crate::record::MechanismSource::Description(text),
     })
 }
 
@@ -1249,16 +1253,30 @@ pub fn read_calibration_record(
         .files
         .read_to_string(path, crate::output::InputKind::Description)
         .with_context(|| format!("cannot read calibration report {}", path.display()))?;
-    let v: serde_json::Value = serde_json::from_str(&text)
-        .with_context(|| format!("{}: not a JSON calibration report", path.display()))?;
-    if v.get("covariance").is_none() {
+    crate::record::record_from_str(&text, &path.display().to_string()).map(|(r, _)| r)
+}
+
+/// Read a calibration record that holds the whole calibration (written by
+/// this pkmcal's `calibrate --report` or Python's `Calibration.save`).
+pub fn read_calibration_state(
+    run: &crate::Run<'_>,
+    path: &Path,
+) -> Result<(
+    pkmcal::identify::CalibrationRecord,
+    crate::record::CalibrationState,
+)> {
+    let text = run
+        .files
+        .read_to_string(path, crate::output::InputKind::Description)
+        .with_context(|| format!("cannot read calibration report {}", path.display()))?;
+    let (record, state) = crate::record::record_from_str(&text, &path.display().to_string())?;
+    let Some(state) = state else {
         bail!(
-            "{}: no `covariance` entry; pass the report written by `pkmcal calibrate --report` or Python's Calibration.save",
+            "{}: this calibration record holds only the parameters and their covariance (an older pkmcal wrote it): it serves predictions, not the whole calibration; calibrate again to keep the whole calibration",
             path.display()
         );
-    }
-    serde_json::from_value(v)
-        .with_context(|| format!("{}: malformed calibration report", path.display()))
+    };
+    Ok((record, state))
 }
 
 /// Target columns `target_<axis>`.

@@ -26,6 +26,7 @@ pub mod hints;
 pub mod io;
 pub mod klipper;
 pub mod output;
+pub mod record;
 pub mod report;
 pub mod reprap;
 pub mod usecal;

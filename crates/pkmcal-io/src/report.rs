@@ -292,6 +292,11 @@ pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
     let lattice_targets: Vec<Vec<f64>> = lattice.iter().map(|p| p.target.clone()).collect();
     let mut out = vec![
         figures::errors_per_pose(
+            &r.data
+                .iter()
+                .enumerate()
+                .map(|(i, m)| m.origin.map_or(i + 1, |o| o.pose))
+                .collect::<Vec<_>>(),
             r.before,
             r.after,
             r.measurement.axes(),
@@ -428,14 +433,15 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
             .collect::<Vec<_>>()
             .join("<br>"),
         escape(
-            &crate::calibrate::frame_text(cal, r.measurement).unwrap_or_else(|| {
-                match r.measurement.instrument() {
-                    pkmcal::Instrument::BallBar { .. } => {
-                        "none: the ball-bar sockets are given in the base frame".into()
+            &crate::calibrate::frame_text(cal, r.measurement, &crate::calibrate::CLI_WORDING)
+                .unwrap_or_else(|| {
+                    match r.measurement.instrument() {
+                        pkmcal::Instrument::BallBar { .. } => {
+                            "none: the ball-bar sockets are given in the base frame".into()
+                        }
+                        _ => format!("the base frame; readings: {}", r.measurement.describe()),
                     }
-                    _ => format!("the base frame; readings: {}", r.measurement.describe()),
-                }
-            })
+                })
         ),
         env!("CARGO_PKG_VERSION")
     );

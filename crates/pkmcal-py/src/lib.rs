@@ -9,12 +9,12 @@ use numpy::{
     AllowTypeChange, IntoPyArray, PyArray1, PyArrayLikeDyn, PyReadonlyArrayDyn,
     PyUntypedArrayMethods,
 };
-use pkmcal::identify::{Calibration as LibCalibration, CrossValidation, Identifiability};
+use pkmcal::identify::{Calibration as LibCalibration, Identifiability};
 use pkmcal::{
     AnyMechanism, CalibrationOptions, Loss, MeasurementModel, Mechanism as _, Model, Noise, Origin,
     Params,
 };
-use pkmcal_io::calibrate::Validation;
+use pkmcal_io::record::{CalibrationState, MechanismSource};
 use pyo3::create_exception;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -58,7 +58,9 @@ create_exception!(
 );
 
 /// Emit a calibration's warnings with `warnings.warn`, each once, in the
-/// category of its kind.
+/// category of its kind, attributed to the line that called the package's
+/// function (the package wraps each function once, `__init__.py`: stack
+/// level 2).
 fn emit_warnings(py: Python<'_>, warnings: &[pkmcal::identify::Warning]) -> PyResult<()> {
     use pkmcal::identify::WarningKind as K;
     let mut seen = std::collections::BTreeSet::new();
@@ -77,9 +79,23 @@ fn emit_warnings(py: Python<'_>, warnings: &[pkmcal::identify::Warning]) -> PyRe
             | K::PlanRankDeficient { .. } => py.get_type::<IdentifiabilityWarning>(),
         };
         let text = std::ffi::CString::new(text.replace('\0', " ")).expect("no NUL left");
-        PyErr::warn(py, &category, &text, 1)?;
+        PyErr::warn(py, &category, &text, 2)?;
     }
     Ok(())
+}
+
+/// A `DeprecationWarning`: `old` is now `new` (kept for one release).
+fn deprecated(py: Python<'_>, old: &str, new: &str) -> PyResult<()> {
+    let msg = std::ffi::CString::new(format!(
+        "{old} is deprecated and will be removed in the next release; use {new}"
+    ))
+    .expect("no NUL");
+    PyErr::warn(
+        py,
+        &py.get_type::<pyo3::exceptions::PyDeprecationWarning>(),
+        &msg,
+        1,
+    )
 }
 
 // ---------------------------------------------------------------- errors
@@ -713,12 +729,19 @@ impl PyMechanism {
     }
     /// Every parameter name: geometry, then encoder offsets, then stiffness.
     #[getter]
-    fn parameters(&self) -> Vec<String> {
+    fn parameter_names(&self) -> Vec<String> {
         self.spec()
             .param_names()
             .iter()
             .map(|s| s.to_string())
             .collect()
+    }
+    /// Deprecated name of ``parameter_names`` (``Calibration.parameters``
+    /// are values by name).
+    #[getter]
+    fn parameters(&self, py: Python<'_>) -> PyResult<Vec<String>> {
+        deprecated(py, "Mechanism.parameters", "Mechanism.parameter_names")?;
+        Ok(self.parameter_names())
     }
     /// Nominal parameter values by name.
     #[getter]
@@ -764,9 +787,15 @@ impl PyMechanism {
     /// Target points of the description's ``[[target]]`` tables (tool frame,
     /// mm), shape (k, axes); None when it has none.
     #[getter]
-    fn targets<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyAny>> {
+    fn target_points<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyAny>> {
         let w = self.targets.first()?.len();
         Some(out2(py, self.targets.concat(), w, false))
+    }
+    /// Deprecated name of ``target_points`` (``Plan.targets`` are poses).
+    #[getter]
+    fn targets<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
+        deprecated(py, "Mechanism.targets", "Mechanism.target_points")?;
+        Ok(self.target_points(py))
     }
     /// Pickled as its description, so that it crosses process boundaries
     /// (multiprocessing, joblib).
@@ -850,15 +879,15 @@ fn params_arg(m: &PyMechanism, p: Option<&Bound<'_, PyAny>>, what: &str) -> PyRe
         let c = c.get();
         // The same rule as for a calibration read back: the same
         // mechanism identity (joints, parameters, nominal values).
-        if pkmcal::identify::mechanism_identity(c.mech.spec())
+        if pkmcal::identify::mechanism_identity(c.mech().spec())
             != pkmcal::identify::mechanism_identity(spec)
         {
             return Err(usage(format!(
                 "{what}: this calibration is of another mechanism ({})",
-                c.mech.spec().name
+                c.mech().spec().name
             )));
         }
-        return Ok(c.cal.params.clone());
+        return Ok(c.cal().params.clone());
     }
     // Any mapping of names to values (a dict, a pandas Series, …): its
     // `items()`.
@@ -949,6 +978,181 @@ fn free_arg(
         })
 }
 
+/// ``bounds``: a mapping name → ``(lower, upper)``.
+fn bounds_arg(b: &Bound<'_, PyAny>) -> PyResult<Vec<(String, f64, f64)>> {
+    let items = b
+        .call_method0("items")
+        .map_err(|_| usage("bounds: expected a dict name → (lower, upper)"))?;
+    let mut out = vec![];
+    for kv in items.try_iter()? {
+        let (name, pair): (String, Bound<'_, PyAny>) = kv?
+            .extract()
+            .map_err(|_| usage("bounds: expected a dict name → (lower, upper)"))?;
+        let (lo, hi): (f64, f64) = pair.extract().map_err(|_| {
+            usage(format!(
+                "bounds: `{name}` must map to (lower, upper), two numbers (±inf for an open side)"
+            ))
+        })?;
+        out.push((name, lo, hi));
+    }
+    Ok(out)
+}
+
+/// ``x0``: a mapping (as ``start``) or one value per free mechanism
+/// parameter, in column order.
+fn x0_arg(m: &PyMechanism, free: &[usize], x0: &Bound<'_, PyAny>) -> PyResult<Params> {
+    if x0.hasattr("items")?
+        || x0.hasattr("__fspath__")?
+        || x0.is_instance_of::<pyo3::types::PyString>()
+    {
+        return params_arg(m, Some(x0), "x0");
+    }
+    let spec = m.spec();
+    let names = spec.param_names();
+    let mech_free: Vec<usize> = free.iter().copied().filter(|&i| i < names.len()).collect();
+    let v: Vec<f64> = x0.extract().map_err(|_| {
+        usage("x0: expected a dict name → value, or a 1-D array of the free mechanism parameters' starting values")
+    })?;
+    if v.len() != mech_free.len() {
+        return Err(usage(format!(
+            "x0 has {} values; give one per free mechanism parameter, in this order: {}",
+            v.len(),
+            mech_free
+                .iter()
+                .map(|&i| names[i])
+                .collect::<Vec<_>>()
+                .join(", ")
+        )));
+    }
+    let mut p = Params::nominal(spec);
+    for (&i, x) in mech_free.iter().zip(&v) {
+        if !x.is_finite() {
+            return Err(usage(format!(
+                "x0: `{}` is {x}; every value must be a finite number",
+                names[i]
+            )));
+        }
+        p.values[i] = *x;
+    }
+    Ok(p)
+}
+
+/// ``mechanism``: a :class:`Mechanism`, or what ``Mechanism(...)`` takes (a
+/// path, TOML text, a dict).
+fn mechanism_arg<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyMechanism>> {
+    if let Ok(m) = obj.cast::<PyMechanism>() {
+        return Ok(m.clone());
+    }
+    let is_source = obj.is_instance_of::<pyo3::types::PyString>()
+        || obj.hasattr("__fspath__")?
+        || obj.cast::<PyDict>().is_ok();
+    if !is_source {
+        return Err(pyo3::exceptions::PyTypeError::new_err(format!(
+            "mechanism: expected a pkmcal.Mechanism (or a path, TOML text or dict describing one), got {}",
+            obj.get_type().name()?
+        )));
+    }
+    Bound::new(obj.py(), PyMechanism::new(Some(obj))?)
+}
+
+/// ``seed``: a non-negative integer (the same numbers every time), None
+/// (fresh numbers from the operating system's entropy) or a NumPy
+/// ``Generator`` or ``RandomState`` (one draw from it, so a user's stream
+/// decides).
+fn seed_arg(seed: SeedArg) -> PyResult<u64> {
+    let obj = match seed {
+        SeedArg::Default(n) => return Ok(n),
+        SeedArg::Given(obj) => obj,
+    };
+    Python::attach(|py| seed_of(obj.as_ref().map(|o| o.bind(py))))
+}
+
+/// A ``seed`` as given: the function's default, or an object.
+enum SeedArg {
+    Default(u64),
+    Given(Option<Py<PyAny>>),
+}
+
+impl<'a, 'py> FromPyObject<'a, 'py> for SeedArg {
+    type Error = PyErr;
+    fn extract(obj: pyo3::Borrowed<'a, 'py, PyAny>) -> PyResult<Self> {
+        Ok(SeedArg::Given(Some(obj.to_owned().unbind())))
+    }
+}
+
+fn seed_of(seed: Option<&Bound<'_, PyAny>>) -> PyResult<u64> {
+    let Some(s) = seed.filter(|s| !s.is_none()) else {
+        let mut b = [0u8; 8];
+        getrandom(&mut b)?;
+        return Ok(u64::from_le_bytes(b));
+    };
+    let drawn = if s.hasattr("integers")? {
+        Some(s.call_method1("integers", (0u64, 1u64 << 63))?)
+    } else if s.hasattr("randint")? && !s.is_instance_of::<pyo3::types::PyInt>() {
+        Some(s.call_method1("randint", (0u64, 1u64 << 62))?)
+    } else {
+        None
+    };
+    let value = drawn.as_ref().unwrap_or(s);
+    if value.is_instance_of::<pyo3::types::PyBool>() {
+        return Err(usage(
+            "seed: expected an integer ≥ 0, None or a NumPy Generator, got a bool",
+        ));
+    }
+    let i: i128 = value
+        .call_method0("__index__")
+        .and_then(|v| v.extract())
+        .map_err(|_| {
+            usage(format!(
+                "seed: expected an integer ≥ 0, None or a NumPy Generator, got {}",
+                s.get_type()
+                    .name()
+                    .map(|n| n.to_string())
+                    .unwrap_or_default()
+            ))
+        })?;
+    u64::try_from(i).map_err(|_| {
+        usage(format!(
+            "seed: {i} is out of range; give an integer from 0 to 2^64 - 1, None or a NumPy Generator"
+        ))
+    })
+}
+
+/// Bytes of the operating system's entropy, through Python's `os.urandom`.
+fn getrandom(out: &mut [u8]) -> PyResult<()> {
+    Python::attach(|py| {
+        let b = py.import("os")?.call_method1("urandom", (out.len(),))?;
+        out.copy_from_slice(b.cast::<PyBytes>()?.as_bytes());
+        Ok(())
+    })
+}
+
+/// A vector argument (``load``, ``preload``…): one value per item, a list or
+/// a 1-D array; a 2-D array is refused by name (one value per row is not
+/// taken).
+fn vector_arg(v: Option<&Bound<'_, PyAny>>, what: &str, per: &str) -> PyResult<Option<Vec<f64>>> {
+    let Some(v) = v.filter(|v| !v.is_none()) else {
+        return Ok(None);
+    };
+    if let Ok(shape) = v.getattr("shape").and_then(|s| s.extract::<Vec<usize>>())
+        && shape.len() != 1
+    {
+        return Err(usage(format!(
+            "{what}: one value per {per} (a list or a 1-D array), not an array of shape {}; it is the same for every row",
+            shape_text(&shape)
+        )));
+    }
+    v.extract::<Vec<f64>>().map(Some).map_err(|_| {
+        usage(format!(
+            "{what}: expected one number per {per} (a list or a 1-D array), got {}",
+            v.get_type()
+                .name()
+                .map(|n| n.to_string())
+                .unwrap_or_default()
+        ))
+    })
+}
+
 fn wrench(m: &PyMechanism, f: Option<Vec<f64>>, what: &str) -> PyResult<Vec<f64>> {
     match f {
         None => Ok(vec![]),
@@ -960,9 +1164,11 @@ fn wrench(m: &PyMechanism, f: Option<Vec<f64>>, what: &str) -> PyResult<Vec<f64>
 /// name, still read; not both.
 fn load_arg(
     m: &PyMechanism,
-    load: Option<Vec<f64>>,
-    force: Option<Vec<f64>>,
+    load: Option<&Bound<'_, PyAny>>,
+    force: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<Vec<f64>> {
+    let load = vector_arg(load, "load", "tool axis")?;
+    let force = vector_arg(force, "force", "tool axis")?;
     match (load, force) {
         (Some(_), Some(_)) => Err(usage(
             "give the tool load once: load= (force= is its old name)",
@@ -1318,6 +1524,108 @@ fn noise_arg(length: f64, angle: Option<f64>) -> PyResult<Noise> {
 
 // ---------------------------------------------------------------- results
 
+/// What `__reduce__` returns: a callable and its arguments.
+type Reduced<'py, A> = (Bound<'py, PyAny>, A);
+
+/// A result that pickles and compares by value: its state as a dict of
+/// Python values (arrays stay arrays) and back.
+trait ByValue: pyo3::PyClass<Frozen = pyo3::pyclass::boolean_struct::True> + Sync + Sized {
+    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>>;
+    fn from_dict(d: &Bound<'_, PyDict>) -> PyResult<Self>;
+}
+
+/// `ByValue` for a struct of Python-convertible fields.
+macro_rules! by_value {
+    ($ty:ty { $($f:ident),+ $(,)? }) => {
+        impl ByValue for $ty {
+            fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+                let d = PyDict::new(py);
+                $( d.set_item(stringify!($f), &self.$f)?; )+
+                Ok(d)
+            }
+            fn from_dict(d: &Bound<'_, PyDict>) -> PyResult<Self> {
+                Ok(Self {
+                    $( $f: state_item(d, stringify!($f))?.extract()?, )+
+                })
+            }
+        }
+    };
+}
+
+fn state_item<'py>(d: &Bound<'py, PyDict>, key: &str) -> PyResult<Bound<'py, PyAny>> {
+    d.get_item(key)?
+        .ok_or_else(|| usage(format!("a pickled pkmcal result without `{key}`")))
+}
+
+/// `ByValue` for a struct that holds library data (serialised whole, NaN
+/// kept) in its one field.
+macro_rules! by_serde {
+    ($ty:ty { $f:ident }) => {
+        impl ByValue for $ty {
+            fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+                let d = PyDict::new(py);
+                let mut bytes = vec![];
+                pkmcal_io::record::encode(&self.$f, &mut bytes).map_err(cli_err)?;
+                d.set_item(stringify!($f), PyBytes::new(py, &bytes))?;
+                Ok(d)
+            }
+            fn from_dict(d: &Bound<'_, PyDict>) -> PyResult<Self> {
+                let b = state_item(d, stringify!($f))?;
+                let bytes = b.cast::<PyBytes>()?.as_bytes();
+                Ok(Self {
+                    $f: pkmcal_io::record::decode(bytes).map_err(cli_err)?,
+                })
+            }
+        }
+    };
+}
+
+/// What `__reduce__` returns: the class's `_from_state` and the state.
+fn reduce<'py, T: ByValue>(slf: &Bound<'py, T>) -> PyResult<Reduced<'py, (Bound<'py, PyDict>,)>> {
+    let py = slf.py();
+    Ok((
+        slf.as_any().get_type().getattr("_from_state")?,
+        (slf.get().to_dict(py)?,),
+    ))
+}
+
+/// Equal values: arrays elementwise with their shapes (NaN equal to NaN),
+/// everything else with Python's `==`.
+fn value_eq(a: &Bound<'_, PyAny>, b: &Bound<'_, PyAny>) -> PyResult<bool> {
+    let py = a.py();
+    let np = py.import("numpy")?;
+    let ndarray = np.getattr("ndarray")?;
+    if a.is_instance(&ndarray)? || b.is_instance(&ndarray)? {
+        let kw = PyDict::new(py);
+        kw.set_item(
+            "equal_nan",
+            a.is_instance(&ndarray)?
+                && a.getattr("dtype")?.getattr("kind")?.extract::<String>()? == "f",
+        )?;
+        return np
+            .getattr("array_equal")?
+            .call((a, b), Some(&kw))?
+            .is_truthy();
+    }
+    a.eq(b)
+}
+
+/// `==` of two results of one class: every part of their state.
+fn eq_by_value<T: ByValue>(a: &T, other: &Bound<'_, PyAny>) -> PyResult<bool> {
+    let py = other.py();
+    let Ok(o) = other.cast::<T>() else {
+        return Ok(false);
+    };
+    let (x, y) = (a.to_dict(py)?, o.get().to_dict(py)?);
+    for (k, v) in x.iter() {
+        match y.get_item(&k)? {
+            Some(w) if value_eq(&v, &w)? => {}
+            _ => return Ok(false),
+        }
+    }
+    Ok(x.len() == y.len())
+}
+
 /// Error statistics of a set of poses: per axis and over the position
 /// distance (mm); angles apart (rad).
 #[pyclass(frozen, module = "pkmcal", name = "ErrorStats", get_all)]
@@ -1325,7 +1633,7 @@ struct PyErrorStats {
     /// Poses.
     count: usize,
     /// Unit of each axis.
-    axis_units: Vec<&'static str>,
+    axis_units: Vec<String>,
     /// Smallest error per axis.
     axis_min: Vec<f64>,
     /// Largest error per axis.
@@ -1350,7 +1658,11 @@ impl From<&pkmcal::ErrorStats> for PyErrorStats {
     fn from(s: &pkmcal::ErrorStats) -> Self {
         Self {
             count: s.count,
-            axis_units: s.axis_units.iter().map(|u| u.symbol()).collect(),
+            axis_units: s
+                .axis_units
+                .iter()
+                .map(|u| u.symbol().to_string())
+                .collect(),
             axis_min: s.axis_min.clone(),
             axis_max: s.axis_max.clone(),
             axis_rms: s.axis_rms.clone(),
@@ -1366,6 +1678,17 @@ impl From<&pkmcal::ErrorStats> for PyErrorStats {
 
 #[pymethods]
 impl PyErrorStats {
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<Reduced<'py, (Bound<'py, PyDict>,)>> {
+        reduce(slf)
+    }
+    #[staticmethod]
+    fn _from_state(state: &Bound<'_, PyDict>) -> PyResult<Self> {
+        Self::from_dict(state)
+    }
+    /// Equal when every part is (arrays elementwise, NaN equal to NaN).
+    fn __eq__(&self, other: &Bound<'_, PyAny>) -> PyResult<bool> {
+        eq_by_value(self, other)
+    }
     fn __repr__(&self) -> String {
         let angles = match (self.angle_rms, self.angle_max) {
             (Some(r), Some(m)) => format!(", angle rms {r:.3e} rad, max {m:.3e} rad"),
@@ -1385,7 +1708,7 @@ impl PyErrorStats {
 struct PyWarning {
     /// What it is about: stiffness_ratios, unidentifiable, frame_gauge,
     /// not_converged, rank_deficient, outliers, dropped.
-    kind: &'static str,
+    kind: String,
     /// What happened.
     message: String,
     /// What to do.
@@ -1394,6 +1717,13 @@ struct PyWarning {
 
 #[pymethods]
 impl PyWarning {
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<Reduced<'py, (Bound<'py, PyDict>,)>> {
+        reduce(slf)
+    }
+    #[staticmethod]
+    fn _from_state(state: &Bound<'_, PyDict>) -> PyResult<Self> {
+        Self::from_dict(state)
+    }
     fn __repr__(&self) -> String {
         format!("<Warning {}: {}>", self.kind, self.message)
     }
@@ -1414,7 +1744,8 @@ fn warning(w: &pkmcal::identify::Warning) -> PyWarning {
             K::PlanRankDeficient { .. } => "plan_rank_deficient",
             K::Outliers { .. } => "outliers",
             K::Dropped { .. } => "dropped",
-        },
+        }
+        .into(),
         message: w.message.clone(),
         hint: w.hint.clone(),
     }
@@ -1430,6 +1761,17 @@ struct PyIdentifiability {
 
 #[pymethods]
 impl PyIdentifiability {
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<Reduced<'py, (Bound<'py, PyDict>,)>> {
+        reduce(slf)
+    }
+    #[staticmethod]
+    fn _from_state(state: &Bound<'_, PyDict>) -> PyResult<Self> {
+        Self::from_dict(state)
+    }
+    /// Equal when every part is (arrays elementwise, NaN equal to NaN).
+    fn __eq__(&self, other: &Bound<'_, PyAny>) -> PyResult<bool> {
+        eq_by_value(self, other)
+    }
     /// Free parameter names, in column order.
     #[getter]
     fn free(&self) -> Vec<String> {
@@ -1519,7 +1861,7 @@ fn observability<'py>(
 struct PyFigure {
     /// Short name (``errors``, ``parameters``, ``workspace``, ``maps``,
     /// ``residuals``, ``singular-values``).
-    name: &'static str,
+    name: String,
     /// Title.
     title: String,
     /// What is shown and how to read it.
@@ -1532,6 +1874,17 @@ struct PyFigure {
 
 #[pymethods]
 impl PyFigure {
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<Reduced<'py, (Bound<'py, PyDict>,)>> {
+        reduce(slf)
+    }
+    #[staticmethod]
+    fn _from_state(state: &Bound<'_, PyDict>) -> PyResult<Self> {
+        Self::from_dict(state)
+    }
+    /// Equal when every part is (arrays elementwise, NaN equal to NaN).
+    fn __eq__(&self, other: &Bound<'_, PyAny>) -> PyResult<bool> {
+        eq_by_value(self, other)
+    }
     fn _repr_svg_(&self) -> String {
         self.svg.clone()
     }
@@ -1560,15 +1913,27 @@ impl PyFigure {
 /// accuracy, warnings, residuals and figures.
 #[pyclass(frozen, module = "pkmcal", name = "Calibration")]
 struct PyCalibration {
-    mech: Arc<AnyMechanism>,
-    measurement: MeasurementModel,
-    cal: LibCalibration,
-    data: Vec<pkmcal::Measurement>,
-    before: pkmcal::identify::ErrorVectors,
-    after: pkmcal::identify::ErrorVectors,
-    accuracy: pkmcal::Accuracy,
-    validation: Option<Validation>,
-    cross_validation: Option<CrossValidation>,
+    /// The mechanism calibrated.
+    mechanism: Py<PyMechanism>,
+    /// The whole calibration, as its record keeps it.
+    state: CalibrationState,
+}
+
+/// A summary in Python's words.
+const PY_WORDING: pkmcal_io::calibrate::Wording = pkmcal_io::calibrate::Wording {
+    frame_base: "identified; frame=\"base\" if the data are in the base frame",
+    all_correlations: "Calibration.correlation",
+    hint: |w| w.hint.clone(),
+};
+
+/// Where the validation poses came from, in Python's words.
+fn validation_words(source: pkmcal::identify::ValidationSource) -> String {
+    match source {
+        pkmcal::identify::ValidationSource::Given => "validation arrays".into(),
+        pkmcal::identify::ValidationSource::HeldOut { count, seed } => {
+            format!("{count} held-out poses (seed {seed})")
+        }
+    }
 }
 
 fn by_name<'py>(
@@ -1588,12 +1953,12 @@ impl PyCalibration {
     /// start values): pass it as ``params`` to predict or compensate.
     #[getter]
     fn parameters<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let spec = self.mech.spec();
+        let spec = self.mech().spec();
         by_name(
             py,
             spec.param_names()
                 .iter()
-                .zip(&self.cal.params.values)
+                .zip(&self.cal().params.values)
                 .map(|(n, v)| (n.to_string(), *v)),
         )
     }
@@ -1602,21 +1967,21 @@ impl PyCalibration {
     fn measurement_parameters<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         by_name(
             py,
-            self.measurement
+            self.state
+                .measurement
                 .param_names()
                 .iter()
-                .zip(&self.cal.measurement)
+                .zip(&self.cal().measurement)
                 .map(|(n, v)| (n.clone(), *v)),
         )
     }
     /// Names of the identified (free) parameters, mechanism then instrument.
     #[getter]
     fn free(&self) -> Vec<String> {
-        self.cal
-            .parameters
+        let cal = self.cal();
+        cal.free
             .iter()
-            .filter(|p| p.free)
-            .map(|p| p.name.clone())
+            .map(|&i| cal.parameters[i].name.clone())
             .collect()
     }
     /// Standard deviation of each free parameter by name (its unit in ``units``).
@@ -1624,7 +1989,7 @@ impl PyCalibration {
     fn std_dev<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         by_name(
             py,
-            self.cal
+            self.cal()
                 .parameters
                 .iter()
                 .filter(|p| p.free)
@@ -1636,7 +2001,7 @@ impl PyCalibration {
     fn change<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         by_name(
             py,
-            self.cal
+            self.cal()
                 .parameters
                 .iter()
                 .map(|p| (p.name.clone(), p.change)),
@@ -1647,7 +2012,7 @@ impl PyCalibration {
     fn nominal<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         by_name(
             py,
-            self.cal
+            self.cal()
                 .parameters
                 .iter()
                 .map(|p| (p.name.clone(), p.nominal)),
@@ -1657,7 +2022,7 @@ impl PyCalibration {
     #[getter]
     fn units<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let d = PyDict::new(py);
-        for p in &self.cal.parameters {
+        for p in &self.cal().parameters {
             d.set_item(&p.name, p.unit.symbol())?;
         }
         Ok(d)
@@ -1666,42 +2031,173 @@ impl PyCalibration {
     #[getter]
     fn notes<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let d = PyDict::new(py);
-        for p in &self.cal.parameters {
+        for p in &self.cal().parameters {
             if let Some(n) = &p.note {
                 d.set_item(&p.name, n)?;
             }
         }
         Ok(d)
     }
-    /// Covariance of the free parameters (their units squared), in the order
-    /// of ``covariance_names``.
+    /// Covariance of every free parameter (their units squared), the
+    /// instrument's and the frame's included, in the order of ``free``
+    /// (``x_names``). The mechanism's part is what travels into predictions
+    /// (``predict(..., uncertainty=True)``).
     #[getter]
     fn covariance<'py>(&self, py: Python<'py>) -> Bound<'py, PyAny> {
-        let c = &self.cal.parameter_covariance;
-        let n = c.names.len();
-        out2(py, c.matrix.concat(), n, false)
+        let c = &self.cal().covariance;
+        let n = c.nrows();
+        out2(py, c.transpose().as_slice().to_vec(), n, false)
     }
-    /// Row and column names of ``covariance``.
+    /// Row and column names of ``covariance``: ``free``.
     #[getter]
     fn covariance_names(&self) -> Vec<String> {
-        self.cal.parameter_covariance.names.clone()
+        self.free()
+    }
+    /// Correlation matrix of the free parameters (``free`` order): the
+    /// covariance scaled by the standard deviations (NaN where one is 0 or
+    /// not defined).
+    #[getter]
+    fn correlation<'py>(&self, py: Python<'py>) -> Bound<'py, PyAny> {
+        let c = &self.cal().covariance;
+        let n = c.nrows();
+        let mut v = Vec::with_capacity(n * n);
+        for i in 0..n {
+            for j in 0..n {
+                v.push(c[(i, j)] / (c[(i, i)] * c[(j, j)]).sqrt());
+            }
+        }
+        out2(py, v, n, false)
+    }
+    /// The free parameters' identified values, in ``free`` order (the
+    /// mechanism's, then the instrument's): scipy's ``x``.
+    #[getter]
+    fn x<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        let cal = self.cal();
+        let v: Vec<f64> = cal
+            .free
+            .iter()
+            .map(|&i| cal.parameters[i].identified)
+            .collect();
+        vec1(py, &v)
+    }
+    /// Names of ``x`` (``free``).
+    #[getter]
+    fn x_names(&self) -> Vec<String> {
+        self.free()
+    }
+    /// Units of ``x`` (mm, rad, N·m/rad…): it mixes lengths and angles.
+    #[getter]
+    fn x_units(&self) -> Vec<&'static str> {
+        let cal = self.cal();
+        cal.free
+            .iter()
+            .map(|&i| cal.parameters[i].unit.symbol())
+            .collect()
+    }
+    /// Residuals at the solution, one per reading (pose-major, then the
+    /// distances), predicted minus measured, each in its reading's unit: the
+    /// same sign for every reading and distance. scipy's ``fun``.
+    #[getter]
+    fn fun<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        vec1(py, &self.cal().residuals)
+    }
+    /// Jacobian of ``fun`` with respect to ``x`` at the solution, shape
+    /// (readings, free): each reading's unit per parameter unit.
+    #[getter]
+    fn jac<'py>(&self, py: Python<'py>) -> Bound<'py, PyAny> {
+        let cal = self.cal();
+        let (m, n) = cal.jacobian.shape();
+        let mut v = Vec::with_capacity(m * n);
+        for i in 0..m {
+            let s = cal.sigmas.get(i).copied().unwrap_or(1.0);
+            for j in 0..n {
+                v.push(cal.jacobian[(i, j)] * s);
+            }
+        }
+        out2(py, v, n, false)
+    }
+    /// Standard deviation each reading of ``fun`` was weighted with (its
+    /// unit): the fit minimises ``sum((fun / sigmas)**2)``.
+    #[getter]
+    fn sigmas<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        vec1(py, &self.cal().sigmas)
+    }
+    /// ``0.5 * sum(fun**2)``, in the readings' units squared (mm² for
+    /// positions): scipy's ``cost``.
+    #[getter]
+    fn cost(&self) -> f64 {
+        0.5 * self.cal().residuals.iter().map(|r| r * r).sum::<f64>()
+    }
+    /// Residual evaluations of the final fit.
+    #[getter]
+    fn nfev(&self) -> usize {
+        self.cal().evaluations
+    }
+    /// Jacobian evaluations of the final fit.
+    #[getter]
+    fn njev(&self) -> usize {
+        self.cal().iterations + 1
+    }
+    /// Why the solver stopped, as a number: 0 evaluation budget exhausted
+    /// (``max_nfev``), 1 ``gtol``, 2 ``ftol``, 3 ``xtol``, 4 ``ftol`` and
+    /// ``xtol``, 5 no further progress at machine precision, 6 nothing free;
+    /// -1 the model could not be evaluated at the start, -2 cancelled. 1–5
+    /// are a success. ``message`` says it in words.
+    #[getter]
+    fn status(&self) -> i32 {
+        use pkmcal::lm::Termination as T;
+        match self.cal().termination {
+            T::MaxEvaluations => 0,
+            T::SmallGradient => 1,
+            T::SmallReduction => 2,
+            T::SmallStep => 3,
+            T::SmallReductionAndStep => 4,
+            T::MachinePrecision => 5,
+            T::NothingFree => 6,
+            T::EvaluationFailed(_) => -1,
+            T::Cancelled => -2,
+        }
+    }
+    /// Why the solver stopped, in words.
+    #[getter]
+    fn message(&self) -> String {
+        self.cal().termination_reason.clone()
+    }
+    /// Whether the fit converged (``converged``).
+    #[getter]
+    fn success(&self) -> bool {
+        self.cal().converged
+    }
+    /// The summary the command-line tool prints, in Python's words.
+    fn summary(&self) -> String {
+        let mut out = String::new();
+        pkmcal_io::calibrate::write_summary(
+            &mut out,
+            &self.report(),
+            &self.state.measurement,
+            &PY_WORDING,
+        );
+        out
+    }
+    fn __str__(&self) -> String {
+        self.summary()
     }
     /// Rank, singular values and unidentifiable combinations.
     #[getter]
     fn identifiability(&self) -> PyIdentifiability {
         PyIdentifiability {
-            id: self.cal.identifiability.clone(),
+            id: self.cal().identifiability.clone(),
         }
     }
     /// Error statistics at nominal parameters, on the poses the fit kept.
     #[getter]
     fn before(&self) -> PyErrorStats {
-        (&self.accuracy.before).into()
+        (&self.study().accuracy.before).into()
     }
     /// Error statistics with the identified parameters.
     #[getter]
     fn after(&self) -> PyErrorStats {
-        (&self.accuracy.after).into()
+        (&self.study().accuracy.after).into()
     }
     /// Errors of the distances measured between two poses (``distances=``),
     /// mm: a dict with ``count``, ``before_max``, ``before_rms``,
@@ -1709,7 +2205,7 @@ impl PyCalibration {
     /// (measured minus predicted); ``None`` without distances.
     #[getter]
     fn distances<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
-        let Some(d) = &self.accuracy.distances else {
+        let Some(d) = &self.study().accuracy.distances else {
             return Ok(None);
         };
         let out = PyDict::new(py);
@@ -1727,22 +2223,23 @@ impl PyCalibration {
     #[getter]
     fn improvement(&self) -> (f64, f64) {
         (
-            self.accuracy.improvement_max_percent,
-            self.accuracy.improvement_rms_percent,
+            self.study().accuracy.improvement_max_percent,
+            self.study().accuracy.improvement_rms_percent,
         )
     }
     /// Before and after on the validation poses (``validation=`` or
     /// ``holdout=``): ``(before, after)``, or None.
     #[getter]
     fn validation(&self) -> Option<(PyErrorStats, PyErrorStats)> {
-        self.validation
+        self.study()
+            .validation
             .as_ref()
             .map(|v| ((&v.accuracy.before).into(), (&v.accuracy.after).into()))
     }
     /// k-fold cross-validation (``kfold=``): ``{"folds", "fold_rms", "pooled"}``, or None.
     #[getter]
     fn cross_validation<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
-        let Some(cv) = &self.cross_validation else {
+        let Some(cv) = &self.study().cross_validation else {
             return Ok(None);
         };
         let d = PyDict::new(py);
@@ -1754,47 +2251,48 @@ impl PyCalibration {
     /// Warnings: unidentifiable directions fixed, no convergence, outliers…
     #[getter]
     fn warnings(&self) -> Vec<PyWarning> {
-        self.cal.warnings.iter().map(warning).collect()
+        self.cal().warnings.iter().map(warning).collect()
     }
     /// Whether the solver converged.
     #[getter]
     fn converged(&self) -> bool {
-        self.cal.converged
+        self.cal().converged
     }
     /// Why the solver stopped.
     #[getter]
     fn termination(&self) -> String {
-        self.cal.termination_reason.clone()
+        self.cal().termination_reason.clone()
     }
     /// Solver iterations.
     #[getter]
     fn iterations(&self) -> usize {
-        self.cal.iterations
+        self.cal().iterations
     }
     /// Forward model used: ``rigid``, ``linear`` or ``exact``.
     #[getter]
     fn model(&self) -> &'static str {
-        self.cal.model.name()
+        self.cal().model.name()
     }
     /// Weighted sum of squared residuals at the solution.
     #[getter]
     fn sum_of_squares(&self) -> f64 {
-        self.cal.sum_of_squares
+        self.cal().sum_of_squares
     }
     /// Noise scale estimated from the residuals (1 when the σ given fit).
     #[getter]
     fn unit_weight_sigma(&self) -> f64 {
-        self.cal.unit_weight_sigma
+        self.cal().unit_weight_sigma
     }
     /// Names of the readings (columns of ``measured`` and ``residuals``).
     #[getter]
     fn axes(&self) -> Vec<String> {
-        self.measurement.axes().to_vec()
+        self.state.measurement.axes().to_vec()
     }
     /// Units of the readings.
     #[getter]
     fn axis_units(&self) -> Vec<&'static str> {
-        self.measurement
+        self.state
+            .measurement
             .units()
             .iter()
             .map(|u| u.symbol())
@@ -1805,15 +2303,16 @@ impl PyCalibration {
     fn residuals<'py>(&self, py: Python<'py>) -> Bound<'py, PyAny> {
         out2(
             py,
-            self.cal.residuals.clone(),
-            self.measurement.len(),
+            self.cal().residuals.clone(),
+            self.state.measurement.len(),
             false,
         )
     }
     /// Rows (from 0) of the poses the fit kept.
     #[getter]
     fn poses(&self) -> Vec<usize> {
-        self.data
+        self.study()
+            .poses
             .iter()
             .filter_map(|m| m.origin.map(|o| o.pose))
             .collect()
@@ -1822,7 +2321,7 @@ impl PyCalibration {
     /// ``residual`` and ``standardized``.
     #[getter]
     fn outliers<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
-        self.cal
+        self.cal()
             .outliers
             .iter()
             .map(|o| {
@@ -1837,20 +2336,20 @@ impl PyCalibration {
     /// Rows dropped as outliers (``drop_outliers=True``).
     #[getter]
     fn dropped(&self) -> Vec<usize> {
-        self.cal.dropped.iter().map(|o| o.pose).collect()
+        self.cal().dropped.iter().map(|o| o.pose).collect()
     }
     /// Parameter file text (``name = value`` in mm, rad, N·m/rad), the format
     /// the command-line tool reads with ``--params``.
     fn to_toml(&self) -> String {
-        let spec = self.mech.spec();
+        let spec = self.mech().spec();
         let header = format!(
             "pkmcal {} calibration ({} model) of {} from Python\nsolver: {}",
             env!("CARGO_PKG_VERSION"),
-            self.cal.model.name(),
+            self.cal().model.name(),
             spec.name,
-            self.cal.termination_reason
+            self.cal().termination_reason
         );
-        pkmcal_io::io::params_to_string(spec, &self.cal.params, &header)
+        pkmcal_io::io::params_to_string(spec, &self.cal().params, &header)
     }
     /// The report's figures: errors per pose, parameter changes, workspace
     /// errors and maps, residuals, singular values.
@@ -1861,7 +2360,7 @@ impl PyCalibration {
         Ok(figs
             .into_iter()
             .map(|f| PyFigure {
-                name: f.name,
+                name: f.name.into(),
                 title: f.title,
                 caption: f.caption,
                 svg: f.svg,
@@ -1892,27 +2391,120 @@ impl PyCalibration {
             })
         })
     }
+    /// Read a calibration saved whole (:meth:`save`, or ``pkmcal calibrate
+    /// --report`` of this version): the same calibration, to the bit, with
+    /// its mechanism (the description saved with it), figures, residuals
+    /// and uncertainties. A record written by an older pkmcal holds only
+    /// parameters and covariance; read it with :func:`load_calibration`.
+    #[staticmethod]
+    fn load(py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<Self> {
+        let p = path_arg(path)?;
+        let text = reading(|run| {
+            run.files.read_to_string(
+                std::path::Path::new(&p),
+                pkmcal_io::output::InputKind::Description,
+            )
+        })
+        .map_err(|e| usage(format!("cannot read calibration {p}: {e:#}")))?;
+        Self::from_record(py, &text, &p)
+    }
+    /// The mechanism calibrated.
+    #[getter]
+    fn mechanism(&self, py: Python<'_>) -> Py<PyMechanism> {
+        self.mechanism.clone_ref(py)
+    }
+    /// Pickled as its record (what :meth:`save` writes) with its mechanism,
+    /// so that a process-pool worker can return it.
+    fn __reduce__<'py>(
+        slf: &Bound<'py, Self>,
+    ) -> PyResult<Reduced<'py, (Py<PyMechanism>, String)>> {
+        let py = slf.py();
+        let c = slf.get();
+        let text = c.report().to_json().map_err(cli_err)?;
+        Ok((
+            py.get_type::<PyCalibration>().getattr("_from_pickle")?,
+            (c.mechanism.clone_ref(py), text),
+        ))
+    }
+    #[staticmethod]
+    fn _from_pickle(
+        py: Python<'_>,
+        mechanism: &Bound<'_, PyMechanism>,
+        record: &str,
+    ) -> PyResult<Self> {
+        let (r, state) =
+            pkmcal_io::record::record_from_str(record, "a pickled calibration").map_err(cli_err)?;
+        let state = state.ok_or_else(|| usage("a pickled calibration without its state"))?;
+        let m = mechanism.get();
+        let mechanism = PyMechanism {
+            mech: m.mech.clone(),
+            targets: m.targets.clone(),
+            setup: m.setup.clone(),
+            source: m.source.clone(),
+            text: m.text.clone(),
+        };
+        Self::checked(py, mechanism, state, &r, "a pickled calibration")
+    }
+    /// Equal when everything is: the mechanism, the instrument, the data,
+    /// every result (NaN equal to NaN).
+    fn __eq__(&self, other: &Bound<'_, PyAny>) -> PyResult<bool> {
+        let Ok(o) = other.cast::<PyCalibration>() else {
+            return Ok(false);
+        };
+        let o = o.get();
+        let (a, b) = (self.mechanism.get(), o.mechanism.get());
+        if !(a.spec() == b.spec() && a.targets == b.targets && a.setup == b.setup) {
+            return Ok(false);
+        }
+        let bytes = |s: &CalibrationState| pkmcal_io::record::state_bytes(s).map_err(cli_err);
+        Ok(bytes(&self.state)? == bytes(&o.state)?)
+    }
     /// The summary as an HTML table (a notebook shows it).
     fn _repr_html_(&self) -> String {
         use std::fmt::Write;
         let esc = pkmcal_io::report::escape;
         let mut h = format!(
             "<p><b>Calibration of {}</b> ({} model, {} poses, {}): distance error RMS {:.4} → {:.4} mm, max {:.4} → {:.4} mm</p>",
-            esc(&self.mech.spec().name),
-            self.cal.model.name(),
-            self.cal.poses,
-            if self.cal.converged {
+            esc(&self.mech().spec().name),
+            self.cal().model.name(),
+            self.cal().poses,
+            if self.cal().converged {
                 "converged"
             } else {
                 "<b>not converged</b>"
             },
-            self.accuracy.before.distance_rms,
-            self.accuracy.after.distance_rms,
-            self.accuracy.before.distance_max,
-            self.accuracy.after.distance_max,
+            self.study().accuracy.before.distance_rms,
+            self.study().accuracy.after.distance_rms,
+            self.study().accuracy.before.distance_max,
+            self.study().accuracy.after.distance_max,
         );
+        if let Some(v) = &self.study().validation {
+            let _ = write!(
+                h,
+                "<p>validation on {}: distance error RMS {:.4} → {:.4} mm, max {:.4} → {:.4} mm</p>",
+                esc(&validation_words(v.source)),
+                v.accuracy.before.distance_rms,
+                v.accuracy.after.distance_rms,
+                v.accuracy.before.distance_max,
+                v.accuracy.after.distance_max,
+            );
+        }
+        if let Some(cv) = &self.study().cross_validation {
+            let _ = write!(
+                h,
+                "<p>{}-fold cross-validation: held-out distance error RMS {:.4} mm pooled, max {:.4} mm; per fold {}</p>",
+                cv.folds,
+                cv.pooled.distance_rms,
+                cv.pooled.distance_max,
+                cv.fold_rms
+                    .iter()
+                    .map(|v| format!("{v:.4}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
         h.push_str("<table><tr><th>parameter</th><th>nominal</th><th>identified</th><th>change</th><th>std dev</th><th>unit</th></tr>");
-        for p in self.cal.parameters.iter().filter(|p| p.free) {
+        for p in self.cal().parameters.iter().filter(|p| p.free) {
             let _ = write!(
                 h,
                 "<tr><td>{}</td><td>{:.6}</td><td>{:.6}</td><td>{:+.3e}</td><td>{:.2e}</td><td>{}</td></tr>",
@@ -1925,7 +2517,7 @@ impl PyCalibration {
             );
         }
         h.push_str("</table>");
-        for w in &self.cal.warnings {
+        for w in &self.cal().warnings {
             let _ = write!(h, "<p>⚠ {} ({})</p>", esc(&w.message), esc(&w.hint));
         }
         h
@@ -1933,48 +2525,99 @@ impl PyCalibration {
     fn __repr__(&self) -> String {
         format!(
             "<Calibration of {} ({} model, {} poses, {} free, {}): distance rms {:.4} -> {:.4} mm, max {:.4} -> {:.4} mm; {} warning(s)>",
-            self.mech.spec().name,
-            self.cal.model.name(),
-            self.cal.poses,
-            self.cal.free.len(),
-            if self.cal.converged {
+            self.mech().spec().name,
+            self.cal().model.name(),
+            self.cal().poses,
+            self.cal().free.len(),
+            if self.cal().converged {
                 "converged"
             } else {
                 "NOT converged"
             },
-            self.accuracy.before.distance_rms,
-            self.accuracy.after.distance_rms,
-            self.accuracy.before.distance_max,
-            self.accuracy.after.distance_max,
-            self.cal.warnings.len()
+            self.study().accuracy.before.distance_rms,
+            self.study().accuracy.after.distance_rms,
+            self.study().accuracy.before.distance_max,
+            self.study().accuracy.after.distance_max,
+            self.cal().warnings.len()
         )
     }
 }
 
 impl PyCalibration {
+    fn study(&self) -> &pkmcal::identify::Study {
+        &self.state.study
+    }
+    fn cal(&self) -> &LibCalibration {
+        &self.state.study.calibration
+    }
+    fn mech(&self) -> &Arc<AnyMechanism> {
+        &self.mechanism.get().mech
+    }
+
     /// The JSON report of this calibration (the calibration record).
     fn report(&self) -> pkmcal_io::calibrate::Report<'_> {
         pkmcal_io::calibrate::Report::new(
-            self.mech.spec(),
+            self.mech().spec(),
             "Python arrays".into(),
-            &self.measurement,
-            &self.cal,
-            self.accuracy.clone(),
-            self.validation.clone(),
-            self.cross_validation.clone(),
+            &self.state,
+            validation_words,
         )
     }
 
+    /// A calibration from its record's text (``source`` names it), with
+    /// the mechanism of its state, checked against the record.
+    fn from_record(py: Python<'_>, text: &str, source: &str) -> PyResult<Self> {
+        let (record, state) = pkmcal_io::record::record_from_str(text, source).map_err(cli_err)?;
+        let Some(state) = state else {
+            return Err(usage(format!(
+                "{source}: this calibration record holds only the parameters and their covariance (an older pkmcal wrote it); read it with pkmcal.load_calibration, or calibrate again and save"
+            )));
+        };
+        let mechanism = match &state.mechanism {
+            MechanismSource::Reference => PyMechanism::reference(),
+            MechanismSource::Description(t) => {
+                PyMechanism::from_text(t, format!("the description saved in {source}"))?
+            }
+        };
+        Self::checked(py, mechanism, state, &record, source)
+    }
+
+    /// `state` of `mechanism`, checked against its record.
+    fn checked(
+        py: Python<'_>,
+        mechanism: PyMechanism,
+        state: CalibrationState,
+        record: &pkmcal::identify::CalibrationRecord,
+        source: &str,
+    ) -> PyResult<Self> {
+        let spec = mechanism.spec();
+        record
+            .check(spec)
+            .map_err(|e| usage(format!("{source}: {e}")))?;
+        let cal = &state.study.calibration;
+        if cal.params.values.len() != spec.n_params()
+            || state.measurement.param_names().len() != cal.measurement.len()
+        {
+            return Err(usage(format!(
+                "{source}: its state does not fit {} (other parameters or instrument)",
+                spec.name
+            )));
+        }
+        Ok(Self {
+            mechanism: Py::new(py, mechanism)?,
+            state,
+        })
+    }
     /// `f` with what the HTML report and the figures show.
     fn with_inputs<T>(&self, f: impl FnOnce(&pkmcal_io::report::ReportInputs) -> T) -> T {
         let report = self.report();
         f(&pkmcal_io::report::ReportInputs {
             report: &report,
-            mech: &self.mech,
-            measurement: &self.measurement,
-            data: &self.data,
-            before: &self.before,
-            after: &self.after,
+            mech: self.mech(),
+            measurement: &self.state.measurement,
+            data: &self.study().poses,
+            before: &self.study().before,
+            after: &self.study().after,
         })
     }
 }
@@ -1993,6 +2636,18 @@ struct PySavedCalibration {
 
 #[pymethods]
 impl PySavedCalibration {
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<Reduced<'py, (Bound<'py, PyDict>,)>> {
+        reduce(slf)
+    }
+    #[staticmethod]
+    fn _from_state(state: &Bound<'_, PyDict>) -> PyResult<Self> {
+        Self::from_dict(state)
+    }
+    /// Equal when the records are (NaN equal to NaN) and were read from
+    /// the same file.
+    fn __eq__(&self, other: &Bound<'_, PyAny>) -> PyResult<bool> {
+        eq_by_value(self, other)
+    }
     /// The calibrated mechanism's name.
     #[getter]
     fn mechanism(&self) -> String {
@@ -2077,6 +2732,17 @@ struct PyPrediction {
 
 #[pymethods]
 impl PyPrediction {
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<Reduced<'py, (Bound<'py, PyDict>,)>> {
+        reduce(slf)
+    }
+    #[staticmethod]
+    fn _from_state(state: &Bound<'_, PyDict>) -> PyResult<Self> {
+        Self::from_dict(state)
+    }
+    /// Equal when every part is (arrays elementwise, NaN equal to NaN).
+    fn __eq__(&self, other: &Bound<'_, PyAny>) -> PyResult<bool> {
+        eq_by_value(self, other)
+    }
     fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
         Ok(format!("<Prediction x={}>", self.x.bind(py).repr()?))
     }
@@ -2102,6 +2768,17 @@ struct PyCompensation {
 
 #[pymethods]
 impl PyCompensation {
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<Reduced<'py, (Bound<'py, PyDict>,)>> {
+        reduce(slf)
+    }
+    #[staticmethod]
+    fn _from_state(state: &Bound<'_, PyDict>) -> PyResult<Self> {
+        Self::from_dict(state)
+    }
+    /// Equal when every part is (arrays elementwise, NaN equal to NaN).
+    fn __eq__(&self, other: &Bound<'_, PyAny>) -> PyResult<bool> {
+        eq_by_value(self, other)
+    }
     fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
         Ok(format!(
             "<Compensation commands={}>",
@@ -2141,11 +2818,96 @@ struct PyPlan {
 
 #[pymethods]
 impl PyPlan {
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<Reduced<'py, (Bound<'py, PyDict>,)>> {
+        reduce(slf)
+    }
+    #[staticmethod]
+    fn _from_state(state: &Bound<'_, PyDict>) -> PyResult<Self> {
+        Self::from_dict(state)
+    }
+    /// Equal when every part is (arrays elementwise, NaN equal to NaN).
+    fn __eq__(&self, other: &Bound<'_, PyAny>) -> PyResult<bool> {
+        eq_by_value(self, other)
+    }
     fn __repr__(&self) -> String {
         format!(
             "<Plan: {} candidates, condition {:.2} (plain grid {:.2})>",
             self.candidates, self.condition, self.grid_condition
         )
+    }
+}
+
+by_value!(PyErrorStats {
+    count,
+    axis_units,
+    axis_min,
+    axis_max,
+    axis_rms,
+    distance_min,
+    distance_mean,
+    distance_rms,
+    distance_max,
+    angle_rms,
+    angle_max,
+});
+by_value!(PyWarning {
+    kind,
+    message,
+    hint
+});
+by_serde!(PyIdentifiability { id });
+by_value!(PyFigure {
+    name,
+    title,
+    caption,
+    svg,
+    png
+});
+by_value!(PyPrediction {
+    x,
+    q,
+    torque,
+    deflection,
+    covariance,
+    skipped
+});
+by_value!(PyCompensation {
+    commands,
+    nominal,
+    correction,
+    torque,
+    q,
+    skipped
+});
+by_value!(PyPlan {
+    targets,
+    commands,
+    observability,
+    condition,
+    grid_targets,
+    grid_observability,
+    grid_condition,
+    spacing,
+    candidates,
+    rank,
+    free
+});
+
+impl ByValue for PySavedCalibration {
+    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        let mut bytes = vec![];
+        pkmcal_io::record::encode(&self.record, &mut bytes).map_err(cli_err)?;
+        d.set_item("record", PyBytes::new(py, &bytes))?;
+        d.set_item("source", &self.source)?;
+        Ok(d)
+    }
+    fn from_dict(d: &Bound<'_, PyDict>) -> PyResult<Self> {
+        let b = state_item(d, "record")?;
+        Ok(Self {
+            record: pkmcal_io::record::decode(b.cast::<PyBytes>()?.as_bytes()).map_err(cli_err)?,
+            source: state_item(d, "source")?.extract()?,
+        })
     }
 }
 
@@ -2168,15 +2930,16 @@ impl PyPlan {
 #[allow(clippy::too_many_arguments)]
 fn predict<'py>(
     py: Python<'py>,
-    mechanism: &Bound<'py, PyMechanism>,
+    mechanism: &Bound<'py, PyAny>,
     commands: &Bound<'py, PyAny>,
     params: Option<&Bound<'py, PyAny>>,
     model: Option<&str>,
-    load: Option<Vec<f64>>,
-    force: Option<Vec<f64>>,
+    load: Option<&Bound<'py, PyAny>>,
+    force: Option<&Bound<'py, PyAny>>,
     uncertainty: bool,
     skip_unreachable: bool,
 ) -> PyResult<PyPrediction> {
+    let mechanism = &mechanism_arg(mechanism)?;
     let m = mech_ref(mechanism);
     let spec = m.spec();
     let cal = params.and_then(|p| p.cast::<PyCalibration>().ok());
@@ -2184,8 +2947,8 @@ fn predict<'py>(
     // The model and covariance of a calibration, or of one read back.
     let (cal_model, cal_covariance) = match (&cal, &saved) {
         (Some(c), _) => (
-            Some(c.get().cal.model),
-            Some(c.get().cal.parameter_covariance.clone()),
+            Some(c.get().cal().model),
+            Some(c.get().cal().parameter_covariance.clone()),
         ),
         (None, Some(s)) => (
             Some(s.get().record.model),
@@ -2267,9 +3030,10 @@ fn predict<'py>(
 #[pyfunction]
 fn nominal_commands<'py>(
     py: Python<'py>,
-    mechanism: &Bound<'py, PyMechanism>,
+    mechanism: &Bound<'py, PyAny>,
     targets: &Bound<'py, PyAny>,
 ) -> PyResult<Bound<'py, PyAny>> {
+    let mechanism = &mechanism_arg(mechanism)?;
     let m = mech_ref(mechanism);
     let r = rows(targets, "targets", &m.spec().tool_axes, false)?;
     let mech = &*m.mech;
@@ -2287,20 +3051,22 @@ fn nominal_commands<'py>(
 /// is the whole tool unless ``axes``, ``points`` or ``ballbar`` say otherwise
 /// (as in :func:`calibrate`).
 #[pyfunction]
-#[pyo3(signature = (mechanism, targets, truth = None, *, noise = 0.0, angle_noise = None, seed = 1, axes = None, points = None, ballbar = None))]
+#[pyo3(signature = (mechanism, targets, truth = None, *, noise = 0.0, angle_noise = None, seed = SeedArg::Given(None), axes = None, points = None, ballbar = None))]
 #[allow(clippy::too_many_arguments)]
 fn simulate<'py>(
     py: Python<'py>,
-    mechanism: &Bound<'py, PyMechanism>,
+    mechanism: &Bound<'py, PyAny>,
     targets: &Bound<'py, PyAny>,
     truth: Option<&Bound<'py, PyAny>>,
     noise: f64,
     angle_noise: Option<f64>,
-    seed: u64,
+    seed: SeedArg,
     axes: Option<Vec<String>>,
     points: Option<&Bound<'py, PyAny>>,
     ballbar: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    let mechanism = &mechanism_arg(mechanism)?;
+    let seed = seed_arg(seed)?;
     let m = mech_ref(mechanism);
     let spec = m.spec();
     let truth = params_arg(m, truth, "truth")?;
@@ -2351,12 +3117,19 @@ fn simulate<'py>(
 /// measured between pairs of poses (calipers on a printed object, mm),
 /// fitted with the readings (their noise estimated apart); their errors are
 /// in ``Calibration.distances``.
+/// Solver controls, as scipy's ``least_squares`` names them: ``max_nfev``
+/// (evaluation budget, default 200), ``ftol``, ``xtol`` (default 1e-12),
+/// ``gtol`` (default 0), ``bounds`` (a dict name → ``(lower, upper)``, ±inf
+/// for an open side; mechanism or instrument parameters) and ``x0`` (the
+/// start: a dict name → value like ``start``, or an array with one value per
+/// free mechanism parameter in the order :func:`analyze`'s ``free`` lists
+/// them).
 #[pyfunction]
-#[pyo3(signature = (mechanism, commands, measured, *, sigma = None, targets = None, model = "exact", free = None, fix = None, start = None, loss = "squared", loss_scale = None, outlier_threshold = 4.0, drop_outliers = false, load = None, force = None, axes = None, points = None, ballbar = None, frame = "base", validation = None, holdout = None, kfold = None, seed = 1, distances = None))]
+#[pyo3(signature = (mechanism, commands, measured, *, sigma = None, targets = None, model = "exact", free = None, fix = None, start = None, loss = "squared", loss_scale = None, outlier_threshold = 4.0, drop_outliers = false, load = None, force = None, axes = None, points = None, ballbar = None, frame = "base", validation = None, holdout = None, kfold = None, seed = SeedArg::Default(1), distances = None, max_nfev = None, ftol = None, xtol = None, gtol = None, bounds = None, x0 = None))]
 #[allow(clippy::too_many_arguments)]
 fn calibrate<'py>(
     py: Python<'py>,
-    mechanism: &Bound<'py, PyMechanism>,
+    mechanism: &Bound<'py, PyAny>,
     commands: &Bound<'py, PyAny>,
     measured: &Bound<'py, PyAny>,
     sigma: Option<&Bound<'py, PyAny>>,
@@ -2369,8 +3142,8 @@ fn calibrate<'py>(
     loss_scale: Option<f64>,
     outlier_threshold: f64,
     drop_outliers: bool,
-    load: Option<Vec<f64>>,
-    force: Option<Vec<f64>>,
+    load: Option<&Bound<'py, PyAny>>,
+    force: Option<&Bound<'py, PyAny>>,
     axes: Option<Vec<String>>,
     points: Option<&Bound<'py, PyAny>>,
     ballbar: Option<&Bound<'py, PyAny>>,
@@ -2378,17 +3151,51 @@ fn calibrate<'py>(
     validation: Option<&Bound<'py, PyAny>>,
     holdout: Option<f64>,
     kfold: Option<usize>,
-    seed: u64,
+    seed: SeedArg,
     distances: Option<&Bound<'py, PyAny>>,
+    max_nfev: Option<usize>,
+    ftol: Option<f64>,
+    xtol: Option<f64>,
+    gtol: Option<f64>,
+    bounds: Option<&Bound<'py, PyAny>>,
+    x0: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<PyCalibration> {
+    let mechanism = &mechanism_arg(mechanism)?;
+    let seed = seed_arg(seed)?;
     let m = mech_ref(mechanism);
     let spec = m.spec();
     let mm = measurement_arg(m, axes, points, ballbar, frame)?;
     let all = measurements(m, &mm, commands, measured, sigma, targets, "")?;
     let pairs = distances_arg(m, &mm, distances)?;
-    let start = params_arg(m, start, "start")?;
     let mut opts = CalibrationOptions::new(spec, parse_model(model)?);
     opts.free = free_arg(m, &mm, free, fix)?;
+    let start = match (start.filter(|s| !s.is_none()), x0.filter(|s| !s.is_none())) {
+        (Some(_), Some(_)) => return Err(usage("give either start= or x0=, not both")),
+        (None, Some(x)) => x0_arg(m, &opts.free, x)?,
+        (s, None) => params_arg(m, s, "start")?,
+    };
+    if let Some(n) = max_nfev {
+        opts.solver.max_evaluations = n;
+    }
+    for (v, field) in [
+        (ftol, &mut opts.solver.ftol),
+        (xtol, &mut opts.solver.xtol),
+        (gtol, &mut opts.solver.gtol),
+    ] {
+        if let Some(v) = v {
+            *field = v;
+        }
+    }
+    opts.solver
+        .check()
+        .map_err(|e| usage(format!("{e} (max_nfev, ftol, xtol, gtol)")))?;
+    if let Some(b) = bounds.filter(|b| !b.is_none()) {
+        let named = bounds_arg(b)?;
+        let (lower, upper) = pkmcal::identify::named_bounds(spec, &mm, &named)
+            .map_err(|e| usage(format!("bounds: {e}")))?;
+        opts.solver.lower = Some(lower);
+        opts.solver.upper = Some(upper);
+    }
     opts.force = load_arg(m, load, force)?;
     pkmcal::engine::load::check_load(&*m.mech, &start, &opts.force)
         .map_err(|e| usage(format!("load: {e}")))?;
@@ -2469,23 +3276,15 @@ fn calibrate<'py>(
     let study = result.map_err(|e| lib_err(e.error))?;
     emit_warnings(py, &study.calibration.warnings)?;
     Ok(PyCalibration {
-        mech: m.mech.clone(),
-        measurement: mm.clone(),
-        validation: study.validation.as_ref().map(|v| Validation {
-            source: match v.source {
-                pkmcal::identify::ValidationSource::Given => "validation arrays".into(),
-                pkmcal::identify::ValidationSource::HeldOut { count, seed } => {
-                    format!("{count} held-out poses (seed {seed})")
-                }
+        mechanism: mechanism.clone().unbind(),
+        state: CalibrationState {
+            mechanism: match &m.text {
+                Some(t) => MechanismSource::Description(t.clone()),
+                None => MechanismSource::Reference,
             },
-            accuracy: v.accuracy.clone(),
-        }),
-        cal: study.calibration,
-        data: study.poses,
-        before: study.before,
-        after: study.after,
-        accuracy: study.accuracy,
-        cross_validation: study.cross_validation,
+            measurement: mm,
+            study,
+        },
     })
 }
 
@@ -2497,7 +3296,7 @@ fn calibrate<'py>(
 #[allow(clippy::too_many_arguments)]
 fn analyze<'py>(
     py: Python<'py>,
-    mechanism: &Bound<'py, PyMechanism>,
+    mechanism: &Bound<'py, PyAny>,
     commands: &Bound<'py, PyAny>,
     measured: &Bound<'py, PyAny>,
     params: Option<&Bound<'py, PyAny>>,
@@ -2505,13 +3304,14 @@ fn analyze<'py>(
     model: &str,
     free: Option<&Bound<'py, PyAny>>,
     fix: Option<&Bound<'py, PyAny>>,
-    load: Option<Vec<f64>>,
-    force: Option<Vec<f64>>,
+    load: Option<&Bound<'py, PyAny>>,
+    force: Option<&Bound<'py, PyAny>>,
     axes: Option<Vec<String>>,
     points: Option<&Bound<'py, PyAny>>,
     ballbar: Option<&Bound<'py, PyAny>>,
     frame: &str,
 ) -> PyResult<PyIdentifiability> {
+    let mechanism = &mechanism_arg(mechanism)?;
     let m = mech_ref(mechanism);
     let mm = measurement_arg(m, axes, points, ballbar, frame)?;
     let data = measurements(m, &mm, commands, measured, sigma, None, "")?;
@@ -2539,15 +3339,16 @@ fn analyze<'py>(
 #[allow(clippy::too_many_arguments)]
 fn compensate<'py>(
     py: Python<'py>,
-    mechanism: &Bound<'py, PyMechanism>,
+    mechanism: &Bound<'py, PyAny>,
     targets: &Bound<'py, PyAny>,
     params: Option<&Bound<'py, PyAny>>,
     model: &str,
-    load: Option<Vec<f64>>,
-    force: Option<Vec<f64>>,
-    preload: Option<Vec<f64>>,
+    load: Option<&Bound<'py, PyAny>>,
+    force: Option<&Bound<'py, PyAny>>,
+    preload: Option<&Bound<'py, PyAny>>,
     skip_unreachable: bool,
 ) -> PyResult<PyCompensation> {
+    let mechanism = &mechanism_arg(mechanism)?;
     let m = mech_ref(mechanism);
     let spec = m.spec();
     let p = params_arg(m, params, "params")?;
@@ -2557,7 +3358,7 @@ fn compensate<'py>(
         .map_err(|e| usage(format!("load: {e}")))?;
     let opts = pkmcal::CompensationOptions {
         force,
-        preload: match preload {
+        preload: match vector_arg(preload, "preload", "actuator")? {
             None => vec![],
             Some(v) => finite_list(&v, "preload", spec.n_actuated())?,
         },
@@ -2602,7 +3403,7 @@ fn compensate<'py>(
 #[allow(clippy::too_many_arguments)]
 fn plan<'py>(
     py: Python<'py>,
-    mechanism: &Bound<'py, PyMechanism>,
+    mechanism: &Bound<'py, PyAny>,
     count: usize,
     params: Option<&Bound<'py, PyAny>>,
     criterion: &str,
@@ -2612,6 +3413,7 @@ fn plan<'py>(
     spacing: f64,
     max_candidates: usize,
 ) -> PyResult<PyPlan> {
+    let mechanism = &mechanism_arg(mechanism)?;
     let m = mech_ref(mechanism);
     let spec = m.spec();
     let params = params_arg(m, params, "params")?;
@@ -2658,32 +3460,118 @@ fn plan<'py>(
     })
 }
 
+/// What :func:`montecarlo` found: the summary over the runs and each run's
+/// figures.
+#[pyclass(frozen, module = "pkmcal", name = "MonteCarlo", get_all)]
+struct PyMonteCarlo {
+    /// Runs made.
+    runs: usize,
+    /// Runs that converged.
+    converged: usize,
+    /// Median over the runs of the validation RMS distance error (mm).
+    validation_rms_median: f64,
+    /// 95th percentile of the validation RMS distance error (mm).
+    validation_rms_p95: f64,
+    /// Median of the validation maximum distance error (mm).
+    validation_max_median: f64,
+    /// Free parameter names (columns of ``parameter_errors``).
+    parameters: Vec<String>,
+    /// RMS over the runs of each free parameter's error (its unit).
+    parameter_rms_error: Py<PyAny>,
+    /// Whether each run converged, shape (runs,).
+    run_converged: Py<PyAny>,
+    /// Each run's validation RMS distance error (mm), shape (runs,).
+    validation_rms: Py<PyAny>,
+    /// Each run's validation maximum distance error (mm), shape (runs,).
+    validation_max: Py<PyAny>,
+    /// Identified minus true value of each free parameter, shape (runs, free).
+    parameter_errors: Py<PyAny>,
+}
+
+#[pymethods]
+impl PyMonteCarlo {
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<Reduced<'py, (Bound<'py, PyDict>,)>> {
+        reduce(slf)
+    }
+    #[staticmethod]
+    fn _from_state(state: &Bound<'_, PyDict>) -> PyResult<Self> {
+        Self::from_dict(state)
+    }
+    /// Equal when every part is (arrays elementwise, NaN equal to NaN).
+    fn __eq__(&self, other: &Bound<'_, PyAny>) -> PyResult<bool> {
+        eq_by_value(self, other)
+    }
+    /// The dict :func:`montecarlo` returned before (``mc["runs"]``):
+    /// deprecated, use the attributes.
+    fn __getitem__<'py>(slf: &Bound<'py, Self>, key: &str) -> PyResult<Bound<'py, PyAny>> {
+        let py = slf.py();
+        const KEYS: [&str; 6] = [
+            "runs",
+            "converged",
+            "validation_rms_median",
+            "validation_max_median",
+            "parameters",
+            "parameter_rms_error",
+        ];
+        if !KEYS.contains(&key) {
+            return Err(pyo3::exceptions::PyKeyError::new_err(key.to_string()));
+        }
+        deprecated(
+            py,
+            &format!("montecarlo(...)[\"{key}\"]"),
+            &format!("montecarlo(...).{key}"),
+        )?;
+        slf.getattr(key)
+    }
+    fn __repr__(&self) -> String {
+        format!(
+            "<MonteCarlo {} runs ({} converged): validation RMS median {:.4} mm, p95 {:.4} mm>",
+            self.runs, self.converged, self.validation_rms_median, self.validation_rms_p95
+        )
+    }
+}
+
+by_value!(PyMonteCarlo {
+    runs,
+    converged,
+    validation_rms_median,
+    validation_rms_p95,
+    validation_max_median,
+    parameters,
+    parameter_rms_error,
+    run_converged,
+    validation_rms,
+    validation_max,
+    parameter_errors,
+});
+
 /// Monte Carlo study of a measurement plan: ``runs`` simulated calibrations
 /// from the poses ``targets``, each with random parameter errors
 /// (``length_error`` mm, ``angle_error`` rad on the free parameters) and
 /// measurement noise, judged on ``validation`` random unseen poses.
 ///
-/// Returns a dict: ``runs``, ``converged``, ``validation_rms_median`` and
-/// ``validation_max_median`` (mm), ``parameters`` and
-/// ``parameter_rms_error`` (per free parameter, its unit).
+/// Returns a :class:`MonteCarlo`: the medians and per-parameter RMS errors,
+/// and each run's figures.
 #[pyfunction]
-#[pyo3(signature = (mechanism, targets, *, runs = 200, noise = 0.002, angle_noise = None, seed = 1, model = "exact", free = None, fix = None, length_error = 0.3, angle_error = 0.001, validation = 50))]
+#[pyo3(signature = (mechanism, targets, *, runs = 200, noise = 0.002, angle_noise = None, seed = SeedArg::Default(1), model = "exact", free = None, fix = None, length_error = 0.3, angle_error = 0.001, validation = 50))]
 #[allow(clippy::too_many_arguments)]
 fn montecarlo<'py>(
     py: Python<'py>,
-    mechanism: &Bound<'py, PyMechanism>,
+    mechanism: &Bound<'py, PyAny>,
     targets: &Bound<'py, PyAny>,
     runs: usize,
     noise: f64,
     angle_noise: Option<f64>,
-    seed: u64,
+    seed: SeedArg,
     model: &str,
     free: Option<&Bound<'py, PyAny>>,
     fix: Option<&Bound<'py, PyAny>>,
     length_error: f64,
     angle_error: f64,
     validation: usize,
-) -> PyResult<Bound<'py, PyDict>> {
+) -> PyResult<PyMonteCarlo> {
+    let mechanism = &mechanism_arg(mechanism)?;
+    let seed = seed_arg(seed)?;
     let m = mech_ref(mechanism);
     let spec = m.spec();
     if runs == 0 || validation == 0 {
@@ -2708,7 +3596,7 @@ fn montecarlo<'py>(
         calibration: cal,
     };
     let mech = &*m.mech;
-    let (_, s) = interruptible(py, |cancel| -> pkmcal::Result<_> {
+    let (each, s) = interruptible(py, |cancel| -> pkmcal::Result<_> {
         let mut opts = opts;
         opts.calibration.solver.cancel = Some(cancel);
         for (i, t) in poses.iter().enumerate() {
@@ -2718,14 +3606,34 @@ fn montecarlo<'py>(
         pkmcal::monte_carlo(mech, &poses, &val, &opts, &|| {})
     })?
     .map_err(lib_err)?;
-    let d = PyDict::new(py);
-    d.set_item("runs", s.runs)?;
-    d.set_item("converged", s.converged)?;
-    d.set_item("validation_rms_median", s.validation_rms_median)?;
-    d.set_item("validation_max_median", s.validation_max_median)?;
-    d.set_item("parameters", s.parameters.clone())?;
-    d.set_item("parameter_rms_error", vec1(py, &s.parameter_rms_error))?;
-    Ok(d)
+    let n = s.parameters.len();
+    Ok(PyMonteCarlo {
+        runs: s.runs,
+        converged: s.converged,
+        validation_rms_median: s.validation_rms_median,
+        validation_rms_p95: s.validation_rms_p95,
+        validation_max_median: s.validation_max_median,
+        parameter_rms_error: vec1(py, &s.parameter_rms_error).into_any().unbind(),
+        run_converged: PyArray1::from_iter(py, each.iter().map(|r| r.converged))
+            .into_any()
+            .unbind(),
+        validation_rms: PyArray1::from_iter(py, each.iter().map(|r| r.validation.distance_rms))
+            .into_any()
+            .unbind(),
+        validation_max: PyArray1::from_iter(py, each.iter().map(|r| r.validation.distance_max))
+            .into_any()
+            .unbind(),
+        parameter_errors: out2(
+            py,
+            each.iter()
+                .flat_map(|r| r.parameter_errors.iter().copied())
+                .collect(),
+            n,
+            false,
+        )
+        .unbind(),
+        parameters: s.parameters,
+    })
 }
 
 /// Positions from ball-bar readings: for each row of ``readings`` (bar
@@ -2787,6 +3695,7 @@ fn _pkmcal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("OutlierWarning", m.py().get_type::<OutlierWarning>())?;
     m.add_class::<PyMechanism>()?;
     m.add_class::<PyCalibration>()?;
+    m.add_class::<PyMonteCarlo>()?;
     m.add_class::<PyIdentifiability>()?;
     m.add_class::<PyErrorStats>()?;
     m.add_class::<PyWarning>()?;

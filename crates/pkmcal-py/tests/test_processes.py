@@ -46,3 +46,22 @@ def test_threads_per_process():
         assert abs(job(4) - 280.3) < 0.05
     finally:
         pkmcal.set_threads(0)
+
+
+def whole_fit(seed):
+    mech = pkmcal.Mechanism()
+    targets = pkmcal.plan(mech, 20).targets
+    commands, measured = pkmcal.simulate(mech, targets, TRUTH, noise=0.002, seed=seed)
+    return pkmcal.calibrate(mech, commands, measured)
+
+
+def test_a_worker_returns_a_whole_calibration():
+    """The fit itself crosses the process boundary (pickled as its record)
+    and is the one the parent computes from the same data."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(2) as pool:
+        fits = list(pool.map(whole_fit, [5, 6], timeout=HUNG_AFTER_S))
+    assert fits[0] == whole_fit(5) and fits[1] == whole_fit(6)
+    assert fits[0] != fits[1]
+    assert fits[0].std_dev["l11"] > 0

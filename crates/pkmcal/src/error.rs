@@ -104,7 +104,7 @@ impl Error {
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 /// Where a pose came from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 pub struct Origin {
     /// The pose's number as its front end numbers its users' rows: the
     /// command-line tool by file order from 1 (with the file `line`), the
@@ -116,7 +116,7 @@ pub struct Origin {
     /// Whether the row is a distance between two poses
     /// ([`Measurement::partner`]); `pose` is then its number among the
     /// distances (their own file's numbering in the command-line tool).
-    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    #[serde(skip_serializing_if = "std::ops::Not::not", default)]
     pub distance: bool,
 }
 

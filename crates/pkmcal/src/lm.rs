@@ -81,6 +81,37 @@ pub struct Options {
     pub cancel: Option<Arc<AtomicBool>>,
 }
 
+impl Options {
+    /// Refuse settings the solver cannot use: a tolerance that is negative
+    /// or not a number, no evaluation allowed, or a factor that is not
+    /// positive. The error names the setting as this documentation does.
+    pub fn check(&self) -> crate::error::Result<()> {
+        let bad = |what: &str, v: f64| {
+            crate::error::Error::InvalidRequest(format!(
+                "the solver's {what} is {v}; give a finite number ≥ 0"
+            ))
+        };
+        for (what, v) in [
+            ("ftol", self.ftol),
+            ("xtol", self.xtol),
+            ("gtol", self.gtol),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(bad(what, v));
+            }
+        }
+        if self.max_evaluations == 0 {
+            return Err(crate::error::Error::InvalidRequest(
+                "the solver's evaluation budget is 0; allow at least 1 evaluation".into(),
+            ));
+        }
+        if !(self.factor.is_finite() && self.factor > 0.0) {
+            return Err(bad("factor", self.factor));
+        }
+        Ok(())
+    }
+}
+
 impl Default for Options {
     fn default() -> Self {
         Self {
@@ -99,7 +130,7 @@ impl Default for Options {
 }
 
 /// Why the solver stopped.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case", tag = "kind", content = "detail")]
 pub enum Termination {
     /// The sum of squares cannot decrease by more than `ftol` (relative).
@@ -528,6 +559,34 @@ fn lmpar(
     }
 }
 
+/// A free parameter at a bound that the data push outwards (the gradient
+/// of the sum of squares points out of the box) is held there: its Jacobian
+/// column is zeroed for the step, as MINPACK-based bounded fits do
+/// (Markwardt's MPFIT), so that the step moves the other parameters only and
+/// the convergence tests see the directions left free. Without bounds
+/// nothing changes. Whether a column was held.
+fn hold_pegged<P: Problem>(
+    s: &Scaled<'_, P>,
+    x: &[f64],
+    fvec: &DVector<f64>,
+    fjac: &mut DMatrix<f64>,
+) -> bool {
+    if s.lower.is_none() && s.upper.is_none() {
+        return false;
+    }
+    let mut held = false;
+    for (k, &i) in s.free.iter().enumerate() {
+        let g = fjac.column(k).dot(fvec);
+        let at_lower = s.lower.is_some_and(|l| x[k] <= l[i]);
+        let at_upper = s.upper.is_some_and(|u| x[k] >= u[i]);
+        if (at_lower && g > 0.0) || (at_upper && g < 0.0) {
+            fjac.column_mut(k).fill(0.0);
+            held = true;
+        }
+    }
+    held
+}
+
 struct Scaled<'a, P: Problem> {
     problem: &'a P,
     x0: Vec<f64>,
@@ -695,6 +754,9 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
         // whether the final Jacobian must be re-evaluated).
         let mut last_step = 0.0;
         let mut fjac = fjac;
+        // The factorisation of a Jacobian with held columns is not that of
+        // the Jacobian reported.
+        let held = hold_pegged(&s, &x, &fvec, &mut fjac);
         let (ipvt, rdiag, acnorm) = qrfac(&mut fjac);
         if iter == 1 {
             for j in 0..n {
@@ -823,7 +885,7 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
                         ipvt,
                         rdiag,
                     };
-                    (jac_at_x, Some(Box::new(f)))
+                    (jac_at_x, (!held).then(|| Box::new(f)))
                 };
                 let (j, factored) = if last_step <= FINAL_JACOBIAN_STEP * xnorm {
                     at_x(jac_at_x)

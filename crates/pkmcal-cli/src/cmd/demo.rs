@@ -116,6 +116,12 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             &|| {},
         )
         .map_err(|e| anyhow::Error::from(e.error))?;
+        let state = pkmcal_io::record::CalibrationState {
+            mechanism: pkmcal_io::record::MechanismSource::Reference,
+            measurement: tool.clone(),
+            study,
+        };
+        let study = &state.study;
         let cal = &study.calibration;
         let acc = study.accuracy.clone();
         let vacc = study
@@ -126,14 +132,8 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         let report = pkmcal_io::calibrate::Report::new(
             spec,
             "measurements.csv (simulated)".into(),
-            &tool,
-            cal,
-            acc.clone(),
-            Some(pkmcal_io::calibrate::Validation {
-                source: format!("{DEMO_VALIDATION_POSES} unseen poses"),
-                accuracy: vacc.clone(),
-            }),
-            None,
+            &state,
+            |_| format!("{DEMO_VALIDATION_POSES} unseen poses"),
         );
         if model == Model::Exact {
             pkmcal_io::report::write_report_dir(

@@ -9,14 +9,15 @@ exceptions are row indices (from 0) of the arrays given.
 >>> import pkmcal
 >>> mech = pkmcal.Mechanism()                      # the built-in reference
 >>> targets = pkmcal.plan(mech, 35).targets         # where to measure
->>> commands, measured = pkmcal.simulate(mech, targets, {"l11": 280.3, "dq3": 0.002}, noise=0.002)
+>>> commands, measured = pkmcal.simulate(mech, targets, {"l11": 280.3, "dq3": 0.002}, noise=0.002, seed=1)
 >>> cal = pkmcal.calibrate(mech, commands, measured)
 >>> round(cal.parameters["l11"], 1)
 280.3
 
 Functions: predict, nominal_commands, simulate, calibrate, analyze,
 compensate, plan, montecarlo, trilaterate. Classes: Mechanism, Calibration,
-Identifiability, ErrorStats, Warning, Figure, Prediction, Compensation, Plan.
+Identifiability, ErrorStats, Warning, Figure, Prediction, Compensation, Plan,
+MonteCarlo, SavedCalibration. Every result pickles and compares by value.
 Errors: PkmcalError (a ValueError) with the message and ``.pose``. A
 calibration's warnings are also emitted with ``warnings.warn``, once per call,
 as PkmcalWarning (a UserWarning) subclasses: ConvergenceWarning,
@@ -33,6 +34,7 @@ from ._pkmcal import (
     Identifiability,
     IdentifiabilityWarning,
     Mechanism,
+    MonteCarlo,
     OutlierWarning,
     PkmcalError,
     PkmcalWarning,
@@ -54,6 +56,43 @@ from ._pkmcal import (
     trilaterate,
 )
 
+import functools as _functools
+import re as _re
+
+_NOTE = _re.compile(r"while processing '(\w+)'")
+
+
+def _naming_arguments(f):  # type: ignore[no-untyped-def]
+    """`f` whose argument conversion errors (a TypeError or OverflowError the
+    binding raises with the note "while processing 'axes'") say the
+    argument's name in their message, not only in the traceback's note."""
+
+    @_functools.wraps(f, assigned=(*_functools.WRAPPER_ASSIGNMENTS, "__text_signature__"))
+    def call(*args, **kwargs):  # type: ignore[no-untyped-def]
+        try:
+            return f(*args, **kwargs)
+        except (TypeError, OverflowError) as e:
+            for note in getattr(e, "__notes__", ()):
+                m = _NOTE.fullmatch(note)
+                if m and not str(e).startswith(m.group(1)):
+                    raise type(e)(f"{m.group(1)}: {e}").with_traceback(e.__traceback__) from None
+            raise
+
+    return call
+
+
+analyze = _naming_arguments(analyze)
+calibrate = _naming_arguments(calibrate)
+compensate = _naming_arguments(compensate)
+load_calibration = _naming_arguments(load_calibration)
+montecarlo = _naming_arguments(montecarlo)
+nominal_commands = _naming_arguments(nominal_commands)
+plan = _naming_arguments(plan)
+predict = _naming_arguments(predict)
+set_threads = _naming_arguments(set_threads)
+simulate = _naming_arguments(simulate)
+trilaterate = _naming_arguments(trilaterate)
+
 # `Warning` stays out of `__all__`: `from pkmcal import *` must not shadow
 # Python's builtin `Warning` (it is `pkmcal.Warning`).
 __all__ = [
@@ -65,6 +104,7 @@ __all__ = [
     "Identifiability",
     "IdentifiabilityWarning",
     "Mechanism",
+    "MonteCarlo",
     "OutlierWarning",
     "PkmcalError",
     "PkmcalWarning",

@@ -13,6 +13,9 @@ Array = npt.NDArray[np.float64]
 ModelName = Literal["exact", "linear", "rigid"]
 Params = Union[None, Mapping[str, float], "Calibration", "SavedCalibration", str]
 Names = Union[None, str, Sequence[str]]
+MechanismLike = Union["Mechanism", str, os.PathLike, Mapping[str, Any]]
+Seed = Union[None, int, np.random.Generator, np.random.RandomState]
+Vector = Union[Sequence[float], ArrayLike]
 
 class PkmcalError(ValueError):
     """Bad input or an impossible request; ``pose`` is the row (from 0) where it happened."""
@@ -63,7 +66,10 @@ class Mechanism:
     @property
     def summary(self) -> dict[str, Any]: ...
     @property
-    def parameters(self) -> list[str]: ...
+    def parameter_names(self) -> list[str]: ...
+    @property
+    def parameters(self) -> list[str]:
+        """Deprecated: ``parameter_names``."""
     @property
     def nominal(self) -> dict[str, float]: ...
     @property
@@ -75,7 +81,10 @@ class Mechanism:
     @property
     def workspace(self) -> Array: ...
     @property
-    def targets(self) -> Optional[Array]: ...
+    def target_points(self) -> Optional[Array]: ...
+    @property
+    def targets(self) -> Optional[Array]:
+        """Deprecated: ``target_points``."""
 
 class ErrorStats:
     """Error statistics of a set of poses (mm; angles in rad)."""
@@ -193,9 +202,55 @@ class Calibration:
     def dropped(self) -> list[int]: ...
     def to_toml(self) -> str: ...
     def save(self, path: Union[str, os.PathLike]) -> None: ...
+    @staticmethod
+    def load(path: Union[str, os.PathLike]) -> Calibration: ...
+    @property
+    def mechanism(self) -> Mechanism: ...
+    @property
+    def x(self) -> Array: ...
+    @property
+    def x_names(self) -> list[str]: ...
+    @property
+    def x_units(self) -> list[str]: ...
+    @property
+    def fun(self) -> Array: ...
+    @property
+    def jac(self) -> Array: ...
+    @property
+    def sigmas(self) -> Array: ...
+    @property
+    def cost(self) -> float: ...
+    @property
+    def nfev(self) -> int: ...
+    @property
+    def njev(self) -> int: ...
+    @property
+    def status(self) -> int: ...
+    @property
+    def message(self) -> str: ...
+    @property
+    def success(self) -> bool: ...
+    @property
+    def correlation(self) -> Array: ...
+    def summary(self) -> str: ...
     def _repr_html_(self) -> str: ...
     def figures(self) -> list[Figure]: ...
     def save_report(self, path: Union[str, os.PathLike]) -> None: ...
+
+class MonteCarlo:
+    runs: int
+    converged: int
+    validation_rms_median: float
+    validation_rms_p95: float
+    validation_max_median: float
+    parameters: list[str]
+    parameter_rms_error: Array
+    run_converged: npt.NDArray[np.bool_]
+    validation_rms: Array
+    validation_max: Array
+    parameter_errors: Array
+    def __getitem__(self, key: str) -> Any:
+        """Deprecated: the attributes."""
 
 class Prediction:
     x: Array
@@ -247,31 +302,31 @@ class SavedCalibration:
 def load_calibration(path: Union[str, os.PathLike]) -> SavedCalibration: ...
 def set_threads(n: int) -> None: ...
 def predict(
-    mechanism: Mechanism,
+    mechanism: MechanismLike,
     commands: ArrayLike,
     params: Params = None,
     *,
     model: Optional[ModelName] = None,
-    load: Optional[Sequence[float]] = None,
-    force: Optional[Sequence[float]] = None,
+    load: Optional[Vector] = None,
+    force: Optional[Vector] = None,
     uncertainty: bool = False,
     skip_unreachable: bool = False,
 ) -> Prediction: ...
-def nominal_commands(mechanism: Mechanism, targets: ArrayLike) -> Array: ...
+def nominal_commands(mechanism: MechanismLike, targets: ArrayLike) -> Array: ...
 def simulate(
-    mechanism: Mechanism,
+    mechanism: MechanismLike,
     targets: ArrayLike,
     truth: Params = None,
     *,
     noise: float = 0.0,
     angle_noise: Optional[float] = None,
-    seed: int = 1,
+    seed: Seed = None,
     axes: Optional[Sequence[str]] = None,
     points: Union[None, ArrayLike, Literal["mechanism"]] = None,
     ballbar: Union[None, Mapping[str, Any], Literal["mechanism"]] = None,
 ) -> Tuple[Array, Array]: ...
 def calibrate(
-    mechanism: Mechanism,
+    mechanism: MechanismLike,
     commands: ArrayLike,
     measured: ArrayLike,
     *,
@@ -285,8 +340,8 @@ def calibrate(
     loss_scale: Optional[float] = None,
     outlier_threshold: float = 4.0,
     drop_outliers: bool = False,
-    load: Optional[Sequence[float]] = None,
-    force: Optional[Sequence[float]] = None,
+    load: Optional[Vector] = None,
+    force: Optional[Vector] = None,
     axes: Optional[Sequence[str]] = None,
     points: Union[None, ArrayLike, Literal["mechanism"]] = None,
     ballbar: Union[None, Mapping[str, Any], Literal["mechanism"]] = None,
@@ -294,11 +349,17 @@ def calibrate(
     validation: Optional[Tuple[ArrayLike, ...]] = None,
     holdout: Optional[float] = None,
     kfold: Optional[int] = None,
-    seed: int = 1,
+    seed: Seed = 1,
     distances: Optional[Tuple[ArrayLike, ...]] = None,
+    max_nfev: Optional[int] = None,
+    ftol: Optional[float] = None,
+    xtol: Optional[float] = None,
+    gtol: Optional[float] = None,
+    bounds: Optional[Mapping[str, Tuple[float, float]]] = None,
+    x0: Union[None, Mapping[str, float], ArrayLike] = None,
 ) -> Calibration: ...
 def analyze(
-    mechanism: Mechanism,
+    mechanism: MechanismLike,
     commands: ArrayLike,
     measured: ArrayLike,
     *,
@@ -307,26 +368,26 @@ def analyze(
     model: ModelName = "exact",
     free: Names = None,
     fix: Names = None,
-    load: Optional[Sequence[float]] = None,
-    force: Optional[Sequence[float]] = None,
+    load: Optional[Vector] = None,
+    force: Optional[Vector] = None,
     axes: Optional[Sequence[str]] = None,
     points: Union[None, ArrayLike, Literal["mechanism"]] = None,
     ballbar: Union[None, Mapping[str, Any], Literal["mechanism"]] = None,
     frame: Literal["base", "free"] = "base",
 ) -> Identifiability: ...
 def compensate(
-    mechanism: Mechanism,
+    mechanism: MechanismLike,
     targets: ArrayLike,
     params: Params = None,
     *,
     model: Literal["exact", "rigid"] = "exact",
-    load: Optional[Sequence[float]] = None,
-    force: Optional[Sequence[float]] = None,
-    preload: Optional[Sequence[float]] = None,
+    load: Optional[Vector] = None,
+    force: Optional[Vector] = None,
+    preload: Optional[Vector] = None,
     skip_unreachable: bool = False,
 ) -> Compensation: ...
 def plan(
-    mechanism: Mechanism,
+    mechanism: MechanismLike,
     count: int,
     params: Params = None,
     *,
@@ -338,20 +399,20 @@ def plan(
     max_candidates: int = 4000,
 ) -> Plan: ...
 def montecarlo(
-    mechanism: Mechanism,
+    mechanism: MechanismLike,
     targets: ArrayLike,
     *,
     runs: int = 200,
     noise: float = 0.002,
     angle_noise: Optional[float] = None,
-    seed: int = 1,
+    seed: Seed = 1,
     model: ModelName = "exact",
     free: Names = None,
     fix: Names = None,
     length_error: float = 0.3,
     angle_error: float = 0.001,
     validation: int = 50,
-) -> dict[str, Any]: ...
+) -> MonteCarlo: ...
 def trilaterate(
     sockets: ArrayLike,
     readings: ArrayLike,

@@ -8,7 +8,7 @@ use crate::measurement::MeasurementModel;
 use crate::mechanism::Spec;
 use crate::units::{ParamKind, Unit};
 use nalgebra::DMatrix;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// Singular values below this fraction of the largest (of the column-scaled
 /// identification Jacobian) count as unidentifiable directions.
@@ -24,7 +24,7 @@ const COMBINATION_CUTOFF: f64 = 0.05;
 /// Observability indices of the column-scaled identification Jacobian with
 /// singular values σ₁ ≥ … ≥ σ_L over m poses (Sun & Hollerbach, "Observability
 /// index selection for robot calibration", ICRA 2008, which collects them):
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
 pub struct Observability {
     /// O1 = (σ₁⋯σ_L)^(1/L) / √m (Borm & Menq 1991): the volume of the error ellipsoid.
     pub o1: f64,
@@ -39,7 +39,7 @@ pub struct Observability {
 }
 
 /// A direction in parameter space the data cannot see.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
 pub struct Unidentifiable {
     /// The combination, e.g. `0.71·l11 − 0.71·B1x` (column-scaled units).
     pub combination: String,
@@ -50,7 +50,7 @@ pub struct Unidentifiable {
 }
 
 /// A pair of strongly correlated parameters.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
 pub struct Correlation {
     /// First parameter.
     pub a: String,
@@ -69,8 +69,25 @@ fn number_or_inf<S: serde::Serializer>(v: &f64, s: S) -> std::result::Result<S::
     }
 }
 
+/// A number, or `"inf"` as [`number_or_inf`] writes +∞.
+fn number_or_inf_de<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<f64, D::Error> {
+    #[derive(serde::Deserialize)]
+    #[serde(untagged)]
+    enum NumberOrText {
+        Number(f64),
+        Text(String),
+    }
+    match NumberOrText::deserialize(d)? {
+        NumberOrText::Number(v) => Ok(v),
+        NumberOrText::Text(t) if t == "inf" => Ok(f64::INFINITY),
+        NumberOrText::Text(t) => Err(serde::de::Error::custom(format!(
+            "expected a number or \"inf\", got \"{t}\""
+        ))),
+    }
+}
+
 /// Identifiability of the free parameters from the poses.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
 pub struct Identifiability {
     /// Free parameters analysed (names).
     pub free: Vec<String>,
@@ -80,7 +97,10 @@ pub struct Identifiability {
     pub rank: usize,
     /// σ₁ / σ_L (infinite when rank deficient; written `"inf"` in JSON,
     /// which has no infinity, rather than a `null` that reads as missing).
-    #[serde(serialize_with = "number_or_inf")]
+    #[serde(
+        serialize_with = "number_or_inf",
+        deserialize_with = "number_or_inf_de"
+    )]
     pub condition_number: f64,
     /// Observability indices O1–O5 (over the identifiable part).
     pub observability: Observability,

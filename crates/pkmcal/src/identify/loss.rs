@@ -11,7 +11,7 @@ use std::collections::BTreeMap;
 
 /// How residuals are penalised (the robust loss; `ρ` is taken by the
 /// parameters, hence `Loss`).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase", tag = "kind", content = "scale")]
 pub enum Loss {
     /// Ordinary least squares.
@@ -67,7 +67,7 @@ impl Loss {
 }
 
 /// A pose whose residual is far beyond the noise.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
 pub struct Outlier {
     /// Where the pose came from (pose number, line).
     #[serde(flatten)]

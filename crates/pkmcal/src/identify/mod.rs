@@ -34,7 +34,7 @@ pub use record::{
 pub use result::{Calibration, ParameterResult, Warning, WarningKind};
 pub use study::{
     FreeSetError, NameList, Study, StudyError, StudyOptions, StudyStage, StudyValidation,
-    ValidationPlan, ValidationSource, resolve_free_set, study,
+    ValidationPlan, ValidationSource, named_bounds, resolve_free_set, study,
 };
 pub use uncertainty::{ParameterCovariance, predict_with_uncertainty, tool_covariance};
 pub use validation::{

@@ -27,7 +27,7 @@ pub const VCE_TOL: f64 = 1e-3;
 pub const VCE_MAX_ROUNDS: usize = 12;
 
 /// A group of like coordinates and its noise level.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
 pub struct NoiseGroup {
     /// Unit of the coordinates (and of `sigma`, `residual_rms`).
     pub unit: Unit,

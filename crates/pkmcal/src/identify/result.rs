@@ -16,7 +16,7 @@ use serde::Serialize;
 use std::sync::Arc;
 
 /// One row of the parameter table.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
 pub struct ParameterResult {
     /// Name.
     pub name: String,
@@ -40,7 +40,7 @@ pub struct ParameterResult {
 
 /// What a warning is about, with its data: the CLI and other callers match on
 /// the kind, never on the message.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum WarningKind {
     /// All stiffness parameters were free without an external load: only
@@ -111,7 +111,7 @@ pub enum WarningKind {
 }
 
 /// A warning: its kind (with data), what happened and what to do.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
 pub struct Warning {
     /// What it is about.
     #[serde(flatten)]
@@ -238,13 +238,15 @@ impl Warning {
     }
 }
 
-/// Everything a calibration produces.
-#[derive(Debug, Clone, Serialize)]
+/// Everything a calibration produces. Its `Serialize` writes what a report
+/// shows (the vectors and matrices below marked so are left out);
+/// [`full`] writes and reads all of it.
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct Calibration {
     /// Model used.
     pub model: Model,
     /// Identified parameters of the mechanism (full vector).
-    #[serde(skip)]
+    #[serde(skip, default = "Params::empty")]
     pub params: Params,
     /// Identified (or given) pose of the instrument frame in the base frame
     /// ([`crate::measurement::frame`]); `None` when the data are in the base frame. Also
@@ -283,7 +285,7 @@ pub struct Calibration {
     pub identifiability: Identifiability,
     /// Covariance of the free parameters (scaled by the unit-weight
     /// variance), in `free` order.
-    #[serde(skip)]
+    #[serde(skip, default = "empty_matrix")]
     pub covariance: DMatrix<f64>,
     /// Free parameter indices actually identified.
     #[serde(skip)]
@@ -309,7 +311,7 @@ pub struct Calibration {
     #[serde(skip)]
     pub sigmas: Vec<f64>,
     /// Weighted Jacobian of the free parameters at the solution.
-    #[serde(skip)]
+    #[serde(skip, default = "empty_matrix")]
     pub jacobian: DMatrix<f64>,
     /// Warnings.
     pub warnings: Vec<Warning>,
@@ -329,4 +331,104 @@ pub(crate) struct FinalPredictions {
     pub(super) model: Model,
     pub(super) force: Vec<f64>,
     pub(super) predictions: CachedPredictions,
+}
+
+fn empty_matrix() -> DMatrix<f64> {
+    DMatrix::zeros(0, 0)
+}
+
+/// A matrix as plain data: its shape and its entries column by column.
+#[derive(Serialize, serde::Deserialize)]
+struct MatrixData {
+    rows: usize,
+    cols: usize,
+    data: Vec<f64>,
+}
+
+impl From<&DMatrix<f64>> for MatrixData {
+    fn from(m: &DMatrix<f64>) -> Self {
+        MatrixData {
+            rows: m.nrows(),
+            cols: m.ncols(),
+            data: m.as_slice().to_vec(),
+        }
+    }
+}
+
+/// A whole [`Calibration`] as data, for `#[serde(with = "full")]`: what a
+/// report shows plus the identified vector, the measurement model's values,
+/// the covariance, the free indices, the residuals, their σ and the
+/// weighted Jacobian, so that a calibration read back is the one written
+/// (only the cache of its last predictions is left out).
+pub mod full {
+    use super::{Calibration, MatrixData};
+    use crate::mechanism::Params;
+    use nalgebra::DMatrix;
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    #[derive(Serialize)]
+    struct Written<'a> {
+        report: &'a Calibration,
+        params: &'a Params,
+        measurement: &'a [f64],
+        covariance: MatrixData,
+        free: &'a [usize],
+        residuals: &'a [f64],
+        sigmas: &'a [f64],
+        jacobian: MatrixData,
+    }
+
+    #[derive(Deserialize)]
+    struct Read {
+        report: Calibration,
+        params: Params,
+        measurement: Vec<f64>,
+        covariance: MatrixData,
+        free: Vec<usize>,
+        residuals: Vec<f64>,
+        sigmas: Vec<f64>,
+        jacobian: MatrixData,
+    }
+
+    fn matrix<E: serde::de::Error>(m: MatrixData) -> Result<DMatrix<f64>, E> {
+        if m.rows.checked_mul(m.cols) != Some(m.data.len()) {
+            return Err(E::custom(format!(
+                "a {}×{} matrix needs {} entries, not {}",
+                m.rows,
+                m.cols,
+                m.rows.saturating_mul(m.cols),
+                m.data.len()
+            )));
+        }
+        Ok(DMatrix::from_vec(m.rows, m.cols, m.data))
+    }
+
+    /// Write every part of `c`.
+    pub fn serialize<S: Serializer>(c: &Calibration, s: S) -> Result<S::Ok, S::Error> {
+        Written {
+            report: c,
+            params: &c.params,
+            measurement: &c.measurement,
+            covariance: (&c.covariance).into(),
+            free: &c.free,
+            residuals: &c.residuals,
+            sigmas: &c.sigmas,
+            jacobian: (&c.jacobian).into(),
+        }
+        .serialize(s)
+    }
+
+    /// Read what [`serialize`] wrote.
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Calibration, D::Error> {
+        let r = Read::deserialize(d)?;
+        let mut c = r.report;
+        c.params = r.params;
+        c.measurement = r.measurement;
+        c.covariance = matrix(r.covariance)?;
+        c.free = r.free;
+        c.residuals = r.residuals;
+        c.sigmas = r.sigmas;
+        c.jacobian = matrix(r.jacobian)?;
+        Ok(c)
+    }
 }

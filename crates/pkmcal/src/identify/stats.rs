@@ -7,7 +7,7 @@ use crate::units::{Quantity, Unit};
 use serde::Serialize;
 
 /// Summary of a set of position errors.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 pub struct ErrorStats {
     /// Number of poses.
     pub count: usize,

@@ -14,7 +14,7 @@ use super::validation::{
     Accuracy, CrossValidation, ErrorVectors, calibration_accuracy, calibration_accuracy_with_cache,
     cross_validate_with_progress, holdout_split,
 };
-use crate::error::Error;
+use crate::error::{Error, Result};
 use crate::measurement::MeasurementModel;
 use crate::measurement::data::Measurement;
 use crate::mechanism::{Mechanism, Params, Spec};
@@ -134,6 +134,30 @@ pub fn resolve_free_set(
     Ok(set)
 }
 
+/// Bounds on named parameters (the mechanism's or the instrument's) as the
+/// solver takes them: full vectors over the identification vector
+/// (mechanism, then instrument), ±∞ where a parameter is not named. A NaN
+/// bound, a lower bound above the upper one, or an unknown name is refused.
+pub fn named_bounds(
+    spec: &Spec,
+    measurement: &MeasurementModel,
+    bounds: &[(String, f64, f64)],
+) -> Result<(Vec<f64>, Vec<f64>)> {
+    let n = spec.n_params() + measurement.param_names().len();
+    let (mut lower, mut upper) = (vec![f64::NEG_INFINITY; n], vec![f64::INFINITY; n]);
+    for (name, lo, hi) in bounds {
+        let i = measurement.index_of(spec, name)?;
+        if lo.is_nan() || hi.is_nan() || lo > hi {
+            return Err(Error::InvalidRequest(format!(
+                "the bounds of `{name}` are ({lo}, {hi}); give a lower bound at most the upper one (±inf leaves a side open)"
+            )));
+        }
+        lower[i] = *lo;
+        upper[i] = *hi;
+    }
+    Ok((lower, upper))
+}
+
 /// Where a study's validation poses come from.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub enum ValidationPlan {
@@ -161,7 +185,7 @@ pub struct StudyOptions {
 }
 
 /// Where a study's validation poses came from, for the front ends to word.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum ValidationSource {
     /// Given apart.
     Given,
@@ -175,7 +199,7 @@ pub enum ValidationSource {
 }
 
 /// Validation on poses the fit did not see.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct StudyValidation {
     /// Where they came from.
     pub source: ValidationSource,
@@ -183,10 +207,12 @@ pub struct StudyValidation {
     pub accuracy: Accuracy,
 }
 
-/// What a study returns.
-#[derive(Debug, Clone)]
+/// What a study returns: plain data that serialises whole (a calibration
+/// record keeps it, so that a calibration read back is the one computed).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct Study {
     /// The fit.
+    #[serde(with = "super::result::full")]
     pub calibration: Calibration,
     /// Before/after on the rows the fit kept (poses and distances).
     pub accuracy: Accuracy,

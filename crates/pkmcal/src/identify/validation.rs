@@ -16,7 +16,7 @@ use rand::seq::SliceRandom;
 use serde::Serialize;
 
 /// Before and after statistics of a data set.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
 pub struct Accuracy {
     /// Poses.
     pub poses: usize,
@@ -36,7 +36,7 @@ pub struct Accuracy {
 
 /// Errors of distances measured between two poses (mm): measured minus
 /// predicted, before (nominal parameters) and after calibration.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
 pub struct DistanceAccuracy {
     /// Number of distances.
     pub count: usize,
@@ -237,7 +237,7 @@ pub fn holdout_split(n: usize, fraction: f64, seed: u64) -> Result<(Vec<usize>, 
 }
 
 /// Result of k-fold cross-validation.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
 pub struct CrossValidation {
     /// Number of folds.
     pub folds: usize,

@@ -19,7 +19,7 @@ use nalgebra::{DMatrix, DVector};
 const MAX: f64 = crate::units::MAX_LENGTH_MM;
 
 /// Where the sockets are and what the bar reads.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Setup {
     /// Socket centre positions in the base frame (mm), one per distance.
     pub sockets: Vec<Vec<f64>>,

@@ -7,7 +7,7 @@ use crate::units::{Quantity, Unit};
 /// One measured pose: what was commanded, what was measured, how well, and
 /// where it came from. Every subset of a data set (held-out poses, folds,
 /// poses left after dropping outliers) keeps each pose's σ and origin.
-#[derive(Debug, Clone, PartialEq, Default)]
+#[derive(Debug, Clone, PartialEq, Default, serde::Serialize, serde::Deserialize)]
 pub struct Measurement {
     /// The target the commands were computed for (tool coordinates), if known.
     pub target: Option<Vec<f64>>,

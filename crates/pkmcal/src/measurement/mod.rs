@@ -38,7 +38,7 @@ use num_dual::Dual64;
 use serde::Serialize;
 
 /// Where the measuring instrument stands relative to the base frame.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 pub enum Frame {
     /// The data are in the base frame (ball-bar sockets at known places, a
     /// frame already registered).
@@ -147,7 +147,7 @@ pub fn requested_frame(
 }
 
 /// What the instrument observes.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 pub enum Instrument {
     /// Tool coordinates: these axes (indices into the mechanism's tool axes,
     /// in the order they are read).
@@ -184,7 +184,7 @@ pub enum Instrument {
 /// Built by [`MeasurementModel::tool`], [`MeasurementModel::tool_axes`],
 /// [`MeasurementModel::targets`] or [`MeasurementModel::ball_bar`], each
 /// checked against the mechanism.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 pub struct MeasurementModel {
     instrument: Instrument,
     frame: Frame,

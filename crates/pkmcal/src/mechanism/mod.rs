@@ -426,7 +426,7 @@ pub trait Mechanism: Send + Sync {
 }
 
 /// A full parameter vector `[ρ, Δq, k]` of a mechanism.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Params {
     /// Values in [`Spec::param_names`] order.
     pub values: Vec<f64>,
@@ -435,6 +435,15 @@ pub struct Params {
 }
 
 impl Params {
+    /// No parameters (a placeholder to be filled in).
+    pub(crate) fn empty() -> Self {
+        Params {
+            values: vec![],
+            n_geometric: 0,
+            n_actuated: 0,
+        }
+    }
+
     /// Wrap a full vector (checks its length).
     pub fn new(spec: &Spec, values: Vec<f64>) -> Result<Self> {
         if values.len() != spec.n_params() {

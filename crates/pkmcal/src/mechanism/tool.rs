@@ -7,7 +7,7 @@ use serde::Serialize;
 
 /// What the tool coordinates are, geometrically: how a change of frame acts
 /// on them.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case", tag = "kind")]
 pub enum ToolLayout {
     /// A planar position `x, y` (mm).

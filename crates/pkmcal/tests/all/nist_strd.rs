@@ -112,3 +112,94 @@ fn cancelling_stops_the_fit_and_a_clear_flag_changes_nothing() {
     assert!(!stopped.termination.converged());
     assert_eq!(stopped.x, p.starts[1]);
 }
+
+/// Agreement of a bounded fit's sum of squares with that of the same fit
+/// with the bounded parameter fixed at its bound (relative): both reach the
+/// same minimum (the parameters of problems with symmetric terms, Lanczos'
+/// exponentials, may come in another order).
+const BOUNDED_AGREE: f64 = 1e-9;
+
+/// A bound that cuts off the certified optimum: the fit converges (not on
+/// its evaluation budget) with the parameter on the bound, at the optimum of
+/// the others with that parameter fixed there (the same sum of squares), on
+/// every NIST problem whose
+/// optimum is then held by the bound. Bounds that leave the optimum inside
+/// change nothing.
+#[test]
+fn a_bound_holds_a_parameter_and_the_fit_converges() {
+    let mut held = 0;
+    for name in nist::NAMES {
+        let p = nist::load(name);
+        let free = minimize(&p, &p.starts[1], &Options::default());
+        if !free.termination.converged() {
+            continue;
+        }
+        let n = p.certified.len();
+        // The first parameter bounded at 1 % of its value inward of the
+        // optimum, from the side of the start.
+        let best = free.x[0];
+        let bound = best - 0.01 * best.abs() * (best - p.starts[1][0]).signum();
+        let mut lower = vec![f64::NEG_INFINITY; n];
+        let mut upper = vec![f64::INFINITY; n];
+        if bound < best {
+            upper[0] = bound;
+        } else {
+            lower[0] = bound;
+        }
+        let mut start = p.starts[1].clone();
+        start[0] = bound;
+        let bounded = minimize(
+            &p,
+            &start,
+            &Options {
+                lower: Some(lower),
+                upper: Some(upper),
+                ..Options::default()
+            },
+        );
+        let mut mask = vec![true; n];
+        mask[0] = false;
+        let fixed = minimize(
+            &p,
+            &start,
+            &Options {
+                free: Some(mask),
+                ..Options::default()
+            },
+        );
+        if !fixed.termination.converged() {
+            continue;
+        }
+        held += 1;
+        assert!(
+            bounded.termination.converged(),
+            "{name}: the bounded fit stopped: {}",
+            bounded.termination.reason()
+        );
+        let inside = if bound < best {
+            bounded.x[0] <= bound
+        } else {
+            bounded.x[0] >= bound
+        };
+        assert!(
+            inside && (bounded.x[0] - bound).abs() <= BOUNDED_AGREE * bound.abs(),
+            "{name}: {} against the bound {bound}",
+            bounded.x[0]
+        );
+        let gap = (bounded.sum_of_squares - fixed.sum_of_squares).abs()
+            / fixed.sum_of_squares.max(1e-300);
+        assert!(gap < BOUNDED_AGREE, "{name}: sums of squares {gap:e} apart");
+        // A box around the optimum changes nothing.
+        let loose = minimize(
+            &p,
+            &p.starts[1],
+            &Options {
+                lower: Some(free.x.iter().map(|v| v - 10.0 * v.abs() - 1.0).collect()),
+                upper: Some(free.x.iter().map(|v| v + 10.0 * v.abs() + 1.0).collect()),
+                ..Options::default()
+            },
+        );
+        assert!(loose.termination.converged(), "{name}");
+    }
+    assert!(held >= 20, "only {held} problems held by a bound");
+}
