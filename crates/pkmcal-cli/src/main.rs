@@ -53,6 +53,10 @@ enum Command {
     Plan(cmd::plan::Args),
     /// Predict post-calibration accuracy of a measurement plan by simulation.
     Montecarlo(cmd::montecarlo::Args),
+    /// The tool error a mechanism's parameter tolerances give over its
+    /// workspace (first order, checked by Monte Carlo), each tolerance's
+    /// share, and what a planned calibration would leave.
+    Budget(cmd::budget::Args),
     /// Ball-bar readings to tool positions (least squares) with uncertainties.
     Trilaterate(cmd::trilaterate::Args),
     /// List a mechanism's parameters (name, kind, unit, nominal value, free by
@@ -206,6 +210,7 @@ impl Command {
             Command::Gcode(a) => a.paths(),
             Command::Plan(a) => a.paths(),
             Command::Montecarlo(a) => a.paths(),
+            Command::Budget(a) => a.paths(),
             Command::Trilaterate(a) => a.paths(),
             Command::Parameters(a) => a.paths(),
             Command::Klipper(a) => a.paths(),
@@ -225,6 +230,7 @@ fn run_command(run: &Run, command: Command) -> anyhow::Result<()> {
         Command::Gcode(a) => cmd::gcode::run(run, a),
         Command::Plan(a) => cmd::plan::run(run, a),
         Command::Montecarlo(a) => cmd::montecarlo::run(run, a),
+        Command::Budget(a) => cmd::budget::run(run, a),
         Command::Trilaterate(a) => cmd::trilaterate::run(run, a),
         Command::Parameters(a) => cmd::parameters::run(run, a),
         Command::Klipper(a) => cmd::klipper::run(run, a),

@@ -6,7 +6,8 @@ mod common;
 use common::run;
 
 /// Every command.
-const COMMANDS: [&str; 13] = [
+const COMMANDS: [&str; 14] = [
+    "budget",
     "predict",
     "simulate",
     "calibrate",

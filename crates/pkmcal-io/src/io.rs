@@ -890,6 +890,9 @@ struct MechanismFile {
     /// Data-file units, read by `units_from_str`.
     #[allow(dead_code)]
     units: Option<pkmcal::PartialUnits>,
+    /// Parameter tolerances, read by `tolerances_from_str`.
+    #[allow(dead_code)]
+    tolerances: Option<toml::Table>,
 }
 
 /// A measurement-setup file (or the `[ballbar]` table of a mechanism file).
@@ -963,6 +966,8 @@ pub struct Description {
     pub units: Option<pkmcal::PartialUnits>,
     /// Where it came from, as a complete calibration record keeps it.
     pub source: crate::record::MechanismSource,
+    /// Its `[tolerances]` table: parameter name and tolerance, by name.
+    pub tolerances: Vec<(String, pkmcal::apply::budget::Tolerance)>,
 }
 
 /// A description's parts from its text (what [`read_description`] reads).
@@ -971,6 +976,7 @@ pub struct DescriptionParts {
     pub targets: Vec<Vec<f64>>,
     pub ballbar: Option<pkmcal::Setup>,
     pub units: Option<pkmcal::PartialUnits>,
+    pub tolerances: Vec<(String, pkmcal::apply::budget::Tolerance)>,
 }
 
 /// Every part of a mechanism description's text, each checked.
@@ -979,12 +985,45 @@ pub fn description_from_str(text: &str) -> Result<DescriptionParts> {
     let targets = targets_from_str(text)?;
     let ballbar = setup_from_str(text)?;
     let units = units_from_str(text)?;
+    let tolerances = tolerances_from_str(text)?;
+    // Every name is one of the mechanism's parameters, each σ positive.
+    pkmcal::apply::budget::resolve_tolerances(mech.spec(), &tolerances)
+        .context("in the [tolerances] table")?;
     Ok(DescriptionParts {
         mech,
         targets,
         ballbar,
         units,
+        tolerances,
     })
+}
+
+/// The `[tolerances]` table of a description's text: `name = σ` (one
+/// standard deviation in the parameter's unit) or `name = "20%"` (of its
+/// nominal value), by name; empty without the table.
+pub fn tolerances_from_str(text: &str) -> Result<Vec<(String, pkmcal::apply::budget::Tolerance)>> {
+    use pkmcal::apply::budget::Tolerance;
+    let table: toml::Table = toml::from_str(text).context("invalid mechanism description")?;
+    let Some(v) = table.get("tolerances") else {
+        return Ok(vec![]);
+    };
+    let toml::Value::Table(t) = v else {
+        bail!("`tolerances` must be a table: [tolerances] then `name = σ` or `name = \"20%\"`");
+    };
+    t.iter()
+        .map(|(name, v)| {
+            let tol = match v {
+                toml::Value::Float(f) => Tolerance::parse(&f.to_string()),
+                toml::Value::Integer(i) => Tolerance::parse(&i.to_string()),
+                toml::Value::String(s) => Tolerance::parse(s),
+                other => bail!(
+                    "[tolerances] `{name}` = {other}: give σ in the parameter's unit (0.05) or a percentage of its nominal value (\"20%\")"
+                ),
+            }
+            .with_context(|| format!("in the [tolerances] table, `{name}`"))?;
+            Ok((name.clone(), tol))
+        })
+        .collect()
 }
 
 /// The `[units]` table of a description's text, checked; `None` without.
@@ -1013,6 +1052,7 @@ pub fn read_description(run: &crate::Run<'_>, path: Option<&Path>) -> Result<Des
             ballbar: None,
             units: None,
             source: crate::record::MechanismSource::Reference,
+            tolerances: vec![],
         });
     };
     let text = run
@@ -1027,6 +1067,7 @@ pub fn read_description(run: &crate::Run<'_>, path: Option<&Path>) -> Result<Des
         targets: p.targets,
         ballbar: p.ballbar,
         units: p.units,
+        tolerances: p.tolerances,
         source: crate::record::MechanismSource::Description(text),
     })
 }
@@ -1043,6 +1084,7 @@ fn description_table(text: &str) -> Result<(String, toml::Table)> {
     table.remove("ballbar");
     table.remove("target");
     table.remove("units");
+    table.remove("tolerances");
     Ok((kind, table))
 }
 

@@ -18,6 +18,7 @@ macro_rules! note {
     }};
 }
 
+pub mod budget;
 pub mod calibrate;
 pub mod figures;
 pub mod fileunits;

@@ -649,6 +649,33 @@ pub struct MonteCarloConfig {
     pub out: Option<PathBuf>,
 }
 
+/// A plan's poses (`target_<axis>` columns, e.g. `plan`'s output) in
+/// internal units, each checked reachable by nominal inverse kinematics
+/// (an error names the file and line).
+pub fn read_plan_poses(
+    run: &crate::Run<'_>,
+    path: &std::path::Path,
+    mech: &crate::io::Mech,
+    units: &pkmcal::FileUnits,
+) -> Result<Vec<Vec<f64>>> {
+    let spec = mech.spec();
+    let csv = Csv::read(run, path)?;
+    csv.require_rows()?;
+    let names: Vec<String> = spec
+        .tool_axes
+        .iter()
+        .map(|a| format!("target_{a}"))
+        .collect();
+    let mut poses = csv.named(&names)?;
+    let units = crate::fileunits::for_file(run, units, csv.units.as_ref(), &csv.path);
+    crate::fileunits::to_internal(&mut poses, &crate::fileunits::tool(spec, &units));
+    for (i, t) in poses.iter().enumerate() {
+        pkmcal::nominal_commands(mech, t)
+            .with_context(|| format!("{}:{}", path.display(), csv.line(i)))?;
+    }
+    Ok(poses)
+}
+
 pub fn run_montecarlo(run: &crate::Run<'_>, c: MonteCarloConfig) -> Result<()> {
     let description = read_description(run, c.mechanism.as_deref())?;
     let units = crate::fileunits::of(run, &description);
@@ -666,20 +693,7 @@ pub fn run_montecarlo(run: &crate::Run<'_>, c: MonteCarloConfig) -> Result<()> {
             bail!("{name} must be a non-negative number");
         }
     }
-    let csv = Csv::read(run, &c.poses)?;
-    csv.require_rows()?;
-    let names: Vec<String> = spec
-        .tool_axes
-        .iter()
-        .map(|a| format!("target_{a}"))
-        .collect();
-    let mut poses = csv.named(&names)?;
-    let units = crate::fileunits::for_file(run, &units, csv.units.as_ref(), &csv.path);
-    crate::fileunits::to_internal(&mut poses, &crate::fileunits::tool(spec, &units));
-    for (i, t) in poses.iter().enumerate() {
-        pkmcal::nominal_commands(&mech, t)
-            .with_context(|| format!("{}:{}", c.poses.display(), csv.line(i)))?;
-    }
+    let poses = read_plan_poses(run, &c.poses, &mech, &units)?;
     let mut cal = CalibrationOptions::new(spec, c.model);
     cal.free = free_set(
         &mech,

@@ -514,6 +514,8 @@ struct PyMechanism {
     source: String,
     /// The description's text (None for the built-in reference), for pickling.
     text: Option<String>,
+    /// Its `[tolerances]` table.
+    tolerances: Vec<(String, pkmcal::apply::budget::Tolerance)>,
 }
 
 fn toml_value(v: &Bound<'_, PyAny>, path: &str) -> PyResult<toml::Value> {
@@ -577,6 +579,7 @@ impl PyMechanism {
             mech: Arc::new(parts.mech),
             targets: parts.targets,
             setup: parts.ballbar,
+            tolerances: parts.tolerances,
             source,
             text: Some(text.to_string()),
         })
@@ -640,6 +643,7 @@ impl PyMechanism {
             mech: Arc::new(pkmcal::JeongKim2Dof::new().into()),
             targets: vec![],
             setup: None,
+            tolerances: vec![],
             source: "the built-in reference".into(),
             text: None,
         }
@@ -2439,6 +2443,7 @@ impl PyCalibration {
         let mechanism = PyMechanism {
             mech: m.mech.clone(),
             targets: m.targets.clone(),
+            tolerances: m.tolerances.clone(),
             setup: m.setup.clone(),
             source: m.source.clone(),
             text: m.text.clone(),
@@ -3460,6 +3465,248 @@ fn plan<'py>(
     })
 }
 
+/// A tolerance budget (:func:`budget`): the tool error the tolerances give
+/// over the workspace, each tolerance's share, and what a planned
+/// calibration would leave.
+#[pyclass(frozen, module = "pkmcal", name = "Budget")]
+struct PyBudget {
+    b: pkmcal::apply::budget::Budget,
+    /// The mechanism's name, for the summary.
+    mechanism: String,
+}
+
+fn spread_dict<'py>(
+    py: Python<'py>,
+    s: &pkmcal::apply::budget::ErrorSpread,
+) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("position_rms", s.position_rms)?;
+    d.set_item("position_worst", s.position_worst)?;
+    d.set_item("axis_rms", vec1(py, &s.axis_rms))?;
+    Ok(d)
+}
+
+#[pymethods]
+impl PyBudget {
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<Reduced<'py, (Bound<'py, PyDict>,)>> {
+        reduce(slf)
+    }
+    #[staticmethod]
+    fn _from_state(state: &Bound<'_, PyDict>) -> PyResult<Self> {
+        Self::from_dict(state)
+    }
+    /// Equal when every part is.
+    fn __eq__(&self, other: &Bound<'_, PyAny>) -> PyResult<bool> {
+        eq_by_value(self, other)
+    }
+    /// The error to first order: ``position_rms`` and ``position_worst``
+    /// (mm), ``axis_rms`` (each axis's unit).
+    #[getter]
+    fn first_order<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        spread_dict(py, &self.b.first_order)
+    }
+    /// The same from machines drawn from the tolerances through the exact
+    /// model (``samples`` of them), or None.
+    #[getter]
+    fn monte_carlo<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        self.b
+            .monte_carlo
+            .as_ref()
+            .map(|s| spread_dict(py, s))
+            .transpose()
+    }
+    /// What the planned calibration (``poses=``) would leave, or None.
+    #[getter]
+    fn after_calibration<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        self.b
+            .after_calibration
+            .as_ref()
+            .map(|s| spread_dict(py, s))
+            .transpose()
+    }
+    /// Each tolerance's share of the position error variance, by name
+    /// (largest first; they add up to 1).
+    #[getter]
+    fn shares<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        by_name(
+            py,
+            self.b.tolerances.iter().map(|t| (t.name.clone(), t.share)),
+        )
+    }
+    /// Each tolerance (one σ, its unit), by name.
+    #[getter]
+    fn tolerances<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        by_name(
+            py,
+            self.b.tolerances.iter().map(|t| (t.name.clone(), t.sigma)),
+        )
+    }
+    /// Each parameter's σ after the planned calibration, by name, or None.
+    #[getter]
+    fn sigma_after<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        if self.b.after_calibration.is_none() {
+            return Ok(None);
+        }
+        by_name(
+            py,
+            self.b
+                .tolerances
+                .iter()
+                .map(|t| (t.name.clone(), t.sigma_after.unwrap_or(f64::NAN))),
+        )
+        .map(Some)
+    }
+    /// Tool axes (columns of ``axis_rms``).
+    #[getter]
+    fn axes(&self) -> Vec<String> {
+        self.b.axes.clone()
+    }
+    /// Workspace targets the error is taken over.
+    #[getter]
+    fn targets(&self) -> usize {
+        self.b.targets
+    }
+    /// Monte Carlo samples drawn.
+    #[getter]
+    fn samples(&self) -> usize {
+        self.b.samples
+    }
+    /// The budget in words, as ``pkmcal budget`` prints it.
+    fn summary(&self) -> String {
+        pkmcal_io::budget::budget_words(
+            &self.mechanism,
+            &self.b,
+            self.b
+                .after_calibration
+                .as_ref()
+                .map(|_| "poses".to_string()),
+        )
+    }
+    fn __str__(&self) -> String {
+        self.summary()
+    }
+    fn __repr__(&self) -> String {
+        format!(
+            "<Budget of {}: position error RMS {:.4} mm over {} targets, {} tolerances>",
+            self.mechanism,
+            self.b.first_order.position_rms,
+            self.b.targets,
+            self.b.tolerances.len()
+        )
+    }
+}
+
+impl ByValue for PyBudget {
+    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        let mut bytes = vec![];
+        pkmcal_io::record::encode(&self.b, &mut bytes).map_err(cli_err)?;
+        d.set_item("b", PyBytes::new(py, &bytes))?;
+        d.set_item("mechanism", &self.mechanism)?;
+        Ok(d)
+    }
+    fn from_dict(d: &Bound<'_, PyDict>) -> PyResult<Self> {
+        let b = state_item(d, "b")?;
+        Ok(Self {
+            b: pkmcal_io::record::decode(b.cast::<PyBytes>()?.as_bytes()).map_err(cli_err)?,
+            mechanism: state_item(d, "mechanism")?.extract()?,
+        })
+    }
+}
+
+/// The tool error a mechanism's parameter tolerances give over its
+/// workspace, before any machine exists: to first order through the exact
+/// model's Jacobian at ``grid`` targets spread over the workspace, checked by
+/// ``samples`` machines drawn from the tolerances (0: none); each
+/// tolerance's share; and, with ``poses`` (targets a calibration would
+/// measure the tool at, with ``noise`` mm and ``angle_noise`` rad), what
+/// that calibration would leave. ``tolerances``: a dict name → σ (in the
+/// parameter's unit) or ``"20%"`` (of its nominal value); by default the
+/// description's ``[tolerances]`` table (given ones replace its entries).
+#[pyfunction]
+#[pyo3(signature = (mechanism, tolerances = None, *, grid = 200, samples = 3000, seed = SeedArg::Default(1), model = "exact", poses = None, noise = 0.002, angle_noise = None))]
+#[allow(clippy::too_many_arguments)]
+fn budget<'py>(
+    py: Python<'py>,
+    mechanism: &Bound<'py, PyAny>,
+    tolerances: Option<&Bound<'py, PyAny>>,
+    grid: usize,
+    samples: usize,
+    seed: SeedArg,
+    model: &str,
+    poses: Option<&Bound<'py, PyAny>>,
+    noise: f64,
+    angle_noise: Option<f64>,
+) -> PyResult<PyBudget> {
+    use pkmcal::apply::budget::Tolerance;
+    let mechanism = &mechanism_arg(mechanism)?;
+    let seed = seed_arg(seed)?;
+    let m = mech_ref(mechanism);
+    let spec = m.spec();
+    let mut given: Vec<(String, Tolerance)> = m.tolerances.clone();
+    if let Some(t) = tolerances.filter(|t| !t.is_none()) {
+        let items = t
+            .call_method0("items")
+            .map_err(|_| usage("tolerances: expected a dict name → σ or \"20%\""))?;
+        for kv in items.try_iter()? {
+            let (name, v): (String, Bound<'_, PyAny>) = kv?.extract()?;
+            let text = if let Ok(s) = v.extract::<String>() {
+                s
+            } else {
+                v.extract::<f64>()
+                    .map_err(|_| {
+                        usage(format!(
+                            "tolerances: `{name}` must be σ (a number) or a percentage (\"20%\")"
+                        ))
+                    })?
+                    .to_string()
+            };
+            let tol =
+                Tolerance::parse(&text).map_err(|e| usage(format!("tolerances: `{name}`: {e}")))?;
+            given.retain(|(n, _)| *n != name);
+            given.push((name, tol));
+        }
+    }
+    if given.is_empty() {
+        return Err(usage(
+            "no tolerance: give tolerances={name: σ} or describe the mechanism with a [tolerances] table",
+        ));
+    }
+    let resolved = pkmcal::apply::budget::resolve_tolerances(spec, &given)
+        .map_err(|e| usage(format!("tolerances: {e}")))?;
+    if grid == 0 {
+        return Err(usage("grid must be at least 1"));
+    }
+    let calibration = match poses.filter(|p| !p.is_none()) {
+        Some(p) => Some(pkmcal::apply::budget::PlannedCalibration {
+            targets: rows(p, "poses", &spec.tool_axes, false)?.to_vecs(),
+            noise: noise_arg(noise, angle_noise)?,
+        }),
+        None => None,
+    };
+    let opts = pkmcal::apply::budget::BudgetOptions {
+        model: parse_model(model)?,
+        force: vec![],
+        samples,
+        seed,
+        calibration,
+    };
+    let mech = &*m.mech;
+    let b = py
+        .in_pool(|| -> pkmcal::Result<_> {
+            let targets: Vec<Vec<f64>> = pkmcal::apply::workspace::grid_targets(mech, grid)?
+                .into_iter()
+                .map(|p| p.target)
+                .collect();
+            pkmcal::apply::budget::budget(mech, &targets, &resolved, &opts)
+        })
+        .map_err(lib_err)?;
+    Ok(PyBudget {
+        b,
+        mechanism: spec.name.clone(),
+    })
+}
+
 /// What :func:`montecarlo` found: the summary over the runs and each run's
 /// figures.
 #[pyclass(frozen, module = "pkmcal", name = "MonteCarlo", get_all)]
@@ -3696,6 +3943,7 @@ fn _pkmcal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyMechanism>()?;
     m.add_class::<PyCalibration>()?;
     m.add_class::<PyMonteCarlo>()?;
+    m.add_class::<PyBudget>()?;
     m.add_class::<PyIdentifiability>()?;
     m.add_class::<PyErrorStats>()?;
     m.add_class::<PyWarning>()?;
@@ -3714,6 +3962,7 @@ fn _pkmcal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(compensate, m)?)?;
     m.add_function(wrap_pyfunction!(plan, m)?)?;
     m.add_function(wrap_pyfunction!(montecarlo, m)?)?;
+    m.add_function(wrap_pyfunction!(budget, m)?)?;
     m.add_function(wrap_pyfunction!(trilaterate, m)?)?;
     Ok(())
 }

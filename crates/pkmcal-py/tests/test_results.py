@@ -244,3 +244,33 @@ def test_renamed_mechanism_attributes_warn():
         assert m.parameters == names
     with pytest.warns(DeprecationWarning, match="target_points"):
         assert np.array_equal(m.targets, points)
+
+
+def test_a_tolerance_budget_from_python():
+    mech = pkmcal.Mechanism()
+    tol = {"l11": 0.05, "l12": 0.05, "B2x": 0.1, "dq1": 0.0005, "l31": "0.02%"}
+    b = pkmcal.budget(mech, tol, grid=40, samples=3000)
+    first, mc = b.first_order["position_rms"], b.monte_carlo["position_rms"]
+    assert abs(first - mc) / mc < 0.05
+    assert abs(sum(b.shares.values()) - 1) < 1e-12
+    assert list(b.shares) == sorted(b.shares, key=b.shares.get, reverse=True)
+    assert b.tolerances["l31"] == pytest.approx(0.0002 * mech.nominal["l31"], rel=SAME)
+    round_trips(b)
+    assert "tolerance budget of" in b.summary()
+    plan = pkmcal.plan(mech, 20).targets
+    c = pkmcal.budget(mech, tol, grid=40, samples=0, poses=plan)
+    assert c.monte_carlo is None
+    assert c.after_calibration["position_rms"] < 0.1 * c.first_order["position_rms"]
+    assert all(c.sigma_after[n] < c.tolerances[n] for n in tol)
+    # The description's [tolerances] table, and a given one replacing it.
+    hexapod = pkmcal.Mechanism(EXAMPLES / "gough-stewart-6" / "mechanism.toml")
+    h = pkmcal.budget(hexapod, grid=30, samples=0)
+    assert len(h.tolerances) == 43
+    h2 = pkmcal.budget(hexapod, {"b1x": 0.5}, grid=30, samples=0)
+    assert h2.tolerances["b1x"] == 0.5 and max(h2.shares, key=h2.shares.get) == "b1x"
+    with pytest.raises(pkmcal.PkmcalError, match="l99"):
+        pkmcal.budget(mech, {"l99": 0.1})
+    with pytest.raises(pkmcal.PkmcalError, match="0 nominally"):
+        pkmcal.budget(mech, {"dq1": "20%"})
+    with pytest.raises(pkmcal.PkmcalError, match="no tolerance"):
+        pkmcal.budget(mech)

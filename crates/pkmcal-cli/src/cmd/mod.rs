@@ -2,6 +2,7 @@
 //! its run.
 
 pub mod analyze;
+pub mod budget;
 pub mod calibrate;
 pub mod compensate;
 pub mod demo;

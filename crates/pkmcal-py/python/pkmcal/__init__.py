@@ -15,9 +15,9 @@ exceptions are row indices (from 0) of the arrays given.
 280.3
 
 Functions: predict, nominal_commands, simulate, calibrate, analyze,
-compensate, plan, montecarlo, trilaterate. Classes: Mechanism, Calibration,
+compensate, plan, montecarlo, budget, trilaterate. Classes: Mechanism, Calibration,
 Identifiability, ErrorStats, Warning, Figure, Prediction, Compensation, Plan,
-MonteCarlo, SavedCalibration. Every result pickles and compares by value.
+MonteCarlo, Budget, SavedCalibration. Every result pickles and compares by value.
 Errors: PkmcalError (a ValueError) with the message and ``.pose``. A
 calibration's warnings are also emitted with ``warnings.warn``, once per call,
 as PkmcalWarning (a UserWarning) subclasses: ConvergenceWarning,
@@ -26,6 +26,7 @@ DataFrame, a NumPy structured array) are read by name.
 """
 
 from ._pkmcal import (
+    Budget,
     Calibration,
     Compensation,
     ConvergenceWarning,
@@ -44,6 +45,7 @@ from ._pkmcal import (
     Warning,
     __version__,
     analyze,
+    budget,
     calibrate,
     compensate,
     load_calibration,
@@ -82,6 +84,7 @@ def _naming_arguments(f):  # type: ignore[no-untyped-def]
 
 
 analyze = _naming_arguments(analyze)
+budget = _naming_arguments(budget)
 calibrate = _naming_arguments(calibrate)
 compensate = _naming_arguments(compensate)
 load_calibration = _naming_arguments(load_calibration)
@@ -96,6 +99,7 @@ trilaterate = _naming_arguments(trilaterate)
 # `Warning` stays out of `__all__`: `from pkmcal import *` must not shadow
 # Python's builtin `Warning` (it is `pkmcal.Warning`).
 __all__ = [
+    "Budget",
     "Calibration",
     "Compensation",
     "ConvergenceWarning",
@@ -113,6 +117,7 @@ __all__ = [
     "SavedCalibration",
     "__version__",
     "analyze",
+    "budget",
     "calibrate",
     "compensate",
     "load_calibration",

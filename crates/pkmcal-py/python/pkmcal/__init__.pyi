@@ -237,6 +237,29 @@ class Calibration:
     def figures(self) -> list[Figure]: ...
     def save_report(self, path: Union[str, os.PathLike]) -> None: ...
 
+class Budget:
+    """A tolerance budget: see :func:`budget`."""
+
+    @property
+    def first_order(self) -> dict[str, Any]: ...
+    @property
+    def monte_carlo(self) -> Optional[dict[str, Any]]: ...
+    @property
+    def after_calibration(self) -> Optional[dict[str, Any]]: ...
+    @property
+    def shares(self) -> dict[str, float]: ...
+    @property
+    def tolerances(self) -> dict[str, float]: ...
+    @property
+    def sigma_after(self) -> Optional[dict[str, float]]: ...
+    @property
+    def axes(self) -> list[str]: ...
+    @property
+    def targets(self) -> int: ...
+    @property
+    def samples(self) -> int: ...
+    def summary(self) -> str: ...
+
 class MonteCarlo:
     runs: int
     converged: int
@@ -413,6 +436,18 @@ def montecarlo(
     angle_error: float = 0.001,
     validation: int = 50,
 ) -> MonteCarlo: ...
+def budget(
+    mechanism: MechanismLike,
+    tolerances: Optional[Mapping[str, Union[float, str]]] = None,
+    *,
+    grid: int = 200,
+    samples: int = 3000,
+    seed: Seed = 1,
+    model: ModelName = "exact",
+    poses: Optional[ArrayLike] = None,
+    noise: float = 0.002,
+    angle_noise: Optional[float] = None,
+) -> Budget: ...
 def trilaterate(
     sockets: ArrayLike,
     readings: ArrayLike,

@@ -2,6 +2,7 @@
 //! compensated commands and correction tables, measurement planning, Monte
 //! Carlo studies of a plan, and the usable workspace's targets.
 
+pub mod budget;
 pub mod compensation;
 pub mod montecarlo;
 pub mod planning;

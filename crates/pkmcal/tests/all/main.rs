@@ -5,6 +5,7 @@
 mod common;
 
 mod architecture;
+mod budget;
 mod calibration;
 mod engine;
 mod frame;

@@ -1,0 +1,380 @@
+//! Tolerance budgets at design time: from the mechanism's parameter
+//! tolerances alone, before any machine exists, the tool error over the
+//! workspace (first order: each tolerance's covariance through the exact
+//! model's `∂x/∂p` at the nominal commands of each target; checked by Monte
+//! Carlo through the exact model itself), each tolerance's share of it, and
+//! what a calibration with a given plan and instrument noise would leave.
+//!
+//! A machine built within its tolerances and driven by the nominal model
+//! (commands from nominal inverse kinematics) misses target `t` by
+//! `e_t = x(q_nom(t); p_nom + Δp) − t ≈ J_t Δp`, with `J_t = ∂x/∂p` at the
+//! nominal commands. With independent tolerances `Δp_i ~ N(0, σ_i²)`, `e_t`
+//! has covariance `C_t = J_t Σ J_tᵀ`, `Σ = diag(σ_i²)`. A calibration that
+//! measures the tool at the plan's poses with noise `σ_n` identifies `Δp`
+//! with the posterior covariance `(AᵀWA + Σ⁻¹)⁻¹` (`A` the stacked `J` of the
+//! plan's poses, `W = diag(1/σ_n²)`); what it leaves at `t` is `J_t` times
+//! that times `J_tᵀ`. Parameters without a tolerance are taken as exact.
+
+use crate::engine::models::{Model, Pose, predict_pose, prepare_pose};
+use crate::engine::sensitivity::sensitivity;
+use crate::error::{Error, Result};
+use crate::measurement::data::Noise;
+use crate::mechanism::{Mechanism, Params, Spec};
+use crate::units::Unit;
+use nalgebra::DMatrix;
+use rand::SeedableRng;
+use rand::rngs::StdRng;
+use rand_distr::{Distribution, Normal};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// A parameter's tolerance as a user states it: one standard deviation in
+/// the parameter's unit, or a fraction of its nominal value.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub enum Tolerance {
+    /// σ in the parameter's unit (mm, rad, N·m/rad…).
+    Absolute(f64),
+    /// σ as a fraction of the nominal value's magnitude (`"20%"` is 0.2).
+    Relative(f64),
+}
+
+impl Tolerance {
+    /// A tolerance from text: a number (`"0.1"`, σ in the parameter's unit)
+    /// or a percentage of the nominal value (`"20%"`). The one rule every
+    /// front end reads tolerances by.
+    pub fn parse(text: &str) -> Result<Self> {
+        let t = text.trim();
+        let bad = || {
+            Error::InvalidRequest(format!(
+                "tolerance `{text}`: give one standard deviation in the parameter's unit (e.g. 0.05) or a percentage of its nominal value (e.g. \"20%\")"
+            ))
+        };
+        let tol = match t.strip_suffix('%') {
+            Some(p) => Tolerance::Relative(p.trim().parse::<f64>().map_err(|_| bad())? / 100.0),
+            None => Tolerance::Absolute(t.parse::<f64>().map_err(|_| bad())?),
+        };
+        tol.check().map_err(|_| bad())?;
+        Ok(tol)
+    }
+
+    fn check(&self) -> Result<()> {
+        let v = match self {
+            Tolerance::Absolute(v) | Tolerance::Relative(v) => *v,
+        };
+        if v.is_finite() && v > 0.0 {
+            Ok(())
+        } else {
+            Err(Error::InvalidRequest(format!(
+                "a tolerance must be a positive finite number, got {v}"
+            )))
+        }
+    }
+
+    /// σ for a parameter of nominal value `nominal`.
+    pub fn sigma(&self, nominal: f64) -> f64 {
+        match self {
+            Tolerance::Absolute(v) => *v,
+            Tolerance::Relative(f) => f * nominal.abs(),
+        }
+    }
+}
+
+/// The standard deviation of each named parameter of `spec`: `(index, σ)`
+/// in the order given. Unknown names (with a suggestion), a name given
+/// twice, a non-positive σ and a relative tolerance of a parameter whose
+/// nominal value is 0 are refused.
+pub fn resolve_tolerances(spec: &Spec, given: &[(String, Tolerance)]) -> Result<Vec<(usize, f64)>> {
+    let mut out: Vec<(usize, f64)> = vec![];
+    for (name, tol) in given {
+        tol.check()
+            .map_err(|e| Error::InvalidRequest(format!("tolerance of `{name}`: {e}")))?;
+        let i = spec.param_index(name)?;
+        if out.iter().any(|(j, _)| *j == i) {
+            return Err(Error::InvalidRequest(format!(
+                "`{name}` has two tolerances; give one"
+            )));
+        }
+        let sigma = tol.sigma(spec.nominal[i]);
+        if !(sigma.is_finite() && sigma > 0.0) {
+            return Err(Error::InvalidRequest(format!(
+                "`{name}` is 0 nominally, so a tolerance relative to it is 0; give its σ in {}",
+                spec.param_unit(i)
+            )));
+        }
+        out.push((i, sigma));
+    }
+    Ok(out)
+}
+
+/// A calibration planned at design time: the tool measured at these targets
+/// with this noise per coordinate.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlannedCalibration {
+    /// The poses measured (tool coordinates).
+    pub targets: Vec<Vec<f64>>,
+    /// The instrument's noise (one σ per coordinate).
+    pub noise: Noise,
+}
+
+/// What to compute.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BudgetOptions {
+    /// The forward model.
+    pub model: Model,
+    /// The tool load (one value per tool axis; empty for none).
+    pub force: Vec<f64>,
+    /// Monte Carlo samples of the tolerances (0: first order only).
+    pub samples: usize,
+    /// Seed of the samples.
+    pub seed: u64,
+    /// A calibration to judge, if any.
+    pub calibration: Option<PlannedCalibration>,
+}
+
+/// Most Monte Carlo samples one budget draws (each is a forward solve per
+/// target).
+pub const MAX_SAMPLES: usize = 1_000_000;
+
+/// The tool error over the workspace targets: RMS over the targets (and the
+/// samples) of the position error's length (mm) and of each axis.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ErrorSpread {
+    /// RMS position error (mm): the root of the mean squared length of the
+    /// error over the length axes.
+    pub position_rms: f64,
+    /// The largest RMS position error at one target (mm).
+    pub position_worst: f64,
+    /// RMS error of each tool axis (its unit).
+    pub axis_rms: Vec<f64>,
+}
+
+/// One tolerance and its part in the budget.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ToleranceShare {
+    /// The parameter.
+    pub name: String,
+    /// Its unit.
+    pub unit: Unit,
+    /// Its tolerance (one σ).
+    pub sigma: f64,
+    /// Its share of the position error variance over the workspace (the
+    /// shares add up to 1).
+    pub share: f64,
+    /// Its σ after the planned calibration, if one was given.
+    pub sigma_after: Option<f64>,
+}
+
+/// A tolerance budget.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Budget {
+    /// Names of the tool axes (columns of `axis_rms`).
+    pub axes: Vec<String>,
+    /// Their units.
+    pub units: Vec<Unit>,
+    /// Workspace targets the error is taken over.
+    pub targets: usize,
+    /// The tolerances, largest share first.
+    pub tolerances: Vec<ToleranceShare>,
+    /// The error to first order.
+    pub first_order: ErrorSpread,
+    /// The error of machines drawn from the tolerances, through the exact
+    /// model (when samples were asked for).
+    pub monte_carlo: Option<ErrorSpread>,
+    /// Samples drawn.
+    pub samples: usize,
+    /// What the planned calibration would leave, to first order.
+    pub after_calibration: Option<ErrorSpread>,
+}
+
+/// Target `k` (from 0) of a budget's targets, as errors name it.
+fn row(k: usize) -> crate::error::Origin {
+    crate::error::Origin {
+        pose: k,
+        line: None,
+        distance: false,
+    }
+}
+
+/// The error spread of first-order covariances `covs` (one per target).
+fn spread_of(covs: &[DMatrix<f64>], units: &[Unit]) -> ErrorSpread {
+    let n = covs.len().max(1) as f64;
+    let lengths: Vec<usize> = (0..units.len())
+        .filter(|&a| units[a] == Unit::Millimetre)
+        .collect();
+    let pos = |c: &DMatrix<f64>| lengths.iter().map(|&a| c[(a, a)]).sum::<f64>();
+    ErrorSpread {
+        position_rms: (covs.iter().map(pos).sum::<f64>() / n).sqrt(),
+        position_worst: covs.iter().map(|c| pos(c).sqrt()).fold(0.0, f64::max),
+        axis_rms: (0..units.len())
+            .map(|a| (covs.iter().map(|c| c[(a, a)]).sum::<f64>() / n).sqrt())
+            .collect(),
+    }
+}
+
+/// The tolerance budget of `mech` over the workspace `targets`, for the
+/// tolerances `(index, σ)` ([`resolve_tolerances`]).
+pub fn budget<M: Mechanism>(
+    mech: &M,
+    targets: &[Vec<f64>],
+    tolerances: &[(usize, f64)],
+    opts: &BudgetOptions,
+) -> Result<Budget> {
+    let spec = mech.spec();
+    if tolerances.is_empty() {
+        return Err(Error::InvalidRequest(
+            "no tolerance is given; give at least one parameter's".into(),
+        ));
+    }
+    if targets.is_empty() {
+        return Err(Error::InvalidRequest(
+            "no workspace target to take the error over".into(),
+        ));
+    }
+    if opts.samples > MAX_SAMPLES {
+        return Err(Error::InvalidRequest(format!(
+            "{} samples are more than a budget draws ({MAX_SAMPLES}); a few thousand settle the RMS to a percent",
+            opts.samples
+        )));
+    }
+    let nominal = Params::nominal(spec);
+    let idx: Vec<usize> = tolerances.iter().map(|t| t.0).collect();
+    let var: Vec<f64> = tolerances.iter().map(|t| t.1 * t.1).collect();
+    // Each target's pose at its nominal commands and `∂x/∂p` there.
+    let prepared = |ts: &[Vec<f64>]| -> Result<Vec<(Pose, DMatrix<f64>)>> {
+        ts.par_iter()
+            .enumerate()
+            .map(|(k, t)| {
+                let at = |e: Error| e.at_pose(row(k));
+                let commands = crate::apply::workspace::nominal_commands(mech, t).map_err(at)?;
+                let pose = prepare_pose(mech, &commands, None).map_err(at)?;
+                let s = sensitivity(mech, &pose, &nominal, opts.model, &opts.force).map_err(at)?;
+                Ok((pose, s.jacobian.select_columns(&idx)))
+            })
+            .collect()
+    };
+    let at_targets = prepared(targets)?;
+    let units = spec.tool_units.clone();
+    let nx = units.len();
+    let cov_with = |j: &DMatrix<f64>, c: &DMatrix<f64>| j * c * j.transpose();
+    let prior = DMatrix::from_diagonal(&nalgebra::DVector::from_vec(var.clone()));
+    let covs: Vec<DMatrix<f64>> = at_targets
+        .iter()
+        .map(|(_, j)| cov_with(j, &prior))
+        .collect();
+    let first_order = spread_of(&covs, &units);
+    // Shares of the position error variance, one independent tolerance each.
+    let lengths: Vec<usize> = (0..nx).filter(|&a| units[a] == Unit::Millimetre).collect();
+    let part: Vec<f64> = (0..idx.len())
+        .map(|i| {
+            at_targets
+                .iter()
+                .map(|(_, j)| lengths.iter().map(|&a| j[(a, i)] * j[(a, i)]).sum::<f64>())
+                .sum::<f64>()
+                * var[i]
+        })
+        .collect();
+    let total: f64 = part.iter().sum();
+    // The planned calibration's posterior.
+    let (after_calibration, post_sigma) = match &opts.calibration {
+        None => (None, None),
+        Some(plan) => {
+            let at_plan = prepared(&plan.targets)?;
+            let mut info = DMatrix::from_diagonal(&nalgebra::DVector::from_vec(
+                var.iter().map(|v| 1.0 / v).collect(),
+            ));
+            for (_, j) in &at_plan {
+                for (a, unit) in units.iter().enumerate() {
+                    let s = plan.noise.for_unit(*unit);
+                    if !(s.is_finite() && s > 0.0) {
+                        return Err(Error::InvalidRequest(format!(
+                            "the planned calibration's noise on {} is {s}; give a positive σ",
+                            spec.tool_axes[a]
+                        )));
+                    }
+                    let row = j.row(a);
+                    info += row.transpose() * row / (s * s);
+                }
+            }
+            let post = info.try_inverse().ok_or_else(|| {
+                Error::InvalidRequest(
+                    "the planned calibration's information cannot be inverted".into(),
+                )
+            })?;
+            let covs: Vec<DMatrix<f64>> =
+                at_targets.iter().map(|(_, j)| cov_with(j, &post)).collect();
+            let sig: Vec<f64> = (0..idx.len())
+                .map(|i| post[(i, i)].max(0.0).sqrt())
+                .collect();
+            (Some(spread_of(&covs, &units)), Some(sig))
+        }
+    };
+    // Machines drawn from the tolerances, through the exact model.
+    let monte_carlo = if opts.samples == 0 {
+        None
+    } else {
+        let normals: Vec<Normal<f64>> = tolerances
+            .iter()
+            .map(|t| Normal::new(0.0, t.1).expect("a positive σ"))
+            .collect();
+        let sums: Vec<Vec<f64>> = (0..opts.samples)
+            .into_par_iter()
+            .map(|s| -> Result<Vec<f64>> {
+                let mut rng = StdRng::seed_from_u64(opts.seed.wrapping_add(s as u64));
+                let mut p = nominal.clone();
+                for (k, &i) in idx.iter().enumerate() {
+                    p.values[i] += normals[k].sample(&mut rng);
+                }
+                // Per target: squared error of each axis.
+                let mut out = vec![0.0; targets.len() * nx];
+                for (k, ((pose, _), t)) in at_targets.iter().zip(targets).enumerate() {
+                    let x = predict_pose(mech, pose, &p, opts.model, &opts.force)
+                        .map_err(|e| e.at_pose(row(k)))?
+                        .x;
+                    for a in 0..nx {
+                        let e = x[a] - t[a];
+                        out[k * nx + a] = e * e;
+                    }
+                }
+                Ok(out)
+            })
+            .collect::<Result<_>>()?;
+        // Each target's mean squared error per axis over the samples: the
+        // diagonal `spread_of` reads.
+        let per_target: Vec<DMatrix<f64>> = (0..targets.len())
+            .map(|k| {
+                DMatrix::from_fn(nx, nx, |a, b| {
+                    if a == b {
+                        sums.iter().map(|s| s[k * nx + a]).sum::<f64>() / opts.samples as f64
+                    } else {
+                        0.0
+                    }
+                })
+            })
+            .collect();
+        let spread = spread_of(&per_target, &units);
+        Some(spread)
+    };
+    let names = spec.param_names();
+    let mut shares: Vec<ToleranceShare> = tolerances
+        .iter()
+        .enumerate()
+        .map(|(k, &(i, sigma))| ToleranceShare {
+            name: names[i].to_string(),
+            unit: spec.param_unit(i),
+            sigma,
+            share: if total > 0.0 { part[k] / total } else { 0.0 },
+            sigma_after: post_sigma.as_ref().map(|s| s[k]),
+        })
+        .collect();
+    shares.sort_by(|a, b| b.share.total_cmp(&a.share));
+    Ok(Budget {
+        axes: spec.tool_axes.clone(),
+        units,
+        targets: targets.len(),
+        tolerances: shares,
+        first_order,
+        monte_carlo,
+        samples: opts.samples,
+        after_calibration,
+    })
+}
