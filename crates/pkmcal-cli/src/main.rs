@@ -57,6 +57,10 @@ enum Command {
     /// workspace (first order, checked by Monte Carlo), each tolerance's
     /// share, and what a planned calibration would leave.
     Budget(cmd::budget::Args),
+    /// Compare two saved calibrations of one machine (or one with the
+    /// nominal values): which parameters changed beyond what both
+    /// covariances allow.
+    Drift(cmd::drift::Args),
     /// Ball-bar readings to tool positions (least squares) with uncertainties.
     Trilaterate(cmd::trilaterate::Args),
     /// List a mechanism's parameters (name, kind, unit, nominal value, free by
@@ -211,6 +215,7 @@ impl Command {
             Command::Plan(a) => a.paths(),
             Command::Montecarlo(a) => a.paths(),
             Command::Budget(a) => a.paths(),
+            Command::Drift(a) => a.paths(),
             Command::Trilaterate(a) => a.paths(),
             Command::Parameters(a) => a.paths(),
             Command::Klipper(a) => a.paths(),
@@ -231,6 +236,7 @@ fn run_command(run: &Run, command: Command) -> anyhow::Result<()> {
         Command::Plan(a) => cmd::plan::run(run, a),
         Command::Montecarlo(a) => cmd::montecarlo::run(run, a),
         Command::Budget(a) => cmd::budget::run(run, a),
+        Command::Drift(a) => cmd::drift::run(run, a),
         Command::Trilaterate(a) => cmd::trilaterate::run(run, a),
         Command::Parameters(a) => cmd::parameters::run(run, a),
         Command::Klipper(a) => cmd::klipper::run(run, a),

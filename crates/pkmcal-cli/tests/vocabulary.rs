@@ -6,8 +6,9 @@ mod common;
 use common::run;
 
 /// Every command.
-const COMMANDS: [&str; 14] = [
+const COMMANDS: [&str; 15] = [
     "budget",
+    "drift",
     "predict",
     "simulate",
     "calibrate",

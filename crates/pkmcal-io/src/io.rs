@@ -1298,6 +1298,21 @@ pub fn read_calibration_record(
     crate::record::record_from_str(&text, &path.display().to_string()).map(|(r, _)| r)
 }
 
+/// [`read_calibration_record`] with the degrees of freedom of its estimated
+/// noise level (the redundancy of the noise groups it estimated, from the
+/// report's `noise`), when it records them.
+pub fn read_calibration_record_dof(
+    run: &crate::Run<'_>,
+    path: &Path,
+) -> Result<(pkmcal::identify::CalibrationRecord, Option<f64>)> {
+    let record = read_calibration_record(run, path)?;
+    let text = run
+        .files
+        .read_to_string(path, crate::output::InputKind::Description)
+        .with_context(|| format!("cannot read calibration report {}", path.display()))?;
+    Ok((record, crate::record::record_dof(&text)))
+}
+
 /// Read a calibration record that holds the whole calibration (written by
 /// this pkmcal's `calibrate --report` or Python's `Calibration.save`).
 pub fn read_calibration_state(

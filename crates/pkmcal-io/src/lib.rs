@@ -20,6 +20,7 @@ macro_rules! note {
 
 pub mod budget;
 pub mod calibrate;
+pub mod drift;
 pub mod figures;
 pub mod fileunits;
 pub mod gcode;

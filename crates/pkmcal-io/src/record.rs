@@ -163,6 +163,21 @@ pub fn decode<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> Result<T> {
     ciborium::from_reader(bytes).map_err(|e| anyhow::anyhow!("cannot decode a result: {e}"))
 }
 
+/// The degrees of freedom of a record's estimated noise levels: the
+/// redundancy of the groups its `noise` says were estimated; `None` when it
+/// records none (every σ given, or a record without them).
+pub fn record_dof(text: &str) -> Option<f64> {
+    let v: serde_json::Value = serde_json::from_str(text).ok()?;
+    let r: f64 = v
+        .get("noise")?
+        .as_array()?
+        .iter()
+        .filter(|g| g.get("estimated").and_then(serde_json::Value::as_bool) == Some(true))
+        .filter_map(|g| g.get("redundancy").and_then(serde_json::Value::as_f64))
+        .sum();
+    (r > 0.0).then_some(r)
+}
+
 /// A record's header and, when it is complete, its state, from the
 /// record's JSON text; `source` names it in messages.
 pub fn record_from_str(

@@ -2637,6 +2637,8 @@ struct PySavedCalibration {
     record: pkmcal::identify::CalibrationRecord,
     /// The file it was read from.
     source: String,
+    /// The degrees of freedom of its estimated noise level, if recorded.
+    dof: Option<f64>,
 }
 
 #[pymethods]
@@ -2710,9 +2712,14 @@ impl PySavedCalibration {
 fn load_calibration(path: &Bound<'_, PyAny>) -> PyResult<PySavedCalibration> {
     let p = path_arg(path)?;
     let record =
-        reading(|run| pkmcal_io::io::read_calibration_record(run, std::path::Path::new(&p)))
+        reading(|run| pkmcal_io::io::read_calibration_record_dof(run, std::path::Path::new(&p)))
             .map_err(cli_err)?;
-    Ok(PySavedCalibration { record, source: p })
+    let (record, dof) = record;
+    Ok(PySavedCalibration {
+        record,
+        source: p,
+        dof,
+    })
 }
 
 /// Predicted tool positions and what the model computed with them.
@@ -2905,6 +2912,7 @@ impl ByValue for PySavedCalibration {
         pkmcal_io::record::encode(&self.record, &mut bytes).map_err(cli_err)?;
         d.set_item("record", PyBytes::new(py, &bytes))?;
         d.set_item("source", &self.source)?;
+        d.set_item("dof", self.dof)?;
         Ok(d)
     }
     fn from_dict(d: &Bound<'_, PyDict>) -> PyResult<Self> {
@@ -2912,6 +2920,7 @@ impl ByValue for PySavedCalibration {
         Ok(Self {
             record: pkmcal_io::record::decode(b.cast::<PyBytes>()?.as_bytes()).map_err(cli_err)?,
             source: state_item(d, "source")?.extract()?,
+            dof: state_item(d, "dof")?.extract()?,
         })
     }
 }
@@ -3707,6 +3716,199 @@ fn budget<'py>(
     })
 }
 
+/// What :func:`drift` found: each parameter's change against what both
+/// calibrations' covariances allow, and the joint test.
+#[pyclass(frozen, module = "pkmcal", name = "Drift")]
+struct PyDrift {
+    d: pkmcal::identify::Drift,
+    /// The summary's text.
+    text: String,
+}
+
+#[pymethods]
+impl PyDrift {
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<Reduced<'py, (Bound<'py, PyDict>,)>> {
+        reduce(slf)
+    }
+    #[staticmethod]
+    fn _from_state(state: &Bound<'_, PyDict>) -> PyResult<Self> {
+        Self::from_dict(state)
+    }
+    /// Equal when every part is.
+    fn __eq__(&self, other: &Bound<'_, PyAny>) -> PyResult<bool> {
+        eq_by_value(self, other)
+    }
+    /// Names of the parameters that drifted (Holm–Bonferroni at ``alpha``).
+    #[getter]
+    fn drifted(&self) -> Vec<String> {
+        self.d
+            .parameters
+            .iter()
+            .filter(|p| p.drifted)
+            .map(|p| p.name.clone())
+            .collect()
+    }
+    /// Every compared parameter, smallest p-value first: dicts with
+    /// ``name``, ``before``, ``after``, ``change``, ``sigma``, ``z``,
+    /// ``p_value``, ``drifted``.
+    #[getter]
+    fn parameters<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        self.d
+            .parameters
+            .iter()
+            .map(|p| {
+                let d = PyDict::new(py);
+                d.set_item("name", &p.name)?;
+                d.set_item("before", p.before)?;
+                d.set_item("after", p.after)?;
+                d.set_item("change", p.change)?;
+                d.set_item("sigma", p.sigma)?;
+                d.set_item("z", p.z)?;
+                d.set_item("p_value", p.p_value)?;
+                d.set_item("drifted", p.drifted)?;
+                Ok(d)
+            })
+            .collect()
+    }
+    /// The familywise false-alarm rate.
+    #[getter]
+    fn alpha(&self) -> f64 {
+        self.d.alpha
+    }
+    /// The joint statistic, its degrees of freedom and p-value.
+    #[getter]
+    fn chi2(&self) -> (f64, usize, f64) {
+        (self.d.chi2, self.d.dof, self.d.p_joint)
+    }
+    /// Whether the joint test calls the machine changed.
+    #[getter]
+    fn joint_drift(&self) -> bool {
+        self.d.joint_drift
+    }
+    /// Parameters identified in one calibration only (not compared).
+    #[getter]
+    fn untested(&self) -> Vec<String> {
+        self.d.untested.clone()
+    }
+    /// The comparison in words, as ``pkmcal drift`` prints it.
+    fn summary(&self) -> String {
+        self.text.clone()
+    }
+    fn __str__(&self) -> String {
+        self.text.clone()
+    }
+    fn __repr__(&self) -> String {
+        format!(
+            "<Drift: {} of {} parameters drifted; joint p {:.3e}>",
+            self.drifted().len(),
+            self.d.parameters.len(),
+            self.d.p_joint
+        )
+    }
+}
+
+impl ByValue for PyDrift {
+    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        let mut bytes = vec![];
+        pkmcal_io::record::encode(&self.d, &mut bytes).map_err(cli_err)?;
+        d.set_item("d", PyBytes::new(py, &bytes))?;
+        d.set_item("text", &self.text)?;
+        Ok(d)
+    }
+    fn from_dict(d: &Bound<'_, PyDict>) -> PyResult<Self> {
+        let b = state_item(d, "d")?;
+        Ok(Self {
+            d: pkmcal_io::record::decode(b.cast::<PyBytes>()?.as_bytes()).map_err(cli_err)?,
+            text: state_item(d, "text")?.extract()?,
+        })
+    }
+}
+
+/// A calibration for the drift test: its values, covariance, the identity
+/// of its mechanism, and the mechanism when it has one.
+fn compared_arg(
+    c: &Bound<'_, PyAny>,
+    what: &str,
+) -> PyResult<(
+    pkmcal::identify::Compared,
+    String,
+    Option<Arc<AnyMechanism>>,
+)> {
+    if let Ok(cal) = c.cast::<PyCalibration>() {
+        let cal = cal.get();
+        return Ok((
+            pkmcal::identify::Compared::from_calibration(cal.cal()),
+            pkmcal::identify::mechanism_identity(cal.mech().spec()),
+            Some(cal.mech().clone()),
+        ));
+    }
+    let (record, dof) = if let Ok(s) = c.cast::<PySavedCalibration>() {
+        (s.get().record.clone(), s.get().dof)
+    } else if c.is_instance_of::<pyo3::types::PyString>() || c.hasattr("__fspath__")? {
+        let p = path_arg(c)?;
+        reading(|run| pkmcal_io::io::read_calibration_record_dof(run, std::path::Path::new(&p)))
+            .map_err(cli_err)?
+    } else {
+        return Err(usage(format!(
+            "{what}: expected a Calibration, a SavedCalibration or a calibration record's path"
+        )));
+    };
+    Ok((
+        pkmcal::identify::Compared::from_record(&record, dof),
+        record.mechanism_identity.clone(),
+        None,
+    ))
+}
+
+/// Has the machine changed, or only the noise? Compare the calibration
+/// ``new`` with ``old`` (an earlier calibration of the same machine) or,
+/// without ``old``, with the mechanism's nominal values: each parameter
+/// identified in both, its change against ``√(σ_old² + σ_new²)``, sorted by
+/// significance; Holm–Bonferroni keeps the chance of any false alarm at
+/// ``alpha``; a joint χ² test includes the correlations. Each is a
+/// :class:`Calibration`, a :class:`SavedCalibration` or a record's path;
+/// ``mechanism`` is needed for the nominal values when ``new`` is not a
+/// :class:`Calibration`.
+#[pyfunction]
+#[pyo3(signature = (new, old = None, *, mechanism = None, alpha = 0.05))]
+fn drift<'py>(
+    new: &Bound<'py, PyAny>,
+    old: Option<&Bound<'py, PyAny>>,
+    mechanism: Option<&Bound<'py, PyAny>>,
+    alpha: f64,
+) -> PyResult<PyDrift> {
+    let (b, b_id, b_mech) = compared_arg(new, "new")?;
+    let given = mechanism
+        .filter(|m| !m.is_none())
+        .map(|m| mechanism_arg(m).map(|m| m.get().mech.clone()))
+        .transpose()?;
+    let mech = given.or(b_mech);
+    let (a, old_name) = match old.filter(|o| !o.is_none()) {
+        Some(o) => {
+            let (a, a_id, _) = compared_arg(o, "old")?;
+            if !a_id.is_empty() && !b_id.is_empty() && a_id != b_id {
+                return Err(usage(
+                    "old and new are calibrations of different mechanisms (other joints, parameters or nominal values); compare calibrations of one machine",
+                ));
+            }
+            (a, "old".to_string())
+        }
+        None => {
+            let m = mech.as_ref().ok_or_else(|| {
+                usage("drift against the nominal values needs the mechanism: give mechanism=")
+            })?;
+            (
+                pkmcal::identify::Compared::nominal(m.spec()),
+                "the nominal values".to_string(),
+            )
+        }
+    };
+    let d = pkmcal::identify::drift(&a, &b, alpha).map_err(lib_err)?;
+    let text = pkmcal_io::drift::drift_words(mech.as_ref().map(|m| m.spec()), &d, &old_name, "new");
+    Ok(PyDrift { d, text })
+}
+
 /// What :func:`montecarlo` found: the summary over the runs and each run's
 /// figures.
 #[pyclass(frozen, module = "pkmcal", name = "MonteCarlo", get_all)]
@@ -3944,6 +4146,7 @@ fn _pkmcal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyCalibration>()?;
     m.add_class::<PyMonteCarlo>()?;
     m.add_class::<PyBudget>()?;
+    m.add_class::<PyDrift>()?;
     m.add_class::<PyIdentifiability>()?;
     m.add_class::<PyErrorStats>()?;
     m.add_class::<PyWarning>()?;
@@ -3963,6 +4166,7 @@ fn _pkmcal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(plan, m)?)?;
     m.add_function(wrap_pyfunction!(montecarlo, m)?)?;
     m.add_function(wrap_pyfunction!(budget, m)?)?;
+    m.add_function(wrap_pyfunction!(drift, m)?)?;
     m.add_function(wrap_pyfunction!(trilaterate, m)?)?;
     Ok(())
 }

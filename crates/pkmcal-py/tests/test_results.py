@@ -274,3 +274,37 @@ def test_a_tolerance_budget_from_python():
         pkmcal.budget(mech, {"dq1": "20%"})
     with pytest.raises(pkmcal.PkmcalError, match="no tolerance"):
         pkmcal.budget(mech)
+
+
+def test_drift_between_calibrations(tmp_path):
+    mech = pkmcal.Mechanism()
+    targets = pkmcal.plan(mech, 35).targets
+
+    def fit(l11, seed):
+        c, x = pkmcal.simulate(mech, targets, {"l11": l11}, noise=0.002, seed=seed)
+        return pkmcal.calibrate(mech, c, x)
+
+    a, b, moved = fit(280.3, 1), fit(280.3, 2), fit(280.35, 3)
+    same = pkmcal.drift(b, a)
+    # One pair of an unchanged machine: no parameter called drifted, and a
+    # joint p-value that is not extreme (its false alarms are at their
+    # level over many pairs: the library's tests and examples/drift_rate).
+    assert same.drifted == [] and same.chi2[2] > 0.01
+    changed = pkmcal.drift(moved, a)
+    assert changed.drifted[0] == "l11" and changed.joint_drift
+    assert changed.parameters[0]["name"] == "l11"
+    round_trips(changed)
+    assert "Holm–Bonferroni" in changed.summary()
+    # Saved records and paths give the same test.
+    a.save(tmp_path / "a.json")
+    moved.save(tmp_path / "m.json")
+    from_files = pkmcal.drift(tmp_path / "m.json", pkmcal.load_calibration(tmp_path / "a.json"))
+    assert from_files.drifted == changed.drifted
+    assert from_files.chi2 == pytest.approx(changed.chi2, rel=1e-12)
+    # Against the nominal values: l11 is 0.3 mm off.
+    assert "l11" in pkmcal.drift(a).drifted
+    with pytest.raises(pkmcal.PkmcalError, match="mechanism="):
+        pkmcal.drift(tmp_path / "a.json")
+    hexapod_fit = tracker_fit()[1]
+    with pytest.raises(pkmcal.PkmcalError, match="different mechanisms"):
+        pkmcal.drift(hexapod_fit, a)

@@ -6,6 +6,7 @@ pub mod budget;
 pub mod calibrate;
 pub mod compensate;
 pub mod demo;
+pub mod drift;
 pub mod gcode;
 pub mod klipper;
 pub mod montecarlo;

@@ -15,9 +15,9 @@ exceptions are row indices (from 0) of the arrays given.
 280.3
 
 Functions: predict, nominal_commands, simulate, calibrate, analyze,
-compensate, plan, montecarlo, budget, trilaterate. Classes: Mechanism, Calibration,
+compensate, plan, montecarlo, budget, drift, trilaterate. Classes: Mechanism, Calibration,
 Identifiability, ErrorStats, Warning, Figure, Prediction, Compensation, Plan,
-MonteCarlo, Budget, SavedCalibration. Every result pickles and compares by value.
+MonteCarlo, Budget, Drift, SavedCalibration. Every result pickles and compares by value.
 Errors: PkmcalError (a ValueError) with the message and ``.pose``. A
 calibration's warnings are also emitted with ``warnings.warn``, once per call,
 as PkmcalWarning (a UserWarning) subclasses: ConvergenceWarning,
@@ -30,6 +30,7 @@ from ._pkmcal import (
     Calibration,
     Compensation,
     ConvergenceWarning,
+    Drift,
     ErrorStats,
     Figure,
     Identifiability,
@@ -48,6 +49,7 @@ from ._pkmcal import (
     budget,
     calibrate,
     compensate,
+    drift,
     load_calibration,
     montecarlo,
     nominal_commands,
@@ -87,6 +89,7 @@ analyze = _naming_arguments(analyze)
 budget = _naming_arguments(budget)
 calibrate = _naming_arguments(calibrate)
 compensate = _naming_arguments(compensate)
+drift = _naming_arguments(drift)
 load_calibration = _naming_arguments(load_calibration)
 montecarlo = _naming_arguments(montecarlo)
 nominal_commands = _naming_arguments(nominal_commands)
@@ -103,6 +106,7 @@ __all__ = [
     "Calibration",
     "Compensation",
     "ConvergenceWarning",
+    "Drift",
     "ErrorStats",
     "Figure",
     "Identifiability",
@@ -120,6 +124,7 @@ __all__ = [
     "budget",
     "calibrate",
     "compensate",
+    "drift",
     "load_calibration",
     "montecarlo",
     "nominal_commands",

@@ -260,6 +260,23 @@ class Budget:
     def samples(self) -> int: ...
     def summary(self) -> str: ...
 
+class Drift:
+    """A drift test: see :func:`drift`."""
+
+    @property
+    def drifted(self) -> list[str]: ...
+    @property
+    def parameters(self) -> list[dict[str, Any]]: ...
+    @property
+    def alpha(self) -> float: ...
+    @property
+    def chi2(self) -> Tuple[float, int, float]: ...
+    @property
+    def joint_drift(self) -> bool: ...
+    @property
+    def untested(self) -> list[str]: ...
+    def summary(self) -> str: ...
+
 class MonteCarlo:
     runs: int
     converged: int
@@ -448,6 +465,13 @@ def budget(
     noise: float = 0.002,
     angle_noise: Optional[float] = None,
 ) -> Budget: ...
+def drift(
+    new: Union[Calibration, SavedCalibration, str, os.PathLike],
+    old: Union[None, Calibration, SavedCalibration, str, os.PathLike] = None,
+    *,
+    mechanism: Optional[MechanismLike] = None,
+    alpha: float = 0.05,
+) -> Drift: ...
 def trilaterate(
     sockets: ArrayLike,
     readings: ArrayLike,

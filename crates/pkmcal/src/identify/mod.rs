@@ -2,6 +2,7 @@
 //! identifiability, noise groups and weights, gross errors, robust losses
 //! and outliers, the fit, uncertainty and validation.
 
+pub mod drift;
 pub mod driver;
 pub mod gross;
 pub mod identifiability;
@@ -16,6 +17,7 @@ pub mod uncertainty;
 pub mod validation;
 pub mod weights;
 
+pub use drift::{Compared, DEFAULT_ALPHA, Drift, ParameterDrift, drift, noise_dof};
 pub use driver::{
     CalibrationOptions, MAX_DROPPED_FRACTION, analyze, calibrate, calibrate_with_cache,
 };

@@ -7,6 +7,7 @@ mod common;
 mod architecture;
 mod budget;
 mod calibration;
+mod drift;
 mod engine;
 mod frame;
 mod fuzz;
