@@ -1561,23 +1561,30 @@ fn state_item<'py>(d: &Bound<'py, PyDict>, key: &str) -> PyResult<Bound<'py, PyA
         .ok_or_else(|| usage(format!("a pickled pkmcal result without `{key}`")))
 }
 
-/// `ByValue` for a struct that holds library data (serialised whole, NaN
-/// kept) in its one field.
+/// `ByValue` for a struct that holds library data (each `encoded` field
+/// serialised whole, NaN kept) and plain Python-convertible fields.
 macro_rules! by_serde {
-    ($ty:ty { $f:ident }) => {
+    ($ty:ty { $($e:ident),+ $(; $($f:ident),+)? }) => {
         impl ByValue for $ty {
             fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
                 let d = PyDict::new(py);
-                let mut bytes = vec![];
-                pkmcal_io::record::encode(&self.$f, &mut bytes).map_err(cli_err)?;
-                d.set_item(stringify!($f), PyBytes::new(py, &bytes))?;
+                $(
+                    let mut bytes = vec![];
+                    pkmcal_io::record::encode(&self.$e, &mut bytes).map_err(cli_err)?;
+                    d.set_item(stringify!($e), PyBytes::new(py, &bytes))?;
+                )+
+                $($( d.set_item(stringify!($f), &self.$f)?; )+)?
                 Ok(d)
             }
             fn from_dict(d: &Bound<'_, PyDict>) -> PyResult<Self> {
-                let b = state_item(d, stringify!($f))?;
-                let bytes = b.cast::<PyBytes>()?.as_bytes();
                 Ok(Self {
-                    $f: pkmcal_io::record::decode(bytes).map_err(cli_err)?,
+                    $(
+                        $e: pkmcal_io::record::decode(
+                            state_item(d, stringify!($e))?.cast::<PyBytes>()?.as_bytes(),
+                        )
+                        .map_err(cli_err)?,
+                    )+
+                    $($( $f: state_item(d, stringify!($f))?.extract()?, )+)?
                 })
             }
         }
@@ -2905,25 +2912,7 @@ by_value!(PyPlan {
     free
 });
 
-impl ByValue for PySavedCalibration {
-    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let d = PyDict::new(py);
-        let mut bytes = vec![];
-        pkmcal_io::record::encode(&self.record, &mut bytes).map_err(cli_err)?;
-        d.set_item("record", PyBytes::new(py, &bytes))?;
-        d.set_item("source", &self.source)?;
-        d.set_item("dof", self.dof)?;
-        Ok(d)
-    }
-    fn from_dict(d: &Bound<'_, PyDict>) -> PyResult<Self> {
-        let b = state_item(d, "record")?;
-        Ok(Self {
-            record: pkmcal_io::record::decode(b.cast::<PyBytes>()?.as_bytes()).map_err(cli_err)?,
-            source: state_item(d, "source")?.extract()?,
-            dof: state_item(d, "dof")?.extract()?,
-        })
-    }
-}
+by_serde!(PySavedCalibration { record; source, dof });
 
 // ---------------------------------------------------------------- functions
 
@@ -3605,23 +3594,7 @@ impl PyBudget {
     }
 }
 
-impl ByValue for PyBudget {
-    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let d = PyDict::new(py);
-        let mut bytes = vec![];
-        pkmcal_io::record::encode(&self.b, &mut bytes).map_err(cli_err)?;
-        d.set_item("b", PyBytes::new(py, &bytes))?;
-        d.set_item("mechanism", &self.mechanism)?;
-        Ok(d)
-    }
-    fn from_dict(d: &Bound<'_, PyDict>) -> PyResult<Self> {
-        let b = state_item(d, "b")?;
-        Ok(Self {
-            b: pkmcal_io::record::decode(b.cast::<PyBytes>()?.as_bytes()).map_err(cli_err)?,
-            mechanism: state_item(d, "mechanism")?.extract()?,
-        })
-    }
-}
+by_serde!(PyBudget { b; mechanism });
 
 /// The tool error a mechanism's parameter tolerances give over its
 /// workspace, before any machine exists: to first order through the exact
@@ -3807,23 +3780,7 @@ impl PyDrift {
     }
 }
 
-impl ByValue for PyDrift {
-    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let d = PyDict::new(py);
-        let mut bytes = vec![];
-        pkmcal_io::record::encode(&self.d, &mut bytes).map_err(cli_err)?;
-        d.set_item("d", PyBytes::new(py, &bytes))?;
-        d.set_item("text", &self.text)?;
-        Ok(d)
-    }
-    fn from_dict(d: &Bound<'_, PyDict>) -> PyResult<Self> {
-        let b = state_item(d, "d")?;
-        Ok(Self {
-            d: pkmcal_io::record::decode(b.cast::<PyBytes>()?.as_bytes()).map_err(cli_err)?,
-            text: state_item(d, "text")?.extract()?,
-        })
-    }
-}
+by_serde!(PyDrift { d; text });
 
 /// A calibration for the drift test: its values, covariance, the identity
 /// of its mechanism, and the mechanism when it has one.
