@@ -56,27 +56,12 @@ pub fn option_tolerances(
     Ok(out)
 }
 
-/// The `[tolerances]` table's, then the options' (which replace the
-/// table's for the same name).
-pub fn merged_tolerances(
-    table: &[(String, Tolerance)],
-    options: Vec<(String, Tolerance)>,
-) -> Vec<(String, Tolerance)> {
-    let mut out: Vec<(String, Tolerance)> = table
-        .iter()
-        .filter(|(n, _)| !options.iter().any(|(o, _)| o == n))
-        .cloned()
-        .collect();
-    out.extend(options);
-    out
-}
-
 pub fn run_budget(run: &crate::Run<'_>, c: BudgetConfig) -> Result<()> {
     let description = read_description(run, c.mechanism.as_deref())?;
     let units = crate::fileunits::of(run, &description);
     let mech = description.mech;
     let spec = mech.spec();
-    let given = merged_tolerances(
+    let given = pkmcal::apply::budget::merged_tolerances(
         &description.tolerances,
         option_tolerances(spec, &c.tolerances)?,
     );
@@ -86,13 +71,7 @@ pub fn run_budget(run: &crate::Run<'_>, c: BudgetConfig) -> Result<()> {
         );
     }
     let tolerances = pkmcal::apply::budget::resolve_tolerances(spec, &given)?;
-    if c.targets == 0 {
-        return crate::output::usage("--grid must be at least 1");
-    }
-    let targets: Vec<Vec<f64>> = pkmcal::apply::workspace::grid_targets(&mech, c.targets)?
-        .into_iter()
-        .map(|p| p.target)
-        .collect();
+    let targets = pkmcal::apply::budget::budget_targets(&mech, c.targets)?;
     let calibration = match &c.poses {
         Some(p) => Some(PlannedCalibration {
             targets: crate::usecal::read_plan_poses(run, p, &mech, &units)?,

@@ -1291,26 +1291,22 @@ pub fn read_calibration_record(
     run: &crate::Run<'_>,
     path: &Path,
 ) -> Result<pkmcal::identify::CalibrationRecord> {
-    let text = run
-        .files
-        .read_to_string(path, crate::output::InputKind::Description)
-        .with_context(|| format!("cannot read calibration report {}", path.display()))?;
-    crate::record::record_from_str(&text, &path.display().to_string()).map(|(r, _)| r)
+    read_calibration_record_dof(run, path).map(|(r, _)| r)
 }
 
 /// [`read_calibration_record`] with the degrees of freedom of its estimated
 /// noise level (the redundancy of the noise groups it estimated, from the
-/// report's `noise`), when it records them.
+/// report's `noise`), when it records them. Its `state` is not decoded.
 pub fn read_calibration_record_dof(
     run: &crate::Run<'_>,
     path: &Path,
 ) -> Result<(pkmcal::identify::CalibrationRecord, Option<f64>)> {
-    let record = read_calibration_record(run, path)?;
     let text = run
         .files
         .read_to_string(path, crate::output::InputKind::Description)
         .with_context(|| format!("cannot read calibration report {}", path.display()))?;
-    Ok((record, crate::record::record_dof(&text)))
+    let parts = crate::record::record_parts(&text, &path.display().to_string())?;
+    Ok((parts.record, parts.dof))
 }
 
 /// Read a calibration record that holds the whole calibration (written by

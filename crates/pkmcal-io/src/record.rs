@@ -163,19 +163,42 @@ pub fn decode<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> Result<T> {
     ciborium::from_reader(bytes).map_err(|e| anyhow::anyhow!("cannot decode a result: {e}"))
 }
 
-/// The degrees of freedom of a record's estimated noise levels: the
-/// redundancy of the groups its `noise` says were estimated; `None` when it
-/// records none (every σ given, or a record without them).
-pub fn record_dof(text: &str) -> Option<f64> {
-    let v: serde_json::Value = serde_json::from_str(text).ok()?;
-    let r: f64 = v
-        .get("noise")?
-        .as_array()?
-        .iter()
-        .filter(|g| g.get("estimated").and_then(serde_json::Value::as_bool) == Some(true))
-        .filter_map(|g| g.get("redundancy").and_then(serde_json::Value::as_f64))
-        .sum();
-    (r > 0.0).then_some(r)
+/// A record read without decoding its state: the header, the `state`
+/// member as JSON (decoded only by those who need the whole calibration,
+/// [`record_from_str`]), and the degrees of freedom of its estimated noise
+/// levels (the redundancy of the groups its `noise` says were estimated;
+/// `None` when it records none).
+pub struct RecordParts {
+    pub record: pkmcal::identify::CalibrationRecord,
+    pub state: Option<serde_json::Value>,
+    pub dof: Option<f64>,
+}
+
+/// The [`RecordParts`] of a record's JSON text; `source` names it in
+/// messages.
+pub fn record_parts(text: &str, source: &str) -> Result<RecordParts> {
+    let mut v: serde_json::Value = serde_json::from_str(text)
+        .with_context(|| format!("{source}: not a JSON calibration report"))?;
+    if v.get("covariance").is_none() {
+        bail!(
+            "{source}: no `covariance` entry; pass the report written by `pkmcal calibrate --report` or Python's Calibration.save"
+        );
+    }
+    let dof = v
+        .get("noise")
+        .and_then(serde_json::Value::as_array)
+        .map(|groups| {
+            groups
+                .iter()
+                .filter(|g| g.get("estimated").and_then(serde_json::Value::as_bool) == Some(true))
+                .filter_map(|g| g.get("redundancy").and_then(serde_json::Value::as_f64))
+                .sum::<f64>()
+        })
+        .filter(|r| *r > 0.0);
+    let state = v.as_object_mut().and_then(|o| o.remove("state"));
+    let record = serde_json::from_value(v)
+        .with_context(|| format!("{source}: malformed calibration report"))?;
+    Ok(RecordParts { record, state, dof })
 }
 
 /// A record's header and, when it is complete, its state, from the
@@ -187,22 +210,14 @@ pub fn record_from_str(
     pkmcal::identify::CalibrationRecord,
     Option<CalibrationState>,
 )> {
-    let mut v: serde_json::Value = serde_json::from_str(text)
-        .with_context(|| format!("{source}: not a JSON calibration report"))?;
-    if v.get("covariance").is_none() {
-        bail!(
-            "{source}: no `covariance` entry; pass the report written by `pkmcal calibrate --report` or Python's Calibration.save"
-        );
-    }
-    let state = match v.as_object_mut().and_then(|o| o.remove("state")) {
+    let parts = record_parts(text, source)?;
+    let state = match parts.state {
         Some(s) => Some(
             state_from_json(s).with_context(|| format!("{source}: malformed calibration state"))?,
         ),
         None => None,
     };
-    let record = serde_json::from_value(v)
-        .with_context(|| format!("{source}: malformed calibration report"))?;
-    Ok((record, state))
+    Ok((parts.record, state))
 }
 
 #[cfg(test)]

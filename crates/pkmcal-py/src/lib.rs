@@ -3625,7 +3625,7 @@ fn budget<'py>(
     let seed = seed_arg(seed)?;
     let m = mech_ref(mechanism);
     let spec = m.spec();
-    let mut given: Vec<(String, Tolerance)> = m.tolerances.clone();
+    let mut given: Vec<(String, Tolerance)> = vec![];
     if let Some(t) = tolerances.filter(|t| !t.is_none()) {
         let items = t
             .call_method0("items")
@@ -3645,10 +3645,10 @@ fn budget<'py>(
             };
             let tol =
                 Tolerance::parse(&text).map_err(|e| usage(format!("tolerances: `{name}`: {e}")))?;
-            given.retain(|(n, _)| *n != name);
             given.push((name, tol));
         }
     }
+    let given = pkmcal::apply::budget::merged_tolerances(&m.tolerances, given);
     if given.is_empty() {
         return Err(usage(
             "no tolerance: give tolerances={name: σ} or describe the mechanism with a [tolerances] table",
@@ -3656,9 +3656,6 @@ fn budget<'py>(
     }
     let resolved = pkmcal::apply::budget::resolve_tolerances(spec, &given)
         .map_err(|e| usage(format!("tolerances: {e}")))?;
-    if grid == 0 {
-        return Err(usage("grid must be at least 1"));
-    }
     let calibration = match poses.filter(|p| !p.is_none()) {
         Some(p) => Some(pkmcal::apply::budget::PlannedCalibration {
             targets: rows(p, "poses", &spec.tool_axes, false)?.to_vecs(),
@@ -3676,10 +3673,7 @@ fn budget<'py>(
     let mech = &*m.mech;
     let b = py
         .in_pool(|| -> pkmcal::Result<_> {
-            let targets: Vec<Vec<f64>> = pkmcal::apply::workspace::grid_targets(mech, grid)?
-                .into_iter()
-                .map(|p| p.target)
-                .collect();
+            let targets = pkmcal::apply::budget::budget_targets(mech, grid)?;
             pkmcal::apply::budget::budget(mech, &targets, &resolved, &opts)
         })
         .map_err(lib_err)?;

@@ -106,6 +106,35 @@ pub fn resolve_tolerances(spec: &Spec, given: &[(String, Tolerance)]) -> Result<
     Ok(out)
 }
 
+/// The description's tolerances (`table`) with `given` ones replacing them
+/// for the same names: the one merge rule of the front ends.
+pub fn merged_tolerances(
+    table: &[(String, Tolerance)],
+    given: Vec<(String, Tolerance)>,
+) -> Vec<(String, Tolerance)> {
+    let mut out: Vec<(String, Tolerance)> = table
+        .iter()
+        .filter(|(n, _)| !given.iter().any(|(g, _)| g == n))
+        .cloned()
+        .collect();
+    out.extend(given);
+    out
+}
+
+/// The targets a budget takes the error over: `count` of them, a plain grid
+/// over the usable workspace ([`crate::apply::workspace::grid_targets`]).
+pub fn budget_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<Vec<f64>>> {
+    if count == 0 {
+        return Err(Error::InvalidRequest(
+            "a budget needs at least one workspace target".into(),
+        ));
+    }
+    Ok(crate::apply::workspace::grid_targets(mech, count)?
+        .into_iter()
+        .map(|p| p.target)
+        .collect())
+}
+
 /// A calibration planned at design time: the tool measured at these targets
 /// with this noise per coordinate.
 #[derive(Debug, Clone, PartialEq)]
