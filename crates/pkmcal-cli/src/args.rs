@@ -54,6 +54,23 @@ pub struct FreeArgs {
     pub fix: Option<String>,
 }
 
+/// What is known of the parameters before the data: their tolerances, as
+/// priors of the fit.
+#[derive(clap::Args)]
+pub struct PriorArgs {
+    /// Tolerances NAME=SIGMA as priors (one standard deviation in the
+    /// parameter's unit, or a percentage of its nominal value: k1=20%),
+    /// comma-separated or repeated; they replace the mechanism file's
+    /// [tolerances] for the same names. A parameter with a tolerance is
+    /// identified (unless --fix names it), held by it where the data are
+    /// weak.
+    #[arg(long, value_name = "NAME=SIGMA")]
+    pub tolerance: Vec<String>,
+    /// Ignore the mechanism file's [tolerances]: no priors.
+    #[arg(long)]
+    pub no_tolerances: bool,
+}
+
 /// What the instrument read and where it stood, for the commands that read
 /// measurements (`calibrate`, `analyze`).
 #[derive(clap::Args)]

@@ -282,6 +282,7 @@ fn frame_gauge_is_one_warning() {
             "p.toml",
             "--report",
             "r.json",
+            "--no-tolerances",
         ],
     );
     assert_eq!(out.matches("warning:").count(), 1, "{out}");
@@ -297,6 +298,41 @@ fn frame_gauge_is_one_warning() {
             .len(),
         6
     );
+    // With the mechanism file's tolerances as priors, the same directions
+    // are held by them: identified, nothing fixed.
+    common::ok(
+        d,
+        &[
+            "calibrate",
+            "--mechanism",
+            &gs,
+            "--data",
+            "t.csv",
+            "--out",
+            "p.toml",
+            "--report",
+            "r.json",
+        ],
+    );
+    let r = common::json(&d.join("r.json"));
+    let kinds: Vec<&str> = r["warnings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|w| w["kind"].as_str().unwrap())
+        .collect();
+    assert!(kinds.contains(&"held_by_tolerance"), "{kinds:?}");
+    assert!(!kinds.contains(&"frame_gauge"), "{kinds:?}");
+    assert!(
+        r["identifiability"]
+            .get("unidentifiable")
+            .unwrap()
+            .as_array()
+            .unwrap()
+            .is_empty()
+    );
+    // The six of the gauge and the stiffness k1 (no load: no data see it).
+    assert_eq!(r["identifiability"]["held"].as_array().unwrap().len(), 7);
 }
 
 /// Probe heights and caliper distances between poses on a delta: simulate

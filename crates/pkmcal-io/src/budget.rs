@@ -32,6 +32,16 @@ pub fn option_tolerances(
     spec: &pkmcal::Spec,
     items: &[String],
 ) -> Result<Vec<(String, Tolerance)>> {
+    let out = tolerance_items(items)?;
+    if let Err(e) = pkmcal::apply::budget::resolve_tolerances(spec, &out) {
+        return crate::output::usage(format!("--tolerance: {e}"));
+    }
+    Ok(out)
+}
+
+/// The `--tolerance` items parsed (a later one replaces an earlier one of
+/// the same name), not yet resolved: a usage error (exit 2) names the item.
+pub fn tolerance_items(items: &[String]) -> Result<Vec<(String, Tolerance)>> {
     let mut out: Vec<(String, Tolerance)> = vec![];
     for item in items.iter().flat_map(|s| s.split(',')).map(str::trim) {
         if item.is_empty() {
@@ -50,10 +60,37 @@ pub fn option_tolerances(
         out.retain(|(n, _)| *n != name);
         out.push((name, tol));
     }
-    if let Err(e) = pkmcal::apply::budget::resolve_tolerances(spec, &out) {
+    Ok(out)
+}
+
+/// The priors of a fit (docs/model.md eq. 13): the mechanism file's
+/// `[tolerances]` table with the `--tolerance` items replacing its entries,
+/// resolved against the mechanism and the instrument (`off`: none, as
+/// `--no-tolerances` asks). An item naming an unknown parameter is a usage
+/// error; a table entry's is the file's error.
+pub fn fit_priors(
+    spec: &pkmcal::Spec,
+    measurement: &pkmcal::MeasurementModel,
+    table: &[(String, Tolerance)],
+    file: Option<&std::path::Path>,
+    items: &[String],
+    off: bool,
+) -> Result<Vec<pkmcal::identify::Prior>> {
+    let given = tolerance_items(items)?;
+    if off {
+        if !given.is_empty() {
+            return crate::output::usage("give either --tolerance or --no-tolerances, not both");
+        }
+        return Ok(vec![]);
+    }
+    if let Err(e) = pkmcal::identify::named_priors(spec, measurement, &given) {
         return crate::output::usage(format!("--tolerance: {e}"));
     }
-    Ok(out)
+    let merged = pkmcal::apply::budget::merged_tolerances(table, given);
+    pkmcal::identify::named_priors(spec, measurement, &merged).map_err(|e| {
+        let file = file.map_or_else(|| "the mechanism".to_string(), |p| p.display().to_string());
+        anyhow::anyhow!("in the [tolerances] table of {file}: {e}")
+    })
 }
 
 pub fn run_budget(run: &crate::Run<'_>, c: BudgetConfig) -> Result<()> {

@@ -301,14 +301,27 @@ pub fn located(e: pkmcal::Error, file: &Path) -> anyhow::Error {
 /// `default`), resolved by the library ([`pkmcal::identify::resolve_free_set`])
 /// and worded for the command line: a name it does not know is a usage
 /// error naming the option.
+/// A parameter with a prior (a tolerance) is free unless `--fix` names it
+/// ([`pkmcal::identify::free_with_priors`]).
 pub fn free_set<M: Mechanism>(
     mech: &M,
     measurement: &MeasurementModel,
     free: Option<&str>,
     fix: Option<&str>,
+    priors: &[pkmcal::identify::Prior],
 ) -> Result<Vec<usize>> {
     let spec = mech.spec();
-    free_set_with_default(spec, measurement, &spec.default_free, free, fix)
+    let set = free_set_with_default(spec, measurement, &spec.default_free, free, fix)?;
+    let fix: Vec<String> = fix
+        .map(|s| s.split(',').map(|t| t.trim().to_string()).collect())
+        .unwrap_or_default();
+    Ok(pkmcal::identify::free_with_priors(
+        spec,
+        measurement,
+        &set,
+        priors,
+        &fix,
+    ))
 }
 
 /// [`free_set`] with another default set (a firmware's own).
@@ -505,6 +518,11 @@ pub struct CalibrateConfig {
     pub axes: Option<String>,
     /// `--distances`: distances measured between pairs of poses.
     pub distances: Option<PathBuf>,
+    /// `--tolerance NAME=SIGMA` items: priors beside the mechanism file's
+    /// `[tolerances]` table.
+    pub tolerances: Vec<String>,
+    /// `--no-tolerances`: fit without priors.
+    pub no_tolerances: bool,
 }
 
 /// The measurement model of a data file, from its columns: the whole tool
@@ -610,6 +628,9 @@ struct Measured {
     measurement: MeasurementModel,
     data: Vec<Measurement>,
     units: pkmcal::FileUnits,
+    /// The mechanism file and its `[tolerances]` table.
+    path: Option<PathBuf>,
+    tolerances: Vec<(String, pkmcal::apply::budget::Tolerance)>,
 }
 
 fn read_measured(
@@ -635,6 +656,8 @@ fn read_measured(
         measurement,
         data,
         units,
+        path: description.path,
+        tolerances: description.tolerances,
     })
 }
 
@@ -645,6 +668,8 @@ pub fn run_calibrate(run: &crate::Run<'_>, c: CalibrateConfig) -> Result<()> {
         measurement,
         data: all,
         units,
+        path,
+        tolerances,
     } = read_measured(
         run,
         c.mechanism.as_deref(),
@@ -662,7 +687,21 @@ pub fn run_calibrate(run: &crate::Run<'_>, c: CalibrateConfig) -> Result<()> {
     };
     let locate = |e: pkmcal::Error| located_in(e, &c.data, c.distances.as_deref());
     let mut opts = CalibrationOptions::new(spec, c.model);
-    opts.free = free_set(mech, &measurement, c.free.as_deref(), c.fix.as_deref())?;
+    opts.priors = crate::budget::fit_priors(
+        spec,
+        &measurement,
+        &tolerances,
+        path.as_deref(),
+        &c.tolerances,
+        c.no_tolerances,
+    )?;
+    opts.free = free_set(
+        mech,
+        &measurement,
+        c.free.as_deref(),
+        c.fix.as_deref(),
+        &opts.priors,
+    )?;
     opts.force = crate::io::checked_load(c.load.clone(), mech, &start)?;
     opts.loss = c.loss;
     opts.outlier_threshold = c.outlier_threshold;
@@ -1069,27 +1108,46 @@ pub fn write_summary(
         .filter(|p| p.free || p.note.is_some())
         .map(|p| p.name.chars().count())
         .fold(6, usize::max);
+    // With priors: each one's tolerance and the share of the information
+    // that came from the data.
+    let priors = !cal.priors.is_empty();
     outln!(
         out,
-        "  {:<width$} {:>14} {:>16} {:>14} {:>12} {:<8}",
+        "  {:<width$} {:>14} {:>16} {:>14} {:>12} {:<8}{}",
         "param",
         "nominal",
         "identified",
         "change",
         "±σ",
-        "unit"
+        "unit",
+        if priors {
+            format!(" {:>10} {:>9}", "tolerance", "from data")
+        } else {
+            String::new()
+        }
     );
     for p in &cal.parameters {
         if p.free || p.note.is_some() {
+            let prior = match (priors, p.tolerance) {
+                (false, _) => String::new(),
+                (true, None) => format!(" {:>10} {:>9}", "", ""),
+                (true, Some(t)) => format!(
+                    " {:>10.3e} {:>9}",
+                    t,
+                    p.from_data
+                        .map_or_else(String::new, |f| format!("{:.0} %", 100.0 * f))
+                ),
+            };
             outln!(
                 out,
-                "  {:<width$} {:>14.6} {:>16.8} {:>+14.6e} {:>12.3e} {:<8}{}",
+                "  {:<width$} {:>14.6} {:>16.8} {:>+14.6e} {:>12.3e} {:<8}{}{}",
                 p.name,
                 p.nominal,
                 p.identified,
                 p.change,
                 p.std_dev,
                 p.unit,
+                prior,
                 p.note
                     .as_deref()
                     .map(|n| format!(" ({n})"))
@@ -1278,7 +1336,7 @@ pub fn run_analyze(run: &crate::Run<'_>, c: AnalyzeConfig) -> Result<()> {
     let mech = &mech;
     let spec = mech.spec();
     let params = crate::io::params_or_nominal(run, c.params.as_deref(), mech)?;
-    let free = free_set(mech, &measurement, c.free.as_deref(), c.fix.as_deref())?;
+    let free = free_set(mech, &measurement, c.free.as_deref(), c.fix.as_deref(), &[])?;
     let force = crate::io::checked_load(c.load.clone(), mech, &params)?;
     let n_data = data.len();
     let data: Vec<Measurement> = match &c.distances {

@@ -524,12 +524,36 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
             d.count, d.before_max, d.before_rms, d.after_max, d.after_rms
         );
     }
-    h.push_str("<h2>Parameters</h2><table><tr><th>parameter</th><th>unit</th><th>nominal</th><th>identified</th><th>change</th><th>σ</th><th></th></tr>");
+    // With priors: each one's tolerance and its information from the data.
+    let priors = !cal.priors.is_empty();
+    let _ = write!(
+        h,
+        "<h2>Parameters</h2>{}<table><tr><th>parameter</th><th>unit</th><th>nominal</th><th>identified</th><th>change</th><th>σ</th>{}<th></th></tr>",
+        if priors {
+            "<p>The fit is held by the parameters' tolerances (priors, one σ about nominal): <i>from data</i> is the share of what is known of each that the measurements gave.</p>"
+        } else {
+            ""
+        },
+        if priors {
+            "<th>tolerance</th><th>from data</th>"
+        } else {
+            ""
+        }
+    );
     for p in &cal.parameters {
         let class = if p.free { "" } else { " class=\"fixed\"" };
+        let prior = match (priors, p.tolerance) {
+            (false, _) => String::new(),
+            (true, None) => "<td></td><td></td>".into(),
+            (true, Some(t)) => format!(
+                "<td>{t:.3e}</td><td>{}</td>",
+                p.from_data
+                    .map_or_else(String::new, |f| format!("{:.0} %", 100.0 * f))
+            ),
+        };
         let _ = write!(
             h,
-            "<tr{class}><td>{}</td><td>{}</td><td>{:.6}</td><td>{:.8}</td><td>{:+.4e}</td><td>{}</td><td>{}</td></tr>",
+            "<tr{class}><td>{}</td><td>{}</td><td>{:.6}</td><td>{:.8}</td><td>{:+.4e}</td><td>{}</td>{prior}<td>{}</td></tr>",
             escape(&p.name),
             escape(p.unit.symbol()),
             p.nominal,
@@ -558,7 +582,18 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
         o.o4,
         o.o5
     );
-    if id.unidentifiable.is_empty() {
+    if !id.held.is_empty() {
+        h.push_str("<p>Held by the tolerances (the data alone cannot see them):</p><ul>");
+        for u in &id.held {
+            let _ = write!(h, "<li>{}</li>", escape(&u.combination));
+        }
+        h.push_str("</ul>");
+    }
+    if id.unidentifiable.is_empty() && !id.held.is_empty() {
+        h.push_str(
+            "<p>Every free parameter is identified, these poses and the tolerances together.</p>",
+        );
+    } else if id.unidentifiable.is_empty() {
         h.push_str("<p>Every free parameter is identifiable from these poses.</p>");
     } else {
         h.push_str("<p>Unidentifiable directions:</p><ul>");

@@ -520,6 +520,7 @@ pub fn run_plan(run: &crate::Run<'_>, c: PlanConfig) -> Result<()> {
         &pkmcal::MeasurementModel::tool(spec),
         c.free.as_deref(),
         c.fix.as_deref(),
+        &[],
     )?;
     if !(c.candidates.is_finite() && c.candidates > 0.0) {
         return crate::output::usage("--candidates must be a positive spacing in mm");
@@ -700,6 +701,7 @@ pub fn run_montecarlo(run: &crate::Run<'_>, c: MonteCarloConfig) -> Result<()> {
         &pkmcal::MeasurementModel::tool(spec),
         c.free.as_deref(),
         c.fix.as_deref(),
+        &[],
     )?;
     let validation = pkmcal::validation_targets(&mech, c.validation, c.seed)?;
     let bar = run.bar(c.runs as u64, false, "calibrations", 1);

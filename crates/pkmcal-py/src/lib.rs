@@ -36,7 +36,7 @@ create_exception!(
     PkmcalWarning,
     pyo3::exceptions::PyUserWarning,
     "A calibration's warning, emitted once per call with `warnings.warn` (also in \
-`Calibration.warnings`). Subclasses: ConvergenceWarning, IdentifiabilityWarning, OutlierWarning."
+`Calibration.warnings`). Subclasses: ConvergenceWarning, IdentifiabilityWarning, OutlierWarning, ToleranceWarning."
 );
 create_exception!(
     pkmcal,
@@ -56,6 +56,12 @@ create_exception!(
     PkmcalWarning,
     "Readings far beyond the noise were reported or dropped."
 );
+create_exception!(
+    pkmcal,
+    ToleranceWarning,
+    PkmcalWarning,
+    "An identified value far outside its tolerance, or parameters the data taught little beyond their tolerances."
+);
 
 /// Emit a calibration's warnings with `warnings.warn`, each once, in the
 /// category of its kind, attributed to the line that called the package's
@@ -72,7 +78,11 @@ fn emit_warnings(py: Python<'_>, warnings: &[pkmcal::identify::Warning]) -> PyRe
         let category = match w.kind {
             K::NotConverged { .. } => py.get_type::<ConvergenceWarning>(),
             K::Outliers { .. } | K::Dropped { .. } => py.get_type::<OutlierWarning>(),
+            K::BeyondTolerance { .. } | K::PriorDominated { .. } => {
+                py.get_type::<ToleranceWarning>()
+            }
             K::StiffnessRatios { .. }
+            | K::HeldByTolerance { .. }
             | K::Unidentifiable { .. }
             | K::FrameGauge { .. }
             | K::RankDeficient { .. }
@@ -957,6 +967,7 @@ fn free_arg(
     measurement: &MeasurementModel,
     free: Option<&Bound<'_, PyAny>>,
     fix: Option<&Bound<'_, PyAny>>,
+    priors: &[pkmcal::identify::Prior],
 ) -> PyResult<Vec<usize>> {
     use pkmcal::identify::{FreeSetError, NameList};
     let split = |s: Option<String>| -> Option<Vec<String>> {
@@ -969,17 +980,83 @@ fn free_arg(
         NameList::Free => "free",
         NameList::Fix => "fix",
     };
-    pkmcal::identify::resolve_free_set(spec, measurement, &spec.default_free, free.as_deref(), &fix)
-        .map_err(|e| {
-            usage(match e {
-                FreeSetError::Unknown { list, error } => format!("in {}: {error}", word(list)),
-                FreeSetError::FrameParameter { list, name } => format!(
-                    "in {}: `{name}` belongs to the instrument frame, which frame= sets (\"free\": identified; \"base\": the data are in the base frame)",
-                    word(list)
-                ),
-                FreeSetError::Empty => "no parameter is left free; name some with free=".into(),
-            })
+    let set = pkmcal::identify::resolve_free_set(
+        spec,
+        measurement,
+        &spec.default_free,
+        free.as_deref(),
+        &fix,
+    )
+    .map_err(|e| {
+        usage(match e {
+            FreeSetError::Unknown { list, error } => format!("in {}: {error}", word(list)),
+            FreeSetError::FrameParameter { list, name } => format!(
+                "in {}: `{name}` belongs to the instrument frame, which frame= sets (\"free\": identified; \"base\": the data are in the base frame)",
+                word(list)
+            ),
+            FreeSetError::Empty => "no parameter is left free; name some with free=".into(),
         })
+    })?;
+    Ok(pkmcal::identify::free_with_priors(
+        spec,
+        measurement,
+        &set,
+        priors,
+        &fix,
+    ))
+}
+
+/// ``tolerances``: a mapping name → σ (a number in the parameter's unit) or a
+/// percentage of its nominal value (``"20%"``), in the order given.
+fn tolerances_arg(
+    t: Option<&Bound<'_, PyAny>>,
+) -> PyResult<Vec<(String, pkmcal::apply::budget::Tolerance)>> {
+    use pkmcal::apply::budget::Tolerance;
+    let mut given: Vec<(String, Tolerance)> = vec![];
+    let Some(t) = t.filter(|t| !t.is_none()) else {
+        return Ok(given);
+    };
+    let items = t
+        .call_method0("items")
+        .map_err(|_| usage("tolerances: expected a dict name → σ or \"20%\""))?;
+    for kv in items.try_iter()? {
+        let (name, v): (String, Bound<'_, PyAny>) = kv?.extract()?;
+        let text = if let Ok(s) = v.extract::<String>() {
+            s
+        } else {
+            v.extract::<f64>()
+                .map_err(|_| {
+                    usage(format!(
+                        "tolerances: `{name}` must be σ (a number) or a percentage (\"20%\")"
+                    ))
+                })?
+                .to_string()
+        };
+        let tol =
+            Tolerance::parse(&text).map_err(|e| usage(format!("tolerances: `{name}`: {e}")))?;
+        given.push((name, tol));
+    }
+    Ok(given)
+}
+
+/// A fit's priors: the mechanism's ``[tolerances]`` table with
+/// ``tolerances`` (a dict) replacing its entries; ``False``: none.
+fn priors_arg(
+    m: &PyMechanism,
+    measurement: &MeasurementModel,
+    tolerances: Option<&Bound<'_, PyAny>>,
+) -> PyResult<Vec<pkmcal::identify::Prior>> {
+    let flag = tolerances
+        .filter(|t| t.is_instance_of::<pyo3::types::PyBool>())
+        .map(|t| t.is_truthy())
+        .transpose()?;
+    if flag == Some(false) {
+        return Ok(vec![]);
+    }
+    let given = tolerances_arg(tolerances.filter(|t| !t.is_instance_of::<pyo3::types::PyBool>()))?;
+    let merged = pkmcal::apply::budget::merged_tolerances(&m.tolerances, given);
+    pkmcal::identify::named_priors(m.spec(), measurement, &merged)
+        .map_err(|e| usage(format!("tolerances: {e}")))
 }
 
 /// ``bounds``: a mapping name → ``(lower, upper)``.
@@ -1755,6 +1832,9 @@ fn warning(w: &pkmcal::identify::Warning) -> PyWarning {
             K::PlanRankDeficient { .. } => "plan_rank_deficient",
             K::Outliers { .. } => "outliers",
             K::Dropped { .. } => "dropped",
+            K::BeyondTolerance { .. } => "beyond_tolerance",
+            K::PriorDominated { .. } => "prior_dominated",
+            K::HeldByTolerance { .. } => "held_by_tolerance",
         }
         .into(),
         message: w.message.clone(),
@@ -2128,10 +2208,41 @@ impl PyCalibration {
         out2(py, v, n, false)
     }
     /// Standard deviation each reading of ``fun`` was weighted with (its
-    /// unit): the fit minimises ``sum((fun / sigmas)**2)``.
+    /// unit): the fit minimises ``sum((fun / sigmas)**2)``, plus with priors
+    /// ``sum(((value - centre) / sigma)**2)`` over ``priors``.
     #[getter]
     fn sigmas<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
         vec1(py, &self.cal().sigmas)
+    }
+    /// The priors the fit used (tolerances, docs/model.md eq. 13), one dict
+    /// each: ``name``, ``centre`` (the nominal value, or the instrument's
+    /// start) and ``sigma``; empty without.
+    #[getter]
+    fn priors<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        self.cal()
+            .priors
+            .iter()
+            .map(|t| {
+                let d = PyDict::new(py);
+                d.set_item("name", &t.name)?;
+                d.set_item("centre", t.centre)?;
+                d.set_item("sigma", t.sigma)?;
+                Ok(d)
+            })
+            .collect()
+    }
+    /// The share of each prior parameter's information that came from the
+    /// data, ``1 - sigma_post**2 / sigma_prior**2`` (0: all from its
+    /// tolerance, 1: all measured), by name.
+    #[getter(from_data)]
+    fn information_from_data<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        by_name(
+            py,
+            self.cal()
+                .parameters
+                .iter()
+                .filter_map(|p| p.from_data.map(|f| (p.name.clone(), f))),
+        )
     }
     /// ``0.5 * sum(fun**2)``, in the readings' units squared (mm² for
     /// positions): scipy's ``cost``.
@@ -3127,8 +3238,16 @@ fn simulate<'py>(
 /// start: a dict name → value like ``start``, or an array with one value per
 /// free mechanism parameter in the order :func:`analyze`'s ``free`` lists
 /// them).
+/// ``tolerances``: priors (docs/model.md eq. 13), a dict name → σ or
+/// ``"20%"`` beside the mechanism's ``[tolerances]`` table (replacing its
+/// entries of the same names); ``False`` fits without priors. A parameter
+/// with a tolerance is identified (unless ``fix`` names it) and held by it
+/// where the data are weak: the fit is then the maximum a posteriori
+/// estimate, ``Calibration.priors`` lists the priors and
+/// ``Calibration.parameters`` each one's tolerance and share of information
+/// from the data.
 #[pyfunction]
-#[pyo3(signature = (mechanism, commands, measured, *, sigma = None, targets = None, model = "exact", free = None, fix = None, start = None, loss = "squared", loss_scale = None, outlier_threshold = 4.0, drop_outliers = false, load = None, force = None, axes = None, points = None, ballbar = None, frame = "base", validation = None, holdout = None, kfold = None, seed = SeedArg::Default(1), distances = None, max_nfev = None, ftol = None, xtol = None, gtol = None, bounds = None, x0 = None))]
+#[pyo3(signature = (mechanism, commands, measured, *, sigma = None, targets = None, model = "exact", free = None, fix = None, start = None, loss = "squared", loss_scale = None, outlier_threshold = 4.0, drop_outliers = false, load = None, force = None, axes = None, points = None, ballbar = None, frame = "base", validation = None, holdout = None, kfold = None, seed = SeedArg::Default(1), distances = None, max_nfev = None, ftol = None, xtol = None, gtol = None, bounds = None, x0 = None, tolerances = None))]
 #[allow(clippy::too_many_arguments)]
 fn calibrate<'py>(
     py: Python<'py>,
@@ -3162,6 +3281,7 @@ fn calibrate<'py>(
     gtol: Option<f64>,
     bounds: Option<&Bound<'py, PyAny>>,
     x0: Option<&Bound<'py, PyAny>>,
+    tolerances: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<PyCalibration> {
     let mechanism = &mechanism_arg(mechanism)?;
     let seed = seed_arg(seed)?;
@@ -3171,7 +3291,8 @@ fn calibrate<'py>(
     let all = measurements(m, &mm, commands, measured, sigma, targets, "")?;
     let pairs = distances_arg(m, &mm, distances)?;
     let mut opts = CalibrationOptions::new(spec, parse_model(model)?);
-    opts.free = free_arg(m, &mm, free, fix)?;
+    opts.priors = priors_arg(m, &mm, tolerances)?;
+    opts.free = free_arg(m, &mm, free, fix, &opts.priors)?;
     let start = match (start.filter(|s| !s.is_none()), x0.filter(|s| !s.is_none())) {
         (Some(_), Some(_)) => return Err(usage("give either start= or x0=, not both")),
         (None, Some(x)) => x0_arg(m, &opts.free, x)?,
@@ -3320,7 +3441,7 @@ fn analyze<'py>(
     let data = measurements(m, &mm, commands, measured, sigma, None, "")?;
     let params = params_arg(m, params, "params")?;
     let model = parse_model(model)?;
-    let free = free_arg(m, &mm, free, fix)?;
+    let free = free_arg(m, &mm, free, fix, &[])?;
     let force = load_arg(m, load, force)?;
     pkmcal::engine::load::check_load(&*m.mech, &params, &force)
         .map_err(|e| usage(format!("load: {e}")))?;
@@ -3424,7 +3545,7 @@ fn plan<'py>(
         count,
         criterion: criterion.parse().map_err(lib_err)?,
         model: parse_model(model)?,
-        free: free_arg(m, &MeasurementModel::tool(spec), free, fix)?,
+        free: free_arg(m, &MeasurementModel::tool(spec), free, fix, &[])?,
         spacing,
         max_candidates,
         cancel: None,
@@ -3620,34 +3741,11 @@ fn budget<'py>(
     noise: f64,
     angle_noise: Option<f64>,
 ) -> PyResult<PyBudget> {
-    use pkmcal::apply::budget::Tolerance;
     let mechanism = &mechanism_arg(mechanism)?;
     let seed = seed_arg(seed)?;
     let m = mech_ref(mechanism);
     let spec = m.spec();
-    let mut given: Vec<(String, Tolerance)> = vec![];
-    if let Some(t) = tolerances.filter(|t| !t.is_none()) {
-        let items = t
-            .call_method0("items")
-            .map_err(|_| usage("tolerances: expected a dict name → σ or \"20%\""))?;
-        for kv in items.try_iter()? {
-            let (name, v): (String, Bound<'_, PyAny>) = kv?.extract()?;
-            let text = if let Ok(s) = v.extract::<String>() {
-                s
-            } else {
-                v.extract::<f64>()
-                    .map_err(|_| {
-                        usage(format!(
-                            "tolerances: `{name}` must be σ (a number) or a percentage (\"20%\")"
-                        ))
-                    })?
-                    .to_string()
-            };
-            let tol =
-                Tolerance::parse(&text).map_err(|e| usage(format!("tolerances: `{name}`: {e}")))?;
-            given.push((name, tol));
-        }
-    }
+    let given = tolerances_arg(tolerances)?;
     let given = pkmcal::apply::budget::merged_tolerances(&m.tolerances, given);
     if given.is_empty() {
         return Err(usage(
@@ -3986,7 +4084,7 @@ fn montecarlo<'py>(
     }
     let poses = rows(targets, "targets", &spec.tool_axes, false)?.to_vecs();
     let mut cal = CalibrationOptions::new(spec, parse_model(model)?);
-    cal.free = free_arg(m, &MeasurementModel::tool(spec), free, fix)?;
+    cal.free = free_arg(m, &MeasurementModel::tool(spec), free, fix, &[])?;
     let opts = pkmcal::MonteCarloOptions {
         runs,
         noise: noise_arg(noise, angle_noise)?,
@@ -4093,6 +4191,7 @@ fn _pkmcal(m: &Bound<'_, PyModule>) -> PyResult<()> {
         m.py().get_type::<IdentifiabilityWarning>(),
     )?;
     m.add("OutlierWarning", m.py().get_type::<OutlierWarning>())?;
+    m.add("ToleranceWarning", m.py().get_type::<ToleranceWarning>())?;
     m.add_class::<PyMechanism>()?;
     m.add_class::<PyCalibration>()?;
     m.add_class::<PyMonteCarlo>()?;

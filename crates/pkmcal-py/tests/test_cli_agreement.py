@@ -61,9 +61,12 @@ def test_calibration_equals_cli(cli, tmp_path, mechanism, truth, count, noise):
     assert set(got) == set(expected)
     for name, value in expected.items():
         assert relative_gap(got[name], value) < AGREEMENT, name
-    # The identified truth is recovered within a few standard deviations.
+    # The identified truth is recovered within a few standard deviations
+    # (without the mechanism's tolerances, which this truth exceeds tenfold:
+    # the priors rightly pull it towards nominal, with a warning).
+    free = pkmcal.calibrate(mech, commands, measured, tolerances=False) if cal.priors else cal
     for name, value in truth.items():
-        assert abs(got[name] - value) < 6 * cal.std_dev[name] + 1e-9, name
+        assert abs(free.parameters[name] - value) < 6 * free.std_dev[name] + 1e-9, name
     assert cal.converged
     assert cal.after.distance_rms < cal.before.distance_rms
 

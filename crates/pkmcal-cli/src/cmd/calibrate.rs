@@ -21,6 +21,8 @@ pub struct Args {
     pub model: pkmcal::Model,
     #[command(flatten)]
     pub params_set: args::FreeArgs,
+    #[command(flatten)]
+    pub priors: args::PriorArgs,
     /// Starting (and fixed) parameter values; nominal if omitted.
     #[arg(long, value_name = "P.toml")]
     pub start: Option<PathBuf>,
@@ -120,6 +122,8 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             report_dir: a.report_dir,
             setup: a.instrument.setup,
             distances: a.instrument.distances,
+            tolerances: a.priors.tolerance,
+            no_tolerances: a.priors.no_tolerances,
         },
     )
 }

@@ -21,7 +21,7 @@ MonteCarlo, Budget, Drift, SavedCalibration. Every result pickles and compares b
 Errors: PkmcalError (a ValueError) with the message and ``.pose``. A
 calibration's warnings are also emitted with ``warnings.warn``, once per call,
 as PkmcalWarning (a UserWarning) subclasses: ConvergenceWarning,
-IdentifiabilityWarning, OutlierWarning. Arrays with named columns (a pandas
+IdentifiabilityWarning, OutlierWarning, ToleranceWarning. Arrays with named columns (a pandas
 DataFrame, a NumPy structured array) are read by name.
 """
 
@@ -40,6 +40,7 @@ from ._pkmcal import (
     OutlierWarning,
     PkmcalError,
     PkmcalWarning,
+    ToleranceWarning,
     Plan,
     Prediction,
     SavedCalibration,
@@ -116,6 +117,7 @@ __all__ = [
     "OutlierWarning",
     "PkmcalError",
     "PkmcalWarning",
+    "ToleranceWarning",
     "Plan",
     "Prediction",
     "SavedCalibration",

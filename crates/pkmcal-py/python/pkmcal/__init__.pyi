@@ -34,6 +34,9 @@ class IdentifiabilityWarning(PkmcalWarning):
 class OutlierWarning(PkmcalWarning):
     """Readings far beyond the noise were reported or dropped."""
 
+class ToleranceWarning(PkmcalWarning):
+    """An identified value far outside its tolerance, or parameters the data taught little."""
+
 class Mechanism:
     """A parallel mechanism: the built-in reference, or one described in TOML
     (a path, TOML text or a dict)."""
@@ -219,6 +222,10 @@ class Calibration:
     @property
     def sigmas(self) -> Array: ...
     @property
+    def priors(self) -> list[dict[str, Any]]: ...
+    @property
+    def from_data(self) -> dict[str, float]: ...
+    @property
     def cost(self) -> float: ...
     @property
     def nfev(self) -> int: ...
@@ -397,6 +404,7 @@ def calibrate(
     gtol: Optional[float] = None,
     bounds: Optional[Mapping[str, Tuple[float, float]]] = None,
     x0: Union[None, Mapping[str, float], ArrayLike] = None,
+    tolerances: Union[None, bool, Mapping[str, Union[float, str]]] = None,
 ) -> Calibration: ...
 def analyze(
     mechanism: MechanismLike,

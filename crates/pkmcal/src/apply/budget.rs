@@ -19,7 +19,7 @@ use crate::engine::models::{Model, Pose, predict_pose, prepare_pose};
 use crate::engine::sensitivity::sensitivity;
 use crate::error::{Error, Result};
 use crate::measurement::data::Noise;
-use crate::mechanism::{Mechanism, Params, Spec};
+use crate::mechanism::{Mechanism, Params};
 use crate::units::Unit;
 use nalgebra::DMatrix;
 use rand::SeedableRng;
@@ -28,98 +28,7 @@ use rand_distr::{Distribution, Normal};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-/// A parameter's tolerance as a user states it: one standard deviation in
-/// the parameter's unit, or a fraction of its nominal value.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub enum Tolerance {
-    /// σ in the parameter's unit (mm, rad, N·m/rad…).
-    Absolute(f64),
-    /// σ as a fraction of the nominal value's magnitude (`"20%"` is 0.2).
-    Relative(f64),
-}
-
-impl Tolerance {
-    /// A tolerance from text: a number (`"0.1"`, σ in the parameter's unit)
-    /// or a percentage of the nominal value (`"20%"`). The one rule every
-    /// front end reads tolerances by.
-    pub fn parse(text: &str) -> Result<Self> {
-        let t = text.trim();
-        let bad = || {
-            Error::InvalidRequest(format!(
-                "tolerance `{text}`: give one standard deviation in the parameter's unit (e.g. 0.05) or a percentage of its nominal value (e.g. \"20%\")"
-            ))
-        };
-        let tol = match t.strip_suffix('%') {
-            Some(p) => Tolerance::Relative(p.trim().parse::<f64>().map_err(|_| bad())? / 100.0),
-            None => Tolerance::Absolute(t.parse::<f64>().map_err(|_| bad())?),
-        };
-        tol.check().map_err(|_| bad())?;
-        Ok(tol)
-    }
-
-    fn check(&self) -> Result<()> {
-        let v = match self {
-            Tolerance::Absolute(v) | Tolerance::Relative(v) => *v,
-        };
-        if v.is_finite() && v > 0.0 {
-            Ok(())
-        } else {
-            Err(Error::InvalidRequest(format!(
-                "a tolerance must be a positive finite number, got {v}"
-            )))
-        }
-    }
-
-    /// σ for a parameter of nominal value `nominal`.
-    pub fn sigma(&self, nominal: f64) -> f64 {
-        match self {
-            Tolerance::Absolute(v) => *v,
-            Tolerance::Relative(f) => f * nominal.abs(),
-        }
-    }
-}
-
-/// The standard deviation of each named parameter of `spec`: `(index, σ)`
-/// in the order given. Unknown names (with a suggestion), a name given
-/// twice, a non-positive σ and a relative tolerance of a parameter whose
-/// nominal value is 0 are refused.
-pub fn resolve_tolerances(spec: &Spec, given: &[(String, Tolerance)]) -> Result<Vec<(usize, f64)>> {
-    let mut out: Vec<(usize, f64)> = vec![];
-    for (name, tol) in given {
-        tol.check()
-            .map_err(|e| Error::InvalidRequest(format!("tolerance of `{name}`: {e}")))?;
-        let i = spec.param_index(name)?;
-        if out.iter().any(|(j, _)| *j == i) {
-            return Err(Error::InvalidRequest(format!(
-                "`{name}` has two tolerances; give one"
-            )));
-        }
-        let sigma = tol.sigma(spec.nominal[i]);
-        if !(sigma.is_finite() && sigma > 0.0) {
-            return Err(Error::InvalidRequest(format!(
-                "`{name}` is 0 nominally, so a tolerance relative to it is 0; give its σ in {}",
-                spec.param_unit(i)
-            )));
-        }
-        out.push((i, sigma));
-    }
-    Ok(out)
-}
-
-/// The description's tolerances (`table`) with `given` ones replacing them
-/// for the same names: the one merge rule of the front ends.
-pub fn merged_tolerances(
-    table: &[(String, Tolerance)],
-    given: Vec<(String, Tolerance)>,
-) -> Vec<(String, Tolerance)> {
-    let mut out: Vec<(String, Tolerance)> = table
-        .iter()
-        .filter(|(n, _)| !given.iter().any(|(g, _)| g == n))
-        .cloned()
-        .collect();
-    out.extend(given);
-    out
-}
+pub use crate::identify::prior::{Tolerance, merged_tolerances, resolve_tolerances};
 
 /// The targets a budget takes the error over: `count` of them, a plain grid
 /// over the usable workspace ([`crate::apply::workspace::grid_targets`]).

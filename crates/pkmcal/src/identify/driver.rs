@@ -8,6 +8,7 @@ use super::identifiability::{
     Columns, Identifiability, Unidentifiable, analyze_identifiability, correlations,
 };
 use super::loss::{Loss, Outlier};
+use super::prior::{Prior, PriorTerm, WithPriors};
 use super::problem::{IdentificationProblem, PoseCache, mask};
 use super::result::{Calibration, ParameterResult, Warning, WarningKind};
 use super::uncertainty::ParameterCovariance;
@@ -48,6 +49,12 @@ pub struct CalibrationOptions {
     /// an uncertainty from (its standard deviations are NaN). By default a
     /// fit needs at least one reading more than parameters.
     pub exactly_determined: bool,
+    /// Priors (tolerances) of parameters (docs/model.md eq. 13): the fit is
+    /// then the maximum a posteriori estimate. A prior acts on a free
+    /// parameter (a free frame's included); one on a fixed parameter is
+    /// unused ([`crate::identify::resolve_free_set`] frees the parameters
+    /// with a tolerance unless they are fixed by name).
+    pub priors: Vec<Prior>,
 }
 
 impl CalibrationOptions {
@@ -72,6 +79,7 @@ impl CalibrationOptions {
                 ..lm::Options::default()
             },
             exactly_determined: false,
+            priors: vec![],
         }
     }
 }
@@ -176,6 +184,8 @@ fn calibrate_on<M: Mechanism>(
                     dropping: opts.drop_outliers,
                 }));
             }
+            let beyond = super::prior::prior_warnings(&cal.parameters, &cal.priors);
+            cal.warnings.extend(beyond);
             cal.dropped = dropped;
             found.append(&mut cal.outliers);
             cal.outliers = found;
@@ -210,16 +220,13 @@ pub(super) fn calibrate_once<M: Mechanism>(
     sigma: &[f64],
     exact_free: Option<&[usize]>,
     known: Option<&Identifiability>,
+    terms: Option<&[PriorTerm]>,
 ) -> Result<(Calibration, DMatrix<f64>)> {
     let (mech, measurement) = (problem.mech, problem.measurement);
     let spec = mech.spec();
     let np = spec.n_params();
     let mut warnings = vec![];
     let frame_free = *measurement.frame() == Frame::Free;
-    let m = check_request(problem, data, opts, exact_free)?;
-    let m0 = measurement_start(problem, m_given, start, data)?;
-    let nf = m0.len();
-    let cols = Columns::with_measurement(spec, measurement, &m0);
     let mut requested = opts.free.clone();
     if frame_free {
         requested.extend(measurement.frame_range().map(|i| np + i));
@@ -227,25 +234,62 @@ pub(super) fn calibrate_once<M: Mechanism>(
     if let Some(f) = exact_free {
         requested = f.to_vec();
     }
+    let given = |p: &&Prior| requested.contains(&p.index);
+    let n_priors = terms.map_or_else(|| opts.priors.iter().filter(given).count(), <[_]>::len);
+    let m = check_request(problem, data, opts, exact_free, n_priors)?;
+    let m0 = measurement_start(problem, m_given, start, data)?;
+    let nf = m0.len();
+    let cols = Columns::with_measurement(spec, measurement, &m0);
+    // The priors of the requested parameters, centred once (a refit keeps
+    // the first fit's centres): the mechanism's on nominal, the
+    // instrument's on their start.
+    let terms: Vec<PriorTerm> = match terms {
+        Some(t) => t.to_vec(),
+        None => opts
+            .priors
+            .iter()
+            .filter(given)
+            .map(|p| PriorTerm {
+                name: cols.names[p.index].clone(),
+                index: p.index,
+                centre: if p.index < np {
+                    spec.nominal[p.index]
+                } else {
+                    m0[p.index - np]
+                },
+                sigma: p.sigma,
+            })
+            .collect(),
+    };
     if sigma.len() != m || sigma.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
         return Err(Error::InvalidRequest(
             "one positive finite standard deviation per measured coordinate is needed".into(),
         ));
     }
-    let weights: Vec<f64> = sigma.iter().map(|v| 1.0 / v).collect();
+    let weights: Vec<f64> = sigma
+        .iter()
+        .map(|v| 1.0 / v)
+        .chain(terms.iter().map(|t| 1.0 / t.sigma))
+        .collect();
     let stiff: Vec<usize> = (spec.n_geometric() + spec.n_actuated()..np).collect();
-    fix_a_stiffness_ratio(opts, &stiff, &cols, &mut requested, &mut warnings);
+    if !stiff.iter().any(|k| terms.iter().any(|t| t.index == *k)) {
+        fix_a_stiffness_ratio(opts, &stiff, &cols, &mut requested, &mut warnings);
+    }
     let mut x0: Vec<f64> = start.values.iter().chain(&m0).copied().collect();
     let mut solver = opts.solver.clone();
     solver.weights = Some(weights.clone());
+    let augmented = WithPriors {
+        inner: problem,
+        terms: &terms,
+    };
     let (identifiability, free, speculative) = free_set(
-        problem, data, opts, &solver, &cols, &requested, &stiff, &weights, nf, known, &mut x0,
+        &augmented, data, opts, &solver, &cols, &requested, &stiff, &weights, nf, known, &mut x0,
     )?;
     identifiability_warnings(opts, frame_free, &identifiability, &mut warnings);
     solver.free = Some(mask(np + nf, &free));
     let report = match speculative {
         Some(r) => r,
-        None => lm::minimize(problem, &x0, &solver),
+        None => lm::minimize(&augmented, &x0, &solver),
     };
     if !report.termination.converged() {
         warnings.push(Warning::new(WarningKind::NotConverged {
@@ -258,6 +302,7 @@ pub(super) fn calibrate_once<M: Mechanism>(
         free,
         requested,
         warnings,
+        terms,
     };
     assemble(problem, data, opts, sigma, &cols, m, fit)
 }
@@ -269,6 +314,7 @@ fn check_request<M: Mechanism>(
     data: &[Measurement],
     opts: &CalibrationOptions,
     exact_free: Option<&[usize]>,
+    n_priors: usize,
 ) -> Result<usize> {
     let (mech, measurement) = (problem.mech, problem.measurement);
     let spec = mech.spec();
@@ -297,14 +343,24 @@ fn check_request<M: Mechanism>(
     };
     let m: usize = data.iter().map(|d| measurement.row_len(d)).sum();
     let n_requested = exact_free.map_or(opts.free.len() + n_free_frame, <[usize]>::len);
-    if m < n_requested || (m == n_requested && !opts.exactly_determined) {
+    // Each prior is one more row (docs/model.md eq. 13).
+    let rows = m + n_priors;
+    if rows < n_requested || (rows == n_requested && !opts.exactly_determined) {
         return Err(Error::InvalidRequest(format!(
-            "{} {} give {m} readings for {n_requested} free parameters{}; measure more poses (at least {}) or identify fewer parameters{}",
+            "{} {} give {m} readings{} for {n_requested} free parameters{}; measure more poses (at least {}) or identify fewer parameters{}",
             data.len(),
             if data.iter().any(|d| d.partner.is_some()) {
                 "rows"
             } else {
                 "poses"
+            },
+            if n_priors > 0 {
+                format!(
+                    " and {}",
+                    crate::error::count(n_priors, "tolerance", "tolerances")
+                )
+            } else {
+                String::new()
             },
             if n_free_frame > 0 {
                 " (with the instrument frame's)"
@@ -312,9 +368,9 @@ fn check_request<M: Mechanism>(
                 ""
             },
             if opts.exactly_determined {
-                n_requested.div_ceil(nx)
+                n_requested.saturating_sub(n_priors).div_ceil(nx)
             } else {
-                n_requested / nx + 1
+                n_requested.saturating_sub(n_priors) / nx + 1
             },
             if nx < spec.tool_axes.len() {
                 format!(
@@ -357,7 +413,7 @@ fn fix_a_stiffness_ratio(
 /// analysis, the free set and the speculative fit if it was kept.
 #[allow(clippy::too_many_arguments)]
 fn free_set<M: Mechanism>(
-    problem: &IdentificationProblem<'_, M>,
+    augmented: &WithPriors<'_, IdentificationProblem<'_, M>>,
     data: &[Measurement],
     opts: &CalibrationOptions,
     solver: &lm::Options,
@@ -369,8 +425,12 @@ fn free_set<M: Mechanism>(
     known: Option<&Identifiability>,
     x0: &mut Vec<f64>,
 ) -> Result<(Identifiability, Vec<usize>, Option<lm::Report>)> {
+    let problem = augmented.inner;
+    let terms = augmented.terms;
     let np = problem.mech.spec().n_params();
-    let weigh = |mut jac: DMatrix<f64>| -> Result<DMatrix<f64>> {
+    // The data's Jacobian with the priors' rows, weighted.
+    let weigh = |jac: DMatrix<f64>| -> Result<DMatrix<f64>> {
+        let mut jac = super::prior::append_rows(jac, terms);
         lm::scale_rows(&mut jac, weights);
         if jac.iter().any(|v| !v.is_finite()) {
             return Err(Error::InvalidRequest(
@@ -410,7 +470,7 @@ fn free_set<M: Mechanism>(
                     }
                     analysis = Some(a);
                 });
-                lm::minimize(problem, x0, &fit)
+                lm::minimize(augmented, x0, &fit)
             });
             let (ident, free) = analysis.expect("the scope waits for the analysis");
             if free == requested {
@@ -432,9 +492,23 @@ fn free_set<M: Mechanism>(
     if opts.auto_fix && !idle.is_empty() && !free.is_empty() {
         let mut fit = solver.clone();
         fit.free = Some(mask(np + nf, &free));
-        *x0 = lm::minimize(problem, x0, &fit).x;
+        *x0 = lm::minimize(augmented, x0, &fit).x;
         let (_, jac) = problem.residuals_and_jacobian(x0)?;
         (identifiability, free) = analyze(&weigh(jac)?);
+    }
+    // What the data alone cannot see among what the priors identify: held
+    // by the tolerances.
+    if !terms.is_empty() && known.is_none() {
+        let rows = weighted.nrows() - terms.len();
+        let data_only = weighted.rows(0, rows).into_owned();
+        // Every direction, one at a time (as fixing would find them), none
+        // fixed: the priors hold them.
+        identifiability.held = analyze_identifiability(cols, &data_only, &free, data.len(), true)
+            .0
+            .unidentifiable
+            .into_iter()
+            .map(|u| Unidentifiable { fixed: None, ..u })
+            .collect();
     }
     Ok((identifiability, free, speculative))
 }
@@ -467,6 +541,16 @@ fn identifiability_warnings(
             fixed: u.fixed.clone(),
         }));
     }
+    if !identifiability.held.is_empty() {
+        warnings.push(Warning::new(WarningKind::HeldByTolerance {
+            model: opts.model,
+            combinations: identifiability
+                .held
+                .iter()
+                .map(|u| u.combination.clone())
+                .collect(),
+        }));
+    }
 }
 
 /// A finished fit and what the free set's analysis left.
@@ -476,6 +560,8 @@ struct Fit {
     free: Vec<usize>,
     requested: Vec<usize>,
     warnings: Vec<Warning>,
+    /// The priors, whose rows follow the readings'.
+    terms: Vec<PriorTerm>,
 }
 
 /// The calibration of a finished fit: parameters with their standard
@@ -500,13 +586,14 @@ fn assemble<M: Mechanism>(
         free,
         requested,
         mut warnings,
+        terms,
     } = fit;
     let params = Params::new(spec, report.x[..np].to_vec())?;
     let m_values = report.x[np..].to_vec();
     let frame = m_values[measurement.frame_range()].to_vec();
     // No reading left over (an exactly determined fit): no noise estimate,
-    // no uncertainty.
-    let s2 = match m.checked_sub(free.len()) {
+    // no uncertainty. The priors' rows count in the redundancy.
+    let s2 = match (m + terms.len()).checked_sub(free.len()) {
         Some(dof) if dof > 0 => report.sum_of_squares / dof as f64,
         _ => f64::NAN,
     };
@@ -536,8 +623,11 @@ fn assemble<M: Mechanism>(
             std_dev: k.map_or(0.0, |k| covariance[(k, k)].max(0.0).sqrt()),
             free: k.is_some(),
             note,
+            tolerance: None,
+            from_data: None,
         });
     }
+    super::prior::annotate(&mut parameters, &terms, &free, &cov_unit);
     let correlations = correlations(cols, &free, &covariance);
     // The mechanism's part travels with the parameters into predictions
     // (the marginal covariance is the sub-matrix); the instrument's stays in
@@ -585,8 +675,14 @@ fn assemble<M: Mechanism>(
                 .map(|(v, s)| v * s)
                 .collect(),
             sigmas: sigma.to_vec(),
-            jacobian: report.jacobian,
+            // The readings' rows (the priors' follow from `priors`).
+            jacobian: if terms.is_empty() {
+                report.jacobian
+            } else {
+                report.jacobian.rows(0, m).into_owned()
+            },
             warnings,
+            priors: terms,
             final_predictions: None,
         },
         cov_unit,

@@ -108,6 +108,10 @@ pub struct Identifiability {
     pub unidentifiable: Vec<Unidentifiable>,
     /// Pairs of free parameters correlated above 0.9.
     pub correlations: Vec<Correlation>,
+    /// Directions the data alone cannot see but the parameters' tolerances
+    /// bound: identified, held by their priors (docs/model.md eq. 13).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub held: Vec<Unidentifiable>,
 }
 
 pub(crate) fn observability(sv: &[f64], poses: usize) -> Observability {
@@ -215,6 +219,7 @@ pub fn analyze_identifiability(
                 observability: observability(&[], poses),
                 unidentifiable,
                 correlations: vec![],
+                held: vec![],
             };
             return (ident, free);
         }
@@ -297,6 +302,7 @@ pub fn analyze_identifiability(
                 singular_values: all_sv,
                 unidentifiable,
                 correlations: cov,
+                held: vec![],
             };
             return (ident, free);
         }

@@ -8,6 +8,7 @@ pub mod gross;
 pub mod identifiability;
 pub mod loss;
 pub mod noise;
+pub mod prior;
 pub mod problem;
 pub mod record;
 pub mod result;
@@ -28,6 +29,10 @@ pub use identifiability::{
     Unidentifiable, ZERO_COLUMN, analyze_identifiability,
 };
 pub use loss::{Loss, OUTLIER_FLOOR_MM, OUTLIER_FLOOR_RAD, Outlier};
+pub use prior::{
+    BEYOND_TOLERANCES, Prior, PriorTerm, TAUGHT_LITTLE, free_with_priors, information_from_data,
+    named_priors,
+};
 pub use problem::{IdentificationProblem, MAX_POSES, PoseCache, too_many_poses};
 pub use record::{
     CALIBRATION_FORMAT, CALIBRATION_VERSION, CalibrationRecord, RecordError, RecordedParameter,

@@ -36,6 +36,14 @@ pub struct ParameterResult {
     pub free: bool,
     /// Why it is fixed, when it was requested free.
     pub note: Option<String>,
+    /// Its tolerance (one standard deviation of its prior), when it had one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tolerance: Option<f64>,
+    /// The share of its posterior information that came from the data,
+    /// `1 − σ_post²/σ_prior²` ([`super::prior::information_from_data`]),
+    /// when it had a prior and was free.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub from_data: Option<f64>,
 }
 
 /// What a warning is about, with its data: the CLI and other callers match on
@@ -107,6 +115,35 @@ pub enum WarningKind {
     Dropped {
         /// Where they came from.
         poses: Vec<Origin>,
+    },
+    /// An identified value more than [`super::prior::BEYOND_TOLERANCES`]
+    /// of its tolerances from its prior's centre.
+    BeyondTolerance {
+        /// The parameter.
+        name: String,
+        /// Its identified value.
+        value: f64,
+        /// Its prior's centre (nominal, or the instrument's start).
+        centre: f64,
+        /// Its tolerance (σ).
+        tolerance: f64,
+        /// Its unit.
+        unit: Unit,
+    },
+    /// Parameters whose posterior σ is above [`super::prior::TAUGHT_LITTLE`]
+    /// of their prior σ: the data taught little about them, their values
+    /// are mostly the tolerances' assumption.
+    PriorDominated {
+        /// The parameters, with the share of their information from the data.
+        parameters: Vec<(String, f64)>,
+    },
+    /// Directions the data alone cannot see, held by the parameters'
+    /// tolerances (the fit keeps them near their prior's centre).
+    HeldByTolerance {
+        /// Model used.
+        model: Model,
+        /// The combinations.
+        combinations: Vec<String>,
     },
 }
 
@@ -221,6 +258,51 @@ impl Warning {
                     "inspect them; a robust loss (huber, cauchy) limits their influence, dropping refits without them".into()
                 },
             ),
+            WarningKind::BeyondTolerance {
+                name,
+                value,
+                centre,
+                tolerance,
+                unit,
+            } => (
+                {
+                    // Digits down to a tenth of the tolerance.
+                    let d = (1.0 - tolerance.log10().floor()).clamp(0.0, 12.0) as usize;
+                    format!(
+                        "`{name}` = {value:.d$} {unit} is {:.1} tolerances (σ = {tolerance} {unit}) from {centre:.d$} {unit}",
+                        (value - centre).abs() / tolerance
+                    )
+                },
+                format!(
+                    "a value this far from what was known usually means a wrong nominal value or tolerance, a unit error, or `{name}` absorbing an error the model does not have; check the drawing and the data"
+                ),
+            ),
+            WarningKind::PriorDominated { parameters } => (
+                format!(
+                    "the data taught little about {}: {} mostly what {} assumed ({})",
+                    crate::error::count(parameters.len(), "parameter", "parameters"),
+                    if parameters.len() == 1 { "its value is" } else { "their values are" },
+                    if parameters.len() == 1 { "its tolerance" } else { "their tolerances" },
+                    parameters
+                        .iter()
+                        .map(|(n, f)| format!("`{n}` {:.0} % from the data", 100.0 * f))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+                "measure poses or quantities that see them (a plan with these priors chooses such poses), or accept the tolerance as their uncertainty".into(),
+            ),
+            WarningKind::HeldByTolerance {
+                model,
+                combinations,
+            } => (
+                format!(
+                    "the data alone cannot see {} with the {} model, held by the tolerances: {}",
+                    crate::error::count(combinations.len(), "direction", "directions"),
+                    model.name(),
+                    combinations.join("; ")
+                ),
+                "these values stay near their prior's centre, within their tolerances; measure what sees them to identify them".into(),
+            ),
             WarningKind::Dropped { poses } => (
                 format!(
                     "{} dropped before the final fit: {}",
@@ -315,6 +397,10 @@ pub struct Calibration {
     pub jacobian: DMatrix<f64>,
     /// Warnings.
     pub warnings: Vec<Warning>,
+    /// The priors the fit used (docs/model.md eq. 13), in the order of their
+    /// rows after the readings'.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub priors: Vec<super::prior::PriorTerm>,
     /// The fit's predictions at the identified parameters, when its last
     /// evaluation was there: [`calibration_accuracy_with_cache`] then
     /// computes them no second time.

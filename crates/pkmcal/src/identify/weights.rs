@@ -32,6 +32,7 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
         &noise.sigmas(),
         None,
         None,
+        None,
     )?;
     // The free set and identifiability of the first fit hold for the refits.
     let mut refit_opts = opts.clone();
@@ -47,6 +48,7 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
             sigma,
             Some(&cal.free),
             Some(&cal.identifiability),
+            Some(&cal.priors),
         )?;
         next.identifiability = cal.identifiability.clone();
         for (p, first) in next.parameters.iter_mut().zip(&cal.parameters) {
@@ -76,8 +78,9 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
     };
     if noise.estimated_groups() > 0 {
         // One estimated group and nothing given: the weights are uniform
-        // whatever its σ, so one estimate after the fit is exact.
-        let uniform = noise.estimated_groups() == 1 && !noise.any_given();
+        // whatever its σ, so one estimate after the fit is exact (not with
+        // priors, whose weights are known: the group's σ moves the fit).
+        let uniform = noise.estimated_groups() == 1 && !noise.any_given() && cal.priors.is_empty();
         if uniform {
             let h = lev(&cal, &cov);
             noise.update(&cal.residuals, &h);
@@ -157,12 +160,24 @@ const VCE_MAX_REFITS: usize = 4;
 
 /// Variance-component estimation on the fit linearised at `cal`'s solution:
 /// residuals `r0 + J δp(σ)` with `δp` the weighted least-squares step under
-/// the current σ, iterated until the σ settle.
+/// the current σ (the priors' rows, of known σ, included), iterated until
+/// the σ settle. Only the readings' residuals and leverages estimate the
+/// noise.
 fn linearized_vce(noise: &mut NoiseModel, cal: &Calibration) {
     // Unweighted Jacobian of the free parameters.
     let mut j = cal.jacobian.clone();
     lm::scale_rows(&mut j, &cal.sigmas);
     let r0 = DVector::from_column_slice(&cal.residuals);
+    let (m, k) = (j.nrows(), cal.priors.len());
+    // The priors' weighted rows and residuals.
+    let mut prior_j = DMatrix::zeros(k, j.ncols());
+    let mut prior_r = DVector::zeros(k);
+    for (a, t) in cal.priors.iter().enumerate() {
+        if let Some(c) = cal.free.iter().position(|&f| f == t.index) {
+            prior_j[(a, c)] = 1.0 / t.sigma;
+        }
+        prior_r[a] = (cal.parameters[t.index].identified - t.centre) / t.sigma;
+    }
     for _ in 0..VCE_MAX_ROUNDS {
         let s = noise.sigmas();
         let mut jw = j.clone();
@@ -171,10 +186,16 @@ fn linearized_vce(noise: &mut NoiseModel, cal: &Calibration) {
         for (ri, si) in rw.iter_mut().zip(&s) {
             *ri /= si;
         }
+        if k > 0 {
+            jw = jw.resize_vertically(m + k, 0.0);
+            jw.rows_mut(m, k).copy_from(&prior_j);
+            rw = rw.resize_vertically(m + k, 0.0);
+            rw.rows_mut(m, k).copy_from(&prior_r);
+        }
         let (c, _) = lm::covariance(&jw, lm::COVARIANCE_RANK_TOL);
         let step = -(&c * (jw.transpose() * &rw));
         let r = &r0 + &j * &step;
-        let h = leverages_with(&jw, &c);
+        let h = leverages_with(&jw.rows(0, m).into_owned(), &c);
         if noise.update(r.as_slice(), &h) < VCE_TOL {
             break;
         }

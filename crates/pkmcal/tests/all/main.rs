@@ -17,6 +17,7 @@ mod measurements;
 mod nist_strd;
 mod noise;
 mod planar;
+mod priors;
 mod record;
 mod round_trip;
 mod spatial;

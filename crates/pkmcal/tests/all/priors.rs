@@ -1,0 +1,342 @@
+//! Tolerances as priors (docs/model.md eq. 13): a parameter the data cannot
+//! separate stays within its tolerance and predicts better than fixing it
+//! at nominal or freeing it without a prior; prior rows count in the
+//! redundancy but not in the noise; the frame's prior is centred on its
+//! registered start; answers far from what was known are warned about.
+
+use crate::common::{gough_stewart, spatial, spread};
+use pkmcal::identify::{Prior, WarningKind, free_with_priors};
+use pkmcal::{
+    Calibration, CalibrationOptions, Frame, JeongKim2Dof, MeasurementModel, Mechanism, Model,
+    Noise, Params,
+};
+
+/// Probe and tracker noise (mm).
+const NOISE: f64 = 0.005;
+/// Seeded repeats of each comparison.
+const REPEATS: u64 = 20;
+/// The estimated noise is this close to the true one (relative).
+const NOISE_FOUND: f64 = 0.25;
+/// Rounding of the variance of unit weight.
+const ROUNDING: f64 = 1e-12;
+
+/// RMS over `check` targets of the tool position predicted with `p` minus
+/// the true one (nominal commands, the exact model).
+fn prediction_error<M: Mechanism>(m: &M, p: &Params, truth: &Params, check: &[Vec<f64>]) -> f64 {
+    let mut s = 0.0;
+    for t in check {
+        let q = pkmcal::nominal_commands(m, t).unwrap();
+        let a = pkmcal::predict(m, p, &q, Model::Exact, &[]).unwrap().x;
+        let b = pkmcal::predict(m, truth, &q, Model::Exact, &[]).unwrap().x;
+        s += a.iter().zip(&b).map(|(x, y)| (x - y).powi(2)).sum::<f64>();
+    }
+    (s / check.len() as f64).sqrt()
+}
+
+/// `truth` with each named parameter moved by a normal draw of σ `tol`.
+fn drawn(spec: &pkmcal::Spec, base: Params, names: &[&str], tol: f64, seed: u64) -> Params {
+    use rand_distr::Distribution;
+    let mut truth = base;
+    let mut rng = <rand::rngs::StdRng as rand::SeedableRng>::seed_from_u64(seed);
+    let n = rand_distr::Normal::new(0.0, tol).unwrap();
+    for a in names {
+        truth.values[spec.param_index(a).unwrap()] += n.sample(&mut rng);
+    }
+    truth
+}
+
+fn priors(spec: &pkmcal::Spec, names: &[&str], sigma: f64) -> Vec<Prior> {
+    names
+        .iter()
+        .map(|a| Prior {
+            index: spec.param_index(a).unwrap(),
+            sigma,
+        })
+        .collect()
+}
+
+/// A linear delta's arm lengths from probe heights alone (the data barely
+/// see them): freed without a prior they land several tolerances off (the
+/// complaint of the printer trackers); with their tolerance as a prior
+/// they stay within it, and the machine predicted over the workspace is
+/// closer to the truth than with the arms fixed at nominal or free.
+#[test]
+fn a_delta_s_arms_from_probe_heights_stay_within_their_tolerance() {
+    let m = spatial("linear-delta");
+    let spec = m.spec();
+    let probe = MeasurementModel::probe(spec).unwrap();
+    let arms = ["arm_a", "arm_b", "arm_c"];
+    let tol = 0.1;
+    let base = Params::from_named(
+        spec,
+        [
+            ("delta_radius", 130.3),
+            ("da", 0.4),
+            ("db", -0.2),
+            ("dc", 0.1),
+        ],
+    )
+    .unwrap();
+    let targets = spread(&m, 30);
+    let check = spread(&m, 200);
+    let start = Params::nominal(spec);
+    let (mut free, mut fixed, mut map) = (0.0, 0.0, 0.0);
+    let mut worst_free: f64 = 0.0;
+    for seed in 1..=REPEATS {
+        let truth = drawn(spec, base.clone(), &arms, tol, seed);
+        let data =
+            pkmcal::simulate(&m, &probe, &truth, &targets, Noise::lengths(NOISE), seed).unwrap();
+        let opts = CalibrationOptions::new(spec, Model::Exact);
+        let plain = pkmcal::calibrate(&m, &probe, &data, &start, &opts).unwrap();
+        let mut without = opts.clone();
+        without
+            .free
+            .retain(|&i| !arms.contains(&spec.param_names()[i]));
+        let nominal_arms = pkmcal::calibrate(&m, &probe, &data, &start, &without).unwrap();
+        let mut with = opts.clone();
+        with.priors = priors(spec, &arms, tol);
+        let cal = pkmcal::calibrate(&m, &probe, &data, &start, &with).unwrap();
+        for a in arms {
+            let (v, nominal) = (
+                cal.params.get(spec, a).unwrap(),
+                start.get(spec, a).unwrap(),
+            );
+            assert!(
+                (v - nominal).abs() < 3.0 * tol,
+                "seed {seed}: {a} = {v} is beyond 3 tolerances from {nominal}"
+            );
+            worst_free = worst_free.max((plain.params.get(spec, a).unwrap() - nominal).abs());
+            let p = &cal.parameters[spec.param_index(a).unwrap()];
+            assert_eq!(p.tolerance, Some(tol));
+            let share = p.from_data.unwrap();
+            assert!((0.0..=1.0).contains(&share), "{a}: {share}");
+        }
+        free += prediction_error(&m, &plain.params, &truth, &check).powi(2);
+        fixed += prediction_error(&m, &nominal_arms.params, &truth, &check).powi(2);
+        map += prediction_error(&m, &cal.params, &truth, &check).powi(2);
+    }
+    let rms = |s: f64| (s / REPEATS as f64).sqrt();
+    let (free, fixed, map) = (rms(free), rms(fixed), rms(map));
+    assert!(
+        map < fixed && map < free,
+        "tool RMS error: prior {map} mm, arms fixed {fixed} mm, arms free {free} mm"
+    );
+    assert!(
+        worst_free > 3.0 * tol,
+        "free arms stayed near: {worst_free}"
+    );
+}
+
+/// A hexapod measured by position alone (no orientation) at few poses: its
+/// joint centres are weakly seen. With their tolerances as priors the fit
+/// predicts the machine better than the default analysis, which fixes what
+/// it cannot separate at nominal.
+#[test]
+fn a_hexapod_s_weakly_seen_joint_centres_are_held_by_their_tolerances() {
+    let m = gough_stewart("gough-stewart-6");
+    let spec = m.spec();
+    let xyz = MeasurementModel::tool_axes(spec, &["x", "y", "z"]).unwrap();
+    let joints: Vec<&str> = spec
+        .param_names()
+        .iter()
+        .copied()
+        .filter(|n| n.starts_with('a') || n.starts_with('b'))
+        .collect();
+    let tol = 0.05;
+    let targets = spread(&m, 20);
+    let check = spread(&m, 100);
+    let start = Params::nominal(spec);
+    let (mut plain_ss, mut map_ss) = (0.0, 0.0);
+    for seed in 1..=REPEATS / 2 {
+        let truth = drawn(spec, start.clone(), &joints, tol, seed);
+        let data =
+            pkmcal::simulate(&m, &xyz, &truth, &targets, Noise::lengths(NOISE), seed).unwrap();
+        let opts = CalibrationOptions::new(spec, Model::Exact);
+        let plain = pkmcal::calibrate(&m, &xyz, &data, &start, &opts).unwrap();
+        assert!(
+            !plain.identifiability.unidentifiable.is_empty(),
+            "position alone separates every joint"
+        );
+        let mut with = opts.clone();
+        with.priors = priors(spec, &joints, tol);
+        with.free = free_with_priors(spec, &xyz, &opts.free, &with.priors, &[]);
+        let cal = pkmcal::calibrate(&m, &xyz, &data, &start, &with).unwrap();
+        assert!(cal.identifiability.unidentifiable.is_empty());
+        assert!(!cal.identifiability.held.is_empty());
+        assert!(
+            cal.warnings
+                .iter()
+                .any(|w| matches!(w.kind, WarningKind::HeldByTolerance { .. }))
+        );
+        for j in &joints {
+            let i = spec.param_index(j).unwrap();
+            let v = cal.params.values[i];
+            assert!((v - start.values[i]).abs() < 4.0 * tol, "{j}: {v}");
+        }
+        plain_ss += prediction_error(&m, &plain.params, &truth, &check).powi(2);
+        map_ss += prediction_error(&m, &cal.params, &truth, &check).powi(2);
+    }
+    assert!(map_ss < plain_ss, "prior {map_ss} vs fixed {plain_ss}");
+}
+
+/// Prior rows count in the redundancy (`s² = SS/(m + k − n)`), take no part
+/// in the noise estimate (the probe's σ is found, the residuals are the
+/// readings' alone), and are listed with their centres.
+#[test]
+fn prior_rows_count_in_the_redundancy_not_in_the_noise() {
+    let m = spatial("linear-delta");
+    let spec = m.spec();
+    let probe = MeasurementModel::probe(spec).unwrap();
+    let truth = drawn(spec, Params::nominal(spec), &["arm_a", "arm_b"], 0.1, 7);
+    let targets = spread(&m, 40);
+    let data = pkmcal::simulate(&m, &probe, &truth, &targets, Noise::lengths(NOISE), 7).unwrap();
+    let mut opts = CalibrationOptions::new(spec, Model::Exact);
+    opts.priors = priors(spec, &["arm_a", "arm_b", "arm_c"], 0.1);
+    let cal = pkmcal::calibrate(&m, &probe, &data, &Params::nominal(spec), &opts).unwrap();
+    assert_eq!(cal.residuals.len(), data.len());
+    assert_eq!(cal.jacobian.nrows(), data.len());
+    assert_eq!(cal.priors.len(), 3);
+    for t in &cal.priors {
+        assert_eq!(t.centre, spec.nominal[t.index]);
+    }
+    let dof = (data.len() + cal.priors.len() - cal.free.len()) as f64;
+    let s2 = cal.sum_of_squares / dof;
+    assert!((cal.unit_weight_sigma.powi(2) - s2).abs() < ROUNDING * s2);
+    let found = cal.noise[0].sigma;
+    assert!(
+        (found / NOISE - 1.0).abs() < NOISE_FOUND,
+        "probe noise estimated {found}"
+    );
+}
+
+/// A tolerance frees its parameter unless the fix list names it; frame
+/// parameters stay with the frame choice.
+#[test]
+fn a_tolerance_frees_its_parameter_unless_fixed() {
+    let m = JeongKim2Dof::new();
+    let spec = m.spec();
+    let tool = MeasurementModel::tool(spec);
+    let k2 = spec.param_index("k2").unwrap();
+    let l11 = spec.param_index("l11").unwrap();
+    let p = [
+        Prior {
+            index: k2,
+            sigma: 1.0,
+        },
+        Prior {
+            index: l11,
+            sigma: 1.0,
+        },
+    ];
+    let set = vec![l11];
+    assert_eq!(free_with_priors(spec, &tool, &set, &p, &[]), vec![l11, k2]);
+    assert_eq!(
+        free_with_priors(spec, &tool, &set, &p, &["k2".into()]),
+        vec![l11]
+    );
+    let tracker = tool.in_frame(Frame::Free).unwrap();
+    let fx = tracker.index_of(spec, "frame.x").unwrap();
+    let with_frame = [Prior {
+        index: fx,
+        sigma: 1.0,
+    }];
+    assert_eq!(
+        free_with_priors(spec, &tracker, &set, &with_frame, &[]),
+        vec![l11]
+    );
+}
+
+/// A free frame's prior is centred on its registered start: a tight one
+/// keeps the frame there, and the fit still converges.
+#[test]
+fn a_frame_prior_is_centred_on_its_registered_start() {
+    let m = JeongKim2Dof::new();
+    let spec = m.spec();
+    let tracker = MeasurementModel::tool(spec).in_frame(Frame::Free).unwrap();
+    let truth = crate::common::perturbed(spec, 3, 0.05, 0.001);
+    let data = pkmcal::simulate(
+        &m,
+        &tracker,
+        &truth,
+        &spread(&m, 25),
+        Noise::lengths(0.002),
+        3,
+    )
+    .unwrap();
+    let mut opts = CalibrationOptions::new(spec, Model::Exact);
+    let plain = pkmcal::calibrate(&m, &tracker, &data, &Params::nominal(spec), &opts).unwrap();
+    let fx = tracker.index_of(spec, "frame.x").unwrap();
+    opts.priors = vec![Prior {
+        index: fx,
+        sigma: 1e-6,
+    }];
+    let cal = pkmcal::calibrate(&m, &tracker, &data, &Params::nominal(spec), &opts).unwrap();
+    assert!(cal.converged);
+    let t = &cal.priors[0];
+    assert_eq!(t.name, "frame.x");
+    assert!((cal.parameters[fx].identified - t.centre).abs() < 5e-6);
+    assert_ne!(
+        plain.parameters[fx].identified,
+        cal.parameters[fx].identified
+    );
+}
+
+/// A value far outside its tolerance is warned about, naming it; so are
+/// parameters the data taught little; neither without priors.
+#[test]
+fn answers_far_from_what_was_known_are_warned_about() {
+    let m = JeongKim2Dof::new();
+    let spec = m.spec();
+    let tool = MeasurementModel::tool(spec);
+    let mut truth = Params::nominal(spec);
+    truth.values[spec.param_index("l11").unwrap()] += 0.5;
+    let data =
+        pkmcal::simulate(&m, &tool, &truth, &spread(&m, 30), Noise::lengths(0.002), 1).unwrap();
+    let mut opts = CalibrationOptions::new(spec, Model::Exact);
+    let kinds = |c: &Calibration| -> Vec<String> {
+        c.warnings.iter().map(|w| format!("{:?}", w.kind)).collect()
+    };
+    let plain = pkmcal::calibrate(&m, &tool, &data, &Params::nominal(spec), &opts).unwrap();
+    assert!(plain.priors.is_empty());
+    assert!(
+        plain
+            .parameters
+            .iter()
+            .all(|p| p.tolerance.is_none() && p.from_data.is_none())
+    );
+    opts.priors = priors(spec, &["l11"], 0.05);
+    // A tolerance far tighter than what the data can tell.
+    opts.priors.push(Prior {
+        index: spec.param_index("l12").unwrap(),
+        sigma: 1e-5,
+    });
+    opts.free = free_with_priors(spec, &tool, &opts.free, &opts.priors, &[]);
+    let cal = pkmcal::calibrate(&m, &tool, &data, &Params::nominal(spec), &opts).unwrap();
+    let beyond = cal
+        .warnings
+        .iter()
+        .find_map(|w| match &w.kind {
+            WarningKind::BeyondTolerance {
+                name,
+                value,
+                tolerance,
+                ..
+            } => Some((name.clone(), *value, *tolerance, w.message.clone())),
+            _ => None,
+        })
+        .unwrap_or_else(|| panic!("{:?}", kinds(&cal)));
+    assert_eq!(beyond.0, "l11");
+    assert_eq!(beyond.2, 0.05);
+    assert!(beyond.1 > 280.3, "{}", beyond.1);
+    assert!(beyond.3.contains("l11"), "{}", beyond.3);
+    let taught = cal
+        .warnings
+        .iter()
+        .find_map(|w| match &w.kind {
+            WarningKind::PriorDominated { parameters } => Some(parameters.clone()),
+            _ => None,
+        })
+        .unwrap_or_else(|| panic!("{:?}", kinds(&cal)));
+    assert!(taught.iter().any(|(n, _)| n == "l12"), "{taught:?}");
+    assert!(!taught.iter().any(|(n, _)| n == "l11"), "{taught:?}");
+}
