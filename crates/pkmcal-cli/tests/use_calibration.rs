@@ -203,6 +203,7 @@ fn planning_a_platform_is_bounded_and_beats_the_grid() {
             "600",
             "--out",
             "p.csv",
+            "--no-tolerances",
         ],
     );
     assert!(

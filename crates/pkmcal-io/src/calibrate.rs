@@ -1316,6 +1316,12 @@ pub struct AnalyzeConfig {
     pub axes: Option<String>,
     /// `--distances`: distances measured between pairs of poses.
     pub distances: Option<PathBuf>,
+    /// Priors (`--tolerance`, the file's table unless `--no-tolerances`) and
+    /// the instrument's noise the readings are weighed with against them.
+    pub tolerances: Vec<String>,
+    pub no_tolerances: bool,
+    pub noise: f64,
+    pub angle_noise: Option<f64>,
 }
 
 pub fn run_analyze(run: &crate::Run<'_>, c: AnalyzeConfig) -> Result<()> {
@@ -1324,6 +1330,8 @@ pub fn run_analyze(run: &crate::Run<'_>, c: AnalyzeConfig) -> Result<()> {
         measurement,
         data,
         units,
+        path,
+        tolerances,
         ..
     } = read_measured(
         run,
@@ -1336,7 +1344,21 @@ pub fn run_analyze(run: &crate::Run<'_>, c: AnalyzeConfig) -> Result<()> {
     let mech = &mech;
     let spec = mech.spec();
     let params = crate::io::params_or_nominal(run, c.params.as_deref(), mech)?;
-    let free = free_set(mech, &measurement, c.free.as_deref(), c.fix.as_deref(), &[])?;
+    let priors = crate::budget::fit_priors(
+        spec,
+        &measurement,
+        &tolerances,
+        path.as_deref(),
+        &c.tolerances,
+        c.no_tolerances,
+    )?;
+    let free = free_set(
+        mech,
+        &measurement,
+        c.free.as_deref(),
+        c.fix.as_deref(),
+        &priors,
+    )?;
     let force = crate::io::checked_load(c.load.clone(), mech, &params)?;
     let n_data = data.len();
     let data: Vec<Measurement> = match &c.distances {
@@ -1346,8 +1368,22 @@ pub fn run_analyze(run: &crate::Run<'_>, c: AnalyzeConfig) -> Result<()> {
         }
         None => data,
     };
-    let id = pkmcal::analyze(mech, &measurement, &data, &params, c.model, &free, &force)
-        .map_err(|e| located_in(e, &c.data, c.distances.as_deref()))?;
+    let id = if priors.is_empty() {
+        pkmcal::analyze(mech, &measurement, &data, &params, c.model, &free, &force)
+    } else {
+        pkmcal::identify::analyze_with_priors(
+            mech,
+            &measurement,
+            &data,
+            &params,
+            c.model,
+            &free,
+            &force,
+            &priors,
+            crate::io::noise_arg(c.noise, c.angle_noise),
+        )
+    }
+    .map_err(|e| located_in(e, &c.data, c.distances.as_deref()))?;
     if let Some(r) = &c.report {
         run.files
             .stage(r, serde_json::to_string_pretty(&id)?.as_bytes())?;
@@ -1387,8 +1423,27 @@ pub fn run_analyze(run: &crate::Run<'_>, c: AnalyzeConfig) -> Result<()> {
             .collect::<Vec<_>>()
             .join(" ")
     );
+    if !id.held.is_empty() {
+        println!(
+            "{} the data alone cannot see, held by the tolerances ({} given, readings weighed with {} mm of noise):",
+            crate::io::count(id.held.len(), "direction", "directions"),
+            priors.len(),
+            c.noise
+        );
+        for u in &id.held {
+            println!("  {}", u.combination);
+        }
+    }
     if id.unidentifiable.is_empty() {
-        println!("all {} free parameters are identifiable", free.len());
+        println!(
+            "all {} free parameters are identifiable{}",
+            free.len(),
+            if id.held.is_empty() {
+                ""
+            } else {
+                ", with the tolerances"
+            }
+        );
     } else {
         println!(
             "{} cannot be identified; calibrate fixes one parameter per direction (or use --fix)",

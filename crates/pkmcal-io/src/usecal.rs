@@ -507,6 +507,12 @@ pub struct PlanConfig {
     pub fix: Option<String>,
     pub out: PathBuf,
     pub grid_out: Option<PathBuf>,
+    /// Priors (`--tolerance`, the file's table unless `--no-tolerances`) and
+    /// the instrument's noise the poses are weighed with against them.
+    pub tolerances: Vec<String>,
+    pub no_tolerances: bool,
+    pub noise: f64,
+    pub angle_noise: Option<f64>,
 }
 
 pub fn run_plan(run: &crate::Run<'_>, c: PlanConfig) -> Result<()> {
@@ -515,13 +521,18 @@ pub fn run_plan(run: &crate::Run<'_>, c: PlanConfig) -> Result<()> {
     let mech = description.mech;
     let spec = mech.spec();
     let params = crate::io::params_or_nominal(run, c.params.as_deref(), &mech)?;
-    let free = free_set(
-        &mech,
-        &pkmcal::MeasurementModel::tool(spec),
-        c.free.as_deref(),
-        c.fix.as_deref(),
-        &[],
+    let tool = pkmcal::MeasurementModel::tool(spec);
+    let priors = crate::budget::fit_priors(
+        spec,
+        &tool,
+        &description.tolerances,
+        description.path.as_deref(),
+        &c.tolerances,
+        c.no_tolerances,
     )?;
+    let free = free_set(&mech, &tool, c.free.as_deref(), c.fix.as_deref(), &priors)?;
+    let n_priors = priors.len();
+    let noise = crate::io::noise_arg(c.noise, c.angle_noise);
     if !(c.candidates.is_finite() && c.candidates > 0.0) {
         return crate::output::usage("--candidates must be a positive spacing in mm");
     }
@@ -542,6 +553,8 @@ pub fn run_plan(run: &crate::Run<'_>, c: PlanConfig) -> Result<()> {
             spacing: c.candidates,
             max_candidates: c.max_candidates,
             cancel: None,
+            priors,
+            noise,
         },
         &|| {
             bar.inc_length(1);
@@ -582,7 +595,7 @@ pub fn run_plan(run: &crate::Run<'_>, c: PlanConfig) -> Result<()> {
         run.files.stage(g, &file(&plan.grid))?;
     }
     println!(
-        "planned {} poses of {} candidates (spacing {:.4} mm{}) maximising {:?} for {} free parameters ({} model)",
+        "planned {} poses of {} candidates (spacing {:.4} mm{}) maximising {:?} for {} free parameters ({} model){}",
         c.count,
         n_candidates,
         spacing,
@@ -605,7 +618,16 @@ pub fn run_plan(run: &crate::Run<'_>, c: PlanConfig) -> Result<()> {
         },
         c.criterion,
         free.len(),
-        c.model.name()
+        c.model.name(),
+        if n_priors > 0 {
+            format!(
+                ", given {} (poses measured with {} mm of noise)",
+                pkmcal::error::count(n_priors, "tolerance", "tolerances"),
+                noise.length
+            )
+        } else {
+            String::new()
+        }
     );
     println!(
         "  {:<14} {:>11} {:>11} {:>11} {:>11} {:>11} {:>10}",
@@ -648,6 +670,10 @@ pub struct MonteCarloConfig {
     pub angle_noise: Option<f64>,
     pub validation: usize,
     pub out: Option<PathBuf>,
+    /// `--tolerance` items and `--no-tolerances`: priors, and the truth of
+    /// each run drawn from them.
+    pub tolerances: Vec<String>,
+    pub no_tolerances: bool,
 }
 
 /// A plan's poses (`target_<axis>` columns, e.g. `plan`'s output) in
@@ -696,12 +722,21 @@ pub fn run_montecarlo(run: &crate::Run<'_>, c: MonteCarloConfig) -> Result<()> {
     }
     let poses = read_plan_poses(run, &c.poses, &mech, &units)?;
     let mut cal = CalibrationOptions::new(spec, c.model);
+    let tool = pkmcal::MeasurementModel::tool(spec);
+    cal.priors = crate::budget::fit_priors(
+        spec,
+        &tool,
+        &description.tolerances,
+        description.path.as_deref(),
+        &c.tolerances,
+        c.no_tolerances,
+    )?;
     cal.free = free_set(
         &mech,
-        &pkmcal::MeasurementModel::tool(spec),
+        &tool,
         c.free.as_deref(),
         c.fix.as_deref(),
-        &[],
+        &cal.priors,
     )?;
     let validation = pkmcal::validation_targets(&mech, c.validation, c.seed)?;
     let bar = run.bar(c.runs as u64, false, "calibrations", 1);
@@ -726,10 +761,20 @@ pub fn run_montecarlo(run: &crate::Run<'_>, c: MonteCarloConfig) -> Result<()> {
         summary.converged,
         summary.runs as f64 / secs
     );
+    let n_priors = opts.calibration.priors.len();
     println!(
-        "random errors: σ {} mm on free parameters in mm, σ {} rad on free parameters in rad; noise σ {} mm on lengths{}",
+        "random errors: {}σ {} mm on free parameters in mm, σ {} rad on free parameters in rad{}; noise σ {} mm on lengths{}",
+        if n_priors > 0 {
+            format!(
+                "drawn from {} (also the fits' priors), ",
+                pkmcal::error::count(n_priors, "tolerance", "tolerances")
+            )
+        } else {
+            String::new()
+        },
         c.length_error,
         c.angle_error,
+        if n_priors > 0 { " otherwise" } else { "" },
         noise.length,
         if spec.tool_units.contains(&pkmcal::Unit::Radian) {
             format!(", {} rad on angles", noise.angle)

@@ -1909,6 +1909,12 @@ impl PyIdentifiability {
             })
             .collect()
     }
+    /// Directions the data alone cannot see, held by the tolerances
+    /// (priors): their combinations.
+    #[getter]
+    fn held(&self) -> Vec<String> {
+        self.id.held.iter().map(|u| u.combination.clone()).collect()
+    }
     /// Pairs of free parameters correlated beyond 0.9: ``(a, b, r)``.
     #[getter]
     fn correlations(&self) -> Vec<(String, String, f64)> {
@@ -3414,9 +3420,13 @@ fn calibrate<'py>(
 
 /// Identifiability of the free parameters from poses and readings at
 /// ``params`` (nominal by default), without fitting: rank, singular values
-/// and the combinations the data cannot see. Arguments as :func:`calibrate`.
+/// and the combinations the data cannot see. Arguments as :func:`calibrate`;
+/// with tolerances (the mechanism's table, or ``tolerances``) their
+/// information counts, readings without a given σ weighed with ``noise``
+/// (mm) and ``angle_noise`` (rad), and ``Identifiability.held`` lists what
+/// they hold.
 #[pyfunction]
-#[pyo3(signature = (mechanism, commands, measured, *, params = None, sigma = None, model = "exact", free = None, fix = None, load = None, force = None, axes = None, points = None, ballbar = None, frame = "base"))]
+#[pyo3(signature = (mechanism, commands, measured, *, params = None, sigma = None, model = "exact", free = None, fix = None, load = None, force = None, axes = None, points = None, ballbar = None, frame = "base", tolerances = None, noise = 0.002, angle_noise = None))]
 #[allow(clippy::too_many_arguments)]
 fn analyze<'py>(
     py: Python<'py>,
@@ -3434,6 +3444,9 @@ fn analyze<'py>(
     points: Option<&Bound<'py, PyAny>>,
     ballbar: Option<&Bound<'py, PyAny>>,
     frame: &str,
+    tolerances: Option<&Bound<'py, PyAny>>,
+    noise: f64,
+    angle_noise: Option<f64>,
 ) -> PyResult<PyIdentifiability> {
     let mechanism = &mechanism_arg(mechanism)?;
     let m = mech_ref(mechanism);
@@ -3441,13 +3454,23 @@ fn analyze<'py>(
     let data = measurements(m, &mm, commands, measured, sigma, None, "")?;
     let params = params_arg(m, params, "params")?;
     let model = parse_model(model)?;
-    let free = free_arg(m, &mm, free, fix, &[])?;
+    let priors = priors_arg(m, &mm, tolerances)?;
+    let free = free_arg(m, &mm, free, fix, &priors)?;
     let force = load_arg(m, load, force)?;
     pkmcal::engine::load::check_load(&*m.mech, &params, &force)
         .map_err(|e| usage(format!("load: {e}")))?;
+    let noise = noise_arg(noise, angle_noise)?;
     let mech = &*m.mech;
     let id = py
-        .in_pool(|| pkmcal::analyze(mech, &mm, &data, &params, model, &free, &force))
+        .in_pool(|| {
+            if priors.is_empty() {
+                pkmcal::analyze(mech, &mm, &data, &params, model, &free, &force)
+            } else {
+                pkmcal::identify::analyze_with_priors(
+                    mech, &mm, &data, &params, model, &free, &force, &priors, noise,
+                )
+            }
+        })
         .map_err(lib_err)?;
     Ok(PyIdentifiability { id })
 }
@@ -3521,9 +3544,12 @@ fn compensate<'py>(
 /// (greedy selection then exchanges, over a lattice of the usable
 /// workspace). ``criterion``: ``"O1"`` (D-optimal), ``"O3"`` or ``"O5"``
 /// (default); ``spacing``: lattice spacing in mm; ``max_candidates``: most
-/// lattice points scored.
+/// lattice points scored. ``tolerances`` (as :func:`calibrate` takes them;
+/// the mechanism's table by default, ``False`` for none): the plan is
+/// optimal given what they already tell, its poses measured with ``noise``
+/// (mm) and ``angle_noise`` (rad).
 #[pyfunction]
-#[pyo3(signature = (mechanism, count, params = None, *, criterion = "O5", model = "exact", free = None, fix = None, spacing = 6.0, max_candidates = 4000))]
+#[pyo3(signature = (mechanism, count, params = None, *, criterion = "O5", model = "exact", free = None, fix = None, spacing = 6.0, max_candidates = 4000, tolerances = None, noise = 0.002, angle_noise = None))]
 #[allow(clippy::too_many_arguments)]
 fn plan<'py>(
     py: Python<'py>,
@@ -3536,19 +3562,26 @@ fn plan<'py>(
     fix: Option<&Bound<'py, PyAny>>,
     spacing: f64,
     max_candidates: usize,
+    tolerances: Option<&Bound<'py, PyAny>>,
+    noise: f64,
+    angle_noise: Option<f64>,
 ) -> PyResult<PyPlan> {
     let mechanism = &mechanism_arg(mechanism)?;
     let m = mech_ref(mechanism);
     let spec = m.spec();
     let params = params_arg(m, params, "params")?;
+    let tool = MeasurementModel::tool(spec);
+    let priors = priors_arg(m, &tool, tolerances)?;
     let opts = pkmcal::PlanOptions {
         count,
         criterion: criterion.parse().map_err(lib_err)?,
         model: parse_model(model)?,
-        free: free_arg(m, &MeasurementModel::tool(spec), free, fix, &[])?,
+        free: free_arg(m, &tool, free, fix, &priors)?,
         spacing,
         max_candidates,
         cancel: None,
+        priors,
+        noise: noise_arg(noise, angle_noise)?,
     };
     let mech = &*m.mech;
     let p = interruptible(py, |cancel| {
@@ -4047,11 +4080,14 @@ by_value!(PyMonteCarlo {
 /// from the poses ``targets``, each with random parameter errors
 /// (``length_error`` mm, ``angle_error`` rad on the free parameters) and
 /// measurement noise, judged on ``validation`` random unseen poses.
+/// ``tolerances`` (as :func:`calibrate` takes them; the mechanism's table by
+/// default, ``False`` for none): each run's parameters with a tolerance are
+/// drawn from it, and the fits use them as priors.
 ///
 /// Returns a :class:`MonteCarlo`: the medians and per-parameter RMS errors,
 /// and each run's figures.
 #[pyfunction]
-#[pyo3(signature = (mechanism, targets, *, runs = 200, noise = 0.002, angle_noise = None, seed = SeedArg::Default(1), model = "exact", free = None, fix = None, length_error = 0.3, angle_error = 0.001, validation = 50))]
+#[pyo3(signature = (mechanism, targets, *, runs = 200, noise = 0.002, angle_noise = None, seed = SeedArg::Default(1), model = "exact", free = None, fix = None, length_error = 0.3, angle_error = 0.001, validation = 50, tolerances = None))]
 #[allow(clippy::too_many_arguments)]
 fn montecarlo<'py>(
     py: Python<'py>,
@@ -4067,6 +4103,7 @@ fn montecarlo<'py>(
     length_error: f64,
     angle_error: f64,
     validation: usize,
+    tolerances: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<PyMonteCarlo> {
     let mechanism = &mechanism_arg(mechanism)?;
     let seed = seed_arg(seed)?;
@@ -4084,7 +4121,9 @@ fn montecarlo<'py>(
     }
     let poses = rows(targets, "targets", &spec.tool_axes, false)?.to_vecs();
     let mut cal = CalibrationOptions::new(spec, parse_model(model)?);
-    cal.free = free_arg(m, &MeasurementModel::tool(spec), free, fix, &[])?;
+    let tool = MeasurementModel::tool(spec);
+    cal.priors = priors_arg(m, &tool, tolerances)?;
+    cal.free = free_arg(m, &tool, free, fix, &cal.priors)?;
     let opts = pkmcal::MonteCarloOptions {
         runs,
         noise: noise_arg(noise, angle_noise)?,

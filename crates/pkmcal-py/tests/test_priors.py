@@ -102,3 +102,19 @@ def test_bad_tolerances_are_refused_by_name():
         pkmcal.calibrate(m, c, x, tolerances={"l11": -1})
     with pytest.raises(pkmcal.PkmcalError, match="0 nominally"):
         pkmcal.calibrate(m, c, x, tolerances={"dq1": "10%"})
+
+
+def test_analyze_plan_and_montecarlo_take_the_priors():
+    m = pkmcal.Mechanism(EXAMPLES / "gough-stewart-6" / "mechanism.toml")
+    plan = pkmcal.plan(m, 30, max_candidates=300)
+    bare = pkmcal.plan(m, 30, max_candidates=300, tolerances=False)
+    assert plan.observability != bare.observability
+    commands, measured = pkmcal.simulate(m, plan.targets, None, noise=0.005, seed=3)
+    a = pkmcal.analyze(m, commands, measured)
+    assert a.held == ["1.000·k1"] and a.unidentifiable == []
+    assert pkmcal.analyze(m, commands, measured, tolerances=False).held == []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", pkmcal.PkmcalWarning)
+        mc = pkmcal.montecarlo(m, plan.targets, runs=4, validation=10)
+        off = pkmcal.montecarlo(m, plan.targets, runs=4, validation=10, tolerances=False)
+    assert "k1" in mc.parameters and "k1" not in off.parameters

@@ -31,12 +31,16 @@ pub struct Args {
     pub model: pkmcal::Model,
     #[command(flatten)]
     pub params_set: args::FreeArgs,
+    #[command(flatten)]
+    pub priors: args::PriorArgs,
     /// Standard deviation of the random errors of the free parameters in mm
-    /// (lengths, positions, offsets of prismatic actuators).
+    /// (lengths, positions, offsets of prismatic actuators); a parameter with
+    /// a tolerance is drawn from its tolerance instead.
     #[arg(value_parser = args::values::length_noise, long, default_value_t = 0.3, value_name = "MM")]
     pub length_error: f64,
     /// Standard deviation of the random errors of the free parameters in rad
-    /// (encoder offsets of revolute actuators, axis angles).
+    /// (encoder offsets of revolute actuators, axis angles); a parameter with
+    /// a tolerance is drawn from its tolerance instead.
     #[arg(
         value_parser = args::values::angle_noise,
         long,
@@ -79,6 +83,8 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             angle_noise: a.angle_noise,
             validation: a.validation,
             out: a.out,
+            tolerances: a.priors.tolerance,
+            no_tolerances: a.priors.no_tolerances,
         },
     )
 }

@@ -31,6 +31,17 @@ pub struct Args {
     pub params: Option<PathBuf>,
     #[command(flatten)]
     pub params_set: args::FreeArgs,
+    #[command(flatten)]
+    pub priors: args::PriorArgs,
+    /// With tolerances: the instrument's noise on each length coordinate
+    /// (mm), which weighs what the poses tell against what the tolerances
+    /// already tell.
+    #[arg(value_parser = args::values::length_noise, long, default_value_t = 0.002, value_name = "MM")]
+    pub noise: f64,
+    /// With tolerances: the noise on each angle coordinate, rad (default:
+    /// the length noise over a 200 mm lever arm).
+    #[arg(value_parser = args::values::angle_noise, long, value_name = "RAD")]
+    pub angle_noise: Option<f64>,
     /// Output CSV: targets and commands (target_x,target_y,q1,q2,q3 for the reference).
     #[arg(long, value_name = "POSES.csv")]
     pub out: PathBuf,
@@ -63,6 +74,10 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             fix: a.params_set.fix,
             out: a.out,
             grid_out: a.grid_out,
+            tolerances: a.priors.tolerance,
+            no_tolerances: a.priors.no_tolerances,
+            noise: a.noise,
+            angle_noise: a.angle_noise,
         },
     )
 }

@@ -127,6 +127,8 @@ class Identifiability:
     @property
     def unidentifiable(self) -> list[dict[str, Any]]: ...
     @property
+    def held(self) -> list[str]: ...
+    @property
     def correlations(self) -> list[Tuple[str, str, float]]: ...
 
 class Figure:
@@ -422,6 +424,9 @@ def analyze(
     points: Union[None, ArrayLike, Literal["mechanism"]] = None,
     ballbar: Union[None, Mapping[str, Any], Literal["mechanism"]] = None,
     frame: Literal["base", "free"] = "base",
+    tolerances: Union[None, bool, Mapping[str, Union[float, str]]] = None,
+    noise: float = 0.002,
+    angle_noise: Optional[float] = None,
 ) -> Identifiability: ...
 def compensate(
     mechanism: MechanismLike,
@@ -445,6 +450,9 @@ def plan(
     fix: Names = None,
     spacing: float = 6.0,
     max_candidates: int = 4000,
+    tolerances: Union[None, bool, Mapping[str, Union[float, str]]] = None,
+    noise: float = 0.002,
+    angle_noise: Optional[float] = None,
 ) -> Plan: ...
 def montecarlo(
     mechanism: MechanismLike,
@@ -460,6 +468,7 @@ def montecarlo(
     length_error: float = 0.3,
     angle_error: float = 0.001,
     validation: int = 50,
+    tolerances: Union[None, bool, Mapping[str, Union[float, str]]] = None,
 ) -> MonteCarlo: ...
 def budget(
     mechanism: MechanismLike,

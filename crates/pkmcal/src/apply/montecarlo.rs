@@ -6,7 +6,7 @@ use crate::apply::simulate::{measure, noise_normals, prepare_target};
 use crate::engine::models::{Model, Pose, predict_pose};
 use crate::error::Result;
 use crate::identify::stats::{ErrorStats, error_stats};
-use crate::identify::{CalibrationOptions, PoseCache, calibrate_with_cache};
+use crate::identify::{CalibrationOptions, PoseCache, Prior, calibrate_with_cache};
 use crate::measurement::MeasurementModel;
 use crate::measurement::data::Noise;
 use crate::mechanism::{Mechanism, Params};
@@ -38,7 +38,9 @@ pub struct MonteCarloOptions {
     /// Seed; run `r` uses `seed + r`.
     pub seed: u64,
     /// Standard deviation of the random errors of the free parameters in mm
-    /// (lengths, positions, offsets of prismatic actuators).
+    /// (lengths, positions, offsets of prismatic actuators). A parameter
+    /// with a prior (`calibration.priors`, a tolerance) is drawn from it
+    /// instead, free or fixed, and the fits use the priors.
     pub length_error: f64,
     /// Standard deviation of the random errors of the free parameters in rad
     /// (encoder offsets of revolute actuators, axis angles).
@@ -111,6 +113,13 @@ pub fn monte_carlo<M: Mechanism>(
     let nominal = Params::nominal(spec);
     let free = &opts.calibration.free;
     let tool = MeasurementModel::tool(spec);
+    // The mechanism's priors (the tool's measurement has no parameters).
+    let priors: Vec<&Prior> = opts
+        .calibration
+        .priors
+        .iter()
+        .filter(|p| p.index < spec.n_params())
+        .collect();
     // Every run measures the same commands and judges on the same unseen
     // ones: their poses are prepared once (nominal forward kinematics,
     // joint Hessians), and the calibrations share them.
@@ -135,14 +144,23 @@ pub fn monte_carlo<M: Mechanism>(
             let mut rng = StdRng::seed_from_u64(seed);
             let len = Normal::new(0.0, opts.length_error.max(0.0)).expect("valid σ");
             let ang = Normal::new(0.0, opts.angle_error.max(0.0)).expect("valid σ");
+            let unit = Normal::new(0.0, 1.0).expect("valid σ");
             let mut truth = nominal.clone();
+            // A parameter with a tolerance is drawn from it (the machine is
+            // built within its tolerances, calibrated or not).
+            let prior = |i: usize| priors.iter().find(|p| p.index == i).map(|p| p.sigma);
             for &i in free {
-                // Stiffness stays nominal: its errors are a separate question.
-                match (spec.param_kind(i), spec.param_unit(i)) {
-                    (ParamKind::Stiffness, _) => {}
-                    (_, Unit::Radian) => truth.values[i] += ang.sample(&mut rng),
+                // Stiffness stays nominal without a tolerance: its errors are
+                // a separate question.
+                match (prior(i), spec.param_kind(i), spec.param_unit(i)) {
+                    (Some(s), ..) => truth.values[i] += s * unit.sample(&mut rng),
+                    (None, ParamKind::Stiffness, _) => {}
+                    (None, _, Unit::Radian) => truth.values[i] += ang.sample(&mut rng),
                     _ => truth.values[i] += len.sample(&mut rng),
                 }
+            }
+            for p in priors.iter().filter(|p| !free.contains(&p.index)) {
+                truth.values[p.index] += p.sigma * unit.sample(&mut rng);
             }
             // The measurements `simulate` draws with this seed.
             let mut noise = StdRng::seed_from_u64(seed ^ 0x9e37_79b9);

@@ -59,6 +59,18 @@ pub fn candidate_jacobians<M: Mechanism>(
     model: Model,
     free: &[usize],
 ) -> Result<Candidates> {
+    Ok(scaled_candidates(mech, points, params, model, free)?.0)
+}
+
+/// [`candidate_jacobians`] and each column's norm over all candidates (the
+/// scale taken out).
+fn scaled_candidates<M: Mechanism>(
+    mech: &M,
+    points: Vec<WorkspacePoint>,
+    params: &Params,
+    model: Model,
+    free: &[usize],
+) -> Result<(Candidates, Vec<f64>)> {
     let spec = mech.spec();
     let raw: Vec<Result<DMatrix<f64>>> = points
         .par_iter()
@@ -88,7 +100,8 @@ pub fn candidate_jacobians<M: Mechanism>(
             a
         })
         .collect();
-    Ok(Candidates { points, rows })
+    let scale = norms.iter().map(|n| n.sqrt()).collect();
+    Ok((Candidates { points, rows }, scale))
 }
 
 /// The [`SCREENED`] candidates (not in `chosen`) with the largest D-optimal
@@ -343,7 +356,12 @@ pub fn plan_observability(c: &Candidates, set: &[usize]) -> (Observability, f64)
 /// identification Jacobian, from its information matrix.
 fn set_singular_values(c: &Candidates, set: &[usize]) -> Vec<f64> {
     let n = c.rows[0].ncols();
-    let mut m = DMatrix::zeros(n, n);
+    prior_singular_values(c, set, &DMatrix::zeros(n, n))
+}
+
+/// [`set_singular_values`] with the information `prior` added.
+fn prior_singular_values(c: &Candidates, set: &[usize], prior: &DMatrix<f64>) -> Vec<f64> {
+    let mut m = prior.clone();
     for &i in set {
         m += c.rows[i].transpose() * &c.rows[i];
     }
@@ -390,7 +408,8 @@ pub fn plan_poses_with_progress(
     criterion: PlanCriterion,
     tick: &(dyn Fn() + Sync),
 ) -> Result<Vec<usize>> {
-    crate::on_pool(|| choose(c, count, criterion, tick, None))
+    let n = c.rows[0].ncols();
+    crate::on_pool(|| choose(c, count, criterion, tick, None, &DMatrix::zeros(n, n)))
 }
 
 /// [`plan_poses_with_progress`] on the calling thread, stopping with
@@ -401,6 +420,7 @@ fn choose(
     criterion: PlanCriterion,
     tick: &(dyn Fn() + Sync),
     cancel: Option<&std::sync::atomic::AtomicBool>,
+    prior: &DMatrix<f64>,
 ) -> Result<Vec<usize>> {
     let nc = c.rows.len();
     if count == 0 || count > nc {
@@ -415,7 +435,8 @@ fn choose(
     // take candidates × parameters² numbers (3.6 GB for a 48-leg platform).
     let reg = 1e-9 * (0..nc).map(|i| information(c, i).trace()).sum::<f64>() / (nc * n) as f64;
     let mut chosen: Vec<usize> = vec![];
-    let mut m = DMatrix::zeros(n, n);
+    // What is known before any pose (the priors' information, or nothing).
+    let mut m = prior.clone();
     let screening = (nc as f64) * (n as f64).powi(3) * count as f64 > EXHAUSTIVE_WORK;
     let best_addition = |m: &DMatrix<f64>, chosen: &[usize]| {
         let pool: Vec<usize> = if screening {
@@ -472,6 +493,14 @@ pub struct PlanOptions {
     pub spacing: f64,
     /// Most candidates scored: a larger lattice is thinned evenly.
     pub max_candidates: usize,
+    /// Priors (tolerances) of the mechanism's parameters: the plan is then
+    /// optimal given what they already tell, its poses measured with
+    /// `noise` (docs/model.md eq. 13). Empty: the plain information of the
+    /// poses.
+    pub priors: Vec<crate::identify::Prior>,
+    /// The instrument's noise the poses are weighed with against the priors
+    /// (unused without priors).
+    pub noise: crate::measurement::data::Noise,
     /// Set from another thread to stop the planning at its next step
     /// ([`Error::Cancelled`]); `None` for none.
     pub cancel: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
@@ -565,8 +594,55 @@ pub fn plan<M: Mechanism>(
     // The plain grid of the same size, judged with the same column scaling.
     points.extend(crate::apply::workspace::grid_targets(mech, opts.count)?);
     crate::error::check_cancel(opts.cancel.as_deref())?;
-    let cands = candidate_jacobians(mech, points, params, opts.model, &opts.free)?;
+    let (mut cands, scale) = scaled_candidates(mech, points, params, opts.model, &opts.free)?;
     crate::error::check_cancel(opts.cancel.as_deref())?;
+    let n = opts.free.len();
+    let mut prior = DMatrix::zeros(n, n);
+    let mut unseen = 0;
+    if !opts.priors.is_empty() {
+        // Rows weighted by the instrument's noise per axis, the priors'
+        // precision in the column-scaled parameters (`p_s = D p`).
+        let w: Vec<f64> = spec
+            .tool_units
+            .iter()
+            .map(|u| 1.0 / opts.noise.for_unit(*u))
+            .collect();
+        for a in &mut cands.rows {
+            for (r, wr) in w.iter().enumerate() {
+                a.row_mut(r).scale_mut(*wr);
+            }
+        }
+        // A parameter no pose sees (its effect below the identifiability
+        // analysis's zero, as a stiffness where the actuators do not fight)
+        // is known by its prior alone: no choice of poses changes that, so
+        // it is left out of the criterion (its prior, in units of a column
+        // that is rounding, would swamp every other direction).
+        let effect: Vec<f64> = (0..n)
+            .map(|k| {
+                scale[k]
+                    * spec
+                        .nominal
+                        .get(opts.free[k])
+                        .map_or(1.0, |v| v.abs().max(1.0))
+            })
+            .collect();
+        let top = effect.iter().copied().fold(0.0, f64::max);
+        let seen: Vec<usize> = (0..n)
+            .filter(|&k| effect[k] > crate::identify::ZERO_COLUMN * top)
+            .collect();
+        for p in &opts.priors {
+            if let Some(k) = opts.free.iter().position(|&f| f == p.index) {
+                prior[(k, k)] = 1.0 / (scale[k].max(f64::MIN_POSITIVE) * p.sigma).powi(2);
+            }
+        }
+        if seen.len() < n && !seen.is_empty() {
+            for a in &mut cands.rows {
+                *a = a.select_columns(&seen);
+            }
+            prior = prior.select_rows(&seen).select_columns(&seen);
+            unseen = n - seen.len();
+        }
+    }
     let pool = Candidates {
         points: cands.points[..candidates].to_vec(),
         rows: cands.rows[..candidates].to_vec(),
@@ -578,14 +654,18 @@ pub fn plan<M: Mechanism>(
             opts.criterion,
             tick,
             opts.cancel.as_deref(),
+            &prior,
         )
     })?;
     chosen.sort_unstable();
-    let sv = set_singular_values(&cands, &chosen);
+    let sv = prior_singular_values(&cands, &chosen, &prior);
     let (observability, condition) = observability_of(&sv, chosen.len());
-    let rank = rank_of(&sv);
+    let rank = rank_of(&sv) + unseen;
     let grid_idx: Vec<usize> = (candidates..cands.points.len()).collect();
-    let (grid_observability, grid_condition) = plan_observability(&cands, &grid_idx);
+    let (grid_observability, grid_condition) = observability_of(
+        &prior_singular_values(&cands, &grid_idx, &prior),
+        grid_idx.len(),
+    );
     Ok(Plan {
         poses: chosen.iter().map(|&i| cands.points[i].clone()).collect(),
         observability,

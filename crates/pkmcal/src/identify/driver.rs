@@ -501,14 +501,7 @@ fn free_set<M: Mechanism>(
     if !terms.is_empty() && known.is_none() {
         let rows = weighted.nrows() - terms.len();
         let data_only = weighted.rows(0, rows).into_owned();
-        // Every direction, one at a time (as fixing would find them), none
-        // fixed: the priors hold them.
-        identifiability.held = analyze_identifiability(cols, &data_only, &free, data.len(), true)
-            .0
-            .unidentifiable
-            .into_iter()
-            .map(|u| Unidentifiable { fixed: None, ..u })
-            .collect();
+        identifiability.held = held_by_priors(cols, &data_only, &free, data.len());
     }
     Ok((identifiability, free, speculative))
 }
@@ -731,6 +724,37 @@ pub fn analyze<M: Mechanism>(
     free: &[usize],
     force: &[f64],
 ) -> Result<Identifiability> {
+    let default = crate::measurement::data::Noise::lengths(1.0);
+    analyze_with_priors(
+        mech,
+        measurement,
+        data,
+        params,
+        model,
+        free,
+        force,
+        &[],
+        default,
+    )
+}
+
+/// [`analyze`] counting the information of `priors` (docs/model.md eq. 13):
+/// the readings without a given σ weighted by `noise` (the instrument's,
+/// which sets what they tell against what the tolerances tell), one row per
+/// prior of a free parameter appended. A direction the data cannot see but
+/// a prior bounds is identified, listed in [`Identifiability::held`].
+#[allow(clippy::too_many_arguments)]
+pub fn analyze_with_priors<M: Mechanism>(
+    mech: &M,
+    measurement: &MeasurementModel,
+    data: &[Measurement],
+    params: &Params,
+    model: Model,
+    free: &[usize],
+    force: &[f64],
+    priors: &[Prior],
+    noise: crate::measurement::data::Noise,
+) -> Result<Identifiability> {
     let spec = mech.spec();
     let data = numbered(data);
     check_sigma(measurement, &data)?;
@@ -748,17 +772,43 @@ pub fn analyze<M: Mechanism>(
             "the identification Jacobian is not finite at these parameters".into(),
         ));
     }
-    let default = crate::measurement::data::Noise::lengths(1.0);
     let mut row = 0;
     for m in &data {
         for a in 0..measurement.row_len(m) {
             let s = m
                 .sigma_of(a)
-                .unwrap_or_else(|| default.for_unit(measurement.row_unit(m, a)));
+                .unwrap_or_else(|| noise.for_unit(measurement.row_unit(m, a)));
             jac.row_mut(row).unscale_mut(s);
             row += 1;
         }
     }
     let cols = Columns::with_measurement(spec, measurement, &m0);
-    Ok(analyze_identifiability(&cols, &jac, &free, data.len(), true).0)
+    let used: Vec<&Prior> = priors.iter().filter(|p| free.contains(&p.index)).collect();
+    if used.is_empty() {
+        return Ok(analyze_identifiability(&cols, &jac, &free, data.len(), true).0);
+    }
+    let readings = jac.nrows();
+    let mut augmented = jac.clone().resize_vertically(readings + used.len(), 0.0);
+    for (a, p) in used.iter().enumerate() {
+        augmented[(readings + a, p.index)] = 1.0 / p.sigma;
+    }
+    let mut ident = analyze_identifiability(&cols, &augmented, &free, data.len(), true).0;
+    ident.held = held_by_priors(&cols, &jac, &free, data.len());
+    Ok(ident)
+}
+
+/// The directions the readings' weighted Jacobian `jac` alone cannot see
+/// among `free` (which priors identify): each one, none fixed.
+fn held_by_priors(
+    cols: &Columns,
+    jac: &DMatrix<f64>,
+    free: &[usize],
+    poses: usize,
+) -> Vec<Unidentifiable> {
+    analyze_identifiability(cols, jac, free, poses, true)
+        .0
+        .unidentifiable
+        .into_iter()
+        .map(|u| Unidentifiable { fixed: None, ..u })
+        .collect()
 }

@@ -20,7 +20,8 @@ pub mod weights;
 
 pub use drift::{Compared, DEFAULT_ALPHA, Drift, ParameterDrift, drift, noise_dof};
 pub use driver::{
-    CalibrationOptions, MAX_DROPPED_FRACTION, analyze, calibrate, calibrate_with_cache,
+    CalibrationOptions, MAX_DROPPED_FRACTION, analyze, analyze_with_priors, calibrate,
+    calibrate_with_cache,
 };
 pub use gross::{GROSS_EXTENT_SHARE, GROSS_FACTOR, MIN_SIGMA};
 pub(crate) use identifiability::observability;

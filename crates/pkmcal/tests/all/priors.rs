@@ -340,3 +340,125 @@ fn answers_far_from_what_was_known_are_warned_about() {
     assert!(taught.iter().any(|(n, _)| n == "l12"), "{taught:?}");
     assert!(!taught.iter().any(|(n, _)| n == "l11"), "{taught:?}");
 }
+
+/// Monte Carlo with priors: each run's truth is drawn from the tolerances,
+/// free or fixed, and the fits use them. A tight tolerance holds its
+/// parameter (its error stays within the tolerance's size); a tolerance on
+/// a fixed parameter makes every run's machine differ where the fit cannot
+/// follow, so the unseen poses come out worse.
+#[test]
+fn monte_carlo_draws_the_truth_from_the_tolerances() {
+    let m = JeongKim2Dof::new();
+    let spec = m.spec();
+    let poses = spread(&m, 25);
+    let validation = pkmcal::validation_targets(&m, 30, 1).unwrap();
+    let base = pkmcal::MonteCarloOptions {
+        runs: 40,
+        noise: Noise::lengths(0.002),
+        seed: 1,
+        length_error: 0.1,
+        angle_error: 0.001,
+        calibration: CalibrationOptions::new(spec, Model::Exact),
+    };
+    let (_, plain) = pkmcal::monte_carlo(&m, &poses, &validation, &base, &|| {}).unwrap();
+    let mut tight = base.clone();
+    let l11 = spec.param_index("l11").unwrap();
+    tight.calibration.priors = vec![Prior {
+        index: l11,
+        sigma: 1e-6,
+    }];
+    let (_, held) = pkmcal::monte_carlo(&m, &poses, &validation, &tight, &|| {}).unwrap();
+    let k = held.parameters.iter().position(|n| n == "l11").unwrap();
+    assert!(
+        held.parameter_rms_error[k] < 1e-5,
+        "{}",
+        held.parameter_rms_error[k]
+    );
+    assert!(plain.parameter_rms_error[k] > 1e-4);
+    let mut fixed = base.clone();
+    let b1x = spec.param_index("B1x").unwrap();
+    assert!(!fixed.calibration.free.contains(&b1x));
+    fixed.calibration.priors = vec![Prior {
+        index: b1x,
+        sigma: 0.2,
+    }];
+    let (_, off) = pkmcal::monte_carlo(&m, &poses, &validation, &fixed, &|| {}).unwrap();
+    assert!(
+        off.validation_rms_median > 2.0 * plain.validation_rms_median,
+        "{} vs {}",
+        off.validation_rms_median,
+        plain.validation_rms_median
+    );
+}
+
+/// The analysis counts the priors' information (what the data alone cannot
+/// see is held, not unidentifiable), and a plan given priors covers every
+/// direction with more information than the poses alone.
+#[test]
+fn analyses_and_plans_count_the_priors() {
+    let m = gough_stewart("gough-stewart-6");
+    let spec = m.spec();
+    let xyz = MeasurementModel::tool_axes(spec, &["x", "y", "z"]).unwrap();
+    let data = pkmcal::simulate(
+        &m,
+        &xyz,
+        &Params::nominal(spec),
+        &spread(&m, 20),
+        Noise::NONE,
+        1,
+    )
+    .unwrap();
+    let opts = CalibrationOptions::new(spec, Model::Exact);
+    let start = Params::nominal(spec);
+    let plain = pkmcal::analyze(&m, &xyz, &data, &start, Model::Exact, &opts.free, &[]).unwrap();
+    assert!(!plain.unidentifiable.is_empty() && plain.held.is_empty());
+    let joints: Vec<&str> = spec
+        .param_names()
+        .iter()
+        .copied()
+        .filter(|n| n.starts_with('a') || n.starts_with('b'))
+        .collect();
+    let p = priors(spec, &joints, 0.05);
+    let with = pkmcal::identify::analyze_with_priors(
+        &m,
+        &xyz,
+        &data,
+        &start,
+        Model::Exact,
+        &opts.free,
+        &[],
+        &p,
+        Noise::lengths(NOISE),
+    )
+    .unwrap();
+    assert!(with.unidentifiable.is_empty(), "{:?}", with.unidentifiable);
+    assert_eq!(with.held.len(), plain.unidentifiable.len());
+    assert_eq!(with.rank, opts.free.len());
+
+    let r = JeongKim2Dof::new();
+    let rs = r.spec();
+    let mut free = CalibrationOptions::new(rs, Model::Exact).free;
+    let k2 = rs.param_index("k2").unwrap();
+    free.push(k2);
+    let mut plan = pkmcal::PlanOptions {
+        count: 12,
+        criterion: pkmcal::PlanCriterion::O5,
+        model: Model::Exact,
+        free,
+        spacing: 6.0,
+        max_candidates: 400,
+        cancel: None,
+        priors: vec![],
+        noise: Noise::lengths(0.002),
+    };
+    let without = pkmcal::plan(&r, &Params::nominal(rs), &plan, &|| {}).unwrap();
+    plan.priors = priors(rs, &["l11", "l21"], 0.05);
+    plan.priors.push(Prior {
+        index: k2,
+        sigma: 1000.0,
+    });
+    let given = pkmcal::plan(&r, &Params::nominal(rs), &plan, &|| {}).unwrap();
+    assert_eq!(given.rank, given.free);
+    assert!(given.warnings.is_empty());
+    assert!(given.observability.o5 > without.observability.o5);
+}

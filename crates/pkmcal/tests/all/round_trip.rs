@@ -35,6 +35,8 @@ fn planned<M: Mechanism>(m: &M, count: usize, candidates: usize) -> Vec<Vec<f64>
         spacing: 6.0,
         max_candidates: candidates,
         cancel: None,
+        priors: vec![],
+        noise: pkmcal::Noise::lengths(0.002),
     };
     pkmcal::plan(m, &Params::nominal(spec), &opts, &|| {})
         .unwrap()
