@@ -155,6 +155,14 @@ pub mod values {
             .then_some(v)
             .ok_or_else(|| format!("{v} must be positive"))
     }
+    /// A number of readings (or anything counted that may be 0 or
+    /// fractional).
+    pub fn non_negative(s: &str) -> Result<f64, String> {
+        let v = number(s)?;
+        (v >= 0.0)
+            .then_some(v)
+            .ok_or_else(|| format!("{v} must be at least 0"))
+    }
     /// A standard deviation of a length reading, mm: the library's bounds.
     pub fn sigma_mm(s: &str) -> Result<f64, String> {
         let v = number(s)?;

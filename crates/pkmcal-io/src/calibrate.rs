@@ -523,6 +523,11 @@ pub struct CalibrateConfig {
     pub tolerances: Vec<String>,
     /// `--no-tolerances`: fit without priors.
     pub no_tolerances: bool,
+    /// `--stated-noise` (and `--stated-angle-noise`): the instrument's
+    /// stated noise, a prior of the estimate and the adequacy test's
+    /// reference; `--stated-readings`: what it is worth.
+    pub stated_noise: Option<pkmcal::Noise>,
+    pub stated_readings: f64,
 }
 
 /// The measurement model of a data file, from its columns: the whole tool
@@ -702,6 +707,8 @@ pub fn run_calibrate(run: &crate::Run<'_>, c: CalibrateConfig) -> Result<()> {
         c.fix.as_deref(),
         &opts.priors,
     )?;
+    opts.stated_noise = c.stated_noise;
+    opts.stated_noise_readings = c.stated_readings;
     opts.force = crate::io::checked_load(c.load.clone(), mech, &start)?;
     opts.loss = c.loss;
     opts.outlier_threshold = c.outlier_threshold;
@@ -983,10 +990,13 @@ pub fn noise_text(g: &pkmcal::NoiseGroup) -> String {
         g.axes.join(", "),
         g.count,
         g.sigma * f,
-        if g.estimated {
-            "estimated from the residuals"
-        } else {
-            "given in the data"
+        match (g.estimated, g.stated, g.stated_readings) {
+            (true, Some(s0), Some(nu)) => format!(
+                "estimated from the residuals and the stated {:.3} {sym} (worth {nu} readings)",
+                s0 * f
+            ),
+            (true, ..) => "estimated from the residuals".to_string(),
+            _ => "given in the data".to_string(),
         },
         g.residual_rms * f
     )

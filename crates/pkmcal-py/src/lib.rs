@@ -36,7 +36,7 @@ create_exception!(
     PkmcalWarning,
     pyo3::exceptions::PyUserWarning,
     "A calibration's warning, emitted once per call with `warnings.warn` (also in \
-`Calibration.warnings`). Subclasses: ConvergenceWarning, IdentifiabilityWarning, OutlierWarning, ToleranceWarning."
+`Calibration.warnings`). Subclasses: ConvergenceWarning, IdentifiabilityWarning, OutlierWarning, ToleranceWarning, ModelWarning."
 );
 create_exception!(
     pkmcal,
@@ -55,6 +55,12 @@ create_exception!(
     OutlierWarning,
     PkmcalWarning,
     "Readings far beyond the noise were reported or dropped."
+);
+create_exception!(
+    pkmcal,
+    ModelWarning,
+    PkmcalWarning,
+    "The residuals exceed what the instrument's stated noise explains: the model misses something."
 );
 create_exception!(
     pkmcal,
@@ -81,6 +87,7 @@ fn emit_warnings(py: Python<'_>, warnings: &[pkmcal::identify::Warning]) -> PyRe
             K::BeyondTolerance { .. } | K::PriorDominated { .. } => {
                 py.get_type::<ToleranceWarning>()
             }
+            K::ModelInadequate { .. } => py.get_type::<ModelWarning>(),
             K::StiffnessRatios { .. }
             | K::HeldByTolerance { .. }
             | K::Unidentifiable { .. }
@@ -1835,6 +1842,7 @@ fn warning(w: &pkmcal::identify::Warning) -> PyWarning {
             K::BeyondTolerance { .. } => "beyond_tolerance",
             K::PriorDominated { .. } => "prior_dominated",
             K::HeldByTolerance { .. } => "held_by_tolerance",
+            K::ModelInadequate { .. } => "model_inadequate",
         }
         .into(),
         message: w.message.clone(),
@@ -3244,6 +3252,11 @@ fn simulate<'py>(
 /// start: a dict name → value like ``start``, or an array with one value per
 /// free mechanism parameter in the order :func:`analyze`'s ``free`` lists
 /// them).
+/// ``stated_noise`` (mm) and ``stated_angle_noise`` (rad): the instrument's
+/// stated noise, a prior of the noise estimates worth ``stated_readings``
+/// readings, and what the model-adequacy test holds the residuals against
+/// (a ``ModelWarning`` names the parameters whose freeing would explain
+/// them).
 /// ``tolerances``: priors (docs/model.md eq. 13), a dict name → σ or
 /// ``"20%"`` beside the mechanism's ``[tolerances]`` table (replacing its
 /// entries of the same names); ``False`` fits without priors. A parameter
@@ -3253,7 +3266,7 @@ fn simulate<'py>(
 /// ``Calibration.parameters`` each one's tolerance and share of information
 /// from the data.
 #[pyfunction]
-#[pyo3(signature = (mechanism, commands, measured, *, sigma = None, targets = None, model = "exact", free = None, fix = None, start = None, loss = "squared", loss_scale = None, outlier_threshold = 4.0, drop_outliers = false, load = None, force = None, axes = None, points = None, ballbar = None, frame = "base", validation = None, holdout = None, kfold = None, seed = SeedArg::Default(1), distances = None, max_nfev = None, ftol = None, xtol = None, gtol = None, bounds = None, x0 = None, tolerances = None))]
+#[pyo3(signature = (mechanism, commands, measured, *, sigma = None, targets = None, model = "exact", free = None, fix = None, start = None, loss = "squared", loss_scale = None, outlier_threshold = 4.0, drop_outliers = false, load = None, force = None, axes = None, points = None, ballbar = None, frame = "base", validation = None, holdout = None, kfold = None, seed = SeedArg::Default(1), distances = None, max_nfev = None, ftol = None, xtol = None, gtol = None, bounds = None, x0 = None, tolerances = None, stated_noise = None, stated_angle_noise = None, stated_readings = pkmcal::identify::DEFAULT_STATED_NOISE_READINGS))]
 #[allow(clippy::too_many_arguments)]
 fn calibrate<'py>(
     py: Python<'py>,
@@ -3288,6 +3301,9 @@ fn calibrate<'py>(
     bounds: Option<&Bound<'py, PyAny>>,
     x0: Option<&Bound<'py, PyAny>>,
     tolerances: Option<&Bound<'py, PyAny>>,
+    stated_noise: Option<f64>,
+    stated_angle_noise: Option<f64>,
+    stated_readings: f64,
 ) -> PyResult<PyCalibration> {
     let mechanism = &mechanism_arg(mechanism)?;
     let seed = seed_arg(seed)?;
@@ -3299,6 +3315,21 @@ fn calibrate<'py>(
     let mut opts = CalibrationOptions::new(spec, parse_model(model)?);
     opts.priors = priors_arg(m, &mm, tolerances)?;
     opts.free = free_arg(m, &mm, free, fix, &opts.priors)?;
+    opts.stated_noise = match (stated_noise, stated_angle_noise) {
+        (None, None) => None,
+        (Some(l), a) => Some(noise_arg(l, a)?),
+        (None, Some(_)) => {
+            return Err(usage(
+                "stated_angle_noise needs stated_noise (the length readings' σ)",
+            ));
+        }
+    };
+    if !(stated_readings.is_finite() && stated_readings >= 0.0) {
+        return Err(usage(format!(
+            "stated_readings must be a non-negative number of readings, got {stated_readings}"
+        )));
+    }
+    opts.stated_noise_readings = stated_readings;
     let start = match (start.filter(|s| !s.is_none()), x0.filter(|s| !s.is_none())) {
         (Some(_), Some(_)) => return Err(usage("give either start= or x0=, not both")),
         (None, Some(x)) => x0_arg(m, &opts.free, x)?,
@@ -4231,6 +4262,7 @@ fn _pkmcal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     )?;
     m.add("OutlierWarning", m.py().get_type::<OutlierWarning>())?;
     m.add("ToleranceWarning", m.py().get_type::<ToleranceWarning>())?;
+    m.add("ModelWarning", m.py().get_type::<ModelWarning>())?;
     m.add_class::<PyMechanism>()?;
     m.add_class::<PyCalibration>()?;
     m.add_class::<PyMonteCarlo>()?;

@@ -118,3 +118,20 @@ def test_analyze_plan_and_montecarlo_take_the_priors():
         mc = pkmcal.montecarlo(m, plan.targets, runs=4, validation=10)
         off = pkmcal.montecarlo(m, plan.targets, runs=4, validation=10, tolerances=False)
     assert "k1" in mc.parameters and "k1" not in off.parameters
+
+
+def test_a_stated_noise_the_residuals_exceed_is_a_model_warning():
+    m = pkmcal.Mechanism(EXAMPLES / "linear-delta" / "mechanism.toml")
+    truth = dict(m.nominal)
+    for k, t in enumerate(["a.tilt1", "a.tilt2", "b.tilt1", "b.tilt2", "c.tilt1", "c.tilt2"]):
+        truth[t] += 0.002 if k % 2 == 0 else -0.0014
+    targets = pkmcal.plan(m, 40, max_candidates=400).targets
+    commands, measured = pkmcal.simulate(m, targets, truth, noise=0.002, seed=4)
+    with pytest.warns(pkmcal.ModelWarning, match="tilt"):
+        cal = pkmcal.calibrate(m, commands, measured, stated_noise=0.002)
+    (w,) = [w for w in cal.warnings if w.kind == "model_inadequate"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", pkmcal.ModelWarning)
+        pkmcal.calibrate(m, commands, measured, stated_noise=0.05)
+    with pytest.raises(pkmcal.PkmcalError, match="stated_angle_noise"):
+        pkmcal.calibrate(m, commands, measured, stated_angle_noise=1e-5)

@@ -23,6 +23,18 @@ pub struct Args {
     pub params_set: args::FreeArgs,
     #[command(flatten)]
     pub priors: args::PriorArgs,
+    /// The instrument's stated noise on each length reading, mm (a
+    /// datasheet's, a probe's repeatability): a prior of the noise estimate,
+    /// and what the model-adequacy test holds the residuals against.
+    #[arg(value_parser = args::values::sigma_mm, long, value_name = "MM")]
+    pub stated_noise: Option<f64>,
+    /// The stated noise on each angle reading, rad (default: the stated
+    /// length noise over a 200 mm lever arm).
+    #[arg(value_parser = args::values::positive, long, value_name = "RAD", requires = "stated_noise")]
+    pub stated_angle_noise: Option<f64>,
+    /// How many readings the stated noise is worth against the residuals.
+    #[arg(value_parser = args::values::non_negative, long, default_value_t = pkmcal::identify::DEFAULT_STATED_NOISE_READINGS, value_name = "N")]
+    pub stated_readings: f64,
     /// Starting (and fixed) parameter values; nominal if omitted.
     #[arg(long, value_name = "P.toml")]
     pub start: Option<PathBuf>,
@@ -124,6 +136,10 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             distances: a.instrument.distances,
             tolerances: a.priors.tolerance,
             no_tolerances: a.priors.no_tolerances,
+            stated_noise: a
+                .stated_noise
+                .map(|l| pkmcal_io::io::noise_arg(l, a.stated_angle_noise)),
+            stated_readings: a.stated_readings,
         },
     )
 }

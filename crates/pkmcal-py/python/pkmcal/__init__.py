@@ -21,7 +21,7 @@ MonteCarlo, Budget, Drift, SavedCalibration. Every result pickles and compares b
 Errors: PkmcalError (a ValueError) with the message and ``.pose``. A
 calibration's warnings are also emitted with ``warnings.warn``, once per call,
 as PkmcalWarning (a UserWarning) subclasses: ConvergenceWarning,
-IdentifiabilityWarning, OutlierWarning, ToleranceWarning. Arrays with named columns (a pandas
+IdentifiabilityWarning, OutlierWarning, ToleranceWarning, ModelWarning. Arrays with named columns (a pandas
 DataFrame, a NumPy structured array) are read by name.
 """
 
@@ -36,6 +36,7 @@ from ._pkmcal import (
     Identifiability,
     IdentifiabilityWarning,
     Mechanism,
+    ModelWarning,
     MonteCarlo,
     OutlierWarning,
     PkmcalError,
@@ -113,6 +114,7 @@ __all__ = [
     "Identifiability",
     "IdentifiabilityWarning",
     "Mechanism",
+    "ModelWarning",
     "MonteCarlo",
     "OutlierWarning",
     "PkmcalError",

@@ -34,6 +34,9 @@ class IdentifiabilityWarning(PkmcalWarning):
 class OutlierWarning(PkmcalWarning):
     """Readings far beyond the noise were reported or dropped."""
 
+class ModelWarning(PkmcalWarning):
+    """The residuals exceed what the instrument's stated noise explains: the model misses something."""
+
 class ToleranceWarning(PkmcalWarning):
     """An identified value far outside its tolerance, or parameters the data taught little."""
 
@@ -407,6 +410,9 @@ def calibrate(
     bounds: Optional[Mapping[str, Tuple[float, float]]] = None,
     x0: Union[None, Mapping[str, float], ArrayLike] = None,
     tolerances: Union[None, bool, Mapping[str, Union[float, str]]] = None,
+    stated_noise: Optional[float] = None,
+    stated_angle_noise: Optional[float] = None,
+    stated_readings: float = 10.0,
 ) -> Calibration: ...
 def analyze(
     mechanism: MechanismLike,

@@ -55,7 +55,20 @@ pub struct CalibrationOptions {
     /// unused ([`crate::identify::resolve_free_set`] frees the parameters
     /// with a tolerance unless they are fixed by name).
     pub priors: Vec<Prior>,
+    /// The instrument's stated noise (a datasheet's, a probe's
+    /// repeatability): a prior of its readings' noise estimates, worth
+    /// `stated_noise_readings` readings, and what the model-adequacy test
+    /// holds the residuals against ([`super::adequacy`]). `None`: the noise
+    /// is estimated from the data alone and not tested.
+    pub stated_noise: Option<crate::measurement::data::Noise>,
+    /// How many readings the stated noise is worth
+    /// ([`DEFAULT_STATED_NOISE_READINGS`] by default).
+    pub stated_noise_readings: f64,
 }
+
+/// Readings a stated noise is worth by default: a group of fewer readings'
+/// redundancy leans on it, a larger one on its own residuals.
+pub const DEFAULT_STATED_NOISE_READINGS: f64 = 10.0;
 
 impl CalibrationOptions {
     /// The mechanism's default free set with the given model.
@@ -80,6 +93,8 @@ impl CalibrationOptions {
             },
             exactly_determined: false,
             priors: vec![],
+            stated_noise: None,
+            stated_noise_readings: DEFAULT_STATED_NOISE_READINGS,
         }
     }
 }
@@ -186,6 +201,9 @@ fn calibrate_on<M: Mechanism>(
             }
             let beyond = super::prior::prior_warnings(&cal.parameters, &cal.priors);
             cal.warnings.extend(beyond);
+            if let Some(w) = super::adequacy::adequacy(&problem, &cal)? {
+                cal.warnings.push(w);
+            }
             cal.dropped = dropped;
             found.append(&mut cal.outliers);
             cal.outliers = found;

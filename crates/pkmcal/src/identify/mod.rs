@@ -2,6 +2,7 @@
 //! identifiability, noise groups and weights, gross errors, robust losses
 //! and outliers, the fit, uncertainty and validation.
 
+pub mod adequacy;
 pub mod drift;
 pub mod driver;
 pub mod gross;
@@ -18,10 +19,11 @@ pub mod uncertainty;
 pub mod validation;
 pub mod weights;
 
+pub use adequacy::{ADEQUACY_ALPHA, SUSPECT_SHARE, SUSPECTS};
 pub use drift::{Compared, DEFAULT_ALPHA, Drift, ParameterDrift, drift, noise_dof};
 pub use driver::{
-    CalibrationOptions, MAX_DROPPED_FRACTION, analyze, analyze_with_priors, calibrate,
-    calibrate_with_cache,
+    CalibrationOptions, DEFAULT_STATED_NOISE_READINGS, MAX_DROPPED_FRACTION, analyze,
+    analyze_with_priors, calibrate, calibrate_with_cache,
 };
 pub use gross::{GROSS_EXTENT_SHARE, GROSS_FACTOR, MIN_SIGMA};
 pub(crate) use identifiability::observability;

@@ -16,7 +16,7 @@
 //! 1/σ makes the fit the maximum-likelihood one whatever the units.
 
 use crate::measurement::MeasurementModel;
-use crate::measurement::data::Measurement;
+use crate::measurement::data::{Measurement, Noise};
 use crate::units::Unit;
 use nalgebra::DMatrix;
 use serde::Serialize;
@@ -45,6 +45,13 @@ pub struct NoiseGroup {
     /// The group's share of the redundancy, `Σ (1 − h_ii)`: the degrees of
     /// freedom its σ was estimated with (`None` when σ was given).
     pub redundancy: Option<f64>,
+    /// The instrument's stated σ, a prior of the estimate worth
+    /// `stated_readings` readings (`None`: estimated from the data alone).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stated: Option<f64>,
+    /// How many readings the stated σ was worth.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stated_readings: Option<f64>,
 }
 
 /// The ratio of two groups' variances, `σ_a² / σ_b²`, with its confidence
@@ -98,6 +105,8 @@ pub(crate) struct NoiseModel {
     pub sigma: Vec<f64>,
     /// Each estimated group's redundancy `Σ (1 − h_ii)` at the last update.
     redundancy: Vec<f64>,
+    /// Each estimated group's stated σ and the readings it is worth.
+    stated: Vec<Option<(f64, f64)>>,
 }
 
 impl NoiseModel {
@@ -137,7 +146,25 @@ impl NoiseModel {
             groups,
             sigma: vec![1.0; n],
             redundancy: vec![f64::NAN; n],
+            stated: vec![None; n],
         }
+    }
+
+    /// The instrument's stated noise as a prior of its readings' groups (not
+    /// of the distances between poses, another instrument), worth
+    /// `readings` readings: each such group's σ² is then
+    /// `(ν₀ σ₀² + Σ r²) / (ν₀ + Σ (1 − h))`, the data's estimate as far as
+    /// their redundancy supports it (docs/model.md §6). The groups start
+    /// from it.
+    pub fn with_stated(mut self, noise: Noise, readings: f64) -> Self {
+        for (g, (unit, pair, _)) in self.groups.iter().enumerate() {
+            if !*pair {
+                let s0 = noise.for_unit(*unit);
+                self.stated[g] = Some((s0, readings));
+                self.sigma[g] = s0;
+            }
+        }
+        self
     }
 
     /// Number of estimated groups.
@@ -176,7 +203,11 @@ impl NoiseModel {
         let mut change: f64 = 0.0;
         self.redundancy.clone_from(&red);
         for g in 0..n {
-            if red[g] > 0.0 && ss[g] > 0.0 {
+            if let Some((s0, nu)) = self.stated[g] {
+                let s = ((nu * s0 * s0 + ss[g]) / (nu + red[g])).sqrt();
+                change = change.max((s / self.sigma[g] - 1.0).abs());
+                self.sigma[g] = s;
+            } else if red[g] > 0.0 && ss[g] > 0.0 {
                 let s = (ss[g] / red[g]).sqrt();
                 change = change.max((s / self.sigma[g] - 1.0).abs());
                 self.sigma[g] = s;
@@ -207,6 +238,8 @@ impl NoiseModel {
                     sigma: self.sigma[g],
                     residual_rms: rms(&v),
                     redundancy: Some(self.redundancy[g]).filter(|r| !r.is_nan()),
+                    stated: self.stated[g].map(|s| s.0),
+                    stated_readings: self.stated[g].map(|s| s.1),
                 }
             })
             .collect();
@@ -238,6 +271,8 @@ impl NoiseModel {
             sigma: rms(&s),
             residual_rms: rms(&v),
             redundancy: None,
+            stated: None,
+            stated_readings: None,
         }));
         out
     }
@@ -297,6 +332,8 @@ mod tests {
             sigma,
             residual_rms: sigma,
             redundancy: Some(nu),
+            stated: None,
+            stated_readings: None,
         };
         let r = variance_ratio(&group(2.0, 10.5), &group(1.0, 20.0), 0.95).unwrap();
         assert_eq!(r.ratio, 4.0);

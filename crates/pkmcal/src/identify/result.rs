@@ -137,6 +137,25 @@ pub enum WarningKind {
         /// The parameters, with the share of their information from the data.
         parameters: Vec<(String, f64)>,
     },
+    /// The residuals exceed what the instrument's noise explains
+    /// ([`super::adequacy`]): the model misses something.
+    ModelInadequate {
+        /// Unit of the readings tested.
+        unit: Unit,
+        /// Their σ as the residuals give it (with `given`: the standard
+        /// deviation of unit weight).
+        found: f64,
+        /// The instrument's stated σ (with `given`: 1).
+        stated: f64,
+        /// Whether the σ tested were given in the data.
+        given: bool,
+        /// The χ² test's p-value.
+        p: f64,
+        /// Parameters left out of the fit that would explain most of the
+        /// residual, with the share of the weighted sum of squares each
+        /// would remove.
+        suspects: Vec<(String, f64)>,
+    },
     /// Directions the data alone cannot see, held by the parameters'
     /// tolerances (the fit keeps them near their prior's centre).
     HeldByTolerance {
@@ -290,6 +309,40 @@ impl Warning {
                         .join(", ")
                 ),
                 "measure poses or quantities that see them (a plan with these priors chooses such poses), or accept the tolerance as their uncertainty".into(),
+            ),
+            WarningKind::ModelInadequate {
+                unit,
+                found,
+                stated,
+                given,
+                p,
+                suspects,
+            } => (
+                format!(
+                    "{} (χ² test, p = {p:.1e}): the model misses something{}",
+                    if *given {
+                        format!(
+                            "the residuals are {found:.2} times the σ given in the data"
+                        )
+                    } else {
+                        format!(
+                            "the residuals' σ of {found:.3e} {unit} exceeds the instrument's stated {stated:.3e} {unit}"
+                        )
+                    },
+                    if suspects.is_empty() {
+                        String::new()
+                    } else {
+                        format!(
+                            "; freeing one of these would remove the share of it given: {}",
+                            suspects
+                                .iter()
+                                .map(|(n, s)| format!("`{n}` ({:.0} %)", 100.0 * s))
+                                .collect::<Vec<_>>()
+                                .join(", ")
+                        )
+                    }
+                ),
+                "free the parameters named and calibrate again, check the stated noise, or look for an effect the model lacks (thermal drift, backlash, a bent part, a loose instrument)".into(),
             ),
             WarningKind::HeldByTolerance {
                 model,

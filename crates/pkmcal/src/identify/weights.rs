@@ -21,6 +21,9 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
 ) -> Result<Calibration> {
     let measurement = problem.measurement;
     let mut noise = NoiseModel::new(data, measurement);
+    if let Some(stated) = opts.stated_noise {
+        noise = noise.with_stated(stated, opts.stated_noise_readings);
+    }
     // `(JᵀJ)⁺` of `cal.jacobian` (the fit's own, for the leverages) while
     // that Jacobian is the fit's.
     let (mut cal, cov) = calibrate_once(

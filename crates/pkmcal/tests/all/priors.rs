@@ -462,3 +462,56 @@ fn analyses_and_plans_count_the_priors() {
     assert!(given.warnings.is_empty());
     assert!(given.observability.o5 > without.observability.o5);
 }
+
+/// A linear delta with six tower tilts the default model leaves out: its
+/// residuals far exceed the stated 2 µm, the fit says the model misses
+/// something and names tilts among the parameters whose freeing explains
+/// most of it; freeing them passes the test. A well-modelled fit passes.
+#[test]
+fn a_model_missing_tower_tilts_is_told_and_the_tilts_named() {
+    let m = spatial("linear-delta");
+    let spec = m.spec();
+    let tool = MeasurementModel::tool(spec);
+    let tilts = [
+        "a.tilt1", "a.tilt2", "b.tilt1", "b.tilt2", "c.tilt1", "c.tilt2",
+    ];
+    let mut truth = Params::nominal(spec);
+    for (k, t) in tilts.iter().enumerate() {
+        truth.values[spec.param_index(t).unwrap()] += 0.002 * if k % 2 == 0 { 1.0 } else { -0.7 };
+    }
+    let data =
+        pkmcal::simulate(&m, &tool, &truth, &spread(&m, 40), Noise::lengths(0.002), 4).unwrap();
+    let mut opts = CalibrationOptions::new(spec, Model::Exact);
+    opts.stated_noise = Some(Noise::lengths(0.002));
+    let start = Params::nominal(spec);
+    let cal = pkmcal::calibrate(&m, &tool, &data, &start, &opts).unwrap();
+    let (found, suspects) = cal
+        .warnings
+        .iter()
+        .find_map(|w| match &w.kind {
+            WarningKind::ModelInadequate {
+                found, suspects, ..
+            } => Some((*found, suspects.clone())),
+            _ => None,
+        })
+        .expect("the missing tilts are told");
+    assert!(found > 5.0 * 0.002, "{found}");
+    assert!(
+        suspects.iter().any(|(n, _)| tilts.contains(&n.as_str())),
+        "{suspects:?}"
+    );
+    // The stated noise is a prior of the estimate: with 40 × 3 readings
+    // the data dominate it.
+    assert!(cal.noise[0].sigma > 0.5 * found);
+    opts.free
+        .extend(tilts.iter().map(|t| spec.param_index(t).unwrap()));
+    let right = pkmcal::calibrate(&m, &tool, &data, &start, &opts).unwrap();
+    assert!(
+        !right
+            .warnings
+            .iter()
+            .any(|w| matches!(w.kind, WarningKind::ModelInadequate { .. })),
+        "{:?}",
+        right.warnings
+    );
+}
