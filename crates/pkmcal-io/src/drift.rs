@@ -17,6 +17,8 @@ pub struct DriftConfig {
     pub new: PathBuf,
     pub alpha: f64,
     pub out: Option<PathBuf>,
+    /// Workspace targets where the change at the tool is judged (0: none).
+    pub grid: usize,
 }
 
 pub fn run_drift(run: &crate::Run<'_>, c: DriftConfig) -> Result<()> {
@@ -40,7 +42,14 @@ pub fn run_drift(run: &crate::Run<'_>, c: DriftConfig) -> Result<()> {
             c.alpha
         ));
     }
-    let d = pkmcal::identify::drift(&old, &new, c.alpha)?;
+    let mut d = pkmcal::identify::drift(&old, &new, c.alpha)?;
+    if c.grid > 0 {
+        let mech = &description.mech;
+        let targets = pkmcal::apply::budget::budget_targets(mech, c.grid)?;
+        d.workspace = Some(pkmcal::apply::tooldrift::workspace_drift(
+            mech, &old, &new, &targets, c.alpha,
+        )?);
+    }
     print!(
         "{}",
         drift_words(Some(spec), &d, &old_name, &c.new.display().to_string())
@@ -128,6 +137,23 @@ pub fn drift_words(spec: Option<&pkmcal::Spec>, d: &Drift, old: &str, new: &str)
             o,
             "  not compared (identified in one calibration only): {}",
             d.untested.join(" ")
+        );
+    }
+    if let Some(w) = &d.workspace {
+        let big = &w.targets[w.largest];
+        let _ = writeln!(
+            o,
+            "  at the tool over {} workspace targets: the position moved up to {:.4} mm (target {}, p {:.3e}); beyond what both covariances allow at {} of them (each judged at {}; neighbouring targets share their parameters, so this is a map, the joint test is the verdict)",
+            w.targets.len(),
+            big.distance,
+            big.target
+                .iter()
+                .map(|v| format!("{v:.4}"))
+                .collect::<Vec<_>>()
+                .join(","),
+            big.p_value,
+            w.beyond,
+            w.alpha
         );
     }
     o

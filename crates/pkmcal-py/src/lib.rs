@@ -3919,6 +3919,35 @@ impl PyDrift {
     fn untested(&self) -> Vec<String> {
         self.d.untested.clone()
     }
+    /// The change at the tool over the workspace (when the mechanism was at
+    /// hand): a dict with ``targets`` (n, axes), ``change`` (n, axes),
+    /// ``distance`` (n, mm), ``p_value`` (n), ``largest`` (the row where
+    /// the position moved most), ``beyond`` (how many targets exceed what
+    /// both covariances allow at ``alpha``, each judged alone); None without.
+    #[getter]
+    fn workspace<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(w) = &self.d.workspace else {
+            return Ok(None);
+        };
+        let d = PyDict::new(py);
+        let nx = w.targets.first().map_or(0, |t| t.target.len());
+        let flat = |f: &dyn Fn(&pkmcal::identify::drift::TargetDrift) -> &Vec<f64>| -> Vec<f64> {
+            w.targets
+                .iter()
+                .flat_map(|t| f(t).iter().copied())
+                .collect()
+        };
+        d.set_item("targets", out2(py, flat(&|t| &t.target), nx, false))?;
+        d.set_item("change", out2(py, flat(&|t| &t.change), nx, false))?;
+        let col = |f: &dyn Fn(&pkmcal::identify::drift::TargetDrift) -> f64| -> Vec<f64> {
+            w.targets.iter().map(f).collect()
+        };
+        d.set_item("distance", vec1(py, &col(&|t| t.distance)))?;
+        d.set_item("p_value", vec1(py, &col(&|t| t.p_value)))?;
+        d.set_item("largest", w.largest)?;
+        d.set_item("beyond", w.beyond)?;
+        Ok(Some(d))
+    }
     /// The comparison in words, as ``pkmcal drift`` prints it.
     fn summary(&self) -> String {
         self.text.clone()
@@ -3982,14 +4011,16 @@ fn compared_arg(
 /// ``alpha``; a joint χ² test includes the correlations. Each is a
 /// :class:`Calibration`, a :class:`SavedCalibration` or a record's path;
 /// ``mechanism`` is needed for the nominal values when ``new`` is not a
-/// :class:`Calibration`.
+/// :class:`Calibration`. With the mechanism at hand, the change at the tool
+/// over ``grid`` workspace targets too (``Drift.workspace``; 0: none).
 #[pyfunction]
-#[pyo3(signature = (new, old = None, *, mechanism = None, alpha = 0.05))]
+#[pyo3(signature = (new, old = None, *, mechanism = None, alpha = 0.05, grid = 100))]
 fn drift<'py>(
     new: &Bound<'py, PyAny>,
     old: Option<&Bound<'py, PyAny>>,
     mechanism: Option<&Bound<'py, PyAny>>,
     alpha: f64,
+    grid: usize,
 ) -> PyResult<PyDrift> {
     let (b, b_id, b_mech) = compared_arg(new, "new")?;
     let given = mechanism
@@ -4017,7 +4048,14 @@ fn drift<'py>(
             )
         }
     };
-    let d = pkmcal::identify::drift(&a, &b, alpha).map_err(lib_err)?;
+    let mut d = pkmcal::identify::drift(&a, &b, alpha).map_err(lib_err)?;
+    if let (Some(m), true) = (mech.as_deref(), grid > 0) {
+        let targets = pkmcal::apply::budget::budget_targets(m, grid).map_err(lib_err)?;
+        d.workspace = Some(
+            pkmcal::apply::tooldrift::workspace_drift(m, &a, &b, &targets, alpha)
+                .map_err(lib_err)?,
+        );
+    }
     let text = pkmcal_io::drift::drift_words(mech.as_ref().map(|m| m.spec()), &d, &old_name, "new");
     Ok(PyDrift { d, text })
 }

@@ -295,6 +295,13 @@ def test_drift_between_calibrations(tmp_path):
     assert changed.parameters[0]["name"] == "l11"
     round_trips(changed)
     assert "Holm–Bonferroni" in changed.summary()
+    # At the tool: 50 µm of arm moves the tool beyond the noise at most of
+    # the workspace, the unchanged pair at few of its targets.
+    w = changed.workspace
+    assert w["targets"].shape == (100, 2) and w["change"].shape == (100, 2)
+    assert w["beyond"] > 50 and w["distance"][w["largest"]] == w["distance"].max()
+    assert same.workspace["beyond"] < 20
+    assert pkmcal.drift(moved, a, grid=0).workspace is None
     # Saved records and paths give the same test.
     a.save(tmp_path / "a.json")
     moved.save(tmp_path / "m.json")

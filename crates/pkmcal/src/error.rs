@@ -120,6 +120,18 @@ pub struct Origin {
     pub distance: bool,
 }
 
+impl Origin {
+    /// Row `k` (from 0) of a list the library was given (targets,
+    /// commands), without a file line.
+    pub fn row(k: usize) -> Self {
+        Origin {
+            pose: k,
+            line: None,
+            distance: false,
+        }
+    }
+}
+
 impl std::fmt::Display for Origin {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let what = if self.distance { "distance" } else { "pose" };

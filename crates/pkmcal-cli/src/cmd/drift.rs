@@ -24,6 +24,10 @@ pub struct Args {
     /// Write the comparison as JSON.
     #[arg(long, value_name = "DRIFT.json")]
     pub out: Option<PathBuf>,
+    /// Targets spread over the workspace (a plain grid) where the change at
+    /// the tool is judged (0: none).
+    #[arg(long, default_value_t = 100, value_name = "N")]
+    pub grid: usize,
 }
 
 impl Args {
@@ -48,6 +52,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             new: a.new,
             alpha: a.alpha,
             out: a.out,
+            grid: a.grid,
         },
     )
 }

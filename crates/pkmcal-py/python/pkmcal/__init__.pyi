@@ -287,6 +287,8 @@ class Drift:
     def joint_drift(self) -> bool: ...
     @property
     def untested(self) -> list[str]: ...
+    @property
+    def workspace(self) -> Optional[dict[str, Any]]: ...
     def summary(self) -> str: ...
 
 class MonteCarlo:
@@ -494,6 +496,7 @@ def drift(
     *,
     mechanism: Optional[MechanismLike] = None,
     alpha: float = 0.05,
+    grid: int = 100,
 ) -> Drift: ...
 def trilaterate(
     sockets: ArrayLike,

@@ -126,11 +126,7 @@ pub struct Budget {
 
 /// Target `k` (from 0) of a budget's targets, as errors name it.
 fn row(k: usize) -> crate::error::Origin {
-    crate::error::Origin {
-        pose: k,
-        line: None,
-        distance: false,
-    }
+    crate::error::Origin::row(k)
 }
 
 /// The error spread of first-order covariances `covs` (one per target).

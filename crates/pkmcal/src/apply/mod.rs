@@ -8,4 +8,5 @@ pub mod montecarlo;
 pub mod planning;
 pub mod rows;
 pub mod simulate;
+pub mod tooldrift;
 pub mod workspace;

@@ -81,6 +81,45 @@ pub struct Drift {
     pub joint_drift: bool,
     /// Parameters identified in only one of the two (not tested).
     pub untested: Vec<String>,
+    /// The change at the tool over the workspace, when the mechanism was
+    /// at hand ([`crate::apply::tooldrift::workspace_drift`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub workspace: Option<WorkspaceDrift>,
+}
+
+/// The change of the predicted tool pose at one workspace target.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TargetDrift {
+    /// The target (tool axes, mm and rad).
+    pub target: Vec<f64>,
+    /// The second calibration's predicted pose minus the first's, at the
+    /// target's nominal commands.
+    pub change: Vec<f64>,
+    /// The length of the change's position part (mm).
+    pub distance: f64,
+    /// `changeᵀ C⁺ change`, `C` the change's covariance from both
+    /// calibrations' (first order).
+    pub statistic: f64,
+    /// Its degrees of freedom (the rank of `C`).
+    pub dof: usize,
+    /// Its p-value (χ², or F with the noise levels' degrees of freedom).
+    pub p_value: f64,
+}
+
+/// The change at the tool over the workspace: each target's predicted
+/// change against what both covariances allow there.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WorkspaceDrift {
+    /// Each target's change.
+    pub targets: Vec<TargetDrift>,
+    /// Index of the target where the position moved most.
+    pub largest: usize,
+    /// Targets whose change exceeds what the covariances allow at `alpha`
+    /// (each judged alone: neighbouring targets share their parameters, so
+    /// this is a map, not a familywise test; the joint parameter test is).
+    pub beyond: usize,
+    /// The rate each target is judged at.
+    pub alpha: f64,
 }
 
 /// Two-sided p-value of `z`: standard normal, or Student's t with `dof`.
@@ -131,11 +170,7 @@ pub fn drift(a: &Compared, b: &Compared, alpha: f64) -> Result<Drift> {
         ));
     }
     let m = tested.len();
-    let nu = match (a.dof, b.dof) {
-        (Some(x), Some(y)) => Some(x + y),
-        (x, y) => x.or(y),
-    }
-    .filter(|n| n.is_finite() && *n > 0.0);
+    let nu = joint_noise_dof(a, b);
     let cov = |c: &Compared, x: &str, y: &str| -> f64 {
         match (
             c.names.iter().position(|n| n == x),
@@ -193,18 +228,51 @@ pub fn drift(a: &Compared, b: &Compared, alpha: f64) -> Result<Drift> {
             .iter()
             .map(|n| value(b, n).unwrap_or(0.0) - value(a, n).unwrap_or(0.0)),
     );
-    let eig = c.symmetric_eigen();
+    let (chi2, dof, p_joint) = quadratic_test(&c, &d, nu)?;
+    Ok(Drift {
+        alpha,
+        parameters,
+        chi2,
+        dof,
+        p_joint,
+        noise_dof: nu,
+        joint_drift: p_joint < alpha,
+        untested,
+        workspace: None,
+    })
+}
+
+/// The degrees of freedom of the two calibrations' noise levels together.
+pub fn joint_noise_dof(a: &Compared, b: &Compared) -> Option<f64> {
+    match (a.dof, b.dof) {
+        (Some(x), Some(y)) => Some(x + y),
+        (x, y) => x.or(y),
+    }
+    .filter(|n| n.is_finite() && *n > 0.0)
+}
+
+/// The joint test of a change `d` with covariance `c`: `dᵀ c⁺ d` over the
+/// eigenvalues above [`RANK_TOL`] of the largest, its degrees of freedom
+/// (that rank) and its p-value (χ², or Fisher's F with `nu` when the noise
+/// levels were estimated). The one rule of the parameter and workspace
+/// tests.
+pub(crate) fn quadratic_test(
+    c: &nalgebra::DMatrix<f64>,
+    d: &nalgebra::DVector<f64>,
+    nu: Option<f64>,
+) -> Result<(f64, usize, f64)> {
+    let eig = c.clone().symmetric_eigen();
     let top = eig.eigenvalues.iter().fold(0.0f64, |x, v| x.max(*v));
     let mut chi2 = 0.0;
     let mut dof = 0;
     for (k, &l) in eig.eigenvalues.iter().enumerate() {
         if l > RANK_TOL * top && l > 0.0 {
-            let proj = eig.eigenvectors.column(k).dot(&d);
+            let proj = eig.eigenvectors.column(k).dot(d);
             chi2 += proj * proj / l;
             dof += 1;
         }
     }
-    let p_joint = match (dof, nu) {
+    let p = match (dof, nu) {
         (0, _) => f64::NAN,
         (d, Some(n)) => {
             1.0 - FisherSnedecor::new(d as f64, n)
@@ -217,16 +285,7 @@ pub fn drift(a: &Compared, b: &Compared, alpha: f64) -> Result<Drift> {
                 .cdf(chi2)
         }
     };
-    Ok(Drift {
-        alpha,
-        parameters,
-        chi2,
-        dof,
-        p_joint,
-        noise_dof: nu,
-        joint_drift: p_joint < alpha,
-        untested,
-    })
+    Ok((chi2, dof, p))
 }
 
 impl Compared {

@@ -141,3 +141,52 @@ fn against_nominal_and_bad_requests() {
     assert!(same.parameters.iter().all(|p| !p.drifted && p.z == 0.0));
     assert_eq!(same.chi2, 0.0);
 }
+
+/// The change at the tool: over seeded pairs of calibrations of an
+/// unchanged reference mechanism (drawn about nominal from a correlated
+/// covariance), each target is called beyond the covariances at its stated
+/// rate; a change of `l11` well beyond the tool's uncertainty is found at
+/// most targets, its size the predicted tool change.
+#[test]
+fn the_change_at_the_tool_is_judged_against_both_covariances() {
+    use pkmcal::Mechanism;
+    let m = pkmcal::JeongKim2Dof::new();
+    let spec = m.spec();
+    let (cov, l) = covariance();
+    let around = |rng: &mut StdRng, shift: f64| -> Compared {
+        let mut c = draw(rng, &cov, &l, shift);
+        for (n, v) in &mut c.values {
+            *v += spec.nominal[spec.param_index(n).unwrap()] - 100.0;
+        }
+        c
+    };
+    let targets = pkmcal::apply::budget::budget_targets(&m, 12).unwrap();
+    let mut rng = StdRng::seed_from_u64(17);
+    let repeats = 300;
+    let mut beyond = 0;
+    for _ in 0..repeats {
+        let (a, b) = (around(&mut rng, 0.0), around(&mut rng, 0.0));
+        let w =
+            pkmcal::apply::tooldrift::workspace_drift(&m, &a, &b, &targets, DEFAULT_ALPHA).unwrap();
+        assert_eq!(w.targets.len(), targets.len());
+        beyond += w.beyond;
+    }
+    let rate = beyond as f64 / (repeats * targets.len()) as f64;
+    // Targets of one pair are correlated: a wider slack than independent
+    // draws would need.
+    assert!(
+        (rate - DEFAULT_ALPHA).abs() < 0.025,
+        "false alarms at {rate}"
+    );
+    let a = around(&mut rng, 0.0);
+    let mut b = a.clone();
+    b.values[0].1 += 0.2;
+    let w = pkmcal::apply::tooldrift::workspace_drift(&m, &a, &b, &targets, DEFAULT_ALPHA).unwrap();
+    assert!(w.beyond >= targets.len() / 2, "{}", w.beyond);
+    let big = &w.targets[w.largest];
+    assert!(
+        big.distance > 0.05 && big.distance < 0.5,
+        "{}",
+        big.distance
+    );
+}
