@@ -289,3 +289,53 @@ fn demo_runs_the_case_study() {
     let p = std::fs::read_to_string(dir.path().join("p.csv")).unwrap();
     assert!(p.lines().next().unwrap().contains("sigma_x"), "{p}");
 }
+
+/// Tolerances and stated noise, refused by name with nothing written: an
+/// unknown name (option: usage, exit 2; the mechanism file's table: exit 1
+/// naming the file), both --tolerance and --no-tolerances, a relative
+/// tolerance of a parameter nominally 0, a stated angle noise alone.
+#[test]
+fn calibrate_refuses_bad_tolerances_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    simulated(d);
+    let base = ["calibrate", "--data", "data.csv", "--out", "p.toml"];
+    let with = |extra: &[&'static str]| -> Vec<&'static str> {
+        base.iter().copied().chain(extra.iter().copied()).collect()
+    };
+    fails(
+        d,
+        &with(&["--tolerance", "l99=0.1"]),
+        2,
+        "unknown parameter `l99`",
+    );
+    fails(
+        d,
+        &with(&["--tolerance", "l11=0.1", "--no-tolerances"]),
+        2,
+        "not both",
+    );
+    fails(d, &with(&["--tolerance", "dq1=10%"]), 2, "0 nominally");
+    fails(
+        d,
+        &with(&["--stated-angle-noise", "1e-5"]),
+        2,
+        "--stated-noise",
+    );
+    let mech = std::fs::read_to_string(common::example("jeong-kim-2dof")).unwrap();
+    std::fs::write(
+        d.join("m.toml"),
+        format!("{mech}\n[tolerances]\nl1l = 0.05\n"),
+    )
+    .unwrap();
+    fails(
+        d,
+        &with(&["--mechanism", "m.toml"]),
+        1,
+        "in mechanism file m.toml: in the [tolerances] table",
+    );
+    assert!(!d.join("p.toml").exists());
+    // A good one is used: the summary has the tolerance column.
+    let out = common::ok(d, &with(&["--tolerance", "l11=0.05,k2=20%"]));
+    assert!(out.contains("tolerance from data"), "{out}");
+}
