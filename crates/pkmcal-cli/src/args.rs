@@ -71,6 +71,21 @@ pub struct PriorArgs {
     pub no_tolerances: bool,
 }
 
+/// The instrument's noise that weighs readings against the tolerances
+/// (`analyze`, `plan`).
+#[derive(clap::Args)]
+pub struct WeighingNoiseArgs {
+    /// With tolerances: the instrument's noise on each length reading
+    /// without a given σ (mm), which weighs what the readings tell against
+    /// what the tolerances already tell.
+    #[arg(value_parser = values::length_noise, long, default_value_t = 0.002, value_name = "MM")]
+    pub noise: f64,
+    /// With tolerances: the noise on each angle reading, rad (default: the
+    /// length noise over a 200 mm lever arm).
+    #[arg(value_parser = values::angle_noise, long, value_name = "RAD")]
+    pub angle_noise: Option<f64>,
+}
+
 /// What the instrument read and where it stood, for the commands that read
 /// measurements (`calibrate`, `analyze`).
 #[derive(clap::Args)]

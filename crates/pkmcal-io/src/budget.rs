@@ -63,6 +63,16 @@ pub fn tolerance_items(items: &[String]) -> Result<Vec<(String, Tolerance)>> {
     Ok(out)
 }
 
+/// What a command knows of the parameters before the data: the mechanism
+/// file's `[tolerances]` table (and the file, for messages) and the
+/// `--tolerance` items, or none (`--no-tolerances`).
+pub struct Tolerances<'a> {
+    pub table: &'a [(String, Tolerance)],
+    pub file: Option<&'a std::path::Path>,
+    pub items: &'a [String],
+    pub off: bool,
+}
+
 /// The priors of a fit (docs/model.md eq. 13): the mechanism file's
 /// `[tolerances]` table with the `--tolerance` items replacing its entries,
 /// resolved against the mechanism and the instrument (`off`: none, as
@@ -71,13 +81,10 @@ pub fn tolerance_items(items: &[String]) -> Result<Vec<(String, Tolerance)>> {
 pub fn fit_priors(
     spec: &pkmcal::Spec,
     measurement: &pkmcal::MeasurementModel,
-    table: &[(String, Tolerance)],
-    file: Option<&std::path::Path>,
-    items: &[String],
-    off: bool,
+    t: &Tolerances<'_>,
 ) -> Result<Vec<pkmcal::identify::Prior>> {
-    let given = tolerance_items(items)?;
-    if off {
+    let given = tolerance_items(t.items)?;
+    if t.off {
         if !given.is_empty() {
             return crate::output::usage("give either --tolerance or --no-tolerances, not both");
         }
@@ -86,11 +93,28 @@ pub fn fit_priors(
     if let Err(e) = pkmcal::identify::named_priors(spec, measurement, &given) {
         return crate::output::usage(format!("--tolerance: {e}"));
     }
-    let merged = pkmcal::apply::budget::merged_tolerances(table, given);
+    let merged = pkmcal::apply::budget::merged_tolerances(t.table, given);
     pkmcal::identify::named_priors(spec, measurement, &merged).map_err(|e| {
-        let file = file.map_or_else(|| "the mechanism".to_string(), |p| p.display().to_string());
+        let file = t
+            .file
+            .map_or_else(|| "the mechanism".to_string(), |p| p.display().to_string());
         anyhow::anyhow!("in the [tolerances] table of {file}: {e}")
     })
+}
+
+/// The priors ([`fit_priors`]) and the free set they join
+/// ([`crate::calibrate::free_set`]): what every command that fits, analyses
+/// or plans resolves first.
+pub fn priors_and_free<M: pkmcal::Mechanism>(
+    mech: &M,
+    measurement: &pkmcal::MeasurementModel,
+    t: &Tolerances<'_>,
+    free: Option<&str>,
+    fix: Option<&str>,
+) -> Result<(Vec<pkmcal::identify::Prior>, Vec<usize>)> {
+    let priors = fit_priors(mech.spec(), measurement, t)?;
+    let free = crate::calibrate::free_set(mech, measurement, free, fix, &priors)?;
+    Ok((priors, free))
 }
 
 pub fn run_budget(run: &crate::Run<'_>, c: BudgetConfig) -> Result<()> {

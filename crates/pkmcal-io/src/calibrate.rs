@@ -692,20 +692,17 @@ pub fn run_calibrate(run: &crate::Run<'_>, c: CalibrateConfig) -> Result<()> {
     };
     let locate = |e: pkmcal::Error| located_in(e, &c.data, c.distances.as_deref());
     let mut opts = CalibrationOptions::new(spec, c.model);
-    opts.priors = crate::budget::fit_priors(
-        spec,
-        &measurement,
-        &tolerances,
-        path.as_deref(),
-        &c.tolerances,
-        c.no_tolerances,
-    )?;
-    opts.free = free_set(
+    (opts.priors, opts.free) = crate::budget::priors_and_free(
         mech,
         &measurement,
+        &crate::budget::Tolerances {
+            table: &tolerances,
+            file: path.as_deref(),
+            items: &c.tolerances,
+            off: c.no_tolerances,
+        },
         c.free.as_deref(),
         c.fix.as_deref(),
-        &opts.priors,
     )?;
     opts.stated_noise = c.stated_noise;
     opts.stated_noise_readings = c.stated_readings;
@@ -1354,20 +1351,17 @@ pub fn run_analyze(run: &crate::Run<'_>, c: AnalyzeConfig) -> Result<()> {
     let mech = &mech;
     let spec = mech.spec();
     let params = crate::io::params_or_nominal(run, c.params.as_deref(), mech)?;
-    let priors = crate::budget::fit_priors(
-        spec,
-        &measurement,
-        &tolerances,
-        path.as_deref(),
-        &c.tolerances,
-        c.no_tolerances,
-    )?;
-    let free = free_set(
+    let (priors, free) = crate::budget::priors_and_free(
         mech,
         &measurement,
+        &crate::budget::Tolerances {
+            table: &tolerances,
+            file: path.as_deref(),
+            items: &c.tolerances,
+            off: c.no_tolerances,
+        },
         c.free.as_deref(),
         c.fix.as_deref(),
-        &priors,
     )?;
     let force = crate::io::checked_load(c.load.clone(), mech, &params)?;
     let n_data = data.len();

@@ -1,6 +1,5 @@
 //! `compensate`, `plan` and `montecarlo`: using a calibration.
 
-use crate::calibrate::free_set;
 use crate::io::{Csv, csv_bytes, read_description};
 use anyhow::{Context, Result, bail};
 use pkmcal::{
@@ -522,15 +521,18 @@ pub fn run_plan(run: &crate::Run<'_>, c: PlanConfig) -> Result<()> {
     let spec = mech.spec();
     let params = crate::io::params_or_nominal(run, c.params.as_deref(), &mech)?;
     let tool = pkmcal::MeasurementModel::tool(spec);
-    let priors = crate::budget::fit_priors(
-        spec,
+    let (priors, free) = crate::budget::priors_and_free(
+        &mech,
         &tool,
-        &description.tolerances,
-        description.path.as_deref(),
-        &c.tolerances,
-        c.no_tolerances,
+        &crate::budget::Tolerances {
+            table: &description.tolerances,
+            file: description.path.as_deref(),
+            items: &c.tolerances,
+            off: c.no_tolerances,
+        },
+        c.free.as_deref(),
+        c.fix.as_deref(),
     )?;
-    let free = free_set(&mech, &tool, c.free.as_deref(), c.fix.as_deref(), &priors)?;
     let n_priors = priors.len();
     let noise = crate::io::noise_arg(c.noise, c.angle_noise);
     if !(c.candidates.is_finite() && c.candidates > 0.0) {
@@ -723,20 +725,17 @@ pub fn run_montecarlo(run: &crate::Run<'_>, c: MonteCarloConfig) -> Result<()> {
     let poses = read_plan_poses(run, &c.poses, &mech, &units)?;
     let mut cal = CalibrationOptions::new(spec, c.model);
     let tool = pkmcal::MeasurementModel::tool(spec);
-    cal.priors = crate::budget::fit_priors(
-        spec,
-        &tool,
-        &description.tolerances,
-        description.path.as_deref(),
-        &c.tolerances,
-        c.no_tolerances,
-    )?;
-    cal.free = free_set(
+    (cal.priors, cal.free) = crate::budget::priors_and_free(
         &mech,
         &tool,
+        &crate::budget::Tolerances {
+            table: &description.tolerances,
+            file: description.path.as_deref(),
+            items: &c.tolerances,
+            off: c.no_tolerances,
+        },
         c.free.as_deref(),
         c.fix.as_deref(),
-        &cal.priors,
     )?;
     let validation = pkmcal::validation_targets(&mech, c.validation, c.seed)?;
     let bar = run.bar(c.runs as u64, false, "calibrations", 1);

@@ -20,15 +20,8 @@ pub struct Args {
     pub params_set: args::FreeArgs,
     #[command(flatten)]
     pub priors: args::PriorArgs,
-    /// With tolerances: the instrument's noise on each length reading
-    /// without a given σ (mm), which weighs what the readings tell against
-    /// what the tolerances tell.
-    #[arg(value_parser = args::values::length_noise, long, default_value_t = 0.002, value_name = "MM")]
-    pub noise: f64,
-    /// With tolerances: the noise on each angle reading, rad (default: the
-    /// length noise over a 200 mm lever arm).
-    #[arg(value_parser = args::values::angle_noise, long, value_name = "RAD")]
-    pub angle_noise: Option<f64>,
+    #[command(flatten)]
+    pub weighing: args::WeighingNoiseArgs,
     /// Parameter values at which to analyse; nominal if omitted.
     #[arg(long, value_name = "P.toml")]
     pub params: Option<PathBuf>,
@@ -74,8 +67,8 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             distances: a.instrument.distances,
             tolerances: a.priors.tolerance,
             no_tolerances: a.priors.no_tolerances,
-            noise: a.noise,
-            angle_noise: a.angle_noise,
+            noise: a.weighing.noise,
+            angle_noise: a.weighing.angle_noise,
         },
     )
 }

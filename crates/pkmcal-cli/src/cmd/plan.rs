@@ -33,15 +33,8 @@ pub struct Args {
     pub params_set: args::FreeArgs,
     #[command(flatten)]
     pub priors: args::PriorArgs,
-    /// With tolerances: the instrument's noise on each length coordinate
-    /// (mm), which weighs what the poses tell against what the tolerances
-    /// already tell.
-    #[arg(value_parser = args::values::length_noise, long, default_value_t = 0.002, value_name = "MM")]
-    pub noise: f64,
-    /// With tolerances: the noise on each angle coordinate, rad (default:
-    /// the length noise over a 200 mm lever arm).
-    #[arg(value_parser = args::values::angle_noise, long, value_name = "RAD")]
-    pub angle_noise: Option<f64>,
+    #[command(flatten)]
+    pub weighing: args::WeighingNoiseArgs,
     /// Output CSV: targets and commands (target_x,target_y,q1,q2,q3 for the reference).
     #[arg(long, value_name = "POSES.csv")]
     pub out: PathBuf,
@@ -76,8 +69,8 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             grid_out: a.grid_out,
             tolerances: a.priors.tolerance,
             no_tolerances: a.priors.no_tolerances,
-            noise: a.noise,
-            angle_noise: a.angle_noise,
+            noise: a.weighing.noise,
+            angle_noise: a.weighing.angle_noise,
         },
     )
 }
