@@ -124,11 +124,6 @@ pub struct Budget {
     pub after_calibration: Option<ErrorSpread>,
 }
 
-/// Target `k` (from 0) of a budget's targets, as errors name it.
-fn row(k: usize) -> crate::error::Origin {
-    crate::error::Origin::row(k)
-}
-
 /// The error spread of first-order covariances `covs` (one per target).
 fn spread_of(covs: &[DMatrix<f64>], units: &[Unit]) -> ErrorSpread {
     let n = covs.len().max(1) as f64;
@@ -178,7 +173,7 @@ pub fn budget<M: Mechanism>(
         ts.par_iter()
             .enumerate()
             .map(|(k, t)| {
-                let at = |e: Error| e.at_pose(row(k));
+                let at = |e: Error| e.at_pose(crate::error::Origin::row(k));
                 let commands = crate::apply::workspace::nominal_commands(mech, t).map_err(at)?;
                 let pose = prepare_pose(mech, &commands, None).map_err(at)?;
                 let s = sensitivity(mech, &pose, &nominal, opts.model, &opts.force).map_err(at)?;
@@ -262,7 +257,7 @@ pub fn budget<M: Mechanism>(
                 let mut out = vec![0.0; targets.len() * nx];
                 for (k, ((pose, _), t)) in at_targets.iter().zip(targets).enumerate() {
                     let x = predict_pose(mech, pose, &p, opts.model, &opts.force)
-                        .map_err(|e| e.at_pose(row(k)))?
+                        .map_err(|e| e.at_pose(crate::error::Origin::row(k)))?
                         .x;
                     for a in 0..nx {
                         let e = x[a] - t[a];

@@ -21,7 +21,7 @@ use rayon::prelude::*;
 
 /// The parameters a calibration gives, by name over `mech`'s (the others
 /// nominal).
-fn params_of<M: Mechanism>(mech: &M, c: &Compared) -> Result<Params> {
+fn params_of<M: Mechanism>(mech: &M, c: &Compared) -> Params {
     let spec = mech.spec();
     let mut p = Params::nominal(spec);
     for (name, v) in &c.values {
@@ -29,7 +29,7 @@ fn params_of<M: Mechanism>(mech: &M, c: &Compared) -> Result<Params> {
             p.values[i] = *v;
         }
     }
-    Ok(p)
+    p
 }
 
 /// A calibration's covariance over all of `mech`'s parameters (zero where
@@ -64,7 +64,7 @@ pub fn workspace_drift<M: Mechanism>(
         ));
     }
     let spec = mech.spec();
-    let (pa, pb) = (params_of(mech, a)?, params_of(mech, b)?);
+    let (pa, pb) = (params_of(mech, a), params_of(mech, b));
     let cov = full_covariance(mech, a) + full_covariance(mech, b);
     let nu = joint_noise_dof(a, b);
     let lengths: Vec<usize> = (0..spec.tool_axes.len())

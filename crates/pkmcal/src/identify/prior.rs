@@ -214,6 +214,10 @@ impl<P: Problem> Problem for WithPriors<'_, P> {
         jacobian: bool,
     ) -> std::result::Result<(DVector<f64>, Option<DMatrix<f64>>), String> {
         let (r, j) = self.inner.evaluate(x, jacobian)?;
+        if self.terms.is_empty() {
+            // Without priors, the readings' problem as it is (no copy).
+            return Ok((r, j));
+        }
         Ok((
             append_residuals(r, self.terms, x),
             j.map(|j| append_rows(j, self.terms)),
@@ -233,6 +237,9 @@ pub(super) fn append_residuals(r: DVector<f64>, terms: &[PriorTerm], x: &[f64]) 
 
 /// A full Jacobian (every parameter) with the priors' unit rows appended.
 pub(super) fn append_rows(j: DMatrix<f64>, terms: &[PriorTerm]) -> DMatrix<f64> {
+    if terms.is_empty() {
+        return j;
+    }
     let m = j.nrows();
     let mut j = j.resize_vertically(m + terms.len(), 0.0);
     for (a, t) in terms.iter().enumerate() {

@@ -198,7 +198,9 @@ fn linearized_vce(noise: &mut NoiseModel, cal: &Calibration) {
         let (c, _) = lm::covariance(&jw, lm::COVARIANCE_RANK_TOL);
         let step = -(&c * (jw.transpose() * &rw));
         let r = &r0 + &j * &step;
-        let h = leverages_with(&jw.rows(0, m).into_owned(), &c);
+        // The readings' leverages (each row's alone: the priors' follow).
+        let mut h = leverages_with(&jw, &c);
+        h.truncate(m);
         if noise.update(r.as_slice(), &h) < VCE_TOL {
             break;
         }
