@@ -490,3 +490,81 @@ fn distances_between_poses_with_probe_heights() {
         "same file",
     );
 }
+
+/// `--stated-distance-noise` is a prior of the distances' noise (the
+/// calipers are another instrument than the probe): the summary says what
+/// the estimate leaned on, distances far noisier than stated are called a
+/// model that misses something, and it needs `--distances` (issue 37, 5).
+#[test]
+fn stated_distance_noise_is_the_distances_prior_and_reference() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mech = example("linear-delta");
+    ok(
+        d,
+        &[
+            "simulate",
+            "--mechanism",
+            &mech,
+            "--grid",
+            "20",
+            "--probe",
+            "--noise",
+            "0.005",
+            "--out",
+            "probes.csv",
+            "--distances-out",
+            "pairs.csv",
+        ],
+    );
+    let calibrate = |stated: &str| {
+        let args = [
+            "calibrate",
+            "--mechanism",
+            &mech,
+            "--data",
+            "probes.csv",
+            "--distances",
+            "pairs.csv",
+            "--free",
+            "delta_radius,angle_a,angle_b,da,db,dc,arm_a,arm_b,arm_c",
+            "--stated-distance-noise",
+            stated,
+            "--out",
+            "p.toml",
+        ];
+        ok(d, &args)
+    };
+    let out = calibrate("0.005");
+    let line = out
+        .lines()
+        .find(|l| l.contains("noise of lengths (distance, 20 coordinates)"))
+        .unwrap_or_else(|| panic!("{out}"));
+    assert!(
+        line.contains("estimated from the residuals and the stated 5.000 µm (worth 10 readings)"),
+        "{line}"
+    );
+    assert!(!out.contains("misses"), "{out}");
+    let out = calibrate("0.0005");
+    assert!(out.contains("misses"), "{out}");
+    assert!(
+        out.contains("(distance readings) exceeds the stated 5.000e-4 mm"),
+        "{out}"
+    );
+    fails(
+        d,
+        &[
+            "calibrate",
+            "--mechanism",
+            &mech,
+            "--data",
+            "probes.csv",
+            "--stated-distance-noise",
+            "0.005",
+            "--out",
+            "q.toml",
+        ],
+        2,
+        "--distances",
+    );
+}

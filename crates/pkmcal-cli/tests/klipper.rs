@@ -878,3 +878,83 @@ fn klippers_weighting_is_the_default_and_the_estimated_ratio_has_its_interval() 
     assert!(lo < k && k < hi, "{line}");
     assert!(hi / lo > 10.0, "{line}");
 }
+
+/// `--weighting shrunk:N` estimates the heights' and distances' noise as
+/// far as the data support it, with Klipper's ratio worth N readings a
+/// group: none gives the estimated weighting's values, very many Klipper's,
+/// and the default's ratio lies between the data's and Klipper's (issue 37,
+/// 5). A worth that is not a number is refused.
+#[test]
+fn shrunk_weighting_runs_from_the_estimated_to_klippers() {
+    let Some(root) = real_configs() else {
+        return;
+    };
+    let cfg = root.join("cases/alexeyzel-q5-1/printer.cfg");
+    let cfg = cfg.to_str().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let run = |weighting: &str| {
+        let out = ok(
+            d,
+            &[
+                "klipper",
+                "--config",
+                cfg,
+                "--weighting",
+                weighting,
+                "--out",
+                "new.cfg",
+            ],
+        );
+        let values = saved_values(&std::fs::read_to_string(d.join("new.cfg")).unwrap());
+        std::fs::remove_file(d.join("new.cfg")).unwrap();
+        (out, values)
+    };
+    let worst = |a: &std::collections::BTreeMap<(String, String), f64>,
+                 b: &std::collections::BTreeMap<(String, String), f64>| {
+        assert_eq!(a.len(), b.len());
+        a.iter()
+            .map(|(k, v)| (b[k] - v).abs())
+            .fold(0.0_f64, f64::max)
+    };
+    let ratio = |out: &str| -> f64 {
+        let l = out
+            .lines()
+            .find_map(|l| l.strip_prefix("variance ratio heights/distances: "))
+            .unwrap_or_else(|| panic!("{out}"));
+        l[..l.find([' ', ',']).unwrap()].parse().unwrap()
+    };
+    let (estimated_out, estimated) = run("estimated");
+    let (_, none) = run("shrunk:0");
+    // Both stop where the noise estimates settle (relative change 1e-3).
+    assert!(
+        worst(&estimated, &none) < KLIPPERS_BASIC,
+        "{estimated:?} {none:?}"
+    );
+    let (_, klipper) = run("klipper");
+    let (_, many) = run("shrunk:1e9");
+    assert!(
+        worst(&klipper, &many) < KLIPPERS_BASIC,
+        "{klipper:?} {many:?}"
+    );
+    assert!(worst(&klipper, &estimated) > 10.0 * KLIPPERS_BASIC);
+    let (shrunk_out, _) = run("shrunk");
+    assert!(
+        shrunk_out.contains("with 10 pseudo-readings"),
+        "{shrunk_out}"
+    );
+    let (data, shrunk) = (ratio(&estimated_out), ratio(&shrunk_out));
+    let fixed: f64 = shrunk_out[shrunk_out.find("Klipper's fixed ").unwrap() + 16..]
+        .split(' ')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(data < shrunk && shrunk < fixed, "{data} {shrunk} {fixed}");
+    fails(
+        d,
+        &["klipper", "--config", cfg, "--weighting", "shrunk:many"],
+        2,
+        "give the pseudo-readings as a non-negative number",
+    );
+}

@@ -2,9 +2,12 @@
 //! (Klipper's probe heights against the distances measured on its
 //! calibration object): for every real printer's extended calibration, each
 //! reading is left out in turn, the rest fitted as `pkmcal klipper` fits
-//! them (estimated weighting, then Klipper's fixed ratio), and the left-out
-//! reading predicted. Prints the RMS prediction error of the held-out
-//! heights and distances per printer and weighting (BENCHMARKS.md, issue 39).
+//! them (estimated weighting, the estimate shrunk towards Klipper's ratio
+//! with several numbers of pseudo-readings, then Klipper's fixed ratio), and
+//! the left-out reading predicted. Prints the RMS prediction error of the
+//! held-out heights and distances per printer and weighting, and per
+//! weighting the number of printers it predicts best and its score summed
+//! over them (BENCHMARKS.md, issues 39 and 37).
 //!
 //!     cargo run --release -p pkmcal-io --example klipper_loo -- <real-configs/klipper/cases>
 
@@ -37,6 +40,55 @@ fn rms(v: &[f64]) -> f64 {
     (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt()
 }
 
+/// The weightings compared, with their labels: the estimated one, the
+/// estimate shrunk towards Klipper's ratio with ν₀ pseudo-readings, and
+/// Klipper's fixed ratio.
+fn weightings() -> Vec<(String, Weighting)> {
+    let mut w = vec![("estimated".to_string(), Weighting::Estimated)];
+    for nu in [1.0, 2.0, 3.0, 5.0, 10.0, 20.0, 50.0] {
+        w.push((format!("shrunk:{nu}"), Weighting::Shrunk(nu)));
+    }
+    w.push(("klipper".to_string(), Weighting::Klipper));
+    w
+}
+
+/// Held-out RMS errors (heights, distances) of every reading of `delta`
+/// left out in turn under `weighting`.
+fn leave_one_out(
+    delta: &pkmcal_io::klipper::KlipperDelta,
+    weighting: Weighting,
+) -> Result<(f64, f64)> {
+    let nh = delta.probes.len();
+    let p = klipper_problem(delta, weighting, None, None)?;
+    let nominal = Params::nominal(p.mech.spec());
+    let (mut eh, mut ed) = (vec![], vec![]);
+    for i in 0..p.data.len() {
+        let mut rest = p.data.clone();
+        let out = rest.remove(i);
+        let split = if i < nh { nh - 1 } else { nh };
+        let (poses, distances) = rest.split_at(split);
+        let study = pkmcal::identify::study(
+            &p.mech,
+            &p.measurement,
+            poses,
+            distances.to_vec(),
+            &nominal,
+            &pkmcal::identify::StudyOptions {
+                calibration: p.opts.clone(),
+                validation: pkmcal::identify::ValidationPlan::None,
+                kfold: None,
+                seed: 0,
+            },
+            &|| {},
+        )
+        .map_err(|e| anyhow::anyhow!("{}", e.error))?;
+        let cal = &study.calibration;
+        let e = held_out_error(&p, &cal.params, &cal.measurement, &out)?;
+        if i < nh { eh.push(e) } else { ed.push(e) }
+    }
+    Ok((rms(&eh), rms(&ed)))
+}
+
 fn main() -> Result<()> {
     let root = std::env::args()
         .nth(1)
@@ -47,13 +99,14 @@ fn main() -> Result<()> {
     cases.sort();
     let files = pkmcal_io::Files::new();
     let run = pkmcal_io::Run::quiet(&files);
+    let ws = weightings();
+    let klipper = ws.len() - 1;
     println!(
         "| printer | heights | distances | estimated: heights | distances | Klipper's: heights | distances |"
     );
     println!("|---|---|---|---|---|---|---|");
-    let mut totals = [[0.0f64; 2]; 2];
-    let mut better = [0usize; 2];
-    let mut count = 0;
+    // Per printer, per weighting: (heights RMS, distances RMS).
+    let mut all: Vec<Vec<(f64, f64)>> = vec![];
     for case in cases {
         let path = case.join("printer.cfg");
         let Ok(text) = std::fs::read_to_string(&path) else {
@@ -64,68 +117,61 @@ fn main() -> Result<()> {
         if delta.distances.is_empty() {
             continue;
         }
-        let nh = delta.probes.len();
-        let mut row = vec![];
-        for weighting in [Weighting::Estimated, Weighting::Klipper] {
-            let p = klipper_problem(&delta, weighting, None, None)?;
-            let nominal = Params::nominal(p.mech.spec());
-            let (mut eh, mut ed) = (vec![], vec![]);
-            for i in 0..p.data.len() {
-                let mut rest = p.data.clone();
-                let out = rest.remove(i);
-                let split = if i < nh { nh - 1 } else { nh };
-                let (poses, distances) = rest.split_at(split);
-                let study = pkmcal::identify::study(
-                    &p.mech,
-                    &p.measurement,
-                    poses,
-                    distances.to_vec(),
-                    &nominal,
-                    &pkmcal::identify::StudyOptions {
-                        calibration: p.opts.clone(),
-                        validation: pkmcal::identify::ValidationPlan::None,
-                        kfold: None,
-                        seed: 0,
-                    },
-                    &|| {},
-                )
-                .map_err(|e| anyhow::anyhow!("{}: {}", case.display(), e.error))?;
-                let cal = &study.calibration;
-                let e = held_out_error(&p, &cal.params, &cal.measurement, &out)?;
-                if i < nh { eh.push(e) } else { ed.push(e) }
-            }
-            row.push((rms(&eh), rms(&ed)));
-        }
+        let row = ws
+            .iter()
+            .map(|(_, w)| leave_one_out(&delta, *w))
+            .collect::<Result<Vec<_>>>()
+            .with_context(|| case.display().to_string())?;
         let name = case.file_name().unwrap().to_string_lossy().into_owned();
         println!(
-            "| {name} | {nh} | {} | {:.1} µm | {:.1} µm | {:.1} µm | {:.1} µm |",
+            "| {name} | {} | {} | {:.1} µm | {:.1} µm | {:.1} µm | {:.1} µm |",
+            delta.probes.len(),
             delta.distances.len(),
             row[0].0 * 1e3,
             row[0].1 * 1e3,
-            row[1].0 * 1e3,
-            row[1].1 * 1e3
+            row[klipper].0 * 1e3,
+            row[klipper].1 * 1e3
         );
-        for (w, (h, d)) in row.iter().enumerate() {
-            totals[w][0] += h * h;
-            totals[w][1] += d * d;
-        }
-        // The weighting whose held-out readings (heights and distances
-        // together, each by its own RMS) are predicted better.
-        let score = |(h, d): (f64, f64)| h * h + d * d;
-        better[usize::from(score(row[1]) < score(row[0]))] += 1;
-        count += 1;
+        all.push(row);
     }
-    let q = |v: f64| (v / count.max(1) as f64).sqrt() * 1e3;
+    let count = all.len();
+    // A weighting's score on a printer: its held-out heights and distances
+    // together, each by its own RMS.
+    let score = |(h, d): (f64, f64)| h * h + d * d;
     println!(
-        "| all {count} (RMS over printers) | | | {:.1} µm | {:.1} µm | {:.1} µm | {:.1} µm |",
-        q(totals[0][0]),
-        q(totals[0][1]),
-        q(totals[1][0]),
-        q(totals[1][1])
+        "\n| weighting | heights (RMS over printers) | distances | printers predicted better than by Klipper's ratio | worse | median score / Klipper's |"
     );
-    println!(
-        "\nheld-out readings predicted better: estimated weighting on {} printers, Klipper's on {}",
-        better[0], better[1]
-    );
+    println!("|---|---|---|---|---|---|");
+    for (w, (label, _)) in ws.iter().enumerate() {
+        let q = |f: &dyn Fn(&(f64, f64)) -> f64| {
+            (all.iter().map(|r| f(&r[w]).powi(2)).sum::<f64>() / count.max(1) as f64).sqrt() * 1e3
+        };
+        let better = all
+            .iter()
+            .filter(|r| score(r[w]) < score(r[klipper]))
+            .count();
+        let worse = all
+            .iter()
+            .filter(|r| score(r[w]) > score(r[klipper]))
+            .count();
+        let mut ratio: Vec<f64> = all
+            .iter()
+            .map(|r| score(r[w]) / score(r[klipper]))
+            .collect();
+        ratio.sort_by(f64::total_cmp);
+        let median = if ratio.is_empty() {
+            f64::NAN
+        } else if ratio.len() % 2 == 1 {
+            ratio[ratio.len() / 2]
+        } else {
+            0.5 * (ratio[ratio.len() / 2 - 1] + ratio[ratio.len() / 2])
+        };
+        println!(
+            "| {label} | {:.1} µm | {:.1} µm | {better} | {worse} | {median:.4} |",
+            q(&|r| r.0),
+            q(&|r| r.1),
+        );
+    }
+    println!("\n{count} printers with distances");
     Ok(())
 }

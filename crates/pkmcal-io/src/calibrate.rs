@@ -527,6 +527,8 @@ pub struct CalibrateConfig {
     /// stated noise, a prior of the estimate and the adequacy test's
     /// reference; `--stated-readings`: what it is worth.
     pub stated_noise: Option<pkmcal::Noise>,
+    /// `--stated-distance-noise`: the stated noise of `--distances`' readings.
+    pub stated_distance_noise: Option<f64>,
     pub stated_readings: f64,
 }
 
@@ -705,6 +707,7 @@ pub fn run_calibrate(run: &crate::Run<'_>, c: CalibrateConfig) -> Result<()> {
         c.fix.as_deref(),
     )?;
     opts.stated_noise = c.stated_noise;
+    opts.stated_distance_noise = c.stated_distance_noise;
     opts.stated_noise_readings = c.stated_readings;
     opts.force = crate::io::checked_load(c.load.clone(), mech, &start)?;
     opts.loss = c.loss;

@@ -42,7 +42,7 @@ pub struct KlipperConfig {
 
 /// How probe heights and calibration-object distances are weighed against
 /// each other in one fit.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Weighting {
     /// A noise level each, estimated from the residuals (variance
     /// components).
@@ -51,21 +51,43 @@ pub enum Weighting {
     /// weigh `n_distances / (0.5 · n_probed)` times the distances'
     /// (`n_probed` counts the probed heights, not the manual ones).
     Klipper,
+    /// A noise level each, estimated from the residuals as far as they
+    /// support it: each group's variance shrinks towards its share of
+    /// Klipper's ratio (at the pooled scale) with the given number of
+    /// pseudo-readings (0: `Estimated`; infinite: `Klipper`).
+    Shrunk(f64),
 }
 
+/// Pseudo-readings `--weighting shrunk` gives Klipper's ratio by default,
+/// as many as a stated noise is worth in `calibrate`
+/// ([`pkmcal::identify::DEFAULT_STATED_NOISE_READINGS`]). On the real
+/// printers' 7 heights and 12 distances, leave-one-out prediction improves
+/// with every pseudo-reading added, up to Klipper's fixed ratio (infinitely
+/// many), which is why that is the default weighting
+/// (`examples/klipper_loo.rs`, BENCHMARKS.md).
+pub const DEFAULT_RATIO_READINGS: f64 = pkmcal::identify::DEFAULT_STATED_NOISE_READINGS;
+
 impl Weighting {
-    /// The names a front end takes, in order.
-    pub const NAMES: [&str; 2] = ["estimated", "klipper"];
+    /// The names a front end takes, in order (`shrunk:N` gives the
+    /// pseudo-readings).
+    pub const NAMES: [&str; 3] = ["estimated", "klipper", "shrunk"];
 }
 
 impl std::str::FromStr for Weighting {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "estimated" => Ok(Weighting::Estimated),
-            "klipper" => Ok(Weighting::Klipper),
+        match s.split_once(':') {
+            None if s == "estimated" => Ok(Weighting::Estimated),
+            None if s == "klipper" => Ok(Weighting::Klipper),
+            None if s == "shrunk" => Ok(Weighting::Shrunk(DEFAULT_RATIO_READINGS)),
+            Some(("shrunk", n)) => match n.trim().parse::<f64>() {
+                Ok(v) if v.is_finite() && v >= 0.0 => Ok(Weighting::Shrunk(v)),
+                _ => Err(format!(
+                    "`shrunk:{n}`: give the pseudo-readings as a non-negative number, e.g. shrunk:{DEFAULT_RATIO_READINGS}"
+                )),
+            },
             _ => Err(format!(
-                "unknown weighting `{s}`; one of {}",
+                "unknown weighting `{s}`; one of {} (shrunk:N for N pseudo-readings)",
                 Weighting::NAMES.join(", ")
             )),
         }
@@ -1079,6 +1101,15 @@ pub fn klipper_problem(
         default.extend(KLIPPER_EXTENDED.map(String::from));
     }
     let mut opts = CalibrationOptions::new(spec, Model::Exact);
+    if let Weighting::Shrunk(readings) = weighting
+        && !delta.distances.is_empty()
+    {
+        // Klipper's ratio as the stated one, its scale estimated.
+        opts.stated_noise = Some(pkmcal::Noise::lengths(1.0 / klipper_z_weight(delta).sqrt()));
+        opts.stated_distance_noise = Some(1.0);
+        opts.stated_noise_readings = readings;
+        opts.stated_noise_relative = true;
+    }
     let free_names;
     (free_names, opts.free) = free_list(free, fix, &default, spec, &measurement)?;
     Ok(KlipperProblem {
@@ -1177,6 +1208,11 @@ pub fn run_klipper(run: &crate::Run<'_>, c: KlipperConfig) -> Result<()> {
                 noise_of(cal, pkmcal::DISTANCE_AXIS)
             ),
             Weighting::Klipper => "heights and distances weighed as Klipper weighs them".into(),
+            Weighting::Shrunk(n) => format!(
+                "noise σ: heights {}, distances {}, estimated and shrunk towards Klipper's ratio with {n} pseudo-readings",
+                noise_of(cal, "probe"),
+                noise_of(cal, pkmcal::DISTANCE_AXIS)
+            ),
         };
         println!(
             "distance errors: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm ({weighing})",
@@ -1185,6 +1221,17 @@ pub fn run_klipper(run: &crate::Run<'_>, c: KlipperConfig) -> Result<()> {
         // How well the data fix the weighting: the variance ratio with its
         // interval, against Klipper's fixed ratio.
         let group = |axis: &str| cal.noise.iter().find(|g| g.axes.iter().any(|a| a == axis));
+        if let (Some(h), Some(dg), Weighting::Shrunk(n)) =
+            (group("probe"), group(pkmcal::DISTANCE_AXIS), c.weighting)
+        {
+            println!(
+                "variance ratio heights/distances: {:.3}, from the data's {:.1} and {:.1} degrees of freedom and Klipper's fixed {:.3} worth {n} readings a group",
+                (h.sigma / dg.sigma).powi(2),
+                h.redundancy.unwrap_or(f64::NAN),
+                dg.redundancy.unwrap_or(f64::NAN),
+                1.0 / klipper_z_weight(&delta)
+            );
+        }
         if let (Some(h), Some(dg)) = (group("probe"), group(pkmcal::DISTANCE_AXIS))
             && let Some(r) = pkmcal::variance_ratio(h, dg, VARIANCE_RATIO_LEVEL)
         {

@@ -135,3 +135,30 @@ def test_a_stated_noise_the_residuals_exceed_is_a_model_warning():
         pkmcal.calibrate(m, commands, measured, stated_noise=0.05)
     with pytest.raises(pkmcal.PkmcalError, match="stated_angle_noise"):
         pkmcal.calibrate(m, commands, measured, stated_angle_noise=1e-5)
+
+
+def test_a_stated_distance_noise_is_the_calipers_prior_and_reference():
+    """stated_distance_noise= is to distances= what stated_noise= is to the
+    readings: caliper distances far noisier than stated are a model warning
+    naming the distances; a fair statement is not; without distances it is
+    refused."""
+    delta = pkmcal.Mechanism(EXAMPLES / "linear-delta" / "mechanism.toml")
+    targets = pkmcal.plan(delta, 24).targets
+    commands, measured = pkmcal.simulate(delta, targets, axes=["probe"], noise=0.005, seed=1)
+    a, b = targets[:12], targets[12:]
+    ca, xa = pkmcal.simulate(delta, a, seed=2)
+    cb, xb = pkmcal.simulate(delta, b, seed=3)
+    d = np.linalg.norm(xa - xb, axis=1) + np.random.default_rng(4).normal(0.0, 0.02, 12)
+    free = ["delta_radius", "angle_a", "angle_b", "da", "db", "dc", "arm_a", "arm_b", "arm_c"]
+    fit = lambda **kw: pkmcal.calibrate(  # noqa: E731
+        delta, commands, measured, axes=["probe"], free=free, distances=(ca, cb, d), **kw
+    )
+    with pytest.warns(pkmcal.ModelWarning, match=r"\(distance readings\) exceeds the stated 1.000e-3 mm"):
+        fit(stated_distance_noise=0.001)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", pkmcal.ModelWarning)
+        fit(stated_distance_noise=0.02)
+    with pytest.raises(pkmcal.PkmcalError, match="give the distances too"):
+        pkmcal.calibrate(delta, commands, measured, axes=["probe"], stated_distance_noise=0.02)
+    with pytest.raises(pkmcal.PkmcalError, match="positive number of mm"):
+        fit(stated_distance_noise=float("nan"))

@@ -32,7 +32,12 @@ pub struct Args {
     /// length noise over a 200 mm lever arm).
     #[arg(value_parser = args::values::positive, long, value_name = "RAD", requires = "stated_noise")]
     pub stated_angle_noise: Option<f64>,
-    /// How many readings the stated noise is worth against the residuals.
+    /// The stated noise of the distances given with `--distances`, mm
+    /// (calipers on a printed part, a gauge: another instrument than the
+    /// data's).
+    #[arg(value_parser = args::values::sigma_mm, long, value_name = "MM", requires = "distances")]
+    pub stated_distance_noise: Option<f64>,
+    /// How many readings each stated noise is worth against the residuals.
     #[arg(value_parser = args::values::non_negative, long, default_value_t = pkmcal::identify::DEFAULT_STATED_NOISE_READINGS, value_name = "N")]
     pub stated_readings: f64,
     /// Starting (and fixed) parameter values; nominal if omitted.
@@ -139,6 +144,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             stated_noise: a
                 .stated_noise
                 .map(|l| pkmcal_io::io::noise_arg(l, a.stated_angle_noise)),
+            stated_distance_noise: a.stated_distance_noise,
             stated_readings: a.stated_readings,
         },
     )

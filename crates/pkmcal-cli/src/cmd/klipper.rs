@@ -35,7 +35,10 @@ pub struct Args {
     /// n_distances / (0.5 · n_probed) times a distance; the default, which
     /// predicted left-out readings better on 10 of 11 real printers) or
     /// `estimated` (a noise level each, estimated from the residuals; 7
-    /// heights and 12 distances leave its ratio uncertain by two decades).
+    /// heights and 12 distances leave its ratio uncertain by two decades)
+    /// or `shrunk[:N]` (the estimates shrunk towards Klipper's ratio, worth
+    /// N readings a group, 10 by default; on the real printers more
+    /// pseudo-readings predicted better, up to Klipper's ratio).
     #[arg(long, default_value = "klipper", value_parser = args::values::weighting)]
     pub weighting: pkmcal_io::klipper::Weighting,
 }

@@ -415,6 +415,7 @@ def calibrate(
     stated_noise: Optional[float] = None,
     stated_angle_noise: Optional[float] = None,
     stated_readings: float = 10.0,
+    stated_distance_noise: Optional[float] = None,
 ) -> Calibration: ...
 def analyze(
     mechanism: MechanismLike,

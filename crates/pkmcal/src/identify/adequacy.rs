@@ -37,55 +37,60 @@ pub(super) fn adequacy<M: Mechanism>(
     problem: &IdentificationProblem<'_, M>,
     cal: &Calibration,
 ) -> Result<Option<Warning>> {
-    // (unit, σ found, σ stated, p, σ given in the data) of the worst
-    // failing test.
-    type Test = (crate::units::Unit, f64, f64, f64, bool);
-    let mut worst: Option<Test> = None;
-    let mut keep = |t: Test| {
-        if t.3 < ADEQUACY_ALPHA && worst.is_none_or(|w| t.3 < w.3) {
-            worst = Some(t);
+    // The worst failing test (lowest p).
+    let mut worst: Option<(f64, WarningKind)> = None;
+    let mut keep = |p: f64, kind: WarningKind| {
+        if p < ADEQUACY_ALPHA && worst.as_ref().is_none_or(|w| p < w.0) {
+            worst = Some((p, kind));
         }
     };
     for g in &cal.noise {
         let (Some(s0), Some(red)) = (g.stated, g.redundancy) else {
             continue;
         };
-        if red < 1.0 || g.count == 0 {
+        if red < 1.0 || g.count == 0 || g.stated_relative {
             continue;
         }
         let ss = g.residual_rms.powi(2) * g.count as f64;
-        keep((
-            g.unit,
-            (ss / red).sqrt(),
-            s0,
-            chi2_tail(ss / (s0 * s0), red),
-            false,
-        ));
+        let p = chi2_tail(ss / (s0 * s0), red);
+        keep(
+            p,
+            WarningKind::ModelInadequate {
+                unit: g.unit,
+                axes: g.axes.clone(),
+                found: (ss / red).sqrt(),
+                stated: s0,
+                given: false,
+                p,
+                suspects: vec![],
+            },
+        );
     }
     if !cal.noise.is_empty() && cal.noise.iter().all(|g| !g.estimated) {
         let dof = (cal.residuals.len() + cal.priors.len()).saturating_sub(cal.free.len());
         if dof > 0 {
-            let unit = cal.noise[0].unit;
-            keep((
-                unit,
-                cal.unit_weight_sigma,
-                1.0,
-                chi2_tail(cal.sum_of_squares, dof as f64),
-                true,
-            ));
+            let p = chi2_tail(cal.sum_of_squares, dof as f64);
+            keep(
+                p,
+                WarningKind::ModelInadequate {
+                    unit: cal.noise[0].unit,
+                    axes: vec![],
+                    found: cal.unit_weight_sigma,
+                    stated: 1.0,
+                    given: true,
+                    p,
+                    suspects: vec![],
+                },
+            );
         }
     }
-    let Some((unit, found, stated, p, given)) = worst else {
+    let Some((_, mut kind)) = worst else {
         return Ok(None);
     };
-    Ok(Some(Warning::new(WarningKind::ModelInadequate {
-        unit,
-        found,
-        stated,
-        given,
-        p,
-        suspects: suspects(problem, cal)?,
-    })))
+    if let WarningKind::ModelInadequate { suspects: s, .. } = &mut kind {
+        *s = suspects(problem, cal)?;
+    }
+    Ok(Some(Warning::new(kind)))
 }
 
 /// The parameters left out of the fit that would explain most of its

@@ -61,9 +61,20 @@ pub struct CalibrationOptions {
     /// holds the residuals against ([`super::adequacy`]). `None`: the noise
     /// is estimated from the data alone and not tested.
     pub stated_noise: Option<crate::measurement::data::Noise>,
-    /// How many readings the stated noise is worth
-    /// ([`DEFAULT_STATED_NOISE_READINGS`] by default).
+    /// The stated noise of the distances between poses (mm; calipers on a
+    /// printed part, a ball bar: another instrument than the readings'), a
+    /// prior of their noise estimate as `stated_noise` is of the readings'.
+    pub stated_distance_noise: Option<f64>,
+    /// How many readings each stated noise is worth
+    /// ([`DEFAULT_STATED_NOISE_READINGS`] by default; infinite: the stated
+    /// σ are taken as they are).
     pub stated_noise_readings: f64,
+    /// Only the stated noises' ratios are known (a weighing rule such as
+    /// Klipper's heights against distances), not their scale: the scale is
+    /// estimated from every stated group's residuals pooled, each group's σ
+    /// shrinks towards its stated share of it, and no adequacy test holds
+    /// the residuals to it.
+    pub stated_noise_relative: bool,
 }
 
 /// Readings a stated noise is worth by default: a group of fewer readings'
@@ -94,7 +105,9 @@ impl CalibrationOptions {
             exactly_determined: false,
             priors: vec![],
             stated_noise: None,
+            stated_distance_noise: None,
             stated_noise_readings: DEFAULT_STATED_NOISE_READINGS,
+            stated_noise_relative: false,
         }
     }
 }

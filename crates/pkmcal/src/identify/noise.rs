@@ -52,6 +52,12 @@ pub struct NoiseGroup {
     /// How many readings the stated σ was worth.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stated_readings: Option<f64>,
+    /// Whether only the stated σ's ratios to the other groups' were stated
+    /// (a weighing rule such as Klipper's): `stated` is then the stated
+    /// share of a common scale estimated from every stated group's
+    /// residuals, and no adequacy test holds the group to it.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub stated_relative: bool,
 }
 
 /// The ratio of two groups' variances, `σ_a² / σ_b²`, with its confidence
@@ -72,10 +78,14 @@ pub struct VarianceRatio {
 }
 
 /// [`VarianceRatio`] of groups `a` and `b` at confidence `level`; `None`
-/// when either σ was given, or either group has less than one degree of
+/// when either σ was given or leans on a stated one (it is then not the
+/// data's estimate alone), or either group has less than one degree of
 /// freedom left.
 pub fn variance_ratio(a: &NoiseGroup, b: &NoiseGroup, level: f64) -> Option<VarianceRatio> {
     use statrs::distribution::{ContinuousCDF, FisherSnedecor};
+    if a.stated.is_some() || b.stated.is_some() {
+        return None;
+    }
     let (na, nb) = (a.redundancy?.floor(), b.redundancy?.floor());
     if !(na >= 1.0 && nb >= 1.0 && b.sigma > 0.0 && level > 0.0 && level < 1.0) {
         return None;
@@ -107,6 +117,12 @@ pub(crate) struct NoiseModel {
     redundancy: Vec<f64>,
     /// Each estimated group's stated σ and the readings it is worth.
     stated: Vec<Option<(f64, f64)>>,
+    /// Whether only the stated σ's ratios are known: they are then scaled
+    /// by the common factor `scale` estimated from the residuals.
+    relative: bool,
+    /// The stated σ's common scale factor at the last update (1 unless
+    /// `relative`).
+    scale: f64,
 }
 
 impl NoiseModel {
@@ -147,23 +163,39 @@ impl NoiseModel {
             sigma: vec![1.0; n],
             redundancy: vec![f64::NAN; n],
             stated: vec![None; n],
+            relative: false,
+            scale: 1.0,
         }
     }
 
-    /// The instrument's stated noise as a prior of its readings' groups (not
-    /// of the distances between poses, another instrument), worth
-    /// `readings` readings: each such group's σ² is then
-    /// `(ν₀ σ₀² + Σ r²) / (ν₀ + Σ (1 − h))`, the data's estimate as far as
-    /// their redundancy supports it (docs/model.md §6). The groups start
-    /// from it.
-    pub fn with_stated(mut self, noise: Noise, readings: f64) -> Self {
+    /// The stated noise as a prior of the estimated groups, worth
+    /// `readings` readings: `noise` for the instrument's readings, `distances`
+    /// (mm) for the distances between poses (another instrument: calipers, a
+    /// ball bar). Each such group's σ² is then `(ν₀ σ₀² + Σ r²) / (ν₀ + Σ (1 −
+    /// h))`, the data's estimate as far as their redundancy supports it
+    /// (docs/model.md §6); with `ν₀` infinite, the stated σ₀. With
+    /// `relative`, only the stated σ's ratios are known (a weighing rule):
+    /// `σ₀` is the stated value times a common scale `τ`, with `τ² = Σ Σ r² /
+    /// σ₀² / Σ Σ (1 − h)` over the stated groups, the pooled estimate under
+    /// the stated ratios. The groups start from the stated σ.
+    pub fn with_stated(
+        mut self,
+        noise: Option<Noise>,
+        distances: Option<f64>,
+        readings: f64,
+        relative: bool,
+    ) -> Self {
         for (g, (unit, pair, _)) in self.groups.iter().enumerate() {
-            if !*pair {
-                let s0 = noise.for_unit(*unit);
+            let s0 = match pair {
+                false => noise.map(|n| n.for_unit(*unit)),
+                true => distances.filter(|_| *unit == Unit::Millimetre),
+            };
+            if let Some(s0) = s0 {
                 self.stated[g] = Some((s0, readings));
                 self.sigma[g] = s0;
             }
         }
+        self.relative = relative;
         self
     }
 
@@ -202,9 +234,28 @@ impl NoiseModel {
         }
         let mut change: f64 = 0.0;
         self.redundancy.clone_from(&red);
+        if self.relative {
+            // The common scale of the stated σ: the pooled estimate under
+            // the stated ratios.
+            let (mut num, mut den) = (0.0, 0.0);
+            for g in 0..n {
+                if let Some((s0, _)) = self.stated[g] {
+                    num += ss[g] / (s0 * s0);
+                    den += red[g];
+                }
+            }
+            if num > 0.0 && den > 0.0 {
+                self.scale = (num / den).sqrt();
+            }
+        }
         for g in 0..n {
             if let Some((s0, nu)) = self.stated[g] {
-                let s = ((nu * s0 * s0 + ss[g]) / (nu + red[g])).sqrt();
+                let s0 = s0 * self.scale;
+                let s = if nu.is_infinite() {
+                    s0
+                } else {
+                    ((nu * s0 * s0 + ss[g]) / (nu + red[g])).sqrt()
+                };
                 change = change.max((s / self.sigma[g] - 1.0).abs());
                 self.sigma[g] = s;
             } else if red[g] > 0.0 && ss[g] > 0.0 {
@@ -238,8 +289,9 @@ impl NoiseModel {
                     sigma: self.sigma[g],
                     residual_rms: rms(&v),
                     redundancy: Some(self.redundancy[g]).filter(|r| !r.is_nan()),
-                    stated: self.stated[g].map(|s| s.0),
+                    stated: self.stated[g].map(|s| s.0 * self.scale),
                     stated_readings: self.stated[g].map(|s| s.1),
+                    stated_relative: self.relative && self.stated[g].is_some(),
                 }
             })
             .collect();
@@ -273,6 +325,7 @@ impl NoiseModel {
             redundancy: None,
             stated: None,
             stated_readings: None,
+            stated_relative: false,
         }));
         out
     }
@@ -334,6 +387,7 @@ mod tests {
             redundancy: Some(nu),
             stated: None,
             stated_readings: None,
+            stated_relative: false,
         };
         let r = variance_ratio(&group(2.0, 10.5), &group(1.0, 20.0), 0.95).unwrap();
         assert_eq!(r.ratio, 4.0);
@@ -404,5 +458,80 @@ mod tests {
         assert_eq!(rep[2].axes, vec!["distance".to_string()]);
         assert_eq!(rep[2].count, 2);
         assert_eq!(rep[2].unit, Unit::Millimetre);
+    }
+
+    /// Stated noise as a prior of each group, the distances' included, by
+    /// the formula of docs/model.md §6; with only the ratios stated, their
+    /// common scale is the pooled estimate, no readings' worth gives the
+    /// data's own estimates and an infinite worth the stated ratio.
+    #[test]
+    fn stated_noise_is_a_prior_of_every_group_and_a_ratio_shrinks() {
+        use crate::Mechanism;
+        let mech = hexapod();
+        let tool = MeasurementModel::tool_axes(mech.spec(), &["x", "y"]).unwrap();
+        let pose = Measurement {
+            measured: vec![0.0; 2],
+            ..Default::default()
+        };
+        let pair = Measurement {
+            measured: vec![0.0],
+            partner: Some(vec![]),
+            ..Default::default()
+        };
+        let data = [pose.clone(), pose, pair.clone(), pair.clone(), pair];
+        let r = [0.01, -0.02, 0.015, 0.005, 0.3, -0.2, 0.25];
+        let h = [0.3, 0.2, 0.4, 0.1, 0.5, 0.2, 0.3];
+        let (ss0, red0) = (
+            0.01f64.powi(2) + 0.02f64.powi(2) + 0.015f64.powi(2) + 0.005f64.powi(2),
+            0.7 + 0.8 + 0.6 + 0.9,
+        );
+        let (ss1, red1) = (
+            0.3f64.powi(2) + 0.2f64.powi(2) + 0.25f64.powi(2),
+            0.5 + 0.8 + 0.7,
+        );
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-14 * b.abs();
+        // The distances' stated σ alone, worth 3 readings.
+        let mut nm = NoiseModel::new(&data, &tool).with_stated(None, Some(0.2), 3.0, false);
+        nm.update(&r, &h);
+        assert!(close(nm.sigma[0], (ss0 / red0).sqrt()));
+        assert!(close(
+            nm.sigma[1],
+            ((3.0 * 0.04 + ss1) / (3.0 + red1)).sqrt()
+        ));
+        let rep = nm.report(&r);
+        assert_eq!((rep[0].stated, rep[1].stated), (None, Some(0.2)));
+        // Only the ratio stated (readings 0.5, distances 1): the scale τ is
+        // pooled over both groups.
+        let relative = |nu: f64| {
+            let mut nm = NoiseModel::new(&data, &tool).with_stated(
+                Some(Noise::lengths(0.5)),
+                Some(1.0),
+                nu,
+                true,
+            );
+            nm.update(&r, &h);
+            nm
+        };
+        let tau2 = (ss0 / 0.25 + ss1) / (red0 + red1);
+        let nm = relative(4.0);
+        assert!(close(
+            nm.sigma[0],
+            ((4.0 * 0.25 * tau2 + ss0) / (4.0 + red0)).sqrt()
+        ));
+        assert!(close(
+            nm.sigma[1],
+            ((4.0 * tau2 + ss1) / (4.0 + red1)).sqrt()
+        ));
+        let rep = nm.report(&r);
+        assert!(close(rep[0].stated.unwrap(), 0.5 * tau2.sqrt()));
+        assert!(close(rep[1].stated.unwrap(), tau2.sqrt()));
+        assert!(rep[0].stated_relative && rep[1].stated_relative);
+        assert!(variance_ratio(&rep[0], &rep[1], 0.95).is_none());
+        let nm = relative(0.0);
+        assert!(close(nm.sigma[0], (ss0 / red0).sqrt()));
+        assert!(close(nm.sigma[1], (ss1 / red1).sqrt()));
+        let nm = relative(f64::INFINITY);
+        assert!(close(nm.sigma[0] / nm.sigma[1], 0.5));
+        assert!(close(nm.sigma[1], tau2.sqrt()));
     }
 }

@@ -142,6 +142,10 @@ pub enum WarningKind {
     ModelInadequate {
         /// Unit of the readings tested.
         unit: Unit,
+        /// Their axes (`distance` for distances between poses; empty with
+        /// `given`: all readings).
+        #[serde(default)]
+        axes: Vec<String>,
         /// Their σ as the residuals give it (with `given`: the standard
         /// deviation of unit weight).
         found: f64,
@@ -312,6 +316,7 @@ impl Warning {
             ),
             WarningKind::ModelInadequate {
                 unit,
+                axes,
                 found,
                 stated,
                 given,
@@ -326,7 +331,8 @@ impl Warning {
                         )
                     } else {
                         format!(
-                            "the residuals' σ of {found:.3e} {unit} exceeds the instrument's stated {stated:.3e} {unit}"
+                            "the residuals' σ of {found:.3e} {unit} ({} readings) exceeds the stated {stated:.3e} {unit}",
+                            axes.join(", ")
                         )
                     },
                     if suspects.is_empty() {

@@ -20,10 +20,13 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
     opts: &CalibrationOptions,
 ) -> Result<Calibration> {
     let measurement = problem.measurement;
-    let mut noise = NoiseModel::new(data, measurement);
-    if let Some(stated) = opts.stated_noise {
-        noise = noise.with_stated(stated, opts.stated_noise_readings);
-    }
+    let noise = NoiseModel::new(data, measurement);
+    let mut noise = noise.with_stated(
+        opts.stated_noise,
+        opts.stated_distance_noise,
+        opts.stated_noise_readings,
+        opts.stated_noise_relative,
+    );
     // `(JᵀJ)⁺` of `cal.jacobian` (the fit's own, for the leverages) while
     // that Jacobian is the fit's.
     let (mut cal, cov) = calibrate_once(
