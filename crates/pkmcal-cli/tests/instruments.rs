@@ -547,6 +547,44 @@ fn stated_distance_noise_is_the_distances_prior_and_reference() {
     assert!(!out.contains("misses"), "{out}");
     let out = calibrate("0.0005");
     assert!(out.contains("misses"), "{out}");
+    // With only the ratio stated, the scale is the residuals' and the
+    // adequacy test is not made.
+    let rel = ok(
+        d,
+        &[
+            "calibrate",
+            "--mechanism",
+            &mech,
+            "--data",
+            "probes.csv",
+            "--distances",
+            "pairs.csv",
+            "--stated-noise",
+            "0.00005",
+            "--stated-distance-noise",
+            "0.00005",
+            "--stated-relative",
+            "--out",
+            "p.toml",
+        ],
+    );
+    assert!(rel.contains("stated share"), "{rel}");
+    assert!(!rel.contains("misses"), "{rel}");
+    fails(
+        d,
+        &[
+            "calibrate",
+            "--mechanism",
+            &mech,
+            "--data",
+            "probes.csv",
+            "--stated-relative",
+            "--out",
+            "q.toml",
+        ],
+        1,
+        "no noise is stated",
+    );
     assert!(
         out.contains("(distance readings) exceeds the stated 5.000e-4 mm"),
         "{out}"

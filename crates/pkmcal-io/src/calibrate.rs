@@ -530,6 +530,8 @@ pub struct CalibrateConfig {
     /// `--stated-distance-noise`: the stated noise of `--distances`' readings.
     pub stated_distance_noise: Option<f64>,
     pub stated_readings: f64,
+    /// `--stated-relative`: only the stated noises' ratios are known.
+    pub stated_relative: bool,
 }
 
 /// The measurement model of a data file, from its columns: the whole tool
@@ -709,6 +711,7 @@ pub fn run_calibrate(run: &crate::Run<'_>, c: CalibrateConfig) -> Result<()> {
     opts.stated_noise = c.stated_noise;
     opts.stated_distance_noise = c.stated_distance_noise;
     opts.stated_noise_readings = c.stated_readings;
+    opts.stated_noise_relative = c.stated_relative;
     opts.force = crate::io::checked_load(c.load.clone(), mech, &start)?;
     opts.loss = c.loss;
     opts.outlier_threshold = c.outlier_threshold;
@@ -991,6 +994,10 @@ pub fn noise_text(g: &pkmcal::NoiseGroup) -> String {
         g.count,
         g.sigma * f,
         match (g.estimated, g.stated, g.stated_readings) {
+            (true, Some(s0), Some(nu)) if g.stated_relative => format!(
+                "estimated from the residuals and its stated share {:.3} {sym} of their common scale (worth {nu} readings)",
+                s0 * f
+            ),
             (true, Some(s0), Some(nu)) => format!(
                 "estimated from the residuals and the stated {:.3} {sym} (worth {nu} readings)",
                 s0 * f

@@ -3257,7 +3257,8 @@ fn simulate<'py>(
 /// readings, and what the model-adequacy test holds the residuals against
 /// (a ``ModelWarning`` names the parameters whose freeing would explain
 /// them). ``stated_distance_noise`` (mm): the same for ``distances``
-/// (another instrument).
+/// (another instrument). ``stated_relative=True``: only the stated noises'
+/// ratios are known; their scale is estimated and not tested.
 /// ``tolerances``: priors (docs/model.md eq. 13), a dict name → σ or
 /// ``"20%"`` beside the mechanism's ``[tolerances]`` table (replacing its
 /// entries of the same names); ``False`` fits without priors. A parameter
@@ -3267,7 +3268,7 @@ fn simulate<'py>(
 /// ``Calibration.parameters`` each one's tolerance and share of information
 /// from the data.
 #[pyfunction]
-#[pyo3(signature = (mechanism, commands, measured, *, sigma = None, targets = None, model = "exact", free = None, fix = None, start = None, loss = "squared", loss_scale = None, outlier_threshold = 4.0, drop_outliers = false, load = None, force = None, axes = None, points = None, ballbar = None, frame = "base", validation = None, holdout = None, kfold = None, seed = SeedArg::Default(1), distances = None, max_nfev = None, ftol = None, xtol = None, gtol = None, bounds = None, x0 = None, tolerances = None, stated_noise = None, stated_angle_noise = None, stated_readings = pkmcal::identify::DEFAULT_STATED_NOISE_READINGS, stated_distance_noise = None))]
+#[pyo3(signature = (mechanism, commands, measured, *, sigma = None, targets = None, model = "exact", free = None, fix = None, start = None, loss = "squared", loss_scale = None, outlier_threshold = 4.0, drop_outliers = false, load = None, force = None, axes = None, points = None, ballbar = None, frame = "base", validation = None, holdout = None, kfold = None, seed = SeedArg::Default(1), distances = None, max_nfev = None, ftol = None, xtol = None, gtol = None, bounds = None, x0 = None, tolerances = None, stated_noise = None, stated_angle_noise = None, stated_readings = pkmcal::identify::DEFAULT_STATED_NOISE_READINGS, stated_distance_noise = None, stated_relative = false))]
 #[allow(clippy::too_many_arguments)]
 fn calibrate<'py>(
     py: Python<'py>,
@@ -3306,6 +3307,7 @@ fn calibrate<'py>(
     stated_angle_noise: Option<f64>,
     stated_readings: f64,
     stated_distance_noise: Option<f64>,
+    stated_relative: bool,
 ) -> PyResult<PyCalibration> {
     let mechanism = &mechanism_arg(mechanism)?;
     let seed = seed_arg(seed)?;
@@ -3332,19 +3334,8 @@ fn calibrate<'py>(
         )));
     }
     opts.stated_noise_readings = stated_readings;
-    opts.stated_distance_noise = match stated_distance_noise {
-        Some(s) if !(s.is_finite() && s > 0.0) => {
-            return Err(usage(format!(
-                "stated_distance_noise must be a positive number of mm, got {s}"
-            )));
-        }
-        Some(_) if pairs.is_empty() => {
-            return Err(usage(
-                "stated_distance_noise is the noise of distances=; give the distances too",
-            ));
-        }
-        s => s,
-    };
+    opts.stated_distance_noise = stated_distance_noise;
+    opts.stated_noise_relative = stated_relative;
     let start = match (start.filter(|s| !s.is_none()), x0.filter(|s| !s.is_none())) {
         (Some(_), Some(_)) => return Err(usage("give either start= or x0=, not both")),
         (None, Some(x)) => x0_arg(m, &opts.free, x)?,

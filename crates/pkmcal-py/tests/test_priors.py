@@ -162,3 +162,9 @@ def test_a_stated_distance_noise_is_the_calipers_prior_and_reference():
         pkmcal.calibrate(delta, commands, measured, axes=["probe"], stated_distance_noise=0.02)
     with pytest.raises(pkmcal.PkmcalError, match="positive number of mm"):
         fit(stated_distance_noise=float("nan"))
+    with pytest.raises(pkmcal.PkmcalError, match="no noise is stated"):
+        fit(stated_relative=True)
+    # Only the ratio stated: the scale comes from the residuals, untested.
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", pkmcal.ModelWarning)
+        fit(stated_noise=0.0001, stated_distance_noise=0.0004, stated_relative=True)

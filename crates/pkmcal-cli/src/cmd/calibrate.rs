@@ -40,6 +40,11 @@ pub struct Args {
     /// How many readings each stated noise is worth against the residuals.
     #[arg(value_parser = args::values::non_negative, long, default_value_t = pkmcal::identify::DEFAULT_STATED_NOISE_READINGS, value_name = "N")]
     pub stated_readings: f64,
+    /// Only the ratios of the stated noises are known (e.g. calipers five
+    /// times the probe's), not their scale: the scale is estimated from the
+    /// residuals, and no adequacy test is made.
+    #[arg(long)]
+    pub stated_relative: bool,
     /// Starting (and fixed) parameter values; nominal if omitted.
     #[arg(long, value_name = "P.toml")]
     pub start: Option<PathBuf>,
@@ -146,6 +151,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
                 .map(|l| pkmcal_io::io::noise_arg(l, a.stated_angle_noise)),
             stated_distance_noise: a.stated_distance_noise,
             stated_readings: a.stated_readings,
+            stated_relative: a.stated_relative,
         },
     )
 }

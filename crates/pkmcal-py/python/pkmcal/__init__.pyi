@@ -416,6 +416,7 @@ def calibrate(
     stated_angle_noise: Optional[float] = None,
     stated_readings: float = 10.0,
     stated_distance_noise: Optional[float] = None,
+    stated_relative: bool = False,
 ) -> Calibration: ...
 def analyze(
     mechanism: MechanismLike,

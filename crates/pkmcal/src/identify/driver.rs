@@ -338,6 +338,47 @@ pub(super) fn calibrate_once<M: Mechanism>(
     assemble(problem, data, opts, sigma, &cols, m, fit)
 }
 
+/// The stated noises make sense: positive σ, a non-negative worth, distances
+/// for a distances' σ, and a σ for a stated ratio to keep.
+fn check_stated(opts: &CalibrationOptions, data: &[Measurement]) -> Result<()> {
+    let bad = |what: String| Err(Error::InvalidRequest(what));
+    if let Some(n) = opts.stated_noise
+        && !(n.length.is_finite() && n.length > 0.0 && n.angle.is_finite() && n.angle > 0.0)
+    {
+        return bad(format!(
+            "the stated noise ({} mm, {} rad) must be positive numbers",
+            n.length, n.angle
+        ));
+    }
+    if let Some(s) = opts.stated_distance_noise {
+        if !(s.is_finite() && s > 0.0) {
+            return bad(format!(
+                "the stated distance noise {s} must be a positive number of mm"
+            ));
+        }
+        if !data.iter().any(|d| d.partner.is_some()) {
+            return bad(
+                "a stated distance noise is the noise of distances between poses; give the distances too".into(),
+            );
+        }
+    }
+    if opts.stated_noise_readings.is_nan() || opts.stated_noise_readings < 0.0 {
+        return bad(format!(
+            "a stated noise is worth a non-negative number of readings, not {}",
+            opts.stated_noise_readings
+        ));
+    }
+    if opts.stated_noise_relative
+        && opts.stated_noise.is_none()
+        && opts.stated_distance_noise.is_none()
+    {
+        return bad(
+            "only the stated noises' ratios are known, but no noise is stated: state the readings' and/or the distances' noise".into(),
+        );
+    }
+    Ok(())
+}
+
 /// The checks before a fit: something free, indices in range, more readings
 /// than free parameters. The number of readings.
 fn check_request<M: Mechanism>(
@@ -352,6 +393,7 @@ fn check_request<M: Mechanism>(
     let nx = measurement.len();
     let np = spec.n_params();
     let frame_free = *measurement.frame() == Frame::Free;
+    check_stated(opts, data)?;
     if opts.free.is_empty() && !frame_free {
         return Err(Error::InvalidRequest(
             "no parameter is free; free at least one".into(),
