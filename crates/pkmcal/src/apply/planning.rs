@@ -151,12 +151,7 @@ fn score(m: &DMatrix<f64>, reg: f64, criterion: PlanCriterion) -> f64 {
     for i in 0..mr.nrows() {
         mr[(i, i)] += reg;
     }
-    let sv = singular_values(&mr);
-    match criterion {
-        PlanCriterion::O1 => sv.iter().map(|s| s.ln()).sum(),
-        PlanCriterion::O3 => *sv.last().unwrap_or(&0.0),
-        PlanCriterion::O5 => 1.0 / sv.iter().map(|s| 1.0 / s).sum::<f64>(),
-    }
+    criterion_of(&singular_values(&mr), criterion)
 }
 
 /// The first-order expansion at `M + reg·I` of one criterion, which bounds
@@ -368,6 +363,16 @@ fn prior_singular_values(c: &Candidates, set: &[usize], prior: &DMatrix<f64>) ->
     singular_values(&m)
 }
 
+/// The planning criterion of an information matrix's singular values (as
+/// [`score`] without its ridge).
+fn criterion_of(sv: &[f64], criterion: PlanCriterion) -> f64 {
+    match criterion {
+        PlanCriterion::O1 => sv.iter().map(|s| s.ln()).sum(),
+        PlanCriterion::O3 => sv.last().copied().unwrap_or(0.0),
+        PlanCriterion::O5 => 1.0 / sv.iter().map(|s| 1.0 / s).sum::<f64>(),
+    }
+}
+
 /// Directions above [`PLAN_RANK_TOL`] of the largest singular value.
 fn rank_of(sv: &[f64]) -> usize {
     let top = sv.first().copied().unwrap_or(0.0);
@@ -409,11 +414,12 @@ pub fn plan_poses_with_progress(
     tick: &(dyn Fn() + Sync),
 ) -> Result<Vec<usize>> {
     let n = c.rows[0].ncols();
-    crate::on_pool(|| choose(c, count, criterion, tick, None, &DMatrix::zeros(n, n)))
+    crate::on_pool(|| choose(c, count, criterion, tick, None, &DMatrix::zeros(n, n), None))
 }
 
 /// [`plan_poses_with_progress`] on the calling thread, stopping with
-/// [`Error::Cancelled`] at the next step once `cancel` is set.
+/// [`Error::Cancelled`] at the next step once `cancel` is set; with `start`,
+/// the exchanges start from those candidates instead of a greedy selection.
 fn choose(
     c: &Candidates,
     count: usize,
@@ -421,6 +427,7 @@ fn choose(
     tick: &(dyn Fn() + Sync),
     cancel: Option<&std::sync::atomic::AtomicBool>,
     prior: &DMatrix<f64>,
+    start: Option<&[usize]>,
 ) -> Result<Vec<usize>> {
     let nc = c.rows.len();
     if count == 0 || count > nc {
@@ -434,9 +441,13 @@ fn choose(
     // information `AᵀA` is formed where it is used, not kept: kept, it would
     // take candidates × parameters² numbers (3.6 GB for a 48-leg platform).
     let reg = 1e-9 * (0..nc).map(|i| information(c, i).trace()).sum::<f64>() / (nc * n) as f64;
-    let mut chosen: Vec<usize> = vec![];
-    // What is known before any pose (the priors' information, or nothing).
+    let mut chosen: Vec<usize> = start.map_or_else(Vec::new, <[usize]>::to_vec);
+    // What is known before any pose (the priors' information, or nothing),
+    // and what the starting poses add.
     let mut m = prior.clone();
+    for &i in &chosen {
+        m += &information(c, i);
+    }
     let screening = (nc as f64) * (n as f64).powi(3) * count as f64 > EXHAUSTIVE_WORK;
     let best_addition = |m: &DMatrix<f64>, chosen: &[usize]| {
         let pool: Vec<usize> = if screening {
@@ -655,17 +666,35 @@ pub fn plan<M: Mechanism>(
             tick,
             opts.cancel.as_deref(),
             &prior,
+            None,
         )
     })?;
+    let grid_idx: Vec<usize> = (candidates..cands.points.len()).collect();
+    let grid_sv = prior_singular_values(&cands, &grid_idx, &prior);
+    let (grid_observability, grid_condition) = observability_of(&grid_sv, grid_idx.len());
+    let mut sv = prior_singular_values(&cands, &chosen, &prior);
+    // A plan never worse than the plain grid: where the selection (greedy,
+    // exchanges among a lattice, screened) ends below the grid, the
+    // exchanges start again from the grid, the grid's poses candidates too.
+    if criterion_of(&grid_sv, opts.criterion) > criterion_of(&sv, opts.criterion)
+        && grid_idx.len() == opts.count
+    {
+        chosen = crate::on_pool(|| {
+            choose(
+                &cands,
+                opts.count,
+                opts.criterion,
+                &|| {},
+                opts.cancel.as_deref(),
+                &prior,
+                Some(&grid_idx),
+            )
+        })?;
+        sv = prior_singular_values(&cands, &chosen, &prior);
+    }
     chosen.sort_unstable();
-    let sv = prior_singular_values(&cands, &chosen, &prior);
     let (observability, condition) = observability_of(&sv, chosen.len());
     let rank = rank_of(&sv) + unseen;
-    let grid_idx: Vec<usize> = (candidates..cands.points.len()).collect();
-    let (grid_observability, grid_condition) = observability_of(
-        &prior_singular_values(&cands, &grid_idx, &prior),
-        grid_idx.len(),
-    );
     Ok(Plan {
         poses: chosen.iter().map(|&i| cands.points[i].clone()).collect(),
         observability,
@@ -729,6 +758,33 @@ mod tests {
             m += c.rows[i].transpose() * &c.rows[i];
         }
         m
+    }
+
+    /// Exchanges that start from a given set (the plain grid, in `plan`)
+    /// end at least as high on the criterion as that set, and at the greedy
+    /// start's level when started from its answer.
+    #[test]
+    fn exchanges_from_a_start_never_end_below_it() {
+        let (nx, n, count) = (3, 10, 8);
+        let c = candidates(21, 120, nx, n);
+        let none = DMatrix::zeros(n, n);
+        let reg = 1e-9;
+        for criterion in CRITERIA {
+            for start in [
+                (0..count).collect::<Vec<_>>(),
+                (0..count).map(|k| 119 - 3 * k).collect(),
+            ] {
+                let from = score(&information(&c, &start, n), reg, criterion);
+                let chosen =
+                    choose(&c, count, criterion, &|| {}, None, &none, Some(&start)).unwrap();
+                assert_eq!(chosen.len(), count);
+                let to = score(&information(&c, &chosen, n), reg, criterion);
+                assert!(to >= from, "{criterion:?}: {to} below the start's {from}");
+            }
+            let greedy = choose(&c, count, criterion, &|| {}, None, &none, None).unwrap();
+            let again = choose(&c, count, criterion, &|| {}, None, &none, Some(&greedy)).unwrap();
+            assert_eq!(greedy, again, "{criterion:?}");
+        }
     }
 
     /// Every candidate's exact score is at most its bound, from the
