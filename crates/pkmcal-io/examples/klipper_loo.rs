@@ -5,9 +5,10 @@
 //! them (estimated weighting, the estimate shrunk towards Klipper's ratio
 //! with several numbers of pseudo-readings, then Klipper's fixed ratio), and
 //! the left-out reading predicted. Prints the RMS prediction error of the
-//! held-out heights and distances per printer and weighting, and per
-//! weighting the number of printers it predicts best and its score summed
-//! over them (BENCHMARKS.md, issues 39 and 37).
+//! held-out heights and distances per printer (estimated against Klipper's),
+//! and per weighting their RMS over the printers, on how many printers it
+//! predicts better or worse than Klipper's ratio, and its median score
+//! against Klipper's (BENCHMARKS.md, issues 39 and 37).
 //!
 //!     cargo run --release -p pkmcal-io --example klipper_loo -- <real-configs/klipper/cases>
 
