@@ -582,8 +582,8 @@ fn stated_distance_noise_is_the_distances_prior_and_reference() {
             "--out",
             "q.toml",
         ],
-        1,
-        "no noise is stated",
+        2,
+        "--stated-noise",
     );
     assert!(
         out.contains("(distance readings) exceeds the stated 5.000e-4 mm"),

@@ -7,6 +7,7 @@ use pkmcal_io::Run;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
+#[command(group(clap::ArgGroup::new("stated").multiple(true).args(["stated_noise", "stated_distance_noise"])))]
 pub struct Args {
     #[command(flatten)]
     pub mech: args::MechanismArg,
@@ -43,7 +44,7 @@ pub struct Args {
     /// Only the ratios of the stated noises are known (e.g. calipers five
     /// times the probe's), not their scale: the scale is estimated from the
     /// residuals, and no adequacy test is made.
-    #[arg(long)]
+    #[arg(long, requires = "stated")]
     pub stated_relative: bool,
     /// Starting (and fixed) parameter values; nominal if omitted.
     #[arg(long, value_name = "P.toml")]
