@@ -517,25 +517,31 @@ fn stated_distance_noise_is_the_distances_prior_and_reference() {
             "pairs.csv",
         ],
     );
-    let calibrate = |stated: &str| {
-        let args = [
-            "calibrate",
-            "--mechanism",
-            &mech,
-            "--data",
-            "probes.csv",
-            "--distances",
-            "pairs.csv",
-            "--free",
-            "delta_radius,angle_a,angle_b,da,db,dc,arm_a,arm_b,arm_c",
-            "--stated-distance-noise",
-            stated,
-            "--out",
-            "p.toml",
-        ];
-        ok(d, &args)
+    // calibrate with the probes, then `extra`.
+    fn with_probes<'a>(mech: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
+        let mut args = vec!["calibrate", "--mechanism", mech, "--data", "probes.csv"];
+        args.extend(extra);
+        args
+    }
+    let with_pairs = |stated: &str| {
+        ok(
+            d,
+            &with_probes(
+                &mech,
+                &[
+                    "--distances",
+                    "pairs.csv",
+                    "--free",
+                    "delta_radius,angle_a,angle_b,da,db,dc,arm_a,arm_b,arm_c",
+                    "--stated-distance-noise",
+                    stated,
+                    "--out",
+                    "p.toml",
+                ],
+            ),
+        )
     };
-    let out = calibrate("0.005");
+    let out = with_pairs("0.005");
     let line = out
         .lines()
         .find(|l| l.contains("noise of lengths (distance, 20 coordinates)"))
@@ -545,64 +551,40 @@ fn stated_distance_noise_is_the_distances_prior_and_reference() {
         "{line}"
     );
     assert!(!out.contains("misses"), "{out}");
-    let out = calibrate("0.0005");
-    assert!(out.contains("misses"), "{out}");
-    // With only the ratio stated, the scale is the residuals' and the
-    // adequacy test is not made.
-    let rel = ok(
-        d,
-        &[
-            "calibrate",
-            "--mechanism",
-            &mech,
-            "--data",
-            "probes.csv",
-            "--distances",
-            "pairs.csv",
-            "--stated-noise",
-            "0.00005",
-            "--stated-distance-noise",
-            "0.00005",
-            "--stated-relative",
-            "--out",
-            "p.toml",
-        ],
-    );
-    assert!(rel.contains("stated share"), "{rel}");
-    assert!(!rel.contains("misses"), "{rel}");
-    fails(
-        d,
-        &[
-            "calibrate",
-            "--mechanism",
-            &mech,
-            "--data",
-            "probes.csv",
-            "--stated-relative",
-            "--out",
-            "q.toml",
-        ],
-        2,
-        "--stated-noise",
-    );
+    let out = with_pairs("0.0005");
     assert!(
         out.contains("(distance readings) exceeds the stated 5.000e-4 mm"),
         "{out}"
     );
-    fails(
+    // With only the ratio stated, the scale is the residuals' and the
+    // adequacy test is not made.
+    let rel = ok(
         d,
-        &[
-            "calibrate",
-            "--mechanism",
+        &with_probes(
             &mech,
-            "--data",
-            "probes.csv",
-            "--stated-distance-noise",
-            "0.005",
-            "--out",
-            "q.toml",
-        ],
-        2,
-        "--distances",
+            &[
+                "--distances",
+                "pairs.csv",
+                "--stated-noise",
+                "0.00005",
+                "--stated-distance-noise",
+                "0.00005",
+                "--stated-relative",
+                "--out",
+                "p.toml",
+            ],
+        ),
     );
+    assert!(rel.contains("stated share"), "{rel}");
+    assert!(!rel.contains("misses"), "{rel}");
+    let refused = [
+        (vec!["--stated-relative"], "--stated-noise"),
+        (vec!["--stated-distance-noise", "0.005"], "--distances"),
+    ];
+    for (extra, needle) in refused {
+        let mut args = with_probes(&mech, &extra);
+        args.extend(["--out", "q.toml"]);
+        fails(d, &args, 2, needle);
+        assert!(!d.join("q.toml").exists());
+    }
 }
