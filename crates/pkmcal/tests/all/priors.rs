@@ -45,6 +45,15 @@ fn drawn(spec: &pkmcal::Spec, base: Params, names: &[&str], tol: f64, seed: u64)
     truth
 }
 
+/// A Gough–Stewart platform's joint centres (`a1x` … `b6z`).
+fn joint_centres(spec: &pkmcal::Spec) -> Vec<&str> {
+    spec.param_names()
+        .iter()
+        .copied()
+        .filter(|n| n.starts_with('a') || n.starts_with('b'))
+        .collect()
+}
+
 fn priors(spec: &pkmcal::Spec, names: &[&str], sigma: f64) -> Vec<Prior> {
     names
         .iter()
@@ -136,12 +145,7 @@ fn a_hexapod_s_weakly_seen_joint_centres_are_held_by_their_tolerances() {
     let m = gough_stewart("gough-stewart-6");
     let spec = m.spec();
     let xyz = MeasurementModel::tool_axes(spec, &["x", "y", "z"]).unwrap();
-    let joints: Vec<&str> = spec
-        .param_names()
-        .iter()
-        .copied()
-        .filter(|n| n.starts_with('a') || n.starts_with('b'))
-        .collect();
+    let joints = joint_centres(spec);
     let tol = 0.05;
     let targets = spread(&m, 20);
     let check = spread(&m, 100);
@@ -412,12 +416,7 @@ fn analyses_and_plans_count_the_priors() {
     let start = Params::nominal(spec);
     let plain = pkmcal::analyze(&m, &xyz, &data, &start, Model::Exact, &opts.free, &[]).unwrap();
     assert!(!plain.unidentifiable.is_empty() && plain.held.is_empty());
-    let joints: Vec<&str> = spec
-        .param_names()
-        .iter()
-        .copied()
-        .filter(|n| n.starts_with('a') || n.starts_with('b'))
-        .collect();
+    let joints = joint_centres(spec);
     let p = priors(spec, &joints, 0.05);
     let with = pkmcal::identify::analyze_with_priors(
         &m,
