@@ -44,6 +44,10 @@
 
 use crate::error::{Error, Result};
 use crate::kinds::description::{ActuatorNames, Names, Value, actuator_names};
+use crate::linalg::small::{
+    Mat3, apply, apply_transposed, axis_basis, column, cross, dot, identity, mat_mul, norm,
+    normalized, rotation_about, sub,
+};
 use crate::mechanism::{Mechanism, Scalar, Spec};
 use crate::units::Unit;
 use serde::Deserialize;
@@ -333,7 +337,7 @@ fn expand_joints(leg: &SpatialLeg) -> Result<Vec<SpatialJoint>> {
         }
         for (k, a) in [Some(j.axis), j.axis2, j.axis3].iter().enumerate().take(n) {
             if let Some(a) = a {
-                let len2: f64 = a.iter().map(|v| v * v).sum();
+                let len2 = dot(*a, *a);
                 if !(len2.is_finite() && len2 > 1e-18) {
                     let key = ["axis", "axis2", "axis3"][k];
                     return bad(format!(
@@ -344,7 +348,7 @@ fn expand_joints(leg: &SpatialLeg) -> Result<Vec<SpatialJoint>> {
         }
         let first = normalized(j.axis);
         let second = normalized(j.axis2.unwrap_or_else(|| axis_basis(first)[1]));
-        if cross(first, second).iter().map(|v| v * v).sum::<f64>() < 1e-12 {
+        if dot(cross(first, second), cross(first, second)) < 1e-12 {
             return bad(format!(
                 "leg `{ln}`, joint `{jn}`: `axis2` must not be parallel to `axis`"
             ));
@@ -372,82 +376,13 @@ fn bad<T>(m: String) -> Result<T> {
     Err(Error::InvalidMechanism(m))
 }
 
-type Mat<D> = [[D; 3]; 3];
-
-fn identity<D: Scalar>() -> Mat<D> {
-    let (o, l) = (D::from(0.0), D::from(1.0));
-    [[l, o, o], [o, l, o], [o, o, l]]
-}
-
-fn mat_mul<D: Scalar>(a: &Mat<D>, b: &Mat<D>) -> Mat<D> {
-    let mut c = [[D::from(0.0); 3]; 3];
-    for (i, row) in c.iter_mut().enumerate() {
-        for (j, v) in row.iter_mut().enumerate() {
-            *v = a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j];
-        }
-    }
-    c
-}
-
-fn apply<D: Scalar>(r: &Mat<D>, v: [D; 3]) -> [D; 3] {
-    [0, 1, 2].map(|i| r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2])
-}
-
-/// Rotation by `t` about the unit axis `u` (Rodrigues).
-fn rotation_about<D: Scalar>(u: [D; 3], t: D) -> Mat<D> {
-    let (s, c) = t.sin_cos();
-    let v = D::from(1.0) - c;
-    [
-        [
-            c + u[0] * u[0] * v,
-            u[0] * u[1] * v - u[2] * s,
-            u[0] * u[2] * v + u[1] * s,
-        ],
-        [
-            u[1] * u[0] * v + u[2] * s,
-            c + u[1] * u[1] * v,
-            u[1] * u[2] * v - u[0] * s,
-        ],
-        [
-            u[2] * u[0] * v - u[1] * s,
-            u[2] * u[1] * v + u[0] * s,
-            c + u[2] * u[2] * v,
-        ],
-    ]
-}
-
-fn normalized(v: [f64; 3]) -> [f64; 3] {
-    let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    v.map(|c| c / n)
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-/// `n`, `e1 = n × z` (normalised; `x` when `n` is along `z`), `e2 = n × e1`.
-fn axis_basis(axis: [f64; 3]) -> [[f64; 3]; 3] {
-    let n = normalized(axis);
-    let c = cross(n, [0.0, 0.0, 1.0]);
-    let e1 = if c.iter().map(|v| v * v).sum::<f64>() < 1e-12 {
-        [1.0, 0.0, 0.0]
-    } else {
-        normalized(c)
-    };
-    [n, e1, cross(n, e1)]
-}
-
 impl JointIx {
     /// The tilted unit axis in the current frame.
     fn axis<D: Scalar>(&self, rho: &impl Fn(usize) -> D) -> [D; 3] {
         let (t1, t2) = (rho(self.tilt[0]).tan(), rho(self.tilt[1]).tan());
         let [n, e1, e2] = self.basis;
         let v = [0, 1, 2].map(|k| D::from(n[k]) + t1 * e1[k] + t2 * e2[k]);
-        let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        let len = norm(v);
         v.map(|c| c / len)
     }
 }
@@ -489,8 +424,6 @@ struct Trilateration {
 /// height along it, or `None` when the spheres do not meet (or the centres
 /// are collinear).
 fn sphere_intersection(c: [[f64; 3]; 3], r: [f64; 3]) -> Option<([f64; 3], [f64; 3], f64)> {
-    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
     let (u, v) = (sub(c[1], c[0]), sub(c[2], c[0]));
     let d = dot(u, u).sqrt();
     if d.is_nan() || d <= 0.0 {
@@ -601,7 +534,8 @@ impl SpatialMechanism {
                     let [p, r, s] = [a, b, c].map(|i| spheres[i].0);
                     let u = [0, 1, 2].map(|k| r[k] - p[k]);
                     let v = [0, 1, 2].map(|k| s[k] - p[k]);
-                    let area = cross(u, v).iter().map(|x| x * x).sum::<f64>();
+                    let n = cross(u, v);
+                    let area = dot(n, n);
                     if best.is_none_or(|(m, _)| area > m) {
                         best = Some((area, [a, b, c]));
                     }
@@ -775,7 +709,7 @@ impl SpatialMechanism {
             for j in &expanded {
                 claim(&j.name, &format!("leg `{ln}`: joint"))?;
                 let jn = &j.name;
-                let len2: f64 = j.axis.iter().map(|v| v * v).sum();
+                let len2 = dot(j.axis, j.axis);
                 if !(len2.is_finite() && len2 > 1e-18) {
                     return bad(format!(
                         "leg `{ln}`, joint `{jn}`: `axis` must be a non-zero direction [x, y, z]"
@@ -1335,8 +1269,8 @@ impl SpatialMechanism {
         /// local axis.
         #[derive(Clone, Copy)]
         struct Step {
-            before: Mat<f64>,
-            after: Mat<f64>,
+            before: Mat3<f64>,
+            after: Mat3<f64>,
             w: [f64; 3],
             o: [f64; 3],
             u: [f64; 3],
@@ -1378,7 +1312,6 @@ impl SpatialMechanism {
         let np = self.motion.coordinates();
         let PlatformFrame { pose, rot, omega } = *frame;
         let unit = |c: usize| std::array::from_fn::<f64, 3, _>(|k| if k == c { 1.0 } else { 0.0 });
-        let column = |m: &Mat<f64>, c: usize| [m[0][c], m[1][c], m[2][c]];
         // R b, and ∂w/∂(platform coordinate k).
         let rb = apply(&rot, b);
         let dw: [[f64; 3]; 6] = [
@@ -1395,8 +1328,8 @@ impl SpatialMechanism {
         let (u, length) = match leg.rod {
             None => ([0.0; 3], 0.0),
             Some(rod) => {
-                let diff = [w[0] - e[0], w[1] - e[1], w[2] - e[2]];
-                let len = (diff[0] * diff[0] + diff[1] * diff[1] + diff[2] * diff[2]).sqrt();
+                let diff = sub(w, e);
+                let len = norm(diff);
                 let l = match rod {
                     Rod::Fixed(i) => rho[i],
                     Rod::Joint(i) => q[i],
@@ -1429,7 +1362,7 @@ impl SpatialMechanism {
             }
         };
         let none = [0.0; 3];
-        let rel = |o: [f64; 3]| [e[0] - o[0], e[1] - o[1], e[2] - o[2]];
+        let rel = |o: [f64; 3]| sub(e, o);
         // Only joint columns asked (forward kinematics, branch checks): the
         // parameters' blocks (tilts and all) are skipped.
         let params_wanted = cols.end > nq;
@@ -1455,26 +1388,24 @@ impl SpatialMechanism {
                 let (t1, t2) = (rho[j.tilt[0]].tan(), rho[j.tilt[1]].tan());
                 [0, 1, 2].map(|c| n[c] + t1 * e1[c] + t2 * e2[c])
             };
-            let vlen = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            let vlen = norm(v);
             let s_local = if j.prismatic {
                 [0.0; 3]
             } else {
                 // The rest of the chain in the joint's frame (after it).
-                let d = rel(st.o);
-                let a = st.after;
-                [0, 1, 2].map(|c| a[0][c] * d[0] + a[1][c] * d[1] + a[2][c] * d[2])
+                apply_transposed(&st.after, rel(st.o))
             };
             let (sq, cq) = q[j.q].sin_cos();
             for (t, basis) in [(j.tilt[0], j.basis[1]), (j.tilt[1], j.basis[2])] {
                 let sec2 = 1.0 + rho[t].tan().powi(2);
                 let dv = basis.map(|c| c * sec2);
-                let along = st.u[0] * dv[0] + st.u[1] * dv[1] + st.u[2] * dv[2];
+                let along = dot(st.u, dv);
                 let du = [0, 1, 2].map(|c| (dv[c] - st.u[c] * along) / vlen);
                 let de = if j.prismatic {
                     apply(&st.before, du).map(|c| c * q[j.q])
                 } else {
-                    let us = st.u[0] * s_local[0] + st.u[1] * s_local[1] + st.u[2] * s_local[2];
-                    let dus = du[0] * s_local[0] + du[1] * s_local[1] + du[2] * s_local[2];
+                    let us = dot(st.u, s_local);
+                    let dus = dot(du, s_local);
                     let x = cross(du, s_local);
                     let local =
                         [0, 1, 2].map(|c| x[c] * sq + (du[c] * us + st.u[c] * dus) * (1.0 - cq));
@@ -1512,7 +1443,7 @@ impl SpatialMechanism {
 #[derive(Clone, Copy)]
 struct PlatformFrame {
     pose: [f64; 6],
-    rot: Mat<f64>,
+    rot: Mat3<f64>,
     omega: [[f64; 3]; 3],
 }
 
@@ -1527,15 +1458,11 @@ impl SpatialMechanism {
                 rot: identity(),
                 omega: [[0.0; 3]; 3],
             },
-            Motion::Full => {
-                let (sc, cc) = pose[5].sin_cos();
-                let (sb, cb) = pose[4].sin_cos();
-                PlatformFrame {
-                    pose,
-                    rot: crate::linalg::pose::rotation(pose[3], pose[4], pose[5]),
-                    omega: [[cc * cb, sc * cb, -sb], [-sc, cc, 0.0], [0.0, 0.0, 1.0]],
-                }
-            }
+            Motion::Full => PlatformFrame {
+                pose,
+                rot: crate::linalg::pose::rotation(pose[3], pose[4], pose[5]),
+                omega: crate::linalg::pose::euler_axes(pose[4], pose[5]),
+            },
         }
     }
 }
@@ -1843,7 +1770,6 @@ mod tests {
         assert!(s.iter().all(|j| j.kind == SpatialJointKind::Revolute));
         assert_eq!(s[0].at[2], Value::Number(3.0));
         assert_eq!(s[1].at, origin());
-        let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
         for (a, b) in [(0, 1), (0, 2), (1, 2)] {
             assert!(dot(s[a].axis, s[b].axis).abs() < 1e-15);
         }
