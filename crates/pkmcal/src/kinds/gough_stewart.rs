@@ -245,6 +245,8 @@ impl GoughStewart {
                 .fold(0.0, f64::max)
         };
         let mut worst = mismatch(&q);
+        // Not `engine::newton::run`: a step is kept only while the mismatch
+        // shrinks, and there is no tolerance to converge to.
         for _ in 0..GUESS_STEPS {
             if worst.is_nan() || worst <= 0.0 {
                 break;

@@ -449,7 +449,7 @@ fn sphere_intersection(c: [[f64; 3]; 3], r: [f64; 3]) -> Option<([f64; 3], [f64;
     Some((foot, ez, h2.max(0.0).sqrt()))
 }
 
-use crate::engine::newton::MAX_LEG_ITERATIONS as LEG_NEWTON;
+use crate::engine::newton;
 
 impl SpatialMechanism {
     /// Leg `leg`'s equations and their derivatives with respect to its own
@@ -610,41 +610,44 @@ impl SpatialMechanism {
                 q[l] = d;
                 continue;
             }
-            let mut converged = false;
+            let policy = &newton::LEG;
             let mut residual = f64::INFINITY;
-            for _ in 0..LEG_NEWTON {
-                let (g, a) = self.leg_system(leg, &q, rho);
-                residual = g.amax();
-                let step = crate::linalg::solve::solve_square(a, g).ok_or_else(|| {
-                    unreachable(format!("leg `{name}` meets a singularity on the way"))
-                })?;
-                let big = step.amax();
-                if !big.is_finite() {
-                    break;
-                }
-                // Damped: at most 0.5 rad, or half the characteristic
-                // length on a prismatic joint, at once.
-                let turn = cols
-                    .clone()
-                    .zip(step.iter())
-                    .map(|(c, d)| match self.spec.joint_units[c] {
-                        Unit::Radian => d.abs(),
-                        _ => d.abs() / self.length,
-                    })
-                    .fold(0.0, f64::max);
-                let scale = crate::engine::newton::damping(turn, crate::engine::newton::MAX_TURN);
-                for (k, c) in cols.clone().enumerate() {
-                    q[c] -= scale * step[k];
-                }
-                if big < crate::engine::newton::IK_STEP_TOL {
-                    converged = true;
-                    break;
-                }
-            }
-            let scale = rho.iter().fold(1.0f64, |m, v| m.max(v.abs()));
-            if !converged
-                && (residual.is_nan()
-                    || residual >= crate::engine::newton::LEG_RESIDUAL_TOL * scale)
+            // The joints and the step (a leg's system is at most 3 × 3).
+            let mut state = (&mut q, nalgebra::DVector::zeros(0));
+            let end = newton::run(
+                policy,
+                &mut state,
+                |(q, step), _| {
+                    let (g, a) = self.leg_system(leg, q, rho);
+                    residual = g.amax();
+                    *step = crate::linalg::solve::solve_square(a, g).ok_or_else(|| {
+                        unreachable(format!("leg `{name}` meets a singularity on the way"))
+                    })?;
+                    let big = step.amax();
+                    if !big.is_finite() {
+                        return Ok(None);
+                    }
+                    // At most 0.5 rad, or half the characteristic length on
+                    // a prismatic joint, at once.
+                    let turn = cols
+                        .clone()
+                        .zip(step.iter())
+                        .map(|(c, d)| match self.spec.joint_units[c] {
+                            Unit::Radian => d.abs(),
+                            _ => d.abs() / self.length,
+                        })
+                        .fold(0.0, f64::max);
+                    Ok(Some(newton::Step { size: big, turn }))
+                },
+                |(q, step), scale| {
+                    for (k, c) in cols.clone().enumerate() {
+                        q[c] -= scale * step[k];
+                    }
+                },
+            )?;
+            let scale = newton::parameter_scale(rho);
+            if !matches!(end, newton::End::Converged(_))
+                && (residual.is_nan() || residual >= policy.residual_limit(scale))
             {
                 return Err(unreachable(format!(
                     "leg `{name}` cannot reach the platform there"
