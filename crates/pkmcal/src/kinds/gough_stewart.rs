@@ -20,14 +20,12 @@
 //!   joints (the rigid model drives them).
 
 use crate::error::{Error, Result};
+use crate::kinds::build::{Built, finish};
 use crate::linalg::pose::{rotation, transform};
 use crate::mechanism::{Mechanism, Scalar, Spec};
 use crate::units::Unit;
 use serde::Deserialize;
 use std::collections::BTreeMap;
-
-/// Workspace configurations kept for starting forward kinematics.
-const ATLAS_POINTS: usize = 800;
 
 /// Gauss–Newton steps on the platform pose that bring a stored
 /// configuration nearer the commanded leg lengths before forward kinematics
@@ -197,22 +195,14 @@ impl GoughStewart {
         gs.spec.axis_scale = vec![1.0, 1.0, 1.0, radius, radius, radius];
         let rho = gs.spec.nominal[..6 * n].to_vec();
         gs.spec.reference_q = gs.ik(&d.assembly.pose, &rho)?;
-        gs.spec.validate()?;
         // The first six legs must determine the pose at the reference.
-        let j = crate::mechanism::autodiff::jacobians(&gs, &gs.spec.reference_q, &rho, 0..n + 6);
-        let dep: Vec<usize> = (6..n + 6).collect();
-        if crate::linalg::solve::checked_lu(j.dg.select_columns(&dep)).is_none() {
-            return bad(
+        finish(
+            gs,
+            Some(&|_: &Spec| {
                 "the reference pose is singular for the first six legs; move it or reorder the legs"
-                    .into(),
-            );
-        }
-        gs.branch = crate::engine::kinematics::branch_signs(&gs, &gs.spec.reference_q, &rho)[0];
-        // The atlas covers every reachable pose (min_conditioning still 0).
-        gs.atlas = crate::engine::atlas::Atlas::build(&gs, ATLAS_POINTS);
-        gs.spec.min_conditioning = crate::engine::atlas::RELATIVE_CONDITIONING
-            * crate::engine::atlas::conditioning(&gs, &gs.spec.reference_q, &rho);
-        Ok(gs)
+                    .into()
+            }),
+        )
     }
 
     /// Number of legs.
@@ -440,6 +430,20 @@ impl<'a> LegHessians<'a> {
             }
         }
         (idx, h)
+    }
+}
+
+impl Built for GoughStewart {
+    const ATLAS_POINTS: usize = 800;
+    fn spec_mut(&mut self) -> &mut Spec {
+        &mut self.spec
+    }
+    /// The forward sign alone, the one its branch checks compare.
+    fn keep_reference(&mut self, signs: [i8; 2]) {
+        self.branch = signs[0];
+    }
+    fn atlas_mut(&mut self) -> Option<&mut crate::engine::atlas::Atlas> {
+        Some(&mut self.atlas)
     }
 }
 
