@@ -39,7 +39,7 @@ pub use prior::{
 pub use problem::{IdentificationProblem, MAX_POSES, PoseCache, too_many_poses};
 pub use record::{
     CALIBRATION_FORMAT, CALIBRATION_VERSION, CalibrationRecord, RecordError, RecordedParameter,
-    mechanism_identity,
+    mechanism_identities, mechanism_identity,
 };
 pub use result::{Calibration, ParameterResult, Warning, WarningKind};
 pub use study::{

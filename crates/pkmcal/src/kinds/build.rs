@@ -11,7 +11,7 @@ use crate::engine::kinematics::branch_signs;
 use crate::error::{Error, Result};
 use crate::kinds::description::{Names, bad, box_from_description, stiffness_name};
 use crate::mechanism::tool::ToolLayout;
-use crate::mechanism::{Mechanism, Spec};
+use crate::mechanism::{Mechanism, Renamed, Spec};
 use crate::units::Unit;
 use std::collections::BTreeMap;
 
@@ -117,6 +117,8 @@ pub(crate) struct Parts<'a> {
     pub(crate) work_scale: f64,
     pub(crate) joint_scale: Vec<f64>,
     pub(crate) axis_scale: Vec<f64>,
+    /// The description's `[renamed]` table: old name → current name.
+    pub(crate) renamed: &'a BTreeMap<String, String>,
 }
 
 /// A described mechanism's [`Spec`], by the rule every kind follows: an
@@ -124,8 +126,9 @@ pub(crate) struct Parts<'a> {
 /// [`stiffness_name`]`(J)`; the nominal vector is the geometry, zero
 /// offsets, then the stiffness; the default free set is the description's
 /// `free`, or all the geometry and the offsets; the workspace box is the
-/// `[workspace]` table's. The first actuators are the independent joints
-/// and the reference configuration is zero until the kind closes it.
+/// `[workspace]` table's; old names are the `[renamed]` table's. The first
+/// actuators are the independent joints and the reference configuration is
+/// zero until the kind closes it.
 pub(crate) fn assemble(p: Parts) -> Result<Spec> {
     let workspace_box = box_from_description(&p.tool_axes, p.workspace)?;
     let Parts {
@@ -147,14 +150,23 @@ pub(crate) fn assemble(p: Parts) -> Result<Spec> {
     };
     let nq = joints.names.len();
     let dof = nq - p.n_constraints;
+    let stiffness: Vec<String> = joints
+        .actuated
+        .iter()
+        .map(|&i| stiffness_name(&joints.names[i]))
+        .collect();
+    let renamed = renamings(p.renamed, |n| {
+        names
+            .names
+            .iter()
+            .chain(&offsets)
+            .chain(&stiffness)
+            .any(|c| c == n)
+    })?;
     Ok(Spec {
         name: p.name,
         independent: joints.actuated[..dof].to_vec(),
-        stiffness: joints
-            .actuated
-            .iter()
-            .map(|&i| stiffness_name(&joints.names[i]))
-            .collect(),
+        stiffness,
         actuated: joints.actuated,
         joints: joints.names,
         n_constraints: p.n_constraints,
@@ -173,7 +185,31 @@ pub(crate) fn assemble(p: Parts) -> Result<Spec> {
         joint_scale: p.joint_scale,
         axis_scale: p.axis_scale,
         min_conditioning: 0.0,
+        renamed,
     })
+}
+
+/// A description's `[renamed]` table (old name → current name) as the
+/// spec keeps it; `is_parameter` tells the current names.
+fn renamings(
+    table: &BTreeMap<String, String>,
+    is_parameter: impl Fn(&str) -> bool,
+) -> Result<Vec<Renamed>> {
+    let mut out = Vec::with_capacity(table.len());
+    for (old, new) in table {
+        if is_parameter(old) {
+            return bad(format!(
+                "[renamed]: `{old}` is a parameter of the mechanism; an old name must be one it no longer has"
+            ));
+        }
+        if !is_parameter(new) {
+            return bad(format!(
+                "[renamed]: `{old} = \"{new}\"`: `{new}` is not a parameter of the mechanism; give the name it has now"
+            ));
+        }
+        out.push(Renamed::new(old, new));
+    }
+    Ok(out)
 }
 
 /// A kind built from its description, as [`finish`] completes it.

@@ -130,6 +130,10 @@ pub struct PlanarDescription {
     /// out.
     #[serde(default)]
     pub independent: Option<Vec<String>>,
+    /// Parameters renamed: old name → current name. Files and calibration
+    /// records that use an old name keep working (with a note).
+    #[serde(default)]
+    pub renamed: BTreeMap<String, String>,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -442,6 +446,7 @@ impl PlanarLinkage {
             } else {
                 vec![]
             },
+            renamed: &d.renamed,
         })?;
         let mut linkage = PlanarLinkage {
             spec,

@@ -240,6 +240,11 @@ pub struct SpatialDescription {
     /// out.
     #[serde(default)]
     pub independent: Option<Vec<String>>,
+    /// Parameters renamed: old name → current name (`[renamed] radius =
+    /// "delta_radius"`). Files and calibration records that use an old name
+    /// keep working (with a note).
+    #[serde(default)]
+    pub renamed: BTreeMap<String, String>,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -1019,6 +1024,7 @@ impl SpatialMechanism {
                 .iter()
                 .map(|&k| if k >= 3 { radius } else { 1.0 })
                 .collect(),
+            renamed: &d.renamed,
         })?;
         let mut mech = SpatialMechanism {
             spec,

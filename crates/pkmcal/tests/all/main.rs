@@ -19,6 +19,7 @@ mod noise;
 mod planar;
 mod priors;
 mod record;
+mod renamed;
 mod round_trip;
 mod spatial;
 mod use_calibration;
