@@ -216,6 +216,24 @@ impl CalibrationRecord {
         )
     }
 
+    /// The record as it would be saved today: its parameters and its
+    /// covariance under their current names, and the identity under the
+    /// old names ([`mechanism_identities`]) replaced by the current one; for
+    /// whatever compares records by name (two calibrations' drift).
+    pub fn in_current_names(&self, spec: &Spec) -> Self {
+        let mut out = self.clone();
+        for p in &mut out.parameters {
+            p.name = spec.canonical(&p.name).to_string();
+        }
+        for n in &mut out.covariance.names {
+            *n = spec.canonical(n).to_string();
+        }
+        if mechanism_identities(spec)[1..].contains(&self.mechanism_identity) {
+            out.mechanism_identity = mechanism_identity(spec);
+        }
+        out
+    }
+
     /// The mechanism's parameter values the record holds (those it does not
     /// name stay nominal; instrument parameters are left out; old names
     /// read as the current ones).

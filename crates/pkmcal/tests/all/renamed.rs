@@ -164,6 +164,14 @@ fn a_record_saved_under_old_names_is_accepted() {
     assert_eq!(record.renamed(spec), (1..=6).map(kl).collect::<Vec<_>>());
     let (idx, _) = record.covariance.resolve(spec).unwrap();
     assert_eq!(idx, [0, spec.param_index("kL1").unwrap()]);
+    // As saved today: current names and identity, nothing left to note.
+    let today = record.in_current_names(spec);
+    assert_eq!(today.mechanism_identity, ids[0]);
+    assert_eq!(today.covariance.names, ["a1x", "kL1"]);
+    let names: Vec<&str> = today.parameters.iter().map(|p| p.name.as_str()).collect();
+    assert_eq!(names, spec.param_names());
+    assert_eq!(today.params(spec), record.params(spec));
+    assert!(today.renamed(spec).is_empty() && today.check(spec).is_ok());
     // Another mechanism's record is still refused, and a mechanism with no
     // renaming has one identity.
     let other = common::gough_stewart("gough-stewart-8");
