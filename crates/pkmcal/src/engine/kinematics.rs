@@ -71,7 +71,7 @@ fn solve_closure_keeping<M: Mechanism>(
     let end = newton::run(
         policy,
         &mut state,
-        |(q, step), _| {
+        |(q, step), _| -> Result<Option<newton::Step>> {
             crate::mechanism::autodiff::jacobians_into(mech, q, rho, 0..nq, &mut j);
             for (c, &f) in free.iter().enumerate() {
                 gv.column_mut(c).copy_from(&j.dg.column(f));
@@ -475,7 +475,7 @@ fn ik_continuation<M: Mechanism>(
         let end = newton::run(
             &policy,
             &mut state,
-            |(q, step), _| {
+            |(q, step), _| -> Result<Option<newton::Step>> {
                 crate::mechanism::autodiff::jacobians_into(mech, q, rho, 0..nq, &mut j);
                 a.view_mut((0, 0), (spec.n_constraints, nq))
                     .copy_from(&j.dg);

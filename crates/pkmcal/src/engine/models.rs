@@ -866,7 +866,7 @@ fn equilibrium_in<M: Mechanism>(
     let end = newton::run(
         &newton::EQUILIBRIUM,
         &mut state,
-        |(q, lam, step), it| {
+        |(q, lam, step), it| -> Result<Option<newton::Step>> {
             jacobians_into(mech, q, rho, 0..nq, j);
             // ∇E = −Sᵀτ + Xqᵀ w.
             grad_e.fill(0.0);

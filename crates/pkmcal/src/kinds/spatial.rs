@@ -910,7 +910,7 @@ impl SpatialMechanism {
             let end = newton::run(
                 policy,
                 &mut state,
-                |(q, step), _| {
+                |(q, step), _| -> Result<Option<newton::Step>> {
                     let (g, a) = self.leg_system(leg, q, rho);
                     residual = g.amax();
                     *step = crate::linalg::solve::solve_square(a, g).ok_or_else(|| {

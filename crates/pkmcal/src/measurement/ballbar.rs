@@ -126,7 +126,7 @@ pub fn trilaterate(
     newton::run(
         &newton::TRILATERATION,
         &mut state,
-        |(x, step), _| {
+        |(x, step), _| -> Result<Option<newton::Step>> {
             let mut res = DVector::zeros(k);
             for (j, s) in setup.sockets.iter().enumerate() {
                 let d = DVector::from_fn(dim, |i, _| x[i] - s[i]);
