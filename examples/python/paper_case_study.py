@@ -40,7 +40,11 @@ commands, measured = pkmcal.simulate(mech, plan.targets, truth, noise=0.002, see
 unseen = pkmcal.plan(mech, 50, spacing=9.0, criterion="O1").targets
 v_commands, v_measured = pkmcal.simulate(mech, unseen, truth, noise=0.002, seed=8)
 
-cal = pkmcal.calibrate(mech, commands, measured, model="exact", validation=(v_commands, v_measured))
+# Simulated positions are in the base frame (a tracker's are not: frame="auto"
+# then identifies its frame).
+cal = pkmcal.calibrate(
+    mech, commands, measured, model="exact", validation=(v_commands, v_measured), frame="base"
+)
 print(cal)
 print(f"{'parameter':>10} {'identified':>14} {'std dev':>10}  unit   true")
 for name in cal.free:

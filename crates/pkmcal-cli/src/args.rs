@@ -44,7 +44,7 @@ pub struct MechanismArg {
 }
 
 /// Which parameters to identify.
-#[derive(clap::Args)]
+#[derive(clap::Args, Default)]
 pub struct FreeArgs {
     /// Parameters to identify, comma separated (`all`, `default` allowed); default: the mechanism's default set (the paper's 16 for the reference).
     #[arg(long, value_name = "NAMES")]
@@ -54,10 +54,21 @@ pub struct FreeArgs {
     pub fix: Option<String>,
 }
 
-/// What is known of the parameters before the data: their tolerances, as
-/// priors of the fit.
-#[derive(clap::Args)]
-pub struct PriorArgs {
+impl FreeArgs {
+    /// The names onto the request.
+    pub fn apply(&self, r: &mut pkmcal::Request) {
+        r.free = self.free.as_deref().map(pkmcal::Request::names);
+        r.fix = self
+            .fix
+            .as_deref()
+            .map(pkmcal::Request::names)
+            .unwrap_or_default();
+    }
+}
+
+/// Tolerances given on the command line.
+#[derive(clap::Args, Default)]
+pub struct ToleranceArg {
     /// Tolerances NAME=SIGMA as priors (one standard deviation in the
     /// parameter's unit, or a percentage of its nominal value: k1=20%),
     /// comma-separated or repeated; they replace the mechanism file's
@@ -66,24 +77,79 @@ pub struct PriorArgs {
     /// weak.
     #[arg(long, value_name = "NAME=SIGMA")]
     pub tolerance: Vec<String>,
+}
+
+impl ToleranceArg {
+    /// The `--tolerance` items (`NAME=SIGMA`, comma-separated or
+    /// repeated), in the order given; a name given twice is the library's
+    /// to refuse.
+    pub fn tolerances(&self) -> anyhow::Result<Vec<(String, pkmcal::apply::budget::Tolerance)>> {
+        use pkmcal::apply::budget::Tolerance;
+        let mut out = vec![];
+        for item in self
+            .tolerance
+            .iter()
+            .flat_map(|s| s.split(','))
+            .map(str::trim)
+        {
+            if item.is_empty() {
+                continue;
+            }
+            let Some((name, value)) = item.split_once('=') else {
+                return crate::words::usage(format!(
+                    "--tolerance {item}: give NAME=SIGMA (e.g. l11=0.05 or k1=20%)"
+                ));
+            };
+            match Tolerance::parse(value) {
+                Ok(t) => out.push((name.trim().to_string(), t)),
+                Err(e) => return crate::words::usage(format!("--tolerance {item}: {e}")),
+            }
+        }
+        Ok(out)
+    }
+}
+
+/// What is known of the parameters before the data: their tolerances, as
+/// priors of the fit.
+#[derive(clap::Args, Default)]
+pub struct PriorArgs {
+    #[command(flatten)]
+    pub given: ToleranceArg,
     /// Ignore the mechanism file's [tolerances]: no priors.
     #[arg(long)]
     pub no_tolerances: bool,
 }
 
-/// The instrument's noise that weighs readings against the tolerances
-/// (`analyze`, `plan`).
+impl PriorArgs {
+    /// The tolerances onto the request.
+    pub fn apply(&self, r: &mut pkmcal::Request) -> anyhow::Result<()> {
+        r.tolerances = self.given.tolerances()?;
+        r.no_tolerances = self.no_tolerances;
+        Ok(())
+    }
+}
+
+/// The instrument's stated noise that weighs readings against the
+/// tolerances (`analyze`, `plan`, `budget`).
 #[derive(clap::Args)]
 pub struct WeighingNoiseArgs {
-    /// With tolerances: the instrument's noise on each length reading
-    /// without a given σ (mm), which weighs what the readings tell against
-    /// what the tolerances already tell.
-    #[arg(value_parser = values::length_noise, long, default_value_t = 0.002, value_name = "MM")]
-    pub noise: f64,
-    /// With tolerances: the noise on each angle reading, rad (default: the
-    /// length noise over a 200 mm lever arm).
-    #[arg(value_parser = values::angle_noise, long, value_name = "RAD")]
-    pub angle_noise: Option<f64>,
+    /// With tolerances: the instrument's stated noise on each length
+    /// reading without a given σ (mm; default 0.002), which weighs what the
+    /// readings tell against what the tolerances already tell.
+    #[arg(value_parser = values::length_noise, long, value_name = "MM", alias = "noise")]
+    pub stated_noise: Option<f64>,
+    /// With tolerances: the stated noise on each angle reading, rad
+    /// (default: the length noise over a 200 mm lever arm).
+    #[arg(value_parser = values::angle_noise, long, value_name = "RAD", alias = "angle-noise")]
+    pub stated_angle_noise: Option<f64>,
+}
+
+impl WeighingNoiseArgs {
+    /// The stated noise onto the request.
+    pub fn apply(&self, r: &mut pkmcal::Request) {
+        r.stated_noise = self.stated_noise;
+        r.stated_angle_noise = self.stated_angle_noise;
+    }
 }
 
 /// What the instrument read and where it stood, for the commands that read
@@ -100,8 +166,8 @@ pub struct InstrumentArgs {
     /// known places), `auto`: base when the data file says `# frame: base`
     /// (simulate and trilaterate write it), otherwise free. Ball-bar
     /// readings and probe heights carry no frame.
-    #[arg(long, default_value = "auto", value_parser = PossibleValuesParser::new(pkmcal_io::calibrate::FrameChoice::NAMES).try_map(|s| s.parse::<pkmcal_io::calibrate::FrameChoice>()))]
-    pub frame: pkmcal_io::calibrate::FrameChoice,
+    #[arg(long, default_value = "auto", value_parser = PossibleValuesParser::new(pkmcal::FrameChoice::NAMES).try_map(|s| s.parse::<pkmcal::FrameChoice>()))]
+    pub frame: pkmcal::FrameChoice,
     /// Only these tool axes were measured (comma-separated, e.g. `z` for a
     /// height probe); the data file then needs only their columns.
     #[arg(long, value_name = "AXES")]
@@ -114,6 +180,17 @@ pub struct InstrumentArgs {
     #[arg(long, value_name = "PAIRS.csv")]
     pub distances: Option<PathBuf>,
 }
+
+impl InstrumentArgs {
+    /// The measured axes given.
+    pub fn axes(&self) -> Option<Vec<String>> {
+        self.axes.as_deref().map(pkmcal::Request::names)
+    }
+}
+
+/// Comma-separated finite numbers.
+#[derive(Debug, Clone)]
+pub struct Numbers(pub Vec<f64>);
 
 /// A tool load: one value per tool coordinate (N, N·m).
 #[derive(Debug, Clone)]
@@ -152,10 +229,7 @@ pub fn model(names: &'static [&'static str]) -> impl TypedValueParser<Value = pk
 /// Option values checked by the parser (a bad value exits 2, naming the
 /// option).
 pub mod values {
-    /// Largest noise or error on a length that makes sense (mm).
-    pub const MAX_LENGTH_MM: f64 = 1000.0;
-    /// Largest noise or error on an angle that makes sense (rad).
-    pub const MAX_ANGLE_RAD: f64 = 1.0;
+    pub use pkmcal::identify::request::{MAX_ANGLE_RAD, MAX_LENGTH_MM};
 
     fn number(s: &str) -> Result<f64, String> {
         s.trim()
@@ -237,8 +311,33 @@ pub mod values {
             .then_some(v)
             .ok_or_else(|| "k-fold cross-validation needs at least 2 folds".to_string())
     }
-    pub fn weighting(s: &str) -> Result<pkmcal_io::klipper::Weighting, String> {
+    pub fn weighting(s: &str) -> Result<pkmcal_io::firmware::klipper::Weighting, String> {
         s.parse()
+    }
+    /// A spacing (mm): positive, at most [`MAX_LENGTH_MM`].
+    pub fn spacing(s: &str) -> Result<f64, String> {
+        let v = number(s)?;
+        (v > 0.0 && v <= MAX_LENGTH_MM)
+            .then_some(v)
+            .ok_or_else(|| format!("{v} mm must be positive and at most {MAX_LENGTH_MM} mm"))
+    }
+    /// Comma-separated finite numbers.
+    pub fn numbers(s: &str) -> Result<super::Numbers, String> {
+        s.split(',')
+            .map(|t| number(t).map_err(|_| format!("`{}` is not a finite number", t.trim())))
+            .collect::<Result<Vec<f64>, String>>()
+            .map(super::Numbers)
+    }
+    /// A G-code segment length (mm): the file side's bounds.
+    pub fn segment(s: &str) -> Result<f64, String> {
+        use pkmcal_io::gcode::{MAX_SEGMENT, MIN_SEGMENT};
+        let v = number(s)?;
+        (MIN_SEGMENT..=MAX_SEGMENT)
+            .contains(&v)
+            .then_some(v)
+            .ok_or_else(|| {
+                format!("{v} must be a length between {MIN_SEGMENT:e} and {MAX_SEGMENT:e} mm")
+            })
     }
     /// A tool load (wrench): comma-separated finite numbers, each within
     /// [`pkmcal::units::MAX_LOAD`] (N, N·m); its length is checked against

@@ -1,11 +1,23 @@
 //! `pkmcal`: the command-line tool. Reads files, validates arguments, calls the
 //! library, writes files. No kinematics here.
 
+/// `eprintln!` for messages: a standard error that cannot be written (closed,
+/// full, a broken pipe) loses the message, never the run (`eprintln!` would
+/// panic and the run's outputs be discarded).
+#[macro_export]
+macro_rules! note {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr(), $($t)*);
+    }};
+}
+
 mod args;
 mod cmd;
 mod progress;
+mod words;
 
-use pkmcal_io::{Run, output};
+use pkmcal_io::Run;
 
 use clap::{Parser, Subcommand};
 use std::path::{Path, PathBuf};
@@ -21,18 +33,22 @@ struct Cli {
     /// `angle=deg,length=m` or `counts_per_rev=4096`: angle rad|deg, length
     /// mm|m|um, counts_per_rev, counts_per_mm (commands in encoder counts).
     /// Overrides the mechanism file's [units]; default mm and rad.
-    #[arg(long, global = true, value_name = "KEY=UNIT,…")]
+    #[arg(long, global = true, value_name = "KEY=UNIT,…", display_order = GLOBAL_ORDER)]
     units: Option<String>,
     /// The largest file read whole, in MiB, for every kind of file (default:
     /// 16 for mechanism, parameter, setup and firmware files and reports,
     /// 256 for data files and G-code; streamed commands and targets have no
     /// size limit, only 1 MiB per line).
-    #[arg(long, global = true, value_name = "MB", value_parser = clap::value_parser!(u64).range(1..=1 << 20))]
+    #[arg(long, global = true, value_name = "MB", value_parser = clap::value_parser!(u64).range(1..=1 << 20), display_order = GLOBAL_ORDER + 1)]
     max_input_mb: Option<u64>,
     /// No progress bar (every command takes it).
-    #[arg(long, global = true)]
+    #[arg(long, global = true, display_order = GLOBAL_ORDER + 2)]
     quiet: bool,
 }
+
+/// Where the global options stand in every command's help: after the
+/// command's own.
+const GLOBAL_ORDER: usize = 10_000;
 
 #[derive(Subcommand)]
 enum Command {
@@ -93,24 +109,22 @@ fn main() -> ExitCode {
             files,
             units,
             bars: &progress::TerminalBars { quiet: cli.quiet },
+            notes: &progress::TerminalNotes,
         };
         let p = cli.command.paths()?;
         let inputs: Vec<&Path> = p.inputs.iter().map(PathBuf::as_path).collect();
         let outputs: Vec<&Path> = p.outputs.iter().map(PathBuf::as_path).collect();
         files.check(&inputs, &outputs, &p.dirs)?;
         in_pool(&run, cli.command)?;
-        files.commit()
+        Ok(files.commit()?)
     });
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             files.discard();
-            pkmcal_io::note!("error: {e:#}");
-            if e.downcast_ref::<output::Usage>().is_some() {
-                ExitCode::from(2)
-            } else {
-                ExitCode::from(1)
-            }
+            let (message, usage) = words::message(&e);
+            note!("error: {message}");
+            ExitCode::from(if usage { 2 } else { 1 })
         }
     }
 }
@@ -119,7 +133,7 @@ fn main() -> ExitCode {
 fn units_option(text: Option<&str>) -> anyhow::Result<pkmcal::PartialUnits> {
     Ok(match text {
         Some(t) => {
-            pkmcal::PartialUnits::parse(t).map_err(|e| output::Usage(format!("--units: {e}")))?
+            pkmcal::PartialUnits::parse(t).map_err(|e| words::Usage(format!("--units: {e}")))?
         }
         None => pkmcal::PartialUnits::default(),
     })
@@ -133,7 +147,7 @@ fn install_cleanup(files: &'static pkmcal_io::Files) {
         files.interrupt(|committed| {
             // (Not `eprintln!`: with standard error closed it would panic,
             // and the panic hook wait for the state held here.)
-            pkmcal_io::note!(
+            note!(
                 "{}",
                 if committed {
                     "interrupted after the outputs were written (they are complete)"
@@ -156,7 +170,7 @@ fn install_cleanup(files: &'static pkmcal_io::Files) {
             .or_else(|| info.payload().downcast_ref::<&str>().copied())
             .unwrap_or("");
         if let Some(cause) = message.strip_prefix("failed printing to stdout: ") {
-            pkmcal_io::note!("error: cannot write to standard output: {cause}");
+            note!("error: cannot write to standard output: {cause}");
             std::process::exit(1);
         }
         default(info);

@@ -47,3 +47,12 @@ impl Bars for TerminalBars {
         Box::new(Bar(bar))
     }
 }
+
+/// Notes on standard error, `note: …` (the file side prints nothing itself).
+pub struct TerminalNotes;
+
+impl pkmcal_io::Notes for TerminalNotes {
+    fn note(&self, note: pkmcal_io::Note) {
+        crate::note!("note: {note}");
+    }
+}

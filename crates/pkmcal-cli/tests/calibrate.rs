@@ -246,7 +246,7 @@ fn calibrate_bad_input() {
             "p.toml",
         ],
         2,
-        "not both",
+        "cannot be used with",
     );
     assert!(!d.join("p.toml").exists());
 }

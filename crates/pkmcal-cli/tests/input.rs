@@ -515,6 +515,6 @@ fn a_file_written_with_units_is_read_back_without_options() {
         d,
         &["calibrate", "--data", "odd.csv", "--out", "p.toml"],
         1,
-        "odd.csv, line 2",
+        "odd.csv:2:",
     );
 }

@@ -562,24 +562,24 @@ fn bad_option_values_are_usage_errors() {
                 "plan",
                 "--count",
                 "5",
-                "--candidates",
+                "--candidate-spacing",
                 "0",
                 "--out",
                 "p.csv",
             ],
-            "--candidates",
+            "--candidate-spacing",
         ),
         (
             &[
                 "trilaterate",
                 "--data",
                 "d.csv",
-                "--sigma",
+                "--stated-noise",
                 "0",
                 "--out",
                 "x.csv",
             ],
-            "--sigma",
+            "--stated-noise",
         ),
         (
             &[
@@ -771,7 +771,7 @@ fn extreme_values_give_an_error_or_a_result_never_a_panic() {
             "plan",
             "--count",
             "10",
-            "--candidates",
+            "--candidate-spacing",
             "0.01",
             "--out",
             "plan.csv",
@@ -985,7 +985,7 @@ fn a_full_standard_output_is_an_error_not_a_panic() {
             "9",
             "--criterion",
             "o3",
-            "--candidates",
+            "--candidate-spacing",
             "20",
             "--out",
             "p.csv",
@@ -1336,7 +1336,7 @@ fn the_culprit_is_named_with_the_right_exit_code() {
             "p.toml",
         ],
         2,
-        "in --fix: unknown parameter `l111`",
+        "--fix: unknown parameter `l111`",
     );
     // A calibration report whose covariance is not one: blamed on the report.
     ok(
@@ -1538,7 +1538,7 @@ fn inputs_are_read_within_bounds() {
                 "gcode",
                 "--params",
                 "cal.toml",
-                "--in",
+                "--program",
                 "/dev/zero",
                 "--out",
                 "o.gcode",
@@ -1813,13 +1813,13 @@ fn a_tiny_grid_step_is_refused() {
         d,
         &[
             "compensate",
-            "--grid",
+            "--table",
             "x=-100:100:1e-300,y=100:200:10",
             "--out",
             "g.json",
         ],
         2,
-        "--grid: `x=-100:100:1e-300`: too many nodes",
+        "--table: `x=-100:100:1e-300`: too many nodes",
     );
     assert!(!d.join("g.json").exists());
 }
@@ -1914,13 +1914,13 @@ fn an_impossible_sigma_names_the_option() {
                 "trilaterate",
                 "--data",
                 "d.csv",
-                "--sigma",
+                "--stated-noise",
                 sigma,
                 "--out",
                 "t.csv",
             ],
             2,
-            "--sigma",
+            "--stated-noise",
         );
     }
 }

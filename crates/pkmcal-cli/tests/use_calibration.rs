@@ -135,7 +135,7 @@ fn plan_then_montecarlo() {
             "plan",
             "--count",
             "20",
-            "--candidates",
+            "--candidate-spacing",
             "15",
             "--out",
             "plan.csv",

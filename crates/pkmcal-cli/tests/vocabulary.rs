@@ -1,6 +1,7 @@
 //! The option table of docs/cli.md is the CLI's vocabulary: every option it lists
-//! is in the help of every command it names, and the old spellings it lists
-//! are still read.
+//! is in the help of every command it names, no option stands for two
+//! meanings, every option a command's help lists is in that command's
+//! synopsis, and the old spellings it lists are still read.
 
 mod common;
 use common::run;
@@ -106,12 +107,84 @@ fn the_readme_option_table_holds_for_every_command() {
     }
 }
 
+/// One name, one meaning: no option is in two rows of the table.
+#[test]
+fn no_option_has_two_meanings() {
+    let mut seen: Vec<String> = vec![];
+    for (options, _) in table() {
+        for o in options {
+            assert!(
+                !seen.contains(&o),
+                "docs/cli.md's option table gives {o} two meanings (two rows)"
+            );
+            seen.push(o);
+        }
+    }
+}
+
+/// The synopsis of docs/cli.md: each command's text, from its `pkmcal
+/// <command>` line to the next.
+fn synopsis() -> Vec<(String, String)> {
+    let doc = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../docs/cli.md"))
+        .expect("docs/cli.md");
+    let start = doc
+        .find("```sh\npkmcal demo")
+        .expect("the synopsis in docs/cli.md");
+    let end = start + 5 + doc[start + 5..].find("```").expect("the synopsis ends");
+    let mut out: Vec<(String, String)> = vec![];
+    for line in doc[start + 6..end].lines() {
+        if let Some(rest) = line.strip_prefix("pkmcal ") {
+            let name = rest.split_whitespace().next().unwrap_or("").to_string();
+            out.push((name, rest.to_string()));
+        } else if let Some(last) = out.last_mut() {
+            last.1.push(' ');
+            last.1.push_str(line);
+        }
+    }
+    out
+}
+
+/// Every option a command's help lists (but the global ones and `--help`)
+/// is in its synopsis in docs/cli.md.
+#[test]
+fn every_option_of_every_help_is_documented() {
+    let dir = tempfile::tempdir().unwrap();
+    let syn = synopsis();
+    for c in COMMANDS {
+        let o = run(dir.path(), &[c, "--help"]);
+        let help = String::from_utf8_lossy(&o.stdout).into_owned();
+        let (_, text) = syn
+            .iter()
+            .find(|(n, _)| n == c)
+            .unwrap_or_else(|| panic!("docs/cli.md's synopsis has no `pkmcal {c}`"));
+        let words: Vec<&str> = text
+            .split(|ch: char| !(ch.is_ascii_alphanumeric() || ch == '-'))
+            .collect();
+        for line in help.lines() {
+            let Some(opt) = line
+                .trim_start()
+                .split([' ', ','])
+                .find(|w| w.starts_with("--"))
+            else {
+                continue;
+            };
+            if ["--help", "--units", "--max-input-mb", "--quiet"].contains(&opt) {
+                continue;
+            }
+            assert!(
+                words.contains(&opt),
+                "`pkmcal {c}` takes {opt} (its help lists it), but docs/cli.md's synopsis of {c} does not"
+            );
+        }
+    }
+}
+
 /// The old spellings are read (hidden from the help): a run with one gets as
 /// far as reading its files, never "unexpected argument".
 #[test]
 fn old_spellings_still_work() {
     let dir = tempfile::tempdir().unwrap();
-    let cases: [&[&str]; 6] = [
+    let cases: [&[&str]; 14] = [
         &[
             "predict",
             "--commands",
@@ -148,6 +221,60 @@ fn old_spellings_still_work() {
             "--quiet",
         ],
         &["klipper", "--config", "none.cfg", "--quiet"],
+        &["analyze", "--data", "none.csv", "--noise", "0.001"],
+        &["analyze", "--data", "none.csv", "--angle-noise", "0.001"],
+        &[
+            "plan",
+            "--count",
+            "20",
+            "--candidates",
+            "10",
+            "--noise",
+            "0.001",
+            "--params",
+            "none.toml",
+            "--out",
+            "p.csv",
+        ],
+        &["montecarlo", "--poses", "none.csv", "--validation", "10"],
+        &[
+            "trilaterate",
+            "--setup",
+            "none.toml",
+            "--data",
+            "none.csv",
+            "--sigma",
+            "0.001",
+            "--out",
+            "o.csv",
+        ],
+        &[
+            "gcode",
+            "--params",
+            "none.toml",
+            "--in",
+            "none.gcode",
+            "--out",
+            "o.gcode",
+        ],
+        &[
+            "compensate",
+            "--params",
+            "none.toml",
+            "--grid",
+            "x=0:1:1",
+            "--out",
+            "o.csv",
+        ],
+        &[
+            "budget",
+            "--poses",
+            "none.csv",
+            "--noise",
+            "0.001",
+            "--tolerance",
+            "l11=0.1",
+        ],
     ];
     for args in cases {
         let o = run(dir.path(), args);

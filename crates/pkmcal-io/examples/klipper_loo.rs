@@ -14,24 +14,24 @@
 
 use anyhow::{Context, Result};
 use pkmcal::{Mechanism, Model, Params};
-use pkmcal_io::klipper::{
-    KlipperProblem, Weighting, delta_from_config, klipper_problem, parse_config,
-};
+use pkmcal_io::firmware::klipper::{KlipperPrinter, Weighting, delta_from_config, parse_config};
+use pkmcal_io::firmware::{PrinterProblem, problem};
 
 /// The prediction error of reading `m` under a fit's parameters.
 fn held_out_error(
-    p: &KlipperProblem,
+    p: &PrinterProblem,
     params: &Params,
     mvals: &[f64],
     m: &pkmcal::Measurement,
 ) -> Result<f64> {
     let predict = |c: &[f64]| pkmcal::predict(&p.mech, params, c, Model::Exact, &[]).map(|r| r.x);
     let x = predict(&m.commands)?;
+    let measurement = &p.readings.measurement;
     Ok(match &m.partner {
-        Some(other) => p.measurement.distance(&x, &predict(other)?) - m.measured[0],
+        Some(other) => measurement.distance(&x, &predict(other)?) - m.measured[0],
         None => {
-            let mut y = vec![0.0; p.measurement.axes().len()];
-            p.measurement.observe(&x, mvals, &mut y);
+            let mut y = vec![0.0; measurement.axes().len()];
+            measurement.observe(&x, mvals, &mut y);
             y[0] - m.measured[0]
         }
     })
@@ -55,31 +55,30 @@ fn weightings() -> Vec<(String, Weighting)> {
 
 /// Held-out RMS errors (heights, distances) of every reading of `delta`
 /// left out in turn under `weighting`.
-fn leave_one_out(
-    delta: &pkmcal_io::klipper::KlipperDelta,
-    weighting: Weighting,
-) -> Result<(f64, f64)> {
-    let nh = delta.probes.len();
-    let p = klipper_problem(delta, weighting, None, None)?;
+fn leave_one_out(printer: &KlipperPrinter) -> Result<(f64, f64)> {
+    let nh = printer.delta.probes.len();
+    let p = problem(printer, pkmcal::Request::new(Model::Exact))?;
     let nominal = Params::nominal(p.mech.spec());
+    let data: Vec<pkmcal::Measurement> = p
+        .readings
+        .poses
+        .iter()
+        .chain(&p.readings.distances)
+        .cloned()
+        .collect();
     let (mut eh, mut ed) = (vec![], vec![]);
-    for i in 0..p.data.len() {
-        let mut rest = p.data.clone();
+    for i in 0..data.len() {
+        let mut rest = data.clone();
         let out = rest.remove(i);
         let split = if i < nh { nh - 1 } else { nh };
         let (poses, distances) = rest.split_at(split);
         let study = pkmcal::identify::study(
             &p.mech,
-            &p.measurement,
+            &p.readings.measurement,
             poses,
             distances.to_vec(),
             &nominal,
-            &pkmcal::identify::StudyOptions {
-                calibration: p.opts.clone(),
-                validation: pkmcal::identify::ValidationPlan::None,
-                kfold: None,
-                seed: 0,
-            },
+            &p.opts,
             &|| {},
         )
         .map_err(|e| anyhow::anyhow!("{}", e.error))?;
@@ -120,7 +119,15 @@ fn main() -> Result<()> {
         }
         let row = ws
             .iter()
-            .map(|(_, w)| leave_one_out(&delta, *w))
+            .map(|(_, w)| {
+                leave_one_out(&KlipperPrinter {
+                    path: path.clone(),
+                    text: text.clone(),
+                    ini: parse_config(&run, &text, &path)?,
+                    delta: delta.clone(),
+                    weighting: *w,
+                })
+            })
             .collect::<Result<Vec<_>>>()
             .with_context(|| case.display().to_string())?;
         let name = case.file_name().unwrap().to_string_lossy().into_owned();

@@ -3,7 +3,7 @@
 //! (`assets/`), so rendering never depends on the machine's fonts; SVGs name
 //! the same family, which the HTML report embeds.
 
-use anyhow::{Result, anyhow};
+use crate::error::{Error, Result};
 use plotters::prelude::*;
 use std::sync::Once;
 
@@ -39,8 +39,8 @@ pub struct Figure {
     pub png: Vec<u8>,
 }
 
-fn err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
-    anyhow!("drawing failed: {e:?}")
+fn err<E: std::fmt::Debug>(e: E) -> Error {
+    Error::Content(format!("drawing failed: {e:?}"))
 }
 
 /// Render one drawing function to SVG and PNG.

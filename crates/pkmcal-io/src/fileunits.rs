@@ -1,5 +1,5 @@
-//! Units of the numbers in data files: the run's units (`--units` on the
-//! command line) over a mechanism file's `[units]` table over the internal
+//! Units of the numbers in data files: the run's units (the front end's
+//! units option) over a mechanism file's `[units]` table over the internal
 //! units (mm, rad).
 //! Numbers are converted on read (`internal = file × factor`) and back on
 //! write; parameter files and reports stay in mm and rad, which they name.
@@ -20,7 +20,7 @@ pub fn units_line(line: &str) -> Option<pkmcal::Result<FileUnits>> {
 
 /// The units of one data file: the file's own units line (`line`) when it
 /// has one, else the mechanism's `[units]` (`base`, which already holds
-/// them and the run's units); the run's units (`--units`) over either. Where
+/// them and the run's units); the run's units (the front end's units option) over either. Where
 /// the file's line and the run's units disagree, a note says so (the run's
 /// units win).
 pub fn for_file(
@@ -67,18 +67,17 @@ pub fn for_file(
         ));
     }
     if !differ.is_empty() {
-        crate::note!(
-            "note: {} says {}; the units given to this run win",
-            path.display(),
-            differ.join(", ")
-        );
+        run.note(crate::Note::UnitsDiffer {
+            path: path.to_path_buf(),
+            differ,
+        });
     }
     line.with(given)
 }
 
 /// The data-file units for a command run with the mechanism description
-/// `d`: its `[units]` table, then the run's units (`--units`).
-pub fn of(run: &crate::Run<'_>, d: &crate::io::Description) -> FileUnits {
+/// `d`: its `[units]` table, then the run's units (the front end's units option).
+pub fn of(run: &crate::Run<'_>, d: &crate::description::Description) -> FileUnits {
     let mut u = FileUnits::default();
     if let Some(file) = &d.units {
         u = u.with(file);

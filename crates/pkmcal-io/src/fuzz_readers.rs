@@ -127,10 +127,10 @@ proptest! {
         let file = dir.path().join("printer.cfg");
         let files = crate::Files::new();
         let run = crate::Run::quiet(&files);
-        if let Ok(ini) = crate::klipper::parse_config(&run, &text, &file)
-            && let Ok(delta) = crate::klipper::delta_from_config(&ini)
+        if let Ok(ini) = crate::firmware::klipper::parse_config(&run, &text, &file)
+            && let Ok(delta) = crate::firmware::klipper::delta_from_config(&ini)
         {
-            let _ = crate::klipper::updated_config(&text, &delta, &ini);
+            let _ = crate::firmware::klipper::updated_config(&text, &delta, &ini);
         }
     }
 
@@ -138,7 +138,7 @@ proptest! {
     fn fuzz_reprap_configs(pick in any::<usize>(), edits in proptest::collection::vec((0usize..20_000, any::<u8>(), any::<bool>()), 0..8)) {
         let all = reprap_configs();
         let text = String::from_utf8_lossy(&mutate(&all[pick % all.len()], &edits)).into_owned();
-        let _ = crate::reprap::delta_from_gcode(&text, "config.g");
+        let _ = crate::firmware::reprap::delta_from_gcode(&text, "config.g");
     }
 
     #[test]
@@ -148,7 +148,7 @@ proptest! {
         std::fs::write(&p, mutate(record(), &edits)).expect("write");
         let files = crate::Files::new();
         let run = crate::Run::quiet(&files);
-        if let Ok(r) = crate::io::read_calibration_record(&run, &p) {
+        if let Ok(r) = crate::record::read_calibration_record(&run, &p) {
             let spec = pkmcal::kinds::reference::JeongKim2Dof::default_spec();
             if r.check(&spec).is_ok() {
                 let _ = r.params(&spec);

@@ -1,7 +1,7 @@
-//! `gcode`: rewrite the `G0`/`G1` moves of a G-code program through the
-//! Cartesian pre-distortion ([`pkmcal::predistort`]), so that a controller
-//! that runs its own (nominal) kinematics makes the calibrated machine reach
-//! the programmed points.
+//! G-code programs: rewrite the `G0`/`G1` moves through a Cartesian
+//! pre-distortion (the caller's, [`pkmcal::predistort`] for a calibration),
+//! so that a controller that runs its own (nominal) kinematics makes the
+//! calibrated machine reach the programmed points.
 //!
 //! Tool axes map to words: `x y z` → `X Y Z`, `rx ry rz` → `A B C`, a planar
 //! tool's `phi` → `C`; lengths in mm (`G21`, or inches after `G20`), angles
@@ -18,13 +18,13 @@
 //! axis, two commands on one line, and per dialect `(…)` comments, lower
 //! case, lines without a command word (modal moves).
 
-use anyhow::{Context, Result};
-use pkmcal::{CompensationOptions, Mechanism, Model, predistort};
+use crate::error::{Error, Result};
+use pkmcal::{Field, RequestError};
 use rayon::prelude::*;
 use std::fmt::Write as _;
-use std::path::PathBuf;
+use std::path::Path;
 
-/// The firmware whose reading of G-code the rewrite follows (`--dialect`).
+/// The firmware whose reading of G-code the rewrite follows.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Dialect {
     /// Only what Klipper, RepRapFirmware and Marlin (as shipped) all read
@@ -46,12 +46,14 @@ pub enum Dialect {
 }
 
 impl Dialect {
+    /// Every dialect.
     pub const ALL: [Dialect; 4] = [
         Dialect::Strict,
         Dialect::Klipper,
         Dialect::RepRap,
         Dialect::Marlin,
     ];
+    /// Its name.
     pub fn name(self) -> &'static str {
         match self {
             Dialect::Strict => "strict",
@@ -60,23 +62,82 @@ impl Dialect {
             Dialect::Marlin => "marlin",
         }
     }
+    /// The dialect of a name.
     pub fn from_name(s: &str) -> Option<Dialect> {
         Dialect::ALL.into_iter().find(|d| d.name() == s)
     }
 }
 
-pub struct GcodeConfig {
-    pub mechanism: Option<PathBuf>,
-    pub params: PathBuf,
-    pub controller: Option<PathBuf>,
-    pub model: Model,
-    /// The tool load (`--load`), one value per tool axis; empty for none.
-    pub load: Vec<f64>,
-    pub input: PathBuf,
-    pub offset: Option<String>,
-    pub max_segment: Option<f64>,
+pub use crate::error::GcodeHint;
+
+/// How a program is rewritten.
+#[derive(Debug, Clone, Default)]
+pub struct Rewrite {
+    /// The firmware whose reading of the words is followed.
     pub dialect: Dialect,
-    pub out: PathBuf,
+    /// Programmed minus tool coordinates, one value per tool axis (mm, and
+    /// degrees for angles); empty for none.
+    pub offset: Vec<f64>,
+    /// Moves longer than this (mm) are cut into pieces, each pre-distorted.
+    pub max_segment: Option<f64>,
+}
+
+impl Rewrite {
+    /// The settings checked against a tool of `axes`.
+    fn check(&self, axes: &[String]) -> std::result::Result<(), RequestError> {
+        let nx = axes.len();
+        if !self.offset.is_empty() && self.offset.len() != nx {
+            return Err(RequestError::invalid(
+                Field::Offset,
+                format!(
+                    "needs {nx} values (mm, and degrees for angles: {}), got {}",
+                    axes.join(", "),
+                    self.offset.len()
+                ),
+            ));
+        }
+        if let Some(v) = self
+            .offset
+            .iter()
+            .find(|v| !(v.is_finite() && v.abs() <= MAX_OFFSET))
+        {
+            return Err(RequestError::invalid(
+                Field::Offset,
+                format!("{v} is beyond ±{MAX_OFFSET:e} (mm or degrees); no machine moves that far"),
+            ));
+        }
+        if let Some(m) = self.max_segment
+            && !(m.is_finite() && (MIN_SEGMENT..=MAX_SEGMENT).contains(&m))
+        {
+            return Err(RequestError::invalid(
+                Field::MaxSegment,
+                format!("{m} must be a length between {MIN_SEGMENT:e} and {MAX_SEGMENT:e} mm"),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The largest offset a rewrite takes (mm or degrees).
+pub const MAX_OFFSET: f64 = 1e6;
+/// The shortest segment a rewrite cuts moves into (mm): 0.1 µm.
+pub const MIN_SEGMENT: f64 = 1e-4;
+/// The longest segment length that means anything (mm).
+pub const MAX_SEGMENT: f64 = 1e6;
+
+/// A rewritten program and what was done.
+#[derive(Debug, Clone)]
+pub struct Rewritten {
+    /// The program.
+    pub bytes: Vec<u8>,
+    /// Moves rewritten.
+    pub moves: usize,
+    /// Pre-distorted moves written (pieces of the moves).
+    pub segments: usize,
+    /// The largest shift of a target (mm).
+    pub worst: f64,
+    /// Lines of moves sent as written (some axis's position not known).
+    pub as_written: Vec<usize>,
 }
 
 /// The G-code word of a tool axis.
@@ -188,8 +249,18 @@ fn trim_start(s: &[u8]) -> &[u8] {
     &s[k..]
 }
 
+/// A line refused: what is wrong, and what would let it be read.
+#[derive(Debug, PartialEq)]
+struct Refused(String, Option<GcodeHint>);
+
+impl From<String> for Refused {
+    fn from(m: String) -> Self {
+        Refused(m, None)
+    }
+}
+
 /// Read one line (without its line end) as `dialect` reads it.
-fn parse(line: &[u8], dialect: Dialect) -> Result<Parsed, String> {
+fn parse(line: &[u8], dialect: Dialect) -> std::result::Result<Parsed, Refused> {
     use Dialect::*;
     let (code, semi) = match line.iter().position(|&b| b == b';') {
         Some(i) => (&line[..i], &line[i..]),
@@ -266,51 +337,51 @@ fn parse(line: &[u8], dialect: Dialect) -> Result<Parsed, String> {
     // dialect applies.
     let shown = || String::from_utf8_lossy(line).trim().to_string();
     if command.is_none() && dialect != RepRap {
-        return Err(format!(
-            "`{}` has no command word: {}; start the line with G1 (or use --dialect reprap if RepRapFirmware runs it)",
-            shown(),
-            match dialect {
-                Klipper => "Klipper reads it as an unknown command and does not move",
-                Marlin => "Marlin moves on it only when built with GCODE_MOTION_MODES",
-                _ =>
-                    "Klipper does not move on it, Marlin only with GCODE_MOTION_MODES, RepRapFirmware continues the last G0/G1",
-            }
+        return Err(Refused(
+            format!(
+                "`{}` has no command word: {}; start the line with G1",
+                shown(),
+                match dialect {
+                    Klipper => "Klipper reads it as an unknown command and does not move",
+                    Marlin => "Marlin moves on it only when built with GCODE_MOTION_MODES",
+                    _ =>
+                        "Klipper does not move on it, Marlin only with GCODE_MOTION_MODES, RepRapFirmware continues the last G0/G1",
+                }
+            ),
+            Some(GcodeHint::Dialect(RepRap.name())),
         ));
     }
     if glued && matches!(dialect, Strict | Marlin) {
         return Err(format!(
             "`{}`: a line number not followed by a space, which Marlin reads as a line without a command; write `N10 G1 …`",
             shown()
-        ));
+        )
+        .into());
     }
     if !parens.is_empty() && dialect != RepRap {
-        return Err(format!(
-            "a (comment) on `{}`: {}; use a `;` comment at the end of the line{}",
-            shown(),
-            match dialect {
-                Klipper => "Klipper refuses the line",
-                Marlin => "Marlin reads its letters as words unless built with PAREN_COMMENTS",
-                _ =>
-                    "Klipper refuses such a line, Marlin reads its letters as words unless built with PAREN_COMMENTS, RepRapFirmware skips it",
-            },
-            if dialect == Strict {
-                ", or name the firmware with --dialect"
-            } else {
-                ""
-            }
+        return Err(Refused(
+            format!(
+                "a (comment) on `{}`: {}; use a `;` comment at the end of the line",
+                shown(),
+                match dialect {
+                    Klipper => "Klipper refuses the line",
+                    Marlin => "Marlin reads its letters as words unless built with PAREN_COMMENTS",
+                    _ =>
+                        "Klipper refuses such a line, Marlin reads its letters as words unless built with PAREN_COMMENTS, RepRapFirmware skips it",
+                },
+            ),
+            (dialect == Strict).then_some(GcodeHint::NameDialect),
         ));
     }
     let lower = s.iter().any(|b| b.is_ascii_lowercase())
         || number.as_ref().is_some_and(|(c, _)| *c == b'n');
     if lower && matches!(dialect, Strict | Marlin) {
-        return Err(format!(
-            "`{}` is in lower case, which Marlin reads only when built with GCODE_CASE_INSENSITIVE; write it in upper case{}",
-            shown(),
-            if dialect == Strict {
-                ", or name the firmware with --dialect"
-            } else {
-                ""
-            }
+        return Err(Refused(
+            format!(
+                "`{}` is in lower case, which Marlin reads only when built with GCODE_CASE_INSENSITIVE; write it in upper case",
+                shown(),
+            ),
+            (dialect == Strict).then_some(GcodeHint::NameDialect),
         ));
     }
     // A checksum at the end.
@@ -322,12 +393,14 @@ fn parse(line: &[u8], dialect: Dialect) -> Result<Parsed, String> {
             return Err(format!(
                 "unexpected `*` in `{}`: a checksum is `*` and digits at the end of the line",
                 shown()
-            ));
+            )
+            .into());
         }
         checksum = true;
         body = &s[..k];
     }
-    let body = std::str::from_utf8(body).map_err(|_| format!("`{}` is not ASCII", shown()))?;
+    let body = std::str::from_utf8(body)
+        .map_err(|_| Refused::from(format!("`{}` is not ASCII", shown())))?;
     let mut words = vec![];
     let b = body.as_bytes();
     let mut i = 0;
@@ -338,7 +411,7 @@ fn parse(line: &[u8], dialect: Dialect) -> Result<Parsed, String> {
             continue;
         }
         if !c.is_ascii_alphabetic() {
-            return Err(format!("unexpected `{c}` in `{}`", shown()));
+            return Err(format!("unexpected `{c}` in `{}`", shown()).into());
         }
         let start = i + 1;
         let mut j = start;
@@ -364,7 +437,8 @@ fn parse(line: &[u8], dialect: Dialect) -> Result<Parsed, String> {
         return Err(format!(
             "a second command `{w}{v}` on `{}`: Klipper and Marlin read only the first; put each command on its own line",
             shown()
-        ));
+        )
+        .into());
     }
     let mut comment = parens;
     if !semi.is_empty() {
@@ -388,60 +462,58 @@ fn checksum(line: &str) -> u8 {
     line.bytes().fold(0, |a, b| a ^ b)
 }
 
-pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
-    let mech = crate::io::read_description(run, c.mechanism.as_deref())?.mech;
-    let spec = mech.spec();
-    let real = crate::io::read_params(run, &c.params, &mech)?;
-    let controller = crate::io::params_or_nominal(run, c.controller.as_deref(), &mech)?;
-    let nx = spec.tool_axes.len();
-    let force = crate::io::checked_load(c.load.clone(), &mech, &real)?;
-    let opts = CompensationOptions {
-        force,
-        preload: vec![],
-    };
-    let words: Vec<char> = spec
-        .tool_axes
-        .iter()
-        .map(|a| word_of(a).with_context(|| format!("tool axis `{a}` has no G-code word")))
-        .collect::<Result<_>>()?;
-    let angle: Vec<bool> = spec
-        .tool_units
-        .iter()
-        .map(|u| *u == pkmcal::Unit::Radian)
-        .collect();
-    let offset = match &c.offset {
-        Some(s) => {
-            let v = crate::io::parse_list(s, "--offset")?;
-            if v.len() != nx {
-                return crate::output::usage(format!(
-                    "--offset needs {nx} values (mm, and degrees for angles: {}), got {}",
-                    spec.tool_axes.join(", "),
-                    v.len()
-                ));
-            }
-            v
+/// Rewrite the program `text` (read from `path`, for messages) for a tool
+/// of `axes` in `units`: every `G0`/`G1` move of a tool axis sent as the
+/// target `predistort` gives for it (tool coordinates: mm, rad), cut into
+/// pieces of at most `settings.max_segment`; every other line byte for byte.
+pub fn rewrite<F>(
+    path: &Path,
+    text: &[u8],
+    axes: &[String],
+    units: &[pkmcal::Unit],
+    settings: &Rewrite,
+    predistort: F,
+) -> Result<Rewritten>
+where
+    F: Fn(&[f64]) -> pkmcal::Result<pkmcal::Predistortion> + Sync,
+{
+    settings.check(axes).map_err(|cause| Error::Request {
+        file: Some(path.to_path_buf()),
+        cause,
+    })?;
+    let nx = axes.len();
+    let mut words: Vec<char> = Vec::with_capacity(nx);
+    for a in axes {
+        match word_of(a) {
+            Some(w) => words.push(w),
+            None => crate::refuse!(path, None, "tool axis `{a}` has no G-code word"),
         }
-        None => vec![0.0; nx],
-    };
-    if let Some(m) = c.max_segment
-        && !(m.is_finite() && m > 0.0)
-    {
-        return crate::output::usage("--max-segment must be a positive length in mm");
     }
-    let text = run
-        .files
-        .read(&c.input, crate::output::InputKind::Data)
-        .with_context(|| format!("cannot read G-code file {}", c.input.display()))?;
-    let file = c.input.display();
+    let angle: Vec<bool> = units.iter().map(|u| *u == pkmcal::Unit::Radian).collect();
+    let offset = if settings.offset.is_empty() {
+        vec![0.0; nx]
+    } else {
+        settings.offset.clone()
+    };
+    let gcode = |line: usize, message: String, hint: Option<GcodeHint>| Error::Gcode {
+        path: path.to_path_buf(),
+        line: line as u64,
+        message,
+        hint,
+    };
     if text.starts_with(&[0xEF, 0xBB, 0xBF]) {
-        return Err(anyhow::anyhow!(
-            "{file}:1: the file starts with a byte-order mark, which firmwares read as part of the first command; save it without one"
+        return Err(gcode(
+            1,
+            "the file starts with a byte-order mark, which firmwares read as part of the first command; save it without one".into(),
+            None,
         ));
     }
     if let Some(k) = text.windows(2).position(|w| w[0] == b'\r' && w[1] != b'\n') {
         let line = text[..=k].iter().filter(|&&b| b == b'\n').count() + 1;
-        return Err(anyhow::anyhow!(
-            "{file}:{line}: a line ends in a carriage return alone (old Mac style), which firmwares read differently; convert the file to \\n or \\r\\n line ends"
+        return Err(gcode(
+            line,
+            "a line ends in a carriage return alone (old Mac style), which firmwares read differently; convert the file to \\n or \\r\\n line ends".into(),
+            None,
         ));
     }
     // Programmed position in G-code units of each tool axis (None: unknown);
@@ -474,8 +546,10 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
         } else {
             (whole, "")
         };
-        let here = |m: String| anyhow::anyhow!("{file}:{line_no}: {m}");
-        let l = match parse(raw, c.dialect).map_err(here)? {
+        let here = |m: String| gcode(line_no, m, None);
+        let l = match parse(raw, settings.dialect)
+            .map_err(|Refused(m, hint)| gcode(line_no, m, hint))?
+        {
             Parsed::Raw => {
                 items.push(Item::Raw(begin, end));
                 continue;
@@ -523,8 +597,10 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
         let has_axis = l.words.iter().any(|(w, _)| words.contains(w));
         if g92 {
             if has_axis {
-                return Err(here(
-                    "G92 on a tool axis shifts the coordinates; remove it or give the shift with --offset".into(),
+                return Err(gcode(
+                    line_no,
+                    "G92 on a tool axis shifts the coordinates; remove it".into(),
+                    Some(GcodeHint::Offset),
                 ));
             }
             if let Some((_, v)) = l.words.iter().find(|(w, _)| *w == 'E') {
@@ -566,7 +642,7 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
                 if !absolute && from[k].is_none() {
                     return Err(here(format!(
                         "relative move before the position of {} is known",
-                        spec.tool_axes[k]
+                        axes[k]
                     )));
                 }
             }
@@ -601,7 +677,7 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
             None => None,
         };
         // Segments: straight in programmed coordinates.
-        let pieces = match (c.max_segment, from.iter().all(Option::is_some)) {
+        let pieces = match (settings.max_segment, from.iter().all(Option::is_some)) {
             (Some(max), true) => {
                 let d: f64 = (0..nx)
                     .filter(|&k| !angle[k])
@@ -610,23 +686,33 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
                     .sqrt();
                 let n = (d / max).ceil();
                 if n > MAX_PIECES as f64 {
-                    return Err(here(format!(
-                        "--max-segment {max} mm would split this {d:.3} mm move into more than {MAX_PIECES} pieces; use a larger --max-segment"
-                    )));
+                    return Err(gcode(
+                        line_no,
+                        format!(
+                            "segments of {max} mm would split this {d:.3} mm move into more than {MAX_PIECES} pieces"
+                        ),
+                        Some(GcodeHint::MaxSegment),
+                    ));
                 }
                 (n as usize).max(1)
             }
             _ => 1,
         };
         if pieces > 1 && l.number.is_some() {
-            return Err(here(
-                "a numbered line would be split into several moves, whose line numbers would no longer follow each other; remove the line numbers (the host that sends the file adds them) or the --max-segment".into(),
+            return Err(gcode(
+                line_no,
+                "a numbered line would be split into several moves, whose line numbers would no longer follow each other; remove the line numbers (the host that sends the file adds them)".into(),
+                Some(GcodeHint::MaxSegment),
             ));
         }
         if pieces_out.len() + pieces > MAX_TOTAL_PIECES {
-            return Err(here(format!(
-                "the program would be split into more than {MAX_TOTAL_PIECES} pieces in all; use a larger --max-segment"
-            )));
+            return Err(gcode(
+                line_no,
+                format!(
+                    "the program would be split into more than {MAX_TOTAL_PIECES} pieces in all"
+                ),
+                Some(GcodeHint::MaxSegment),
+            ));
         }
         let g = format!("G{}", motion.unwrap_or(1));
         // Words kept as they are (feed rate, other codes).
@@ -685,7 +771,7 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
     }
     let results: Vec<pkmcal::Result<pkmcal::Predistortion>> = pieces_out
         .par_iter()
-        .map(|pc| predistort(&mech, &controller, &real, &pc.target, c.model, &opts))
+        .map(|pc| predistort(&pc.target))
         .collect();
     let mut out: Vec<u8> = Vec::with_capacity(text.len() * 2);
     let (mut segments, mut worst) = (0usize, 0.0f64);
@@ -718,11 +804,15 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
             Err(e) => {
                 let (line_no, p, pieces) = (pc.line_no, pc.piece, pc.pieces);
                 return Err(if p < pieces {
-                    anyhow::anyhow!(
-                        "{file}:{line_no}: the straight move passes outside the reachable workspace (piece {p} of {pieces}): {e}; add an intermediate point or move around"
+                    gcode(
+                        line_no,
+                        format!(
+                            "the straight move passes outside the reachable workspace (piece {p} of {pieces}): {e}; add an intermediate point or move around"
+                        ),
+                        None,
                     )
                 } else {
-                    anyhow::anyhow!("{file}:{line_no}: {e}")
+                    gcode(line_no, e.to_string(), None)
                 });
             }
         };
@@ -782,25 +872,13 @@ pub fn run_gcode(run: &crate::Run<'_>, c: GcodeConfig) -> Result<()> {
         out.extend_from_slice(pc.eol.as_bytes());
         segments += 1;
     }
-    if !unknown.is_empty() {
-        let shown: Vec<String> = unknown.iter().take(5).map(|l| l.to_string()).collect();
-        crate::note!(
-            "{} sent as written ({} {}{}): the position of some axis was not known yet (after the start, a G28 or a start macro only the firmware knows it); give every axis on the first move to have it corrected too",
-            crate::io::count(unknown.len(), "move", "moves"),
-            if unknown.len() == 1 { "line" } else { "lines" },
-            shown.join(", "),
-            if unknown.len() > 5 { ", …" } else { "" }
-        );
-    }
-    run.files.stage(&c.out, &out)?;
-    let (f, u) = pkmcal::Unit::Millimetre.readable(worst);
-    crate::note!(
-        "rewrote {moves} moves as {segments} pre-distorted moves (largest shift {:.3} {u}, {} model) -> {}",
-        worst * f,
-        c.model.name(),
-        c.out.display()
-    );
-    Ok(())
+    Ok(Rewritten {
+        bytes: out,
+        moves,
+        segments,
+        worst,
+        as_written: unknown,
+    })
 }
 
 /// [`parse`] for the fuzzing of the readers: a line read in a dialect must

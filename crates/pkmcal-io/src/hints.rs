@@ -1,10 +1,10 @@
 //! Plausibility of a data file's numbers before a fit: commands that only
 //! assemble in another unit, positions a thousand times too small or large.
 //! A wrong unit otherwise surfaces as "loop closure did not converge" or as
-//! every pose being an outlier; here it is named with the option that fixes
-//! it.
+//! every pose being an outlier; here it is named with the units that fix it
+//! ([`crate::Error::Units`], which each front end words as its own option).
 
-use anyhow::{Result, bail};
+use crate::error::{Error, Result};
 use pkmcal::{FileUnits, Measurement, MeasurementModel, Mechanism, Model, Params, Role, Unit};
 use std::path::Path;
 
@@ -19,10 +19,9 @@ const ASSEMBLING_SHARE: f64 = 0.75;
 /// unit.
 const RATIO_TOLERANCE: f64 = 3.0;
 
-/// A suggested unit: the key and value for `--units`.
-fn units_option(key: &str, value: &str) -> String {
-    format!("--units {key}={value} (or [units] {key} = \"{value}\" in the mechanism file)")
-}
+/// Data-file units that fit: the key (`length`, `angle`) and the unit
+/// (`m`, `deg`).
+pub type UnitsHint = (&'static str, &'static str);
 
 /// Largest disagreement of a redundant actuator with the driven ones that
 /// counts as assembled (rad): far beyond any encoder offset.
@@ -56,14 +55,18 @@ pub fn check_data<M: Mechanism>(
         commands.par_iter().map(|c| check.assembles(c)).collect()
     };
     let failed = predicted.iter().filter(|p| p.is_none()).count();
-    let file = path.display();
     if failed as f64 >= FAILING_SHARE * sample.len() as f64 {
-        if let Some(option) = check.other_unit(&commands, units) {
-            bail!(
-                "{file}: the commands do not assemble the mechanism as read ({failed} of {} poses checked fail, units: {}), but they do in another unit: give {option}",
-                sample.len(),
-                units.describe()
-            );
+        if let Some((key, value)) = check.other_unit(&commands, units) {
+            return Err(Error::Units {
+                path: path.to_path_buf(),
+                message: format!(
+                    "the commands do not assemble the mechanism as read ({failed} of {} poses checked fail, units: {}), but they do in another unit",
+                    sample.len(),
+                    units.describe()
+                ),
+                key,
+                value,
+            });
         }
         return Ok(());
     }
@@ -96,7 +99,7 @@ pub fn check_data<M: Mechanism>(
         }
         let ratio = sm / sp;
         let now = units.factor(unit, Role::Reading);
-        let choices: Vec<(&str, f64)> = if unit == Unit::Millimetre {
+        let choices: Vec<(&'static str, f64)> = if unit == Unit::Millimetre {
             LENGTHS.to_vec()
         } else {
             vec![("rad", 1.0), ("deg", std::f64::consts::PI / 180.0)]
@@ -111,13 +114,17 @@ pub fn check_data<M: Mechanism>(
             } else {
                 "angles"
             };
-            bail!(
-                "{file}: the measured {what} spread over {} where the mechanism's nominal predictions for the same commands spread over {} ({ratio:.3e} times): they look like {name}, not {}; give {}",
-                show(sm, unit),
-                show(sp, unit),
-                units.symbol(unit, Role::Reading),
-                units_option(key, name)
-            );
+            return Err(Error::Units {
+                path: path.to_path_buf(),
+                message: format!(
+                    "the measured {what} spread over {} where the mechanism's nominal predictions for the same commands spread over {} ({ratio:.3e} times): they look like {name}, not {}",
+                    show(sm, unit),
+                    show(sp, unit),
+                    units.symbol(unit, Role::Reading),
+                ),
+                key,
+                value: name,
+            });
         }
     }
     Ok(())
@@ -157,19 +164,16 @@ impl<'a, M: Mechanism> Assembly<'a, M> {
             })
     }
 
-    /// The `--units` option under which most of `commands` (read under
+    /// The data-file units under which most of `commands` (read under
     /// `units`, converted to internal units) assemble with the tool near the
-    /// workspace ([`near_workspace`]), if there is one.
-    pub fn other_unit(&self, commands: &[&[f64]], units: &FileUnits) -> Option<String> {
-        let mut tries: Vec<(String, Vec<f64>)> = vec![];
+    /// workspace ([`near_workspace`]), if there are such.
+    pub fn other_unit(&self, commands: &[&[f64]], units: &FileUnits) -> Option<UnitsHint> {
+        let mut tries: Vec<(UnitsHint, Vec<f64>)> = vec![];
         if self.units.contains(&Unit::Radian) && units.counts_per_rev.is_none() {
             let now = units.factor(Unit::Radian, Role::Command);
             for (name, f) in [("deg", std::f64::consts::PI / 180.0), ("rad", 1.0)] {
                 if (f - now).abs() > 1e-15 {
-                    tries.push((
-                        units_option("angle", name),
-                        scale(&self.units, Unit::Radian, f / now),
-                    ));
+                    tries.push((("angle", name), scale(&self.units, Unit::Radian, f / now)));
                 }
             }
         }
@@ -178,7 +182,7 @@ impl<'a, M: Mechanism> Assembly<'a, M> {
             for (name, f) in LENGTHS {
                 if (f - now).abs() > 1e-15 {
                     tries.push((
-                        units_option("length", name),
+                        ("length", name),
                         scale(&self.units, Unit::Millimetre, f / now),
                     ));
                 }
@@ -198,22 +202,16 @@ impl<'a, M: Mechanism> Assembly<'a, M> {
     }
 }
 
-/// `e` (a failure to predict `commands`, internal units) with a hint when
-/// the commands assemble in another unit than `units`.
-pub fn explain_failure<M: Mechanism>(
-    e: anyhow::Error,
+/// After a failure to predict `commands` (internal units, read under
+/// `units`): the data-file units in which they would assemble, if any.
+pub fn other_units_for<M: Mechanism>(
     mech: &M,
     commands: &[Vec<f64>],
     units: &FileUnits,
-) -> anyhow::Error {
+) -> Option<UnitsHint> {
     let step = commands.len().div_ceil(SAMPLE_POSES).max(1);
     let sample: Vec<&[f64]> = commands.iter().step_by(step).map(Vec::as_slice).collect();
-    match Assembly::new(mech).other_unit(&sample, units) {
-        Some(option) => anyhow::anyhow!(
-            "{e:#}\n  hint: the commands assemble the mechanism if read in another unit: give {option}"
-        ),
-        None => e,
-    }
+    Assembly::new(mech).other_unit(&sample, units)
 }
 
 /// Whether a tool position lies within the workspace box widened by its

@@ -8,26 +8,10 @@
 //! at a time, and a run must commit several (parameters, report, figures) or
 //! none.
 
-use anyhow::{Context, Result};
+use crate::error::{Error, OutputProblem, Result, Verb};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
-
-/// A usage error: a bad option value or combination, exit code 2.
-#[derive(Debug)]
-pub struct Usage(pub String);
-
-impl std::fmt::Display for Usage {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&self.0)
-    }
-}
-impl std::error::Error for Usage {}
-
-/// `Err(Usage(..))`.
-pub fn usage<T>(message: impl Into<String>) -> Result<T> {
-    Err(Usage(message.into()).into())
-}
 
 /// A temporary and the file it becomes.
 struct Staged {
@@ -174,41 +158,45 @@ impl Files {
 
     /// Read a whole input file, registered first ([`input`]), at most its
     /// kind's size limit (a larger file, or an endless one such as `/dev/zero`,
-    /// is an error that says how to raise the limit).
-    pub fn read(&self, path: &Path, kind: InputKind) -> std::io::Result<Vec<u8>> {
+    /// is [`Error::TooLarge`]).
+    pub fn read(&self, path: &Path, kind: InputKind) -> Result<Vec<u8>> {
         use std::io::Read;
         self.input(path);
         let mb = self.limit_of(kind);
         let limit = mb.saturating_mul(1 << 20);
         let mut out = vec![];
-        std::fs::File::open(path)?
+        std::fs::File::open(path)
+            .map_err(|e| Error::io(path, Verb::Open, e))?
             .take(limit.saturating_add(1))
-            .read_to_end(&mut out)?;
+            .read_to_end(&mut out)
+            .map_err(|e| Error::io(path, Verb::Read, e))?;
         if out.len() as u64 > limit {
-            return Err(std::io::Error::other(format!(
-                "it is larger than {mb} MiB, more than a {} should be; if it really is this large, raise the limit with --max-input-mb",
-                match kind {
-                    InputKind::Description => "description or setting",
-                    InputKind::Data => "data file",
-                }
-            )));
+            return Err(Error::TooLarge {
+                path: path.to_path_buf(),
+                limit_mb: mb,
+                kind,
+            });
         }
         Ok(out)
     }
 
     /// Read a whole input text file ([`read`]).
-    pub fn read_to_string(&self, path: &Path, kind: InputKind) -> std::io::Result<String> {
+    pub fn read_to_string(&self, path: &Path, kind: InputKind) -> Result<String> {
         String::from_utf8(self.read(path, kind)?).map_err(|_| {
-            std::io::Error::new(std::io::ErrorKind::InvalidData, "it is not UTF-8 text")
+            Error::io(
+                path,
+                Verb::Read,
+                std::io::Error::new(std::io::ErrorKind::InvalidData, "it is not UTF-8 text"),
+            )
         })
     }
 
     /// Open an input file to stream it, registered first ([`input`]); each of
     /// its lines at most [`MAX_LINE_BYTES`] long.
-    pub fn open(&self, path: &Path) -> std::io::Result<LineLimit<std::fs::File>> {
+    pub fn open(&self, path: &Path) -> Result<LineLimit<std::fs::File>> {
         self.input(path);
         Ok(LineLimit {
-            inner: std::fs::File::open(path)?,
+            inner: std::fs::File::open(path).map_err(|e| Error::io(path, Verb::Open, e))?,
             run: 0,
             ends: LineEnds::default(),
         })
@@ -241,43 +229,41 @@ impl Files {
         for o in outputs.iter().filter(|o| !is_stdout(o)) {
             let text = o.as_os_str().to_string_lossy();
             if text.ends_with('/') || text.ends_with("/.") || text.ends_with("/..") {
-                return usage(format!(
-                    "{} names a directory; give the path of a file",
-                    o.display()
-                ));
+                return Err(Error::Output {
+                    path: o.to_path_buf(),
+                    problem: OutputProblem::NamesDirectory,
+                });
             }
             if let Ok(meta) = std::fs::symlink_metadata(o) {
                 let t = meta.file_type();
                 if t.is_symlink() {
-                    return usage(format!(
-                        "{} is a symbolic link; give the path of the file itself",
-                        o.display()
-                    ));
+                    return Err(Error::Output {
+                        path: o.to_path_buf(),
+                        problem: OutputProblem::Symlink,
+                    });
                 }
                 if !t.is_file() {
-                    return usage(format!(
-                        "{} exists and is not a regular file (a directory, a pipe or a device); give a file path",
-                        o.display()
-                    ));
+                    return Err(Error::Output {
+                        path: o.to_path_buf(),
+                        problem: OutputProblem::NotRegular,
+                    });
                 }
             }
             let k = keys(o, dirs)?;
             for (i, ik) in &input_keys {
                 if k.iter().any(|a| ik.contains(a)) {
-                    return usage(format!(
-                        "{} is also an input ({}); write the output to another file",
-                        o.display(),
-                        i.display()
-                    ));
+                    return Err(Error::Output {
+                        path: o.to_path_buf(),
+                        problem: OutputProblem::AlsoInput(i.to_path_buf()),
+                    });
                 }
             }
             for (p, pk) in &seen {
                 if k.iter().any(|a| pk.contains(a)) {
-                    return usage(format!(
-                        "{} and {} are the same file; give each output its own path",
-                        p.display(),
-                        o.display()
-                    ));
+                    return Err(Error::Output {
+                        path: o.to_path_buf(),
+                        problem: OutputProblem::SameAs(p.to_path_buf()),
+                    });
                 }
             }
             seen.push((o, k));
@@ -296,7 +282,7 @@ impl Files {
         }
         // Created and registered under the state (an interruption removes it).
         let mut s = self.state();
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, Verb::Create, e))?;
         s.created.extend(missing);
         Ok(())
     }
@@ -307,8 +293,10 @@ impl Files {
     fn temporary(&self, dest: &Path) -> Result<(std::fs::File, PathBuf)> {
         use std::sync::atomic::{AtomicU64, Ordering};
         static NEXT: AtomicU64 = AtomicU64::new(0);
-        let (dir, prefix) = temporary_prefix(dest)
-            .with_context(|| format!("{} is not a file name", dest.display()))?;
+        let (dir, prefix) = temporary_prefix(dest).ok_or_else(|| Error::Output {
+            path: dest.to_path_buf(),
+            problem: OutputProblem::NoFileName,
+        })?;
         let start = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.subsec_nanos() as u64);
@@ -332,7 +320,7 @@ impl Files {
                     continue;
                 }
                 Err(e) => {
-                    return Err(e).with_context(|| format!("cannot write {}", dest.display()));
+                    return Err(Error::io(dest, Verb::Write, e));
                 }
             }
         }
@@ -401,7 +389,7 @@ impl Files {
                 .truncate(true)
                 .open(&tmp)
                 .and_then(|f| write(f, &bytes))
-                .with_context(|| format!("cannot write {}", dest.display())),
+                .map_err(|e| Error::io(dest, Verb::Write, e)),
         }
     }
 
@@ -470,9 +458,7 @@ impl Files {
         for (dest, w) in writers {
             if let Err(e) = written(Some(w)) {
                 self.discard();
-                return Err(e)
-                    .with_context(|| format!("cannot write {}", dest.display()))
-                    .context(NOTHING_WRITTEN);
+                return Err(Error::io(&dest, Verb::Write, e).context(NOTHING_WRITTEN));
             }
         }
         // The renames hold the state: Ctrl-C or SIGTERM meanwhile waits until
@@ -510,14 +496,13 @@ impl Files {
                 }
                 guard.committed = false;
                 discard_in(&mut guard);
-                let e =
-                    Err::<(), _>(e).with_context(|| format!("cannot write {}", s.dest.display()));
-                return match undone {
+                let e = Error::io(&s.dest, Verb::Write, e);
+                return Err(match undone {
                     Ok(()) => e.context(
                         "no output was written (the files replaced so far are back; the outputs announced above are not there)",
                     ),
                     Err(left) => e.context(left),
-                };
+                });
             }
         }
         for k in kept.iter().flatten() {
@@ -530,7 +515,7 @@ impl Files {
             let mut o = std::io::stdout().lock();
             o.write_all(&out)
                 .and_then(|()| o.flush())
-                .context("cannot write to standard output")?;
+                .map_err(|e| Error::io(Path::new("-"), Verb::Write, e))?;
         }
         Ok(())
     }
@@ -547,25 +532,24 @@ impl Files {
             }
             let k = keys(&x.dest, &s.created)?;
             if let Some((p, _)) = seen.iter().find(|(_, pk)| k.iter().any(|a| pk.contains(a))) {
-                return usage(format!(
-                    "{} and {} are the same file; give each output its own path",
-                    p.display(),
-                    x.dest.display()
-                ));
+                return Err(Error::Output {
+                    path: x.dest.clone(),
+                    problem: OutputProblem::SameAs(p.to_path_buf()),
+                });
             }
             seen.push((&x.dest, k));
             if let Ok(meta) = std::fs::symlink_metadata(&x.dest) {
                 if !meta.file_type().is_file() {
-                    return usage(format!(
-                        "{} exists and is not a regular file (a directory, a pipe, a device or a link); give a file path",
-                        x.dest.display()
-                    ));
+                    return Err(Error::Output {
+                        path: x.dest.clone(),
+                        problem: OutputProblem::NotRegular,
+                    });
                 }
                 if !may_replace(&x.dest, &meta) {
-                    return Err(anyhow::anyhow!(
-                        "cannot write {}: it belongs to another user in a directory that keeps each user's files (sticky); no output was written",
-                        x.dest.display()
-                    ));
+                    return Err(Error::Output {
+                        path: x.dest.clone(),
+                        problem: OutputProblem::OtherUsers,
+                    });
                 }
             }
         }
@@ -588,12 +572,10 @@ impl Files {
             Ok(_) => Ok(Some(aside)),
             Err(e) => {
                 let _ = std::fs::remove_file(&aside);
-                Err(e).with_context(|| {
-                    format!(
-                        "cannot keep the old {} aside while the outputs are written; no output was written",
-                        dest.display()
-                    )
-                })
+                Err(Error::io(dest, Verb::Write, e).context(format!(
+                    "cannot keep the old {} aside while the outputs are written; no output was written",
+                    dest.display()
+                )))
             }
         }
     }
@@ -604,15 +586,7 @@ impl Files {
     }
 }
 
-/// What a file read whole is, for its size limit ([`read`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum InputKind {
-    /// A description or setting: a mechanism, parameter, setup or units
-    /// file, a calibration report, a firmware configuration.
-    Description,
-    /// Data read whole: a measurement CSV, a G-code program.
-    Data,
-}
+pub use crate::error::InputKind;
 
 /// The largest description read whole, by default (MiB): a mechanism file
 /// or a printer's configuration is kilobytes.
@@ -700,13 +674,11 @@ impl<R> LineLimit<R> {
     }
 }
 
-fn also_an_input(dest: &Path, input: &Path) -> anyhow::Error {
-    Usage(format!(
-        "{} is also an input ({}); write the output to another file",
-        dest.display(),
-        input.display()
-    ))
-    .into()
+fn also_an_input(dest: &Path, input: &Path) -> Error {
+    Error::Output {
+        path: dest.to_path_buf(),
+        problem: OutputProblem::AlsoInput(input.to_path_buf()),
+    }
 }
 
 /// What a path names, for comparisons: its file identity when it exists,
@@ -736,9 +708,10 @@ fn canonical(path: &Path, created: &[PathBuf]) -> Result<PathBuf> {
     if let Ok(p) = path.canonicalize() {
         return Ok(p);
     }
-    let name = path
-        .file_name()
-        .with_context(|| format!("{} is not a file name", path.display()))?;
+    let name = path.file_name().ok_or_else(|| Error::Output {
+        path: path.to_path_buf(),
+        problem: OutputProblem::NoFileName,
+    })?;
     let dir = path
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
@@ -763,11 +736,10 @@ fn canonical(path: &Path, created: &[PathBuf]) -> Result<PathBuf> {
             }
             Ok(out)
         }
-        Err(_) => usage(format!(
-            "cannot write {}: the directory {} does not exist; create it first (an output file's folder must exist, as for `cp`; only the output directories, --out-dir and --report-dir, are created with their parents)",
-            path.display(),
-            dir.display()
-        )),
+        Err(_) => Err(Error::Output {
+            path: path.to_path_buf(),
+            problem: OutputProblem::MissingDirectory(dir.to_path_buf()),
+        }),
     }
 }
 
@@ -785,10 +757,10 @@ pub fn in_dir(dir: &Path, names: &[&str]) -> Result<Vec<PathBuf>> {
     if let Ok(meta) = std::fs::symlink_metadata(dir)
         && !meta.is_dir()
     {
-        return usage(format!(
-            "{} exists and is not a directory; give a directory path",
-            dir.display()
-        ));
+        return Err(Error::Output {
+            path: dir.to_path_buf(),
+            problem: OutputProblem::NotADirectory,
+        });
     }
     Ok(names.iter().map(|n| dir.join(n)).collect())
 }

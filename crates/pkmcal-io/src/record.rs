@@ -13,9 +13,12 @@
 //! The state goes through CBOR's data model (`ciborium`, which keeps every
 //! float and integer as it is) on its way to and from JSON's.
 
-use anyhow::{Context, Result, bail};
+use crate::error::{Error, Result, Within};
+use crate::invalid;
 use pkmcal::MeasurementModel;
+use pkmcal::identify::CrossValidation;
 use pkmcal::identify::Study;
+use pkmcal::{Accuracy, Calibration};
 use serde::{Deserialize, Serialize};
 
 /// The key of a number JSON cannot write.
@@ -59,7 +62,7 @@ fn to_json(v: ciborium::Value) -> Result<serde_json::Value> {
             } else if let Ok(s) = i64::try_from(i) {
                 J::from(s)
             } else {
-                bail!("the integer {i} does not fit 64 bits")
+                invalid!("the integer {i} does not fit 64 bits")
             }
         }
         C::Float(f) => match serde_json::Number::from_f64(f) {
@@ -84,11 +87,11 @@ fn to_json(v: ciborium::Value) -> Result<serde_json::Value> {
             m.into_iter()
                 .map(|(k, v)| match k {
                     C::Text(k) => Ok((k, to_json(v)?)),
-                    other => bail!("a map key that is not text: {other:?}"),
+                    other => invalid!("a map key that is not text: {other:?}"),
                 })
                 .collect::<Result<_>>()?,
         ),
-        other => bail!("a value JSON cannot hold: {other:?}"),
+        other => invalid!("a value JSON cannot hold: {other:?}"),
     })
 }
 
@@ -106,7 +109,10 @@ fn from_json(v: serde_json::Value) -> Result<ciborium::Value> {
             } else if let Some(i) = n.as_i64() {
                 C::Integer(i.into())
             } else {
-                C::Float(n.as_f64().context("a number out of range")?)
+                C::Float(
+                    n.as_f64()
+                        .ok_or_else(|| Error::Content("a number out of range".into()))?,
+                )
             }
         }
         J::Array(a) => C::Array(a.into_iter().map(from_json).collect::<Result<_>>()?),
@@ -118,7 +124,9 @@ fn from_json(v: serde_json::Value) -> Result<ciborium::Value> {
                     "NaN" => f64::NAN,
                     "inf" => f64::INFINITY,
                     "-inf" => f64::NEG_INFINITY,
-                    _ => bail!("`{NON_FINITE}` must be \"NaN\", \"inf\" or \"-inf\", not \"{t}\""),
+                    _ => {
+                        invalid!("`{NON_FINITE}` must be \"NaN\", \"inf\" or \"-inf\", not \"{t}\"")
+                    }
                 }));
             }
             C::Map(
@@ -132,16 +140,19 @@ fn from_json(v: serde_json::Value) -> Result<ciborium::Value> {
 
 /// `state` as the JSON a record holds.
 pub fn state_to_json(state: &CalibrationState) -> Result<serde_json::Value> {
-    let v = ciborium::Value::serialized(state).context("cannot encode the calibration")?;
+    let v = ciborium::Value::serialized(state)
+        .map_err(|e| Error::Content(format!("cannot encode the calibration: {e}")))?;
     to_json(v)
 }
 
 /// The state a record's `state` member holds.
 pub fn state_from_json(v: serde_json::Value) -> Result<CalibrationState> {
     let c = from_json(v)?;
-    c.deserialized()
-        .map_err(|e| anyhow::anyhow!("{e}"))
-        .context("its `state` is not a calibration this pkmcal reads")
+    c.deserialized().map_err(|e| {
+        Error::Content(format!(
+            "its `state` is not a calibration this pkmcal reads: {e}"
+        ))
+    })
 }
 
 /// The state as bytes that are equal exactly when the states are (NaN
@@ -155,12 +166,13 @@ pub fn state_bytes(state: &CalibrationState) -> Result<Vec<u8>> {
 /// `v` as CBOR bytes (every number kept as it is), appended to `out`:
 /// how Python pickles results that hold library data.
 pub fn encode<T: Serialize>(v: &T, out: &mut Vec<u8>) -> Result<()> {
-    ciborium::into_writer(v, out).map_err(|e| anyhow::anyhow!("cannot encode a result: {e}"))
+    ciborium::into_writer(v, out)
+        .map_err(|e| Error::Content(format!("cannot encode a result: {e}")))
 }
 
 /// What [`encode`] wrote.
 pub fn decode<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> Result<T> {
-    ciborium::from_reader(bytes).map_err(|e| anyhow::anyhow!("cannot decode a result: {e}"))
+    ciborium::from_reader(bytes).map_err(|e| Error::Content(format!("cannot decode a result: {e}")))
 }
 
 /// A record read without decoding its state: the header, the `state`
@@ -178,11 +190,11 @@ pub struct RecordParts {
 /// messages.
 pub fn record_parts(text: &str, source: &str) -> Result<RecordParts> {
     let mut v: serde_json::Value = serde_json::from_str(text)
-        .with_context(|| format!("{source}: not a JSON calibration report"))?;
+        .map_err(|e| Error::Content(format!("{source}: not a JSON calibration report: {e}")))?;
     if v.get("covariance").is_none() {
-        bail!(
-            "{source}: no `covariance` entry; pass the report written by `pkmcal calibrate --report` or Python's Calibration.save"
-        );
+        return Err(Error::NotARecord {
+            source_name: source.to_string(),
+        });
     }
     let dof = v
         .get("noise")
@@ -197,7 +209,7 @@ pub fn record_parts(text: &str, source: &str) -> Result<RecordParts> {
         .filter(|r| *r > 0.0);
     let state = v.as_object_mut().and_then(|o| o.remove("state"));
     let record = serde_json::from_value(v)
-        .with_context(|| format!("{source}: malformed calibration report"))?;
+        .map_err(|e| Error::Content(format!("{source}: malformed calibration report: {e}")))?;
     Ok(RecordParts { record, state, dof })
 }
 
@@ -212,12 +224,141 @@ pub fn record_from_str(
 )> {
     let parts = record_parts(text, source)?;
     let state = match parts.state {
-        Some(s) => Some(
-            state_from_json(s).with_context(|| format!("{source}: malformed calibration state"))?,
-        ),
+        Some(s) => {
+            Some(state_from_json(s).within(|| format!("{source}: malformed calibration state"))?)
+        }
         None => None,
     };
     Ok((parts.record, state))
+}
+
+/// Validation results in the report.
+#[derive(Serialize, Clone)]
+pub struct Validation {
+    /// Where the validation poses came from.
+    pub source: String,
+    /// Before/after on the validation poses.
+    pub accuracy: Accuracy,
+}
+
+/// The JSON report of `calibrate` (and of Python's `Calibration.save`): a
+/// versioned calibration record ([`pkmcal::identify::CalibrationRecord`]
+/// reads it back) with everything a reader wants to see, and in `state` the
+/// whole calibration ([`crate::record`]).
+#[derive(Serialize)]
+pub struct Report<'a> {
+    /// [`pkmcal::identify::CALIBRATION_FORMAT`].
+    pub format: &'static str,
+    /// [`pkmcal::identify::CALIBRATION_VERSION`].
+    pub version: u32,
+    pub pkmcal_version: &'static str,
+    pub mechanism: String,
+    /// [`pkmcal::identify::mechanism_identity`] of the mechanism.
+    pub mechanism_identity: String,
+    pub data: String,
+    /// What the instrument read.
+    pub measurement: pkmcal::MeasurementSummary,
+    #[serde(flatten)]
+    pub calibration: &'a Calibration,
+    pub accuracy: &'a Accuracy,
+    pub validation: Option<Validation>,
+    pub cross_validation: &'a Option<CrossValidation>,
+    /// The whole calibration, to read it back.
+    #[serde(serialize_with = "write_state")]
+    pub state: &'a CalibrationState,
+}
+
+fn write_state<S: serde::Serializer>(
+    state: &&CalibrationState,
+    s: S,
+) -> std::result::Result<S::Ok, S::Error> {
+    state_to_json(state)
+        .map_err(|e| serde::ser::Error::custom(format!("{e}")))?
+        .serialize(s)
+}
+
+impl<'a> Report<'a> {
+    /// The report of the calibration `state` of the mechanism `spec` from
+    /// `data` (a file's name, or a description of arrays); `validation`
+    /// words where the validation poses came from.
+    pub fn new(
+        spec: &pkmcal::Spec,
+        data: String,
+        state: &'a CalibrationState,
+        validation: impl Fn(pkmcal::identify::ValidationSource) -> String,
+    ) -> Self {
+        let study = &state.study;
+        Report {
+            format: pkmcal::identify::CALIBRATION_FORMAT,
+            version: pkmcal::identify::CALIBRATION_VERSION,
+            pkmcal_version: env!("CARGO_PKG_VERSION"),
+            mechanism: spec.name.clone(),
+            mechanism_identity: pkmcal::identify::mechanism_identity(spec),
+            data,
+            measurement: state.measurement.summary(),
+            calibration: &study.calibration,
+            accuracy: &study.accuracy,
+            validation: study.validation.as_ref().map(|v| Validation {
+                source: validation(v.source),
+                accuracy: v.accuracy.clone(),
+            }),
+            cross_validation: &study.cross_validation,
+            state,
+        }
+    }
+
+    /// The report as JSON text (the calibration record's file).
+    pub fn to_json(&self) -> Result<String> {
+        serde_json::to_string_pretty(self)
+            .map_err(|e| Error::Content(format!("cannot write the report: {e}")))
+    }
+}
+
+/// A calibration record (a calibration's report, a Python
+/// `Calibration.save`): its header, parameters and covariance, checked as
+/// JSON here (the mechanism it serves is checked by
+/// [`pkmcal::identify::CalibrationRecord::check`]).
+pub fn read_calibration_record(
+    run: &crate::Run<'_>,
+    path: &std::path::Path,
+) -> Result<pkmcal::identify::CalibrationRecord> {
+    read_calibration_record_dof(run, path).map(|(r, _)| r)
+}
+
+/// [`read_calibration_record`] with the degrees of freedom of its estimated
+/// noise level (the redundancy of the noise groups it estimated, from the
+/// report's `noise`), when it records them. Its `state` is not decoded.
+pub fn read_calibration_record_dof(
+    run: &crate::Run<'_>,
+    path: &std::path::Path,
+) -> Result<(pkmcal::identify::CalibrationRecord, Option<f64>)> {
+    let text = run
+        .files
+        .read_to_string(path, crate::output::InputKind::Description)
+        .map_err(|e| e.named("calibration report"))?;
+    let parts = record_parts(&text, &path.display().to_string())?;
+    Ok((parts.record, parts.dof))
+}
+
+/// Read a calibration record that holds the whole calibration (written by
+/// this pkmcal's calibration report or Python's `Calibration.save`).
+pub fn read_calibration_state(
+    run: &crate::Run<'_>,
+    path: &std::path::Path,
+) -> Result<(pkmcal::identify::CalibrationRecord, CalibrationState)> {
+    let text = run
+        .files
+        .read_to_string(path, crate::output::InputKind::Description)
+        .map_err(|e| e.named("calibration report"))?;
+    let (record, state) = record_from_str(&text, &path.display().to_string())?;
+    let Some(state) = state else {
+        crate::refuse!(
+            path,
+            None,
+            "this calibration record holds only the parameters and their covariance (an older pkmcal wrote it): it serves predictions, not the whole calibration; calibrate again to keep the whole calibration"
+        );
+    };
+    Ok((record, state))
 }
 
 #[cfg(test)]

@@ -2,9 +2,9 @@
 //! `report.html` with the figures inlined, the bundled font embedded and no
 //! network resources. Every user-supplied string is escaped.
 
+use crate::description::Mech;
+use crate::error::Result;
 use crate::figures::{self, Figure, ParamBar};
-use crate::io::Mech;
-use anyhow::Result;
 use base64::Engine;
 use pkmcal::identify::{ErrorVectors, RANK_TOL};
 use pkmcal::{
@@ -206,7 +206,9 @@ fn map_data(
 /// bundle every front end makes from a study) and what only the figures
 /// need (the mechanism, the measurement model, the poses and their errors).
 pub struct ReportInputs<'a> {
-    pub report: &'a crate::calibrate::Report<'a>,
+    pub report: &'a crate::record::Report<'a>,
+    /// The front end's words (hints, where lists are kept).
+    pub wording: &'a crate::text::Wording,
     pub mech: &'a Mech,
     pub measurement: &'a pkmcal::MeasurementModel,
     pub data: &'a [Measurement],
@@ -355,7 +357,7 @@ fn stats_row(html: &mut String, label: &str, s: &ErrorStats) {
             .zip(&s.axis_max)
             .zip(&s.axis_units)
             .map(|((a, b), u)| {
-                let f = crate::calibrate::column_unit(*u).0;
+                let f = crate::text::column_unit(*u).0;
                 format!("<td>{:.4} … {:.4}</td>", a * f, b * f)
             })
             .collect::<String>(),
@@ -429,19 +431,18 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
         cal.evaluations,
         cal.noise
             .iter()
-            .map(|g| escape(&crate::calibrate::noise_text(g)))
+            .map(|g| escape(&crate::text::noise_text(g)))
             .collect::<Vec<_>>()
             .join("<br>"),
         escape(
-            &crate::calibrate::frame_text(cal, r.measurement, &crate::calibrate::CLI_WORDING)
-                .unwrap_or_else(|| {
-                    match r.measurement.instrument() {
-                        pkmcal::Instrument::BallBar { .. } => {
-                            "none: the ball-bar sockets are given in the base frame".into()
-                        }
-                        _ => format!("the base frame; readings: {}", r.measurement.describe()),
+            &crate::text::frame_text(cal, r.measurement, r.wording).unwrap_or_else(|| {
+                match r.measurement.instrument() {
+                    pkmcal::Instrument::BallBar { .. } => {
+                        "none: the ball-bar sockets are given in the base frame".into()
                     }
-                })
+                    _ => format!("the base frame; readings: {}", r.measurement.describe()),
+                }
+            })
         ),
         env!("CARGO_PKG_VERSION")
     );
@@ -450,7 +451,7 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
             h,
             "<div class=\"warn\"><b>warning:</b> {}<br><i>{}</i></div>",
             escape(&w.message),
-            escape(&crate::calibrate::cli_hint(w))
+            escape(&(r.wording.hint)(w))
         );
     }
     // Two header rows: what each group of columns is, then its columns.
@@ -477,7 +478,7 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
             h,
             "<th>{}, {}</th>",
             escape(&a.to_uppercase()),
-            crate::calibrate::column_unit(*u).1
+            crate::text::column_unit(*u).1
         );
     }
     if lengths {
@@ -575,7 +576,7 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
         "<h2>Identifiability</h2><p>Rank {} of {} free parameters; column-scaled identification Jacobian: {}.</p><table><tr><th>index</th><th>O1</th><th>O2</th><th>O3</th><th>O4</th><th>O5</th></tr><tr><td>value</td><td>{:.4e}</td><td>{:.4e}</td><td>{:.4e}</td><td>{:.4e}</td><td>{:.4e}</td></tr></table>",
         id.rank,
         id.singular_values.len(),
-        escape(&crate::calibrate::condition_text(id)),
+        escape(&crate::text::condition_text(id)),
         o.o1,
         o.o2,
         o.o3,

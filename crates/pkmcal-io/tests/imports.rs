@@ -7,18 +7,15 @@ mod imports;
 
 use std::path::Path;
 
-/// Enabled once the io crate is restructured (issue 48): today
-/// `calibrate`, `report`, `budget` and `usecal` import each other in a
-/// circle, and so do `io` and `fileunits`.
+/// Enabled once the io crate is restructured (issue 48): before it,
+/// `calibrate`, `report`, `budget` and `usecal` imported each other in a
+/// circle, and so did `io` and `fileunits`.
 #[test]
 #[ignore = "enabled once the io crate is restructured (issue 48)"]
 fn no_import_circle_between_files() {
     let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
     let (modules, edges) = imports::module_graph(&src);
-    assert!(
-        modules.contains("io") && modules.contains("output"),
-        "{modules:?}"
-    );
+    assert!(modules.contains("output"), "{modules:?}");
     if let Some(cycle) = imports::find_cycle(&modules, &edges) {
         panic!(
             "import circle between the files of pkmcal-io:\n  {}",

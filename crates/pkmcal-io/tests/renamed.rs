@@ -3,7 +3,8 @@
 //! the current ones.
 
 use pkmcal::Mechanism;
-use pkmcal_io::io::{mechanism_from_str, params_from_str};
+use pkmcal_io::description::mechanism_from_str;
+use pkmcal_io::params::params_from_str;
 
 fn example(name: &str) -> String {
     let path = format!(

@@ -9,9 +9,10 @@ use numpy::{
     AllowTypeChange, IntoPyArray, PyArray1, PyArrayLikeDyn, PyReadonlyArrayDyn,
     PyUntypedArrayMethods,
 };
+use pkmcal::Request;
 use pkmcal::identify::{Calibration as LibCalibration, Identifiability};
 use pkmcal::{
-    AnyMechanism, CalibrationOptions, Loss, MeasurementModel, Mechanism as _, Model, Noise, Origin,
+    AnyMechanism, CalibrationOptions, MeasurementModel, Mechanism as _, Model, Noise, Origin,
     Params,
 };
 use pkmcal_io::record::{CalibrationState, MechanismSource};
@@ -131,17 +132,122 @@ fn lib_err(e: pkmcal::Error) -> PyErr {
         pkmcal::Error::Pose { pose, .. } => Some(*pose),
         _ => None,
     };
-    raise(e.to_string(), pose)
+    match &e {
+        pkmcal::Error::Request(r) => raise(request_words(r), None),
+        e => raise(e.to_string(), pose),
+    }
 }
 
-fn cli_err(e: anyhow::Error) -> PyErr {
-    let pose = e
-        .chain()
-        .find_map(|c| match c.downcast_ref::<pkmcal::Error>() {
-            Some(pkmcal::Error::Pose { pose, .. }) => Some(*pose),
-            _ => None,
-        });
-    raise(format!("{e:#}"), pose)
+/// The keyword that sets a choice the library or the file side names.
+fn keyword(f: pkmcal::Field) -> &'static str {
+    use pkmcal::Field::*;
+    match f {
+        Mechanism => "mechanism",
+        Data => "commands, measured",
+        Model => "model",
+        Free => "free",
+        Fix => "fix",
+        Tolerances => "tolerances",
+        NoTolerances => "tolerances=False",
+        Start => "start",
+        Params => "params",
+        Load => "load",
+        Preload => "preload",
+        Loss => "loss",
+        LossScale => "loss_scale",
+        OutlierThreshold => "outlier_threshold",
+        Validation => "validation",
+        Holdout => "holdout",
+        Kfold => "kfold",
+        Seed => "seed",
+        Frame => "frame",
+        Axes => "axes",
+        Setup => "ballbar",
+        Distances => "distances",
+        StatedNoise => "stated_noise",
+        StatedAngleNoise => "stated_angle_noise",
+        StatedDistanceNoise => "stated_distance_noise",
+        StatedReadings => "stated_readings",
+        StatedRelative => "stated_relative",
+        Noise => "noise",
+        AngleNoise => "angle_noise",
+        MaxEvaluations => "max_nfev",
+        Ftol => "ftol",
+        Xtol => "xtol",
+        Gtol => "gtol",
+        Bounds => "bounds",
+        X0 => "x0",
+        Count => "count",
+        Candidates => "spacing",
+        MaxCandidates => "max_candidates",
+        Runs => "runs",
+        LengthError => "length_error",
+        AngleError => "angle_error",
+        ValidationTargets => "validation",
+        Samples => "samples",
+        Targets => "targets",
+        Alpha => "alpha",
+        Grid => "grid",
+        _ => "the arguments",
+    }
+}
+
+/// A refused choice in Python's words.
+fn request_words(e: &pkmcal::RequestError) -> String {
+    use pkmcal::RequestError as R;
+    match e {
+        R::Invalid {
+            field,
+            problem,
+            suggest,
+        } => format!(
+            "{}: {problem}{}",
+            keyword(*field),
+            suggest
+                .as_ref()
+                .map(|s| format!(" ({}={:?})", keyword(s.field), s.value))
+                .unwrap_or_default()
+        ),
+        R::Exclusive { a, b } => {
+            format!("give either {}= or {}=, not both", keyword(*a), keyword(*b))
+        }
+        R::Needs { field, needs } => format!("{}= needs {}=", keyword(*field), keyword(*needs)),
+        R::ToleranceTable(p) => format!("in the mechanism's [tolerances] table: {p}"),
+    }
+}
+
+/// A file-side error in Python's words.
+fn io_words(e: &pkmcal_io::Error) -> String {
+    use pkmcal_io::Error as E;
+    match e {
+        E::MissingAxes {
+            path,
+            missing,
+            present,
+        } => format!(
+            "{}: missing column{} `{}`; if the instrument measured only {}, say so with axes={:?}",
+            path.display(),
+            if missing.len() > 1 { "s" } else { "" },
+            missing.join("`, `"),
+            present.join(", "),
+            present
+        ),
+        E::Request { file, cause } => match file {
+            Some(f) => format!("{}: {}", f.display(), request_words(cause)),
+            None => request_words(cause),
+        },
+        E::Library(l) => match l.as_ref() {
+            pkmcal::Error::Request(r) => request_words(r),
+            l => l.to_string(),
+        },
+        E::In { context, cause } => format!("{context}: {}", io_words(cause)),
+        e => e.to_string(),
+    }
+}
+
+/// A file-side error as a Python exception, its pose (if any) as `pose`.
+fn io_err(e: pkmcal_io::Error) -> PyErr {
+    raise(io_words(&e), e.pose().map(|(p, _)| p))
 }
 
 fn usage(message: impl Into<String>) -> PyErr {
@@ -151,11 +257,11 @@ fn usage(message: impl Into<String>) -> PyErr {
 /// Outputs are staged and renamed into place only when complete
 /// (`pkmcal_io::Files`): each call that writes is a run of its own, with its
 /// own files, so calls from several threads never share a staging area.
-fn written(write: impl FnOnce(&pkmcal_io::Run) -> anyhow::Result<()>) -> PyResult<()> {
+fn written(write: impl FnOnce(&pkmcal_io::Run) -> pkmcal_io::Result<()>) -> PyResult<()> {
     let files = pkmcal_io::Files::new();
     let run = pkmcal_io::Run::quiet(&files);
     // A failure drops `files`, which removes what it staged.
-    write(&run).and_then(|()| files.commit()).map_err(cli_err)
+    write(&run).and_then(|()| files.commit()).map_err(io_err)
 }
 
 /// A run that only reads (no unit override, no progress display).
@@ -410,7 +516,7 @@ fn rows<'py>(
 /// The columns `columns` of `obj` in that order when `obj` names its
 /// columns (a DataFrame's `columns`, a structured array's field names),
 /// matched as a CSV file's headers are (regardless of case when
-/// unambiguous, [`pkmcal_io::io::column_index`]): a missing column is an
+/// unambiguous, [`pkmcal_io::csv::column_index`]): a missing column is an
 /// error naming it and the names found; other columns are ignored. `None`
 /// for an array without names (its columns are taken in order).
 fn columns_by_name<'py>(
@@ -449,7 +555,7 @@ fn columns_by_name<'py>(
     let picked: Vec<String> = columns
         .iter()
         .map(|c| {
-            pkmcal_io::io::column_index(std::path::Path::new(what), &names, c, b',')
+            pkmcal_io::csv::column_index(std::path::Path::new(what), &names, c, b',')
                 .map(|i| names[i].clone())
                 .map_err(|e| usage(format!("{e:#}")))
         })
@@ -590,8 +696,8 @@ fn toml_value(v: &Bound<'_, PyAny>, path: &str) -> PyResult<toml::Value> {
 impl PyMechanism {
     fn from_text(text: &str, source: String) -> PyResult<Self> {
         // Every part of the description, read once as the CLI reads it.
-        let parts = pkmcal_io::io::description_from_str(text)
-            .map_err(|e| cli_err(e.context(format!("in mechanism description {source}"))))?;
+        let parts = pkmcal_io::description::description_from_str(text)
+            .map_err(|e| io_err(e.context(format!("in mechanism description {source}"))))?;
         Ok(Self {
             mech: Arc::new(parts.mech),
             targets: parts.targets,
@@ -745,8 +851,10 @@ impl PyMechanism {
     /// ``pkmcal parameters --json`` prints.
     #[getter]
     fn summary<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        py.import("json")?
-            .call_method1("loads", (pkmcal_io::io::summary_json(self.spec()),))
+        py.import("json")?.call_method1(
+            "loads",
+            (pkmcal_io::description::summary_json(self.spec()),),
+        )
     }
     /// Every parameter name: geometry, then encoder offsets, then stiffness.
     #[getter]
@@ -936,9 +1044,9 @@ fn params_arg(m: &PyMechanism, p: Option<&Bound<'_, PyAny>>, what: &str) -> PyRe
         params
     } else if let Ok(path) = path_arg(p) {
         return reading(|run| {
-            pkmcal_io::io::read_params(run, std::path::Path::new(&path), &*m.mech)
+            pkmcal_io::params::read_params(run, std::path::Path::new(&path), &*m.mech)
         })
-        .map_err(cli_err);
+        .map_err(io_err);
     } else {
         return Err(usage(format!(
             "{what}: expected parameter values by name (a dict or any mapping, e.g. a pandas Series), a Calibration, a SavedCalibration or a parameter file path (str or os.PathLike); got {}",
@@ -969,48 +1077,29 @@ fn names_arg(v: Option<&Bound<'_, PyAny>>, what: &str) -> PyResult<Option<String
     Ok(Some(names.join(",")))
 }
 
-fn free_arg(
-    m: &PyMechanism,
-    measurement: &MeasurementModel,
+/// ``free`` and ``fix`` (a string of comma-separated names, or a sequence
+/// of names) onto the request.
+fn names_request(
+    r: &mut Request,
     free: Option<&Bound<'_, PyAny>>,
     fix: Option<&Bound<'_, PyAny>>,
-    priors: &[pkmcal::identify::Prior],
-) -> PyResult<Vec<usize>> {
-    use pkmcal::identify::{FreeSetError, NameList};
-    let split = |s: Option<String>| -> Option<Vec<String>> {
-        s.map(|s| s.split(',').map(|t| t.trim().to_string()).collect())
-    };
-    let free = split(names_arg(free, "free")?);
-    let fix = split(names_arg(fix, "fix")?).unwrap_or_default();
-    let spec = m.spec();
-    let word = |l: NameList| match l {
-        NameList::Free => "free",
-        NameList::Fix => "fix",
-    };
-    let set = pkmcal::identify::resolve_free_set(
-        spec,
-        measurement,
-        &spec.default_free,
-        free.as_deref(),
-        &fix,
-    )
-    .map_err(|e| {
-        usage(match e {
-            FreeSetError::Unknown { list, error } => format!("in {}: {error}", word(list)),
-            FreeSetError::FrameParameter { list, name } => format!(
-                "in {}: `{name}` belongs to the instrument frame, which frame= sets (\"free\": identified; \"base\": the data are in the base frame)",
-                word(list)
-            ),
-            FreeSetError::Empty => "no parameter is left free; name some with free=".into(),
-        })
-    })?;
-    Ok(pkmcal::identify::free_with_priors(
-        spec,
-        measurement,
-        &set,
-        priors,
-        &fix,
-    ))
+) -> PyResult<()> {
+    r.free = names_arg(free, "free")?.map(|s| Request::names(&s));
+    r.fix = names_arg(fix, "fix")?
+        .map(|s| Request::names(&s))
+        .unwrap_or_default();
+    Ok(())
+}
+
+/// The free set the request resolves (its priors freeing their
+/// parameters), for the functions that take no study.
+fn free_of(
+    r: &Request,
+    m: &PyMechanism,
+    measurement: &MeasurementModel,
+) -> PyResult<(Vec<pkmcal::identify::Prior>, Vec<usize>)> {
+    r.priors_and_free(m.spec(), measurement, &m.tolerances)
+        .map_err(|e| lib_err(e.into()))
 }
 
 /// ``tolerances``: a mapping name → σ (a number in the parameter's unit) or a
@@ -1046,24 +1135,17 @@ fn tolerances_arg(
     Ok(given)
 }
 
-/// A fit's priors: the mechanism's ``[tolerances]`` table with
-/// ``tolerances`` (a dict) replacing its entries; ``False``: none.
-fn priors_arg(
-    m: &PyMechanism,
-    measurement: &MeasurementModel,
-    tolerances: Option<&Bound<'_, PyAny>>,
-) -> PyResult<Vec<pkmcal::identify::Prior>> {
+/// ``tolerances`` onto the request: a dict replacing the mechanism's
+/// ``[tolerances]`` entries; ``False``: no priors at all.
+fn tolerances_request(r: &mut Request, tolerances: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
     let flag = tolerances
         .filter(|t| t.is_instance_of::<pyo3::types::PyBool>())
         .map(|t| t.is_truthy())
         .transpose()?;
-    if flag == Some(false) {
-        return Ok(vec![]);
-    }
-    let given = tolerances_arg(tolerances.filter(|t| !t.is_instance_of::<pyo3::types::PyBool>()))?;
-    let merged = pkmcal::apply::budget::merged_tolerances(&m.tolerances, given);
-    pkmcal::identify::named_priors(m.spec(), measurement, &merged)
-        .map_err(|e| usage(format!("tolerances: {e}")))
+    r.no_tolerances = flag == Some(false);
+    r.tolerances =
+        tolerances_arg(tolerances.filter(|t| !t.is_instance_of::<pyo3::types::PyBool>()))?;
+    Ok(())
 }
 
 /// ``bounds``: a mapping name → ``(lower, upper)``.
@@ -1360,30 +1442,17 @@ fn measurement_arg(
     } else {
         MeasurementModel::tool(spec)
     };
-    // The frame rule is the library's; the words are Python's.
-    let request = match frame {
-        "base" => pkmcal::FrameRequest::Base,
-        "free" => pkmcal::FrameRequest::Free,
-        other => {
-            return Err(usage(format!(
-                "frame: unknown `{other}`; use \"base\" (readings in the base frame) or \"free\" (an instrument frame identified with the rest)"
-            )));
-        }
-    };
-    match pkmcal::requested_frame(&mm, spec, request) {
-        Ok(None) => Ok(mm),
-        Ok(Some(f)) => mm.in_frame(f).map_err(lib_err),
-        Err(pkmcal::FrameRequestError::BallBar) => Err(usage(
-            "frame=\"free\": a ball bar's sockets are in the base frame; use frame=\"base\"",
-        )),
-        Err(pkmcal::FrameRequestError::Probe) => Err(usage(
-            "frame=\"free\": probed heights fix no instrument frame; the bed plane's height and tilts are the parameters bed.z, bed.rx, bed.ry (free them by name)",
-        )),
-        Err(pkmcal::FrameRequestError::PartialAxes { axes }) => Err(usage(format!(
-            "frame=\"free\" needs whole positions to register the instrument frame; the instrument reads only {}",
-            axes.join(", ")
-        ))),
-    }
+    // The frame rule is the library's; the words are Python's. Arrays
+    // declare no frame: `auto` takes a free frame for whole positions and
+    // target points, the base frame otherwise.
+    let choice: pkmcal::FrameChoice = frame.parse().map_err(|_| {
+        usage(format!(
+            "frame: unknown `{frame}`; use \"auto\" (the default: free for whole positions and target points, base otherwise), \"base\" (readings in the base frame) or \"free\" (an instrument frame identified with the rest)"
+        ))
+    })?;
+    choice
+        .apply(mm, spec, false)
+        .map_err(|e| usage(request_words(&e)))
 }
 
 /// Ball-bar socket centres: an array (k, 2) or (k, 3) of finite numbers.
@@ -1607,7 +1676,11 @@ fn noise_arg(length: f64, angle: Option<f64>) -> PyResult<Noise> {
             "angle_noise must be a non-negative angle in rad, got {a}"
         )));
     }
-    Ok(pkmcal_io::io::noise_arg(length, angle))
+    let mut noise = Noise::lengths(length);
+    if let Some(a) = angle {
+        noise.angle = a;
+    }
+    Ok(noise)
 }
 
 // ---------------------------------------------------------------- results
@@ -1654,7 +1727,7 @@ macro_rules! by_serde {
                 let d = PyDict::new(py);
                 $(
                     let mut bytes = vec![];
-                    pkmcal_io::record::encode(&self.$e, &mut bytes).map_err(cli_err)?;
+                    pkmcal_io::record::encode(&self.$e, &mut bytes).map_err(io_err)?;
                     d.set_item(stringify!($e), PyBytes::new(py, &bytes))?;
                 )+
                 $($( d.set_item(stringify!($f), &self.$f)?; )+)?
@@ -1666,7 +1739,7 @@ macro_rules! by_serde {
                         $e: pkmcal_io::record::decode(
                             state_item(d, stringify!($e))?.cast::<PyBytes>()?.as_bytes(),
                         )
-                        .map_err(cli_err)?,
+                        .map_err(io_err)?,
                     )+
                     $($( $f: state_item(d, stringify!($f))?.extract()?, )+)?
                 })
@@ -2025,7 +2098,7 @@ struct PyCalibration {
 }
 
 /// A summary in Python's words.
-const PY_WORDING: pkmcal_io::calibrate::Wording = pkmcal_io::calibrate::Wording {
+const PY_WORDING: pkmcal_io::text::Wording = pkmcal_io::text::Wording {
     frame_base: "identified; frame=\"base\" if the data are in the base frame",
     all_correlations: "Calibration.correlation",
     hint: |w| w.hint.clone(),
@@ -2307,7 +2380,7 @@ impl PyCalibration {
     /// The summary the command-line tool prints, in Python's words.
     fn summary(&self) -> String {
         let mut out = String::new();
-        pkmcal_io::calibrate::write_summary(
+        pkmcal_io::text::write_summary(
             &mut out,
             &self.report(),
             &self.state.measurement,
@@ -2485,14 +2558,14 @@ impl PyCalibration {
             spec.name,
             self.cal().termination_reason
         );
-        pkmcal_io::io::params_to_string(spec, &self.cal().params, &header)
+        pkmcal_io::params::params_to_string(spec, &self.cal().params, &header)
     }
     /// The report's figures: errors per pose, parameter changes, workspace
     /// errors and maps, residuals, singular values.
     fn figures(&self, py: Python<'_>) -> PyResult<Vec<PyFigure>> {
         let figs = py
             .in_pool(|| self.with_inputs(pkmcal_io::report::figures))
-            .map_err(cli_err)?;
+            .map_err(io_err)?;
         Ok(figs
             .into_iter()
             .map(|f| PyFigure {
@@ -2511,7 +2584,7 @@ impl PyCalibration {
     fn save(&self, py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<()> {
         let p = path_arg(path)?;
         py.in_pool(|| {
-            let json = self.report().to_json().map_err(cli_err)?;
+            let json = self.report().to_json().map_err(io_err)?;
             written(|run| run.files.stage(std::path::Path::new(&p), json.as_bytes()))
         })
     }
@@ -2556,7 +2629,7 @@ impl PyCalibration {
     ) -> PyResult<Reduced<'py, (Py<PyMechanism>, String)>> {
         let py = slf.py();
         let c = slf.get();
-        let text = c.report().to_json().map_err(cli_err)?;
+        let text = c.report().to_json().map_err(io_err)?;
         Ok((
             py.get_type::<PyCalibration>().getattr("_from_pickle")?,
             (c.mechanism.clone_ref(py), text),
@@ -2569,7 +2642,7 @@ impl PyCalibration {
         record: &str,
     ) -> PyResult<Self> {
         let (r, state) =
-            pkmcal_io::record::record_from_str(record, "a pickled calibration").map_err(cli_err)?;
+            pkmcal_io::record::record_from_str(record, "a pickled calibration").map_err(io_err)?;
         let state = state.ok_or_else(|| usage("a pickled calibration without its state"))?;
         let m = mechanism.get();
         let mechanism = PyMechanism {
@@ -2593,7 +2666,7 @@ impl PyCalibration {
         if !(a.spec() == b.spec() && a.targets == b.targets && a.setup == b.setup) {
             return Ok(false);
         }
-        let bytes = |s: &CalibrationState| pkmcal_io::record::state_bytes(s).map_err(cli_err);
+        let bytes = |s: &CalibrationState| pkmcal_io::record::state_bytes(s).map_err(io_err);
         Ok(bytes(&self.state)? == bytes(&o.state)?)
     }
     /// The summary as an HTML table (a notebook shows it).
@@ -2692,8 +2765,8 @@ impl PyCalibration {
     }
 
     /// The JSON report of this calibration (the calibration record).
-    fn report(&self) -> pkmcal_io::calibrate::Report<'_> {
-        pkmcal_io::calibrate::Report::new(
+    fn report(&self) -> pkmcal_io::record::Report<'_> {
+        pkmcal_io::record::Report::new(
             self.mech().spec(),
             "Python arrays".into(),
             &self.state,
@@ -2704,7 +2777,7 @@ impl PyCalibration {
     /// A calibration from its record's text (``source`` names it), with
     /// the mechanism of its state, checked against the record.
     fn from_record(py: Python<'_>, text: &str, source: &str) -> PyResult<Self> {
-        let (record, state) = pkmcal_io::record::record_from_str(text, source).map_err(cli_err)?;
+        let (record, state) = pkmcal_io::record::record_from_str(text, source).map_err(io_err)?;
         let Some(state) = state else {
             return Err(usage(format!(
                 "{source}: this calibration record holds only the parameters and their covariance (an older pkmcal wrote it); read it with pkmcal.load_calibration, or calibrate again and save"
@@ -2750,6 +2823,7 @@ impl PyCalibration {
         let report = self.report();
         f(&pkmcal_io::report::ReportInputs {
             report: &report,
+            wording: &PY_WORDING,
             mech: self.mech(),
             measurement: &self.state.measurement,
             data: &self.study().poses,
@@ -2843,9 +2917,10 @@ impl PySavedCalibration {
 #[pyfunction]
 fn load_calibration(path: &Bound<'_, PyAny>) -> PyResult<PySavedCalibration> {
     let p = path_arg(path)?;
-    let record =
-        reading(|run| pkmcal_io::io::read_calibration_record_dof(run, std::path::Path::new(&p)))
-            .map_err(cli_err)?;
+    let record = reading(|run| {
+        pkmcal_io::record::read_calibration_record_dof(run, std::path::Path::new(&p))
+    })
+    .map_err(io_err)?;
     let (record, dof) = record;
     Ok(PySavedCalibration {
         record,
@@ -3225,8 +3300,10 @@ fn simulate<'py>(
 /// ``ballbar=`` bar lengths (``d1, d2, …``). ``sigma``: the standard
 /// deviation of the readings (a number when they share a unit, one per
 /// reading, or (n, readings) with NaN where it is to be estimated).
-/// ``frame``: ``"base"`` (default: readings in the base frame) or ``"free"``
-/// (an instrument frame identified with the rest, e.g. a laser tracker).
+/// ``frame``: ``"auto"`` (the default, as on the command line: an
+/// instrument frame identified with the rest for whole positions and target
+/// points, as a laser tracker reads them; the base frame for readings that
+/// fix no frame), ``"base"`` (readings in the base frame) or ``"free"``.
 /// ``targets``: (n, tool axes), the poses the commands were meant to reach
 /// (for the "before" statistics; optional). ``ballbar``: a dict
 /// ``{"sockets": (k, 2 or 3) mm, "bar_offset": mm}`` or ``"mechanism"`` for
@@ -3268,7 +3345,7 @@ fn simulate<'py>(
 /// ``Calibration.parameters`` each one's tolerance and share of information
 /// from the data.
 #[pyfunction]
-#[pyo3(signature = (mechanism, commands, measured, *, sigma = None, targets = None, model = "exact", free = None, fix = None, start = None, loss = "squared", loss_scale = None, outlier_threshold = 4.0, drop_outliers = false, load = None, force = None, axes = None, points = None, ballbar = None, frame = "base", validation = None, holdout = None, kfold = None, seed = SeedArg::Default(1), distances = None, max_nfev = None, ftol = None, xtol = None, gtol = None, bounds = None, x0 = None, tolerances = None, stated_noise = None, stated_angle_noise = None, stated_readings = pkmcal::identify::DEFAULT_STATED_NOISE_READINGS, stated_distance_noise = None, stated_relative = false))]
+#[pyo3(signature = (mechanism, commands, measured, *, sigma = None, targets = None, model = "exact", free = None, fix = None, start = None, loss = "squared", loss_scale = None, outlier_threshold = 4.0, drop_outliers = false, load = None, force = None, axes = None, points = None, ballbar = None, frame = "auto", validation = None, holdout = None, kfold = None, seed = SeedArg::Default(1), distances = None, max_nfev = None, ftol = None, xtol = None, gtol = None, bounds = None, x0 = None, tolerances = None, stated_noise = None, stated_angle_noise = None, stated_readings = pkmcal::identify::DEFAULT_STATED_NOISE_READINGS, stated_distance_noise = None, stated_relative = false))]
 #[allow(clippy::too_many_arguments)]
 fn calibrate<'py>(
     py: Python<'py>,
@@ -3316,72 +3393,42 @@ fn calibrate<'py>(
     let mm = measurement_arg(m, axes, points, ballbar, frame)?;
     let all = measurements(m, &mm, commands, measured, sigma, targets, "")?;
     let pairs = distances_arg(m, &mm, distances)?;
-    let mut opts = CalibrationOptions::new(spec, parse_model(model)?);
-    opts.priors = priors_arg(m, &mm, tolerances)?;
-    opts.free = free_arg(m, &mm, free, fix, &opts.priors)?;
-    opts.stated_noise = match (stated_noise, stated_angle_noise) {
-        (None, None) => None,
-        (Some(l), a) => Some(noise_arg(l, a)?),
-        (None, Some(_)) => {
-            return Err(usage(
-                "stated_angle_noise needs stated_noise (the length readings' σ)",
-            ));
-        }
+    let mut request = Request::new(parse_model(model)?);
+    names_request(&mut request, free, fix)?;
+    tolerances_request(&mut request, tolerances)?;
+    request.stated_noise = stated_noise;
+    request.stated_angle_noise = stated_angle_noise;
+    request.stated_readings = stated_readings;
+    request.stated_distance_noise = stated_distance_noise;
+    request.stated_relative = stated_relative;
+    request.load = load_arg(m, load, force)?;
+    request.loss = loss.to_string();
+    request.loss_scale = loss_scale;
+    request.outlier_threshold = outlier_threshold;
+    request.drop_outliers = drop_outliers;
+    request.solver = pkmcal::identify::SolverRequest {
+        max_evaluations: max_nfev,
+        ftol,
+        xtol,
+        gtol,
+        bounds: match bounds.filter(|b| !b.is_none()) {
+            Some(b) => bounds_arg(b)?,
+            None => vec![],
+        },
     };
-    if !(stated_readings.is_finite() && stated_readings >= 0.0) {
-        return Err(usage(format!(
-            "stated_readings must be a non-negative number of readings, got {stated_readings}"
-        )));
-    }
-    opts.stated_noise_readings = stated_readings;
-    opts.stated_distance_noise = stated_distance_noise;
-    opts.stated_noise_relative = stated_relative;
     let start = match (start.filter(|s| !s.is_none()), x0.filter(|s| !s.is_none())) {
         (Some(_), Some(_)) => return Err(usage("give either start= or x0=, not both")),
-        (None, Some(x)) => x0_arg(m, &opts.free, x)?,
+        (None, Some(x)) => {
+            let (_, free) = request
+                .priors_and_free(spec, &mm, &m.tolerances)
+                .map_err(|e| lib_err(e.into()))?;
+            x0_arg(m, &free, x)?
+        }
         (s, None) => params_arg(m, s, "start")?,
     };
-    if let Some(n) = max_nfev {
-        opts.solver.max_evaluations = n;
-    }
-    for (v, field) in [
-        (ftol, &mut opts.solver.ftol),
-        (xtol, &mut opts.solver.xtol),
-        (gtol, &mut opts.solver.gtol),
-    ] {
-        if let Some(v) = v {
-            *field = v;
-        }
-    }
-    opts.solver
-        .check()
-        .map_err(|e| usage(format!("{e} (max_nfev, ftol, xtol, gtol)")))?;
-    if let Some(b) = bounds.filter(|b| !b.is_none()) {
-        let named = bounds_arg(b)?;
-        let (lower, upper) = pkmcal::identify::named_bounds(spec, &mm, &named)
-            .map_err(|e| usage(format!("bounds: {e}")))?;
-        opts.solver.lower = Some(lower);
-        opts.solver.upper = Some(upper);
-    }
-    opts.force = load_arg(m, load, force)?;
-    pkmcal::engine::load::check_load(&*m.mech, &start, &opts.force)
-        .map_err(|e| usage(format!("load: {e}")))?;
-    opts.loss = Loss::named(loss, loss_scale).map_err(lib_err)?;
-    if !(outlier_threshold.is_finite() && outlier_threshold > 0.0) {
-        return Err(usage(format!(
-            "outlier_threshold must be a positive number of robust standard deviations, got {outlier_threshold}"
-        )));
-    }
-    opts.outlier_threshold = outlier_threshold;
-    opts.drop_outliers = drop_outliers;
-    let held: Option<(String, Vec<pkmcal::Measurement>)> = match (validation, holdout) {
-        (Some(v), _) if v.is_none() => None,
-        (Some(_), Some(_)) => {
-            return Err(usage(
-                "give either validation=(commands, measured) or holdout=fraction, not both",
-            ));
-        }
-        (Some(v), None) => {
+    request.validation = match validation.filter(|v| !v.is_none()) {
+        None => None,
+        Some(v) => {
             // A tuple or a list (any sequence that is not itself an array).
             let t = PyTuple::new(
                 py,
@@ -3403,38 +3450,24 @@ fn calibrate<'py>(
             } else {
                 None
             };
-            Some((
-                "validation arrays".into(),
-                measurements(
-                    m,
-                    &mm,
-                    &t.get_item(0)?,
-                    &t.get_item(1)?,
-                    s.as_ref(),
-                    None,
-                    "validation ",
-                )?,
-            ))
+            Some(measurements(
+                m,
+                &mm,
+                &t.get_item(0)?,
+                &t.get_item(1)?,
+                s.as_ref(),
+                None,
+                "validation ",
+            )?)
         }
-        (None, Some(_)) => None,
-        (None, None) => None,
     };
-    if let Some(k) = kfold
-        && k < 2
-    {
-        return Err(usage(format!("kfold must be at least 2, got {k}")));
-    }
+    request.holdout = holdout;
+    request.kfold = kfold;
+    request.seed = seed;
     let mech = &*m.mech;
-    let study_opts = pkmcal::identify::StudyOptions {
-        calibration: opts,
-        validation: match (holdout, held) {
-            (Some(f), _) => pkmcal::identify::ValidationPlan::Holdout(f),
-            (None, Some((_, data))) => pkmcal::identify::ValidationPlan::Given(data),
-            (None, None) => pkmcal::identify::ValidationPlan::None,
-        },
-        kfold,
-        seed,
-    };
+    let study_opts = request
+        .study_options(mech, &mm, &m.tolerances, &start)
+        .map_err(|e| lib_err(e.into()))?;
     let result = interruptible(py, |cancel| {
         let mut study_opts = study_opts;
         study_opts.calibration.solver.cancel = Some(cancel);
@@ -3463,7 +3496,7 @@ fn calibrate<'py>(
 /// (mm) and ``angle_noise`` (rad), and ``Identifiability.held`` lists what
 /// they hold.
 #[pyfunction]
-#[pyo3(signature = (mechanism, commands, measured, *, params = None, sigma = None, model = "exact", free = None, fix = None, load = None, force = None, axes = None, points = None, ballbar = None, frame = "base", tolerances = None, noise = 0.002, angle_noise = None))]
+#[pyo3(signature = (mechanism, commands, measured, *, params = None, sigma = None, model = "exact", free = None, fix = None, load = None, force = None, axes = None, points = None, ballbar = None, frame = "auto", tolerances = None, noise = 0.002, angle_noise = None))]
 #[allow(clippy::too_many_arguments)]
 fn analyze<'py>(
     py: Python<'py>,
@@ -3491,12 +3524,19 @@ fn analyze<'py>(
     let data = measurements(m, &mm, commands, measured, sigma, None, "")?;
     let params = params_arg(m, params, "params")?;
     let model = parse_model(model)?;
-    let priors = priors_arg(m, &mm, tolerances)?;
-    let free = free_arg(m, &mm, free, fix, &priors)?;
-    let force = load_arg(m, load, force)?;
-    pkmcal::engine::load::check_load(&*m.mech, &params, &force)
-        .map_err(|e| usage(format!("load: {e}")))?;
-    let noise = noise_arg(noise, angle_noise)?;
+    let mut request = Request::new(model);
+    names_request(&mut request, free, fix)?;
+    tolerances_request(&mut request, tolerances)?;
+    request.load = load_arg(m, load, force)?;
+    request.stated_noise = Some(noise);
+    request.stated_angle_noise = angle_noise;
+    let (priors, free) = free_of(&request, m, &mm)?;
+    let force = request
+        .checked_load(&*m.mech, &params)
+        .map_err(|e| lib_err(e.into()))?;
+    let noise = request
+        .weighing_noise(!priors.is_empty())
+        .map_err(|e| lib_err(e.into()))?;
     let mech = &*m.mech;
     let id = py
         .in_pool(|| {
@@ -3608,17 +3648,25 @@ fn plan<'py>(
     let spec = m.spec();
     let params = params_arg(m, params, "params")?;
     let tool = MeasurementModel::tool(spec);
-    let priors = priors_arg(m, &tool, tolerances)?;
+    let mut request = Request::new(parse_model(model)?);
+    names_request(&mut request, free, fix)?;
+    tolerances_request(&mut request, tolerances)?;
+    request.stated_noise = Some(noise);
+    request.stated_angle_noise = angle_noise;
+    let (priors, free) = free_of(&request, m, &tool)?;
+    let noise = request
+        .weighing_noise(!priors.is_empty())
+        .map_err(|e| lib_err(e.into()))?;
     let opts = pkmcal::PlanOptions {
         count,
         criterion: criterion.parse().map_err(lib_err)?,
-        model: parse_model(model)?,
-        free: free_arg(m, &tool, free, fix, &priors)?,
+        model: request.model,
+        free,
         spacing,
         max_candidates,
         cancel: None,
         priors,
-        noise: noise_arg(noise, angle_noise)?,
+        noise,
     };
     let mech = &*m.mech;
     let p = interruptible(py, |cancel| {
@@ -3762,7 +3810,7 @@ impl PyBudget {
     }
     /// The budget in words, as ``pkmcal budget`` prints it.
     fn summary(&self) -> String {
-        pkmcal_io::budget::budget_words(
+        pkmcal_io::text::budget_words(
             &self.mechanism,
             &self.b,
             self.b
@@ -3995,8 +4043,8 @@ fn compared_arg(
         (s.get().record.clone(), s.get().dof)
     } else if c.is_instance_of::<pyo3::types::PyString>() || c.hasattr("__fspath__")? {
         let p = path_arg(c)?;
-        reading(|run| pkmcal_io::io::read_calibration_record_dof(run, std::path::Path::new(&p)))
-            .map_err(cli_err)?
+        reading(|run| pkmcal_io::record::read_calibration_record_dof(run, std::path::Path::new(&p)))
+            .map_err(io_err)?
     } else {
         return Err(usage(format!(
             "{what}: expected a Calibration, a SavedCalibration or a calibration record's path"
@@ -4062,7 +4110,7 @@ fn drift<'py>(
                 .map_err(lib_err)?,
         );
     }
-    let text = pkmcal_io::drift::drift_words(mech.as_ref().map(|m| m.spec()), &d, &old_name, "new");
+    let text = pkmcal_io::text::drift_words(mech.as_ref().map(|m| m.spec()), &d, &old_name, "new");
     Ok(PyDrift { d, text })
 }
 
@@ -4197,8 +4245,10 @@ fn montecarlo<'py>(
     let poses = rows(targets, "targets", &spec.tool_axes, false)?.to_vecs();
     let mut cal = CalibrationOptions::new(spec, parse_model(model)?);
     let tool = MeasurementModel::tool(spec);
-    cal.priors = priors_arg(m, &tool, tolerances)?;
-    cal.free = free_arg(m, &tool, free, fix, &cal.priors)?;
+    let mut request = Request::new(cal.model);
+    names_request(&mut request, free, fix)?;
+    tolerances_request(&mut request, tolerances)?;
+    (cal.priors, cal.free) = free_of(&request, m, &tool)?;
     let opts = pkmcal::MonteCarloOptions {
         runs,
         noise: noise_arg(noise, angle_noise)?,

@@ -64,7 +64,7 @@ def test_calibration_result():
     truth = {"l11": 280.3, "dq3": 0.002}
     c, y = pkmcal.simulate(m, targets, truth, noise=0.002, seed=3)
     vc, vy = pkmcal.simulate(m, pkmcal.plan(m, 12, spacing=9.0).targets, truth, noise=0.002, seed=4)
-    cal = pkmcal.calibrate(m, c, y, validation=(vc, vy), kfold=4)
+    cal = pkmcal.calibrate(m, c, y, validation=(vc, vy), kfold=4, frame="base")
     assert cal.converged and cal.model == "exact"
     assert set(cal.free) == set(m.default_free)
     assert abs(cal.parameters["l11"] - 280.3) < 6 * cal.std_dev["l11"]
@@ -95,13 +95,13 @@ def test_calibration_result():
 def test_unidentifiable_parameters_are_named():
     m = pkmcal.Mechanism()
     c, y = pkmcal.simulate(m, pkmcal.plan(m, 20).targets, seed=1)
-    ident = pkmcal.analyze(m, c, y, free="all")
+    ident = pkmcal.analyze(m, c, y, free="all", frame="base")
     # Without a load the stiffnesses do not show: three directions are lost.
     assert ident.rank == len(ident.singular_values) - 3
     assert len(ident.unidentifiable) == 3
     assert sorted(u["fixed"] for u in ident.unidentifiable) == ["k1", "k2", "k3"]
     assert all(list(u["terms"]) == [u["fixed"]] for u in ident.unidentifiable)
-    cal = pkmcal.calibrate(m, c, y, free="all")
+    cal = pkmcal.calibrate(m, c, y, free="all", frame="base")
     assert any(w.kind in ("unidentifiable", "stiffness_ratios") for w in cal.warnings)
 
 
@@ -125,7 +125,7 @@ def test_instruments():
 def test_figures_render(tmp_path):
     m = pkmcal.Mechanism()
     c, y = pkmcal.simulate(m, pkmcal.plan(m, 20).targets, {"l11": 280.2}, noise=0.002, seed=1)
-    cal = pkmcal.calibrate(m, c, y)
+    cal = pkmcal.calibrate(m, c, y, frame="base")
     figs = cal.figures()
     assert [f.name for f in figs][:2] == ["errors", "parameters"]
     for f in figs:
@@ -189,7 +189,7 @@ def test_spatial_delta_and_probe_heights():
         commands,
         measured,
         axes=["probe"],
-        free=["delta_radius", "angle_a", "angle_b", "da", "db", "dc"],
+        free=["delta_radius", "angle_a", "angle_b", "da", "db", "dc"], frame="base",
     )
     assert abs(cal.parameters["delta_radius"] - 130.4) < 1e-6
     assert abs(cal.parameters["da"] - 0.3) < 1e-6
@@ -236,7 +236,7 @@ def test_a_calibration_saved_and_read_back(tmp_path):
     mech = pkmcal.Mechanism()
     targets = pkmcal.plan(mech, 25).targets
     commands, measured = pkmcal.simulate(mech, targets, {"l11": 280.3, "dq3": 0.002}, noise=0.002, seed=1)
-    cal = pkmcal.calibrate(mech, commands, measured)
+    cal = pkmcal.calibrate(mech, commands, measured, frame="base")
     path = tmp_path / "cal.json"
     cal.save(path)
     saved = pkmcal.load_calibration(path)
@@ -291,20 +291,20 @@ def _reference_data():
 def test_named_columns_are_read_by_name_in_any_order():
     pd = pytest.importorskip("pandas")
     mech, commands, measured = _reference_data()
-    plain = pkmcal.calibrate(mech, commands, measured)
+    plain = pkmcal.calibrate(mech, commands, measured, frame="base")
     c = pd.DataFrame(commands, columns=["q1", "q2", "q3"])
     x = pd.DataFrame(measured, columns=["x", "y"])
     for cc, xx in [(c, x), (c[["q3", "q1", "q2"]], x[["y", "x"]]), (c, x.rename(columns={"x": "X", "y": "Y"}))]:
-        named = pkmcal.calibrate(mech, cc, xx)
+        named = pkmcal.calibrate(mech, cc, xx, frame="base")
         assert named.parameters == plain.parameters
     np.testing.assert_array_equal(
         pkmcal.predict(mech, c[["q2", "q3", "q1"]]).x, pkmcal.predict(mech, commands).x
     )
     # Extra columns are ignored, as in a CSV file; a missing one is named.
     extra = x.assign(note=1.0)[["note", "y", "x"]]
-    assert pkmcal.calibrate(mech, c, extra).parameters == plain.parameters
+    assert pkmcal.calibrate(mech, c, extra, frame="base").parameters == plain.parameters
     with pytest.raises(pkmcal.PkmcalError, match="measured: missing column `y`"):
-        pkmcal.calibrate(mech, c, x.rename(columns={"y": "z"}))
+        pkmcal.calibrate(mech, c, x.rename(columns={"y": "z"}), frame="base")
 
 
 def test_structured_arrays_are_read_by_name():
@@ -324,7 +324,7 @@ def test_calibration_warnings_are_python_warnings_once_per_call():
     # The rigid model cannot see dq3: one IdentifiabilityWarning.
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        cal = pkmcal.calibrate(mech, commands, measured, model="rigid")
+        cal = pkmcal.calibrate(mech, commands, measured, model="rigid", frame="base")
     ours = [w for w in caught if issubclass(w.category, pkmcal.PkmcalWarning)]
     assert ours and all(issubclass(w.category, UserWarning) for w in ours)
     assert any(issubclass(w.category, pkmcal.IdentifiabilityWarning) for w in ours)
@@ -333,7 +333,7 @@ def test_calibration_warnings_are_python_warnings_once_per_call():
     # A clean fit warns nothing.
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        pkmcal.calibrate(mech, commands, measured)
+        pkmcal.calibrate(mech, commands, measured, frame="base")
     assert not [w for w in caught if issubclass(w.category, pkmcal.PkmcalWarning)]
 
 
@@ -357,3 +357,20 @@ def test_a_mechanism_lists_what_it_is_made_of():
     ]
     assert [a["name"] for a in s["tool_axes"]] == m.tool_axes
     np.testing.assert_array_equal([a["workspace"] for a in s["tool_axes"]], m.workspace)
+
+
+def test_the_default_frame_is_the_command_lines_auto():
+    """Without frame=, whole positions are read from an instrument frame
+    identified with the rest (the CLI's `auto`; arrays never declare the
+    base frame), readings of some axes in the base frame; the frame's
+    parameters are then among the free ones, or not."""
+    m = pkmcal.Mechanism()
+    targets = pkmcal.plan(m, 30).targets
+    c, x = pkmcal.simulate(m, targets, {"l11": 280.3}, noise=0.002, seed=5)
+    auto = pkmcal.calibrate(m, c, x)
+    assert {"frame.x", "frame.y", "frame.phi"} <= set(auto.free)
+    base = pkmcal.calibrate(m, c, x, frame="base")
+    assert not any(n.startswith("frame.") for n in base.free)
+    # One axis read: no frame to register, whatever the default.
+    part = pkmcal.calibrate(m, c, x[:, :1], axes=["x"])
+    assert not any(n.startswith("frame.") for n in part.free)

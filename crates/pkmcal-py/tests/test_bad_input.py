@@ -19,11 +19,11 @@ def ref():
 def test_wrong_shapes(ref):
     mech, c, y = ref
     with pytest.raises(pkmcal.PkmcalError, match=r"measured: expected shape \(n, 2\) with columns x, y, got \(20, 1\)"):
-        pkmcal.calibrate(mech, c, y[:, :1])
+        pkmcal.calibrate(mech, c, y[:, :1], frame="base")
     with pytest.raises(pkmcal.PkmcalError, match=r"commands: expected shape \(n, 3\).*got \(20, 2\)"):
         pkmcal.predict(mech, c[:, :2])
     with pytest.raises(pkmcal.PkmcalError, match="20 rows and measured 19"):
-        pkmcal.calibrate(mech, c, y[:19])
+        pkmcal.calibrate(mech, c, y[:19], frame="base")
     with pytest.raises(pkmcal.PkmcalError, match="expected an array of numbers"):
         pkmcal.predict(mech, [["a", "b", "c"]])
     with pytest.raises(pkmcal.PkmcalError, match="no rows"):
@@ -35,7 +35,7 @@ def test_nan_names_the_row(ref):
     bad = y.copy()
     bad[7, 1] = np.nan
     with pytest.raises(pkmcal.PkmcalError) as e:
-        pkmcal.calibrate(mech, c, bad)
+        pkmcal.calibrate(mech, c, bad, frame="base")
     assert e.value.pose == 7
     assert "row 7, column 1 (y) is NaN" in str(e.value)
     assert isinstance(e.value, ValueError)
@@ -45,10 +45,10 @@ def test_unknown_parameter_names(ref):
     mech, c, y = ref
     with pytest.raises(pkmcal.PkmcalError, match="unknown parameter `l99`"):
         pkmcal.predict(mech, c, {"l99": 1.0})
-    with pytest.raises(pkmcal.PkmcalError, match="in free: unknown parameter `bogus`"):
-        pkmcal.calibrate(mech, c, y, free=["l11", "bogus"])
-    with pytest.raises(pkmcal.PkmcalError, match="in fix: unknown parameter"):
-        pkmcal.calibrate(mech, c, y, fix="nope")
+    with pytest.raises(pkmcal.PkmcalError, match="free: unknown parameter `bogus`"):
+        pkmcal.calibrate(mech, c, y, free=["l11", "bogus"], frame="base")
+    with pytest.raises(pkmcal.PkmcalError, match="fix: unknown parameter"):
+        pkmcal.calibrate(mech, c, y, fix="nope", frame="base")
     with pytest.raises(pkmcal.PkmcalError, match="`l11` must be a number"):
         pkmcal.predict(mech, c, {"l11": "long"})
 
@@ -71,13 +71,13 @@ def test_unreachable_target_names_the_row(ref):
 def test_options(ref):
     mech, c, y = ref
     with pytest.raises(pkmcal.PkmcalError, match="unknown model"):
-        pkmcal.calibrate(mech, c, y, model="elastic")
+        pkmcal.calibrate(mech, c, y, model="elastic", frame="base")
     with pytest.raises(pkmcal.PkmcalError, match="loss: unknown"):
-        pkmcal.calibrate(mech, c, y, loss="l1")
+        pkmcal.calibrate(mech, c, y, loss="l1", frame="base")
     with pytest.raises(pkmcal.PkmcalError, match="frame: unknown"):
         pkmcal.calibrate(mech, c, y, frame="tracker")
     with pytest.raises(pkmcal.PkmcalError, match="either validation"):
-        pkmcal.calibrate(mech, c, y, validation=(c, y), holdout=0.2)
+        pkmcal.calibrate(mech, c, y, validation=(c, y), holdout=0.2, frame="base")
     with pytest.raises(pkmcal.PkmcalError, match="load: expected 2 values"):
         pkmcal.predict(mech, c, load=[1.0, 2.0, 3.0])
     # force= is the old name of load=, still read; not both.
@@ -98,7 +98,7 @@ def test_options(ref):
         gs = pkmcal.Mechanism(EXAMPLES / "gough-stewart-6" / "mechanism.toml")
         t = pkmcal.plan(gs, 10, max_candidates=200).targets
         gc, gy = pkmcal.simulate(gs, t, seed=1)
-        pkmcal.calibrate(gs, gc, gy, sigma=0.01)
+        pkmcal.calibrate(gs, gc, gy, sigma=0.01, frame="base")
 
 
 def test_mechanism_sources(tmp_path):
@@ -116,7 +116,7 @@ def test_mechanism_sources(tmp_path):
 
 def test_calibration_of_another_mechanism(ref):
     mech, c, y = ref
-    cal = pkmcal.calibrate(mech, c, y)
+    cal = pkmcal.calibrate(mech, c, y, frame="base")
     other = pkmcal.Mechanism(EXAMPLES / "4-rrr" / "mechanism.toml")
     with pytest.raises(pkmcal.PkmcalError, match="another mechanism"):
         pkmcal.predict(other, np.zeros((1, len(other.actuators))), cal)
@@ -124,7 +124,7 @@ def test_calibration_of_another_mechanism(ref):
 
 def test_no_half_written_figure(tmp_path, ref):
     mech, c, y = ref
-    cal = pkmcal.calibrate(mech, c, y)
+    cal = pkmcal.calibrate(mech, c, y, frame="base")
     with pytest.raises(pkmcal.PkmcalError):
         cal.figures()[0].save(tmp_path / "no-such-dir" / "errors.svg")
     assert not (tmp_path / "no-such-dir").exists()
@@ -169,7 +169,7 @@ def test_the_readme_compensated_plan_predicts_back():
     mech = pkmcal.Mechanism()
     targets = pkmcal.plan(mech, 35).targets
     commands, measured = pkmcal.simulate(mech, targets, {"l11": 280.3, "dq3": 0.002}, noise=0.002, seed=1)
-    cal = pkmcal.calibrate(mech, commands, measured)
+    cal = pkmcal.calibrate(mech, commands, measured, frame="base")
     comp = pkmcal.compensate(mech, targets, cal)
     back = pkmcal.predict(mech, comp.commands, cal)
     np.testing.assert_allclose(back.x, targets, atol=1e-9)
@@ -196,9 +196,9 @@ def test_python_shapes_of_arguments_are_accepted_or_refused_in_python_words(tmp_
         pkmcal.predict(mech, commands, 3)
     # Validation as a list as well as a tuple.
     v = [commands[:5], measured[:5]]
-    assert pkmcal.calibrate(mech, commands, measured, validation=v).validation is not None
+    assert pkmcal.calibrate(mech, commands, measured, validation=v, frame="base").validation is not None
     # A figure is SVG or PNG, never SVG text in a .pdf.
-    fig = pkmcal.calibrate(mech, commands, measured).figures()[0]
+    fig = pkmcal.calibrate(mech, commands, measured, frame="base").figures()[0]
     with pytest.raises(pkmcal.PkmcalError, match=r"\.svg or \.png"):
         fig.save(tmp_path / "f.pdf")
     assert not (tmp_path / "f.pdf").exists()

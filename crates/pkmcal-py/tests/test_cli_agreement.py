@@ -56,7 +56,7 @@ def test_calibration_equals_cli(cli, tmp_path, mechanism, truth, count, noise):
     table = read_csv(data)
     commands = columns(table, mech.actuators)
     measured = columns(table, mech.tool_axes)
-    cal = pkmcal.calibrate(mech, commands, measured)
+    cal = pkmcal.calibrate(mech, commands, measured, frame="base")
     got = cal.parameters
     assert set(got) == set(expected)
     for name, value in expected.items():
@@ -64,7 +64,7 @@ def test_calibration_equals_cli(cli, tmp_path, mechanism, truth, count, noise):
     # The identified truth is recovered within a few standard deviations
     # (without the mechanism's tolerances, which this truth exceeds tenfold:
     # the priors rightly pull it towards nominal, with a warning).
-    free = pkmcal.calibrate(mech, commands, measured, tolerances=False) if cal.priors else cal
+    free = pkmcal.calibrate(mech, commands, measured, tolerances=False, frame="base") if cal.priors else cal
     for name, value in truth.items():
         assert abs(free.parameters[name] - value) < 6 * free.std_dev[name] + 1e-9, name
     assert cal.converged

@@ -20,7 +20,7 @@ CALLS = {
     # 1,000 of 8,820 candidates for 56 parameters: minutes (300 take one).
     "plan": "pkmcal.plan(hexapod, 1000, spacing=1.0, max_candidates=200_000)",
     # Leave-one-out cross-validation of 3,000 poses: 3,000 fits of 2,999.
-    "calibrate": "pkmcal.calibrate(mech, many_c, many_x, kfold=3000)",
+    "calibrate": "pkmcal.calibrate(mech, many_c, many_x, kfold=3000, frame='base')",
 }
 
 

@@ -19,7 +19,7 @@ def job(seed):
     mech = pkmcal.Mechanism()
     targets = pkmcal.plan(mech, 20).targets
     commands, measured = pkmcal.simulate(mech, targets, TRUTH, noise=0.002, seed=seed)
-    return pkmcal.calibrate(mech, commands, measured).parameters["l11"]
+    return pkmcal.calibrate(mech, commands, measured, frame="base").parameters["l11"]
 
 
 @pytest.mark.parametrize("method", ["fork", "spawn"])
@@ -52,7 +52,7 @@ def whole_fit(seed):
     mech = pkmcal.Mechanism()
     targets = pkmcal.plan(mech, 20).targets
     commands, measured = pkmcal.simulate(mech, targets, TRUTH, noise=0.002, seed=seed)
-    return pkmcal.calibrate(mech, commands, measured)
+    return pkmcal.calibrate(mech, commands, measured, frame="base")
 
 
 def test_a_worker_returns_a_whole_calibration():

@@ -21,6 +21,7 @@ FD_AGREE = 1e-5
 
 
 def reference_fit(**kw):
+    kw.setdefault("frame", "base")
     mech = pkmcal.Mechanism()
     targets = pkmcal.plan(mech, 30).targets
     c, x = pkmcal.simulate(mech, targets, {"l11": 280.3, "dq3": 0.002}, noise=0.002, seed=3)
@@ -61,7 +62,7 @@ def test_every_result_pickles_and_compares_by_value(tmp_path):
     cal.save(tmp_path / "c.json")
     round_trips(pkmcal.load_calibration(tmp_path / "c.json"))
     # A different result is not equal.
-    other = pkmcal.calibrate(mech, c, x, model="rigid")
+    other = pkmcal.calibrate(mech, c, x, model="rigid", frame="base")
     assert other != cal
     assert pkmcal.predict(mech, c) != pred
 
@@ -131,7 +132,7 @@ def test_non_finite_numbers_survive_the_record(tmp_path):
     mech = pkmcal.Mechanism()
     targets = pkmcal.plan(mech, 30).targets
     c, x = pkmcal.simulate(mech, targets, {"l11": 280.3}, noise=0.002, seed=3)
-    cal = pkmcal.calibrate(mech, c[:12], x[:12], free=["l11", "l21", "l31", "B2x", "B2y", "B3x"])
+    cal = pkmcal.calibrate(mech, c[:12], x[:12], free=["l11", "l21", "l31", "B2x", "B2y", "B3x"], frame="base")
     cal.save(tmp_path / "c.json")
     back = pkmcal.Calibration.load(tmp_path / "c.json")
     assert back == cal
@@ -193,29 +194,29 @@ def test_solver_controls_act():
     targets = pkmcal.plan(mech, 30).targets
     c, x = pkmcal.simulate(mech, targets, {"l11": 280.3}, noise=0.002, seed=3)
     with pytest.warns(pkmcal.ConvergenceWarning):
-        short = pkmcal.calibrate(mech, c, x, max_nfev=2)
+        short = pkmcal.calibrate(mech, c, x, max_nfev=2, frame="base")
     assert short.status == 0 and not short.success and short.nfev <= 3
-    full = pkmcal.calibrate(mech, c, x)
+    full = pkmcal.calibrate(mech, c, x, frame="base")
     assert full.success
     # A bound holds the value; its side open with inf.
-    bounded = pkmcal.calibrate(mech, c, x, bounds={"l11": (-np.inf, 280.1)})
+    bounded = pkmcal.calibrate(mech, c, x, bounds={"l11": (-np.inf, 280.1)}, frame="base")
     assert bounded.success, bounded.message
     assert abs(bounded.parameters["l11"] - 280.1) <= SAME * 280.1
     # x0 as an array over the free mechanism parameters, and as a dict.
     names = [n for n in full.free if n in mech.parameter_names]
     start = [mech.nominal[n] for n in names]
-    assert pkmcal.calibrate(mech, c, x, x0=np.array(start)) == full
-    assert pkmcal.calibrate(mech, c, x, x0={"l11": 280.0}) == full
+    assert pkmcal.calibrate(mech, c, x, x0=np.array(start), frame="base") == full
+    assert pkmcal.calibrate(mech, c, x, x0={"l11": 280.0}, frame="base") == full
     with pytest.raises(pkmcal.PkmcalError, match="one per free mechanism parameter"):
-        pkmcal.calibrate(mech, c, x, x0=[1.0, 2.0])
+        pkmcal.calibrate(mech, c, x, x0=[1.0, 2.0], frame="base")
     with pytest.raises(pkmcal.PkmcalError, match="ftol"):
-        pkmcal.calibrate(mech, c, x, ftol=-1)
+        pkmcal.calibrate(mech, c, x, ftol=-1, frame="base")
     with pytest.raises(pkmcal.PkmcalError, match="l99"):
-        pkmcal.calibrate(mech, c, x, bounds={"l99": (0, 1)})
+        pkmcal.calibrate(mech, c, x, bounds={"l99": (0, 1)}, frame="base")
     with pytest.raises(pkmcal.PkmcalError, match="lower bound"):
-        pkmcal.calibrate(mech, c, x, bounds={"l11": (281, 280)})
+        pkmcal.calibrate(mech, c, x, bounds={"l11": (281, 280)}, frame="base")
     with pytest.raises(pkmcal.PkmcalError, match="either start= or x0="):
-        pkmcal.calibrate(mech, c, x, x0={"l11": 280.0}, start={"l11": 280.0})
+        pkmcal.calibrate(mech, c, x, x0={"l11": 280.0}, start={"l11": 280.0}, frame="base")
 
 
 def test_montecarlo_returns_an_object_and_the_old_keys_warn():
@@ -282,7 +283,7 @@ def test_drift_between_calibrations(tmp_path):
 
     def fit(l11, seed):
         c, x = pkmcal.simulate(mech, targets, {"l11": l11}, noise=0.002, seed=seed)
-        return pkmcal.calibrate(mech, c, x)
+        return pkmcal.calibrate(mech, c, x, frame="base")
 
     a, b, moved = fit(280.3, 1), fit(280.3, 2), fit(280.35, 3)
     same = pkmcal.drift(b, a)

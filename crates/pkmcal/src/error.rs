@@ -64,6 +64,10 @@ pub enum Error {
     #[error("{0}")]
     InvalidRequest(String),
 
+    /// A user's choice refused, naming the choice.
+    #[error(transparent)]
+    Request(#[from] RequestError),
+
     /// The caller's cancel flag was set (a front end's Ctrl-C): the work
     /// stopped before it finished, and nothing it computed is returned.
     #[error("cancelled by the caller")]
@@ -96,6 +100,258 @@ impl Error {
                 distance: origin.distance,
                 source: Box::new(e),
             },
+        }
+    }
+}
+
+/// A choice a user makes through a front end, by what it means. The library
+/// and the file side name the choice a refusal is about with it; each front
+/// end names it in its own words (the command line `--free`, Python
+/// `free=`), so that no message below them names an option.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
+#[non_exhaustive]
+pub enum Field {
+    /// The mechanism description.
+    Mechanism,
+    /// The measurements.
+    Data,
+    /// The forward model.
+    Model,
+    /// The parameters to identify.
+    Free,
+    /// The parameters kept fixed.
+    Fix,
+    /// Tolerances given as priors.
+    Tolerances,
+    /// No priors at all.
+    NoTolerances,
+    /// Starting parameter values.
+    Start,
+    /// Parameter values to evaluate at.
+    Params,
+    /// The tool load (a wrench).
+    Load,
+    /// Internal actuator loads to hold.
+    Preload,
+    /// The robust loss.
+    Loss,
+    /// The robust loss's tuning constant.
+    LossScale,
+    /// The outlier threshold.
+    OutlierThreshold,
+    /// Validation poses measured apart.
+    Validation,
+    /// The fraction of poses held out.
+    Holdout,
+    /// k-fold cross-validation.
+    Kfold,
+    /// A random seed.
+    Seed,
+    /// Where the instrument stands.
+    Frame,
+    /// The tool axes the instrument read.
+    Axes,
+    /// A ball bar's setup.
+    Setup,
+    /// Distances measured between poses.
+    Distances,
+    /// The instrument's stated noise (lengths).
+    StatedNoise,
+    /// The instrument's stated noise (angles).
+    StatedAngleNoise,
+    /// The stated noise of the distances between poses.
+    StatedDistanceNoise,
+    /// What a stated noise is worth, in readings.
+    StatedReadings,
+    /// Only the stated noises' ratios are known.
+    StatedRelative,
+    /// An instrument's noise on lengths (simulated, or weighed against
+    /// tolerances).
+    Noise,
+    /// An instrument's noise on angles.
+    AngleNoise,
+    /// The solver's evaluation budget.
+    MaxEvaluations,
+    /// The solver's tolerance on the sum of squares.
+    Ftol,
+    /// The solver's tolerance on the step.
+    Xtol,
+    /// The solver's tolerance on the gradient.
+    Gtol,
+    /// Bounds on parameters.
+    Bounds,
+    /// Starting values of the free parameters as a vector.
+    X0,
+    /// How many poses to plan.
+    Count,
+    /// The spacing of candidate poses.
+    Candidates,
+    /// The most candidate poses.
+    MaxCandidates,
+    /// Simulated runs.
+    Runs,
+    /// Random errors on lengths (simulated truths).
+    LengthError,
+    /// Random errors on angles (simulated truths).
+    AngleError,
+    /// Unseen validation targets of a simulation.
+    ValidationTargets,
+    /// Machines drawn by Monte Carlo.
+    Samples,
+    /// Workspace targets.
+    Targets,
+    /// A false-alarm rate.
+    Alpha,
+    /// The units of data files.
+    Units,
+    /// The size limit of files read whole.
+    MaxInputSize,
+    /// How readings of two instruments are weighed against each other.
+    Weighting,
+    /// A shift between programmed and tool coordinates (G-code).
+    Offset,
+    /// The longest segment of a rewritten move (G-code).
+    MaxSegment,
+    /// The firmware whose reading of G-code is followed.
+    Dialect,
+    /// A correction table's grid.
+    Grid,
+    /// An output file or directory.
+    Out,
+}
+
+impl Field {
+    /// The choice in plain words (for a message no front end has worded).
+    pub fn describe(self) -> &'static str {
+        use Field::*;
+        match self {
+            Mechanism => "the mechanism",
+            Data => "the data",
+            Model => "the model",
+            Free => "the free parameters",
+            Fix => "the fixed parameters",
+            Tolerances => "the tolerances",
+            NoTolerances => "no tolerances",
+            Start => "the start values",
+            Params => "the parameter values",
+            Load => "the tool load",
+            Preload => "the preload",
+            Loss => "the loss",
+            LossScale => "the loss scale",
+            OutlierThreshold => "the outlier threshold",
+            Validation => "the validation poses",
+            Holdout => "the hold-out fraction",
+            Kfold => "the cross-validation folds",
+            Seed => "the seed",
+            Frame => "the instrument frame",
+            Axes => "the measured axes",
+            Setup => "the ball-bar setup",
+            Distances => "the distances between poses",
+            StatedNoise => "the stated noise",
+            StatedAngleNoise => "the stated angle noise",
+            StatedDistanceNoise => "the stated distance noise",
+            StatedReadings => "the stated noise's worth in readings",
+            StatedRelative => "stated ratios only",
+            Noise => "the noise",
+            AngleNoise => "the angle noise",
+            MaxEvaluations => "the evaluation budget",
+            Ftol => "ftol",
+            Xtol => "xtol",
+            Gtol => "gtol",
+            Bounds => "the bounds",
+            X0 => "the start vector",
+            Count => "the pose count",
+            Candidates => "the candidate spacing",
+            MaxCandidates => "the most candidates",
+            Runs => "the runs",
+            LengthError => "the length error",
+            AngleError => "the angle error",
+            ValidationTargets => "the validation targets",
+            Samples => "the samples",
+            Targets => "the targets",
+            Alpha => "the false-alarm rate",
+            Units => "the units",
+            MaxInputSize => "the input size limit",
+            Weighting => "the weighting",
+            Offset => "the offset",
+            MaxSegment => "the segment length",
+            Dialect => "the G-code dialect",
+            Grid => "the grid",
+            Out => "the output",
+        }
+    }
+}
+
+impl std::fmt::Display for Field {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.describe())
+    }
+}
+
+/// A value to give a choice instead, which a front end words as its own
+/// option (`--free default,bed.rx`) or keyword (`free="default,bed.rx"`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Suggestion {
+    /// The choice.
+    pub field: Field,
+    /// The value, as a user types it.
+    pub value: String,
+}
+
+/// A user's choice refused, typed so that each front end names the choice in
+/// its own terms. Every rule of what a user may ask is checked once, in the
+/// library ([`crate::identify::request`]).
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum RequestError {
+    /// One choice refused: what is wrong with it, and what to give instead
+    /// where one value would do.
+    #[error("{field}: {problem}{}", suggest.as_ref().map(|s| format!(" (try {} = {})", s.field, s.value)).unwrap_or_default())]
+    Invalid {
+        /// The choice.
+        field: Field,
+        /// What is wrong, and what to do, in words that name no option.
+        problem: String,
+        /// A value to give instead (of this choice or another).
+        suggest: Option<Suggestion>,
+    },
+    /// Two choices that exclude each other.
+    #[error("give either {a} or {b}, not both")]
+    Exclusive {
+        /// One.
+        a: Field,
+        /// The other.
+        b: Field,
+    },
+    /// A choice that needs another one.
+    #[error("{field} needs {needs}")]
+    Needs {
+        /// The choice given.
+        field: Field,
+        /// The choice it needs.
+        needs: Field,
+    },
+    /// An entry of the mechanism description's `[tolerances]` table (a
+    /// file's error, not a choice: the front end names the file).
+    #[error("in the [tolerances] table: {0}")]
+    ToleranceTable(String),
+}
+
+impl RequestError {
+    /// `field` refused for `problem`.
+    pub fn invalid(field: Field, problem: impl Into<String>) -> Self {
+        RequestError::Invalid {
+            field,
+            problem: problem.into(),
+            suggest: None,
+        }
+    }
+
+    /// The choice this error is about first.
+    pub fn field(&self) -> Option<Field> {
+        match self {
+            RequestError::Invalid { field, .. } | RequestError::Needs { field, .. } => Some(*field),
+            RequestError::Exclusive { a, .. } => Some(*a),
+            RequestError::ToleranceTable(_) => None,
         }
     }
 }

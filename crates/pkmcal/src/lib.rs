@@ -71,7 +71,7 @@ pub use engine::models::{
     Equilibrium, Model, Pose, Prediction, equilibrium, predict, predict_pose, predict_pose_warm,
     prepare_pose,
 };
-pub use error::{Error, Origin, Result};
+pub use error::{Error, Field, Origin, RequestError, Result, Suggestion};
 pub use identify::noise::{NoiseGroup, VarianceRatio, variance_ratio};
 pub use identify::stats::{ErrorStats, error_stats, improvement_percent};
 pub use identify::{
@@ -80,6 +80,7 @@ pub use identify::{
     calibration_accuracy, calibration_accuracy_with_cache, cross_validate,
     cross_validate_with_progress, holdout_split, predict_with_uncertainty, tool_covariance,
 };
+pub use identify::{FrameChoice, Request};
 pub use kinds::any::AnyMechanism;
 pub use kinds::gough_stewart::{GoughStewart, GoughStewartAssembly, GoughStewartDescription};
 pub use kinds::planar::{PlanarDescription, PlanarLinkage};

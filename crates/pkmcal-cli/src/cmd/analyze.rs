@@ -3,7 +3,13 @@
 
 use crate::args;
 use anyhow::Result;
+use pkmcal::error::count;
+use pkmcal::{Frame, Measurement, Mechanism, Request};
 use pkmcal_io::Run;
+use pkmcal_io::data::{Measured, located_in, read_distances, read_measured};
+use pkmcal_io::description::read_description;
+use pkmcal_io::params::params_or_nominal;
+use pkmcal_io::text::write_identifiability;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -50,25 +56,131 @@ impl Args {
 }
 
 pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
-    pkmcal_io::calibrate::run_analyze(
+    let description = read_description(run, a.mech.mechanism.as_deref())?;
+    let axes = a.instrument.axes();
+    let Measured {
+        description,
+        measurement,
+        data,
+        units,
+    } = read_measured(
         run,
-        pkmcal_io::calibrate::AnalyzeConfig {
-            mechanism: a.mech.mechanism,
-            data: a.data,
-            model: a.model,
-            free: a.params_set.free,
-            fix: a.params_set.fix,
-            params: a.params,
-            load: a.load.values(),
-            report: a.report,
-            setup: a.instrument.setup,
-            frame: a.instrument.frame,
-            axes: a.instrument.axes,
-            distances: a.instrument.distances,
-            tolerances: a.priors.tolerance,
-            no_tolerances: a.priors.no_tolerances,
-            noise: a.weighing.noise,
-            angle_noise: a.weighing.angle_noise,
+        description,
+        &a.data,
+        a.instrument.setup.as_deref(),
+        a.instrument.frame,
+        axes.as_deref(),
+    )?;
+    let mech = &description.mech;
+    let spec = mech.spec();
+    let params = params_or_nominal(run, a.params.as_deref(), mech)?;
+    let mut request = Request::new(a.model);
+    a.params_set.apply(&mut request);
+    a.priors.apply(&mut request)?;
+    a.weighing.apply(&mut request);
+    request.load = a.load.values();
+    let (priors, free) = request
+        .priors_and_free(spec, &measurement, &description.tolerances)
+        .map_err(|e| crate::cmd::in_mechanism(e, &description))?;
+    let force = request.checked_load(mech, &params)?;
+    let noise = request.weighing_noise(!priors.is_empty())?;
+    let n_data = data.len();
+    let distances = a.instrument.distances.as_deref();
+    let data: Vec<Measurement> = match distances {
+        Some(p) => {
+            let pairs = read_distances(run, p, mech, &measurement, &units)?;
+            data.into_iter().chain(pairs).collect()
+        }
+        None => data,
+    };
+    let id = if priors.is_empty() {
+        pkmcal::analyze(mech, &measurement, &data, &params, a.model, &free, &force)
+    } else {
+        pkmcal::identify::analyze_with_priors(
+            mech,
+            &measurement,
+            &data,
+            &params,
+            a.model,
+            &free,
+            &force,
+            &priors,
+            noise,
+        )
+    }
+    .map_err(|e| located_in(e, &a.data, distances))?;
+    if let Some(r) = &a.report {
+        run.files
+            .stage(r, serde_json::to_string_pretty(&id)?.as_bytes())?;
+    }
+    println!(
+        "identifiability of {} free parameters from {} poses of {}{} ({} model)",
+        free.len(),
+        n_data,
+        a.data.display(),
+        match distances {
+            Some(p) => format!(" and {} distances of {}", data.len() - n_data, p.display()),
+            None => String::new(),
         },
-    )
+        a.model.name()
+    );
+    println!(
+        "  free: {}{}",
+        free.iter()
+            .map(|&i| measurement.all_names(spec)[i].clone())
+            .collect::<Vec<_>>()
+            .join(" "),
+        if *measurement.frame() == Frame::Free {
+            format!(
+                ", and the instrument frame's {} (--frame base if the data are in the base frame)",
+                measurement.param_names()[measurement.frame_range()].join(" ")
+            )
+        } else {
+            String::new()
+        }
+    );
+    let mut o = String::new();
+    write_identifiability(
+        &mut o,
+        &id,
+        "calibrate fixes",
+        crate::words::WORDING.all_correlations,
+    );
+    print!("{o}");
+    println!(
+        "  singular values (column-scaled): {}",
+        id.singular_values
+            .iter()
+            .map(|s| format!("{s:.3e}"))
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    if !id.held.is_empty() {
+        println!(
+            "{} the data alone cannot see, held by the tolerances ({} given, readings weighed with {} mm of noise):",
+            count(id.held.len(), "direction", "directions"),
+            priors.len(),
+            noise.length
+        );
+        for u in &id.held {
+            println!("  {}", u.combination);
+        }
+    }
+    if id.unidentifiable.is_empty() {
+        println!(
+            "all {} free parameters are identifiable{}",
+            free.len(),
+            if id.held.is_empty() {
+                ""
+            } else {
+                ", with the tolerances"
+            }
+        );
+    } else {
+        println!(
+            "{} cannot be identified; calibrate fixes one parameter per direction (or use --fix)",
+            count(id.unidentifiable.len(), "direction", "directions")
+        );
+    }
+    Ok(())
 }

@@ -4,19 +4,20 @@
 
 use crate::args;
 use anyhow::Result;
+use pkmcal::apply::budget::{BudgetOptions, PlannedCalibration};
+use pkmcal::{Field, Mechanism, Request, RequestError};
 use pkmcal_io::Run;
+use pkmcal_io::data::read_plan_poses;
+use pkmcal_io::description::read_description;
+use pkmcal_io::text::budget_words;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct Args {
     #[command(flatten)]
     pub mech: args::MechanismArg,
-    /// Tolerances NAME=SIGMA (one standard deviation in the parameter's unit,
-    /// or a percentage of its nominal value: k1=20%), comma-separated or
-    /// repeated; they replace the mechanism file's [tolerances] for the same
-    /// names.
-    #[arg(long, value_name = "NAME=SIGMA")]
-    pub tolerance: Vec<String>,
+    #[command(flatten)]
+    pub tolerances: args::ToleranceArg,
     /// Machines drawn from the tolerances to check the first-order figures
     /// through the exact model (0: none).
     #[arg(long, default_value_t = 3000, value_name = "N")]
@@ -32,13 +33,9 @@ pub struct Args {
     /// `plan`); the budget then says what calibrating there would leave.
     #[arg(long, value_name = "POSES.csv")]
     pub poses: Option<PathBuf>,
-    /// The planned calibration's noise on each length coordinate, mm.
-    #[arg(value_parser = args::values::length_noise, long, default_value_t = 0.002, value_name = "MM")]
-    pub noise: f64,
-    /// Its noise on each angle coordinate, rad (default: the length noise
-    /// over a 200 mm lever arm).
-    #[arg(value_parser = args::values::angle_noise, long, value_name = "RAD")]
-    pub angle_noise: Option<f64>,
+    /// The planned calibration's instrument: its stated noise.
+    #[command(flatten)]
+    pub weighing: args::WeighingNoiseArgs,
     /// Forward model.
     #[arg(long, default_value = "exact", value_parser = args::model(&args::MODELS))]
     pub model: pkmcal::Model,
@@ -57,19 +54,50 @@ impl Args {
 }
 
 pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
-    pkmcal_io::budget::run_budget(
-        run,
-        pkmcal_io::budget::BudgetConfig {
-            mechanism: a.mech.mechanism,
-            tolerances: a.tolerance,
-            samples: a.samples,
-            seed: a.seed,
-            targets: a.grid,
-            poses: a.poses,
-            noise: a.noise,
-            angle_noise: a.angle_noise,
-            model: a.model,
-            json: a.out,
-        },
-    )
+    let description = read_description(run, a.mech.mechanism.as_deref())?;
+    let units = pkmcal_io::fileunits::of(run, &description);
+    let mech = &description.mech;
+    let spec = mech.spec();
+    let given = a.tolerances.tolerances()?;
+    pkmcal::apply::budget::resolve_tolerances(spec, &given)
+        .map_err(|e| RequestError::invalid(Field::Tolerances, e.to_string()))?;
+    let given = pkmcal::apply::budget::merged_tolerances(&description.tolerances, given);
+    if given.is_empty() {
+        return crate::words::usage(
+            "no tolerance: add a [tolerances] table to the mechanism file (name = σ) or give --tolerance NAME=SIGMA",
+        );
+    }
+    let tolerances = pkmcal::apply::budget::resolve_tolerances(spec, &given)?;
+    let targets = pkmcal::apply::budget::budget_targets(mech, a.grid)?;
+    let mut request = Request::new(a.model);
+    a.weighing.apply(&mut request);
+    let calibration = match &a.poses {
+        Some(p) => Some(PlannedCalibration {
+            targets: read_plan_poses(run, p, mech, &units)?,
+            noise: request.weighing_noise(true)?,
+        }),
+        None => None,
+    };
+    let opts = BudgetOptions {
+        model: a.model,
+        force: vec![],
+        samples: a.samples,
+        seed: a.seed,
+        calibration,
+    };
+    let b = pkmcal::apply::budget::budget(mech, &targets, &tolerances, &opts)?;
+    print!(
+        "{}",
+        budget_words(
+            &spec.name,
+            &b,
+            a.poses.as_ref().map(|p| p.display().to_string())
+        )
+    );
+    if let Some(j) = &a.out {
+        run.files
+            .stage(j, serde_json::to_string_pretty(&b)?.as_bytes())?;
+        println!("budget -> {}", j.display());
+    }
+    Ok(())
 }

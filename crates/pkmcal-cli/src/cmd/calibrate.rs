@@ -3,7 +3,14 @@
 
 use crate::args;
 use anyhow::Result;
+use pkmcal::identify::ValidationSource;
+use pkmcal::{Mechanism, Request};
 use pkmcal_io::Run;
+use pkmcal_io::data::{Measured, located_in, read_data, read_distances, read_measured};
+use pkmcal_io::description::read_description;
+use pkmcal_io::params::{params_or_nominal, params_to_string};
+use pkmcal_io::record::{CalibrationState, Report};
+use pkmcal_io::text::write_summary;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -58,7 +65,7 @@ pub struct Args {
     #[arg(long, value_name = "REPORT.json")]
     pub report: Option<PathBuf>,
     /// Validate on a separate measurement file.
-    #[arg(long, value_name = "FILE")]
+    #[arg(long, value_name = "FILE", conflicts_with = "holdout")]
     pub validate: Option<PathBuf>,
     /// Hold out this fraction of the poses for validation.
     #[arg(value_parser = args::values::fraction, long, value_name = "F")]
@@ -91,7 +98,8 @@ pub struct Args {
 
 impl Args {
     pub fn paths(&self) -> Result<args::Paths> {
-        use pkmcal_io::output::{in_dir, is_stdout, usage};
+        use crate::words::usage;
+        use pkmcal_io::output::{in_dir, is_stdout};
         if is_stdout(&self.out) || self.report.as_deref().is_some_and(is_stdout) {
             return usage(
                 "calibrate prints its summary on standard output: write the parameters (--out) and the report (--report) to files",
@@ -120,39 +128,133 @@ impl Args {
 }
 
 pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
-    let loss = pkmcal::Loss::named(&a.loss, a.loss_scale)?;
-    pkmcal_io::calibrate::run_calibrate(
+    let description = read_description(run, a.mech.mechanism.as_deref())?;
+    let axes = a.instrument.axes();
+    let Measured {
+        description,
+        measurement,
+        data: all,
+        units,
+    } = read_measured(
         run,
-        pkmcal_io::calibrate::CalibrateConfig {
-            loss,
-            outlier_threshold: a.outlier_threshold,
-            drop_outliers: a.drop_outliers,
-            frame: a.instrument.frame,
-            axes: a.instrument.axes,
-            mechanism: a.mech.mechanism,
-            data: a.data,
-            model: a.model,
-            free: a.params_set.free,
-            fix: a.params_set.fix,
-            start: a.start,
-            load: a.load.values(),
-            out: a.out,
-            report: a.report,
-            validate: a.validate,
-            holdout: a.holdout,
-            seed: a.seed,
-            kfold: a.kfold,
-            report_dir: a.report_dir,
-            setup: a.instrument.setup,
-            distances: a.instrument.distances,
-            tolerances: a.priors.tolerance,
-            no_tolerances: a.priors.no_tolerances,
-            stated_noise: a
-                .stated_noise
-                .map(|l| pkmcal_io::io::noise_arg(l, a.stated_angle_noise)),
-            stated_distance_noise: a.stated_distance_noise,
-            stated_readings: a.stated_readings,
-            stated_relative: a.stated_relative,
-        },
+        description,
+        &a.data,
+        a.instrument.setup.as_deref(),
+        a.instrument.frame,
+        axes.as_deref(),
+    )?;
+    let mech = &description.mech;
+    let spec = mech.spec();
+    let start = params_or_nominal(run, a.start.as_deref(), mech)?;
+    let distances = a.instrument.distances.as_deref();
+    let pairs = match distances {
+        Some(p) => read_distances(run, p, mech, &measurement, &units)?,
+        None => vec![],
+    };
+    let mut request = Request::new(a.model);
+    a.params_set.apply(&mut request);
+    a.priors.apply(&mut request)?;
+    request.stated_noise = a.stated_noise;
+    request.stated_angle_noise = a.stated_angle_noise;
+    request.stated_distance_noise = a.stated_distance_noise;
+    request.stated_readings = a.stated_readings;
+    request.stated_relative = a.stated_relative;
+    request.load = a.load.values();
+    request.loss = a.loss.clone();
+    request.loss_scale = a.loss_scale;
+    request.outlier_threshold = a.outlier_threshold;
+    request.drop_outliers = a.drop_outliers;
+    request.validation = match &a.validate {
+        Some(v) => Some(read_data(run, v, mech, &measurement, &units)?),
+        None => None,
+    };
+    request.holdout = a.holdout;
+    request.kfold = a.kfold;
+    request.seed = a.seed;
+    let study_opts = request
+        .study_options(mech, &measurement, &description.tolerances, &start)
+        .map_err(|e| crate::cmd::in_mechanism(e, &description))?;
+    let bar = run.bar(a.kfold.unwrap_or(0) as u64, a.kfold.is_none(), "folds", 1);
+    // Every pose carries its data-file number and line, so errors, outliers
+    // and dropped poses name them without translation.
+    let study = pkmcal::identify::study(
+        mech,
+        &measurement,
+        &all,
+        pairs,
+        &start,
+        &study_opts,
+        &|| bar.inc(1),
     )
+    .map_err(|e| {
+        use pkmcal::identify::StudyStage;
+        match (e.stage, &a.validate) {
+            (StudyStage::Fit, _) => located_in(e.error, &a.data, distances),
+            (StudyStage::Validation, Some(v)) => pkmcal_io::Error::located(e.error, v),
+            (StudyStage::Validation, None) => pkmcal_io::Error::located(e.error, &a.data),
+            _ => pkmcal_io::Error::from(e.error),
+        }
+    })?;
+    bar.finish();
+    let state = CalibrationState {
+        mechanism: description.source.clone(),
+        measurement,
+        study,
+    };
+    let (measurement, study) = (&state.measurement, &state.study);
+    let cal = &study.calibration;
+    let header = format!(
+        "pkmcal {} calibration ({} model) of {} from {}\nsolver: {}",
+        env!("CARGO_PKG_VERSION"),
+        a.model.name(),
+        spec.name,
+        a.data.display(),
+        cal.termination_reason
+    );
+    run.files.stage(
+        &a.out,
+        params_to_string(spec, &cal.params, &header).as_bytes(),
+    )?;
+    let (before, after, kept) = (&study.before, &study.after, &study.poses);
+    let report = Report::new(spec, a.data.display().to_string(), &state, |source| match (
+        source,
+        &a.validate,
+    ) {
+        (ValidationSource::Given, Some(p)) => p.display().to_string(),
+        (ValidationSource::Given, None) => "validation poses".to_string(),
+        (ValidationSource::HeldOut { count, seed }, _) => format!(
+            "{count} held-out poses of {} (seed {seed})",
+            a.data.display()
+        ),
+    });
+    if let Some(r) = &a.report {
+        run.files.stage(r, report.to_json()?.as_bytes())?;
+    }
+    if let Some(dir) = &a.report_dir {
+        pkmcal_io::report::write_report_dir(
+            run,
+            dir,
+            &pkmcal_io::report::ReportInputs {
+                report: &report,
+                wording: &crate::words::WORDING,
+                mech,
+                measurement,
+                data: kept,
+                before,
+                after,
+            },
+        )?;
+    }
+    let mut summary = String::new();
+    write_summary(&mut summary, &report, measurement, &crate::words::WORDING);
+    print!("{summary}");
+    println!();
+    println!("identified parameters -> {}", a.out.display());
+    if let Some(r) = &a.report {
+        println!("report -> {}", r.display());
+    }
+    if let Some(d) = &a.report_dir {
+        println!("figures and report.html -> {}", d.display());
+    }
+    Ok(())
 }

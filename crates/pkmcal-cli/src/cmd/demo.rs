@@ -4,7 +4,7 @@ use crate::args;
 use anyhow::{Context, Result};
 use pkmcal::{ErrorStats, Mechanism, Model, Params};
 use pkmcal_io::Run;
-use pkmcal_io::io::Mech;
+use pkmcal_io::description::Mech;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -49,14 +49,25 @@ pub const DEMO_FILES: &[&str] = &[
 ];
 
 pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
-    use pkmcal_io::calibrate::{print_identifiability, print_stats, print_stats_header};
+    use pkmcal_io::text::{write_identifiability, write_stats, write_stats_header};
+    let print_stats_header = |axes: &[String], units: &[pkmcal::Unit]| {
+        let mut o = String::new();
+        write_stats_header(&mut o, axes, units);
+        print!("{o}");
+    };
+    let print_stats = |label: &str, s: &ErrorStats| {
+        let mut o = String::new();
+        write_stats(&mut o, label, s);
+        print!("{o}");
+    };
     let mech: Mech = pkmcal::JeongKim2Dof::new().into();
     let spec = mech.spec();
     let truth = pkmcal::kinds::reference::demo_truth();
     let dir = &a.out_dir;
     // The demo's own calibrations read its files internally; only what it
     // writes follows --units.
-    let units = pkmcal_io::fileunits::of(run, &pkmcal_io::io::read_description(run, None)?);
+    let units =
+        pkmcal_io::fileunits::of(run, &pkmcal_io::description::read_description(run, None)?);
     run.files.create_dir(dir)?;
     let targets: Vec<Vec<f64>> = pkmcal::spread_targets(&mech, 35)?
         .into_iter()
@@ -68,22 +79,26 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     let vdata = pkmcal::simulate(&mech, &tool, &truth, &vtargets, DEMO_NOISE_MM, a.seed + 2)?;
     run.files.stage(
         &dir.join("measurements.csv"),
-        &pkmcal_io::io::with_frame_comment(
-            pkmcal_io::io::data_csv(&mech, &tool, &data, &units),
+        &pkmcal_io::data::with_frame_comment(
+            pkmcal_io::data::data_csv(&mech, &tool, &data, &units),
             true,
         ),
     )?;
     run.files.stage(
         &dir.join("validation.csv"),
-        &pkmcal_io::io::with_frame_comment(
-            pkmcal_io::io::data_csv(&mech, &tool, &vdata, &units),
+        &pkmcal_io::data::with_frame_comment(
+            pkmcal_io::data::data_csv(&mech, &tool, &vdata, &units),
             true,
         ),
     )?;
     run.files.stage(
         &dir.join("truth.toml"),
-        pkmcal_io::io::params_to_string(spec, &truth, "true parameters of the demo (simulated)")
-            .as_bytes(),
+        pkmcal_io::params::params_to_string(
+            spec,
+            &truth,
+            "true parameters of the demo (simulated)",
+        )
+        .as_bytes(),
     )?;
     println!("pkmcal demo: the paper's case study on the {}", spec.name);
     println!(
@@ -129,7 +144,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             .as_ref()
             .map(|v| v.accuracy.clone())
             .context("the demo's study validates on its unseen poses")?;
-        let report = pkmcal_io::calibrate::Report::new(
+        let report = pkmcal_io::record::Report::new(
             spec,
             "measurements.csv (simulated)".into(),
             &state,
@@ -141,6 +156,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
                 &dir.join("report"),
                 &pkmcal_io::report::ReportInputs {
                     report: &report,
+                    wording: &crate::words::WORDING,
                     mech: &mech,
                     measurement: &tool,
                     data: &study.poses,
@@ -165,7 +181,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         let name = model.name();
         run.files.stage(
             &dir.join(format!("params-{name}.toml")),
-            pkmcal_io::io::params_to_string(
+            pkmcal_io::params::params_to_string(
                 spec,
                 &cal.params,
                 &format!("demo calibration, {name} model: {}", cal.termination_reason),
@@ -185,7 +201,14 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         );
         if model == Model::Exact {
             print!("  ");
-            print_identifiability(&cal.identifiability, "fixed");
+            let mut o = String::new();
+            write_identifiability(
+                &mut o,
+                &cal.identifiability,
+                "fixed",
+                crate::words::WORDING.all_correlations,
+            );
+            print!("{o}");
         }
         for w in &cal.warnings {
             println!("  warning: {}", w.message);

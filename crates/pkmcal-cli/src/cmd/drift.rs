@@ -3,7 +3,12 @@
 
 use crate::args;
 use anyhow::Result;
+use pkmcal::Mechanism;
+use pkmcal::identify::Compared;
 use pkmcal_io::Run;
+use pkmcal_io::description::read_description;
+use pkmcal_io::record::read_calibration_record_dof;
+use pkmcal_io::text::drift_words;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -19,7 +24,7 @@ pub struct Args {
     pub new: PathBuf,
     /// The familywise false-alarm rate (the chance of calling any parameter
     /// drifted when none is).
-    #[arg(long, default_value_t = pkmcal::identify::DEFAULT_ALPHA)]
+    #[arg(long, default_value_t = pkmcal::identify::DEFAULT_ALPHA, value_parser = args::values::fraction)]
     pub alpha: f64,
     /// Write the comparison as JSON.
     #[arg(long, value_name = "DRIFT.json")]
@@ -44,15 +49,40 @@ impl Args {
 }
 
 pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
-    pkmcal_io::drift::run_drift(
-        run,
-        pkmcal_io::drift::DriftConfig {
-            mechanism: a.mech.mechanism,
-            old: a.old,
-            new: a.new,
-            alpha: a.alpha,
-            out: a.out,
-            grid: a.grid,
-        },
-    )
+    let description = read_description(run, a.mech.mechanism.as_deref())?;
+    let spec = description.mech.spec();
+    let read = |p: &PathBuf| -> Result<Compared> {
+        let (r, dof) = read_calibration_record_dof(run, p)?;
+        r.check(spec).map_err(|e| {
+            anyhow::Error::from(e).context(format!(
+                "{}: it cannot be compared on {}",
+                p.display(),
+                spec.name
+            ))
+        })?;
+        Ok(Compared::from_record(&r, dof))
+    };
+    let new = read(&a.new)?;
+    let (old, old_name) = match &a.old {
+        Some(p) => (read(p)?, p.display().to_string()),
+        None => (Compared::nominal(spec), "the nominal values".to_string()),
+    };
+    let mut d = pkmcal::identify::drift(&old, &new, a.alpha)?;
+    if a.grid > 0 {
+        let mech = &description.mech;
+        let targets = pkmcal::apply::budget::budget_targets(mech, a.grid)?;
+        d.workspace = Some(pkmcal::apply::tooldrift::workspace_drift(
+            mech, &old, &new, &targets, a.alpha,
+        )?);
+    }
+    print!(
+        "{}",
+        drift_words(Some(spec), &d, &old_name, &a.new.display().to_string())
+    );
+    if let Some(o) = &a.out {
+        run.files
+            .stage(o, serde_json::to_string_pretty(&d)?.as_bytes())?;
+        println!("drift -> {}", o.display());
+    }
+    Ok(())
 }

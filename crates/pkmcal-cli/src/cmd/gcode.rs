@@ -3,7 +3,12 @@
 
 use crate::args;
 use anyhow::Result;
+use pkmcal::error::count;
+use pkmcal::{CompensationOptions, Mechanism, predistort};
 use pkmcal_io::Run;
+use pkmcal_io::description::read_description;
+use pkmcal_io::gcode::Rewrite;
+use pkmcal_io::params::{params_or_nominal, read_params};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -21,14 +26,14 @@ pub struct Args {
     pub model: pkmcal::Model,
     #[command(flatten)]
     pub load: args::LoadArg,
-    /// The G-code program to rewrite.
-    #[arg(long = "in", value_name = "PROGRAM.gcode")]
-    pub input: PathBuf,
+    /// The G-code program to rewrite (`--in` is its old spelling).
+    #[arg(long, alias = "in", value_name = "PROGRAM.gcode")]
+    pub program: PathBuf,
     /// Added to the programmed coordinates to give tool coordinates (mm; degrees for angles), one per tool axis.
-    #[arg(long, value_name = "X,Y,…", allow_hyphen_values = true)]
-    pub offset: Option<String>,
+    #[arg(long, value_name = "X,Y,…", allow_hyphen_values = true, value_parser = args::values::numbers)]
+    pub offset: Option<args::Numbers>,
     /// Split moves longer than this (mm) so that the correction follows the path.
-    #[arg(long, value_name = "MM")]
+    #[arg(long, value_name = "MM", value_parser = args::values::segment)]
     pub max_segment: Option<f64>,
     /// Read the program as this firmware does: strict (what Klipper,
     /// RepRapFirmware and Marlin all read alike; the rest refused), klipper,
@@ -47,7 +52,7 @@ impl Args {
                 self.mech.mechanism.clone(),
                 Some(self.params.clone()),
                 self.controller.clone(),
-                Some(self.input.clone()),
+                Some(self.program.clone()),
             ],
             [self.out.clone()],
         ))
@@ -55,21 +60,72 @@ impl Args {
 }
 
 pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
-    pkmcal_io::gcode::run_gcode(
-        run,
-        pkmcal_io::gcode::GcodeConfig {
-            mechanism: a.mech.mechanism,
-            params: a.params,
-            controller: a.controller,
-            model: a.model,
-            load: a.load.values(),
-            input: a.input,
-            offset: a.offset,
-            max_segment: a.max_segment,
-            dialect: a.dialect,
-            out: a.out,
-        },
-    )
+    let mech = read_description(run, a.mech.mechanism.as_deref())?.mech;
+    let spec = mech.spec();
+    let real = read_params(run, &a.params, &mech)?;
+    let controller = params_or_nominal(run, a.controller.as_deref(), &mech)?;
+    let force = pkmcal::identify::request::checked_load(
+        &a.load.values(),
+        &mech,
+        &real,
+        pkmcal::Field::Load,
+    )?;
+    let opts = CompensationOptions {
+        force,
+        preload: vec![],
+    };
+    let settings = Rewrite {
+        dialect: a.dialect,
+        offset: a.offset.map(|w| w.0).unwrap_or_default(),
+        max_segment: a.max_segment,
+    };
+    let text = run
+        .files
+        .read(&a.program, pkmcal_io::output::InputKind::Data)
+        .map_err(|e| e.named("G-code file"))?;
+    let out = pkmcal_io::gcode::rewrite(
+        &a.program,
+        &text,
+        &spec.tool_axes,
+        &spec.tool_units,
+        &settings,
+        |target| predistort(&mech, &controller, &real, target, a.model, &opts),
+    )?;
+    if !out.as_written.is_empty() {
+        let shown: Vec<String> = out
+            .as_written
+            .iter()
+            .take(5)
+            .map(|l| l.to_string())
+            .collect();
+        crate::note!(
+            "{} sent as written ({} {}{}): the position of some axis was not known yet (after the start, a G28 or a start macro only the firmware knows it); give every axis on the first move to have it corrected too",
+            count(out.as_written.len(), "move", "moves"),
+            if out.as_written.len() == 1 {
+                "line"
+            } else {
+                "lines"
+            },
+            shown.join(", "),
+            if out.as_written.len() > 5 {
+                ", …"
+            } else {
+                ""
+            }
+        );
+    }
+    run.files.stage(&a.out, &out.bytes)?;
+    let (f, u) = pkmcal::Unit::Millimetre.readable(out.worst);
+    crate::note!(
+        "rewrote {} as {} pre-distorted {} (largest shift {:.3} {u}, {} model) -> {}",
+        count(out.moves, "move", "moves"),
+        out.segments,
+        if out.segments == 1 { "move" } else { "moves" },
+        out.worst * f,
+        a.model.name(),
+        a.out.display()
+    );
+    Ok(())
 }
 
 fn dialect(s: &str) -> Result<pkmcal_io::gcode::Dialect, String> {

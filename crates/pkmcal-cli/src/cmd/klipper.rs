@@ -3,7 +3,14 @@
 
 use crate::args;
 use anyhow::Result;
+use pkmcal::{Mechanism, Params, Request};
 use pkmcal_io::Run;
+use pkmcal_io::firmware::klipper::{
+    DISTANCES_FILE, KlipperPrinter, OUT_DIR_FILES, Weighting, klipper_z_weight,
+};
+use pkmcal_io::firmware::{self, Firmware};
+use pkmcal_io::params::params_to_string;
+use std::fmt::Write as _;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -13,14 +20,13 @@ pub struct Args {
     /// DELTA_CALIBRATE and SAVE_CONFIG wrote.
     #[arg(long, value_name = "printer.cfg")]
     pub config: PathBuf,
-    /// Parameters to identify, comma separated: Klipper's (`default`:
-    /// delta_radius, angle_a, angle_b, da, db, dc; the d's are endstop errors)
-    /// or more (arm_a, arm_b, arm_c, angle_c, the towers' tilts a.tilt1, …).
-    #[arg(long, value_name = "NAMES")]
-    pub free: Option<String>,
-    /// Parameters to keep fixed, comma separated (removed from the free set).
-    #[arg(long, value_name = "NAMES")]
-    pub fix: Option<String>,
+    /// Parameters to identify (`--free`, comma separated): Klipper's by
+    /// default (delta_radius, angle_a, angle_b, da, db, dc; the d's are
+    /// endstop errors; with DELTA_ANALYZE distances arm_a, arm_b, arm_c too)
+    /// or more (arm_a, arm_b, arm_c, angle_c, the towers' tilts a.tilt1, …);
+    /// `--fix` removes names.
+    #[command(flatten)]
+    pub params_set: args::FreeArgs,
     /// Write the configuration with the new values (in its SAVE_CONFIG block,
     /// as Klipper writes them) here; never over --config.
     #[arg(long, value_name = "NEW.cfg")]
@@ -40,12 +46,11 @@ pub struct Args {
     /// N readings a group, 10 by default; on the real printers more
     /// pseudo-readings predicted better, up to Klipper's ratio).
     #[arg(long, default_value = "klipper", value_parser = args::values::weighting)]
-    pub weighting: pkmcal_io::klipper::Weighting,
+    pub weighting: Weighting,
 }
 
 impl Args {
     pub fn paths(&self) -> Result<args::Paths> {
-        use pkmcal_io::klipper::{DISTANCES_FILE, OUT_DIR_FILES};
         let mut out: Vec<PathBuf> = self.out.iter().cloned().collect();
         let mut dirs = vec![];
         if let Some(d) = &self.out_dir {
@@ -58,15 +63,192 @@ impl Args {
 }
 
 pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
-    pkmcal_io::klipper::run_klipper(
-        run,
-        pkmcal_io::klipper::KlipperConfig {
-            config: a.config,
-            free: a.free,
-            fix: a.fix,
-            out: a.out,
-            out_dir: a.out_dir,
-            weighting: a.weighting,
+    let printer = KlipperPrinter::read(run, &a.config, a.weighting)?;
+    let mut request = Request::new(pkmcal::Model::Exact);
+    a.params_set.apply(&mut request);
+    let calibrated = firmware::calibrate(&printer, request)?;
+    let delta = &printer.delta;
+    let (mech, readings, study) = (&calibrated.mech, &calibrated.readings, &calibrated.study);
+    let spec = mech.spec();
+    let measurement = &readings.measurement;
+    let heights = &readings.poses;
+    let cal = &study.calibration;
+    let nominal = Params::nominal(spec);
+    let before =
+        firmware::probe_errors(mech, measurement, &nominal, measurement.nominal(), heights)?;
+    let after = firmware::probe_errors(mech, measurement, &cal.params, &cal.measurement, heights)?;
+    let values = printer.values(spec, &cal.params, &cal.measurement)?;
+    println!(
+        "{} probe heights{} from {} (Klipper), {} parameters free: {}",
+        heights.len(),
+        if delta.distances.is_empty() {
+            String::new()
+        } else {
+            format!(
+                " and {} distances measured on the calibration object",
+                delta.distances.len()
+            )
         },
-    )
+        a.config.display(),
+        calibrated.free_names.len(),
+        calibrated.free_names.join(" ")
+    );
+    println!("{}", cal.termination.reason());
+    println!(
+        "height errors: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm",
+        max_abs(&before),
+        rms(&before),
+        max_abs(&after),
+        rms(&after)
+    );
+    if !delta.distances.is_empty()
+        && let Some(d) = &study.accuracy.distances
+    {
+        let weighing = match a.weighting {
+            Weighting::Estimated => format!(
+                "noise σ: heights {}, distances {}, estimated apart",
+                noise_of(cal, "probe"),
+                noise_of(cal, pkmcal::DISTANCE_AXIS)
+            ),
+            Weighting::Klipper => "heights and distances weighed as Klipper weighs them".into(),
+            Weighting::Shrunk(n) => format!(
+                "noise σ: heights {}, distances {}, estimated and shrunk towards Klipper's ratio with {n} pseudo-readings",
+                noise_of(cal, "probe"),
+                noise_of(cal, pkmcal::DISTANCE_AXIS)
+            ),
+        };
+        println!(
+            "distance errors: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm ({weighing})",
+            d.before_max, d.before_rms, d.after_max, d.after_rms,
+        );
+        // How well the data fix the weighting: the variance ratio with its
+        // interval, against Klipper's fixed ratio.
+        let group = |axis: &str| cal.noise.iter().find(|g| g.axes.iter().any(|a| a == axis));
+        if let (Some(h), Some(dg), Weighting::Shrunk(n)) =
+            (group("probe"), group(pkmcal::DISTANCE_AXIS), a.weighting)
+        {
+            println!(
+                "variance ratio heights/distances: {:.3}, from the data's {:.1} and {:.1} degrees of freedom and Klipper's fixed {:.3} worth {n} readings a group",
+                (h.sigma / dg.sigma).powi(2),
+                h.redundancy.unwrap_or(f64::NAN),
+                dg.redundancy.unwrap_or(f64::NAN),
+                1.0 / klipper_z_weight(delta)
+            );
+        }
+        if let (Some(h), Some(dg)) = (group("probe"), group(pkmcal::DISTANCE_AXIS))
+            && let Some(r) = pkmcal::variance_ratio(h, dg, VARIANCE_RATIO_LEVEL)
+        {
+            println!(
+                "variance ratio heights/distances: {:.3} ({:.0} % interval {:.3} to {:.3}, from {:.1} and {:.1} degrees of freedom); Klipper's fixed weighting takes {:.3}",
+                r.ratio,
+                100.0 * r.level,
+                r.low,
+                r.high,
+                h.redundancy.unwrap_or(f64::NAN),
+                dg.redundancy.unwrap_or(f64::NAN),
+                1.0 / klipper_z_weight(delta)
+            );
+        }
+    }
+    for w in &cal.warnings {
+        println!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
+    }
+    println!(
+        "\n  {:<28} {:>14} {:>14}",
+        "Klipper value", "before", "after"
+    );
+    for v in &values {
+        println!("  {:<28} {:>14.6} {:>14.6}", v.name, v.before, v.after);
+    }
+    for (i, n) in measurement.param_names().iter().enumerate() {
+        if calibrated.free.contains(&(spec.n_params() + i)) {
+            println!(
+                "  {:<28} {:>14.6} {:>14.6}   ({}; not a Klipper value: level the bed or let Klipper's bed mesh take it)",
+                n,
+                measurement.nominal()[i],
+                cal.measurement[i],
+                measurement.param_units()[i]
+            );
+        }
+    }
+    if let Some(out) = &a.out {
+        run.files.stage(
+            out,
+            printer
+                .updated(spec, &cal.params, &cal.measurement)?
+                .as_bytes(),
+        )?;
+        println!(
+            "\nupdated configuration -> {} (values in its SAVE_CONFIG block)",
+            out.display()
+        );
+    }
+    if let Some(dir) = &a.out_dir {
+        run.files.create_dir(dir)?;
+        let mut csv = String::from("# frame: base\na,b,c,probe\n");
+        for m in heights {
+            let _ = writeln!(
+                csv,
+                "{:?},{:?},{:?},{:?}",
+                m.commands[0], m.commands[1], m.commands[2], m.measured[0]
+            );
+        }
+        let [m_file, d_file, p_file] = OUT_DIR_FILES;
+        run.files
+            .stage(&dir.join(m_file), printer.description().as_bytes())?;
+        run.files.stage(&dir.join(d_file), csv.as_bytes())?;
+        if !readings.distances.is_empty() {
+            let mut csv = String::from("a_1,b_1,c_1,a_2,b_2,c_2,distance\n");
+            for m in &readings.distances {
+                let b = m.partner.as_deref().unwrap_or_default();
+                let _ = writeln!(
+                    csv,
+                    "{:?},{:?},{:?},{:?},{:?},{:?},{:?}",
+                    m.commands[0], m.commands[1], m.commands[2], b[0], b[1], b[2], m.measured[0]
+                );
+            }
+            run.files.stage(&dir.join(DISTANCES_FILE), csv.as_bytes())?;
+        }
+        run.files.stage(
+            &dir.join(p_file),
+            params_to_string(
+                spec,
+                &cal.params,
+                &format!(
+                    "pkmcal klipper: identified from the probe heights of {}",
+                    a.config.display()
+                ),
+            )
+            .as_bytes(),
+        )?;
+        let dist = if readings.distances.is_empty() {
+            String::new()
+        } else {
+            format!(" --distances {}/{DISTANCES_FILE}", dir.display())
+        };
+        println!(
+            "mechanism, probe data and parameters -> {} (e.g. `pkmcal calibrate --mechanism {0}/mechanism.toml --data {0}/probes.csv{dist}`)",
+            dir.display()
+        );
+    }
+    Ok(())
+}
+
+fn rms(v: &[f64]) -> f64 {
+    (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt()
+}
+
+fn max_abs(v: &[f64]) -> f64 {
+    v.iter().fold(0.0, |m, x| m.max(x.abs()))
+}
+
+/// Confidence level of the printed height/distance variance ratio.
+const VARIANCE_RATIO_LEVEL: f64 = 0.95;
+
+/// The noise σ of a group of readings, for the summary.
+fn noise_of(cal: &pkmcal::Calibration, axis: &str) -> String {
+    cal.noise
+        .iter()
+        .find(|g| g.axes.iter().any(|a| a == axis))
+        .map_or("—".into(), |g| format!("{:.1} µm", g.sigma * 1e3))
 }

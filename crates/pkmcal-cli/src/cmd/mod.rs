@@ -16,3 +16,18 @@ pub mod predict;
 pub mod reprap;
 pub mod simulate;
 pub mod trilaterate;
+
+/// A refused request; a fault of the mechanism file's `[tolerances]`
+/// table is located in that file.
+pub fn in_mechanism(
+    e: pkmcal::RequestError,
+    d: &pkmcal_io::description::Description,
+) -> pkmcal_io::Error {
+    match e {
+        e @ pkmcal::RequestError::ToleranceTable(_) => pkmcal_io::Error::Request {
+            file: d.path.clone(),
+            cause: e,
+        },
+        e => e.into(),
+    }
+}

@@ -3,7 +3,11 @@
 
 use crate::args;
 use anyhow::Result;
+use pkmcal::{CalibrationOptions, Mechanism, MonteCarloOptions, Request, monte_carlo};
 use pkmcal_io::Run;
+use pkmcal_io::csv::csv_bytes;
+use pkmcal_io::data::read_plan_poses;
+use pkmcal_io::description::read_description;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -50,8 +54,8 @@ pub struct Args {
     )]
     pub angle_error: f64,
     /// Unseen poses on which accuracy is judged.
-    #[arg(value_parser = args::values::count, long, default_value_t = 50, value_name = "N")]
-    pub validation: usize,
+    #[arg(value_parser = args::values::count, long, alias = "validation", default_value_t = 50, value_name = "N")]
+    pub validation_targets: usize,
     /// Output CSV with one row per run.
     #[arg(long, value_name = "RUNS.csv")]
     pub out: Option<PathBuf>,
@@ -66,25 +70,105 @@ impl Args {
     }
 }
 
-pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
-    pkmcal_io::usecal::run_montecarlo(
-        run,
-        pkmcal_io::usecal::MonteCarloConfig {
-            mechanism: a.mech.mechanism,
-            poses: a.poses,
-            runs: a.runs,
-            noise: a.noise,
-            seed: a.seed,
-            model: a.model,
-            free: a.params_set.free,
-            fix: a.params_set.fix,
-            length_error: a.length_error,
-            angle_error: a.angle_error,
-            angle_noise: a.angle_noise,
-            validation: a.validation,
-            out: a.out,
-            tolerances: a.priors.tolerance,
-            no_tolerances: a.priors.no_tolerances,
+pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
+    let description = read_description(run, c.mech.mechanism.as_deref())?;
+    let units = pkmcal_io::fileunits::of(run, &description);
+    let mech = &description.mech;
+    let spec = mech.spec();
+    let mut noise = pkmcal::Noise::lengths(c.noise);
+    if let Some(a) = c.angle_noise {
+        noise.angle = a;
+    }
+    let poses = read_plan_poses(run, &c.poses, mech, &units)?;
+    let tool = pkmcal::MeasurementModel::tool(spec);
+    let mut request = Request::new(c.model);
+    c.params_set.apply(&mut request);
+    c.priors.apply(&mut request)?;
+    let mut cal = CalibrationOptions::new(spec, c.model);
+    (cal.priors, cal.free) = request
+        .priors_and_free(spec, &tool, &description.tolerances)
+        .map_err(|e| crate::cmd::in_mechanism(e, &description))?;
+    let validation = pkmcal::validation_targets(mech, c.validation_targets, c.seed)?;
+    let bar = run.bar(c.runs as u64, false, "calibrations", 1);
+    let opts = MonteCarloOptions {
+        runs: c.runs,
+        noise,
+        seed: c.seed,
+        length_error: c.length_error,
+        angle_error: c.angle_error,
+        calibration: cal,
+    };
+    let start = std::time::Instant::now();
+    let (runs, summary) = monte_carlo(mech, &poses, &validation, &opts, &|| bar.inc(1))?;
+    bar.finish();
+    let secs = start.elapsed().as_secs_f64();
+    println!(
+        "{} simulated calibrations ({} model) from {} poses of {}: {} converged ({:.0} calibrations/s)",
+        summary.runs,
+        c.model.name(),
+        poses.len(),
+        c.poses.display(),
+        summary.converged,
+        summary.runs as f64 / secs
+    );
+    let n_priors = opts.calibration.priors.len();
+    println!(
+        "random errors: {}σ {} mm on free parameters in mm, σ {} rad on free parameters in rad{}; noise σ {} mm on lengths{}",
+        if n_priors > 0 {
+            format!(
+                "drawn from {} (also the fits' priors), ",
+                pkmcal::error::count(n_priors, "tolerance", "tolerances")
+            )
+        } else {
+            String::new()
         },
-    )
+        c.length_error,
+        c.angle_error,
+        if n_priors > 0 { " otherwise" } else { "" },
+        noise.length,
+        if spec.tool_units.contains(&pkmcal::Unit::Radian) {
+            format!(", {} rad on angles", noise.angle)
+        } else {
+            String::new()
+        }
+    );
+    println!(
+        "accuracy on {} unseen poses after calibration: RMS median {:.4} mm, 95th percentile {:.4} mm; max error median {:.4} mm",
+        c.validation_targets,
+        summary.validation_rms_median,
+        summary.validation_rms_p95,
+        summary.validation_max_median
+    );
+    println!("parameter errors (RMS over runs):");
+    for (n, e) in summary.parameters.iter().zip(&summary.parameter_rms_error) {
+        let i = spec.param_index(n)?;
+        println!("  {n:<6} {e:>12.4e} {}", spec.param_unit(i));
+    }
+    if let Some(out) = &c.out {
+        let mut header = vec![
+            "run".to_string(),
+            "converged".into(),
+            "validation_rms".into(),
+            "validation_max".into(),
+        ];
+        header.extend(summary.parameters.iter().map(|n| format!("error_{n}")));
+        let rows: Vec<Vec<f64>> = runs
+            .iter()
+            .enumerate()
+            .map(|(i, r)| {
+                [
+                    i as f64,
+                    f64::from(u8::from(r.converged)),
+                    r.validation.distance_rms,
+                    r.validation.distance_max,
+                ]
+                .into_iter()
+                .chain(r.parameter_errors.iter().copied())
+                .collect()
+            })
+            .collect();
+        run.files.stage(out, &csv_bytes(&header, &rows))?;
+        println!("runs -> {}", out.display());
+    }
+    Ok(())
 }

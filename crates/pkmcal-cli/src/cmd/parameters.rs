@@ -7,7 +7,7 @@ use crate::args;
 use anyhow::Result;
 use pkmcal::Mechanism;
 use pkmcal_io::Run;
-use pkmcal_io::io::read_description;
+use pkmcal_io::description::read_description;
 use std::fmt::Write as _;
 
 #[derive(clap::Args)]
@@ -32,7 +32,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     let description = read_description(run, a.mech.mechanism.as_deref())?;
     let spec = description.mech.spec();
     let text = if a.json {
-        pkmcal_io::io::summary_json(spec)
+        pkmcal_io::description::summary_json(spec)
     } else {
         table(&pkmcal::summary(spec))
     };
@@ -63,7 +63,7 @@ fn table(s: &pkmcal::MechanismSummary) -> String {
             p.name,
             p.kind.name(),
             p.unit.symbol(),
-            pkmcal_io::io::number(p.nominal),
+            pkmcal_io::csv::number(p.nominal),
             if p.free_by_default { "yes" } else { "" }
         );
     }
@@ -88,8 +88,8 @@ fn table(s: &pkmcal::MechanismSummary) -> String {
             "{:<16} {:<8} [{}, {}]",
             x.name,
             x.unit.symbol(),
-            pkmcal_io::io::number(x.workspace[0]),
-            pkmcal_io::io::number(x.workspace[1])
+            pkmcal_io::csv::number(x.workspace[0]),
+            pkmcal_io::csv::number(x.workspace[1])
         );
     }
     t

@@ -2,7 +2,11 @@
 
 use crate::args;
 use anyhow::Result;
+use pkmcal::{Mechanism, PlanCriterion, Request};
 use pkmcal_io::Run;
+use pkmcal_io::csv::csv_bytes;
+use pkmcal_io::description::read_description;
+use pkmcal_io::params::params_or_nominal;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -13,9 +17,10 @@ pub struct Args {
     #[arg(value_parser = args::values::count, long, value_name = "N")]
     pub count: usize,
     /// Spacing of the candidate lattice over the usable workspace, mm (an
-    /// axis in rad is spaced by it over the mechanism's lever arm).
-    #[arg(value_parser = args::values::positive, long, default_value_t = 6.0, value_name = "SPACING")]
-    pub candidates: f64,
+    /// axis in rad is spaced by it over the mechanism's lever arm;
+    /// `--candidates` is its old spelling).
+    #[arg(value_parser = args::values::spacing, long, alias = "candidates", default_value_t = 6.0, value_name = "MM")]
+    pub candidate_spacing: f64,
     /// Most candidates: a lattice with more usable points is thinned evenly
     /// to this many (a 6-DOF workspace has many at any spacing).
     #[arg(value_parser = args::values::count, long, default_value_t = 4000, value_name = "N")]
@@ -52,25 +57,135 @@ impl Args {
     }
 }
 
-pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
-    pkmcal_io::usecal::run_plan(
-        run,
-        pkmcal_io::usecal::PlanConfig {
-            mechanism: a.mech.mechanism,
-            count: a.count,
-            candidates: a.candidates,
-            max_candidates: a.max_candidates,
-            criterion: a.criterion.parse()?,
-            model: a.model,
-            params: a.params,
-            free: a.params_set.free,
-            fix: a.params_set.fix,
-            out: a.out,
-            grid_out: a.grid_out,
-            tolerances: a.priors.tolerance,
-            no_tolerances: a.priors.no_tolerances,
-            noise: a.weighing.noise,
-            angle_noise: a.weighing.angle_noise,
+pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
+    let description = read_description(run, c.mech.mechanism.as_deref())?;
+    let units = pkmcal_io::fileunits::of(run, &description);
+    let mech = &description.mech;
+    let spec = mech.spec();
+    let params = params_or_nominal(run, c.params.as_deref(), mech)?;
+    let tool = pkmcal::MeasurementModel::tool(spec);
+    let mut request = Request::new(c.model);
+    c.params_set.apply(&mut request);
+    c.priors.apply(&mut request)?;
+    c.weighing.apply(&mut request);
+    let (priors, free) = request
+        .priors_and_free(spec, &tool, &description.tolerances)
+        .map_err(|e| crate::cmd::in_mechanism(e, &description))?;
+    let n_priors = priors.len();
+    let noise = request.weighing_noise(n_priors > 0)?;
+    // Too few poses for the free set is the command line's (--count, --free).
+    if let Err(e) = pkmcal::apply::planning::check_count(c.count, spec.tool_axes.len(), free.len())
+    {
+        return crate::words::usage(format!("--count: {e}"));
+    }
+    let criterion: PlanCriterion = c.criterion.parse()?;
+    let bar = run.bar(0, false, "planning steps", 0);
+    let plan = pkmcal::apply::planning::plan(
+        mech,
+        &params,
+        &pkmcal::apply::planning::PlanOptions {
+            count: c.count,
+            criterion,
+            model: c.model,
+            free: free.clone(),
+            spacing: c.candidate_spacing,
+            max_candidates: c.max_candidates,
+            cancel: None,
+            priors,
+            noise,
         },
-    )
+        &|| {
+            bar.inc_length(1);
+            bar.inc(1);
+        },
+    )?;
+    bar.finish();
+    let (spacing, lattice_points, n_candidates) =
+        (plan.spacing, plan.lattice_points, plan.candidates);
+    let mut header: Vec<String> = spec
+        .tool_axes
+        .iter()
+        .map(|a| format!("target_{a}"))
+        .collect();
+    header.extend(spec.actuated_names().iter().map(|s| s.to_string()));
+    let factors: Vec<f64> = pkmcal_io::fileunits::tool(spec, &units)
+        .into_iter()
+        .chain(pkmcal_io::fileunits::commands(spec, &units))
+        .collect();
+    let rows = |set: &[pkmcal::WorkspacePoint]| -> Vec<Vec<f64>> {
+        set.iter()
+            .map(|p| {
+                let row: Vec<f64> = p
+                    .target
+                    .iter()
+                    .copied()
+                    .chain(spec.actuated.iter().map(|&j| p.q[j]))
+                    .collect();
+                pkmcal_io::fileunits::row_to_file(&row, &factors)
+            })
+            .collect()
+    };
+    let file = |set: &[pkmcal::WorkspacePoint]| {
+        pkmcal_io::fileunits::with_comment(csv_bytes(&header, &rows(set)), &units)
+    };
+    run.files.stage(&c.out, &file(&plan.poses))?;
+    if let Some(g) = &c.grid_out {
+        run.files.stage(g, &file(&plan.grid))?;
+    }
+    println!(
+        "planned {} poses of {} candidates (spacing {:.4} mm{}) maximising {:?} for {} free parameters ({} model){}",
+        c.count,
+        n_candidates,
+        spacing,
+        {
+            let mut notes = String::new();
+            if spacing > c.candidate_spacing {
+                notes.push_str(&format!(
+                    ", coarsened from {} mm to stay within {} lattice points",
+                    c.candidate_spacing,
+                    pkmcal::apply::planning::MAX_CANDIDATE_LATTICE
+                        .min(c.max_candidates.saturating_mul(4))
+                ));
+            }
+            if lattice_points > n_candidates {
+                notes.push_str(&format!(
+                    ", {lattice_points} usable lattice points thinned evenly to --max-candidates"
+                ));
+            }
+            notes
+        },
+        criterion,
+        free.len(),
+        c.model.name(),
+        if n_priors > 0 {
+            format!(
+                ", given {} (poses measured with {} mm of noise)",
+                pkmcal::error::count(n_priors, "tolerance", "tolerances"),
+                noise.length
+            )
+        } else {
+            String::new()
+        }
+    );
+    println!(
+        "  {:<14} {:>11} {:>11} {:>11} {:>11} {:>11} {:>10}",
+        "", "O1", "O2", "O3", "O4", "O5", "cond"
+    );
+    for (label, o, cond) in [
+        ("planned", &plan.observability, plan.condition),
+        ("plain grid", &plan.grid_observability, plan.grid_condition),
+    ] {
+        println!(
+            "  {label:<14} {:>11.4e} {:>11.4e} {:>11.4e} {:>11.4e} {:>11.4e} {:>10.2}",
+            o.o1, o.o2, o.o3, o.o4, o.o5, cond
+        );
+    }
+    for w in &plan.warnings {
+        println!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
+    }
+    println!("poses -> {}", c.out.display());
+    if let Some(g) = &c.grid_out {
+        println!("plain grid -> {}", g.display());
+    }
+    Ok(())
 }

@@ -5,7 +5,7 @@ use crate::args;
 use anyhow::Result;
 use pkmcal::{Mechanism, Model, RowSettings};
 use pkmcal_io::Run;
-use pkmcal_io::io::read_description;
+use pkmcal_io::description::read_description;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -67,8 +67,8 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     let model: Model = a.model;
     // Streamed in batches (memory flat in the rows, a pipe works), each
     // batch predicted on all cores.
-    let mut input = pkmcal_io::io::CsvStream::open(run, &a.commands)?;
-    pkmcal_io::io::commands_belong(&input.path, &input.headers, spec)?;
+    let mut input = pkmcal_io::csv::CsvStream::open(run, &a.commands)?;
+    pkmcal_io::data::commands_belong(&input.path, &input.headers, spec)?;
     let names: Vec<String> = spec
         .actuated_names()
         .iter()
@@ -80,7 +80,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     // blamed on the report and not on a row of the commands.
     let record = match &a.uncertainty {
         Some(path) => {
-            let r = pkmcal_io::io::read_calibration_record(run, path)?;
+            let r = pkmcal_io::record::read_calibration_record(run, path)?;
             r.check(spec).map_err(|e| {
                 anyhow::anyhow!(
                     "{}: this calibration cannot serve {}: {e}; give the report of a calibration of this mechanism",
@@ -97,9 +97,14 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         (None, Some(r), Some(path)) => r
             .params(spec)
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?,
-        _ => pkmcal_io::io::params_or_nominal(run, a.params.as_deref(), &mech)?,
+        _ => pkmcal_io::params::params_or_nominal(run, a.params.as_deref(), &mech)?,
     };
-    let force = pkmcal_io::io::checked_load(a.load.values(), &mech, &params)?;
+    let force = pkmcal::identify::request::checked_load(
+        &a.load.values(),
+        &mech,
+        &params,
+        pkmcal::Field::Load,
+    )?;
     let covariance = record.map(|r| r.covariance);
     let settings = RowSettings {
         params: &params,
@@ -114,7 +119,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         names
             .iter()
             .zip(spec.command_units())
-            .map(|(n, u)| pkmcal_io::usecal::load_column(n, u)),
+            .map(|(n, u)| crate::cmd::compensate::load_column(n, u)),
     );
     if covariance.is_some() {
         header.extend(spec.tool_axes.iter().map(|a| format!("sigma_{a}")));
@@ -190,7 +195,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
                         .collect()
                 }
                 Err(e) if a.skip_unreachable => {
-                    pkmcal_io::note!(
+                    crate::note!(
                         "{}:{line_no}: skipped (NaN outputs): commands {c:?}: {e}",
                         input.path.display()
                     );
@@ -210,7 +215,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
                 if k > 0 {
                     line.push(',');
                 }
-                line.push_str(&pkmcal_io::io::number(pkmcal_io::fileunits::to_file(
+                line.push_str(&pkmcal_io::csv::number(pkmcal_io::fileunits::to_file(
                     *v,
                     out_factors[k],
                 )));
@@ -218,17 +223,23 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             writeln!(w, "{line}")?;
         }
         if let Some(e) = first_failure {
-            return Err(pkmcal_io::hints::explain_failure(
-                e, &mech, &commands, &units,
-            ));
+            return Err(
+                match pkmcal_io::hints::other_units_for(&mech, &commands, &units) {
+                    Some((key, value)) => anyhow::anyhow!(
+                        "{e:#}\n  hint: the commands assemble the mechanism if read in another unit: give {}",
+                        crate::words::units_option(key, value)
+                    ),
+                    None => e,
+                },
+            );
         }
         total += batch.len();
     }
     w.flush()?;
     bar.finish();
-    pkmcal_io::note!(
+    crate::note!(
         "predicted {} with the {} model{} -> {}",
-        pkmcal_io::io::count(total - skipped, "pose", "poses"),
+        pkmcal::error::count(total - skipped, "pose", "poses"),
         model.name(),
         if skipped > 0 {
             format!(", skipped {skipped} (NaN rows)")

@@ -3,7 +3,11 @@
 
 use crate::args;
 use anyhow::Result;
+use pkmcal::{Mechanism, Request};
 use pkmcal_io::Run;
+use pkmcal_io::firmware::reprap::RrfPrinter;
+use pkmcal_io::firmware::{self, Firmware};
+use std::fmt::Write as _;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -18,16 +22,14 @@ pub struct Args {
     /// mm).
     #[arg(long, value_name = "PROBES.csv")]
     pub probes: PathBuf,
-    /// Parameters to identify, comma separated: RepRapFirmware's 6 factors
-    /// (`default`: delta_radius, angle_a, angle_b and the endstop errors da,
-    /// db, dc) or more (arm_a, arm_b, arm_c for the diagonals, or `diagonal`
-    /// for one shared by the three towers, as the firmware's 7- and 9-factor
-    /// calibrations fit it; bed.rx, bed.ry for the bed tilts M666 A B).
-    #[arg(long, value_name = "NAMES")]
-    pub free: Option<String>,
-    /// Parameters to keep fixed, comma separated (removed from the free set).
-    #[arg(long, value_name = "NAMES")]
-    pub fix: Option<String>,
+    /// Parameters to identify (`--free`, comma separated): RepRapFirmware's
+    /// 6 factors by default (delta_radius, angle_a, angle_b and the endstop
+    /// errors da, db, dc) or more (arm_a, arm_b, arm_c for the diagonals, or
+    /// `diagonal` for one shared by the three towers, as the firmware's 7-
+    /// and 9-factor calibrations fit it; bed.rx, bed.ry for the bed tilts
+    /// M666 A B); `--fix` removes names.
+    #[command(flatten)]
+    pub params_set: args::FreeArgs,
     /// Write the new M665 and M666 lines here (never over --config).
     #[arg(long, value_name = "NEW.g")]
     pub out: Option<PathBuf>,
@@ -43,14 +45,63 @@ impl Args {
 }
 
 pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
-    pkmcal_io::reprap::run_reprap(
-        run,
-        pkmcal_io::reprap::ReprapConfig {
-            config: a.config,
-            probes: a.probes,
-            free: a.free,
-            fix: a.fix,
-            out: a.out,
-        },
-    )
+    let mut request = Request::new(pkmcal::Model::Exact);
+    a.params_set.apply(&mut request);
+    let printer = RrfPrinter::read(run, &a.config, &a.probes, request.free.as_deref())?;
+    let calibrated = firmware::calibrate(&printer, request)?;
+    let study = &calibrated.study;
+    let (cal, acc, before, after) = (
+        &study.calibration,
+        &study.accuracy,
+        &study.before,
+        &study.after,
+    );
+    let spec = calibrated.mech.spec();
+    let new = printer
+        .delta
+        .identified(spec, &cal.params, &cal.measurement)?;
+    let heights = |e: &[Vec<f64>]| -> (f64, f64) {
+        let v: Vec<f64> = e.iter().map(|r| r[0]).collect();
+        let max = v.iter().fold(0.0_f64, |m, x| m.max(x.abs()));
+        let rms = (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
+        (max, rms)
+    };
+    let ((bm, br), (am, ar)) = (heights(before), heights(after));
+    println!(
+        "{} probe heights from {} with the geometry of {} (RepRapFirmware), {} parameters free: {}",
+        acc.poses,
+        a.probes.display(),
+        a.config.display(),
+        calibrated.free_names.len(),
+        calibrated.free_names.join(" ")
+    );
+    println!("{}", cal.termination.reason());
+    println!(
+        "height errors: before max {bm:.4} mm, RMS {br:.4} mm; after max {am:.4} mm, RMS {ar:.4} mm"
+    );
+    for w in &cal.warnings {
+        println!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
+    }
+    println!(
+        "\nbefore:\n{}after:\n{}",
+        printer.delta.gcode(),
+        new.gcode()
+    );
+    let mut note = String::new();
+    let _ = writeln!(
+        note,
+        "; Delta parameters identified by pkmcal {} from {} ({} probe points)",
+        env!("CARGO_PKG_VERSION"),
+        a.probes.display(),
+        acc.poses
+    );
+    note.push_str(&printer.updated(spec, &cal.params, &cal.measurement)?);
+    if let Some(out) = &a.out {
+        run.files.stage(out, note.as_bytes())?;
+        println!(
+            "new M665/M666 -> {} (replace the M665 and M666 lines of the file the firmware takes them from with these two, and keep that file's other lines: config-override.g when config.g runs M501, else config.g)",
+            out.display()
+        );
+    }
+    Ok(())
 }

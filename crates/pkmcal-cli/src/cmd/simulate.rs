@@ -5,7 +5,8 @@ use crate::args;
 use anyhow::{Context, Result, bail};
 use pkmcal::Mechanism;
 use pkmcal_io::Run;
-use pkmcal_io::io::{Csv, Description, read_description};
+use pkmcal_io::csv::Csv;
+use pkmcal_io::description::{Description, read_description};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -43,8 +44,8 @@ pub struct Args {
     /// (x,y,phi in mm and rad for planar tools; x,y,z,rx,ry,rz for spatial
     /// ones), as a tracker would. Without it the data are in the base frame
     /// and the file says so (`# frame: base`).
-    #[arg(long, value_name = "POSE", allow_hyphen_values = true)]
-    pub instrument_frame: Option<String>,
+    #[arg(long, value_name = "POSE", allow_hyphen_values = true, value_parser = args::values::numbers)]
+    pub instrument_frame: Option<args::Numbers>,
     /// Output CSV: targets, commands and measured tool coordinates
     /// (target_x,target_y,q1,q2,q3,x,y for the reference; with --setup: d1..dk
     /// instead of the tool coordinates).
@@ -93,13 +94,16 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     let description = read_description(run, a.mech.mechanism.as_deref())?;
     let units = pkmcal_io::fileunits::of(run, &description);
     let mech = &description.mech;
-    let truth = pkmcal_io::io::params_or_nominal(run, a.truth.as_deref(), mech)?;
-    let noise = pkmcal_io::io::noise_arg(a.noise, a.angle_noise);
+    let truth = pkmcal_io::params::params_or_nominal(run, a.truth.as_deref(), mech)?;
+    let mut noise = pkmcal::Noise::lengths(a.noise);
+    if let Some(r) = a.angle_noise {
+        noise.angle = r;
+    }
     let targets: Vec<Vec<f64>> = match (&a.targets, a.grid) {
         (Some(path), _) => {
             let csv = Csv::read(run, path)?;
             csv.require_rows()?;
-            let mut t = csv.named(&pkmcal_io::io::target_names(mech))?;
+            let mut t = csv.named(&pkmcal_io::data::target_names(mech))?;
             pkmcal_io::fileunits::to_internal(
                 &mut t,
                 &pkmcal_io::fileunits::tool(
@@ -115,7 +119,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         }
         (None, Some(n)) => {
             if n == 0 {
-                return pkmcal_io::output::usage("--grid needs at least one target");
+                return crate::words::usage("--grid needs at least one target");
             }
             pkmcal::spread_targets(mech, n)
                 .map_err(anyhow::Error::from)
@@ -145,7 +149,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         None => None,
         Some(path) => {
             if path == &a.out {
-                return pkmcal_io::output::usage("--distances-out must differ from --out");
+                return crate::words::usage("--distances-out must differ from --out");
             }
             let pairs = distance_pairs(&targets);
             let rows = pkmcal::simulate_distances(
@@ -156,10 +160,10 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
                 noise.length,
                 a.seed.wrapping_add(1),
             )
-            .map_err(|e| pkmcal_io::output::Usage(format!("--distances-out: {e}")))?;
+            .map_err(|e| crate::words::Usage(format!("--distances-out: {e}")))?;
             Some((
                 path,
-                pkmcal_io::io::distances_csv(mech, &rows, &units),
+                pkmcal_io::data::distances_csv(mech, &rows, &units),
                 rows.len(),
             ))
         }
@@ -167,15 +171,15 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     let base = *measurement.frame() == pkmcal::Frame::Base;
     run.files.stage(
         &a.out,
-        &pkmcal_io::io::with_frame_comment(
-            pkmcal_io::io::data_csv(mech, &measurement, &data, &units),
+        &pkmcal_io::data::with_frame_comment(
+            pkmcal_io::data::data_csv(mech, &measurement, &data, &units),
             base,
         ),
     )?;
     let angles = measurement.units().contains(&pkmcal::Unit::Radian);
-    pkmcal_io::note!(
+    crate::note!(
         "simulated {}, {} (noise {} mm on lengths{}, seed {}) -> {}",
-        pkmcal_io::io::count(data.len(), "pose", "poses"),
+        pkmcal::error::count(data.len(), "pose", "poses"),
         measurement.describe(),
         noise.length,
         if angles {
@@ -188,7 +192,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     );
     if let Some((path, bytes, n)) = distances {
         run.files.stage(path, &bytes)?;
-        pkmcal_io::note!(
+        crate::note!(
             "simulated {n} distances between pairs of those poses -> {}",
             path.display()
         );
@@ -219,16 +223,16 @@ fn simulated_measurement(
 ) -> Result<pkmcal::MeasurementModel> {
     let spec = description.mech.spec();
     let m = if let Some(p) = &a.setup {
-        let setup = pkmcal_io::io::read_setup(run, Some(p), description)?
+        let setup = pkmcal_io::description::read_setup(run, Some(p), description)?
             .with_context(|| format!("{}: no ball-bar setup", p.display()))?;
         pkmcal::MeasurementModel::ball_bar(spec, &setup)?
     } else if a.probe {
         pkmcal::MeasurementModel::probe(spec)
-            .map_err(|e| pkmcal_io::output::Usage(format!("--probe: {e}")))?
+            .map_err(|e| crate::words::Usage(format!("--probe: {e}")))?
     } else if a.measure_targets {
         let points = &description.targets;
         if points.is_empty() {
-            return pkmcal_io::output::usage(
+            return crate::words::usage(
                 "--measure-targets needs target points in the mechanism file: [[target]] at = [x, y, z] (tool frame, mm; [x, y] for a planar tool)",
             );
         }
@@ -236,16 +240,14 @@ fn simulated_measurement(
     } else if let Some(axes) = &a.axes {
         let names: Vec<&str> = axes.split(',').map(str::trim).collect();
         pkmcal::MeasurementModel::tool_axes(spec, &names)
-            .map_err(|e| pkmcal_io::output::Usage(format!("in --axes: {e}")))?
+            .map_err(|e| crate::words::Usage(format!("in --axes: {e}")))?
     } else {
         pkmcal::MeasurementModel::tool(spec)
     };
     match &a.instrument_frame {
         None => Ok(m),
-        Some(s) => {
-            let f = pkmcal_io::io::parse_list(s, "--instrument-frame")?;
-            m.in_frame(pkmcal::Frame::Known(f))
-                .map_err(|e| pkmcal_io::output::Usage(format!("in --instrument-frame: {e}")).into())
-        }
+        Some(f) => m
+            .in_frame(pkmcal::Frame::Known(f.0.clone()))
+            .map_err(|e| crate::words::Usage(format!("in --instrument-frame: {e}")).into()),
     }
 }

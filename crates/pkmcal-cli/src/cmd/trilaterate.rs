@@ -5,7 +5,8 @@ use crate::args;
 use anyhow::{Context, Result};
 use pkmcal::Mechanism;
 use pkmcal_io::Run;
-use pkmcal_io::io::{Csv, csv_bytes, read_description};
+use pkmcal_io::csv::{Csv, csv_bytes};
+use pkmcal_io::description::read_description;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -19,8 +20,8 @@ pub struct Args {
     #[arg(long, value_name = "DATA.csv")]
     pub data: PathBuf,
     /// Standard deviation of one reading (mm), for the positions' uncertainty.
-    #[arg(value_parser = args::values::sigma_mm, long, default_value_t = 0.002, value_name = "MM")]
-    pub sigma: f64,
+    #[arg(value_parser = args::values::sigma_mm, long, alias = "sigma", default_value_t = 0.002, value_name = "MM")]
+    pub stated_noise: f64,
     /// Output CSV: targets and commands if present, x, y, sigma_x, sigma_y.
     #[arg(long, value_name = "OUT.csv")]
     pub out: PathBuf,
@@ -45,13 +46,10 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     let units = pkmcal_io::fileunits::of(run, &description);
     let mech = &description.mech;
     let spec = mech.spec();
-    let setup = pkmcal_io::io::read_setup(run, a.setup.as_deref(), &description)?
+    let setup = pkmcal_io::description::read_setup(run, a.setup.as_deref(), &description)?
         .context("give the socket positions with --setup S.toml (or a [ballbar] table in the mechanism file)")?;
     // Checks the setup against the tool point.
     pkmcal::MeasurementModel::ball_bar(spec, &setup)?;
-    if !(a.sigma.is_finite() && a.sigma >= 0.0) {
-        return pkmcal_io::output::usage("--sigma must be a non-negative number of mm");
-    }
     let csv = Csv::read(run, &a.data)?;
     csv.require_rows()?;
     // In the data file's own units (its units line, else the run's), read
@@ -63,13 +61,13 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     pkmcal_io::fileunits::to_internal(&mut readings, &vec![d_factor; dnames.len()]);
     let tf = pkmcal_io::fileunits::tool(spec, &units);
     // Pass through targets and commands when present (in the file's units).
-    let mut keep: Vec<String> = pkmcal_io::io::target_names(mech);
+    let mut keep: Vec<String> = pkmcal_io::data::target_names(mech);
     keep.extend(spec.actuated_names().iter().map(|s| s.to_string()));
     keep.retain(|n| csv.headers.contains(n));
     let kept = csv.named(&keep)?;
     let mut rows = Vec::with_capacity(readings.len());
     for (i, d) in readings.iter().enumerate() {
-        let (x, cov) = pkmcal::trilaterate(&setup, d, a.sigma, None)
+        let (x, cov) = pkmcal::trilaterate(&setup, d, a.stated_noise, None)
             .with_context(|| format!("{}:{}: readings {d:?}", a.data.display(), csv.line(i)))?;
         let sig = (0..x.len()).map(|k| cov[(k, k)].max(0.0).sqrt() / tf[k]);
         rows.push(
@@ -87,14 +85,14 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     // Sockets are placed in the base frame, so are the positions.
     run.files.stage(
         &a.out,
-        &pkmcal_io::io::with_frame_comment(
+        &pkmcal_io::data::with_frame_comment(
             pkmcal_io::fileunits::with_comment(csv_bytes(&header, &rows), &units),
             true,
         ),
     )?;
-    pkmcal_io::note!(
+    crate::note!(
         "trilaterated {} from {} sockets -> {}",
-        pkmcal_io::io::count(rows.len(), "pose", "poses"),
+        pkmcal::error::count(rows.len(), "pose", "poses"),
         setup.sockets.len(),
         a.out.display()
     );

@@ -10,7 +10,7 @@ exceptions are row indices (from 0) of the arrays given.
 >>> mech = pkmcal.Mechanism()                      # the built-in reference
 >>> targets = pkmcal.plan(mech, 35).targets         # where to measure
 >>> commands, measured = pkmcal.simulate(mech, targets, {"l11": 280.3, "dq3": 0.002}, noise=0.002, seed=1)
->>> cal = pkmcal.calibrate(mech, commands, measured)
+>>> cal = pkmcal.calibrate(mech, commands, measured, frame="base")  # simulated in the base frame
 >>> round(cal.parameters["l11"], 1)
 280.3
 

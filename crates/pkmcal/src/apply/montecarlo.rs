@@ -96,6 +96,31 @@ pub const MAX_RUNS: usize = 1_000_000;
 
 /// Run the study: calibrate from measurements at `poses` (targets), judge on
 /// `validation` targets. `progress` is called after each run (from any thread).
+impl MonteCarloOptions {
+    /// Refuse what cannot be simulated: more than [`MAX_RUNS`] runs, none,
+    /// random errors or noise that are negative, not finite or beyond any
+    /// machine ([`crate::identify::request::MAX_LENGTH_MM`],
+    /// [`crate::identify::request::MAX_ANGLE_RAD`]).
+    pub fn check(&self) -> std::result::Result<(), crate::error::RequestError> {
+        use crate::error::{Field, RequestError};
+        use crate::identify::request::{MAX_ANGLE_RAD, MAX_LENGTH_MM, bounded};
+        if self.runs == 0 || self.runs > MAX_RUNS {
+            return Err(RequestError::invalid(
+                Field::Runs,
+                format!(
+                    "{} runs asked for; give 1 to {MAX_RUNS} (each is kept in memory)",
+                    self.runs
+                ),
+            ));
+        }
+        bounded(Field::LengthError, self.length_error, MAX_LENGTH_MM, "mm")?;
+        bounded(Field::AngleError, self.angle_error, MAX_ANGLE_RAD, "rad")?;
+        bounded(Field::Noise, self.noise.length, MAX_LENGTH_MM, "mm")?;
+        bounded(Field::AngleNoise, self.noise.angle, MAX_ANGLE_RAD, "rad")?;
+        Ok(())
+    }
+}
+
 pub fn monte_carlo<M: Mechanism>(
     mech: &M,
     poses: &[Vec<f64>],
@@ -103,12 +128,7 @@ pub fn monte_carlo<M: Mechanism>(
     opts: &MonteCarloOptions,
     progress: &(dyn Fn() + Sync),
 ) -> Result<(Vec<Run>, MonteCarloSummary)> {
-    if opts.runs > MAX_RUNS {
-        return Err(crate::error::Error::InvalidRequest(format!(
-            "{} runs asked for; at most {MAX_RUNS} are made (each is kept in memory)",
-            opts.runs
-        )));
-    }
+    opts.check()?;
     let spec = mech.spec();
     let nominal = Params::nominal(spec);
     let free = &opts.calibration.free;

@@ -12,6 +12,7 @@ pub mod noise;
 pub mod prior;
 pub mod problem;
 pub mod record;
+pub mod request;
 pub mod result;
 pub mod stats;
 pub mod study;
@@ -41,6 +42,7 @@ pub use record::{
     CALIBRATION_FORMAT, CALIBRATION_VERSION, CalibrationRecord, RecordError, RecordedParameter,
     mechanism_identities, mechanism_identity,
 };
+pub use request::{FrameChoice, Request, SolverRequest};
 pub use result::{Calibration, ParameterResult, Warning, WarningKind};
 pub use study::{
     FreeSetError, NameList, Study, StudyError, StudyOptions, StudyStage, StudyValidation,

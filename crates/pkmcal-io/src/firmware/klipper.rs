@@ -1,5 +1,6 @@
-//! `klipper`: calibrate a linear delta printer from its Klipper `printer.cfg`
-//! and write the values back in Klipper's keys.
+//! Klipper's linear delta: a `printer.cfg` read as Klipper reads it, the
+//! printer and its saved probe results, and the values written back in
+//! Klipper's keys.
 //!
 //! Klipper's delta geometry: towers at `angle` (degrees) on a circle of
 //! `delta_radius` (the effector's offset already subtracted), arms of
@@ -19,26 +20,12 @@
 //! and the `#*#` SAVE_CONFIG block at the end, whose values override. (Written
 //! here: no INI crate reads that block, and the dialect is a few rules.)
 
-use anyhow::{Context, Result, bail};
-use pkmcal::{CalibrationOptions, MeasurementModel, Mechanism, Model, Params};
+use super::{Firmware, FirmwareValue, Readings};
+use crate::error::{Error, Result};
+use crate::{invalid, refuse};
+use pkmcal::{MeasurementModel, Params, Request};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-
-/// What `pkmcal klipper` is asked to do.
-pub struct KlipperConfig {
-    /// The printer's `printer.cfg`.
-    pub config: PathBuf,
-    /// Parameters to identify (names of the linear delta; `default` allowed).
-    pub free: Option<String>,
-    /// Parameters to keep fixed (removed from the free set).
-    pub fix: Option<String>,
-    /// Where to write the updated `printer.cfg`.
-    pub out: Option<PathBuf>,
-    /// Where to write the mechanism, the probe data and the parameters.
-    pub out_dir: Option<PathBuf>,
-    /// How heights and distances are weighed against each other.
-    pub weighting: Weighting,
-}
 
 /// How probe heights and calibration-object distances are weighed against
 /// each other in one fit.
@@ -167,7 +154,7 @@ fn included_files(file: &Path, spec: &str) -> Result<Vec<PathBuf>> {
     let path = file.parent().unwrap_or(Path::new(".")).join(spec);
     if !spec.contains(['*', '?', '[']) {
         if !path.exists() {
-            bail!("the included file {} does not exist", path.display());
+            invalid!("the included file {} does not exist", path.display());
         }
         return Ok(vec![path]);
     }
@@ -179,7 +166,7 @@ fn included_files(file: &Path, spec: &str) -> Result<Vec<PathBuf>> {
         require_literal_leading_dot: true,
     };
     let mut found: Vec<PathBuf> = glob::glob_with(&pattern, options)
-        .context("not a valid pattern")?
+        .map_err(|e| Error::Content(format!("not a valid pattern: {e}")))?
         .filter_map(std::result::Result::ok)
         .collect();
     // Sorted as Python sorts the names (by code point).
@@ -223,10 +210,10 @@ impl Ini {
         };
         let e = self.get(section, key).expect("a number has an entry");
         if v.abs() > MAX_KLIPPER_LENGTH_MM || (positive && v <= 0.0) {
-            bail!(
-                "{}:{}: [{section}] {key} = {} mm must be {}at most {MAX_KLIPPER_LENGTH_MM:e} mm in size",
+            refuse!(
                 e.file,
-                e.line,
+                Some((e.line) as u64),
+                "[{section}] {key} = {} mm must be {}at most {MAX_KLIPPER_LENGTH_MM:e} mm in size",
                 e.value.trim(),
                 if positive { "positive and " } else { "" }
             );
@@ -243,23 +230,29 @@ impl Ini {
         let Some(e) = self.get(section, key) else {
             return Ok(None);
         };
-        let v: f64 = e.value.trim().parse().with_context(|| {
-            format!(
-                "{}:{}: [{section}] {key} = `{}` is not a number",
-                e.file, e.line, e.value
-            )
-        })?;
+        let Ok(v) = e.value.trim().parse::<f64>() else {
+            refuse!(
+                e.file,
+                Some(e.line as u64),
+                "[{section}] {key} = `{}` is not a number",
+                e.value
+            );
+        };
         if !v.is_finite() {
-            bail!("{}:{}: [{section}] {key} must be finite", e.file, e.line);
+            refuse!(
+                e.file,
+                Some((e.line) as u64),
+                "[{section}] {key} must be finite"
+            );
         }
         Ok(Some(v))
     }
 
     /// Three numbers `x,y,z` (a stable position).
     fn triple(&self, section: &str, key: &str) -> Result<[f64; 3]> {
-        let e = self
-            .get(section, key)
-            .with_context(|| format!("{}: [{section}] has no `{key}`", self.file))?;
+        let Some(e) = self.get(section, key) else {
+            refuse!(self.file, None, "[{section}] has no `{key}`");
+        };
         let v: Vec<f64> = e
             .value
             .split(',')
@@ -267,10 +260,14 @@ impl Ini {
             .collect::<std::result::Result<_, _>>()
             .ok()
             .filter(|v: &Vec<f64>| v.len() == 3 && v.iter().all(|x| x.is_finite()))
-            .with_context(|| {
-                format!(
-                    "{}:{}: [{section}] {key} = `{}` must be three numbers `a,b,c` (steps from each tower's endstop)",
-                    e.file, e.line, e.value
+            .ok_or_else(|| {
+                Error::at(
+                    Path::new(&e.file),
+                    Some(e.line as u64),
+                    format!(
+                        "[{section}] {key} = `{}` must be three numbers `a,b,c` (steps from each tower's endstop)",
+                        e.value
+                    ),
                 )
             })?;
         Ok([v[0], v[1], v[2]])
@@ -321,14 +318,15 @@ fn parse_into(
     depth: usize,
 ) -> Result<()> {
     if depth > 8 {
-        bail!(
-            "{}: [include] nests more than 8 deep (a file includes itself?)",
-            file.display()
+        refuse!(
+            file,
+            None,
+            "[include] nests more than 8 deep (a file includes itself?)"
         );
     }
     let name = file.display().to_string();
     if text.starts_with('\u{feff}') {
-        bail!(
+        invalid!(
             "{name}:1: the file starts with a byte-order mark (a UTF-8 BOM), which Klipper does not read (its first line would be outside any section); save the file as UTF-8 without BOM"
         );
     }
@@ -347,39 +345,46 @@ fn parse_into(
                     e.value.push('\n');
                     e.value.push_str(line.trim());
                 }
-                None => bail!("{name}:{}: an indented line outside any option", i + 1),
+                None => refuse!(
+                    name,
+                    Some((i + 1) as u64),
+                    "an indented line outside any option"
+                ),
             }
             continue;
         }
         let t = line.trim();
         if let Some(s) = t.strip_prefix('[') {
-            let s = s
-                .strip_suffix(']')
-                .with_context(|| format!("{name}:{}: `{t}` lacks its closing `]`", i + 1))?
-                .trim();
+            let Some(s) = s.strip_suffix(']') else {
+                refuse!(name, Some((i + 1) as u64), "`{t}` lacks its closing `]`");
+            };
+            let s = s.trim();
             if let Some(inc) = s.strip_prefix("include ") {
                 let inc = inc.trim();
                 for path in included_files(file, inc)
-                    .with_context(|| format!("{name}:{}: [include {inc}]", i + 1))?
+                    .map_err(|e| e.context(format!("{name}:{}: [include {inc}]", i + 1)))?
                 {
                     ini.files += 1;
                     if ini.files > MAX_INCLUDED_FILES {
-                        bail!(
-                            "{name}:{}: [include {inc}]: more than {MAX_INCLUDED_FILES} included files are read in all (files included many times over?)",
-                            i + 1
+                        refuse!(
+                            name,
+                            Some((i + 1) as u64),
+                            "[include {inc}]: more than {MAX_INCLUDED_FILES} included files are read in all (files included many times over?)"
                         );
                     }
                     let text = run
                         .files
                         .read_to_string(&path, crate::output::InputKind::Description)
-                        .with_context(|| {
-                            format!("{name}:{}: cannot read included {}", i + 1, path.display())
+                        .map_err(|e| {
+                            e.named("included file")
+                                .context(format!("{name}:{}", i + 1))
                         })?;
                     ini.bytes += text.len();
                     if ini.bytes > MAX_INCLUDED_BYTES {
-                        bail!(
-                            "{name}:{}: [include {inc}]: the included files hold more than {} MiB in all (files included many times over?)",
-                            i + 1,
+                        refuse!(
+                            name,
+                            Some((i + 1) as u64),
+                            "[include {inc}]: the included files hold more than {} MiB in all (files included many times over?)",
                             MAX_INCLUDED_BYTES >> 20
                         );
                     }
@@ -393,11 +398,11 @@ fn parse_into(
             continue;
         }
         let Some(sec) = &section else {
-            bail!("{name}:{}: `{t}` is outside any [section]", i + 1);
+            refuse!(name, Some((i + 1) as u64), "`{t}` is outside any [section]");
         };
-        let sep = t
-            .find([':', '='])
-            .with_context(|| format!("{name}:{}: `{t}` is not `key: value`", i + 1))?;
+        let Some(sep) = t.find([':', '=']) else {
+            refuse!(name, Some((i + 1) as u64), "`{t}` is not `key: value`");
+        };
         ini.entries.push(Entry {
             section: sec.clone(),
             key: t[..sep].trim().to_lowercase(),
@@ -424,7 +429,7 @@ pub fn parse_config(run: &crate::Run<'_>, text: &str, file: &Path) -> Result<Ini
     if let Some(b) = block {
         let mut saved = Ini::default();
         parse_into(run, &mut saved, &b, file, 0)
-            .with_context(|| format!("in the SAVE_CONFIG block of {}", file.display()))?;
+            .map_err(|e| e.context(format!("in the SAVE_CONFIG block of {}", file.display())))?;
         // The block starts on the line after its header.
         let offset = regular.matches('\n').count() + 1;
         ini.entries.extend(saved.entries.into_iter().map(|e| Entry {
@@ -598,7 +603,7 @@ impl KlipperDelta {
                 + Self::rise(self.arms[i], self.radius)
                 - Self::rise(arm, radius);
             if arm.is_nan() || arm <= radius {
-                bail!(
+                invalid!(
                     "the identified arm_{t} = {arm:.3} mm is not longer than delta_radius = {radius:.3} mm; the probe data cannot support this parameter set (use fewer free parameters)"
                 );
             }
@@ -611,27 +616,28 @@ impl KlipperDelta {
 pub fn delta_from_config(ini: &Ini) -> Result<KlipperDelta> {
     match ini.get("printer", "kinematics") {
         Some(e) if e.value.trim() == "delta" => {}
-        Some(e) => bail!(
-            "{}:{}: [printer] kinematics is `{}`; `pkmcal klipper` reads delta printers (kinematics: delta)",
+        Some(e) => refuse!(
             e.file,
-            e.line,
+            Some((e.line) as u64),
+            "[printer] kinematics is `{}`; Klipper's delta printers are read (kinematics: delta)",
             e.value
         ),
-        None => bail!(
-            "{}: [printer] has no `kinematics`; `pkmcal klipper` reads delta printers (kinematics: delta)",
-            ini.file
+        None => refuse!(
+            ini.file,
+            None,
+            "[printer] has no `kinematics`; Klipper's delta printers are read (kinematics: delta)"
         ),
     }
-    let radius = ini
-        .length("printer", "delta_radius", true)?
-        .with_context(|| format!("{}: [printer] needs a positive `delta_radius`", ini.file))?;
+    let Some(radius) = ini.length("printer", "delta_radius", true)? else {
+        refuse!(ini.file, None, "[printer] needs a positive `delta_radius`");
+    };
     let sec = |t: &str| format!("stepper_{t}");
-    let arm_a = ini
-        .length("stepper_a", "arm_length", true)?
-        .with_context(|| format!("{}: [stepper_a] needs `arm_length`", ini.file))?;
-    let end_a = ini
-        .length("stepper_a", "position_endstop", false)?
-        .with_context(|| format!("{}: [stepper_a] needs `position_endstop`", ini.file))?;
+    let Some(arm_a) = ini.length("stepper_a", "arm_length", true)? else {
+        refuse!(ini.file, None, "[stepper_a] needs `arm_length`");
+    };
+    let Some(end_a) = ini.length("stepper_a", "position_endstop", false)? else {
+        refuse!(ini.file, None, "[stepper_a] needs `position_endstop`");
+    };
     let mut d = KlipperDelta {
         radius,
         angles: DEFAULT_ANGLES,
@@ -645,7 +651,7 @@ pub fn delta_from_config(ini: &Ini) -> Result<KlipperDelta> {
     for (i, t) in TOWERS.iter().enumerate() {
         let s = sec(t);
         if !ini.has_section(&s) {
-            bail!("{}: the configuration has no [{s}] section", ini.file);
+            refuse!(ini.file, None, "the configuration has no [{s}] section");
         }
         if let Some(a) = ini.number(&s, "angle")? {
             d.angles[i] = a;
@@ -654,37 +660,35 @@ pub fn delta_from_config(ini: &Ini) -> Result<KlipperDelta> {
             d.arms[i] = a;
         }
         if d.arms[i] <= radius {
-            bail!(
-                "{}: [{s}] arm_length = {} must be longer than delta_radius = {radius} (Klipper's own rule)",
+            refuse!(
                 ini.file,
+                None,
+                "[{s}] arm_length = {} must be longer than delta_radius = {radius} (Klipper's own rule)",
                 d.arms[i]
             );
         }
         if let Some(e) = ini.length(&s, "position_endstop", false)? {
             d.endstops[i] = e;
         }
-        let rotation = ini
-            .number(&s, "rotation_distance")?
-            .filter(|v| *v > 0.0)
-            .with_context(|| {
-                format!(
-                    "{}: [{s}] needs a positive `rotation_distance` (mm)",
-                    ini.file
-                )
-            })?;
-        let micro = ini
-            .number(&s, "microsteps")?
-            .filter(|v| *v >= 1.0)
-            .with_context(|| format!("{}: [{s}] needs `microsteps`", ini.file))?;
+        let Some(rotation) = ini.number(&s, "rotation_distance")?.filter(|v| *v > 0.0) else {
+            refuse!(
+                ini.file,
+                None,
+                "[{s}] needs a positive `rotation_distance` (mm)"
+            );
+        };
+        let Some(micro) = ini.number(&s, "microsteps")?.filter(|v| *v >= 1.0) else {
+            refuse!(ini.file, None, "[{s}] needs `microsteps`");
+        };
         let full = ini.number(&s, "full_steps_per_rotation")?.unwrap_or(200.0);
         if !(full >= 1.0 && full.fract() == 0.0 && full % 4.0 == 0.0) {
             let e = ini
                 .get(&s, "full_steps_per_rotation")
                 .expect("a number has an entry");
-            bail!(
-                "{}:{}: [{s}] full_steps_per_rotation = {full} must be a positive whole multiple of 4 (Klipper's own rule)",
+            refuse!(
                 e.file,
-                e.line
+                Some((e.line) as u64),
+                "[{s}] full_steps_per_rotation = {full} must be a positive whole multiple of 4 (Klipper's own rule)"
             );
         }
         let mut gear = 1.0;
@@ -695,10 +699,10 @@ pub fn delta_from_config(ini: &Ini) -> Result<KlipperDelta> {
                     .filter_map(|x| x.trim().parse().ok())
                     .collect();
                 if v.len() != 2 || !(v[0] > 0.0 && v[1] > 0.0 && (v[0] / v[1]).is_finite()) {
-                    bail!(
-                        "{}:{}: [{s}] gear_ratio = `{}` must be pairs `a:b` of positive numbers separated by commas",
+                    refuse!(
                         e.file,
-                        e.line,
+                        Some((e.line) as u64),
+                        "[{s}] gear_ratio = `{}` must be pairs `a:b` of positive numbers separated by commas",
                         e.value
                     );
                 }
@@ -740,9 +744,10 @@ pub fn delta_from_config(ini: &Ini) -> Result<KlipperDelta> {
         });
     }
     if d.probes.len() < KLIPPER_FREE.len() {
-        bail!(
-            "{}: [delta_calibrate] holds {} probe results (height0, height0_pos, …); at least {} are needed: run DELTA_CALIBRATE in Klipper, then SAVE_CONFIG, and read the saved printer.cfg",
+        refuse!(
             ini.file,
+            None,
+            "[delta_calibrate] holds {} probe results (height0, height0_pos, …); at least {} are needed: run DELTA_CALIBRATE in Klipper, then SAVE_CONFIG, and read the saved printer.cfg",
             d.probes.len(),
             KLIPPER_FREE.len()
         );
@@ -801,10 +806,10 @@ pub fn updated_config(text: &str, new: &KlipperDelta, ini: &Ini) -> Result<Strin
             .iter()
             .find(|e| e.included && !e.autosave && e.section == *sec && e.key == *key)
         {
-            bail!(
-                "{}:{}: [{sec}] {key} is set in an included file, where a saved value cannot override it (Klipper's SAVE_CONFIG refuses it too); remove it there, or set the new value there by hand, and run again without --out",
+            refuse!(
                 e.file,
-                e.line
+                Some((e.line) as u64),
+                "[{sec}] {key} is set in an included file, where a saved value cannot override it (Klipper's SAVE_CONFIG refuses it too); remove it there, or set the new value there by hand (and do not write the configuration)"
             );
         }
     }
@@ -994,416 +999,16 @@ fn updated_block(block: &str, values: &[(String, String, String)], eol: &str) ->
     out
 }
 
-/// Height errors (mm) of every probe for the printer's parameters `p` and
-/// the bed plane's `bed`: the predicted reading minus the probed one.
-fn height_errors(
-    mech: &pkmcal::AnyMechanism,
-    measurement: &MeasurementModel,
-    p: &Params,
-    bed: &[f64],
-    data: &[pkmcal::Measurement],
-) -> Result<Vec<f64>> {
-    use rayon::prelude::*;
-    data.par_iter()
-        .map(|m| {
-            let pr = pkmcal::predict(mech, p, &m.commands, Model::Exact, &[])?;
-            let mut y = [0.0];
-            measurement.observe(&pr.x, bed, &mut y);
-            Ok(y[0] - m.measured[0])
-        })
-        .collect()
-}
-
-fn rms(v: &[f64]) -> f64 {
-    (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt()
-}
-
-fn max_abs(v: &[f64]) -> f64 {
-    v.iter().fold(0.0, |m, x| m.max(x.abs()))
-}
-
-/// What `pkmcal klipper` fits for a printer: its description, the probe
-/// model, the readings (the probe heights as poses, then the distances
-/// measured on the calibration object as pairs of poses), the fit's options
-/// and the free parameters' names.
-pub struct KlipperProblem {
-    pub mech: crate::io::Mech,
-    pub measurement: MeasurementModel,
-    pub data: Vec<pkmcal::Measurement>,
-    pub opts: CalibrationOptions,
-    pub free_names: Vec<String>,
-}
-
-/// [`KlipperProblem`] of a printer, weighted by `weighting`, with the free
-/// set `free` (`default` when `None`) less `fix`.
-pub fn klipper_problem(
-    delta: &KlipperDelta,
-    weighting: Weighting,
-    free: Option<&str>,
-    fix: Option<&str>,
-) -> Result<KlipperProblem> {
-    let toml = delta.mechanism_toml();
-    let mech = crate::io::mechanism_from_str(&toml)
-        .context("the printer's geometry does not describe a delta that assembles")?;
-    let spec = mech.spec();
-    let data: Vec<pkmcal::Measurement> = delta
-        .probes
-        .iter()
-        .enumerate()
-        .map(|(i, p)| pkmcal::Measurement {
-            target: None,
-            commands: delta.carriage_heights(&p.steps).to_vec(),
-            partner: None,
-            measured: vec![p.height],
-            sigma: vec![],
-            origin: Some(pkmcal::Origin {
-                pose: i + 1,
-                line: None,
-                distance: false,
-            }),
-        })
-        .chain(
-            delta
-                .distances
-                .iter()
-                .enumerate()
-                .map(|(i, d)| pkmcal::Measurement {
-                    target: None,
-                    commands: delta.carriage_heights(&d.steps[0]).to_vec(),
-                    partner: Some(delta.carriage_heights(&d.steps[1]).to_vec()),
-                    measured: vec![d.distance],
-                    sigma: vec![],
-                    origin: Some(pkmcal::Origin {
-                        pose: i + 1,
-                        line: None,
-                        distance: true,
-                    }),
-                }),
-        )
-        .collect();
-    let mut data = data;
-    if weighting == Weighting::Klipper && !delta.distances.is_empty() {
-        // Klipper's cost `z_weight · Σ heights² + Σ distances²` as known
-        // standard deviations: σ_distance 1 (in mm; only the ratio acts),
-        // σ_height 1/√z_weight.
-        let z_weight = klipper_z_weight(delta);
-        for m in &mut data {
-            m.sigma = vec![Some(if m.partner.is_some() {
-                1.0
-            } else {
-                1.0 / z_weight.sqrt()
-            })];
-        }
-    }
-    let measurement = MeasurementModel::probe(spec)?;
-    let mut default: Vec<String> = spec.default_free.clone();
-    if !delta.distances.is_empty() {
-        default.extend(KLIPPER_EXTENDED.map(String::from));
-    }
-    let mut opts = CalibrationOptions::new(spec, Model::Exact);
-    if let Weighting::Shrunk(readings) = weighting
-        && !delta.distances.is_empty()
-    {
-        // Klipper's ratio as the stated one, its scale estimated.
-        opts.stated_noise = Some(pkmcal::Noise::lengths(1.0 / klipper_z_weight(delta).sqrt()));
-        opts.stated_distance_noise = Some(1.0);
-        opts.stated_noise_readings = readings;
-        opts.stated_noise_relative = true;
-    }
-    let free_names;
-    (free_names, opts.free) = free_list(free, fix, &default, spec, &measurement)?;
-    Ok(KlipperProblem {
-        mech,
-        measurement,
-        data,
-        opts,
-        free_names,
-    })
-}
-
-/// Run `pkmcal klipper`.
-pub fn run_klipper(run: &crate::Run<'_>, c: KlipperConfig) -> Result<()> {
-    let text = run
-        .files
-        .read_to_string(&c.config, crate::output::InputKind::Description)
-        .with_context(|| format!("cannot read Klipper configuration {}", c.config.display()))?;
-    let ini = parse_config(run, &text, &c.config)?;
-    let delta = delta_from_config(&ini)?;
-    let KlipperProblem {
-        mech,
-        measurement,
-        data,
-        opts,
-        free_names,
-    } = klipper_problem(&delta, c.weighting, c.free.as_deref(), c.fix.as_deref())?;
-    let spec = mech.spec();
-    let heights = &data[..delta.probes.len()];
-    let nominal = Params::nominal(spec);
-    // The study every front end runs: the heights as poses, the distances
-    // measured on the calibration object as distances between poses.
-    let (poses, distances) = data.split_at(delta.probes.len());
-    let study = pkmcal::identify::study(
-        &mech,
-        &measurement,
-        poses,
-        distances.to_vec(),
-        &nominal,
-        &pkmcal::identify::StudyOptions {
-            calibration: opts.clone(),
-            validation: pkmcal::identify::ValidationPlan::None,
-            kfold: None,
-            seed: 0,
-        },
-        &|| {},
-    )
-    .map_err(|e| {
-        let e = anyhow::Error::from(e.error);
-        let name = match data_pose(&e) {
-            Some((i, false)) => &delta.probes[i].name,
-            Some((i, true)) => &delta.distances[i].name,
-            None => return e,
-        };
-        e.context(format!("`{name}` of {}", c.config.display()))
-    })?;
-    let cal = &study.calibration;
-    let before = height_errors(
-        &mech,
-        &measurement,
-        &nominal,
-        measurement.nominal(),
-        heights,
-    )?;
-    let after = height_errors(&mech, &measurement, &cal.params, &cal.measurement, heights)?;
-    let new = delta.identified(spec, &cal.params)?;
-    println!(
-        "{} probe heights{} from {} (Klipper), {} parameters free: {}",
-        heights.len(),
-        if delta.distances.is_empty() {
-            String::new()
-        } else {
-            format!(
-                " and {} distances measured on the calibration object",
-                delta.distances.len()
-            )
-        },
-        c.config.display(),
-        free_names.len(),
-        free_names.join(" ")
-    );
-    println!("{}", cal.termination.reason());
-    println!(
-        "height errors: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm",
-        max_abs(&before),
-        rms(&before),
-        max_abs(&after),
-        rms(&after)
-    );
-    if !delta.distances.is_empty()
-        && let Some(d) = &study.accuracy.distances
-    {
-        let weighing = match c.weighting {
-            Weighting::Estimated => format!(
-                "noise σ: heights {}, distances {}, estimated apart",
-                noise_of(cal, "probe"),
-                noise_of(cal, pkmcal::DISTANCE_AXIS)
-            ),
-            Weighting::Klipper => "heights and distances weighed as Klipper weighs them".into(),
-            Weighting::Shrunk(n) => format!(
-                "noise σ: heights {}, distances {}, estimated and shrunk towards Klipper's ratio with {n} pseudo-readings",
-                noise_of(cal, "probe"),
-                noise_of(cal, pkmcal::DISTANCE_AXIS)
-            ),
-        };
-        println!(
-            "distance errors: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm ({weighing})",
-            d.before_max, d.before_rms, d.after_max, d.after_rms,
-        );
-        // How well the data fix the weighting: the variance ratio with its
-        // interval, against Klipper's fixed ratio.
-        let group = |axis: &str| cal.noise.iter().find(|g| g.axes.iter().any(|a| a == axis));
-        if let (Some(h), Some(dg), Weighting::Shrunk(n)) =
-            (group("probe"), group(pkmcal::DISTANCE_AXIS), c.weighting)
-        {
-            println!(
-                "variance ratio heights/distances: {:.3}, from the data's {:.1} and {:.1} degrees of freedom and Klipper's fixed {:.3} worth {n} readings a group",
-                (h.sigma / dg.sigma).powi(2),
-                h.redundancy.unwrap_or(f64::NAN),
-                dg.redundancy.unwrap_or(f64::NAN),
-                1.0 / klipper_z_weight(&delta)
-            );
-        }
-        if let (Some(h), Some(dg)) = (group("probe"), group(pkmcal::DISTANCE_AXIS))
-            && let Some(r) = pkmcal::variance_ratio(h, dg, VARIANCE_RATIO_LEVEL)
-        {
-            println!(
-                "variance ratio heights/distances: {:.3} ({:.0} % interval {:.3} to {:.3}, from {:.1} and {:.1} degrees of freedom); Klipper's fixed weighting takes {:.3}",
-                r.ratio,
-                100.0 * r.level,
-                r.low,
-                r.high,
-                h.redundancy.unwrap_or(f64::NAN),
-                dg.redundancy.unwrap_or(f64::NAN),
-                1.0 / klipper_z_weight(&delta)
-            );
-        }
-    }
-    for w in &cal.warnings {
-        println!(
-            "warning: {}\n  hint: {}",
-            w.message,
-            crate::calibrate::cli_hint(w)
-        );
-    }
-    println!(
-        "\n  {:<28} {:>14} {:>14}",
-        "Klipper value", "before", "after"
-    );
-    println!(
-        "  {:<28} {:>14.6} {:>14.6}",
-        "[printer] delta_radius", delta.radius, new.radius
-    );
-    for (i, t) in TOWERS.iter().enumerate() {
-        for (key, a, b) in [
-            ("angle", delta.angles[i], new.angles[i]),
-            ("arm_length", delta.arms[i], new.arms[i]),
-            ("position_endstop", delta.endstops[i], new.endstops[i]),
-        ] {
-            println!(
-                "  {:<28} {a:>14.6} {b:>14.6}",
-                format!("[stepper_{t}] {key}")
-            );
-        }
-    }
-    for (i, n) in measurement.param_names().iter().enumerate() {
-        if opts.free.contains(&(spec.n_params() + i)) {
-            println!(
-                "  {:<28} {:>14.6} {:>14.6}   ({}; not a Klipper value: level the bed or let Klipper's bed mesh take it)",
-                n,
-                measurement.nominal()[i],
-                cal.measurement[i],
-                measurement.param_units()[i]
-            );
-        }
-    }
-    if let Some(out) = &c.out {
-        run.files
-            .stage(out, updated_config(&text, &new, &ini)?.as_bytes())?;
-        println!(
-            "\nupdated configuration -> {} (values in its SAVE_CONFIG block)",
-            out.display()
-        );
-    }
-    if let Some(dir) = &c.out_dir {
-        run.files.create_dir(dir)?;
-        let mut csv = String::from("# frame: base\na,b,c,probe\n");
-        for m in heights {
-            let _ = writeln!(
-                csv,
-                "{:?},{:?},{:?},{:?}",
-                m.commands[0], m.commands[1], m.commands[2], m.measured[0]
-            );
-        }
-        let [m_file, d_file, p_file] = OUT_DIR_FILES;
-        run.files
-            .stage(&dir.join(m_file), delta.mechanism_toml().as_bytes())?;
-        run.files.stage(&dir.join(d_file), csv.as_bytes())?;
-        if !delta.distances.is_empty() {
-            let mut csv = String::from("a_1,b_1,c_1,a_2,b_2,c_2,distance\n");
-            for m in &data[heights.len()..] {
-                let b = m.partner.as_deref().unwrap_or_default();
-                let _ = writeln!(
-                    csv,
-                    "{:?},{:?},{:?},{:?},{:?},{:?},{:?}",
-                    m.commands[0], m.commands[1], m.commands[2], b[0], b[1], b[2], m.measured[0]
-                );
-            }
-            run.files.stage(&dir.join(DISTANCES_FILE), csv.as_bytes())?;
-        }
-        run.files.stage(
-            &dir.join(p_file),
-            crate::io::params_to_string(
-                spec,
-                &cal.params,
-                &format!(
-                    "pkmcal klipper: identified from the probe heights of {}",
-                    c.config.display()
-                ),
-            )
-            .as_bytes(),
-        )?;
-        let dist = if delta.distances.is_empty() {
-            String::new()
-        } else {
-            format!(" --distances {}/{DISTANCES_FILE}", dir.display())
-        };
-        println!(
-            "mechanism, probe data and parameters -> {} (e.g. `pkmcal calibrate --mechanism {0}/mechanism.toml --data {0}/probes.csv{dist}`)",
-            dir.display()
-        );
-    }
-    Ok(())
-}
-
-/// A `--free` list of a firmware command (`default` standing for the
-/// firmware's own default set `default`; `all` for every parameter): the
-/// names, and their indices in the identification vector of `measurement`.
-pub fn free_list(
-    free: Option<&str>,
-    fix: Option<&str>,
-    default: &[String],
-    spec: &pkmcal::Spec,
-    measurement: &MeasurementModel,
-) -> Result<(Vec<String>, Vec<usize>)> {
-    let set = crate::calibrate::free_set_with_default(spec, measurement, default, free, fix)?;
-    // In the order given (the default set's where it stands), each once.
-    let all = measurement.all_names(spec);
-    let mut names: Vec<String> = vec![];
-    for n in free.unwrap_or("default").split(',').map(str::trim) {
-        match n {
-            "default" => names.extend(default.iter().cloned()),
-            "all" => names.extend(set.iter().map(|&i| all[i].clone())),
-            "" => {}
-            _ => names.push(n.to_string()),
-        }
-    }
-    let mut seen = std::collections::BTreeSet::new();
-    names.retain(|n| seen.insert(n.clone()));
-    // Those `fix` removes (checked above) out.
-    names.retain(|n| {
-        measurement
-            .index_of(spec, n)
-            .is_ok_and(|i| set.contains(&i))
-    });
-    let indices = names
-        .iter()
-        .map(|n| measurement.index_of(spec, n))
-        .collect::<pkmcal::Result<Vec<usize>>>()?;
-    Ok((names, indices))
-}
-
-/// The files `--out-dir` holds.
+/// The files a printer's mechanism directory holds.
 pub const OUT_DIR_FILES: [&str; 3] = ["mechanism.toml", "probes.csv", "calibration.toml"];
 /// And the distances, when the configuration saves any.
 pub const DISTANCES_FILE: &str = "distances.csv";
-
-/// The row an error is about, if any: its index (from 0) among the probe
-/// heights or (`true`) the distances.
-fn data_pose(e: &anyhow::Error) -> Option<(usize, bool)> {
-    e.chain()
-        .find_map(|c| match c.downcast_ref::<pkmcal::Error>() {
-            Some(pkmcal::Error::Pose { pose, distance, .. }) => Some((pose - 1, *distance)),
-            _ => None,
-        })
-}
-
-/// Confidence level of the printed height/distance variance ratio.
-const VARIANCE_RATIO_LEVEL: f64 = 0.95;
 
 /// The weight of the heights in Klipper's extended calibration: its cost
 /// `z_weight · Σ heights² + Σ distances²` with `z_weight = n_distances /
 /// (0.5 · n_probed)`, which weighs them as variances `σ_height² /
 /// σ_distance² = 1 / z_weight`.
-fn klipper_z_weight(delta: &KlipperDelta) -> f64 {
+pub fn klipper_z_weight(delta: &KlipperDelta) -> f64 {
     let probed = delta
         .probes
         .iter()
@@ -1413,10 +1018,175 @@ fn klipper_z_weight(delta: &KlipperDelta) -> f64 {
     delta.distances.len() as f64 / (KLIPPER_MEASURE_WEIGHT * probed as f64)
 }
 
-/// The noise σ of a group of readings, for the summary.
-fn noise_of(cal: &pkmcal::Calibration, axis: &str) -> String {
-    cal.noise
-        .iter()
-        .find(|g| g.axes.iter().any(|a| a == axis))
-        .map_or("—".into(), |g| format!("{:.1} µm", g.sigma * 1e3))
+/// A Klipper printer: its configuration's text and path, as read, and the
+/// weighting of its heights against its calibration object's distances.
+pub struct KlipperPrinter {
+    /// The configuration file.
+    pub path: PathBuf,
+    /// Its text.
+    pub text: String,
+    /// Its options, as Klipper reads them.
+    pub ini: Ini,
+    /// The printer.
+    pub delta: KlipperDelta,
+    /// How heights and distances are weighed.
+    pub weighting: Weighting,
+}
+
+impl KlipperPrinter {
+    /// Read a `printer.cfg` (with its includes) as Klipper reads it.
+    pub fn read(run: &crate::Run<'_>, path: &Path, weighting: Weighting) -> Result<Self> {
+        let text = run
+            .files
+            .read_to_string(path, crate::output::InputKind::Description)
+            .map_err(|e| e.named("Klipper configuration"))?;
+        let ini = parse_config(run, &text, path)?;
+        let delta = delta_from_config(&ini)?;
+        Ok(KlipperPrinter {
+            path: path.to_path_buf(),
+            text,
+            ini,
+            delta,
+            weighting,
+        })
+    }
+}
+
+impl Firmware for KlipperPrinter {
+    fn name(&self) -> &'static str {
+        "Klipper"
+    }
+
+    fn description(&self) -> String {
+        self.delta.mechanism_toml()
+    }
+
+    fn readings(&self, spec: &pkmcal::Spec) -> Result<Readings> {
+        let delta = &self.delta;
+        let mut poses: Vec<pkmcal::Measurement> = delta
+            .probes
+            .iter()
+            .enumerate()
+            .map(|(i, p)| pkmcal::Measurement {
+                target: None,
+                commands: delta.carriage_heights(&p.steps).to_vec(),
+                partner: None,
+                measured: vec![p.height],
+                sigma: vec![],
+                origin: Some(pkmcal::Origin {
+                    pose: i + 1,
+                    line: None,
+                    distance: false,
+                }),
+            })
+            .collect();
+        let mut distances: Vec<pkmcal::Measurement> = delta
+            .distances
+            .iter()
+            .enumerate()
+            .map(|(i, d)| pkmcal::Measurement {
+                target: None,
+                commands: delta.carriage_heights(&d.steps[0]).to_vec(),
+                partner: Some(delta.carriage_heights(&d.steps[1]).to_vec()),
+                measured: vec![d.distance],
+                sigma: vec![],
+                origin: Some(pkmcal::Origin {
+                    pose: i + 1,
+                    line: None,
+                    distance: true,
+                }),
+            })
+            .collect();
+        if self.weighting == Weighting::Klipper && !delta.distances.is_empty() {
+            // Klipper's cost `z_weight · Σ heights² + Σ distances²` as known
+            // standard deviations: σ_distance 1 (in mm; only the ratio
+            // acts), σ_height 1/√z_weight.
+            let z_weight = klipper_z_weight(delta);
+            for m in &mut poses {
+                m.sigma = vec![Some(1.0 / z_weight.sqrt())];
+            }
+            for m in &mut distances {
+                m.sigma = vec![Some(1.0)];
+            }
+        }
+        Ok(Readings {
+            measurement: MeasurementModel::probe(spec)?,
+            poses,
+            distances,
+        })
+    }
+
+    fn default_free(&self, spec: &pkmcal::Spec, readings: &Readings) -> Vec<String> {
+        let mut default: Vec<String> = spec.default_free.clone();
+        if !readings.distances.is_empty() {
+            default.extend(KLIPPER_EXTENDED.map(String::from));
+        }
+        default
+    }
+
+    fn configure(&self, request: &mut Request, readings: &Readings) {
+        if let Weighting::Shrunk(readings_worth) = self.weighting
+            && !readings.distances.is_empty()
+        {
+            // Klipper's ratio as the stated one, its scale estimated.
+            request.stated_noise = Some(1.0 / klipper_z_weight(&self.delta).sqrt());
+            request.stated_distance_noise = Some(1.0);
+            request.stated_readings = readings_worth;
+            request.stated_relative = true;
+        }
+    }
+
+    fn values(
+        &self,
+        spec: &pkmcal::Spec,
+        params: &Params,
+        _instrument: &[f64],
+    ) -> Result<Vec<FirmwareValue>> {
+        let new = self.delta.identified(spec, params)?;
+        let old = &self.delta;
+        let mut out = vec![FirmwareValue {
+            name: "[printer] delta_radius".into(),
+            before: old.radius,
+            after: new.radius,
+            unit: "mm",
+        }];
+        for (i, t) in TOWERS.iter().enumerate() {
+            for (key, a, b, unit) in [
+                ("angle", old.angles[i], new.angles[i], "°"),
+                ("arm_length", old.arms[i], new.arms[i], "mm"),
+                ("position_endstop", old.endstops[i], new.endstops[i], "mm"),
+            ] {
+                out.push(FirmwareValue {
+                    name: format!("[stepper_{t}] {key}"),
+                    before: a,
+                    after: b,
+                    unit,
+                });
+            }
+        }
+        Ok(out)
+    }
+
+    fn updated(&self, spec: &pkmcal::Spec, params: &Params, _instrument: &[f64]) -> Result<String> {
+        let new = self.delta.identified(spec, params)?;
+        updated_config(&self.text, &new, &self.ini)
+    }
+
+    fn located(&self, e: pkmcal::Error) -> Error {
+        let name = match &e {
+            pkmcal::Error::Pose {
+                pose,
+                distance: true,
+                ..
+            } => self.delta.distances.get(pose - 1).map(|d| d.name.clone()),
+            pkmcal::Error::Pose { pose, .. } => {
+                self.delta.probes.get(pose - 1).map(|p| p.name.clone())
+            }
+            _ => None,
+        };
+        match name {
+            Some(n) => Error::from(e).context(format!("`{n}` of {}", self.path.display())),
+            None => Error::from(e),
+        }
+    }
 }

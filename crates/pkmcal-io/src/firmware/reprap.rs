@@ -1,6 +1,6 @@
-//! `pkmcal reprap`: calibrate a linear delta printer run by RepRapFirmware
-//! from its `M665`/`M666` settings and heights probed with `G30 S-1`, and
-//! give the new `M665`/`M666` lines.
+//! RepRapFirmware's linear delta: its `M665`/`M666` settings read as the
+//! firmware runs them (`M501` and `config-override.g` followed), heights
+//! probed with `G30 S-1`, and the new `M665`/`M666` lines.
 //!
 //! RepRapFirmware's delta (`LinearDeltaKinematics`): tower `i` stands at the
 //! angle `210°, 330°, 90°` plus the `M665 X Y Z` corrections, on the circle of
@@ -15,12 +15,13 @@
 //! it: the homed carriage heights split into `H` and endstop adjustments of
 //! mean 0 (its `NormaliseEndstopAdjustments`), the bed's tilts as `A B`.
 
-use crate::io::Csv;
-use crate::klipper::{KLIPPER_FREE, KlipperDelta, SHARED_ARM};
-use anyhow::{Context, Result, bail};
-use pkmcal::{CalibrationOptions, MeasurementModel, Mechanism, Model, Params};
-use std::fmt::Write;
-use std::path::PathBuf;
+use super::klipper::{KLIPPER_FREE, KlipperDelta, SHARED_ARM};
+use super::{Firmware, FirmwareValue, Readings};
+use crate::csv::Csv;
+use crate::error::{Error, Result};
+use crate::{invalid, refuse};
+use pkmcal::{Field, MeasurementModel, Params, Request, RequestError};
+use std::path::{Path, PathBuf};
 
 /// RepRapFirmware's standard tower angles (degrees), before corrections.
 const STANDARD_ANGLES: [f64; 3] = [210.0, 330.0, 90.0];
@@ -129,7 +130,7 @@ impl RrfDelta {
     /// value).
     pub fn mechanism_toml(&self, shared_arm: bool) -> String {
         self.as_klipper().description_toml_with(
-            "RepRapFirmware's M665/M666 by `pkmcal reprap`",
+            "RepRapFirmware's M665/M666 by pkmcal",
             "the X, Y, Z towers",
             "RepRapFirmware",
             shared_arm,
@@ -158,7 +159,7 @@ impl RrfDelta {
                 p.get(spec, &format!("arm_{t}"))?
             };
             if arm.is_nan() || arm <= out.radius {
-                bail!(
+                invalid!(
                     "the identified arm_{t} = {arm:.3} mm is not longer than delta_radius = {:.3} mm; the probe data cannot support this parameter set (use fewer free parameters)",
                     out.radius
                 );
@@ -220,8 +221,10 @@ impl RrfDelta {
 /// with [`delta_from_config_file`], which follows it as the firmware does.
 pub fn delta_from_gcode(text: &str, file: &str) -> Result<RrfDelta> {
     delta_from_text(text, file, &mut |n| {
-        bail!(
-            "{file}:{n}: M501 loads config-override.g, whose M665/M666 values the firmware runs; give the configuration's path so that it can be read beside it"
+        refuse!(
+            file,
+            Some((n) as u64),
+            "M501 loads config-override.g, whose M665/M666 values the firmware runs; give the configuration's path so that it can be read beside it"
         )
     })
 }
@@ -238,8 +241,7 @@ pub const OVERRIDE_FILE: &str = "config-override.g";
 pub fn delta_from_config_file(run: &crate::Run<'_>, path: &std::path::Path) -> Result<RrfDelta> {
     let text = run
         .files
-        .read_to_string(path, crate::output::InputKind::Description)
-        .with_context(|| format!("cannot read {}", path.display()))?;
+        .read_to_string(path, crate::output::InputKind::Description)?;
     let file = path.display().to_string();
     let override_path = path
         .parent()
@@ -247,14 +249,21 @@ pub fn delta_from_config_file(run: &crate::Run<'_>, path: &std::path::Path) -> R
         .join(OVERRIDE_FILE);
     delta_from_text(&text, &file, &mut |n| {
         if path.file_name().is_some_and(|f| f == OVERRIDE_FILE) {
-            bail!("{file}:{n}: M501 inside {OVERRIDE_FILE} itself; remove that line");
+            refuse!(
+                file,
+                Some((n) as u64),
+                "M501 inside {OVERRIDE_FILE} itself; remove that line"
+            );
         }
-        let t = run.files.read_to_string(&override_path, crate::output::InputKind::Description).with_context(|| {
-            format!(
-                "{file}:{n}: M501 loads {OVERRIDE_FILE}, which holds the calibration the firmware runs, but {} cannot be read; copy it from the printer's /sys folder beside {file}, or remove the M501 line if the printer has none",
-                override_path.display()
-            )
-        })?;
+        let t = run
+            .files
+            .read_to_string(&override_path, crate::output::InputKind::Description)
+            .map_err(|e| {
+                e.context(format!(
+                    "{file}:{n}: M501 loads {OVERRIDE_FILE}, which holds the calibration the firmware runs, but {} cannot be read; copy it from the printer's /sys folder beside {file}, or remove the M501 line if the printer has none",
+                    override_path.display()
+                ))
+            })?;
         Ok(Some((t, override_path.display().to_string())))
     })
 }
@@ -269,13 +278,17 @@ fn delta_from_text(
     let mut d = RrfDelta::default();
     let seen = apply_lines(&mut d, text, file, m501, &mut Globals::new())?;
     if !seen {
-        bail!(
-            "{file}: no M665 or M666 line; give the file that sets the delta's geometry (config.g, or config-override.g after M500)"
+        refuse!(
+            file,
+            None,
+            "no M665 or M666 line; give the file that sets the delta's geometry (config.g, or config-override.g after M500)"
         );
     }
     if !(d.radius > 0.0 && d.diagonals.iter().all(|l| *l > d.radius) && d.print_radius > 0.0) {
-        bail!(
-            "{file}: M665 needs a positive delta radius R, diagonals L longer than R and a positive print radius B (got R{} L{:?} B{})",
+        refuse!(
+            file,
+            None,
+            "M665 needs a positive delta radius R, diagonals L longer than R and a positive print radius B (got R{} L{:?} B{})",
             d.radius,
             d.diagonals,
             d.print_radius
@@ -513,8 +526,8 @@ fn apply_lines(
         }
         let substituted;
         let line = if line.contains('{') {
-            substituted =
-                substitute(line, globals).map_err(|e| anyhow::anyhow!("{file}:{}: {e}", n + 1))?;
+            substituted = substitute(line, globals)
+                .map_err(|e| Error::at(Path::new(file), Some(n as u64 + 1), e))?;
             substituted.as_str()
         } else {
             line
@@ -534,7 +547,13 @@ fn apply_lines(
                     d,
                     &t,
                     &f,
-                    &mut |k| bail!("{f}:{k}: M501 inside {OVERRIDE_FILE} itself; remove that line"),
+                    &mut |k| {
+                        refuse!(
+                            f,
+                            Some((k) as u64),
+                            "M501 inside {OVERRIDE_FILE} itself; remove that line"
+                        )
+                    },
                     globals,
                 )?;
             }
@@ -551,14 +570,17 @@ fn apply_lines(
             };
             let value = chars.as_str();
             let bad = || {
-                anyhow::anyhow!(
-                    "{file}:{}: `{w}` in `{line}`: the value of {letter} must be a number{}",
-                    n + 1,
-                    if letter == 'L' {
-                        " or three separated by ':'"
-                    } else {
-                        ""
-                    }
+                Error::at(
+                    Path::new(file),
+                    Some(n as u64 + 1),
+                    format!(
+                        "`{w}` in `{line}`: the value of {letter} must be a number{}",
+                        if letter == 'L' {
+                            " or three separated by ':'"
+                        } else {
+                            ""
+                        }
+                    ),
                 )
             };
             let number = |v: &str| -> Result<f64> {
@@ -577,9 +599,10 @@ fn apply_lines(
             let number = |v: &str| -> Result<f64> {
                 let x = number(v)?;
                 if x.abs() > limit {
-                    bail!(
-                        "{file}:{}: `{w}` in `{line}`: {letter} = {v} is beyond what a printer holds (at most {limit} in size)",
-                        n + 1
+                    refuse!(
+                        file,
+                        Some((n + 1) as u64),
+                        "`{w}` in `{line}`: {letter} = {v} is beyond what a printer holds (at most {limit} in size)"
                     );
                 }
                 Ok(x)
@@ -590,9 +613,10 @@ fn apply_lines(
                     d.diagonals = match v.len() {
                         1 => [v[0]; 3],
                         3 => [v[0], v[1], v[2]],
-                        _ => bail!(
-                            "{file}:{}: M665 L takes one diagonal or three (L215:215.2:214.9); more towers are not supported",
-                            n + 1
+                        _ => refuse!(
+                            file,
+                            Some((n + 1) as u64),
+                            "M665 L takes one diagonal or three (L215:215.2:214.9); more towers are not supported"
                         ),
                     };
                 }
@@ -614,212 +638,263 @@ fn apply_lines(
     Ok(seen)
 }
 
-/// What `pkmcal reprap` does.
-pub struct ReprapConfig {
-    /// The G-code file with M665/M666.
+/// A RepRapFirmware printer: the configuration's path, its delta as the
+/// firmware runs it, and the probe results (`x`, `y` where the probe
+/// touched, `z` where it triggered, as `G30 S-1` reports them).
+pub struct RrfPrinter {
+    /// The configuration (`config.g`, or `config-override.g`).
     pub config: PathBuf,
-    /// The probe results: x, y (mm) and the height z (mm) where the probe
-    /// triggered.
+    /// The delta it sets.
+    pub delta: RrfDelta,
+    /// The probe file.
     pub probes: PathBuf,
-    /// Parameters to identify (names of the linear delta; `default` allowed).
-    pub free: Option<String>,
-    /// Parameters to keep fixed (removed from the free set).
-    pub fix: Option<String>,
-    /// Where to write the new M665/M666 lines.
-    pub out: Option<PathBuf>,
+    /// Each probe point `(x, y, z)` and its line.
+    pub points: Vec<([f64; 3], u64)>,
+    /// One diagonal for the three towers (`M665 L` with one value), fitted
+    /// as one.
+    pub shared_arm: bool,
 }
 
-/// Run `pkmcal reprap`.
-pub fn run_reprap(run: &crate::Run<'_>, c: ReprapConfig) -> Result<()> {
-    let delta = delta_from_config_file(run, &c.config)?;
-    let csv = Csv::read(run, &c.probes)?;
-    csv.require_rows()?;
-    let points = csv.named(&["x".to_string(), "y".to_string(), "z".to_string()])?;
-    // The shared diagonal: one `M665 L` for the three towers, fitted as one.
-    let free_names_given: Vec<&str> = c
-        .free
-        .as_deref()
-        .unwrap_or("")
-        .split(',')
-        .map(str::trim)
-        .collect();
-    let shared_arm = free_names_given.contains(&SHARED_ARM);
-    if shared_arm {
-        if let Some(n) = free_names_given
-            .iter()
-            .find(|n| n.starts_with("arm_") || **n == "all")
-        {
-            return crate::output::usage(format!(
-                "in --free: `{SHARED_ARM}` (one diagonal for the three towers) and `{n}` exclude each other; free either the shared diagonal or the three arm_a, arm_b, arm_c"
-            ));
+/// The parameters `M665`/`M666` hold: the radius, the tower angle
+/// corrections, the diagonals, the endstop adjustments (with `H`), the bed
+/// tilts; or, instead of the three diagonals, the one [`SHARED_ARM`].
+pub fn rrf_holds() -> Vec<String> {
+    RRF_FREE
+        .iter()
+        .map(|s| s.to_string())
+        .chain(std::iter::once(SHARED_ARM.to_string()))
+        .collect()
+}
+
+impl RrfPrinter {
+    /// Read the configuration as the firmware runs it and the probe
+    /// results; `free` (the names a user gives) says whether the shared
+    /// diagonal is fitted. A probe point the printer cannot reach is
+    /// refused with the geometry.
+    pub fn read(
+        run: &crate::Run<'_>,
+        config: &Path,
+        probes: &Path,
+        free: Option<&[String]>,
+    ) -> Result<Self> {
+        let delta = delta_from_config_file(run, config)?;
+        let csv = Csv::read(run, probes)?;
+        csv.require_rows()?;
+        let points = csv.named(&["x".to_string(), "y".to_string(), "z".to_string()])?;
+        // The shared diagonal: one `M665 L` for the three towers, fitted as one.
+        let given: Vec<&str> = free.unwrap_or_default().iter().map(|s| s.trim()).collect();
+        let shared_arm = given.contains(&SHARED_ARM);
+        if shared_arm {
+            if let Some(n) = given.iter().find(|n| n.starts_with("arm_") || **n == "all") {
+                return Err(RequestError::invalid(
+                    Field::Free,
+                    format!(
+                        "`{SHARED_ARM}` (one diagonal for the three towers) and `{n}` exclude each other; free either the shared diagonal or the three arm_a, arm_b, arm_c"
+                    ),
+                )
+                .into());
+            }
+            if delta.diagonals.iter().any(|l| *l != delta.diagonals[0]) {
+                return Err(RequestError::invalid(
+                    Field::Free,
+                    format!(
+                        "`{SHARED_ARM}` fits one diagonal for the three towers, but {} sets three (L{}:{}:{}); free arm_a, arm_b, arm_c instead",
+                        config.display(),
+                        delta.diagonals[0],
+                        delta.diagonals[1],
+                        delta.diagonals[2]
+                    ),
+                )
+                .into());
+            }
         }
-        if delta.diagonals.iter().any(|l| *l != delta.diagonals[0]) {
-            return crate::output::usage(format!(
-                "in --free: `{SHARED_ARM}` fits one diagonal for the three towers, but {} sets three (L{}:{}:{}); free arm_a, arm_b, arm_c instead",
-                c.config.display(),
-                delta.diagonals[0],
-                delta.diagonals[1],
-                delta.diagonals[2]
-            ));
+        // A probe point the printer of these M665/M666 values cannot reach
+        // (a diagonal shorter than the distance to its tower) is named here,
+        // with the geometry, not later as a command of NaN.
+        for (i, p) in points.iter().enumerate() {
+            if delta
+                .carriage_heights([p[0], p[1], p[2]])
+                .iter()
+                .any(|h| !h.is_finite())
+            {
+                refuse!(
+                    probes,
+                    Some(csv.line(i)),
+                    "the probe point ({}, {}) is out of reach of the printer {} describes (diagonals {:?} mm, radius {} mm{}); check the file or the probe points",
+                    p[0],
+                    p[1],
+                    config.display(),
+                    delta.diagonals,
+                    delta.radius,
+                    if delta.diagonals == RrfDelta::default().diagonals
+                        && delta.radius == RrfDelta::default().radius
+                    {
+                        ": RepRapFirmware's defaults, as if no M665 set them"
+                    } else {
+                        ""
+                    }
+                );
+            }
+        }
+        Ok(RrfPrinter {
+            config: config.to_path_buf(),
+            delta,
+            probes: probes.to_path_buf(),
+            points: points
+                .iter()
+                .enumerate()
+                .map(|(i, p)| ([p[0], p[1], p[2]], csv.line(i)))
+                .collect(),
+            shared_arm,
+        })
+    }
+}
+
+impl Firmware for RrfPrinter {
+    fn name(&self) -> &'static str {
+        "RepRapFirmware"
+    }
+
+    fn description(&self) -> String {
+        self.delta.mechanism_toml(self.shared_arm)
+    }
+
+    fn readings(&self, spec: &pkmcal::Spec) -> Result<Readings> {
+        let poses = self
+            .points
+            .iter()
+            .enumerate()
+            .map(|(i, (p, line))| pkmcal::Measurement {
+                target: None,
+                commands: self.delta.carriage_heights(*p).to_vec(),
+                partner: None,
+                measured: vec![0.0],
+                sigma: vec![],
+                origin: Some(pkmcal::Origin {
+                    pose: i + 1,
+                    line: Some(*line),
+                    distance: false,
+                }),
+            })
+            .collect();
+        let bed = self.delta.bed();
+        Ok(Readings {
+            measurement: MeasurementModel::probe(spec)?.with_own(&bed)?,
+            poses,
+            distances: vec![],
+        })
+    }
+
+    fn default_free(&self, _spec: &pkmcal::Spec, _readings: &Readings) -> Vec<String> {
+        KLIPPER_FREE.map(String::from).to_vec()
+    }
+
+    fn holds(&self) -> Option<Vec<String>> {
+        Some(rrf_holds())
+    }
+
+    fn configure(&self, request: &mut Request, _readings: &Readings) {
+        // As many probe points as factors are solved exactly, as the
+        // firmware solves them.
+        request.exactly_determined = true;
+        // `all` is every parameter M665/M666 hold.
+        if let Some(free) = &mut request.free {
+            let expanded: Vec<String> = free
+                .iter()
+                .flat_map(|n| {
+                    if n.trim() == "all" {
+                        RRF_FREE.iter().map(|s| s.to_string()).collect()
+                    } else {
+                        vec![n.clone()]
+                    }
+                })
+                .collect();
+            *free = expanded;
         }
     }
-    let toml = delta.mechanism_toml(shared_arm);
-    let mech = crate::io::mechanism_from_str(&toml)
-        .context("the M665/M666 geometry does not describe a delta that assembles")?;
-    let spec = mech.spec();
-    // A probe point the printer of these M665/M666 values cannot reach (a
-    // diagonal shorter than the distance to its tower) is named here, with
-    // the geometry, not later as a command of NaN.
-    for (i, p) in points.iter().enumerate() {
-        if delta
-            .carriage_heights([p[0], p[1], p[2]])
+
+    fn check_free(&self, names: &[String]) -> std::result::Result<(), RequestError> {
+        if let Some(n) = names
             .iter()
-            .any(|h| !h.is_finite())
+            .find(|n| !RRF_FREE.contains(&n.as_str()) && *n != SHARED_ARM)
         {
-            bail!(
-                "{}:{}: the probe point ({}, {}) is out of reach of the printer {} describes (diagonals {:?} mm, radius {} mm{}); check the file or the probe points",
-                c.probes.display(),
-                csv.line(i),
-                p[0],
-                p[1],
-                c.config.display(),
-                delta.diagonals,
-                delta.radius,
-                if delta.diagonals == RrfDelta::default().diagonals
-                    && delta.radius == RrfDelta::default().radius
-                {
-                    ": RepRapFirmware's defaults, as if no M665 set them"
-                } else {
-                    ""
-                }
+            return Err(RequestError::invalid(
+                Field::Free,
+                format!(
+                    "`{n}` has no place in M665/M666, so RepRapFirmware could not run what the fit finds{}; the parameters they hold are {}",
+                    if n == "bed.z" {
+                        " (a bed height is the endstops' common shift: da, db, dc take it)"
+                    } else {
+                        ""
+                    },
+                    RRF_FREE.join(", ")
+                        + ", or "
+                        + SHARED_ARM
+                        + " (one diagonal for the three towers)"
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    fn values(
+        &self,
+        spec: &pkmcal::Spec,
+        params: &Params,
+        instrument: &[f64],
+    ) -> Result<Vec<FirmwareValue>> {
+        let new = self.delta.identified(spec, params, instrument)?;
+        let old = &self.delta;
+        let mut out = vec![];
+        let mut push = |name: String, a: f64, b: f64, unit: &'static str| {
+            out.push(FirmwareValue {
+                name,
+                before: a,
+                after: b,
+                unit,
+            })
+        };
+        for (i, (w, _)) in TOWERS.iter().enumerate() {
+            push(
+                format!("M665 L ({w})"),
+                old.diagonals[i],
+                new.diagonals[i],
+                "mm",
             );
         }
-    }
-    let data: Vec<pkmcal::Measurement> = points
-        .iter()
-        .enumerate()
-        .map(|(i, p)| pkmcal::Measurement {
-            target: None,
-            commands: delta.carriage_heights([p[0], p[1], p[2]]).to_vec(),
-            partner: None,
-            measured: vec![0.0],
-            sigma: vec![],
-            origin: Some(pkmcal::Origin {
-                pose: i + 1,
-                line: Some(csv.line(i)),
-                distance: false,
-            }),
-        })
-        .collect();
-    let bed = delta.bed();
-    let measurement = MeasurementModel::probe(spec)?.with_own(&bed)?;
-    let mut opts = CalibrationOptions::new(spec, Model::Exact);
-    // As many probe points as factors are solved exactly, as the firmware
-    // solves them.
-    opts.exactly_determined = true;
-    // `all` is every parameter M665/M666 hold; a parameter they cannot
-    // hold is refused by name (the fit would report an accuracy that the
-    // written lines do not give).
-    let free_text = c.free.as_deref().map(|f| {
-        f.split(',')
-            .map(|n| {
-                if n.trim() == "all" {
-                    RRF_FREE.join(",")
-                } else {
-                    n.to_string()
-                }
-            })
-            .collect::<Vec<_>>()
-            .join(",")
-    });
-    let free_names;
-    (free_names, opts.free) = crate::klipper::free_list(
-        free_text.as_deref(),
-        c.fix.as_deref(),
-        &KLIPPER_FREE.map(String::from),
-        spec,
-        &measurement,
-    )?;
-    if let Some(n) = free_names
-        .iter()
-        .find(|n| !RRF_FREE.contains(&n.as_str()) && *n != SHARED_ARM)
-    {
-        return crate::output::usage(format!(
-            "in --free: `{n}` has no place in M665/M666, so RepRapFirmware could not run what the fit finds{}; the parameters they hold are {}",
-            if n == "bed.z" {
-                " (a bed height is the endstops' common shift: da, db, dc take it)"
-            } else {
-                ""
-            },
-            RRF_FREE.join(", ") + ", or " + SHARED_ARM + " (one diagonal for the three towers)"
-        ));
-    }
-    let nominal = Params::nominal(spec);
-    // The study every front end runs, on the probed heights.
-    let study = pkmcal::identify::study(
-        &mech,
-        &measurement,
-        &data,
-        vec![],
-        &nominal,
-        &pkmcal::identify::StudyOptions {
-            calibration: opts,
-            validation: pkmcal::identify::ValidationPlan::None,
-            kfold: None,
-            seed: 0,
-        },
-        &|| {},
-    )
-    .map_err(|e| crate::calibrate::located(e.error, &c.probes))?;
-    let (cal, acc, before, after) = (
-        &study.calibration,
-        &study.accuracy,
-        &study.before,
-        &study.after,
-    );
-    let new = delta.identified(spec, &cal.params, &cal.measurement)?;
-    let heights = |e: &[Vec<f64>]| -> (f64, f64) {
-        let v: Vec<f64> = e.iter().map(|r| r[0]).collect();
-        let max = v.iter().fold(0.0_f64, |m, x| m.max(x.abs()));
-        let rms = (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
-        (max, rms)
-    };
-    let ((bm, br), (am, ar)) = (heights(before), heights(after));
-    println!(
-        "{} probe heights from {} with the geometry of {} (RepRapFirmware), {} parameters free: {}",
-        acc.poses,
-        c.probes.display(),
-        c.config.display(),
-        free_names.len(),
-        free_names.join(" ")
-    );
-    println!("{}", cal.termination.reason());
-    println!(
-        "height errors: before max {bm:.4} mm, RMS {br:.4} mm; after max {am:.4} mm, RMS {ar:.4} mm"
-    );
-    for w in &cal.warnings {
-        println!(
-            "warning: {}\n  hint: {}",
-            w.message,
-            crate::calibrate::cli_hint(w)
+        push("M665 R".into(), old.radius, new.radius, "mm");
+        push("M665 H".into(), old.homed_height, new.homed_height, "mm");
+        for (i, (w, _)) in TOWERS.iter().enumerate() {
+            push(
+                format!("M665 {w}"),
+                old.corrections[i],
+                new.corrections[i],
+                "°",
+            );
+        }
+        for (i, (w, _)) in TOWERS.iter().enumerate() {
+            push(format!("M666 {w}"), old.endstops[i], new.endstops[i], "mm");
+        }
+        push(
+            "M666 A".into(),
+            old.tilt[0] * 100.0,
+            new.tilt[0] * 100.0,
+            "%",
         );
-    }
-    println!("\nbefore:\n{}after:\n{}", delta.gcode(), new.gcode());
-    let mut note = String::new();
-    let _ = writeln!(
-        note,
-        "; Delta parameters identified by pkmcal {} from {} ({} probe points)",
-        env!("CARGO_PKG_VERSION"),
-        c.probes.display(),
-        acc.poses
-    );
-    note.push_str(&new.gcode());
-    if let Some(out) = &c.out {
-        run.files.stage(out, note.as_bytes())?;
-        println!(
-            "new M665/M666 -> {} (replace the M665 and M666 lines of the file the firmware takes them from with these two, and keep that file's other lines: config-override.g when config.g runs M501, else config.g)",
-            out.display()
+        push(
+            "M666 B".into(),
+            old.tilt[1] * 100.0,
+            new.tilt[1] * 100.0,
+            "%",
         );
+        Ok(out)
     }
-    Ok(())
+
+    fn updated(&self, spec: &pkmcal::Spec, params: &Params, instrument: &[f64]) -> Result<String> {
+        Ok(self.delta.identified(spec, params, instrument)?.gcode())
+    }
+
+    fn located(&self, e: pkmcal::Error) -> Error {
+        Error::located(e, &self.probes)
+    }
 }
