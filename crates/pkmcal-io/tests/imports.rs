@@ -7,11 +7,9 @@ mod imports;
 
 use std::path::Path;
 
-/// Enabled once the io crate is restructured (issue 48): before it,
-/// `calibrate`, `report`, `budget` and `usecal` imported each other in a
-/// circle, and so did `io` and `fileunits`.
+/// Before issue 48 `calibrate`, `report`, `budget` and `usecal` imported
+/// each other in a circle, and so did `io` and `fileunits`.
 #[test]
-#[ignore = "enabled once the io crate is restructured (issue 48)"]
 fn no_import_circle_between_files() {
     let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
     let (modules, edges) = imports::module_graph(&src);
