@@ -33,8 +33,8 @@ pub use identifiability::{
 };
 pub use loss::{Loss, OUTLIER_FLOOR_MM, OUTLIER_FLOOR_RAD, Outlier};
 pub use prior::{
-    BEYOND_TOLERANCES, Prior, PriorTerm, TAUGHT_LITTLE, free_with_priors, information_from_data,
-    named_priors,
+    BEYOND_TOLERANCES, CONSTRAINT_RELATIVE, Prior, PriorConflict, PriorTerm, SEEN_SHARE,
+    TAUGHT_LITTLE, free_with_priors, information_from_data, is_constraint, named_priors,
 };
 pub use problem::{IdentificationProblem, MAX_POSES, PoseCache, too_many_poses};
 pub use record::{
@@ -46,7 +46,7 @@ pub use study::{
     FreeSetError, NameList, Study, StudyError, StudyOptions, StudyStage, StudyValidation,
     ValidationPlan, ValidationSource, named_bounds, resolve_free_set, study,
 };
-pub use uncertainty::{ParameterCovariance, predict_with_uncertainty, tool_covariance};
+pub use uncertainty::{ParameterCovariance, Scale, predict_with_uncertainty, tool_covariance};
 pub use validation::{
     Accuracy, CrossValidation, DistanceAccuracy, ErrorVectors, accuracy, calibration_accuracy,
     calibration_accuracy_with_cache, cross_validate, cross_validate_with_progress, holdout_split,

@@ -5,8 +5,9 @@
 //! `Σ_j ((p_j − μ_j)/σ_j)²`: each prior is one more row of the least-squares
 //! problem, `p_j − μ_j` weighted by `1/σ_j`, with a unit row in the
 //! Jacobian. Prior rows are not readings: they take no part in noise
-//! estimation, reweighting or outlier flags, but they count in the
-//! redundancy.
+//! estimation, reweighting, outlier flags or the scale of the
+//! uncertainties ([`super::uncertainty::Scale`]). A prior far tighter than
+//! any measurement resolves is a constraint ([`is_constraint`]).
 
 use super::result::{ParameterResult, Warning, WarningKind};
 use crate::error::{Error, Result};
@@ -102,15 +103,34 @@ pub(crate) fn resolve_named(
             )));
         }
         let sigma = tol.sigma(nominal(i));
-        if !(sigma.is_finite() && sigma > 0.0) {
+        if sigma == 0.0 {
             return Err(Error::InvalidRequest(format!(
                 "`{name}` is 0 nominally, so a tolerance relative to it is 0; give its σ in {}",
                 unit(i)
             )));
         }
+        check_sigma(name, sigma, unit(i))?;
         out.push((i, sigma));
     }
     Ok(out)
+}
+
+/// A prior's σ that can enter a fit: positive, finite and at most its
+/// unit's largest magnitude (a tolerance of 1e300 mm is a typing error).
+/// A σ however small is accepted: below [`CONSTRAINT_RELATIVE`] of its
+/// parameter it is a constraint ([`is_constraint`]), never a weight.
+pub(crate) fn check_sigma(name: &str, sigma: f64, unit: Unit) -> Result<()> {
+    if sigma.is_finite() && sigma > 0.0 && sigma <= unit.max_magnitude() {
+        return Ok(());
+    }
+    Err(Error::OutOfRange {
+        field: format!("tolerance of {name}"),
+        value: sigma,
+        expected: format!(
+            "one standard deviation, positive and at most {:e} {unit}",
+            unit.max_magnitude()
+        ),
+    })
 }
 
 /// The description's tolerances (`table`) with `given` ones replacing them
@@ -150,6 +170,60 @@ pub struct PriorTerm {
     pub centre: f64,
     /// One standard deviation.
     pub sigma: f64,
+    /// Whether the prior is a constraint ([`is_constraint`]): its parameter
+    /// is held at the centre, not fitted, with `sigma` as its standard
+    /// deviation and nothing from the data.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub constraint: bool,
+}
+
+/// A prior the data push against (docs/model.md eq. 13, "Priors in
+/// conflict with the data"): releasing it lowers the fit's χ² by more than
+/// chance allows.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PriorConflict {
+    /// The parameter.
+    pub name: String,
+    /// Its unit.
+    pub unit: Unit,
+    /// The prior's centre (the drawing's value).
+    pub centre: f64,
+    /// Its tolerance (σ).
+    pub tolerance: f64,
+    /// The drop of `Σ (r/σ)²` when the prior is released, those named
+    /// before it released already (its row's score statistic,
+    /// `e² / (1 − h)`).
+    pub statistic: f64,
+    /// Its p-value (χ² with one degree of freedom, or F(1, ν) with the
+    /// degrees of freedom of an estimated σ).
+    pub p_value: f64,
+    /// The value the data choose with it released (the others named
+    /// before it released too), where they see it: its share of
+    /// information from the data at least [`SEEN_SHARE`].
+    pub data_value: Option<f64>,
+    /// That value's standard deviation.
+    pub data_sd: Option<f64>,
+}
+
+/// A prior the data see less than this share of is not given the value
+/// the data alone would choose ([`PriorConflict::data_value`]): they
+/// hardly see it.
+pub const SEEN_SHARE: f64 = 0.01;
+
+/// A prior whose σ is below this fraction of its parameter's size
+/// (`max(|μ|, 1)` in the parameter's unit) is a constraint
+/// ([`is_constraint`]).
+pub const CONSTRAINT_RELATIVE: f64 = 1e-8;
+
+/// Whether a prior of standard deviation `sigma` centred on `centre` is an
+/// equality constraint rather than a weight (docs/model.md eq. 13): below
+/// [`CONSTRAINT_RELATIVE`] of the parameter's size no measurement can move
+/// it, and its row's weight `1/σ` would only swamp every other column of
+/// the least-squares problem (and overflow below ~1e-154). Its parameter is
+/// then held at `centre` with `sigma` as its standard deviation, and the
+/// others are identified as they would be without it.
+pub fn is_constraint(sigma: f64, centre: f64) -> bool {
+    sigma < CONSTRAINT_RELATIVE * centre.abs().max(1.0)
 }
 
 /// A value more than this many tolerances from its prior's centre is
@@ -256,8 +330,8 @@ pub fn information_from_data(posterior: f64, prior: f64) -> f64 {
 }
 
 /// Fill each parameter's tolerance and its information from the data, from
-/// the posterior covariance before the variance of unit weight scales it
-/// (`unit`, in `free` order): the information, not the misfit.
+/// the posterior covariance `unit` (in `free` order) its standard deviation
+/// comes from ([`super::uncertainty::apply_scale`]); a constraint's is 0.
 pub(super) fn annotate(
     parameters: &mut [ParameterResult],
     terms: &[PriorTerm],
@@ -267,11 +341,14 @@ pub(super) fn annotate(
     for t in terms {
         let p = &mut parameters[t.index];
         p.tolerance = Some(t.sigma);
-        p.from_data = free
-            .iter()
-            .position(|&f| f == t.index)
-            .map(|k| information_from_data(unit[(k, k)].max(0.0).sqrt(), t.sigma))
-            .filter(|v| v.is_finite());
+        p.from_data = if t.constraint {
+            Some(0.0)
+        } else {
+            free.iter()
+                .position(|&f| f == t.index)
+                .map(|k| information_from_data(unit[(k, k)].max(0.0).sqrt(), t.sigma))
+                .filter(|v| v.is_finite())
+        };
     }
 }
 
@@ -294,6 +371,7 @@ pub(super) fn prior_warnings(parameters: &[ParameterResult], terms: &[PriorTerm]
     }
     let little: Vec<(String, f64)> = terms
         .iter()
+        .filter(|t| !t.constraint)
         .filter_map(|t| {
             let p = &parameters[t.index];
             p.from_data

@@ -413,9 +413,17 @@ pub struct Calibration {
     pub distances: usize,
     /// Sum of squared standardised residuals `Σ (r/σ)²` at the solution.
     pub sum_of_squares: f64,
-    /// Standard deviation of unit weight `√(Σ (r/σ)² / (m − n))`
-    /// (dimensionless): about 1 when the noise levels are right.
+    /// The readings' standard deviation of unit weight
+    /// `√(Σ (r/σ)² / Σ (1 − h))` over the readings alone, `h` their
+    /// leverages in the fit with its priors (dimensionless): about 1 when
+    /// the noise levels are right (1 by construction where σ was estimated
+    /// without a stated noise).
     pub unit_weight_sigma: f64,
+    /// How the uncertainties are scaled ([`super::uncertainty::Scale`]):
+    /// absolute for σ known, Student's t with its degrees of freedom for σ
+    /// estimated.
+    #[serde(default)]
+    pub scale: super::uncertainty::Scale,
     /// Noise of each group of like coordinates: estimated from the residuals
     /// or given in the data.
     pub noise: Vec<NoiseGroup>,
@@ -424,8 +432,8 @@ pub struct Calibration {
     /// Identifiability (at the starting parameters, or where the actuators
     /// fight when stiffness is free; see [`calibrate`]).
     pub identifiability: Identifiability,
-    /// Covariance of the free parameters (scaled by the unit-weight
-    /// variance), in `free` order.
+    /// Covariance of the free parameters, `(J̃ᵀW̃J̃)⁻¹` at the final σ (the
+    /// scale rule, [`super::uncertainty::Scale`]), in `free` order.
     #[serde(skip, default = "empty_matrix")]
     pub covariance: DMatrix<f64>,
     /// Free parameter indices actually identified.
@@ -460,6 +468,10 @@ pub struct Calibration {
     /// rows after the readings'.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub priors: Vec<super::prior::PriorTerm>,
+    /// The priors the data push against, most significant first
+    /// ([`super::prior::prior_conflicts`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub prior_conflicts: Vec<super::prior::PriorConflict>,
     /// The fit's predictions at the identified parameters, when its last
     /// evaluation was there: [`calibration_accuracy_with_cache`] then
     /// computes them no second time.

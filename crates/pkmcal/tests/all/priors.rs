@@ -5,7 +5,7 @@
 //! registered start; answers far from what was known are warned about.
 
 use crate::common::{gough_stewart, spatial, spread};
-use pkmcal::identify::{Prior, WarningKind, free_with_priors};
+use pkmcal::identify::{Prior, Scale, WarningKind, free_with_priors};
 use pkmcal::{
     Calibration, CalibrationOptions, Frame, JeongKim2Dof, MeasurementModel, Mechanism, Model,
     Noise, Params,
@@ -17,8 +17,11 @@ const NOISE: f64 = 0.005;
 const REPEATS: u64 = 20;
 /// The estimated noise is this close to the true one (relative).
 const NOISE_FOUND: f64 = 0.25;
-/// Rounding of the variance of unit weight.
+/// Rounding of a standard deviation.
 const ROUNDING: f64 = 1e-12;
+/// The readings' standard deviation of unit weight is 1 within this where
+/// σ was estimated (the estimation stops at a relative change of 1e-3).
+const UNIT_WEIGHT: f64 = 3e-3;
 
 /// RMS over `check` targets of the tool position predicted with `p` minus
 /// the true one (nominal commands, the exact model).
@@ -183,11 +186,15 @@ fn a_hexapod_s_weakly_seen_joint_centres_are_held_by_their_tolerances() {
     assert!(map_ss < plain_ss, "prior {map_ss} vs fixed {plain_ss}");
 }
 
-/// Prior rows count in the redundancy (`s² = SS/(m + k − n)`), take no part
-/// in the noise estimate (the probe's σ is found, the residuals are the
-/// readings' alone), and are listed with their centres.
+/// Prior rows take no part in the scale of the uncertainties
+/// (docs/model.md §6): with σ estimated, the readings' residuals over the
+/// readings' redundancy give it (their standard deviation of unit weight is
+/// 1 to the estimation's tolerance, the degrees of freedom are their
+/// redundancy in the fit with its priors), nothing rescales the covariance
+/// afterwards, the noise estimate is the readings' alone (the probe's σ is
+/// found), and the priors are listed with their centres.
 #[test]
-fn prior_rows_count_in_the_redundancy_not_in_the_noise() {
+fn prior_rows_take_no_part_in_the_scale_or_the_noise() {
     let m = spatial("linear-delta");
     let spec = m.spec();
     let probe = MeasurementModel::probe(spec).unwrap();
@@ -203,9 +210,21 @@ fn prior_rows_count_in_the_redundancy_not_in_the_noise() {
     for t in &cal.priors {
         assert_eq!(t.centre, spec.nominal[t.index]);
     }
-    let dof = (data.len() + cal.priors.len() - cal.free.len()) as f64;
-    let s2 = cal.sum_of_squares / dof;
-    assert!((cal.unit_weight_sigma.powi(2) - s2).abs() < ROUNDING * s2);
+    let dof = cal.noise[0].redundancy.unwrap();
+    assert_eq!(cal.scale, Scale::Estimated { dof });
+    // The readings' redundancy: more than m − n (the priors hold part of
+    // the parameters), less than m − n + k.
+    let (mm, n, k) = (data.len() as f64, cal.free.len() as f64, 3.0);
+    assert!(dof > mm - n && dof < mm - n + k, "{dof}");
+    assert!(
+        (cal.unit_weight_sigma - 1.0).abs() < UNIT_WEIGHT,
+        "{}",
+        cal.unit_weight_sigma
+    );
+    for (k, &i) in cal.free.iter().enumerate() {
+        let sd = cal.covariance[(k, k)].sqrt();
+        assert!((cal.parameters[i].std_dev - sd).abs() <= ROUNDING * sd);
+    }
     let found = cal.noise[0].sigma;
     assert!(
         (found / NOISE - 1.0).abs() < NOISE_FOUND,
