@@ -41,7 +41,7 @@ pub use record::{
     CALIBRATION_FORMAT, CALIBRATION_VERSION, CalibrationRecord, RecordError, RecordedParameter,
     mechanism_identity,
 };
-pub use result::{Calibration, ParameterResult, Warning, WarningKind};
+pub use result::{Calibration, ParameterResult, Warning, WarningCategory, WarningKind};
 pub use study::{
     FreeSetError, NameList, Study, StudyError, StudyOptions, StudyStage, StudyValidation,
     ValidationPlan, ValidationSource, named_bounds, resolve_free_set, study,

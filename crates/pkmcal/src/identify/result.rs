@@ -190,6 +190,62 @@ fn pose_list(poses: &[Origin]) -> String {
         .join(", ")
 }
 
+/// The family a warning belongs to, for front ends that sort warnings into
+/// their own categories (Python's warning classes) without knowing each
+/// kind.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WarningCategory {
+    /// The fit did not converge.
+    Convergence,
+    /// Outlying poses, reported or dropped.
+    Outliers,
+    /// What the data show against what the tolerances assumed.
+    Tolerance,
+    /// The model or the noise against the residuals.
+    Model,
+    /// What the data can and cannot identify.
+    Identifiability,
+}
+
+impl WarningKind {
+    /// The kind's name, as written in reports (`model_inadequate`).
+    pub fn name(&self) -> &'static str {
+        match self {
+            WarningKind::StiffnessRatios { .. } => "stiffness_ratios",
+            WarningKind::Unidentifiable { .. } => "unidentifiable",
+            WarningKind::FrameGauge { .. } => "frame_gauge",
+            WarningKind::NotConverged { .. } => "not_converged",
+            WarningKind::RankDeficient { .. } => "rank_deficient",
+            WarningKind::PlanRankDeficient { .. } => "plan_rank_deficient",
+            WarningKind::Outliers { .. } => "outliers",
+            WarningKind::Dropped { .. } => "dropped",
+            WarningKind::BeyondTolerance { .. } => "beyond_tolerance",
+            WarningKind::PriorDominated { .. } => "prior_dominated",
+            WarningKind::ModelInadequate { .. } => "model_inadequate",
+            WarningKind::HeldByTolerance { .. } => "held_by_tolerance",
+        }
+    }
+
+    /// The family the kind belongs to.
+    pub fn category(&self) -> WarningCategory {
+        match self {
+            WarningKind::NotConverged { .. } => WarningCategory::Convergence,
+            WarningKind::Outliers { .. } | WarningKind::Dropped { .. } => WarningCategory::Outliers,
+            WarningKind::BeyondTolerance { .. } | WarningKind::PriorDominated { .. } => {
+                WarningCategory::Tolerance
+            }
+            WarningKind::ModelInadequate { .. } => WarningCategory::Model,
+            WarningKind::StiffnessRatios { .. }
+            | WarningKind::HeldByTolerance { .. }
+            | WarningKind::Unidentifiable { .. }
+            | WarningKind::FrameGauge { .. }
+            | WarningKind::RankDeficient { .. }
+            | WarningKind::PlanRankDeficient { .. } => WarningCategory::Identifiability,
+        }
+    }
+}
+
 impl Warning {
     /// The warning of `kind`, with its message and hint.
     pub fn new(kind: WarningKind) -> Self {
