@@ -210,8 +210,9 @@ fn calibrate_on<M: Mechanism>(
                     dropping: opts.drop_outliers,
                 }));
             }
-            let beyond = super::prior::prior_warnings(&cal.parameters, &cal.priors);
+            let beyond = super::prior::prior_warnings(&mut cal);
             cal.warnings.extend(beyond);
+            cal.adequacy = super::adequacy::adequacy_tests(&cal);
             if let Some(w) = super::adequacy::adequacy(&problem, &cal)? {
                 cal.warnings.push(w);
             }
@@ -729,6 +730,8 @@ fn assemble<M: Mechanism>(
         sum_of_squares: report.sum_of_squares,
         unit_weight_sigma: f64::NAN,
         scale: super::uncertainty::Scale::Known,
+        redundancy: f64::NAN,
+        adequacy: vec![],
         noise: vec![],
         parameters,
         identifiability,

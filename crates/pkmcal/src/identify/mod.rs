@@ -19,7 +19,7 @@ pub mod uncertainty;
 pub mod validation;
 pub mod weights;
 
-pub use adequacy::{ADEQUACY_ALPHA, SUSPECT_SHARE, SUSPECTS};
+pub use adequacy::{ADEQUACY_ALPHA, AdequacyTest, SUSPECT_ALPHA, SUSPECT_SHARE, SUSPECTS};
 pub use drift::{Compared, DEFAULT_ALPHA, Drift, ParameterDrift, drift, noise_dof};
 pub use driver::{
     CalibrationOptions, DEFAULT_STATED_NOISE_READINGS, MAX_DROPPED_FRACTION, analyze,
@@ -33,8 +33,9 @@ pub use identifiability::{
 };
 pub use loss::{Loss, OUTLIER_FLOOR_MM, OUTLIER_FLOOR_RAD, Outlier};
 pub use prior::{
-    BEYOND_TOLERANCES, CONSTRAINT_RELATIVE, Prior, PriorConflict, PriorTerm, SEEN_SHARE,
-    TAUGHT_LITTLE, free_with_priors, information_from_data, is_constraint, named_priors,
+    BEYOND_TOLERANCES, CONFLICT_ALPHA, CONSTRAINT_RELATIVE, Prior, PriorConflict, PriorTerm,
+    SEEN_SHARE, TAUGHT_LITTLE, free_with_priors, information_from_data, is_constraint,
+    named_priors, prior_conflicts,
 };
 pub use problem::{IdentificationProblem, MAX_POSES, PoseCache, too_many_poses};
 pub use record::{

@@ -168,6 +168,7 @@ pub(crate) fn apply_scale(cal: &mut Calibration, scale: Scale, factor: &[f64]) {
         .enumerate()
         .map(|(i, (r, s))| (r / (s * factor.get(i).copied().unwrap_or(1.0))).powi(2))
         .sum();
+    cal.redundancy = redundancy;
     cal.unit_weight_sigma = if redundancy > 0.0 {
         (ss / redundancy).sqrt()
     } else {

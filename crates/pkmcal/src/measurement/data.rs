@@ -105,7 +105,7 @@ impl Noise {
                     field: format!("{field}.{part}"),
                     value: v,
                     expected: format!(
-                        "a standard deviation between {MIN_NOISE:e} and {:e} {unit}",
+                        "a standard deviation, a positive number of {unit} between {MIN_NOISE:e} and {:e}",
                         unit.max_magnitude()
                     ),
                 });

@@ -4,6 +4,7 @@
 
 mod common;
 
+mod adequacy;
 mod architecture;
 mod budget;
 mod calibration;
