@@ -112,6 +112,15 @@ pub struct CalibrationRecord {
     pub parameters: Vec<RecordedParameter>,
     /// The covariance of the identified parameters.
     pub covariance: ParameterCovariance,
+    /// The priors the calibration was fitted with (a report's `priors`):
+    /// the drift test compares what the data added to them. Empty in a
+    /// record written before priors, or without them.
+    #[serde(default)]
+    pub priors: Vec<super::prior::PriorTerm>,
+    /// How its uncertainties were scaled (a report's `scale`): the degrees
+    /// of freedom of an estimated σ. `None` in a record written before.
+    #[serde(default)]
+    pub scale: Option<super::uncertainty::Scale>,
 }
 
 /// Why a calibration record cannot serve a mechanism. Typed, so that each
@@ -174,6 +183,8 @@ impl CalibrationRecord {
                 })
                 .collect(),
             covariance: cal.parameter_covariance.clone(),
+            priors: cal.priors.clone(),
+            scale: Some(cal.scale),
         }
     }
 
@@ -224,6 +235,9 @@ impl CalibrationRecord {
         let mut out = self.clone();
         for p in &mut out.parameters {
             p.name = spec.canonical(&p.name).to_string();
+        }
+        for t in &mut out.priors {
+            t.name = spec.canonical(&t.name).to_string();
         }
         for n in &mut out.covariance.names {
             *n = spec.canonical(n).to_string();

@@ -4,11 +4,14 @@
 
 mod common;
 
+mod adequacy;
 mod architecture;
 mod budget;
 mod calibration;
+mod coverage;
 mod drift;
 mod engine;
+mod extreme_weights;
 mod frame;
 mod fuzz;
 mod lattice;

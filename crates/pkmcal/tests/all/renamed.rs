@@ -158,6 +158,8 @@ fn a_record_saved_under_old_names_is_accepted() {
             names: vec!["a1x".into(), "k1".into()],
             matrix: vec![vec![1e-4, 0.0], vec![0.0, 25.0]],
         },
+        priors: vec![],
+        scale: None,
     };
     assert_eq!(record.check(spec), Ok(()));
     assert_eq!(record.params(spec).unwrap().values, values);
