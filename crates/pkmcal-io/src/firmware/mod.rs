@@ -8,7 +8,9 @@
 //! through; each firmware is one module: [`klipper`] (Klipper's linear
 //! delta), [`reprap`] (RepRapFirmware's).
 
+pub mod g33;
 pub mod klipper;
+pub mod marlin;
 pub mod reprap;
 
 use crate::description::Mech;
