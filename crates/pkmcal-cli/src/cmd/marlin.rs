@@ -159,21 +159,32 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     };
     let g33 = g33::run(printer.delta(), &opts, &mut |s, xy| probe(s, xy));
     println!(
-        "\nG33 P{}{} ({factors} factors: {what}), as Marlin's G33.cpp runs it on the printer this fit found, at radius {radius:.2} mm ({whence}):",
+        "G33 P{}{} ({factors} factors: {what}), as Marlin's G33.cpp runs it on the printer this fit found, at radius {radius:.2} mm ({whence}):",
         opts.points,
         if opts.towers { "" } else { " T" },
     );
+    // The fit's residuals at the probed points (the heights the probe would
+    // report with pkmcal's values, but for the fitted printer's own).
+    let residuals = firmware::probe_errors(
+        mech,
+        measurement,
+        &cal.params,
+        &cal.measurement,
+        &calibrated.readings.poses,
+    )?;
     match g33.and_then(|g| {
         // The heights the probe would report at the points probed, with
-        // G33's settings and with pkmcal's.
+        // G33's settings and with pkmcal's: the fitted printer's, plus what
+        // it left unexplained there.
         let at = |s: &MarlinDelta| -> pkmcal_io::Result<Vec<f64>> {
             printer
                 .log
                 .points
                 .iter()
-                .map(|p| {
+                .zip(&residuals)
+                .map(|(p, e)| {
                     let n = printer.nozzle(p);
-                    probe(s, [n[0], n[1]])
+                    Ok(probe(s, [n[0], n[1]])? + e)
                 })
                 .collect()
         };
@@ -195,7 +206,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             );
             print!("{}", indent(&g.settings.gcode()));
             println!(
-                "  heights at the {} probed points, as the fitted printer predicts them: with G33's values max {:.4} mm, RMS {:.4} mm; with pkmcal's max {:.4} mm, RMS {:.4} mm",
+                "  height errors at the {} probed points with G33's values: max {:.4} mm, RMS {:.4} mm; with pkmcal's: max {:.4} mm, RMS {:.4} mm (the fit's residuals and the change the fitted printer predicts)",
                 with_g33.len(),
                 max_abs(&with_g33),
                 rms(&with_g33),

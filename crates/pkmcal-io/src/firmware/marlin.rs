@@ -412,7 +412,9 @@ fn command_of(raw: &str) -> Option<Command<'_>> {
 fn heading_meaning(raw: &str) -> Option<LetterB> {
     let s = console(raw);
     let s = s.strip_prefix(';').unwrap_or(s).trim();
-    if !s.starts_with("Delta settings") {
+    // `Delta settings: L<diagonal rod> …` (Marlin 1.1 to 2.0), `Delta (L<diagonal
+    // rod> …)` (2.1).
+    if !(s.starts_with("Delta") && s.contains("L<diagonal")) {
         return None;
     }
     if s.contains("ABC<") {
@@ -834,7 +836,12 @@ pub fn probes_from_text(text: &str, path: &Path, g33_radius: Option<f64>) -> Res
             if let Some(r) = pairs(s).iter().find(|(n, _, _)| n == "radius") {
                 match r.1 {
                     Some(v) if v > 0.0 && v <= MAX_LENGTH_MM => log.g33_radius = Some(v),
-                    _ => return Err(bad("radius", &r.2)),
+                    Some(v) => refuse!(
+                        path,
+                        Some(line as u64),
+                        "`{s}`: G33's calibration radius {v} mm must be positive and at most {MAX_LENGTH_MM:e} mm"
+                    ),
+                    None => return Err(bad("radius", &r.2)),
                 }
             }
             continue;
