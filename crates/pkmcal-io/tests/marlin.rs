@@ -562,6 +562,36 @@ fn every_probe_report_is_read() {
         assert!(e.to_string().contains(needle), "{text}: {e}");
         assert!(e.to_string().starts_with("probes.log:1"), "{e}");
     }
+    // G33's settings as Marlin 1.1 prints them (`.Tower angle :` on a line
+    // of its own) and as Marlin 2 does.
+    let v11 = ">>> G33\nSENDING:G33\nChecking... AC\n.Height:318.83    Ex:-0.67  Ey:-0.45  Ez:+0.00    Radius:98.07\n.Tower angle :    Tx:-0.73  Ty:-0.13  Tz:+0.00\n";
+    let v2 = "Recv: Checking... AC at radius:155.00\nRecv: .Height:450.00  Ex:-0.25  Ey:0.00  Ez:-0.84  Radius:227.40\nRecv: .               Tx:+0.13  Ty:-0.18  Tz:+0.05\n";
+    for (text, want) in [
+        (
+            v11,
+            G33Settings {
+                height: Some(318.83),
+                endstops: [Some(-0.67), Some(-0.45), Some(0.0)],
+                radius: Some(98.07),
+                angle_trims: [Some(-0.73), Some(-0.13), Some(0.0)],
+                line: 4,
+            },
+        ),
+        (
+            v2,
+            G33Settings {
+                height: Some(450.0),
+                endstops: [Some(-0.25), Some(0.0), Some(-0.84)],
+                radius: Some(227.4),
+                angle_trims: [Some(0.13), Some(-0.18), Some(0.05)],
+                line: 2,
+            },
+        ),
+    ] {
+        let l = probes_from_text(text, &p, None).unwrap();
+        assert_eq!(l.g33_settings, vec![want]);
+        assert!(l.points.is_empty());
+    }
     // G33's heights off the centre need its radius, asked for by name.
     let l = probes_from_text(".Height:300.00\n.      c:+0.10 x:+0.20\n", &p, None).unwrap();
     assert_eq!(l.g33_unplaced, Some(2));
