@@ -100,6 +100,35 @@ const DEFAULT_ANGLES: [f64; 3] = [210.0, 330.0, 90.0];
 /// tower angles, the three endstops.
 pub const KLIPPER_FREE: [&str; 6] = ["delta_radius", "angle_a", "angle_b", "da", "db", "dc"];
 
+/// Every parameter Klipper's values hold: `delta_radius`, the towers'
+/// `angle`s, `arm_length`s and `position_endstop`s.
+pub const KLIPPER_VALUES: [&str; 10] = [
+    "delta_radius",
+    "angle_a",
+    "angle_b",
+    "angle_c",
+    "arm_a",
+    "arm_b",
+    "arm_c",
+    "da",
+    "db",
+    "dc",
+];
+
+/// The probe's x, y offset from the nozzle (mm): `[probe]` or `[bltouch]`
+/// `x_offset`, `y_offset` (0 where neither says: a probe at the nozzle).
+pub fn probe_offset(ini: &Ini) -> Result<[f64; 2]> {
+    for section in ["probe", "bltouch"] {
+        if ini.has_section(section) {
+            return Ok([
+                ini.length(section, "x_offset", false)?.unwrap_or(0.0),
+                ini.length(section, "y_offset", false)?.unwrap_or(0.0),
+            ]);
+        }
+    }
+    Ok([0.0, 0.0])
+}
+
 /// What Klipper adds to [`KLIPPER_FREE`] when distances were measured on its
 /// calibration object (its extended calibration): the three arm lengths.
 pub const KLIPPER_EXTENDED: [&str; 3] = ["arm_a", "arm_b", "arm_c"];
@@ -1214,6 +1243,16 @@ impl Firmware for KlipperPrinter {
     fn updated(&self, spec: &pkmcal::Spec, params: &Params, _instrument: &[f64]) -> Result<String> {
         let new = self.delta.identified(spec, params)?;
         updated_config(&self.text, &new, &self.ini)
+    }
+
+    fn linear_delta(&self) -> Result<Option<super::physical::LinearDelta>> {
+        Ok(Some(super::physical::LinearDelta {
+            delta: self.delta.clone(),
+            probe_offset: probe_offset(&self.ini)?,
+            firmware: "Klipper",
+            values: KLIPPER_VALUES.map(String::from).to_vec(),
+            corrects_bed_tilt: false,
+        }))
     }
 
     fn located(&self, e: pkmcal::Error) -> Error {

@@ -1359,6 +1359,16 @@ impl Firmware for MarlinPrinter {
         Ok(self.delta().identified(spec, params)?.gcode())
     }
 
+    fn linear_delta(&self) -> Result<Option<super::physical::LinearDelta>> {
+        Ok(Some(super::physical::LinearDelta {
+            delta: self.delta().as_klipper(self.probe_radius()),
+            probe_offset: [self.probe_offset[0], self.probe_offset[1]],
+            firmware: "Marlin",
+            values: marlin_holds(self.delta(), self.shared_arm),
+            corrects_bed_tilt: false,
+        }))
+    }
+
     fn located(&self, e: pkmcal::Error) -> Error {
         Error::located(e, &self.probes)
     }

@@ -8,12 +8,14 @@
 //! through; each firmware is one module: [`klipper`] (Klipper's linear
 //! delta), [`klipper_rotary`] (Klipper's rotary delta), [`reprap`]
 //! (RepRapFirmware's), [`marlin`] (Marlin's, with its own calibration
-//! [`g33`] to compare).
+//! [`g33`] to compare). [`physical`] is the printer as built, for the
+//! linear deltas (`--physical`).
 
 pub mod g33;
 pub mod klipper;
 pub mod klipper_rotary;
 pub mod marlin;
+pub mod physical;
 pub mod reprap;
 
 use crate::description::Mech;
@@ -102,6 +104,12 @@ pub trait Firmware {
     /// An error at a reading, located in the firmware's terms (`height3`
     /// of the configuration; line 7 of the probe file).
     fn located(&self, e: pkmcal::Error) -> Error;
+
+    /// The printer as a linear delta for the physical model
+    /// ([`physical`]); `None` when it is not one (a rotary delta).
+    fn linear_delta(&self) -> Result<Option<physical::LinearDelta>> {
+        Ok(None)
+    }
 }
 
 /// A printer's calibration request: the firmware's default free set in

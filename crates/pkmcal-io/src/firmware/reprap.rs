@@ -894,6 +894,18 @@ impl Firmware for RrfPrinter {
         Ok(self.delta.identified(spec, params, instrument)?.gcode())
     }
 
+    fn linear_delta(&self) -> Result<Option<super::physical::LinearDelta>> {
+        Ok(Some(super::physical::LinearDelta {
+            delta: self.delta.as_klipper(),
+            // The probe file gives where the probe touched, and its
+            // offset is not read: taken at the nozzle.
+            probe_offset: [0.0, 0.0],
+            firmware: "RepRapFirmware",
+            values: rrf_holds(),
+            corrects_bed_tilt: true,
+        }))
+    }
+
     fn located(&self, e: pkmcal::Error) -> Error {
         Error::located(e, &self.probes)
     }

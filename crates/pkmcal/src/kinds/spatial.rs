@@ -184,6 +184,12 @@ pub struct SpatialLeg {
     /// The joints from the base outward.
     #[serde(rename = "joint", default)]
     pub joints: Vec<SpatialJoint>,
+    /// The name of an earlier leg whose chain this leg shares (its angle,
+    /// joints and their coordinates: one carriage carrying two rods, as a
+    /// delta's parallelogram); then the leg has no `angle` or joints of its
+    /// own, only its end.
+    #[serde(default)]
+    pub chain: Option<String>,
     /// How the chain meets the platform.
     pub end: LegEnd,
 }
@@ -408,21 +414,45 @@ const MM: Unit = Unit::Millimetre;
 fn index_leg(
     leg: &SpatialLeg,
     row: usize,
+    earlier: &[(&str, &LegIx)],
     names: &mut Names,
     claimed: &mut Claimed,
     joints: &mut Joints,
 ) -> Result<LegIx> {
     claimed.claim(&leg.name, "leg")?;
     let ln = &leg.name;
-    let angle = match &leg.angle {
-        Some(v) => Some(names.add(v, format!("{ln}.angle"), Unit::Radian)?),
-        None => None,
+    let (angle, chain) = match &leg.chain {
+        Some(other) => {
+            if leg.angle.is_some() || !leg.joints.is_empty() {
+                return bad(format!(
+                    "leg `{ln}`: a leg that shares `chain = \"{other}\"` takes that leg's angle and joints; remove its own `angle` and [[leg.joint]]"
+                ));
+            }
+            let Some((_, shared)) = earlier.iter().find(|(n, _)| *n == other.as_str()) else {
+                return bad(format!(
+                    "leg `{ln}`: `chain = \"{other}\"` names no earlier leg (the leg whose chain is shared comes first)"
+                ));
+            };
+            if shared.joints.is_empty() {
+                return bad(format!(
+                    "leg `{ln}`: leg `{other}` has no chain joints to share"
+                ));
+            }
+            (shared.angle, shared.joints.clone())
+        }
+        None => {
+            let angle = match &leg.angle {
+                Some(v) => Some(names.add(v, format!("{ln}.angle"), Unit::Radian)?),
+                None => None,
+            };
+            let expanded = expand_joints(leg)?;
+            let mut chain = Vec::with_capacity(expanded.len());
+            for j in &expanded {
+                chain.push(index_chain_joint(ln, j, names, claimed, joints)?);
+            }
+            (angle, chain)
+        }
     };
-    let expanded = expand_joints(leg)?;
-    let mut chain = Vec::with_capacity(expanded.len());
-    for j in &expanded {
-        chain.push(index_chain_joint(ln, j, names, claimed, joints)?);
-    }
     let (end_at, platform, rod) = index_end(leg, names, claimed, joints)?;
     Ok(LegIx {
         angle,
@@ -973,7 +1003,9 @@ impl SpatialMechanism {
         let mut legs = Vec::with_capacity(d.legs.len());
         let mut row = 0;
         for leg in &d.legs {
-            let ix = index_leg(leg, row, &mut names, &mut claimed, &mut joints)?;
+            let earlier: Vec<(&str, &LegIx)> =
+                d.legs.iter().map(|l| l.name.as_str()).zip(&legs).collect();
+            let ix = index_leg(leg, row, &earlier, &mut names, &mut claimed, &mut joints)?;
             row += ix.rows();
             legs.push(ix);
         }
@@ -1013,6 +1045,9 @@ impl SpatialMechanism {
                 .collect(),
             tool_layout: match (motion, tool.len()) {
                 (Motion::Translation, 3) => ToolLayout::Points { dim: 3, count: 1 },
+                // A turning platform whose tool is its origin's x, y, z (a
+                // delta whose parallelograms are rods of their own): a point.
+                (Motion::Full, 3) if tool == [0, 1, 2] => ToolLayout::Points { dim: 3, count: 1 },
                 (Motion::Full, 6) => ToolLayout::SpatialPose,
                 _ => ToolLayout::Readings,
             },
@@ -1783,6 +1818,7 @@ mod tests {
                 actuated: false,
                 stiffness: None,
             }],
+            chain: None,
             end: LegEnd {
                 kind: EndKind::Spherical,
                 at: origin(),

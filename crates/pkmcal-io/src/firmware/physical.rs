@@ -1,0 +1,537 @@
+//! The physical linear delta (`--physical`): the printer as it is built,
+//! not the firmware's picture of it; fitted to the firmware's probe
+//! readings within the tolerances of its parts, then projected onto the
+//! firmware's values for the nozzle over the whole build volume.
+//!
+//! Every firmware describes a linear delta with a radius, three tower
+//! angles, arm lengths and endstops ([`super::klipper::KlipperDelta`]). The
+//! physical model ([`physical_description`]) has, for each tower, its own
+//! radius `radius_a` and angle `angle_a`, its lean (`a.tilt1`, `a.tilt2`:
+//! the carriage's rail tilts), and a parallelogram of two rods (`a1`, `a2`)
+//! with their own lengths (`rod_a1`, `rod_a2`), hanging from two ball
+//! joints on the carriage (`a1.ex …`, at ± half the rod spacing) and
+//! holding two on the effector (`a1.px …`); the effector turns as well as
+//! moves (`motion = "full"`), its pose solved from the six rod
+//! constraints; its frame's origin is the probe's trigger point, the nozzle
+//! at minus the probe's offset; the bed is the probe's plane (`bed.z`,
+//! `bed.rx`, `bed.ry`). With every extra error zero it is the firmware's
+//! model (tested to 1e-9 mm on each firmware).
+
+use super::klipper::KlipperDelta;
+use super::{Firmware, Readings};
+use crate::description::Mech;
+use crate::error::{Error, Result};
+use crate::invalid;
+use pkmcal::apply::budget::Tolerance;
+use pkmcal::{Mechanism, Params, Request};
+use std::fmt::Write as _;
+
+/// The effector's ball joints' radius from the nozzle (mm), which no
+/// firmware keeps (only the radius less it): a typical Kossel effector's.
+pub const EFFECTOR_RADIUS_MM: f64 = 30.0;
+/// The spacing of a parallelogram's two rods (mm), on the carriage and on
+/// the effector: a typical Kossel's.
+pub const ROD_SPACING_MM: f64 = 50.0;
+
+/// Default tolerance (σ, mm) of each rod's length: rods cut to ±0.1 mm.
+pub const ROD_SIGMA_MM: f64 = 0.1;
+/// Default tolerance (σ, mm) of each tower's radius.
+pub const TOWER_RADIUS_SIGMA_MM: f64 = 0.5;
+/// Default tolerance (σ, mm) of each tower's place around the circle (its
+/// angle's σ is this over the tower's radius).
+pub const TOWER_PLACE_SIGMA_MM: f64 = 0.5;
+/// Default tolerance (σ, rad) of each tower's lean about either axis:
+/// 0.5 mm over a 500 mm rail.
+pub const TOWER_LEAN_SIGMA_RAD: f64 = 0.001;
+/// Default tolerance (σ, mm) of each ball joint's place, on the carriage
+/// and on the effector, in each direction.
+pub const JOINT_SIGMA_MM: f64 = 0.1;
+/// Default tolerance (σ, rad) of the bed's tilt about x and y: 0.5 mm over
+/// 250 mm.
+pub const BED_TILT_SIGMA_RAD: f64 = 0.002;
+/// Default noise (σ, mm) of a probe reading, where none is stated.
+pub const PROBE_NOISE_MM: f64 = 0.01;
+/// Default noise (σ, mm) of a distance measured on a calibration object
+/// (calipers).
+pub const DISTANCE_NOISE_MM: f64 = 0.02;
+
+/// Heights of the build-volume grid's layers above the bed (mm).
+pub const GRID_HEIGHTS_MM: [f64; 4] = [0.0, 20.0, 50.0, 100.0];
+/// Points across the build-volume grid's diameter in x and in y (those
+/// within its radius are kept).
+pub const GRID_POINTS: usize = 9;
+
+/// The towers in order.
+const TOWERS: [&str; 3] = ["a", "b", "c"];
+
+/// Stiffness written for the carriages (N/mm), as the firmware's
+/// description writes it: a linear delta is not redundant, so it changes no
+/// prediction without a load.
+const CARRIAGE_STIFFNESS: f64 = 2000.0;
+
+/// A firmware's linear delta as the physical model starts from it.
+#[derive(Debug, Clone)]
+pub struct LinearDelta {
+    /// The firmware's geometry in Klipper's terms.
+    pub delta: KlipperDelta,
+    /// The probe's x, y offset from the nozzle (mm; 0, 0 for a probe at
+    /// the nozzle).
+    pub probe_offset: [f64; 2],
+    /// The firmware's name.
+    pub firmware: &'static str,
+    /// The parameters of the firmware's description that its values hold
+    /// (what the projection fits).
+    pub values: Vec<String>,
+    /// Whether the firmware tilts its z with the bed's plane (RepRapFirmware's
+    /// `M666 A B`): then the projection leaves the bed's tilt to it.
+    pub corrects_bed_tilt: bool,
+}
+
+impl LinearDelta {
+    /// The nozzle in the effector's frame (whose origin is the probe's
+    /// trigger point).
+    pub fn nozzle(&self) -> [f64; 3] {
+        [-self.probe_offset[0], -self.probe_offset[1], 0.0]
+    }
+
+    /// The build volume's radius (mm): the firmware's probed circle.
+    pub fn print_radius(&self) -> f64 {
+        self.delta.probe_radius.max(10.0)
+    }
+}
+
+/// The physical model of `ld` as a pkmcal spatial description (TOML), with
+/// its default `[tolerances]`.
+pub fn physical_description(ld: &LinearDelta) -> String {
+    let d = &ld.delta;
+    let o = ld.probe_offset;
+    let half = ROD_SPACING_MM / 2.0;
+    let mut s = String::new();
+    let mut free: Vec<String> = vec![];
+    let mut tol: Vec<(String, f64, &str)> = vec![];
+    for t in TOWERS {
+        let radius = d.radius + EFFECTOR_RADIUS_MM;
+        tol.push((format!("radius_{t}"), TOWER_RADIUS_SIGMA_MM, "mm"));
+        tol.push((format!("angle_{t}"), TOWER_PLACE_SIGMA_MM / radius, "rad"));
+        for k in 1..=2 {
+            tol.push((format!("{t}.tilt{k}"), TOWER_LEAN_SIGMA_RAD, "rad"));
+        }
+        for k in 1..=2 {
+            tol.push((format!("rod_{t}{k}"), ROD_SIGMA_MM, "mm"));
+            for c in ["ex", "ey", "ez", "px", "py", "pz"] {
+                tol.push((format!("{t}{k}.{c}"), JOINT_SIGMA_MM, "mm"));
+            }
+        }
+    }
+    free.extend(tol.iter().map(|(n, _, _)| n.clone()));
+    free.extend(TOWERS.map(|t| format!("d{t}")));
+    let _ = writeln!(
+        s,
+        "# The physical linear delta of {}'s values (pkmcal --physical): each\n\
+         # tower at its own radius and angle, leaning (a.tilt1, a.tilt2), its\n\
+         # parallelogram two rods of their own lengths from two ball joints on the\n\
+         # carriage to two on the effector, which turns as well as moves. The\n\
+         # effector's frame is at the probe's trigger point; the nozzle at\n\
+         # ({:?}, {:?}, 0) in it. Commands are the firmware's carriage heights (mm).\n\
+         type = \"spatial\"\nname = \"Linear delta printer, physical (from {})\"\nfree = [{}]\n\n\
+         [platform]\nmotion = \"full\"\ntool = [\"x\", \"y\", \"z\"]   # the probe's trigger point\n",
+        ld.firmware,
+        -o[0],
+        -o[1],
+        ld.firmware,
+        free.iter()
+            .map(|n| format!("\"{n}\""))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    for (i, t) in TOWERS.iter().enumerate() {
+        let th = d.angles[i].to_radians();
+        let (sn, cs) = th.sin_cos();
+        for (k, sign) in [(1, 1.0), (2, -1.0)] {
+            // The effector's joint, in the effector's frame (origin: the
+            // probe), at the tower's angle and half the spacing aside.
+            let p = [
+                EFFECTOR_RADIUS_MM * cs - sign * half * sn - o[0],
+                EFFECTOR_RADIUS_MM * sn + sign * half * cs - o[1],
+            ];
+            if k == 1 {
+                let _ = writeln!(
+                    s,
+                    "[[leg]]   # tower {t}'s carriage and its first rod\nname = \"{t}1\"\nangle = \"angle_{t}\"\n\
+                     [[leg.joint]]\nname = \"{t}\"\nkind = \"prismatic\"\nat = [\"radius_{t}\", 0.0, 0.0]\n\
+                     axis = [0.0, 0.0, 1.0]   # leaning by {t}.tilt1, {t}.tilt2\nactuated = true\n\
+                     stiffness = {CARRIAGE_STIFFNESS:?}   # N/mm"
+                );
+            } else {
+                let _ = writeln!(
+                    s,
+                    "[[leg]]   # tower {t}'s second rod, from the same carriage\nname = \"{t}2\"\nchain = \"{t}1\""
+                );
+            }
+            let _ = writeln!(
+                s,
+                "[leg.end]\nkind = \"rod\"\nat = [0.0, {:?}, 0.0]\nlength = \"rod_{t}{k}\"\nplatform = [{:?}, {:?}, 0.0]\n",
+                sign * half,
+                p[0],
+                p[1]
+            );
+        }
+    }
+    let _ = writeln!(s, "[parameters]");
+    for (i, t) in TOWERS.iter().enumerate() {
+        let _ = writeln!(
+            s,
+            "radius_{t} = {:?}   # delta_radius + the effector's {EFFECTOR_RADIUS_MM} mm\n\
+             angle_{t} = {:?}   # {}°\nrod_{t}1 = {:?}\nrod_{t}2 = {:?}",
+            d.radius + EFFECTOR_RADIUS_MM,
+            d.angles[i].to_radians(),
+            d.angles[i],
+            d.arms[i],
+            d.arms[i]
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\n[assembly]\npose = [{:?}, {:?}, 10.0, 0.0, 0.0, 0.0]",
+        o[0], o[1]
+    );
+    for (i, t) in TOWERS.iter().enumerate() {
+        let rise = (d.arms[i].powi(2) - d.radius.powi(2)).sqrt();
+        let _ = writeln!(s, "{t} = {:?}", 10.0 + rise);
+    }
+    let r = (1.1 * d.probe_radius).max(10.0) + o[0].hypot(o[1]);
+    let _ = writeln!(
+        s,
+        "\n[workspace]   # the probed region\nx = [{:?}, {r:?}]\ny = [{:?}, {r:?}]\nz = [-10.0, {:?}]\n",
+        -r,
+        -r,
+        GRID_HEIGHTS_MM[GRID_HEIGHTS_MM.len() - 1] + 10.0
+    );
+    let _ = writeln!(s, "[tolerances]   # σ of each part (pkmcal's defaults)");
+    for (n, v, unit) in &tol {
+        let _ = writeln!(s, "\"{n}\" = {v:?}   # {unit}");
+    }
+    s
+}
+
+/// The physical model of `ld`: its mechanism and its `[tolerances]`.
+pub fn physical_mechanism(ld: &LinearDelta) -> Result<(Mech, Vec<(String, Tolerance)>)> {
+    let parts =
+        crate::description::description_from_str(&physical_description(ld)).map_err(|e| {
+            e.context(format!(
+                "the physical model of the {} geometry",
+                ld.firmware
+            ))
+        })?;
+    Ok((parts.mech, parts.tolerances))
+}
+
+/// The physical model fitted to a printer's readings.
+pub struct PhysicalFit {
+    /// Where it started.
+    pub delta: LinearDelta,
+    /// The physical mechanism.
+    pub mech: Mech,
+    /// The readings (the firmware's, its weights left to the stated noise).
+    pub readings: Readings,
+    /// The free parameters' names.
+    pub free_names: Vec<String>,
+    /// The study (a MAP fit: the readings and the tolerances).
+    pub study: pkmcal::identify::Study,
+}
+
+/// The physical model of `firmware`'s printer fitted to its readings as far
+/// as they and the tolerances allow (a MAP fit): the description's
+/// tolerances, the bed's tilt [`BED_TILT_SIGMA_RAD`] and the readings'
+/// noise [`PROBE_NOISE_MM`] (distances [`DISTANCE_NOISE_MM`]) unless
+/// `request` states its own.
+pub fn calibrate<F: Firmware + ?Sized>(
+    firmware: &F,
+    ld: &LinearDelta,
+    mut request: Request,
+) -> Result<PhysicalFit> {
+    let (mech, table) = physical_mechanism(ld)?;
+    let spec = mech.spec();
+    let mut readings = firmware.readings(spec)?;
+    // The readings weigh as their stated noise says, not as the firmware's
+    // own fit weighs them against each other.
+    for m in readings
+        .poses
+        .iter_mut()
+        .chain(readings.distances.iter_mut())
+    {
+        m.sigma.clear();
+    }
+    for axis in ["bed.rx", "bed.ry"] {
+        if !request.tolerances.iter().any(|(n, _)| n == axis) {
+            request
+                .tolerances
+                .push((axis.to_string(), Tolerance::Absolute(BED_TILT_SIGMA_RAD)));
+        }
+    }
+    if request.stated_noise.is_none() {
+        request.stated_noise = Some(PROBE_NOISE_MM);
+        request.stated_readings = f64::INFINITY;
+    }
+    if request.stated_distance_noise.is_none() && !readings.distances.is_empty() {
+        request.stated_distance_noise = Some(DISTANCE_NOISE_MM);
+    }
+    let measurement = &readings.measurement;
+    let (_, free) = request.priors_and_free(spec, measurement, &table)?;
+    let free_names = request.free_names(spec, measurement, &free);
+    let nominal = Params::nominal(spec);
+    let opts = request.study_options(&mech, measurement, &table, &nominal)?;
+    let study = pkmcal::identify::study(
+        &mech,
+        measurement,
+        &readings.poses,
+        readings.distances.clone(),
+        &nominal,
+        &opts,
+        &|| {},
+    )
+    .map_err(|e| match &e.error {
+        pkmcal::Error::Pose { .. } => firmware.located(e.error),
+        _ => Error::from(e.error),
+    })?;
+    Ok(PhysicalFit {
+        delta: ld.clone(),
+        mech,
+        readings,
+        free_names,
+        study,
+    })
+}
+
+/// The nozzle (base frame, mm) of the physical printer `mech` with
+/// parameters `params` at the firmware's carriage heights `commands`; the
+/// nozzle at `nozzle` in the effector's frame.
+pub fn nozzle_at(
+    mech: &Mech,
+    params: &Params,
+    commands: &[f64],
+    nozzle: [f64; 3],
+) -> Result<[f64; 3]> {
+    let pr = pkmcal::predict(mech, params, commands, pkmcal::Model::Exact, &[])?;
+    let n = pr.q.len();
+    let pose = &pr.q[n - 6..];
+    let r = pkmcal::linalg::pose::rotation(pose[3], pose[4], pose[5]);
+    Ok(std::array::from_fn(|i| {
+        pose[i] + (0..3).map(|k| r[i][k] * nozzle[k]).sum::<f64>()
+    }))
+}
+
+/// The bed plane's height (mm) at `x`, `y` for the probe's parameters
+/// `bed` (`bed.z bed.rx bed.ry`, [`pkmcal::Instrument::Probe`]).
+pub fn bed_height(bed: &[f64], x: f64, y: f64) -> f64 {
+    bed[0] - x * bed[2].tan() + y * bed[1].tan()
+}
+
+/// The build-volume grid (nozzle targets over the bed, mm): [`GRID_POINTS`]
+/// across the printer's probed circle in x and y, at [`GRID_HEIGHTS_MM`].
+pub fn build_volume(radius: f64) -> Vec<[f64; 3]> {
+    let n = GRID_POINTS;
+    let mut out = vec![];
+    for &z in &GRID_HEIGHTS_MM {
+        for i in 0..n {
+            for j in 0..n {
+                let x = radius * (2.0 * i as f64 / (n - 1) as f64 - 1.0);
+                let y = radius * (2.0 * j as f64 / (n - 1) as f64 - 1.0);
+                if x.hypot(y) <= radius * (1.0 + 1e-9) {
+                    out.push([x, y, z]);
+                }
+            }
+        }
+    }
+    out
+}
+
+/// The firmware's carriage heights for the nozzle target `t` (over the
+/// bed) under its description's parameters `fw_params`, tilting its z with
+/// the bed plane `fw_bed` where it does.
+pub fn firmware_commands(
+    fw_mech: &Mech,
+    fw_params: &Params,
+    fw_bed: Option<&[f64]>,
+    t: [f64; 3],
+) -> Result<Vec<f64>> {
+    let z = match fw_bed {
+        Some(b) => t[2] + bed_height(&[0.0, b[1], b[2]], t[0], t[1]),
+        None => t[2],
+    };
+    Ok(pkmcal::controller_commands(
+        fw_mech,
+        fw_params,
+        &[t[0], t[1], z],
+    )?)
+}
+
+/// What the firmware's values do on the physical printer: at each nozzle
+/// target over the bed, the real nozzle's error (x, y, and z over the bed
+/// plane `bed`, mm).
+#[allow(clippy::too_many_arguments)]
+pub fn nozzle_errors(
+    fw_mech: &Mech,
+    fw_params: &Params,
+    fw_bed: Option<&[f64]>,
+    mech: &Mech,
+    params: &Params,
+    bed: &[f64],
+    nozzle: [f64; 3],
+    targets: &[[f64; 3]],
+) -> Result<Vec<[f64; 3]>> {
+    use rayon::prelude::*;
+    targets
+        .par_iter()
+        .map(|t| {
+            let c = firmware_commands(fw_mech, fw_params, fw_bed, *t)?;
+            let n = nozzle_at(mech, params, &c, nozzle)?;
+            Ok([
+                n[0] - t[0],
+                n[1] - t[1],
+                n[2] - bed_height(bed, n[0], n[1]) - t[2],
+            ])
+        })
+        .collect()
+}
+
+/// RMS and largest size of the XY and Z errors.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ErrorSummary {
+    /// RMS of the XY errors' lengths (mm).
+    pub xy_rms: f64,
+    /// The largest XY error (mm).
+    pub xy_max: f64,
+    /// RMS of the Z errors (mm).
+    pub z_rms: f64,
+    /// The largest Z error (mm).
+    pub z_max: f64,
+}
+
+impl ErrorSummary {
+    /// The summary of `errors`.
+    pub fn of(errors: &[[f64; 3]]) -> Self {
+        let n = errors.len().max(1) as f64;
+        let xy: Vec<f64> = errors.iter().map(|e| e[0].hypot(e[1])).collect();
+        ErrorSummary {
+            xy_rms: (xy.iter().map(|v| v * v).sum::<f64>() / n).sqrt(),
+            xy_max: xy.iter().fold(0.0, |m, v| m.max(*v)),
+            z_rms: (errors.iter().map(|e| e[2] * e[2]).sum::<f64>() / n).sqrt(),
+            z_max: errors.iter().fold(0.0, |m, e| m.max(e[2].abs())),
+        }
+    }
+
+    /// The RMS of the whole error (mm): `√(xy_rms² + z_rms²)`.
+    pub fn rms(&self) -> f64 {
+        self.xy_rms.hypot(self.z_rms)
+    }
+}
+
+/// The firmware's values for the nozzle on a physical printer: its
+/// description's parameters and bed, and what they leave.
+pub struct Projection {
+    /// The firmware description's parameters.
+    pub params: Params,
+    /// The bed's parameters to write (the firmware's tilt where it tilts).
+    pub bed: Vec<f64>,
+    /// The build-volume targets.
+    pub targets: Vec<[f64; 3]>,
+    /// The nozzle's errors there with these values.
+    pub errors: Vec<[f64; 3]>,
+    /// Their summary.
+    pub summary: ErrorSummary,
+}
+
+/// Iterations of the projection (each a linear least-squares fit of the
+/// firmware's values to the nozzle's errors over the grid).
+const PROJECTION_ITERATIONS: usize = 6;
+/// The projection stops when its values move less than this (mm or rad).
+const PROJECTION_STEP: f64 = 1e-9;
+/// Step of the finite differences of the projection's Jacobian (mm, rad).
+const PROJECTION_DIFF: f64 = 1e-6;
+
+/// The firmware's values that minimise the real nozzle's error (x, y, z
+/// over the bed, least squares) over the build-volume grid, on the
+/// physical printer `params` with bed `bed`: Gauss-Newton on the values
+/// [`LinearDelta::values`] from the firmware's current ones.
+pub fn project(
+    ld: &LinearDelta,
+    fw_mech: &Mech,
+    mech: &Mech,
+    params: &Params,
+    bed: &[f64],
+) -> Result<Projection> {
+    let fw_spec = fw_mech.spec();
+    let targets = build_volume(ld.print_radius());
+    let names: Vec<&String> = ld
+        .values
+        .iter()
+        .filter(|n| fw_spec.param_index(n).is_ok())
+        .collect();
+    let fw_bed = ld.corrects_bed_tilt.then(|| bed.to_vec());
+    let mut fw = Params::nominal(fw_spec);
+    let nozzle = ld.nozzle();
+    let errors = |p: &Params| -> Result<Vec<f64>> {
+        Ok(nozzle_errors(
+            fw_mech,
+            p,
+            fw_bed.as_deref(),
+            mech,
+            params,
+            bed,
+            nozzle,
+            &targets,
+        )?
+        .into_iter()
+        .flatten()
+        .collect())
+    };
+    let mut e = errors(&fw)?;
+    for _ in 0..PROJECTION_ITERATIONS {
+        let mut jac = nalgebra::DMatrix::zeros(e.len(), names.len());
+        for (k, n) in names.iter().enumerate() {
+            let mut p = fw.clone();
+            let v = p.get(fw_spec, n)?;
+            p.set(fw_spec, n, v + PROJECTION_DIFF)?;
+            let ep = errors(&p)?;
+            for (i, (a, b)) in ep.iter().zip(&e).enumerate() {
+                jac[(i, k)] = (a - b) / PROJECTION_DIFF;
+            }
+        }
+        let rhs = nalgebra::DVector::from_column_slice(&e);
+        let step = jac
+            .svd(true, true)
+            .solve(&rhs, 1e-12)
+            .map_err(|m| Error::Content(format!("the projection's least squares failed: {m}")))?;
+        let mut next = fw.clone();
+        for (k, n) in names.iter().enumerate() {
+            let v = next.get(fw_spec, n)?;
+            next.set(fw_spec, n, v - step[k])?;
+        }
+        let en = errors(&next)?;
+        let ss = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>();
+        if ss(&en) > ss(&e) {
+            break;
+        }
+        fw = next;
+        e = en;
+        if step.amax() < PROJECTION_STEP {
+            break;
+        }
+    }
+    let errors: Vec<[f64; 3]> = e.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+    if errors.is_empty() {
+        invalid!("the build volume holds no point to project on");
+    }
+    let fw_bed_out = match &fw_bed {
+        Some(b) => vec![0.0, b[1], b[2]],
+        None => vec![0.0; 3],
+    };
+    Ok(Projection {
+        params: fw,
+        bed: fw_bed_out,
+        summary: ErrorSummary::of(&errors),
+        targets,
+        errors,
+    })
+}
