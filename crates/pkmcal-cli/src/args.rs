@@ -109,6 +109,38 @@ impl ToleranceArg {
     }
 }
 
+/// The physical model of a linear delta (`--physical`, issue 54).
+#[derive(clap::Args, Default)]
+pub struct PhysicalArgs {
+    /// Fit the printer as built (each tower's radius, angle and lean, each
+    /// parallelogram's two rods and ball joints, the effector's tilt, the
+    /// probe's offset, the bed's plane) within its parts' tolerances, then
+    /// write the firmware values that put the nozzle best over the whole
+    /// build volume (XY and Z), not those that fit the probe best; linear
+    /// deltas only.
+    #[arg(long)]
+    pub physical: bool,
+    /// With --physical: tolerances NAME=SIGMA replacing the physical
+    /// model's defaults (rod_a1=0.05, radius_a=0.3, a.tilt1=0.002,
+    /// bed.rx=0.001; `pkmcal parameters` on its description lists the
+    /// names), comma-separated or repeated.
+    #[command(flatten)]
+    pub given: ToleranceArg,
+}
+
+impl PhysicalArgs {
+    /// The tolerances onto the request (refused without --physical).
+    pub fn apply(&self, r: &mut pkmcal::Request) -> anyhow::Result<()> {
+        if !self.physical && !self.given.tolerance.is_empty() {
+            return crate::words::usage(
+                "--tolerance belongs to the physical model: add --physical".to_string(),
+            );
+        }
+        r.tolerances = self.given.tolerances()?;
+        Ok(())
+    }
+}
+
 /// What is known of the parameters before the data: their tolerances, as
 /// priors of the fit.
 #[derive(clap::Args, Default)]

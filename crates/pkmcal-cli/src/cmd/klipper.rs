@@ -51,6 +51,8 @@ pub struct Args {
     /// pseudo-readings predicted better, up to Klipper's ratio).
     #[arg(long, default_value = "klipper", value_parser = args::values::weighting)]
     pub weighting: Weighting,
+    #[command(flatten)]
+    pub physical: args::PhysicalArgs,
 }
 
 impl Args {
@@ -67,7 +69,30 @@ impl Args {
 }
 
 pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
+    if a.physical.physical && a.out_dir.is_some() {
+        return crate::words::usage(
+            "--out-dir writes the firmware's own model; leave it out with --physical".to_string(),
+        );
+    }
     let (text, ini) = klipper::read_config(run, &a.config)?;
+    if a.physical.physical {
+        let mut request = Request::new(pkmcal::Model::Exact);
+        a.params_set.apply(&mut request);
+        a.physical.apply(&mut request)?;
+        let output = crate::cmd::physical::Output {
+            out: a.out.as_deref(),
+            header: String::new(),
+            footer: "",
+            written: "(values in its SAVE_CONFIG block)",
+        };
+        let source = a.config.display().to_string();
+        if klipper_rotary::is_rotary(&ini) {
+            let printer = RotaryPrinter::from_parsed(&a.config, text, ini, a.weighting)?;
+            return crate::cmd::physical::run(run, &printer, request, &source, output);
+        }
+        let printer = KlipperPrinter::from_parsed(&a.config, text, ini, a.weighting)?;
+        return crate::cmd::physical::run(run, &printer, request, &source, output);
+    }
     if klipper_rotary::is_rotary(&ini) {
         let printer = RotaryPrinter::from_parsed(&a.config, text, ini, a.weighting)?;
         let (n, z_weight) = (printer.delta.distances.len(), printer.z_weight());
@@ -93,6 +118,7 @@ fn report<F: Firmware>(
 ) -> Result<()> {
     let mut request = Request::new(pkmcal::Model::Exact);
     a.params_set.apply(&mut request);
+    a.physical.apply(&mut request)?;
     let calibrated = firmware::calibrate(printer, request)?;
     let (mech, readings, study) = (&calibrated.mech, &calibrated.readings, &calibrated.study);
     let spec = mech.spec();

@@ -58,6 +58,8 @@ pub struct Args {
     /// B (Marlin 1.1 to 2.0.x), else the farthest probed point.
     #[arg(long, value_name = "MM", value_parser = args::values::positive)]
     pub g33_radius: Option<f64>,
+    #[command(flatten)]
+    pub physical: args::PhysicalArgs,
 }
 
 impl Args {
@@ -81,6 +83,26 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         a.g33_radius,
         request.free.as_deref(),
     )?;
+    a.physical.apply(&mut request)?;
+    if a.physical.physical {
+        let n = printer.readings(printer.mechanism()?.spec())?.poses.len();
+        return crate::cmd::physical::run(
+            run,
+            &printer,
+            request,
+            &a.probes.display().to_string(),
+            crate::cmd::physical::Output {
+                out: a.out.as_deref(),
+                header: format!(
+                    "; Marlin delta settings for the nozzle over the build volume by pkmcal {} --physical from {} ({n} probe points)\n",
+                    env!("CARGO_PKG_VERSION"),
+                    a.probes.display(),
+                ),
+                footer: "; send M500 once to keep them in EEPROM (not in a start script)\n",
+                written: "(send the two lines to the printer, then M500 to keep them)",
+            },
+        );
+    }
     let calibrated = firmware::calibrate(&printer, request)?;
     let study = &calibrated.study;
     let (cal, acc) = (&study.calibration, &study.accuracy);

@@ -12,6 +12,7 @@ pub mod klipper;
 pub mod marlin;
 pub mod montecarlo;
 pub mod parameters;
+pub mod physical;
 pub mod plan;
 pub mod predict;
 pub mod reprap;

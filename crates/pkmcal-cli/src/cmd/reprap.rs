@@ -33,6 +33,8 @@ pub struct Args {
     /// Write the new M665 and M666 lines here (never over --config).
     #[arg(long, value_name = "NEW.g")]
     pub out: Option<PathBuf>,
+    #[command(flatten)]
+    pub physical: args::PhysicalArgs,
 }
 
 impl Args {
@@ -47,7 +49,27 @@ impl Args {
 pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     let mut request = Request::new(pkmcal::Model::Exact);
     a.params_set.apply(&mut request);
+    a.physical.apply(&mut request)?;
     let printer = RrfPrinter::read(run, &a.config, &a.probes, request.free.as_deref())?;
+    if a.physical.physical {
+        let n = printer.readings(printer.mechanism()?.spec())?.poses.len();
+        return crate::cmd::physical::run(
+            run,
+            &printer,
+            request,
+            &a.probes.display().to_string(),
+            crate::cmd::physical::Output {
+                out: a.out.as_deref(),
+                header: format!(
+                    "; Delta parameters for the nozzle over the build volume by pkmcal {} --physical from {} ({n} probe points)\n",
+                    env!("CARGO_PKG_VERSION"),
+                    a.probes.display(),
+                ),
+                footer: "",
+                written: "(replace the M665 and M666 lines of the file the firmware takes them from with these two)",
+            },
+        );
+    }
     let calibrated = firmware::calibrate(&printer, request)?;
     let study = &calibrated.study;
     let (cal, acc, before, after) = (

@@ -1252,6 +1252,10 @@ impl Firmware for KlipperPrinter {
             firmware: "Klipper",
             values: KLIPPER_VALUES.map(String::from).to_vec(),
             corrects_bed_tilt: false,
+            print_radius: match self.ini.length("printer", "print_radius", true)? {
+                Some(r) => r,
+                None => self.delta.probe_radius,
+            },
         }))
     }
 

@@ -1366,6 +1366,7 @@ impl Firmware for MarlinPrinter {
             firmware: "Marlin",
             values: marlin_holds(self.delta(), self.shared_arm),
             corrects_bed_tilt: false,
+            print_radius: self.probe_radius(),
         }))
     }
 

@@ -85,6 +85,9 @@ pub struct LinearDelta {
     /// Whether the firmware tilts its z with the bed's plane (RepRapFirmware's
     /// `M666 A B`): then the projection leaves the bed's tilt to it.
     pub corrects_bed_tilt: bool,
+    /// The build volume's radius (mm): Klipper's `print_radius`, else the
+    /// probed circle's.
+    pub print_radius: f64,
 }
 
 impl LinearDelta {
@@ -94,9 +97,9 @@ impl LinearDelta {
         [-self.probe_offset[0], -self.probe_offset[1], 0.0]
     }
 
-    /// The build volume's radius (mm): the firmware's probed circle.
+    /// The build volume's radius (mm), at least 10 mm.
     pub fn print_radius(&self) -> f64 {
-        self.delta.probe_radius.max(10.0)
+        self.print_radius.max(10.0)
     }
 }
 
@@ -199,7 +202,7 @@ pub fn physical_description(ld: &LinearDelta) -> String {
         let rise = (d.arms[i].powi(2) - d.radius.powi(2)).sqrt();
         let _ = writeln!(s, "{t} = {:?}", 10.0 + rise);
     }
-    let r = (1.1 * d.probe_radius).max(10.0) + o[0].hypot(o[1]);
+    let r = (1.1 * d.probe_radius.max(ld.print_radius)).max(10.0) + o[0].hypot(o[1]);
     let _ = writeln!(
         s,
         "\n[workspace]   # the probed region\nx = [{:?}, {r:?}]\ny = [{:?}, {r:?}]\nz = [-10.0, {:?}]\n",

@@ -903,6 +903,7 @@ impl Firmware for RrfPrinter {
             firmware: "RepRapFirmware",
             values: rrf_holds(),
             corrects_bed_tilt: true,
+            print_radius: self.delta.print_radius,
         }))
     }
 

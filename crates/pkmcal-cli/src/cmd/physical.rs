@@ -1,0 +1,205 @@
+//! `--physical` on `klipper`, `reprap` and `marlin`: the linear delta as
+//! built, fitted to the firmware's readings within its parts' tolerances,
+//! projected onto the firmware's values for the nozzle over the build
+//! volume, and written by the firmware's own writer (issue 54).
+
+use anyhow::{Result, bail};
+use pkmcal::{Mechanism, Params, Request};
+use pkmcal_io::Run;
+use pkmcal_io::firmware::physical::{self, ErrorSummary};
+use pkmcal_io::firmware::{self, Firmware};
+use std::path::Path;
+
+/// Where and how the firmware's values are written.
+pub struct Output<'a> {
+    /// The file (`--out`), if any.
+    pub out: Option<&'a Path>,
+    /// What goes before the firmware's writer's text.
+    pub header: String,
+    /// And after it.
+    pub footer: &'a str,
+    /// What the command says of the written file.
+    pub written: &'a str,
+}
+
+/// A parameter whose uncertainty the readings reduce by less than this
+/// share (of its variance) is one the probe pattern cannot see.
+const UNSEEN_FROM_DATA: f64 = 0.1;
+
+/// The parts of the physical model, by the start of their parameters'
+/// names, for the verdict.
+const PARTS: [(&str, &[&str]); 6] = [
+    ("tower radii", &["radius_"]),
+    ("tower angles", &["angle_"]),
+    ("tower lean", &["a.tilt", "b.tilt", "c.tilt"]),
+    ("rod lengths", &["rod_"]),
+    ("ball joints", &["a1.", "a2.", "b1.", "b2.", "c1.", "c2."]),
+    ("bed tilt", &["bed."]),
+];
+
+/// Fit, project, print, and write as `output` says.
+pub fn run<F: Firmware>(
+    run: &Run<'_>,
+    printer: &F,
+    request: Request,
+    source: &str,
+    output: Output<'_>,
+) -> Result<()> {
+    let Some(ld) = printer.linear_delta()? else {
+        bail!(
+            "--physical models linear deltas; this {} printer is a rotary delta (leave --physical out)",
+            printer.name()
+        );
+    };
+    let fw_mech = printer.mechanism()?;
+    let fw_spec = fw_mech.spec();
+    let own = firmware::calibrate(printer, Request::new(pkmcal::Model::Exact))?;
+    let own_cal = own.calibration();
+    let fit = physical::calibrate(printer, &ld, request)?;
+    let cal = &fit.study.calibration;
+    let spec = fit.mech.spec();
+    let proj = physical::project(&ld, &fw_mech, &fit.mech, &cal.params, &cal.measurement)?;
+    let errors = |p: &Params, bed: Option<&[f64]>| -> Result<ErrorSummary> {
+        Ok(ErrorSummary::of(&physical::nozzle_errors(
+            &fw_mech,
+            p,
+            bed.filter(|_| ld.corrects_bed_tilt),
+            &fit.mech,
+            &cal.params,
+            &cal.measurement,
+            ld.nozzle(),
+            &proj.targets,
+        )?))
+    };
+    let before = errors(
+        &Params::nominal(fw_spec),
+        Some(own.readings.measurement.nominal()),
+    )?;
+    let with_own = errors(&own_cal.params, Some(&own_cal.measurement))?;
+    let measurement = &fit.readings.measurement;
+    let heights = &fit.readings.poses;
+    let h_before = firmware::probe_errors(
+        &fit.mech,
+        measurement,
+        &Params::nominal(spec),
+        measurement.nominal(),
+        heights,
+    )?;
+    let h_after = firmware::probe_errors(
+        &fit.mech,
+        measurement,
+        &cal.params,
+        &cal.measurement,
+        heights,
+    )?;
+    println!(
+        "Physical model: {} probe heights{} from {source} ({}), {} parameters within their tolerances (rods {} mm, tower radii {} mm, tower lean {} mrad, ball joints {} mm, bed tilt {} mrad; probe σ {} mm); effector radius {} mm, rod spacing {} mm, probe offset ({}, {}) mm",
+        heights.len(),
+        if fit.readings.distances.is_empty() {
+            String::new()
+        } else {
+            format!(" and {} distances", fit.readings.distances.len())
+        },
+        printer.name(),
+        fit.free_names.len(),
+        physical::ROD_SIGMA_MM,
+        physical::TOWER_RADIUS_SIGMA_MM,
+        physical::TOWER_LEAN_SIGMA_RAD * 1e3,
+        physical::JOINT_SIGMA_MM,
+        physical::BED_TILT_SIGMA_RAD * 1e3,
+        physical::PROBE_NOISE_MM,
+        physical::EFFECTOR_RADIUS_MM,
+        physical::ROD_SPACING_MM,
+        ld.probe_offset[0],
+        ld.probe_offset[1],
+    );
+    println!("{}", cal.termination.reason());
+    println!(
+        "height errors of the physical fit: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm",
+        max_abs(&h_before),
+        rms(&h_before),
+        max_abs(&h_after),
+        rms(&h_after)
+    );
+    // What the tolerances hold is said part by part below, not direction
+    // by direction.
+    use pkmcal::identify::WarningKind;
+    for w in cal.warnings.iter().filter(|w| {
+        !matches!(
+            w.kind,
+            WarningKind::HeldByTolerance { .. } | WarningKind::PriorDominated { .. }
+        )
+    }) {
+        println!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
+    }
+    let unseen: Vec<String> = PARTS
+        .iter()
+        .filter_map(|(part, prefixes)| {
+            let of_part: Vec<_> = cal
+                .parameters
+                .iter()
+                .filter(|p| p.free && prefixes.iter().any(|x| p.name.starts_with(x)))
+                .collect();
+            let blind = of_part
+                .iter()
+                .filter(|p| p.from_data.is_some_and(|f| f < UNSEEN_FROM_DATA))
+                .count();
+            (blind > 0).then(|| format!("{part} ({blind} of {})", of_part.len()))
+        })
+        .collect();
+    if !unseen.is_empty() {
+        println!(
+            "the probe pattern cannot see (the readings take less than {:.0} % of their uncertainty): {}",
+            100.0 * UNSEEN_FROM_DATA,
+            unseen.join(", ")
+        );
+    }
+    println!(
+        "\nnozzle error over the build volume of the fitted printer ({} points within {:.0} mm of the centre, z {} mm; over the bed):",
+        proj.targets.len(),
+        ld.print_radius(),
+        physical::GRID_HEIGHTS_MM.map(|z| format!("{z}")).join(", ")
+    );
+    for (what, e) in [
+        ("the current values", before),
+        (
+            &format!("{}'s own fit of the probe", printer.name()) as &str,
+            with_own,
+        ),
+        ("the values for the nozzle", proj.summary),
+    ] {
+        println!(
+            "  {what:<36} XY RMS {:.4} mm, max {:.4} mm; Z RMS {:.4} mm, max {:.4} mm",
+            e.xy_rms, e.xy_max, e.z_rms, e.z_max
+        );
+    }
+    println!(
+        "\n  {:<28} {:>14} {:>14}",
+        format!("{} value", printer.name()),
+        "before",
+        "after"
+    );
+    for v in printer.values(fw_spec, &proj.params, &proj.bed)? {
+        println!("  {:<28} {:>14.6} {:>14.6}", v.name, v.before, v.after);
+    }
+    if let Some(out) = output.out {
+        let mut text = output.header;
+        text.push_str(&printer.updated(fw_spec, &proj.params, &proj.bed)?);
+        text.push_str(output.footer);
+        run.files.stage(out, text.as_bytes())?;
+        println!(
+            "\nvalues for the nozzle -> {} {}",
+            out.display(),
+            output.written
+        );
+    }
+    Ok(())
+}
+
+fn rms(v: &[f64]) -> f64 {
+    (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt()
+}
+
+fn max_abs(v: &[f64]) -> f64 {
+    v.iter().fold(0.0, |m, x| m.max(x.abs()))
+}
