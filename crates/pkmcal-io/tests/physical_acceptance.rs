@@ -9,7 +9,9 @@
 //! close a share of the gap from Klipper's fit to the projection limit (the
 //! best Klipper values for the truth, computed here): the issue asks half;
 //! measured 0.49 (BENCHMARKS.md), most of the rest being what heights alone
-//! cannot see (the XY scale the parts' tolerances leave).
+//! cannot see (the XY scale the parts' tolerances leave). The verdict's
+//! predicted 20 mm cube (size in X and Y, top flatness, at the centre and
+//! the edge) agrees with the simulated printer's within its stated σ.
 
 use pkmcal::{Mechanism, Params, Request};
 use pkmcal_io::firmware::klipper::{KlipperPrinter, Weighting, read_config};
@@ -28,6 +30,9 @@ const STEP: f64 = 40.0 / 3200.0;
 /// "Never worse": the written values' error may exceed Klipper's fit's by
 /// at most this (mm RMS), the projection's own convergence.
 const NEVER_WORSE_MM: f64 = 1e-4;
+/// The share of the verdict's cube errors (X and Y size, flatness, at the
+/// centre and the edge) whose truth lies within one predicted σ.
+const CUBE_WITHIN_1_SIGMA: f64 = 0.6;
 /// The share of the gap closed on average that the test holds: measured
 /// 0.492 on these 12 printers (the issue's goal is 0.5, not met yet).
 const GAP_CLOSED: f64 = 0.45;
@@ -250,7 +255,7 @@ fn probe(
 
 /// One simulated printer: the build-volume error of Klipper's own fit, of
 /// the physical fit's projection, and the projection limit.
-fn run_case(case: &Case, with_distances: bool) -> [ErrorSummary; 3] {
+fn run_case(case: &Case, with_distances: bool) -> ([ErrorSummary; 3], Vec<(f64, f64, f64)>) {
     let dir = tempfile::tempdir().unwrap();
     let reg = regular(case.probe);
     // The printer before any result (a placeholder block to read it).
@@ -290,7 +295,25 @@ fn run_case(case: &Case, with_distances: bool) -> [ErrorSummary; 3] {
     let limit = physical::project(&ld, &fw, &mech, &truth_p, &truth_bed)
         .unwrap()
         .summary;
-    [own, written, limit]
+    // The verdict's cubes: predicted, its σ, and the truth's.
+    let mut cubes = vec![];
+    for c in physical::cube_errors(&fit, &fw, &projected.params, None).unwrap() {
+        let (s, f) = physical::cube_at(
+            &fw,
+            &projected.params,
+            None,
+            &mech,
+            &truth_p,
+            &truth_bed,
+            ld.nozzle(),
+            c.centre,
+        )
+        .unwrap();
+        cubes.push((c.size[0], c.size_sd[0], s[0]));
+        cubes.push((c.size[1], c.size_sd[1], s[1]));
+        cubes.push((c.flatness, c.flatness_sd, f));
+    }
+    ([own, written, limit], cubes)
 }
 
 fn cases() -> Vec<Case> {
@@ -320,10 +343,12 @@ fn cases() -> Vec<Case> {
 #[test]
 fn physical_projection_beats_klippers_fit_and_closes_the_gap() {
     let mut closed = vec![];
+    let mut cubes = vec![];
     let mut table = String::new();
     for case in cases() {
         for with_distances in [false, true] {
-            let [own, written, limit] = run_case(&case, with_distances);
+            let ([own, written, limit], c) = run_case(&case, with_distances);
+            cubes.extend(c);
             let _ = writeln!(
                 table,
                 "seed {}{}: Klipper's fit {:.4} (xy {:.4}, z {:.4}), written {:.4} (xy {:.4}, z {:.4}), limit {:.4} (xy {:.4}, z {:.4}) mm RMS",
@@ -354,5 +379,25 @@ fn physical_projection_beats_klippers_fit_and_closes_the_gap() {
     }
     let mean = closed.iter().sum::<f64>() / closed.len() as f64;
     eprintln!("{table}gap closed: {closed:.3?}, mean {mean:.3}");
+    let within = |k: f64| {
+        cubes
+            .iter()
+            .filter(|(p, sd, t)| (p - t).abs() <= k * sd)
+            .count()
+    };
+    eprintln!(
+        "cube errors (predicted, σ, truth): {cubes:.4?}\nwithin 1σ {} 2σ {} 3σ {} of {}",
+        within(1.0),
+        within(2.0),
+        within(3.0),
+        cubes.len()
+    );
+    // The verdict's cube: every truth within 3σ of the prediction, and
+    // about two thirds within 1σ (measured: 55 of 72 and 72 of 72).
+    assert_eq!(within(3.0), cubes.len(), "{cubes:.4?}");
+    assert!(
+        within(1.0) as f64 >= CUBE_WITHIN_1_SIGMA * cubes.len() as f64,
+        "{cubes:.4?}"
+    );
     assert!(mean >= GAP_CLOSED, "mean gap closed {mean:.3}\n{table}");
 }

@@ -173,6 +173,26 @@ pub fn run<F: Firmware>(
             e.xy_rms, e.xy_max, e.z_rms, e.z_max
         );
     }
+    let fw_bed = ld.corrects_bed_tilt.then_some(proj.bed.as_slice());
+    let cubes = physical::cube_errors(&fit, &fw_mech, &proj.params, fw_bed)?;
+    println!(
+        "\npredicted {} mm cube printed with the values for the nozzle (± one standard deviation from the fit's uncertainty, {} draws):",
+        physical::CUBE_MM,
+        physical::CUBE_DRAWS
+    );
+    for (where_, c) in ["at the centre", "at the edge"].iter().zip(&cubes) {
+        println!(
+            "  {where_} ({:.0}, {:.0}): X size {:+.3} ± {:.3} mm, Y size {:+.3} ± {:.3} mm, top flatness {:.3} ± {:.3} mm",
+            c.centre[0],
+            c.centre[1],
+            c.size[0],
+            c.size_sd[0],
+            c.size[1],
+            c.size_sd[1],
+            c.flatness,
+            c.flatness_sd
+        );
+    }
     println!(
         "\n  {:<28} {:>14} {:>14}",
         format!("{} value", printer.name()),

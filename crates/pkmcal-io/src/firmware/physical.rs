@@ -538,3 +538,145 @@ pub fn project(
         errors,
     })
 }
+
+/// The side of the verdict's calibration cube (mm).
+pub const CUBE_MM: f64 = 20.0;
+/// Draws from the fit's posterior behind the cube's uncertainty.
+pub const CUBE_DRAWS: usize = 64;
+/// Their seed.
+pub const CUBE_SEED: u64 = 1;
+
+/// The predicted error of a printed cube: its size error in X and Y (at
+/// half its height) and its top's flatness, each with its standard
+/// deviation from the fit's uncertainty.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CubeError {
+    /// The cube's centre on the bed (mm).
+    pub centre: [f64; 2],
+    /// Printed minus nominal size in X and Y (mm).
+    pub size: [f64; 2],
+    /// Their standard deviations (mm).
+    pub size_sd: [f64; 2],
+    /// The top's flatness: the largest minus the smallest height error at
+    /// its corners (mm).
+    pub flatness: f64,
+    /// Its standard deviation (mm).
+    pub flatness_sd: f64,
+}
+
+/// Where the verdict's cubes stand: the centre, and the edge of the build
+/// volume (the cube inside it, toward tower c).
+pub fn cube_centres(ld: &LinearDelta) -> [[f64; 2]; 2] {
+    let r = ld.print_radius() - CUBE_MM / std::f64::consts::SQRT_2;
+    [[0.0, 0.0], [0.0, r.max(0.0)]]
+}
+
+/// The size errors (X, Y) and top flatness of a cube at `centre` printed
+/// with the firmware's values on the printer `params` (mm).
+#[allow(clippy::too_many_arguments)]
+pub fn cube_at(
+    fw_mech: &Mech,
+    fw_params: &Params,
+    fw_bed: Option<&[f64]>,
+    mech: &Mech,
+    params: &Params,
+    bed: &[f64],
+    nozzle: [f64; 3],
+    centre: [f64; 2],
+) -> Result<([f64; 2], f64)> {
+    let (h, [x, y]) = (CUBE_MM / 2.0, centre);
+    let points = [
+        [x - h, y, h],
+        [x + h, y, h],
+        [x, y - h, h],
+        [x, y + h, h],
+        [x - h, y - h, CUBE_MM],
+        [x + h, y - h, CUBE_MM],
+        [x - h, y + h, CUBE_MM],
+        [x + h, y + h, CUBE_MM],
+    ];
+    let e = nozzle_errors(
+        fw_mech, fw_params, fw_bed, mech, params, bed, nozzle, &points,
+    )?;
+    let top = e[4..].iter().map(|v| v[2]);
+    let flatness = top.clone().fold(f64::MIN, f64::max) - top.fold(f64::MAX, f64::min);
+    Ok(([e[1][0] - e[0][0], e[3][1] - e[2][1]], flatness))
+}
+
+/// The verdict's cubes ([`cube_centres`]) printed with the firmware's
+/// values `fw_params` on the fitted printer: each error at the fit's
+/// values, its standard deviation from [`CUBE_DRAWS`] draws of the free
+/// parameters from the fit's covariance.
+pub fn cube_errors(
+    fit: &PhysicalFit,
+    fw_mech: &Mech,
+    fw_params: &Params,
+    fw_bed: Option<&[f64]>,
+) -> Result<Vec<CubeError>> {
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, StandardNormal};
+    let cal = &fit.study.calibration;
+    let spec = fit.mech.spec();
+    let names = fit.readings.measurement.all_names(spec);
+    let n_params = spec.n_params();
+    let nozzle = fit.delta.nozzle();
+    let eig = cal.covariance.clone().symmetric_eigen();
+    let mut rng = rand::rngs::StdRng::seed_from_u64(CUBE_SEED);
+    let draws: Vec<(Params, Vec<f64>)> = (0..CUBE_DRAWS)
+        .map(|_| -> Result<(Params, Vec<f64>)> {
+            let z: Vec<f64> = (0..cal.free.len())
+                .map(|_| StandardNormal.sample(&mut rng))
+                .collect();
+            let (mut p, mut bed) = (cal.params.clone(), cal.measurement.clone());
+            for (k, &i) in cal.free.iter().enumerate() {
+                let d: f64 = (0..z.len())
+                    .map(|j| eig.eigenvectors[(k, j)] * eig.eigenvalues[j].max(0.0).sqrt() * z[j])
+                    .sum();
+                if i < n_params {
+                    let v = p.get(spec, &names[i])?;
+                    p.set(spec, &names[i], v + d)?;
+                } else {
+                    bed[i - n_params] += d;
+                }
+            }
+            Ok((p, bed))
+        })
+        .collect::<Result<_>>()?;
+    cube_centres(&fit.delta)
+        .into_iter()
+        .map(|centre| {
+            let (size, flatness) = cube_at(
+                fw_mech,
+                fw_params,
+                fw_bed,
+                &fit.mech,
+                &cal.params,
+                &cal.measurement,
+                nozzle,
+                centre,
+            )?;
+            let mut sum = [0.0; 3];
+            let mut sq = [0.0; 3];
+            for (p, bed) in &draws {
+                let (s, f) = cube_at(
+                    fw_mech, fw_params, fw_bed, &fit.mech, p, bed, nozzle, centre,
+                )?;
+                for (k, v) in [s[0], s[1], f].into_iter().enumerate() {
+                    sum[k] += v;
+                    sq[k] += v * v;
+                }
+            }
+            let n = draws.len().max(2) as f64;
+            let sd: Vec<f64> = (0..3)
+                .map(|k| ((sq[k] - sum[k] * sum[k] / n) / (n - 1.0)).max(0.0).sqrt())
+                .collect();
+            Ok(CubeError {
+                centre,
+                size,
+                size_sd: [sd[0], sd[1]],
+                flatness,
+                flatness_sd: sd[2],
+            })
+        })
+        .collect()
+}
