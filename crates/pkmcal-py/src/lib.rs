@@ -3674,7 +3674,7 @@ fn plan<'py>(
             cancel: Some(cancel),
             ..opts
         };
-        pkmcal::plan(mech, &params, &opts, &|| {})
+        pkmcal::plan(mech, &params, &opts, &|_, _| {})
     })?
     .map_err(lib_err)?;
     emit_warnings(py, &p.warnings)?;

@@ -8,6 +8,7 @@ use pkmcal_io::csv::csv_bytes;
 use pkmcal_io::description::read_description;
 use pkmcal_io::params::params_or_nominal;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -79,7 +80,12 @@ pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
         return crate::words::usage(format!("--count: {e}"));
     }
     let criterion: PlanCriterion = c.criterion.parse()?;
-    let bar = run.bar(0, false, "planning steps", 0);
+    // The steps foreseen grow as exchange passes improve the plan: the bar
+    // follows (shown on a terminal whatever the count: a 48-leg platform
+    // takes minutes).
+    let foreseen = 2 * c.count as u64;
+    let bar = run.bar(foreseen, false, "planning steps", 1);
+    let shown = (AtomicU64::new(0), AtomicU64::new(foreseen));
     let plan = pkmcal::apply::planning::plan(
         mech,
         &params,
@@ -94,9 +100,13 @@ pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
             priors,
             noise,
         },
-        &|| {
-            bar.inc_length(1);
-            bar.inc(1);
+        &|done, total| {
+            let (done, total) = (done as u64, total as u64);
+            let more = total.saturating_sub(shown.1.swap(total, Ordering::Relaxed));
+            if more > 0 {
+                bar.inc_length(more);
+            }
+            bar.inc(done.saturating_sub(shown.0.swap(done, Ordering::Relaxed)));
         },
     )?;
     bar.finish();
