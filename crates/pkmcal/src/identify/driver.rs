@@ -320,7 +320,7 @@ pub(super) fn calibrate_once<M: Mechanism>(
     solver.free = Some(mask(np + nf, &free));
     let report = match speculative {
         Some(r) => r,
-        None => lm::minimize(&augmented, &x0, &solver),
+        None => fit_with_priors(&augmented, &x0, &solver),
     };
     if !report.termination.converged() {
         warnings.push(Warning::new(WarningKind::NotConverged {
@@ -479,6 +479,22 @@ fn fix_a_stiffness_ratio(
     }
 }
 
+/// [`lm::minimize`] of the readings with their priors' rows; without
+/// priors, of the readings' problem itself (the same residuals and
+/// Jacobian), which writes the solver's Jacobian columns directly
+/// ([`IdentificationProblem::is_large`]).
+fn fit_with_priors<M: Mechanism>(
+    augmented: &WithPriors<'_, IdentificationProblem<'_, M>>,
+    x0: &[f64],
+    opts: &lm::Options,
+) -> lm::Report {
+    if augmented.terms.is_empty() {
+        lm::minimize(augmented.inner, x0, opts)
+    } else {
+        lm::minimize(augmented, x0, opts)
+    }
+}
+
 /// The free set the data can identify, from `requested`: identifiability
 /// analysed at the start (the fit of `requested` computed meanwhile on
 /// another thread, kept when the analysis frees them all), and for
@@ -528,6 +544,9 @@ fn free_set<M: Mechanism>(
         Some(ident) if !opts.auto_fix => (ident.clone(), requested.to_vec()),
         // The caller's own cancel flag governs every fit: no speculation.
         _ if opts.solver.cancel.is_some() => analyze(&weighted),
+        // A large problem keeps one Jacobian at a time: the analysis, then
+        // the fit.
+        _ if problem.is_large() => analyze(&weighted),
         _ => {
             let saved = problem.saved();
             let cancel = Arc::new(AtomicBool::new(false));
@@ -543,7 +562,7 @@ fn free_set<M: Mechanism>(
                     }
                     analysis = Some(a);
                 });
-                lm::minimize(augmented, x0, &fit)
+                fit_with_priors(augmented, x0, &fit)
             });
             let (ident, free) = analysis.expect("the scope waits for the analysis");
             if free == requested {
@@ -565,7 +584,7 @@ fn free_set<M: Mechanism>(
     if opts.auto_fix && !idle.is_empty() && !free.is_empty() {
         let mut fit = solver.clone();
         fit.free = Some(mask(np + nf, &free));
-        *x0 = lm::minimize(augmented, x0, &fit).x;
+        *x0 = fit_with_priors(augmented, x0, &fit).x;
         let (_, jac) = problem.residuals_and_jacobian(x0)?;
         (identifiability, free) = analyze(&weigh(jac)?);
     }

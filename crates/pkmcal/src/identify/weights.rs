@@ -79,6 +79,12 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
         Ok((next, cov))
     };
     let lev = |cal: &Calibration, cov: &Option<DMatrix<f64>>| match cov {
+        _ if is_large(&cal.jacobian) => {
+            let c = cov
+                .clone()
+                .unwrap_or_else(|| covariance_by_rows(&cal.jacobian, None));
+            leverages_by_rows(&cal.jacobian, None, &c)
+        }
         Some(c) => leverages_with(&cal.jacobian, c),
         None => leverages(&cal.jacobian),
     };
@@ -99,6 +105,9 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
             // repeat while the refit still moves the estimates.
             for _ in 0..VCE_MAX_REFITS {
                 linearized_vce(&mut noise, &cal);
+                // (The refit does not read the Jacobian: freed before it
+                // makes its own.)
+                cal.jacobian = DMatrix::zeros(0, 0);
                 let (next, c) = refit(&cal, &noise.sigmas())?;
                 (cal, cov) = (next, Some(c));
                 let mut check = noise.clone();
@@ -126,6 +135,7 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
                 .zip(&robust)
                 .map(|(s, w)| s / w.max(f64::MIN_POSITIVE).sqrt())
                 .collect();
+            cal.jacobian = DMatrix::zeros(0, 0);
             let (next, c) = refit(&cal, &sigma)?;
             (cal, cov) = (next, Some(c));
             if change < 1e-3 {
@@ -170,6 +180,9 @@ const VCE_MAX_REFITS: usize = 4;
 /// the σ settle. Only the readings' residuals and leverages estimate the
 /// noise.
 fn linearized_vce(noise: &mut NoiseModel, cal: &Calibration) {
+    if is_large(&cal.jacobian) {
+        return linearized_vce_by_rows(noise, cal);
+    }
     // Unweighted Jacobian of the free parameters.
     let mut j = cal.jacobian.clone();
     lm::scale_rows(&mut j, &cal.sigmas);
@@ -220,4 +233,125 @@ fn rescale(cal: &mut Calibration, sigma: &[f64]) {
     cal.unit_weight_sigma *= f;
     cal.jacobian.scale_mut(f);
     cal.sigmas = sigma.to_vec();
+}
+
+/// Whether a Jacobian is large ([`lm::LARGE_JACOBIAN`]): its statistics are
+/// then computed row by row, without copies of it.
+fn is_large(j: &DMatrix<f64>) -> bool {
+    j.nrows().saturating_mul(j.ncols()) >= lm::LARGE_JACOBIAN && j.nrows() >= j.ncols()
+}
+
+/// Rows of a large Jacobian read at a time.
+const ROW_BLOCK: usize = 256;
+
+/// `f(first row, rows)` for blocks of `j`'s rows, each row (row-major, `n`
+/// entries) multiplied by `scale[i]` when given.
+fn by_row_blocks(j: &DMatrix<f64>, scale: Option<&[f64]>, mut f: impl FnMut(usize, &[f64])) {
+    let (m, n) = j.shape();
+    let mut block = vec![0.0; ROW_BLOCK * n];
+    let mut start = 0;
+    while start < m {
+        let b = ROW_BLOCK.min(m - start);
+        for k in 0..n {
+            let col = &j.as_slice()[k * m + start..k * m + start + b];
+            for (t, v) in col.iter().enumerate() {
+                block[t * n + k] = v * scale.map_or(1.0, |s| s[start + t]);
+            }
+        }
+        f(start, &block[..b * n]);
+        start += b;
+    }
+}
+
+/// The triangular factor of `j` with row `i` multiplied by `scale[i]`
+/// ([`lm::triangular_factor_of`], no copy of `j`).
+fn factor_by_rows(j: &DMatrix<f64>, scale: Option<&[f64]>) -> DMatrix<f64> {
+    let all: Vec<usize> = (0..j.ncols()).collect();
+    lm::triangular_factor_of(j, &all, scale, &vec![0.0; j.nrows()]).0
+}
+
+/// `(JᵀJ)⁺` of `j` with row `i` multiplied by `scale[i]`, from its
+/// triangular factor.
+fn covariance_by_rows(j: &DMatrix<f64>, scale: Option<&[f64]>) -> DMatrix<f64> {
+    let mut r = factor_by_rows(j, scale);
+    let (ipvt, rdiag, _) = lm::qrfac(&mut r);
+    lm::covariance_of(&r, &ipvt, &rdiag, lm::COVARIANCE_RANK_TOL).0
+}
+
+/// [`leverages_with`] by blocks of rows: `h_i = j_i C j_iᵀ` with row `i`
+/// multiplied by `scale[i]` when given (one product per block, no copy of
+/// `j`).
+fn leverages_by_rows(j: &DMatrix<f64>, scale: Option<&[f64]>, c: &DMatrix<f64>) -> Vec<f64> {
+    let n = j.ncols();
+    let mut h = Vec::with_capacity(j.nrows());
+    by_row_blocks(j, scale, |_, rows| {
+        // The block's rows as columns: `C Bᵀ`, then each column's dot with
+        // its row.
+        let bt = DMatrix::from_column_slice(n, rows.len() / n, rows);
+        let cb = c * &bt;
+        h.extend(
+            bt.column_iter()
+                .zip(cb.column_iter())
+                .map(|(x, y)| x.dot(&y)),
+        );
+    });
+    h
+}
+
+/// [`linearized_vce`] of a large Jacobian, row by row: the same estimates
+/// without its copies (its rows rescaled as they are read).
+fn linearized_vce_by_rows(noise: &mut NoiseModel, cal: &Calibration) {
+    let (m, n) = cal.jacobian.shape();
+    let r0 = &cal.residuals;
+    let k = cal.priors.len();
+    let mut prior_j = DMatrix::zeros(k, n);
+    let mut prior_r = DVector::zeros(k);
+    for (a, t) in cal.priors.iter().enumerate() {
+        if let Some(c) = cal.free.iter().position(|&f| f == t.index) {
+            prior_j[(a, c)] = 1.0 / t.sigma;
+        }
+        prior_r[a] = (cal.parameters[t.index].identified - t.centre) / t.sigma;
+    }
+    for _ in 0..VCE_MAX_ROUNDS {
+        let s = noise.sigmas();
+        // Row `i` of the Jacobian weighted by the new σ: the fit's weighted
+        // row times σ_fit / σ.
+        let ratio: Vec<f64> = cal.sigmas.iter().zip(&s).map(|(a, b)| a / b).collect();
+        // (JᵀJ)⁺ of the readings' rows and the priors'.
+        let c = if k == 0 {
+            covariance_by_rows(&cal.jacobian, Some(&ratio))
+        } else {
+            let r = factor_by_rows(&cal.jacobian, Some(&ratio));
+            let mut stacked = DMatrix::zeros(n + k, n);
+            stacked.rows_mut(0, n).copy_from(&r);
+            stacked.rows_mut(n, k).copy_from(&prior_j);
+            lm::covariance(&stacked, lm::COVARIANCE_RANK_TOL).0
+        };
+        // Jᵀ r (weighted), the readings' then the priors'.
+        let mut g = DVector::zeros(n);
+        by_row_blocks(&cal.jacobian, Some(&ratio), |start, rows| {
+            for (t, row) in rows.chunks_exact(n).enumerate() {
+                let rw = r0[start + t] / s[start + t];
+                for (gk, v) in g.iter_mut().zip(row) {
+                    *gk += v * rw;
+                }
+            }
+        });
+        if k > 0 {
+            g += prior_j.transpose() * &prior_r;
+        }
+        let step = -(&c * g);
+        // r = r0 + J step (unweighted J: the fit's row times σ_fit).
+        let mut r = vec![0.0; m];
+        by_row_blocks(&cal.jacobian, Some(&cal.sigmas), |start, rows| {
+            for (t, row) in rows.chunks_exact(n).enumerate() {
+                let d: f64 = row.iter().zip(step.iter()).map(|(a, b)| a * b).sum();
+                r[start + t] = r0[start + t] + d;
+            }
+        });
+        let h = leverages_by_rows(&cal.jacobian, Some(&ratio), &c);
+        if noise.update(&r, &h) < VCE_TOL {
+            break;
+        }
+    }
 }
