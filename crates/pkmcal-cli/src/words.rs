@@ -77,6 +77,9 @@ pub fn flag(f: Field) -> &'static str {
         Dialect => "--dialect",
         Grid => "--grid",
         Out => "--out",
+        FirmwareLetters => "--m665-b",
+        ProbeOffset => "--probe-offset",
+        G33Radius => "--g33-radius",
         // The solver's settings have no option on the command line.
         _ => "the solver's settings",
     }
@@ -202,7 +205,7 @@ pub fn io(e: &IoError) -> String {
             match hint {
                 None => String::new(),
                 Some(GcodeHint::Dialect(d)) =>
-                    format!(" (or use --dialect {} if that firmware runs it)", d.name()),
+                    format!(" (or use --dialect {d} if that firmware runs it)"),
                 Some(GcodeHint::NameDialect) => ", or name the firmware with --dialect".into(),
                 Some(GcodeHint::Offset) => " or give the shift with --offset".into(),
                 Some(GcodeHint::MaxSegment) => "; use a larger --max-segment (or none)".into(),

@@ -68,6 +68,19 @@ pub enum Error {
     #[error(transparent)]
     Request(#[from] RequestError),
 
+    /// A number outside the range where it means something (a σ of 0, a
+    /// weight that overflows): which input, as the library names it
+    /// (`noise.length`, `tolerance of l11`), its value and the range.
+    #[error("{field} = {value:e} is out of range: {expected}")]
+    OutOfRange {
+        /// The input, as the library names it.
+        field: String,
+        /// Its value.
+        value: f64,
+        /// What it must be.
+        expected: String,
+    },
+
     /// The caller's cancel flag was set (a front end's Ctrl-C): the work
     /// stopped before it finished, and nothing it computed is returned.
     #[error("cancelled by the caller")]
@@ -218,6 +231,13 @@ pub enum Field {
     Grid,
     /// An output file or directory.
     Out,
+    /// What a firmware's letters mean where its version changed them
+    /// (Marlin's `M665 B`).
+    FirmwareLetters,
+    /// A probe's offset from the nozzle.
+    ProbeOffset,
+    /// The radius a firmware's own calibration probed at (Marlin's G33).
+    G33Radius,
 }
 
 impl Field {
@@ -278,6 +298,9 @@ impl Field {
             Dialect => "the G-code dialect",
             Grid => "the grid",
             Out => "the output",
+            FirmwareLetters => "the meaning of the firmware's letters",
+            ProbeOffset => "the probe's offset from the nozzle",
+            G33Radius => "G33's calibration radius",
         }
     }
 }

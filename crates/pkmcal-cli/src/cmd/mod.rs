@@ -9,6 +9,7 @@ pub mod demo;
 pub mod drift;
 pub mod gcode;
 pub mod klipper;
+pub mod marlin;
 pub mod montecarlo;
 pub mod parameters;
 pub mod plan;
@@ -29,5 +30,16 @@ pub fn in_mechanism(
             cause: e,
         },
         e => e.into(),
+    }
+}
+
+/// A note for the parameters a request names by their old names.
+pub fn note_renamed(run: &pkmcal_io::Run<'_>, spec: &pkmcal::Spec, request: &pkmcal::Request) {
+    let renamed = request.renamed(spec);
+    if !renamed.is_empty() {
+        run.note(pkmcal_io::Note::Renamed {
+            place: "the options given".into(),
+            renamed,
+        });
     }
 }

@@ -69,6 +69,7 @@ pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
     c.params_set.apply(&mut request);
     c.priors.apply(&mut request)?;
     c.weighing.apply(&mut request);
+    crate::cmd::note_renamed(run, spec, &request);
     let (priors, free) = request
         .priors_and_free(spec, &tool, &description.tolerances)
         .map_err(|e| crate::cmd::in_mechanism(e, &description))?;
@@ -83,7 +84,7 @@ pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
     // The steps foreseen grow as exchange passes improve the plan: the bar
     // follows (shown on a terminal whatever the count: a 48-leg platform
     // takes minutes).
-    let foreseen = 2 * c.count as u64;
+    let foreseen = (c.count as u64).saturating_mul(2);
     let bar = run.bar(foreseen, false, "planning steps", 1);
     let shown = (AtomicU64::new(0), AtomicU64::new(foreseen));
     let plan = pkmcal::apply::planning::plan(

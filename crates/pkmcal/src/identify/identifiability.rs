@@ -172,8 +172,11 @@ impl Columns {
     }
 }
 
-pub(super) fn correlations(cols: &Columns, free: &[usize], cov: &DMatrix<f64>) -> Vec<Correlation> {
-    let names = &cols.names;
+pub(super) fn correlations(
+    names: &[String],
+    free: &[usize],
+    cov: &DMatrix<f64>,
+) -> Vec<Correlation> {
     let mut out = vec![];
     for a in 0..free.len() {
         for b in a + 1..free.len() {
@@ -300,7 +303,7 @@ pub fn analyze_identifiability(
                         lm::COVARIANCE_RANK_TOL,
                     ),
                 };
-                correlations(cols, &free, &c)
+                correlations(&cols.names, &free, &c)
             } else {
                 vec![]
             };

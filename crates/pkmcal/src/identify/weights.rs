@@ -5,8 +5,12 @@ use super::driver::{CalibrationOptions, calibrate_once};
 use super::loss::{Loss, MAX_REWEIGHTS, find_outliers, group_scales, standardized};
 use super::problem::IdentificationProblem;
 use super::result::{Calibration, Warning, WarningKind};
+use super::uncertainty::{Scale, apply_scale};
 use crate::error::Result;
-use crate::identify::noise::{NoiseModel, VCE_MAX_ROUNDS, VCE_TOL, leverages, leverages_with};
+use crate::identify::noise::{
+    NoiseModel, VCE_MAX_ROUNDS, VCE_TOL, by_row_blocks, covariance_by_rows, factor_by_rows,
+    is_large, leverages, leverages_by_rows, leverages_with,
+};
 use crate::lm;
 use crate::measurement::data::Measurement;
 use crate::mechanism::{Mechanism, Params};
@@ -79,12 +83,6 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
         Ok((next, cov))
     };
     let lev = |cal: &Calibration, cov: &Option<DMatrix<f64>>| match cov {
-        _ if is_large(&cal.jacobian) => {
-            let c = cov
-                .clone()
-                .unwrap_or_else(|| covariance_by_rows(&cal.jacobian, None));
-            leverages_by_rows(&cal.jacobian, None, &c)
-        }
         Some(c) => leverages_with(&cal.jacobian, c),
         None => leverages(&cal.jacobian),
     };
@@ -119,6 +117,9 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
     }
     let base = noise.sigmas();
     let keys = noise.keys();
+    // Each reading's σ over the σ it was weighed with: a robust loss's
+    // group scale for the estimated groups (1 otherwise).
+    let mut factor = vec![];
     if opts.loss != Loss::Squared {
         let mut robust = vec![1.0; base.len()];
         for _ in 0..MAX_REWEIGHTS {
@@ -149,6 +150,17 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
                 *s *= f;
             }
         }
+        let estimated = noise.estimated_groups();
+        factor = keys
+            .iter()
+            .map(|k| {
+                scales
+                    .get(k)
+                    .filter(|f| *k < estimated && **f > 0.0)
+                    .copied()
+                    .unwrap_or(1.0)
+            })
+            .collect();
     }
     // Studentised: a pose that pulls the fit towards itself (high leverage)
     // shows a small residual for a large error.
@@ -168,6 +180,9 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
     );
     cal.noise = noise.report(&cal.residuals);
     cal.loss = opts.loss;
+    // The one scale rule (docs/model.md §6): the covariance at the final σ.
+    let scale = Scale::of(&cal.noise);
+    apply_scale(&mut cal, scale, &factor);
     Ok(cal)
 }
 
@@ -191,7 +206,7 @@ fn linearized_vce(noise: &mut NoiseModel, cal: &Calibration) {
     // The priors' weighted rows and residuals.
     let mut prior_j = DMatrix::zeros(k, j.ncols());
     let mut prior_r = DVector::zeros(k);
-    for (a, t) in cal.priors.iter().enumerate() {
+    for (a, t) in cal.priors.iter().enumerate().filter(|(_, t)| !t.constraint) {
         if let Some(c) = cal.free.iter().position(|&f| f == t.index) {
             prior_j[(a, c)] = 1.0 / t.sigma;
         }
@@ -235,69 +250,6 @@ fn rescale(cal: &mut Calibration, sigma: &[f64]) {
     cal.sigmas = sigma.to_vec();
 }
 
-/// Whether a Jacobian is large ([`lm::LARGE_JACOBIAN`]): its statistics are
-/// then computed row by row, without copies of it.
-fn is_large(j: &DMatrix<f64>) -> bool {
-    j.nrows().saturating_mul(j.ncols()) >= lm::LARGE_JACOBIAN && j.nrows() >= j.ncols()
-}
-
-/// Rows of a large Jacobian read at a time.
-const ROW_BLOCK: usize = 256;
-
-/// `f(first row, rows)` for blocks of `j`'s rows, each row (row-major, `n`
-/// entries) multiplied by `scale[i]` when given.
-fn by_row_blocks(j: &DMatrix<f64>, scale: Option<&[f64]>, mut f: impl FnMut(usize, &[f64])) {
-    let (m, n) = j.shape();
-    let mut block = vec![0.0; ROW_BLOCK * n];
-    let mut start = 0;
-    while start < m {
-        let b = ROW_BLOCK.min(m - start);
-        for k in 0..n {
-            let col = &j.as_slice()[k * m + start..k * m + start + b];
-            for (t, v) in col.iter().enumerate() {
-                block[t * n + k] = v * scale.map_or(1.0, |s| s[start + t]);
-            }
-        }
-        f(start, &block[..b * n]);
-        start += b;
-    }
-}
-
-/// The triangular factor of `j` with row `i` multiplied by `scale[i]`
-/// ([`lm::triangular_factor_of`], no copy of `j`).
-fn factor_by_rows(j: &DMatrix<f64>, scale: Option<&[f64]>) -> DMatrix<f64> {
-    let all: Vec<usize> = (0..j.ncols()).collect();
-    lm::triangular_factor_of(j, &all, scale, &vec![0.0; j.nrows()]).0
-}
-
-/// `(JᵀJ)⁺` of `j` with row `i` multiplied by `scale[i]`, from its
-/// triangular factor.
-fn covariance_by_rows(j: &DMatrix<f64>, scale: Option<&[f64]>) -> DMatrix<f64> {
-    let mut r = factor_by_rows(j, scale);
-    let (ipvt, rdiag, _) = lm::qrfac(&mut r);
-    lm::covariance_of(&r, &ipvt, &rdiag, lm::COVARIANCE_RANK_TOL).0
-}
-
-/// [`leverages_with`] by blocks of rows: `h_i = j_i C j_iᵀ` with row `i`
-/// multiplied by `scale[i]` when given (one product per block, no copy of
-/// `j`).
-fn leverages_by_rows(j: &DMatrix<f64>, scale: Option<&[f64]>, c: &DMatrix<f64>) -> Vec<f64> {
-    let n = j.ncols();
-    let mut h = Vec::with_capacity(j.nrows());
-    by_row_blocks(j, scale, |_, rows| {
-        // The block's rows as columns: `C Bᵀ`, then each column's dot with
-        // its row.
-        let bt = DMatrix::from_column_slice(n, rows.len() / n, rows);
-        let cb = c * &bt;
-        h.extend(
-            bt.column_iter()
-                .zip(cb.column_iter())
-                .map(|(x, y)| x.dot(&y)),
-        );
-    });
-    h
-}
-
 /// [`linearized_vce`] of a large Jacobian, row by row: the same estimates
 /// without its copies (its rows rescaled as they are read).
 fn linearized_vce_by_rows(noise: &mut NoiseModel, cal: &Calibration) {
@@ -306,7 +258,7 @@ fn linearized_vce_by_rows(noise: &mut NoiseModel, cal: &Calibration) {
     let k = cal.priors.len();
     let mut prior_j = DMatrix::zeros(k, n);
     let mut prior_r = DVector::zeros(k);
-    for (a, t) in cal.priors.iter().enumerate() {
+    for (a, t) in cal.priors.iter().enumerate().filter(|(_, t)| !t.constraint) {
         if let Some(c) = cal.free.iter().position(|&f| f == t.index) {
             prior_j[(a, c)] = 1.0 / t.sigma;
         }
