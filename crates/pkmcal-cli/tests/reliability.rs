@@ -1374,7 +1374,7 @@ fn the_culprit_is_named_with_the_right_exit_code() {
                 "p.csv",
             ],
             1,
-            &format!("{f}: this calibration cannot serve"),
+            &format!("{f}: `covariance`"),
         );
         fails(
             d,

@@ -53,7 +53,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     let spec = description.mech.spec();
     let read = |p: &PathBuf| -> Result<Compared> {
         let (r, dof) = read_calibration_record_dof(run, p)?;
-        r.check(spec).map_err(|e| {
+        r.checked_params(&description.mech).map_err(|e| {
             anyhow::Error::from(e).context(format!(
                 "{}: it cannot be compared on {}",
                 p.display(),
