@@ -46,7 +46,8 @@ pub mod units;
 
 pub use apply::compensation::{
     Compensation, CompensationOptions, CorrectionGrid, GridAxis, InterpolationError, Predistortion,
-    compensate, controller_commands, correction_grid, interpolation_error, predistort,
+    compensate, controller_commands, correction_grid, correction_grid_with_progress,
+    interpolation_error, predistort,
 };
 pub use apply::montecarlo::{
     MonteCarloOptions, MonteCarloSummary, monte_carlo, validation_targets,
@@ -94,7 +95,8 @@ pub use measurement::{
 };
 pub use mechanism::tool::ToolLayout;
 pub use mechanism::{
-    AxisInfo, JointInfo, Mechanism, MechanismSummary, ParameterInfo, Params, Scalar, Spec, summary,
+    AxisInfo, JointInfo, MAX_JOINTS, MAX_LEGS, Mechanism, MechanismSummary, ParameterInfo, Params,
+    Scalar, Spec, summary,
 };
 pub use units::{AngleUnit, FileUnits, LengthUnit, ParamKind, PartialUnits, Quantity, Role, Unit};
 

@@ -181,6 +181,7 @@ impl PlanarLinkage {
         if d.joints.is_empty() {
             return bad("a planar linkage needs at least one [[joint]]".into());
         }
+        crate::mechanism::check_size(0, d.joints.len())?;
         for (i, j) in d.joints.iter().enumerate() {
             if j.name.is_empty() || d.joints[..i].iter().any(|o| o.name == j.name) {
                 return bad(format!(

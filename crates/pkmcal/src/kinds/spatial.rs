@@ -732,6 +732,7 @@ impl SpatialMechanism {
         if d.legs.is_empty() {
             return bad("a spatial mechanism needs at least one [[leg]]".into());
         }
+        crate::mechanism::check_size(d.legs.len(), d.legs.iter().map(|l| l.joints.len()).sum())?;
         let mut names = Names {
             names: vec![],
             values: vec![],
