@@ -122,7 +122,9 @@ impl Rewrite {
         {
             return Err(RequestError::invalid(
                 Field::Offset,
-                format!("{v} is beyond ±{MAX_OFFSET:e} (mm or degrees); no machine moves that far"),
+                format!(
+                    "{v:?} is beyond ±{MAX_OFFSET:e} (mm or degrees); no machine moves that far"
+                ),
             ));
         }
         if let Some(m) = self.max_segment
@@ -130,7 +132,7 @@ impl Rewrite {
         {
             return Err(RequestError::invalid(
                 Field::MaxSegment,
-                format!("{m} must be a length between {MIN_SEGMENT:e} and {MAX_SEGMENT:e} mm"),
+                format!("{m:?} must be a length between {MIN_SEGMENT:e} and {MAX_SEGMENT:e} mm"),
             ));
         }
         Ok(())

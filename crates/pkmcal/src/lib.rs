@@ -59,7 +59,7 @@ pub use apply::planning::{
 pub use apply::rows::{RowPrediction, RowSettings, predict_rows};
 pub use apply::simulate::{simulate, simulate_distances, simulate_with_progress};
 pub use apply::workspace::{
-    WorkspacePoint, grid_targets, nominal_commands, random_targets, sample_workspace,
+    MAX_TARGETS, WorkspacePoint, grid_targets, nominal_commands, random_targets, sample_workspace,
     spread_targets,
 };
 pub use engine::kinematics::{

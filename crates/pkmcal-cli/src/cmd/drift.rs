@@ -31,7 +31,7 @@ pub struct Args {
     pub out: Option<PathBuf>,
     /// Targets spread over the workspace (a plain grid) where the change at
     /// the tool is judged (0: none).
-    #[arg(long, default_value_t = 100, value_name = "N")]
+    #[arg(value_parser = args::values::targets_or_none, long, default_value_t = 100, value_name = "N")]
     pub grid: usize,
 }
 
