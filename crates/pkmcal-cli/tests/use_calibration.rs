@@ -637,6 +637,27 @@ fn a_tampered_calibration_record_is_refused_naming_it() {
             "`noise` group 1 was estimated with a redundancy of 1e308",
         ),
         (
+            "scale",
+            edited(&|r| r["scale"]["dof"] = serde_json::json!(-3.0)),
+            "`scale` has -3e0 degrees of freedom",
+        ),
+        (
+            "prior-elsewhere",
+            edited(&|r| {
+                r["priors"] =
+                    serde_json::json!([{"name": "zz", "index": 0, "centre": 0.0, "sigma": 1.0}])
+            }),
+            "`priors` names `zz`, which `parameters` does not hold",
+        ),
+        (
+            "prior-sigma",
+            edited(&|r| {
+                r["priors"] =
+                    serde_json::json!([{"name": "l11", "index": 0, "centre": 280.0, "sigma": 0.0}])
+            }),
+            "a prior is a finite centre and a positive, finite σ",
+        ),
+        (
             "asymmetric",
             edited(&|r| {
                 let v = r["covariance"]["matrix"][0][1].as_f64().unwrap();
@@ -683,4 +704,21 @@ fn a_tampered_calibration_record_is_refused_naming_it() {
         assert_eq!(o.status.code(), Some(1), "drift {name}: {err}");
         assert!(err.contains(&file), "drift {name}: {err}");
     }
+    // Degrees of freedom beyond any calibration's are the normal limit, not
+    // NaN or p = 1: a 0.5 mm change of l11 (128σ) with a scale of 1e308
+    // degrees of freedom was "no change".
+    let moved = edited(&|r| {
+        r["scale"]["dof"] = serde_json::json!(1e308);
+        for p in r["parameters"].as_array_mut().unwrap() {
+            if p["name"] == "l11" {
+                p["identified"] = serde_json::json!(p["identified"].as_f64().unwrap() + 0.5);
+            }
+        }
+    });
+    std::fs::write(d.join("moved.json"), moved).unwrap();
+    let o = run(d, &["drift", "--new", "moved.json", "--old", "r.json"]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.contains("1 of 16 parameters changed"), "{out}");
+    assert!(out.contains("two-sided p (normal)"), "{out}");
 }

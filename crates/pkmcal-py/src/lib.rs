@@ -75,26 +75,20 @@ create_exception!(
 /// function (the package wraps each function once, `__init__.py`: stack
 /// level 2).
 fn emit_warnings(py: Python<'_>, warnings: &[pkmcal::identify::Warning]) -> PyResult<()> {
-    use pkmcal::identify::WarningKind as K;
     let mut seen = std::collections::BTreeSet::new();
     for w in warnings {
         let text = format!("{} ({})", w.message, w.hint);
         if !seen.insert(text.clone()) {
             continue;
         }
-        let category = match w.kind {
-            K::NotConverged { .. } => py.get_type::<ConvergenceWarning>(),
-            K::Outliers { .. } | K::Dropped { .. } => py.get_type::<OutlierWarning>(),
-            K::BeyondTolerance { .. } | K::PriorDominated { .. } => {
-                py.get_type::<ToleranceWarning>()
+        let category = match w.kind.category() {
+            pkmcal::identify::WarningCategory::Convergence => py.get_type::<ConvergenceWarning>(),
+            pkmcal::identify::WarningCategory::Outliers => py.get_type::<OutlierWarning>(),
+            pkmcal::identify::WarningCategory::Tolerance => py.get_type::<ToleranceWarning>(),
+            pkmcal::identify::WarningCategory::Model => py.get_type::<ModelWarning>(),
+            pkmcal::identify::WarningCategory::Identifiability => {
+                py.get_type::<IdentifiabilityWarning>()
             }
-            K::ModelInadequate { .. } => py.get_type::<ModelWarning>(),
-            K::StiffnessRatios { .. }
-            | K::HeldByTolerance { .. }
-            | K::Unidentifiable { .. }
-            | K::FrameGauge { .. }
-            | K::RankDeficient { .. }
-            | K::PlanRankDeficient { .. } => py.get_type::<IdentifiabilityWarning>(),
         };
         let text = std::ffi::CString::new(text.replace('\0', " ")).expect("no NUL left");
         PyErr::warn(py, &category, &text, 2)?;
@@ -1894,23 +1888,8 @@ impl PyWarning {
 }
 
 fn warning(w: &pkmcal::identify::Warning) -> PyWarning {
-    use pkmcal::identify::WarningKind as K;
     PyWarning {
-        kind: match w.kind {
-            K::StiffnessRatios { .. } => "stiffness_ratios",
-            K::Unidentifiable { .. } => "unidentifiable",
-            K::FrameGauge { .. } => "frame_gauge",
-            K::NotConverged { .. } => "not_converged",
-            K::RankDeficient { .. } => "rank_deficient",
-            K::PlanRankDeficient { .. } => "plan_rank_deficient",
-            K::Outliers { .. } => "outliers",
-            K::Dropped { .. } => "dropped",
-            K::BeyondTolerance { .. } => "beyond_tolerance",
-            K::PriorDominated { .. } => "prior_dominated",
-            K::HeldByTolerance { .. } => "held_by_tolerance",
-            K::ModelInadequate { .. } => "model_inadequate",
-        }
-        .into(),
+        kind: w.kind.name().into(),
         message: w.message.clone(),
         hint: w.hint.clone(),
     }

@@ -96,7 +96,7 @@ pub use measurement::{
 pub use mechanism::tool::ToolLayout;
 pub use mechanism::{
     AxisInfo, JointInfo, MAX_JOINTS, MAX_LEGS, Mechanism, MechanismSummary, ParameterInfo, Params,
-    Scalar, Spec, summary,
+    Renamed, Scalar, Spec, summary,
 };
 pub use units::{AngleUnit, FileUnits, LengthUnit, ParamKind, PartialUnits, Quantity, Role, Unit};
 

@@ -30,6 +30,23 @@ pub const COVARIANCE_SYMMETRY: f64 = 1e-9;
 /// default free set and the assembly configuration do not count: renaming a
 /// mechanism keeps its calibrations, changing a nominal length does not.
 pub fn mechanism_identity(spec: &Spec) -> String {
+    identity_with_names(spec, &spec.param_names())
+}
+
+/// Every identity a record of the mechanism may carry: its
+/// [`mechanism_identity`] first, then, when parameters were renamed
+/// ([`Spec::renamed`]), the identity under their old names (a record saved
+/// before the renaming).
+pub fn mechanism_identities(spec: &Spec) -> Vec<String> {
+    let mut out = vec![mechanism_identity(spec)];
+    if !spec.renamed.is_empty() {
+        out.push(identity_with_names(spec, &spec.param_names_before()));
+    }
+    out
+}
+
+/// [`mechanism_identity`] with the parameters named `names`.
+fn identity_with_names(spec: &Spec, names: &[&str]) -> String {
     let mut text = String::new();
     let mut list = |tag: &str, items: &mut dyn Iterator<Item = String>| {
         text.push_str(tag);
@@ -43,7 +60,7 @@ pub fn mechanism_identity(spec: &Spec) -> String {
     list("actuated", &mut spec.actuated.iter().map(|a| a.to_string()));
     list(
         "parameters",
-        &mut spec.param_names().into_iter().enumerate().map(|(i, n)| {
+        &mut names.iter().enumerate().map(|(i, n)| {
             format!(
                 "{n}:{}:{:016x}",
                 spec.param_unit(i),
@@ -121,6 +138,15 @@ pub struct CalibrationRecord {
     pub covariance: ParameterCovariance,
     /// The noise groups.
     pub noise: Vec<RecordedNoise>,
+    /// The priors the calibration was fitted with (a report's `priors`):
+    /// the drift test compares what the data added to them. Empty in a
+    /// record written before priors, or without them.
+    #[serde(default)]
+    pub priors: Vec<super::prior::PriorTerm>,
+    /// How its uncertainties were scaled (a report's `scale`): the degrees
+    /// of freedom of an estimated σ. `None` in a record written before.
+    #[serde(default)]
+    pub scale: Option<super::uncertainty::Scale>,
 }
 
 /// Why a calibration record cannot serve a mechanism. Typed, so that each
@@ -201,6 +227,8 @@ impl CalibrationRecord {
                     redundancy: g.redundancy,
                 })
                 .collect(),
+            priors: cal.priors.clone(),
+            scale: Some(cal.scale),
         }
     }
 
@@ -316,16 +344,39 @@ impl CalibrationRecord {
                 }
             }
         }
+        // The priors and the scale.
+        for t in &self.priors {
+            if !self.parameters.iter().any(|r| r.name == t.name) {
+                return member(format!(
+                    "`priors` names `{}`, which `parameters` does not hold",
+                    t.name
+                ));
+            }
+            if !(t.centre.is_finite() && t.sigma.is_finite() && t.sigma > 0.0) {
+                return member(format!(
+                    "`priors`: `{}` has centre {:e} and σ {:e}; a prior is a finite centre and a positive, finite σ",
+                    t.name, t.centre, t.sigma
+                ));
+            }
+        }
+        if let Some(dof) = self.scale.and_then(|s| s.dof())
+            && !(dof.is_finite() && dof >= 0.0)
+        {
+            return member(format!(
+                "`scale` has {dof:e} degrees of freedom; they must be a finite number, not negative"
+            ));
+        }
         Ok(())
     }
 
     /// Check that the record can serve the mechanism `spec`: its members
-    /// ([`Self::check_members`]), the mechanism's identity, every parameter
-    /// of the mechanism held, a covariance over the mechanism's (and the
-    /// instrument's) parameters.
+    /// ([`Self::check_members`]), the mechanism's identity (any of
+    /// [`mechanism_identities`]: a record saved before parameters were
+    /// renamed serves), every parameter of the mechanism held, a covariance
+    /// over the mechanism's (and the instrument's) parameters.
     pub fn check(&self, spec: &Spec) -> std::result::Result<(), RecordError> {
         self.check_members()?;
-        if self.mechanism_identity != mechanism_identity(spec) {
+        if !mechanism_identities(spec).contains(&self.mechanism_identity) {
             return Err(RecordError::OtherMechanism {
                 name: self.mechanism.clone(),
             });
@@ -335,6 +386,39 @@ impl CalibrationRecord {
             .resolve(spec)
             .map_err(RecordError::Invalid)?;
         Ok(())
+    }
+
+    /// The parameters the record names by an old name ([`Spec::renamed`]),
+    /// among its values and its covariance: the notes a front end words
+    /// for a record saved before a renaming.
+    pub fn renamed(&self, spec: &Spec) -> Vec<crate::mechanism::Renamed> {
+        spec.renamed_among(
+            self.parameters
+                .iter()
+                .map(|p| p.name.as_str())
+                .chain(self.covariance.names.iter().map(String::as_str)),
+        )
+    }
+
+    /// The record as it would be saved today: its parameters and its
+    /// covariance under their current names, and the identity under the
+    /// old names ([`mechanism_identities`]) replaced by the current one; for
+    /// whatever compares records by name (two calibrations' drift).
+    pub fn in_current_names(&self, spec: &Spec) -> Self {
+        let mut out = self.clone();
+        for p in &mut out.parameters {
+            p.name = spec.canonical(&p.name).to_string();
+        }
+        for t in &mut out.priors {
+            t.name = spec.canonical(&t.name).to_string();
+        }
+        for n in &mut out.covariance.names {
+            *n = spec.canonical(n).to_string();
+        }
+        if mechanism_identities(spec)[1..].contains(&self.mechanism_identity) {
+            out.mechanism_identity = mechanism_identity(spec);
+        }
+        out
     }
 
     /// The degrees of freedom of the record's estimated noise level: the
@@ -366,11 +450,24 @@ impl CalibrationRecord {
     }
 
     /// The mechanism's parameter values the record holds (every one of
-    /// them: [`Self::check`]; instrument parameters are left out).
+    /// them: [`Self::check`]; instrument parameters are left out; old names
+    /// read as the current ones, a parameter held under both refused).
     pub fn params(&self, spec: &Spec) -> std::result::Result<Params, RecordError> {
         let mut p = Params::nominal(spec);
         for (i, name) in spec.param_names().iter().enumerate() {
-            match self.parameters.iter().find(|r| r.name == *name) {
+            let mut held = self
+                .parameters
+                .iter()
+                .filter(|r| spec.parameter_index(&r.name).map(|(k, _)| k) == Some(i));
+            let found = held.next();
+            if let Some(again) = held.next() {
+                return Err(RecordError::Member(format!(
+                    "`parameters` holds `{name}` twice (as `{}` and `{}`)",
+                    found.map_or("", |r| r.name.as_str()),
+                    again.name
+                )));
+            }
+            match found {
                 Some(r) if r.identified.is_finite() => p.values[i] = r.identified,
                 Some(r) => {
                     return Err(RecordError::Member(format!(

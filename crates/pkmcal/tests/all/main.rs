@@ -4,11 +4,14 @@
 
 mod common;
 
+mod adequacy;
 mod architecture;
 mod budget;
 mod calibration;
+mod coverage;
 mod drift;
 mod engine;
+mod extreme_weights;
 mod frame;
 mod fuzz;
 mod lattice;
@@ -19,6 +22,7 @@ mod noise;
 mod planar;
 mod priors;
 mod record;
+mod renamed;
 mod round_trip;
 mod spatial;
 mod use_calibration;
