@@ -7,6 +7,7 @@ mod common;
 mod architecture;
 mod budget;
 mod calibration;
+mod cancel;
 mod drift;
 mod engine;
 mod frame;
