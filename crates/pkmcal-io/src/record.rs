@@ -45,6 +45,10 @@ pub struct CalibrationState {
     /// The fit, its accuracy, the poses, the validation and the
     /// cross-validation.
     pub study: Study,
+    /// The tool load during the measurements (N, N·m; one value per tool
+    /// axis), empty for none (and in records written before it was kept).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub load: Vec<f64>,
 }
 
 /// A JSON value from CBOR's data model, non-finite numbers tagged.
