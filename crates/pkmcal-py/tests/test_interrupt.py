@@ -150,7 +150,6 @@ def test_ctrl_c_stops_a_long_call_promptly_with_keyboard_interrupt(call, tmp_pat
     )
     assert p.returncode == 0 and "interrupted" in p.stdout, p.stdout + p.stderr
     assert "PanicException" not in p.stderr, p.stderr
-    print(call, p.stdout.strip())
     after = float(p.stdout.split("interrupted ")[1].split(" s")[0])
     assert after < PROMPT_S, p.stdout
     if call == "save_report":
