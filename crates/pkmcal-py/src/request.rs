@@ -510,17 +510,8 @@ fn sigma_arg(
         return Ok(vec![vec![]; n]);
     };
     let nx = mm.len();
-    let check = |v: f64| -> PyResult<Option<f64>> {
-        if v.is_nan() {
-            Ok(None)
-        } else if v.is_finite() && v > 0.0 {
-            Ok(Some(v))
-        } else {
-            Err(usage(format!(
-                "sigma: {v} is not a standard deviation; give positive numbers (NaN where it is to be estimated)"
-            )))
-        }
-    };
+    // NaN: to be estimated; the library bounds the others.
+    let check = |v: f64| -> PyResult<Option<f64>> { Ok((!v.is_nan()).then_some(v)) };
     if let Ok(v) = s.extract::<f64>() {
         let units = mm.units();
         if units.iter().any(|u| *u != units[0]) {
@@ -612,9 +603,6 @@ pub fn distances(
             .map(|v| v[0])
             .collect(),
         };
-        if let Some(x) = v.iter().find(|x| !x.is_finite()) {
-            return Err(usage(format!("{what}: {x} is not a finite number (mm)")));
-        }
         Ok(v)
     };
     let d = one(2, "distances distance")?;
@@ -630,9 +618,6 @@ pub fn distances(
             b.len(),
             d.len()
         )));
-    }
-    if let Some(v) = s.iter().flatten().find(|v| !(v.is_finite() && **v > 0.0)) {
-        return Err(usage(format!("distances sigma must be positive, got {v}")));
     }
     Ok(a.into_iter()
         .zip(b)

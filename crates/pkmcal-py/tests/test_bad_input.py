@@ -206,3 +206,17 @@ def test_python_shapes_of_arguments_are_accepted_or_refused_in_python_words(tmp_
     # A misspelled ballbar key is refused, naming the right one.
     with pytest.raises(pkmcal.PkmcalError, match='did you mean "bar_offset"'):
         pkmcal.simulate(mech, targets, ballbar={"sockets": [[0, 0], [100, 0], [0, 100]], "bar_ofset": 1.0})
+
+
+def test_standard_deviations_are_bounded_by_the_library(ref):
+    """σ and distances are bounded once, in the library, which names the pose."""
+    mech, c, y = ref
+    for s in (-1.0, 0.0, np.inf):
+        with pytest.raises(pkmcal.PkmcalError, match="standard deviation .* must be a finite number") as e:
+            pkmcal.calibrate(mech, c, y, sigma=s, frame="base")
+        assert e.value.pose == 0
+    with pytest.raises(pkmcal.PkmcalError, match="distance 1: measured `distance` = inf") as e:
+        pkmcal.calibrate(mech, c, y, frame="base", distances=(c[:3], c[3:6], [1.0, np.inf, 2.0]))
+    assert e.value.pose == 1
+    with pytest.raises(pkmcal.PkmcalError, match="distance 1: standard deviation -1.0 mm"):
+        pkmcal.calibrate(mech, c, y, frame="base", distances=(c[:3], c[3:6], [1.0, 1.0, 2.0], [1.0, -1.0, 1.0]))

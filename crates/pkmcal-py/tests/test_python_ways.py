@@ -10,6 +10,7 @@ import pathlib
 import shutil
 import subprocess
 import sys
+import textwrap
 import warnings
 
 import numpy as np
@@ -216,3 +217,44 @@ def test_the_stated_noise_has_one_name(ref):
     with warnings.catch_warnings():
         warnings.simplefilter("error", DeprecationWarning)
         pkmcal.simulate(mech, y[:5], noise=0.002, seed=1)
+
+
+def test_the_stubs_accept_the_calls_that_work(tmp_path):
+    """mypy --strict takes what the package takes: paths as os.PathLike,
+    validation as a list, NumPy integers as seeds and counts, names as a
+    string, the option groups, and `cal.load` both ways."""
+    pytest.importorskip("mypy")
+    code = tmp_path / "uses.py"
+    code.write_text(
+        textwrap.dedent(
+            """
+            import pathlib
+            from typing import Optional
+
+            import numpy as np
+            import numpy.typing as npt
+
+            import pkmcal
+
+            mech = pkmcal.Mechanism(pathlib.Path("m.toml"))
+            c = np.zeros((3, 3))
+            cal = pkmcal.calibrate(
+                mech, c, c, validation=[c, c], seed=np.int64(3), axes="x", kfold=np.int64(3),
+                instrument=pkmcal.Instrument(frame="base"), solver=pkmcal.Solver(max_nfev=5),
+            )
+            load: Optional[npt.NDArray[np.float64]] = cal.load
+            back: pkmcal.Calibration = pkmcal.Calibration.load(pathlib.Path("cal.json"))
+            saved = pkmcal.load_calibration(pathlib.Path("cal.json"))
+            p = pkmcal.predict(mech, c, saved, outputs="x")
+            x: npt.NDArray[np.float64] = p.x
+            pkmcal.plan(mech, np.int64(12), stated_noise=0.002).to_pandas()
+            pkmcal.drift(pathlib.Path("new.json"), pathlib.Path("old.json"), mechanism=mech)
+            """
+        )
+    )
+    r = subprocess.run(
+        [sys.executable, "-m", "mypy", "--strict", "--no-incremental", str(code)],
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 0, r.stdout + r.stderr

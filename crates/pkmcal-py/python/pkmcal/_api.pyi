@@ -17,6 +17,7 @@ from ._pkmcal import (
     _ArrayLike,
     _Ballbar,
     _Frame,
+    _Int,
     _MechanismLike,
     _ModelName,
     _Names,
@@ -32,7 +33,7 @@ from ._pkmcal import (
 class Solver:
     loss: str = "squared"
     loss_scale: Optional[float] = None
-    max_nfev: Optional[int] = None
+    max_nfev: Optional[_Int] = None
     ftol: Optional[float] = None
     xtol: Optional[float] = None
     gtol: Optional[float] = None
@@ -54,11 +55,11 @@ class Instrument:
 class Validation:
     data: Optional[Tuple[Any, ...]] = None
     holdout: Optional[float] = None
-    kfold: Optional[int] = None
+    kfold: Optional[_Int] = None
     seed: _Seed = 1
 
 def load_calibration(path: _Path) -> SavedCalibration: ...
-def set_threads(n: int) -> None: ...
+def set_threads(n: _Int) -> None: ...
 def predict(
     mechanism: _MechanismLike,
     commands: _ArrayLike,
@@ -107,10 +108,10 @@ def calibrate(
     frame: _Frame = "auto",
     validation: Union[None, Validation, Sequence[Any]] = None,
     holdout: Optional[float] = None,
-    kfold: Optional[int] = None,
+    kfold: Optional[_Int] = None,
     seed: _Seed = 1,
     distances: Optional[Tuple[Any, ...]] = None,
-    max_nfev: Optional[int] = None,
+    max_nfev: Optional[_Int] = None,
     ftol: Optional[float] = None,
     xtol: Optional[float] = None,
     gtol: Optional[float] = None,
@@ -161,7 +162,7 @@ def compensate(
 ) -> Compensation: ...
 def plan(
     mechanism: _MechanismLike,
-    count: int,
+    count: _Int,
     params: _Params = None,
     *,
     criterion: Literal["O1", "O3", "O5"] = "O5",
@@ -169,7 +170,7 @@ def plan(
     free: _Names = None,
     fix: _Names = None,
     spacing: float = 6.0,
-    max_candidates: int = 4000,
+    max_candidates: _Int = 4000,
     tolerances: _Tolerances = None,
     stated_noise: float = 0.002,
     stated_angle_noise: Optional[float] = None,
@@ -180,7 +181,7 @@ def montecarlo(
     mechanism: _MechanismLike,
     targets: _ArrayLike,
     *,
-    runs: int = 200,
+    runs: _Int = 200,
     noise: float = 0.002,
     angle_noise: Optional[float] = None,
     seed: _Seed = 1,
@@ -189,15 +190,15 @@ def montecarlo(
     fix: _Names = None,
     length_error: float = 0.3,
     angle_error: float = 0.001,
-    validation: int = 50,
+    validation: _Int = 50,
     tolerances: _Tolerances = None,
 ) -> MonteCarlo: ...
 def budget(
     mechanism: _MechanismLike,
     tolerances: Optional[Mapping[str, Union[float, str]]] = None,
     *,
-    grid: int = 200,
-    samples: int = 3000,
+    grid: _Int = 200,
+    samples: _Int = 3000,
     seed: _Seed = 1,
     model: _ModelName = "exact",
     poses: Optional[_ArrayLike] = None,
@@ -212,7 +213,7 @@ def drift(
     *,
     mechanism: Optional[_MechanismLike] = None,
     alpha: float = 0.05,
-    grid: int = 100,
+    grid: _Int = 100,
 ) -> Drift: ...
 def trilaterate(
     sockets: _ArrayLike,
