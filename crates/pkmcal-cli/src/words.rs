@@ -202,7 +202,7 @@ pub fn io(e: &IoError) -> String {
             match hint {
                 None => String::new(),
                 Some(GcodeHint::Dialect(d)) =>
-                    format!(" (or use --dialect {} if that firmware runs it)", d.name()),
+                    format!(" (or use --dialect {d} if that firmware runs it)"),
                 Some(GcodeHint::NameDialect) => ", or name the firmware with --dialect".into(),
                 Some(GcodeHint::Offset) => " or give the shift with --offset".into(),
                 Some(GcodeHint::MaxSegment) => "; use a larger --max-segment (or none)".into(),

@@ -43,7 +43,7 @@ fn a_mechanism_files_tolerances_give_a_budget_that_monte_carlo_confirms() {
         .map(|t| t["share"].as_f64().unwrap())
         .sum();
     assert!((shares - 1.0).abs() < 1e-9);
-    // The file's 43 tolerances, k1's relative one among them.
+    // The file's 43 tolerances, kL1's relative one among them.
     assert_eq!(b["tolerances"].as_array().unwrap().len(), 43);
     // Other commands read past the table.
     ok(dir.path(), &["parameters", "--mechanism", &hexapod]);

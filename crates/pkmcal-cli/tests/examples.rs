@@ -347,7 +347,7 @@ fn linear_delta_end_to_end() {
 fn redundant_linear_delta_end_to_end() {
     end_to_end(
         "linear-delta-4",
-        "radius = 130.4\narm_b = 250.3\nda = 0.4\ndd = -0.3\n",
+        "delta_radius = 130.4\narm_b = 250.3\nda = 0.4\ndd = -0.3\n",
         "40",
     );
 }

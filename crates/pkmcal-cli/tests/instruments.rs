@@ -331,7 +331,7 @@ fn frame_gauge_is_one_warning() {
             .unwrap()
             .is_empty()
     );
-    // The six of the gauge and the stiffness k1 (no load: no data see it).
+    // The six of the gauge and the stiffness kL1 (no load: no data see it).
     assert_eq!(r["identifiability"]["held"].as_array().unwrap().len(), 7);
 }
 

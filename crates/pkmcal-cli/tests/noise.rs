@@ -187,7 +187,7 @@ fn prismatic_units_in_the_report_and_parameter_file() {
         )
     };
     assert_eq!(unit_of("dL2"), ("mm".into(), "offset".into()));
-    assert_eq!(unit_of("k1"), ("N/mm".into(), "stiffness".into()));
+    assert_eq!(unit_of("kL1"), ("N/mm".into(), "stiffness".into()));
     assert_eq!(unit_of("b3z"), ("mm".into(), "geometry".into()));
     let acc = &r["accuracy"]["after"];
     assert!(acc["angle_rms"].as_f64().is_some());

@@ -49,6 +49,8 @@ pub struct DescriptionParts {
     pub units: Option<pkmcal::PartialUnits>,
     /// `[tolerances]`.
     pub tolerances: Vec<(String, Tolerance)>,
+    /// Parameters its tables name by a name they had before.
+    pub renamed: Vec<pkmcal::Renamed>,
 }
 
 impl Description {
@@ -93,12 +95,16 @@ pub fn description_from_str(text: &str) -> Result<DescriptionParts> {
     // Every name is one of the mechanism's parameters, each σ positive.
     pkmcal::apply::budget::resolve_tolerances(mech.spec(), &tolerances)
         .within(|| "in the [tolerances] table".to_string())?;
+    let renamed = mech
+        .spec()
+        .renamed_among(tolerances.iter().map(|(n, _)| n.as_str()));
     Ok(DescriptionParts {
         mech,
         targets,
         ballbar,
         units,
         tolerances,
+        renamed,
     })
 }
 
@@ -119,6 +125,12 @@ pub fn read_description(run: &crate::Run<'_>, path: Option<&Path>) -> Result<Des
         .map_err(|e| e.named("mechanism file"))?;
     let p =
         description_from_str(&text).within(|| format!("in mechanism file {}", path.display()))?;
+    if !p.renamed.is_empty() {
+        run.note(crate::Note::Renamed {
+            place: format!("the [tolerances] table of {}", path.display()),
+            renamed: p.renamed.clone(),
+        });
+    }
     Ok(Description {
         path: Some(path.to_path_buf()),
         mech: p.mech,

@@ -7,6 +7,41 @@
 use pkmcal::{Field, RequestError};
 use std::path::{Path, PathBuf};
 
+/// What a file read whole is, for its size limit ([`crate::Files::read`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum InputKind {
+    /// A description or setting: a mechanism, parameter, setup or units
+    /// file, a calibration report, a firmware configuration.
+    Description,
+    /// Data read whole: a measurement CSV, a G-code program.
+    Data,
+}
+
+impl InputKind {
+    /// What such a file is, in words.
+    pub fn noun(self) -> &'static str {
+        match self {
+            InputKind::Description => "description or setting",
+            InputKind::Data => "data file",
+        }
+    }
+}
+
+/// What would let the rewrite read a line it refuses, for the front end
+/// to word as its own option.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum GcodeHint {
+    /// The dialect (its name) that reads the line as written, if that
+    /// firmware runs the program.
+    Dialect(&'static str),
+    /// Naming the firmware (a dialect other than strict).
+    NameDialect,
+    /// Giving the coordinate shift as the rewrite's offset.
+    Offset,
+    /// A longer segment (or none).
+    MaxSegment,
+}
+
 /// What was being done to a file when it failed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Verb {
@@ -80,7 +115,7 @@ pub enum Error {
         /// The limit (MiB).
         limit_mb: u64,
         /// What kind of file it is.
-        kind: crate::output::InputKind,
+        kind: InputKind,
     },
     /// A planned output that cannot be written.
     #[error("{}", output_words(path, problem))]
@@ -180,7 +215,7 @@ pub enum Error {
         /// What is wrong and what to do.
         message: String,
         /// What else would let the line be read.
-        hint: Option<crate::gcode::GcodeHint>,
+        hint: Option<GcodeHint>,
     },
     /// A user's choice refused, about a file where `file` is given.
     #[error("{}{cause}", file.as_ref().map(|f| format!("{}: ", f.display())).unwrap_or_default())]
@@ -226,14 +261,13 @@ fn place(path: &Path, line: Option<u64>) -> String {
     }
 }
 
-fn gcode_hint(h: Option<crate::gcode::GcodeHint>) -> String {
-    use crate::gcode::GcodeHint as H;
+fn gcode_hint(h: Option<GcodeHint>) -> String {
+    use GcodeHint as H;
     match h {
         None => String::new(),
-        Some(H::Dialect(d)) => format!(
-            " (or read it in the {} dialect if that firmware runs the program)",
-            d.name()
-        ),
+        Some(H::Dialect(d)) => {
+            format!(" (or read it in the {d} dialect if that firmware runs the program)")
+        }
         Some(H::NameDialect) => ", or name the firmware's dialect".into(),
         Some(H::Offset) => " or give the shift as the offset".into(),
         Some(H::MaxSegment) => "; use longer segments".into(),

@@ -68,20 +68,7 @@ impl Dialect {
     }
 }
 
-/// What would let the rewrite read a line it refuses, for the front end
-/// to word as its own option.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum GcodeHint {
-    /// The dialect that reads the line as written, if that firmware runs
-    /// the program.
-    Dialect(Dialect),
-    /// Naming the firmware (a dialect other than strict).
-    NameDialect,
-    /// Giving the coordinate shift as the rewrite's offset.
-    Offset,
-    /// A longer segment (or none).
-    MaxSegment,
-}
+pub use crate::error::GcodeHint;
 
 /// How a program is rewritten.
 #[derive(Debug, Clone, Default)]
@@ -361,7 +348,7 @@ fn parse(line: &[u8], dialect: Dialect) -> std::result::Result<Parsed, Refused> 
                         "Klipper does not move on it, Marlin only with GCODE_MOTION_MODES, RepRapFirmware continues the last G0/G1",
                 }
             ),
-            Some(GcodeHint::Dialect(RepRap)),
+            Some(GcodeHint::Dialect(RepRap.name())),
         ));
     }
     if glued && matches!(dialect, Strict | Marlin) {

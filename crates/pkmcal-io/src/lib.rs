@@ -87,6 +87,14 @@ pub enum Note {
         /// What differs (`"lengths in m (given: mm)"`).
         differ: Vec<String>,
     },
+    /// Parameters given by a name they had before (still read, meaning
+    /// their new one), where a user gave them.
+    Renamed {
+        /// Where the old names stand (a file, or a choice's words).
+        place: String,
+        /// The old names and the new.
+        renamed: Vec<pkmcal::Renamed>,
+    },
 }
 
 impl std::fmt::Display for Note {
@@ -97,6 +105,25 @@ impl std::fmt::Display for Note {
                 "{} says {}; the units given to this run win",
                 path.display(),
                 differ.join(", ")
+            ),
+            Note::Renamed { place, renamed } => write!(
+                f,
+                "{place} names {} by {}: read as {}",
+                if renamed.len() == 1 {
+                    "a parameter"
+                } else {
+                    "parameters"
+                },
+                if renamed.len() == 1 {
+                    "its old name"
+                } else {
+                    "their old names"
+                },
+                renamed
+                    .iter()
+                    .map(|r| format!("`{}` → `{}`", r.old, r.new))
+                    .collect::<Vec<_>>()
+                    .join(", ")
             ),
         }
     }

@@ -586,25 +586,7 @@ impl Files {
     }
 }
 
-/// What a file read whole is, for its size limit ([`read`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum InputKind {
-    /// A description or setting: a mechanism, parameter, setup or units
-    /// file, a calibration report, a firmware configuration.
-    Description,
-    /// Data read whole: a measurement CSV, a G-code program.
-    Data,
-}
-
-impl InputKind {
-    /// What such a file is, in words.
-    pub fn noun(self) -> &'static str {
-        match self {
-            InputKind::Description => "description or setting",
-            InputKind::Data => "data file",
-        }
-    }
-}
+pub use crate::error::InputKind;
 
 /// The largest description read whole, by default (MiB): a mechanism file
 /// or a printer's configuration is kilobytes.

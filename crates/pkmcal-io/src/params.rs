@@ -15,8 +15,14 @@ pub fn read_params<M: Mechanism>(run: &crate::Run<'_>, path: &Path, mech: &M) ->
         .files
         .read_to_string(path, crate::output::InputKind::Description)
         .map_err(|e| e.named("parameter file"))?;
-    let p = params_from_str(&text, mech.spec())
+    let (p, renamed) = params_from_str_noting(&text, mech.spec())
         .within(|| format!("in parameter file {}", path.display()))?;
+    if !renamed.is_empty() {
+        run.note(crate::Note::Renamed {
+            place: format!("parameter file {}", path.display()),
+            renamed,
+        });
+    }
     pkmcal::check_params(mech, &p).within(|| {
         format!(
             "in parameter file {}: the values cannot describe this mechanism",
@@ -28,8 +34,14 @@ pub fn read_params<M: Mechanism>(run: &crate::Run<'_>, path: &Path, mech: &M) ->
 
 /// The parameter values of a parameter file's text: `name = value`, dotted
 /// names as keys or tables (`P.y = 0`, `"P.y" = 0`), every name the
-/// mechanism's.
+/// mechanism's (or one it had before: [`params_from_str_noting`] says
+/// which).
 pub fn params_from_str(text: &str, spec: &Spec) -> Result<Params> {
+    params_from_str_noting(text, spec).map(|(p, _)| p)
+}
+
+/// [`params_from_str`], with the parameters named by an old name.
+pub fn params_from_str_noting(text: &str, spec: &Spec) -> Result<(Params, Vec<pkmcal::Renamed>)> {
     let table: toml::Table = match toml::from_str(text) {
         Ok(t) => t,
         Err(e) => invalid!("TOML syntax error: {e}"),
@@ -59,7 +71,7 @@ pub fn params_from_str(text: &str, spec: &Spec) -> Result<Params> {
     for (name, _) in &named {
         spec.param_index(name)?;
     }
-    Ok(Params::from_named(
+    Ok(Params::from_named_noting(
         spec,
         named.iter().map(|(n, v)| (n.as_str(), *v)),
     )?)

@@ -213,6 +213,23 @@ pub fn noise_text(g: &pkmcal::NoiseGroup) -> String {
     )
 }
 
+/// How the uncertainties are scaled, in words: the one rule of
+/// docs/model.md §6.
+pub fn scale_text(scale: &pkmcal::identify::Scale) -> String {
+    match scale {
+        pkmcal::identify::Scale::Known => {
+            "uncertainties: absolute (every σ known); 95 % intervals ±1.96 σ".into()
+        }
+        pkmcal::identify::Scale::Estimated { dof } if *dof > 0.0 => format!(
+            "uncertainties: scaled by the σ estimated from the readings ({dof:.1} degrees of freedom); 95 % intervals ±{:.3} σ (Student's t)",
+            scale.quantile(0.95)
+        ),
+        pkmcal::identify::Scale::Estimated { .. } => {
+            "uncertainties: none (no reading is left over to estimate σ from)".into()
+        }
+    }
+}
+
 /// One line per noise group.
 pub fn write_noise(out: &mut String, groups: &[pkmcal::NoiseGroup]) {
     for g in groups {
@@ -315,13 +332,21 @@ pub fn write_summary(
     );
     outln!(
         out,
-        "{} after {} iterations ({} evaluations); σ of unit weight {:.3}",
+        "{} after {} iterations ({} evaluations){}",
         cal.termination_reason,
         cal.iterations,
         cal.evaluations,
-        cal.unit_weight_sigma
+        // Against σ known, how far the residuals are from it; with σ
+        // estimated it is 1 by construction and says nothing.
+        match cal.scale {
+            pkmcal::identify::Scale::Known => {
+                format!("; σ of unit weight {:.3}", cal.unit_weight_sigma)
+            }
+            pkmcal::identify::Scale::Estimated { .. } => String::new(),
+        }
     );
     write_noise(out, &cal.noise);
+    outln!(out, "  {}", scale_text(&cal.scale));
     outln!(out);
     let width = cal
         .parameters
@@ -643,10 +668,21 @@ pub fn drift_words(spec: Option<&pkmcal::Spec>, d: &Drift, old: &str, new: &str)
             "no change beyond the noise"
         }
     );
+    if d.data_only {
+        let _ = writeln!(
+            o,
+            "  compared: what the data added to the tolerances (each calibration's data-only estimate), so that the prior they share does not hide a change; directions the data alone do not see are not compared"
+        );
+    }
     if !d.untested.is_empty() {
         let _ = writeln!(
             o,
-            "  not compared (identified in one calibration only): {}",
+            "  not compared (identified in one calibration only{}): {}",
+            if d.data_only {
+                ", or seen by the tolerances alone"
+            } else {
+                ""
+            },
             d.untested.join(" ")
         );
     }

@@ -300,26 +300,20 @@ pub fn io_err(e: pkmcal_io::Error) -> PyErr {
 /// function (each is a Python function calling the extension: stack level
 /// 2).
 pub fn emit_warnings(py: Python<'_>, warnings: &[pkmcal::identify::Warning]) -> PyResult<()> {
-    use pkmcal::identify::WarningKind as K;
     let mut seen = std::collections::BTreeSet::new();
     for w in warnings {
         let text = format!("{} ({})", w.message, w.hint);
         if !seen.insert(text.clone()) {
             continue;
         }
-        let category = match w.kind {
-            K::NotConverged { .. } => py.get_type::<ConvergenceWarning>(),
-            K::Outliers { .. } | K::Dropped { .. } => py.get_type::<OutlierWarning>(),
-            K::BeyondTolerance { .. } | K::PriorDominated { .. } => {
-                py.get_type::<ToleranceWarning>()
+        let category = match w.kind.category() {
+            pkmcal::identify::WarningCategory::Convergence => py.get_type::<ConvergenceWarning>(),
+            pkmcal::identify::WarningCategory::Outliers => py.get_type::<OutlierWarning>(),
+            pkmcal::identify::WarningCategory::Tolerance => py.get_type::<ToleranceWarning>(),
+            pkmcal::identify::WarningCategory::Model => py.get_type::<ModelWarning>(),
+            pkmcal::identify::WarningCategory::Identifiability => {
+                py.get_type::<IdentifiabilityWarning>()
             }
-            K::ModelInadequate { .. } => py.get_type::<ModelWarning>(),
-            K::StiffnessRatios { .. }
-            | K::HeldByTolerance { .. }
-            | K::Unidentifiable { .. }
-            | K::FrameGauge { .. }
-            | K::RankDeficient { .. }
-            | K::PlanRankDeficient { .. } => py.get_type::<IdentifiabilityWarning>(),
         };
         warn(py, &category, &text)?;
     }

@@ -111,13 +111,13 @@ def test_analyze_plan_and_montecarlo_take_the_priors():
     assert plan.observability != bare.observability
     commands, measured = pkmcal.simulate(m, plan.targets, None, noise=0.005, seed=3)
     a = pkmcal.analyze(m, commands, measured, frame="base")
-    assert a.held == ["1.000·k1"] and a.unidentifiable == []
+    assert a.held == ["1.000·kL1"] and a.unidentifiable == []
     assert pkmcal.analyze(m, commands, measured, tolerances=False, frame="base").held == []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", pkmcal.PkmcalWarning)
         mc = pkmcal.montecarlo(m, plan.targets, runs=4, validation=10)
         off = pkmcal.montecarlo(m, plan.targets, runs=4, validation=10, tolerances=False)
-    assert "k1" in mc.parameters and "k1" not in off.parameters
+    assert "kL1" in mc.parameters and "kL1" not in off.parameters
 
 
 def test_a_stated_noise_the_residuals_exceed_is_a_model_warning():

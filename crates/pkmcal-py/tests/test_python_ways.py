@@ -115,7 +115,9 @@ def test_drift_refuses_a_calibration_of_another_mechanism(ref, tmp_path):
 
 def test_reprs_and_docstrings_say_what_is_there(ref):
     mech, c, y = ref
-    cal = pkmcal.calibrate(mech, c, y, frame="base")
+    # σ known: the joint test is χ² (an estimated σ makes it F, whose p
+    # does not underflow here).
+    cal = pkmcal.calibrate(mech, c, y, frame="base", sigma=0.002)
     d = pkmcal.drift(cal, grid=10)
     assert "0.000e0" not in repr(d)
     # Drifted 0.3 mm against a σ of µm: p underflows, and says so.

@@ -68,6 +68,19 @@ pub enum Error {
     #[error(transparent)]
     Request(#[from] RequestError),
 
+    /// A number outside the range where it means something (a σ of 0, a
+    /// weight that overflows): which input, as the library names it
+    /// (`noise.length`, `tolerance of l11`), its value and the range.
+    #[error("{field} = {value:e} is out of range: {expected}")]
+    OutOfRange {
+        /// The input, as the library names it.
+        field: String,
+        /// Its value.
+        value: f64,
+        /// What it must be.
+        expected: String,
+    },
+
     /// The caller's cancel flag was set (a front end's Ctrl-C): the work
     /// stopped before it finished, and nothing it computed is returned.
     #[error("cancelled by the caller")]

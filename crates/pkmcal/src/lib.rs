@@ -97,7 +97,8 @@ pub use measurement::{
 };
 pub use mechanism::tool::ToolLayout;
 pub use mechanism::{
-    AxisInfo, JointInfo, Mechanism, MechanismSummary, ParameterInfo, Params, Scalar, Spec, summary,
+    AxisInfo, JointInfo, Mechanism, MechanismSummary, ParameterInfo, Params, Renamed, Scalar, Spec,
+    summary,
 };
 pub use units::{AngleUnit, FileUnits, LengthUnit, ParamKind, PartialUnits, Quantity, Role, Unit};
 

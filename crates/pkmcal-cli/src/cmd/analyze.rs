@@ -79,6 +79,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     a.priors.apply(&mut request)?;
     a.weighing.apply(&mut request);
     request.load = a.load.values();
+    crate::cmd::note_renamed(run, spec, &request);
     let (priors, free) = request
         .priors_and_free(spec, &measurement, &description.tolerances)
         .map_err(|e| crate::cmd::in_mechanism(e, &description))?;

@@ -171,6 +171,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     request.holdout = a.holdout;
     request.kfold = a.kfold;
     request.seed = a.seed;
+    crate::cmd::note_renamed(run, spec, &request);
     let study_opts = request
         .study_options(mech, &measurement, &description.tolerances, &start)
         .map_err(|e| crate::cmd::in_mechanism(e, &description))?;

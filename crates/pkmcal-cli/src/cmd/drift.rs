@@ -60,7 +60,15 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
                 spec.name
             ))
         })?;
-        Ok(Compared::from_record(&r, dof))
+        // A record saved before a renaming, in today's names.
+        let renamed = r.renamed(spec);
+        if !renamed.is_empty() {
+            run.note(pkmcal_io::Note::Renamed {
+                place: p.display().to_string(),
+                renamed,
+            });
+        }
+        Ok(Compared::from_record(&r.in_current_names(spec), dof))
     };
     let new = read(&a.new)?;
     let (old, old_name) = match &a.old {

@@ -31,3 +31,14 @@ pub fn in_mechanism(
         e => e.into(),
     }
 }
+
+/// A note for the parameters a request names by their old names.
+pub fn note_renamed(run: &pkmcal_io::Run<'_>, spec: &pkmcal::Spec, request: &pkmcal::Request) {
+    let renamed = request.renamed(spec);
+    if !renamed.is_empty() {
+        run.note(pkmcal_io::Note::Renamed {
+            place: "the options given".into(),
+            renamed,
+        });
+    }
+}

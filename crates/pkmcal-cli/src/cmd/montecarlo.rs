@@ -85,6 +85,7 @@ pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
     c.params_set.apply(&mut request);
     c.priors.apply(&mut request)?;
     let mut cal = CalibrationOptions::new(spec, c.model);
+    crate::cmd::note_renamed(run, spec, &request);
     (cal.priors, cal.free) = request
         .priors_and_free(spec, &tool, &description.tolerances)
         .map_err(|e| crate::cmd::in_mechanism(e, &description))?;

@@ -68,6 +68,7 @@ pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
     c.params_set.apply(&mut request);
     c.priors.apply(&mut request)?;
     c.weighing.apply(&mut request);
+    crate::cmd::note_renamed(run, spec, &request);
     let (priors, free) = request
         .priors_and_free(spec, &tool, &description.tolerances)
         .map_err(|e| crate::cmd::in_mechanism(e, &description))?;

@@ -156,23 +156,8 @@ impl PyWarning {
 }
 
 pub fn warning(w: &pkmcal::identify::Warning) -> PyWarning {
-    use pkmcal::identify::WarningKind as K;
     PyWarning {
-        kind: match w.kind {
-            K::StiffnessRatios { .. } => "stiffness_ratios",
-            K::Unidentifiable { .. } => "unidentifiable",
-            K::FrameGauge { .. } => "frame_gauge",
-            K::NotConverged { .. } => "not_converged",
-            K::RankDeficient { .. } => "rank_deficient",
-            K::PlanRankDeficient { .. } => "plan_rank_deficient",
-            K::Outliers { .. } => "outliers",
-            K::Dropped { .. } => "dropped",
-            K::BeyondTolerance { .. } => "beyond_tolerance",
-            K::PriorDominated { .. } => "prior_dominated",
-            K::HeldByTolerance { .. } => "held_by_tolerance",
-            K::ModelInadequate { .. } => "model_inadequate",
-        }
-        .into(),
+        kind: w.kind.name().into(),
         message: w.message.clone(),
         hint: w.hint.clone(),
     }

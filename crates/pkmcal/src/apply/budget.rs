@@ -238,28 +238,49 @@ pub fn budget_cancellable<M: Mechanism>(
     let (after_calibration, post_sigma) = match &opts.calibration {
         None => (None, None),
         Some(plan) => {
+            plan.noise.check("noise")?;
             let at_plan = prepared(&plan.targets)?;
-            let mut info = DMatrix::from_diagonal(&nalgebra::DVector::from_vec(
-                var.iter().map(|v| 1.0 / v).collect(),
-            ));
+            // A tolerance that is a constraint ([`crate::identify::is_constraint`])
+            // holds its parameter whatever the plan: its posterior is its
+            // prior, and the others are calibrated as without it.
+            let held: Vec<bool> = tolerances
+                .iter()
+                .map(|&(i, s)| crate::identify::is_constraint(s, spec.nominal[i]))
+                .collect();
+            let n = idx.len();
+            let mut info = DMatrix::from_fn(n, n, |a, b| {
+                if a == b && !held[a] {
+                    1.0 / var[a]
+                } else {
+                    0.0
+                }
+            });
             for (_, j) in &at_plan {
                 for (a, unit) in units.iter().enumerate() {
                     let s = plan.noise.for_unit(*unit);
-                    if !(s.is_finite() && s > 0.0) {
-                        return Err(Error::InvalidRequest(format!(
-                            "the planned calibration's noise on {} is {s}; give a positive σ",
-                            spec.tool_axes[a]
-                        )));
-                    }
                     let row = j.row(a);
                     info += row.transpose() * row / (s * s);
                 }
             }
-            let post = info.try_inverse().ok_or_else(|| {
-                Error::InvalidRequest(
-                    "the planned calibration's information cannot be inverted".into(),
-                )
-            })?;
+            let keep: Vec<usize> = (0..n).filter(|&a| !held[a]).collect();
+            let inverse = info
+                .select_rows(&keep)
+                .select_columns(&keep)
+                .try_inverse()
+                .ok_or_else(|| {
+                    Error::InvalidRequest(
+                        "the planned calibration's information cannot be inverted".into(),
+                    )
+                })?;
+            let mut post = DMatrix::zeros(n, n);
+            for (x, &a) in keep.iter().enumerate() {
+                for (y, &b) in keep.iter().enumerate() {
+                    post[(a, b)] = inverse[(x, y)];
+                }
+            }
+            for a in (0..n).filter(|&a| held[a]) {
+                post[(a, a)] = var[a];
+            }
             let covs: Vec<DMatrix<f64>> =
                 at_targets.iter().map(|(_, j)| cov_with(j, &post)).collect();
             let sig: Vec<f64> = (0..idx.len())

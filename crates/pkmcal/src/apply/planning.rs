@@ -610,7 +610,17 @@ pub fn plan<M: Mechanism>(
     let n = opts.free.len();
     let mut prior = DMatrix::zeros(n, n);
     let mut unseen = 0;
+    opts.noise.check("noise")?;
     if !opts.priors.is_empty() {
+        for p in &opts.priors {
+            if p.index < spec.n_params() {
+                crate::identify::prior::check_sigma(
+                    spec.param_names()[p.index],
+                    p.sigma,
+                    spec.param_unit(p.index),
+                )?;
+            }
+        }
         // Rows weighted by the instrument's noise per axis, the priors'
         // precision in the column-scaled parameters (`p_s = D p`).
         let w: Vec<f64> = spec
@@ -638,11 +648,24 @@ pub fn plan<M: Mechanism>(
             })
             .collect();
         let top = effect.iter().copied().fold(0.0, f64::max);
+        // A parameter held by a constraint ([`crate::identify::is_constraint`])
+        // is known whatever the poses: left out too.
+        let held = |k: usize| {
+            opts.priors.iter().any(|p| {
+                p.index == opts.free[k]
+                    && crate::identify::is_constraint(
+                        p.sigma,
+                        spec.nominal.get(p.index).copied().unwrap_or(0.0),
+                    )
+            })
+        };
         let seen: Vec<usize> = (0..n)
-            .filter(|&k| effect[k] > crate::identify::ZERO_COLUMN * top)
+            .filter(|&k| effect[k] > crate::identify::ZERO_COLUMN * top && !held(k))
             .collect();
         for p in &opts.priors {
-            if let Some(k) = opts.free.iter().position(|&f| f == p.index) {
+            if let Some(k) = opts.free.iter().position(|&f| f == p.index)
+                && !held(k)
+            {
                 prior[(k, k)] = 1.0 / (scale[k].max(f64::MIN_POSITIVE) * p.sigma).powi(2);
             }
         }

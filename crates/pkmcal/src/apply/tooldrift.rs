@@ -1,27 +1,27 @@
 //! Drift at the tool: two calibrations of one machine (or one against its
 //! nominal values) compared where the user feels them, the predicted tool
 //! pose over the workspace ([`crate::identify::drift`] compares the
-//! parameters). At each target's nominal commands the change
-//! `Δx = x(q; p_b) − x(q; p_a)` has, when the machine did not change, the
-//! covariance `C = J (C_a + C_b) Jᵀ` to first order (`J = ∂x/∂p` at `p_a`,
-//! over the parameters each calibration identified); `Δxᵀ C⁺ Δx` is then χ²
-//! with the rank of `C` (Fisher's F with the noise levels' degrees of
-//! freedom when they were estimated), the rule of the joint parameter test.
+//! parameters, and says what: with priors, what the data added to them). At
+//! each target's nominal commands the change `Δx = x(q; p_b) − x(q; p_a)`
+//! has, when the machine did not change, the covariance
+//! `C = J (V_a + V_b) Jᵀ` to first order (`J = ∂x/∂p` at `p_a`, over the
+//! parameters both identified, what neither's data see left out);
+//! `Δxᵀ C⁺ Δx` in correlation form is then χ² with the rank of `C`
+//! (Fisher's F with the noise levels' degrees of freedom when they were
+//! estimated), the rule of the joint parameter test.
 
 use crate::engine::models::{Model, predict_pose, prepare_pose};
 use crate::engine::sensitivity::sensitivity;
 use crate::error::{Error, Result};
-use crate::identify::drift::{
-    Compared, TargetDrift, WorkspaceDrift, joint_noise_dof, quadratic_test,
-};
+use crate::identify::drift::{Compared, TargetDrift, WorkspaceDrift, prepare, quadratic_test};
 use crate::mechanism::{Mechanism, Params};
 use crate::units::Unit;
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
 /// The parameters a calibration gives, by name over `mech`'s (the others
-/// nominal).
-fn params_of<M: Mechanism>(mech: &M, c: &Compared) -> Params {
+/// nominal), the compared values of the tested ones replacing them.
+fn params_of<M: Mechanism>(mech: &M, c: &Compared, tested: &[String], values: &[f64]) -> Params {
     let spec = mech.spec();
     let mut p = Params::nominal(spec);
     for (name, v) in &c.values {
@@ -29,24 +29,12 @@ fn params_of<M: Mechanism>(mech: &M, c: &Compared) -> Params {
             p.values[i] = *v;
         }
     }
-    p
-}
-
-/// A calibration's covariance over all of `mech`'s parameters (zero where
-/// it identified none).
-fn full_covariance<M: Mechanism>(mech: &M, c: &Compared) -> DMatrix<f64> {
-    let spec = mech.spec();
-    let n = spec.n_params();
-    let idx: Vec<Option<usize>> = c.names.iter().map(|m| spec.param_index(m).ok()).collect();
-    let mut out = DMatrix::zeros(n, n);
-    for (a, ia) in idx.iter().enumerate() {
-        for (b, ib) in idx.iter().enumerate() {
-            if let (Some(i), Some(j)) = (ia, ib) {
-                out[(*i, *j)] = c.covariance[a][b];
-            }
+    for (name, v) in tested.iter().zip(values) {
+        if let Ok(i) = spec.param_index(name) {
+            p.values[i] = *v;
         }
     }
-    out
+    p
 }
 
 /// The change at the tool from calibration `a` to `b` at each target (tool
@@ -77,9 +65,29 @@ pub fn workspace_drift_cancellable<M: Mechanism>(
         ));
     }
     let spec = mech.spec();
-    let (pa, pb) = (params_of(mech, a), params_of(mech, b));
-    let cov = full_covariance(mech, a) + full_covariance(mech, b);
-    let nu = joint_noise_dof(a, b);
+    let prepared = prepare(a, b)?;
+    let (va, ca) = prepared.in_units(false);
+    let (vb, cb) = prepared.in_units(true);
+    let (pa, pb) = (
+        params_of(mech, a, &prepared.tested, &va),
+        params_of(mech, b, &prepared.tested, &vb),
+    );
+    // The covariance of the change over all of `mech`'s parameters.
+    let n = spec.n_params();
+    let idx: Vec<Option<usize>> = prepared
+        .tested
+        .iter()
+        .map(|m| spec.param_index(m).ok())
+        .collect();
+    let mut cov = DMatrix::zeros(n, n);
+    for (x, ix) in idx.iter().enumerate() {
+        for (y, iy) in idx.iter().enumerate() {
+            if let (Some(i), Some(j)) = (ix, iy) {
+                cov[(*i, *j)] = ca[(x, y)] + cb[(x, y)];
+            }
+        }
+    }
+    let nu = prepared.nu;
     let lengths: Vec<usize> = (0..spec.tool_axes.len())
         .filter(|&k| spec.tool_units[k] == Unit::Millimetre)
         .collect();

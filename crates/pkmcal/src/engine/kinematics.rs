@@ -9,9 +9,7 @@ use crate::mechanism::autodiff::jacobians;
 use nalgebra::DMatrix;
 
 pub use crate::engine::newton::STEP_TOL;
-use crate::engine::newton::{
-    CLOSURE_RESIDUAL_TOL, IK_STEP_TOL, MAX_ITERATIONS as MAX_NEWTON, MAX_TURN, STALL_TOL,
-};
+use crate::engine::newton::{self, End};
 /// Largest revolute joint step (rad) of one continuation stage.
 const CONTINUATION_STEP: f64 = 0.1;
 /// Largest prismatic joint step (mm) of one continuation stage.
@@ -63,47 +61,54 @@ fn solve_closure_keeping<M: Mechanism>(
             spec.n_constraints
         )));
     }
-    let mut last = f64::INFINITY;
+    let policy = &newton::CLOSURE;
     let mut j = crate::mechanism::autodiff::Jacobians::empty();
     // The square system's matrix and right-hand side, sized once per solve.
     let n = free.len();
     let mut gv = DMatrix::zeros(n, n);
-    let mut step = vec![0.0; n];
-    for it in 0..MAX_NEWTON {
-        crate::mechanism::autodiff::jacobians_into(mech, q, rho, 0..nq, &mut j);
-        for (c, &f) in free.iter().enumerate() {
-            gv.column_mut(c).copy_from(&j.dg.column(f));
-        }
-        step.copy_from_slice(&j.g);
-        if !solve_square_in_place(&mut gv, &mut step) {
-            return Err(Error::Singular {
-                q: q.to_vec(),
-                reason: "the loop-closure Jacobian of the dependent joints is singular".into(),
-            });
-        }
-        // nalgebra's `amax`: NaN entries after the first skipped.
-        let mut big = step
-            .iter()
-            .skip(1)
-            .fold(step.first().map_or(0.0, |v| v.abs()), |a, b| a.max(b.abs()));
-        if !big.is_finite() {
-            big = f64::INFINITY;
-        }
-        let scale = damping(spec, &free, &step);
-        for (k, &i) in free.iter().enumerate() {
-            q[i] -= scale * step[k];
-        }
-        if big < STEP_TOL || (big < STALL_TOL && big >= last) {
-            return Ok((it + 1, Some(j)));
-        }
-        last = big;
+    // The joints and the step (the right-hand side, solved in place).
+    let mut state = (q, vec![0.0; n]);
+    let end = newton::run(
+        policy,
+        &mut state,
+        |(q, step), _| -> Result<Option<newton::Step>> {
+            crate::mechanism::autodiff::jacobians_into(mech, q, rho, 0..nq, &mut j);
+            for (c, &f) in free.iter().enumerate() {
+                gv.column_mut(c).copy_from(&j.dg.column(f));
+            }
+            step.copy_from_slice(&j.g);
+            if !solve_square_in_place(&mut gv, step) {
+                return Err(Error::Singular {
+                    q: q.to_vec(),
+                    reason: "the loop-closure Jacobian of the dependent joints is singular".into(),
+                });
+            }
+            // nalgebra's `amax`: NaN entries after the first skipped.
+            let big = step
+                .iter()
+                .skip(1)
+                .fold(step.first().map_or(0.0, |v| v.abs()), |a, b| a.max(b.abs()));
+            Ok(Some(newton::Step {
+                size: if big.is_finite() { big } else { f64::INFINITY },
+                turn: step_turn(spec, free.iter().copied(), step),
+            }))
+        },
+        |(q, step), scale| {
+            for (k, &i) in free.iter().enumerate() {
+                q[i] -= scale * step[k];
+            }
+        },
+    )?;
+    let q = state.0;
+    if let End::Converged(iterations) = end {
+        return Ok((iterations, Some(j)));
     }
     let g = jacobians(mech, q, rho, 0..0).g;
-    let scale = rho.iter().fold(1.0f64, |m, v| m.max(v.abs()));
+    let scale = newton::parameter_scale(rho);
     if g.iter()
-        .all(|v| v.abs() < CLOSURE_RESIDUAL_TOL * scale * scale)
+        .all(|v| v.abs() < policy.residual_limit(scale) * scale)
     {
-        return Ok((MAX_NEWTON, None));
+        return Ok((policy.max_iterations, None));
     }
     Err(Error::NoConvergence {
         what: "loop closure".into(),
@@ -111,13 +116,6 @@ fn solve_closure_keeping<M: Mechanism>(
             "the legs cannot be assembled at joints {q:?} (residual {g:?}); the actuator values are probably outside the workspace"
         ),
     })
-}
-
-/// The factor of a damped Newton step `step` on the joints `joints`: never
-/// more than [`MAX_TURN`] rad, or 50 mm on a length, at once (a length step
-/// measured in rad at [`MM_PER_RAD`]).
-fn damping(spec: &crate::Spec, joints: &[usize], step: &[f64]) -> f64 {
-    crate::engine::newton::damping(step_turn(spec, joints.iter().copied(), step), MAX_TURN)
 }
 
 /// The largest joint step of `step` (on `joints`, in order) in rad, a
@@ -436,7 +434,7 @@ fn ik_continuation<M: Mechanism>(
 ) -> Result<Vec<f64>> {
     let spec = mech.spec();
     let nq = spec.joints.len();
-    let mut q = start.to_vec();
+    let q = start.to_vec();
     let x0 = jacobians(mech, &q, rho, 0..0).x;
     let span = x0
         .iter()
@@ -453,62 +451,69 @@ fn ik_continuation<M: Mechanism>(
         });
     }
     let stages = (stages as usize).max(1);
-    let all: Vec<usize> = (0..nq).collect();
     let mut j = crate::mechanism::autodiff::Jacobians::empty();
     // Newton's system `[∂g/∂q; ∂x/∂q] step = [g; x − goal]`, in buffers
     // kept from one iteration to the next (every entry is rewritten).
     let mut a = DMatrix::zeros(nq, nq);
-    let mut step = vec![0.0; nq];
+    let mut state = (q, vec![0.0; nq]);
     let mut goal = vec![0.0; x0.len()];
     for s in 1..=stages {
         let t = s as f64 / stages as f64;
         for (g, (a, b)) in goal.iter_mut().zip(x0.iter().zip(target)) {
             *g = a + t * (b - a);
         }
-        let mut converged = false;
-        for _ in 0..MAX_NEWTON {
-            crate::mechanism::autodiff::jacobians_into(mech, &q, rho, 0..nq, &mut j);
-            a.view_mut((0, 0), (spec.n_constraints, nq))
-                .copy_from(&j.dg);
-            a.view_mut((spec.n_constraints, 0), (target.len(), nq))
-                .copy_from(&j.dx);
-            step[..spec.n_constraints].copy_from_slice(&j.g);
-            for (b, (x, t)) in step[spec.n_constraints..]
-                .iter_mut()
-                .zip(j.x.iter().zip(&goal))
-            {
-                *b = x - t;
+        // The intermediate stages only keep the path on its branch: they
+        // stop well before Newton's full precision.
+        let policy = if s < stages {
+            newton::Policy {
+                step_tol: INTERMEDIATE_TOL,
+                ..newton::INVERSE_KINEMATICS
             }
-            if !solve_square_in_place(&mut a, &mut step) {
-                return Err(Error::Unreachable {
-                    target: target.to_vec(),
-                    reason: "the path from the reference configuration meets a singularity".into(),
-                });
-            }
-            let big = nalgebra::DVectorView::from_slice(&step, nq).amax();
-            let scale = damping(spec, &all, &step);
-            for i in 0..nq {
-                q[i] -= scale * step[i];
-            }
-            // The intermediate stages only keep the path on its branch: they
-            // stop well before Newton's full precision.
-            let tol = if s < stages {
-                INTERMEDIATE_TOL
-            } else {
-                IK_STEP_TOL
-            };
-            if big < tol {
-                converged = true;
-                break;
-            }
-        }
-        if !converged {
+        } else {
+            newton::INVERSE_KINEMATICS
+        };
+        let end = newton::run(
+            &policy,
+            &mut state,
+            |(q, step), _| -> Result<Option<newton::Step>> {
+                crate::mechanism::autodiff::jacobians_into(mech, q, rho, 0..nq, &mut j);
+                a.view_mut((0, 0), (spec.n_constraints, nq))
+                    .copy_from(&j.dg);
+                a.view_mut((spec.n_constraints, 0), (target.len(), nq))
+                    .copy_from(&j.dx);
+                step[..spec.n_constraints].copy_from_slice(&j.g);
+                for (b, (x, t)) in step[spec.n_constraints..]
+                    .iter_mut()
+                    .zip(j.x.iter().zip(&goal))
+                {
+                    *b = x - t;
+                }
+                if !solve_square_in_place(&mut a, step) {
+                    return Err(Error::Unreachable {
+                        target: target.to_vec(),
+                        reason: "the path from the reference configuration meets a singularity"
+                            .into(),
+                    });
+                }
+                Ok(Some(newton::Step {
+                    size: nalgebra::DVectorView::from_slice(step, nq).amax(),
+                    turn: step_turn(spec, 0..nq, step),
+                }))
+            },
+            |(q, step), scale| {
+                for i in 0..nq {
+                    q[i] -= scale * step[i];
+                }
+            },
+        )?;
+        if !matches!(end, End::Converged(_)) {
             return Err(Error::Unreachable {
                 target: target.to_vec(),
                 reason: "Newton did not converge".into(),
             });
         }
     }
+    let q = state.0;
     if !mech.on_branch(&q, rho) {
         return Err(Error::Unreachable {
             target: target.to_vec(),
@@ -611,6 +616,7 @@ pub fn commands_configuration<M: Mechanism>(
     let mut x = jacobians(mech, near, rho, 0..0).x;
     let mut q = ik(&x, near)?;
     let mut a = DMatrix::zeros(nq, nq);
+    // Not `newton::run`: each step is halved while its pose is out of reach.
     for _ in 0..POSE_FIT_STEPS {
         // ∂q/∂x on the branch: [∂g/∂q; ∂x/∂q] ∂q/∂x = [0; I].
         let j = jacobians(mech, &q, rho, 0..nq);

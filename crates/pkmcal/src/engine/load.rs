@@ -96,13 +96,11 @@ pub fn generalized_forces(layout: ToolLayout, x: &[f64], load: &[f64]) -> Vec<f6
     match layout {
         ToolLayout::PlanarPose => q[2] = M_TO_MM * load[2],
         ToolLayout::SpatialPose => {
-            let (sb, cb) = x[4].sin_cos();
-            let (sc, cc) = x[5].sin_cos();
             // Columns of E: the axes of the Euler angles' rotations, in the base.
-            let e = [[cc * cb, sc * cb, -sb], [-sc, cc, 0.0], [0.0, 0.0, 1.0]];
+            let e = crate::linalg::pose::euler_axes(x[4], x[5]);
             let m = [load[3], load[4], load[5]];
             for (k, axis) in e.iter().enumerate() {
-                q[3 + k] = M_TO_MM * (axis[0] * m[0] + axis[1] * m[1] + axis[2] * m[2]);
+                q[3 + k] = M_TO_MM * crate::linalg::small::dot(*axis, m);
             }
         }
         _ => {}

@@ -715,10 +715,8 @@ pub fn predict<M: Mechanism>(
     predict_pose(mech, &pose, params, model, force)
 }
 
+use crate::engine::newton;
 pub use crate::engine::newton::EQUILIBRIUM_TOL;
-use crate::engine::newton::{
-    EQUILIBRIUM_STALL_TOL, MAX_EQUILIBRIUM_ITERATIONS, MAX_EQUILIBRIUM_TURN,
-};
 
 /// Exact static equilibrium (docs/model.md §4, the "exact" model): minimise
 /// `E(q) = ½ Σ_j k_j (c_j + Δq_j − q_r,j)² + 10⁻³ wᵀ x(q)` subject to
@@ -839,10 +837,6 @@ fn equilibrium_in<M: Mechanism>(
     ws.motor.clear();
     ws.motor
         .extend(commands.iter().zip(params.offsets()).map(|(c, o)| c + o));
-    let mut q = start.to_vec();
-    // The multipliers, estimated at the first iteration.
-    let mut lam = vec![0.0; m];
-    let mut last = f64::INFINITY;
     let n = nq + m;
     shape(&mut ws.kkt, n, n);
     shape(&mut ws.step, n, 1);
@@ -866,116 +860,121 @@ fn equilibrium_in<M: Mechanism>(
         kkt_work,
     } = ws;
     let j = j.get_or_insert_with(crate::mechanism::autodiff::Jacobians::empty);
-    for it in 1..=MAX_EQUILIBRIUM_ITERATIONS {
-        jacobians_into(mech, &q, rho, 0..nq, j);
-        // ∇E = −Sᵀτ + Xqᵀ w.
-        grad_e.fill(0.0);
-        for (ge, dx) in grad_e
-            .iter_mut()
-            .zip(j.dx.as_slice().chunks_exact(nx.max(1)))
-        {
-            *ge = dx.iter().zip(w.iter()).map(|(d, w)| d * w).sum();
-        }
-        for (a, &jt) in spec.actuated.iter().enumerate() {
-            grad_e[jt] -= k[a] * (motor[a] - q[jt]);
-        }
-        if it == 1 {
-            // Least-squares multipliers at the start: Gᵀλ ≈ −∇E (the same
-            // products as `&G * Gᵀ` and `G * ∇E`, into the workspace).
-            shape(gt, nq, m);
-            j.dg.transpose_to(gt);
-            shape(ggt, m, m);
-            j.dg.mul_to(gt, ggt);
-            if ge.len() != nq {
-                *ge = DVector::zeros(nq);
+    // The joints, the multipliers (estimated at the first iteration) and
+    // the step.
+    let mut state = (start.to_vec(), vec![0.0; m], step);
+    let end = newton::run(
+        &newton::EQUILIBRIUM,
+        &mut state,
+        |(q, lam, step), it| -> Result<Option<newton::Step>> {
+            jacobians_into(mech, q, rho, 0..nq, j);
+            // ∇E = −Sᵀτ + Xqᵀ w.
+            grad_e.fill(0.0);
+            for (ge, dx) in grad_e
+                .iter_mut()
+                .zip(j.dx.as_slice().chunks_exact(nx.max(1)))
+            {
+                *ge = dx.iter().zip(w.iter()).map(|(d, w)| d * w).sum();
             }
-            ge.as_mut_slice().copy_from_slice(grad_e);
-            if rhs.len() != m {
-                *rhs = DVector::zeros(m);
+            for (a, &jt) in spec.actuated.iter().enumerate() {
+                grad_e[jt] -= k[a] * (motor[a] - q[jt]);
             }
-            j.dg.mul_to(ge, rhs);
-            rhs.neg_mut();
-            if crate::linalg::lu::solve_in_place(ggt, rhs.as_mut_slice()) {
-                lam.copy_from_slice(rhs.as_slice());
+            if it == 0 {
+                // Least-squares multipliers at the start: Gᵀλ ≈ −∇E (the same
+                // products as `&G * Gᵀ` and `G * ∇E`, into the workspace).
+                shape(gt, nq, m);
+                j.dg.transpose_to(gt);
+                shape(ggt, m, m);
+                j.dg.mul_to(gt, ggt);
+                if ge.len() != nq {
+                    *ge = DVector::zeros(nq);
+                }
+                ge.as_mut_slice().copy_from_slice(grad_e);
+                if rhs.len() != m {
+                    *rhs = DVector::zeros(m);
+                }
+                j.dg.mul_to(ge, rhs);
+                rhs.neg_mut();
+                if crate::linalg::lu::solve_in_place(ggt, rhs.as_mut_slice()) {
+                    lam.copy_from_slice(rhs.as_slice());
+                }
             }
-        }
-        // W = SᵀKS + Σ λ_k ∇²g_k + Σ w_i ∇²x_i, then the constraint blocks.
-        weights[..m].copy_from_slice(&lam);
-        kkt.as_mut_slice().fill(0.0);
-        for (h, &wt) in hessians.iter().zip(weights.iter()) {
-            if wt != 0.0 {
-                let cols = kkt.as_mut_slice().chunks_exact_mut(n);
-                for (o, v) in cols.zip(h.as_slice().chunks_exact(nq)) {
-                    for (o, v) in o.iter_mut().zip(v) {
-                        *o += v * wt;
+            // W = SᵀKS + Σ λ_k ∇²g_k + Σ w_i ∇²x_i, then the constraint blocks.
+            weights[..m].copy_from_slice(lam);
+            kkt.as_mut_slice().fill(0.0);
+            for (h, &wt) in hessians.iter().zip(weights.iter()) {
+                if wt != 0.0 {
+                    let cols = kkt.as_mut_slice().chunks_exact_mut(n);
+                    for (o, v) in cols.zip(h.as_slice().chunks_exact(nq)) {
+                        for (o, v) in o.iter_mut().zip(v) {
+                            *o += v * wt;
+                        }
                     }
                 }
             }
-        }
-        for (a, &jt) in spec.actuated.iter().enumerate() {
-            kkt[(jt, jt)] += k[a];
-        }
-        for c in 0..nq {
-            for r in 0..m {
-                kkt[(nq + r, c)] = j.dg[(r, c)];
-                kkt[(c, nq + r)] = j.dg[(r, c)];
+            for (a, &jt) in spec.actuated.iter().enumerate() {
+                kkt[(jt, jt)] += k[a];
             }
-        }
-        step.as_mut_slice().fill(0.0);
-        debug_assert!(hessians.iter().all(|h| h.shape() == (nq, nq)));
-        for ((st, ge), dg) in step
-            .iter_mut()
-            .zip(grad_e.iter())
-            .zip(j.dg.as_slice().chunks_exact(m.max(1)))
-        {
-            let t: f64 = dg.iter().zip(&lam).map(|(d, l)| d * l).sum();
-            *st = ge + t;
-        }
-        for (r, g) in j.g.iter().enumerate() {
-            step[nq + r] = *g;
-        }
-        if !crate::linalg::kkt::solve_kkt_in_place(kkt, step, nq, &spec.independent, kkt_work) {
-            return Err(Error::Singular {
-                q: q.clone(),
-                reason: "the equilibrium (KKT) system is singular".into(),
-            });
-        }
-        let big = step.as_slice()[..nq]
-            .iter()
-            .fold(0.0f64, |m, v| m.max(v.abs()));
-        if !big.is_finite() {
-            break;
-        }
-        // At most 0.2 rad, or 20 mm on a length, per iteration.
-        let turn = crate::engine::kinematics::step_turn(spec, 0..nq, step.as_slice());
-        let scale = crate::engine::newton::damping(turn, MAX_EQUILIBRIUM_TURN);
-        for i in 0..nq {
-            q[i] -= scale * step[i];
-        }
-        for (r, l) in lam.iter_mut().enumerate() {
-            *l -= step[nq + r] * scale;
-        }
-        // Convergence is at least linear with a small rate r = big/last; the
-        // error left after this step is about r·big.
-        let rate = if last.is_finite() { big / last } else { 1.0 };
-        if big < EQUILIBRIUM_TOL
-            || (rate < 0.5 && rate * big < EQUILIBRIUM_TOL)
-            || (big < EQUILIBRIUM_STALL_TOL && rate >= 1.0)
-        {
-            let torque = spec
-                .actuated
+            for c in 0..nq {
+                for r in 0..m {
+                    kkt[(nq + r, c)] = j.dg[(r, c)];
+                    kkt[(c, nq + r)] = j.dg[(r, c)];
+                }
+            }
+            step.as_mut_slice().fill(0.0);
+            debug_assert!(hessians.iter().all(|h| h.shape() == (nq, nq)));
+            for ((st, ge), dg) in step
+                .iter_mut()
+                .zip(grad_e.iter())
+                .zip(j.dg.as_slice().chunks_exact(m.max(1)))
+            {
+                let t: f64 = dg.iter().zip(lam.iter()).map(|(d, l)| d * l).sum();
+                *st = ge + t;
+            }
+            for (r, g) in j.g.iter().enumerate() {
+                step[nq + r] = *g;
+            }
+            if !crate::linalg::kkt::solve_kkt_in_place(kkt, step, nq, &spec.independent, kkt_work) {
+                return Err(Error::Singular {
+                    q: q.clone(),
+                    reason: "the equilibrium (KKT) system is singular".into(),
+                });
+            }
+            let big = step.as_slice()[..nq]
                 .iter()
-                .enumerate()
-                .map(|(a, &jt)| k[a] * (motor[a] - q[jt]))
-                .collect();
-            return Ok(Equilibrium {
-                q,
-                lambda: lam,
-                torque,
-                iterations: it,
-            });
-        }
-        last = big;
+                .fold(0.0f64, |m, v| m.max(v.abs()));
+            if !big.is_finite() {
+                return Ok(None);
+            }
+            // At most 0.2 rad, or 20 mm on a length, per iteration.
+            Ok(Some(newton::Step {
+                size: big,
+                turn: crate::engine::kinematics::step_turn(spec, 0..nq, step.as_slice()),
+            }))
+        },
+        |(q, lam, step), scale| {
+            for i in 0..nq {
+                q[i] -= scale * step[i];
+            }
+            for (r, l) in lam.iter_mut().enumerate() {
+                *l -= step[nq + r] * scale;
+            }
+        },
+    )?;
+    if let newton::End::Converged(iterations) = end {
+        let (q, lambda, _) = state;
+        let torque = spec
+            .actuated
+            .iter()
+            .enumerate()
+            .map(|(a, &jt)| k[a] * (motor[a] - q[jt]))
+            .collect();
+        return Ok(Equilibrium {
+            q,
+            lambda,
+            torque,
+            iterations,
+        });
     }
     Err(Error::NoConvergence {
         what: "static equilibrium".into(),

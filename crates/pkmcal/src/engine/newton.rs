@@ -1,9 +1,15 @@
 //! The Newton policy every nonlinear solve of the engine follows: how far
 //! one step may go, when a solve has converged, how many iterations it may
-//! take. Each loop (loop closure, inverse kinematics, a spatial leg's
-//! inverse kinematics, the exact equilibrium, trilateration) takes its
-//! limits from here, so that one reading of "converged" holds everywhere
-//! (docs/model.md, "Numerical policy").
+//! take, and when a solve whose iterations ran out is still accepted. Each
+//! loop (loop closure, inverse kinematics, a spatial leg's inverse
+//! kinematics, the exact equilibrium, trilateration) is [`run`] with its
+//! [`Policy`] and a closure that computes its own step, so that one reading
+//! of "converged" holds everywhere (docs/model.md, "Numerical policy").
+//!
+//! Two Gauss–Newton loops keep their own shape: the Gough–Stewart
+//! platform's guess refinement (a step is kept only while the commands'
+//! mismatch shrinks) and `commands_configuration` (each step halved while
+//! its pose is out of reach): neither has a step tolerance to converge to.
 
 /// Newton has converged when its largest joint step falls below this (rad,
 /// or mm on a length joint): a few ulps of the joint values.
@@ -79,5 +85,211 @@ pub fn damping(turn: f64, max_turn: f64) -> f64 {
         max_turn / turn
     } else {
         1.0
+    }
+}
+
+/// How a Newton loop judges that the step it has just taken converged.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Convergence {
+    /// The step is below [`Policy::step_tol`], or below
+    /// [`Policy::stall_tol`] and no shorter than the step before.
+    Step,
+    /// As [`Convergence::Step`], and also when the rate `r` (the step over
+    /// the one before, 1 at the first) is below ½ and predicts an error
+    /// `r × step` below [`Policy::step_tol`] after it; a first step below
+    /// [`Policy::stall_tol`] counts as stalled. For a solve that starts
+    /// within a short distance of its answer (the exact equilibrium).
+    Rate,
+}
+
+/// The limits of one Newton loop: everything but its residual and step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Policy {
+    /// Most iterations.
+    pub max_iterations: usize,
+    /// The loop has converged when its step falls below this (rad or mm).
+    pub step_tol: f64,
+    /// It has also converged once its step is below this and stopped
+    /// shrinking (0: never).
+    pub stall_tol: f64,
+    /// How convergence is judged.
+    pub convergence: Convergence,
+    /// The largest turn one step takes (rad-equivalent, as the loop's
+    /// closure measures it); a longer step is scaled down to it.
+    pub max_turn: f64,
+    /// A loop whose iterations ran out is still accepted when its residual
+    /// is below this times the scale of its equations
+    /// ([`Policy::residual_limit`]); 0 when it never is.
+    pub residual_tol: f64,
+}
+
+/// Loop closure: forward kinematics, the reference configuration.
+pub const CLOSURE: Policy = Policy {
+    max_iterations: MAX_ITERATIONS,
+    step_tol: STEP_TOL,
+    stall_tol: STALL_TOL,
+    convergence: Convergence::Step,
+    max_turn: MAX_TURN,
+    residual_tol: CLOSURE_RESIDUAL_TOL,
+};
+
+/// The last stage of inverse kinematics by continuation (the intermediate
+/// stages stop at a coarser step).
+pub const INVERSE_KINEMATICS: Policy = Policy {
+    max_iterations: MAX_ITERATIONS,
+    step_tol: IK_STEP_TOL,
+    stall_tol: 0.0,
+    convergence: Convergence::Step,
+    max_turn: MAX_TURN,
+    residual_tol: 0.0,
+};
+
+/// A spatial leg's own inverse kinematics.
+pub const LEG: Policy = Policy {
+    max_iterations: MAX_LEG_ITERATIONS,
+    step_tol: IK_STEP_TOL,
+    stall_tol: 0.0,
+    convergence: Convergence::Step,
+    max_turn: MAX_TURN,
+    residual_tol: LEG_RESIDUAL_TOL,
+};
+
+/// The exact equilibrium.
+pub const EQUILIBRIUM: Policy = Policy {
+    max_iterations: MAX_EQUILIBRIUM_ITERATIONS,
+    step_tol: EQUILIBRIUM_TOL,
+    stall_tol: EQUILIBRIUM_STALL_TOL,
+    convergence: Convergence::Rate,
+    max_turn: MAX_EQUILIBRIUM_TURN,
+    residual_tol: 0.0,
+};
+
+/// Ball-bar trilateration: Gauss–Newton on coordinates in mm, undamped.
+pub const TRILATERATION: Policy = Policy {
+    max_iterations: MAX_TRILATERATION_ITERATIONS,
+    step_tol: TRILATERATION_TOL,
+    stall_tol: 0.0,
+    convergence: Convergence::Step,
+    max_turn: f64::INFINITY,
+    residual_tol: 0.0,
+};
+
+impl Policy {
+    /// Whether a step of size `size` (after one of size `last`, infinite at
+    /// the first) has converged.
+    pub fn converged(&self, size: f64, last: f64) -> bool {
+        match self.convergence {
+            Convergence::Step => size < self.step_tol || (size < self.stall_tol && size >= last),
+            Convergence::Rate => {
+                let rate = if last.is_finite() { size / last } else { 1.0 };
+                size < self.step_tol
+                    || (rate < 0.5 && rate * size < self.step_tol)
+                    || (size < self.stall_tol && rate >= 1.0)
+            }
+        }
+    }
+
+    /// The largest residual accepted when the iterations ran out, for
+    /// equations whose scale is `scale` (a length: the largest parameter
+    /// magnitude, [`parameter_scale`]).
+    pub fn residual_limit(&self, scale: f64) -> f64 {
+        self.residual_tol * scale
+    }
+}
+
+/// The scale of a mechanism's lengths for [`Policy::residual_limit`]: its
+/// largest parameter magnitude, at least 1.
+pub fn parameter_scale(rho: &[f64]) -> f64 {
+    rho.iter().fold(1.0f64, |m, v| m.max(v.abs()))
+}
+
+/// One Newton step as a loop's closure computed it, measured its own way.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Step {
+    /// Its size, compared with the tolerances.
+    pub size: f64,
+    /// Its largest turn (rad-equivalent), compared with
+    /// [`Policy::max_turn`].
+    pub turn: f64,
+}
+
+/// How a Newton loop ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum End {
+    /// Converged after this many iterations.
+    Converged(usize),
+    /// The iterations ran out.
+    Exhausted,
+    /// The closure found its step unusable (not finite) and stopped.
+    Unusable,
+}
+
+/// The Newton loop: up to [`Policy::max_iterations`] times, `step`
+/// computes the next step from `state` (its size and turn, the step itself
+/// kept in `state`; `None` when it is unusable, which ends the loop, an
+/// error when the system is singular), then `take` moves `state` by the
+/// step times the damping factor ([`damping`] of its turn), then the step
+/// is judged ([`Policy::converged`]). `step` is told the iteration (from
+/// 0). Nothing is allocated here: the loops keep their buffers in `state`
+/// or in what the closures hold.
+pub fn run<S, E>(
+    policy: &Policy,
+    state: &mut S,
+    mut step: impl FnMut(&mut S, usize) -> Result<Option<Step>, E>,
+    mut take: impl FnMut(&mut S, f64),
+) -> Result<End, E> {
+    let mut last = f64::INFINITY;
+    for it in 0..policy.max_iterations {
+        let Some(s) = step(state, it)? else {
+            return Ok(End::Unusable);
+        };
+        take(state, damping(s.turn, policy.max_turn));
+        if policy.converged(s.size, last) {
+            return Ok(End::Converged(it + 1));
+        }
+        last = s.size;
+    }
+    Ok(End::Exhausted)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The loop stops on the policy's judgement: a step below the
+    /// tolerance, a small step that stopped shrinking, the equilibrium's
+    /// rate; it damps long steps, and reports running out or an unusable
+    /// step.
+    #[test]
+    fn the_driver_judges_steps_by_the_policy() {
+        let steps = |sizes: Vec<f64>, policy: Policy| {
+            let mut taken = vec![];
+            let end = run(
+                &policy,
+                &mut taken,
+                |_, it| Ok::<_, ()>(sizes.get(it).map(|&size| Step { size, turn: size })),
+                |t, scale| t.push(scale),
+            )
+            .unwrap();
+            (end, taken)
+        };
+        let (end, taken) = steps(vec![1.0, 1e-3, 1e-14], CLOSURE);
+        assert_eq!(end, End::Converged(3));
+        assert_eq!(taken, [0.5, 1.0, 1.0]);
+        // Below the stall tolerance and no shorter than before.
+        assert_eq!(steps(vec![1e-10, 2e-10], CLOSURE).0, End::Converged(2));
+        assert_eq!(steps(vec![1e-10, 1e-11, 1e-12], CLOSURE).0, End::Unusable);
+        // The equilibrium's rate: 1e-8 then 1e-15 predicts 1e-22.
+        assert_eq!(steps(vec![1e-8, 1e-15], EQUILIBRIUM).0, End::Converged(2));
+        assert_eq!(steps(vec![1e-11], EQUILIBRIUM).0, End::Converged(1));
+        assert_eq!(steps(vec![1e-11], CLOSURE).0, End::Unusable);
+        let few = Policy {
+            max_iterations: 2,
+            ..LEG
+        };
+        assert_eq!(steps(vec![1.0; 5], few).0, End::Exhausted);
+        assert_eq!(CLOSURE.residual_limit(10.0), CLOSURE_RESIDUAL_TOL * 10.0);
+        assert_eq!(parameter_scale(&[0.5, -300.0, 2.0]), 300.0);
+        assert_eq!(parameter_scale(&[]), 1.0);
     }
 }

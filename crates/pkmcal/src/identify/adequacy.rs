@@ -1,49 +1,107 @@
-//! The model-adequacy test (docs/model.md §6): residuals larger than the
-//! instrument's stated noise can explain mean the model misses something.
-//! Each group of readings with a stated σ₀ is tested, `Σ r² / σ₀²` against
-//! χ² with the group's redundancy `Σ (1 − h)`; a fit whose σ are all given
-//! in the data, `Σ (r/σ)²` against χ² with the fit's redundancy. When a
-//! test fails, the parameters left out of the fit are ranked by how much of
-//! the weighted residual freeing each would remove (the score test: the
-//! squared projection of the residuals on its Jacobian column, orthogonal
-//! to the free columns, over that column's squared norm).
+//! The model-adequacy test (docs/model.md §6), two-sided: residuals larger
+//! than the instrument's stated noise can explain mean the model misses
+//! something or the noise is understated; residuals well below it mean the
+//! noise is overstated. Each group of readings with a stated σ₀ is tested,
+//! `Σ r² / σ₀²` against χ² with the group's redundancy `Σ (1 − h)`; a fit
+//! whose σ are all given in the data, `Σ (r/σ)²` against χ² with the
+//! readings' redundancy. Each tail is judged at half of
+//! [`ADEQUACY_ALPHA`].
+//!
+//! When the residuals are too large, the parameters left out of the fit
+//! are tested one at a time against the data's own noise level (the score
+//! test by forward selection: the share of the weighted residual each would
+//! remove, the squared projection of the residuals on its Jacobian column
+//! orthogonal to the free columns over that column's squared norm, judged
+//! by Fisher's F against what is left, Bonferroni over those not yet
+//! named, at [`SUSPECT_ALPHA`]). The ones it singles out are named; when
+//! none is, the misfit is spread like noise and the stated noise is blamed.
 
 use super::identifiability::Columns;
 use super::problem::IdentificationProblem;
 use super::result::{Calibration, Warning, WarningKind};
 use crate::error::Result;
 use crate::mechanism::Mechanism;
+use crate::units::Unit;
 use nalgebra::{DMatrix, DVector};
+use serde::{Deserialize, Serialize};
+use statrs::distribution::{ChiSquared, ContinuousCDF, FisherSnedecor};
 
-/// A test below this p-value says the model misses something: one in a
-/// thousand well-modelled fits is flagged.
+/// The two-sided test's level: a test below half of it in either tail is
+/// a warning. One in a thousand well-modelled fits with a right noise is
+/// flagged.
 pub const ADEQUACY_ALPHA: f64 = 1e-3;
 
 /// Parameters named as the likely missing ones, at most.
 pub const SUSPECTS: usize = 5;
 
-/// A parameter is named when freeing it would remove at least this share of
-/// the weighted sum of squares.
+/// A parameter is named only when freeing it would remove at least this
+/// share of the weighted sum of squares…
 pub const SUSPECT_SHARE: f64 = 0.05;
 
-/// The χ² upper tail `P(X ≥ x)` with `dof` degrees of freedom.
-fn chi2_tail(x: f64, dof: f64) -> f64 {
-    use statrs::distribution::{ChiSquared, ContinuousCDF};
-    ChiSquared::new(dof).map_or(f64::NAN, |c| c.sf(x))
+/// …and its score test singles it out at this familywise level (Bonferroni
+/// over the parameters not yet named): a misfit spread like noise names a
+/// parameter in at most one fit in a hundred.
+pub const SUSPECT_ALPHA: f64 = 0.01;
+
+/// One adequacy test of a fit: a group of readings against its stated σ,
+/// or every reading against the σ given in the data.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AdequacyTest {
+    /// Unit of the readings tested.
+    pub unit: Unit,
+    /// Their axes (`distance` for distances between poses; empty with
+    /// `given`: all readings).
+    pub axes: Vec<String>,
+    /// Whether the σ tested were given in the data (else stated).
+    pub given: bool,
+    /// The σ the residuals show, `√(Σ r² / ν)` (with `given`: the
+    /// readings' standard deviation of unit weight).
+    pub found: f64,
+    /// The σ tested against (with `given`: 1).
+    pub stated: f64,
+    /// `Σ r² / σ₀²`.
+    pub statistic: f64,
+    /// Its degrees of freedom, the readings' redundancy `ν`.
+    pub dof: f64,
+    /// `P(χ²_ν ≥ statistic)`: small when the residuals exceed the noise.
+    pub p_upper: f64,
+    /// `P(χ²_ν ≤ statistic)`: small when the noise exceeds the residuals.
+    pub p_lower: f64,
 }
 
-/// The adequacy warning of a finished fit, if a test fails.
-pub(super) fn adequacy<M: Mechanism>(
-    problem: &IdentificationProblem<'_, M>,
-    cal: &Calibration,
-) -> Result<Option<Warning>> {
-    // The worst failing test (lowest p).
-    let mut worst: Option<(f64, WarningKind)> = None;
-    let mut keep = |p: f64, kind: WarningKind| {
-        if p < ADEQUACY_ALPHA && worst.as_ref().is_none_or(|w| p < w.0) {
-            worst = Some((p, kind));
-        }
-    };
+impl AdequacyTest {
+    /// The two-sided p-value, `2 min(p_upper, p_lower)`.
+    pub fn p_value(&self) -> f64 {
+        (2.0 * self.p_upper.min(self.p_lower)).min(1.0)
+    }
+}
+
+fn test(
+    statistic: f64,
+    dof: f64,
+    unit: Unit,
+    axes: Vec<String>,
+    given: bool,
+    stated: f64,
+) -> AdequacyTest {
+    let chi2 = ChiSquared::new(dof).ok();
+    AdequacyTest {
+        unit,
+        axes,
+        given,
+        found: stated * (statistic / dof).sqrt(),
+        stated,
+        statistic,
+        dof,
+        p_upper: chi2.as_ref().map_or(f64::NAN, |c| c.sf(statistic)),
+        p_lower: chi2.as_ref().map_or(f64::NAN, |c| c.cdf(statistic)),
+    }
+}
+
+/// The adequacy tests of a finished fit: each group with an absolute
+/// stated σ, and every reading when all σ were given in the data.
+pub(super) fn adequacy_tests(cal: &Calibration) -> Vec<AdequacyTest> {
+    let mut out = vec![];
     for g in &cal.noise {
         let (Some(s0), Some(red)) = (g.stated, g.redundancy) else {
             continue;
@@ -52,49 +110,85 @@ pub(super) fn adequacy<M: Mechanism>(
             continue;
         }
         let ss = g.residual_rms.powi(2) * g.count as f64;
-        let p = chi2_tail(ss / (s0 * s0), red);
-        keep(
-            p,
-            WarningKind::ModelInadequate {
-                unit: g.unit,
-                axes: g.axes.clone(),
-                found: (ss / red).sqrt(),
-                stated: s0,
-                given: false,
-                p,
-                suspects: vec![],
-            },
-        );
+        out.push(test(ss / (s0 * s0), red, g.unit, g.axes.clone(), false, s0));
     }
-    if !cal.noise.is_empty() && cal.noise.iter().all(|g| !g.estimated) {
-        let dof = (cal.residuals.len() + cal.priors.len()).saturating_sub(cal.free.len());
-        if dof > 0 {
-            let p = chi2_tail(cal.sum_of_squares, dof as f64);
-            keep(
-                p,
-                WarningKind::ModelInadequate {
-                    unit: cal.noise[0].unit,
-                    axes: vec![],
-                    found: cal.unit_weight_sigma,
-                    stated: 1.0,
-                    given: true,
-                    p,
-                    suspects: vec![],
-                },
-            );
-        }
+    if !cal.noise.is_empty() && cal.noise.iter().all(|g| !g.estimated) && cal.redundancy >= 1.0 {
+        let ss: f64 = cal
+            .residuals
+            .iter()
+            .zip(&cal.sigmas)
+            .map(|(r, s)| (r / s).powi(2))
+            .sum();
+        out.push(test(
+            ss,
+            cal.redundancy,
+            cal.noise[0].unit,
+            vec![],
+            true,
+            1.0,
+        ));
     }
-    let Some((_, mut kind)) = worst else {
-        return Ok(None);
-    };
-    if let WarningKind::ModelInadequate { suspects: s, .. } = &mut kind {
-        *s = suspects(problem, cal)?;
-    }
-    Ok(Some(Warning::new(kind)))
+    out
 }
 
-/// The parameters left out of the fit that would explain most of its
-/// weighted residual, with the share each would remove (largest first).
+/// The adequacy warning of a finished fit, if a test fails (the worst):
+/// the noise overstated, the noise understated, or the model missing the
+/// parameters the score test singles out.
+pub(super) fn adequacy<M: Mechanism>(
+    problem: &IdentificationProblem<'_, M>,
+    cal: &Calibration,
+) -> Result<Option<Warning>> {
+    let worst = cal
+        .adequacy
+        .iter()
+        .filter(|t| t.p_upper.min(t.p_lower) < 0.5 * ADEQUACY_ALPHA)
+        .min_by(|a, b| {
+            a.p_upper
+                .min(a.p_lower)
+                .total_cmp(&b.p_upper.min(b.p_lower))
+        });
+    let Some(t) = worst else {
+        return Ok(None);
+    };
+    let (unit, axes, found, stated, given) = (t.unit, t.axes.clone(), t.found, t.stated, t.given);
+    if t.p_lower < t.p_upper {
+        return Ok(Some(Warning::new(WarningKind::NoiseOverstated {
+            unit,
+            axes,
+            found,
+            stated,
+            given,
+            p: t.p_lower,
+        })));
+    }
+    let suspects = suspects(problem, cal)?;
+    let p = t.p_upper;
+    Ok(Some(Warning::new(if suspects.is_empty() {
+        WarningKind::NoiseUnderstated {
+            unit,
+            axes,
+            found,
+            stated,
+            given,
+            p,
+        }
+    } else {
+        WarningKind::ModelInadequate {
+            unit,
+            axes,
+            found,
+            stated,
+            given,
+            p,
+            suspects,
+        }
+    })))
+}
+
+/// The parameters left out of the fit that the score test singles out, by
+/// forward selection (largest share first, each judged against what the
+/// residuals leave after those before it), with the share of the weighted
+/// sum of squares each removes.
 fn suspects<M: Mechanism>(
     problem: &IdentificationProblem<'_, M>,
     cal: &Calibration,
@@ -111,31 +205,57 @@ fn suspects<M: Mechanism>(
     for (i, s) in cal.sigmas.iter().enumerate() {
         jac.row_mut(i).unscale_mut(*s);
     }
-    let r = DVector::from_iterator(m, cal.residuals.iter().zip(&cal.sigmas).map(|(r, s)| r / s));
+    let mut r =
+        DVector::from_iterator(m, cal.residuals.iter().zip(&cal.sigmas).map(|(r, s)| r / s));
     let total = r.norm_squared();
     if total.is_nan() || total <= 0.0 || jac.iter().any(|v| !v.is_finite()) {
         return Ok(vec![]);
     }
     let free = jac.select_columns(&cal.free);
-    let q: DMatrix<f64> = if free.ncols() > 0 {
+    let mut q: DMatrix<f64> = if free.ncols() > 0 {
         free.qr().q()
     } else {
         DMatrix::zeros(m, 0)
     };
     let cols =
         Columns::with_measurement(problem.mech.spec(), problem.measurement, &cal.measurement);
-    let mut out: Vec<(String, f64)> = (0..jac.ncols())
-        .filter(|j| !cal.free.contains(j))
-        .filter_map(|j| {
-            let c = jac.column(j).into_owned();
-            let perp = &c - &q * (q.transpose() * &c);
-            let den = perp.norm_squared();
-            (den > 1e-12 * c.norm_squared().max(f64::MIN_POSITIVE))
-                .then(|| (cols.names[j].clone(), r.dot(&perp).powi(2) / den / total))
-        })
-        .filter(|(_, share)| *share >= SUSPECT_SHARE)
+    let mut left: Vec<usize> = (0..jac.ncols())
+        .filter(|j| !cal.free.contains(j) && !cal.priors.iter().any(|t| t.index == *j))
         .collect();
-    out.sort_by(|a, b| b.1.total_cmp(&a.1));
-    out.truncate(SUSPECTS);
+    let mut ss = total;
+    let mut nu = cal.redundancy;
+    let mut out = vec![];
+    while out.len() < SUSPECTS && !left.is_empty() && nu > 2.0 {
+        let best = left
+            .iter()
+            .enumerate()
+            .filter_map(|(k, &j)| {
+                let c = jac.column(j).into_owned();
+                let perp = &c - &q * (q.transpose() * &c);
+                let den = perp.norm_squared();
+                (den > 1e-12 * c.norm_squared().max(f64::MIN_POSITIVE))
+                    .then(|| (k, r.dot(&perp).powi(2) / den, perp))
+            })
+            .max_by(|a, b| a.1.total_cmp(&b.1));
+        let Some((k, t, perp)) = best else {
+            break;
+        };
+        let f = t / ((ss - t).max(f64::MIN_POSITIVE) / (nu - 1.0));
+        let p = FisherSnedecor::new(1.0, nu - 1.0).map_or(f64::NAN, |d| d.sf(f));
+        let share = t / total;
+        if p.is_nan() || p >= SUSPECT_ALPHA / left.len() as f64 || share < SUSPECT_SHARE {
+            break;
+        }
+        let j = left.remove(k);
+        out.push((cols.names[j].clone(), share));
+        // Project it out: the next is judged on what is left.
+        let unit = &perp / perp.norm();
+        r -= &unit * unit.dot(&r);
+        let last = q.ncols();
+        q = q.insert_column(last, 0.0);
+        q.set_column(last, &unit);
+        ss -= t;
+        nu -= 1.0;
+    }
     Ok(out)
 }

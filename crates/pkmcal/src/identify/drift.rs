@@ -1,28 +1,55 @@
 //! Drift told from noise: two calibrations of one machine (or one against
 //! its nominal values) compared parameter by parameter, each change against
-//! what both covariances allow, with the multiple-comparison rule stated.
+//! what both covariances allow, with the multiple-comparison rule stated
+//! (docs/model.md §6, "Drift").
 //!
-//! For a parameter identified in both, the change `Δ = b − a` has, when the
-//! machine did not change, the standard deviation `σ = √(σ_a² + σ_b²)` (two
-//! calibrations from independent measurements). `z = Δ/σ` is then standard
-//! normal, and its two-sided p-value `P(|Z| ≥ |z|)`. Many parameters tested
-//! at once would raise false alarms: the Holm–Bonferroni rule keeps the
-//! chance of any false alarm among them at `alpha` (familywise): sorted by
-//! p-value, the k-th smallest (from 0) is a drift when it and every smaller
-//! one are below `alpha / (m − k)`. The joint test takes the correlations
-//! into account: `Δᵀ (C_a + C_b)⁺ Δ` is χ² with as many degrees of freedom
-//! as the rank of `C_a + C_b`.
+//! What is compared is what the data tell. Two calibrations with the same
+//! priors share them: a direction the data see weakly is held near the
+//! prior's centre in both, and a real change there is shrunk by the prior
+//! in each. So with priors, each calibration's data-only estimate is
+//! compared, `p̃ = p̂ + A⁺ P (p̂ − μ)` with covariance `A⁺`, where
+//! `A = C⁻¹ − P` is the information the data added to the priors' `P`
+//! (without priors, `p̃ = p̂` and `A⁺ = C`). Directions the data alone do
+//! not see (`A`'s null space in either calibration, such as a stiffness
+//! where the actuators do not fight) are not compared; a parameter that
+//! lies in one is listed untested.
+//!
+//! Every quantity is taken in a scaled basis, each parameter divided by its
+//! combined standard deviation `√(σ_a² + σ_b²)`, so that no unit swamps
+//! another when a rank is decided (a stiffness's 10⁸ (N/mm)² beside mm²).
+//!
+//! For a parameter, the change `Δ = p̃_b − p̃_a` has, when the machine did
+//! not change, the standard deviation `σ = √(V_a + V_b)` (two calibrations
+//! from independent measurements). `z = Δ/σ` is then standard normal (or
+//! Student's t with the noise levels' degrees of freedom), and its
+//! two-sided p-value `P(|Z| ≥ |z|)`. Many parameters tested at once would
+//! raise false alarms: the Holm–Bonferroni rule keeps the chance of any
+//! false alarm among them at `alpha` (familywise): sorted by p-value, the
+//! k-th smallest (from 0) is a drift when it and every smaller one are
+//! below `alpha / (m − k)`. The joint test, the verdict, takes the
+//! correlations into account: `Δᵀ (V_a + V_b)⁺ Δ` is χ² (Fisher's F with
+//! the noise levels' degrees of freedom) with as many degrees of freedom as
+//! the rank of `V_a + V_b` in correlation form.
 
 use crate::error::{Error, Result};
+use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
-use statrs::distribution::{ChiSquared, ContinuousCDF, FisherSnedecor, StudentsT};
+use statrs::distribution::{ChiSquared, ContinuousCDF, FisherSnedecor};
 
 /// The familywise false-alarm rate of a drift test unless told otherwise.
 pub const DEFAULT_ALPHA: f64 = 0.05;
 
-/// Relative eigenvalue below which `C_a + C_b` is taken as singular in the
-/// joint test.
+/// Relative eigenvalue below which a covariance in correlation form is
+/// taken as singular in the joint test.
 const RANK_TOL: f64 = 1e-12;
+
+/// A direction whose data-only information (scaled) is below this fraction
+/// of the largest posterior information is one the data alone do not see.
+const SEEN_TOL: f64 = 1e-9;
+
+/// A parameter whose unit vector has more than this squared share in a
+/// direction the data do not see is not tested alone.
+const UNSEEN_SHARE: f64 = 1e-6;
 
 /// One calibration as the drift test reads it: each parameter's value, and
 /// the covariance of the identified ones (names, matrix).
@@ -38,6 +65,9 @@ pub struct Compared {
     /// (the calibration's redundancy); `None`: known exactly (nominal
     /// values, or not recorded).
     pub dof: Option<f64>,
+    /// The priors the calibration was fitted with: what the data added to
+    /// them is compared. Empty: the calibration as it is.
+    pub priors: Vec<super::prior::PriorTerm>,
 }
 
 /// One parameter's change.
@@ -45,13 +75,15 @@ pub struct Compared {
 pub struct ParameterDrift {
     /// Its name.
     pub name: String,
-    /// The first calibration's value.
+    /// The first calibration's value compared: what its data alone give
+    /// where it had priors ([`Drift::data_only`]), else its value.
     pub before: f64,
     /// The second's.
     pub after: f64,
     /// `after − before`.
     pub change: f64,
-    /// What the two covariances allow: `√(σ_a² + σ_b²)`.
+    /// What the two covariances allow: `√(σ_a² + σ_b²)` (of the data-only
+    /// estimates, with priors).
     pub sigma: f64,
     /// `change / sigma`.
     pub z: f64,
@@ -79,8 +111,14 @@ pub struct Drift {
     pub noise_dof: Option<f64>,
     /// Whether the joint test calls the whole a drift (`p_joint < alpha`).
     pub joint_drift: bool,
-    /// Parameters identified in only one of the two (not tested).
+    /// Parameters identified in only one of the two, or that the data
+    /// alone do not see (held by their tolerances): not tested alone.
     pub untested: Vec<String>,
+    /// Whether what the data added to the priors was compared (either
+    /// calibration had priors): `before`, `after` and the covariances are
+    /// the data-only estimates'.
+    #[serde(default)]
+    pub data_only: bool,
     /// The change at the tool over the workspace, when the mechanism was
     /// at hand ([`crate::apply::tooldrift::workspace_drift`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -124,25 +162,105 @@ pub struct WorkspaceDrift {
 
 /// Two-sided p-value of `z`: standard normal, or Student's t with `dof`.
 fn two_sided(z: f64, dof: Option<f64>) -> f64 {
-    match dof.and_then(|n| StudentsT::new(0.0, 1.0, n).ok()) {
-        Some(t) => 2.0 * (1.0 - t.cdf(z.abs())),
-        None => statrs::function::erf::erfc(z.abs() / std::f64::consts::SQRT_2),
+    match dof {
+        Some(n) => super::uncertainty::Scale::Estimated { dof: n }.two_sided(z),
+        None => super::uncertainty::Scale::Known.two_sided(z),
     }
 }
 
-/// Compare `a` with `b` (the later calibration, or nominal values with no
-/// covariance) at familywise false-alarm rate `alpha`.
-pub fn drift(a: &Compared, b: &Compared, alpha: f64) -> Result<Drift> {
-    if !(alpha > 0.0 && alpha < 1.0) {
-        return Err(Error::InvalidRequest(format!(
-            "the false-alarm rate is {alpha}; give a number between 0 and 1 (0.05 is usual)"
-        )));
+/// One calibration's data-only estimate and covariance over the tested
+/// parameters, in the scaled basis `d` (each parameter over `d_i`): the
+/// values, the covariance, and an orthonormal basis of the directions the
+/// data alone do not see (columns; none without priors).
+fn data_only(
+    values: &DVector<f64>,
+    cov: &DMatrix<f64>,
+    prior: &[Option<(f64, f64)>],
+    d: &[f64],
+) -> (DVector<f64>, DMatrix<f64>, DMatrix<f64>) {
+    let m = values.len();
+    let p_s = DVector::from_fn(m, |i, _| values[i] / d[i]);
+    let c_s = DMatrix::from_fn(m, m, |i, j| cov[(i, j)] / (d[i] * d[j]));
+    let held: Vec<(usize, f64, f64)> = prior
+        .iter()
+        .enumerate()
+        .filter_map(|(i, p)| p.map(|(mu, s)| (i, mu, s)))
+        .filter(|&(i, _, _)| cov[(i, i)] > 0.0)
+        .collect();
+    if held.is_empty() {
+        return (p_s, c_s, DMatrix::zeros(m, 0));
     }
-    let value = |c: &Compared, n: &str| c.values.iter().find(|(m, _)| m == n).map(|v| v.1);
-    let var = |c: &Compared, n: &str| -> Option<f64> {
-        let i = c.names.iter().position(|m| m == n)?;
-        Some(c.covariance[i][i])
+    // The posterior information, and what the data added to the priors'.
+    let eig = c_s.clone().symmetric_eigen();
+    let top = eig.eigenvalues.iter().fold(0.0f64, |x, v| x.max(*v));
+    let mut info = DMatrix::zeros(m, m);
+    for (k, &l) in eig.eigenvalues.iter().enumerate() {
+        if l > RANK_TOL * top {
+            let v = eig.eigenvectors.column(k);
+            info += v * v.transpose() / l;
+        }
+    }
+    let largest = info.diagonal().max();
+    let mut pull = DVector::zeros(m);
+    for &(i, mu, s) in &held {
+        let w = (d[i] / s).powi(2);
+        info[(i, i)] -= w;
+        pull[i] = w * (values[i] - mu) / d[i];
+    }
+    let data = info.symmetric_eigen();
+    let mut inverse = DMatrix::zeros(m, m);
+    let mut unseen: Vec<DVector<f64>> = vec![];
+    for (k, &l) in data.eigenvalues.iter().enumerate() {
+        let v = data.eigenvectors.column(k).into_owned();
+        if l > SEEN_TOL * largest {
+            inverse += &v * v.transpose() / l;
+        } else {
+            unseen.push(v);
+        }
+    }
+    let estimate = &p_s + &inverse * pull;
+    let basis = if unseen.is_empty() {
+        DMatrix::zeros(m, 0)
+    } else {
+        DMatrix::from_columns(&unseen)
     };
+    (estimate, inverse, basis)
+}
+
+/// Two calibrations as the drift test compares them: the parameters
+/// tested, their scale (combined σ), each calibration's data-only values
+/// and covariance in that scale, an orthonormal basis of what either's data
+/// do not see, and the parameters not tested.
+pub(crate) struct Prepared {
+    pub(crate) tested: Vec<String>,
+    pub(crate) scale: Vec<f64>,
+    pub(crate) a: (DVector<f64>, DMatrix<f64>),
+    pub(crate) b: (DVector<f64>, DMatrix<f64>),
+    pub(crate) unseen: DMatrix<f64>,
+    pub(crate) untested: Vec<String>,
+    pub(crate) data_only: bool,
+    pub(crate) nu: Option<f64>,
+}
+
+impl Prepared {
+    /// Calibration `b`'s (`later`) or `a`'s data-only values and covariance
+    /// in the parameters' units, what neither sees projected out.
+    pub(crate) fn in_units(&self, later: bool) -> (Vec<f64>, DMatrix<f64>) {
+        let (p, s) = if later { &self.b } else { &self.a };
+        let m = self.tested.len();
+        let keep = DMatrix::identity(m, m) - &self.unseen * self.unseen.transpose();
+        let s = &keep * s * &keep;
+        let d = &self.scale;
+        (
+            (0..m).map(|i| p[i] * d[i]).collect(),
+            DMatrix::from_fn(m, m, |i, j| s[(i, j)] * d[i] * d[j]),
+        )
+    }
+}
+
+/// [`Prepared`] of `a` and `b`.
+pub(crate) fn prepare(a: &Compared, b: &Compared) -> Result<Prepared> {
+    let value = |c: &Compared, n: &str| c.values.iter().find(|(m, _)| m == n).map(|v| v.1);
     // Tested: identified in either with a value in both; a parameter only one
     // identified is tested when the other gives it without uncertainty
     // (nominal values), else it is listed untested.
@@ -171,30 +289,120 @@ pub fn drift(a: &Compared, b: &Compared, alpha: f64) -> Result<Drift> {
     }
     let m = tested.len();
     let nu = joint_noise_dof(a, b);
-    let cov = |c: &Compared, x: &str, y: &str| -> f64 {
-        match (
-            c.names.iter().position(|n| n == x),
-            c.names.iter().position(|n| n == y),
-        ) {
-            (Some(i), Some(j)) => c.covariance[i][j],
+    let cov_of = |c: &Compared| {
+        let at: Vec<Option<usize>> = tested
+            .iter()
+            .map(|x| c.names.iter().position(|n| n == x))
+            .collect();
+        DMatrix::from_fn(m, m, |i, j| match (at[i], at[j]) {
+            (Some(x), Some(y)) => c.covariance[x][y],
             _ => 0.0,
-        }
+        })
     };
-    let mut parameters = vec![];
-    for n in &tested {
-        let (before, after) = (
-            value(a, n).unwrap_or(f64::NAN),
-            value(b, n).unwrap_or(f64::NAN),
-        );
-        let sigma = (var(a, n).unwrap_or(0.0) + var(b, n).unwrap_or(0.0)).sqrt();
-        if !(before.is_finite() && after.is_finite() && sigma.is_finite()) {
+    let values_of = |c: &Compared| {
+        DVector::from_iterator(m, tested.iter().map(|n| value(c, n).unwrap_or(f64::NAN)))
+    };
+    let prior_of = |c: &Compared| -> Vec<Option<(f64, f64)>> {
+        tested
+            .iter()
+            .map(|n| {
+                c.priors
+                    .iter()
+                    .find(|t| &t.name == n && !t.constraint)
+                    .map(|t| (t.centre, t.sigma))
+            })
+            .collect()
+    };
+    let (ca, cb) = (cov_of(a), cov_of(b));
+    let (va, vb) = (values_of(a), values_of(b));
+    for (i, n) in tested.iter().enumerate() {
+        let s = ca[(i, i)] + cb[(i, i)];
+        if !(va[i].is_finite() && vb[i].is_finite() && s.is_finite() && s >= 0.0) {
             return Err(Error::InvalidRequest(format!(
                 "`{n}` has no finite value or standard deviation in both calibrations; they cannot be compared"
             )));
         }
-        let change = after - before;
+    }
+    // The scaled basis: each parameter over its combined σ.
+    let d: Vec<f64> = (0..m)
+        .map(|i| {
+            let s = (ca[(i, i)] + cb[(i, i)]).sqrt();
+            if s > 0.0 { s } else { 1.0 }
+        })
+        .collect();
+    let (pa, sa, na) = data_only(&va, &ca, &prior_of(a), &d);
+    let (pb, sb, nb) = data_only(&vb, &cb, &prior_of(b), &d);
+    let data_only = [a, b]
+        .iter()
+        .any(|c| c.priors.iter().any(|t| tested.contains(&t.name)));
+    // What either calibration's data do not see, orthonormal.
+    let unseen = {
+        let columns: Vec<DVector<f64>> = na
+            .column_iter()
+            .chain(nb.column_iter())
+            .map(|c| c.into_owned())
+            .collect();
+        if columns.is_empty() {
+            DMatrix::zeros(m, 0)
+        } else {
+            let both = DMatrix::from_columns(&columns);
+            let svd = both.svd(true, false);
+            let u = svd.u.expect("asked for");
+            let top = svd.singular_values.max();
+            let keep: Vec<usize> = (0..svd.singular_values.len())
+                .filter(|&k| svd.singular_values[k] > 1e-8 * top)
+                .collect();
+            u.select_columns(&keep)
+        }
+    };
+    Ok(Prepared {
+        tested,
+        scale: d,
+        a: (pa, sa),
+        b: (pb, sb),
+        unseen,
+        untested,
+        data_only,
+        nu,
+    })
+}
+
+/// Compare `a` with `b` (the later calibration, or nominal values with no
+/// covariance) at familywise false-alarm rate `alpha`.
+pub fn drift(a: &Compared, b: &Compared, alpha: f64) -> Result<Drift> {
+    if !(alpha > 0.0 && alpha < 1.0) {
+        return Err(Error::InvalidRequest(format!(
+            "the false-alarm rate is {alpha}; give a number between 0 and 1 (0.05 is usual)"
+        )));
+    }
+    let Prepared {
+        tested,
+        scale: d,
+        a: (pa, sa),
+        b: (pb, sb),
+        unseen,
+        mut untested,
+        data_only,
+        nu,
+    } = prepare(a, b)?;
+    let m = tested.len();
+    let project = |x: &DVector<f64>| x - &unseen * (unseen.transpose() * x);
+    let change_s = &pb - &pa;
+    let s_sum = &sa + &sb;
+    let mut parameters = vec![];
+    for (i, n) in tested.iter().enumerate() {
+        let hidden = unseen.row(i).norm_squared();
+        if hidden > UNSEEN_SHARE {
+            untested.push(n.clone());
+            continue;
+        }
+        let (before, after) = (pa[i] * d[i], pb[i] * d[i]);
+        let sigma = s_sum[(i, i)].max(0.0).sqrt() * d[i];
+        let change = change_s[i] * d[i];
         let z = if sigma > 0.0 {
             change / sigma
+        } else if change == 0.0 {
+            0.0
         } else {
             f64::INFINITY
         };
@@ -205,30 +413,29 @@ pub fn drift(a: &Compared, b: &Compared, alpha: f64) -> Result<Drift> {
             change,
             sigma,
             z,
-            p_value: if sigma > 0.0 { two_sided(z, nu) } else { 0.0 },
+            p_value: if sigma > 0.0 {
+                two_sided(z, nu)
+            } else if change == 0.0 {
+                1.0
+            } else {
+                0.0
+            },
             drifted: false,
         });
     }
+    let k = parameters.len();
     parameters.sort_by(|x, y| x.p_value.total_cmp(&y.p_value));
     // Holm–Bonferroni, step down.
-    for (k, p) in parameters.iter_mut().enumerate() {
-        if p.p_value <= alpha / (m - k) as f64 {
+    for (j, p) in parameters.iter_mut().enumerate() {
+        if p.p_value <= alpha / (k - j) as f64 {
             p.drifted = true;
         } else {
             break;
         }
     }
-    // The joint test on the sum of the covariances (pseudo-inverse).
-    let c = nalgebra::DMatrix::from_fn(m, m, |i, j| {
-        cov(a, &tested[i], &tested[j]) + cov(b, &tested[i], &tested[j])
-    });
-    let d = nalgebra::DVector::from_iterator(
-        m,
-        tested
-            .iter()
-            .map(|n| value(b, n).unwrap_or(0.0) - value(a, n).unwrap_or(0.0)),
-    );
-    let (chi2, dof, p_joint) = quadratic_test(&c, &d, nu)?;
+    // The joint test on what both see.
+    let keep = DMatrix::identity(m, m) - &unseen * unseen.transpose();
+    let (chi2, dof, p_joint) = quadratic_test(&(&keep * s_sum * &keep), &project(&change_s), nu)?;
     Ok(Drift {
         alpha,
         parameters,
@@ -238,6 +445,7 @@ pub fn drift(a: &Compared, b: &Compared, alpha: f64) -> Result<Drift> {
         noise_dof: nu,
         joint_drift: p_joint < alpha,
         untested,
+        data_only,
         workspace: None,
     })
 }
@@ -251,47 +459,55 @@ pub fn joint_noise_dof(a: &Compared, b: &Compared) -> Option<f64> {
     .filter(|n| n.is_finite() && *n > 0.0)
 }
 
-/// The joint test of a change `d` with covariance `c`: `dᵀ c⁺ d` over the
-/// eigenvalues above [`RANK_TOL`] of the largest, its degrees of freedom
-/// (that rank) and its p-value (χ², or Fisher's F with `nu` when the noise
-/// levels were estimated). The one rule of the parameter and workspace
-/// tests.
+/// The joint test of a change `d` with covariance `c`: `dᵀ c⁺ d` in
+/// correlation form (each coordinate over its standard deviation, so that
+/// no unit swamps another), over the eigenvalues above [`RANK_TOL`] of the
+/// largest; its degrees of freedom (that rank) and its p-value (χ², or
+/// Fisher's F with `nu` when the noise levels were estimated). The one rule
+/// of the parameter and workspace tests.
 pub(crate) fn quadratic_test(
-    c: &nalgebra::DMatrix<f64>,
-    d: &nalgebra::DVector<f64>,
+    c: &DMatrix<f64>,
+    d: &DVector<f64>,
     nu: Option<f64>,
 ) -> Result<(f64, usize, f64)> {
-    let eig = c.clone().symmetric_eigen();
+    let n = d.len();
+    let sd: Vec<f64> = (0..n).map(|i| c[(i, i)].max(0.0).sqrt()).collect();
+    let top_sd = sd.iter().copied().fold(0.0, f64::max);
+    // Coordinates with no variance at all carry no test.
+    let live: Vec<usize> = (0..n)
+        .filter(|&i| sd[i] > 1e-150 * top_sd.max(f64::MIN_POSITIVE))
+        .collect();
+    let r = DMatrix::from_fn(live.len(), live.len(), |a, b| {
+        c[(live[a], live[b])] / (sd[live[a]] * sd[live[b]])
+    });
+    let x = DVector::from_fn(live.len(), |a, _| d[live[a]] / sd[live[a]]);
+    let eig = r.symmetric_eigen();
     let top = eig.eigenvalues.iter().fold(0.0f64, |x, v| x.max(*v));
     let mut chi2 = 0.0;
     let mut dof = 0;
     for (k, &l) in eig.eigenvalues.iter().enumerate() {
         if l > RANK_TOL * top && l > 0.0 {
-            let proj = eig.eigenvectors.column(k).dot(d);
+            let proj = eig.eigenvectors.column(k).dot(&x);
             chi2 += proj * proj / l;
             dof += 1;
         }
     }
     let p = match (dof, nu) {
         (0, _) => f64::NAN,
-        (d, Some(n)) => {
-            1.0 - FisherSnedecor::new(d as f64, n)
-                .map_err(|e| Error::InvalidRequest(format!("F({d}, {n}): {e}")))?
-                .cdf(chi2 / d as f64)
-        }
-        (d, None) => {
-            1.0 - ChiSquared::new(d as f64)
-                .map_err(|e| Error::InvalidRequest(format!("χ² with {d} degrees: {e}")))?
-                .cdf(chi2)
-        }
+        (d, Some(n)) => FisherSnedecor::new(d as f64, n)
+            .map_err(|e| Error::InvalidRequest(format!("F({d}, {n}): {e}")))?
+            .sf(chi2 / d as f64),
+        (d, None) => ChiSquared::new(d as f64)
+            .map_err(|e| Error::InvalidRequest(format!("χ² with {d} degrees: {e}")))?
+            .sf(chi2),
     };
     Ok((chi2, dof, p))
 }
 
 impl Compared {
-    /// A calibration record's values and covariance (the mechanism's
-    /// identified parameters), its noise level estimated with `dof` degrees
-    /// of freedom if known.
+    /// A calibration record's values, covariance (the mechanism's
+    /// identified parameters) and priors; its noise level's degrees of
+    /// freedom from its `scale`, else `dof` (a record written before).
     pub fn from_record(r: &super::record::CalibrationRecord, dof: Option<f64>) -> Self {
         Compared {
             values: r
@@ -301,12 +517,13 @@ impl Compared {
                 .collect(),
             names: r.covariance.names.clone(),
             covariance: r.covariance.matrix.clone(),
-            dof,
+            dof: r.scale.map_or(dof, |s| s.dof()),
+            priors: r.priors.clone(),
         }
     }
 
-    /// A calibration's values and covariance, with its redundancy as the
-    /// noise level's degrees of freedom (when a noise level was estimated).
+    /// A calibration's values, covariance and priors, with the degrees of
+    /// freedom of its scale ([`super::uncertainty::Scale`]).
     pub fn from_calibration(c: &super::result::Calibration) -> Self {
         Compared {
             values: c
@@ -316,7 +533,8 @@ impl Compared {
                 .collect(),
             names: c.parameter_covariance.names.clone(),
             covariance: c.parameter_covariance.matrix.clone(),
-            dof: noise_dof(&c.noise),
+            dof: c.scale.dof(),
+            priors: c.priors.clone(),
         }
     }
 
@@ -332,6 +550,7 @@ impl Compared {
             names: vec![],
             covariance: vec![],
             dof: None,
+            priors: vec![],
         }
     }
 }

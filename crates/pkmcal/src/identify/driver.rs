@@ -4,9 +4,7 @@
 //! uncertainty after, and validation on held-out poses.
 
 use super::gross::{check_sigma, gross_errors};
-use super::identifiability::{
-    Columns, Identifiability, Unidentifiable, analyze_identifiability, correlations,
-};
+use super::identifiability::{Columns, Identifiability, Unidentifiable, analyze_identifiability};
 use super::loss::{Loss, Outlier};
 use super::prior::{Prior, PriorTerm, WithPriors};
 use super::problem::{IdentificationProblem, PoseCache, mask};
@@ -212,8 +210,9 @@ fn calibrate_on<M: Mechanism>(
                     dropping: opts.drop_outliers,
                 }));
             }
-            let beyond = super::prior::prior_warnings(&cal.parameters, &cal.priors);
+            let beyond = super::prior::prior_warnings(&mut cal);
             cal.warnings.extend(beyond);
+            cal.adequacy = super::adequacy::adequacy_tests(&cal);
             if let Some(w) = super::adequacy::adequacy(&problem, &cal)? {
                 cal.warnings.push(w);
             }
@@ -274,21 +273,28 @@ pub(super) fn calibrate_once<M: Mechanism>(
     // The priors of the requested parameters, centred once (a refit keeps
     // the first fit's centres): the mechanism's on nominal, the
     // instrument's on their start.
-    let terms: Vec<PriorTerm> = match terms {
+    for p in opts.priors.iter().filter(given) {
+        super::prior::check_sigma(&cols.names[p.index], p.sigma, cols.units[p.index])?;
+    }
+    let all_terms: Vec<PriorTerm> = match terms {
         Some(t) => t.to_vec(),
         None => opts
             .priors
             .iter()
             .filter(given)
-            .map(|p| PriorTerm {
-                name: cols.names[p.index].clone(),
-                index: p.index,
-                centre: if p.index < np {
+            .map(|p| {
+                let centre = if p.index < np {
                     spec.nominal[p.index]
                 } else {
                     m0[p.index - np]
-                },
-                sigma: p.sigma,
+                };
+                PriorTerm {
+                    name: cols.names[p.index].clone(),
+                    index: p.index,
+                    centre,
+                    sigma: p.sigma,
+                    constraint: super::prior::is_constraint(p.sigma, centre),
+                }
             })
             .collect(),
     };
@@ -297,16 +303,30 @@ pub(super) fn calibrate_once<M: Mechanism>(
             "one positive finite standard deviation per measured coordinate is needed".into(),
         ));
     }
+    let mut x0: Vec<f64> = start.values.iter().chain(&m0).copied().collect();
+    // A constraint holds its parameter at its centre, out of the fit; the
+    // other priors are rows of it.
+    for t in all_terms.iter().filter(|t| t.constraint) {
+        x0[t.index] = t.centre;
+        requested.retain(|&i| i != t.index);
+    }
+    let terms: Vec<PriorTerm> = all_terms
+        .iter()
+        .filter(|t| !t.constraint)
+        .cloned()
+        .collect();
     let weights: Vec<f64> = sigma
         .iter()
         .map(|v| 1.0 / v)
         .chain(terms.iter().map(|t| 1.0 / t.sigma))
         .collect();
     let stiff: Vec<usize> = (spec.n_geometric() + spec.n_actuated()..np).collect();
-    if !stiff.iter().any(|k| terms.iter().any(|t| t.index == *k)) {
+    if !stiff
+        .iter()
+        .any(|k| all_terms.iter().any(|t| t.index == *k))
+    {
         fix_a_stiffness_ratio(opts, &stiff, &cols, &mut requested, &mut warnings);
     }
-    let mut x0: Vec<f64> = start.values.iter().chain(&m0).copied().collect();
     let mut solver = opts.solver.clone();
     solver.weights = Some(weights.clone());
     let augmented = WithPriors {
@@ -333,7 +353,8 @@ pub(super) fn calibrate_once<M: Mechanism>(
         free,
         requested,
         warnings,
-        terms,
+        terms: all_terms,
+        rows: terms.len(),
     };
     assemble(problem, data, opts, sigma, &cols, m, fit)
 }
@@ -342,20 +363,11 @@ pub(super) fn calibrate_once<M: Mechanism>(
 /// for a distances' σ, and a σ for a stated ratio to keep.
 fn check_stated(opts: &CalibrationOptions, data: &[Measurement]) -> Result<()> {
     let bad = |what: String| Err(Error::InvalidRequest(what));
-    if let Some(n) = opts.stated_noise
-        && !(n.length.is_finite() && n.length > 0.0 && n.angle.is_finite() && n.angle > 0.0)
-    {
-        return bad(format!(
-            "the stated noise ({} mm, {} rad) must be positive numbers",
-            n.length, n.angle
-        ));
+    if let Some(n) = opts.stated_noise {
+        n.check("stated noise")?;
     }
     if let Some(s) = opts.stated_distance_noise {
-        if !(s.is_finite() && s > 0.0) {
-            return bad(format!(
-                "the stated distance noise {s} must be a positive number of mm"
-            ));
-        }
+        crate::measurement::data::Noise::lengths(s).check("stated distance noise")?;
         if !data.iter().any(|d| d.partner.is_some()) {
             return bad(
                 "a stated distance noise is the noise of distances between poses; give the distances too".into(),
@@ -626,14 +638,18 @@ struct Fit {
     free: Vec<usize>,
     requested: Vec<usize>,
     warnings: Vec<Warning>,
-    /// The priors, whose rows follow the readings'.
+    /// The priors, those not constraints in the order of their rows after
+    /// the readings'.
     terms: Vec<PriorTerm>,
+    /// The priors' rows.
+    rows: usize,
 }
 
-/// The calibration of a finished fit: parameters with their standard
-/// deviations, covariance (scaled by the variance of unit weight, `m`
-/// readings), correlations; and the unscaled covariance of the free
-/// parameters.
+/// The calibration of a finished fit: parameters, the covariance
+/// `(J̃ᵀW̃J̃)⁻¹` at the fit's weights (the standard deviations, shares and
+/// correlations that the scale rule fills in the end,
+/// [`super::uncertainty::apply_scale`], from it as they stand), and that
+/// covariance again for the leverages of the noise estimation.
 fn assemble<M: Mechanism>(
     problem: &IdentificationProblem<'_, M>,
     data: &[Measurement],
@@ -653,16 +669,11 @@ fn assemble<M: Mechanism>(
         requested,
         mut warnings,
         terms,
+        rows,
     } = fit;
     let params = Params::new(spec, report.x[..np].to_vec())?;
     let m_values = report.x[np..].to_vec();
     let frame = m_values[measurement.frame_range()].to_vec();
-    // No reading left over (an exactly determined fit): no noise estimate,
-    // no uncertainty. The priors' rows count in the redundancy.
-    let s2 = match (m + terms.len()).checked_sub(free.len()) {
-        Some(dof) if dof > 0 => report.sum_of_squares / dof as f64,
-        _ => f64::NAN,
-    };
     let (cov_unit, rank) = report.covariance(crate::lm::COVARIANCE_RANK_TOL);
     if rank < free.len() {
         warnings.push(Warning::new(WarningKind::RankDeficient {
@@ -670,11 +681,13 @@ fn assemble<M: Mechanism>(
             free: free.len(),
         }));
     }
-    let covariance = &cov_unit * s2;
     let mut parameters = vec![];
     for (i, name) in cols.names.iter().enumerate() {
         let k = free.iter().position(|&f| f == i);
-        let note = if k.is_none() && requested.contains(&i) {
+        let constraint = terms.iter().any(|t| t.index == i && t.constraint);
+        let note = if constraint {
+            Some("held at its value by its tolerance, a constraint".into())
+        } else if k.is_none() && requested.contains(&i) {
             Some("unidentifiable: fixed at its starting value".into())
         } else {
             None
@@ -686,73 +699,64 @@ fn assemble<M: Mechanism>(
             nominal: cols.nominal[i],
             identified: report.x[i],
             change: report.x[i] - cols.nominal[i],
-            std_dev: k.map_or(0.0, |k| covariance[(k, k)].max(0.0).sqrt()),
+            std_dev: 0.0,
             free: k.is_some(),
             note,
             tolerance: None,
             from_data: None,
         });
     }
-    super::prior::annotate(&mut parameters, &terms, &free, &cov_unit);
-    let correlations = correlations(cols, &free, &covariance);
-    // The mechanism's part travels with the parameters into predictions
-    // (the marginal covariance is the sub-matrix); the instrument's stays in
-    // the parameter table.
-    let mech_free: Vec<usize> = (0..free.len()).filter(|&a| free[a] < np).collect();
-    let parameter_covariance = ParameterCovariance {
-        names: mech_free
-            .iter()
-            .map(|&a| cols.names[free[a]].clone())
-            .collect(),
-        matrix: mech_free
-            .iter()
-            .map(|&a| mech_free.iter().map(|&b| covariance[(a, b)]).collect())
-            .collect(),
+    let readings = if rows == 0 {
+        report.jacobian
+    } else {
+        report.jacobian.rows(0, m).into_owned()
     };
-    Ok((
-        Calibration {
-            parameter_covariance,
-            model: opts.model,
-            params,
-            frame: (!frame.is_empty()).then_some(frame),
-            measurement: m_values,
-            converged: report.termination.converged(),
-            termination_reason: report.termination.reason(),
-            termination: report.termination,
-            iterations: report.iterations,
-            evaluations: report.evaluations,
-            poses: data.iter().filter(|d| d.partner.is_none()).count(),
-            distances: data.iter().filter(|d| d.partner.is_some()).count(),
-            sum_of_squares: report.sum_of_squares,
-            unit_weight_sigma: s2.sqrt(),
-            noise: vec![],
-            parameters,
-            identifiability,
-            covariance,
-            free,
-            correlations,
-            loss: opts.loss,
-            outliers: vec![],
-            dropped: vec![],
-            residuals: report
-                .residuals
-                .iter()
-                .zip(sigma)
-                .map(|(v, s)| v * s)
-                .collect(),
-            sigmas: sigma.to_vec(),
-            // The readings' rows (the priors' follow from `priors`).
-            jacobian: if terms.is_empty() {
-                report.jacobian
-            } else {
-                report.jacobian.rows(0, m).into_owned()
-            },
-            warnings,
-            priors: terms,
-            final_predictions: None,
+    let mut cal = Calibration {
+        parameter_covariance: ParameterCovariance {
+            names: vec![],
+            matrix: vec![],
         },
-        cov_unit,
-    ))
+        model: opts.model,
+        params,
+        frame: (!frame.is_empty()).then_some(frame),
+        measurement: m_values,
+        converged: report.termination.converged(),
+        termination_reason: report.termination.reason(),
+        termination: report.termination,
+        iterations: report.iterations,
+        evaluations: report.evaluations,
+        poses: data.iter().filter(|d| d.partner.is_none()).count(),
+        distances: data.iter().filter(|d| d.partner.is_some()).count(),
+        sum_of_squares: report.sum_of_squares,
+        unit_weight_sigma: f64::NAN,
+        scale: super::uncertainty::Scale::Known,
+        redundancy: f64::NAN,
+        adequacy: vec![],
+        noise: vec![],
+        parameters,
+        identifiability,
+        covariance: DMatrix::zeros(0, 0),
+        free,
+        correlations: vec![],
+        loss: opts.loss,
+        outliers: vec![],
+        dropped: vec![],
+        residuals: report
+            .residuals
+            .iter()
+            .zip(sigma)
+            .map(|(v, s)| v * s)
+            .collect(),
+        sigmas: sigma.to_vec(),
+        // The readings' rows (the priors' follow from `priors`).
+        jacobian: readings,
+        warnings,
+        priors: terms,
+        final_predictions: None,
+        prior_conflicts: vec![],
+    };
+    super::uncertainty::apply_scale(&mut cal, super::uncertainty::Scale::Known, &[]);
+    Ok((cal, cov_unit))
 }
 
 /// The measurement model's parameters to start from: `given`, else its
@@ -880,6 +884,7 @@ pub fn analyze_cancellable<M: Mechanism>(
     let spec = mech.spec();
     let data = numbered(data);
     check_sigma(measurement, &data)?;
+    noise.check("noise")?;
     let problem =
         IdentificationProblem::cancellable(mech, measurement, &data, model, force, cancel.clone())?;
     let np = spec.n_params();
@@ -907,6 +912,16 @@ pub fn analyze_cancellable<M: Mechanism>(
         }
     }
     let cols = Columns::with_measurement(spec, measurement, &m0);
+    for p in priors.iter().filter(|p| free.contains(&p.index)) {
+        super::prior::check_sigma(&cols.names[p.index], p.sigma, cols.units[p.index])?;
+    }
+    // A constraint holds its parameter: the others are analysed as without it.
+    let centre = |i: usize| if i < np { spec.nominal[i] } else { m0[i - np] };
+    free.retain(|&i| {
+        !priors
+            .iter()
+            .any(|p| p.index == i && super::prior::is_constraint(p.sigma, centre(i)))
+    });
     let used: Vec<&Prior> = priors.iter().filter(|p| free.contains(&p.index)).collect();
     if used.is_empty() {
         return Ok(analyze_identifiability(&cols, &jac, &free, data.len(), true).0);

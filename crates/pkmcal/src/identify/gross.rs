@@ -13,7 +13,7 @@ use crate::units::Unit;
 
 /// Smallest standard deviation accepted (mm or rad): no instrument is
 /// better, and smaller ones only overflow the weights.
-pub const MIN_SIGMA: f64 = 1e-12;
+pub const MIN_SIGMA: f64 = crate::measurement::data::MIN_NOISE;
 
 /// A pose whose measurement is grossly off ([`gross_errors`]).
 pub(super) struct Gross {

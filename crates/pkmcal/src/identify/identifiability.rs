@@ -172,8 +172,11 @@ impl Columns {
     }
 }
 
-pub(super) fn correlations(cols: &Columns, free: &[usize], cov: &DMatrix<f64>) -> Vec<Correlation> {
-    let names = &cols.names;
+pub(super) fn correlations(
+    names: &[String],
+    free: &[usize],
+    cov: &DMatrix<f64>,
+) -> Vec<Correlation> {
     let mut out = vec![];
     for a in 0..free.len() {
         for b in a + 1..free.len() {
@@ -281,7 +284,7 @@ pub fn analyze_identifiability(
                     }
                     None => lm::covariance(&sub, lm::COVARIANCE_RANK_TOL),
                 };
-                correlations(cols, &free, &c)
+                correlations(&cols.names, &free, &c)
             } else {
                 vec![]
             };

@@ -20,7 +20,7 @@ pub mod uncertainty;
 pub mod validation;
 pub mod weights;
 
-pub use adequacy::{ADEQUACY_ALPHA, SUSPECT_SHARE, SUSPECTS};
+pub use adequacy::{ADEQUACY_ALPHA, AdequacyTest, SUSPECT_ALPHA, SUSPECT_SHARE, SUSPECTS};
 pub use drift::{Compared, DEFAULT_ALPHA, Drift, ParameterDrift, drift, noise_dof};
 pub use driver::{
     AnalysisOptions, CalibrationOptions, DEFAULT_STATED_NOISE_READINGS, MAX_DROPPED_FRACTION,
@@ -34,21 +34,22 @@ pub use identifiability::{
 };
 pub use loss::{Loss, OUTLIER_FLOOR_MM, OUTLIER_FLOOR_RAD, Outlier};
 pub use prior::{
-    BEYOND_TOLERANCES, Prior, PriorTerm, TAUGHT_LITTLE, free_with_priors, information_from_data,
-    named_priors,
+    BEYOND_TOLERANCES, CONFLICT_ALPHA, CONSTRAINT_RELATIVE, Prior, PriorConflict, PriorTerm,
+    SEEN_SHARE, TAUGHT_LITTLE, free_with_priors, information_from_data, is_constraint,
+    named_priors, prior_conflicts,
 };
 pub use problem::{IdentificationProblem, MAX_POSES, PoseCache, too_many_poses};
 pub use record::{
     CALIBRATION_FORMAT, CALIBRATION_VERSION, CalibrationRecord, RecordError, RecordedParameter,
-    mechanism_identity,
+    mechanism_identities, mechanism_identity,
 };
 pub use request::{FrameChoice, Request, SolverRequest};
-pub use result::{Calibration, ParameterResult, Warning, WarningKind};
+pub use result::{Calibration, ParameterResult, Warning, WarningCategory, WarningKind};
 pub use study::{
     FreeSetError, NameList, Study, StudyError, StudyOptions, StudyStage, StudyValidation,
     ValidationPlan, ValidationSource, named_bounds, resolve_free_set, study,
 };
-pub use uncertainty::{ParameterCovariance, predict_with_uncertainty, tool_covariance};
+pub use uncertainty::{ParameterCovariance, Scale, predict_with_uncertainty, tool_covariance};
 pub use validation::{
     Accuracy, CrossValidation, DistanceAccuracy, ErrorVectors, accuracy, calibration_accuracy,
     calibration_accuracy_with_cache, cross_validate, cross_validate_with_progress, holdout_split,

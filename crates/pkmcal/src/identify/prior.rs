@@ -5,8 +5,9 @@
 //! `Σ_j ((p_j − μ_j)/σ_j)²`: each prior is one more row of the least-squares
 //! problem, `p_j − μ_j` weighted by `1/σ_j`, with a unit row in the
 //! Jacobian. Prior rows are not readings: they take no part in noise
-//! estimation, reweighting or outlier flags, but they count in the
-//! redundancy.
+//! estimation, reweighting, outlier flags or the scale of the
+//! uncertainties ([`super::uncertainty::Scale`]). A prior far tighter than
+//! any measurement resolves is a constraint ([`is_constraint`]).
 
 use super::result::{ParameterResult, Warning, WarningKind};
 use crate::error::{Error, Result};
@@ -102,15 +103,34 @@ pub(crate) fn resolve_named(
             )));
         }
         let sigma = tol.sigma(nominal(i));
-        if !(sigma.is_finite() && sigma > 0.0) {
+        if sigma == 0.0 {
             return Err(Error::InvalidRequest(format!(
                 "`{name}` is 0 nominally, so a tolerance relative to it is 0; give its σ in {}",
                 unit(i)
             )));
         }
+        check_sigma(name, sigma, unit(i))?;
         out.push((i, sigma));
     }
     Ok(out)
+}
+
+/// A prior's σ that can enter a fit: positive, finite and at most its
+/// unit's largest magnitude (a tolerance of 1e300 mm is a typing error).
+/// A σ however small is accepted: below [`CONSTRAINT_RELATIVE`] of its
+/// parameter it is a constraint ([`is_constraint`]), never a weight.
+pub(crate) fn check_sigma(name: &str, sigma: f64, unit: Unit) -> Result<()> {
+    if sigma.is_finite() && sigma > 0.0 && sigma <= unit.max_magnitude() {
+        return Ok(());
+    }
+    Err(Error::OutOfRange {
+        field: format!("tolerance of {name}"),
+        value: sigma,
+        expected: format!(
+            "one standard deviation, positive and at most {:e} {unit}",
+            unit.max_magnitude()
+        ),
+    })
 }
 
 /// The description's tolerances (`table`) with `given` ones replacing them
@@ -150,6 +170,60 @@ pub struct PriorTerm {
     pub centre: f64,
     /// One standard deviation.
     pub sigma: f64,
+    /// Whether the prior is a constraint ([`is_constraint`]): its parameter
+    /// is held at the centre, not fitted, with `sigma` as its standard
+    /// deviation and nothing from the data.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub constraint: bool,
+}
+
+/// A prior the data push against (docs/model.md eq. 13, "Priors in
+/// conflict with the data"): releasing it lowers the fit's χ² by more than
+/// chance allows.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PriorConflict {
+    /// The parameter.
+    pub name: String,
+    /// Its unit.
+    pub unit: Unit,
+    /// The prior's centre (the drawing's value).
+    pub centre: f64,
+    /// Its tolerance (σ).
+    pub tolerance: f64,
+    /// The drop of `Σ (r/σ)²` when the prior is released, those named
+    /// before it released already (its row's score statistic,
+    /// `e² / (1 − h)`).
+    pub statistic: f64,
+    /// Its p-value (χ² with one degree of freedom, or F(1, ν) with the
+    /// degrees of freedom of an estimated σ).
+    pub p_value: f64,
+    /// The value the data choose with it and every other prior in
+    /// conflict released (the data see at least [`SEEN_SHARE`] of what is
+    /// known of it, or it is not tested).
+    pub data_value: Option<f64>,
+    /// That value's standard deviation.
+    pub data_sd: Option<f64>,
+}
+
+/// A prior the data see less than this share of is not tested for
+/// conflict ([`prior_conflicts`]): the data hardly see its parameter, and
+/// cannot push against it.
+pub const SEEN_SHARE: f64 = 0.01;
+
+/// A prior whose σ is below this fraction of its parameter's size
+/// (`max(|μ|, 1)` in the parameter's unit) is a constraint
+/// ([`is_constraint`]).
+pub const CONSTRAINT_RELATIVE: f64 = 1e-8;
+
+/// Whether a prior of standard deviation `sigma` centred on `centre` is an
+/// equality constraint rather than a weight (docs/model.md eq. 13): below
+/// [`CONSTRAINT_RELATIVE`] of the parameter's size no measurement can move
+/// it, and its row's weight `1/σ` would only swamp every other column of
+/// the least-squares problem (and overflow below ~1e-154). Its parameter is
+/// then held at `centre` with `sigma` as its standard deviation, and the
+/// others are identified as they would be without it.
+pub fn is_constraint(sigma: f64, centre: f64) -> bool {
+    sigma < CONSTRAINT_RELATIVE * centre.abs().max(1.0)
 }
 
 /// A value more than this many tolerances from its prior's centre is
@@ -256,8 +330,8 @@ pub fn information_from_data(posterior: f64, prior: f64) -> f64 {
 }
 
 /// Fill each parameter's tolerance and its information from the data, from
-/// the posterior covariance before the variance of unit weight scales it
-/// (`unit`, in `free` order): the information, not the misfit.
+/// the posterior covariance `unit` (in `free` order) its standard deviation
+/// comes from ([`super::uncertainty::apply_scale`]); a constraint's is 0.
 pub(super) fn annotate(
     parameters: &mut [ParameterResult],
     terms: &[PriorTerm],
@@ -267,35 +341,240 @@ pub(super) fn annotate(
     for t in terms {
         let p = &mut parameters[t.index];
         p.tolerance = Some(t.sigma);
-        p.from_data = free
-            .iter()
-            .position(|&f| f == t.index)
-            .map(|k| information_from_data(unit[(k, k)].max(0.0).sqrt(), t.sigma))
-            .filter(|v| v.is_finite());
+        p.from_data = if t.constraint {
+            Some(0.0)
+        } else {
+            free.iter()
+                .position(|&f| f == t.index)
+                .map(|k| information_from_data(unit[(k, k)].max(0.0).sqrt(), t.sigma))
+                .filter(|v| v.is_finite())
+        };
     }
 }
 
-/// The warnings of a fit with priors: each value beyond
-/// [`BEYOND_TOLERANCES`] of its tolerances from its prior's centre, and the
-/// parameters the data taught little ([`TAUGHT_LITTLE`]).
-pub(super) fn prior_warnings(parameters: &[ParameterResult], terms: &[PriorTerm]) -> Vec<Warning> {
-    let mut out = vec![];
-    for t in terms {
-        let p = &parameters[t.index];
-        if p.free && (p.identified - t.centre).abs() > BEYOND_TOLERANCES * t.sigma {
-            out.push(Warning::new(WarningKind::BeyondTolerance {
-                name: t.name.clone(),
-                value: p.identified,
-                centre: t.centre,
-                tolerance: t.sigma,
-                unit: p.unit,
-            }));
+/// Priors in conflict are named while the next one's release is below
+/// this familywise level (Holm over the priors the data see): with right
+/// tolerances, one fit in a thousand names one.
+pub const CONFLICT_ALPHA: f64 = 1e-3;
+
+/// The fit linearised at its solution, in the free parameters: the
+/// readings' information `JᵀJ` and gradient `Jᵀr` (weighted by their final
+/// σ), and each prior of a free parameter (its column, weight `1/σ²`,
+/// `p̂ − μ`).
+struct Linearised {
+    information: DMatrix<f64>,
+    gradient: DVector<f64>,
+    priors: Vec<(usize, f64, f64)>,
+}
+
+impl Linearised {
+    fn of(cal: &super::result::Calibration) -> Self {
+        let j = &cal.jacobian;
+        let r = DVector::from_iterator(
+            j.nrows(),
+            cal.residuals.iter().zip(&cal.sigmas).map(|(r, s)| r / s),
+        );
+        let priors = cal
+            .priors
+            .iter()
+            .filter(|t| !t.constraint)
+            .filter_map(|t| {
+                let k = cal.free.iter().position(|&f| f == t.index)?;
+                Some((
+                    k,
+                    1.0 / (t.sigma * t.sigma),
+                    cal.parameters[t.index].identified - t.centre,
+                ))
+            })
+            .collect();
+        Linearised {
+            information: j.transpose() * j,
+            gradient: j.transpose() * r,
+            priors,
         }
     }
-    let little: Vec<(String, f64)> = terms
+
+    /// With the priors `released` (indices into `priors`) left out: the
+    /// step from the solution to the new minimum and the inverse of the
+    /// new information, or `None` where it is singular.
+    fn released(&self, released: &[usize]) -> Option<(DVector<f64>, DMatrix<f64>)> {
+        let mut h = self.information.clone();
+        let mut g = self.gradient.clone();
+        for (a, &(k, w, e)) in self.priors.iter().enumerate() {
+            if !released.contains(&a) {
+                h[(k, k)] += w;
+                g[k] += w * e;
+            }
+        }
+        // Scaled to a unit diagonal: mm, rad and N/mm meet here.
+        let n = h.nrows();
+        let d: Vec<f64> = (0..n)
+            .map(|k| 1.0 / h[(k, k)].max(f64::MIN_POSITIVE).sqrt())
+            .collect();
+        let hs = DMatrix::from_fn(n, n, |a, b| h[(a, b)] * d[a] * d[b]);
+        let inv_s = hs.cholesky()?.inverse();
+        let inv = DMatrix::from_fn(n, n, |a, b| inv_s[(a, b)] * d[a] * d[b]);
+        let step = -(&inv * g);
+        step.iter().all(|v| v.is_finite()).then_some((step, inv))
+    }
+}
+
+/// The priors the data push against (docs/model.md eq. 13, "Priors in
+/// conflict"), on the fit linearised at its solution: the prior whose
+/// release lowers `Σ (r/σ)²` most (its row's score statistic
+/// `e² / (1 − h)`, `e` its standardised residual and `h` its leverage) is
+/// released while that drop is significant (χ² with one degree of freedom,
+/// or F(1, ν) for an estimated σ; Holm at [`CONFLICT_ALPHA`] over the
+/// priors the data see at least [`SEEN_SHARE`] of), and the next is judged
+/// with it released. Each with the value the data choose for it, and its
+/// standard deviation, with every prior in conflict released; also that
+/// solution, in `free` order.
+pub fn prior_conflicts(cal: &super::result::Calibration) -> (Vec<PriorConflict>, DVector<f64>) {
+    let lin = Linearised::of(cal);
+    let n = cal.free.len();
+    let mut released: Vec<usize> = vec![];
+    let mut out = vec![];
+    let Some((mut step, mut inv)) = lin.released(&[]) else {
+        return (vec![], DVector::zeros(n));
+    };
+    let seen = |inv: &DMatrix<f64>, k: usize, w: f64| 1.0 - w * inv[(k, k)];
+    let testable = lin
+        .priors
         .iter()
+        .filter(|&&(k, w, _)| seen(&inv, k, w) >= SEEN_SHARE)
+        .count();
+    loop {
+        let best = lin
+            .priors
+            .iter()
+            .enumerate()
+            .filter(|(a, _)| !released.contains(a))
+            .filter_map(|(a, &(k, w, e))| {
+                let share = seen(&inv, k, w);
+                (share >= SEEN_SHARE).then(|| (a, w * (e + step[k]).powi(2) / share))
+            })
+            .max_by(|x, y| x.1.total_cmp(&y.1));
+        let Some((a, statistic)) = best else {
+            break;
+        };
+        let p_value = cal.scale.quadratic_tail(statistic, 1.0);
+        let left = testable.saturating_sub(released.len()).max(1);
+        if p_value.is_nan() || p_value >= CONFLICT_ALPHA / left as f64 {
+            break;
+        }
+        released.push(a);
+        let Some((s, i)) = lin.released(&released) else {
+            released.pop();
+            break;
+        };
+        (step, inv) = (s, i);
+        let (k, _, _) = lin.priors[a];
+        let i = cal.free[k];
+        let t = cal
+            .priors
+            .iter()
+            .find(|t| t.index == i)
+            .expect("a prior of this parameter");
+        out.push((
+            k,
+            PriorConflict {
+                name: t.name.clone(),
+                unit: cal.parameters[i].unit,
+                centre: t.centre,
+                tolerance: t.sigma,
+                statistic,
+                p_value,
+                data_value: None,
+                data_sd: None,
+            },
+        ));
+    }
+    // The values the data choose with every prior in conflict released.
+    let out = out
+        .into_iter()
+        .map(|(k, mut c)| {
+            c.data_value = Some(cal.parameters[cal.free[k]].identified + step[k]);
+            c.data_sd = Some(inv[(k, k)].max(0.0).sqrt());
+            c
+        })
+        .collect();
+    let values = DVector::from_iterator(
+        n,
+        cal.free
+            .iter()
+            .enumerate()
+            .map(|(k, &i)| cal.parameters[i].identified + step[k]),
+    );
+    (out, values)
+}
+
+/// The warnings of a fit with priors: the priors in conflict with the data
+/// ([`prior_conflicts`], kept in the calibration), each value beyond
+/// [`BEYOND_TOLERANCES`] of its tolerances from its prior's centre with the
+/// conflict that most likely explains it, and the parameters the data
+/// taught little ([`TAUGHT_LITTLE`]).
+pub(super) fn prior_warnings(cal: &mut super::result::Calibration) -> Vec<Warning> {
+    let mut out = vec![];
+    if cal.priors.iter().all(|t| t.constraint) {
+        return out;
+    }
+    let (conflicts, released) = prior_conflicts(cal);
+    let lin = Linearised::of(cal);
+    let named: Vec<usize> = conflicts
+        .iter()
+        .map(|c| {
+            lin.priors
+                .iter()
+                .position(|&(k, _, _)| cal.parameters[cal.free[k]].name == c.name)
+                .expect("a prior in conflict is a prior")
+        })
+        .collect();
+    if !conflicts.is_empty() {
+        out.push(Warning::new(WarningKind::PriorConflict {
+            conflicts: conflicts.clone(),
+        }));
+    }
+    for t in cal.priors.iter().filter(|t| !t.constraint) {
+        let p = &cal.parameters[t.index];
+        let far = |v: f64| (v - t.centre).abs() > BEYOND_TOLERANCES * t.sigma;
+        if !(p.free && far(p.identified)) {
+            continue;
+        }
+        let conflict = conflicts.iter().any(|c| c.name == t.name);
+        let k = cal.free.iter().position(|&f| f == t.index);
+        let value = k.map(|k| released[k]);
+        // The conflict whose prior, restored alone, takes it farthest.
+        let explained_by = match (conflict, k, value) {
+            (false, Some(k), Some(v)) if !far(v) && !named.is_empty() => named
+                .iter()
+                .zip(&conflicts)
+                .filter_map(|(a, c)| {
+                    let others: Vec<usize> = named.iter().copied().filter(|b| b != a).collect();
+                    let (s, _) = lin.released(&others)?;
+                    Some(((p.identified + s[k] - t.centre).abs(), c.name.clone()))
+                })
+                .max_by(|x, y| x.0.total_cmp(&y.0))
+                .map(|(_, n)| n),
+            _ => None,
+        };
+        out.push(Warning::new(WarningKind::BeyondTolerance {
+            name: t.name.clone(),
+            value: p.identified,
+            centre: t.centre,
+            tolerance: t.sigma,
+            unit: p.unit,
+            conflict,
+            released: explained_by.as_ref().and(value),
+            explained_by,
+        }));
+    }
+    cal.prior_conflicts = conflicts;
+    let little: Vec<(String, f64)> = cal
+        .priors
+        .iter()
+        .filter(|t| !t.constraint)
         .filter_map(|t| {
-            let p = &parameters[t.index];
+            let p = &cal.parameters[t.index];
             p.from_data
                 .filter(|f| *f < 1.0 - TAUGHT_LITTLE * TAUGHT_LITTLE)
                 .map(|f| (t.name.clone(), f))

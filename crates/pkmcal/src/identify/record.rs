@@ -25,6 +25,23 @@ pub const CALIBRATION_VERSION: u32 = 1;
 /// default free set and the assembly configuration do not count: renaming a
 /// mechanism keeps its calibrations, changing a nominal length does not.
 pub fn mechanism_identity(spec: &Spec) -> String {
+    identity_with_names(spec, &spec.param_names())
+}
+
+/// Every identity a record of the mechanism may carry: its
+/// [`mechanism_identity`] first, then, when parameters were renamed
+/// ([`Spec::renamed`]), the identity under their old names (a record saved
+/// before the renaming).
+pub fn mechanism_identities(spec: &Spec) -> Vec<String> {
+    let mut out = vec![mechanism_identity(spec)];
+    if !spec.renamed.is_empty() {
+        out.push(identity_with_names(spec, &spec.param_names_before()));
+    }
+    out
+}
+
+/// [`mechanism_identity`] with the parameters named `names`.
+fn identity_with_names(spec: &Spec, names: &[&str]) -> String {
     let mut text = String::new();
     let mut list = |tag: &str, items: &mut dyn Iterator<Item = String>| {
         text.push_str(tag);
@@ -38,7 +55,7 @@ pub fn mechanism_identity(spec: &Spec) -> String {
     list("actuated", &mut spec.actuated.iter().map(|a| a.to_string()));
     list(
         "parameters",
-        &mut spec.param_names().into_iter().enumerate().map(|(i, n)| {
+        &mut names.iter().enumerate().map(|(i, n)| {
             format!(
                 "{n}:{}:{:016x}",
                 spec.param_unit(i),
@@ -95,6 +112,15 @@ pub struct CalibrationRecord {
     pub parameters: Vec<RecordedParameter>,
     /// The covariance of the identified parameters.
     pub covariance: ParameterCovariance,
+    /// The priors the calibration was fitted with (a report's `priors`):
+    /// the drift test compares what the data added to them. Empty in a
+    /// record written before priors, or without them.
+    #[serde(default)]
+    pub priors: Vec<super::prior::PriorTerm>,
+    /// How its uncertainties were scaled (a report's `scale`): the degrees
+    /// of freedom of an estimated σ. `None` in a record written before.
+    #[serde(default)]
+    pub scale: Option<super::uncertainty::Scale>,
 }
 
 /// Why a calibration record cannot serve a mechanism. Typed, so that each
@@ -157,12 +183,16 @@ impl CalibrationRecord {
                 })
                 .collect(),
             covariance: cal.parameter_covariance.clone(),
+            priors: cal.priors.clone(),
+            scale: Some(cal.scale),
         }
     }
 
     /// Check that the record can serve the mechanism `spec`: its format, a
-    /// version this build reads, the mechanism's identity (by parameter
-    /// names for a record written before versions), a covariance that fits.
+    /// version this build reads, the mechanism's identity (any of
+    /// [`mechanism_identities`]: a record saved before parameters were
+    /// renamed serves; by parameter names for a record written before
+    /// versions), a covariance that fits.
     pub fn check(&self, spec: &Spec) -> std::result::Result<(), RecordError> {
         if self.version > CALIBRATION_VERSION {
             return Err(RecordError::Version {
@@ -173,7 +203,7 @@ impl CalibrationRecord {
             if self.format != CALIBRATION_FORMAT {
                 return Err(RecordError::Format(self.format.clone()));
             }
-            if self.mechanism_identity != mechanism_identity(spec) {
+            if !mechanism_identities(spec).contains(&self.mechanism_identity) {
                 return Err(RecordError::OtherMechanism {
                     name: self.mechanism.clone(),
                 });
@@ -185,11 +215,44 @@ impl CalibrationRecord {
         self.params(spec).map(|_| ())
     }
 
+    /// The parameters the record names by an old name ([`Spec::renamed`]),
+    /// among its values and its covariance: the notes a front end words
+    /// for a record saved before a renaming.
+    pub fn renamed(&self, spec: &Spec) -> Vec<crate::mechanism::Renamed> {
+        spec.renamed_among(
+            self.parameters
+                .iter()
+                .map(|p| p.name.as_str())
+                .chain(self.covariance.names.iter().map(String::as_str)),
+        )
+    }
+
+    /// The record as it would be saved today: its parameters and its
+    /// covariance under their current names, and the identity under the
+    /// old names ([`mechanism_identities`]) replaced by the current one; for
+    /// whatever compares records by name (two calibrations' drift).
+    pub fn in_current_names(&self, spec: &Spec) -> Self {
+        let mut out = self.clone();
+        for p in &mut out.parameters {
+            p.name = spec.canonical(&p.name).to_string();
+        }
+        for t in &mut out.priors {
+            t.name = spec.canonical(&t.name).to_string();
+        }
+        for n in &mut out.covariance.names {
+            *n = spec.canonical(n).to_string();
+        }
+        if mechanism_identities(spec)[1..].contains(&self.mechanism_identity) {
+            out.mechanism_identity = mechanism_identity(spec);
+        }
+        out
+    }
+
     /// The mechanism's parameter values the record holds (those it does not
-    /// name stay nominal; instrument parameters are left out).
+    /// name stay nominal; instrument parameters are left out; old names
+    /// read as the current ones).
     pub fn params(&self, spec: &Spec) -> std::result::Result<Params, RecordError> {
         let mut p = Params::nominal(spec);
-        let names = spec.param_names();
         for r in &self.parameters {
             if !r.identified.is_finite() {
                 return Err(RecordError::Invalid(Error::InvalidRequest(format!(
@@ -197,7 +260,7 @@ impl CalibrationRecord {
                     r.name, r.identified
                 ))));
             }
-            if let Some(i) = names.iter().position(|n| *n == r.name) {
+            if let Some((i, _)) = spec.parameter_index(&r.name) {
                 p.values[i] = r.identified;
             }
         }

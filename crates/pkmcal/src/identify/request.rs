@@ -223,6 +223,20 @@ impl Request {
         }
     }
 
+    /// The parameters this request names by a name they had before (in
+    /// its free and fix lists and its tolerances): still read, each meaning
+    /// its new name; for a front end's note.
+    pub fn renamed(&self, spec: &Spec) -> Vec<crate::mechanism::Renamed> {
+        spec.renamed_among(
+            self.free
+                .iter()
+                .flatten()
+                .chain(&self.fix)
+                .map(String::as_str)
+                .chain(self.tolerances.iter().map(|(n, _)| n.as_str())),
+        )
+    }
+
     /// Names from a comma-separated list (`"l11, l12"`), as every front
     /// end's name lists are written.
     pub fn names(text: &str) -> Vec<String> {

@@ -129,6 +129,26 @@ pub enum WarningKind {
         tolerance: f64,
         /// Its unit.
         unit: Unit,
+        /// Whether its own prior is in conflict with the data
+        /// ([`WarningKind::PriorConflict`]).
+        #[serde(default)]
+        conflict: bool,
+        /// Otherwise, the prior whose conflict most likely explains it: the
+        /// one whose release, with the others in conflict, brings it back
+        /// within its tolerances.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        explained_by: Option<String>,
+        /// Its value with the priors in conflict released.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        released: Option<f64>,
+    },
+    /// Priors the data push against ([`super::prior::prior_conflicts`]):
+    /// each released in turn, most significant first, while its release
+    /// lowers the fit's χ² beyond chance (Holm at
+    /// [`super::prior::CONFLICT_ALPHA`]).
+    PriorConflict {
+        /// The priors in conflict, most significant first.
+        conflicts: Vec<super::prior::PriorConflict>,
     },
     /// Parameters whose posterior σ is above [`super::prior::TAUGHT_LITTLE`]
     /// of their prior σ: the data taught little about them, their values
@@ -137,8 +157,48 @@ pub enum WarningKind {
         /// The parameters, with the share of their information from the data.
         parameters: Vec<(String, f64)>,
     },
-    /// The residuals exceed what the instrument's noise explains
-    /// ([`super::adequacy`]): the model misses something.
+    /// The residuals are well below the stated noise (or the σ given in the
+    /// data), two-sided χ² test ([`super::adequacy`]): the noise is
+    /// overstated, and every uncertainty with it.
+    NoiseOverstated {
+        /// Unit of the readings tested.
+        unit: Unit,
+        /// Their axes (empty with `given`: all readings).
+        #[serde(default)]
+        axes: Vec<String>,
+        /// Their σ as the residuals give it (with `given`: the standard
+        /// deviation of unit weight).
+        found: f64,
+        /// The stated σ (with `given`: 1).
+        stated: f64,
+        /// Whether the σ tested were given in the data.
+        given: bool,
+        /// The lower tail's p-value.
+        p: f64,
+    },
+    /// The residuals exceed the stated noise (or the σ given in the data),
+    /// and no parameter left out of the fit explains them: the misfit is
+    /// spread like noise, so the noise is understated (or the model misses
+    /// an effect none of its parameters describes).
+    NoiseUnderstated {
+        /// Unit of the readings tested.
+        unit: Unit,
+        /// Their axes (empty with `given`: all readings).
+        #[serde(default)]
+        axes: Vec<String>,
+        /// Their σ as the residuals give it (with `given`: the standard
+        /// deviation of unit weight).
+        found: f64,
+        /// The stated σ (with `given`: 1).
+        stated: f64,
+        /// Whether the σ tested were given in the data.
+        given: bool,
+        /// The upper tail's p-value.
+        p: f64,
+    },
+    /// The residuals exceed what the instrument's noise explains and
+    /// parameters left out of the fit explain them ([`super::adequacy`]):
+    /// the model misses something.
     ModelInadequate {
         /// Unit of the readings tested.
         unit: Unit,
@@ -155,9 +215,9 @@ pub enum WarningKind {
         given: bool,
         /// The χ² test's p-value.
         p: f64,
-        /// Parameters left out of the fit that would explain most of the
-        /// residual, with the share of the weighted sum of squares each
-        /// would remove.
+        /// Parameters left out of the fit that the score test singles out,
+        /// with the share of the weighted sum of squares each would remove
+        /// (after those before it).
         suspects: Vec<(String, f64)>,
     },
     /// Directions the data alone cannot see, held by the parameters'
@@ -188,6 +248,86 @@ fn pose_list(poses: &[Origin]) -> String {
         .map(Origin::to_string)
         .collect::<Vec<_>>()
         .join(", ")
+}
+
+/// The residuals' σ against the noise they were tested with, in words.
+fn residuals_against(
+    found: f64,
+    stated: f64,
+    unit: Unit,
+    axes: &[String],
+    given: bool,
+    verb: &str,
+) -> String {
+    if given {
+        format!("the residuals are {found:.2} times the σ given in the data")
+    } else {
+        format!(
+            "the residuals' σ of {found:.3e} {unit} ({} readings) {verb} the stated {stated:.3e} {unit}",
+            axes.join(", ")
+        )
+    }
+}
+
+/// The family a warning belongs to, for front ends that sort warnings into
+/// their own categories (Python's warning classes) without knowing each
+/// kind.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WarningCategory {
+    /// The fit did not converge.
+    Convergence,
+    /// Outlying poses, reported or dropped.
+    Outliers,
+    /// What the data show against what the tolerances assumed.
+    Tolerance,
+    /// The model or the noise against the residuals.
+    Model,
+    /// What the data can and cannot identify.
+    Identifiability,
+}
+
+impl WarningKind {
+    /// The kind's name, as written in reports (`model_inadequate`).
+    pub fn name(&self) -> &'static str {
+        match self {
+            WarningKind::StiffnessRatios { .. } => "stiffness_ratios",
+            WarningKind::Unidentifiable { .. } => "unidentifiable",
+            WarningKind::FrameGauge { .. } => "frame_gauge",
+            WarningKind::NotConverged { .. } => "not_converged",
+            WarningKind::RankDeficient { .. } => "rank_deficient",
+            WarningKind::PlanRankDeficient { .. } => "plan_rank_deficient",
+            WarningKind::Outliers { .. } => "outliers",
+            WarningKind::Dropped { .. } => "dropped",
+            WarningKind::BeyondTolerance { .. } => "beyond_tolerance",
+            WarningKind::PriorDominated { .. } => "prior_dominated",
+            WarningKind::PriorConflict { .. } => "prior_conflict",
+            WarningKind::NoiseOverstated { .. } => "noise_overstated",
+            WarningKind::NoiseUnderstated { .. } => "noise_understated",
+            WarningKind::ModelInadequate { .. } => "model_inadequate",
+            WarningKind::HeldByTolerance { .. } => "held_by_tolerance",
+        }
+    }
+
+    /// The family the kind belongs to.
+    pub fn category(&self) -> WarningCategory {
+        match self {
+            WarningKind::NotConverged { .. } => WarningCategory::Convergence,
+            WarningKind::Outliers { .. } | WarningKind::Dropped { .. } => WarningCategory::Outliers,
+            WarningKind::BeyondTolerance { .. }
+            | WarningKind::PriorDominated { .. }
+            | WarningKind::PriorConflict { .. } => WarningCategory::Tolerance,
+            WarningKind::NoiseOverstated { .. }
+            | WarningKind::NoiseUnderstated { .. }
+            | WarningKind::ModelInadequate { .. } => WarningCategory::Model,
+            WarningKind::StiffnessRatios { .. }
+            | WarningKind::HeldByTolerance { .. }
+            | WarningKind::Unidentifiable { .. }
+            | WarningKind::FrameGauge { .. }
+            | WarningKind::RankDeficient { .. }
+            | WarningKind::PlanRankDeficient { .. } => WarningCategory::Identifiability,
+        }
+    }
 }
 
 impl Warning {
@@ -287,18 +427,67 @@ impl Warning {
                 centre,
                 tolerance,
                 unit,
-            } => (
-                {
-                    // Digits down to a tenth of the tolerance.
-                    let d = (1.0 - tolerance.log10().floor()).clamp(0.0, 12.0) as usize;
-                    format!(
-                        "`{name}` = {value:.d$} {unit} is {:.1} tolerances (σ = {tolerance} {unit}) from {centre:.d$} {unit}",
-                        (value - centre).abs() / tolerance
-                    )
-                },
+                conflict,
+                explained_by,
+                released,
+            } => {
+                // Digits down to a tenth of the tolerance.
+                let d = (1.0 - tolerance.log10().floor()).clamp(0.0, 12.0) as usize;
+                let far = format!(
+                    "`{name}` = {value:.d$} {unit} is {:.1} tolerances (σ = {tolerance} {unit}) from {centre:.d$} {unit}",
+                    (value - centre).abs() / tolerance
+                );
+                match (conflict, explained_by) {
+                    (true, _) => (
+                        format!("{far}: its tolerance is in conflict with the data"),
+                        format!(
+                            "check `{name}`'s drawing value (or the part: moved, worn, assembled otherwise); correct it, or widen its tolerance"
+                        ),
+                    ),
+                    (false, Some(cause)) => (
+                        format!(
+                            "{far}, most likely through `{cause}`'s tolerance in conflict{}",
+                            released.map_or_else(String::new, |r| format!(
+                                ": with the tolerances in conflict released it is {r:.d$} {unit}"
+                            ))
+                        ),
+                        format!(
+                            "check `{cause}` rather than `{name}`: `{name}` absorbs an error of `{cause}`, which its tolerance holds too tightly"
+                        ),
+                    ),
+                    (false, None) => (
+                        far,
+                        format!(
+                            "a value this far from what was known usually means a wrong nominal value or tolerance, a unit error, or `{name}` absorbing an error the model does not have; check the drawing and the data"
+                        ),
+                    ),
+                }
+            }
+            WarningKind::PriorConflict { conflicts } => (
                 format!(
-                    "a value this far from what was known usually means a wrong nominal value or tolerance, a unit error, or `{name}` absorbing an error the model does not have; check the drawing and the data"
+                    "the data push against {} (χ² drop when each is released, then the value the data choose): {}",
+                    crate::error::count(conflicts.len(), "tolerance", "tolerances"),
+                    conflicts
+                        .iter()
+                        .map(|c| {
+                            let d = (1.0 - c.tolerance.log10().floor()).clamp(0.0, 12.0) as usize;
+                            format!(
+                                "`{}` {:.1}, p = {:.1e}, {}",
+                                c.name,
+                                c.statistic,
+                                c.p_value,
+                                match (c.data_value, c.data_sd) {
+                                    (Some(v), Some(sd)) => {
+                                        format!("{v:.d$} ± {sd:.d$} {}", c.unit)
+                                    }
+                                    _ => "not seen".into(),
+                                }
+                            )
+                        })
+                        .collect::<Vec<_>>()
+                        .join("; ")
                 ),
+                "check these drawing values (or the parts: a joint moved, a leg zeroed otherwise) and correct them, or widen their tolerances; the values near them absorb what these tolerances hold back".into(),
             ),
             WarningKind::PriorDominated { parameters } => (
                 format!(
@@ -314,6 +503,36 @@ impl Warning {
                 ),
                 "measure poses or quantities that see them (a plan with these priors chooses such poses), or accept the tolerance as their uncertainty".into(),
             ),
+            WarningKind::NoiseOverstated {
+                unit,
+                axes,
+                found,
+                stated,
+                given,
+                p,
+            } => (
+                format!(
+                    "{} (χ² test, lower tail p = {p:.1e}): the {} noise is larger than the data show",
+                    residuals_against(*found, *stated, *unit, axes, *given, "is below"),
+                    if *given { "given" } else { "stated" }
+                ),
+                "every uncertainty is as much too large; state the noise the data show (the instrument may be better than its datasheet, or its readings averaged), or let it be estimated from the residuals".into(),
+            ),
+            WarningKind::NoiseUnderstated {
+                unit,
+                axes,
+                found,
+                stated,
+                given,
+                p,
+            } => (
+                format!(
+                    "{} (χ² test, p = {p:.1e}), and no parameter left out of the fit explains it: the {} noise is smaller than the data show",
+                    residuals_against(*found, *stated, *unit, axes, *given, "exceeds"),
+                    if *given { "given" } else { "stated" }
+                ),
+                "every uncertainty is as much too small; check the stated noise against the conditions of the measurement (distance, temperature, averaging), or let it be estimated; if it is right, the model misses an effect none of its parameters describes (thermal drift, backlash, a loose instrument)".into(),
+            ),
             WarningKind::ModelInadequate {
                 unit,
                 axes,
@@ -324,31 +543,16 @@ impl Warning {
                 suspects,
             } => (
                 format!(
-                    "{} (χ² test, p = {p:.1e}): the model misses something{}",
-                    if *given {
-                        format!(
-                            "the residuals are {found:.2} times the σ given in the data"
-                        )
-                    } else {
-                        format!(
-                            "the residuals' σ of {found:.3e} {unit} ({} readings) exceeds the stated {stated:.3e} {unit}",
-                            axes.join(", ")
-                        )
-                    },
-                    if suspects.is_empty() {
-                        String::new()
-                    } else {
-                        format!(
-                            "; freeing one of these would remove the share of it given: {}",
-                            suspects
-                                .iter()
-                                .map(|(n, s)| format!("`{n}` ({:.0} %)", 100.0 * s))
-                                .collect::<Vec<_>>()
-                                .join(", ")
-                        )
-                    }
+                    "{} (χ² test, p = {p:.1e}): the model misses something; freeing {} would remove the share of the misfit given: {}",
+                    residuals_against(*found, *stated, *unit, axes, *given, "exceeds"),
+                    if suspects.len() == 1 { "this parameter" } else { "these parameters" },
+                    suspects
+                        .iter()
+                        .map(|(n, s)| format!("`{n}` ({:.0} %)", 100.0 * s))
+                        .collect::<Vec<_>>()
+                        .join(", ")
                 ),
-                "free the parameters named and calibrate again, check the stated noise, or look for an effect the model lacks (thermal drift, backlash, a bent part, a loose instrument)".into(),
+                "free the parameters named and calibrate again, or look for the effect they stand for (a tilt, an offset the model fixes)".into(),
             ),
             WarningKind::HeldByTolerance {
                 model,
@@ -413,9 +617,25 @@ pub struct Calibration {
     pub distances: usize,
     /// Sum of squared standardised residuals `Σ (r/σ)²` at the solution.
     pub sum_of_squares: f64,
-    /// Standard deviation of unit weight `√(Σ (r/σ)² / (m − n))`
-    /// (dimensionless): about 1 when the noise levels are right.
+    /// The readings' standard deviation of unit weight
+    /// `√(Σ (r/σ)² / Σ (1 − h))` over the readings alone, `h` their
+    /// leverages in the fit with its priors (dimensionless): about 1 when
+    /// the noise levels are right (1 by construction where σ was estimated
+    /// without a stated noise).
     pub unit_weight_sigma: f64,
+    /// How the uncertainties are scaled ([`super::uncertainty::Scale`]):
+    /// absolute for σ known, Student's t with its degrees of freedom for σ
+    /// estimated.
+    #[serde(default)]
+    pub scale: super::uncertainty::Scale,
+    /// The readings' redundancy `Σ (1 − h)`, their leverages `h` in the fit
+    /// with its priors: the degrees of freedom of their residuals.
+    #[serde(default)]
+    pub redundancy: f64,
+    /// The model-adequacy tests ([`super::adequacy`]): each group of
+    /// readings against its stated σ, or all against the σ given.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub adequacy: Vec<super::adequacy::AdequacyTest>,
     /// Noise of each group of like coordinates: estimated from the residuals
     /// or given in the data.
     pub noise: Vec<NoiseGroup>,
@@ -424,8 +644,8 @@ pub struct Calibration {
     /// Identifiability (at the starting parameters, or where the actuators
     /// fight when stiffness is free; see [`calibrate`]).
     pub identifiability: Identifiability,
-    /// Covariance of the free parameters (scaled by the unit-weight
-    /// variance), in `free` order.
+    /// Covariance of the free parameters, `(J̃ᵀW̃J̃)⁻¹` at the final σ (the
+    /// scale rule, [`super::uncertainty::Scale`]), in `free` order.
     #[serde(skip, default = "empty_matrix")]
     pub covariance: DMatrix<f64>,
     /// Free parameter indices actually identified.
@@ -460,6 +680,10 @@ pub struct Calibration {
     /// rows after the readings'.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub priors: Vec<super::prior::PriorTerm>,
+    /// The priors the data push against, most significant first
+    /// ([`super::prior::prior_conflicts`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub prior_conflicts: Vec<super::prior::PriorConflict>,
     /// The fit's predictions at the identified parameters, when its last
     /// evaluation was there: [`calibration_accuracy_with_cache`] then
     /// computes them no second time.

@@ -1,6 +1,20 @@
-//! Uncertainty after a fit: the parameters' covariance scaled by the variance
-//! of unit weight, and the predicted tool-position uncertainty at any pose.
+//! Uncertainty after a fit: the one rule for the scale of the uncertainties
+//! (docs/model.md §6), the parameters' covariance `(J̃ᵀW̃J̃)⁻¹` formed in one
+//! place, and the predicted tool-position uncertainty at any pose.
+//!
+//! The rule: the covariance is the inverse of the information of the
+//! readings (weighted by their σ) and of the priors, with no factor after
+//! it. What scales it is the σ the readings were weighted with:
+//!
+//! * σ known (given in the data, or stated and taken as it is): the
+//!   covariance is absolute, intervals are normal ([`Scale::Known`]);
+//! * σ estimated from the readings' residuals, over the readings'
+//!   redundancy `Σ (1 − h)` (the priors' rows take no part), a stated noise
+//!   a prior of it worth `ν₀` readings: intervals are Student's t with
+//!   the redundancy (plus `ν₀`) as degrees of freedom ([`Scale::Estimated`]).
 
+use super::noise::NoiseGroup;
+use super::prior::PriorTerm;
 use super::result::Calibration;
 use crate::engine::models::{Model, Pose, Prediction, prepare_pose};
 use crate::engine::sensitivity::sensitivity;
@@ -8,6 +22,209 @@ use crate::error::{Error, Result};
 use crate::mechanism::{Mechanism, Params, Spec};
 use nalgebra::DMatrix;
 use serde::Serialize;
+
+/// How a calibration's uncertainties are scaled (docs/model.md §6, "The
+/// scale of the uncertainties"): what a front end says beside each σ and
+/// what its intervals and tests are drawn from.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, serde::Deserialize, Default)]
+#[serde(tag = "rule", rename_all = "snake_case")]
+pub enum Scale {
+    /// Every σ known: given in the data, or stated and taken as it is. The
+    /// covariance is absolute; intervals and tests are normal and χ².
+    #[default]
+    Known,
+    /// Some σ estimated from the readings' residuals (a stated noise a
+    /// prior of it): intervals and tests are Student's t and Fisher's F
+    /// with `dof` degrees of freedom, the estimated groups' redundancy plus
+    /// the readings each stated noise is worth (0: no uncertainty).
+    Estimated {
+        /// The degrees of freedom of the estimated σ.
+        dof: f64,
+    },
+}
+
+impl Scale {
+    /// The rule of a fit whose noise groups are `groups`: known when no
+    /// group was estimated or every estimated one leaned on a stated σ
+    /// worth infinitely many readings.
+    pub fn of(groups: &[NoiseGroup]) -> Scale {
+        let mut dof = 0.0;
+        let mut estimated = false;
+        for g in groups.iter().filter(|g| g.estimated) {
+            let worth = g.stated.and(g.stated_readings).unwrap_or(0.0);
+            if worth == f64::INFINITY && !g.stated_relative {
+                continue;
+            }
+            estimated = true;
+            dof += g.redundancy.unwrap_or(0.0).max(0.0) + worth.min(f64::MAX);
+        }
+        if estimated {
+            Scale::Estimated { dof }
+        } else {
+            Scale::Known
+        }
+    }
+
+    /// The degrees of freedom of an estimated σ; `None` when known.
+    pub fn dof(&self) -> Option<f64> {
+        match self {
+            Scale::Known => None,
+            Scale::Estimated { dof } => Some(*dof),
+        }
+    }
+
+    /// The half-width, in standard deviations, of a two-sided interval of
+    /// confidence `level` (0.95: 1.96 when σ is known, Student's t with the
+    /// degrees of freedom when it was estimated; NaN with none).
+    pub fn quantile(&self, level: f64) -> f64 {
+        use statrs::distribution::{ContinuousCDF, Normal, StudentsT};
+        let p = 0.5 + 0.5 * level;
+        match self.dof() {
+            None => Normal::standard().inverse_cdf(p),
+            Some(n) if n > 0.0 => {
+                StudentsT::new(0.0, 1.0, n).map_or(f64::NAN, |t| t.inverse_cdf(p))
+            }
+            Some(_) => f64::NAN,
+        }
+    }
+
+    /// The two-sided p-value of a standardised value `z`.
+    pub fn two_sided(&self, z: f64) -> f64 {
+        use statrs::distribution::{ContinuousCDF, StudentsT};
+        match self.dof() {
+            Some(n) if n > 0.0 => {
+                StudentsT::new(0.0, 1.0, n).map_or(f64::NAN, |t| 2.0 * t.sf(z.abs()))
+            }
+            Some(_) => f64::NAN,
+            None => statrs::function::erf::erfc(z.abs() / std::f64::consts::SQRT_2),
+        }
+    }
+
+    /// The upper tail of a quadratic form `q` of `k` standardised values:
+    /// `P(χ²_k ≥ q)`, or `P(F(k, dof) ≥ q/k)` when σ was estimated.
+    pub fn quadratic_tail(&self, q: f64, k: f64) -> f64 {
+        use statrs::distribution::{ChiSquared, ContinuousCDF, FisherSnedecor};
+        if k.is_nan() || k <= 0.0 {
+            return f64::NAN;
+        }
+        match self.dof() {
+            None => ChiSquared::new(k).map_or(f64::NAN, |c| c.sf(q)),
+            Some(n) if n > 0.0 => FisherSnedecor::new(k, n).map_or(f64::NAN, |f| f.sf(q / k)),
+            Some(_) => f64::NAN,
+        }
+    }
+}
+
+/// The covariance `(J̃ᵀW̃J̃)⁻¹` of the free parameters (docs/model.md eq.
+/// 12, 13): the readings' Jacobian `readings` (rows weighted by 1/σ,
+/// columns the free parameters) with one row `1/σ_j` appended per prior of
+/// a free parameter (a constraint has none: its parameter is not free).
+/// The one place a parameter covariance is formed; nothing scales it
+/// afterwards. Returns it and its numerical rank.
+pub(crate) fn posterior_covariance(
+    readings: &DMatrix<f64>,
+    free: &[usize],
+    terms: &[PriorTerm],
+) -> (DMatrix<f64>, usize) {
+    let m = readings.nrows();
+    let rows: Vec<(usize, f64)> = terms
+        .iter()
+        .filter(|t| !t.constraint)
+        .filter_map(|t| {
+            free.iter()
+                .position(|&f| f == t.index)
+                .map(|k| (k, 1.0 / t.sigma))
+        })
+        .collect();
+    let mut a = readings.clone().resize_vertically(m + rows.len(), 0.0);
+    for (r, (k, w)) in rows.iter().enumerate() {
+        a[(m + r, *k)] = *w;
+    }
+    crate::lm::covariance(&a, crate::lm::COVARIANCE_RANK_TOL)
+}
+
+/// A finished fit's uncertainties by the scale rule: the covariance
+/// ([`posterior_covariance`]) of the readings weighted by their final σ
+/// (each row's σ times `factor`, a robust loss's group scale; 1 otherwise)
+/// and of the priors, the standard deviations, each prior's share of
+/// information from the data (from the same covariance), the correlations,
+/// the covariance by name (a constraint's parameter with its own σ), and
+/// the readings' standard deviation of unit weight. With an estimated σ and
+/// no degree of freedom, every standard deviation is NaN.
+pub(crate) fn apply_scale(cal: &mut Calibration, scale: Scale, factor: &[f64]) {
+    let mut j = cal.jacobian.clone();
+    if factor.len() == j.nrows() {
+        crate::lm::unscale_rows(&mut j, factor);
+    }
+    let (mut c, _) = posterior_covariance(&j, &cal.free, &cal.priors);
+    let no_dof = scale.dof().is_some_and(|n| n.is_nan() || n <= 0.0);
+    // The readings' redundancy and their weighted residuals.
+    let h = super::noise::leverages_with(&j, &c);
+    let redundancy: f64 = h.iter().map(|h| (1.0 - h).max(0.0)).sum();
+    let ss: f64 = cal
+        .residuals
+        .iter()
+        .zip(&cal.sigmas)
+        .enumerate()
+        .map(|(i, (r, s))| (r / (s * factor.get(i).copied().unwrap_or(1.0))).powi(2))
+        .sum();
+    cal.redundancy = redundancy;
+    cal.unit_weight_sigma = if redundancy > 0.0 {
+        (ss / redundancy).sqrt()
+    } else {
+        f64::NAN
+    };
+    if no_dof {
+        c.fill(f64::NAN);
+    }
+    for (k, &i) in cal.free.iter().enumerate() {
+        cal.parameters[i].std_dev = c[(k, k)].max(0.0).sqrt();
+        if c[(k, k)].is_nan() {
+            cal.parameters[i].std_dev = f64::NAN;
+        }
+    }
+    for t in cal.priors.iter().filter(|t| t.constraint) {
+        cal.parameters[t.index].std_dev = t.sigma;
+    }
+    super::prior::annotate(&mut cal.parameters, &cal.priors, &cal.free, &c);
+    let names: Vec<String> = cal.parameters.iter().map(|p| p.name.clone()).collect();
+    cal.correlations = super::identifiability::correlations(&names, &cal.free, &c);
+    // The mechanism's part travels with the parameters into predictions
+    // (the marginal covariance is the sub-matrix; a constraint's
+    // parameter with its own σ); the instrument's stays in the table.
+    let np = cal.params.values.len();
+    let mut names: Vec<String> = vec![];
+    let mut at: Vec<Option<usize>> = vec![];
+    for (k, &i) in cal.free.iter().enumerate() {
+        if i < np {
+            names.push(cal.parameters[i].name.clone());
+            at.push(Some(k));
+        }
+    }
+    let held: Vec<&PriorTerm> = cal
+        .priors
+        .iter()
+        .filter(|t| t.constraint && t.index < np)
+        .collect();
+    for t in &held {
+        names.push(t.name.clone());
+        at.push(None);
+    }
+    let matrix = (0..names.len())
+        .map(|a| {
+            (0..names.len())
+                .map(|b| match (at[a], at[b]) {
+                    (Some(x), Some(y)) => c[(x, y)],
+                    (None, None) if a == b => held[a - (names.len() - held.len())].sigma.powi(2),
+                    _ => 0.0,
+                })
+                .collect()
+        })
+        .collect();
+    cal.parameter_covariance = ParameterCovariance { names, matrix };
+    cal.covariance = c;
+    cal.scale = scale;
+}
 
 /// Covariance of identified parameters, by name: plain data that travels in
 /// the calibration report (`covariance`) and back into `predict`.

@@ -5,6 +5,7 @@ use super::driver::{CalibrationOptions, calibrate_once};
 use super::loss::{Loss, MAX_REWEIGHTS, find_outliers, group_scales, standardized};
 use super::problem::IdentificationProblem;
 use super::result::{Calibration, Warning, WarningKind};
+use super::uncertainty::{Scale, apply_scale};
 use crate::error::Result;
 use crate::identify::noise::{NoiseModel, VCE_MAX_ROUNDS, VCE_TOL, leverages, leverages_with};
 use crate::lm;
@@ -110,6 +111,9 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
     }
     let base = noise.sigmas();
     let keys = noise.keys();
+    // Each reading's σ over the σ it was weighed with: a robust loss's
+    // group scale for the estimated groups (1 otherwise).
+    let mut factor = vec![];
     if opts.loss != Loss::Squared {
         let mut robust = vec![1.0; base.len()];
         for _ in 0..MAX_REWEIGHTS {
@@ -139,6 +143,17 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
                 *s *= f;
             }
         }
+        let estimated = noise.estimated_groups();
+        factor = keys
+            .iter()
+            .map(|k| {
+                scales
+                    .get(k)
+                    .filter(|f| *k < estimated && **f > 0.0)
+                    .copied()
+                    .unwrap_or(1.0)
+            })
+            .collect();
     }
     // Studentised: a pose that pulls the fit towards itself (high leverage)
     // shows a small residual for a large error.
@@ -158,6 +173,9 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
     );
     cal.noise = noise.report(&cal.residuals);
     cal.loss = opts.loss;
+    // The one scale rule (docs/model.md §6): the covariance at the final σ.
+    let scale = Scale::of(&cal.noise);
+    apply_scale(&mut cal, scale, &factor);
     Ok(cal)
 }
 
@@ -178,7 +196,7 @@ fn linearized_vce(noise: &mut NoiseModel, cal: &Calibration) {
     // The priors' weighted rows and residuals.
     let mut prior_j = DMatrix::zeros(k, j.ncols());
     let mut prior_r = DVector::zeros(k);
-    for (a, t) in cal.priors.iter().enumerate() {
+    for (a, t) in cal.priors.iter().enumerate().filter(|(_, t)| !t.constraint) {
         if let Some(c) = cal.free.iter().position(|&f| f == t.index) {
             prior_j[(a, c)] = 1.0 / t.sigma;
         }

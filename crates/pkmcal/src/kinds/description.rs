@@ -26,7 +26,27 @@ pub(crate) struct Names<'a> {
     pub(crate) given: &'a BTreeMap<String, f64>,
 }
 
-impl Names<'_> {
+impl<'a> Names<'a> {
+    /// No parameter yet; `given` are the description's `[parameters]`.
+    pub(crate) fn new(given: &'a BTreeMap<String, f64>) -> Self {
+        Names {
+            names: vec![],
+            values: vec![],
+            units: vec![],
+            given,
+        }
+    }
+
+    /// Every named parameter of `[parameters]` must be used (by `what`).
+    pub(crate) fn check_used(&self, what: &str) -> Result<()> {
+        for n in self.given.keys() {
+            if !self.names.contains(n) {
+                return bad(format!("[parameters]: `{n}` is not used by {what}"));
+            }
+        }
+        Ok(())
+    }
+
     pub(crate) fn add(&mut self, v: &Value, derived: String, unit: Unit) -> Result<usize> {
         let (name, value) = match v {
             Value::Number(x) => (derived, *x),
@@ -66,47 +86,6 @@ impl Names<'_> {
 
 pub(crate) fn bad<T>(m: String) -> Result<T> {
     Err(Error::InvalidMechanism(m))
-}
-
-/// The encoder offsets' and stiffnesses' names, the full nominal vector and
-/// the default free set of a described mechanism.
-pub(crate) struct ActuatorNames {
-    pub(crate) offsets: Vec<String>,
-    pub(crate) stiffness: Vec<String>,
-    pub(crate) nominal: Vec<f64>,
-    pub(crate) free: Vec<String>,
-}
-
-/// [`ActuatorNames`] from the geometric parameters `names`, the joints'
-/// names, the actuated joints with their stiffness, and the description's
-/// `free` (all geometric parameters and encoder offsets if left out).
-pub(crate) fn actuator_names(
-    names: &Names,
-    joint_names: &[String],
-    actuated: &[usize],
-    stiffness: &[f64],
-    free: &Option<Vec<String>>,
-) -> ActuatorNames {
-    let offsets: Vec<String> = actuated
-        .iter()
-        .map(|&i| format!("d{}", joint_names[i]))
-        .collect();
-    let mut nominal = names.values.clone();
-    nominal.extend(std::iter::repeat_n(0.0, actuated.len()));
-    nominal.extend(stiffness);
-    let free = match free {
-        Some(f) => f.clone(),
-        None => names.names.iter().chain(&offsets).cloned().collect(),
-    };
-    ActuatorNames {
-        stiffness: actuated
-            .iter()
-            .map(|&i| stiffness_name(&joint_names[i]))
-            .collect(),
-        offsets,
-        nominal,
-        free,
-    }
 }
 
 /// Stiffness parameter name of an actuated joint: `k` + the name without a

@@ -15,19 +15,20 @@
 //!   `g_i = |p + R b_i − a_i| − L_i = 0`.
 //! - Parameters: base joint centres `a{i}x a{i}y a{i}z` (base frame), platform
 //!   joint centres `b{i}x b{i}y b{i}z` (platform frame), leg length offsets
-//!   `dL{i}` (actual minus reported, mm), axial leg stiffness `k{i}` (N/mm).
+//!   `dL{i}` (actual minus reported, mm), axial leg stiffness `kL{i}` (N/mm;
+//!   `k` and the joint's name, as on every kind; `k{i}`, its name before, is
+//!   still accepted).
 //! - Tool: the pose `x y z rx ry rz`. The first six legs are the independent
 //!   joints (the rigid model drives them).
 
 use crate::error::{Error, Result};
+use crate::kinds::build::{Built, Joints, Parts, assemble, finish};
+use crate::kinds::description::{Names, Value};
 use crate::linalg::pose::{rotation, transform};
 use crate::mechanism::{Mechanism, Scalar, Spec};
 use crate::units::Unit;
 use serde::Deserialize;
 use std::collections::BTreeMap;
-
-/// Workspace configurations kept for starting forward kinematics.
-const ATLAS_POINTS: usize = 800;
 
 /// Gauss–Newton steps on the platform pose that bring a stored
 /// configuration nearer the commanded leg lengths before forward kinematics
@@ -124,65 +125,26 @@ impl GoughStewart {
                 "[assembly]: `pose` must be six finite numbers [x, y, z, rx, ry, rz]".into(),
             );
         }
-        let mut geometric = Vec::with_capacity(6 * n);
-        let mut nominal = Vec::with_capacity(8 * n);
-        for (i, l) in d.legs.iter().enumerate() {
-            for (c, v) in ["x", "y", "z"].iter().zip(l.base) {
-                geometric.push(format!("a{}{c}", i + 1));
-                nominal.push(v);
+        // The parameters: base joint centres, then platform ones.
+        let none = BTreeMap::new();
+        let mut names = Names::new(&none);
+        for (prefix, side) in [("a", 0), ("b", 1)] {
+            for (i, l) in d.legs.iter().enumerate() {
+                let centre = if side == 0 { l.base } else { l.platform };
+                for (c, v) in ["x", "y", "z"].iter().zip(centre) {
+                    let name = format!("{prefix}{}{c}", i + 1);
+                    names.add(&Value::Number(v), name, Unit::Millimetre)?;
+                }
             }
         }
+        let mut joints = Joints::default();
         for (i, l) in d.legs.iter().enumerate() {
-            for (c, v) in ["x", "y", "z"].iter().zip(l.platform) {
-                geometric.push(format!("b{}{c}", i + 1));
-                nominal.push(v);
-            }
+            let q = joints.push(&format!("L{}", i + 1), Unit::Millimetre);
+            joints.actuate(q, l.stiffness, false);
         }
-        let offsets: Vec<String> = (1..=n).map(|i| format!("dL{i}")).collect();
-        nominal.extend(std::iter::repeat_n(0.0, n));
-        nominal.extend(d.legs.iter().map(|l| l.stiffness));
-        let mut joints: Vec<String> = (1..=n).map(|i| format!("L{i}")).collect();
-        joints.extend(POSE_AXES.iter().map(|s| s.to_string()));
-        let tool_axes: Vec<String> = POSE_AXES.iter().map(|s| s.to_string()).collect();
-        let workspace_box =
-            crate::kinds::description::box_from_description(&tool_axes, &d.workspace)?;
-        let free = match &d.free {
-            Some(f) => f.clone(),
-            None => geometric.iter().chain(&offsets).cloned().collect(),
-        };
-        let mut gs = GoughStewart {
-            spec: Spec {
-                name: d
-                    .name
-                    .clone()
-                    .unwrap_or_else(|| format!("Gough–Stewart platform, {n} legs")),
-                joints,
-                actuated: (0..n).collect(),
-                independent: (0..6).collect(),
-                n_constraints: n,
-                geometric,
-                offsets,
-                stiffness: (1..=n).map(|i| format!("k{i}")).collect(),
-                tool_axes,
-                joint_units: std::iter::repeat_n(Unit::Millimetre, n + 3)
-                    .chain([Unit::Radian; 3])
-                    .collect(),
-                geometric_units: vec![Unit::Millimetre; 6 * n],
-                tool_units: POSE_UNITS.to_vec(),
-                tool_layout: crate::mechanism::tool::ToolLayout::SpatialPose,
-                nominal,
-                reference_q: vec![0.0; n + 6],
-                default_free: free,
-                workspace_box,
-                work_scale: 1.0,
-                joint_scale: vec![],
-                axis_scale: vec![],
-                min_conditioning: 0.0,
-            },
-            n,
-            atlas: Default::default(),
-            branch: 0,
-        };
+        for (a, u) in POSE_AXES.iter().zip(POSE_UNITS) {
+            joints.push(a, u);
+        }
         // A rotation of one radian moves the platform joints by about their
         // mean distance from the platform origin.
         let radius = (d
@@ -192,27 +154,44 @@ impl GoughStewart {
             .sum::<f64>()
             / n as f64)
             .max(1.0);
-        gs.spec.joint_scale = vec![1.0; n + 3];
-        gs.spec.joint_scale.extend([radius; 3]);
-        gs.spec.axis_scale = vec![1.0, 1.0, 1.0, radius, radius, radius];
+        // The stiffness was `k{i}` before it followed the rule of every kind.
+        let renamed: BTreeMap<String, String> = (1..=n)
+            .map(|i| (format!("k{i}"), format!("kL{i}")))
+            .collect();
+        let spec = assemble(Parts {
+            name: d
+                .name
+                .clone()
+                .unwrap_or_else(|| format!("Gough–Stewart platform, {n} legs")),
+            parameters: names,
+            work_scale: joints.work_scale()?,
+            joints,
+            n_constraints: n,
+            tool_axes: POSE_AXES.iter().map(|s| s.to_string()).collect(),
+            tool_units: POSE_UNITS.to_vec(),
+            tool_layout: crate::mechanism::tool::ToolLayout::SpatialPose,
+            workspace: &d.workspace,
+            free: &d.free,
+            joint_scale: std::iter::repeat_n(1.0, n + 3).chain([radius; 3]).collect(),
+            axis_scale: vec![1.0, 1.0, 1.0, radius, radius, radius],
+            renamed: &renamed,
+        })?;
+        let mut gs = GoughStewart {
+            spec,
+            n,
+            atlas: Default::default(),
+            branch: 0,
+        };
         let rho = gs.spec.nominal[..6 * n].to_vec();
         gs.spec.reference_q = gs.ik(&d.assembly.pose, &rho)?;
-        gs.spec.validate()?;
         // The first six legs must determine the pose at the reference.
-        let j = crate::mechanism::autodiff::jacobians(&gs, &gs.spec.reference_q, &rho, 0..n + 6);
-        let dep: Vec<usize> = (6..n + 6).collect();
-        if crate::linalg::solve::checked_lu(j.dg.select_columns(&dep)).is_none() {
-            return bad(
+        finish(
+            gs,
+            Some(&|_: &Spec| {
                 "the reference pose is singular for the first six legs; move it or reorder the legs"
-                    .into(),
-            );
-        }
-        gs.branch = crate::engine::kinematics::branch_signs(&gs, &gs.spec.reference_q, &rho)[0];
-        // The atlas covers every reachable pose (min_conditioning still 0).
-        gs.atlas = crate::engine::atlas::Atlas::build(&gs, ATLAS_POINTS);
-        gs.spec.min_conditioning = crate::engine::atlas::RELATIVE_CONDITIONING
-            * crate::engine::atlas::conditioning(&gs, &gs.spec.reference_q, &rho);
-        Ok(gs)
+                    .into()
+            }),
+        )
     }
 
     /// Number of legs.
@@ -245,6 +224,8 @@ impl GoughStewart {
                 .fold(0.0, f64::max)
         };
         let mut worst = mismatch(&q);
+        // Not `engine::newton::run`: a step is kept only while the mismatch
+        // shrinks, and there is no tolerance to converge to.
         for _ in 0..GUESS_STEPS {
             if worst.is_nan() || worst <= 0.0 {
                 break;
@@ -438,6 +419,20 @@ impl<'a> LegHessians<'a> {
             }
         }
         (idx, h)
+    }
+}
+
+impl Built for GoughStewart {
+    const ATLAS_POINTS: usize = 800;
+    fn spec_mut(&mut self) -> &mut Spec {
+        &mut self.spec
+    }
+    /// The forward sign alone, the one its branch checks compare.
+    fn keep_reference(&mut self, signs: [i8; 2]) {
+        self.branch = signs[0];
+    }
+    fn atlas_mut(&mut self) -> Option<&mut crate::engine::atlas::Atlas> {
+        Some(&mut self.atlas)
     }
 }
 

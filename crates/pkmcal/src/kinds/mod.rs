@@ -4,6 +4,7 @@
 //! which holds any of them.
 
 pub mod any;
+pub(crate) mod build;
 pub mod description;
 pub mod gough_stewart;
 pub mod planar;

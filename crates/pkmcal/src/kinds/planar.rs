@@ -32,14 +32,13 @@
 
 use crate::engine::kinematics::solve_closure;
 use crate::error::{Error, Result};
-use crate::kinds::description::{ActuatorNames, Names, Value, actuator_names, bad};
+use crate::kinds::build::{Built, Joints, Parts, assemble, assembly_value, finish, stiffness_of};
+use crate::kinds::description::{Names, Value, bad};
+use crate::mechanism::tool::ToolLayout;
 use crate::mechanism::{Mechanism, Scalar, Spec};
 use crate::units::Unit;
 use serde::Deserialize;
 use std::collections::BTreeMap;
-
-/// Workspace configurations kept for starting forward kinematics.
-const ATLAS_POINTS: usize = 400;
 
 /// Revolute or prismatic.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -131,6 +130,10 @@ pub struct PlanarDescription {
     /// out.
     #[serde(default)]
     pub independent: Option<Vec<String>>,
+    /// Parameters renamed: old name → current name. Files and calibration
+    /// records that use an old name keep working (with a note).
+    #[serde(default)]
+    pub renamed: BTreeMap<String, String>,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -166,130 +169,236 @@ pub struct PlanarLinkage {
     branch: [i8; 2],
 }
 
-impl PlanarLinkage {
-    /// Build the linkage: derive names and constraints, check the description,
-    /// polish the reference configuration and choose the independent joints.
-    pub fn new(d: &PlanarDescription) -> Result<Self> {
-        let mut bodies: Vec<String> = vec!["ground".into()];
-        let mut names = Names {
-            names: vec![],
-            values: vec![],
-            units: vec![],
-            given: &d.parameters,
-        };
-        let mut joints = Vec::with_capacity(d.joints.len());
-        if d.joints.is_empty() {
-            return bad("a planar linkage needs at least one [[joint]]".into());
+/// The bodies and joints of a planar description, indexed: each joint
+/// placing a body or closing a loop, and the tool's body and point.
+struct Tree {
+    bodies: Vec<String>,
+    joints: Vec<Joint>,
+    tool_body: usize,
+    tool_at: [usize; 2],
+}
+
+/// Index the joints in file order, each checked as it comes: a unique
+/// name, a parent already placed, its parameters named (`names`), and
+/// whether it places its child body or closes a loop; then the tool.
+fn index_tree(d: &PlanarDescription, names: &mut Names) -> Result<Tree> {
+    if d.joints.is_empty() {
+        return bad("a planar linkage needs at least one [[joint]]".into());
+    }
+    let mut bodies: Vec<String> = vec!["ground".into()];
+    let mut joints = Vec::with_capacity(d.joints.len());
+    for (i, j) in d.joints.iter().enumerate() {
+        if j.name.is_empty() || d.joints[..i].iter().any(|o| o.name == j.name) {
+            return bad(format!(
+                "joint {} has an empty or repeated name `{}`",
+                i + 1,
+                j.name
+            ));
         }
-        for (i, j) in d.joints.iter().enumerate() {
-            if j.name.is_empty() || d.joints[..i].iter().any(|o| o.name == j.name) {
+        joints.push(index_joint(j, &mut bodies, names)?);
+    }
+    let tool_body = bodies
+        .iter()
+        .position(|b| *b == d.tool.body)
+        .ok_or_else(|| {
+            Error::InvalidMechanism(format!(
+                "the tool's body `{}` is not moved by any joint (bodies: {})",
+                d.tool.body,
+                bodies.join(", ")
+            ))
+        })?;
+    let tool_at = [
+        names.add(&d.tool.at[0], "tool.x".into(), Unit::Millimetre)?,
+        names.add(&d.tool.at[1], "tool.y".into(), Unit::Millimetre)?,
+    ];
+    Ok(Tree {
+        bodies,
+        joints,
+        tool_body,
+        tool_at,
+    })
+}
+
+/// One joint: its parent among the `bodies` placed so far, its parameters,
+/// and its child placed by it (added to `bodies`) or already placed (the
+/// joint closes a loop and needs its position on the child).
+fn index_joint(j: &PlanarJoint, bodies: &mut Vec<String>, names: &mut Names) -> Result<Joint> {
+    let parent = bodies.iter().position(|b| *b == j.parent).ok_or_else(|| {
+        Error::InvalidMechanism(format!(
+            "joint `{}`: its parent body `{}` is not placed yet; list the joints from the ground outward",
+            j.name, j.parent
+        ))
+    })?;
+    if j.child == j.parent {
+        return bad(format!(
+            "joint `{}` connects `{}` to itself",
+            j.name, j.child
+        ));
+    }
+    let at = [
+        names.add(&j.at[0], format!("{}.x", j.name), Unit::Millimetre)?,
+        names.add(&j.at[1], format!("{}.y", j.name), Unit::Millimetre)?,
+    ];
+    let axis = match j.kind {
+        JointKind::Prismatic => Some(names.add(
+            j.axis.as_ref().unwrap_or(&Value::Number(0.0)),
+            format!("{}.axis", j.name),
+            Unit::Radian,
+        )?),
+        JointKind::Revolute => {
+            if j.axis.is_some() {
                 return bad(format!(
-                    "joint {} has an empty or repeated name `{}`",
-                    i + 1,
+                    "joint `{}`: `axis` is for prismatic joints",
                     j.name
                 ));
             }
-            let parent = bodies.iter().position(|b| *b == j.parent).ok_or_else(|| {
-                Error::InvalidMechanism(format!(
-                    "joint `{}`: its parent body `{}` is not placed yet; list the joints from the ground outward",
-                    j.name, j.parent
-                ))
-            })?;
-            if j.child == j.parent {
+            None
+        }
+    };
+    let closing = match bodies.iter().position(|b| *b == j.child) {
+        None => {
+            if j.child_at.is_some() || j.child_angle.is_some() {
                 return bad(format!(
-                    "joint `{}` connects `{}` to itself",
+                    "joint `{}` places body `{}` (its frame starts at the joint); `child_at` and `child_angle` are for joints that close a loop",
                     j.name, j.child
                 ));
             }
-            let at = [
-                names.add(&j.at[0], format!("{}.x", j.name), Unit::Millimetre)?,
-                names.add(&j.at[1], format!("{}.y", j.name), Unit::Millimetre)?,
-            ];
-            let axis = match j.kind {
-                JointKind::Prismatic => Some(names.add(
-                    j.axis.as_ref().unwrap_or(&Value::Number(0.0)),
-                    format!("{}.axis", j.name),
-                    Unit::Radian,
-                )?),
-                JointKind::Revolute => {
-                    if j.axis.is_some() {
-                        return bad(format!(
-                            "joint `{}`: `axis` is for prismatic joints",
-                            j.name
-                        ));
-                    }
-                    None
-                }
-            };
-            let closing = match bodies.iter().position(|b| *b == j.child) {
-                None => {
-                    if j.child_at.is_some() || j.child_angle.is_some() {
-                        return bad(format!(
-                            "joint `{}` places body `{}` (its frame starts at the joint); `child_at` and `child_angle` are for joints that close a loop",
-                            j.name, j.child
-                        ));
-                    }
-                    bodies.push(j.child.clone());
-                    None
-                }
-                Some(_) => {
-                    let ca = j.child_at.as_ref().ok_or_else(|| {
-                        Error::InvalidMechanism(format!(
-                            "joint `{}` closes a loop (body `{}` is already placed): give its position on `{}` as `child_at = [x, y]`",
-                            j.name, j.child, j.child
-                        ))
-                    })?;
-                    let child_at = [
-                        names.add(&ca[0], format!("{}.cx", j.name), Unit::Millimetre)?,
-                        names.add(&ca[1], format!("{}.cy", j.name), Unit::Millimetre)?,
-                    ];
-                    let child_angle = match j.kind {
-                        JointKind::Prismatic => Some(names.add(
-                            j.child_angle.as_ref().unwrap_or(&Value::Number(0.0)),
-                            format!("{}.child_angle", j.name),
-                            Unit::Radian,
-                        )?),
-                        JointKind::Revolute => None,
-                    };
-                    Some(Closing {
-                        child_at,
-                        child_angle,
-                    })
-                }
-            };
-            let child = bodies.iter().position(|b| *b == j.child).expect("placed");
-            joints.push(Joint {
-                kind: j.kind,
-                parent,
-                child,
-                at,
-                axis,
-                closing,
-            });
+            bodies.push(j.child.clone());
+            None
         }
-        let tool_body = bodies
-            .iter()
-            .position(|b| *b == d.tool.body)
-            .ok_or_else(|| {
+        Some(_) => {
+            let ca = j.child_at.as_ref().ok_or_else(|| {
                 Error::InvalidMechanism(format!(
-                    "the tool's body `{}` is not moved by any joint (bodies: {})",
-                    d.tool.body,
-                    bodies.join(", ")
+                    "joint `{}` closes a loop (body `{}` is already placed): give its position on `{}` as `child_at = [x, y]`",
+                    j.name, j.child, j.child
                 ))
             })?;
-        let tool_at = [
-            names.add(&d.tool.at[0], "tool.x".into(), Unit::Millimetre)?,
-            names.add(&d.tool.at[1], "tool.y".into(), Unit::Millimetre)?,
-        ];
-        for n in d.parameters.keys() {
-            if !names.names.contains(n) {
-                return bad(format!(
-                    "[parameters]: `{n}` is not used by any joint or the tool"
-                ));
-            }
+            let child_at = [
+                names.add(&ca[0], format!("{}.cx", j.name), Unit::Millimetre)?,
+                names.add(&ca[1], format!("{}.cy", j.name), Unit::Millimetre)?,
+            ];
+            let child_angle = match j.kind {
+                JointKind::Prismatic => Some(names.add(
+                    j.child_angle.as_ref().unwrap_or(&Value::Number(0.0)),
+                    format!("{}.child_angle", j.name),
+                    Unit::Radian,
+                )?),
+                JointKind::Revolute => None,
+            };
+            Some(Closing {
+                child_at,
+                child_angle,
+            })
         }
-        let nq = joints.len();
-        let n_closing = joints.iter().filter(|j| j.closing.is_some()).count();
+    };
+    let child = bodies.iter().position(|b| *b == j.child).expect("placed");
+    Ok(Joint {
+        kind: j.kind,
+        parent,
+        child,
+        at,
+        axis,
+        closing,
+    })
+}
+
+/// The joints of `q` (every joint, in file order) and the actuators: at
+/// least as many as the `dof` degrees of freedom, of one kind, each with a
+/// positive stiffness; and their work scale.
+fn planar_joints(d: &PlanarDescription, dof: usize) -> Result<(Joints, f64)> {
+    let mut joints = Joints::default();
+    for j in &d.joints {
+        joints.push(&j.name, joint_unit(j.kind));
+    }
+    joints.actuated = (0..d.joints.len())
+        .filter(|&i| d.joints[i].actuated)
+        .collect();
+    if joints.actuated.len() < dof {
+        return bad(format!(
+            "the linkage has {dof} degrees of freedom but only {} actuated joints",
+            joints.actuated.len()
+        ));
+    }
+    joints.revolute = joints
+        .actuated
+        .iter()
+        .map(|&i| d.joints[i].kind == JointKind::Revolute)
+        .collect();
+    let work_scale = joints.work_scale()?;
+    for j in &d.joints {
+        let revolute = j.kind == JointKind::Revolute;
+        if let Some(k) = stiffness_of("", &j.name, revolute, j.actuated, j.stiffness)? {
+            joints.stiffness.push(k);
+        }
+    }
+    Ok((joints, work_scale))
+}
+
+/// The unit of a joint's coordinate.
+fn joint_unit(kind: JointKind) -> Unit {
+    match kind {
+        JointKind::Revolute => Unit::Radian,
+        JointKind::Prismatic => Unit::Millimetre,
+    }
+}
+
+/// The tool axes (`x y`, with `phi` when the tool's orientation counts):
+/// one per degree of freedom.
+fn planar_tool_axes(d: &PlanarDescription, dof: usize) -> Result<Vec<String>> {
+    let tool_axes: Vec<String> = if d.tool.orientation {
+        vec!["x".into(), "y".into(), "phi".into()]
+    } else {
+        vec!["x".into(), "y".into()]
+    };
+    if tool_axes.len() != dof {
+        return bad(format!(
+            "the linkage has {dof} degrees of freedom but {} tool coordinates ({}); {}",
+            tool_axes.len(),
+            tool_axes.join(", "),
+            if dof == 3 {
+                "set `orientation = true` in [tool]"
+            } else {
+                "planar linkages need 2 DOF (tool x, y) or 3 DOF (x, y, phi)"
+            }
+        ));
+    }
+    Ok(tool_axes)
+}
+
+/// The characteristic length (mm): the mean distance between joints on a
+/// body (1 when there is none).
+fn characteristic_length(joints: &[Joint], values: &[f64]) -> f64 {
+    let lengths: Vec<f64> = joints
+        .iter()
+        .flat_map(|j| {
+            let mut v = vec![values[j.at[0]].hypot(values[j.at[1]])];
+            if let Some(c) = &j.closing {
+                v.push(values[c.child_at[0]].hypot(values[c.child_at[1]]));
+            }
+            v
+        })
+        .filter(|l| *l > 1e-9)
+        .collect();
+    if lengths.is_empty() {
+        1.0
+    } else {
+        lengths.iter().sum::<f64>() / lengths.len() as f64
+    }
+}
+
+impl PlanarLinkage {
+    /// Build the linkage from its description, in steps: index the bodies
+    /// and joints (each checked as it comes), count the degrees of freedom
+    /// and check the actuators and the tool against them, assemble the
+    /// [`Spec`] by the rule of every described kind
+    /// ([`crate::kinds::build::assemble`]), close the reference
+    /// configuration, and finish ([`crate::kinds::build::finish`]).
+    pub fn new(d: &PlanarDescription) -> Result<Self> {
+        let mut names = Names::new(&d.parameters);
+        let tree = index_tree(d, &mut names)?;
+        names.check_used("any joint or the tool")?;
+        let nq = tree.joints.len();
+        let n_closing = tree.joints.iter().filter(|j| j.closing.is_some()).count();
         let nc = 3 * n_closing;
         if nc >= nq {
             return bad(format!(
@@ -297,146 +406,69 @@ impl PlanarLinkage {
             ));
         }
         let dof = nq - nc;
-        let actuated: Vec<usize> = (0..nq).filter(|&i| d.joints[i].actuated).collect();
-        if actuated.len() < dof {
-            return bad(format!(
-                "the linkage has {dof} degrees of freedom but only {} actuated joints",
-                actuated.len()
-            ));
-        }
-        let kinds: Vec<JointKind> = actuated.iter().map(|&i| d.joints[i].kind).collect();
-        if kinds.iter().any(|k| *k != kinds[0]) {
-            return bad(
-                "mixing revolute and prismatic actuators is not supported (their stiffness units differ)"
-                    .into(),
-            );
-        }
-        let work_scale = match kinds[0] {
-            JointKind::Revolute => crate::units::MM_TO_M,
-            JointKind::Prismatic => 1.0,
-        };
-        let mut stiffness = Vec::new();
-        for j in &d.joints {
-            match (j.actuated, j.stiffness) {
-                (true, Some(k)) if k.is_finite() && k > 0.0 => stiffness.push(k),
-                (true, _) => {
-                    return bad(format!(
-                        "actuated joint `{}` needs a positive `stiffness` ({})",
-                        j.name,
-                        if j.kind == JointKind::Revolute {
-                            "N·m/rad"
-                        } else {
-                            "N/mm"
-                        }
-                    ));
-                }
-                (false, Some(_)) => {
-                    return bad(format!(
-                        "joint `{}` has a stiffness but is not actuated; only actuated joints are compliant",
-                        j.name
-                    ));
-                }
-                (false, None) => {}
-            }
-        }
-        let tool_axes: Vec<String> = if d.tool.orientation {
-            vec!["x".into(), "y".into(), "phi".into()]
-        } else {
-            vec!["x".into(), "y".into()]
-        };
-        if tool_axes.len() != dof {
-            return bad(format!(
-                "the linkage has {dof} degrees of freedom but {} tool coordinates ({}); {}",
-                tool_axes.len(),
-                tool_axes.join(", "),
-                if dof == 3 {
-                    "set `orientation = true` in [tool]"
-                } else {
-                    "planar linkages need 2 DOF (tool x, y) or 3 DOF (x, y, phi)"
-                }
-            ));
-        }
-        let workspace_box =
-            crate::kinds::description::box_from_description(&tool_axes, &d.workspace)?;
-        let joint_names: Vec<String> = d.joints.iter().map(|j| j.name.clone()).collect();
-        let ActuatorNames {
-            offsets,
-            stiffness: stiffness_names,
-            nominal,
-            free,
-        } = actuator_names(&names, &joint_names, &actuated, &stiffness, &d.free);
-        let geometric = names.names.clone();
-        let lengths: Vec<f64> = joints
-            .iter()
-            .flat_map(|j| {
-                let mut v = vec![names.values[j.at[0]].hypot(names.values[j.at[1]])];
-                if let Some(c) = &j.closing {
-                    v.push(names.values[c.child_at[0]].hypot(names.values[c.child_at[1]]));
-                }
-                v
-            })
-            .filter(|l| *l > 1e-9)
-            .collect();
-        let length = if lengths.is_empty() {
-            1.0
-        } else {
-            lengths.iter().sum::<f64>() / lengths.len() as f64
-        };
-        let mut linkage = PlanarLinkage {
-            spec: Spec {
-                name: d.name.clone().unwrap_or_else(|| "planar linkage".into()),
-                joints: joint_names.clone(),
-                actuated: actuated.clone(),
-                independent: actuated[..dof].to_vec(),
-                n_constraints: nc,
-                geometric,
-                offsets,
-                stiffness: stiffness_names,
-                joint_units: d
-                    .joints
-                    .iter()
-                    .map(|j| match j.kind {
-                        JointKind::Revolute => Unit::Radian,
-                        JointKind::Prismatic => Unit::Millimetre,
-                    })
-                    .collect(),
-                geometric_units: names.units.clone(),
-                tool_units: tool_axes
-                    .iter()
-                    .map(|a| {
-                        if a == "phi" {
-                            Unit::Radian
-                        } else {
-                            Unit::Millimetre
-                        }
-                    })
-                    .collect(),
-                tool_layout: if d.tool.orientation {
-                    crate::mechanism::tool::ToolLayout::PlanarPose
-                } else {
-                    crate::mechanism::tool::ToolLayout::PlanarPoint
-                },
-                tool_axes,
-                nominal,
-                reference_q: vec![0.0; nq],
-                default_free: free,
-                workspace_box,
-                work_scale,
-                joint_scale: vec![],
-                axis_scale: vec![],
-                min_conditioning: 0.0,
-            },
+        let (joints, work_scale) = planar_joints(d, dof)?;
+        let tool_axes = planar_tool_axes(d, dof)?;
+        let length = characteristic_length(&tree.joints, &names.values);
+        let spec = assemble(Parts {
+            name: d.name.clone().unwrap_or_else(|| "planar linkage".into()),
+            parameters: names,
             joints,
+            n_constraints: nc,
+            tool_units: tool_axes
+                .iter()
+                .map(|a| {
+                    if a == "phi" {
+                        Unit::Radian
+                    } else {
+                        Unit::Millimetre
+                    }
+                })
+                .collect(),
+            tool_axes,
+            tool_layout: if d.tool.orientation {
+                ToolLayout::PlanarPose
+            } else {
+                ToolLayout::PlanarPoint
+            },
+            workspace: &d.workspace,
+            free: &d.free,
+            work_scale,
+            joint_scale: d
+                .joints
+                .iter()
+                .map(|j| match j.kind {
+                    JointKind::Revolute => length,
+                    JointKind::Prismatic => 1.0,
+                })
+                .collect(),
+            axis_scale: if d.tool.orientation {
+                vec![1.0, 1.0, length]
+            } else {
+                vec![]
+            },
+            renamed: &d.renamed,
+        })?;
+        let mut linkage = PlanarLinkage {
+            spec,
+            joints: tree.joints,
             length,
-            n_bodies: bodies.len(),
-            tool_body,
-            tool_at,
+            n_bodies: tree.bodies.len(),
+            tool_body: tree.tool_body,
+            tool_at: tree.tool_at,
             orientation: d.tool.orientation,
             atlas: Default::default(),
             branch: [0, 0],
         };
-        // Reference configuration: tree joints from the description, closing
-        // joints computed from the body poses.
+        linkage.close_reference(d)?;
+        finish(linkage, None)
+    }
+
+    /// The reference configuration: the tree joints from the description's
+    /// `[assembly]`, the closing joints computed from the body poses, the
+    /// independent joints chosen there (or named), then Newton on the loop
+    /// closure with the independent joints held.
+    fn close_reference(&mut self, d: &PlanarDescription) -> Result<()> {
+        let joint_names = &self.spec.joints;
         for k in d.assembly.keys() {
             match joint_names.iter().position(|n| n == k) {
                 None => {
@@ -445,7 +477,7 @@ impl PlanarLinkage {
                         joint_names.join(", ")
                     ));
                 }
-                Some(i) if linkage.joints[i].closing.is_some() => {
+                Some(i) if self.joints[i].closing.is_some() => {
                     return bad(format!(
                         "[assembly]: `{k}` closes a loop; its value is computed, leave it out"
                     ));
@@ -453,54 +485,29 @@ impl PlanarLinkage {
                 _ => {}
             }
         }
-        let mut q0 = vec![0.0; nq];
-        for (i, j) in linkage.joints.iter().enumerate() {
+        let mut q0 = vec![0.0; joint_names.len()];
+        for (i, j) in self.joints.iter().enumerate() {
             if j.closing.is_none() {
-                q0[i] = *d.assembly.get(&joint_names[i]).ok_or_else(|| {
-                    Error::InvalidMechanism(format!(
-                        "[assembly] needs an approximate value of joint `{}` (rad or mm) on the wanted assembly branch",
-                        joint_names[i]
-                    ))
-                })?;
-                if !q0[i].is_finite() {
-                    return bad(format!("[assembly]: `{}` must be finite", joint_names[i]));
-                }
+                q0[i] = assembly_value(&d.assembly, &joint_names[i], "rad or mm")?;
             }
         }
-        let rho = linkage.spec.nominal[..linkage.spec.geometric.len()].to_vec();
-        linkage.fill_closing(&mut q0, &rho);
-        linkage.spec.independent = crate::engine::kinematics::independent_joints(
-            &linkage,
+        let rho = self.spec.nominal[..self.spec.geometric.len()].to_vec();
+        self.fill_closing(&mut q0, &rho);
+        self.spec.independent = crate::engine::kinematics::independent_joints(
+            self,
             d.independent.as_deref(),
             &q0,
             &rho,
         )?;
-        linkage.spec.joint_scale = d
-            .joints
-            .iter()
-            .map(|j| match j.kind {
-                JointKind::Revolute => length,
-                JointKind::Prismatic => 1.0,
-            })
-            .collect();
-        if d.tool.orientation {
-            linkage.spec.axis_scale = vec![1.0, 1.0, length];
-        }
-        linkage.spec.reference_q = q0.clone();
-        linkage.spec.validate()?;
-        solve_closure(&linkage, &rho, &mut q0, &linkage.spec.independent).map_err(|e| {
+        self.spec.reference_q = q0.clone();
+        self.spec.validate()?;
+        solve_closure(self, &rho, &mut q0, &self.spec.independent).map_err(|e| {
             Error::InvalidMechanism(format!(
                 "the [assembly] configuration does not close ({e}); check the lengths and give joint values nearer the wanted assembly"
             ))
         })?;
-        linkage.spec.reference_q = q0;
-        linkage.branch =
-            crate::engine::kinematics::branch_signs(&linkage, &linkage.spec.reference_q, &rho);
-        // The atlas covers every reachable pose (min_conditioning still 0).
-        linkage.atlas = crate::engine::atlas::Atlas::build(&linkage, ATLAS_POINTS);
-        linkage.spec.min_conditioning = crate::engine::atlas::RELATIVE_CONDITIONING
-            * crate::engine::atlas::conditioning(&linkage, &linkage.spec.reference_q, &rho);
-        Ok(linkage)
+        self.spec.reference_q = q0;
+        Ok(())
     }
 
     /// Names of the bodies (ground first).
@@ -954,6 +961,19 @@ fn add3<D: Scalar>(a: &mut [D; 3], b: [D; 3]) {
 fn world<D: Scalar>(pose: &[D; 3], x: D, y: D) -> [D; 2] {
     let (s, c) = pose[2].sin_cos();
     [pose[0] + c * x - s * y, pose[1] + s * x + c * y]
+}
+
+impl Built for PlanarLinkage {
+    const ATLAS_POINTS: usize = 400;
+    fn spec_mut(&mut self) -> &mut Spec {
+        &mut self.spec
+    }
+    fn keep_reference(&mut self, signs: [i8; 2]) {
+        self.branch = signs;
+    }
+    fn atlas_mut(&mut self) -> Option<&mut crate::engine::atlas::Atlas> {
+        Some(&mut self.atlas)
+    }
 }
 
 impl Mechanism for PlanarLinkage {

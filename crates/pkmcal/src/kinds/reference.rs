@@ -108,6 +108,7 @@ impl JeongKim2Dof {
             joint_scale: vec![],
             axis_scale: vec![],
             min_conditioning: crate::engine::atlas::MIN_CONDITIONING,
+            renamed: vec![],
         }
     }
 

@@ -43,14 +43,17 @@
 //!   prismatic ones and actuated rods: N/mm (one kind per mechanism).
 
 use crate::error::{Error, Result};
-use crate::kinds::description::{ActuatorNames, Names, Value, actuator_names};
+use crate::kinds::build::{Built, Joints, Parts, assemble, assembly_value, finish, stiffness_of};
+use crate::kinds::description::{Names, Value, bad};
+use crate::linalg::small::{
+    Mat3, apply, apply_transposed, axis_basis, column, cross, dot, identity, mat_mul, norm,
+    normalized, rotation_about, sub,
+};
+use crate::mechanism::tool::ToolLayout;
 use crate::mechanism::{Mechanism, Scalar, Spec};
 use crate::units::Unit;
 use serde::Deserialize;
 use std::collections::BTreeMap;
-
-/// Workspace configurations kept for starting forward kinematics.
-const ATLAS_POINTS: usize = 800;
 
 /// Names of the platform coordinates, in order (`motion = "full"`; the first
 /// three with `motion = "translation"`).
@@ -237,6 +240,11 @@ pub struct SpatialDescription {
     /// out.
     #[serde(default)]
     pub independent: Option<Vec<String>>,
+    /// Parameters renamed: old name → current name (`[renamed] radius =
+    /// "delta_radius"`). Files and calibration records that use an old name
+    /// keep working (with a note).
+    #[serde(default)]
+    pub renamed: BTreeMap<String, String>,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -333,7 +341,7 @@ fn expand_joints(leg: &SpatialLeg) -> Result<Vec<SpatialJoint>> {
         }
         for (k, a) in [Some(j.axis), j.axis2, j.axis3].iter().enumerate().take(n) {
             if let Some(a) = a {
-                let len2: f64 = a.iter().map(|v| v * v).sum();
+                let len2 = dot(*a, *a);
                 if !(len2.is_finite() && len2 > 1e-18) {
                     let key = ["axis", "axis2", "axis3"][k];
                     return bad(format!(
@@ -344,7 +352,7 @@ fn expand_joints(leg: &SpatialLeg) -> Result<Vec<SpatialJoint>> {
         }
         let first = normalized(j.axis);
         let second = normalized(j.axis2.unwrap_or_else(|| axis_basis(first)[1]));
-        if cross(first, second).iter().map(|v| v * v).sum::<f64>() < 1e-12 {
+        if dot(cross(first, second), cross(first, second)) < 1e-12 {
             return bad(format!(
                 "leg `{ln}`, joint `{jn}`: `axis2` must not be parallel to `axis`"
             ));
@@ -368,77 +376,275 @@ fn expand_joints(leg: &SpatialLeg) -> Result<Vec<SpatialJoint>> {
     Ok(out)
 }
 
-fn bad<T>(m: String) -> Result<T> {
-    Err(Error::InvalidMechanism(m))
+/// Leg, joint and rod names taken so far: each must be new, and none a
+/// platform coordinate.
+#[derive(Default)]
+struct Claimed(Vec<String>);
+
+impl Claimed {
+    /// Take `name` (a `what`, as the message says).
+    fn claim(&mut self, name: &str, what: &str) -> Result<()> {
+        if name.is_empty() || name.contains(char::is_whitespace) {
+            return bad(format!(
+                "{what} `{name}`: names must be non-empty and without spaces"
+            ));
+        }
+        if self.0.iter().any(|u| u == name) || PLATFORM_AXES.contains(&name) {
+            return bad(format!(
+                "{what} `{name}`: the name is already used (leg and joint names must differ from each other and from x y z rx ry rz)"
+            ));
+        }
+        self.0.push(name.to_string());
+        Ok(())
+    }
 }
 
-type Mat<D> = [[D; 3]; 3];
+/// Millimetres, the unit of positions and prismatic joints.
+const MM: Unit = Unit::Millimetre;
 
-fn identity<D: Scalar>() -> Mat<D> {
-    let (o, l) = (D::from(0.0), D::from(1.0));
-    [[l, o, o], [o, l, o], [o, o, l]]
+/// Index one leg whose equations start at `row`: its name, angle, chain
+/// joints (universal and spherical ones expanded, each added to `joints`)
+/// and end, every number named in `names`.
+fn index_leg(
+    leg: &SpatialLeg,
+    row: usize,
+    names: &mut Names,
+    claimed: &mut Claimed,
+    joints: &mut Joints,
+) -> Result<LegIx> {
+    claimed.claim(&leg.name, "leg")?;
+    let ln = &leg.name;
+    let angle = match &leg.angle {
+        Some(v) => Some(names.add(v, format!("{ln}.angle"), Unit::Radian)?),
+        None => None,
+    };
+    let expanded = expand_joints(leg)?;
+    let mut chain = Vec::with_capacity(expanded.len());
+    for j in &expanded {
+        chain.push(index_chain_joint(ln, j, names, claimed, joints)?);
+    }
+    let (end_at, platform, rod) = index_end(leg, names, claimed, joints)?;
+    Ok(LegIx {
+        angle,
+        joints: chain,
+        end_at,
+        platform,
+        rod,
+        row,
+        vars: vec![],
+        n_joint_vars: 0,
+    })
 }
 
-fn mat_mul<D: Scalar>(a: &Mat<D>, b: &Mat<D>) -> Mat<D> {
-    let mut c = [[D::from(0.0); 3]; 3];
-    for (i, row) in c.iter_mut().enumerate() {
-        for (j, v) in row.iter_mut().enumerate() {
-            *v = a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j];
+/// One revolute or prismatic joint of leg `ln`'s chain: its name, axis,
+/// position and tilts, and, when actuated, its stiffness.
+fn index_chain_joint(
+    ln: &str,
+    j: &SpatialJoint,
+    names: &mut Names,
+    claimed: &mut Claimed,
+    joints: &mut Joints,
+) -> Result<JointIx> {
+    claimed.claim(&j.name, &format!("leg `{ln}`: joint"))?;
+    let jn = &j.name;
+    let len2 = dot(j.axis, j.axis);
+    if !(len2.is_finite() && len2 > 1e-18) {
+        return bad(format!(
+            "leg `{ln}`, joint `{jn}`: `axis` must be a non-zero direction [x, y, z]"
+        ));
+    }
+    let at = [
+        names.add(&j.at[0], format!("{jn}.x"), MM)?,
+        names.add(&j.at[1], format!("{jn}.y"), MM)?,
+        names.add(&j.at[2], format!("{jn}.z"), MM)?,
+    ];
+    let zero = [Value::Number(0.0), Value::Number(0.0)];
+    let t = j.tilt.as_ref().unwrap_or(&zero);
+    let tilt = [
+        names.add(&t[0], format!("{jn}.tilt1"), Unit::Radian)?,
+        names.add(&t[1], format!("{jn}.tilt2"), Unit::Radian)?,
+    ];
+    let prismatic = j.kind == SpatialJointKind::Prismatic;
+    let q = joints.push(jn, if prismatic { MM } else { Unit::Radian });
+    let revolute = j.kind == SpatialJointKind::Revolute;
+    let context = format!("leg `{ln}`: ");
+    if let Some(k) = stiffness_of(&context, jn, revolute, j.actuated, j.stiffness)? {
+        joints.actuate(q, k, revolute);
+    }
+    Ok(JointIx {
+        prismatic,
+        q,
+        at,
+        tilt,
+        basis: axis_basis(j.axis),
+    })
+}
+
+/// A leg's end: the chain's end point and the platform point, and its rod
+/// (a fixed length, or an actuated one added to `joints`), if any.
+fn index_end(
+    leg: &SpatialLeg,
+    names: &mut Names,
+    claimed: &mut Claimed,
+    joints: &mut Joints,
+) -> Result<([usize; 3], [usize; 3], Option<Rod>)> {
+    let (ln, e) = (&leg.name, &leg.end);
+    let end_at = [
+        names.add(&e.at[0], format!("{ln}.ex"), MM)?,
+        names.add(&e.at[1], format!("{ln}.ey"), MM)?,
+        names.add(&e.at[2], format!("{ln}.ez"), MM)?,
+    ];
+    let platform = [
+        names.add(&e.platform[0], format!("{ln}.px"), MM)?,
+        names.add(&e.platform[1], format!("{ln}.py"), MM)?,
+        names.add(&e.platform[2], format!("{ln}.pz"), MM)?,
+    ];
+    let rod = match (e.kind, e.actuated) {
+        (EndKind::Spherical, _) => {
+            if e.actuated || e.length.is_some() || e.name.is_some() || e.stiffness.is_some() {
+                return bad(format!(
+                    "leg `{ln}`: a spherical end has no `length`, `name`, `actuated` or `stiffness` (those are for rods)"
+                ));
+            }
+            None
+        }
+        (EndKind::Rod, false) => {
+            let Some(l) = &e.length else {
+                return bad(format!(
+                    "leg `{ln}`: a rod needs `length = …` (mm), or `actuated = true` with a `name` when its length is driven"
+                ));
+            };
+            if e.name.is_some() || e.stiffness.is_some() {
+                return bad(format!(
+                    "leg `{ln}`: `name` and `stiffness` are for actuated rods; add `actuated = true` or remove them"
+                ));
+            }
+            Some(Rod::Fixed(names.add(l, format!("{ln}.length"), MM)?))
+        }
+        (EndKind::Rod, true) => {
+            if e.length.is_some() {
+                return bad(format!(
+                    "leg `{ln}`: an actuated rod's length is a joint; remove `length`"
+                ));
+            }
+            let Some(jn) = &e.name else {
+                return bad(format!(
+                    "leg `{ln}`: an actuated rod needs `name = \"…\"` for its length (the command column)"
+                ));
+            };
+            claimed.claim(jn, &format!("leg `{ln}`: rod"))?;
+            let Some(k) = e.stiffness.filter(|k| k.is_finite() && *k > 0.0) else {
+                return bad(format!(
+                    "leg `{ln}`: actuated rod `{jn}` needs a positive axial `stiffness` (N/mm)"
+                ));
+            };
+            let q = joints.push(jn, MM);
+            joints.actuate(q, k, false);
+            Some(Rod::Joint(q))
+        }
+    };
+    Ok((end_at, platform, rod))
+}
+
+/// The degrees of freedom `nq − nc` the legs leave (`nc` equations on `nq`
+/// joint and platform coordinates): at least one, at most the platform's
+/// coordinates, and no more than the actuators.
+fn degrees_of_freedom(
+    d: &SpatialDescription,
+    nc: usize,
+    nq: usize,
+    joints: &Joints,
+) -> Result<usize> {
+    if nc >= nq {
+        return bad(format!(
+            "{} legs impose {nc} equations on {nq} joint and platform coordinates: no degree of freedom is left; a leg has too few joints",
+            d.legs.len()
+        ));
+    }
+    let dof = nq - nc;
+    let coordinates = d.platform.motion.coordinates();
+    if dof > coordinates {
+        return bad(format!(
+            "the legs leave {dof} degrees of freedom, more than the platform's {coordinates} coordinates: some leg has joints that move freely; remove joints or add legs"
+        ));
+    }
+    if joints.actuated.len() < dof {
+        return bad(format!(
+            "the mechanism has {dof} degrees of freedom but only {} actuated joints",
+            joints.actuated.len()
+        ));
+    }
+    Ok(dof)
+}
+
+/// The tool axes (`[platform] tool`, all the platform coordinates if left
+/// out), one per degree of freedom, and each one's platform coordinate.
+fn tool_axes(
+    d: &SpatialDescription,
+    pose_axes: &[&str],
+    dof: usize,
+) -> Result<(Vec<String>, Vec<usize>)> {
+    let tool_axes: Vec<String> = match &d.platform.tool {
+        Some(t) => t.clone(),
+        None => pose_axes.iter().map(|s| s.to_string()).collect(),
+    };
+    let mut tool = Vec::with_capacity(tool_axes.len());
+    for a in &tool_axes {
+        match pose_axes.iter().position(|p| p == a) {
+            Some(i) if !tool.contains(&i) => tool.push(i),
+            Some(_) => return bad(format!("[platform] `tool`: `{a}` is listed twice")),
+            None => {
+                return bad(format!(
+                    "[platform] `tool`: `{a}` is not a platform coordinate ({})",
+                    pose_axes.join(" ")
+                ));
+            }
         }
     }
-    c
+    if tool.len() != dof {
+        return bad(format!(
+            "the mechanism has {dof} degrees of freedom but {} tool axes ({}); list {dof} of {} as `tool = [...]` in [platform]",
+            tool.len(),
+            tool_axes.join(", "),
+            pose_axes.join(" ")
+        ));
+    }
+    Ok((tool_axes, tool))
 }
 
-fn apply<D: Scalar>(r: &Mat<D>, v: [D; 3]) -> [D; 3] {
-    [0, 1, 2].map(|i| r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2])
-}
-
-/// Rotation by `t` about the unit axis `u` (Rodrigues).
-fn rotation_about<D: Scalar>(u: [D; 3], t: D) -> Mat<D> {
-    let (s, c) = t.sin_cos();
-    let v = D::from(1.0) - c;
-    [
-        [
-            c + u[0] * u[0] * v,
-            u[0] * u[1] * v - u[2] * s,
-            u[0] * u[2] * v + u[1] * s,
-        ],
-        [
-            u[1] * u[0] * v + u[2] * s,
-            c + u[1] * u[1] * v,
-            u[1] * u[2] * v - u[0] * s,
-        ],
-        [
-            u[2] * u[0] * v - u[1] * s,
-            u[2] * u[1] * v + u[0] * s,
-            c + u[2] * u[2] * v,
-        ],
-    ]
-}
-
-fn normalized(v: [f64; 3]) -> [f64; 3] {
-    let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    v.map(|c| c / n)
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-/// `n`, `e1 = n × z` (normalised; `x` when `n` is along `z`), `e2 = n × e1`.
-fn axis_basis(axis: [f64; 3]) -> [[f64; 3]; 3] {
-    let n = normalized(axis);
-    let c = cross(n, [0.0, 0.0, 1.0]);
-    let e1 = if c.iter().map(|v| v * v).sum::<f64>() < 1e-12 {
-        [1.0, 0.0, 0.0]
-    } else {
-        normalized(c)
+/// The characteristic lengths (mm) of the nominal geometry (`values`): a
+/// revolute joint's lever (the mean of the joint offsets, end offsets and
+/// fixed rod lengths) and the platform radius for its rotations (the mean
+/// distance of the platform points from its origin); 1 where there is none.
+fn characteristic_lengths(legs: &[LegIx], values: &[f64]) -> (f64, f64) {
+    let norm = |ix: &[usize; 3]| {
+        ix.iter()
+            .map(|&i| values[i] * values[i])
+            .sum::<f64>()
+            .sqrt()
     };
-    [n, e1, cross(n, e1)]
+    let mean = |v: Vec<f64>| {
+        let v: Vec<f64> = v.into_iter().filter(|l| *l > 1e-9).collect();
+        if v.is_empty() {
+            1.0
+        } else {
+            v.iter().sum::<f64>() / v.len() as f64
+        }
+    };
+    let length = mean(
+        legs.iter()
+            .flat_map(|l| {
+                let mut v: Vec<f64> = l.joints.iter().map(|j| norm(&j.at)).collect();
+                v.push(norm(&l.end_at));
+                if let Some(Rod::Fixed(i)) = l.rod {
+                    v.push(values[i].abs());
+                }
+                v
+            })
+            .collect(),
+    );
+    let radius = mean(legs.iter().map(|l| norm(&l.platform)).collect());
+    (length, radius)
 }
 
 impl JointIx {
@@ -447,12 +653,34 @@ impl JointIx {
         let (t1, t2) = (rho(self.tilt[0]).tan(), rho(self.tilt[1]).tan());
         let [n, e1, e2] = self.basis;
         let v = [0, 1, 2].map(|k| D::from(n[k]) + t1 * e1[k] + t2 * e2[k]);
-        let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        let len = norm(v);
         v.map(|c| c / len)
     }
 }
 
 impl LegIx {
+    /// The variables of `v = [q; ρ]` its equations depend on (its joints,
+    /// the platform coordinates from `pose0`, then its parameters after
+    /// the `nq` joints), sorted ([`LegIx::vars`]).
+    fn index_variables(&mut self, pose0: usize, nq: usize) {
+        let mut v: Vec<usize> = self.unknowns().chain(pose0..nq).collect();
+        self.n_joint_vars = v.len();
+        let mut p: Vec<usize> = self.angle.into_iter().collect();
+        for j in &self.joints {
+            p.extend(j.at);
+            p.extend(j.tilt);
+        }
+        p.extend(self.end_at);
+        p.extend(self.platform);
+        if let Some(Rod::Fixed(i)) = self.rod {
+            p.push(i);
+        }
+        p.sort_unstable();
+        p.dedup();
+        v.extend(p.into_iter().map(|i| nq + i));
+        self.vars = v;
+    }
+
     /// Number of equations.
     fn rows(&self) -> usize {
         if self.rod.is_some() { 1 } else { 3 }
@@ -489,8 +717,6 @@ struct Trilateration {
 /// height along it, or `None` when the spheres do not meet (or the centres
 /// are collinear).
 fn sphere_intersection(c: [[f64; 3]; 3], r: [f64; 3]) -> Option<([f64; 3], [f64; 3], f64)> {
-    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
     let (u, v) = (sub(c[1], c[0]), sub(c[2], c[0]));
     let d = dot(u, u).sqrt();
     if d.is_nan() || d <= 0.0 {
@@ -516,7 +742,7 @@ fn sphere_intersection(c: [[f64; 3]; 3], r: [f64; 3]) -> Option<([f64; 3], [f64;
     Some((foot, ez, h2.max(0.0).sqrt()))
 }
 
-use crate::engine::newton::MAX_LEG_ITERATIONS as LEG_NEWTON;
+use crate::engine::newton;
 
 impl SpatialMechanism {
     /// Leg `leg`'s equations and their derivatives with respect to its own
@@ -601,7 +827,8 @@ impl SpatialMechanism {
                     let [p, r, s] = [a, b, c].map(|i| spheres[i].0);
                     let u = [0, 1, 2].map(|k| r[k] - p[k]);
                     let v = [0, 1, 2].map(|k| s[k] - p[k]);
-                    let area = cross(u, v).iter().map(|x| x * x).sum::<f64>();
+                    let n = cross(u, v);
+                    let area = dot(n, n);
                     if best.is_none_or(|(m, _)| area > m) {
                         best = Some((area, [a, b, c]));
                     }
@@ -676,41 +903,44 @@ impl SpatialMechanism {
                 q[l] = d;
                 continue;
             }
-            let mut converged = false;
+            let policy = &newton::LEG;
             let mut residual = f64::INFINITY;
-            for _ in 0..LEG_NEWTON {
-                let (g, a) = self.leg_system(leg, &q, rho);
-                residual = g.amax();
-                let step = crate::linalg::solve::solve_square(a, g).ok_or_else(|| {
-                    unreachable(format!("leg `{name}` meets a singularity on the way"))
-                })?;
-                let big = step.amax();
-                if !big.is_finite() {
-                    break;
-                }
-                // Damped: at most 0.5 rad, or half the characteristic
-                // length on a prismatic joint, at once.
-                let turn = cols
-                    .clone()
-                    .zip(step.iter())
-                    .map(|(c, d)| match self.spec.joint_units[c] {
-                        Unit::Radian => d.abs(),
-                        _ => d.abs() / self.length,
-                    })
-                    .fold(0.0, f64::max);
-                let scale = crate::engine::newton::damping(turn, crate::engine::newton::MAX_TURN);
-                for (k, c) in cols.clone().enumerate() {
-                    q[c] -= scale * step[k];
-                }
-                if big < crate::engine::newton::IK_STEP_TOL {
-                    converged = true;
-                    break;
-                }
-            }
-            let scale = rho.iter().fold(1.0f64, |m, v| m.max(v.abs()));
-            if !converged
-                && (residual.is_nan()
-                    || residual >= crate::engine::newton::LEG_RESIDUAL_TOL * scale)
+            // The joints and the step (a leg's system is at most 3 × 3).
+            let mut state = (&mut q, nalgebra::DVector::zeros(0));
+            let end = newton::run(
+                policy,
+                &mut state,
+                |(q, step), _| -> Result<Option<newton::Step>> {
+                    let (g, a) = self.leg_system(leg, q, rho);
+                    residual = g.amax();
+                    *step = crate::linalg::solve::solve_square(a, g).ok_or_else(|| {
+                        unreachable(format!("leg `{name}` meets a singularity on the way"))
+                    })?;
+                    let big = step.amax();
+                    if !big.is_finite() {
+                        return Ok(None);
+                    }
+                    // At most 0.5 rad, or half the characteristic length on
+                    // a prismatic joint, at once.
+                    let turn = cols
+                        .clone()
+                        .zip(step.iter())
+                        .map(|(c, d)| match self.spec.joint_units[c] {
+                            Unit::Radian => d.abs(),
+                            _ => d.abs() / self.length,
+                        })
+                        .fold(0.0, f64::max);
+                    Ok(Some(newton::Step { size: big, turn }))
+                },
+                |(q, step), scale| {
+                    for (k, c) in cols.clone().enumerate() {
+                        q[c] -= scale * step[k];
+                    }
+                },
+            )?;
+            let scale = newton::parameter_scale(rho);
+            if !matches!(end, newton::End::Converged(_))
+                && (residual.is_nan() || residual >= policy.residual_limit(scale))
             {
                 return Err(unreachable(format!(
                     "leg `{name}` cannot reach the platform there"
@@ -725,301 +955,44 @@ impl SpatialMechanism {
         Ok(q)
     }
 
-    /// Build the mechanism: derive names and constraints, check the
-    /// description, polish the reference configuration and choose the
-    /// independent joints.
+    /// Build the mechanism from its description, in steps: index the legs
+    /// (each joint, end and parameter checked as it comes), count the
+    /// degrees of freedom and check the actuators and the tool axes against
+    /// them, assemble the [`Spec`] by the rule of every described kind
+    /// ([`crate::kinds::build::assemble`]), close the reference
+    /// configuration, and finish ([`crate::kinds::build::finish`]).
     pub fn new(d: &SpatialDescription) -> Result<Self> {
         if d.legs.is_empty() {
             return bad("a spatial mechanism needs at least one [[leg]]".into());
         }
-        let mut names = Names {
-            names: vec![],
-            values: vec![],
-            units: vec![],
-            given: &d.parameters,
-        };
+        let mut names = Names::new(&d.parameters);
         let motion = d.platform.motion;
         let pose_axes = &PLATFORM_AXES[..motion.coordinates()];
-        let mut used: Vec<String> = vec![];
-        let mut claim = |name: &str, what: &str| -> Result<()> {
-            if name.is_empty() || name.contains(char::is_whitespace) {
-                return bad(format!(
-                    "{what} `{name}`: names must be non-empty and without spaces"
-                ));
-            }
-            if used.iter().any(|u| u == name) || PLATFORM_AXES.contains(&name) {
-                return bad(format!(
-                    "{what} `{name}`: the name is already used (leg and joint names must differ from each other and from x y z rx ry rz)"
-                ));
-            }
-            used.push(name.to_string());
-            Ok(())
-        };
+        let mut claimed = Claimed::default();
+        let mut joints = Joints::default();
         let mut legs = Vec::with_capacity(d.legs.len());
-        let mut joint_names: Vec<String> = vec![];
-        let mut joint_units: Vec<Unit> = vec![];
-        let mut actuated: Vec<usize> = vec![];
-        let mut stiffness: Vec<f64> = vec![];
-        let mut revolute_actuator: Vec<bool> = vec![];
         let mut row = 0;
-        let mm = Unit::Millimetre;
         for leg in &d.legs {
-            claim(&leg.name, "leg")?;
-            let ln = &leg.name;
-            let angle = match &leg.angle {
-                Some(v) => Some(names.add(v, format!("{ln}.angle"), Unit::Radian)?),
-                None => None,
-            };
-            let expanded = expand_joints(leg)?;
-            let mut joints = Vec::with_capacity(expanded.len());
-            for j in &expanded {
-                claim(&j.name, &format!("leg `{ln}`: joint"))?;
-                let jn = &j.name;
-                let len2: f64 = j.axis.iter().map(|v| v * v).sum();
-                if !(len2.is_finite() && len2 > 1e-18) {
-                    return bad(format!(
-                        "leg `{ln}`, joint `{jn}`: `axis` must be a non-zero direction [x, y, z]"
-                    ));
-                }
-                let at = [
-                    names.add(&j.at[0], format!("{jn}.x"), mm)?,
-                    names.add(&j.at[1], format!("{jn}.y"), mm)?,
-                    names.add(&j.at[2], format!("{jn}.z"), mm)?,
-                ];
-                let zero = [Value::Number(0.0), Value::Number(0.0)];
-                let t = j.tilt.as_ref().unwrap_or(&zero);
-                let tilt = [
-                    names.add(&t[0], format!("{jn}.tilt1"), Unit::Radian)?,
-                    names.add(&t[1], format!("{jn}.tilt2"), Unit::Radian)?,
-                ];
-                let q = joint_names.len();
-                joint_names.push(jn.clone());
-                let prismatic = j.kind == SpatialJointKind::Prismatic;
-                joint_units.push(if prismatic { mm } else { Unit::Radian });
-                let unit = if j.kind == SpatialJointKind::Revolute {
-                    "N·m/rad"
-                } else {
-                    "N/mm"
-                };
-                match (j.actuated, j.stiffness) {
-                    (true, Some(k)) if k.is_finite() && k > 0.0 => {
-                        actuated.push(q);
-                        stiffness.push(k);
-                        revolute_actuator.push(j.kind == SpatialJointKind::Revolute);
-                    }
-                    (true, _) => {
-                        return bad(format!(
-                            "leg `{ln}`: actuated joint `{jn}` needs a positive `stiffness` ({unit})"
-                        ));
-                    }
-                    (false, Some(_)) => {
-                        return bad(format!(
-                            "leg `{ln}`: joint `{jn}` has a stiffness but is not actuated; only actuated joints are compliant"
-                        ));
-                    }
-                    (false, None) => {}
-                }
-                joints.push(JointIx {
-                    prismatic: j.kind == SpatialJointKind::Prismatic,
-                    q,
-                    at,
-                    tilt,
-                    basis: axis_basis(j.axis),
-                });
-            }
-            let e = &leg.end;
-            let end_at = [
-                names.add(&e.at[0], format!("{ln}.ex"), mm)?,
-                names.add(&e.at[1], format!("{ln}.ey"), mm)?,
-                names.add(&e.at[2], format!("{ln}.ez"), mm)?,
-            ];
-            let platform = [
-                names.add(&e.platform[0], format!("{ln}.px"), mm)?,
-                names.add(&e.platform[1], format!("{ln}.py"), mm)?,
-                names.add(&e.platform[2], format!("{ln}.pz"), mm)?,
-            ];
-            let rod = match (e.kind, e.actuated) {
-                (EndKind::Spherical, _) => {
-                    if e.actuated || e.length.is_some() || e.name.is_some() || e.stiffness.is_some()
-                    {
-                        return bad(format!(
-                            "leg `{ln}`: a spherical end has no `length`, `name`, `actuated` or `stiffness` (those are for rods)"
-                        ));
-                    }
-                    None
-                }
-                (EndKind::Rod, false) => {
-                    let Some(l) = &e.length else {
-                        return bad(format!(
-                            "leg `{ln}`: a rod needs `length = …` (mm), or `actuated = true` with a `name` when its length is driven"
-                        ));
-                    };
-                    if e.name.is_some() || e.stiffness.is_some() {
-                        return bad(format!(
-                            "leg `{ln}`: `name` and `stiffness` are for actuated rods; add `actuated = true` or remove them"
-                        ));
-                    }
-                    Some(Rod::Fixed(names.add(l, format!("{ln}.length"), mm)?))
-                }
-                (EndKind::Rod, true) => {
-                    if e.length.is_some() {
-                        return bad(format!(
-                            "leg `{ln}`: an actuated rod's length is a joint; remove `length`"
-                        ));
-                    }
-                    let Some(jn) = &e.name else {
-                        return bad(format!(
-                            "leg `{ln}`: an actuated rod needs `name = \"…\"` for its length (the command column)"
-                        ));
-                    };
-                    claim(jn, &format!("leg `{ln}`: rod"))?;
-                    let Some(k) = e.stiffness.filter(|k| k.is_finite() && *k > 0.0) else {
-                        return bad(format!(
-                            "leg `{ln}`: actuated rod `{jn}` needs a positive axial `stiffness` (N/mm)"
-                        ));
-                    };
-                    let q = joint_names.len();
-                    joint_names.push(jn.clone());
-                    joint_units.push(mm);
-                    actuated.push(q);
-                    stiffness.push(k);
-                    revolute_actuator.push(false);
-                    Some(Rod::Joint(q))
-                }
-            };
-            legs.push(LegIx {
-                angle,
-                joints,
-                end_at,
-                platform,
-                rod,
-                row,
-                vars: vec![],
-                n_joint_vars: 0,
-            });
-            row += if rod.is_some() { 1 } else { 3 };
+            let ix = index_leg(leg, row, &mut names, &mut claimed, &mut joints)?;
+            row += ix.rows();
+            legs.push(ix);
         }
-        for n in d.parameters.keys() {
-            if !names.names.contains(n) {
-                return bad(format!("[parameters]: `{n}` is not used by any leg"));
-            }
-        }
+        names.check_used("any leg")?;
         let nc = row;
-        let pose0 = joint_names.len();
-        joint_names.extend(pose_axes.iter().map(|s| s.to_string()));
-        joint_units.extend(
-            pose_axes
-                .iter()
-                .map(|a| if a.starts_with('r') { Unit::Radian } else { mm }),
-        );
-        let nq = joint_names.len();
+        let pose0 = joints.names.len();
+        for a in pose_axes {
+            joints.push(a, if a.starts_with('r') { Unit::Radian } else { MM });
+        }
+        let nq = joints.names.len();
         for leg in &mut legs {
-            let mut v: Vec<usize> = leg.unknowns().chain(pose0..nq).collect();
-            leg.n_joint_vars = v.len();
-            let mut p: Vec<usize> = leg.angle.into_iter().collect();
-            for j in &leg.joints {
-                p.extend(j.at);
-                p.extend(j.tilt);
-            }
-            p.extend(leg.end_at);
-            p.extend(leg.platform);
-            if let Some(Rod::Fixed(i)) = leg.rod {
-                p.push(i);
-            }
-            p.sort_unstable();
-            p.dedup();
-            v.extend(p.into_iter().map(|i| nq + i));
-            leg.vars = v;
+            leg.index_variables(pose0, nq);
         }
-        if nc >= nq {
-            return bad(format!(
-                "{} legs impose {nc} equations on {nq} joint and platform coordinates: no degree of freedom is left; a leg has too few joints",
-                d.legs.len()
-            ));
-        }
-        let dof = nq - nc;
-        if dof > motion.coordinates() {
-            return bad(format!(
-                "the legs leave {dof} degrees of freedom, more than the platform's {} coordinates: some leg has joints that move freely; remove joints or add legs",
-                motion.coordinates()
-            ));
-        }
-        if actuated.len() < dof {
-            return bad(format!(
-                "the mechanism has {dof} degrees of freedom but only {} actuated joints",
-                actuated.len()
-            ));
-        }
-        if revolute_actuator.iter().any(|r| *r != revolute_actuator[0]) {
-            return bad(
-                "mixing revolute and prismatic actuators is not supported (their stiffness units differ)"
-                    .into(),
-            );
-        }
-        let tool_axes: Vec<String> = match &d.platform.tool {
-            Some(t) => t.clone(),
-            None => pose_axes.iter().map(|s| s.to_string()).collect(),
-        };
-        let mut tool = Vec::with_capacity(tool_axes.len());
-        for a in &tool_axes {
-            match pose_axes.iter().position(|p| p == a) {
-                Some(i) if !tool.contains(&i) => tool.push(i),
-                Some(_) => return bad(format!("[platform] `tool`: `{a}` is listed twice")),
-                None => {
-                    return bad(format!(
-                        "[platform] `tool`: `{a}` is not a platform coordinate ({})",
-                        pose_axes.join(" ")
-                    ));
-                }
-            }
-        }
-        if tool.len() != dof {
-            return bad(format!(
-                "the mechanism has {dof} degrees of freedom but {} tool axes ({}); list {dof} of {} as `tool = [...]` in [platform]",
-                tool.len(),
-                tool_axes.join(", "),
-                pose_axes.join(" ")
-            ));
-        }
-        let workspace_box =
-            crate::kinds::description::box_from_description(&tool_axes, &d.workspace)?;
-        let ActuatorNames {
-            offsets,
-            stiffness: stiffness_names,
-            nominal,
-            free,
-        } = actuator_names(&names, &joint_names, &actuated, &stiffness, &d.free);
-        let geometric = names.names.clone();
-        // Characteristic lengths: a joint's lever for revolute joints, the
-        // platform radius for its rotations.
-        let norm = |ix: &[usize; 3]| {
-            ix.iter()
-                .map(|&i| names.values[i] * names.values[i])
-                .sum::<f64>()
-                .sqrt()
-        };
-        let mean = |v: Vec<f64>| {
-            let v: Vec<f64> = v.into_iter().filter(|l| *l > 1e-9).collect();
-            if v.is_empty() {
-                1.0
-            } else {
-                v.iter().sum::<f64>() / v.len() as f64
-            }
-        };
-        let length = mean(
-            legs.iter()
-                .flat_map(|l| {
-                    let mut v: Vec<f64> = l.joints.iter().map(|j| norm(&j.at)).collect();
-                    v.push(norm(&l.end_at));
-                    if let Some(Rod::Fixed(i)) = l.rod {
-                        v.push(names.values[i].abs());
-                    }
-                    v
-                })
-                .collect(),
-        );
-        let radius = mean(legs.iter().map(|l| norm(&l.platform)).collect());
-        let joint_scale: Vec<f64> = joint_units
+        let dof = degrees_of_freedom(d, nc, nq, &joints)?;
+        let work_scale = joints.work_scale()?;
+        let (tool_axes, tool) = tool_axes(d, pose_axes, dof)?;
+        let (length, radius) = characteristic_lengths(&legs, &names.values);
+        let joint_scale: Vec<f64> = joints
+            .units
             .iter()
             .enumerate()
             .map(|(i, u)| match (u, i >= pose0) {
@@ -1028,48 +1001,33 @@ impl SpatialMechanism {
                 _ => 1.0,
             })
             .collect();
-        let axis_scale: Vec<f64> = tool
-            .iter()
-            .map(|&k| if k >= 3 { radius } else { 1.0 })
-            .collect();
-        let tool_layout = match (motion, tool.len()) {
-            (Motion::Translation, 3) => {
-                crate::mechanism::tool::ToolLayout::Points { dim: 3, count: 1 }
-            }
-            (Motion::Full, 6) => crate::mechanism::tool::ToolLayout::SpatialPose,
-            _ => crate::mechanism::tool::ToolLayout::Readings,
-        };
-        let mut mech = SpatialMechanism {
-            spec: Spec {
-                name: d.name.clone().unwrap_or_else(|| "spatial mechanism".into()),
-                joints: joint_names.clone(),
-                actuated: actuated.clone(),
-                independent: actuated[..dof].to_vec(),
-                n_constraints: nc,
-                geometric,
-                offsets,
-                stiffness: stiffness_names,
-                joint_units,
-                geometric_units: names.units.clone(),
-                tool_units: tool
-                    .iter()
-                    .map(|&k| if k >= 3 { Unit::Radian } else { mm })
-                    .collect(),
-                tool_layout,
-                tool_axes,
-                nominal,
-                reference_q: vec![0.0; nq],
-                default_free: free,
-                workspace_box,
-                work_scale: if revolute_actuator[0] {
-                    crate::units::MM_TO_M
-                } else {
-                    1.0
-                },
-                joint_scale,
-                axis_scale,
-                min_conditioning: 0.0,
+        let spec = assemble(Parts {
+            name: d.name.clone().unwrap_or_else(|| "spatial mechanism".into()),
+            parameters: names,
+            joints,
+            n_constraints: nc,
+            tool_axes,
+            tool_units: tool
+                .iter()
+                .map(|&k| if k >= 3 { Unit::Radian } else { MM })
+                .collect(),
+            tool_layout: match (motion, tool.len()) {
+                (Motion::Translation, 3) => ToolLayout::Points { dim: 3, count: 1 },
+                (Motion::Full, 6) => ToolLayout::SpatialPose,
+                _ => ToolLayout::Readings,
             },
+            workspace: &d.workspace,
+            free: &d.free,
+            work_scale,
+            joint_scale,
+            axis_scale: tool
+                .iter()
+                .map(|&k| if k >= 3 { radius } else { 1.0 })
+                .collect(),
+            renamed: &d.renamed,
+        })?;
+        let mut mech = SpatialMechanism {
+            spec,
             legs,
             leg_names: d.legs.iter().map(|l| l.name.clone()).collect(),
             motion,
@@ -1081,53 +1039,65 @@ impl SpatialMechanism {
             branch: [0, 0],
             leg_signs: vec![],
         };
-        // Reference configuration: the chain joints from [assembly], the
-        // actuated rods' lengths computed, the platform from `pose`.
+        mech.close_reference(d)?;
+        finish(
+            mech,
+            Some(&|spec: &Spec| {
+                format!(
+                    "the reference configuration is singular: the actuators {} do not determine the platform there; move [assembly] `pose` away from the singularity or choose `independent`",
+                    spec.independent
+                        .iter()
+                        .map(|&i| spec.joints[i].as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                )
+            }),
+        )
+    }
+
+    /// The reference configuration: the chain joints from the
+    /// description's `[assembly]`, the platform from its `pose`, the
+    /// actuated rods' lengths computed; Newton on the loop closure with the
+    /// tool axes held, then the independent joints chosen there (or named).
+    fn close_reference(&mut self, d: &SpatialDescription) -> Result<()> {
+        let motion = self.motion;
         if d.assembly.pose.len() != motion.coordinates()
             || d.assembly.pose.iter().any(|v| !v.is_finite())
         {
             return bad(format!(
                 "[assembly]: `pose` must be {} finite numbers [{}] (mm, rad)",
                 motion.coordinates(),
-                pose_axes.join(", ")
+                PLATFORM_AXES[..motion.coordinates()].join(", ")
             ));
         }
-        let chain: Vec<usize> = mech
+        let chain: Vec<usize> = self
             .legs
             .iter()
             .flat_map(|l| l.joints.iter().map(|j| j.q))
             .collect();
         for k in d.assembly.joints.keys() {
-            let known = chain.iter().any(|&i| mech.spec.joints[i] == *k);
+            let known = chain.iter().any(|&i| self.spec.joints[i] == *k);
             if !known {
                 return bad(format!(
                     "[assembly]: `{k}` is not a joint of a leg's chain (chain joints: {}; actuated rods' lengths are computed)",
                     chain
                         .iter()
-                        .map(|&i| mech.spec.joints[i].as_str())
+                        .map(|&i| self.spec.joints[i].as_str())
                         .collect::<Vec<_>>()
                         .join(", ")
                 ));
             }
         }
-        let mut q0 = vec![0.0; nq];
+        let mut q0 = vec![0.0; self.spec.joints.len()];
         for &i in &chain {
-            let name = &mech.spec.joints[i];
-            q0[i] = *d.assembly.joints.get(name).ok_or_else(|| {
-                Error::InvalidMechanism(format!(
-                    "[assembly] needs an approximate value of joint `{name}` ({}) on the wanted assembly branch",
-                    mech.spec.joint_units[i]
-                ))
-            })?;
-            if !q0[i].is_finite() {
-                return bad(format!("[assembly]: `{name}` must be finite"));
-            }
+            let unit = self.spec.joint_units[i].to_string();
+            q0[i] = assembly_value(&d.assembly.joints, &self.spec.joints[i], &unit)?;
         }
-        q0[pose0..].copy_from_slice(&d.assembly.pose);
-        let rho = mech.spec.nominal[..mech.spec.geometric.len()].to_vec();
-        for (leg, name) in mech.legs.iter().zip(&mech.leg_names) {
+        q0[self.pose0..].copy_from_slice(&d.assembly.pose);
+        let rho = self.spec.nominal[..self.spec.geometric.len()].to_vec();
+        for (leg, name) in self.legs.iter().zip(&self.leg_names) {
             if let Some(Rod::Joint(i)) = leg.rod {
-                let (e, w) = mech.leg_points(leg, &q0, &rho);
+                let (e, w) = self.leg_points(leg, &q0, &rho);
                 let dist = (0..3).map(|k| (w[k] - e[k]).powi(2)).sum::<f64>().sqrt();
                 if dist < 1e-9 {
                     return bad(format!(
@@ -1137,51 +1107,22 @@ impl SpatialMechanism {
                 q0[i] = dist;
             }
         }
-        mech.spec.reference_q = q0.clone();
-        mech.spec.validate()?;
-        let fixed: Vec<usize> = mech.tool.iter().map(|&k| pose0 + k).collect();
-        crate::engine::kinematics::solve_closure(&mech, &rho, &mut q0, &fixed).map_err(|e| {
+        self.spec.reference_q = q0.clone();
+        self.spec.validate()?;
+        let fixed: Vec<usize> = self.tool.iter().map(|&k| self.pose0 + k).collect();
+        crate::engine::kinematics::solve_closure(self, &rho, &mut q0, &fixed).map_err(|e| {
             Error::InvalidMechanism(format!(
                 "the [assembly] configuration does not close ({e}); check the lengths, the pose and the joint values (a leg that cannot reach the platform there, or guesses far from the wanted assembly)"
             ))
         })?;
-        mech.spec.independent = crate::engine::kinematics::independent_joints(
-            &mech,
+        self.spec.independent = crate::engine::kinematics::independent_joints(
+            self,
             d.independent.as_deref(),
             &q0,
             &rho,
         )?;
-        mech.spec.reference_q = q0.clone();
-        mech.spec.validate()?;
-        let j = crate::mechanism::autodiff::jacobians(&mech, &q0, &rho, 0..nq);
-        let dep: Vec<usize> = (0..nq)
-            .filter(|i| !mech.spec.independent.contains(i))
-            .collect();
-        if crate::linalg::solve::checked_lu(j.dg.select_columns(&dep)).is_none() {
-            return bad(format!(
-                "the reference configuration is singular: the actuators {} do not determine the platform there; move [assembly] `pose` away from the singularity or choose `independent`",
-                mech.spec
-                    .independent
-                    .iter()
-                    .map(|&i| mech.spec.joints[i].as_str())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ));
-        }
-        mech.branch = crate::engine::kinematics::branch_signs(&mech, &q0, &rho);
-        if mech.legs.iter().all(|l| l.unknowns().len() == l.rows()) {
-            mech.leg_signs = (0..mech.legs.len())
-                .map(|i| mech.leg_sign(i, &q0, &rho))
-                .collect();
-        }
-        mech.trilateration = mech.trilateration_at(&q0, &rho);
-        if mech.trilateration.is_none() {
-            // The atlas covers every reachable pose (min_conditioning still 0).
-            mech.atlas = crate::engine::atlas::Atlas::build(&mech, ATLAS_POINTS);
-        }
-        mech.spec.min_conditioning = crate::engine::atlas::RELATIVE_CONDITIONING
-            * crate::engine::atlas::conditioning(&mech, &q0, &rho);
-        Ok(mech)
+        self.spec.reference_q = q0;
+        Ok(())
     }
 
     /// Names of the legs, in order.
@@ -1335,8 +1276,8 @@ impl SpatialMechanism {
         /// local axis.
         #[derive(Clone, Copy)]
         struct Step {
-            before: Mat<f64>,
-            after: Mat<f64>,
+            before: Mat3<f64>,
+            after: Mat3<f64>,
             w: [f64; 3],
             o: [f64; 3],
             u: [f64; 3],
@@ -1378,7 +1319,6 @@ impl SpatialMechanism {
         let np = self.motion.coordinates();
         let PlatformFrame { pose, rot, omega } = *frame;
         let unit = |c: usize| std::array::from_fn::<f64, 3, _>(|k| if k == c { 1.0 } else { 0.0 });
-        let column = |m: &Mat<f64>, c: usize| [m[0][c], m[1][c], m[2][c]];
         // R b, and ∂w/∂(platform coordinate k).
         let rb = apply(&rot, b);
         let dw: [[f64; 3]; 6] = [
@@ -1395,8 +1335,8 @@ impl SpatialMechanism {
         let (u, length) = match leg.rod {
             None => ([0.0; 3], 0.0),
             Some(rod) => {
-                let diff = [w[0] - e[0], w[1] - e[1], w[2] - e[2]];
-                let len = (diff[0] * diff[0] + diff[1] * diff[1] + diff[2] * diff[2]).sqrt();
+                let diff = sub(w, e);
+                let len = norm(diff);
                 let l = match rod {
                     Rod::Fixed(i) => rho[i],
                     Rod::Joint(i) => q[i],
@@ -1429,7 +1369,7 @@ impl SpatialMechanism {
             }
         };
         let none = [0.0; 3];
-        let rel = |o: [f64; 3]| [e[0] - o[0], e[1] - o[1], e[2] - o[2]];
+        let rel = |o: [f64; 3]| sub(e, o);
         // Only joint columns asked (forward kinematics, branch checks): the
         // parameters' blocks (tilts and all) are skipped.
         let params_wanted = cols.end > nq;
@@ -1455,26 +1395,24 @@ impl SpatialMechanism {
                 let (t1, t2) = (rho[j.tilt[0]].tan(), rho[j.tilt[1]].tan());
                 [0, 1, 2].map(|c| n[c] + t1 * e1[c] + t2 * e2[c])
             };
-            let vlen = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            let vlen = norm(v);
             let s_local = if j.prismatic {
                 [0.0; 3]
             } else {
                 // The rest of the chain in the joint's frame (after it).
-                let d = rel(st.o);
-                let a = st.after;
-                [0, 1, 2].map(|c| a[0][c] * d[0] + a[1][c] * d[1] + a[2][c] * d[2])
+                apply_transposed(&st.after, rel(st.o))
             };
             let (sq, cq) = q[j.q].sin_cos();
             for (t, basis) in [(j.tilt[0], j.basis[1]), (j.tilt[1], j.basis[2])] {
                 let sec2 = 1.0 + rho[t].tan().powi(2);
                 let dv = basis.map(|c| c * sec2);
-                let along = st.u[0] * dv[0] + st.u[1] * dv[1] + st.u[2] * dv[2];
+                let along = dot(st.u, dv);
                 let du = [0, 1, 2].map(|c| (dv[c] - st.u[c] * along) / vlen);
                 let de = if j.prismatic {
                     apply(&st.before, du).map(|c| c * q[j.q])
                 } else {
-                    let us = st.u[0] * s_local[0] + st.u[1] * s_local[1] + st.u[2] * s_local[2];
-                    let dus = du[0] * s_local[0] + du[1] * s_local[1] + du[2] * s_local[2];
+                    let us = dot(st.u, s_local);
+                    let dus = dot(du, s_local);
                     let x = cross(du, s_local);
                     let local =
                         [0, 1, 2].map(|c| x[c] * sq + (du[c] * us + st.u[c] * dus) * (1.0 - cq));
@@ -1512,7 +1450,7 @@ impl SpatialMechanism {
 #[derive(Clone, Copy)]
 struct PlatformFrame {
     pose: [f64; 6],
-    rot: Mat<f64>,
+    rot: Mat3<f64>,
     omega: [[f64; 3]; 3],
 }
 
@@ -1527,15 +1465,11 @@ impl SpatialMechanism {
                 rot: identity(),
                 omega: [[0.0; 3]; 3],
             },
-            Motion::Full => {
-                let (sc, cc) = pose[5].sin_cos();
-                let (sb, cb) = pose[4].sin_cos();
-                PlatformFrame {
-                    pose,
-                    rot: crate::linalg::pose::rotation(pose[3], pose[4], pose[5]),
-                    omega: [[cc * cb, sc * cb, -sb], [-sc, cc, 0.0], [0.0, 0.0, 1.0]],
-                }
-            }
+            Motion::Full => PlatformFrame {
+                pose,
+                rot: crate::linalg::pose::rotation(pose[3], pose[4], pose[5]),
+                omega: crate::linalg::pose::euler_axes(pose[4], pose[5]),
+            },
         }
     }
 }
@@ -1588,6 +1522,34 @@ impl SpatialMechanism {
                     }
                 }
             }
+        }
+    }
+}
+
+impl Built for SpatialMechanism {
+    const ATLAS_POINTS: usize = 800;
+    fn spec_mut(&mut self) -> &mut Spec {
+        &mut self.spec
+    }
+    /// The branch signs, each leg's working mode when every leg has as
+    /// many joints as equations, and the closed-form start of forward
+    /// kinematics when the mechanism has one.
+    fn keep_reference(&mut self, signs: [i8; 2]) {
+        self.branch = signs;
+        let q0 = self.spec.reference_q.clone();
+        let rho = self.spec.nominal[..self.spec.n_geometric()].to_vec();
+        if self.legs.iter().all(|l| l.unknowns().len() == l.rows()) {
+            self.leg_signs = (0..self.legs.len())
+                .map(|i| self.leg_sign(i, &q0, &rho))
+                .collect();
+        }
+        self.trilateration = self.trilateration_at(&q0, &rho);
+    }
+    /// None with a closed-form start.
+    fn atlas_mut(&mut self) -> Option<&mut crate::engine::atlas::Atlas> {
+        match self.trilateration {
+            None => Some(&mut self.atlas),
+            Some(_) => None,
         }
     }
 }
@@ -1843,7 +1805,6 @@ mod tests {
         assert!(s.iter().all(|j| j.kind == SpatialJointKind::Revolute));
         assert_eq!(s[0].at[2], Value::Number(3.0));
         assert_eq!(s[1].at, origin());
-        let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
         for (a, b) in [(0, 1), (0, 2), (1, 2)] {
             assert!(dot(s[a].axis, s[b].axis).abs() < 1e-15);
         }

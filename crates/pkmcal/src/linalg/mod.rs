@@ -1,12 +1,14 @@
 //! Linear algebra and the numbers the rest is written in: the scalar type
 //! (`f64` or a dual number), LU factorisations and checked square solves,
-//! the equilibrium's KKT solve, and the pose convention (rotations).
+//! the equilibrium's KKT solve, the pose convention (rotations), and
+//! small vectors and 3×3 matrices as arrays.
 
 use num_dual::DualNum;
 
 pub(crate) mod kkt;
 pub mod lu;
 pub mod pose;
+pub mod small;
 pub(crate) mod solve;
 
 /// The scalar type mechanism functions are written for: `f64` or a dual number.

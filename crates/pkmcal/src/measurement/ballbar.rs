@@ -11,7 +11,7 @@
 //!   `d` are its parameters (named `s1x s1y … dbar`), fixed by default and
 //!   identifiable on request.
 
-use crate::engine::newton::{LSTSQ_RCOND, MAX_TRILATERATION_ITERATIONS, TRILATERATION_TOL};
+use crate::engine::newton::{self, LSTSQ_RCOND};
 use crate::error::{Error, Result};
 use nalgebra::{DMatrix, DVector};
 
@@ -106,7 +106,7 @@ pub fn trilaterate(
     // Start: linearised solution (differences of squared distances), which
     // needs no guess; the caller's guess if given.
     let r: Vec<f64> = readings.iter().map(|d| d - setup.bar_offset).collect();
-    let mut x: DVector<f64> = match guess {
+    let x: DVector<f64> = match guess {
         Some(g) => DVector::from_column_slice(g),
         None => {
             let s0 = &setup.sockets[0];
@@ -120,31 +120,45 @@ pub fn trilaterate(
         }
     };
     let mut jac = DMatrix::zeros(k, dim);
-    for _ in 0..MAX_TRILATERATION_ITERATIONS {
-        let mut res = DVector::zeros(k);
-        for (j, s) in setup.sockets.iter().enumerate() {
-            let d = DVector::from_fn(dim, |i, _| x[i] - s[i]);
-            let n = d.norm();
-            if n == 0.0 {
-                return Err(Error::Singular {
-                    q: x.iter().copied().collect(),
-                    reason: format!("the ball sits on socket {}", j + 1),
-                });
+    // The position and the step; iterations that run out keep the last
+    // position (the covariance below judges it).
+    let mut state = (x, DVector::zeros(dim));
+    newton::run(
+        &newton::TRILATERATION,
+        &mut state,
+        |(x, step), _| -> Result<Option<newton::Step>> {
+            let mut res = DVector::zeros(k);
+            for (j, s) in setup.sockets.iter().enumerate() {
+                let d = DVector::from_fn(dim, |i, _| x[i] - s[i]);
+                let n = d.norm();
+                if n == 0.0 {
+                    return Err(Error::Singular {
+                        q: x.iter().copied().collect(),
+                        reason: format!("the ball sits on socket {}", j + 1),
+                    });
+                }
+                res[j] = n - r[j];
+                jac.row_mut(j).copy_from(&(d / n).transpose());
             }
-            res[j] = n - r[j];
-            jac.row_mut(j).copy_from(&(d / n).transpose());
-        }
-        if !(res.iter().all(|v| v.is_finite()) && jac.iter().all(|v| v.is_finite())) {
-            return Err(Error::InvalidRequest(format!(
-                "trilateration of {readings:?} diverged; check the readings and the socket positions"
-            )));
-        }
-        let step = lstsq(jac.clone(), &res)?;
-        x -= &step;
-        if step.amax() < TRILATERATION_TOL {
-            break;
-        }
-    }
+            if !(res.iter().all(|v| v.is_finite()) && jac.iter().all(|v| v.is_finite())) {
+                return Err(Error::InvalidRequest(format!(
+                    "trilateration of {readings:?} diverged; check the readings and the socket positions"
+                )));
+            }
+            *step = lstsq(jac.clone(), &res)?;
+            // Undamped (no turn), a Gauss–Newton step in mm.
+            Ok(Some(newton::Step {
+                size: step.amax(),
+                turn: 0.0,
+            }))
+        },
+        |(x, step), scale| {
+            for (x, s) in x.iter_mut().zip(step.iter()) {
+                *x -= scale * s;
+            }
+        },
+    )?;
+    let x = state.0;
     let jtj = jac.transpose() * &jac;
     let cov = jtj.try_inverse().ok_or_else(|| Error::Singular {
         q: x.iter().copied().collect(),

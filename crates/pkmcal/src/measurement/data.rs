@@ -90,7 +90,34 @@ impl Noise {
             _ => self.length,
         }
     }
+
+    /// A noise that can weigh readings: each σ finite, at least
+    /// [`MIN_NOISE`] and at most its unit's largest magnitude. `field` names
+    /// it in the error (`noise`, `stated noise`): a σ of 0 would give
+    /// readings an infinite weight.
+    pub fn check(&self, field: &str) -> crate::error::Result<()> {
+        for (v, unit, part) in [
+            (self.length, Unit::Millimetre, "length"),
+            (self.angle, Unit::Radian, "angle"),
+        ] {
+            if !(v.is_finite() && (MIN_NOISE..=unit.max_magnitude()).contains(&v)) {
+                return Err(crate::error::Error::OutOfRange {
+                    field: format!("{field}.{part}"),
+                    value: v,
+                    expected: format!(
+                        "a standard deviation, a positive number of {unit} between {MIN_NOISE:e} and {:e}",
+                        unit.max_magnitude()
+                    ),
+                });
+            }
+        }
+        Ok(())
+    }
 }
+
+/// Smallest standard deviation a reading may be weighed with (mm or rad):
+/// no instrument is better, and smaller ones only overflow the weights.
+pub const MIN_NOISE: f64 = 1e-12;
 
 impl From<f64> for Noise {
     /// [`Noise::lengths`].

@@ -22,6 +22,7 @@
 
 use crate::error::{Error, Result};
 use crate::linalg::pose::{euler, rotation};
+use crate::linalg::small::apply_transposed;
 use crate::mechanism::Scalar;
 use crate::mechanism::tool::ToolLayout;
 use nalgebra::{DMatrix, Matrix3, Vector3};
@@ -49,9 +50,7 @@ pub fn observe<D: Scalar>(layout: ToolLayout, x: &[D], frame: &[D], y: &mut [D])
             let (starts, _) = layout.points(x.len());
             for k in starts {
                 let d = [x[k] - frame[0], x[k + 1] - frame[1], x[k + 2] - frame[2]];
-                for i in 0..3 {
-                    y[k + i] = r[0][i] * d[0] + r[1][i] * d[1] + r[2][i] * d[2];
-                }
+                y[k..k + 3].copy_from_slice(&apply_transposed(&r, d));
             }
             if layout == ToolLayout::SpatialPose {
                 let p = rotation(x[3], x[4], x[5]);

@@ -77,6 +77,31 @@ pub struct Spec {
     /// the reference mechanism; for a described mechanism, a fraction
     /// ([`crate::engine::atlas::RELATIVE_CONDITIONING`]) of its reference pose's.
     pub min_conditioning: f64,
+    /// Parameters that had another name before: each old name is still
+    /// accepted wherever a parameter is named ([`Spec::parameter_index`]),
+    /// so that files and calibration records written under it keep
+    /// working, and the front ends say so ([`Spec::renamed_among`]).
+    pub renamed: Vec<Renamed>,
+}
+
+/// A parameter named as it was before: `old` is still accepted, and means
+/// `new`. Plain data for a front end to word as a note.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct Renamed {
+    /// The name it had.
+    pub old: String,
+    /// Its name now.
+    pub new: String,
+}
+
+impl Renamed {
+    /// `old` → `new`.
+    pub fn new(old: impl Into<String>, new: impl Into<String>) -> Self {
+        Renamed {
+            old: old.into(),
+            new: new.into(),
+        }
+    }
 }
 
 impl Spec {
@@ -105,11 +130,61 @@ impl Spec {
             .map(String::as_str)
             .collect()
     }
-    /// Index of a parameter by name.
-    pub fn param_index(&self, name: &str) -> Result<usize> {
+    /// Index of a parameter (in [`Spec::param_names`] order) by its name,
+    /// or by a name it had ([`Spec::renamed`]), then with the renaming: the
+    /// one lookup of parameter names, which every reader goes through.
+    pub fn parameter_index(&self, name: &str) -> Option<(usize, Option<&Renamed>)> {
+        let current = |n: &str| {
+            self.geometric
+                .iter()
+                .chain(&self.offsets)
+                .chain(&self.stiffness)
+                .position(|c| c == n)
+        };
+        if let Some(i) = current(name) {
+            return Some((i, None));
+        }
+        let r = self.renamed.iter().find(|r| r.old == name)?;
+        current(&r.new).map(|i| (i, Some(r)))
+    }
+    /// The name a parameter has now: `name` itself, or what an old name
+    /// became.
+    pub fn canonical<'a>(&'a self, name: &'a str) -> &'a str {
+        match self.parameter_index(name) {
+            Some((_, Some(r))) => &r.new,
+            _ => name,
+        }
+    }
+    /// The renamings among `names` (old names a user gave, each once, in
+    /// the order given): the notes a front end words ("`k1` is now `kL1`").
+    pub fn renamed_among<'a>(&self, names: impl IntoIterator<Item = &'a str>) -> Vec<Renamed> {
+        let mut out: Vec<Renamed> = vec![];
+        for n in names {
+            if let Some((_, Some(r))) = self.parameter_index(n.trim())
+                && !out.contains(r)
+            {
+                out.push(r.clone());
+            }
+        }
+        out
+    }
+    /// All parameter names in vector order as they were before every
+    /// renaming (the identity of records saved under them).
+    pub fn param_names_before(&self) -> Vec<&str> {
         self.param_names()
-            .iter()
-            .position(|n| *n == name)
+            .into_iter()
+            .map(|n| {
+                self.renamed
+                    .iter()
+                    .find(|r| r.new == n)
+                    .map_or(n, |r| r.old.as_str())
+            })
+            .collect()
+    }
+    /// Index of a parameter by name (or an old name, [`Spec::parameter_index`]).
+    pub fn param_index(&self, name: &str) -> Result<usize> {
+        self.parameter_index(name)
+            .map(|(i, _)| i)
             .ok_or_else(|| Error::UnknownParameter {
                 name: name.to_string(),
                 known: self.param_names().join(" "),
@@ -289,6 +364,23 @@ impl Spec {
         for name in &self.default_free {
             self.param_index(name)?;
         }
+        for (k, r) in self.renamed.iter().enumerate() {
+            if names.binary_search(&r.old.as_str()).is_ok() {
+                return bad(format!(
+                    "`{}` is a parameter, so it cannot also be the old name of `{}`",
+                    r.old, r.new
+                ));
+            }
+            if names.binary_search(&r.new.as_str()).is_err() {
+                return bad(format!(
+                    "`{}` is renamed `{}`, which is not a parameter",
+                    r.old, r.new
+                ));
+            }
+            if self.renamed[..k].iter().any(|o| o.old == r.old) {
+                return bad(format!("the old name `{}` is given twice", r.old));
+            }
+        }
         Ok(())
     }
 }
@@ -467,18 +559,37 @@ impl Params {
             n_actuated: spec.n_actuated(),
         }
     }
-    /// Nominal values with some set by name (names not given stay nominal).
+    /// Nominal values with some set by name (names not given stay nominal;
+    /// old names are accepted, [`Spec::parameter_index`]).
     pub fn from_named<'a>(
         spec: &Spec,
         named: impl IntoIterator<Item = (&'a str, f64)>,
     ) -> Result<Self> {
+        Self::from_named_noting(spec, named).map(|(p, _)| p)
+    }
+    /// [`Params::from_named`], with the old names it read (the notes a
+    /// front end words: a parameter file written before a renaming).
+    pub fn from_named_noting<'a>(
+        spec: &Spec,
+        named: impl IntoIterator<Item = (&'a str, f64)>,
+    ) -> Result<(Self, Vec<Renamed>)> {
         let mut p = Self::nominal(spec);
+        let mut notes: Vec<Renamed> = vec![];
         for (name, value) in named {
-            let i = spec.param_index(name)?;
+            let i = match spec.parameter_index(name) {
+                Some((i, Some(r))) => {
+                    if !notes.contains(r) {
+                        notes.push(r.clone());
+                    }
+                    i
+                }
+                Some((i, None)) => i,
+                None => spec.param_index(name)?,
+            };
             p.values[i] = value;
         }
         p.validate(spec)?;
-        Ok(p)
+        Ok((p, notes))
     }
     /// Geometric parameters ρ.
     pub fn geometric(&self) -> &[f64] {

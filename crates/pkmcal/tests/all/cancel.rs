@@ -203,14 +203,25 @@ fn every_long_loop_stops_once_cancelled() {
     );
     opts.cancel = Some(Arc::new(set()));
     cancelled(analyze_cancellable(&m, &tool, &data, &truth, &opts));
-    // The change at the tool between two calibrations.
+    // The change at the tool between two calibrations: the nominal values against one identifying a parameter (two sets of
+    // nominal values identify nothing to compare).
     let nominal = Compared::nominal(spec);
-    cancelled(pkmcal::apply::tooldrift::workspace_drift_cancellable(
-        &m,
-        &nominal,
-        &nominal,
-        &targets,
-        0.05,
-        Some(&set()),
-    ));
+    let first = spec.param_names()[free[0]].to_string();
+    let identified = Compared {
+        names: vec![first],
+        covariance: vec![vec![1e-4]],
+        ..nominal.clone()
+    };
+    let drift = |cancel: Option<&AtomicBool>| {
+        pkmcal::apply::tooldrift::workspace_drift_cancellable(
+            &m,
+            &nominal,
+            &identified,
+            &targets,
+            0.05,
+            cancel,
+        )
+    };
+    assert!(drift(None).is_ok());
+    cancelled(drift(Some(&set())));
 }

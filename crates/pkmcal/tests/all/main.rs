@@ -4,12 +4,15 @@
 
 mod common;
 
+mod adequacy;
 mod architecture;
 mod budget;
 mod calibration;
 mod cancel;
+mod coverage;
 mod drift;
 mod engine;
+mod extreme_weights;
 mod frame;
 mod fuzz;
 mod lattice;
@@ -20,6 +23,7 @@ mod noise;
 mod planar;
 mod priors;
 mod record;
+mod renamed;
 mod round_trip;
 mod spatial;
 mod use_calibration;

@@ -281,7 +281,7 @@ fn stiffness_ratios_are_identified_where_the_actuators_fight() {
     let spec = m.spec();
     let mut truth = perturbed(spec, 3, 0.2, 0.1);
     // Another stiffness ratio than nominal.
-    let k3 = spec.param_index("k3").unwrap();
+    let k3 = spec.param_index("kL3").unwrap();
     truth.values[k3] *= 1.5;
     let data = simulate(
         &m,
@@ -308,16 +308,16 @@ fn stiffness_ratios_are_identified_where_the_actuators_fight() {
         .filter(|p| p.kind == ParamKind::Stiffness && !p.free)
         .map(|p| p.name.as_str())
         .collect();
-    assert_eq!(fixed, ["k1"], "exactly one stiffness is fixed");
+    assert_eq!(fixed, ["kL1"], "exactly one stiffness is fixed");
     assert!(cal.warnings.iter().any(|w| matches!(
         &w.kind,
-        WarningKind::StiffnessRatios { fixed } if fixed == "k1"
+        WarningKind::StiffnessRatios { fixed } if fixed == "kL1"
     )));
-    // k1 is nominal in the truth too, so the ratios give the values.
+    // kL1 is nominal in the truth too, so the ratios give the values.
     let found = cal.params.values[k3];
     assert!(
         (found / truth.values[k3] - 1.0).abs() < 1e-3,
-        "k3 {found} vs {}",
+        "kL3 {found} vs {}",
         truth.values[k3]
     );
 }
@@ -329,7 +329,7 @@ fn every_parameter_carries_its_declared_unit() {
     let unit = |n: &str| spec.param_unit(spec.param_index(n).unwrap());
     assert_eq!(unit("a1x"), Unit::Millimetre);
     assert_eq!(unit("dL1"), Unit::Millimetre);
-    assert_eq!(unit("k1"), Unit::NewtonPerMillimetre);
+    assert_eq!(unit("kL1"), Unit::NewtonPerMillimetre);
     assert_eq!(
         spec.param_kind(spec.param_index("dL1").unwrap()),
         ParamKind::Offset

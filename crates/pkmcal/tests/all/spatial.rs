@@ -161,12 +161,7 @@ fn gough_stewart_as_spatial_predicts_like_the_builtin() {
         let truth = perturbed_by_unit(bs, seed, 0.5, 0.0);
         let mut truth_s = Params::nominal(ss);
         for (i, name) in bs.param_names().iter().enumerate() {
-            // Stiffness: `k1` built in, `kL1` (from the joint `L1`) here.
-            let name = match name.strip_prefix('k') {
-                Some(n) => format!("kL{n}"),
-                None => name.to_string(),
-            };
-            truth_s.set(ss, &name, truth.values[i]).unwrap();
+            truth_s.set(ss, name, truth.values[i]).unwrap();
         }
         for t in &targets {
             let qb = pkmcal::inverse_kinematics(&builtin, truth.geometric(), t).unwrap();
@@ -736,11 +731,7 @@ fn universal_joints_make_a_ups_hexapod_like_the_builtin() {
     let truth = perturbed_by_unit(bs, 4, 0.5, 0.0);
     let mut truth_u = Params::nominal(us);
     for (i, name) in bs.param_names().iter().enumerate() {
-        let name = match name.strip_prefix('k') {
-            Some(n) => format!("kL{n}"),
-            None => name.to_string(),
-        };
-        truth_u.set(us, &name, truth.values[i]).unwrap();
+        truth_u.set(us, name, truth.values[i]).unwrap();
     }
     for t in common::spread(&builtin, 12) {
         let qb = pkmcal::inverse_kinematics(&builtin, truth.geometric(), &t).unwrap();

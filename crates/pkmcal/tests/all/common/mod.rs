@@ -118,3 +118,34 @@ pub fn perturbed_by_unit(spec: &pkmcal::Spec, seed: u64, mm: f64, rad: f64) -> p
     }
     p
 }
+
+/// The `[tolerances]` table of `examples/<name>/mechanism.toml`, each as
+/// `(name, σ)` resolved against `spec` (a percentage of the nominal value
+/// by the library's one rule).
+pub fn example_tolerances(spec: &pkmcal::Spec, name: &str) -> Vec<(String, f64)> {
+    let path = format!(
+        "{}/../../examples/{name}/mechanism.toml",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let t: toml::Table = std::fs::read_to_string(path).unwrap().parse().unwrap();
+    let given: Vec<(String, pkmcal::identify::prior::Tolerance)> = t["tolerances"]
+        .as_table()
+        .unwrap()
+        .iter()
+        .map(|(k, v)| {
+            let text = match v {
+                toml::Value::String(s) => s.clone(),
+                other => other.to_string(),
+            };
+            (
+                k.clone(),
+                pkmcal::identify::prior::Tolerance::parse(&text).unwrap(),
+            )
+        })
+        .collect();
+    pkmcal::identify::prior::resolve_tolerances(spec, &given)
+        .unwrap()
+        .into_iter()
+        .map(|(i, s)| (spec.param_names()[i].to_string(), s))
+        .collect()
+}
