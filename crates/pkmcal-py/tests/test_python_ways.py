@@ -260,3 +260,30 @@ def test_the_stubs_accept_the_calls_that_work(tmp_path):
         text=True,
     )
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_pandas_stays_optional():
+    """Without pandas every call works on arrays; to_pandas says what it
+    needs."""
+    script = textwrap.dedent(
+        """
+        import sys
+        sys.modules["pandas"] = None  # import pandas now fails
+        import warnings
+        warnings.simplefilter("ignore")
+        import pkmcal
+        m = pkmcal.Mechanism()
+        c, y = pkmcal.simulate(m, pkmcal.plan(m, 35).targets, {"l11": 280.3}, noise=0.002, seed=1)
+        cal = pkmcal.calibrate(m, c, y, frame="base")
+        assert abs(cal.parameters["l11"] - 280.3) < 0.01
+        assert pkmcal.predict(m, c, cal).x.shape == (35, 2)
+        assert "<table" in cal._repr_html_()
+        try:
+            cal.to_pandas()
+        except ImportError as e:
+            print(e)
+        """
+    )
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "to_pandas needs pandas" in r.stdout
