@@ -31,7 +31,11 @@ pub fn reading<T>(read: impl FnOnce(&pkmcal_io::Run) -> T) -> T {
     read(&pkmcal_io::Run::quiet(&pkmcal_io::Files::new()))
 }
 
-/// The text of the file `path`, a `kind` of input (its size limit).
-pub fn read_text(path: &str, kind: pkmcal_io::output::InputKind) -> PyResult<String> {
-    reading(|run| run.files.read_to_string(std::path::Path::new(path), kind)).map_err(io_err)
+/// A run that reads calibration records. A record holds every pose (about
+/// 600 bytes each on a planar linkage): it is read within a data file's
+/// size limit, not a setting's, so that what `Calibration.save` wrote reads
+/// back.
+pub fn reading_records<T>(read: impl FnOnce(&pkmcal_io::Run) -> T) -> T {
+    let files = pkmcal_io::Files::new().with_max_input_mb(Some(pkmcal_io::output::MAX_DATA_MB));
+    read(&pkmcal_io::Run::quiet(&files))
 }

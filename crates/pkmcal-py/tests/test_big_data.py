@@ -55,6 +55,19 @@ def test_a_calibration_pickles_in_binary_to_the_bit():
     assert 5 * len(data) < len(text), (len(data), len(text))
 
 
+def test_a_saved_calibration_of_many_poses_reads_back(tmp_path):
+    # A record holds every pose: 35,000 poses write more than the 16 MiB
+    # a setting may have; it is read within a data file's limit.
+    mech, c, y = many_poses(35_000)
+    cal = pkmcal.calibrate(mech, c, y, frame="base")
+    cal.save(tmp_path / "cal.json")
+    assert (tmp_path / "cal.json").stat().st_size > 16 << 20
+    assert pkmcal.Calibration.load(tmp_path / "cal.json") == cal
+    saved = pkmcal.load_calibration(tmp_path / "cal.json")
+    assert saved.parameters == cal.parameters
+    assert pkmcal.drift(tmp_path / "cal.json", cal).parameters
+
+
 def test_a_pickle_written_as_a_record_still_reads():
     mech, c, y = many_poses(40)
     cal = pkmcal.calibrate(mech, c, y, frame="base")

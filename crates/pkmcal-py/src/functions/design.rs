@@ -3,7 +3,7 @@
 
 use crate::arrays::{Missing, out2, rows, vec1};
 use crate::errors::{emit_warnings, lib_err, request_err, usage, wrong_type};
-use crate::files::{path_arg, reading};
+use crate::files::{path_arg, reading_records};
 use crate::functions::apply::at;
 use crate::keywords::{Kw, count_of};
 use crate::mechanism::mechanism_arg;
@@ -239,8 +239,10 @@ fn compared_arg(
         (s.get().record.clone(), s.get().dof)
     } else if c.is_instance_of::<pyo3::types::PyString>() || c.hasattr("__fspath__")? {
         let p = path_arg(c)?;
-        reading(|run| pkmcal_io::record::read_calibration_record_dof(run, std::path::Path::new(&p)))
-            .map_err(crate::errors::io_err)?
+        reading_records(|run| {
+            pkmcal_io::record::read_calibration_record_dof(run, std::path::Path::new(&p))
+        })
+        .map_err(crate::errors::io_err)?
     } else {
         return Err(wrong_type(
             what,

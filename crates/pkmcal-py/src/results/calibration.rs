@@ -2,7 +2,7 @@
 
 use crate::arrays::{frame, out2, vec1};
 use crate::errors::{io_err, usage};
-use crate::files::{path_arg, reading, written};
+use crate::files::{path_arg, reading_records, written};
 use crate::mechanism::PyMechanism;
 use crate::results::parts::{PyErrorStats, PyFigure, PyIdentifiability, PyWarning, warning};
 use crate::results::{ByValue, Reduced, by_name, eq_by_value, reduce};
@@ -500,7 +500,10 @@ impl PyCalibration {
     /// ``pkmcal predict --uncertainty`` read back.
     fn save(&self, py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<()> {
         let p = path_arg(path)?;
-        let json = interruptible(py, |_| self.report().to_json())?.map_err(io_err)?;
+        let json = interruptible(py, |cancel| {
+            self.report().to_json_cancellable(Some(&cancel))
+        })?
+        .map_err(io_err)?;
         written(|run| run.files.stage(std::path::Path::new(&p), json.as_bytes()))
     }
     /// Write the report (report.html with every figure as SVG and PNG) into
@@ -532,7 +535,11 @@ impl PyCalibration {
     #[staticmethod]
     fn _load_file(py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<Self> {
         let p = path_arg(path)?;
-        let text = crate::files::read_text(&p, pkmcal_io::output::InputKind::Description)?;
+        let text = reading_records(|run| {
+            run.files
+                .read_to_string(std::path::Path::new(&p), pkmcal_io::output::InputKind::Data)
+        })
+        .map_err(io_err)?;
         Self::from_record(py, &text, &p)
     }
     /// ``Calibration.load(path)`` reads a calibration saved whole
@@ -908,7 +915,7 @@ impl PySavedCalibration {
 pub fn load_calibration(args: &Bound<'_, PyDict>) -> PyResult<PySavedCalibration> {
     let kw = crate::keywords::Kw::new(args.clone());
     let p = path_arg(&kw.required("path")?)?;
-    let (record, dof) = reading(|run| {
+    let (record, dof) = reading_records(|run| {
         pkmcal_io::record::read_calibration_record_dof(run, std::path::Path::new(&p))
     })
     .map_err(io_err)?;
