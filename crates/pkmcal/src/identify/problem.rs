@@ -90,6 +90,9 @@ pub struct IdentificationProblem<'a, M: Mechanism> {
     /// Jacobian is kept between evaluations, and the solver's columns are
     /// written directly ([`IdentificationProblem::is_large`]).
     large: bool,
+    /// Set from another thread to stop at the next pose
+    /// ([`Error::Cancelled`]).
+    cancel: Option<Arc<std::sync::atomic::AtomicBool>>,
 }
 
 /// Poses prepared once and shared by the identification problems of one
@@ -211,6 +214,24 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         Self::with_cache(mech, measurement, data, model, force, None)
     }
 
+    /// [`IdentificationProblem::new`] that stops preparing its poses, and
+    /// later evaluating them, at the next pose once `cancel` is set
+    /// ([`Error::Cancelled`]).
+    pub fn cancellable(
+        mech: &'a M,
+        measurement: &'a MeasurementModel,
+        data: &[Measurement],
+        model: Model,
+        force: &[f64],
+        cancel: Option<Arc<std::sync::atomic::AtomicBool>>,
+    ) -> Result<Self> {
+        let check = || crate::error::check_cancel(cancel.as_deref());
+        check()?;
+        let mut problem = Self::prepared(mech, measurement, data, model, force, None, &check)?;
+        problem.cancel = cancel;
+        Ok(problem)
+    }
+
     /// [`IdentificationProblem::new`], taking the poses already prepared
     /// from `cache` and leaving the new ones there.
     pub(super) fn with_cache(
@@ -220,6 +241,19 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         model: Model,
         force: &[f64],
         cache: Option<&PoseCache>,
+    ) -> Result<Self> {
+        Self::prepared(mech, measurement, data, model, force, cache, &|| Ok(()))
+    }
+
+    /// The poses prepared, `check` called before each (its error stops).
+    fn prepared(
+        mech: &'a M,
+        measurement: &'a MeasurementModel,
+        data: &[Measurement],
+        model: Model,
+        force: &[f64],
+        cache: Option<&PoseCache>,
+        check: &(dyn Fn() -> Result<()> + Sync),
     ) -> Result<Self> {
         if data.len() > MAX_POSES {
             return Err(too_many_poses(data.len()));
@@ -247,7 +281,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             .par_iter()
             .map(|m| {
                 let key = (m.origin.expect("numbered"), false);
-                if PoseCache::holds(cache, key, &m.commands) {
+                if check().is_err() || PoseCache::holds(cache, key, &m.commands) {
                     None
                 } else {
                     pose_ahead(mech, &m.commands)
@@ -255,6 +289,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             })
             .collect();
         for (i, m) in valid.iter().enumerate() {
+            check()?;
             let origin = m.origin.expect("numbered");
             let len = measurement.row_len(m);
             let start = poses.last().map(|p| p.nominal_q.clone());
@@ -302,6 +337,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             jacobian_cache: RefCell::new(None),
             large: offset.saturating_mul(mech.spec().n_params() + measurement.n_params())
                 >= crate::lm::LARGE_JACOBIAN,
+            cancel: None,
         })
     }
 
@@ -330,6 +366,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             .collect();
         let (mech, model, force, origins) =
             (self.mech, self.model, &self.force, &self.pose_origins);
+        let cancel = self.cancel.as_deref();
         // From scratch at nominal parameters (a calibration's start, the
         // accuracy before it): each pose's prediction is made once.
         let at_nominal = cached.is_none() && params.values == mech.spec().nominal;
@@ -339,6 +376,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             .zip(warm.par_iter())
             .enumerate()
             .map(|(i, (pose, warm))| {
+                crate::error::check_cancel(cancel)?;
                 if at_nominal {
                     pose.predict_at_nominal(mech, params, model, force)
                 } else {
@@ -524,6 +562,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             &self.pose_origins,
             &self.poses,
         );
+        let cancel = self.cancel.as_deref();
         // Each output column `k`'s value for an entry computed as `v`.
         let put = |j: &mut DMatrix<f64>, i: usize, v: &DMatrix<f64>, a: usize, first: usize| {
             for (k, &c) in cols.iter().enumerate() {
@@ -545,6 +584,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             let sens: Vec<_> = idx
                 .par_iter()
                 .map(|&i| {
+                    crate::error::check_cancel(cancel)?;
                     sensitivity_at(
                         mech,
                         &poses[i],
