@@ -1309,6 +1309,18 @@ fn out_of_range_counts_and_lengths_are_usage_errors() {
     }
 }
 
+/// One target is "1 target" (issue 50: "compensated 1 targets").
+#[test]
+fn one_target_is_counted_in_the_singular() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("one.csv"), "target_x,target_y\n0,200\n").unwrap();
+    let o = run(d, &["compensate", "--targets", "one.csv", "--out", "c.csv"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("compensated 1 target (exact model)"), "{err}");
+}
+
 /// A standard error that cannot be written (full) loses the messages, not
 /// the run: exit 0 and the outputs in place (issue 34, C8).
 #[test]
