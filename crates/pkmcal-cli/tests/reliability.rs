@@ -993,6 +993,48 @@ fn a_full_standard_output_is_an_error_not_a_panic() {
     );
 }
 
+/// A closed standard output (`pkmcal montecarlo … | head`, the reader
+/// gone) cuts the summary short, not the run: its `--out` file is written
+/// whole, and the error names the pipe and the file (issue 50: the file was
+/// lost).
+#[test]
+fn a_closed_standard_output_keeps_the_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    ok(d, &["plan", "--count", "12", "--out", "p.csv", "--quiet"]);
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_pkmcal"))
+        .args([
+            "montecarlo",
+            "--poses",
+            "p.csv",
+            "--runs",
+            "30",
+            "--out",
+            "runs.csv",
+        ])
+        .current_dir(d)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The reader is gone before anything is written.
+    drop(child.stdout.take());
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("cannot write to standard output") && err.contains("runs.csv written"),
+        "{err}"
+    );
+    let runs = read(d, "runs.csv");
+    assert_eq!(
+        runs.lines().filter(|l| !l.starts_with('#')).count(),
+        31,
+        "{runs}"
+    );
+    no_temporaries(d);
+}
+
 /// Every file a command reads is an input, whatever option names it:
 /// measured distances, a second output path spelled differently, a
 /// temporary-looking input name (issue 34, A).
