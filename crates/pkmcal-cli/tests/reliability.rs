@@ -2209,4 +2209,21 @@ fn a_full_disk_fails_naming_the_file_and_writes_nothing() {
     );
     assert_eq!(read(&small, "out.csv"), "old\n");
     no_temporaries(&small);
+    // Outputs written as they are computed name their file too (issue 50:
+    // "No space left on device" alone).
+    ok(
+        dir.path(),
+        &["simulate", "--quiet", "--grid", "2000", "--out", "big.csv"],
+    );
+    for (command, input) in [("compensate", "--targets"), ("predict", "--commands")] {
+        let o = run(&small, &[command, input, "../big.csv", "--out", "out.csv"]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{command}: {err}");
+        assert!(
+            err.contains("cannot write out.csv: No space left"),
+            "{command}: {err}"
+        );
+        assert_eq!(read(&small, "out.csv"), "old\n");
+        no_temporaries(&small);
+    }
 }
