@@ -347,6 +347,22 @@ pub mod values {
     pub fn weighting(s: &str) -> Result<pkmcal_io::firmware::klipper::Weighting, String> {
         s.parse()
     }
+    pub fn letter_b(s: &str) -> Result<pkmcal_io::firmware::marlin::LetterB, String> {
+        s.parse()
+    }
+    /// A probe's x, y offset from the nozzle (mm): two numbers, each at
+    /// most 1 m in size.
+    pub fn probe_offset(s: &str) -> Result<[f64; 2], String> {
+        let v: Vec<&str> = s.split(',').collect();
+        if v.len() != 2 {
+            return Err(format!("`{s}`: give two numbers X,Y (mm), e.g. 0,0"));
+        }
+        let (x, y) = (number(v[0])?, number(v[1])?);
+        if x.abs() > 1e3 || y.abs() > 1e3 {
+            return Err(format!("`{s}`: a probe offset is at most 1000 mm in size"));
+        }
+        Ok([x, y])
+    }
     /// A spacing (mm): positive, at most [`MAX_LENGTH_MM`].
     pub fn spacing(s: &str) -> Result<f64, String> {
         let v = number(s)?;

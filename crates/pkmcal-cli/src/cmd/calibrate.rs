@@ -201,6 +201,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         mechanism: description.source.clone(),
         measurement,
         study,
+        load: study_opts.calibration.force.clone(),
     };
     let (measurement, study) = (&state.measurement, &state.study);
     let cal = &study.calibration;

@@ -135,6 +135,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             mechanism: pkmcal_io::record::MechanismSource::Reference,
             measurement: tool.clone(),
             study,
+            load: vec![],
         };
         let study = &state.study;
         let cal = &study.calibration;

@@ -114,16 +114,16 @@ const CARRIAGE_STIFFNESS: f64 = 2000.0;
 
 /// One option: section, key, value and the line it came from.
 #[derive(Debug, Clone)]
-struct Entry {
-    section: String,
-    key: String,
-    value: String,
-    line: usize,
-    file: String,
+pub(crate) struct Entry {
+    pub(crate) section: String,
+    pub(crate) key: String,
+    pub(crate) value: String,
+    pub(crate) line: usize,
+    pub(crate) file: String,
     /// Read from an included file (not the configuration named).
-    included: bool,
+    pub(crate) included: bool,
     /// Read from the SAVE_CONFIG block.
-    autosave: bool,
+    pub(crate) autosave: bool,
 }
 
 /// A Klipper configuration: every option, the SAVE_CONFIG block's last.
@@ -131,7 +131,7 @@ struct Entry {
 pub struct Ini {
     entries: Vec<Entry>,
     /// The configuration's own file (for messages about what it lacks).
-    file: String,
+    pub(crate) file: String,
     /// (section, option) -> the last regular and the last saved entry.
     index: std::collections::HashMap<(String, String), (Option<usize>, Option<usize>)>,
     /// Included files read so far (bounded by [`MAX_INCLUDED_FILES`]).
@@ -348,7 +348,7 @@ impl Ini {
     /// definition in the regular part (its includes at their place) wins, and
     /// the SAVE_CONFIG block's only when the regular part has none (Klipper
     /// comments out the block's duplicates at start, `_strip_duplicates`).
-    fn get(&self, section: &str, key: &str) -> Option<&Entry> {
+    pub(crate) fn get(&self, section: &str, key: &str) -> Option<&Entry> {
         let &(regular, saved) = self.index.get(&(section.to_string(), key.to_string()))?;
         regular.or(saved).map(|i| &self.entries[i])
     }
@@ -373,7 +373,7 @@ impl Ini {
 
     /// A length (mm) that must be positive and below 100 m, with its place
     /// in an error.
-    fn length(&self, section: &str, key: &str, positive: bool) -> Result<Option<f64>> {
+    pub(crate) fn length(&self, section: &str, key: &str, positive: bool) -> Result<Option<f64>> {
         let Some(v) = self.number(section, key)? else {
             return Ok(None);
         };
@@ -390,12 +390,12 @@ impl Ini {
         Ok(Some(v))
     }
 
-    fn has_section(&self, section: &str) -> bool {
+    pub(crate) fn has_section(&self, section: &str) -> bool {
         self.entries.iter().any(|e| e.section == section)
     }
 
     /// A number, with the place it came from in an error.
-    fn number(&self, section: &str, key: &str) -> Result<Option<f64>> {
+    pub(crate) fn number(&self, section: &str, key: &str) -> Result<Option<f64>> {
         let Some(e) = self.get(section, key) else {
             return Ok(None);
         };
@@ -418,7 +418,7 @@ impl Ini {
     }
 
     /// Three numbers `x,y,z` (a stable position).
-    fn triple(&self, section: &str, key: &str) -> Result<[f64; 3]> {
+    pub(crate) fn triple(&self, section: &str, key: &str) -> Result<[f64; 3]> {
         let Some(e) = self.get(section, key) else {
             refuse!(self.file, None, "[{section}] has no `{key}`");
         };
@@ -691,6 +691,17 @@ fn parse_into(
     Ok(())
 }
 
+/// A `printer.cfg`'s text and its options, as Klipper reads them (with its
+/// includes).
+pub fn read_config(run: &crate::Run<'_>, path: &Path) -> Result<(String, Ini)> {
+    let text = run
+        .files
+        .read_to_string(path, crate::output::InputKind::Description)
+        .map_err(|e| e.named("Klipper configuration"))?;
+    let ini = parse_config(run, &text, path)?;
+    Ok((text, ini))
+}
+
 /// Read a Klipper configuration as Klipper does: the regular part (with its
 /// includes), then the SAVE_CONFIG block (split as [`split_autosave`]
 /// splits it, refusing a block Klipper would ignore); every line numbered
@@ -900,13 +911,13 @@ pub fn delta_from_config(ini: &Ini) -> Result<KlipperDelta> {
         Some(e) => refuse!(
             e.file,
             Some((e.line) as u64),
-            "[printer] kinematics is `{}`; Klipper's delta printers are read (kinematics: delta)",
+            "[printer] kinematics is `{}`; Klipper's delta printers are read (kinematics: delta or rotary_delta)",
             e.value
         ),
         None => refuse!(
             ini.file,
             None,
-            "[printer] has no `kinematics`; Klipper's delta printers are read (kinematics: delta)"
+            "[printer] has no `kinematics`; Klipper's delta printers are read (kinematics: delta or rotary_delta)"
         ),
     }
     let Some(radius) = ini.length("printer", "delta_radius", true)? else {
@@ -958,43 +969,72 @@ pub fn delta_from_config(ini: &Ini) -> Result<KlipperDelta> {
                 "[{s}] needs a positive `rotation_distance` (mm)"
             );
         };
-        let Some(micro) = ini.number(&s, "microsteps")?.filter(|v| *v >= 1.0) else {
-            refuse!(ini.file, None, "[{s}] needs `microsteps`");
-        };
-        let full = ini.number(&s, "full_steps_per_rotation")?.unwrap_or(200.0);
-        if !(full >= 1.0 && full.fract() == 0.0 && full % 4.0 == 0.0) {
-            let e = ini
-                .get(&s, "full_steps_per_rotation")
-                .expect("a number has an entry");
-            refuse!(
-                e.file,
-                Some((e.line) as u64),
-                "[{s}] full_steps_per_rotation = {full} must be a positive whole multiple of 4 (Klipper's own rule)"
-            );
-        }
-        let mut gear = 1.0;
-        if let Some(e) = ini.get(&s, "gear_ratio") {
-            for pair in e.value.split(',') {
-                let v: Vec<f64> = pair
-                    .split(':')
-                    .filter_map(|x| x.trim().parse().ok())
-                    .collect();
-                if v.len() != 2 || !(v[0] > 0.0 && v[1] > 0.0 && (v[0] / v[1]).is_finite()) {
-                    refuse!(
-                        e.file,
-                        Some((e.line) as u64),
-                        "[{s}] gear_ratio = `{}` must be pairs `a:b` of positive numbers separated by commas",
-                        e.value
-                    );
-                }
-                gear *= v[0] / v[1];
-            }
-        }
-        d.step_distances[i] = rotation / (full * micro * gear);
+        let steps = steps_per_rotation(ini, &s)?;
+        d.step_distances[i] = rotation / steps;
     }
     if let Some(r) = ini.number("delta_calibrate", "radius")? {
         d.probe_radius = r;
     }
+    (d.probes, d.distances) = saved_results(ini)?;
+    if d.probes.len() < KLIPPER_FREE.len() {
+        refuse!(
+            ini.file,
+            None,
+            "[delta_calibrate] holds {} probe results (height0, height0_pos, …); at least {} are needed: run DELTA_CALIBRATE in Klipper, then SAVE_CONFIG, and read the saved printer.cfg",
+            d.probes.len(),
+            KLIPPER_FREE.len()
+        );
+    }
+    Ok(d)
+}
+
+/// A stepper's (micro)steps per rotation of its last gear, as Klipper
+/// reads them: `full_steps_per_rotation` (200 by default, a whole multiple
+/// of 4) times `microsteps` times the `gear_ratio` pairs `a:b` (1 by
+/// default).
+pub(crate) fn steps_per_rotation(ini: &Ini, s: &str) -> Result<f64> {
+    let Some(micro) = ini.number(s, "microsteps")?.filter(|v| *v >= 1.0) else {
+        refuse!(ini.file, None, "[{s}] needs `microsteps`");
+    };
+    let full = ini.number(s, "full_steps_per_rotation")?.unwrap_or(200.0);
+    if !(full >= 1.0 && full.fract() == 0.0 && full % 4.0 == 0.0) {
+        let e = ini
+            .get(s, "full_steps_per_rotation")
+            .expect("a number has an entry");
+        refuse!(
+            e.file,
+            Some((e.line) as u64),
+            "[{s}] full_steps_per_rotation = {full} must be a positive whole multiple of 4 (Klipper's own rule)"
+        );
+    }
+    let mut gear = 1.0;
+    if let Some(e) = ini.get(s, "gear_ratio") {
+        for pair in e.value.split(',') {
+            let v: Vec<f64> = pair
+                .split(':')
+                .filter_map(|x| x.trim().parse().ok())
+                .collect();
+            if v.len() != 2 || !(v[0] > 0.0 && v[1] > 0.0 && (v[0] / v[1]).is_finite()) {
+                refuse!(
+                    e.file,
+                    Some((e.line) as u64),
+                    "[{s}] gear_ratio = `{}` must be pairs `a:b` of positive numbers separated by commas",
+                    e.value
+                );
+            }
+            gear *= v[0] / v[1];
+        }
+    }
+    Ok(full * micro * gear)
+}
+
+/// The probe results and calibration-object distances that
+/// `DELTA_CALIBRATE` and `DELTA_ANALYZE` saved in `[delta_calibrate]`
+/// (`manual_height{N}`, `height{N}` with their `_pos`, `distance{N}` with
+/// `_pos1`, `_pos2`), in Klipper's order.
+pub(crate) fn saved_results(ini: &Ini) -> Result<(Vec<Probe>, Vec<Distance>)> {
+    let mut probes = vec![];
+    let mut distances = vec![];
     for prefix in ["manual_height", "height"] {
         for n in 0.. {
             let key = format!("{prefix}{n}");
@@ -1002,7 +1042,7 @@ pub fn delta_from_config(ini: &Ini) -> Result<KlipperDelta> {
                 break;
             };
             let steps = ini.triple("delta_calibrate", &format!("{key}_pos"))?;
-            d.probes.push(Probe {
+            probes.push(Probe {
                 name: key,
                 height: h,
                 steps,
@@ -1018,22 +1058,13 @@ pub fn delta_from_config(ini: &Ini) -> Result<KlipperDelta> {
             ini.triple("delta_calibrate", &format!("{key}_pos1"))?,
             ini.triple("delta_calibrate", &format!("{key}_pos2"))?,
         ];
-        d.distances.push(Distance {
+        distances.push(Distance {
             name: key,
             distance: v,
             steps,
         });
     }
-    if d.probes.len() < KLIPPER_FREE.len() {
-        refuse!(
-            ini.file,
-            None,
-            "[delta_calibrate] holds {} probe results (height0, height0_pos, …); at least {} are needed: run DELTA_CALIBRATE in Klipper, then SAVE_CONFIG, and read the saved printer.cfg",
-            d.probes.len(),
-            KLIPPER_FREE.len()
-        );
-    }
-    Ok(d)
+    Ok((probes, distances))
 }
 
 /// The values `klipper` writes: (section, option, value).
@@ -1080,8 +1111,16 @@ fn option_name(pruned: &str) -> String {
 /// defines is refused, as Klipper's SAVE_CONFIG refuses it (the new value
 /// would be ignored at the next start).
 pub fn updated_config(text: &str, new: &KlipperDelta, ini: &Ini) -> Result<String> {
-    let values = klipper_values(new);
-    for (sec, key, _) in &values {
+    updated_config_values(text, &klipper_values(new), ini)
+}
+
+/// [`updated_config`] with the options `values` (section, option, value).
+pub(crate) fn updated_config_values(
+    text: &str,
+    values: &[(String, String, String)],
+    ini: &Ini,
+) -> Result<String> {
+    for (sec, key, _) in values {
         if let Some(e) = ini
             .entries
             .iter()
@@ -1145,7 +1184,7 @@ pub fn updated_config(text: &str, new: &KlipperDelta, ini: &Ini) -> Result<Strin
         data.push_str("#*#");
         data.push_str(eol);
         let mut sections: Vec<&str> = vec![];
-        for (s, _, _) in &values {
+        for (s, _, _) in values {
             if !sections.contains(&s.as_str()) {
                 sections.push(s);
             }
@@ -1159,7 +1198,7 @@ pub fn updated_config(text: &str, new: &KlipperDelta, ini: &Ini) -> Result<Strin
         }
         return read_back(data, ini);
     };
-    out.push_str(&updated_block(block, &values, eol));
+    out.push_str(&updated_block(block, values, eol));
     read_back(out, ini)
 }
 
@@ -1313,13 +1352,17 @@ pub const DISTANCES_FILE: &str = "distances.csv";
 /// (0.5 · n_probed)`, which weighs them as variances `σ_height² /
 /// σ_distance² = 1 / z_weight`.
 pub fn klipper_z_weight(delta: &KlipperDelta) -> f64 {
-    let probed = delta
-        .probes
+    z_weight(&delta.probes, &delta.distances)
+}
+
+/// [`klipper_z_weight`] of saved probe results and distances.
+pub(crate) fn z_weight(probes: &[Probe], distances: &[Distance]) -> f64 {
+    let probed = probes
         .iter()
         .filter(|p| !p.name.starts_with("manual"))
         .count()
         .max(1);
-    delta.distances.len() as f64 / (KLIPPER_MEASURE_WEIGHT * probed as f64)
+    distances.len() as f64 / (KLIPPER_MEASURE_WEIGHT * probed as f64)
 }
 
 /// A Klipper printer: its configuration's text and path, as read, and the
@@ -1340,11 +1383,12 @@ pub struct KlipperPrinter {
 impl KlipperPrinter {
     /// Read a `printer.cfg` (with its includes) as Klipper reads it.
     pub fn read(run: &crate::Run<'_>, path: &Path, weighting: Weighting) -> Result<Self> {
-        let text = run
-            .files
-            .read_to_string(path, crate::output::InputKind::Description)
-            .map_err(|e| e.named("Klipper configuration"))?;
-        let ini = parse_config(run, &text, path)?;
+        let (text, ini) = read_config(run, path)?;
+        Self::from_parsed(path, text, ini, weighting)
+    }
+
+    /// A `printer.cfg` read ([`read_config`]), as Klipper reads it.
+    pub fn from_parsed(path: &Path, text: String, ini: Ini, weighting: Weighting) -> Result<Self> {
         let delta = delta_from_config(&ini)?;
         Ok(KlipperPrinter {
             path: path.to_path_buf(),

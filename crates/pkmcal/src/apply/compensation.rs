@@ -174,6 +174,34 @@ pub fn compensate<M: Mechanism>(
     })
 }
 
+/// [`compensate`] for every row of `targets` (one target after another,
+/// a value per tool axis each), in parallel, each row's result its own (one
+/// unreachable target does not stop the others). Once `cancel` is set, the
+/// rows not yet started are [`Error::Cancelled`].
+pub fn compensate_rows<M: Mechanism>(
+    mech: &M,
+    params: &Params,
+    targets: &[f64],
+    model: Model,
+    opts: &CompensationOptions,
+    cancel: Option<&std::sync::atomic::AtomicBool>,
+) -> Vec<Result<Compensation>> {
+    use rayon::prelude::*;
+    let width = mech.spec().tool_axes.len().max(1);
+    targets
+        .par_chunks(width)
+        .map(|t| {
+            crate::error::check_cancel(cancel)?;
+            if !t.iter().all(|v| v.is_finite()) {
+                return Err(Error::InvalidRequest(
+                    "the target holds a value that is not a finite number".into(),
+                ));
+            }
+            compensate(mech, params, t, model, opts)
+        })
+        .collect()
+}
+
 /// The commands a controller whose model has parameters `controller`
 /// (geometry and encoder offsets; rigid, as controllers are) sends for
 /// `target`: `q_r − Δq` at the inverse kinematics.

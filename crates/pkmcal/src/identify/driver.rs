@@ -832,11 +832,61 @@ pub fn analyze_with_priors<M: Mechanism>(
     priors: &[Prior],
     noise: crate::measurement::data::Noise,
 ) -> Result<Identifiability> {
+    let opts = AnalysisOptions {
+        model,
+        free: free.to_vec(),
+        force: force.to_vec(),
+        priors: priors.to_vec(),
+        noise,
+        cancel: None,
+    };
+    analyze_cancellable(mech, measurement, data, params, &opts)
+}
+
+/// What [`analyze_cancellable`] analyses: the arguments of
+/// [`analyze_with_priors`], and a flag that stops it.
+#[derive(Debug, Clone)]
+pub struct AnalysisOptions {
+    /// The forward model.
+    pub model: Model,
+    /// The free parameters (the mechanism's, then the measurement model's).
+    pub free: Vec<usize>,
+    /// The tool load during the measurements (empty for none).
+    pub force: Vec<f64>,
+    /// Priors (tolerances) of free parameters.
+    pub priors: Vec<Prior>,
+    /// The readings' noise where the data give no σ (weighs them against
+    /// the priors).
+    pub noise: crate::measurement::data::Noise,
+    /// Set from another thread to stop at the next pose
+    /// ([`Error::Cancelled`]); `None` for none.
+    pub cancel: Option<Arc<AtomicBool>>,
+}
+
+/// [`analyze_with_priors`] with its settings in one place, stopped at the
+/// next pose once [`AnalysisOptions::cancel`] is set.
+pub fn analyze_cancellable<M: Mechanism>(
+    mech: &M,
+    measurement: &MeasurementModel,
+    data: &[Measurement],
+    params: &Params,
+    opts: &AnalysisOptions,
+) -> Result<Identifiability> {
+    let AnalysisOptions {
+        model,
+        free,
+        force,
+        priors,
+        noise,
+        cancel,
+    } = opts;
+    let (model, noise) = (*model, *noise);
     let spec = mech.spec();
     let data = numbered(data);
     check_sigma(measurement, &data)?;
     noise.check("noise")?;
-    let problem = IdentificationProblem::new(mech, measurement, &data, model, force)?;
+    let problem =
+        IdentificationProblem::cancellable(mech, measurement, &data, model, force, cancel.clone())?;
     let np = spec.n_params();
     let m0 = measurement_start(&problem, None, params, &data)?;
     let mut free = free.to_vec();
@@ -845,6 +895,7 @@ pub fn analyze_with_priors<M: Mechanism>(
     }
     let x: Vec<f64> = params.values.iter().chain(&m0).copied().collect();
     let (_, mut jac) = problem.residuals_and_jacobian(&x)?;
+    crate::error::check_cancel(cancel.as_deref())?;
     if jac.iter().any(|v| !v.is_finite()) {
         return Err(Error::InvalidRequest(
             "the identification Jacobian is not finite at these parameters".into(),

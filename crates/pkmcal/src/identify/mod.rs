@@ -23,8 +23,8 @@ pub mod weights;
 pub use adequacy::{ADEQUACY_ALPHA, AdequacyTest, SUSPECT_ALPHA, SUSPECT_SHARE, SUSPECTS};
 pub use drift::{Compared, DEFAULT_ALPHA, Drift, ParameterDrift, drift, noise_dof};
 pub use driver::{
-    CalibrationOptions, DEFAULT_STATED_NOISE_READINGS, MAX_DROPPED_FRACTION, analyze,
-    analyze_with_priors, calibrate, calibrate_with_cache,
+    AnalysisOptions, CalibrationOptions, DEFAULT_STATED_NOISE_READINGS, MAX_DROPPED_FRACTION,
+    analyze, analyze_cancellable, analyze_with_priors, calibrate, calibrate_with_cache,
 };
 pub use gross::{GROSS_EXTENT_SHARE, GROSS_FACTOR, MIN_SIGMA};
 pub(crate) use identifiability::observability;

@@ -80,6 +80,9 @@ pub struct IdentificationProblem<'a, M: Mechanism> {
     cache: RefCell<Option<CachedPredictions>>,
     /// The last Jacobian evaluated, with its parameters.
     jacobian_cache: RefCell<Option<CachedJacobian>>,
+    /// Set from another thread to stop at the next pose
+    /// ([`Error::Cancelled`]).
+    cancel: Option<Arc<std::sync::atomic::AtomicBool>>,
 }
 
 /// Poses prepared once and shared by the identification problems of one
@@ -201,6 +204,24 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         Self::with_cache(mech, measurement, data, model, force, None)
     }
 
+    /// [`IdentificationProblem::new`] that stops preparing its poses, and
+    /// later evaluating them, at the next pose once `cancel` is set
+    /// ([`Error::Cancelled`]).
+    pub fn cancellable(
+        mech: &'a M,
+        measurement: &'a MeasurementModel,
+        data: &[Measurement],
+        model: Model,
+        force: &[f64],
+        cancel: Option<Arc<std::sync::atomic::AtomicBool>>,
+    ) -> Result<Self> {
+        let check = || crate::error::check_cancel(cancel.as_deref());
+        check()?;
+        let mut problem = Self::prepared(mech, measurement, data, model, force, None, &check)?;
+        problem.cancel = cancel;
+        Ok(problem)
+    }
+
     /// [`IdentificationProblem::new`], taking the poses already prepared
     /// from `cache` and leaving the new ones there.
     pub(super) fn with_cache(
@@ -210,6 +231,19 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         model: Model,
         force: &[f64],
         cache: Option<&PoseCache>,
+    ) -> Result<Self> {
+        Self::prepared(mech, measurement, data, model, force, cache, &|| Ok(()))
+    }
+
+    /// The poses prepared, `check` called before each (its error stops).
+    fn prepared(
+        mech: &'a M,
+        measurement: &'a MeasurementModel,
+        data: &[Measurement],
+        model: Model,
+        force: &[f64],
+        cache: Option<&PoseCache>,
+        check: &(dyn Fn() -> Result<()> + Sync),
     ) -> Result<Self> {
         if data.len() > MAX_POSES {
             return Err(too_many_poses(data.len()));
@@ -237,7 +271,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             .par_iter()
             .map(|m| {
                 let key = (m.origin.expect("numbered"), false);
-                if PoseCache::holds(cache, key, &m.commands) {
+                if check().is_err() || PoseCache::holds(cache, key, &m.commands) {
                     None
                 } else {
                     pose_ahead(mech, &m.commands)
@@ -245,6 +279,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             })
             .collect();
         for (i, m) in valid.iter().enumerate() {
+            check()?;
             let origin = m.origin.expect("numbered");
             let len = measurement.row_len(m);
             let start = poses.last().map(|p| p.nominal_q.clone());
@@ -290,6 +325,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             force: force.to_vec(),
             cache: RefCell::new(None),
             jacobian_cache: RefCell::new(None),
+            cancel: None,
         })
     }
 
@@ -308,6 +344,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             .collect();
         let (mech, model, force, origins) =
             (self.mech, self.model, &self.force, &self.pose_origins);
+        let cancel = self.cancel.as_deref();
         // From scratch at nominal parameters (a calibration's start, the
         // accuracy before it): each pose's prediction is made once.
         let at_nominal = cached.is_none() && params.values == mech.spec().nominal;
@@ -317,6 +354,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             .zip(warm.par_iter())
             .enumerate()
             .map(|(i, (pose, warm))| {
+                crate::error::check_cancel(cancel)?;
                 if at_nominal {
                     pose.predict_at_nominal(mech, params, model, force)
                 } else {
@@ -480,12 +518,14 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         // Poses in parallel, assembled in order.
         let (mech, model, force, origins) =
             (self.mech, self.model, &self.force, &self.pose_origins);
+        let cancel = self.cancel.as_deref();
         let sens: Result<Vec<_>> = self
             .poses
             .par_iter()
             .zip(predictions.par_iter())
             .enumerate()
             .map(|(i, (pose, pred))| {
+                crate::error::check_cancel(cancel)?;
                 sensitivity_at(mech, pose, &params, model, force, pred.clone())
                     .map_err(|e| e.at_pose(origins[i]))
             })
