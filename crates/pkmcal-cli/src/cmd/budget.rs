@@ -86,7 +86,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         calibration,
     };
     let b = pkmcal::apply::budget::budget(mech, &targets, &tolerances, &opts)?;
-    print!(
+    say_raw!(
         "{}",
         budget_words(
             &spec.name,
@@ -97,7 +97,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     if let Some(j) = &a.out {
         run.files
             .stage(j, serde_json::to_string_pretty(&b)?.as_bytes())?;
-        println!("budget -> {}", j.display());
+        say!("budget -> {}", j.display());
     }
     Ok(())
 }

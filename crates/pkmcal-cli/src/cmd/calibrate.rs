@@ -249,14 +249,14 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     }
     let mut summary = String::new();
     write_summary(&mut summary, &report, measurement, &crate::words::WORDING);
-    print!("{summary}");
-    println!();
-    println!("identified parameters -> {}", a.out.display());
+    say_raw!("{summary}");
+    say!();
+    say!("identified parameters -> {}", a.out.display());
     if let Some(r) = &a.report {
-        println!("report -> {}", r.display());
+        say!("report -> {}", r.display());
     }
     if let Some(d) = &a.report_dir {
-        println!("figures and report.html -> {}", d.display());
+        say!("figures and report.html -> {}", d.display());
     }
     Ok(())
 }

@@ -245,12 +245,13 @@ pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
     })();
     let (done, skipped) = result?;
     crate::note!(
-        "{} {done} targets{} ({} model) -> {}",
+        "{} {}{} ({} model) -> {}",
         if c.cartesian {
             "pre-distorted"
         } else {
             "compensated"
         },
+        pkmcal::error::count(done, "target", "targets"),
         if skipped > 0 {
             format!(", skipped {skipped}")
         } else {

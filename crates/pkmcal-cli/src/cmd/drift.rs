@@ -83,14 +83,14 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             mech, &old, &new, &targets, a.alpha,
         )?);
     }
-    print!(
+    say_raw!(
         "{}",
         drift_words(Some(spec), &d, &old_name, &a.new.display().to_string())
     );
     if let Some(o) = &a.out {
         run.files
             .stage(o, serde_json::to_string_pretty(&d)?.as_bytes())?;
-        println!("drift -> {}", o.display());
+        say!("drift -> {}", o.display());
     }
     Ok(())
 }

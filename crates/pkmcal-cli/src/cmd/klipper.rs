@@ -104,7 +104,7 @@ fn report<F: Firmware>(
         firmware::probe_errors(mech, measurement, &nominal, measurement.nominal(), heights)?;
     let after = firmware::probe_errors(mech, measurement, &cal.params, &cal.measurement, heights)?;
     let values = printer.values(spec, &cal.params, &cal.measurement)?;
-    println!(
+    say!(
         "{} probe heights{} from {} (Klipper), {} parameters free: {}",
         heights.len(),
         if n_distances == 0 {
@@ -116,8 +116,8 @@ fn report<F: Firmware>(
         calibrated.free_names.len(),
         calibrated.free_names.join(" ")
     );
-    println!("{}", cal.termination.reason());
-    println!(
+    say!("{}", cal.termination.reason());
+    say!(
         "height errors: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm",
         max_abs(&before),
         rms(&before),
@@ -140,9 +140,12 @@ fn report<F: Firmware>(
                 noise_of(cal, pkmcal::DISTANCE_AXIS)
             ),
         };
-        println!(
+        say!(
             "distance errors: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm ({weighing})",
-            d.before_max, d.before_rms, d.after_max, d.after_rms,
+            d.before_max,
+            d.before_rms,
+            d.after_max,
+            d.after_rms,
         );
         // How well the data fix the weighting: the variance ratio with its
         // interval, against Klipper's fixed ratio.
@@ -150,7 +153,7 @@ fn report<F: Firmware>(
         if let (Some(h), Some(dg), Weighting::Shrunk(n)) =
             (group("probe"), group(pkmcal::DISTANCE_AXIS), a.weighting)
         {
-            println!(
+            say!(
                 "variance ratio heights/distances: {:.3}, from the data's {:.1} and {:.1} degrees of freedom and Klipper's fixed {:.3} worth {n} readings a group",
                 (h.sigma / dg.sigma).powi(2),
                 h.redundancy.unwrap_or(f64::NAN),
@@ -161,7 +164,7 @@ fn report<F: Firmware>(
         if let (Some(h), Some(dg)) = (group("probe"), group(pkmcal::DISTANCE_AXIS))
             && let Some(r) = pkmcal::variance_ratio(h, dg, VARIANCE_RATIO_LEVEL)
         {
-            println!(
+            say!(
                 "variance ratio heights/distances: {:.3} ({:.0} % interval {:.3} to {:.3}, from {:.1} and {:.1} degrees of freedom); Klipper's fixed weighting takes {:.3}",
                 r.ratio,
                 100.0 * r.level,
@@ -174,18 +177,20 @@ fn report<F: Firmware>(
         }
     }
     for w in &cal.warnings {
-        println!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
+        say!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
     }
-    println!(
+    say!(
         "\n  {:<28} {:>14} {:>14}",
-        "Klipper value", "before", "after"
+        "Klipper value",
+        "before",
+        "after"
     );
     for v in &values {
-        println!("  {:<28} {:>14.6} {:>14.6}", v.name, v.before, v.after);
+        say!("  {:<28} {:>14.6} {:>14.6}", v.name, v.before, v.after);
     }
     for (i, n) in measurement.param_names().iter().enumerate() {
         if calibrated.free.contains(&(spec.n_params() + i)) {
-            println!(
+            say!(
                 "  {:<28} {:>14.6} {:>14.6}   ({}; not a Klipper value: level the bed or let Klipper's bed mesh take it)",
                 n,
                 measurement.nominal()[i],
@@ -201,7 +206,7 @@ fn report<F: Firmware>(
                 .updated(spec, &cal.params, &cal.measurement)?
                 .as_bytes(),
         )?;
-        println!(
+        say!(
             "\nupdated configuration -> {} (values in its SAVE_CONFIG block)",
             out.display()
         );
@@ -262,7 +267,7 @@ fn report<F: Firmware>(
         } else {
             format!(" --distances {}/{DISTANCES_FILE}", dir.display())
         };
-        println!(
+        say!(
             "mechanism, probe data and parameters -> {} (e.g. `pkmcal calibrate --mechanism {0}/mechanism.toml --data {0}/probes.csv{dist}`)",
             dir.display()
         );

@@ -36,7 +36,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     } else {
         table(&pkmcal::summary(spec))
     };
-    print!("{text}");
+    say_raw!("{text}");
     Ok(())
 }
 

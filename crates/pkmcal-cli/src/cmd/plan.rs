@@ -143,7 +143,7 @@ pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
     if let Some(g) = &c.grid_out {
         run.files.stage(g, &file(&plan.grid))?;
     }
-    println!(
+    say!(
         "planned {} poses of {} candidates (spacing {:.4} mm{}) maximising {:?} for {} free parameters ({} model){}",
         c.count,
         n_candidates,
@@ -178,25 +178,36 @@ pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
             String::new()
         }
     );
-    println!(
+    say!(
         "  {:<14} {:>11} {:>11} {:>11} {:>11} {:>11} {:>10}",
-        "", "O1", "O2", "O3", "O4", "O5", "cond"
+        "",
+        "O1",
+        "O2",
+        "O3",
+        "O4",
+        "O5",
+        "cond"
     );
     for (label, o, cond) in [
         ("planned", &plan.observability, plan.condition),
         ("plain grid", &plan.grid_observability, plan.grid_condition),
     ] {
-        println!(
+        say!(
             "  {label:<14} {:>11.4e} {:>11.4e} {:>11.4e} {:>11.4e} {:>11.4e} {:>10.2}",
-            o.o1, o.o2, o.o3, o.o4, o.o5, cond
+            o.o1,
+            o.o2,
+            o.o3,
+            o.o4,
+            o.o5,
+            cond
         );
     }
     for w in &plan.warnings {
-        println!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
+        say!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
     }
-    println!("poses -> {}", c.out.display());
+    say!("poses -> {}", c.out.display());
     if let Some(g) = &c.grid_out {
-        println!("plain grid -> {}", g.display());
+        say!("plain grid -> {}", g.display());
     }
     Ok(())
 }

@@ -67,7 +67,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         (max, rms)
     };
     let ((bm, br), (am, ar)) = (heights(before), heights(after));
-    println!(
+    say!(
         "{} probe heights from {} with the geometry of {} (RepRapFirmware), {} parameters free: {}",
         acc.poses,
         a.probes.display(),
@@ -75,14 +75,14 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         calibrated.free_names.len(),
         calibrated.free_names.join(" ")
     );
-    println!("{}", cal.termination.reason());
-    println!(
+    say!("{}", cal.termination.reason());
+    say!(
         "height errors: before max {bm:.4} mm, RMS {br:.4} mm; after max {am:.4} mm, RMS {ar:.4} mm"
     );
     for w in &cal.warnings {
-        println!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
+        say!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
     }
-    println!(
+    say!(
         "\nbefore:\n{}after:\n{}",
         printer.delta.gcode(),
         new.gcode()
@@ -98,7 +98,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     note.push_str(&printer.updated(spec, &cal.params, &cal.measurement)?);
     if let Some(out) = &a.out {
         run.files.stage(out, note.as_bytes())?;
-        println!(
+        say!(
             "new M665/M666 -> {} (replace the M665 and M666 lines of the file the firmware takes them from with these two, and keep that file's other lines: config-override.g when config.g runs M501, else config.g)",
             out.display()
         );

@@ -85,6 +85,12 @@ pub struct BudgetOptions {
 /// target).
 pub const MAX_SAMPLES: usize = 1_000_000;
 
+/// A position error RMS below this (mm) is none: what rounding leaves of
+/// an exact zero (a stiffness tolerance without a load gives 1e-15 mm), a
+/// million times below any machine's error. Shares of it and ratios to it
+/// would be noise ("+6042.8 % from first order").
+pub const NEGLIGIBLE_ERROR_MM: f64 = 1e-9;
+
 /// The tool error over the workspace targets: RMS over the targets (and the
 /// samples) of the position error's length (mm) and of each axis.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -134,6 +140,17 @@ pub struct Budget {
     pub samples: usize,
     /// What the planned calibration would leave, to first order.
     pub after_calibration: Option<ErrorSpread>,
+}
+
+impl Budget {
+    /// The sampled machines' position error RMS relative to first order
+    /// (0.05: 5 % more); `None` without samples, or when first order has
+    /// none ([`NEGLIGIBLE_ERROR_MM`]).
+    pub fn sampled_change(&self) -> Option<f64> {
+        let mc = self.monte_carlo.as_ref()?;
+        (self.first_order.position_rms > NEGLIGIBLE_ERROR_MM)
+            .then(|| mc.position_rms / self.first_order.position_rms - 1.0)
+    }
 }
 
 /// The error spread of first-order covariances `covs` (one per target).
@@ -355,7 +372,11 @@ pub fn budget_cancellable<M: Mechanism>(
             name: names[i].to_string(),
             unit: spec.param_unit(i),
             sigma,
-            share: if total > 0.0 { part[k] / total } else { 0.0 },
+            share: if total > 0.0 && first_order.position_rms > NEGLIGIBLE_ERROR_MM {
+                part[k] / total
+            } else {
+                0.0
+            },
             sigma_after: post_sigma.as_ref().map(|s| s[k]),
         })
         .collect();
