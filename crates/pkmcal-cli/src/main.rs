@@ -89,6 +89,10 @@ enum Command {
     /// settings and heights probed with G30 S-1; print (and write) the new
     /// M665/M666 lines.
     Reprap(cmd::reprap::Args),
+    /// Calibrate a linear delta printer run by Marlin from its M503 settings
+    /// and a console log of probes (G30, or G33's heights); print (and
+    /// write) the new M665/M666 lines beside what G33 would set.
+    Marlin(cmd::marlin::Args),
     /// Run the paper's case study on the built-in reference mechanism.
     Demo(cmd::demo::Args),
 }
@@ -234,6 +238,7 @@ impl Command {
             Command::Parameters(a) => a.paths(),
             Command::Klipper(a) => a.paths(),
             Command::Reprap(a) => a.paths(),
+            Command::Marlin(a) => a.paths(),
             Command::Demo(a) => a.paths(),
         }
     }
@@ -255,6 +260,7 @@ fn run_command(run: &Run, command: Command) -> anyhow::Result<()> {
         Command::Parameters(a) => cmd::parameters::run(run, a),
         Command::Klipper(a) => cmd::klipper::run(run, a),
         Command::Reprap(a) => cmd::reprap::run(run, a),
+        Command::Marlin(a) => cmd::marlin::run(run, a),
         Command::Demo(a) => cmd::demo::run(run, a),
     }
 }

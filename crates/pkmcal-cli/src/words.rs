@@ -77,6 +77,9 @@ pub fn flag(f: Field) -> &'static str {
         Dialect => "--dialect",
         Grid => "--grid",
         Out => "--out",
+        FirmwareLetters => "--m665-b",
+        ProbeOffset => "--probe-offset",
+        G33Radius => "--g33-radius",
         // The solver's settings have no option on the command line.
         _ => "the solver's settings",
     }

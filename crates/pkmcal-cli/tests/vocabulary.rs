@@ -7,7 +7,7 @@ mod common;
 use common::run;
 
 /// Every command.
-const COMMANDS: [&str; 15] = [
+const COMMANDS: [&str; 16] = [
     "budget",
     "drift",
     "predict",
@@ -22,6 +22,7 @@ const COMMANDS: [&str; 15] = [
     "parameters",
     "klipper",
     "reprap",
+    "marlin",
     "demo",
 ];
 

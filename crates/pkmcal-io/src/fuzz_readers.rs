@@ -1,8 +1,9 @@
 //! Fuzzing of the readers of users' files in process (issue 34): random
-//! bytes and byte-mutated real files (real slicers' G-code, real Klipper and
-//! RepRapFirmware configurations when `../shared` is beside the repository,
-//! the shipped Klipper example, a calibration record) through the G-code line
-//! reader in every dialect, the Klipper and RepRapFirmware readers, and the
+//! bytes and byte-mutated real files (real slicers' G-code, real Klipper,
+//! RepRapFirmware and Marlin files when `../shared` is beside the
+//! repository, the shipped Klipper and Marlin examples, a calibration
+//! record) through the G-code line reader in every dialect, the Klipper
+//! (linear and rotary), RepRapFirmware and Marlin readers, and the
 //! calibration-record reader. Each must answer `Ok` or `Err`: no panic, no
 //! hang. 1,000 cases per property in the suite; `PKMCAL_FUZZ_CASES=N` for
 //! long runs (BENCHMARKS.md).
@@ -97,6 +98,41 @@ fn reprap_configs() -> &'static [Vec<u8>] {
     })
 }
 
+/// Marlin's settings and probe logs: the shipped example's, and every real
+/// file beside the repository.
+fn marlin_texts() -> &'static [Vec<u8>] {
+    static C: OnceLock<Vec<Vec<u8>>> = OnceLock::new();
+    C.get_or_init(|| {
+        let ex = root().join("examples/marlin-delta");
+        let mut out: Vec<Vec<u8>> = ["M503.txt", "G30.log"]
+            .iter()
+            .map(|f| std::fs::read(ex.join(f)).expect("shipped"))
+            .collect();
+        let dir = root().join("../shared/data/real-configs/marlin/cases");
+        if let Ok(cases) = std::fs::read_dir(dir) {
+            let mut paths: Vec<PathBuf> = cases
+                .flatten()
+                .filter_map(|c| std::fs::read_dir(c.path()).ok())
+                .flat_map(|d| d.flatten().map(|f| f.path()))
+                .filter(|p| !p.ends_with("SOURCE.txt"))
+                .collect();
+            paths.sort();
+            out.extend(paths.iter().filter_map(|p| std::fs::read(p).ok()));
+        }
+        out
+    })
+}
+
+fn rotary_configs() -> &'static [Vec<u8>] {
+    static C: OnceLock<Vec<Vec<u8>>> = OnceLock::new();
+    C.get_or_init(|| {
+        vec![
+            std::fs::read(root().join("examples/klipper-rotary-delta/printer.cfg"))
+                .expect("shipped"),
+        ]
+    })
+}
+
 fn record() -> &'static [u8] {
     static R: OnceLock<Vec<u8>> = OnceLock::new();
     R.get_or_init(|| {
@@ -139,6 +175,41 @@ proptest! {
         let all = reprap_configs();
         let text = String::from_utf8_lossy(&mutate(&all[pick % all.len()], &edits)).into_owned();
         let _ = crate::firmware::reprap::delta_from_gcode(&text, "config.g");
+    }
+
+    #[test]
+    fn fuzz_marlin_settings_and_probes(pick in any::<usize>(), other in any::<usize>(), edits in proptest::collection::vec((0usize..20_000, any::<u8>(), any::<bool>()), 0..8)) {
+        use crate::firmware::marlin;
+        let all = marlin_texts();
+        let text = String::from_utf8_lossy(&mutate(&all[pick % all.len()], &edits)).into_owned();
+        let log_text = String::from_utf8_lossy(&all[other % all.len()]).into_owned();
+        let path = Path::new("m503.txt");
+        let _ = marlin::parse_settings(&text, path, None);
+        let _ = marlin::probes_from_text(&text, path, Some(80.0));
+        if let Ok(settings) = marlin::settings_from_text(&text, path, Some(marlin::LetterB::RodTrim))
+            && let Ok(log) = marlin::probes_from_text(&log_text, path, None)
+            && let Ok(p) = marlin::MarlinPrinter::new(path, settings, path, log, Some([0.0, 0.0]), None)
+        {
+            for q in &p.log.points {
+                let _ = p.commands(q);
+            }
+            let _ = p.delta().gcode();
+        }
+    }
+
+    #[test]
+    fn fuzz_klipper_rotary_configs(pick in any::<usize>(), edits in proptest::collection::vec((0usize..20_000, any::<u8>(), any::<bool>()), 0..8)) {
+        let all = rotary_configs();
+        let text = String::from_utf8_lossy(&mutate(&all[pick % all.len()], &edits)).into_owned();
+        let dir = tempfile::tempdir().expect("temp dir");
+        let file = dir.path().join("printer.cfg");
+        let files = crate::Files::new();
+        let run = crate::Run::quiet(&files);
+        if let Ok(ini) = crate::firmware::klipper::parse_config(&run, &text, &file)
+            && let Ok(p) = crate::firmware::klipper_rotary::RotaryPrinter::from_parsed(&file, text, ini, crate::firmware::klipper::Weighting::Klipper)
+        {
+            let _ = p.delta.mechanism_toml();
+        }
     }
 
     #[test]

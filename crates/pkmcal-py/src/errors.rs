@@ -48,13 +48,13 @@ create_exception!(
     pkmcal,
     ModelWarning,
     PkmcalWarning,
-    "The residuals exceed what the instrument's stated noise explains: the model misses something."
+    "The residuals do not match the instrument's stated noise: above it (the model misses something, or the noise is understated) or well below it (the noise is overstated)."
 );
 create_exception!(
     pkmcal,
     ToleranceWarning,
     PkmcalWarning,
-    "An identified value far outside its tolerance, or parameters the data taught little beyond their tolerances."
+    "An identified value far outside its tolerance, tolerances the data push against, or parameters the data taught little beyond their tolerances."
 );
 
 /// The exception classes of files: each Python's own `OSError` class and

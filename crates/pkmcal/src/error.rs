@@ -231,6 +231,13 @@ pub enum Field {
     Grid,
     /// An output file or directory.
     Out,
+    /// What a firmware's letters mean where its version changed them
+    /// (Marlin's `M665 B`).
+    FirmwareLetters,
+    /// A probe's offset from the nozzle.
+    ProbeOffset,
+    /// The radius a firmware's own calibration probed at (Marlin's G33).
+    G33Radius,
 }
 
 impl Field {
@@ -291,6 +298,9 @@ impl Field {
             Dialect => "the G-code dialect",
             Grid => "the grid",
             Out => "the output",
+            FirmwareLetters => "the meaning of the firmware's letters",
+            ProbeOffset => "the probe's offset from the nozzle",
+            G33Radius => "G33's calibration radius",
         }
     }
 }

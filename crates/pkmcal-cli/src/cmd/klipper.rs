@@ -1,13 +1,14 @@
-//! `klipper`: calibrate a linear delta printer from its Klipper configuration
-//! and write Klipper's values back.
+//! `klipper`: calibrate a linear or rotary delta printer from its Klipper
+//! configuration and write Klipper's values back.
 
 use crate::args;
 use anyhow::Result;
 use pkmcal::{Mechanism, Params, Request};
 use pkmcal_io::Run;
 use pkmcal_io::firmware::klipper::{
-    DISTANCES_FILE, KlipperPrinter, OUT_DIR_FILES, Weighting, klipper_z_weight,
+    self, DISTANCES_FILE, KlipperPrinter, OUT_DIR_FILES, Weighting, klipper_z_weight,
 };
+use pkmcal_io::firmware::klipper_rotary::{self, RotaryPrinter};
 use pkmcal_io::firmware::{self, Firmware};
 use pkmcal_io::params::params_to_string;
 use std::fmt::Write as _;
@@ -15,15 +16,18 @@ use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// The printer's Klipper configuration (kinematics: delta), with the
-    /// [delta_calibrate] probe results (height0, height0_pos, …) that
-    /// DELTA_CALIBRATE and SAVE_CONFIG wrote.
+    /// The printer's Klipper configuration (kinematics: delta or
+    /// rotary_delta), with the [delta_calibrate] probe results (height0,
+    /// height0_pos, …) that DELTA_CALIBRATE and SAVE_CONFIG wrote.
     #[arg(long, value_name = "printer.cfg")]
     pub config: PathBuf,
     /// Parameters to identify (`--free`, comma separated): Klipper's by
     /// default (delta_radius, angle_a, angle_b, da, db, dc; the d's are
     /// endstop errors; with DELTA_ANALYZE distances arm_a, arm_b, arm_c too)
     /// or more (arm_a, arm_b, arm_c, angle_c, the towers' tilts a.tilt1, …);
+    /// a rotary delta's: hb (shoulder_height), dq1, dq2, dq3 (endstop
+    /// angles), with distances rb (shoulder_radius), arm1.angle, arm2.angle
+    /// too, or more (arm3.angle, la1…, lf1… for the upper and lower arms);
     /// `--fix` removes names.
     #[command(flatten)]
     pub params_set: args::FreeArgs,
@@ -63,11 +67,33 @@ impl Args {
 }
 
 pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
-    let printer = KlipperPrinter::read(run, &a.config, a.weighting)?;
+    let (text, ini) = klipper::read_config(run, &a.config)?;
+    if klipper_rotary::is_rotary(&ini) {
+        let printer = RotaryPrinter::from_parsed(&a.config, text, ini, a.weighting)?;
+        let (n, z_weight) = (printer.delta.distances.len(), printer.z_weight());
+        return report(run, &a, &printer, n, z_weight);
+    }
+    let printer = KlipperPrinter::from_parsed(&a.config, text, ini, a.weighting)?;
+    let (n, z_weight) = (
+        printer.delta.distances.len(),
+        klipper_z_weight(&printer.delta),
+    );
+    report(run, &a, &printer, n, z_weight)
+}
+
+/// Calibrate a Klipper printer holding `n_distances` distances and whose
+/// heights Klipper weighs `z_weight` times a distance; print and write as
+/// asked.
+fn report<F: Firmware>(
+    run: &Run<'_>,
+    a: &Args,
+    printer: &F,
+    n_distances: usize,
+    z_weight: f64,
+) -> Result<()> {
     let mut request = Request::new(pkmcal::Model::Exact);
     a.params_set.apply(&mut request);
-    let calibrated = firmware::calibrate(&printer, request)?;
-    let delta = &printer.delta;
+    let calibrated = firmware::calibrate(printer, request)?;
     let (mech, readings, study) = (&calibrated.mech, &calibrated.readings, &calibrated.study);
     let spec = mech.spec();
     let measurement = &readings.measurement;
@@ -81,13 +107,10 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     println!(
         "{} probe heights{} from {} (Klipper), {} parameters free: {}",
         heights.len(),
-        if delta.distances.is_empty() {
+        if n_distances == 0 {
             String::new()
         } else {
-            format!(
-                " and {} distances measured on the calibration object",
-                delta.distances.len()
-            )
+            format!(" and {n_distances} distances measured on the calibration object")
         },
         a.config.display(),
         calibrated.free_names.len(),
@@ -101,7 +124,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         max_abs(&after),
         rms(&after)
     );
-    if !delta.distances.is_empty()
+    if n_distances > 0
         && let Some(d) = &study.accuracy.distances
     {
         let weighing = match a.weighting {
@@ -132,7 +155,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
                 (h.sigma / dg.sigma).powi(2),
                 h.redundancy.unwrap_or(f64::NAN),
                 dg.redundancy.unwrap_or(f64::NAN),
-                1.0 / klipper_z_weight(delta)
+                1.0 / z_weight
             );
         }
         if let (Some(h), Some(dg)) = (group("probe"), group(pkmcal::DISTANCE_AXIS))
@@ -146,7 +169,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
                 r.high,
                 h.redundancy.unwrap_or(f64::NAN),
                 dg.redundancy.unwrap_or(f64::NAN),
-                1.0 / klipper_z_weight(delta)
+                1.0 / z_weight
             );
         }
     }
@@ -185,7 +208,8 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     }
     if let Some(dir) = &a.out_dir {
         run.files.create_dir(dir)?;
-        let mut csv = String::from("# frame: base\na,b,c,probe\n");
+        let names = spec.actuated_names();
+        let mut csv = format!("# frame: base\n{},probe\n", names.join(","));
         for m in heights {
             let _ = writeln!(
                 csv,
@@ -198,7 +222,19 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             .stage(&dir.join(m_file), printer.description().as_bytes())?;
         run.files.stage(&dir.join(d_file), csv.as_bytes())?;
         if !readings.distances.is_empty() {
-            let mut csv = String::from("a_1,b_1,c_1,a_2,b_2,c_2,distance\n");
+            let mut csv = format!(
+                "{},{},distance\n",
+                names
+                    .iter()
+                    .map(|n| format!("{n}_1"))
+                    .collect::<Vec<_>>()
+                    .join(","),
+                names
+                    .iter()
+                    .map(|n| format!("{n}_2"))
+                    .collect::<Vec<_>>()
+                    .join(",")
+            );
             for m in &readings.distances {
                 let b = m.partner.as_deref().unwrap_or_default();
                 let _ = writeln!(

@@ -9,6 +9,7 @@ pub mod demo;
 pub mod drift;
 pub mod gcode;
 pub mod klipper;
+pub mod marlin;
 pub mod montecarlo;
 pub mod parameters;
 pub mod plan;

@@ -6,9 +6,14 @@
 //!
 //! [`Firmware`] is the one interface the front ends calibrate a printer
 //! through; each firmware is one module: [`klipper`] (Klipper's linear
-//! delta), [`reprap`] (RepRapFirmware's).
+//! delta), [`klipper_rotary`] (Klipper's rotary delta), [`reprap`]
+//! (RepRapFirmware's), [`marlin`] (Marlin's, with its own calibration
+//! [`g33`] to compare).
 
+pub mod g33;
 pub mod klipper;
+pub mod klipper_rotary;
+pub mod marlin;
 pub mod reprap;
 
 use crate::description::Mech;

@@ -96,10 +96,10 @@ class OutlierWarning(PkmcalWarning):
     """Readings far beyond the noise were reported or dropped."""
 
 class ModelWarning(PkmcalWarning):
-    """The residuals exceed what the instrument's stated noise explains: the model misses something."""
+    """The residuals do not match the instrument's stated noise: above it (the model misses something, or the noise is understated) or well below it (the noise is overstated)."""
 
 class ToleranceWarning(PkmcalWarning):
-    """An identified value far outside its tolerance, or parameters the data taught little."""
+    """An identified value far outside its tolerance, tolerances the data push against, or parameters the data taught little."""
 
 class AlignmentWarning(PkmcalWarning):
     """pandas objects given together had their rows in different orders; they were aligned."""

@@ -1,0 +1,249 @@
+//! `marlin`: calibrate a linear delta printer run by Marlin from its M503
+//! settings and a console log of probes, print (and write) the new
+//! M665/M666 lines, and what Marlin's own G33 would set on the same printer.
+
+use crate::args;
+use anyhow::Result;
+use pkmcal::{Mechanism, Request};
+use pkmcal_io::Run;
+use pkmcal_io::firmware::g33::{self, G33Options};
+use pkmcal_io::firmware::marlin::{LetterB, MarlinDelta, MarlinPrinter, ProbeKind};
+use pkmcal_io::firmware::{self, Firmware};
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The printer's settings as M503 prints them (a console log is fine:
+    /// its `M665`, `M666` and `M851` lines are read, later ones
+    /// overriding), or a file of M665/M666 lines.
+    #[arg(long, value_name = "M503.txt")]
+    pub config: PathBuf,
+    /// A console log of probes: G30 (or G29 V3) reports `Bed X: … Y: … Z:
+    /// …`, and the heights G33 prints with V3 (`c:… x:… y:… z:…`, with
+    /// the settings it printed before them). Taken with the settings of
+    /// --config.
+    #[arg(long, value_name = "G30.log")]
+    pub probes: PathBuf,
+    /// Parameters to identify (`--free`, comma separated): G33's by default
+    /// (delta_radius, angle_a, angle_b and the endstop errors da, db, dc:
+    /// M665 R X Y Z, H and M666) or more (arm_a, arm_b, arm_c for the rods
+    /// L with the trims A B C, or `diagonal` for L alone; angle_c); `all` is
+    /// every parameter M665/M666 hold; `--fix` removes names.
+    #[command(flatten)]
+    pub params_set: args::FreeArgs,
+    /// Write the new M665 and M666 lines here (send them, then M500; or put
+    /// them in the start G-code). Never over --config.
+    #[arg(long, value_name = "NEW.gcode")]
+    pub out: Option<PathBuf>,
+    /// What M665 B means in this Marlin, where --config does not say (M503
+    /// prints a `; Delta settings:` heading that does): `calibration-radius`
+    /// (Marlin 1.1 to 2.0.x) or `rod-trim` (later versions, with A and C).
+    #[arg(long = "m665-b", value_name = "MEANING", value_parser = args::values::letter_b)]
+    pub m665_b: Option<LetterB>,
+    /// The probe's x, y offset from the nozzle (mm), where --config has no
+    /// `M851 X… Y…` line (Marlin 1.1 keeps it in Configuration.h).
+    #[arg(long, value_name = "X,Y", value_parser = args::values::probe_offset)]
+    pub probe_offset: Option<[f64; 2]>,
+    /// G33's probe points for the comparison (its `P`, 1 to 10; 4 is
+    /// Marlin's default DELTA_CALIBRATION_DEFAULT_POINTS).
+    #[arg(long, value_name = "P", default_value_t = 4, value_parser = clap::value_parser!(u8).range(1..=10))]
+    pub g33_points: u8,
+    /// G33 without the tower angles (its `T`).
+    #[arg(long)]
+    pub g33_fixed_angles: bool,
+    /// G33's calibration radius (mm), as it prints it (`Checking... AC at
+    /// radius:…`): where the comparison probes, and where the heights of a
+    /// G33 log lie when the log does not say. Default: the log's, else M665
+    /// B (Marlin 1.1 to 2.0.x), else the farthest probed point.
+    #[arg(long, value_name = "MM", value_parser = args::values::positive)]
+    pub g33_radius: Option<f64>,
+}
+
+impl Args {
+    pub fn paths(&self) -> Result<args::Paths> {
+        Ok(args::Paths::new(
+            [Some(self.config.clone()), Some(self.probes.clone())],
+            self.out.clone(),
+        ))
+    }
+}
+
+pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
+    let mut request = Request::new(pkmcal::Model::Exact);
+    a.params_set.apply(&mut request);
+    let printer = MarlinPrinter::read(
+        run,
+        &a.config,
+        &a.probes,
+        a.m665_b,
+        a.probe_offset,
+        a.g33_radius,
+        request.free.as_deref(),
+    )?;
+    let calibrated = firmware::calibrate(&printer, request)?;
+    let study = &calibrated.study;
+    let (cal, acc) = (&study.calibration, &study.accuracy);
+    let mech = &calibrated.mech;
+    let spec = mech.spec();
+    let measurement = &calibrated.readings.measurement;
+    let new = printer.delta().identified(spec, &cal.params)?;
+    let heights = |e: &[Vec<f64>]| -> (f64, f64) {
+        let v: Vec<f64> = e.iter().map(|r| r[0]).collect();
+        (max_abs(&v), rms(&v))
+    };
+    let ((bm, br), (am, ar)) = (heights(&study.before), heights(&study.after));
+    let g33_points = printer
+        .log
+        .points
+        .iter()
+        .filter(|p| matches!(p.kind, ProbeKind::G33 { .. }))
+        .count();
+    let o = printer.probe_offset;
+    println!(
+        "{} probe heights{} from {} with the settings of {} (Marlin; probe offset X{} Y{} Z{}), {} parameters free: {}",
+        acc.poses,
+        if g33_points > 0 {
+            format!(" ({g33_points} of them printed by G33)")
+        } else {
+            String::new()
+        },
+        a.probes.display(),
+        a.config.display(),
+        o[0],
+        o[1],
+        o[2],
+        calibrated.free_names.len(),
+        calibrated.free_names.join(" ")
+    );
+    println!("{}", cal.termination.reason());
+    println!(
+        "height errors: before max {bm:.4} mm, RMS {br:.4} mm; after max {am:.4} mm, RMS {ar:.4} mm"
+    );
+    for w in &cal.warnings {
+        println!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
+    }
+    println!(
+        "\nbefore:\n{}after:\n{}",
+        printer.delta().gcode(),
+        new.gcode()
+    );
+    // Marlin's own G33 on the printer the fit found.
+    let (radius, whence) = match (a.g33_radius, printer.log.g33_radius, printer.delta()) {
+        (Some(r), _, _) => (r, "given"),
+        (None, Some(r), _) => (r, "the radius the G33 log printed"),
+        (
+            None,
+            None,
+            MarlinDelta {
+                calibration_radius: Some(r),
+                letter_b: Some(LetterB::CalibrationRadius),
+                ..
+            },
+        ) => (*r, "M665 B"),
+        _ => (
+            printer.probe_radius(),
+            "the farthest probed point; --g33-radius sets it",
+        ),
+    };
+    let opts = G33Options {
+        points: a.g33_points,
+        towers: !a.g33_fixed_angles,
+        radius,
+        precision: 0.0,
+        force: 0,
+    };
+    let (factors, what) = opts.factors();
+    let probe = |s: &MarlinDelta, xy: [f64; 2]| {
+        printer.probe_as(s, xy, mech, measurement, &cal.params, &cal.measurement)
+    };
+    let g33 = g33::run(printer.delta(), &opts, &mut |s, xy| probe(s, xy));
+    println!(
+        "G33 P{}{} ({factors} factors: {what}), as Marlin's G33.cpp runs it on the printer this fit found, at radius {radius:.2} mm ({whence}):",
+        opts.points,
+        if opts.towers { "" } else { " T" },
+    );
+    // The fit's residuals at the probed points (the heights the probe would
+    // report with pkmcal's values, but for the fitted printer's own).
+    let residuals = firmware::probe_errors(
+        mech,
+        measurement,
+        &cal.params,
+        &cal.measurement,
+        &calibrated.readings.poses,
+    )?;
+    match g33.and_then(|g| {
+        // The heights the probe would report at the points probed, with
+        // G33's settings and with pkmcal's: the fitted printer's, plus what
+        // it left unexplained there.
+        let at = |s: &MarlinDelta| -> pkmcal_io::Result<Vec<f64>> {
+            printer
+                .log
+                .points
+                .iter()
+                .zip(&residuals)
+                .map(|(p, e)| {
+                    let n = printer.nozzle(p);
+                    Ok(probe(s, [n[0], n[1]])? + e)
+                })
+                .collect()
+        };
+        Ok((at(&g.settings)?, at(&new)?, g))
+    }) {
+        Ok((with_g33, with_new, g)) => {
+            let sd: Vec<String> = g.std_devs.iter().map(|s| format!("{s:.3}")).collect();
+            println!(
+                "  {} iteration{} of {} points, std dev {} mm{}; it would set:",
+                g.std_devs.len(),
+                if g.std_devs.len() == 1 { "" } else { "s" },
+                g.probes,
+                sd.join(" → "),
+                if g.rolled_back {
+                    ", rolled back to the best"
+                } else {
+                    ""
+                }
+            );
+            print!("{}", indent(&g.settings.gcode()));
+            println!(
+                "  height errors at the {} probed points with G33's values: max {:.4} mm, RMS {:.4} mm; with pkmcal's: max {:.4} mm, RMS {:.4} mm (the fit's residuals and the change the fitted printer predicts)",
+                with_g33.len(),
+                max_abs(&with_g33),
+                rms(&with_g33),
+                max_abs(&with_new),
+                rms(&with_new)
+            );
+        }
+        Err(e) => println!("  not run: {}", crate::words::io(&e)),
+    }
+    let mut note = String::new();
+    let _ = writeln!(
+        note,
+        "; Marlin delta settings identified by pkmcal {} from {} ({} probe points)",
+        env!("CARGO_PKG_VERSION"),
+        a.probes.display(),
+        acc.poses
+    );
+    note.push_str(&printer.updated(spec, &cal.params, &cal.measurement)?);
+    note.push_str("; send M500 once to keep them in EEPROM (not in a start script)\n");
+    if let Some(out) = &a.out {
+        run.files.stage(out, note.as_bytes())?;
+        println!(
+            "\nnew M665/M666 -> {} (send the two lines to the printer, then M500 to keep them; or put them in the start G-code)",
+            out.display()
+        );
+    }
+    Ok(())
+}
+
+fn indent(s: &str) -> String {
+    s.lines().map(|l| format!("  {l}\n")).collect()
+}
+
+fn rms(v: &[f64]) -> f64 {
+    (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt()
+}
+
+fn max_abs(v: &[f64]) -> f64 {
+    v.iter().fold(0.0, |m, x| m.max(x.abs()))
+}
