@@ -81,6 +81,28 @@ impl<'py> Kw<'py> {
         self.any(name)?.map(|v| count_of(&v, name)).transpose()
     }
 
+    /// [`Kw::count`] at most `max`, a bound of the library's: `what` names
+    /// the things counted and who bounds them ("targets one request spreads
+    /// over the workspace"), as the command line words its options.
+    pub fn count_at_most(&self, name: &str, max: usize, what: &str) -> PyResult<Option<usize>> {
+        let v = self.count(name)?;
+        match v {
+            Some(v) if v > max => Err(usage(format!(
+                "{name}={v}: more than the {max} {what}; give at most {max}"
+            ))),
+            _ => Ok(v),
+        }
+    }
+
+    /// A number of workspace targets ([`pkmcal::MAX_TARGETS`]).
+    pub fn targets(&self, name: &str) -> PyResult<Option<usize>> {
+        self.count_at_most(
+            name,
+            pkmcal::MAX_TARGETS,
+            "targets one request spreads over the workspace",
+        )
+    }
+
     /// Names: a string (one name, or several separated by commas, as on
     /// the command line) or a sequence of strings.
     pub fn names(&self, name: &str) -> PyResult<Option<Vec<String>>> {

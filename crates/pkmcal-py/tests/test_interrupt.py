@@ -68,11 +68,12 @@ CALLS = {
         "t = inner(rrr, 1000, 0.2); c = np.tile(pkmcal.nominal_commands(rrr, t), (100, 1)); t = np.tile(t, (100, 1))",
         "pkmcal.analyze(rrr, c, t, frame='base')",
     ),
-    # The change at the tool over 10^5 workspace targets: half a minute.
+    # The change at the tool over the most workspace targets one request
+    # spreads (10^4), of a planar linkage: ten seconds and more.
     "drift": (
-        "t = pkmcal.plan(mech, 35).targets; c, y = pkmcal.simulate(mech, t, {'l11': 280.3}, noise=0.002, seed=1)\n"
-        "cal = pkmcal.calibrate(mech, c, y, frame='base')",
-        "pkmcal.drift(cal, grid=100_000)",
+        "t = pkmcal.plan(jk, 35).targets; c, y = pkmcal.simulate(jk, t, noise=0.002, seed=1)\n"
+        "cal = pkmcal.calibrate(jk, c, y, frame='base')",
+        "pkmcal.drift(cal, grid=10_000)",
     ),
     # The figures of 5·10^5 poses without targets: each one's position
     # predicted first (the figures then show a selection).

@@ -76,6 +76,20 @@ def test_integers_out_of_range_are_value_errors_naming_the_argument(ref):
         pkmcal.montecarlo(mech, y, runs=-5)
     with pytest.raises(ValueError, match=r"max_nfev=1180591620717411303424"):
         pkmcal.calibrate(mech, c, y, max_nfev=2**70, frame="base")
+    # The library's bounds on work, named as the keyword (the command line's
+    # --grid, --samples, --runs, --validation-targets and --count).
+    with pytest.raises(ValueError, match="grid=10001: more than the 10000 targets"):
+        pkmcal.budget(mech, {"l11": 0.01}, grid=10_001)
+    with pytest.raises(ValueError, match="grid=100000: more than the 10000 targets"):
+        pkmcal.drift(pkmcal.calibrate(mech, c, y, frame="base"), grid=100_000)
+    with pytest.raises(ValueError, match="count=10001: more than the 10000 targets"):
+        pkmcal.plan(mech, 10_001)
+    with pytest.raises(ValueError, match="validation=10001: more than the 10000 targets"):
+        pkmcal.montecarlo(mech, y, runs=2, validation=10_001)
+    with pytest.raises(ValueError, match="samples=1000001: more than the 1000000 machines"):
+        pkmcal.budget(mech, {"l11": 0.01}, samples=1_000_001)
+    with pytest.raises(ValueError, match="runs=1000001: more than the 1000000 simulated"):
+        pkmcal.montecarlo(mech, y, runs=1_000_001)
     # NumPy integers are integers.
     assert pkmcal.plan(mech, np.int64(12), max_candidates=np.int32(300)).targets.shape == (12, 2)
     assert pkmcal.calibrate(mech, c, y, seed=np.int64(3), holdout=0.2, frame="base").validation

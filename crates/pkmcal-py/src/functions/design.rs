@@ -32,6 +32,13 @@ pub fn plan(py: Python<'_>, args: &Bound<'_, PyDict>) -> PyResult<PyPlan> {
     let m = mechanism.get();
     let spec = m.spec();
     let count = count_of(&kw.required("count")?, "count")?;
+    if count > pkmcal::MAX_TARGETS {
+        return Err(usage(format!(
+            "count={count}: more than the {} targets one request spreads over the workspace; give at most {}",
+            pkmcal::MAX_TARGETS,
+            pkmcal::MAX_TARGETS
+        )));
+    }
     let params = params_arg(m, kw.any("params")?.as_ref(), "params")?;
     let tool = MeasurementModel::tool(spec);
     let mut request = request(&kw, model(&kw, pkmcal::Model::Exact)?)?;
@@ -112,10 +119,16 @@ pub fn montecarlo(py: Python<'_>, args: &Bound<'_, PyDict>) -> PyResult<PyMonteC
     let request = request(&kw, cal.model)?;
     (cal.priors, cal.free) = free_of(&request, m, &tool)?;
     let validation = kw
-        .count("validation")?
+        .targets("validation")?
         .ok_or_else(|| needed("validation"))?;
     let opts = pkmcal::MonteCarloOptions {
-        runs: kw.count("runs")?.ok_or_else(|| needed("runs"))?,
+        runs: kw
+            .count_at_most(
+                "runs",
+                pkmcal::apply::montecarlo::MAX_RUNS,
+                "simulated calibrations a study runs",
+            )?
+            .ok_or_else(|| needed("runs"))?,
         noise: simulated_noise(&kw, pkmcal::identify::request::DEFAULT_WEIGHING_NOISE_MM)?,
         seed,
         length_error: kw
@@ -197,11 +210,17 @@ pub fn budget(py: Python<'_>, args: &Bound<'_, PyDict>) -> PyResult<PyBudget> {
         }),
         None => None,
     };
-    let grid = kw.count("grid")?.ok_or_else(|| needed("grid"))?;
+    let grid = kw.targets("grid")?.ok_or_else(|| needed("grid"))?;
     let opts = pkmcal::apply::budget::BudgetOptions {
         model,
         force: vec![],
-        samples: kw.count("samples")?.ok_or_else(|| needed("samples"))?,
+        samples: kw
+            .count_at_most(
+                "samples",
+                pkmcal::apply::budget::MAX_SAMPLES,
+                "machines a budget draws",
+            )?
+            .ok_or_else(|| needed("samples"))?,
         seed,
         calibration,
     };
@@ -305,7 +324,7 @@ pub fn drift(py: Python<'_>, args: &Bound<'_, PyDict>) -> PyResult<PyDrift> {
         }
     };
     let alpha = kw.f64("alpha")?.ok_or_else(|| needed("alpha"))?;
-    let grid = kw.count("grid")?.ok_or_else(|| needed("grid"))?;
+    let grid = kw.targets("grid")?.ok_or_else(|| needed("grid"))?;
     let d = interruptible(py, |cancel| -> pkmcal::Result<_> {
         let mut d = pkmcal::identify::drift(&a, &b, alpha)?;
         if let (Some(m), true) = (mech.as_deref(), grid > 0) {
