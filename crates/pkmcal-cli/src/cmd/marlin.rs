@@ -34,6 +34,10 @@ pub struct Args {
     pub params_set: args::FreeArgs,
     /// Write the new M665 and M666 lines here (send them, then M500; or put
     /// them in the start G-code). Never over --config.
+    /// Warn of a written value whose σ exceeds this, in the value's own
+    /// unit (mm, °, %).
+    #[arg(long, value_name = "SIGMA", default_value_t = pkmcal_io::firmware::DEFAULT_MAX_SIGMA, value_parser = args::values::max_sigma)]
+    pub max_sigma: f64,
     #[arg(long, value_name = "NEW.gcode")]
     pub out: Option<PathBuf>,
     /// What M665 B means in this Marlin, where --config does not say (M503
@@ -128,6 +132,8 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         printer.delta().gcode(),
         new.gcode()
     );
+    let written = super::print_written(&printer, &calibrated, "written value")?;
+    super::print_checks(&printer, &calibrated, &written, a.max_sigma)?;
     // Marlin's own G33 on the printer the fit found.
     let (radius, whence) = match (a.g33_radius, printer.log.g33_radius, printer.delta()) {
         (Some(r), _, _) => (r, "given"),
