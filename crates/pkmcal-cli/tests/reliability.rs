@@ -1232,8 +1232,8 @@ fn huge_run_counts_are_refused() {
     fails(
         d,
         &["plan", "--count", "18446744073709551615", "--out", "p.csv"],
-        1,
-        "ask for fewer",
+        2,
+        "--count",
     );
     for runs in ["18446744073709551615", "1000000000"] {
         fails(
@@ -1242,6 +1242,70 @@ fn huge_run_counts_are_refused() {
             2,
             "at most 1000000 runs",
         );
+    }
+}
+
+/// Counts of targets and samples, offsets and segment lengths beyond what
+/// pkmcal takes are usage errors naming the option, before any work, with
+/// the number as typed (issue 50, rough edges: `budget --grid` failed after
+/// 4 s of work, `budget --samples`, `montecarlo --validation` and `--offset
+/// 1e300` exited 1 naming no option, `--max-segment 1e-300` printed a
+/// 300-digit number).
+#[test]
+fn out_of_range_counts_and_lengths_are_usage_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    files(d);
+    std::fs::write(d.join("cal.toml"), "").unwrap();
+    std::fs::write(d.join("p.gcode"), "G21\nG90\nG1 X0 Y180\nG1 X10 Y190\n").unwrap();
+    let cases: &[(&[&str], &str)] = &[
+        (&["budget", "--samples", "2000000"], "--samples"),
+        (
+            &["budget", "--samples", "99999999999999999999"],
+            "--samples",
+        ),
+        (&["budget", "--grid", "1000000"], "--grid"),
+        (&["drift", "--new", "r.json", "--grid", "1000000"], "--grid"),
+        (&["simulate", "--grid", "10001", "--out", "s.csv"], "--grid"),
+        (
+            &["montecarlo", "--poses", "d.csv", "--validation", "1000000"],
+            "--validation-targets",
+        ),
+        (&["plan", "--count", "20000", "--out", "p.csv"], "--count"),
+        (
+            &[
+                "gcode",
+                "--params",
+                "cal.toml",
+                "--program",
+                "p.gcode",
+                "--offset",
+                "1e300,0",
+                "--out",
+                "o.gcode",
+            ],
+            "--offset: 1e300 is beyond",
+        ),
+        (
+            &[
+                "gcode",
+                "--params",
+                "cal.toml",
+                "--program",
+                "p.gcode",
+                "--max-segment",
+                "1e-300",
+                "--out",
+                "o.gcode",
+            ],
+            "1e-300 must be a length",
+        ),
+    ];
+    for (args, needle) in cases {
+        fails(d, args, 2, needle);
+    }
+    for out in ["s.csv", "p.csv", "o.gcode"] {
+        assert!(!d.join(out).exists(), "{out} written");
     }
 }
 
@@ -1374,7 +1438,7 @@ fn the_culprit_is_named_with_the_right_exit_code() {
                 "p.csv",
             ],
             1,
-            &format!("{f}: this calibration cannot serve"),
+            &format!("{f}: `covariance`"),
         );
         fails(
             d,

@@ -186,30 +186,95 @@ pub struct RecordParts {
     pub dof: Option<f64>,
 }
 
+/// A JSON text as a value, refusing a key given twice in one object (a
+/// JSON reader would keep one of them without a word).
+fn strict_json(text: &str) -> std::result::Result<serde_json::Value, serde_json::Error> {
+    use serde::de::{Error as _, MapAccess, SeqAccess, Visitor};
+    struct Strict(serde_json::Value);
+    struct V;
+    impl<'de> Visitor<'de> for V {
+        type Value = serde_json::Value;
+        fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            f.write_str("a JSON value")
+        }
+        fn visit_bool<E>(self, v: bool) -> std::result::Result<Self::Value, E> {
+            Ok(v.into())
+        }
+        fn visit_i64<E>(self, v: i64) -> std::result::Result<Self::Value, E> {
+            Ok(v.into())
+        }
+        fn visit_u64<E>(self, v: u64) -> std::result::Result<Self::Value, E> {
+            Ok(v.into())
+        }
+        fn visit_f64<E>(self, v: f64) -> std::result::Result<Self::Value, E> {
+            Ok(v.into())
+        }
+        fn visit_str<E>(self, v: &str) -> std::result::Result<Self::Value, E> {
+            Ok(v.into())
+        }
+        fn visit_string<E>(self, v: String) -> std::result::Result<Self::Value, E> {
+            Ok(v.into())
+        }
+        fn visit_unit<E>(self) -> std::result::Result<Self::Value, E> {
+            Ok(serde_json::Value::Null)
+        }
+        fn visit_seq<A: SeqAccess<'de>>(
+            self,
+            mut a: A,
+        ) -> std::result::Result<Self::Value, A::Error> {
+            let mut out = vec![];
+            while let Some(Strict(v)) = a.next_element()? {
+                out.push(v);
+            }
+            Ok(out.into())
+        }
+        fn visit_map<A: MapAccess<'de>>(
+            self,
+            mut a: A,
+        ) -> std::result::Result<Self::Value, A::Error> {
+            let mut out = serde_json::Map::new();
+            while let Some(k) = a.next_key::<String>()? {
+                if out.contains_key(&k) {
+                    return Err(A::Error::custom(format!(
+                        "the key `{k}` appears twice in one object (which one counts is not defined); keep one"
+                    )));
+                }
+                let Strict(v) = a.next_value()?;
+                out.insert(k, v);
+            }
+            Ok(out.into())
+        }
+    }
+    impl<'de> Deserialize<'de> for Strict {
+        fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+            d.deserialize_any(V).map(Strict)
+        }
+    }
+    serde_json::from_str::<Strict>(text).map(|s| s.0)
+}
+
 /// The [`RecordParts`] of a record's JSON text; `source` names it in
-/// messages.
+/// messages. A key given twice, a missing member or one of another kind is
+/// refused here; what the members mean, against the mechanism they serve,
+/// by [`pkmcal::identify::CalibrationRecord::check`].
 pub fn record_parts(text: &str, source: &str) -> Result<RecordParts> {
-    let mut v: serde_json::Value = serde_json::from_str(text)
+    let mut v: serde_json::Value = strict_json(text)
         .map_err(|e| Error::Content(format!("{source}: not a JSON calibration report: {e}")))?;
     if v.get("covariance").is_none() {
         return Err(Error::NotARecord {
             source_name: source.to_string(),
         });
     }
-    let dof = v
-        .get("noise")
-        .and_then(serde_json::Value::as_array)
-        .map(|groups| {
-            groups
-                .iter()
-                .filter(|g| g.get("estimated").and_then(serde_json::Value::as_bool) == Some(true))
-                .filter_map(|g| g.get("redundancy").and_then(serde_json::Value::as_f64))
-                .sum::<f64>()
-        })
-        .filter(|r| *r > 0.0);
     let state = v.as_object_mut().and_then(|o| o.remove("state"));
-    let record = serde_json::from_value(v)
-        .map_err(|e| Error::Content(format!("{source}: malformed calibration report: {e}")))?;
+    let record: pkmcal::identify::CalibrationRecord = serde_json::from_value(v).map_err(|e| {
+        Error::Content(format!(
+            "{source}: malformed calibration report: {e}; give a calibration record as pkmcal wrote it"
+        ))
+    })?;
+    record
+        .check_members()
+        .map_err(|e| Error::Content(format!("{source}: {e}")))?;
+    let dof = record.dof();
     Ok(RecordParts { record, state, dof })
 }
 

@@ -984,19 +984,12 @@ fn params_arg(m: &PyMechanism, p: Option<&Bound<'_, PyAny>>, what: &str) -> PyRe
     };
     if let Ok(s) = p.cast::<PySavedCalibration>() {
         let s = s.get();
-        return s
-            .record
-            .params(spec)
-            .and_then(|params| {
-                s.record.check(spec)?;
-                Ok(params)
-            })
-            .map_err(|e| {
-                usage(format!(
-                    "{what}: {}: this calibration cannot serve {}: {e}",
-                    s.source, spec.name
-                ))
-            });
+        return s.record.checked_params(m.mech.as_ref()).map_err(|e| {
+            usage(format!(
+                "{what}: {}: this calibration cannot serve {}: {e}",
+                s.source, spec.name
+            ))
+        });
     }
     if let Ok(c) = p.cast::<PyCalibration>() {
         let c = c.get();

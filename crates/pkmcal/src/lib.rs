@@ -46,7 +46,8 @@ pub mod units;
 
 pub use apply::compensation::{
     Compensation, CompensationOptions, CorrectionGrid, GridAxis, InterpolationError, Predistortion,
-    compensate, controller_commands, correction_grid, interpolation_error, predistort,
+    compensate, controller_commands, correction_grid, correction_grid_with_progress,
+    interpolation_error, predistort,
 };
 pub use apply::montecarlo::{
     MonteCarloOptions, MonteCarloSummary, monte_carlo, validation_targets,
@@ -58,7 +59,7 @@ pub use apply::planning::{
 pub use apply::rows::{RowPrediction, RowSettings, predict_rows};
 pub use apply::simulate::{simulate, simulate_distances, simulate_with_progress};
 pub use apply::workspace::{
-    WorkspacePoint, grid_targets, nominal_commands, random_targets, sample_workspace,
+    MAX_TARGETS, WorkspacePoint, grid_targets, nominal_commands, random_targets, sample_workspace,
     spread_targets,
 };
 pub use engine::kinematics::{
@@ -94,8 +95,8 @@ pub use measurement::{
 };
 pub use mechanism::tool::ToolLayout;
 pub use mechanism::{
-    AxisInfo, JointInfo, Mechanism, MechanismSummary, ParameterInfo, Params, Renamed, Scalar, Spec,
-    summary,
+    AxisInfo, JointInfo, MAX_JOINTS, MAX_LEGS, Mechanism, MechanismSummary, ParameterInfo, Params,
+    Renamed, Scalar, Spec, summary,
 };
 pub use units::{AngleUnit, FileUnits, LengthUnit, ParamKind, PartialUnits, Quantity, Role, Unit};
 

@@ -54,7 +54,7 @@ pub struct Args {
     )]
     pub angle_error: f64,
     /// Unseen poses on which accuracy is judged.
-    #[arg(value_parser = args::values::count, long, alias = "validation", default_value_t = 50, value_name = "N")]
+    #[arg(value_parser = args::values::targets, long, alias = "validation", default_value_t = 50, value_name = "N")]
     pub validation_targets: usize,
     /// Output CSV with one row per run.
     #[arg(long, value_name = "RUNS.csv")]

@@ -14,7 +14,7 @@ pub struct Args {
     #[command(flatten)]
     pub mech: args::MechanismArg,
     /// Number of poses to choose.
-    #[arg(value_parser = args::values::count, long, value_name = "N")]
+    #[arg(value_parser = args::values::targets, long, value_name = "N")]
     pub count: usize,
     /// Spacing of the candidate lattice over the usable workspace, mm (an
     /// axis in rad is spaced by it over the mechanism's lever arm;

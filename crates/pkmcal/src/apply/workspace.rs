@@ -57,10 +57,28 @@ pub fn sample_workspace<M: Mechanism>(mech: &M, spacing: f64) -> Vec<WorkspacePo
         .collect()
 }
 
+/// The most targets one request spreads over the workspace (a grid, a
+/// spread, random validation targets, a plan's poses): each is drawn from a
+/// lattice of at most [`crate::engine::atlas::MAX_LATTICE_POINTS`] (their usable part, often a
+/// third), so that more could only fail after seconds of work; a
+/// calibration has tens to thousands of poses.
+pub const MAX_TARGETS: usize = 10_000;
+
+/// `count` targets beyond [`MAX_TARGETS`], refused; or `Ok`.
+pub fn check_target_count(count: usize) -> Result<()> {
+    if count > MAX_TARGETS {
+        return Err(Error::InvalidRequest(format!(
+            "{count} targets are more than the {MAX_TARGETS} one request spreads over the workspace"
+        )));
+    }
+    Ok(())
+}
+
 /// `count` targets spread evenly over the usable workspace: farthest-point
 /// sampling of a fine lattice, starting from the point nearest the centroid.
 /// Deterministic.
 pub fn spread_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<WorkspacePoint>> {
+    check_target_count(count)?;
     let spec = mech.spec();
     let extent = scaled_extent(spec);
     let dims = spec.workspace_box.len() as i32;
@@ -129,6 +147,7 @@ pub fn nominal_commands<M: Mechanism>(mech: &M, target: &[f64]) -> Result<Vec<f6
 /// `count` distinct usable targets drawn at random (seeded) from a 5 mm
 /// lattice of the usable workspace: unseen poses for validation.
 pub fn random_targets<M: Mechanism>(mech: &M, count: usize, seed: u64) -> Result<Vec<Vec<f64>>> {
+    check_target_count(count)?;
     use rand::SeedableRng;
     use rand::seq::SliceRandom;
     let mut pool = sample_workspace(mech, 5.0);
@@ -143,6 +162,7 @@ pub fn random_targets<M: Mechanism>(mech: &M, count: usize, seed: u64) -> Result
 /// workspace box with at least `count` usable points, thinned evenly to
 /// `count`. The baseline measurement plan.
 pub fn grid_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<WorkspacePoint>> {
+    check_target_count(count)?;
     let spec = mech.spec();
     let extent = scaled_extent(spec);
     let dims = spec.workspace_box.len() as f64;

@@ -43,8 +43,8 @@ pub use prior::{
 };
 pub use problem::{IdentificationProblem, MAX_POSES, PoseCache, too_many_poses};
 pub use record::{
-    CALIBRATION_FORMAT, CALIBRATION_VERSION, CalibrationRecord, RecordError, RecordedParameter,
-    mechanism_identities, mechanism_identity,
+    CALIBRATION_FORMAT, CALIBRATION_VERSION, COVARIANCE_SYMMETRY, CalibrationRecord, RecordError,
+    RecordedNoise, RecordedParameter, mechanism_identities, mechanism_identity,
 };
 pub use request::{FrameChoice, Request, SolverRequest};
 pub use result::{Calibration, ParameterResult, Warning, WarningCategory, WarningKind};

@@ -638,7 +638,7 @@ pub fn bounded(field: Field, v: f64, max: f64, unit: &str) -> Result<f64, Reques
     } else {
         Err(RequestError::invalid(
             field,
-            format!("{v} {unit} must be between 0 and {max} {unit}"),
+            format!("{v:?} {unit} must be between 0 and {max} {unit}"),
         ))
     }
 }
@@ -650,7 +650,7 @@ pub fn positive(field: Field, v: f64, max: f64, unit: &str) -> Result<f64, Reque
     } else {
         Err(RequestError::invalid(
             field,
-            format!("{v} {unit} must be positive and at most {max} {unit}"),
+            format!("{v:?} {unit} must be positive and at most {max} {unit}"),
         ))
     }
 }
@@ -663,7 +663,7 @@ pub fn sigma_mm(field: Field, v: f64) -> Result<f64, RequestError> {
     } else {
         Err(RequestError::invalid(
             field,
-            format!("{v} mm must be between {MIN_SIGMA:e} and {MAX_LENGTH_MM:e} mm"),
+            format!("{v:?} mm must be between {MIN_SIGMA:e} and {MAX_LENGTH_MM:e} mm"),
         ))
     }
 }

@@ -23,6 +23,12 @@ use crate::mechanism::{Mechanism, Params, Spec};
 use nalgebra::DMatrix;
 use serde::Serialize;
 
+/// Degrees of freedom from which an estimated σ's intervals and tests are
+/// drawn as for a known σ (normal, χ²): Student's t's 97.5 % quantile is
+/// then the normal's 1.959964 to 2.4e-6 (the first term of its expansion,
+/// (z³ + z)/4ν), below any figure shown.
+pub const NORMAL_LIMIT_DOF: f64 = 1e6;
+
 /// How a calibration's uncertainties are scaled (docs/model.md §6, "The
 /// scale of the uncertainties"): what a front end says beside each σ and
 /// what its intervals and tests are drawn from.
@@ -73,13 +79,22 @@ impl Scale {
         }
     }
 
+    /// The degrees of freedom the intervals and tests are drawn with:
+    /// [`Self::dof`], or `None` (the normal and χ² limits) from
+    /// [`NORMAL_LIMIT_DOF`] on, where Student's t and Fisher's F are those
+    /// limits to the digits shown and their tails lose all precision (a
+    /// record's 1e308 degrees of freedom gave p = 1 for a 128σ change).
+    fn drawn_dof(&self) -> Option<f64> {
+        self.dof().filter(|n| n.is_nan() || *n < NORMAL_LIMIT_DOF)
+    }
+
     /// The half-width, in standard deviations, of a two-sided interval of
     /// confidence `level` (0.95: 1.96 when σ is known, Student's t with the
     /// degrees of freedom when it was estimated; NaN with none).
     pub fn quantile(&self, level: f64) -> f64 {
         use statrs::distribution::{ContinuousCDF, Normal, StudentsT};
         let p = 0.5 + 0.5 * level;
-        match self.dof() {
+        match self.drawn_dof() {
             None => Normal::standard().inverse_cdf(p),
             Some(n) if n > 0.0 => {
                 StudentsT::new(0.0, 1.0, n).map_or(f64::NAN, |t| t.inverse_cdf(p))
@@ -91,7 +106,7 @@ impl Scale {
     /// The two-sided p-value of a standardised value `z`.
     pub fn two_sided(&self, z: f64) -> f64 {
         use statrs::distribution::{ContinuousCDF, StudentsT};
-        match self.dof() {
+        match self.drawn_dof() {
             Some(n) if n > 0.0 => {
                 StudentsT::new(0.0, 1.0, n).map_or(f64::NAN, |t| 2.0 * t.sf(z.abs()))
             }
@@ -107,7 +122,7 @@ impl Scale {
         if k.is_nan() || k <= 0.0 {
             return f64::NAN;
         }
-        match self.dof() {
+        match self.drawn_dof() {
             None => ChiSquared::new(k).map_or(f64::NAN, |c| c.sf(q)),
             Some(n) if n > 0.0 => FisherSnedecor::new(k, n).map_or(f64::NAN, |f| f.sf(q / k)),
             Some(_) => f64::NAN,
