@@ -350,6 +350,15 @@ pub mod values {
     pub fn letter_b(s: &str) -> Result<pkmcal_io::firmware::marlin::LetterB, String> {
         s.parse()
     }
+    /// The σ beyond which a written firmware value is warned of (in its
+    /// own unit: mm, °, %).
+    pub fn max_sigma(s: &str) -> Result<f64, String> {
+        let v = number(s)?;
+        let top = pkmcal_io::firmware::MAX_SIGMA_LIMIT;
+        (v > 0.0 && v <= top)
+            .then_some(v)
+            .ok_or_else(|| format!("{v} must be above 0 and at most {top}"))
+    }
     /// A probe's x, y offset from the nozzle (mm): two numbers, each at
     /// most 1 m in size.
     pub fn probe_offset(s: &str) -> Result<[f64; 2], String> {

@@ -172,6 +172,9 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     request.kfold = a.kfold;
     request.seed = a.seed;
     crate::cmd::note_renamed(run, spec, &request);
+    let freed = request
+        .freed_by_tolerances(spec, &measurement, &description.tolerances)
+        .map_err(|e| crate::cmd::in_mechanism(e, &description))?;
     let study_opts = request
         .study_options(mech, &measurement, &description.tolerances, &start)
         .map_err(|e| crate::cmd::in_mechanism(e, &description))?;
@@ -249,6 +252,12 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     }
     let mut summary = String::new();
     write_summary(&mut summary, &report, measurement, &crate::words::WORDING);
+    if !freed.is_empty() {
+        say!(
+            "free by their tolerances (a tolerance frees its parameter; --fix keeps one fixed): {}",
+            freed.join(" ")
+        );
+    }
     say_raw!("{summary}");
     say!();
     say!("identified parameters -> {}", a.out.display());

@@ -51,6 +51,10 @@ pub struct Args {
     /// pseudo-readings predicted better, up to Klipper's ratio).
     #[arg(long, default_value = "klipper", value_parser = args::values::weighting)]
     pub weighting: Weighting,
+    /// Warn of a written value whose σ exceeds this, in the value's own
+    /// unit (mm, °, %).
+    #[arg(long, value_name = "SIGMA", default_value_t = pkmcal_io::firmware::DEFAULT_MAX_SIGMA, value_parser = args::values::max_sigma)]
+    pub max_sigma: f64,
 }
 
 impl Args {
@@ -103,7 +107,6 @@ fn report<F: Firmware>(
     let before =
         firmware::probe_errors(mech, measurement, &nominal, measurement.nominal(), heights)?;
     let after = firmware::probe_errors(mech, measurement, &cal.params, &cal.measurement, heights)?;
-    let values = printer.values(spec, &cal.params, &cal.measurement)?;
     say!(
         "{} probe heights{} from {} (Klipper), {} parameters free: {}",
         heights.len(),
@@ -179,15 +182,7 @@ fn report<F: Firmware>(
     for w in &cal.warnings {
         say!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
     }
-    say!(
-        "\n  {:<28} {:>14} {:>14}",
-        "Klipper value",
-        "before",
-        "after"
-    );
-    for v in &values {
-        say!("  {:<28} {:>14.6} {:>14.6}", v.name, v.before, v.after);
-    }
+    let written = super::print_written(printer, &calibrated, "Klipper value")?;
     for (i, n) in measurement.param_names().iter().enumerate() {
         if calibrated.free.contains(&(spec.n_params() + i)) {
             say!(
@@ -199,6 +194,7 @@ fn report<F: Firmware>(
             );
         }
     }
+    super::print_checks(printer, &calibrated, &written, a.max_sigma)?;
     if let Some(out) = &a.out {
         run.files.stage(
             out,

@@ -31,6 +31,10 @@ pub struct Args {
     #[command(flatten)]
     pub params_set: args::FreeArgs,
     /// Write the new M665 and M666 lines here (never over --config).
+    /// Warn of a written value whose σ exceeds this, in the value's own
+    /// unit (mm, °, %).
+    #[arg(long, value_name = "SIGMA", default_value_t = pkmcal_io::firmware::DEFAULT_MAX_SIGMA, value_parser = args::values::max_sigma)]
+    pub max_sigma: f64,
     #[arg(long, value_name = "NEW.g")]
     pub out: Option<PathBuf>,
 }
@@ -87,6 +91,8 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         printer.delta.gcode(),
         new.gcode()
     );
+    let written = super::print_written(&printer, &calibrated, "written value")?;
+    super::print_checks(&printer, &calibrated, &written, a.max_sigma)?;
     let mut note = String::new();
     let _ = writeln!(
         note,

@@ -20,7 +20,7 @@
 //! and the `#*#` SAVE_CONFIG block at the end, whose values override. (Written
 //! here: no INI crate reads that block, and the dialect is a few rules.)
 
-use super::{Firmware, FirmwareValue, Readings};
+use super::{Firmware, FirmwareValue, Readings, Separation, TiltPlace};
 use crate::error::{Error, Result};
 use crate::{invalid, refuse};
 use pkmcal::{MeasurementModel, Params, Request};
@@ -1401,6 +1401,19 @@ impl KlipperPrinter {
 }
 
 impl Firmware for KlipperPrinter {
+    fn separation(&self) -> Separation {
+        Separation::Distances
+    }
+
+    fn relative_sigma(&self, readings: &Readings) -> bool {
+        // Klipper's fixed ratio is given as the readings' σ.
+        self.weighting == Weighting::Klipper && !readings.distances.is_empty()
+    }
+
+    fn tilt_place(&self) -> TiltPlace {
+        TiltPlace::BedMesh
+    }
+
     fn name(&self) -> &'static str {
         "Klipper"
     }
@@ -1497,6 +1510,7 @@ impl Firmware for KlipperPrinter {
             before: old.radius,
             after: new.radius,
             unit: "mm",
+            sigma: None,
         }];
         for (i, t) in TOWERS.iter().enumerate() {
             for (key, a, b, unit) in [
@@ -1509,6 +1523,7 @@ impl Firmware for KlipperPrinter {
                     before: a,
                     after: b,
                     unit,
+                    sigma: None,
                 });
             }
         }

@@ -16,7 +16,7 @@
 //! mean 0 (its `NormaliseEndstopAdjustments`), the bed's tilts as `A B`.
 
 use super::klipper::{KLIPPER_FREE, KlipperDelta, SHARED_ARM};
-use super::{Firmware, FirmwareValue, Readings};
+use super::{Firmware, FirmwareValue, Readings, TiltPlace};
 use crate::csv::Csv;
 use crate::error::{Error, Result};
 use crate::{invalid, refuse};
@@ -549,6 +549,13 @@ impl RrfPrinter {
 }
 
 impl Firmware for RrfPrinter {
+    fn tilt_place(&self) -> TiltPlace {
+        TiltPlace::Values {
+            values: "M666 A B",
+            free: vec!["bed.rx".into(), "bed.ry".into()],
+        }
+    }
+
     fn name(&self) -> &'static str {
         "RepRapFirmware"
     }
@@ -650,6 +657,7 @@ impl Firmware for RrfPrinter {
                 before: a,
                 after: b,
                 unit,
+                sigma: None,
             })
         };
         for (i, (w, _)) in TOWERS.iter().enumerate() {

@@ -684,12 +684,15 @@ fn assemble<M: Mechanism>(
     let Fit {
         report,
         identifiability,
-        free,
+        mut free,
         requested,
         mut warnings,
         terms,
         rows,
     } = fit;
+    // The solver's columns (its covariance's and Jacobian's) are the free
+    // mask's, in index order, whatever order the free set was named in.
+    free.sort_unstable();
     let params = Params::new(spec, report.x[..np].to_vec())?;
     let m_values = report.x[np..].to_vec();
     let frame = m_values[measurement.frame_range()].to_vec();

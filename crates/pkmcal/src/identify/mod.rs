@@ -20,7 +20,10 @@ pub mod uncertainty;
 pub mod validation;
 pub mod weights;
 
-pub use adequacy::{ADEQUACY_ALPHA, AdequacyTest, SUSPECT_ALPHA, SUSPECT_SHARE, SUSPECTS};
+pub use adequacy::{
+    ADEQUACY_ALPHA, AdequacyTest, OMITTED_ALPHA, OmittedTest, SUSPECT_ALPHA, SUSPECT_SHARE,
+    SUSPECTS, omitted_test,
+};
 pub use drift::{Compared, DEFAULT_ALPHA, Drift, ParameterDrift, drift, noise_dof};
 pub use driver::{
     AnalysisOptions, CalibrationOptions, DEFAULT_STATED_NOISE_READINGS, MAX_DROPPED_FRACTION,
