@@ -274,7 +274,7 @@ pub mod values {
         let v = number(s)?;
         (v > 0.0)
             .then_some(v)
-            .ok_or_else(|| format!("{v} must be positive"))
+            .ok_or_else(|| format!("{v:?} must be positive"))
     }
     /// A number of readings (or anything counted that may be 0 or
     /// fractional).
@@ -282,7 +282,7 @@ pub mod values {
         let v = number(s)?;
         (v >= 0.0)
             .then_some(v)
-            .ok_or_else(|| format!("{v} must be at least 0"))
+            .ok_or_else(|| format!("{v:?} must be at least 0"))
     }
     /// A standard deviation of a length reading, mm: the library's bounds.
     pub fn sigma_mm(s: &str) -> Result<f64, String> {
@@ -292,7 +292,7 @@ pub mod values {
             .then_some(v)
             .ok_or_else(|| {
                 format!(
-                    "{v} mm must be between {:e} and {MAX_LENGTH_MM:e} mm",
+                    "{v:?} mm must be between {:e} and {MAX_LENGTH_MM:e} mm",
                     pkmcal::identify::MIN_SIGMA
                 )
             })
@@ -301,30 +301,63 @@ pub mod values {
         let v = number(s)?;
         (v > 0.0 && v < 1.0)
             .then_some(v)
-            .ok_or_else(|| format!("{v} must be between 0 and 1 (exclusive)"))
+            .ok_or_else(|| format!("{v:?} must be between 0 and 1 (exclusive)"))
     }
     pub fn length_noise(s: &str) -> Result<f64, String> {
         let v = number(s)?;
         (0.0..=MAX_LENGTH_MM)
             .contains(&v)
             .then_some(v)
-            .ok_or_else(|| format!("{v} mm must be between 0 and {MAX_LENGTH_MM} mm"))
+            .ok_or_else(|| format!("{v:?} mm must be between 0 and {MAX_LENGTH_MM} mm"))
     }
     pub fn angle_noise(s: &str) -> Result<f64, String> {
         let v = number(s)?;
         (0.0..=MAX_ANGLE_RAD)
             .contains(&v)
             .then_some(v)
-            .ok_or_else(|| format!("{v} rad must be between 0 and {MAX_ANGLE_RAD} rad"))
+            .ok_or_else(|| format!("{v:?} rad must be between 0 and {MAX_ANGLE_RAD} rad"))
+    }
+    /// A whole number (0 included); one too large for any count says so.
+    fn whole(s: &str) -> Result<usize, String> {
+        let t = s.trim();
+        t.parse().map_err(|_| {
+            if !t.is_empty() && t.bytes().all(|b| b.is_ascii_digit()) {
+                format!("`{t}` is beyond any count pkmcal takes")
+            } else {
+                format!("`{s}` is not a whole number")
+            }
+        })
     }
     pub fn count(s: &str) -> Result<usize, String> {
-        let v: usize = s
-            .trim()
-            .parse()
-            .map_err(|_| format!("`{s}` is not a whole number"))?;
+        let v = whole(s)?;
         (v >= 1)
             .then_some(v)
             .ok_or_else(|| "must be at least 1".to_string())
+    }
+    /// A number of targets spread over the workspace: at least 1, at most
+    /// [`pkmcal::MAX_TARGETS`].
+    pub fn targets(s: &str) -> Result<usize, String> {
+        let v = count(s)?;
+        targets_or_none(&v.to_string())
+    }
+    /// [`targets`], or 0 for none.
+    pub fn targets_or_none(s: &str) -> Result<usize, String> {
+        let v = whole(s)?;
+        (v <= pkmcal::MAX_TARGETS).then_some(v).ok_or_else(|| {
+            format!(
+                "{v} targets are more than the {} one request spreads over the workspace",
+                pkmcal::MAX_TARGETS
+            )
+        })
+    }
+    /// Machines a budget draws: 0 (none) to
+    /// [`pkmcal::apply::budget::MAX_SAMPLES`].
+    pub fn samples(s: &str) -> Result<usize, String> {
+        let v = whole(s)?;
+        let max = pkmcal::apply::budget::MAX_SAMPLES;
+        (v <= max).then_some(v).ok_or_else(|| {
+            format!("{v} samples are more than a budget draws ({max}); a few thousand settle the RMS to a percent")
+        })
     }
     pub fn runs(s: &str) -> Result<usize, String> {
         let v = count(s)?;
@@ -349,6 +382,15 @@ pub mod values {
     pub fn letter_b(s: &str) -> Result<pkmcal_io::firmware::marlin::LetterB, String> {
         s.parse()
     }
+    /// The σ beyond which a written firmware value is warned of (in its
+    /// own unit: mm, °, %).
+    pub fn max_sigma(s: &str) -> Result<f64, String> {
+        let v = number(s)?;
+        let top = pkmcal_io::firmware::MAX_SIGMA_LIMIT;
+        (v > 0.0 && v <= top)
+            .then_some(v)
+            .ok_or_else(|| format!("{v} must be above 0 and at most {top}"))
+    }
     /// A probe's x, y offset from the nozzle (mm): two numbers, each at
     /// most 1 m in size.
     pub fn probe_offset(s: &str) -> Result<[f64; 2], String> {
@@ -367,7 +409,7 @@ pub mod values {
         let v = number(s)?;
         (v > 0.0 && v <= MAX_LENGTH_MM)
             .then_some(v)
-            .ok_or_else(|| format!("{v} mm must be positive and at most {MAX_LENGTH_MM} mm"))
+            .ok_or_else(|| format!("{v:?} mm must be positive and at most {MAX_LENGTH_MM} mm"))
     }
     /// Comma-separated finite numbers.
     pub fn numbers(s: &str) -> Result<super::Numbers, String> {
@@ -384,7 +426,7 @@ pub mod values {
             .contains(&v)
             .then_some(v)
             .ok_or_else(|| {
-                format!("{v} must be a length between {MIN_SEGMENT:e} and {MAX_SEGMENT:e} mm")
+                format!("{v:?} must be a length between {MIN_SEGMENT:e} and {MAX_SEGMENT:e} mm")
             })
     }
     /// A tool load (wrench): comma-separated finite numbers, each within

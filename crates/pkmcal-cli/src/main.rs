@@ -12,6 +12,55 @@ macro_rules! note {
     }};
 }
 
+/// `println!` for a command's summary on standard output: a standard output
+/// that cannot be written (`| head` gone, a full disk) loses the rest of
+/// the summary, not the run's files; the run ends with the error once its
+/// files are in place ([`stdout_failure`]).
+#[macro_export]
+macro_rules! say {
+    () => {
+        $crate::say_fmt(format_args!("\n"))
+    };
+    ($($t:tt)*) => {
+        $crate::say_fmt(format_args!("{}\n", format_args!($($t)*)))
+    };
+}
+
+/// `print!` for a command's summary, as [`say!`].
+#[macro_export]
+macro_rules! say_raw {
+    ($($t:tt)*) => {
+        $crate::say_fmt(format_args!($($t)*))
+    };
+}
+
+/// The first failure to write standard output, if any.
+static STDOUT_FAILURE: std::sync::Mutex<Option<String>> = std::sync::Mutex::new(None);
+
+/// Write `args` to standard output, unless a write failed before; a failure
+/// is kept for the end of the run.
+pub fn say_fmt(args: std::fmt::Arguments<'_>) {
+    use std::io::Write as _;
+    let mut failed = STDOUT_FAILURE.lock().unwrap_or_else(|e| e.into_inner());
+    if failed.is_none()
+        && let Err(e) = std::io::stdout().lock().write_fmt(args)
+    {
+        *failed = Some(e.to_string());
+    }
+}
+
+/// Why standard output could not be written, if it could not.
+fn stdout_failure() -> Option<String> {
+    use std::io::Write as _;
+    let mut failed = STDOUT_FAILURE.lock().unwrap_or_else(|e| e.into_inner());
+    if failed.is_none()
+        && let Err(e) = std::io::stdout().lock().flush()
+    {
+        *failed = Some(e.to_string());
+    }
+    failed.clone()
+}
+
 mod args;
 mod cmd;
 mod progress;
@@ -119,11 +168,35 @@ fn main() -> ExitCode {
         let inputs: Vec<&Path> = p.inputs.iter().map(PathBuf::as_path).collect();
         let outputs: Vec<&Path> = p.outputs.iter().map(PathBuf::as_path).collect();
         files.check(&inputs, &outputs, &p.dirs)?;
+        let written: Vec<String> = p
+            .outputs
+            .iter()
+            .filter(|o| o.as_os_str() != "-")
+            .map(|o| o.display().to_string())
+            .collect();
         in_pool(&run, cli.command)?;
-        Ok(files.commit()?)
+        files.commit()?;
+        Ok(written)
     });
     match result {
-        Ok(()) => ExitCode::SUCCESS,
+        // The files are in place; the summary was cut short.
+        Ok(written) => match stdout_failure() {
+            Some(cause) => {
+                note!(
+                    "error: cannot write to standard output: {cause}{}",
+                    if written.is_empty() {
+                        String::new()
+                    } else {
+                        format!(
+                            " (the summary is cut short; {} written)",
+                            written.join(", ")
+                        )
+                    }
+                );
+                ExitCode::from(1)
+            }
+            None => ExitCode::SUCCESS,
+        },
         Err(e) => {
             files.discard();
             let (message, usage) = words::message(&e);

@@ -117,3 +117,25 @@ fn bad_tolerances_are_named() {
     fails(dir.path(), &["budget", "--mechanism", "m.toml"], 1, "`l11`");
     assert!(!dir.path().join("b.json").exists());
 }
+
+/// A budget of tolerances that move nothing to first order (a stiffness
+/// without a load) says so, not "+6042.8 %" of rounding (issue 50).
+#[test]
+fn a_budget_with_nothing_to_first_order_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = ok(
+        dir.path(),
+        &[
+            "budget",
+            "--tolerance",
+            "k1=10%",
+            "--samples",
+            "50",
+            "--grid",
+            "10",
+        ],
+    );
+    assert!(out.contains("none, as to first order"), "{out}");
+    assert!(!out.contains("% from first order"), "{out}");
+    assert!(out.contains("0.0%"), "{out}");
+}

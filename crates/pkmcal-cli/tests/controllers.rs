@@ -605,7 +605,9 @@ fn gcode_moves_are_rewritten_through_the_predistortion() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     std::fs::write(d.join("cal.toml"), CAL).unwrap();
-    let program = "; a square\nG21\nG90\nM83\nG0 X-20 Y180 F6000 ; start\nG1 X20 E1.5 F1200\nY220 E1.5\nG91\nG1 X-40 E1.5\nG90\nG1 Y180 (back)\nM2\n";
+    // In CNC mode (M453), where RepRapFirmware continues the last G0/G1 on
+    // a line without a command and skips ( ) comments.
+    let program = "M453 ; a square\nG21\nG90\nM83\nG0 X-20 Y180 F6000 ; start\nG1 X20 E1.5 F1200\nY220 E1.5\nG91\nG1 X-40 E1.5\nG90\nG1 Y180 (back)\nM2\n";
     std::fs::write(d.join("part.gcode"), program).unwrap();
     ok(
         d,
@@ -624,7 +626,7 @@ fn gcode_moves_are_rewritten_through_the_predistortion() {
     let out = std::fs::read_to_string(d.join("cal.gcode")).unwrap();
     let lines: Vec<&str> = out.lines().collect();
     assert_eq!(lines.len(), program.lines().count(), "{out}");
-    assert_eq!(lines[0], "; a square");
+    assert_eq!(lines[0], "M453 ; a square");
     assert_eq!(lines[3], "M83");
     assert!(
         lines[4].starts_with("G0 X") && lines[4].ends_with("F6000 ; start"),
@@ -710,7 +712,10 @@ fn gcode_moves_are_rewritten_through_the_predistortion() {
             "bad.gcode:2: relative move before the position of x is known",
         ),
         ("G1 X0 Y900\n", "bad.gcode:1: target"),
-        ("G1 X0 Y1-2\n", "bad.gcode:1: `Y1-2` is not a number"),
+        (
+            "G1 X0 Y1-2\n",
+            "bad.gcode:1: `G1 X0 Y1-2`: Klipper cannot read `Y1-2` as a number",
+        ),
         (
             "G1 X0 Y180\nG1 X1000000\n",
             "bad.gcode:2: segments of 5 mm would split",

@@ -248,24 +248,27 @@ fn each_dialect_reads_what_its_firmware_reads() {
     std::fs::write(d.join("cal.toml"), CAL).unwrap();
     let head = "G21\nG90\nG1 X5 Y190\n";
     // (line 4, accepted by strict/klipper/reprap/marlin, the needle when refused)
-    let cases: [(&str, [bool; 4], &str); 9] = [
+    // RepRapFirmware reads `(…)` as a comment and a line without a command
+    // as a move only in CNC or laser mode: refused until the program says
+    // M453 (or M452), read after it (the second table).
+    let cases: [(&str, [bool; 4], &str); 11] = [
         (
             "G1 X5 (note) Y200",
-            [false, false, true, false],
+            [false, false, false, false],
             "a (comment)",
         ),
         (
             "(go) G1 X5 Y200",
-            [false, false, true, false],
+            [false, false, false, false],
             "a (comment)",
         ),
         (
             "G1 X5 Y200 (end)",
-            [false, false, true, false],
+            [false, false, false, false],
             "a (comment)",
         ),
         ("g1 x5 y200", [false, true, true, false], "lower case"),
-        ("X5 Y200", [false, false, true, false], "no command word"),
+        ("X5 Y200", [false, false, false, false], "no command word"),
         (
             "N10G1 X5 Y200",
             [false, true, true, false],
@@ -276,8 +279,18 @@ fn each_dialect_reads_what_its_firmware_reads() {
             [false, false, false, false],
             "a second command `G1`",
         ),
-        ("N10 G1 X5 Y200*71", [true, true, true, true], ""),
+        ("N10 G1 X5 Y200*31", [true, true, true, true], ""),
+        (
+            "N10 G1 X5 Y200*71",
+            [false, false, false, false],
+            "the checksum *71 does not match the line (its characters give *31)",
+        ),
         ("G1X5Y200", [true, true, true, true], ""),
+        (
+            "G53 G1 X5 Y200",
+            [false, false, false, false],
+            "G53 with a move",
+        ),
     ];
     for (line, accepted, needle) in cases {
         let program = format!("{head}{line}\n");
@@ -311,8 +324,69 @@ fn each_dialect_reads_what_its_firmware_reads() {
             assert_eq!(words(last), words(plain), "{line}: {last}");
         }
     }
+    // Issue 50, 5: a word given twice and an exponent are read as each
+    // firmware reads them (Klipper and Marlin the last of a letter, `X0.5E1`
+    // as X0.5 and E1; RepRapFirmware the first, `X0.5E1` as X5), and refused
+    // by strict, which they read differently; a move after another command
+    // moves in RepRapFirmware only. Before, X9 of `G1 X9 X5` was compensated
+    // in every dialect and X5 dropped.
+    let point = |o: &str, n: usize| -> (f64, f64) {
+        let l = o.lines().nth(n).unwrap();
+        (word(l, 'X').unwrap(), word(l, 'Y').unwrap())
+    };
+    let plain = |x: f64, y: f64| {
+        let o = rewrite(d, &format!("{head}G1 X{x} Y{y}\n"), "strict").unwrap();
+        point(&o, 3)
+    };
+    for (line, k, r, m) in [
+        ("G1 X9 X5 Y200", (5.0, 200.0), (9.0, 200.0), (5.0, 200.0)),
+        ("G1 X5 Y190Y200", (5.0, 200.0), (5.0, 190.0), (5.0, 200.0)),
+        ("G1 X0.5E1 Y200", (0.5, 200.0), (5.0, 200.0), (0.5, 200.0)),
+    ] {
+        for (dialect, (x, y)) in [("klipper", k), ("reprap", r), ("marlin", m)] {
+            let o = rewrite(d, &format!("{head}{line}\n"), dialect).unwrap();
+            assert_eq!(point(&o, 3), plain(x, y), "{line} {dialect}");
+        }
+        let e = rewrite(d, &format!("{head}{line}\n"), "strict").unwrap_err();
+        assert!(
+            e.contains("p.gcode:4: ") && e.contains("the firmwares read it differently"),
+            "{e}"
+        );
+    }
+    let o = rewrite(d, &format!("{head}G1 X0.5E1 Y200\n"), "klipper").unwrap();
+    assert!(o.lines().nth(3).unwrap().contains(" E1.00000"), "{o}");
+    for (dialect, kept) in [
+        ("strict", false),
+        ("klipper", true),
+        ("reprap", false),
+        ("marlin", true),
+    ] {
+        match rewrite(d, &format!("{head}M400 G1 X5 Y200\n"), dialect) {
+            Ok(o) => {
+                assert!(kept, "{dialect}");
+                assert_eq!(o.lines().nth(3).unwrap(), "M400 G1 X5 Y200");
+            }
+            Err(e) => {
+                assert!(!kept, "{dialect}: {e}");
+                assert!(e.contains("RepRapFirmware runs the G1"), "{e}");
+            }
+        }
+    }
+    // In RepRapFirmware's CNC mode (M453 in the program), `(…)` comments
+    // and lines without a command are read; in its 3D printer mode (M451),
+    // a line without a command does not move and is kept as it is.
+    for (line, mode) in [
+        ("G1 X5 (note) Y200", "M453"),
+        ("(go) G1 X5 Y200", "M452"),
+        ("X5 Y200", "M453"),
+    ] {
+        let o = rewrite(d, &format!("{mode}\n{head}{line}\n"), "reprap").unwrap();
+        assert!(o.lines().nth(4).unwrap().starts_with("G1 X"), "{line}: {o}");
+    }
+    let o = rewrite(d, &format!("M451\n{head}X5 Y200\n"), "reprap").unwrap();
+    assert_eq!(o.lines().nth(4).unwrap(), "X5 Y200");
     // A line number stays in front and the checksum is computed anew.
-    let o = rewrite(d, &format!("{head}N10 G1 X5 Y200*71 ; c\n"), "strict").unwrap();
+    let o = rewrite(d, &format!("{head}N10 G1 X5 Y200*31 ; c\n"), "strict").unwrap();
     let l = o.lines().nth(3).unwrap();
     let (body, rest) = l.split_once('*').unwrap();
     assert!(body.starts_with("N10 G1 X"), "{l}");
@@ -320,8 +394,8 @@ fn each_dialect_reads_what_its_firmware_reads() {
     assert_eq!(rest, format!("{cs} ; c"));
     // RepRapFirmware reads the words on both sides of a (comment): the
     // comment is kept, after the words.
-    let o = rewrite(d, &format!("{head}G1 X5 (note) Y200\n"), "reprap").unwrap();
-    assert!(o.lines().nth(3).unwrap().ends_with(" (note)"), "{o}");
+    let o = rewrite(d, &format!("M453\n{head}G1 X5 (note) Y200\n"), "reprap").unwrap();
+    assert!(o.lines().nth(4).unwrap().ends_with(" (note)"), "{o}");
     // A line ended by a carriage return alone, or a byte-order mark: refused
     // in every dialect.
     for dialect in DIALECTS {

@@ -958,3 +958,197 @@ fn shrunk_weighting_runs_from_the_estimated_to_klippers() {
         "give the pseudo-readings as a non-negative number",
     );
 }
+
+/// The line (from 1) where `needle` starts in `text`.
+fn line_of(text: &str, needle: &str) -> usize {
+    text[..text.find(needle).unwrap()].matches('\n').count() + 1
+}
+
+/// Issue 50, 4: a SAVE_CONFIG block that Klipper's own reader
+/// (`_find_autosave_data` in its configfile.py) ignores whole is refused,
+/// naming the line, and nothing is written: a blank line or a `#*#x` line
+/// inside it, a `#*# ` line above its header, a second header, a header that
+/// is not Klipper's three lines. (Each verdict was checked by running
+/// Klipper's configfile.py on the same text.) Before, pkmcal read the block,
+/// wrote into it and commented out the regular values, so that the printer
+/// lost them. A block with blank lines after it, `\r\n` line ends or a bare
+/// `#*#` line is read, as Klipper reads it.
+#[test]
+fn klipper_refuses_a_save_config_block_klipper_ignores() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let cfg = config(d);
+    let header = "#*# <---------------------- SAVE_CONFIG ---------------------->\n";
+    let first = "#*# height0 = 0.0\n";
+    let cases: Vec<(String, usize, &str)> = vec![
+        (
+            cfg.replacen(first, &format!("\n{first}"), 1),
+            line_of(&cfg, first),
+            "a blank line inside the SAVE_CONFIG block",
+        ),
+        (
+            cfg.replacen(first, "#*#height0 = 0.0\n", 1),
+            line_of(&cfg, first),
+            "`#*#height0 = 0.0`, a line that does not start with `#*# `",
+        ),
+        (
+            cfg.replacen("[printer]\n", "[printer]\n#*# delta_radius = 170\n", 1),
+            line_of(&cfg, "[printer]\n") + 1,
+            "a `#*# ` line above the SAVE_CONFIG block's header",
+        ),
+        (
+            format!(
+                "{cfg}\n{header}#*# DO NOT EDIT THIS BLOCK OR BELOW. The contents are auto-generated.\n#*#\n#*# [printer]\n"
+            ),
+            cfg.lines().count() + 2,
+            "a second SAVE_CONFIG header inside the block",
+        ),
+        (
+            cfg.replacen("DO NOT EDIT", "Do not edit", 1),
+            line_of(&cfg, header),
+            "the SAVE_CONFIG header not followed by Klipper's two lines",
+        ),
+    ];
+    for (text, line, needle) in &cases {
+        std::fs::write(d.join("printer.cfg"), text).unwrap();
+        fails(
+            d,
+            &["klipper", "--config", "printer.cfg", "--out", "new.cfg"],
+            1,
+            &format!("printer.cfg:{line}: {needle}"),
+        );
+        assert!(!d.join("new.cfg").exists(), "{needle}");
+    }
+    for text in [
+        format!("{cfg}\n\n\n"),
+        cfg.replace('\n', "\r\n"),
+        format!("{cfg}#*#\n"),
+    ] {
+        std::fs::write(d.join("printer.cfg"), &text).unwrap();
+        ok(
+            d,
+            &["klipper", "--config", "printer.cfg", "--out", "new.cfg"],
+        );
+        std::fs::remove_file(d.join("new.cfg")).unwrap();
+    }
+}
+
+/// Issue 50, 4: an error in the SAVE_CONFIG block is numbered from the
+/// file, not from the block (before: `:10` for line 58), and an `[include]`
+/// inside the block is a section, as to Klipper, not a file to read.
+#[test]
+fn klipper_numbers_the_save_config_blocks_lines_from_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let cfg = config(d);
+    let line = "#*# height3 = 0.0\n";
+    let bad = cfg.replacen(line, "#*# height3 0.0\n", 1);
+    std::fs::write(d.join("printer.cfg"), &bad).unwrap();
+    fails(
+        d,
+        &["klipper", "--config", "printer.cfg"],
+        1,
+        &format!(
+            "printer.cfg:{}: `height3 0.0` is not `key: value`",
+            line_of(&cfg, line)
+        ),
+    );
+    let numbered = cfg.replacen(line, "#*# height3 = oops\n", 1);
+    std::fs::write(d.join("printer.cfg"), &numbered).unwrap();
+    fails(
+        d,
+        &["klipper", "--config", "printer.cfg"],
+        1,
+        &format!(
+            "printer.cfg:{}: [delta_calibrate] height3",
+            line_of(&cfg, line)
+        ),
+    );
+    std::fs::write(
+        d.join("printer.cfg"),
+        format!("{cfg}#*#\n#*# [include missing.cfg]\n"),
+    )
+    .unwrap();
+    ok(d, &["klipper", "--config", "printer.cfg"]);
+}
+
+/// Issue 50, 4: includes resolved as Klipper's Python `glob` resolves them:
+/// `.*.cfg` matches the hidden files (before: none), `.*` matches them
+/// without `.` and `..` (before: "Is a directory"), `*` never does; a chain
+/// of includes nests as deep as Klipper reads (before: 9 were refused as "a
+/// file includes itself?"), up to the documented 400; a file that
+/// includes itself is refused as Klipper refuses it.
+#[test]
+fn klipper_includes_follow_pythons_glob_and_klippers_depth() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let cfg = config(d);
+    std::fs::create_dir(d.join("extra")).unwrap();
+    std::fs::write(d.join("extra/a.cfg"), "[gcode_macro A]\ngcode:\n  G28\n").unwrap();
+    std::fs::write(
+        d.join("extra/.hidden.cfg"),
+        "[stepper_a]\nrotation_distance: oops\n",
+    )
+    .unwrap();
+    for (include, read) in [
+        ("extra/.*.cfg", true),
+        ("extra/.*", true),
+        ("extra/*.cfg", false),
+        ("extra/*", false),
+        ("extra/[.]*", false),
+    ] {
+        let text = cfg.replacen(
+            "[include steppers.cfg]",
+            &format!("[include steppers.cfg]\n[include {include}]"),
+            1,
+        );
+        std::fs::write(d.join("printer.cfg"), &text).unwrap();
+        let o = common::run(d, &["klipper", "--config", "printer.cfg"]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        if read {
+            assert!(
+                err.contains(
+                    ".hidden.cfg:2: [stepper_a] rotation_distance = `oops` is not a number"
+                ),
+                "{include}: {err}"
+            );
+        } else {
+            assert!(o.status.success(), "{include}: {err}");
+        }
+    }
+    // Nine nested includes (printer.cfg, steppers.cfg and 8 more files),
+    // and 399 (400 files).
+    for depth in [8, 398] {
+        let chain = d.join(format!("chain{depth}"));
+        std::fs::create_dir(&chain).unwrap();
+        std::fs::write(chain.join("steppers.cfg"), "[include n1.cfg]\n").unwrap();
+        for k in 1..depth {
+            std::fs::write(
+                chain.join(format!("n{k}.cfg")),
+                format!("[include n{}.cfg]\n", k + 1),
+            )
+            .unwrap();
+        }
+        std::fs::copy(d.join("steppers.cfg"), chain.join(format!("n{depth}.cfg"))).unwrap();
+        std::fs::write(chain.join("printer.cfg"), &cfg).unwrap();
+        ok(&chain, &["klipper", "--config", "printer.cfg"]);
+    }
+    // One more is refused by name, as is a file that includes itself.
+    let chain = d.join("chain398");
+    std::fs::rename(chain.join("n398.cfg"), chain.join("n399.cfg")).unwrap();
+    std::fs::write(chain.join("n398.cfg"), "[include n399.cfg]\n").unwrap();
+    fails(
+        &chain,
+        &["klipper", "--config", "printer.cfg"],
+        1,
+        "n398.cfg:1: [include n399.cfg]: includes nest more than 400 files deep",
+    );
+    let chain = d.join("chain8");
+    std::fs::write(chain.join("n5.cfg"), "[include n2.cfg]\n").unwrap();
+    fails(
+        &chain,
+        &["klipper", "--config", "printer.cfg"],
+        1,
+        "n5.cfg:1: [include n2.cfg] includes ",
+    );
+}

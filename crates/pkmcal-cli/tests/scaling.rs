@@ -153,3 +153,60 @@ fn a_million_probe_points_are_refused_within_memory() {
     );
     assert!(kb < PEAK_KB, "reprap took {kb} kB");
 }
+
+/// Issue 50, 7: work bounded by a limit a user can read. A 1,000-tower
+/// delta (simulate ran for over 60 s) and a 1,000-leg platform are refused
+/// where the description is read, naming the file and the limit; a
+/// correction table of 1.5 million nodes on the 3-PRS (118 s, 814 MB) is a
+/// usage error naming `--table`, before any work.
+#[test]
+fn a_thousand_legs_and_a_million_node_table_are_refused_early() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("d1000.toml"), delta(1000)).unwrap();
+    std::fs::write(d.join("gs1000.toml"), gough_stewart(1000)).unwrap();
+    for m in ["d1000.toml", "gs1000.toml"] {
+        let (code, err, kb) = run_measured(
+            d,
+            &[
+                "simulate",
+                "--mechanism",
+                m,
+                "--grid",
+                "20",
+                "--out",
+                "s.csv",
+            ],
+        );
+        assert_eq!(code, Some(1), "{err}");
+        assert!(
+            err.contains(&format!(
+                "{m}: invalid mechanism: 1000 legs, more than the 128"
+            )),
+            "{err}"
+        );
+        assert!(kb < PEAK_KB, "{kb} kB");
+    }
+    std::fs::write(d.join("p.toml"), "").unwrap();
+    let prs = common::example("3-prs");
+    let (code, err, _) = run_measured(
+        d,
+        &[
+            "compensate",
+            "--mechanism",
+            &prs,
+            "--params",
+            "p.toml",
+            "--table",
+            "z=350:450:0.5,rx=-0.15:0.15:0.0035,ry=-0.15:0.15:0.0035",
+            "--out",
+            "t.json",
+        ],
+    );
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("--table: `z=350:450:0.5,rx=-0.15:0.15:0.0035,ry=-0.15:0.15:0.0035` makes 1486596 nodes, more than the 200000"),
+        "{err}"
+    );
+    assert!(!d.join("t.json").exists());
+}

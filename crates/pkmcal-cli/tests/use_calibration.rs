@@ -538,3 +538,187 @@ fn predict_writes_every_joint_on_request() {
         }
     }
 }
+
+/// Issue 50, 6: the calibration record is an input with a schema: every
+/// member is required and checked, and what is wrong is blamed on the record
+/// (never on the commands file's line 2): a record missing one parameter
+/// (before: predict used its nominal value, 0.25 mm off), without `format`
+/// and `version` (before: read as a report from before versions, so another
+/// mechanism's calibration was accepted), a key given twice (before: the
+/// last won), a redundancy of 1e308 (before: drift's p-values were NaN and
+/// read as "no change"), an asymmetric covariance and an impossible
+/// `l11 = −280` (before: blamed on the commands file's line 2, with a hint to
+/// skip unreachable rows).
+#[test]
+fn a_tampered_calibration_record_is_refused_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("truth.toml"), "l11 = 280.3\ndq3 = 0.002\n").unwrap();
+    ok(
+        d,
+        &[
+            "simulate",
+            "--truth",
+            "truth.toml",
+            "--grid",
+            "30",
+            "--noise",
+            "0.002",
+            "--out",
+            "data.csv",
+            "--quiet",
+        ],
+    );
+    ok(
+        d,
+        &[
+            "calibrate",
+            "--data",
+            "data.csv",
+            "--out",
+            "cal.toml",
+            "--report",
+            "r.json",
+            "--quiet",
+        ],
+    );
+    let text = std::fs::read_to_string(d.join("r.json")).unwrap();
+    let record: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let edited = |f: &dyn Fn(&mut serde_json::Value)| {
+        let mut r = record.clone();
+        f(&mut r);
+        serde_json::to_string_pretty(&r).unwrap()
+    };
+    let cases: Vec<(&str, String, &str)> = vec![
+        (
+            "missing-parameter",
+            edited(&|r| {
+                let p = r["parameters"].as_array_mut().unwrap();
+                p.retain(|x| x["name"] != "dq3");
+                // Keep the covariance over held parameters.
+                let c = &mut r["covariance"];
+                let k = c["names"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .position(|n| n == "dq3")
+                    .unwrap();
+                c["names"].as_array_mut().unwrap().remove(k);
+                let m = c["matrix"].as_array_mut().unwrap();
+                m.remove(k);
+                for row in m.iter_mut() {
+                    row.as_array_mut().unwrap().remove(k);
+                }
+            }),
+            "`parameters` lacks `dq3`",
+        ),
+        (
+            "no-format",
+            edited(&|r| {
+                let o = r.as_object_mut().unwrap();
+                o.remove("format");
+                o.remove("version");
+            }),
+            "missing field `format`",
+        ),
+        (
+            "old-version",
+            edited(&|r| r["version"] = serde_json::json!(0)),
+            "older than this pkmcal reads",
+        ),
+        (
+            "duplicate",
+            text.replacen("\"format\":", "\"format\": \"x\",\n  \"format\":", 1),
+            "the key `format` appears twice",
+        ),
+        (
+            "redundancy",
+            edited(&|r| r["noise"][0]["redundancy"] = serde_json::json!(1e308)),
+            "`noise` group 1 was estimated with a redundancy of 1e308",
+        ),
+        (
+            "scale",
+            edited(&|r| r["scale"]["dof"] = serde_json::json!(-3.0)),
+            "`scale` has -3e0 degrees of freedom",
+        ),
+        (
+            "prior-elsewhere",
+            edited(&|r| {
+                r["priors"] =
+                    serde_json::json!([{"name": "zz", "index": 0, "centre": 0.0, "sigma": 1.0}])
+            }),
+            "`priors` names `zz`, which `parameters` does not hold",
+        ),
+        (
+            "prior-sigma",
+            edited(&|r| {
+                r["priors"] =
+                    serde_json::json!([{"name": "l11", "index": 0, "centre": 280.0, "sigma": 0.0}])
+            }),
+            "a prior is a finite centre and a positive, finite σ",
+        ),
+        (
+            "asymmetric",
+            edited(&|r| {
+                let v = r["covariance"]["matrix"][0][1].as_f64().unwrap();
+                r["covariance"]["matrix"][0][1] = serde_json::json!(v * 1.5 + 1e-9);
+            }),
+            "`covariance` is not symmetric",
+        ),
+        (
+            "impossible",
+            edited(&|r| {
+                for p in r["parameters"].as_array_mut().unwrap() {
+                    if p["name"] == "l11" {
+                        p["identified"] = serde_json::json!(-280.0);
+                    }
+                }
+            }),
+            "l11",
+        ),
+    ];
+    for (name, text, needle) in &cases {
+        let file = format!("{name}.json");
+        std::fs::write(d.join(&file), text).unwrap();
+        let o = run(
+            d,
+            &[
+                "predict",
+                "--uncertainty",
+                &file,
+                "--commands",
+                "data.csv",
+                "--out",
+                "p.csv",
+            ],
+        );
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{name}: {err}");
+        assert!(err.contains(&format!("{file}: ")), "{name}: {err}");
+        assert!(err.contains(needle), "{name}: {err}");
+        assert!(!err.contains("data.csv"), "{name}: {err}");
+        assert!(!d.join("p.csv").exists(), "{name}");
+        // drift reads the same records the same way.
+        let o = run(d, &["drift", "--new", &file, "--old", "r.json"]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "drift {name}: {err}");
+        assert!(err.contains(&file), "drift {name}: {err}");
+    }
+    // Degrees of freedom beyond any calibration's are the normal limit, not
+    // NaN or p = 1: a 0.5 mm change of l11 (128σ) with a scale of 1e308
+    // degrees of freedom was "no change".
+    let moved = edited(&|r| {
+        r["scale"]["dof"] = serde_json::json!(1e308);
+        for p in r["parameters"].as_array_mut().unwrap() {
+            if p["name"] == "l11" {
+                p["identified"] = serde_json::json!(p["identified"].as_f64().unwrap() + 0.5);
+            }
+        }
+    });
+    std::fs::write(d.join("moved.json"), moved).unwrap();
+    let o = run(d, &["drift", "--new", "moved.json", "--old", "r.json"]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.contains("1 of 16 parameters changed"), "{out}");
+    assert!(out.contains("two-sided p (normal)"), "{out}");
+}

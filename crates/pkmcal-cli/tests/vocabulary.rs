@@ -284,3 +284,45 @@ fn old_spellings_still_work() {
         assert!(err.contains("none."), "pkmcal {args:?}: {err}");
     }
 }
+
+/// Every relative link of the README and the docs resolves from the file it
+/// is in (issue 50: docs/cli.md and docs/formats.md linked
+/// `examples/…` and `docs/model.md` from inside docs/).
+#[test]
+fn relative_links_in_the_docs_resolve() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let mut files: Vec<std::path::PathBuf> = ["README.md", "CHANGELOG.md", "BENCHMARKS.md"]
+        .iter()
+        .map(|f| root.join(f))
+        .collect();
+    for e in std::fs::read_dir(root.join("docs")).unwrap() {
+        let p = e.unwrap().path();
+        if p.extension().is_some_and(|x| x == "md") {
+            files.push(p);
+        }
+    }
+    let mut broken = vec![];
+    let mut checked = 0;
+    for f in &files {
+        let text = std::fs::read_to_string(f).unwrap();
+        let dir = f.parent().unwrap();
+        for (at, _) in text.match_indices("](") {
+            let rest = &text[at + 2..];
+            let Some(end) = rest.find(')') else { continue };
+            let target = rest[..end].split('#').next().unwrap();
+            if target.is_empty()
+                || target.contains(char::is_whitespace)
+                || target.contains("://")
+                || target.starts_with("mailto:")
+            {
+                continue;
+            }
+            checked += 1;
+            if !dir.join(target).exists() {
+                broken.push(format!("{}: {target}", f.display()));
+            }
+        }
+    }
+    assert!(checked > 20, "only {checked} links found");
+    assert!(broken.is_empty(), "broken links: {broken:#?}");
+}

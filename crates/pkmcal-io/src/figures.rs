@@ -215,6 +215,40 @@ fn legend<DB: DrawingBackend>(
     Ok(())
 }
 
+/// Most poses (and residual quantiles) one figure draws: beyond, an evenly
+/// spread selection that keeps the largest errors, and the caption says so.
+/// The figures then stay a few MB and quick to render whatever the data.
+pub const MAX_POSES_SHOWN: usize = 3000;
+
+/// The poses a figure draws of `n` whose errors are `before` and `after`:
+/// all of them up to [`MAX_POSES_SHOWN`], else an evenly spread selection
+/// with the pose of the largest error before and after calibration.
+fn shown(n: usize, before: &[Vec<f64>], after: &[Vec<f64>]) -> Vec<usize> {
+    if n <= MAX_POSES_SHOWN {
+        return (0..n).collect();
+    }
+    let size = |e: &Vec<f64>| e.iter().map(|v| v * v).sum::<f64>();
+    let largest =
+        |v: &[Vec<f64>]| (0..v.len().min(n)).max_by(|&i, &j| size(&v[i]).total_cmp(&size(&v[j])));
+    let mut keep = pkmcal::engine::atlas::thin_evenly(n, MAX_POSES_SHOWN - 2);
+    keep.extend(largest(before));
+    keep.extend(largest(after));
+    keep.sort_unstable();
+    keep.dedup();
+    keep
+}
+
+/// What a caption adds when `shown` of `n` poses are drawn.
+fn shown_words(shown: usize, n: usize, what: &str) -> String {
+    if shown >= n {
+        String::new()
+    } else {
+        format!(
+            " Of the {n} {what}, {shown} are drawn, spread evenly through them, the largest errors included."
+        )
+    }
+}
+
 /// Fig. 9 of the paper: the error of each tool coordinate and the distance
 /// error at each measured pose, before and after calibration. Each panel is
 /// in a unit readable for its size (mm, µm; mrad, µrad; angles never in mm);
@@ -229,9 +263,14 @@ pub fn errors_per_pose(
 ) -> Result<Figure> {
     use pkmcal::Unit;
     let n = before.len();
+    let keep = shown(n, before, after);
+    let thinned = shown_words(keep.len(), n, "poses");
+    let before: Vec<Vec<f64>> = keep.iter().map(|&i| before[i].clone()).collect();
+    let after: Vec<Vec<f64>> = keep.iter().map(|&i| after[i].clone()).collect();
+    let (before, after) = (&before[..], &after[..]);
     // Each pose at its number, as its front end numbers it (the command
     // line by file row from 1, Python by array row from 0).
-    let numbers: Vec<f64> = poses.iter().map(|&p| p as f64).collect();
+    let numbers: Vec<f64> = keep.iter().map(|&i| poses[i] as f64).collect();
     let lengths: Vec<usize> = (0..units.len())
         .filter(|&k| units[k] == Unit::Millimetre)
         .collect();
@@ -268,7 +307,7 @@ pub fn errors_per_pose(
         "errors",
         "Errors at each measured pose (paper Fig. 9)",
         format!(
-            "Error of each tool coordinate{} at each of the {n} measured poses, before (red) and after (blue) calibration{}. Each panel has its own unit (lengths in mm or µm, angles in mrad or µrad).",
+            "Error of each tool coordinate{} at each of the {n} measured poses, before (red) and after (blue) calibration{}. Each panel has its own unit (lengths in mm or µm, angles in mrad or µrad).{thinned}",
             if lengths.len() > 1 {
                 " and the distance error"
             } else {
@@ -620,6 +659,12 @@ pub fn workspace_errors(
     after: &[Vec<f64>],
     views: &[([usize; 2], [&str; 2])],
 ) -> Result<Figure> {
+    let keep = shown(points.len(), before, after);
+    let thinned = shown_words(keep.len(), points.len(), "measured poses");
+    let pick = |v: &[Vec<f64>]| -> Vec<Vec<f64>> {
+        keep.iter().filter_map(|&i| v.get(i).cloned()).collect()
+    };
+    let (points, before, after) = (&pick(points)[..], &pick(before)[..], &pick(after)[..]);
     let project = |v: &[Vec<f64>], [a, b]: [usize; 2]| -> Vec<Vec<f64>> {
         v.iter().map(|p| vec![p[a], p[b]]).collect()
     };
@@ -645,7 +690,9 @@ pub fn workspace_errors(
     render!(
         "workspace",
         "Errors over the workspace",
-        "Measured poses (black) over the usable workspace (grey) with each error vector, before calibration (left, red) and after (right, blue); each panel magnifies its vectors for their size and has its own scale bar. A spatial tool is seen from above (x–y), from the front (x–z) and from the side (y–z).",
+        format!(
+            "Measured poses (black) over the usable workspace (grey) with each error vector, before calibration (left, red) and after (right, blue); each panel magnifies its vectors for their size and has its own scale bar. A spatial tool is seen from above (x–y), from the front (x–z) and from the side (y–z).{thinned}"
+        ),
         (2 * w, height.max(1)),
         |root| {
             root.fill(&WHITE).map_err(err)?;
@@ -1020,11 +1067,27 @@ pub fn residuals(standardized: &[f64]) -> Result<Figure> {
         .map(|c| *c as f64 / (n as f64 * width))
         .collect();
     let top = density.iter().fold(0.45f64, |m, v| m.max(*v)) * 1.1;
+    // The Q–Q plot's points: every quantile up to MAX_POSES_SHOWN, else an
+    // even selection with both extremes (each at its own probability).
+    let mut quantiles = pkmcal::engine::atlas::thin_evenly(sorted.len(), MAX_POSES_SHOWN);
+    if quantiles.len() < sorted.len() {
+        quantiles.insert(0, 0);
+        quantiles.push(sorted.len() - 1);
+        quantiles.dedup();
+    }
+    let thinned = if quantiles.len() < sorted.len() {
+        format!(
+            " The Q–Q plot draws {} of the {n} quantiles, spread evenly, both extremes included; the histogram counts them all.",
+            quantiles.len()
+        )
+    } else {
+        String::new()
+    };
     render!(
         "residuals",
         "Residuals after calibration",
         format!(
-            "The {n} residuals (predicted minus measured coordinates) divided by the residual standard deviation: histogram with the standard normal density, and quantiles against the normal ones (on the line if the noise is Gaussian)."
+            "The {n} residuals (predicted minus measured coordinates) divided by the residual standard deviation: histogram with the standard normal density, and quantiles against the normal ones (on the line if the noise is Gaussian).{thinned}"
         ),
         (1000u32, 420u32),
         |root| {
@@ -1082,9 +1145,9 @@ pub fn residuals(standardized: &[f64]) -> Result<Figure> {
                 .map_err(err)?;
             qq.draw_series(LineSeries::new([(-lim, -lim), (lim, lim)], BLACK.mix(0.5)))
                 .map_err(err)?;
-            qq.draw_series(sorted.iter().enumerate().map(|(i, v)| {
+            qq.draw_series(quantiles.iter().map(|&i| {
                 let p = (i as f64 + 0.5) / n as f64;
-                Circle::new((normal_quantile(p), *v), 3, AFTER.filled())
+                Circle::new((normal_quantile(p), sorted[i]), 3, AFTER.filled())
             }))
             .map_err(err)?;
             Ok(())

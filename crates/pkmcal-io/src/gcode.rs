@@ -7,16 +7,19 @@
 //! tool's `phi` → `C`; lengths in mm (`G21`, or inches after `G20`), angles
 //! in degrees (the G-code convention). Supported: `G90`/`G91` (absolute or
 //! relative), `G20`/`G21`, `M82`/`M83` and `G92 E` (extrusion, split with
-//! the segments), `;` comments, line numbers and checksums (written anew).
-//! `G28` (homing) forgets the position until the next move gives every axis
-//! again. Every line that is not a move of a tool axis is written back byte
-//! for byte, its line end included.
+//! the segments), `;` comments, line numbers and checksums (checked, and
+//! written anew). `G28` (homing) forgets the position until the next move
+//! gives every axis again. Every line that is not a move of a tool axis is
+//! written back byte for byte, its line end included.
 //!
-//! Each line is read as the firmware named by [`Dialect`] reads it, and what
+//! Each line is read as the firmware named by [`Dialect`] reads it (its own
+//! parser: Klipper's `gcode.py`, RepRapFirmware's `StringParser`, Marlin's
+//! `FASTER_GCODE_PARSER`): a word given twice, numbers (`X1e1`, `X0X10`),
+//! several commands on a line, `(…)`, lower case, lines without a command
+//! word; RepRapFirmware's machine mode (`M451`/`M452`/`M453`) followed. What
 //! that firmware would read differently from what the rewrite assumes is
 //! refused with its line, never guessed: arcs (`G2`/`G3`), `G92` on a tool
-//! axis, two commands on one line, and per dialect `(…)` comments, lower
-//! case, lines without a command word (modal moves).
+//! axis, `G53` with a move, a wrong checksum, two commands on one line.
 
 use crate::error::{Error, Result};
 use pkmcal::{Field, RequestError};
@@ -32,16 +35,19 @@ pub enum Dialect {
     #[default]
     Strict,
     /// Klipper: `;` comments; a line with a `(` on a move is refused by
-    /// Klipper itself; lower case read; a line must start with its command.
+    /// Klipper itself; lower case read; the last of a word given twice read;
+    /// a line must start with its command.
     Klipper,
-    /// RepRapFirmware: `(…)` comments are skipped wherever they stand (the
-    /// words on both sides are read); lower case read; a line without a
-    /// command continues the last `G0`/`G1`.
+    /// RepRapFirmware: the first of a word given twice read; lower case
+    /// read; in CNC or laser mode (`M453`, `M452` in the program) `(…)`
+    /// comments are skipped wherever they stand (the words on both sides are
+    /// read) and a line without a command continues the last `G0`/`G1`.
     RepRap,
     /// Marlin as shipped: `(` is not a comment (only with `PAREN_COMMENTS`),
     /// lower case is not read (only with `GCODE_CASE_INSENSITIVE`), a line
     /// must start with its command (unless `GCODE_MOTION_MODES`), a line
-    /// number must be followed by a space.
+    /// number must be followed by a space, the last of a word given twice is
+    /// read.
     Marlin,
 }
 
@@ -103,7 +109,9 @@ impl Rewrite {
         {
             return Err(RequestError::invalid(
                 Field::Offset,
-                format!("{v} is beyond ±{MAX_OFFSET:e} (mm or degrees); no machine moves that far"),
+                format!(
+                    "{v:?} is beyond ±{MAX_OFFSET:e} (mm or degrees); no machine moves that far"
+                ),
             ));
         }
         if let Some(m) = self.max_segment
@@ -111,7 +119,7 @@ impl Rewrite {
         {
             return Err(RequestError::invalid(
                 Field::MaxSegment,
-                format!("{m} must be a length between {MIN_SEGMENT:e} and {MAX_SEGMENT:e} mm"),
+                format!("{m:?} must be a length between {MIN_SEGMENT:e} and {MAX_SEGMENT:e} mm"),
             ));
         }
         Ok(())
@@ -225,13 +233,24 @@ enum Parsed {
     Code(Code),
 }
 
-/// The commands the rewrite follows.
+/// The commands the rewrite follows: moves and the modes they depend on,
+/// and RepRapFirmware's machine modes (`M451` 3D printer, `M452` laser,
+/// `M453` CNC), which decide how it reads `(` and a line without a command.
 fn followed(letter: char, n: u32) -> bool {
     matches!(
         (letter, n),
-        ('G', 0 | 1 | 2 | 3 | 20 | 21 | 28 | 90 | 91 | 92) | ('M', 82 | 83)
+        ('G', 0 | 1 | 2 | 3 | 20 | 21 | 28 | 90 | 91 | 92) | ('M', 82 | 83 | 451 | 452 | 453)
     )
 }
+
+/// The M commands whose text runs to the end of the line (a file name, a
+/// message: RepRapFirmware's `GetUnprecedentedString`, Marlin's and
+/// Klipper's `M117`), where a `G` or `M` starts no command.
+const TEXT_COMMANDS: [u32; 10] = [20, 23, 28, 30, 32, 36, 37, 38, 117, 118];
+
+/// The letters whose values the rewrite reads: the tool axes' words and
+/// the extruder's.
+const VALUE_LETTERS: [char; 7] = ['X', 'Y', 'Z', 'A', 'B', 'C', 'E'];
 
 /// A command word's number: digits only (`G01` is `G1`; `G29.1`, `M486 T`
 /// are other commands).
@@ -259,14 +278,298 @@ impl From<String> for Refused {
     }
 }
 
-/// Read one line (without its line end) as `dialect` reads it.
-fn parse(line: &[u8], dialect: Dialect) -> std::result::Result<Parsed, Refused> {
+/// RepRapFirmware's machine mode, as the program sets it (`M451`, `M452`,
+/// `M453`); unknown until it does (the configuration sets it).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Mode {
+    /// Not set by the program.
+    #[default]
+    Unknown,
+    /// `M451`: a 3D printer (`(` is a character, a line needs a command).
+    Printer,
+    /// `M452`/`M453`: a laser or a CNC machine (`(…)` comments, a line
+    /// without a command continues the last `G0`/`G1`).
+    Cnc,
+}
+
+/// The words of a followed line as one firmware reads them: each value
+/// letter once, with the value the firmware takes (or why it takes none),
+/// and every other word as written.
+#[derive(Debug, Clone, PartialEq, Default)]
+struct Read {
+    values: Vec<(char, std::result::Result<f64, String>)>,
+    others: Vec<String>,
+}
+
+impl Read {
+    fn set(&mut self, letter: char, v: std::result::Result<f64, String>, first: bool) {
+        match self.values.iter_mut().find(|(l, _)| *l == letter) {
+            Some(slot) if !first => slot.1 = v,
+            Some(_) => {}
+            None => self.values.push((letter, v)),
+        }
+    }
+}
+
+/// Python's `float()` of a stripped text with no letters in it (what
+/// Klipper's `float(params[…])` takes): `[+-]` digits with a point.
+fn python_float(t: &str) -> Option<f64> {
+    let b = t.as_bytes();
+    let body = b
+        .strip_prefix(b"+")
+        .or_else(|| b.strip_prefix(b"-"))
+        .unwrap_or(b);
+    let digits = body.iter().filter(|c| c.is_ascii_digit()).count();
+    let points = body.iter().filter(|c| **c == b'.').count();
+    if digits == 0 || points > 1 || digits + points != body.len() {
+        return None;
+    }
+    t.parse().ok()
+}
+
+/// Klipper's reading (`gcode.py`): the line upper-cased and split at runs
+/// of letters and `_` (or a `*`), each key given its text up to the next
+/// key, the last of a key kept; values by Python's `float()`. So `X1e1` is
+/// X1 and E1, and `X0x10` is X10.
+fn read_klipper(body: &str) -> Read {
+    let b = body.as_bytes();
+    let key = |c: u8| c.is_ascii_alphabetic() || c == b'_';
+    let mut read = Read::default();
+    let mut i = 0;
+    // Text before the first key belongs to the command.
+    while i < b.len() && !(key(b[i]) || b[i] == b'*') {
+        i += 1;
+    }
+    while i < b.len() {
+        let start = i;
+        if b[i] == b'*' {
+            i += 1;
+        } else {
+            while i < b.len() && key(b[i]) {
+                i += 1;
+            }
+        }
+        let name = body[start..i].to_ascii_uppercase();
+        let vstart = i;
+        while i < b.len() && !(key(b[i]) || b[i] == b'*') {
+            i += 1;
+        }
+        let value = body[vstart..i].trim();
+        let letter = name.chars().next().filter(|_| name.len() == 1);
+        match letter.filter(|l| VALUE_LETTERS.contains(l)) {
+            Some(l) => read.set(
+                l,
+                python_float(value).ok_or_else(|| {
+                    format!("Klipper cannot read `{name}{value}` as a number and refuses the move")
+                }),
+                false,
+            ),
+            None => read.others.push(body[start..i].trim().to_string()),
+        }
+    }
+    read
+}
+
+/// The number `SafeStrtod` reads at the start of `s` (RepRapFirmware):
+/// spaces, a sign, digits, a point, digits, an exponent; its value and
+/// length, or `None` without a digit.
+fn safe_strtod(s: &str) -> Option<(f64, usize)> {
+    let b = s.as_bytes();
+    let mut i = 0;
+    while matches!(b.get(i), Some(b' ' | b'\t')) {
+        i += 1;
+    }
+    let start = i;
+    if matches!(b.get(i), Some(b'-' | b'+')) {
+        i += 1;
+    }
+    let mut digits = 0;
+    while b.get(i).is_some_and(u8::is_ascii_digit) {
+        i += 1;
+        digits += 1;
+    }
+    if b.get(i) == Some(&b'.') {
+        i += 1;
+        while b.get(i).is_some_and(u8::is_ascii_digit) {
+            i += 1;
+            digits += 1;
+        }
+    }
+    if digits == 0 {
+        return None;
+    }
+    let mantissa = &s[start..i];
+    let mut exp = String::new();
+    if matches!(b.get(i), Some(b'e' | b'E')) {
+        i += 1;
+        if let Some(&c @ (b'-' | b'+')) = b.get(i) {
+            exp.push(c as char);
+            i += 1;
+        }
+        while let Some(&c) = b.get(i).filter(|c| c.is_ascii_digit()) {
+            exp.push(c as char);
+            i += 1;
+        }
+    }
+    let exp = if exp.trim_start_matches(['+', '-']).is_empty() {
+        "0".to_string()
+    } else {
+        exp
+    };
+    let v: f64 = format!("{mantissa}e{exp}").parse().ok()?;
+    Some((v, i))
+}
+
+/// RepRapFirmware's reading (its `StringParser`): a parameter starts at
+/// each letter (either case; an `E` right after a digit is an exponent), the
+/// first of a letter is the one read (`Seen`), its value by `SafeStrtod`.
+/// So `X1e1` is X10, and `X0x10` is X0.
+fn read_reprap(body: &str) -> std::result::Result<Read, String> {
+    if let Some(c) = body.chars().find(|c| matches!(c, '{' | '"' | '\'')) {
+        return Err(format!(
+            "`{c}` on a move: RepRapFirmware reads an expression or a string there, which the rewrite does not evaluate; write the numbers"
+        ));
+    }
+    let b = body.as_bytes();
+    let starts: Vec<usize> = (0..b.len())
+        .filter(|&k| {
+            b[k].is_ascii_alphabetic()
+                && !(matches!(b[k], b'e' | b'E') && k > 0 && b[k - 1].is_ascii_digit())
+        })
+        .collect();
+    let mut read = Read::default();
+    for (n, &k) in starts.iter().enumerate() {
+        let end = starts.get(n + 1).copied().unwrap_or(b.len());
+        let letter = (b[k] as char).to_ascii_uppercase();
+        let word = body[k..end].trim();
+        if !VALUE_LETTERS.contains(&letter) {
+            read.others.push(word.to_string());
+            continue;
+        }
+        let text = &body[k + 1..end];
+        let v = match safe_strtod(text) {
+            None => Err(format!(
+                "RepRapFirmware finds no number after `{letter}` in `{word}` and refuses the move"
+            )),
+            Some((x, len)) if !text[len..].trim().is_empty() => Err(format!(
+                "RepRapFirmware reads `{word}` as {letter}{x} and ignores `{}`; write the number as meant",
+                text[len..].trim()
+            )),
+            Some((x, _)) => Ok(x),
+        };
+        read.set(letter, v, true);
+    }
+    Ok(read)
+}
+
+/// Marlin's reading as shipped (`FASTER_GCODE_PARSER`): a parameter at
+/// each upper-case letter, its value the characters `0-9 . + -` after it
+/// (spaces skipped), read by `strtof`; the last of a letter kept. So `X1E1`
+/// is X1 and E1, and `X0X10` is X10.
+fn read_marlin(body: &str) -> Read {
+    let b = body.as_bytes();
+    let mut read = Read::default();
+    let mut i = 0;
+    while i < b.len() {
+        let c = b[i];
+        i += 1;
+        if !c.is_ascii_uppercase() {
+            continue;
+        }
+        let start = i - 1;
+        while b.get(i) == Some(&b' ') {
+            i += 1;
+        }
+        let vstart = i;
+        while b
+            .get(i)
+            .is_some_and(|c| c.is_ascii_digit() || matches!(c, b'.' | b'+' | b'-'))
+        {
+            i += 1;
+        }
+        let text = &body[vstart..i];
+        let word = body[start..i].trim();
+        let letter = c as char;
+        if !VALUE_LETTERS.contains(&letter) {
+            read.others.push(word.to_string());
+            continue;
+        }
+        // `valid_float`: a sign, a point, then a digit.
+        let t = text.trim_start_matches(['+', '-']);
+        let valid = t.starts_with(|c: char| c.is_ascii_digit())
+            || (t.starts_with('.') && t[1..].starts_with(|c: char| c.is_ascii_digit()));
+        let valid = valid && text.len() - t.len() <= 1;
+        let v = if !valid {
+            Err(format!(
+                "Marlin finds no number after `{letter}` in `{word}` and does not move that axis"
+            ))
+        } else if matches!(t, "0") && b.get(i) == Some(&b'X') {
+            Err(format!(
+                "`{word}X…`: some Marlin builds read `0X…` as a hexadecimal number; write each word with its own number"
+            ))
+        } else {
+            match python_float(text) {
+                Some(x) => Ok(x),
+                None => {
+                    let x = text
+                        .char_indices()
+                        .rev()
+                        .find_map(|(k, _)| python_float(&text[..k]))
+                        .unwrap_or(0.0);
+                    Err(format!(
+                        "Marlin reads `{word}` as {letter}{x} and ignores the rest; write the number as meant"
+                    ))
+                }
+            }
+        };
+        read.set(letter, v, false);
+    }
+    read
+}
+
+/// The G and M commands after the first on a line as RepRapFirmware splits
+/// it (a `G` or `M` outside quotes and braces and not after `'`), with
+/// their numbers.
+fn later_commands(body: &[u8]) -> Vec<(char, Option<u32>)> {
+    let (mut quoted, mut escaped, mut braces) = (false, false, 0usize);
+    let mut out = vec![];
+    for (k, &c) in body.iter().enumerate() {
+        if c == b'\'' {
+            escaped = !quoted;
+            continue;
+        }
+        if c == b'"' {
+            quoted = !quoted;
+        } else if !quoted {
+            if c == b'{' {
+                braces += 1;
+            } else if braces > 0 {
+                if c == b'}' {
+                    braces -= 1;
+                }
+            } else if !escaped && matches!(c.to_ascii_uppercase(), b'G' | b'M') {
+                out.push((
+                    (c as char).to_ascii_uppercase(),
+                    code_number(&body[k + 1..]).map(|(n, _)| n),
+                ));
+            }
+        }
+        escaped = false;
+    }
+    out
+}
+
+/// Read one line (without its line end) as `dialect` reads it, in the
+/// RepRapFirmware machine `mode` the program has set.
+fn parse(line: &[u8], dialect: Dialect, mode: Mode) -> std::result::Result<Parsed, Refused> {
     use Dialect::*;
     let (code, semi) = match line.iter().position(|&b| b == b';') {
         Some(i) => (&line[..i], &line[i..]),
         None => (line, &line[line.len()..]),
     };
-    // `(…)` comments: cut out (each leaves a space), kept for the end.
+    // `(…)` comments (RepRapFirmware in CNC or laser mode): cut out (each
+    // leaves a space), kept for the end.
+    let cnc = dialect == RepRap && mode == Mode::Cnc;
     let mut parens: Vec<u8> = vec![];
     let mut bare: Vec<u8> = Vec::with_capacity(code.len());
     let mut i = 0;
@@ -287,7 +590,28 @@ fn parse(line: &[u8], dialect: Dialect) -> std::result::Result<Parsed, Refused> 
             i += 1;
         }
     }
-    let s = trim_start(&bare);
+    // A `(` where the firmware does not read a comment: refused on a line
+    // that would be followed if it were one (`(go) G1 X5` too, on which
+    // the firmwares would not move).
+    let shown = || String::from_utf8_lossy(line).trim().to_string();
+    if code.contains(&b'(') && !cnc && !matches!(parse(line, RepRap, Mode::Cnc), Ok(Parsed::Raw)) {
+        return Err(Refused(
+            format!(
+                "a (comment) on `{}`: {}; use a `;` comment at the end of the line",
+                shown(),
+                match dialect {
+                    Klipper => "Klipper refuses the line".to_string(),
+                    Marlin =>
+                        "Marlin reads its letters as words unless built with PAREN_COMMENTS".into(),
+                    RepRap => "RepRapFirmware skips it only in CNC or laser mode (M453, M452), and reads its letters as words in 3D printer mode (or put M453 or M452 at the start of the program if the machine runs in that mode)".into(),
+                    Strict =>
+                        "Klipper refuses such a line, Marlin reads its letters as words unless built with PAREN_COMMENTS, RepRapFirmware skips it only in CNC mode".into(),
+                },
+            ),
+            (dialect == Strict).then_some(GcodeHint::NameDialect),
+        ));
+    }
+    let s = trim_start(if cnc { &bare } else { code });
     // A line number.
     let mut number: Option<(u8, String)> = None;
     let mut glued = false;
@@ -311,45 +635,87 @@ fn parse(line: &[u8], dialect: Dialect) -> std::result::Result<Parsed, Refused> 
         return Ok(Parsed::Raw);
     };
     let letter = (first as char).to_ascii_uppercase();
-    let command = if first.is_ascii_alphabetic() {
-        match code_number(trim_start(&s[1..])) {
-            Some((n, _)) if matches!(letter, 'G' | 'M') => {
-                if !followed(letter, n) {
-                    return Ok(Parsed::Raw);
-                }
-                Some((letter, n))
-            }
-            Some(_) | None
-                if matches!(letter, 'X' | 'Y' | 'Z' | 'A' | 'B' | 'C' | 'E' | 'F')
-                    && trim_start(&s[1..])
-                        .first()
-                        .is_some_and(|b| b.is_ascii_digit() || matches!(b, b'-' | b'+' | b'.')) =>
-            {
-                // A line without a command: a modal move.
-                None
-            }
-            _ => return Ok(Parsed::Raw),
-        }
-    } else {
+    if !first.is_ascii_alphabetic() {
         return Ok(Parsed::Raw);
+    }
+    let code_at = code_number(trim_start(&s[1..]));
+    // `G53`: the command after it on the line moves in machine coordinates
+    // (RepRapFirmware; Marlin with CNC_COORDINATE_SYSTEMS), or not at all
+    // (Klipper, and Marlin as shipped: an unknown command).
+    if letter == 'G'
+        && code_at.is_some_and(|(n, _)| n == 53)
+        && later_commands(&s[1..]).iter().any(|(_, n)| n.is_some())
+    {
+        return Err(format!(
+            "`{}`: G53 with a move on its line moves in machine coordinates in RepRapFirmware (and Marlin built with CNC_COORDINATE_SYSTEMS), whose offset from the program's the rewrite does not know, and not at all in Klipper (an unknown command); write the move without G53, in the program's coordinates",
+            shown()
+        )
+        .into());
+    }
+    let command = match code_at {
+        Some((n, _)) if matches!(letter, 'G' | 'M') => {
+            if !followed(letter, n) {
+                // RepRapFirmware runs every command of a line: a move after
+                // another command moves.
+                if dialect != Klipper
+                    && dialect != Marlin
+                    && !(letter == 'M' && TEXT_COMMANDS.contains(&n))
+                    && let Some((l, n)) = later_commands(&s[1..])
+                        .into_iter()
+                        .find(|(l, n)| n.is_some_and(|n| followed(*l, n)))
+                {
+                    return Err(format!(
+                        "`{}`: RepRapFirmware runs the {l}{} on this line after the first command (Klipper and Marlin do not); put each command on its own line",
+                        shown(),
+                        n.unwrap_or(0)
+                    )
+                    .into());
+                }
+                return Ok(Parsed::Raw);
+            }
+            Some((letter, n))
+        }
+        Some(_) | None
+            if matches!(letter, 'X' | 'Y' | 'Z' | 'A' | 'B' | 'C' | 'E' | 'F')
+                && trim_start(&s[1..])
+                    .first()
+                    .is_some_and(|b| b.is_ascii_digit() || matches!(b, b'-' | b'+' | b'.')) =>
+        {
+            // A line without a command: a modal move.
+            None
+        }
+        _ => return Ok(Parsed::Raw),
     };
     // From here the line is one the rewrite follows: every rule of the
     // dialect applies.
-    let shown = || String::from_utf8_lossy(line).trim().to_string();
-    if command.is_none() && dialect != RepRap {
-        return Err(Refused(
-            format!(
-                "`{}` has no command word: {}; start the line with G1",
-                shown(),
-                match dialect {
-                    Klipper => "Klipper reads it as an unknown command and does not move",
-                    Marlin => "Marlin moves on it only when built with GCODE_MOTION_MODES",
-                    _ =>
-                        "Klipper does not move on it, Marlin only with GCODE_MOTION_MODES, RepRapFirmware continues the last G0/G1",
-                }
-            ),
-            Some(GcodeHint::Dialect(RepRap.name())),
-        ));
+    if command.is_none() {
+        match (dialect, mode) {
+            (RepRap, Mode::Cnc) => {}
+            // A 3D printer's RepRapFirmware: a "bad command", no move.
+            (RepRap, Mode::Printer) => return Ok(Parsed::Raw),
+            (RepRap, Mode::Unknown) => {
+                return Err(format!(
+                    "`{}` has no command word: RepRapFirmware continues the last G0/G1 on it only in CNC or laser mode (M453, M452), and moves on nothing in 3D printer mode (M451); start the line with G1, or put M453 or M452 at the start of the program if the machine runs in that mode",
+                    shown()
+                )
+                .into());
+            }
+            _ => {
+                return Err(Refused(
+                    format!(
+                        "`{}` has no command word: {}; start the line with G1",
+                        shown(),
+                        match dialect {
+                            Klipper => "Klipper reads it as an unknown command and does not move",
+                            Marlin => "Marlin moves on it only when built with GCODE_MOTION_MODES",
+                            _ =>
+                                "Klipper does not move on it, Marlin only with GCODE_MOTION_MODES, RepRapFirmware continues the last G0/G1 in CNC mode",
+                        }
+                    ),
+                    Some(GcodeHint::Dialect(RepRap.name())),
+                ));
+            }
+        }
     }
     if glued && matches!(dialect, Strict | Marlin) {
         return Err(format!(
@@ -357,21 +723,6 @@ fn parse(line: &[u8], dialect: Dialect) -> std::result::Result<Parsed, Refused> 
             shown()
         )
         .into());
-    }
-    if !parens.is_empty() && dialect != RepRap {
-        return Err(Refused(
-            format!(
-                "a (comment) on `{}`: {}; use a `;` comment at the end of the line",
-                shown(),
-                match dialect {
-                    Klipper => "Klipper refuses the line",
-                    Marlin => "Marlin reads its letters as words unless built with PAREN_COMMENTS",
-                    _ =>
-                        "Klipper refuses such a line, Marlin reads its letters as words unless built with PAREN_COMMENTS, RepRapFirmware skips it",
-                },
-            ),
-            (dialect == Strict).then_some(GcodeHint::NameDialect),
-        ));
     }
     let lower = s.iter().any(|b| b.is_ascii_lowercase())
         || number.as_ref().is_some_and(|(c, _)| *c == b'n');
@@ -384,7 +735,9 @@ fn parse(line: &[u8], dialect: Dialect) -> std::result::Result<Parsed, Refused> 
             (dialect == Strict).then_some(GcodeHint::NameDialect),
         ));
     }
-    // A checksum at the end.
+    // A checksum at the end: the firmwares that check one skip a line whose
+    // checksum does not match, so it is checked here and never written anew
+    // over a wrong one.
     let mut checksum = false;
     let mut body = s;
     if let Some(k) = s.iter().position(|&b| b == b'*') {
@@ -396,51 +749,109 @@ fn parse(line: &[u8], dialect: Dialect) -> std::result::Result<Parsed, Refused> 
             )
             .into());
         }
+        let head = &line[..line.len() - semi.len()];
+        let head = &head[..head.iter().rposition(|&b| b == b'*').unwrap_or(0)];
+        let sum = head.iter().fold(0u8, |a, b| a ^ b);
+        if tail.parse::<u32>().ok() != Some(u32::from(sum)) {
+            return Err(format!(
+                "the checksum *{tail} does not match the line (its characters give *{sum}): the line was changed after the checksum was written, and the firmwares that check it skip the line; restore the line, or remove its checksum (the program's sender adds its own)"
+            )
+            .into());
+        }
         checksum = true;
         body = &s[..k];
     }
     let body = std::str::from_utf8(body)
         .map_err(|_| Refused::from(format!("`{}` is not ASCII", shown())))?;
-    let mut words = vec![];
-    let b = body.as_bytes();
-    let mut i = 0;
-    while i < b.len() {
-        let c = b[i] as char;
-        if c.is_ascii_whitespace() {
-            i += 1;
-            continue;
-        }
-        if !c.is_ascii_alphabetic() {
-            return Err(format!("unexpected `{c}` in `{}`", shown()).into());
-        }
-        let start = i + 1;
-        let mut j = start;
-        while j < b.len()
-            && (b[j] == b'.'
-                || b[j] == b'-'
-                || b[j] == b'+'
-                || b[j].is_ascii_digit()
-                || b[j] == b' ')
-        {
-            if b[j] == b' ' && j > start && !body[start..j].trim().is_empty() {
-                break;
-            }
-            j += 1;
-        }
-        words.push((c.to_ascii_uppercase(), body[start..j].trim().to_string()));
-        i = j;
+    if let Some(c) = body.chars().find(|c| !c.is_ascii()) {
+        return Err(format!("`{c}` in `{}`: not ASCII", shown()).into());
     }
-    if command.is_some() {
-        words.remove(0);
-    }
-    if let Some((w, v)) = words.iter().find(|(w, _)| matches!(w, 'G' | 'M')) {
+    // The words after the command word.
+    let rest = match command {
+        Some(_) => {
+            let t = &body[1..];
+            let lead = t.len() - t.trim_start().len();
+            let digits = t[lead..].bytes().take_while(u8::is_ascii_digit).count();
+            &t[lead + digits..]
+        }
+        None => body,
+    };
+    if let Some((l, n)) = later_commands(rest.as_bytes()).first()
+        && (dialect != Klipper || n.is_some())
+    {
         return Err(format!(
-            "a second command `{w}{v}` on `{}`: Klipper and Marlin read only the first; put each command on its own line",
+            "a second command `{l}{}` on `{}`: the firmwares read it differently (RepRapFirmware runs both, Klipper and Marlin read its letters as words); put each command on its own line",
+            n.map(|n| n.to_string()).unwrap_or_default(),
             shown()
         )
         .into());
     }
-    let mut comment = parens;
+    // The words as the firmware reads them; values only where the command
+    // takes them (a move, G92).
+    let takes_values = matches!(command, None | Some(('G', 0..=3 | 92)));
+    let read = |d: Dialect| -> std::result::Result<Read, String> {
+        let r = match d {
+            Klipper => read_klipper(rest),
+            RepRap => read_reprap(rest)?,
+            _ => read_marlin(rest),
+        };
+        if takes_values && let Some((_, Err(e))) = r.values.iter().find(|(_, v)| v.is_err()) {
+            return Err(e.clone());
+        }
+        Ok(r)
+    };
+    let read = match dialect {
+        Strict => {
+            let readings = [Klipper, RepRap, Marlin].map(read);
+            if let Some(e) = readings.iter().find_map(|r| r.as_ref().err()) {
+                return Err(Refused(
+                    format!("`{}`: {e}", shown()),
+                    Some(GcodeHint::NameDialect),
+                ));
+            }
+            let readings = readings.map(|r| r.expect("checked"));
+            if takes_values {
+                for l in VALUE_LETTERS {
+                    let of = |r: &Read| {
+                        r.values
+                            .iter()
+                            .find(|(x, _)| *x == l)
+                            .map(|(_, v)| v.clone().unwrap_or(f64::NAN))
+                    };
+                    let [k, r, m] = [&readings[0], &readings[1], &readings[2]].map(of);
+                    if k != r || k != m {
+                        let say = |v: Option<f64>| match v {
+                            Some(v) => format!("{l}{v}"),
+                            None => format!("no {l}"),
+                        };
+                        return Err(Refused(
+                            format!(
+                                "`{}`: the firmwares read it differently (Klipper {}, RepRapFirmware {}, Marlin {}); write each word once, as a plain number",
+                                shown(),
+                                say(k),
+                                say(r),
+                                say(m)
+                            ),
+                            Some(GcodeHint::NameDialect),
+                        ));
+                    }
+                }
+            }
+            readings.into_iter().next().expect("three readings")
+        }
+        d => read(d).map_err(|e| Refused::from(format!("`{}`: {e}", shown())))?,
+    };
+    let mut words: Vec<(char, String)> = read
+        .values
+        .into_iter()
+        .filter_map(|(l, v)| Some((l, format!("{:?}", v.ok()?))))
+        .collect();
+    words.extend(read.others.into_iter().filter(|w| !w.is_empty()).map(|w| {
+        let mut c = w.chars();
+        let l = c.next().unwrap_or(' ').to_ascii_uppercase();
+        (l, c.as_str().trim().to_string())
+    }));
+    let mut comment = if cnc { parens } else { vec![] };
     if !semi.is_empty() {
         if !comment.is_empty() {
             comment.push(b' ');
@@ -522,6 +933,8 @@ where
     // The pre-distorted position last sent (for relative moves).
     let mut sent_pos: Vec<Option<f64>> = pos.clone();
     let (mut absolute, mut inches, mut abs_e) = (true, false, true);
+    // RepRapFirmware's machine mode, as the program sets it.
+    let mut mode = Mode::Unknown;
     let mut motion: Option<u32> = None;
     let mut e_pos = 0.0;
     // First pass: parse, follow the modes, cut moves into pieces (in order);
@@ -547,7 +960,7 @@ where
             (whole, "")
         };
         let here = |m: String| gcode(line_no, m, None);
-        let l = match parse(raw, settings.dialect)
+        let l = match parse(raw, settings.dialect, mode)
             .map_err(|Refused(m, hint)| gcode(line_no, m, hint))?
         {
             Parsed::Raw => {
@@ -592,6 +1005,8 @@ where
             }
             Some(('M', 82)) => abs_e = true,
             Some(('M', 83)) => abs_e = false,
+            Some(('M', 451)) => mode = Mode::Printer,
+            Some(('M', 452 | 453)) => mode = Mode::Cnc,
             _ => {}
         }
         let has_axis = l.words.iter().any(|(w, _)| words.contains(w));
@@ -885,7 +1300,14 @@ where
 /// give an answer, and a followed line only upper-case word letters.
 #[cfg(test)]
 pub(crate) fn fuzz_parse(line: &[u8], dialect: Dialect) {
-    if let Ok(Parsed::Code(c)) = parse(line, dialect) {
+    for mode in [Mode::Unknown, Mode::Printer, Mode::Cnc] {
+        fuzz_parse_in(line, dialect, mode);
+    }
+}
+
+#[cfg(test)]
+fn fuzz_parse_in(line: &[u8], dialect: Dialect, mode: Mode) {
+    if let Ok(Parsed::Code(c)) = parse(line, dialect, mode) {
         assert!(
             c.words.iter().all(|(w, _)| w.is_ascii_uppercase()),
             "{line:?}"
@@ -915,28 +1337,148 @@ mod tests {
             "M572 D0 S0.03",
         ] {
             for d in Dialect::ALL {
-                assert_eq!(parse(line.as_bytes(), d), Ok(Parsed::Raw), "{line} ({d:?})");
+                assert_eq!(
+                    parse(line.as_bytes(), d, Mode::Unknown),
+                    Ok(Parsed::Raw),
+                    "{line} ({d:?})"
+                );
             }
         }
     }
 
     #[test]
     fn a_move_is_read_with_its_number_checksum_and_comment() {
-        let Ok(Parsed::Code(c)) = parse(b"N7 G01 X5 Y-.5 F1200*33 ; go", Dialect::Strict) else {
+        let Ok(Parsed::Code(c)) = parse(
+            b"N7 G01 X5 Y-.5 F1200*120 ; go",
+            Dialect::Strict,
+            Mode::Unknown,
+        ) else {
             panic!("a move")
         };
         assert_eq!(c.number.as_deref(), Some("N7"));
         assert!(c.checksum);
         assert_eq!(c.command, Some(('G', 1)));
         let words: Vec<(char, &str)> = c.words.iter().map(|(w, v)| (*w, v.as_str())).collect();
-        assert_eq!(words, [('X', "5"), ('Y', "-.5"), ('F', "1200")]);
+        assert_eq!(words, [('X', "5.0"), ('Y', "-0.5"), ('F', "1200")]);
         assert_eq!(c.comment, b"; go");
         // RepRapFirmware: (comments) anywhere, both sides read.
-        let Ok(Parsed::Code(c)) = parse(b"(a) G1 X5 (b) Y6 ; c", Dialect::RepRap) else {
+        let Ok(Parsed::Code(c)) = parse(b"(a) G1 X5 (b) Y6 ; c", Dialect::RepRap, Mode::Cnc) else {
             panic!("a move")
         };
         assert_eq!(c.words.len(), 2);
         assert_eq!(c.comment, b"(a) (b) ; c");
         assert_eq!(checksum("N7 G1"), b"N7 G1".iter().fold(0, |a, b| a ^ b));
+    }
+
+    /// The value of `letter` in a move `line` read in `dialect`, or the
+    /// refusal.
+    fn value(
+        line: &str,
+        dialect: Dialect,
+        letter: char,
+    ) -> std::result::Result<Option<f64>, String> {
+        match parse(line.as_bytes(), dialect, Mode::Unknown) {
+            Ok(Parsed::Code(c)) => Ok(c
+                .words
+                .iter()
+                .find(|(w, _)| *w == letter)
+                .map(|(_, v)| v.parse().unwrap())),
+            Ok(Parsed::Raw) => Err("raw".into()),
+            Err(Refused(m, _)) => Err(m),
+        }
+    }
+
+    /// Issue 50, 5: each firmware's reading of repeated words and of
+    /// numbers, as its own parser reads them: Klipper's `gcode.py` (the
+    /// line upper-cased and split at letters, the last of a key kept,
+    /// Python's `float`), RepRapFirmware's `StringParser` (`Seen` finds the
+    /// first, `SafeStrtod` reads an exponent, an `E` after a digit is no
+    /// parameter), Marlin's `FASTER_GCODE_PARSER` (the last of a letter, the
+    /// characters `0-9.+-` after it); strict refuses where they differ.
+    /// Before, every dialect compensated X5 of `G1 X5 X20` and dropped X20,
+    /// and read `X1e1` as X1 and E1 (or refused it as lower case).
+    #[test]
+    fn each_firmware_reads_words_as_its_parser_does() {
+        use Dialect::*;
+        // (line, letter, Klipper, RepRapFirmware, Marlin); NaN: refused.
+        let nan = f64::NAN;
+        let cases: &[(&str, char, f64, f64, f64)] = &[
+            ("G1 X5 X20", 'X', 20.0, 5.0, 20.0),
+            ("G1 X0X10", 'X', 10.0, 0.0, 10.0),
+            ("G1 X0x10", 'X', 10.0, 0.0, nan),
+            ("G1 X1E1", 'X', 1.0, 10.0, 1.0),
+            ("G1 X1E1", 'E', 1.0, nan, 1.0),
+            ("G1 X1e1", 'X', 1.0, 10.0, nan),
+            ("G1 X 5", 'X', 5.0, 5.0, 5.0),
+            ("G1 X-.5", 'X', -0.5, -0.5, -0.5),
+            ("G1 X1..0", 'X', nan, nan, nan),
+            ("G1 X", 'X', nan, nan, nan),
+            ("G1 X5 E2 E3", 'E', 3.0, 2.0, 3.0),
+        ];
+        for &(line, letter, k, r, m) in cases {
+            for (d, want) in [(Klipper, k), (RepRap, r), (Marlin, m)] {
+                let got = value(line, d, letter);
+                if want.is_nan() {
+                    assert!(
+                        got.as_ref().is_err() || got == Ok(None),
+                        "{line} {d:?}: {got:?}"
+                    );
+                } else {
+                    assert_eq!(got, Ok(Some(want)), "{line} {d:?}");
+                }
+            }
+            let strict = value(line, Strict, letter);
+            if k == r && r == m {
+                assert_eq!(strict, Ok(Some(k)), "{line}");
+            } else {
+                assert!(strict.is_err(), "{line}: {strict:?}");
+            }
+        }
+        let e = value("G1 X5 X20", Strict, 'X').unwrap_err();
+        assert!(
+            e.contains("Klipper X20, RepRapFirmware X5, Marlin X20"),
+            "{e}"
+        );
+        // G53 with a move on its line, in every dialect.
+        for d in Dialect::ALL {
+            let e = value("G53 G1 X20", d, 'X').unwrap_err();
+            assert!(e.contains("G53 with a move on its line"), "{d:?}: {e}");
+            assert_eq!(parse(b"G53", d, Mode::Unknown), Ok(Parsed::Raw));
+        }
+        // A move after another command: RepRapFirmware runs it.
+        for d in [Strict, RepRap] {
+            let e = value("M400 G1 X20", d, 'X').unwrap_err();
+            assert!(e.contains("RepRapFirmware runs the G1"), "{d:?}: {e}");
+        }
+        for d in [Klipper, Marlin] {
+            assert_eq!(value("M400 G1 X20", d, 'X'), Err("raw".into()));
+        }
+        // A wrong checksum: refused, never written anew.
+        for d in Dialect::ALL {
+            let e = value("N10 G1 X5 Y200*71", d, 'X').unwrap_err();
+            assert!(
+                e.contains("the checksum *71 does not match the line (its characters give *31)"),
+                "{e}"
+            );
+            assert_eq!(value("N10 G1 X5 Y200*31", d, 'X'), Ok(Some(5.0)));
+        }
+        // RepRapFirmware's (comments) and lines without a command, by mode.
+        let cnc = parse(b"G1 X5 (note) Y200", RepRap, Mode::Cnc);
+        assert!(matches!(cnc, Ok(Parsed::Code(_))), "{cnc:?}");
+        for mode in [Mode::Unknown, Mode::Printer] {
+            let e = parse(b"G1 X5 (note) Y200", RepRap, mode).unwrap_err();
+            assert!(e.0.contains("M453"), "{e:?}");
+        }
+        assert!(matches!(
+            parse(b"X5 Y6", RepRap, Mode::Cnc),
+            Ok(Parsed::Code(_))
+        ));
+        assert_eq!(parse(b"X5 Y6", RepRap, Mode::Printer), Ok(Parsed::Raw));
+        assert!(
+            parse(b"X5 Y6", RepRap, Mode::Unknown)
+                .unwrap_err()
+                .0
+                .contains("M453")
+        );
     }
 }

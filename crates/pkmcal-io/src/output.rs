@@ -429,12 +429,20 @@ impl Files {
     /// A buffered writer for an output written as it is computed: standard
     /// output for `-`, else a staged temporary ([`stage_file`]). Flush it at the
     /// end.
+    /// Its errors name `dest` (a full disk says which output could not be
+    /// written).
     pub fn writer(&self, dest: &Path) -> Result<Box<dyn Write>> {
         if is_stdout(dest) {
-            return Ok(Box::new(std::io::BufWriter::new(std::io::stdout())));
+            return Ok(Box::new(Named {
+                inner: std::io::BufWriter::new(std::io::stdout()),
+                dest: dest.to_path_buf(),
+            }));
         }
         let (f, _) = self.stage_file(dest)?;
-        Ok(Box::new(std::io::BufWriter::new(f)))
+        Ok(Box::new(Named {
+            inner: std::io::BufWriter::new(f),
+            dest: dest.to_path_buf(),
+        }))
     }
 
     /// Rename every staged temporary into place, all or nothing: every
@@ -597,6 +605,35 @@ pub const MAX_DESCRIPTION_MB: u64 = 16;
 pub const MAX_DATA_MB: u64 = 256;
 /// The longest line of a streamed file.
 pub const MAX_LINE_BYTES: usize = 1 << 20;
+
+/// A writer whose errors name its destination: "cannot write out.csv: No
+/// space left on device".
+struct Named<W> {
+    inner: W,
+    dest: PathBuf,
+}
+
+impl<W: Write> Named<W> {
+    fn named(&self, e: std::io::Error) -> std::io::Error {
+        if is_stdout(&self.dest) {
+            let message = format!("cannot write to standard output: {e}");
+            return std::io::Error::new(e.kind(), message);
+        }
+        std::io::Error::new(e.kind(), Error::io(&self.dest, Verb::Write, e))
+    }
+}
+
+impl<W: Write> Write for Named<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.inner.write(buf).map_err(|e| self.named(e))
+    }
+    fn write_all(&mut self, buf: &[u8]) -> std::io::Result<()> {
+        self.inner.write_all(buf).map_err(|e| self.named(e))
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush().map_err(|e| self.named(e))
+    }
+}
 
 /// A reader that fails on a line longer than [`MAX_LINE_BYTES`], so that a
 /// stream without line ends (`/dev/zero`) cannot grow a record without

@@ -45,12 +45,22 @@ pub struct CalibrationState {
     /// The fit, its accuracy, the poses, the validation and the
     /// cross-validation.
     pub study: Study,
+    /// The tool load during the measurements (N, N·m; one value per tool
+    /// axis), empty for none (and in records written before it was kept).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub load: Vec<f64>,
 }
 
-/// A JSON value from CBOR's data model, non-finite numbers tagged.
-fn to_json(v: ciborium::Value) -> Result<serde_json::Value> {
+/// A JSON value from CBOR's data model, non-finite numbers tagged;
+/// stopped at its next value once `cancel` is set.
+fn to_json_cancellable(
+    v: ciborium::Value,
+    cancel: Option<&std::sync::atomic::AtomicBool>,
+) -> Result<serde_json::Value> {
     use ciborium::Value as C;
     use serde_json::Value as J;
+    pkmcal::error::check_cancel(cancel)?;
+    let to_json = |v| to_json_cancellable(v, cancel);
     Ok(match v {
         C::Null => J::Null,
         C::Bool(b) => J::Bool(b),
@@ -95,7 +105,7 @@ fn to_json(v: ciborium::Value) -> Result<serde_json::Value> {
     })
 }
 
-/// CBOR's data model from a JSON value [`to_json`] wrote.
+/// CBOR's data model from a JSON value [`to_json_cancellable`] wrote.
 fn from_json(v: serde_json::Value) -> Result<ciborium::Value> {
     use ciborium::Value as C;
     use serde_json::Value as J;
@@ -140,9 +150,17 @@ fn from_json(v: serde_json::Value) -> Result<ciborium::Value> {
 
 /// `state` as the JSON a record holds.
 pub fn state_to_json(state: &CalibrationState) -> Result<serde_json::Value> {
+    state_to_json_cancellable(state, None)
+}
+
+/// [`state_to_json`], stopped at its next value once `cancel` is set.
+fn state_to_json_cancellable(
+    state: &CalibrationState,
+    cancel: Option<&std::sync::atomic::AtomicBool>,
+) -> Result<serde_json::Value> {
     let v = ciborium::Value::serialized(state)
         .map_err(|e| Error::Content(format!("cannot encode the calibration: {e}")))?;
-    to_json(v)
+    to_json_cancellable(v, cancel)
 }
 
 /// The state a record's `state` member holds.
@@ -186,30 +204,95 @@ pub struct RecordParts {
     pub dof: Option<f64>,
 }
 
+/// A JSON text as a value, refusing a key given twice in one object (a
+/// JSON reader would keep one of them without a word).
+fn strict_json(text: &str) -> std::result::Result<serde_json::Value, serde_json::Error> {
+    use serde::de::{Error as _, MapAccess, SeqAccess, Visitor};
+    struct Strict(serde_json::Value);
+    struct V;
+    impl<'de> Visitor<'de> for V {
+        type Value = serde_json::Value;
+        fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            f.write_str("a JSON value")
+        }
+        fn visit_bool<E>(self, v: bool) -> std::result::Result<Self::Value, E> {
+            Ok(v.into())
+        }
+        fn visit_i64<E>(self, v: i64) -> std::result::Result<Self::Value, E> {
+            Ok(v.into())
+        }
+        fn visit_u64<E>(self, v: u64) -> std::result::Result<Self::Value, E> {
+            Ok(v.into())
+        }
+        fn visit_f64<E>(self, v: f64) -> std::result::Result<Self::Value, E> {
+            Ok(v.into())
+        }
+        fn visit_str<E>(self, v: &str) -> std::result::Result<Self::Value, E> {
+            Ok(v.into())
+        }
+        fn visit_string<E>(self, v: String) -> std::result::Result<Self::Value, E> {
+            Ok(v.into())
+        }
+        fn visit_unit<E>(self) -> std::result::Result<Self::Value, E> {
+            Ok(serde_json::Value::Null)
+        }
+        fn visit_seq<A: SeqAccess<'de>>(
+            self,
+            mut a: A,
+        ) -> std::result::Result<Self::Value, A::Error> {
+            let mut out = vec![];
+            while let Some(Strict(v)) = a.next_element()? {
+                out.push(v);
+            }
+            Ok(out.into())
+        }
+        fn visit_map<A: MapAccess<'de>>(
+            self,
+            mut a: A,
+        ) -> std::result::Result<Self::Value, A::Error> {
+            let mut out = serde_json::Map::new();
+            while let Some(k) = a.next_key::<String>()? {
+                if out.contains_key(&k) {
+                    return Err(A::Error::custom(format!(
+                        "the key `{k}` appears twice in one object (which one counts is not defined); keep one"
+                    )));
+                }
+                let Strict(v) = a.next_value()?;
+                out.insert(k, v);
+            }
+            Ok(out.into())
+        }
+    }
+    impl<'de> Deserialize<'de> for Strict {
+        fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+            d.deserialize_any(V).map(Strict)
+        }
+    }
+    serde_json::from_str::<Strict>(text).map(|s| s.0)
+}
+
 /// The [`RecordParts`] of a record's JSON text; `source` names it in
-/// messages.
+/// messages. A key given twice, a missing member or one of another kind is
+/// refused here; what the members mean, against the mechanism they serve,
+/// by [`pkmcal::identify::CalibrationRecord::check`].
 pub fn record_parts(text: &str, source: &str) -> Result<RecordParts> {
-    let mut v: serde_json::Value = serde_json::from_str(text)
+    let mut v: serde_json::Value = strict_json(text)
         .map_err(|e| Error::Content(format!("{source}: not a JSON calibration report: {e}")))?;
     if v.get("covariance").is_none() {
         return Err(Error::NotARecord {
             source_name: source.to_string(),
         });
     }
-    let dof = v
-        .get("noise")
-        .and_then(serde_json::Value::as_array)
-        .map(|groups| {
-            groups
-                .iter()
-                .filter(|g| g.get("estimated").and_then(serde_json::Value::as_bool) == Some(true))
-                .filter_map(|g| g.get("redundancy").and_then(serde_json::Value::as_f64))
-                .sum::<f64>()
-        })
-        .filter(|r| *r > 0.0);
     let state = v.as_object_mut().and_then(|o| o.remove("state"));
-    let record = serde_json::from_value(v)
-        .map_err(|e| Error::Content(format!("{source}: malformed calibration report: {e}")))?;
+    let record: pkmcal::identify::CalibrationRecord = serde_json::from_value(v).map_err(|e| {
+        Error::Content(format!(
+            "{source}: malformed calibration report: {e}; give a calibration record as pkmcal wrote it"
+        ))
+    })?;
+    record
+        .check_members()
+        .map_err(|e| Error::Content(format!("{source}: {e}")))?;
+    let dof = record.dof();
     Ok(RecordParts { record, state, dof })
 }
 
@@ -245,7 +328,7 @@ pub struct Validation {
 /// versioned calibration record ([`pkmcal::identify::CalibrationRecord`]
 /// reads it back) with everything a reader wants to see, and in `state` the
 /// whole calibration ([`crate::record`]).
-#[derive(Serialize)]
+#[derive(Serialize, Clone)]
 pub struct Report<'a> {
     /// [`pkmcal::identify::CALIBRATION_FORMAT`].
     pub format: &'static str,
@@ -264,17 +347,23 @@ pub struct Report<'a> {
     pub validation: Option<Validation>,
     pub cross_validation: &'a Option<CrossValidation>,
     /// The whole calibration, to read it back.
-    #[serde(serialize_with = "write_state")]
-    pub state: &'a CalibrationState,
+    pub state: StateRecord<'a>,
 }
 
-fn write_state<S: serde::Serializer>(
-    state: &&CalibrationState,
-    s: S,
-) -> std::result::Result<S::Ok, S::Error> {
-    state_to_json(state)
-        .map_err(|e| serde::ser::Error::custom(format!("{e}")))?
-        .serialize(s)
+/// A record's `state`: the whole calibration, written as JSON (stopped
+/// once `cancel` is set: [`Report::to_json_cancellable`]).
+#[derive(Clone, Copy)]
+pub struct StateRecord<'a> {
+    pub state: &'a CalibrationState,
+    pub cancel: Option<&'a std::sync::atomic::AtomicBool>,
+}
+
+impl Serialize for StateRecord<'_> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        state_to_json_cancellable(self.state, self.cancel)
+            .map_err(|e| serde::ser::Error::custom(format!("{e}")))?
+            .serialize(s)
+    }
 }
 
 impl<'a> Report<'a> {
@@ -303,13 +392,55 @@ impl<'a> Report<'a> {
                 accuracy: v.accuracy.clone(),
             }),
             cross_validation: &study.cross_validation,
-            state,
+            state: StateRecord {
+                state,
+                cancel: None,
+            },
         }
     }
 
     /// The report as JSON text (the calibration record's file).
     pub fn to_json(&self) -> Result<String> {
-        serde_json::to_string_pretty(self)
+        self.to_json_cancellable(None)
+    }
+
+    /// [`Report::to_json`], stopped at its next piece of text once `cancel`
+    /// is set (the library's [`pkmcal::Error::Cancelled`]): a record of a
+    /// million poses takes seconds to write.
+    pub fn to_json_cancellable(
+        &self,
+        cancel: Option<&std::sync::atomic::AtomicBool>,
+    ) -> Result<String> {
+        /// The text so far; refuses more once the flag is set.
+        struct Watched<'a> {
+            text: Vec<u8>,
+            cancel: Option<&'a std::sync::atomic::AtomicBool>,
+        }
+        impl std::io::Write for Watched<'_> {
+            fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+                // Not ErrorKind::Interrupted: write_all retries that one.
+                pkmcal::error::check_cancel(self.cancel).map_err(std::io::Error::other)?;
+                self.text.extend_from_slice(b);
+                Ok(b.len())
+            }
+            fn flush(&mut self) -> std::io::Result<()> {
+                Ok(())
+            }
+        }
+        let mut out = Watched {
+            text: Vec::new(),
+            cancel,
+        };
+        let mut report = self.clone();
+        report.state.cancel = cancel;
+        serde_json::to_writer_pretty(&mut out, &report).map_err(|e| {
+            if pkmcal::error::check_cancel(cancel).is_err() {
+                Error::from(pkmcal::Error::Cancelled)
+            } else {
+                Error::Content(format!("cannot write the report: {e}"))
+            }
+        })?;
+        String::from_utf8(out.text)
             .map_err(|e| Error::Content(format!("cannot write the report: {e}")))
     }
 }
@@ -399,7 +530,7 @@ mod tests {
             text: "NaN".into(),
             tricky: 2.5,
         };
-        let v = to_json(ciborium::Value::serialized(&s).unwrap()).unwrap();
+        let v = to_json_cancellable(ciborium::Value::serialized(&s).unwrap(), None).unwrap();
         let text = serde_json::to_string(&v).unwrap();
         let back: Sample = from_json(serde_json::from_str(&text).unwrap())
             .unwrap()

@@ -104,6 +104,7 @@ fn tick(v: f64) -> String {
 fn map_data(
     mech: &Mech,
     cal: &pkmcal::Calibration,
+    check: &(dyn Fn() -> pkmcal::Result<()> + Sync),
 ) -> Result<(Vec<figures::MapSlice>, Vec<figures::MapSweep>)> {
     let spec = mech.spec();
     let bx = &spec.workspace_box;
@@ -145,8 +146,8 @@ fn map_data(
             .collect();
         let values: Vec<Option<(f64, f64)>> = targets
             .par_iter()
-            .map(|t| miss_and_sigma(mech, cal, t))
-            .collect();
+            .map(|t| check().map(|()| miss_and_sigma(mech, cal, t)))
+            .collect::<pkmcal::Result<_>>()?;
         let mut s = figures::MapSlice {
             axes: [spec.tool_axes[a].clone(), spec.tool_axes[b].clone()],
             held: held_text(spec, &centre, &[a, b]),
@@ -184,8 +185,8 @@ fn map_data(
                 .collect();
             let values: Vec<Option<(f64, f64)>> = targets
                 .par_iter()
-                .map(|t| miss_and_sigma(mech, cal, t))
-                .collect();
+                .map(|t| check().map(|()| miss_and_sigma(mech, cal, t)))
+                .collect::<pkmcal::Result<_>>()?;
             for (t, v) in targets.iter().zip(values) {
                 if let Some((m, sg)) = v {
                     s.values.push(t[k]);
@@ -234,6 +235,16 @@ pub fn escape(s: &str) -> String {
 
 /// Render every figure of a calibration.
 pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
+    figures_cancellable(r, None)
+}
+
+/// [`figures`], stopped at its next pose, workspace point or figure once
+/// `cancel` is set (the library's [`pkmcal::Error::Cancelled`]).
+pub fn figures_cancellable(
+    r: &ReportInputs,
+    cancel: Option<&std::sync::atomic::AtomicBool>,
+) -> Result<Vec<Figure>> {
+    let check = || pkmcal::error::check_cancel(cancel);
     let spec = r.mech.spec();
     let cal = r.report.calibration;
     // Parameter groups by kind and unit (angles in mrad for readability).
@@ -271,10 +282,11 @@ pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
     // Where each pose is: its target, else the calibrated prediction.
     let positions: Vec<Vec<f64>> = r
         .data
-        .iter()
+        .par_iter()
         .map(|m| match &m.target {
             Some(t) => Ok(t.clone()),
             None => {
+                check()?;
                 let pose = prepare_pose(r.mech, &m.commands, None)?;
                 Ok(pkmcal::predict_pose(r.mech, &pose, &cal.params, cal.model, &[])?.x)
             }
@@ -282,8 +294,10 @@ pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
         .collect::<pkmcal::Result<_>>()?;
     // The workspace lattice behind the plan view, within a point budget.
     let spacing = pkmcal::engine::atlas::lattice_spacing(spec, MAP_SPACING_MM, MAP_POINTS);
+    check()?;
     let lattice = sample_workspace(r.mech, spacing);
-    let (slices, sweeps) = map_data(r.mech, cal)?;
+    let (slices, sweeps) = map_data(r.mech, cal, &check)?;
+    check()?;
     let unit_weight = cal.unit_weight_sigma.max(f64::MIN_POSITIVE);
     let standardized: Vec<f64> = cal
         .residuals
@@ -323,6 +337,7 @@ pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
             ],
             _ => vec![([0, 1], ["x", "y"])],
         };
+        check()?;
         out.push(figures::workspace_errors(
             &lattice_targets,
             &positions,
@@ -334,12 +349,14 @@ pub fn figures(r: &ReportInputs) -> Result<Vec<Figure>> {
     if slices.iter().any(|s| !s.points.is_empty()) || !sweeps.is_empty() {
         let bx = &spec.workspace_box;
         let centre: Vec<f64> = bx.iter().map(|b| 0.5 * (b[0] + b[1])).collect();
+        check()?;
         out.push(figures::workspace_maps(
             &slices,
             &sweeps,
             &held_text(spec, &centre, &[]),
         )?);
     }
+    check()?;
     out.push(figures::residuals(&standardized)?);
     let sv = &cal.identifiability.singular_values;
     let smax = sv.first().copied().unwrap_or(1.0);
@@ -639,8 +656,19 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
 
 /// Write the figures and `report.html` into `dir`.
 pub fn write_report_dir(run: &crate::Run<'_>, dir: &Path, r: &ReportInputs) -> Result<()> {
+    write_report_dir_cancellable(run, dir, r, None)
+}
+
+/// [`write_report_dir`], its figures stopped once `cancel` is set
+/// ([`figures_cancellable`]; nothing is written then).
+pub fn write_report_dir_cancellable(
+    run: &crate::Run<'_>,
+    dir: &Path,
+    r: &ReportInputs,
+    cancel: Option<&std::sync::atomic::AtomicBool>,
+) -> Result<()> {
     run.files.create_dir(dir)?;
-    let figs = figures(r)?;
+    let figs = figures_cancellable(r, cancel)?;
     for f in &figs {
         run.files
             .stage(&dir.join(format!("{}.svg", f.name)), f.svg.as_bytes())?;

@@ -546,10 +546,16 @@ pub fn budget_words(mechanism: &str, b: &Budget, plan: Option<String>) -> String
     if let Some(mc) = &b.monte_carlo {
         let _ = writeln!(
             o,
-            "  {} machines drawn from the tolerances (exact model): position error RMS {} ({:+.1} % from first order); per axis {}",
+            "  {} machines drawn from the tolerances (exact model): position error RMS {} ({}); per axis {}",
             b.samples,
             readable(mc.position_rms, mm),
-            100.0 * (mc.position_rms / b.first_order.position_rms - 1.0),
+            match b.sampled_change() {
+                Some(c) => format!("{:+.1} % from first order", 100.0 * c),
+                None if mc.position_rms > pkmcal::apply::budget::NEGLIGIBLE_ERROR_MM => {
+                    "first order has none: the tolerances act beyond it".into()
+                }
+                None => "none, as to first order".into(),
+            },
             axes(mc)
         );
     }

@@ -78,10 +78,10 @@ def test_options(ref):
         pkmcal.calibrate(mech, c, y, frame="tracker")
     with pytest.raises(pkmcal.PkmcalError, match="either validation"):
         pkmcal.calibrate(mech, c, y, validation=(c, y), holdout=0.2, frame="base")
-    with pytest.raises(pkmcal.PkmcalError, match="load: expected 2 values"):
+    with pytest.raises(pkmcal.PkmcalError, match="load: needs 2 values"):
         pkmcal.predict(mech, c, load=[1.0, 2.0, 3.0])
     # force= is the old name of load=, still read; not both.
-    with pytest.raises(pkmcal.PkmcalError, match="load: expected 2 values"):
+    with pytest.raises(pkmcal.PkmcalError, match="load: needs 2 values"):
         pkmcal.predict(mech, c, force=[1.0, 2.0, 3.0])
     with pytest.raises(pkmcal.PkmcalError, match="once"):
         pkmcal.predict(mech, c, load=[1.0, 2.0], force=[1.0, 2.0])
@@ -102,8 +102,9 @@ def test_options(ref):
 
 
 def test_mechanism_sources(tmp_path):
-    with pytest.raises(pkmcal.PkmcalError, match="cannot read mechanism file .*missing.toml"):
+    with pytest.raises(FileNotFoundError, match="cannot read mechanism file .*missing.toml") as e:
         pkmcal.Mechanism("missing.toml")
+    assert isinstance(e.value, pkmcal.PkmcalError) and e.value.filename == "missing.toml"
     with pytest.raises(pkmcal.PkmcalError, match="needs `type"):
         pkmcal.Mechanism("name = 'no type'\n")
     with pytest.raises(pkmcal.PkmcalError, match="unknown mechanism type `hexapod`"):
@@ -192,7 +193,7 @@ def test_python_shapes_of_arguments_are_accepted_or_refused_in_python_words(tmp_
     f = tmp_path / "p.toml"
     f.write_text("l11 = 280.1\n")
     np.testing.assert_array_equal(pkmcal.predict(mech, commands, pathlib.Path(f)).x, a)
-    with pytest.raises(pkmcal.PkmcalError, match="got int"):
+    with pytest.raises(TypeError, match="params: expected .* got int"):
         pkmcal.predict(mech, commands, 3)
     # Validation as a list as well as a tuple.
     v = [commands[:5], measured[:5]]
@@ -205,3 +206,17 @@ def test_python_shapes_of_arguments_are_accepted_or_refused_in_python_words(tmp_
     # A misspelled ballbar key is refused, naming the right one.
     with pytest.raises(pkmcal.PkmcalError, match='did you mean "bar_offset"'):
         pkmcal.simulate(mech, targets, ballbar={"sockets": [[0, 0], [100, 0], [0, 100]], "bar_ofset": 1.0})
+
+
+def test_standard_deviations_are_bounded_by_the_library(ref):
+    """σ and distances are bounded once, in the library, which names the pose."""
+    mech, c, y = ref
+    for s in (-1.0, 0.0, np.inf):
+        with pytest.raises(pkmcal.PkmcalError, match="standard deviation .* must be a finite number") as e:
+            pkmcal.calibrate(mech, c, y, sigma=s, frame="base")
+        assert e.value.pose == 0
+    with pytest.raises(pkmcal.PkmcalError, match="distance 1: measured `distance` = inf") as e:
+        pkmcal.calibrate(mech, c, y, frame="base", distances=(c[:3], c[3:6], [1.0, np.inf, 2.0]))
+    assert e.value.pose == 1
+    with pytest.raises(pkmcal.PkmcalError, match="distance 1: standard deviation -1.0 mm"):
+        pkmcal.calibrate(mech, c, y, frame="base", distances=(c[:3], c[3:6], [1.0, 1.0, 2.0], [1.0, -1.0, 1.0]))

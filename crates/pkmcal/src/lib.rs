@@ -46,7 +46,8 @@ pub mod units;
 
 pub use apply::compensation::{
     Compensation, CompensationOptions, CorrectionGrid, GridAxis, InterpolationError, Predistortion,
-    compensate, controller_commands, correction_grid, interpolation_error, predistort,
+    compensate, compensate_rows, controller_commands, correction_grid,
+    correction_grid_with_progress, interpolation_error, predistort,
 };
 pub use apply::montecarlo::{
     MonteCarloOptions, MonteCarloSummary, monte_carlo, validation_targets,
@@ -55,10 +56,12 @@ pub use apply::planning::{
     Plan, PlanCriterion, PlanOptions, candidate_jacobians, plan, plan_observability, plan_poses,
     plan_poses_with_progress,
 };
-pub use apply::rows::{RowPrediction, RowSettings, predict_rows};
-pub use apply::simulate::{simulate, simulate_distances, simulate_with_progress};
+pub use apply::rows::{RowBuffers, RowPrediction, RowSettings, predict_rows, predict_rows_into};
+pub use apply::simulate::{
+    simulate, simulate_cancellable, simulate_distances, simulate_with_progress,
+};
 pub use apply::workspace::{
-    WorkspacePoint, grid_targets, nominal_commands, random_targets, sample_workspace,
+    MAX_TARGETS, WorkspacePoint, grid_targets, nominal_commands, random_targets, sample_workspace,
     spread_targets,
 };
 pub use engine::kinematics::{
@@ -94,8 +97,8 @@ pub use measurement::{
 };
 pub use mechanism::tool::ToolLayout;
 pub use mechanism::{
-    AxisInfo, JointInfo, Mechanism, MechanismSummary, ParameterInfo, Params, Renamed, Scalar, Spec,
-    summary,
+    AxisInfo, JointInfo, MAX_JOINTS, MAX_LEGS, Mechanism, MechanismSummary, ParameterInfo, Params,
+    Renamed, Scalar, Spec, summary,
 };
 pub use units::{AngleUnit, FileUnits, LengthUnit, ParamKind, PartialUnits, Quantity, Role, Unit};
 

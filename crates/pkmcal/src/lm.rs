@@ -31,7 +31,33 @@ pub trait Problem {
         x: &[f64],
         jacobian: bool,
     ) -> Result<(DVector<f64>, Option<DMatrix<f64>>), String>;
+    /// Residuals at `x` and the Jacobian's `free` columns with row `i`
+    /// multiplied by `weights[i]` (the solver's working matrix). By default
+    /// from [`Problem::evaluate`]; a problem with many residuals can write
+    /// these columns directly, without the full Jacobian (the same numbers).
+    fn jacobian_columns(
+        &self,
+        x: &[f64],
+        free: &[usize],
+        weights: Option<&[f64]>,
+    ) -> Result<(DVector<f64>, DMatrix<f64>), String> {
+        let (r, j) = self.evaluate(x, true)?;
+        let mut j = j
+            .ok_or_else(|| "the Jacobian cannot be evaluated".to_string())?
+            .select_columns(free);
+        if let Some(w) = weights {
+            scale_rows(&mut j, w);
+        }
+        Ok((r, j))
+    }
 }
+
+/// Jacobians with at least this many entries (readings × free parameters,
+/// about 16 MB) are factorised by blocks of rows ([`triangular_factor`])
+/// instead of in a copy: a calibration on tens of thousands of poses then
+/// keeps one Jacobian, not three. Smaller ones take MINPACK's `qrfac` on a
+/// copy, as they always have (the same numbers).
+pub const LARGE_JACOBIAN: usize = 1 << 21;
 
 /// Relative scaled step below which the Jacobian of the previous point is
 /// reported as the final one (its change is of this order).
@@ -213,16 +239,38 @@ pub struct Report {
     factored: Option<Box<Factored>>,
 }
 
-/// A matrix and its QR factorisation with column pivoting as [`qrfac`] leaves
-/// them.
+/// A matrix's QR factorisation with column pivoting as [`qrfac`] leaves it.
 #[derive(Debug, Clone)]
 struct Factored {
-    /// The matrix factored.
-    of: DMatrix<f64>,
-    /// [`qrfac`]'s output in place of the matrix.
+    /// Which matrix was factored ([`fingerprint`]): the report's Jacobian
+    /// is not copied to be compared.
+    of: Fingerprint,
+    /// [`qrfac`]'s output in place of the matrix (`m × n`), or, for a large
+    /// Jacobian, in place of its triangular factor (`n × n`,
+    /// [`triangular_factor`]): the same `R` but for rounding, without `Q`'s
+    /// reflections.
     qr: DMatrix<f64>,
     ipvt: Vec<usize>,
     rdiag: Vec<f64>,
+}
+
+/// A matrix's shape and a hash of its entries' bits.
+type Fingerprint = (usize, usize, u64);
+
+fn fingerprint(m: &DMatrix<f64>) -> Fingerprint {
+    use std::hash::{Hash, Hasher};
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    for v in m.iter() {
+        v.to_bits().hash(&mut h);
+    }
+    (m.nrows(), m.ncols(), h.finish())
+}
+
+impl Factored {
+    /// Whether `qr` holds `R` alone ([`triangular_factor`]).
+    fn compact(&self) -> bool {
+        self.qr.nrows() < self.of.0
+    }
 }
 
 impl Report {
@@ -231,9 +279,163 @@ impl Report {
     /// else by a new one.
     pub fn covariance(&self, tol: f64) -> (DMatrix<f64>, usize) {
         match &self.factored {
-            Some(f) if f.of == self.jacobian => covariance_of(&f.qr, &f.ipvt, &f.rdiag, tol),
+            Some(f) if f.of == fingerprint(&self.jacobian) => {
+                covariance_of(&f.qr, &f.ipvt, &f.rdiag, tol)
+            }
             _ => covariance(&self.jacobian, tol),
         }
+    }
+}
+
+/// Rows folded at a time by [`triangular_factor`].
+const FOLD_ROWS: usize = 128;
+
+/// The triangular factor `R` (`n × n`, upper) of `a = Q R` (no pivoting)
+/// and the first `n` entries of `Qᵀf`, by blocks of rows: each block is
+/// folded into the factor of the rows before it by Householder reflections
+/// that act on one row of the factor and the block's rows (a sequential
+/// TSQR), so that `a` is read, not overwritten, and besides it only `n²`
+/// numbers are kept. [`qrfac`] of the factor then pivots it: `a P = Q Q_R R'`.
+pub(crate) fn triangular_factor(a: &DMatrix<f64>, f: &[f64]) -> (DMatrix<f64>, Vec<f64>) {
+    let all: Vec<usize> = (0..a.ncols()).collect();
+    triangular_factor_of(a, &all, None, f)
+}
+
+/// [`triangular_factor`] of `a`'s columns `cols` (in that order), row `i`
+/// multiplied by `scale[i]` when given, without copying them out.
+pub(crate) fn triangular_factor_of(
+    a: &DMatrix<f64>,
+    cols: &[usize],
+    scale: Option<&[f64]>,
+    f: &[f64],
+) -> (DMatrix<f64>, Vec<f64>) {
+    use rayon::prelude::*;
+    let (m, n) = (a.nrows(), cols.len());
+    // The rows in parts factorised side by side (each into its own factor,
+    // with `Qᵀf` as its last column), then the parts' factors folded into
+    // the first's.
+    let parts = rayon::current_num_threads().min(m / (8 * FOLD_ROWS)).max(1);
+    let per = m.div_ceil(parts);
+    let mut factors: Vec<Vec<f64>> = (0..parts)
+        .into_par_iter()
+        .map(|p| {
+            let mut r = vec![0.0; n * (n + 1)];
+            let mut block = vec![0.0; FOLD_ROWS * (n + 1)];
+            let (mut start, end) = (p * per, ((p + 1) * per).min(m));
+            while start < end {
+                let b = FOLD_ROWS.min(end - start);
+                for k in 0..=n {
+                    let dst = &mut block[k * b..(k + 1) * b];
+                    if k < n {
+                        dst.copy_from_slice(
+                            &a.as_slice()[cols[k] * m + start..cols[k] * m + start + b],
+                        );
+                        if let Some(w) = scale {
+                            for (v, wi) in dst.iter_mut().zip(&w[start..start + b]) {
+                                *v *= wi;
+                            }
+                        }
+                    } else {
+                        dst.copy_from_slice(&f[start..start + b]);
+                    }
+                }
+                fold(&mut r, n, &mut block[..b * (n + 1)], b);
+                start += b;
+            }
+            r
+        })
+        .collect();
+    let mut r = factors.remove(0);
+    for mut other in factors {
+        // Another part's factor is n rows like any block (its rows, by
+        // column).
+        let mut block = vec![0.0; n * (n + 1)];
+        for k in 0..=n {
+            for i in 0..n {
+                block[k * n + i] = other[k * n + i];
+            }
+        }
+        other.clear();
+        fold(&mut r, n, &mut block, n);
+    }
+    let r = DMatrix::from_vec(n, n + 1, r);
+    let qtf = r.column(n).iter().copied().collect();
+    (r.columns(0, n).into_owned(), qtf)
+}
+
+/// Fold `b` rows (`block`, column-major `b × (n + 1)`, the last column the
+/// right-hand side's) into the triangular factor `r` (`n × (n + 1)`,
+/// column-major): for each column `j`, the Householder reflection that
+/// zeroes the block's column `j` against `r`'s diagonal entry, applied to
+/// `r`'s row `j` and the block's later columns.
+fn fold(r: &mut [f64], n: usize, block: &mut [f64], b: usize) {
+    for j in 0..n {
+        let x0 = r[j * n + j];
+        let (head, rest) = block.split_at_mut((j + 1) * b);
+        let xs = &head[j * b..];
+        let tail = dot(xs, xs);
+        if tail == 0.0 {
+            continue;
+        }
+        let norm = (x0 * x0 + tail).sqrt();
+        let alpha = if x0 > 0.0 { -norm } else { norm };
+        let v0 = x0 - alpha;
+        let vtv = v0 * v0 + tail;
+        for (t, col) in rest.chunks_exact_mut(b).enumerate() {
+            let k = j + 1 + t;
+            let c = 2.0 * (v0 * r[k * n + j] + dot(xs, col)) / vtv;
+            r[k * n + j] -= c * v0;
+            for (y, x) in col.iter_mut().zip(xs) {
+                *y -= c * x;
+            }
+        }
+        r[j * n + j] = alpha;
+    }
+}
+
+/// `Σ a_i b_i` in four lanes.
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let mut lanes = [0.0; 4];
+    let (ca, ra) = a.as_chunks::<4>();
+    let (cb, rb) = b[..a.len()].as_chunks::<4>();
+    for (x, y) in ca.iter().zip(cb) {
+        for l in 0..4 {
+            lanes[l] += x[l] * y[l];
+        }
+    }
+    let tail: f64 = ra.iter().zip(rb).map(|(x, y)| x * y).sum();
+    (lanes[0] + lanes[1]) + (lanes[2] + lanes[3]) + tail
+}
+
+/// The Euclidean norm of each column.
+fn column_norms(a: &DMatrix<f64>) -> Vec<f64> {
+    (0..a.ncols()).map(|j| a.column(j).norm()).collect()
+}
+
+/// [`qrfac_large`]'s factor, `ipvt`, `rdiag`, column norms and `(Qᵀf)[..n]`.
+type LargeQr = (DMatrix<f64>, Vec<usize>, Vec<f64>, Vec<f64>, Vec<f64>);
+
+/// [`qrfac`] of a large Jacobian through its triangular factor
+/// ([`triangular_factor`]): `R`'s factorisation in place of `a`'s (`n × n`),
+/// `ipvt`, `rdiag`, `a`'s column norms, and `(Qᵀf)[..n]`.
+fn qrfac_large(a: &DMatrix<f64>, f: &[f64]) -> LargeQr {
+    let (mut r, mut qtf) = triangular_factor(a, f);
+    let (ipvt, rdiag, _) = qrfac(&mut r);
+    apply_qt(&r, &mut qtf);
+    (r, ipvt, rdiag, column_norms(a), qtf)
+}
+
+/// `(Q₁ᵀ v)[..rank]` of a compact factorisation ([`Factored::compact`]) of
+/// `a`, from `a P = Q₁ R`: `Rᵀ (Q₁ᵀ v) = Pᵀ aᵀ v` on the leading `rank`
+/// pivots (forward substitution).
+fn leading_qt(a: &DMatrix<f64>, f: &Factored, v: &[f64], rank: usize, out: &mut [f64]) {
+    let g = a.tr_mul(&DVector::from_column_slice(v));
+    for j in 0..rank {
+        let mut sum = g[f.ipvt[j]];
+        for (i, o) in out[..j].iter().enumerate() {
+            sum -= f.qr[(i, j)] * o;
+        }
+        out[j] = sum / f.rdiag[j];
     }
 }
 
@@ -621,17 +823,21 @@ impl<P: Problem> Scaled<'_, P> {
         jac: bool,
     ) -> Result<(DVector<f64>, Option<DMatrix<f64>>), String> {
         self.evaluations += 1;
-        let (mut r, j) = self.problem.evaluate(&self.full(xf), jac)?;
+        let x = self.full(xf);
+        let (mut r, j) = if jac {
+            let (r, j) = self
+                .problem
+                .jacobian_columns(&x, &self.free, self.weights)?;
+            (r, Some(j))
+        } else {
+            self.problem.evaluate(&x, false)?
+        };
         if r.iter().any(|v| !v.is_finite()) {
             return Err("non-finite residual".into());
         }
-        let mut j = j.map(|j| j.select_columns(&self.free));
         if let Some(w) = self.weights {
             for (ri, wi) in r.iter_mut().zip(w) {
                 *ri *= wi;
-            }
-            if let Some(j) = j.as_mut() {
-                scale_rows(j, w);
             }
         }
         if let Some(j) = &j
@@ -641,6 +847,12 @@ impl<P: Problem> Scaled<'_, P> {
         }
         Ok((r, j))
     }
+}
+
+/// Whether an `m × n` Jacobian is factorised by blocks ([`LARGE_JACOBIAN`]):
+/// not with bounds, whose held columns change the matrix factorised.
+fn is_large<P: Problem>(s: &Scaled<'_, P>, m: usize, n: usize) -> bool {
+    m.saturating_mul(n) >= LARGE_JACOBIAN && m >= n && s.lower.is_none() && s.upper.is_none()
 }
 
 /// Minimise `Σ (w_i r_i(x))²` over the free parameters, from `x0`.
@@ -749,15 +961,28 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
             }
         };
         fvec = fv;
-        let jac_at_x = fjac.clone();
         // Scaled length of the step accepted since this Jacobian (to decide
         // whether the final Jacobian must be re-evaluated).
         let mut last_step = 0.0;
-        let mut fjac = fjac;
-        // The factorisation of a Jacobian with held columns is not that of
-        // the Jacobian reported.
-        let held = hold_pegged(&s, &x, &fvec, &mut fjac);
-        let (ipvt, rdiag, acnorm) = qrfac(&mut fjac);
+        // A large Jacobian is kept as it is and factorised by blocks; a
+        // smaller one is copied (for the report) and factorised in place.
+        let large = is_large(&s, m, n);
+        let (jac_at_x, fjac, held, ipvt, rdiag, acnorm, qtf) = if large {
+            let (qr, ipvt, rdiag, acnorm, qtf) = qrfac_large(&fjac, fvec.as_slice());
+            (fjac, qr, false, ipvt, rdiag, acnorm, qtf)
+        } else {
+            let jac_at_x = fjac.clone();
+            let mut fjac = fjac;
+            // The factorisation of a Jacobian with held columns is not that
+            // of the Jacobian reported.
+            let held = hold_pegged(&s, &x, &fvec, &mut fjac);
+            let (ipvt, rdiag, acnorm) = qrfac(&mut fjac);
+            let mut wa4: Vec<f64> = fvec.iter().copied().collect();
+            apply_qt(&fjac, &mut wa4);
+            let mut qtf = vec![0.0; n];
+            qtf[..m.min(n)].copy_from_slice(&wa4[..m.min(n)]);
+            (jac_at_x, fjac, held, ipvt, rdiag, acnorm, qtf)
+        };
         if iter == 1 {
             for j in 0..n {
                 diag[j] = if acnorm[j] == 0.0 { 1.0 } else { acnorm[j] };
@@ -768,8 +993,6 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
                 delta = opts.factor;
             }
         }
-        let mut wa4: Vec<f64> = fvec.iter().copied().collect();
-        apply_qt(&fjac, &mut wa4);
         let mut r = DMatrix::zeros(n, n);
         for j in 0..n {
             for i in 0..j.min(m) {
@@ -779,8 +1002,6 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
                 r[(j, j)] = rdiag[j];
             }
         }
-        let mut qtf = vec![0.0; n];
-        qtf[..m.min(n)].copy_from_slice(&wa4[..m.min(n)]);
         // Scaled gradient norm.
         let mut gnorm: f64 = 0.0;
         if fnorm != 0.0 {
@@ -880,7 +1101,7 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
                 // The factorisation goes with the report (the fit ends here).
                 let at_x = move |jac_at_x: DMatrix<f64>| {
                     let f = Factored {
-                        of: jac_at_x.clone(),
+                        of: fingerprint(&jac_at_x),
                         qr: fjac,
                         ipvt,
                         rdiag,
@@ -893,10 +1114,16 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
                     match s.eval(&x, true) {
                         Ok((_, Some(j))) => {
                             s.evaluations -= 1;
-                            let mut qr = j.clone();
-                            let (ipvt, rdiag, _) = qrfac(&mut qr);
+                            let (qr, ipvt, rdiag) = if large {
+                                let (qr, ipvt, rdiag, ..) = qrfac_large(&j, fvec.as_slice());
+                                (qr, ipvt, rdiag)
+                            } else {
+                                let mut qr = j.clone();
+                                let (ipvt, rdiag, _) = qrfac(&mut qr);
+                                (qr, ipvt, rdiag)
+                            };
                             let f = Factored {
-                                of: j.clone(),
+                                of: fingerprint(&j),
                                 qr,
                                 ipvt,
                                 rdiag,
@@ -909,7 +1136,7 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
                 if t.converged()
                     && let Some(f) = &factored
                 {
-                    polish(&mut s, f, &diag, &mut x, &mut fvec, opts);
+                    polish(&mut s, f, &j, &diag, &mut x, &mut fvec, opts);
                 }
                 return finish_factored(&s, &x, t, iter - 1, fvec, j, factored);
             }
@@ -934,12 +1161,13 @@ pub fn minimize<P: Problem>(problem: &P, x0: &[f64], opts: &Options) -> Report {
 fn polish<P: Problem>(
     s: &mut Scaled<P>,
     f: &Factored,
+    jacobian: &DMatrix<f64>,
     diag: &[f64],
     x: &mut Vec<f64>,
     fvec: &mut DVector<f64>,
     opts: &Options,
 ) {
-    let (m, n) = f.qr.shape();
+    let (m, n) = jacobian.shape();
     let k = m.min(n);
     let r11 = f.rdiag.first().map_or(0.0, |v| v.abs());
     let rank = (0..k)
@@ -959,8 +1187,12 @@ fn polish<P: Problem>(
         {
             return;
         }
-        qtf.copy_from_slice(fvec.as_slice());
-        apply_qt(&f.qr, &mut qtf);
+        if f.compact() {
+            leading_qt(jacobian, f, fvec.as_slice(), rank, &mut qtf);
+        } else {
+            qtf.copy_from_slice(fvec.as_slice());
+            apply_qt(&f.qr, &mut qtf);
+        }
         // R₁₁ z = (Qᵀr)₁ on the well-determined pivots, zero on the rest.
         z.fill(0.0);
         for j in (0..rank).rev() {
@@ -1050,4 +1282,112 @@ pub(crate) fn covariance_of(
         }
     }
     (cov, rank)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, StandardNormal};
+
+    /// Agreement of the blockwise factorisation with MINPACK's, relative.
+    const FACTOR_TOL: f64 = 1e-11;
+
+    fn random(seed: u64, m: usize, n: usize) -> (DMatrix<f64>, DVector<f64>) {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+        let mut g = || -> f64 { StandardNormal.sample(&mut rng) };
+        // Columns of different scales, as a calibration's are.
+        let a = DMatrix::from_fn(m, n, |_, j| g() * 10f64.powi(j as i32 % 4 - 2));
+        let f = DVector::from_fn(m, |_, _| g());
+        (a, f)
+    }
+
+    /// The least-squares solution of `a x ≈ f` by MINPACK's QR ([`qrfac`]).
+    fn least_squares(a: &DMatrix<f64>, f: &DVector<f64>) -> DVector<f64> {
+        let n = a.ncols();
+        let mut qr = a.clone();
+        let (ipvt, rdiag, _) = qrfac(&mut qr);
+        let mut qtf = f.as_slice().to_vec();
+        apply_qt(&qr, &mut qtf);
+        let mut z = vec![0.0; n];
+        for j in (0..n).rev() {
+            let sum: f64 = (j + 1..n).map(|l| qr[(j, l)] * z[l]).sum();
+            z[j] = (qtf[j] - sum) / rdiag[j];
+        }
+        let mut x = DVector::zeros(n);
+        for j in 0..n {
+            x[ipvt[j]] = z[j];
+        }
+        x
+    }
+
+    /// The factor by blocks is `a`'s: `RᵀR = aᵀa`, and `R x = (Qᵀf)[..n]`
+    /// solves the least-squares problem `a x ≈ f` as MINPACK's QR does.
+    #[test]
+    fn blockwise_factor_is_the_matrix_s() {
+        for (m, n) in [
+            (3 * FOLD_ROWS + 17, 9),
+            (FOLD_ROWS, 5),
+            (12, 12),
+            (40 * FOLD_ROWS + 3, 9),
+        ] {
+            let (a, f) = random(m as u64, m, n);
+            let (r, qtf) = triangular_factor(&a, f.as_slice());
+            for j in 0..n {
+                for i in j + 1..n {
+                    assert_eq!(r[(i, j)], 0.0);
+                }
+            }
+            let ata = a.transpose() * &a;
+            let rtr = r.transpose() * &r;
+            assert!((&rtr - &ata).amax() <= FACTOR_TOL * ata.amax(), "{m} × {n}");
+            let x = r
+                .solve_upper_triangular(&DVector::from_vec(qtf))
+                .expect("full rank");
+            let expected = least_squares(&a, &f);
+            assert!((&x - &expected).amax() <= FACTOR_TOL * expected.amax().max(1.0));
+        }
+    }
+
+    /// A linear least-squares problem.
+    struct Linear(DMatrix<f64>, DVector<f64>);
+
+    impl Problem for Linear {
+        fn n_params(&self) -> usize {
+            self.0.ncols()
+        }
+        fn n_residuals(&self) -> usize {
+            self.0.nrows()
+        }
+        fn evaluate(
+            &self,
+            x: &[f64],
+            jacobian: bool,
+        ) -> Result<(DVector<f64>, Option<DMatrix<f64>>), String> {
+            let r = &self.0 * DVector::from_column_slice(x) - &self.1;
+            Ok((r, jacobian.then(|| self.0.clone())))
+        }
+    }
+
+    /// A fit with a Jacobian beyond [`LARGE_JACOBIAN`] is factorised by
+    /// blocks and ends where MINPACK's QR puts the least-squares solution,
+    /// with the same covariance, and keeps no copy of the Jacobian.
+    #[test]
+    fn a_large_fit_factorised_by_blocks_is_the_least_squares_one() {
+        let n = 27;
+        let m = LARGE_JACOBIAN / n + 1;
+        let (a, f) = random(5, m, n);
+        let expected = least_squares(&a, &f);
+        let problem = Linear(a, f);
+        let report = minimize(&problem, &vec![0.0; n], &Options::default());
+        assert!(report.termination.converged(), "{:?}", report.termination);
+        let x = DVector::from_vec(report.x.clone());
+        assert!((&x - &expected).amax() <= FACTOR_TOL * expected.amax());
+        let factored = report.factored.as_ref().expect("kept");
+        assert!(factored.compact());
+        let (c, rank) = report.covariance(COVARIANCE_RANK_TOL);
+        let (c0, rank0) = covariance(&report.jacobian, COVARIANCE_RANK_TOL);
+        assert_eq!(rank, rank0);
+        assert!((&c - &c0).amax() <= FACTOR_TOL * c0.amax());
+    }
 }

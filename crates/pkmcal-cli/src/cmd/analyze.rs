@@ -114,7 +114,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         run.files
             .stage(r, serde_json::to_string_pretty(&id)?.as_bytes())?;
     }
-    println!(
+    say!(
         "identifiability of {} free parameters from {} poses of {}{} ({} model)",
         free.len(),
         n_data,
@@ -125,7 +125,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         },
         a.model.name()
     );
-    println!(
+    say!(
         "  free: {}{}",
         free.iter()
             .map(|&i| measurement.all_names(spec)[i].clone())
@@ -147,8 +147,8 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         "calibrate fixes",
         crate::words::WORDING.all_correlations,
     );
-    print!("{o}");
-    println!(
+    say_raw!("{o}");
+    say!(
         "  singular values (column-scaled): {}",
         id.singular_values
             .iter()
@@ -157,18 +157,18 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             .join(" ")
     );
     if !id.held.is_empty() {
-        println!(
+        say!(
             "{} the data alone cannot see, held by the tolerances ({} given, readings weighed with {} mm of noise):",
             count(id.held.len(), "direction", "directions"),
             priors.len(),
             noise.length
         );
         for u in &id.held {
-            println!("  {}", u.combination);
+            say!("  {}", u.combination);
         }
     }
     if id.unidentifiable.is_empty() {
-        println!(
+        say!(
             "all {} free parameters are identifiable{}",
             free.len(),
             if id.held.is_empty() {
@@ -178,7 +178,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             }
         );
     } else {
-        println!(
+        say!(
             "{} cannot be identified; calibrate fixes one parameter per direction (or use --fix)",
             count(id.unidentifiable.len(), "direction", "directions")
         );

@@ -20,14 +20,14 @@ pub struct Args {
     pub tolerances: args::ToleranceArg,
     /// Machines drawn from the tolerances to check the first-order figures
     /// through the exact model (0: none).
-    #[arg(long, default_value_t = 3000, value_name = "N")]
+    #[arg(value_parser = args::values::samples, long, default_value_t = 3000, value_name = "N")]
     pub samples: usize,
     /// Random seed of the samples.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Targets spread over the workspace (a plain grid) the error is taken
     /// over.
-    #[arg(value_parser = args::values::count, long, default_value_t = 200, value_name = "N")]
+    #[arg(value_parser = args::values::targets, long, default_value_t = 200, value_name = "N")]
     pub grid: usize,
     /// A planned calibration: CSV with target_<axis> columns (e.g. from
     /// `plan`); the budget then says what calibrating there would leave.
@@ -86,7 +86,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         calibration,
     };
     let b = pkmcal::apply::budget::budget(mech, &targets, &tolerances, &opts)?;
-    print!(
+    say_raw!(
         "{}",
         budget_words(
             &spec.name,
@@ -97,7 +97,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     if let Some(j) = &a.out {
         run.files
             .stage(j, serde_json::to_string_pretty(&b)?.as_bytes())?;
-        println!("budget -> {}", j.display());
+        say!("budget -> {}", j.display());
     }
     Ok(())
 }

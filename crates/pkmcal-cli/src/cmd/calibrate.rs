@@ -172,6 +172,9 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     request.kfold = a.kfold;
     request.seed = a.seed;
     crate::cmd::note_renamed(run, spec, &request);
+    let freed = request
+        .freed_by_tolerances(spec, &measurement, &description.tolerances)
+        .map_err(|e| crate::cmd::in_mechanism(e, &description))?;
     let study_opts = request
         .study_options(mech, &measurement, &description.tolerances, &start)
         .map_err(|e| crate::cmd::in_mechanism(e, &description))?;
@@ -201,6 +204,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         mechanism: description.source.clone(),
         measurement,
         study,
+        load: study_opts.calibration.force.clone(),
     };
     let (measurement, study) = (&state.measurement, &state.study);
     let cal = &study.calibration;
@@ -248,14 +252,20 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     }
     let mut summary = String::new();
     write_summary(&mut summary, &report, measurement, &crate::words::WORDING);
-    print!("{summary}");
-    println!();
-    println!("identified parameters -> {}", a.out.display());
+    if !freed.is_empty() {
+        say!(
+            "free by their tolerances (a tolerance frees its parameter; --fix keeps one fixed): {}",
+            freed.join(" ")
+        );
+    }
+    say_raw!("{summary}");
+    say!();
+    say!("identified parameters -> {}", a.out.display());
     if let Some(r) = &a.report {
-        println!("report -> {}", r.display());
+        say!("report -> {}", r.display());
     }
     if let Some(d) = &a.report_dir {
-        println!("figures and report.html -> {}", d.display());
+        say!("figures and report.html -> {}", d.display());
     }
     Ok(())
 }

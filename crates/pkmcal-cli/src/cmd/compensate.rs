@@ -245,12 +245,13 @@ pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
     })();
     let (done, skipped) = result?;
     crate::note!(
-        "{} {done} targets{} ({} model) -> {}",
+        "{} {}{} ({} model) -> {}",
         if c.cartesian {
             "pre-distorted"
         } else {
             "compensated"
         },
+        pkmcal::error::count(done, "target", "targets"),
         if skipped > 0 {
             format!(", skipped {skipped}")
         } else {
@@ -343,6 +344,17 @@ pub fn parse_grid(
         )
         .into());
     }
+    // The whole grid's nodes, bounded before any work.
+    let total = axes
+        .iter()
+        .fold(1usize, |t, (_, a)| t.saturating_mul(a.count));
+    let max = pkmcal::apply::compensation::MAX_GRID_NODES;
+    if total > max {
+        return Err(crate::words::Usage(format!(
+            "--table: `{text}` makes {total} nodes, more than the {max} a table may have; use larger steps"
+        ))
+        .into());
+    }
     axes.sort_by_key(|(k, _)| *k);
     Ok((axes.into_iter().map(|(_, a)| a).collect(), fixed))
 }
@@ -387,7 +399,16 @@ fn run_grid(
         pkmcal_io::fileunits::tool(spec, units),
     );
     let (axes, fixed) = parse_grid(spec, text, &tf)?;
-    let grid = pkmcal::correction_grid(mech, params, &axes, &fixed, c.model, opts)?;
+    // The nodes' count is bounded where it is read (MAX_GRID_NODES); the
+    // work is shown.
+    let total: usize = axes.iter().map(|a| a.count).product();
+    let bar = run.bar(total as u64, false, "grid nodes", 0);
+    let grid =
+        pkmcal::correction_grid_with_progress(mech, params, &axes, &fixed, c.model, opts, &|| {
+            bar.inc(1)
+        });
+    bar.finish();
+    let grid = grid?;
     let reachable = grid.nodes.iter().filter(|n| n.is_some()).count();
     if reachable == 0 {
         bail!(

@@ -53,12 +53,12 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     let print_stats_header = |axes: &[String], units: &[pkmcal::Unit]| {
         let mut o = String::new();
         write_stats_header(&mut o, axes, units);
-        print!("{o}");
+        say_raw!("{o}");
     };
     let print_stats = |label: &str, s: &ErrorStats| {
         let mut o = String::new();
         write_stats(&mut o, label, s);
-        print!("{o}");
+        say_raw!("{o}");
     };
     let mech: Mech = pkmcal::JeongKim2Dof::new().into();
     let spec = mech.spec();
@@ -100,16 +100,16 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         )
         .as_bytes(),
     )?;
-    println!("pkmcal demo: the paper's case study on the {}", spec.name);
-    println!(
+    say!("pkmcal demo: the paper's case study on the {}", spec.name);
+    say!(
         "35 calibration poses spread over the workspace and {DEMO_VALIDATION_POSES} unseen validation poses;"
     );
-    println!(
+    say!(
         "paper-sized parameter errors (l, B, D, Pt: 0.18-0.47 mm; dq: 0.95-1.42 mrad); {} µm noise per axis (seed {})",
         DEMO_NOISE_MM * 1e3,
         a.seed
     );
-    println!();
+    say!();
     let nominal = Params::nominal(spec);
     let mut rows: Vec<(String, ErrorStats, ErrorStats)> = vec![];
     let mut first = true;
@@ -135,6 +135,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             mechanism: pkmcal_io::record::MechanismSource::Reference,
             measurement: tool.clone(),
             study,
+            load: vec![],
         };
         let study = &state.study;
         let cal = &study.calibration;
@@ -193,14 +194,14 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             &dir.join(format!("report-{name}.json")),
             report.to_json()?.as_bytes(),
         )?;
-        println!(
+        say!(
             "{name:>6} model: {} ({} iterations), residual σ {:.2} µm",
             cal.termination_reason,
             cal.iterations,
             cal.noise.first().map_or(0.0, |g| g.sigma) * 1e3
         );
         if model == Model::Exact {
-            print!("  ");
+            say_raw!("  ");
             let mut o = String::new();
             write_identifiability(
                 &mut o,
@@ -208,40 +209,40 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
                 "fixed",
                 crate::words::WORDING.all_correlations,
             );
-            print!("{o}");
+            say_raw!("{o}");
         }
         for w in &cal.warnings {
-            println!("  warning: {}", w.message);
+            say!("  warning: {}", w.message);
         }
     }
-    println!();
-    println!("calibration set (35 poses):");
+    say!();
+    say!("calibration set (35 poses):");
     print_stats_header(&spec.tool_axes, &spec.tool_units);
     for (label, cal, _) in &rows {
         print_stats(label, cal);
     }
-    println!();
-    println!("validation set ({DEMO_VALIDATION_POSES} unseen poses):");
+    say!();
+    say!("validation set ({DEMO_VALIDATION_POSES} unseen poses):");
     print_stats_header(&spec.tool_axes, &spec.tool_units);
     for (label, _, val) in &rows {
         print_stats(label, val);
     }
     let before = rows[0].1.distance_max;
-    println!();
+    say!();
     for (label, cal, val) in &rows[1..] {
-        println!(
+        say!(
             "  {label:<24} max distance error {:.4} mm ({:.1} % better), validation RMS {:.4} mm",
             cal.distance_max,
             pkmcal::improvement_percent(before, cal.distance_max),
             val.distance_rms
         );
     }
-    println!();
-    println!(
+    say!();
+    say!(
         "the paper: max distance error 1.416 mm before, 0.243 mm after (-82 %); files in {}",
         dir.display()
     );
-    println!(
+    say!(
         "report of the exact-model calibration: {}",
         dir.join("report").join("report.html").display()
     );

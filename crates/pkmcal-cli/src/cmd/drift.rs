@@ -31,7 +31,7 @@ pub struct Args {
     pub out: Option<PathBuf>,
     /// Targets spread over the workspace (a plain grid) where the change at
     /// the tool is judged (0: none).
-    #[arg(long, default_value_t = 100, value_name = "N")]
+    #[arg(value_parser = args::values::targets_or_none, long, default_value_t = 100, value_name = "N")]
     pub grid: usize,
 }
 
@@ -53,7 +53,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     let spec = description.mech.spec();
     let read = |p: &PathBuf| -> Result<Compared> {
         let (r, dof) = read_calibration_record_dof(run, p)?;
-        r.check(spec).map_err(|e| {
+        r.checked_params(&description.mech).map_err(|e| {
             anyhow::Error::from(e).context(format!(
                 "{}: it cannot be compared on {}",
                 p.display(),
@@ -83,14 +83,14 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             mech, &old, &new, &targets, a.alpha,
         )?);
     }
-    print!(
+    say_raw!(
         "{}",
         drift_words(Some(spec), &d, &old_name, &a.new.display().to_string())
     );
     if let Some(o) = &a.out {
         run.files
             .stage(o, serde_json::to_string_pretty(&d)?.as_bytes())?;
-        println!("drift -> {}", o.display());
+        say!("drift -> {}", o.display());
     }
     Ok(())
 }

@@ -53,6 +53,10 @@ pub struct Args {
     pub weighting: Weighting,
     #[command(flatten)]
     pub physical: args::PhysicalArgs,
+    /// Warn of a written value whose σ exceeds this, in the value's own
+    /// unit (mm, °, %).
+    #[arg(long, value_name = "SIGMA", default_value_t = pkmcal_io::firmware::DEFAULT_MAX_SIGMA, value_parser = args::values::max_sigma)]
+    pub max_sigma: f64,
 }
 
 impl Args {
@@ -129,8 +133,7 @@ fn report<F: Firmware>(
     let before =
         firmware::probe_errors(mech, measurement, &nominal, measurement.nominal(), heights)?;
     let after = firmware::probe_errors(mech, measurement, &cal.params, &cal.measurement, heights)?;
-    let values = printer.values(spec, &cal.params, &cal.measurement)?;
-    println!(
+    say!(
         "{} probe heights{} from {} (Klipper), {} parameters free: {}",
         heights.len(),
         if n_distances == 0 {
@@ -142,8 +145,8 @@ fn report<F: Firmware>(
         calibrated.free_names.len(),
         calibrated.free_names.join(" ")
     );
-    println!("{}", cal.termination.reason());
-    println!(
+    say!("{}", cal.termination.reason());
+    say!(
         "height errors: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm",
         max_abs(&before),
         rms(&before),
@@ -166,9 +169,12 @@ fn report<F: Firmware>(
                 noise_of(cal, pkmcal::DISTANCE_AXIS)
             ),
         };
-        println!(
+        say!(
             "distance errors: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm ({weighing})",
-            d.before_max, d.before_rms, d.after_max, d.after_rms,
+            d.before_max,
+            d.before_rms,
+            d.after_max,
+            d.after_rms,
         );
         // How well the data fix the weighting: the variance ratio with its
         // interval, against Klipper's fixed ratio.
@@ -176,7 +182,7 @@ fn report<F: Firmware>(
         if let (Some(h), Some(dg), Weighting::Shrunk(n)) =
             (group("probe"), group(pkmcal::DISTANCE_AXIS), a.weighting)
         {
-            println!(
+            say!(
                 "variance ratio heights/distances: {:.3}, from the data's {:.1} and {:.1} degrees of freedom and Klipper's fixed {:.3} worth {n} readings a group",
                 (h.sigma / dg.sigma).powi(2),
                 h.redundancy.unwrap_or(f64::NAN),
@@ -187,7 +193,7 @@ fn report<F: Firmware>(
         if let (Some(h), Some(dg)) = (group("probe"), group(pkmcal::DISTANCE_AXIS))
             && let Some(r) = pkmcal::variance_ratio(h, dg, VARIANCE_RATIO_LEVEL)
         {
-            println!(
+            say!(
                 "variance ratio heights/distances: {:.3} ({:.0} % interval {:.3} to {:.3}, from {:.1} and {:.1} degrees of freedom); Klipper's fixed weighting takes {:.3}",
                 r.ratio,
                 100.0 * r.level,
@@ -200,18 +206,12 @@ fn report<F: Firmware>(
         }
     }
     for w in &cal.warnings {
-        println!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
+        say!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
     }
-    println!(
-        "\n  {:<28} {:>14} {:>14}",
-        "Klipper value", "before", "after"
-    );
-    for v in &values {
-        println!("  {:<28} {:>14.6} {:>14.6}", v.name, v.before, v.after);
-    }
+    let written = super::print_written(printer, &calibrated, "Klipper value")?;
     for (i, n) in measurement.param_names().iter().enumerate() {
         if calibrated.free.contains(&(spec.n_params() + i)) {
-            println!(
+            say!(
                 "  {:<28} {:>14.6} {:>14.6}   ({}; not a Klipper value: level the bed or let Klipper's bed mesh take it)",
                 n,
                 measurement.nominal()[i],
@@ -220,6 +220,7 @@ fn report<F: Firmware>(
             );
         }
     }
+    super::print_checks(printer, &calibrated, &written, a.max_sigma)?;
     if let Some(out) = &a.out {
         run.files.stage(
             out,
@@ -227,7 +228,7 @@ fn report<F: Firmware>(
                 .updated(spec, &cal.params, &cal.measurement)?
                 .as_bytes(),
         )?;
-        println!(
+        say!(
             "\nupdated configuration -> {} (values in its SAVE_CONFIG block)",
             out.display()
         );
@@ -288,7 +289,7 @@ fn report<F: Firmware>(
         } else {
             format!(" --distances {}/{DISTANCES_FILE}", dir.display())
         };
-        println!(
+        say!(
             "mechanism, probe data and parameters -> {} (e.g. `pkmcal calibrate --mechanism {0}/mechanism.toml --data {0}/probes.csv{dist}`)",
             dir.display()
         );

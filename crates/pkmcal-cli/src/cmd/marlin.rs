@@ -34,6 +34,10 @@ pub struct Args {
     pub params_set: args::FreeArgs,
     /// Write the new M665 and M666 lines here (send them, then M500; or put
     /// them in the start G-code). Never over --config.
+    /// Warn of a written value whose σ exceeds this, in the value's own
+    /// unit (mm, °, %).
+    #[arg(long, value_name = "SIGMA", default_value_t = pkmcal_io::firmware::DEFAULT_MAX_SIGMA, value_parser = args::values::max_sigma)]
+    pub max_sigma: f64,
     #[arg(long, value_name = "NEW.gcode")]
     pub out: Option<PathBuf>,
     /// What M665 B means in this Marlin, where --config does not say (M503
@@ -122,7 +126,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         .filter(|p| matches!(p.kind, ProbeKind::G33 { .. }))
         .count();
     let o = printer.probe_offset;
-    println!(
+    say!(
         "{} probe heights{} from {} with the settings of {} (Marlin; probe offset X{} Y{} Z{}), {} parameters free: {}",
         acc.poses,
         if g33_points > 0 {
@@ -138,18 +142,20 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         calibrated.free_names.len(),
         calibrated.free_names.join(" ")
     );
-    println!("{}", cal.termination.reason());
-    println!(
+    say!("{}", cal.termination.reason());
+    say!(
         "height errors: before max {bm:.4} mm, RMS {br:.4} mm; after max {am:.4} mm, RMS {ar:.4} mm"
     );
     for w in &cal.warnings {
-        println!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
+        say!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
     }
-    println!(
+    say!(
         "\nbefore:\n{}after:\n{}",
         printer.delta().gcode(),
         new.gcode()
     );
+    let written = super::print_written(&printer, &calibrated, "written value")?;
+    super::print_checks(&printer, &calibrated, &written, a.max_sigma)?;
     // Marlin's own G33 on the printer the fit found.
     let (radius, whence) = match (a.g33_radius, printer.log.g33_radius, printer.delta()) {
         (Some(r), _, _) => (r, "given"),
@@ -180,7 +186,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         printer.probe_as(s, xy, mech, measurement, &cal.params, &cal.measurement)
     };
     let g33 = g33::run(printer.delta(), &opts, &mut |s, xy| probe(s, xy));
-    println!(
+    say!(
         "G33 P{}{} ({factors} factors: {what}), as Marlin's G33.cpp runs it on the printer this fit found, at radius {radius:.2} mm ({whence}):",
         opts.points,
         if opts.towers { "" } else { " T" },
@@ -214,7 +220,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     }) {
         Ok((with_g33, with_new, g)) => {
             let sd: Vec<String> = g.std_devs.iter().map(|s| format!("{s:.3}")).collect();
-            println!(
+            say!(
                 "  {} iteration{} of {} points, std dev {} mm{}; it would set:",
                 g.std_devs.len(),
                 if g.std_devs.len() == 1 { "" } else { "s" },
@@ -226,8 +232,8 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
                     ""
                 }
             );
-            print!("{}", indent(&g.settings.gcode()));
-            println!(
+            say_raw!("{}", indent(&g.settings.gcode()));
+            say!(
                 "  height errors at the {} probed points with G33's values: max {:.4} mm, RMS {:.4} mm; with pkmcal's: max {:.4} mm, RMS {:.4} mm (the fit's residuals and the change the fitted printer predicts)",
                 with_g33.len(),
                 max_abs(&with_g33),
@@ -236,7 +242,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
                 rms(&with_new)
             );
         }
-        Err(e) => println!("  not run: {}", crate::words::io(&e)),
+        Err(e) => say!("  not run: {}", crate::words::io(&e)),
     }
     let mut note = String::new();
     let _ = writeln!(
@@ -250,7 +256,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     note.push_str("; send M500 once to keep them in EEPROM (not in a start script)\n");
     if let Some(out) = &a.out {
         run.files.stage(out, note.as_bytes())?;
-        println!(
+        say!(
             "\nnew M665/M666 -> {} (send the two lines to the printer, then M500 to keep them; or put them in the start G-code)",
             out.display()
         );

@@ -44,3 +44,49 @@ pub fn note_renamed(run: &pkmcal_io::Run<'_>, spec: &pkmcal::Spec, request: &pkm
         });
     }
 }
+
+/// A printer's written values with their σ, as a table headed `what`.
+pub fn print_written<F: pkmcal_io::firmware::Firmware + ?Sized>(
+    printer: &F,
+    calibrated: &pkmcal_io::firmware::PrinterCalibration,
+    what: &str,
+) -> anyhow::Result<pkmcal_io::firmware::Written> {
+    let written = pkmcal_io::firmware::written(printer, calibrated)?;
+    say!(
+        "\n  {:<28} {:>14} {:>14} {:>14}",
+        what,
+        "before",
+        "after",
+        "σ"
+    );
+    for v in &written.values {
+        let sigma = match v.sigma {
+            Some(s) if s > 0.0 => format!("{s:.4} {}", v.unit),
+            Some(s) if s.is_nan() => "unknown".into(),
+            _ => "fixed".into(),
+        };
+        say!(
+            "  {:<28} {:>14.6} {:>14.6} {:>14}",
+            v.name,
+            v.before,
+            v.after,
+            sigma
+        );
+    }
+    Ok(written)
+}
+
+/// The checks of a printer's written values and of its fit
+/// ([`pkmcal_io::firmware::checks`]), worded.
+pub fn print_checks<F: pkmcal_io::firmware::Firmware + ?Sized>(
+    printer: &F,
+    calibrated: &pkmcal_io::firmware::PrinterCalibration,
+    written: &pkmcal_io::firmware::Written,
+    max_sigma: f64,
+) -> anyhow::Result<()> {
+    for w in pkmcal_io::firmware::checks(printer, calibrated, written, max_sigma)? {
+        let (message, hint) = crate::words::firmware_warning(&w);
+        say!("warning: {message}\n  hint: {hint}");
+    }
+    Ok(())
+}

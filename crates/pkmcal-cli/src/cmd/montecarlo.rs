@@ -54,7 +54,7 @@ pub struct Args {
     )]
     pub angle_error: f64,
     /// Unseen poses on which accuracy is judged.
-    #[arg(value_parser = args::values::count, long, alias = "validation", default_value_t = 50, value_name = "N")]
+    #[arg(value_parser = args::values::targets, long, alias = "validation", default_value_t = 50, value_name = "N")]
     pub validation_targets: usize,
     /// Output CSV with one row per run.
     #[arg(long, value_name = "RUNS.csv")]
@@ -103,7 +103,7 @@ pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
     let (runs, summary) = monte_carlo(mech, &poses, &validation, &opts, &|| bar.inc(1))?;
     bar.finish();
     let secs = start.elapsed().as_secs_f64();
-    println!(
+    say!(
         "{} simulated calibrations ({} model) from {} poses of {}: {} converged ({:.0} calibrations/s)",
         summary.runs,
         c.model.name(),
@@ -113,7 +113,7 @@ pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
         summary.runs as f64 / secs
     );
     let n_priors = opts.calibration.priors.len();
-    println!(
+    say!(
         "random errors: {}σ {} mm on free parameters in mm, σ {} rad on free parameters in rad{}; noise σ {} mm on lengths{}",
         if n_priors > 0 {
             format!(
@@ -133,17 +133,17 @@ pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
             String::new()
         }
     );
-    println!(
+    say!(
         "accuracy on {} unseen poses after calibration: RMS median {:.4} mm, 95th percentile {:.4} mm; max error median {:.4} mm",
         c.validation_targets,
         summary.validation_rms_median,
         summary.validation_rms_p95,
         summary.validation_max_median
     );
-    println!("parameter errors (RMS over runs):");
+    say!("parameter errors (RMS over runs):");
     for (n, e) in summary.parameters.iter().zip(&summary.parameter_rms_error) {
         let i = spec.param_index(n)?;
-        println!("  {n:<6} {e:>12.4e} {}", spec.param_unit(i));
+        say!("  {n:<6} {e:>12.4e} {}", spec.param_unit(i));
     }
     if let Some(out) = &c.out {
         let mut header = vec![
@@ -169,7 +169,7 @@ pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
             })
             .collect();
         run.files.stage(out, &csv_bytes(&header, &rows))?;
-        println!("runs -> {}", out.display());
+        say!("runs -> {}", out.display());
     }
     Ok(())
 }

@@ -31,17 +31,29 @@ impl Args {
 pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     let description = read_description(run, a.mech.mechanism.as_deref())?;
     let spec = description.mech.spec();
+    // The mechanism file's tolerances free their parameters (the rule every
+    // fit follows); those naming an instrument's parameters wait for one.
+    let names = spec.param_names();
+    let table_of_mech: Vec<_> = description
+        .tolerances
+        .iter()
+        .filter(|(n, _)| names.iter().any(|m| m == n))
+        .cloned()
+        .collect();
+    let freed = pkmcal::Request::new(pkmcal::Model::Exact)
+        .freed_by_tolerances(spec, &pkmcal::MeasurementModel::tool(spec), &table_of_mech)
+        .map_err(|e| crate::cmd::in_mechanism(e, &description))?;
     let text = if a.json {
         pkmcal_io::description::summary_json(spec)
     } else {
-        table(&pkmcal::summary(spec))
+        table(&pkmcal::summary(spec), &freed)
     };
-    print!("{text}");
+    say_raw!("{text}");
     Ok(())
 }
 
-/// The summary as text tables.
-fn table(s: &pkmcal::MechanismSummary) -> String {
+/// The summary as text tables; `freed` are free by their tolerances.
+fn table(s: &pkmcal::MechanismSummary, freed: &[String]) -> String {
     let mut t = String::new();
     let _ = writeln!(
         t,
@@ -64,7 +76,13 @@ fn table(s: &pkmcal::MechanismSummary) -> String {
             p.kind.name(),
             p.unit.symbol(),
             pkmcal_io::csv::number(p.nominal),
-            if p.free_by_default { "yes" } else { "" }
+            if p.free_by_default {
+                "yes"
+            } else if freed.contains(&p.name) {
+                "yes, by its tolerance ([tolerances])"
+            } else {
+                ""
+            }
         );
     }
     let _ = writeln!(t, "\n{:<16} {:<8} role", "joint", "unit");

@@ -92,7 +92,7 @@ pub fn run<F: Firmware>(
         &cal.measurement,
         heights,
     )?;
-    println!(
+    say!(
         "Physical model: {} probe heights{} from {source} ({}), {} parameters within their tolerances (rods {} mm, tower radii {} mm, tower lean {} mrad, ball joints {} mm, bed tilt {} mrad; probe σ {} mm); effector radius {} mm, rod spacing {} mm, probe offset ({}, {}) mm",
         heights.len(),
         if fit.readings.distances.is_empty() {
@@ -113,8 +113,8 @@ pub fn run<F: Firmware>(
         ld.probe_offset[0],
         ld.probe_offset[1],
     );
-    println!("{}", cal.termination.reason());
-    println!(
+    say!("{}", cal.termination.reason());
+    say!(
         "height errors of the physical fit: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm",
         max_abs(&h_before),
         rms(&h_before),
@@ -130,7 +130,7 @@ pub fn run<F: Firmware>(
             WarningKind::HeldByTolerance { .. } | WarningKind::PriorDominated { .. }
         )
     }) {
-        println!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
+        say!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
     }
     let unseen: Vec<String> = PARTS
         .iter()
@@ -148,13 +148,13 @@ pub fn run<F: Firmware>(
         })
         .collect();
     if !unseen.is_empty() {
-        println!(
+        say!(
             "the probe pattern cannot see (the readings take less than {:.0} % of their uncertainty): {}",
             100.0 * UNSEEN_FROM_DATA,
             unseen.join(", ")
         );
     }
-    println!(
+    say!(
         "\nnozzle error over the build volume of the fitted printer ({} points within {:.0} mm of the centre, z {} mm; over the bed):",
         proj.targets.len(),
         ld.print_radius(),
@@ -168,20 +168,23 @@ pub fn run<F: Firmware>(
         ),
         ("the values for the nozzle", proj.summary),
     ] {
-        println!(
+        say!(
             "  {what:<36} XY RMS {:.4} mm, max {:.4} mm; Z RMS {:.4} mm, max {:.4} mm",
-            e.xy_rms, e.xy_max, e.z_rms, e.z_max
+            e.xy_rms,
+            e.xy_max,
+            e.z_rms,
+            e.z_max
         );
     }
     let fw_bed = ld.corrects_bed_tilt.then_some(proj.bed.as_slice());
     let cubes = physical::cube_errors(&fit, &fw_mech, &proj.params, fw_bed)?;
-    println!(
+    say!(
         "\npredicted {} mm cube printed with the values for the nozzle (± one standard deviation from the fit's uncertainty, {} draws):",
         physical::CUBE_MM,
         physical::CUBE_DRAWS
     );
     for (where_, c) in ["at the centre", "at the edge"].iter().zip(&cubes) {
-        println!(
+        say!(
             "  {where_} ({:.0}, {:.0}): X size {:+.3} ± {:.3} mm, Y size {:+.3} ± {:.3} mm, top flatness {:.3} ± {:.3} mm",
             c.centre[0],
             c.centre[1],
@@ -193,21 +196,21 @@ pub fn run<F: Firmware>(
             c.flatness_sd
         );
     }
-    println!(
+    say!(
         "\n  {:<28} {:>14} {:>14}",
         format!("{} value", printer.name()),
         "before",
         "after"
     );
     for v in printer.values(fw_spec, &proj.params, &proj.bed)? {
-        println!("  {:<28} {:>14.6} {:>14.6}", v.name, v.before, v.after);
+        say!("  {:<28} {:>14.6} {:>14.6}", v.name, v.before, v.after);
     }
     if let Some(out) = output.out {
         let mut text = output.header;
         text.push_str(&printer.updated(fw_spec, &proj.params, &proj.bed)?);
         text.push_str(output.footer);
         run.files.stage(out, text.as_bytes())?;
-        println!(
+        say!(
             "\nvalues for the nozzle -> {} {}",
             out.display(),
             output.written

@@ -8,13 +8,14 @@ use pkmcal_io::csv::csv_bytes;
 use pkmcal_io::description::read_description;
 use pkmcal_io::params::params_or_nominal;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 #[derive(clap::Args)]
 pub struct Args {
     #[command(flatten)]
     pub mech: args::MechanismArg,
     /// Number of poses to choose.
-    #[arg(value_parser = args::values::count, long, value_name = "N")]
+    #[arg(value_parser = args::values::targets, long, value_name = "N")]
     pub count: usize,
     /// Spacing of the candidate lattice over the usable workspace, mm (an
     /// axis in rad is spaced by it over the mechanism's lever arm;
@@ -80,7 +81,12 @@ pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
         return crate::words::usage(format!("--count: {e}"));
     }
     let criterion: PlanCriterion = c.criterion.parse()?;
-    let bar = run.bar(0, false, "planning steps", 0);
+    // The steps foreseen grow as exchange passes improve the plan: the bar
+    // follows (shown on a terminal whatever the count: a 48-leg platform
+    // takes minutes).
+    let foreseen = (c.count as u64).saturating_mul(2);
+    let bar = run.bar(foreseen, false, "planning steps", 1);
+    let shown = (AtomicU64::new(0), AtomicU64::new(foreseen));
     let plan = pkmcal::apply::planning::plan(
         mech,
         &params,
@@ -95,9 +101,13 @@ pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
             priors,
             noise,
         },
-        &|| {
-            bar.inc_length(1);
-            bar.inc(1);
+        &|done, total| {
+            let (done, total) = (done as u64, total as u64);
+            let more = total.saturating_sub(shown.1.swap(total, Ordering::Relaxed));
+            if more > 0 {
+                bar.inc_length(more);
+            }
+            bar.inc(done.saturating_sub(shown.0.swap(done, Ordering::Relaxed)));
         },
     )?;
     bar.finish();
@@ -133,7 +143,7 @@ pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
     if let Some(g) = &c.grid_out {
         run.files.stage(g, &file(&plan.grid))?;
     }
-    println!(
+    say!(
         "planned {} poses of {} candidates (spacing {:.4} mm{}) maximising {:?} for {} free parameters ({} model){}",
         c.count,
         n_candidates,
@@ -168,25 +178,36 @@ pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
             String::new()
         }
     );
-    println!(
+    say!(
         "  {:<14} {:>11} {:>11} {:>11} {:>11} {:>11} {:>10}",
-        "", "O1", "O2", "O3", "O4", "O5", "cond"
+        "",
+        "O1",
+        "O2",
+        "O3",
+        "O4",
+        "O5",
+        "cond"
     );
     for (label, o, cond) in [
         ("planned", &plan.observability, plan.condition),
         ("plain grid", &plan.grid_observability, plan.grid_condition),
     ] {
-        println!(
+        say!(
             "  {label:<14} {:>11.4e} {:>11.4e} {:>11.4e} {:>11.4e} {:>11.4e} {:>10.2}",
-            o.o1, o.o2, o.o3, o.o4, o.o5, cond
+            o.o1,
+            o.o2,
+            o.o3,
+            o.o4,
+            o.o5,
+            cond
         );
     }
     for w in &plan.warnings {
-        println!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
+        say!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
     }
-    println!("poses -> {}", c.out.display());
+    say!("poses -> {}", c.out.display());
     if let Some(g) = &c.grid_out {
-        println!("plain grid -> {}", g.display());
+        say!("plain grid -> {}", g.display());
     }
     Ok(())
 }

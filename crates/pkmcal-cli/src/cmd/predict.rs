@@ -81,22 +81,20 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     let record = match &a.uncertainty {
         Some(path) => {
             let r = pkmcal_io::record::read_calibration_record(run, path)?;
-            r.check(spec).map_err(|e| {
+            let params = r.checked_params(&mech).map_err(|e| {
                 anyhow::anyhow!(
                     "{}: this calibration cannot serve {}: {e}; give the report of a calibration of this mechanism",
                     path.display(),
                     spec.name
                 )
             })?;
-            Some(r)
+            Some((r, params))
         }
         None => None,
     };
     // The parameters: --params, else the record's, else nominal.
-    let params = match (&a.params, &record, &a.uncertainty) {
-        (None, Some(r), Some(path)) => r
-            .params(spec)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?,
+    let params = match (&a.params, &record) {
+        (None, Some((_, p))) => p.clone(),
         _ => pkmcal_io::params::params_or_nominal(run, a.params.as_deref(), &mech)?,
     };
     let force = pkmcal::identify::request::checked_load(
@@ -105,7 +103,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         &params,
         pkmcal::Field::Load,
     )?;
-    let covariance = record.map(|r| r.covariance);
+    let covariance = record.map(|(r, _)| r.covariance);
     let settings = RowSettings {
         params: &params,
         model,

@@ -31,6 +31,10 @@ pub struct Args {
     #[command(flatten)]
     pub params_set: args::FreeArgs,
     /// Write the new M665 and M666 lines here (never over --config).
+    /// Warn of a written value whose σ exceeds this, in the value's own
+    /// unit (mm, °, %).
+    #[arg(long, value_name = "SIGMA", default_value_t = pkmcal_io::firmware::DEFAULT_MAX_SIGMA, value_parser = args::values::max_sigma)]
+    pub max_sigma: f64,
     #[arg(long, value_name = "NEW.g")]
     pub out: Option<PathBuf>,
     #[command(flatten)]
@@ -89,7 +93,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         (max, rms)
     };
     let ((bm, br), (am, ar)) = (heights(before), heights(after));
-    println!(
+    say!(
         "{} probe heights from {} with the geometry of {} (RepRapFirmware), {} parameters free: {}",
         acc.poses,
         a.probes.display(),
@@ -97,18 +101,20 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         calibrated.free_names.len(),
         calibrated.free_names.join(" ")
     );
-    println!("{}", cal.termination.reason());
-    println!(
+    say!("{}", cal.termination.reason());
+    say!(
         "height errors: before max {bm:.4} mm, RMS {br:.4} mm; after max {am:.4} mm, RMS {ar:.4} mm"
     );
     for w in &cal.warnings {
-        println!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
+        say!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
     }
-    println!(
+    say!(
         "\nbefore:\n{}after:\n{}",
         printer.delta.gcode(),
         new.gcode()
     );
+    let written = super::print_written(&printer, &calibrated, "written value")?;
+    super::print_checks(&printer, &calibrated, &written, a.max_sigma)?;
     let mut note = String::new();
     let _ = writeln!(
         note,
@@ -120,7 +126,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     note.push_str(&printer.updated(spec, &cal.params, &cal.measurement)?);
     if let Some(out) = &a.out {
         run.files.stage(out, note.as_bytes())?;
-        println!(
+        say!(
             "new M665/M666 -> {} (replace the M665 and M666 lines of the file the firmware takes them from with these two, and keep that file's other lines: config-override.g when config.g runs M501, else config.g)",
             out.display()
         );

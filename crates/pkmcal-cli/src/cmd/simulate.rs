@@ -26,7 +26,7 @@ pub struct Args {
     )]
     pub targets: Option<PathBuf>,
     /// Instead of a targets file: N targets spread evenly over the usable workspace.
-    #[arg(value_parser = args::values::count, long, value_name = "N")]
+    #[arg(value_parser = args::values::targets, long, value_name = "N")]
     pub grid: Option<usize>,
     /// Standard deviation of the Gaussian noise on each length coordinate
     /// (positions, bar readings, target points), mm.

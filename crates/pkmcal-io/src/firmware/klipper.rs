@@ -20,7 +20,7 @@
 //! and the `#*#` SAVE_CONFIG block at the end, whose values override. (Written
 //! here: no INI crate reads that block, and the dialect is a few rules.)
 
-use super::{Firmware, FirmwareValue, Readings};
+use super::{Firmware, FirmwareValue, Readings, Separation, TiltPlace};
 use crate::error::{Error, Result};
 use crate::{invalid, refuse};
 use pkmcal::{MeasurementModel, Params, Request};
@@ -167,6 +167,8 @@ pub struct Ini {
     files: usize,
     /// Their bytes (bounded by [`MAX_INCLUDED_BYTES`]).
     bytes: usize,
+    /// The line of the SAVE_CONFIG block's header, if there is a block.
+    header_line: Option<usize>,
 }
 
 /// The most bytes the included files of one configuration may hold in all.
@@ -174,33 +176,200 @@ const MAX_INCLUDED_BYTES: usize = 64 << 20;
 
 /// The most included files one configuration may read in all (a printer's
 /// folder holds tens; includes that fan out could otherwise read millions).
-const MAX_INCLUDED_FILES: usize = 1000;
+pub const MAX_INCLUDED_FILES: usize = 1000;
 
-/// The files `[include spec]` in `file` names, as Klipper resolves them:
-/// relative to the including file's directory; a pattern (`*`, `?`, `[`)
-/// expanded and sorted, an empty match allowed; a plain name must exist.
+/// The most files one chain of `[include]` may nest (the configuration
+/// counted): Klipper itself has no limit of its own, but Python's recursion
+/// limit stops its reader at about 480 nested files (measured with its
+/// `configfile.py`); a file that includes itself is refused by name, as
+/// Klipper refuses it.
+pub const MAX_INCLUDE_DEPTH: usize = 400;
+
+/// The files `[include spec]` in `file` names, as Klipper resolves them
+/// (its `_resolve_include`): relative to the including file's directory; a
+/// pattern (`*`, `?`, `[`) expanded by Python's `glob.glob` ([`glob`]) and
+/// sorted, an empty match allowed; a plain name must exist.
 fn included_files(file: &Path, spec: &str) -> Result<Vec<PathBuf>> {
     let path = file.parent().unwrap_or(Path::new(".")).join(spec);
-    if !spec.contains(['*', '?', '[']) {
-        if !path.exists() {
+    if !has_magic(&path.to_string_lossy()) {
+        if std::fs::symlink_metadata(&path).is_err() {
             invalid!("the included file {} does not exist", path.display());
         }
         return Ok(vec![path]);
     }
-    let pattern = path.to_string_lossy().into_owned();
-    // Python's glob, which Klipper uses: hidden files only by a leading dot.
-    let options = glob::MatchOptions {
-        case_sensitive: true,
-        require_literal_separator: true,
-        require_literal_leading_dot: true,
-    };
-    let mut found: Vec<PathBuf> = glob::glob_with(&pattern, options)
-        .map_err(|e| Error::Content(format!("not a valid pattern: {e}")))?
-        .filter_map(std::result::Result::ok)
-        .collect();
-    // Sorted as Python sorts the names (by code point).
-    found.sort_by(|a, b| a.to_string_lossy().cmp(&b.to_string_lossy()));
+    let mut found = glob(&path);
+    // Sorted as Python sorts the names (by code point: the bytes of UTF-8).
+    found.sort_by(|a, b| {
+        a.as_os_str()
+            .as_encoded_bytes()
+            .cmp(b.as_os_str().as_encoded_bytes())
+    });
     Ok(found)
+}
+
+/// Whether a path is a pattern for Python's `glob` (`glob.has_magic`).
+fn has_magic(s: &str) -> bool {
+    s.contains(['*', '?', '['])
+}
+
+/// One element of a pattern, as Python's `fnmatch.translate` reads it.
+#[derive(Debug, Clone, PartialEq)]
+enum Tok {
+    /// `?`.
+    Any,
+    /// `*`.
+    Star,
+    /// `[…]` (`[!…]` negated): its characters and ranges.
+    Class(bool, Vec<(char, char)>),
+    Lit(char),
+}
+
+/// A pattern's elements, as Python's `fnmatch.translate` reads them: `*`,
+/// `?`, `[…]` with `!` for negation, a `]` first in the class literal, `a-z`
+/// ranges (a reversed one matching nothing), an unclosed `[` literal.
+fn translate(pattern: &str) -> Vec<Tok> {
+    let p: Vec<char> = pattern.chars().collect();
+    let mut out = vec![];
+    let mut i = 0;
+    while i < p.len() {
+        let c = p[i];
+        i += 1;
+        match c {
+            '*' => {
+                if out.last() != Some(&Tok::Star) {
+                    out.push(Tok::Star);
+                }
+            }
+            '?' => out.push(Tok::Any),
+            '[' => {
+                let mut j = i;
+                if p.get(j) == Some(&'!') {
+                    j += 1;
+                }
+                if p.get(j) == Some(&']') {
+                    j += 1;
+                }
+                while j < p.len() && p[j] != ']' {
+                    j += 1;
+                }
+                if j >= p.len() {
+                    out.push(Tok::Lit('['));
+                    continue;
+                }
+                let mut body = &p[i..j];
+                i = j + 1;
+                let negated = body.first() == Some(&'!');
+                if negated {
+                    body = &body[1..];
+                }
+                let mut items = vec![];
+                let mut k = 0;
+                while k < body.len() {
+                    if k + 2 < body.len() && body[k + 1] == '-' {
+                        if body[k] <= body[k + 2] {
+                            items.push((body[k], body[k + 2]));
+                        }
+                        k += 3;
+                    } else {
+                        items.push((body[k], body[k]));
+                        k += 1;
+                    }
+                }
+                out.push(Tok::Class(negated, items));
+            }
+            c => out.push(Tok::Lit(c)),
+        }
+    }
+    out
+}
+
+/// Whether `name` matches the pattern `toks` whole (the classic two-pointer
+/// match: linear, backtracking only to the last `*`).
+fn fnmatch(toks: &[Tok], name: &str) -> bool {
+    let n: Vec<char> = name.chars().collect();
+    let one = |t: &Tok, c: char| match t {
+        Tok::Any => true,
+        Tok::Lit(l) => *l == c,
+        Tok::Class(neg, items) => items.iter().any(|&(a, b)| a <= c && c <= b) != *neg,
+        Tok::Star => false,
+    };
+    let (mut ti, mut ni) = (0, 0);
+    let mut star: Option<(usize, usize)> = None;
+    while ni < n.len() {
+        if ti < toks.len() && toks[ti] == Tok::Star {
+            star = Some((ti, ni));
+            ti += 1;
+        } else if ti < toks.len() && one(&toks[ti], n[ni]) {
+            ti += 1;
+            ni += 1;
+        } else if let Some((st, sn)) = star {
+            ti = st + 1;
+            ni = sn + 1;
+            star = Some((st, sn + 1));
+        } else {
+            return false;
+        }
+    }
+    while ti < toks.len() && toks[ti] == Tok::Star {
+        ti += 1;
+    }
+    ti == toks.len()
+}
+
+/// Python's `glob.glob(pattern)` (3.11, not recursive, hidden files only by
+/// a pattern that starts with `.`; `.` and `..` never listed): each
+/// component with magic matched in its directory (directories only but for
+/// the last), a literal one kept when it exists. Unreadable directories
+/// give nothing, as in Python.
+fn glob(pattern: &Path) -> Vec<PathBuf> {
+    use std::path::Component;
+    let mut bases: Vec<PathBuf> = vec![PathBuf::new()];
+    let parts: Vec<Component<'_>> = pattern.components().collect();
+    for (k, part) in parts.iter().enumerate() {
+        let last = k + 1 == parts.len();
+        let name = part.as_os_str().to_string_lossy();
+        let mut next = vec![];
+        for base in &bases {
+            let dir = if base.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                base.as_path()
+            };
+            if !matches!(part, Component::Normal(_)) || !has_magic(&name) {
+                let p = base.join(part.as_os_str());
+                let keep = if last {
+                    std::fs::symlink_metadata(&p).is_ok()
+                } else {
+                    p.is_dir()
+                };
+                if keep {
+                    next.push(p);
+                }
+                continue;
+            }
+            let toks = translate(&name);
+            let hidden = name.starts_with('.');
+            let Ok(entries) = std::fs::read_dir(dir) else {
+                continue;
+            };
+            for e in entries.flatten() {
+                let file = e.file_name();
+                let text = file.to_string_lossy();
+                if (text.starts_with('.') && !hidden) || !fnmatch(&toks, &text) {
+                    continue;
+                }
+                let p = base.join(&file);
+                if last || p.is_dir() {
+                    next.push(p);
+                }
+            }
+        }
+        bases = next;
+        if bases.is_empty() {
+            break;
+        }
+    }
+    bases
 }
 
 impl Ini {
@@ -303,25 +472,99 @@ impl Ini {
     }
 }
 
-/// Split a file into its regular part and its SAVE_CONFIG block (prefixes
-/// removed); `None` for the block when there is none.
-fn split_autosave(text: &str) -> (String, Option<String>) {
-    match text.find(AUTOSAVE_HEADER) {
-        None => (text.to_string(), None),
+/// Klipper's SAVE_CONFIG header, as its `configfile.py` finds it: these
+/// three lines after a line end.
+const AUTOSAVE_HEADER_LINES: &str = "\n#*# <---------------------- SAVE_CONFIG ---------------------->\n#*# DO NOT EDIT THIS BLOCK OR BELOW. The contents are auto-generated.\n#*#\n";
+
+/// A configuration split as Klipper's `_find_autosave_data` splits it.
+struct Split {
+    /// The regular part (line ends `\n`).
+    regular: String,
+    /// The SAVE_CONFIG block: each line's number in the file and its text
+    /// without the `#*# ` prefix; `None` when there is no block.
+    block: Option<Vec<(usize, String)>>,
+    /// The line of the block's header, when there is a block.
+    header_line: Option<usize>,
+}
+
+/// The line (from 1) of byte `pos` of `data`.
+fn line_at(data: &str, pos: usize) -> usize {
+    data[..pos].matches('\n').count() + 1
+}
+
+/// Split a configuration as Klipper does (`_find_autosave_data`, its line
+/// ends `\r\n` read as `\n`): the regular part before the header's three
+/// lines, the block after them. Whatever makes Klipper ignore the whole
+/// block (and start from the regular part alone: a `#*# ` line above the
+/// header or without one, a second header, a blank line or a line not
+/// starting `#*# ` inside the block) is refused, naming its line: pkmcal
+/// would otherwise read, and write, values the printer does not run.
+fn split_autosave(text: &str, file: &Path) -> Result<Split> {
+    let data = text.replace("\r\n", "\n");
+    let ignored = "Klipper ignores the whole SAVE_CONFIG block then (its configfile.py: \"autosave state corrupted\" or \"modifications after header\") and runs the values above it alone";
+    let fix = "restore the block as SAVE_CONFIG wrote it (or run SAVE_CONFIG in Klipper to rewrite it) and read the file again";
+    let (regular, autosave, start) = match data.find(AUTOSAVE_HEADER_LINES) {
         Some(pos) => {
-            // Line for line (the notice blanked), so that the block's
-            // lines keep their numbers ([`parse_config`] adds the offset).
-            let block = text[pos..]
-                .lines()
-                .skip(1)
-                .map(|l| l.strip_prefix("#*#").unwrap_or(l))
-                .map(|l| l.strip_prefix(' ').unwrap_or(l))
-                .map(|l| if l.starts_with("DO NOT EDIT") { "" } else { l })
-                .collect::<Vec<_>>()
-                .join("\n");
-            (text[..pos].to_string(), Some(block))
+            let after = pos + AUTOSAVE_HEADER_LINES.len();
+            let rest = &data[after..];
+            // Python's `strip()`: white space off both ends.
+            let body = rest.trim_matches(|c: char| c.is_whitespace());
+            let start =
+                after + (rest.len() - rest.trim_start_matches(|c: char| c.is_whitespace()).len());
+            (&data[..pos], Some(body), start)
+        }
+        None => (data.as_str(), None, 0),
+    };
+    if let Some(k) = regular.find("\n#*# ") {
+        let line = line_at(&data, k + 1);
+        let what = if autosave.is_some() {
+            "a `#*# ` line above the SAVE_CONFIG block's header"
+        } else if data[k + 1..].starts_with(AUTOSAVE_HEADER) {
+            "the SAVE_CONFIG header not followed by Klipper's two lines (`#*# DO NOT EDIT THIS BLOCK OR BELOW. The contents are auto-generated.` and `#*#`)"
+        } else {
+            "a `#*# ` line without the SAVE_CONFIG block's header above it"
+        };
+        refuse!(file, Some(line as u64), "{what}, so {ignored}; {fix}");
+    }
+    let Some(body) = autosave else {
+        return Ok(Split {
+            regular: data,
+            block: None,
+            header_line: None,
+        });
+    };
+    if let Some(k) = body.find(AUTOSAVE_HEADER_LINES) {
+        refuse!(
+            file,
+            Some(line_at(&data, start + k + 1) as u64),
+            "a second SAVE_CONFIG header inside the block, so {ignored}; {fix}"
+        );
+    }
+    let first = line_at(&data, start);
+    let mut lines = vec![];
+    if !body.is_empty() {
+        for (i, l) in body.split('\n').enumerate() {
+            let n = l.chars().count();
+            if !l.starts_with("#*#") || (n >= 4 && !l.starts_with("#*# ")) {
+                refuse!(
+                    file,
+                    Some((first + i) as u64),
+                    "{} inside the SAVE_CONFIG block, so {ignored}; {fix}",
+                    if l.trim().is_empty() {
+                        "a blank line".to_string()
+                    } else {
+                        format!("`{}`, a line that does not start with `#*# `,", l.trim())
+                    }
+                );
+            }
+            lines.push((first + i, l.chars().skip(4).collect::<String>()));
         }
     }
+    Ok(Split {
+        header_line: Some(line_at(&data, regular.len() + 1)),
+        regular: regular.to_string(),
+        block: Some(lines),
+    })
 }
 
 /// A line without its comment, as Klipper reads it: cut at the first `#`
@@ -338,31 +581,48 @@ fn strip_comment(line: &str) -> &str {
     line
 }
 
-/// Parse one file's options into `ini` (following `[include …]`).
+/// `path` made absolute and normalised as Python's `os.path.abspath` makes
+/// it (`..` taken lexically, links not followed), as Klipper knows the files
+/// it is reading.
+fn abspath(path: &Path) -> PathBuf {
+    use std::path::Component;
+    let full = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
+    let mut out = PathBuf::new();
+    for c in full.components() {
+        match c {
+            Component::ParentDir => {
+                out.pop();
+            }
+            Component::CurDir => {}
+            c => out.push(c.as_os_str()),
+        }
+    }
+    out
+}
+
+/// Parse one file's lines (each with its number in the file) into `ini`,
+/// following `[include …]` when `chain` is given (the files being read, to
+/// refuse one that includes itself as Klipper does): the SAVE_CONFIG block's
+/// lines are read without (an `[include]` there is a section to Klipper).
 fn parse_into(
     run: &crate::Run<'_>,
     ini: &mut Ini,
-    text: &str,
+    lines: &mut dyn Iterator<Item = (usize, &str)>,
     file: &Path,
-    depth: usize,
+    mut chain: Option<&mut Vec<PathBuf>>,
+    autosave: bool,
 ) -> Result<()> {
-    if depth > 8 {
-        refuse!(
-            file,
-            None,
-            "[include] nests more than 8 deep (a file includes itself?)"
-        );
-    }
     let name = file.display().to_string();
-    if text.starts_with('\u{feff}') {
-        invalid!(
-            "{name}:1: the file starts with a byte-order mark (a UTF-8 BOM), which Klipper does not read (its first line would be outside any section); save the file as UTF-8 without BOM"
-        );
-    }
+    let depth = chain.as_ref().map_or(0, |c| c.len().saturating_sub(1));
     let mut section: Option<String> = None;
     let mut last: Option<usize> = None;
-    for (i, raw) in text.lines().enumerate() {
-        let line = strip_comment(raw);
+    for (no, raw) in lines {
+        if no == 1 && raw.starts_with('\u{feff}') {
+            invalid!(
+                "{name}:1: the file starts with a byte-order mark (a UTF-8 BOM), which Klipper does not read (its first line would be outside any section); save the file as UTF-8 without BOM"
+            );
+        }
+        let line = strip_comment(raw.trim_end_matches('\r'));
         if line.trim().is_empty() {
             continue;
         }
@@ -374,50 +634,64 @@ fn parse_into(
                     e.value.push('\n');
                     e.value.push_str(line.trim());
                 }
-                None => refuse!(
-                    name,
-                    Some((i + 1) as u64),
-                    "an indented line outside any option"
-                ),
+                None => refuse!(name, Some(no as u64), "an indented line outside any option"),
             }
             continue;
         }
         let t = line.trim();
         if let Some(s) = t.strip_prefix('[') {
             let Some(s) = s.strip_suffix(']') else {
-                refuse!(name, Some((i + 1) as u64), "`{t}` lacks its closing `]`");
+                refuse!(name, Some(no as u64), "`{t}` lacks its closing `]`");
             };
             let s = s.trim();
-            if let Some(inc) = s.strip_prefix("include ") {
+            if let (Some(inc), Some(chain)) = (s.strip_prefix("include "), chain.as_deref_mut()) {
                 let inc = inc.trim();
                 for path in included_files(file, inc)
-                    .map_err(|e| e.context(format!("{name}:{}: [include {inc}]", i + 1)))?
+                    .map_err(|e| e.context(format!("{name}:{no}: [include {inc}]")))?
                 {
                     ini.files += 1;
                     if ini.files > MAX_INCLUDED_FILES {
                         refuse!(
                             name,
-                            Some((i + 1) as u64),
+                            Some(no as u64),
                             "[include {inc}]: more than {MAX_INCLUDED_FILES} included files are read in all (files included many times over?)"
+                        );
+                    }
+                    let key = abspath(&path);
+                    if chain.contains(&key) {
+                        refuse!(
+                            name,
+                            Some(no as u64),
+                            "[include {inc}] includes {} again while it is being read (a file that includes itself), which Klipper refuses too (\"Recursive include\"); remove the include",
+                            path.display()
+                        );
+                    }
+                    if chain.len() >= MAX_INCLUDE_DEPTH {
+                        refuse!(
+                            name,
+                            Some(no as u64),
+                            "[include {inc}]: includes nest more than {MAX_INCLUDE_DEPTH} files deep (Klipper's own reader stops near 480); include the files from fewer levels"
                         );
                     }
                     let text = run
                         .files
                         .read_to_string(&path, crate::output::InputKind::Description)
-                        .map_err(|e| {
-                            e.named("included file")
-                                .context(format!("{name}:{}", i + 1))
-                        })?;
+                        .map_err(|e| e.named("included file").context(format!("{name}:{no}")))?;
                     ini.bytes += text.len();
                     if ini.bytes > MAX_INCLUDED_BYTES {
                         refuse!(
                             name,
-                            Some((i + 1) as u64),
+                            Some(no as u64),
                             "[include {inc}]: the included files hold more than {} MiB in all (files included many times over?)",
                             MAX_INCLUDED_BYTES >> 20
                         );
                     }
-                    parse_into(run, ini, &text, &path, depth + 1)?;
+                    chain.push(key);
+                    // Klipper reads an included file whole (its comments
+                    // cut, `\r\n` as `\n`), SAVE_CONFIG lines as comments.
+                    let mut lines = text.split('\n').enumerate().map(|(i, l)| (i + 1, l));
+                    parse_into(run, ini, &mut lines, &path, Some(chain), false)?;
+                    chain.pop();
                 }
                 section = None;
             } else {
@@ -427,19 +701,19 @@ fn parse_into(
             continue;
         }
         let Some(sec) = &section else {
-            refuse!(name, Some((i + 1) as u64), "`{t}` is outside any [section]");
+            refuse!(name, Some(no as u64), "`{t}` is outside any [section]");
         };
         let Some(sep) = t.find([':', '=']) else {
-            refuse!(name, Some((i + 1) as u64), "`{t}` is not `key: value`");
+            refuse!(name, Some(no as u64), "`{t}` is not `key: value`");
         };
         ini.entries.push(Entry {
             section: sec.clone(),
             key: t[..sep].trim().to_lowercase(),
             value: t[sep + 1..].trim().to_string(),
-            line: i + 1,
+            line: no,
             file: name.clone(),
             included: depth > 0,
-            autosave: false,
+            autosave,
         });
         last = Some(ini.entries.len() - 1);
     }
@@ -457,26 +731,33 @@ pub fn read_config(run: &crate::Run<'_>, path: &Path) -> Result<(String, Ini)> {
     Ok((text, ini))
 }
 
-/// Read a Klipper configuration: the regular part (with its includes), then
-/// the SAVE_CONFIG block.
+/// Read a Klipper configuration as Klipper does: the regular part (with its
+/// includes), then the SAVE_CONFIG block (split as [`split_autosave`]
+/// splits it, refusing a block Klipper would ignore); every line numbered
+/// from the file.
 pub fn parse_config(run: &crate::Run<'_>, text: &str, file: &Path) -> Result<Ini> {
-    let (regular, block) = split_autosave(text);
+    let split = split_autosave(text, file)?;
     let mut ini = Ini {
         file: file.display().to_string(),
+        header_line: split.header_line,
         ..Ini::default()
     };
-    parse_into(run, &mut ini, &regular, file, 0)?;
-    if let Some(b) = block {
-        let mut saved = Ini::default();
-        parse_into(run, &mut saved, &b, file, 0)
-            .map_err(|e| e.context(format!("in the SAVE_CONFIG block of {}", file.display())))?;
-        // The block starts on the line after its header.
-        let offset = regular.matches('\n').count() + 1;
-        ini.entries.extend(saved.entries.into_iter().map(|e| Entry {
-            autosave: true,
-            line: e.line + offset,
-            ..e
-        }));
+    let mut chain = vec![abspath(file)];
+    let mut lines = split
+        .regular
+        .split('\n')
+        .enumerate()
+        .map(|(i, l)| (i + 1, l));
+    parse_into(run, &mut ini, &mut lines, file, Some(&mut chain), false)?;
+    if let Some(block) = &split.block {
+        let mut lines = block.iter().map(|(n, l)| (*n, l.as_str()));
+        parse_into(run, &mut ini, &mut lines, file, None, true).map_err(|e| {
+            e.context(format!(
+                "in the SAVE_CONFIG block of {} (from line {})",
+                file.display(),
+                split.header_line.unwrap_or(1)
+            ))
+        })?;
     }
     ini.build_index();
     Ok(ini)
@@ -882,7 +1163,14 @@ pub(crate) fn updated_config_values(
         }
     }
     let eol = if text.contains("\r\n") { "\r\n" } else { "\n" };
-    let (regular, block) = match text.find(AUTOSAVE_HEADER) {
+    // The block from its header's line on, where Klipper found it.
+    let header = ini.header_line.map(|h| {
+        text.split_inclusive('\n')
+            .take(h - 1)
+            .map(str::len)
+            .sum::<usize>()
+    });
+    let (regular, block) = match header {
         Some(pos) => (&text[..pos], Some(&text[pos..])),
         None => (text, None),
     };
@@ -937,10 +1225,20 @@ pub(crate) fn updated_config_values(
             }
             let _ = write!(data, "#*#{eol}");
         }
-        return Ok(data);
+        return read_back(data, ini);
     };
     out.push_str(&updated_block(block, values, eol));
-    Ok(out)
+    read_back(out, ini)
+}
+
+/// A written configuration, checked to hold a SAVE_CONFIG block Klipper
+/// reads (never one it would ignore, losing the values).
+fn read_back(text: String, ini: &Ini) -> Result<String> {
+    match split_autosave(&text, Path::new(&ini.file)) {
+        Ok(s) if s.block.is_some() => Ok(text),
+        Ok(_) => invalid!("the written configuration has no SAVE_CONFIG block (a pkmcal bug); nothing was written"),
+        Err(e) => Err(e.context("the written configuration's SAVE_CONFIG block would be ignored by Klipper (a pkmcal bug); nothing was written")),
+    }
 }
 
 /// The SAVE_CONFIG block (from its header line on) with `values` set, line
@@ -1049,6 +1347,11 @@ fn updated_block(block: &str, values: &[(String, String, String)], eol: &str) ->
         }
     }
     if !appended.is_empty() {
+        // Blank lines after the block stay after it: inside it, they would
+        // make Klipper ignore the whole block.
+        let body = out.trim_end_matches(|c: char| c.is_whitespace()).len();
+        let body = out[body..].find('\n').map_or(out.len(), |k| body + k + 1);
+        let tail = out.split_off(body);
         if !out.ends_with('\n') {
             out.push_str(eol);
         }
@@ -1063,6 +1366,7 @@ fn updated_block(block: &str, values: &[(String, String, String)], eol: &str) ->
             }
             let _ = write!(out, "#*#{eol}");
         }
+        out.push_str(&tail);
     }
     out
 }
@@ -1126,6 +1430,19 @@ impl KlipperPrinter {
 }
 
 impl Firmware for KlipperPrinter {
+    fn separation(&self) -> Separation {
+        Separation::Distances
+    }
+
+    fn relative_sigma(&self, readings: &Readings) -> bool {
+        // Klipper's fixed ratio is given as the readings' σ.
+        self.weighting == Weighting::Klipper && !readings.distances.is_empty()
+    }
+
+    fn tilt_place(&self) -> TiltPlace {
+        TiltPlace::BedMesh
+    }
+
     fn name(&self) -> &'static str {
         "Klipper"
     }
@@ -1222,6 +1539,7 @@ impl Firmware for KlipperPrinter {
             before: old.radius,
             after: new.radius,
             unit: "mm",
+            sigma: None,
         }];
         for (i, t) in TOWERS.iter().enumerate() {
             for (key, a, b, unit) in [
@@ -1234,6 +1552,7 @@ impl Firmware for KlipperPrinter {
                     before: a,
                     after: b,
                     unit,
+                    sigma: None,
                 });
             }
         }

@@ -30,7 +30,7 @@ use super::klipper::{
     Distance, Ini, Probe, Weighting, saved_results, steps_per_rotation, updated_config_values,
     z_weight,
 };
-use super::{Firmware, FirmwareValue, Readings};
+use super::{Firmware, FirmwareValue, Readings, Separation, TiltPlace};
 use crate::error::{Error, Result};
 use crate::{invalid, refuse};
 use pkmcal::{MeasurementModel, Params, Request};
@@ -493,6 +493,19 @@ pub fn trilaterate(elbows: [[f64; 3]; 3], lower_arms: [f64; 3]) -> Option<[f64; 
 }
 
 impl Firmware for RotaryPrinter {
+    fn separation(&self) -> Separation {
+        Separation::Distances
+    }
+
+    fn relative_sigma(&self, readings: &Readings) -> bool {
+        // Klipper's fixed ratio is given as the readings' σ.
+        self.weighting == Weighting::Klipper && !readings.distances.is_empty()
+    }
+
+    fn tilt_place(&self) -> TiltPlace {
+        TiltPlace::BedMesh
+    }
+
     fn name(&self) -> &'static str {
         "Klipper"
     }
@@ -588,12 +601,14 @@ impl Firmware for RotaryPrinter {
                 before: old.shoulder_radius,
                 after: new.shoulder_radius,
                 unit: "mm",
+                sigma: None,
             },
             FirmwareValue {
                 name: "[printer] shoulder_height".into(),
                 before: old.shoulder_height,
                 after: new.shoulder_height,
                 unit: "mm",
+                sigma: None,
             },
         ];
         for (i, t) in STEPPERS.iter().enumerate() {
@@ -618,6 +633,7 @@ impl Firmware for RotaryPrinter {
                     before: a,
                     after: b,
                     unit,
+                    sigma: None,
                 });
             }
         }

@@ -1326,6 +1326,7 @@ impl Firmware for MarlinPrinter {
                 before: a,
                 after: b,
                 unit,
+                sigma: None,
             })
         };
         push("M665 L".into(), old.diagonal, new.diagonal, "mm");

@@ -34,6 +34,10 @@ pub struct FirmwareValue {
     pub after: f64,
     /// Its unit (`mm`, `°`, `%`).
     pub unit: &'static str,
+    /// The standard uncertainty of `after` in `unit`, propagated from the
+    /// calibration's covariance ([`written`]); `None` until then, `Some(0)`
+    /// for a value no free parameter moves.
+    pub sigma: Option<f64>,
 }
 
 /// What a printer gives a calibration: the readings (probe heights as
@@ -110,7 +114,129 @@ pub trait Firmware {
     fn linear_delta(&self) -> Result<Option<physical::LinearDelta>> {
         Ok(None)
     }
+
+    /// Whether the readings' σ the firmware gave the fit are a weighting
+    /// only (Klipper's fixed ratio of heights to distances), so that the
+    /// uncertainties take their scale from the residuals.
+    fn relative_sigma(&self, _readings: &Readings) -> bool {
+        false
+    }
+
+    /// What, besides keeping one of them fixed, would separate two written
+    /// values the readings cannot tell apart.
+    fn separation(&self) -> Separation {
+        Separation::FurtherOut
+    }
+
+    /// Where a bed tilt the probe heights show, and the fit left out, has
+    /// a place.
+    fn tilt_place(&self) -> TiltPlace {
+        TiltPlace::Levelling
+    }
 }
+
+/// What separates two written values that move together.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Separation {
+    /// Distances measured on a calibration object (Klipper's
+    /// DELTA_ANALYZE): they see lengths that heights cannot.
+    Distances,
+    /// Probe points further out towards the bed's edge: the heights' bowl
+    /// grows with the radius probed.
+    FurtherOut,
+}
+
+/// Where a bed tilt has a place in a firmware.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum TiltPlace {
+    /// In the firmware's own values (RepRapFirmware's `M666 A B`), written
+    /// when the parameters named are freed.
+    Values {
+        /// The values.
+        values: &'static str,
+        /// The parameters that write them.
+        free: Vec<String>,
+    },
+    /// In a bed mesh (Klipper's `bed_mesh`), not in the delta's values.
+    BedMesh,
+    /// In bed levelling (Marlin's G29), not in the delta's values.
+    Levelling,
+}
+
+/// What a firmware calibration's summary warns of, beside the fit's own
+/// warnings: a user words each ([`checks`]).
+#[derive(Debug, Clone, PartialEq)]
+pub enum FirmwareWarning {
+    /// Two written values, or the two free parameters that write them,
+    /// correlated beyond [`MAX_CORRELATION`]: the readings cannot tell them
+    /// apart.
+    Correlated {
+        /// The values, in the firmware's terms: a pair, or every value
+        /// linked to another by such a correlation.
+        values: Vec<String>,
+        /// The free parameters correlated, when it is theirs (each writes
+        /// mostly its value: `arm_a` the arm length, `da` the endstop);
+        /// `None` when the written values themselves are.
+        parameters: Option<[String; 2]>,
+        /// The correlation of a pair; of a group, the largest in size.
+        r: f64,
+        /// The smallest correlation in size linking a group (a pair's |r|).
+        weakest: f64,
+        /// Probe heights read.
+        heights: usize,
+        /// Distances read.
+        distances: usize,
+        /// What would separate them, besides keeping `fix` fixed.
+        separation: Separation,
+        /// The free parameter whose fixing separates them (the one of the
+        /// two the firmware's own fit does not free, else the less certain).
+        fix: String,
+    },
+    /// Written values whose σ exceed the limit asked.
+    Uncertain {
+        /// Each value, in the firmware's terms, with its σ and unit.
+        values: Vec<(String, f64, &'static str)>,
+        /// The limit (in each value's unit).
+        limit: f64,
+    },
+    /// The probe heights show a bed tilt that the fit has no parameter
+    /// for: the fitted values took it.
+    TiltAbsorbed {
+        /// The firmware's name.
+        firmware: &'static str,
+        /// The bed's slopes the data show, x then y (mm per mm: the
+        /// height `x·sx + y·sy`).
+        slopes: [f64; 2],
+        /// The score test's p-value ([`pkmcal::identify::omitted_test`]).
+        p: f64,
+        /// The share of the heights' misfit the tilt explains.
+        share: f64,
+        /// The written values that took it, most first, with how much
+        /// each took (the value written less the one a fit with the tilt
+        /// would write) and its unit.
+        absorbed: Vec<(String, f64, &'static str)>,
+        /// Where a tilt has a place in this firmware.
+        place: TiltPlace,
+    },
+}
+
+/// Written values correlated beyond this are warned of (issue 49: arm
+/// lengths from heights alone correlate with their endstops at 0.996–0.998).
+pub const MAX_CORRELATION: f64 = 0.99;
+
+/// The default limit of a written value's σ (mm, °, %) before a warning
+/// (issue 49): a quarter of a 0.2 mm layer.
+pub const DEFAULT_MAX_SIGMA: f64 = 0.05;
+
+/// The largest limit of σ a user may ask (in the values' units): beyond
+/// it no value of a printer would ever be warned of.
+pub const MAX_SIGMA_LIMIT: f64 = 1000.0;
+
+/// Absorbed values listed at most in a [`FirmwareWarning::TiltAbsorbed`].
+pub const ABSORBED_LISTED: usize = 3;
+
+/// The finite-difference step of [`written`], in each parameter's σ.
+const SIGMA_STEP: f64 = 1e-3;
 
 /// A printer's calibration request: the firmware's default free set in
 /// place of the description's, the user's names, `fix` and the firmware's
@@ -236,6 +362,350 @@ pub fn calibrate<F: Firmware + ?Sized>(
         free,
         study,
     })
+}
+
+/// The values a calibration writes, each with its σ, and how they
+/// move together.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Written {
+    /// The values ([`Firmware::values`]) with their σ.
+    pub values: Vec<FirmwareValue>,
+    /// Their correlation matrix (rows and columns in `values` order; 0
+    /// beside a value with σ 0).
+    pub correlation: Vec<Vec<f64>>,
+    /// Each value's derivative by each free parameter (rows: values;
+    /// columns: [`pkmcal::Calibration::free`] order).
+    pub jacobian: Vec<Vec<f64>>,
+}
+
+/// The values a printer's calibration writes into `firmware`'s
+/// configuration with their σ:
+/// the calibration's covariance of the free parameters propagated through
+/// [`Firmware::values`] (a pure function of the parameters and the bed),
+/// its Jacobian by central differences. The step is a thousandth of each
+/// parameter's σ: small against the values' curvature over the
+/// uncertainty, whatever the parameter's unit (mm, °, N/mm), and far above
+/// rounding since the values are not rounded.
+pub fn written<F: Firmware + ?Sized>(
+    firmware: &F,
+    calibrated: &PrinterCalibration,
+) -> Result<Written> {
+    let spec = calibrated.mech.spec();
+    let cal = calibrated.calibration();
+    let np = spec.n_params();
+    let mut values = firmware.values(spec, &cal.params, &cal.measurement)?;
+    let n = values.len();
+    let nf = cal.free.len();
+    let mut jac = vec![vec![0.0; nf]; n];
+    for (k, &j) in cal.free.iter().enumerate() {
+        let sd = cal
+            .covariance
+            .get((k, k))
+            .map_or(0.0, |v| v.max(0.0).sqrt());
+        if !(sd.is_finite() && sd > 0.0) {
+            continue;
+        }
+        let h = SIGMA_STEP * sd;
+        let at = |d: f64| -> Result<Vec<f64>> {
+            let (mut p, mut m) = (cal.params.clone(), cal.measurement.clone());
+            if j < np {
+                p.values[j] += d;
+            } else {
+                m[j - np] += d;
+            }
+            Ok(firmware
+                .values(spec, &p, &m)?
+                .iter()
+                .map(|v| v.after)
+                .collect())
+        };
+        let (up, down) = (at(h)?, at(-h)?);
+        for i in 0..n.min(up.len()).min(down.len()) {
+            jac[i][k] = (up[i] - down[i]) / (2.0 * h);
+        }
+    }
+    // A weighting's σ set ratios, not the scale: the readings' variance of
+    // unit weight gives it.
+    let scale = if firmware.relative_sigma(&calibrated.readings) {
+        cal.unit_weight_sigma.powi(2)
+    } else {
+        1.0
+    };
+    let c = &cal.covariance * scale;
+    let cov: Vec<Vec<f64>> = (0..n)
+        .map(|a| {
+            (0..n)
+                .map(|b| {
+                    let mut s = 0.0;
+                    for k in 0..nf {
+                        for l in 0..nf {
+                            s += jac[a][k] * c.get((k, l)).copied().unwrap_or(0.0) * jac[b][l];
+                        }
+                    }
+                    s
+                })
+                .collect()
+        })
+        .collect();
+    let sd: Vec<f64> = (0..n).map(|i| cov[i][i].max(0.0).sqrt()).collect();
+    let correlation = (0..n)
+        .map(|a| {
+            (0..n)
+                .map(|b| {
+                    if sd[a] > 0.0 && sd[b] > 0.0 {
+                        (cov[a][b] / (sd[a] * sd[b])).clamp(-1.0, 1.0)
+                    } else {
+                        0.0
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    for (v, s) in values.iter_mut().zip(&sd) {
+        v.sigma = Some(*s);
+    }
+    Ok(Written {
+        values,
+        correlation,
+        jacobian: jac,
+    })
+}
+
+/// The bed's tilt parameters, which every firmware's probe model has.
+const TILT: [&str; 2] = ["bed.rx", "bed.ry"];
+
+/// The checks of a printer's calibration and the values it writes:
+/// written values correlated beyond [`MAX_CORRELATION`], σ beyond
+/// `max_sigma` (in each value's unit), and a bed tilt the data show that
+/// the fit left out (its score test at [`pkmcal::identify::OMITTED_ALPHA`]).
+pub fn checks<F: Firmware + ?Sized>(
+    firmware: &F,
+    calibrated: &PrinterCalibration,
+    written: &Written,
+    max_sigma: f64,
+) -> Result<Vec<FirmwareWarning>> {
+    let spec = calibrated.mech.spec();
+    let readings = &calibrated.readings;
+    let cal = calibrated.calibration();
+    let values = &written.values;
+    let sigma = |i: usize| values[i].sigma.unwrap_or(0.0);
+    let mut out = vec![];
+    // The free parameter a value moves most over its uncertainty.
+    let all = readings.measurement.all_names(spec);
+    let dominant = |i: usize| -> Option<(usize, f64)> {
+        written.jacobian[i]
+            .iter()
+            .enumerate()
+            .map(|(k, g)| {
+                let sd = cal
+                    .covariance
+                    .get((k, k))
+                    .map_or(0.0, |v| v.max(0.0).sqrt());
+                (k, (g * sd).abs())
+            })
+            .filter(|(_, w)| *w > 0.0)
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+    };
+    let own = firmware.default_free(spec, readings);
+    // The written values' pairs, then the free parameters' (named by the
+    // value each writes: the one whose sensitivities it has the largest
+    // share of, `arm_a` the arm length rather than the endstop it moves
+    // too).
+    let mut pairs: Vec<(usize, usize, f64, Option<[usize; 2]>)> = vec![];
+    for a in 0..values.len() {
+        for b in a + 1..values.len() {
+            let r = written.correlation[a][b];
+            if r.abs() > MAX_CORRELATION && sigma(a) > 0.0 && sigma(b) > 0.0 {
+                pairs.push((a, b, r, None));
+            }
+        }
+    }
+    let sd = |k: usize| {
+        cal.covariance
+            .get((k, k))
+            .map_or(0.0, |v| v.max(0.0).sqrt())
+    };
+    let writes = |k: usize| -> Option<usize> {
+        (0..values.len())
+            .map(|i| {
+                let part = |l: usize| (written.jacobian[i][l] * sd(l)).powi(2);
+                let all: f64 = (0..cal.free.len()).map(part).sum();
+                (i, if all > 0.0 { part(k) / all } else { 0.0 })
+            })
+            .filter(|(_, w)| *w > 0.0)
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(i, _)| i)
+    };
+    for ka in 0..cal.free.len() {
+        for kb in ka + 1..cal.free.len() {
+            let (va, vb) = (sd(ka), sd(kb));
+            let r = cal.covariance.get((ka, kb)).copied().unwrap_or(0.0) / (va * vb);
+            if r.is_nan() || r.abs() <= MAX_CORRELATION {
+                continue;
+            }
+            let (Some(a), Some(b)) = (writes(ka), writes(kb)) else {
+                continue;
+            };
+            if a != b && !pairs.iter().any(|p| (p.0, p.1) == (a.min(b), a.max(b))) {
+                pairs.push((a, b, r, Some([ka, kb])));
+            }
+        }
+    }
+    pairs.sort_by(|x, y| y.2.abs().total_cmp(&x.2.abs()));
+    // The written values' pairs joined into groups (a shoulder height and
+    // three endstops that all move together are one warning).
+    let mut group: Vec<usize> = (0..values.len()).collect();
+    fn root(group: &mut [usize], mut i: usize) -> usize {
+        while group[i] != i {
+            group[i] = group[group[i]];
+            i = group[i];
+        }
+        i
+    }
+    for &(a, b, _, params) in &pairs {
+        if params.is_none() {
+            let (ra, rb) = (root(&mut group, a), root(&mut group, b));
+            group[ra.max(rb)] = ra.min(rb);
+        }
+    }
+    let mut said: Vec<usize> = vec![];
+    for &(a, b, r, params) in &pairs {
+        let (members, links): (Vec<usize>, Vec<f64>) = match params {
+            Some(_) => (vec![a, b], vec![r.abs()]),
+            None => {
+                let g = root(&mut group, a);
+                if said.contains(&g) {
+                    continue;
+                }
+                said.push(g);
+                let members: Vec<usize> = (0..values.len())
+                    .filter(|&i| root(&mut group, i) == g)
+                    .collect();
+                let links = pairs
+                    .iter()
+                    .filter(|p| p.3.is_none() && members.contains(&p.0))
+                    .map(|p| p.2.abs())
+                    .collect();
+                (members, links)
+            }
+        };
+        // The parameter to keep fixed: one the firmware's own fit does not
+        // free, else the one behind the least certain value.
+        let behind: Vec<(usize, usize)> = match params {
+            Some([ka, kb]) => vec![(a, ka), (b, kb)],
+            None => members
+                .iter()
+                .filter_map(|&i| dominant(i).map(|(k, _)| (i, k)))
+                .collect(),
+        };
+        let Some(fix) = behind
+            .iter()
+            .max_by(|x, y| {
+                let outside = |k: usize| !own.contains(&all[cal.free[k]]);
+                (outside(x.1), sigma(x.0))
+                    .partial_cmp(&(outside(y.1), sigma(y.0)))
+                    .unwrap_or(std::cmp::Ordering::Equal)
+            })
+            .map(|(_, k)| all[cal.free[*k]].clone())
+        else {
+            continue;
+        };
+        out.push(FirmwareWarning::Correlated {
+            values: members.iter().map(|&i| values[i].name.clone()).collect(),
+            parameters: params
+                .map(|[ka, kb]| [all[cal.free[ka]].clone(), all[cal.free[kb]].clone()]),
+            r,
+            weakest: links.iter().copied().fold(f64::INFINITY, f64::min),
+            heights: readings.poses.len(),
+            distances: readings.distances.len(),
+            separation: firmware.separation(),
+            fix,
+        });
+    }
+    let uncertain: Vec<(String, f64, &'static str)> = values
+        .iter()
+        .filter_map(|v| {
+            v.sigma
+                .filter(|s| *s > max_sigma)
+                .map(|s| (v.name.clone(), s, v.unit))
+        })
+        .collect();
+    if !uncertain.is_empty() {
+        out.push(FirmwareWarning::Uncertain {
+            values: uncertain,
+            limit: max_sigma,
+        });
+    }
+    if let Some(w) = tilt_absorbed(firmware, calibrated, written)? {
+        out.push(w);
+    }
+    Ok(out)
+}
+
+/// The bed tilt the fit left out, when its score test says the probe
+/// heights show it.
+fn tilt_absorbed<F: Firmware + ?Sized>(
+    firmware: &F,
+    calibrated: &PrinterCalibration,
+    written: &Written,
+) -> Result<Option<FirmwareWarning>> {
+    let spec = calibrated.mech.spec();
+    let readings = &calibrated.readings;
+    let cal = calibrated.calibration();
+    let measurement = &readings.measurement;
+    let Ok(tilt) = TILT
+        .iter()
+        .map(|n| measurement.index_of(spec, n))
+        .collect::<pkmcal::Result<Vec<usize>>>()
+    else {
+        return Ok(None);
+    };
+    if tilt.iter().any(|j| cal.free.contains(j)) {
+        return Ok(None);
+    }
+    let data: Vec<Measurement> = readings
+        .poses
+        .iter()
+        .chain(&readings.distances)
+        .filter(|m| m.origin.is_none_or(|o| !cal.dropped.contains(&o)))
+        .cloned()
+        .collect();
+    let problem = pkmcal::identify::IdentificationProblem::new(
+        &calibrated.mech,
+        measurement,
+        &data,
+        cal.model,
+        &[],
+    )?;
+    let Some(t) = pkmcal::identify::omitted_test(&problem, cal, &tilt)? else {
+        return Ok(None);
+    };
+    if t.p.is_nan() || t.p >= pkmcal::identify::OMITTED_ALPHA || t.indices.len() != tilt.len() {
+        return Ok(None);
+    }
+    let (rx, ry) = (t.values[0], t.values[1]);
+    // The plane `h = bed.z − x·tan(bed.ry) + y·tan(bed.rx)`.
+    let slopes = [-ry.tan(), rx.tan()];
+    let mut absorbed: Vec<(String, f64, &'static str)> = written
+        .values
+        .iter()
+        .zip(&written.jacobian)
+        .map(|(v, g)| {
+            let moved: f64 = g.iter().zip(&t.free_shift).map(|(g, d)| g * d).sum();
+            (v.name.clone(), -moved, v.unit)
+        })
+        .filter(|(_, d, _)| d.is_finite() && *d != 0.0)
+        .collect();
+    absorbed.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
+    absorbed.truncate(ABSORBED_LISTED);
+    Ok(Some(FirmwareWarning::TiltAbsorbed {
+        firmware: firmware.name(),
+        slopes,
+        p: t.p,
+        share: t.share,
+        absorbed,
+        place: firmware.tilt_place(),
+    }))
 }
 
 /// Height errors (mm) of every probe reading for the printer's parameters

@@ -16,12 +16,15 @@
 //! mean 0 (its `NormaliseEndstopAdjustments`), the bed's tilts as `A B`.
 
 use super::klipper::{KLIPPER_FREE, KlipperDelta, SHARED_ARM};
-use super::{Firmware, FirmwareValue, Readings};
+use super::{Firmware, FirmwareValue, Readings, TiltPlace};
 use crate::csv::Csv;
 use crate::error::{Error, Result};
 use crate::{invalid, refuse};
 use pkmcal::{Field, MeasurementModel, Params, Request, RequestError};
 use std::path::{Path, PathBuf};
+
+mod script;
+pub use script::{MAX_EXPRESSION_DEPTH, MAX_ITERATIONS, MAX_MACRO_DEPTH};
 
 /// RepRapFirmware's standard tower angles (degrees), before corrections.
 const STANDARD_ANGLES: [f64; 3] = [210.0, 330.0, 90.0];
@@ -215,69 +218,205 @@ impl RrfDelta {
 }
 
 /// The delta settings of a RepRapFirmware G-code file (`config.g`,
-/// `config-override.g`): every `M665` and `M666` in order, later ones
-/// overriding, other lines ignored; RepRapFirmware's defaults for what no
-/// line sets. `M501` (load `config-override.g`) is refused: read the file
-/// with [`delta_from_config_file`], which follows it as the firmware does.
+/// `config-override.g`), read as the firmware runs it ([`script`]): its
+/// `M665` and `M666` commands in order, later ones overriding, through its
+/// variables, expressions and blocks; RepRapFirmware's defaults for what no
+/// command sets. A macro (`M98`, `M501`) is refused: read the file with
+/// [`delta_from_config_file`], which follows them as the firmware does.
 pub fn delta_from_gcode(text: &str, file: &str) -> Result<RrfDelta> {
-    delta_from_text(text, file, &mut |n| {
-        refuse!(
-            file,
-            Some((n) as u64),
-            "M501 loads config-override.g, whose M665/M666 values the firmware runs; give the configuration's path so that it can be read beside it"
-        )
+    delta_from_text(text, Path::new(file), &mut |name, cmd| {
+        Err(cmd.error(format!(
+            "`{}` runs {name}, whose commands the firmware runs there; give the configuration's path so that it can be read beside it",
+            cmd.text
+        )))
     })
 }
 
 /// The name of the file `M501` loads, beside `config.g`.
 pub const OVERRIDE_FILE: &str = "config-override.g";
 
+/// The file a macro call names (`M98 P"name"`; `config-override.g` for
+/// `M501`), for a configuration in `dir` standing for the card's `/sys`: a
+/// relative name or one in `/sys` beside it; another absolute one (`/macros/
+/// x.g`, `0:/macros/x.g`) in the card's folder above `dir`, when `dir` is
+/// named `sys` as on the card.
+fn macro_path(dir: &Path, name: &str) -> std::result::Result<PathBuf, String> {
+    let name = name.trim();
+    let bare = name
+        .strip_prefix("0:")
+        .or_else(|| name.strip_prefix("1:"))
+        .unwrap_or(name);
+    let Some(absolute) = bare.strip_prefix('/') else {
+        return Ok(dir.join(bare));
+    };
+    if let Some(sys) = absolute.strip_prefix("sys/") {
+        return Ok(dir.join(sys));
+    }
+    let on_card = dir
+        .file_name()
+        .is_some_and(|f| f.eq_ignore_ascii_case("sys"));
+    match dir.parent() {
+        Some(card) if on_card => Ok(card.join(absolute)),
+        _ => Err(format!(
+            "{name} is on the card outside /sys; copy the card's folders as they are (sys/ and the folder of {name}) and give the configuration as sys/{}",
+            "config.g"
+        )),
+    }
+}
+
 /// The delta settings the firmware runs after `config.g` at `path`: its
-/// `M665`/`M666` lines in order, and at an `M501` line those of
-/// `config-override.g` in the same folder (as RepRapFirmware loads it from
-/// `/sys`), later lines overriding earlier ones. A missing
-/// `config-override.g` after `M501` is an error naming both: the geometry
-/// would otherwise be stale and undo the saved calibration.
+/// `M665`/`M666` commands in order, and those of the macros it runs (`M98
+/// P"file"`, and at `M501` `config-override.g`) at their place, read from
+/// the configuration's folder (which stands for the card's `/sys`); later
+/// commands override earlier ones. A macro that cannot be read is an error
+/// naming the line and the file: the geometry would otherwise be stale and
+/// undo the saved calibration.
 pub fn delta_from_config_file(run: &crate::Run<'_>, path: &std::path::Path) -> Result<RrfDelta> {
     let text = run
         .files
         .read_to_string(path, crate::output::InputKind::Description)?;
-    let file = path.display().to_string();
-    let override_path = path
-        .parent()
-        .unwrap_or(std::path::Path::new("."))
-        .join(OVERRIDE_FILE);
-    delta_from_text(&text, &file, &mut |n| {
-        if path.file_name().is_some_and(|f| f == OVERRIDE_FILE) {
-            refuse!(
-                file,
-                Some((n) as u64),
-                "M501 inside {OVERRIDE_FILE} itself; remove that line"
-            );
+    let dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
+    let config = path.display().to_string();
+    delta_from_text(&text, path, &mut |name, cmd| {
+        let place = format!("{}:{}", cmd.file.display(), cmd.line);
+        if cmd.code == ('M', 98) && !cmd.text.contains(['"', '{']) {
+            return Err(cmd.error(format!(
+                "`{}`: RepRapFirmware 3 takes a macro's name in quotes and refuses this line (version 2 ran the rest of the line as the name); write M98 P\"{name}\" if the printer runs version 2, or remove the line",
+                cmd.text
+            )));
         }
+        let file = macro_path(&dir, name).map_err(|e| cmd.error(format!("`{}`: {e}", cmd.text)))?;
         let t = run
             .files
-            .read_to_string(&override_path, crate::output::InputKind::Description)
+            .read_to_string(&file, crate::output::InputKind::Description)
             .map_err(|e| {
-                e.context(format!(
-                    "{file}:{n}: M501 loads {OVERRIDE_FILE}, which holds the calibration the firmware runs, but {} cannot be read; copy it from the printer's /sys folder beside {file}, or remove the M501 line if the printer has none",
-                    override_path.display()
-                ))
+                e.context(if cmd.code == ('M', 501) {
+                    format!(
+                        "{place}: M501 loads {OVERRIDE_FILE}, which holds the calibration the firmware runs, but {} cannot be read; copy it from the printer's /sys folder beside {config}, or remove the M501 line if the printer has none",
+                        file.display()
+                    )
+                } else {
+                    format!(
+                        "{place}: `{}` runs {}, whose commands may set the delta's geometry, but it cannot be read; copy it from the printer's card beside {config} as the card holds it, or remove the line if the printer has no such file",
+                        cmd.text,
+                        file.display()
+                    )
+                })
             })?;
-        Ok(Some((t, override_path.display().to_string())))
+        Ok((t, file))
     })
 }
 
-/// The walk of [`delta_from_gcode`]: `m501(line)` gives the text and name
-/// of the file `M501` loads (its lines applied at that line), or an error.
-fn delta_from_text(
-    text: &str,
-    file: &str,
-    m501: &mut dyn FnMut(usize) -> Result<Option<(String, String)>>,
-) -> Result<RrfDelta> {
-    let mut d = RrfDelta::default();
-    let seen = apply_lines(&mut d, text, file, m501, &mut Globals::new())?;
-    if !seen {
+/// The text and path of the macro a command runs (by the name it gives).
+type OpenMacro<'a> = dyn FnMut(&str, &script::Command<'_>) -> Result<(String, PathBuf)> + 'a;
+
+/// The commands of a run that set the delta: `M665` and `M666`.
+struct Settings<'a> {
+    delta: RrfDelta,
+    /// Whether any was run.
+    seen: bool,
+    /// The macro files, by name.
+    open: &'a mut OpenMacro<'a>,
+}
+
+impl script::Host for Settings<'_> {
+    fn reads(&self, code: (char, u32)) -> bool {
+        matches!(code, ('M', 665 | 666))
+    }
+
+    fn command(&mut self, cmd: &script::Command<'_>) -> Result<()> {
+        if !self.reads(cmd.code) {
+            return Ok(());
+        }
+        self.seen = true;
+        apply(&mut self.delta, cmd)
+    }
+
+    fn open(&mut self, name: &str, cmd: &script::Command<'_>) -> Result<(String, PathBuf)> {
+        (self.open)(name, cmd)
+    }
+}
+
+/// Apply an `M665` or `M666` command to `d`, each parameter read as the
+/// firmware reads it (the first of a letter); what the firmware could not
+/// hold refused with its line.
+fn apply(d: &mut RrfDelta, cmd: &script::Command<'_>) -> Result<()> {
+    if cmd.has_parenthesis() {
+        return Err(cmd.error(format!(
+            "`{}`: RepRapFirmware (in its 3D printer mode) reads the letters inside ( ) as parameters, not as a comment; use a `;` comment at the end of the line",
+            cmd.text
+        )));
+    }
+    let m665 = cmd.code == ('M', 665);
+    let letters: &[char] = if m665 {
+        &['L', 'R', 'H', 'B', 'X', 'Y', 'Z']
+    } else {
+        &['X', 'Y', 'Z', 'A', 'B']
+    };
+    for &letter in letters {
+        let Some((values, word)) = cmd.floats(letter)? else {
+            continue;
+        };
+        // What the firmware could hold: lengths within 100 m, angle
+        // corrections within a turn, tilts within 100 %.
+        let limit = match (m665, letter) {
+            (true, 'X' | 'Y' | 'Z') => 360.0,
+            (false, 'A' | 'B') => 100.0,
+            _ => 1e5,
+        };
+        if let Some(v) = values.iter().find(|v| !(v.is_finite() && v.abs() <= limit)) {
+            return Err(cmd.error(format!(
+                "`{word}` in `{}`: {letter} = {v} is beyond what a printer holds (at most {limit} in size)",
+                cmd.text
+            )));
+        }
+        let one = || -> Result<f64> {
+            if values.len() == 1 {
+                Ok(values[0])
+            } else {
+                Err(cmd.error(format!("`{word}`: {letter} takes one value, not a list")))
+            }
+        };
+        match (m665, letter) {
+            (true, 'L') => {
+                d.diagonals = match values.len() {
+                    1 => [values[0]; 3],
+                    3 => [values[0], values[1], values[2]],
+                    _ => {
+                        return Err(cmd.error(
+                            "M665 L takes one diagonal or three (L215:215.2:214.9); more towers are not supported",
+                        ));
+                    }
+                }
+            }
+            (true, 'R') => d.radius = one()?,
+            (true, 'H') => d.homed_height = one()?,
+            (true, 'B') => d.print_radius = one()?,
+            (true, 'X') => d.corrections[0] = one()?,
+            (true, 'Y') => d.corrections[1] = one()?,
+            (true, 'Z') => d.corrections[2] = one()?,
+            (false, 'X') => d.endstops[0] = one()?,
+            (false, 'Y') => d.endstops[1] = one()?,
+            (false, 'Z') => d.endstops[2] = one()?,
+            (false, 'A') => d.tilt[0] = one()? * 0.01,
+            (false, 'B') => d.tilt[1] = one()? * 0.01,
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
+/// The run of [`delta_from_gcode`]: `open(name, command)` gives the text
+/// and path of the macro a command runs, or an error.
+fn delta_from_text(text: &str, file: &Path, open: &mut OpenMacro<'_>) -> Result<RrfDelta> {
+    let mut settings = Settings {
+        delta: RrfDelta::default(),
+        seen: false,
+        open,
+    };
+    script::run(text, file, &mut settings)?;
+    let d = settings.delta;
+    if !settings.seen {
         refuse!(
             file,
             None,
@@ -295,347 +434,6 @@ fn delta_from_text(
         );
     }
     Ok(d)
-}
-
-/// The words of a G-code line, as the firmware reads them with or without
-/// spaces between them (`M665 L361 R180` and `M665L361R180`): a letter
-/// starts a word, its number runs to the next letter.
-fn words_of(line: &str) -> Vec<String> {
-    let mut out: Vec<String> = vec![];
-    let chars: Vec<char> = line.chars().collect();
-    for (i, &c) in chars.iter().enumerate() {
-        // An exponent (`1e3`) stays in its number, to be refused there.
-        let exponent = matches!(c, 'e' | 'E')
-            && i > 0
-            && chars[i - 1].is_ascii_digit()
-            && chars
-                .get(i + 1)
-                .is_some_and(|n| n.is_ascii_digit() || *n == '-' || *n == '+');
-        if c.is_ascii_alphabetic() && !exponent {
-            out.push(c.to_string());
-        } else if c.is_whitespace() {
-            continue;
-        } else if let Some(w) = out.last_mut() {
-            w.push(c);
-        } else {
-            out.push(c.to_string());
-        }
-    }
-    // `M665`: the code is a letter and its digits, like any word.
-    out
-}
-
-/// RepRapFirmware 3's global variables met so far: a number, or why the
-/// expression that set it is not one pkmcal evaluates.
-type Globals = std::collections::HashMap<String, std::result::Result<f64, String>>;
-
-/// The `{…}` expressions of a G-code line replaced by their values (at full
-/// precision), or why one cannot be evaluated.
-fn substitute(line: &str, globals: &Globals) -> std::result::Result<String, String> {
-    let mut out = String::with_capacity(line.len());
-    let mut rest = line;
-    while let Some(open) = rest.find('{') {
-        out.push_str(&rest[..open]);
-        let Some(close) = rest[open..].find('}') else {
-            return Err(format!("`{}` has no closing brace", &rest[open..]));
-        };
-        let expr = &rest[open + 1..open + close];
-        let v = eval(expr, globals)?;
-        out.push_str(&format!("{v:?}"));
-        rest = &rest[open + close + 1..];
-    }
-    out.push_str(rest);
-    Ok(out)
-}
-
-/// The value of a RepRapFirmware expression as far as pkmcal evaluates
-/// one: numbers, `global.` variables set to numbers, `+ - * /` and
-/// parentheses. Anything else (the object model, `var`, functions, strings)
-/// is refused by name: the firmware's value is not known here.
-fn eval(expr: &str, globals: &Globals) -> std::result::Result<f64, String> {
-    struct P<'a> {
-        s: &'a [u8],
-        i: usize,
-        globals: &'a Globals,
-        expr: &'a str,
-    }
-    impl P<'_> {
-        fn ws(&mut self) {
-            while self.s.get(self.i).is_some_and(u8::is_ascii_whitespace) {
-                self.i += 1;
-            }
-        }
-        fn sum(&mut self) -> std::result::Result<f64, String> {
-            let mut v = self.product()?;
-            loop {
-                self.ws();
-                match self.s.get(self.i) {
-                    Some(b'+') => {
-                        self.i += 1;
-                        v += self.product()?;
-                    }
-                    Some(b'-') => {
-                        self.i += 1;
-                        v -= self.product()?;
-                    }
-                    _ => return Ok(v),
-                }
-            }
-        }
-        fn product(&mut self) -> std::result::Result<f64, String> {
-            let mut v = self.unary()?;
-            loop {
-                self.ws();
-                match self.s.get(self.i) {
-                    Some(b'*') => {
-                        self.i += 1;
-                        v *= self.unary()?;
-                    }
-                    Some(b'/') => {
-                        self.i += 1;
-                        v /= self.unary()?;
-                    }
-                    _ => return Ok(v),
-                }
-            }
-        }
-        fn unary(&mut self) -> std::result::Result<f64, String> {
-            self.ws();
-            match self.s.get(self.i) {
-                Some(b'-') => {
-                    self.i += 1;
-                    Ok(-self.unary()?)
-                }
-                Some(b'+') => {
-                    self.i += 1;
-                    self.unary()
-                }
-                Some(b'(') => {
-                    self.i += 1;
-                    let v = self.sum()?;
-                    self.ws();
-                    if self.s.get(self.i) != Some(&b')') {
-                        return Err(format!("`{}`: a `(` is not closed", self.expr));
-                    }
-                    self.i += 1;
-                    Ok(v)
-                }
-                Some(c) if c.is_ascii_digit() || *c == b'.' => {
-                    let start = self.i;
-                    while self
-                        .s
-                        .get(self.i)
-                        .is_some_and(|c| c.is_ascii_digit() || *c == b'.')
-                    {
-                        self.i += 1;
-                    }
-                    let t = std::str::from_utf8(&self.s[start..self.i]).unwrap_or("");
-                    t.parse()
-                        .map_err(|_| format!("`{}`: `{t}` is not a number", self.expr))
-                }
-                Some(c) if c.is_ascii_alphabetic() || *c == b'_' => {
-                    let start = self.i;
-                    while self.s.get(self.i).is_some_and(|c| {
-                        c.is_ascii_alphanumeric() || matches!(c, b'_' | b'.' | b'[' | b']')
-                    }) {
-                        self.i += 1;
-                    }
-                    let name = std::str::from_utf8(&self.s[start..self.i]).unwrap_or("");
-                    match name.strip_prefix("global.") {
-                        Some(g) => match self.globals.get(g) {
-                            Some(Ok(v)) => Ok(*v),
-                            Some(Err(why)) => Err(format!(
-                                "`{name}` cannot be evaluated where it is set: {why}"
-                            )),
-                            None => Err(format!(
-                                "`{name}` is used before any `global {g} = …` sets it"
-                            )),
-                        },
-                        None => Err(format!(
-                            "`{name}` in `{}` is the firmware's own state (its object model or a local variable), whose value pkmcal cannot know; write the number there",
-                            self.expr
-                        )),
-                    }
-                }
-                _ => Err(format!(
-                    "`{}` is not an expression pkmcal evaluates (numbers, global variables, + - * / and parentheses); write the number there",
-                    self.expr
-                )),
-            }
-        }
-    }
-    let mut p = P {
-        s: expr.as_bytes(),
-        i: 0,
-        globals,
-        expr,
-    };
-    let v = p.sum()?;
-    p.ws();
-    if p.i != p.s.len() {
-        return Err(format!(
-            "`{expr}` is not an expression pkmcal evaluates (numbers, global variables, + - * / and parentheses); write the number there"
-        ));
-    }
-    if !v.is_finite() {
-        return Err(format!("`{expr}` is not a finite number"));
-    }
-    Ok(v)
-}
-
-/// Apply the `M665`/`M666` lines of `text` to `d` in order (and, at `M501`,
-/// those of the file `m501` loads); whether any was found.
-fn apply_lines(
-    d: &mut RrfDelta,
-    text: &str,
-    file: &str,
-    m501: &mut dyn FnMut(usize) -> Result<Option<(String, String)>>,
-    globals: &mut Globals,
-) -> Result<bool> {
-    let mut seen = false;
-    for (n, raw) in text.lines().enumerate() {
-        // A byte-order mark, a line number (`N10`) and a checksum (`*71`)
-        // are not part of the command.
-        let raw = if n == 0 {
-            raw.trim_start_matches('\u{feff}')
-        } else {
-            raw
-        };
-        let line = raw.split(';').next().unwrap_or("").trim();
-        // A checksum is `*` and digits at the end; a `*` elsewhere
-        // multiplies in an expression.
-        let line = match line.rsplit_once('*') {
-            Some((head, sum))
-                if !sum.trim().is_empty() && sum.trim().chars().all(|c| c.is_ascii_digit()) =>
-            {
-                head.trim()
-            }
-            _ => line,
-        };
-        // RepRapFirmware 3's variables: `global name = expression` and
-        // `set global.name = expression`, used as `{global.name}` in a
-        // parameter.
-        if let Some(rest) = line
-            .strip_prefix("global ")
-            .or_else(|| line.strip_prefix("set global."))
-        {
-            if let Some((name, expr)) = rest.split_once('=') {
-                globals.insert(name.trim().to_string(), eval(expr.trim(), globals));
-            }
-            continue;
-        }
-        let substituted;
-        let line = if line.contains('{') {
-            substituted = substitute(line, globals)
-                .map_err(|e| Error::at(Path::new(file), Some(n as u64 + 1), e))?;
-            substituted.as_str()
-        } else {
-            line
-        };
-        let owned = words_of(line);
-        let mut words = owned.iter().map(String::as_str);
-        let mut code = words.next().unwrap_or("").to_ascii_uppercase();
-        if code.starts_with('N') && code[1..].chars().all(|c| c.is_ascii_digit()) {
-            code = words.next().unwrap_or("").to_ascii_uppercase();
-        }
-        if code.is_empty() {
-            continue;
-        }
-        if code == "M501" {
-            if let Some((t, f)) = m501(n + 1)? {
-                seen |= apply_lines(
-                    d,
-                    &t,
-                    &f,
-                    &mut |k| {
-                        refuse!(
-                            f,
-                            Some((k) as u64),
-                            "M501 inside {OVERRIDE_FILE} itself; remove that line"
-                        )
-                    },
-                    globals,
-                )?;
-            }
-            continue;
-        }
-        if code != "M665" && code != "M666" {
-            continue;
-        }
-        seen = true;
-        for w in words {
-            let mut chars = w.chars();
-            let Some(letter) = chars.next().map(|c| c.to_ascii_uppercase()) else {
-                continue;
-            };
-            let value = chars.as_str();
-            let bad = || {
-                Error::at(
-                    Path::new(file),
-                    Some(n as u64 + 1),
-                    format!(
-                        "`{w}` in `{line}`: the value of {letter} must be a number{}",
-                        if letter == 'L' {
-                            " or three separated by ':'"
-                        } else {
-                            ""
-                        }
-                    ),
-                )
-            };
-            let number = |v: &str| -> Result<f64> {
-                v.parse::<f64>()
-                    .ok()
-                    .filter(|x| x.is_finite())
-                    .ok_or_else(bad)
-            };
-            // What the firmware could hold: lengths within 100 m, angle
-            // corrections within a turn, tilts within 100 %.
-            let limit = match (code.as_str(), letter) {
-                ("M665", 'X' | 'Y' | 'Z') => 360.0,
-                ("M666", 'A' | 'B') => 100.0,
-                _ => 1e5,
-            };
-            let number = |v: &str| -> Result<f64> {
-                let x = number(v)?;
-                if x.abs() > limit {
-                    refuse!(
-                        file,
-                        Some((n + 1) as u64),
-                        "`{w}` in `{line}`: {letter} = {v} is beyond what a printer holds (at most {limit} in size)"
-                    );
-                }
-                Ok(x)
-            };
-            match (code.as_str(), letter) {
-                ("M665", 'L') => {
-                    let v: Vec<f64> = value.split(':').map(number).collect::<Result<_>>()?;
-                    d.diagonals = match v.len() {
-                        1 => [v[0]; 3],
-                        3 => [v[0], v[1], v[2]],
-                        _ => refuse!(
-                            file,
-                            Some((n + 1) as u64),
-                            "M665 L takes one diagonal or three (L215:215.2:214.9); more towers are not supported"
-                        ),
-                    };
-                }
-                ("M665", 'R') => d.radius = number(value)?,
-                ("M665", 'H') => d.homed_height = number(value)?,
-                ("M665", 'B') => d.print_radius = number(value)?,
-                ("M665", 'X') => d.corrections[0] = number(value)?,
-                ("M665", 'Y') => d.corrections[1] = number(value)?,
-                ("M665", 'Z') => d.corrections[2] = number(value)?,
-                ("M666", 'X') => d.endstops[0] = number(value)?,
-                ("M666", 'Y') => d.endstops[1] = number(value)?,
-                ("M666", 'Z') => d.endstops[2] = number(value)?,
-                ("M666", 'A') => d.tilt[0] = number(value)? * 0.01,
-                ("M666", 'B') => d.tilt[1] = number(value)? * 0.01,
-                _ => {}
-            }
-        }
-    }
-    Ok(seen)
 }
 
 /// A RepRapFirmware printer: the configuration's path, its delta as the
@@ -751,6 +549,13 @@ impl RrfPrinter {
 }
 
 impl Firmware for RrfPrinter {
+    fn tilt_place(&self) -> TiltPlace {
+        TiltPlace::Values {
+            values: "M666 A B",
+            free: vec!["bed.rx".into(), "bed.ry".into()],
+        }
+    }
+
     fn name(&self) -> &'static str {
         "RepRapFirmware"
     }
@@ -852,6 +657,7 @@ impl Firmware for RrfPrinter {
                 before: a,
                 after: b,
                 unit,
+                sigma: None,
             })
         };
         for (i, (w, _)) in TOWERS.iter().enumerate() {

@@ -1,10 +1,11 @@
 """pkmcal: kinematic calibration of (redundantly actuated) parallel mechanisms.
 
 A mechanism (the built-in reference, or a TOML description), commands and
-measured positions as NumPy arrays in, identified parameters with their
-uncertainties, identifiability, before/after accuracy, figures and corrected
-commands out. Arrays are in mm, rad, N and N·m; pose numbers in results and
-exceptions are row indices (from 0) of the arrays given.
+measured positions as NumPy arrays or pandas DataFrames in, identified
+parameters with their uncertainties, identifiability, before/after accuracy,
+figures and corrected commands out. Arrays are in mm, rad, N and N·m; pose
+numbers in results and exceptions are row indices (from 0) of the arrays
+given.
 
 >>> import pkmcal
 >>> mech = pkmcal.Mechanism()                      # the built-in reference
@@ -15,17 +16,25 @@ exceptions are row indices (from 0) of the arrays given.
 280.3
 
 Functions: predict, nominal_commands, simulate, calibrate, analyze,
-compensate, plan, montecarlo, budget, drift, trilaterate. Classes: Mechanism, Calibration,
-Identifiability, ErrorStats, Warning, Figure, Prediction, Compensation, Plan,
-MonteCarlo, Budget, Drift, SavedCalibration. Every result pickles and compares by value.
-Errors: PkmcalError (a ValueError) with the message and ``.pose``. A
-calibration's warnings are also emitted with ``warnings.warn``, once per call,
-as PkmcalWarning (a UserWarning) subclasses: ConvergenceWarning,
-IdentifiabilityWarning, OutlierWarning, ToleranceWarning, ModelWarning. Arrays with named columns (a pandas
-DataFrame, a NumPy structured array) are read by name.
+compensate, plan, montecarlo, budget, drift, trilaterate, load_calibration,
+set_threads. Option groups: Instrument, Solver, Validation. Classes:
+Mechanism, Calibration, Identifiability, ErrorStats, Warning, Figure,
+Prediction, Compensation, Plan, MonteCarlo, Budget, Drift, SavedCalibration.
+Every result pickles and compares by value; those with a table show it in a
+notebook and give it as a pandas DataFrame (``to_pandas()``; pandas is
+optional). Errors: PkmcalError (a ValueError) with the message and
+``.pose``; a file that cannot be read or written raises a subclass that is
+also Python's OSError (FileNotFoundError, PermissionError, …). A
+calibration's warnings are also emitted with ``warnings.warn``, once per
+call, as PkmcalWarning (a UserWarning) subclasses: ConvergenceWarning,
+IdentifiabilityWarning, OutlierWarning, ToleranceWarning, ModelWarning;
+AlignmentWarning when pandas rows given together were in different orders.
+Arrays with named columns (a pandas DataFrame, a NumPy structured array) are
+read by name, a pandas Series by label. Long calls stop on Ctrl-C.
 """
 
 from ._pkmcal import (
+    AlignmentWarning,
     Budget,
     Calibration,
     Compensation,
@@ -40,13 +49,24 @@ from ._pkmcal import (
     MonteCarlo,
     OutlierWarning,
     PkmcalError,
+    PkmcalFileExistsError,
+    PkmcalFileNotFoundError,
+    PkmcalIsADirectoryError,
+    PkmcalNotADirectoryError,
+    PkmcalOSError,
+    PkmcalPermissionError,
     PkmcalWarning,
-    ToleranceWarning,
     Plan,
     Prediction,
     SavedCalibration,
+    ToleranceWarning,
     Warning,
     __version__,
+)
+from ._api import (
+    Instrument,
+    Solver,
+    Validation,
     analyze,
     budget,
     calibrate,
@@ -62,48 +82,10 @@ from ._pkmcal import (
     trilaterate,
 )
 
-import functools as _functools
-import re as _re
-
-_NOTE = _re.compile(r"while processing '(\w+)'")
-
-
-def _naming_arguments(f):  # type: ignore[no-untyped-def]
-    """`f` whose argument conversion errors (a TypeError or OverflowError the
-    binding raises with the note "while processing 'axes'") say the
-    argument's name in their message, not only in the traceback's note."""
-
-    @_functools.wraps(f, assigned=(*_functools.WRAPPER_ASSIGNMENTS, "__text_signature__"))
-    def call(*args, **kwargs):  # type: ignore[no-untyped-def]
-        try:
-            return f(*args, **kwargs)
-        except (TypeError, OverflowError) as e:
-            for note in getattr(e, "__notes__", ()):
-                m = _NOTE.fullmatch(note)
-                if m and not str(e).startswith(m.group(1)):
-                    raise type(e)(f"{m.group(1)}: {e}").with_traceback(e.__traceback__) from None
-            raise
-
-    return call
-
-
-analyze = _naming_arguments(analyze)
-budget = _naming_arguments(budget)
-calibrate = _naming_arguments(calibrate)
-compensate = _naming_arguments(compensate)
-drift = _naming_arguments(drift)
-load_calibration = _naming_arguments(load_calibration)
-montecarlo = _naming_arguments(montecarlo)
-nominal_commands = _naming_arguments(nominal_commands)
-plan = _naming_arguments(plan)
-predict = _naming_arguments(predict)
-set_threads = _naming_arguments(set_threads)
-simulate = _naming_arguments(simulate)
-trilaterate = _naming_arguments(trilaterate)
-
 # `Warning` stays out of `__all__`: `from pkmcal import *` must not shadow
 # Python's builtin `Warning` (it is `pkmcal.Warning`).
 __all__ = [
+    "AlignmentWarning",
     "Budget",
     "Calibration",
     "Compensation",
@@ -113,16 +95,25 @@ __all__ = [
     "Figure",
     "Identifiability",
     "IdentifiabilityWarning",
+    "Instrument",
     "Mechanism",
     "ModelWarning",
     "MonteCarlo",
     "OutlierWarning",
     "PkmcalError",
+    "PkmcalFileExistsError",
+    "PkmcalFileNotFoundError",
+    "PkmcalIsADirectoryError",
+    "PkmcalNotADirectoryError",
+    "PkmcalOSError",
+    "PkmcalPermissionError",
     "PkmcalWarning",
-    "ToleranceWarning",
     "Plan",
     "Prediction",
     "SavedCalibration",
+    "Solver",
+    "ToleranceWarning",
+    "Validation",
     "__version__",
     "analyze",
     "budget",

@@ -27,21 +27,33 @@ use rand::rngs::StdRng;
 use rand_distr::{Distribution, Normal};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use std::sync::atomic::AtomicBool;
 
 pub use crate::identify::prior::{Tolerance, merged_tolerances, resolve_tolerances};
 
 /// The targets a budget takes the error over: `count` of them, a plain grid
 /// over the usable workspace ([`crate::apply::workspace::grid_targets`]).
 pub fn budget_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<Vec<f64>>> {
+    budget_targets_cancellable(mech, count, None)
+}
+
+/// [`budget_targets`], stopped between its lattices once `cancel` is set.
+pub fn budget_targets_cancellable<M: Mechanism>(
+    mech: &M,
+    count: usize,
+    cancel: Option<&AtomicBool>,
+) -> Result<Vec<Vec<f64>>> {
     if count == 0 {
         return Err(Error::InvalidRequest(
             "a budget needs at least one workspace target".into(),
         ));
     }
-    Ok(crate::apply::workspace::grid_targets(mech, count)?
-        .into_iter()
-        .map(|p| p.target)
-        .collect())
+    Ok(
+        crate::apply::workspace::grid_targets_cancellable(mech, count, cancel)?
+            .into_iter()
+            .map(|p| p.target)
+            .collect(),
+    )
 }
 
 /// A calibration planned at design time: the tool measured at these targets
@@ -72,6 +84,12 @@ pub struct BudgetOptions {
 /// Most Monte Carlo samples one budget draws (each is a forward solve per
 /// target).
 pub const MAX_SAMPLES: usize = 1_000_000;
+
+/// A position error RMS below this (mm) is none: what rounding leaves of
+/// an exact zero (a stiffness tolerance without a load gives 1e-15 mm), a
+/// million times below any machine's error. Shares of it and ratios to it
+/// would be noise ("+6042.8 % from first order").
+pub const NEGLIGIBLE_ERROR_MM: f64 = 1e-9;
 
 /// The tool error over the workspace targets: RMS over the targets (and the
 /// samples) of the position error's length (mm) and of each axis.
@@ -124,6 +142,17 @@ pub struct Budget {
     pub after_calibration: Option<ErrorSpread>,
 }
 
+impl Budget {
+    /// The sampled machines' position error RMS relative to first order
+    /// (0.05: 5 % more); `None` without samples, or when first order has
+    /// none ([`NEGLIGIBLE_ERROR_MM`]).
+    pub fn sampled_change(&self) -> Option<f64> {
+        let mc = self.monte_carlo.as_ref()?;
+        (self.first_order.position_rms > NEGLIGIBLE_ERROR_MM)
+            .then(|| mc.position_rms / self.first_order.position_rms - 1.0)
+    }
+}
+
 /// The error spread of first-order covariances `covs` (one per target).
 fn spread_of(covs: &[DMatrix<f64>], units: &[Unit]) -> ErrorSpread {
     let n = covs.len().max(1) as f64;
@@ -148,6 +177,24 @@ pub fn budget<M: Mechanism>(
     tolerances: &[(usize, f64)],
     opts: &BudgetOptions,
 ) -> Result<Budget> {
+    budget_cancellable(mech, targets, tolerances, opts, None)
+}
+
+/// Machines drawn from the tolerances at a time: their errors are summed in
+/// sample order (the same sums as all at once) and the memory stays that
+/// of one block, whatever the number of samples.
+const SAMPLE_BLOCK: usize = 1024;
+
+/// [`budget`], stopped at its next target or sample once `cancel` is set
+/// ([`Error::Cancelled`]).
+pub fn budget_cancellable<M: Mechanism>(
+    mech: &M,
+    targets: &[Vec<f64>],
+    tolerances: &[(usize, f64)],
+    opts: &BudgetOptions,
+    cancel: Option<&AtomicBool>,
+) -> Result<Budget> {
+    let check = || crate::error::check_cancel(cancel);
     let spec = mech.spec();
     if tolerances.is_empty() {
         return Err(Error::InvalidRequest(
@@ -173,6 +220,7 @@ pub fn budget<M: Mechanism>(
         ts.par_iter()
             .enumerate()
             .map(|(k, t)| {
+                check()?;
                 let at = |e: Error| e.at_pose(crate::error::Origin::row(k));
                 let commands = crate::apply::workspace::nominal_commands(mech, t).map_err(at)?;
                 let pose = prepare_pose(mech, &commands, None).map_err(at)?;
@@ -266,35 +314,47 @@ pub fn budget<M: Mechanism>(
             .iter()
             .map(|t| Normal::new(0.0, t.1).expect("a positive σ"))
             .collect();
-        let sums: Vec<Vec<f64>> = (0..opts.samples)
-            .into_par_iter()
-            .map(|s| -> Result<Vec<f64>> {
-                let mut rng = StdRng::seed_from_u64(opts.seed.wrapping_add(s as u64));
-                let mut p = nominal.clone();
-                for (k, &i) in idx.iter().enumerate() {
-                    p.values[i] += normals[k].sample(&mut rng);
+        let sample = |s: usize| -> Result<Vec<f64>> {
+            check()?;
+            let mut rng = StdRng::seed_from_u64(opts.seed.wrapping_add(s as u64));
+            let mut p = nominal.clone();
+            for (k, &i) in idx.iter().enumerate() {
+                p.values[i] += normals[k].sample(&mut rng);
+            }
+            // Per target: squared error of each axis.
+            let mut out = vec![0.0; targets.len() * nx];
+            for (k, ((pose, _), t)) in at_targets.iter().zip(targets).enumerate() {
+                let x = predict_pose(mech, pose, &p, opts.model, &opts.force)
+                    .map_err(|e| e.at_pose(crate::error::Origin::row(k)))?
+                    .x;
+                for a in 0..nx {
+                    let e = x[a] - t[a];
+                    out[k * nx + a] = e * e;
                 }
-                // Per target: squared error of each axis.
-                let mut out = vec![0.0; targets.len() * nx];
-                for (k, ((pose, _), t)) in at_targets.iter().zip(targets).enumerate() {
-                    let x = predict_pose(mech, pose, &p, opts.model, &opts.force)
-                        .map_err(|e| e.at_pose(crate::error::Origin::row(k)))?
-                        .x;
-                    for a in 0..nx {
-                        let e = x[a] - t[a];
-                        out[k * nx + a] = e * e;
-                    }
+            }
+            Ok(out)
+        };
+        // Each target's squared error per axis summed over the samples, in
+        // sample order, a block of samples at a time.
+        let mut sums = vec![0.0; targets.len() * nx];
+        for first in (0..opts.samples).step_by(SAMPLE_BLOCK) {
+            let block: Vec<Vec<f64>> = (first..(first + SAMPLE_BLOCK).min(opts.samples))
+                .into_par_iter()
+                .map(sample)
+                .collect::<Result<_>>()?;
+            for squares in &block {
+                for (sum, e) in sums.iter_mut().zip(squares) {
+                    *sum += e;
                 }
-                Ok(out)
-            })
-            .collect::<Result<_>>()?;
+            }
+        }
         // Each target's mean squared error per axis over the samples: the
         // diagonal `spread_of` reads.
         let per_target: Vec<DMatrix<f64>> = (0..targets.len())
             .map(|k| {
                 DMatrix::from_fn(nx, nx, |a, b| {
                     if a == b {
-                        sums.iter().map(|s| s[k * nx + a]).sum::<f64>() / opts.samples as f64
+                        sums[k * nx + a] / opts.samples as f64
                     } else {
                         0.0
                     }
@@ -312,7 +372,11 @@ pub fn budget<M: Mechanism>(
             name: names[i].to_string(),
             unit: spec.param_unit(i),
             sigma,
-            share: if total > 0.0 { part[k] / total } else { 0.0 },
+            share: if total > 0.0 && first_order.position_rms > NEGLIGIBLE_ERROR_MM {
+                part[k] / total
+            } else {
+                0.0
+            },
             sigma_after: post_sigma.as_ref().map(|s| s[k]),
         })
         .collect();

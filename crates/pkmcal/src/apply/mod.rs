@@ -7,6 +7,7 @@ pub mod compensation;
 pub mod montecarlo;
 pub mod planning;
 pub mod rows;
+mod screening;
 pub mod simulate;
 pub mod tooldrift;
 pub mod workspace;

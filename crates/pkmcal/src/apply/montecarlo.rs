@@ -25,6 +25,13 @@ pub fn validation_targets<M: Mechanism>(
     count: usize,
     seed: u64,
 ) -> Result<Vec<Vec<f64>>> {
+    if count == 0 {
+        return Err(crate::error::RequestError::invalid(
+            crate::error::Field::ValidationTargets,
+            "no validation target asked for; judge the runs on at least 1",
+        )
+        .into());
+    }
     crate::apply::workspace::random_targets(mech, count, seed ^ 0x5eed)
 }
 

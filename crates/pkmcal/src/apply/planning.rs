@@ -2,6 +2,7 @@
 //! observable (greedy selection, then DETMAX-style exchange), on the
 //! information matrix `M = Σ AᵀA` of column-scaled identification Jacobians.
 
+use crate::apply::screening::{REFRESH_UPDATES, Screen, shortlist};
 use crate::apply::workspace::WorkspacePoint;
 use crate::engine::models::{Model, prepare_pose};
 use crate::engine::sensitivity::sensitivity;
@@ -106,7 +107,7 @@ fn scaled_candidates<M: Mechanism>(
 
 /// The [`SCREENED`] candidates (not in `chosen`) with the largest D-optimal
 /// gain `log det(I + A (M + reg·I)⁻¹ Aᵀ)`, in parallel.
-fn screen(c: &Candidates, m: &DMatrix<f64>, reg: f64, chosen: &[usize]) -> Vec<usize> {
+pub(super) fn screen(c: &Candidates, m: &DMatrix<f64>, reg: f64, chosen: &[usize]) -> Vec<usize> {
     let n = m.nrows();
     let mut mr = m.clone();
     for i in 0..n {
@@ -392,8 +393,9 @@ fn observability_of(sv: &[f64], poses: usize) -> (Observability, f64) {
 /// Work (about `candidates × parameters³ × poses`) up to which every
 /// candidate is scored exactly at every step; beyond it each step scores
 /// exactly only the [`SCREENED`] candidates with the largest information
-/// gain `log det(I + A M⁻¹ Aᵀ)` (one triangular solve each), so that planning
-/// a 6-DOF platform with 56 parameters takes seconds, not hours.
+/// gain `log det(I + A M⁻¹ Aᵀ)` (kept up to date by low-rank updates,
+/// `crate::apply::screening`), so that planning a 6-DOF platform with 56
+/// parameters takes a second or two, not hours.
 pub const EXHAUSTIVE_WORK: f64 = 2e9;
 /// Candidates scored exactly per step when screening.
 pub const SCREENED: usize = 24;
@@ -414,17 +416,31 @@ pub fn plan_poses_with_progress(
     tick: &(dyn Fn() + Sync),
 ) -> Result<Vec<usize>> {
     let n = c.rows[0].ncols();
-    crate::on_pool(|| choose(c, count, criterion, tick, None, &DMatrix::zeros(n, n), None))
+    let steps = |_: usize, _: usize| tick();
+    crate::on_pool(|| {
+        choose(
+            c,
+            count,
+            criterion,
+            &steps,
+            None,
+            &DMatrix::zeros(n, n),
+            None,
+        )
+    })
 }
 
 /// [`plan_poses_with_progress`] on the calling thread, stopping with
 /// [`Error::Cancelled`] at the next step once `cancel` is set; with `start`,
 /// the exchanges start from those candidates instead of a greedy selection.
+/// `tick(done, foreseen)` after each greedy step and exchange position: the
+/// steps done and those foreseen (the greedy steps and one exchange pass,
+/// then one pass more each time a pass improved the plan).
 fn choose(
     c: &Candidates,
     count: usize,
     criterion: PlanCriterion,
-    tick: &(dyn Fn() + Sync),
+    tick: &(dyn Fn(usize, usize) + Sync),
     cancel: Option<&std::sync::atomic::AtomicBool>,
     prior: &DMatrix<f64>,
     start: Option<&[usize]>,
@@ -449,36 +465,83 @@ fn choose(
         m += &information(c, i);
     }
     let screening = (nc as f64) * (n as f64).powi(3) * count as f64 > EXHAUSTIVE_WORK;
-    let best_addition = |m: &DMatrix<f64>, chosen: &[usize]| {
-        let pool: Vec<usize> = if screening {
-            screen(c, m, reg, chosen)
-        } else {
-            (0..nc).filter(|i| !chosen.contains(i)).collect()
-        };
-        best_of(c, m, reg, criterion, pool).0
+    // When screening, the candidates' D-optimal gains are kept up to date by
+    // low-rank updates ([`Screen`]) once the chosen poses have as many rows
+    // as parameters; before that the ridge alone bounds `M⁻¹` in some
+    // directions, where updates would lose digits, and each step screens
+    // afresh.
+    let rows = c.rows[0].nrows();
+    let mut kept: Option<Screen> = None;
+    let fresh_if_due = |kept: &mut Option<Screen>, m: &DMatrix<f64>| {
+        if kept.as_ref().is_none_or(|s| s.updates >= REFRESH_UPDATES) {
+            *kept = Screen::fresh(c, m, reg);
+        }
     };
+    let unchosen = |chosen: &[usize]| (0..nc).filter(|i| !chosen.contains(i)).collect();
+    let (mut done, mut foreseen) = (0, count - chosen.len().min(count) + count);
     while chosen.len() < count {
         crate::error::check_cancel(cancel)?;
-        let (_, i) = best_addition(&m, &chosen).expect("enough candidates");
+        let pool: Vec<usize> = if !screening {
+            unchosen(&chosen)
+        } else if chosen.len() * rows >= n {
+            fresh_if_due(&mut kept, &m);
+            match &kept {
+                Some(s) => shortlist(s.gains(&chosen), SCREENED),
+                None => screen(c, &m, reg, &chosen),
+            }
+        } else {
+            screen(c, &m, reg, &chosen)
+        };
+        let (_, i) = best_of(c, &m, reg, criterion, pool)
+            .0
+            .expect("enough candidates");
         m += &information(c, i);
         chosen.push(i);
-        tick();
+        if let Some(s) = kept.as_mut()
+            && !s.update(c, i, 1.0)
+        {
+            kept = None;
+        }
+        done += 1;
+        tick(done, foreseen);
     }
     let mut current = score(&m, reg, criterion);
-    for _pass in 0..20 {
+    for pass in 0..EXCHANGE_PASSES {
         let mut improved = false;
+        if pass > 0 {
+            foreseen += count;
+        }
+        // Each pass starts from a fresh screen (the updates' rounding reset).
+        kept = None;
         for k in 0..chosen.len() {
             crate::error::check_cancel(cancel)?;
             let without = &m - &information(c, chosen[k]);
-            if let Some((s, i)) = best_addition(&without, &chosen)
+            let pool: Vec<usize> = if screening {
+                fresh_if_due(&mut kept, &m);
+                kept.as_ref()
+                    .and_then(|s| s.gains_without(c, chosen[k], &chosen))
+                    .map_or_else(
+                        || screen(c, &without, reg, &chosen),
+                        |g| shortlist(g, SCREENED),
+                    )
+            } else {
+                unchosen(&chosen)
+            };
+            if let Some((s, i)) = best_of(c, &without, reg, criterion, pool).0
                 && s > current * (1.0 + 1e-12) + 1e-300
             {
+                if let Some(st) = kept.as_mut()
+                    && !(st.update(c, chosen[k], -1.0) && st.update(c, i, 1.0))
+                {
+                    kept = None;
+                }
                 m = without + &information(c, i);
                 chosen[k] = i;
                 current = s;
                 improved = true;
             }
-            tick();
+            done += 1;
+            tick(done, foreseen);
         }
         if !improved {
             break;
@@ -486,6 +549,9 @@ fn choose(
     }
     Ok(chosen)
 }
+
+/// Most exchange passes (each tries every chosen position once).
+pub const EXCHANGE_PASSES: usize = 20;
 
 /// Settings of [`plan`].
 #[derive(Debug, Clone)]
@@ -568,12 +634,16 @@ pub fn check_count(count: usize, axes: usize, free: usize) -> Result<()> {
 /// Plan `opts.count` poses over the mechanism's usable workspace at
 /// `params`: candidates on a lattice ([`crate::apply::workspace::sample_workspace`]),
 /// thinned evenly to `opts.max_candidates`, chosen by [`plan_poses`];
-/// `tick` is called after each greedy step and exchange position.
+/// `tick(done, foreseen)` is called after each greedy step and exchange
+/// position with the steps done and those foreseen so far (the greedy steps
+/// and one exchange pass; one pass more each time a pass improves the plan,
+/// and the exchanges again from the plain grid where the plan ends below
+/// it).
 pub fn plan<M: Mechanism>(
     mech: &M,
     params: &Params,
     opts: &PlanOptions,
-    tick: &(dyn Fn() + Sync),
+    tick: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Plan> {
     let spec = mech.spec();
     check_count(opts.count, spec.tool_axes.len(), opts.free.len())?;
@@ -681,12 +751,18 @@ pub fn plan<M: Mechanism>(
         points: cands.points[..candidates].to_vec(),
         rows: cands.rows[..candidates].to_vec(),
     };
+    // Steps of the first selection, for the second's progress.
+    let first = std::sync::atomic::AtomicUsize::new(0);
+    let counted = |done: usize, foreseen: usize| {
+        first.store(done, std::sync::atomic::Ordering::Relaxed);
+        tick(done, foreseen);
+    };
     let mut chosen = crate::on_pool(|| {
         choose(
             &pool,
             opts.count,
             opts.criterion,
-            tick,
+            &counted,
             opts.cancel.as_deref(),
             &prior,
             None,
@@ -702,12 +778,14 @@ pub fn plan<M: Mechanism>(
     if criterion_of(&grid_sv, opts.criterion) > criterion_of(&sv, opts.criterion)
         && grid_idx.len() == opts.count
     {
+        let before = first.load(std::sync::atomic::Ordering::Relaxed);
+        let again = |done: usize, foreseen: usize| tick(before + done, before + foreseen);
         chosen = crate::on_pool(|| {
             choose(
                 &cands,
                 opts.count,
                 opts.criterion,
-                &|| {},
+                &again,
                 opts.cancel.as_deref(),
                 &prior,
                 Some(&grid_idx),
@@ -799,13 +877,14 @@ mod tests {
             ] {
                 let from = score(&information(&c, &start, n), reg, criterion);
                 let chosen =
-                    choose(&c, count, criterion, &|| {}, None, &none, Some(&start)).unwrap();
+                    choose(&c, count, criterion, &|_, _| {}, None, &none, Some(&start)).unwrap();
                 assert_eq!(chosen.len(), count);
                 let to = score(&information(&c, &chosen, n), reg, criterion);
                 assert!(to >= from, "{criterion:?}: {to} below the start's {from}");
             }
-            let greedy = choose(&c, count, criterion, &|| {}, None, &none, None).unwrap();
-            let again = choose(&c, count, criterion, &|| {}, None, &none, Some(&greedy)).unwrap();
+            let greedy = choose(&c, count, criterion, &|_, _| {}, None, &none, None).unwrap();
+            let again =
+                choose(&c, count, criterion, &|_, _| {}, None, &none, Some(&greedy)).unwrap();
             assert_eq!(greedy, again, "{criterion:?}");
         }
     }

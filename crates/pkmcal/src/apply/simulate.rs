@@ -38,7 +38,53 @@ pub fn simulate_with_progress<M: Mechanism>(
     seed: u64,
     progress: &dyn Fn(),
 ) -> Result<Vec<Measurement>> {
-    let noise = noise.into();
+    simulate_steps(
+        mech,
+        measurement,
+        truth,
+        targets,
+        noise.into(),
+        seed,
+        &|| {
+            progress();
+            Ok(())
+        },
+    )
+}
+
+/// [`simulate`], stopped before its next target once `cancel` is set
+/// ([`crate::Error::Cancelled`]).
+pub fn simulate_cancellable<M: Mechanism>(
+    mech: &M,
+    measurement: &MeasurementModel,
+    truth: &Params,
+    targets: &[Vec<f64>],
+    noise: impl Into<Noise>,
+    seed: u64,
+    cancel: Option<&std::sync::atomic::AtomicBool>,
+) -> Result<Vec<Measurement>> {
+    simulate_steps(
+        mech,
+        measurement,
+        truth,
+        targets,
+        noise.into(),
+        seed,
+        &|| crate::error::check_cancel(cancel),
+    )
+}
+
+/// The targets in turn (one noise stream, drawn in their order), `step`
+/// called after each: an error from it stops the simulation.
+fn simulate_steps<M: Mechanism>(
+    mech: &M,
+    measurement: &MeasurementModel,
+    truth: &Params,
+    targets: &[Vec<f64>],
+    noise: Noise,
+    seed: u64,
+    step: &dyn Fn() -> Result<()>,
+) -> Result<Vec<Measurement>> {
     let mut rng = StdRng::seed_from_u64(seed);
     let normals = noise_normals(measurement, noise)?;
     let mut out = Vec::with_capacity(targets.len());
@@ -54,7 +100,7 @@ pub fn simulate_with_progress<M: Mechanism>(
             &normals,
             &mut rng,
         )?);
-        progress();
+        step()?;
     }
     Ok(out)
 }

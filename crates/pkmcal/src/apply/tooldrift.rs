@@ -46,6 +46,19 @@ pub fn workspace_drift<M: Mechanism>(
     targets: &[Vec<f64>],
     alpha: f64,
 ) -> Result<WorkspaceDrift> {
+    workspace_drift_cancellable(mech, a, b, targets, alpha, None)
+}
+
+/// [`workspace_drift`], stopped at its next target once `cancel` is set
+/// ([`Error::Cancelled`]).
+pub fn workspace_drift_cancellable<M: Mechanism>(
+    mech: &M,
+    a: &Compared,
+    b: &Compared,
+    targets: &[Vec<f64>],
+    alpha: f64,
+    cancel: Option<&std::sync::atomic::AtomicBool>,
+) -> Result<WorkspaceDrift> {
     if targets.is_empty() {
         return Err(Error::InvalidRequest(
             "a workspace drift needs at least one target".into(),
@@ -82,6 +95,7 @@ pub fn workspace_drift<M: Mechanism>(
         .par_iter()
         .enumerate()
         .map(|(k, t)| {
+            crate::error::check_cancel(cancel)?;
             let at = |e: Error| e.at_pose(crate::error::Origin::row(k));
             let q = crate::apply::workspace::nominal_commands(mech, t).map_err(at)?;
             let pose = prepare_pose(mech, &q, None).map_err(at)?;

@@ -43,24 +43,55 @@ fn point_from<M: Mechanism>(mech: &M, target: &[f64], q: Vec<f64>) -> Result<Wor
 /// reachable with conditioning ≥ [`crate::Spec::min_conditioning`]. The spacing is
 /// coarsened if the lattice would exceed [`MAX_LATTICE_POINTS`].
 pub fn sample_workspace<M: Mechanism>(mech: &M, spacing: f64) -> Vec<WorkspacePoint> {
+    sample_workspace_cancellable(mech, spacing, None).expect("not cancelled")
+}
+
+/// [`sample_workspace`], stopped once `cancel` is set
+/// ([`crate::Error::Cancelled`]).
+pub fn sample_workspace_cancellable<M: Mechanism>(
+    mech: &M,
+    spacing: f64,
+    cancel: Option<&std::sync::atomic::AtomicBool>,
+) -> Result<Vec<WorkspacePoint>> {
     use rayon::prelude::*;
     let spec = mech.spec();
     let reference = Reference::new(mech, &spec.nominal[..spec.n_geometric()]);
-    lattice_targets(spec, spacing)
+    let points = lattice_targets(spec, spacing)
         .into_par_iter()
         .filter_map(|target| {
+            crate::error::check_cancel(cancel).ok()?;
             let q = reference.inverse_kinematics(&target).ok()?;
             point_from(mech, &target, q)
                 .ok()
                 .filter(|p| p.conditioning >= spec.min_conditioning)
         })
-        .collect()
+        .collect();
+    crate::error::check_cancel(cancel)?;
+    Ok(points)
+}
+
+/// The most targets one request spreads over the workspace (a grid, a
+/// spread, random validation targets, a plan's poses): each is drawn from a
+/// lattice of at most [`crate::engine::atlas::MAX_LATTICE_POINTS`] (their usable part, often a
+/// third), so that more could only fail after seconds of work; a
+/// calibration has tens to thousands of poses.
+pub const MAX_TARGETS: usize = 10_000;
+
+/// `count` targets beyond [`MAX_TARGETS`], refused; or `Ok`.
+pub fn check_target_count(count: usize) -> Result<()> {
+    if count > MAX_TARGETS {
+        return Err(Error::InvalidRequest(format!(
+            "{count} targets are more than the {MAX_TARGETS} one request spreads over the workspace"
+        )));
+    }
+    Ok(())
 }
 
 /// `count` targets spread evenly over the usable workspace: farthest-point
 /// sampling of a fine lattice, starting from the point nearest the centroid.
 /// Deterministic.
 pub fn spread_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<WorkspacePoint>> {
+    check_target_count(count)?;
     let spec = mech.spec();
     let extent = scaled_extent(spec);
     let dims = spec.workspace_box.len() as i32;
@@ -129,6 +160,7 @@ pub fn nominal_commands<M: Mechanism>(mech: &M, target: &[f64]) -> Result<Vec<f6
 /// `count` distinct usable targets drawn at random (seeded) from a 5 mm
 /// lattice of the usable workspace: unseen poses for validation.
 pub fn random_targets<M: Mechanism>(mech: &M, count: usize, seed: u64) -> Result<Vec<Vec<f64>>> {
+    check_target_count(count)?;
     use rand::SeedableRng;
     use rand::seq::SliceRandom;
     let mut pool = sample_workspace(mech, 5.0);
@@ -143,6 +175,17 @@ pub fn random_targets<M: Mechanism>(mech: &M, count: usize, seed: u64) -> Result
 /// workspace box with at least `count` usable points, thinned evenly to
 /// `count`. The baseline measurement plan.
 pub fn grid_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<WorkspacePoint>> {
+    grid_targets_cancellable(mech, count, None)
+}
+
+/// [`grid_targets`], stopped between its lattices once `cancel` is set
+/// ([`crate::Error::Cancelled`]).
+pub fn grid_targets_cancellable<M: Mechanism>(
+    mech: &M,
+    count: usize,
+    cancel: Option<&std::sync::atomic::AtomicBool>,
+) -> Result<Vec<WorkspacePoint>> {
+    check_target_count(count)?;
     let spec = mech.spec();
     let extent = scaled_extent(spec);
     let dims = spec.workspace_box.len() as f64;
@@ -159,14 +202,14 @@ pub fn grid_targets<M: Mechanism>(mech: &M, count: usize) -> Result<Vec<Workspac
     let mut verified = false;
     for _ in 0..30 {
         let mid = 0.5 * (lo + hi);
-        if sample_workspace(mech, mid).len() >= count {
+        if sample_workspace_cancellable(mech, mid, cancel)?.len() >= count {
             lo = mid;
             verified = true;
         } else {
             hi = mid;
         }
     }
-    let lattice = sample_workspace(mech, lo);
+    let lattice = sample_workspace_cancellable(mech, lo, cancel)?;
     if !verified && lattice.len() < count {
         return Err(too_few(spec, lattice.len(), count));
     }

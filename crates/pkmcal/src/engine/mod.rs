@@ -5,6 +5,7 @@
 //! start forward kinematics.
 
 pub mod atlas;
+pub mod curvature;
 pub mod kinematics;
 pub mod linearized;
 pub mod load;

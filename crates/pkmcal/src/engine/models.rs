@@ -16,6 +16,7 @@
 //! q_r,nominal`; the linear model adds it to `Δq` so that it stays the
 //! first-order expansion of the exact model.
 
+use crate::engine::curvature::JointHessians;
 use crate::engine::kinematics::{forward_kinematics, reference_configuration};
 use crate::engine::linearized::{Linearization, joint_errors, linearize, load_vector};
 use crate::error::{Error, Result};
@@ -78,8 +79,9 @@ pub struct Pose {
     lin: OnceLock<Result<Linearization>>,
     /// Second derivatives of each constraint and tool coordinate with respect
     /// to the joints at the nominal configuration (computed on first use by the
-    /// exact model; Newton's curvature there is good to ~1e-6 relative).
-    hessians: OnceLock<Vec<DMatrix<f64>>>,
+    /// exact model; Newton's curvature there is good to ~1e-6 relative), kept
+    /// without their zeros.
+    hessians: OnceLock<JointHessians>,
     /// The prediction at nominal parameters from the nominal configuration
     /// (no warm start), with the model and load it was made for: a
     /// calibration that starts at nominal parameters and the accuracy it
@@ -130,10 +132,12 @@ impl Pose {
     }
 
     /// Per-output joint Hessians at the nominal configuration.
-    pub fn hessians<M: Mechanism>(&self, mech: &M) -> &[DMatrix<f64>] {
+    pub fn hessians<M: Mechanism>(&self, mech: &M) -> &JointHessians {
         self.hessians.get_or_init(|| {
             let spec = mech.spec();
-            mech.joint_hessians(&self.nominal_q, &spec.nominal[..spec.n_geometric()])
+            JointHessians::from_dense(
+                &mech.joint_hessians(&self.nominal_q, &spec.nominal[..spec.n_geometric()]),
+            )
         })
     }
 }
@@ -742,7 +746,7 @@ pub fn equilibrium<M: Mechanism>(
     commands: &[f64],
     force: &[f64],
     start: &[f64],
-    hessians: Option<&[DMatrix<f64>]>,
+    hessians: Option<&JointHessians>,
 ) -> Result<Equilibrium> {
     let spec = mech.spec();
     check_commands(spec, commands)?;
@@ -752,7 +756,7 @@ pub fn equilibrium<M: Mechanism>(
     let hessians = match hessians {
         Some(h) => h,
         None => {
-            own = mech.joint_hessians(start, params.geometric());
+            own = JointHessians::from_dense(&mech.joint_hessians(start, params.geometric()));
             &own
         }
     };
@@ -819,7 +823,7 @@ fn equilibrium_in<M: Mechanism>(
     commands: &[f64],
     force: &[f64],
     start: &[f64],
-    hessians: &[DMatrix<f64>],
+    hessians: &JointHessians,
     ws: &mut EquilibriumWork,
 ) -> Result<Equilibrium> {
     let spec = mech.spec();
@@ -902,16 +906,7 @@ fn equilibrium_in<M: Mechanism>(
             // W = SᵀKS + Σ λ_k ∇²g_k + Σ w_i ∇²x_i, then the constraint blocks.
             weights[..m].copy_from_slice(lam);
             kkt.as_mut_slice().fill(0.0);
-            for (h, &wt) in hessians.iter().zip(weights.iter()) {
-                if wt != 0.0 {
-                    let cols = kkt.as_mut_slice().chunks_exact_mut(n);
-                    for (o, v) in cols.zip(h.as_slice().chunks_exact(nq)) {
-                        for (o, v) in o.iter_mut().zip(v) {
-                            *o += v * wt;
-                        }
-                    }
-                }
-            }
+            hessians.add_weighted(weights, kkt.as_mut_slice(), n);
             for (a, &jt) in spec.actuated.iter().enumerate() {
                 kkt[(jt, jt)] += k[a];
             }
@@ -922,7 +917,7 @@ fn equilibrium_in<M: Mechanism>(
                 }
             }
             step.as_mut_slice().fill(0.0);
-            debug_assert!(hessians.iter().all(|h| h.shape() == (nq, nq)));
+            debug_assert!(hessians.is_empty() || hessians.joints() == nq);
             for ((st, ge), dg) in step
                 .iter_mut()
                 .zip(grad_e.iter())

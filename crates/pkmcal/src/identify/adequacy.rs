@@ -259,3 +259,134 @@ fn suspects<M: Mechanism>(
     }
     Ok(out)
 }
+
+/// The level of [`omitted_test`]: parameters a fit left out are said to be
+/// seen by the data when their joint score test is below it (one fit in a
+/// hundred whose left-out parameters are truly nominal is flagged).
+pub const OMITTED_ALPHA: f64 = 0.01;
+
+/// The joint score test of parameters a fit left out ([`omitted_test`]):
+/// whether the data show them, what they show, and where the fit put it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct OmittedTest {
+    /// The parameters tested (indices of the identification vector).
+    pub indices: Vec<usize>,
+    /// The values the data give them: one Gauss–Newton step from the fit
+    /// with them freed (the free parameters refitted beside them).
+    pub values: Vec<f64>,
+    /// The change that step makes to the free parameters, in
+    /// [`Calibration::free`] order: what the fit put into them instead.
+    pub free_shift: Vec<f64>,
+    /// The share of the readings' weighted sum of squares they would
+    /// remove.
+    pub share: f64,
+    /// Fisher's F of that share against what is left.
+    pub f: f64,
+    /// Its degrees of freedom: the directions tested, and the readings'
+    /// redundancy less them.
+    pub dof: (f64, f64),
+    /// `P(F ≥ f)`: small when the data show them.
+    pub p: f64,
+}
+
+/// The joint score test of the parameters `candidates` that `cal` left
+/// out (those it freed are skipped): the squared projection of the weighted
+/// residuals on their Jacobian columns orthogonal to the free ones, judged
+/// by Fisher's F against what the residuals leave (the data's own noise
+/// level, so a stated scale does not enter), with the value one step of
+/// the fit with them freed would give them. `None` when nothing is left to
+/// test, the data cannot see them, or the readings have no redundancy to
+/// judge by.
+pub fn omitted_test<M: Mechanism>(
+    problem: &IdentificationProblem<'_, M>,
+    cal: &Calibration,
+    candidates: &[usize],
+) -> Result<Option<OmittedTest>> {
+    let x: Vec<f64> = cal
+        .params
+        .values
+        .iter()
+        .chain(&cal.measurement)
+        .copied()
+        .collect();
+    let cands: Vec<usize> = candidates
+        .iter()
+        .copied()
+        .filter(|j| !cal.free.contains(j) && *j < x.len())
+        .collect();
+    let m = cal.residuals.len();
+    if cands.is_empty() || problem.n_readings() != m || m != cal.sigmas.len() {
+        return Ok(None);
+    }
+    let (_, mut jac) = problem.residuals_and_jacobian(&x)?;
+    for (i, s) in cal.sigmas.iter().enumerate() {
+        jac.row_mut(i).unscale_mut(*s);
+    }
+    let r = DVector::from_iterator(m, cal.residuals.iter().zip(&cal.sigmas).map(|(r, s)| r / s));
+    let ss = r.norm_squared();
+    if !ss.is_finite() || jac.iter().any(|v| !v.is_finite()) {
+        return Ok(None);
+    }
+    let free = jac.select_columns(&cal.free);
+    let q: DMatrix<f64> = if free.ncols() > 0 {
+        free.clone().qr().q()
+    } else {
+        DMatrix::zeros(m, 0)
+    };
+    let c = jac.select_columns(&cands);
+    let perp = &c - &q * (q.transpose() * &c);
+    // The directions of the left-out columns the free ones do not already
+    // span: a column the fit's own parameters take whole is no test.
+    let svd = perp.clone().svd(true, true);
+    let top = svd.singular_values.max();
+    let scale = c.column_iter().map(|c| c.norm()).fold(0.0, f64::max);
+    if top.is_nan() || top <= OMITTED_RANK_TOL * scale {
+        return Ok(None);
+    }
+    let eps = OMITTED_RANK_TOL * scale.max(top);
+    let k = svd.singular_values.iter().filter(|s| **s > eps).count() as f64;
+    let nu = cal.redundancy - k;
+    if nu < 1.0 {
+        return Ok(None);
+    }
+    let step = -svd
+        .solve(&r, eps)
+        .map_err(|e| crate::error::Error::InvalidRequest(format!("the score test's step: {e}")))?;
+    let fitted = &perp * &step;
+    let t = ss - (&r + &fitted).norm_squared();
+    let f = (t / k) / ((ss - t).max(0.0) / nu);
+    let p = if f.is_infinite() {
+        0.0
+    } else {
+        FisherSnedecor::new(k, nu).map_or(f64::NAN, |d| d.sf(f))
+    };
+    // The free parameters' part of the same step, `(J_fᵀJ_f)⁻¹J_fᵀ C δ`
+    // (the residuals are orthogonal to the free columns at the fit).
+    let free_shift = if free.ncols() > 0 {
+        let moved = &c * &step;
+        free.svd(true, true)
+            .solve(&moved, 0.0)
+            .map(|s| s.iter().map(|v| -v).collect())
+            .unwrap_or_else(|_| vec![f64::NAN; cal.free.len()])
+    } else {
+        vec![]
+    };
+    Ok(Some(OmittedTest {
+        values: cands
+            .iter()
+            .zip(step.iter())
+            .map(|(j, d)| x[*j] + d)
+            .collect(),
+        indices: cands,
+        free_shift,
+        share: if ss > 0.0 { t / ss } else { 0.0 },
+        f,
+        dof: (k, nu),
+        p,
+    }))
+}
+
+/// Singular values of the left-out columns (orthogonal to the free ones)
+/// below this share of the largest column's norm are directions the data
+/// cannot see.
+const OMITTED_RANK_TOL: f64 = 1e-8;

@@ -450,13 +450,15 @@ pub fn drift(a: &Compared, b: &Compared, alpha: f64) -> Result<Drift> {
     })
 }
 
-/// The degrees of freedom of the two calibrations' noise levels together.
+/// The degrees of freedom of the two calibrations' noise levels together;
+/// `None` (the normal and χ² limits) when every σ was given, or from
+/// [`super::uncertainty::NORMAL_LIMIT_DOF`] on.
 pub fn joint_noise_dof(a: &Compared, b: &Compared) -> Option<f64> {
     match (a.dof, b.dof) {
         (Some(x), Some(y)) => Some(x + y),
         (x, y) => x.or(y),
     }
-    .filter(|n| n.is_finite() && *n > 0.0)
+    .filter(|n| n.is_finite() && *n > 0.0 && *n < super::uncertainty::NORMAL_LIMIT_DOF)
 }
 
 /// The joint test of a change `d` with covariance `c`: `dᵀ c⁺ d` in

@@ -340,7 +340,7 @@ pub(super) fn calibrate_once<M: Mechanism>(
     solver.free = Some(mask(np + nf, &free));
     let report = match speculative {
         Some(r) => r,
-        None => lm::minimize(&augmented, &x0, &solver),
+        None => fit_with_priors(&augmented, &x0, &solver),
     };
     if !report.termination.converged() {
         warnings.push(Warning::new(WarningKind::NotConverged {
@@ -491,6 +491,22 @@ fn fix_a_stiffness_ratio(
     }
 }
 
+/// [`lm::minimize`] of the readings with their priors' rows; without
+/// priors, of the readings' problem itself (the same residuals and
+/// Jacobian), which writes the solver's Jacobian columns directly
+/// ([`IdentificationProblem::is_large`]).
+fn fit_with_priors<M: Mechanism>(
+    augmented: &WithPriors<'_, IdentificationProblem<'_, M>>,
+    x0: &[f64],
+    opts: &lm::Options,
+) -> lm::Report {
+    if augmented.terms.is_empty() {
+        lm::minimize(augmented.inner, x0, opts)
+    } else {
+        lm::minimize(augmented, x0, opts)
+    }
+}
+
 /// The free set the data can identify, from `requested`: identifiability
 /// analysed at the start (the fit of `requested` computed meanwhile on
 /// another thread, kept when the analysis frees them all), and for
@@ -540,6 +556,9 @@ fn free_set<M: Mechanism>(
         Some(ident) if !opts.auto_fix => (ident.clone(), requested.to_vec()),
         // The caller's own cancel flag governs every fit: no speculation.
         _ if opts.solver.cancel.is_some() => analyze(&weighted),
+        // A large problem keeps one Jacobian at a time: the analysis, then
+        // the fit.
+        _ if problem.is_large() => analyze(&weighted),
         _ => {
             let saved = problem.saved();
             let cancel = Arc::new(AtomicBool::new(false));
@@ -555,7 +574,7 @@ fn free_set<M: Mechanism>(
                     }
                     analysis = Some(a);
                 });
-                lm::minimize(augmented, x0, &fit)
+                fit_with_priors(augmented, x0, &fit)
             });
             let (ident, free) = analysis.expect("the scope waits for the analysis");
             if free == requested {
@@ -577,7 +596,7 @@ fn free_set<M: Mechanism>(
     if opts.auto_fix && !idle.is_empty() && !free.is_empty() {
         let mut fit = solver.clone();
         fit.free = Some(mask(np + nf, &free));
-        *x0 = lm::minimize(augmented, x0, &fit).x;
+        *x0 = fit_with_priors(augmented, x0, &fit).x;
         let (_, jac) = problem.residuals_and_jacobian(x0)?;
         (identifiability, free) = analyze(&weigh(jac)?);
     }
@@ -665,12 +684,15 @@ fn assemble<M: Mechanism>(
     let Fit {
         report,
         identifiability,
-        free,
+        mut free,
         requested,
         mut warnings,
         terms,
         rows,
     } = fit;
+    // The solver's columns (its covariance's and Jacobian's) are the free
+    // mask's, in index order, whatever order the free set was named in.
+    free.sort_unstable();
     let params = Params::new(spec, report.x[..np].to_vec())?;
     let m_values = report.x[np..].to_vec();
     let frame = m_values[measurement.frame_range()].to_vec();
@@ -832,11 +854,61 @@ pub fn analyze_with_priors<M: Mechanism>(
     priors: &[Prior],
     noise: crate::measurement::data::Noise,
 ) -> Result<Identifiability> {
+    let opts = AnalysisOptions {
+        model,
+        free: free.to_vec(),
+        force: force.to_vec(),
+        priors: priors.to_vec(),
+        noise,
+        cancel: None,
+    };
+    analyze_cancellable(mech, measurement, data, params, &opts)
+}
+
+/// What [`analyze_cancellable`] analyses: the arguments of
+/// [`analyze_with_priors`], and a flag that stops it.
+#[derive(Debug, Clone)]
+pub struct AnalysisOptions {
+    /// The forward model.
+    pub model: Model,
+    /// The free parameters (the mechanism's, then the measurement model's).
+    pub free: Vec<usize>,
+    /// The tool load during the measurements (empty for none).
+    pub force: Vec<f64>,
+    /// Priors (tolerances) of free parameters.
+    pub priors: Vec<Prior>,
+    /// The readings' noise where the data give no σ (weighs them against
+    /// the priors).
+    pub noise: crate::measurement::data::Noise,
+    /// Set from another thread to stop at the next pose
+    /// ([`Error::Cancelled`]); `None` for none.
+    pub cancel: Option<Arc<AtomicBool>>,
+}
+
+/// [`analyze_with_priors`] with its settings in one place, stopped at the
+/// next pose once [`AnalysisOptions::cancel`] is set.
+pub fn analyze_cancellable<M: Mechanism>(
+    mech: &M,
+    measurement: &MeasurementModel,
+    data: &[Measurement],
+    params: &Params,
+    opts: &AnalysisOptions,
+) -> Result<Identifiability> {
+    let AnalysisOptions {
+        model,
+        free,
+        force,
+        priors,
+        noise,
+        cancel,
+    } = opts;
+    let (model, noise) = (*model, *noise);
     let spec = mech.spec();
     let data = numbered(data);
     check_sigma(measurement, &data)?;
     noise.check("noise")?;
-    let problem = IdentificationProblem::new(mech, measurement, &data, model, force)?;
+    let problem =
+        IdentificationProblem::cancellable(mech, measurement, &data, model, force, cancel.clone())?;
     let np = spec.n_params();
     let m0 = measurement_start(&problem, None, params, &data)?;
     let mut free = free.to_vec();
@@ -845,6 +917,7 @@ pub fn analyze_with_priors<M: Mechanism>(
     }
     let x: Vec<f64> = params.values.iter().chain(&m0).copied().collect();
     let (_, mut jac) = problem.residuals_and_jacobian(&x)?;
+    crate::error::check_cancel(cancel.as_deref())?;
     if jac.iter().any(|v| !v.is_finite()) {
         return Err(Error::InvalidRequest(
             "the identification Jacobian is not finite at these parameters".into(),

@@ -226,26 +226,42 @@ pub fn analyze_identifiability(
             };
             return (ident, free);
         }
-        let sub = jac.select_columns(&free);
+        // A large Jacobian's free columns are read where they are, not
+        // copied out ([`lm::LARGE_JACOBIAN`]).
+        let large = jac.nrows().saturating_mul(free.len()) >= lm::LARGE_JACOBIAN
+            && jac.nrows() >= free.len();
+        let sub = (!large).then(|| jac.select_columns(&free));
+        let norm = |k: usize| match &sub {
+            Some(s) => s.column(k).norm(),
+            None => jac.column(free[k]).norm(),
+        };
         // A column counts as zero when its effect over a typical parameter
         // change (its nominal size, or 1 unit) is negligible next to the
         // largest one: round-off must not be scaled up into a direction.
         let effect: Vec<f64> = free
             .iter()
             .enumerate()
-            .map(|(k, &i)| sub.column(k).norm() * cols.nominal[i].abs().max(1.0))
+            .map(|(k, &i)| norm(k) * cols.nominal[i].abs().max(1.0))
             .collect();
         let biggest = effect.iter().copied().fold(0.0, f64::max);
         let norms: Vec<f64> = (0..free.len())
             .map(|k| {
                 if effect[k] > ZERO_COLUMN * biggest {
-                    sub.column(k).norm()
+                    norm(k)
                 } else {
                     0.0
                 }
             })
             .collect();
-        let (singular_values, vt, factored) = scaled_svd(&sub, &norms);
+        let (singular_values, vt, factored) = match &sub {
+            Some(sub) => scaled_svd(sub, &norms),
+            None => {
+                let (mut qr, _) =
+                    lm::triangular_factor_of(jac, &free, None, &vec![0.0; jac.nrows()]);
+                let (ipvt, rdiag, _) = lm::qrfac(&mut qr);
+                pivoted_svd(qr, ipvt, rdiag, &norms)
+            }
+        };
         let mut order: Vec<usize> = (0..singular_values.len()).collect();
         order.sort_by(|&a, &b| singular_values[b].total_cmp(&singular_values[a]));
         let sv: Vec<f64> = order.iter().map(|&i| singular_values[i]).collect();
@@ -282,7 +298,10 @@ pub fn analyze_identifiability(
                     Some((qr, ipvt, rdiag)) => {
                         lm::covariance_of(qr, ipvt, rdiag, lm::COVARIANCE_RANK_TOL)
                     }
-                    None => lm::covariance(&sub, lm::COVARIANCE_RANK_TOL),
+                    None => lm::covariance(
+                        sub.as_ref().expect("kept when not factorised"),
+                        lm::COVARIANCE_RANK_TOL,
+                    ),
                 };
                 correlations(&cols.names, &free, &c)
             } else {
@@ -355,6 +374,20 @@ fn scaled_svd(sub: &DMatrix<f64>, norms: &[f64]) -> (Vec<f64>, DMatrix<f64>, Opt
     }
     let mut qr = sub.clone();
     let (ipvt, rdiag, _) = lm::qrfac(&mut qr);
+    pivoted_svd(qr, ipvt, rdiag, norms)
+}
+
+/// [`scaled_svd`] from the pivoted QR ([`lm::qrfac`]) of the matrix, or
+/// of its triangular factor ([`lm::triangular_factor_of`]): `R`'s upper
+/// triangle is all it reads.
+fn pivoted_svd(
+    qr: DMatrix<f64>,
+    ipvt: Vec<usize>,
+    rdiag: Vec<f64>,
+    norms: &[f64],
+) -> (Vec<f64>, DMatrix<f64>, Option<Factored>) {
+    let n = qr.ncols();
+    let divisor = |k: usize| if norms[k] > 0.0 { norms[k] } else { 1.0 };
     let rs = DMatrix::from_fn(n, n, |i, k| {
         let v = match i.cmp(&k) {
             std::cmp::Ordering::Less => qr[(i, k)],

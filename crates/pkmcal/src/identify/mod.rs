@@ -20,11 +20,14 @@ pub mod uncertainty;
 pub mod validation;
 pub mod weights;
 
-pub use adequacy::{ADEQUACY_ALPHA, AdequacyTest, SUSPECT_ALPHA, SUSPECT_SHARE, SUSPECTS};
+pub use adequacy::{
+    ADEQUACY_ALPHA, AdequacyTest, OMITTED_ALPHA, OmittedTest, SUSPECT_ALPHA, SUSPECT_SHARE,
+    SUSPECTS, omitted_test,
+};
 pub use drift::{Compared, DEFAULT_ALPHA, Drift, ParameterDrift, drift, noise_dof};
 pub use driver::{
-    CalibrationOptions, DEFAULT_STATED_NOISE_READINGS, MAX_DROPPED_FRACTION, analyze,
-    analyze_with_priors, calibrate, calibrate_with_cache,
+    AnalysisOptions, CalibrationOptions, DEFAULT_STATED_NOISE_READINGS, MAX_DROPPED_FRACTION,
+    analyze, analyze_cancellable, analyze_with_priors, calibrate, calibrate_with_cache,
 };
 pub use gross::{GROSS_EXTENT_SHARE, GROSS_FACTOR, MIN_SIGMA};
 pub(crate) use identifiability::observability;
@@ -40,8 +43,8 @@ pub use prior::{
 };
 pub use problem::{IdentificationProblem, MAX_POSES, PoseCache, too_many_poses};
 pub use record::{
-    CALIBRATION_FORMAT, CALIBRATION_VERSION, CalibrationRecord, RecordError, RecordedParameter,
-    mechanism_identities, mechanism_identity,
+    CALIBRATION_FORMAT, CALIBRATION_VERSION, COVARIANCE_SYMMETRY, CalibrationRecord, RecordError,
+    RecordedNoise, RecordedParameter, mechanism_identities, mechanism_identity,
 };
 pub use request::{FrameChoice, Request, SolverRequest};
 pub use result::{Calibration, ParameterResult, Warning, WarningCategory, WarningKind};

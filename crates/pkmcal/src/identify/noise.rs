@@ -355,16 +355,95 @@ fn rms(v: &[f64]) -> f64 {
 /// Leverages `h_ii = J_i (JᵀJ)⁺ J_iᵀ` of a weighted Jacobian (rows: residuals,
 /// columns: free parameters).
 pub(crate) fn leverages(jac: &DMatrix<f64>) -> Vec<f64> {
+    if is_large(jac) {
+        let c = covariance_by_rows(jac, None);
+        return leverages_by_rows(jac, None, &c);
+    }
     let (c, _) = crate::lm::covariance(jac, crate::lm::COVARIANCE_RANK_TOL);
     leverages_with(jac, &c)
 }
 
-/// [`leverages`] with `(JᵀJ)⁺` already computed.
+/// [`leverages`] with `(JᵀJ)⁺` already computed (a large Jacobian's by
+/// blocks of rows, [`leverages_by_rows`]).
 pub(crate) fn leverages_with(jac: &DMatrix<f64>, inverse: &DMatrix<f64>) -> Vec<f64> {
+    if is_large(jac) {
+        return leverages_by_rows(jac, None, inverse);
+    }
     let jc = jac * inverse;
     (0..jac.nrows())
         .map(|i| jc.row(i).dot(&jac.row(i)))
         .collect()
+}
+
+/// Whether a Jacobian is large ([`crate::lm::LARGE_JACOBIAN`]): its statistics are
+/// then computed row by row, without copies of it.
+pub(crate) fn is_large(j: &DMatrix<f64>) -> bool {
+    j.nrows().saturating_mul(j.ncols()) >= crate::lm::LARGE_JACOBIAN && j.nrows() >= j.ncols()
+}
+
+/// Rows of a large Jacobian read at a time.
+const ROW_BLOCK: usize = 256;
+
+/// `f(first row, rows)` for blocks of `j`'s rows, each row (row-major, `n`
+/// entries) multiplied by `scale[i]` when given.
+pub(crate) fn by_row_blocks(
+    j: &DMatrix<f64>,
+    scale: Option<&[f64]>,
+    mut f: impl FnMut(usize, &[f64]),
+) {
+    let (m, n) = j.shape();
+    let mut block = vec![0.0; ROW_BLOCK * n];
+    let mut start = 0;
+    while start < m {
+        let b = ROW_BLOCK.min(m - start);
+        for k in 0..n {
+            let col = &j.as_slice()[k * m + start..k * m + start + b];
+            for (t, v) in col.iter().enumerate() {
+                block[t * n + k] = v * scale.map_or(1.0, |s| s[start + t]);
+            }
+        }
+        f(start, &block[..b * n]);
+        start += b;
+    }
+}
+
+/// The triangular factor of `j` with row `i` multiplied by `scale[i]`
+/// ([`crate::lm::triangular_factor_of`], no copy of `j`).
+pub(crate) fn factor_by_rows(j: &DMatrix<f64>, scale: Option<&[f64]>) -> DMatrix<f64> {
+    let all: Vec<usize> = (0..j.ncols()).collect();
+    crate::lm::triangular_factor_of(j, &all, scale, &vec![0.0; j.nrows()]).0
+}
+
+/// `(JᵀJ)⁺` of `j` with row `i` multiplied by `scale[i]`, from its
+/// triangular factor.
+pub(crate) fn covariance_by_rows(j: &DMatrix<f64>, scale: Option<&[f64]>) -> DMatrix<f64> {
+    let mut r = factor_by_rows(j, scale);
+    let (ipvt, rdiag, _) = crate::lm::qrfac(&mut r);
+    crate::lm::covariance_of(&r, &ipvt, &rdiag, crate::lm::COVARIANCE_RANK_TOL).0
+}
+
+/// [`leverages_with`] by blocks of rows: `h_i = j_i C j_iᵀ` with row `i`
+/// multiplied by `scale[i]` when given (one product per block, no copy of
+/// `j`).
+pub(crate) fn leverages_by_rows(
+    j: &DMatrix<f64>,
+    scale: Option<&[f64]>,
+    c: &DMatrix<f64>,
+) -> Vec<f64> {
+    let n = j.ncols();
+    let mut h = Vec::with_capacity(j.nrows());
+    by_row_blocks(j, scale, |_, rows| {
+        // The block's rows as columns: `C Bᵀ`, then each column's dot with
+        // its row.
+        let bt = DMatrix::from_column_slice(n, rows.len() / n, rows);
+        let cb = c * &bt;
+        h.extend(
+            bt.column_iter()
+                .zip(cb.column_iter())
+                .map(|(x, y)| x.dot(&y)),
+        );
+    });
+    h
 }
 
 #[cfg(test)]

@@ -19,11 +19,17 @@ use std::cell::RefCell;
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
-/// Parameters, residuals and Jacobian of the last Jacobian evaluation.
-type CachedJacobian = (Vec<f64>, DVector<f64>, DMatrix<f64>);
+/// Parameters, residuals and Jacobian of the last Jacobian evaluation
+/// (shared with [`IdentificationProblem::saved`], not copied).
+type CachedJacobian = Arc<(Vec<f64>, DVector<f64>, DMatrix<f64>)>;
 
 /// An identification problem's kept evaluations ([`IdentificationProblem::saved`]).
 type Saved = (Option<CachedPredictions>, Option<CachedJacobian>);
+
+/// Rows whose sensitivities are computed together (in parallel) and written
+/// into the Jacobian before the next rows': the poses' sensitivities are
+/// not all held at once.
+const JACOBIAN_CHUNK: usize = 512;
 
 /// Parameters and the predictions at every pose under them.
 pub(super) type CachedPredictions = (Vec<f64>, Arc<Vec<Prediction>>);
@@ -80,6 +86,13 @@ pub struct IdentificationProblem<'a, M: Mechanism> {
     cache: RefCell<Option<CachedPredictions>>,
     /// The last Jacobian evaluated, with its parameters.
     jacobian_cache: RefCell<Option<CachedJacobian>>,
+    /// Readings × parameters at least [`crate::lm::LARGE_JACOBIAN`]: no
+    /// Jacobian is kept between evaluations, and the solver's columns are
+    /// written directly ([`IdentificationProblem::is_large`]).
+    large: bool,
+    /// Set from another thread to stop at the next pose
+    /// ([`Error::Cancelled`]).
+    cancel: Option<Arc<std::sync::atomic::AtomicBool>>,
 }
 
 /// Poses prepared once and shared by the identification problems of one
@@ -201,6 +214,24 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         Self::with_cache(mech, measurement, data, model, force, None)
     }
 
+    /// [`IdentificationProblem::new`] that stops preparing its poses, and
+    /// later evaluating them, at the next pose once `cancel` is set
+    /// ([`Error::Cancelled`]).
+    pub fn cancellable(
+        mech: &'a M,
+        measurement: &'a MeasurementModel,
+        data: &[Measurement],
+        model: Model,
+        force: &[f64],
+        cancel: Option<Arc<std::sync::atomic::AtomicBool>>,
+    ) -> Result<Self> {
+        let check = || crate::error::check_cancel(cancel.as_deref());
+        check()?;
+        let mut problem = Self::prepared(mech, measurement, data, model, force, None, &check)?;
+        problem.cancel = cancel;
+        Ok(problem)
+    }
+
     /// [`IdentificationProblem::new`], taking the poses already prepared
     /// from `cache` and leaving the new ones there.
     pub(super) fn with_cache(
@@ -210,6 +241,19 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         model: Model,
         force: &[f64],
         cache: Option<&PoseCache>,
+    ) -> Result<Self> {
+        Self::prepared(mech, measurement, data, model, force, cache, &|| Ok(()))
+    }
+
+    /// The poses prepared, `check` called before each (its error stops).
+    fn prepared(
+        mech: &'a M,
+        measurement: &'a MeasurementModel,
+        data: &[Measurement],
+        model: Model,
+        force: &[f64],
+        cache: Option<&PoseCache>,
+        check: &(dyn Fn() -> Result<()> + Sync),
     ) -> Result<Self> {
         if data.len() > MAX_POSES {
             return Err(too_many_poses(data.len()));
@@ -237,7 +281,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             .par_iter()
             .map(|m| {
                 let key = (m.origin.expect("numbered"), false);
-                if PoseCache::holds(cache, key, &m.commands) {
+                if check().is_err() || PoseCache::holds(cache, key, &m.commands) {
                     None
                 } else {
                     pose_ahead(mech, &m.commands)
@@ -245,6 +289,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             })
             .collect();
         for (i, m) in valid.iter().enumerate() {
+            check()?;
             let origin = m.origin.expect("numbered");
             let len = measurement.row_len(m);
             let start = poses.last().map(|p| p.nominal_q.clone());
@@ -290,7 +335,20 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             force: force.to_vec(),
             cache: RefCell::new(None),
             jacobian_cache: RefCell::new(None),
+            large: offset.saturating_mul(mech.spec().n_params() + measurement.n_params())
+                >= crate::lm::LARGE_JACOBIAN,
+            cancel: None,
         })
+    }
+
+    /// Whether the problem is large (readings × parameters at least
+    /// [`crate::lm::LARGE_JACOBIAN`], e.g. 10,000 poses of a 6-DOF
+    /// platform): its Jacobians are not kept between evaluations, the
+    /// solver's columns are written without the full Jacobian, and a
+    /// calibration analyses identifiability before fitting rather than
+    /// alongside (one Jacobian in memory at a time, not four).
+    pub fn is_large(&self) -> bool {
+        self.large
     }
 
     /// Predictions at every pose, warm-started from (or taken from) the cache.
@@ -308,6 +366,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             .collect();
         let (mech, model, force, origins) =
             (self.mech, self.model, &self.force, &self.pose_origins);
+        let cancel = self.cancel.as_deref();
         // From scratch at nominal parameters (a calibration's start, the
         // accuracy before it): each pose's prediction is made once.
         let at_nominal = cached.is_none() && params.values == mech.spec().nominal;
@@ -317,6 +376,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             .zip(warm.par_iter())
             .enumerate()
             .map(|(i, (pose, warm))| {
+                crate::error::check_cancel(cancel)?;
                 if at_nominal {
                     pose.predict_at_nominal(mech, params, model, force)
                 } else {
@@ -332,7 +392,8 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
     }
 
     /// The last predictions and Jacobian kept (they start the next
-    /// evaluation), to be put back with [`Self::restore`].
+    /// evaluation), to be put back with [`Self::restore`] (shared, not
+    /// copied).
     pub(super) fn saved(&self) -> Saved {
         (
             self.cache.borrow().clone(),
@@ -466,57 +527,107 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
     /// `∂h/∂x · ∂x/∂p` for the mechanism's, `∂h/∂m` for the model's; a
     /// distance row's is `∂d/∂x_a · ∂x_a/∂p + ∂d/∂x_b · ∂x_b/∂p`.
     pub fn residuals_and_jacobian(&self, x: &[f64]) -> Result<(DVector<f64>, DMatrix<f64>)> {
-        if let Some((key, r, j)) = self.jacobian_cache.borrow().as_ref()
-            && key == x
+        if let Some(c) = self.jacobian_cache.borrow().as_ref()
+            && c.0 == x
         {
-            return Ok((r.clone(), j.clone()));
+            return Ok((c.1.clone(), c.2.clone()));
         }
+        let all: Vec<usize> = (0..x.len()).collect();
+        let (r, j) = self.assemble(x, &all, None)?;
+        if !self.large {
+            *self.jacobian_cache.borrow_mut() = Some(Arc::new((x.to_vec(), r.clone(), j.clone())));
+        }
+        Ok((r, j))
+    }
+
+    /// Residuals and the Jacobian's columns `cols` (indices of the full
+    /// parameter vector), row `i` multiplied by `weights[i]` when given:
+    /// the same numbers as the full Jacobian's entries (times the weight),
+    /// the rows' sensitivities computed [`JACOBIAN_CHUNK`] at a time.
+    fn assemble(
+        &self,
+        x: &[f64],
+        cols: &[usize],
+        weights: Option<&[f64]>,
+    ) -> Result<(DVector<f64>, DMatrix<f64>)> {
         let (params, m) = self.split(x)?;
         let np = self.mech.spec().n_params();
-        let nm = m.len();
         let mut r = DVector::zeros(self.n_readings);
-        let mut j = DMatrix::zeros(self.n_readings, np + nm);
+        let mut j = DMatrix::zeros(self.n_readings, cols.len());
         let predictions = self.predictions(&params)?;
-        // Poses in parallel, assembled in order.
-        let (mech, model, force, origins) =
-            (self.mech, self.model, &self.force, &self.pose_origins);
-        let sens: Result<Vec<_>> = self
-            .poses
-            .par_iter()
-            .zip(predictions.par_iter())
-            .enumerate()
-            .map(|(i, (pose, pred))| {
-                sensitivity_at(mech, pose, &params, model, force, pred.clone())
-                    .map_err(|e| e.at_pose(origins[i]))
-            })
-            .collect();
-        let sens = sens?;
-        for (row, measured) in self.rows.iter().zip(&self.measured) {
-            let sa = &sens[row.first];
-            match row.second {
-                Some(b) => {
-                    let sb = &sens[b];
-                    let (d, da, db) = self
-                        .measurement
-                        .distance_jacobian(&sa.prediction.x, &sb.prediction.x);
-                    r[row.offset] = d - measured[0];
-                    let ga = DMatrix::from_row_slice(1, da.len(), &da);
-                    let gb = DMatrix::from_row_slice(1, db.len(), &db);
-                    let jx = ga * &sa.jacobian + gb * &sb.jacobian;
-                    j.view_mut((row.offset, 0), (1, np)).copy_from(&jx);
-                }
-                None => {
-                    let (y, dx, dm) = self.measurement.observe_jacobian(&sa.prediction.x, &m);
-                    for a in 0..row.len {
-                        r[row.offset + a] = y[a] - measured[a];
-                    }
-                    let jx = dx * &sa.jacobian;
-                    j.view_mut((row.offset, 0), (row.len, np)).copy_from(&jx);
-                    j.view_mut((row.offset, np), (row.len, nm)).copy_from(&dm);
+        let (mech, model, force, origins, poses) = (
+            self.mech,
+            self.model,
+            &self.force,
+            &self.pose_origins,
+            &self.poses,
+        );
+        let cancel = self.cancel.as_deref();
+        // Each output column `k`'s value for an entry computed as `v`.
+        let put = |j: &mut DMatrix<f64>, i: usize, v: &DMatrix<f64>, a: usize, first: usize| {
+            for (k, &c) in cols.iter().enumerate() {
+                if c >= first && c < first + v.ncols() {
+                    j[(i, k)] = match weights {
+                        Some(w) => v[(a, c - first)] * w[i],
+                        None => v[(a, c - first)],
+                    };
                 }
             }
+        };
+        let mut first_row = 0;
+        for chunk in self.rows.chunks(JACOBIAN_CHUNK) {
+            // Poses in parallel, assembled in order.
+            let idx: Vec<usize> = chunk
+                .iter()
+                .flat_map(|row| std::iter::once(row.first).chain(row.second))
+                .collect();
+            let sens: Vec<_> = idx
+                .par_iter()
+                .map(|&i| {
+                    crate::error::check_cancel(cancel)?;
+                    sensitivity_at(
+                        mech,
+                        &poses[i],
+                        &params,
+                        model,
+                        force,
+                        predictions[i].clone(),
+                    )
+                    .map_err(|e| e.at_pose(origins[i]))
+                })
+                .collect::<Result<_>>()?;
+            let mut at = 0;
+            for (row, measured) in chunk.iter().zip(&self.measured[first_row..]) {
+                let sa = &sens[at];
+                at += 1;
+                match row.second {
+                    Some(_) => {
+                        let sb = &sens[at];
+                        at += 1;
+                        let (d, da, db) = self
+                            .measurement
+                            .distance_jacobian(&sa.prediction.x, &sb.prediction.x);
+                        r[row.offset] = d - measured[0];
+                        let ga = DMatrix::from_row_slice(1, da.len(), &da);
+                        let gb = DMatrix::from_row_slice(1, db.len(), &db);
+                        let jx = ga * &sa.jacobian + gb * &sb.jacobian;
+                        put(&mut j, row.offset, &jx, 0, 0);
+                    }
+                    None => {
+                        let (y, dx, dm) = self.measurement.observe_jacobian(&sa.prediction.x, &m);
+                        for a in 0..row.len {
+                            r[row.offset + a] = y[a] - measured[a];
+                        }
+                        let jx = dx * &sa.jacobian;
+                        for a in 0..row.len {
+                            put(&mut j, row.offset + a, &jx, a, 0);
+                            put(&mut j, row.offset + a, &dm, a, np);
+                        }
+                    }
+                }
+            }
+            first_row += chunk.len();
         }
-        *self.jacobian_cache.borrow_mut() = Some((x.to_vec(), r.clone(), j.clone()));
         Ok((r, j))
     }
 
@@ -554,6 +665,27 @@ impl<M: Mechanism> Problem for IdentificationProblem<'_, M> {
             return Ok((r, Some(j)));
         }
         Ok((self.residuals(x).map_err(|e| e.to_string())?, None))
+    }
+    fn jacobian_columns(
+        &self,
+        x: &[f64],
+        free: &[usize],
+        weights: Option<&[f64]>,
+    ) -> std::result::Result<(DVector<f64>, DMatrix<f64>), String> {
+        if !self.large {
+            // The full Jacobian, kept for the next evaluation at `x`.
+            let (r, j) = self.evaluate(x, true)?;
+            let mut j = j.expect("asked for").select_columns(free);
+            if let Some(w) = weights {
+                crate::lm::scale_rows(&mut j, w);
+            }
+            return Ok((r, j));
+        }
+        let (params, _) = self.split(x).map_err(|e| e.to_string())?;
+        if params.stiffness().iter().any(|k| *k <= 0.0) {
+            return Err("non-positive stiffness".into());
+        }
+        self.assemble(x, free, weights).map_err(|e| e.to_string())
     }
 }
 

@@ -295,6 +295,29 @@ impl Request {
         Ok(free_with_priors(spec, measurement, &set, priors, &self.fix))
     }
 
+    /// The parameters a tolerance frees beyond the free set named (the
+    /// documented rule: a tolerance frees its parameter unless it is fixed
+    /// by name), by name in the identification vector's order.
+    pub fn freed_by_tolerances(
+        &self,
+        spec: &Spec,
+        measurement: &MeasurementModel,
+        table: &[(String, Tolerance)],
+    ) -> Result<Vec<String>, RequestError> {
+        let priors = self.priors(spec, measurement, table)?;
+        let default = self.default_free.as_ref().unwrap_or(&spec.default_free);
+        let set = resolve_free_set(spec, measurement, default, self.free.as_deref(), &self.fix)
+            .map_err(free_set_error)?;
+        let all = measurement.all_names(spec);
+        Ok(
+            free_with_priors(spec, measurement, &set, &priors, &self.fix)
+                .into_iter()
+                .filter(|i| !set.contains(i))
+                .map(|i| all[i].clone())
+                .collect(),
+        )
+    }
+
     /// [`Request::priors`] and [`Request::free_set`]: what every command
     /// that fits, analyses or plans resolves first.
     pub fn priors_and_free(
@@ -615,7 +638,7 @@ pub fn bounded(field: Field, v: f64, max: f64, unit: &str) -> Result<f64, Reques
     } else {
         Err(RequestError::invalid(
             field,
-            format!("{v} {unit} must be between 0 and {max} {unit}"),
+            format!("{v:?} {unit} must be between 0 and {max} {unit}"),
         ))
     }
 }
@@ -627,7 +650,7 @@ pub fn positive(field: Field, v: f64, max: f64, unit: &str) -> Result<f64, Reque
     } else {
         Err(RequestError::invalid(
             field,
-            format!("{v} {unit} must be positive and at most {max} {unit}"),
+            format!("{v:?} {unit} must be positive and at most {max} {unit}"),
         ))
     }
 }
@@ -640,7 +663,7 @@ pub fn sigma_mm(field: Field, v: f64) -> Result<f64, RequestError> {
     } else {
         Err(RequestError::invalid(
             field,
-            format!("{v} mm must be between {MIN_SIGMA:e} and {MAX_LENGTH_MM:e} mm"),
+            format!("{v:?} mm must be between {MIN_SIGMA:e} and {MAX_LENGTH_MM:e} mm"),
         ))
     }
 }

@@ -23,6 +23,12 @@ use crate::mechanism::{Mechanism, Params, Spec};
 use nalgebra::DMatrix;
 use serde::Serialize;
 
+/// Degrees of freedom from which an estimated σ's intervals and tests are
+/// drawn as for a known σ (normal, χ²): Student's t's 97.5 % quantile is
+/// then the normal's 1.959964 to 2.4e-6 (the first term of its expansion,
+/// (z³ + z)/4ν), below any figure shown.
+pub const NORMAL_LIMIT_DOF: f64 = 1e6;
+
 /// How a calibration's uncertainties are scaled (docs/model.md §6, "The
 /// scale of the uncertainties"): what a front end says beside each σ and
 /// what its intervals and tests are drawn from.
@@ -73,13 +79,22 @@ impl Scale {
         }
     }
 
+    /// The degrees of freedom the intervals and tests are drawn with:
+    /// [`Self::dof`], or `None` (the normal and χ² limits) from
+    /// [`NORMAL_LIMIT_DOF`] on, where Student's t and Fisher's F are those
+    /// limits to the digits shown and their tails lose all precision (a
+    /// record's 1e308 degrees of freedom gave p = 1 for a 128σ change).
+    fn drawn_dof(&self) -> Option<f64> {
+        self.dof().filter(|n| n.is_nan() || *n < NORMAL_LIMIT_DOF)
+    }
+
     /// The half-width, in standard deviations, of a two-sided interval of
     /// confidence `level` (0.95: 1.96 when σ is known, Student's t with the
     /// degrees of freedom when it was estimated; NaN with none).
     pub fn quantile(&self, level: f64) -> f64 {
         use statrs::distribution::{ContinuousCDF, Normal, StudentsT};
         let p = 0.5 + 0.5 * level;
-        match self.dof() {
+        match self.drawn_dof() {
             None => Normal::standard().inverse_cdf(p),
             Some(n) if n > 0.0 => {
                 StudentsT::new(0.0, 1.0, n).map_or(f64::NAN, |t| t.inverse_cdf(p))
@@ -91,7 +106,7 @@ impl Scale {
     /// The two-sided p-value of a standardised value `z`.
     pub fn two_sided(&self, z: f64) -> f64 {
         use statrs::distribution::{ContinuousCDF, StudentsT};
-        match self.dof() {
+        match self.drawn_dof() {
             Some(n) if n > 0.0 => {
                 StudentsT::new(0.0, 1.0, n).map_or(f64::NAN, |t| 2.0 * t.sf(z.abs()))
             }
@@ -107,7 +122,7 @@ impl Scale {
         if k.is_nan() || k <= 0.0 {
             return f64::NAN;
         }
-        match self.dof() {
+        match self.drawn_dof() {
             None => ChiSquared::new(k).map_or(f64::NAN, |c| c.sf(q)),
             Some(n) if n > 0.0 => FisherSnedecor::new(k, n).map_or(f64::NAN, |f| f.sf(q / k)),
             Some(_) => f64::NAN,
@@ -136,9 +151,18 @@ pub(crate) fn posterior_covariance(
                 .map(|k| (k, 1.0 / t.sigma))
         })
         .collect();
-    let mut a = readings.clone().resize_vertically(m + rows.len(), 0.0);
+    // A large Jacobian's rows are stood for by its triangular factor `R`
+    // (`RᵀR = JᵀJ`, by blocks of rows, no copy of it): the same covariance
+    // but for rounding.
+    let (mut a, top) = if super::noise::is_large(readings) {
+        let r = super::noise::factor_by_rows(readings, None);
+        let n = r.nrows();
+        (r.resize_vertically(n + rows.len(), 0.0), n)
+    } else {
+        (readings.clone().resize_vertically(m + rows.len(), 0.0), m)
+    };
     for (r, (k, w)) in rows.iter().enumerate() {
-        a[(m + r, *k)] = *w;
+        a[(top + r, *k)] = *w;
     }
     crate::lm::covariance(&a, crate::lm::COVARIANCE_RANK_TOL)
 }
@@ -152,14 +176,20 @@ pub(crate) fn posterior_covariance(
 /// the readings' standard deviation of unit weight. With an estimated σ and
 /// no degree of freedom, every standard deviation is NaN.
 pub(crate) fn apply_scale(cal: &mut Calibration, scale: Scale, factor: &[f64]) {
-    let mut j = cal.jacobian.clone();
-    if factor.len() == j.nrows() {
+    // The fit's Jacobian as it is, copied only to be rescaled.
+    let scaled;
+    let j = if factor.len() == cal.jacobian.nrows() {
+        let mut j = cal.jacobian.clone();
         crate::lm::unscale_rows(&mut j, factor);
-    }
-    let (mut c, _) = posterior_covariance(&j, &cal.free, &cal.priors);
+        scaled = j;
+        &scaled
+    } else {
+        &cal.jacobian
+    };
+    let (mut c, _) = posterior_covariance(j, &cal.free, &cal.priors);
     let no_dof = scale.dof().is_some_and(|n| n.is_nan() || n <= 0.0);
     // The readings' redundancy and their weighted residuals.
-    let h = super::noise::leverages_with(&j, &c);
+    let h = super::noise::leverages_with(j, &c);
     let redundancy: f64 = h.iter().map(|h| (1.0 - h).max(0.0)).sum();
     let ss: f64 = cal
         .residuals

@@ -7,7 +7,10 @@ use super::problem::IdentificationProblem;
 use super::result::{Calibration, Warning, WarningKind};
 use super::uncertainty::{Scale, apply_scale};
 use crate::error::Result;
-use crate::identify::noise::{NoiseModel, VCE_MAX_ROUNDS, VCE_TOL, leverages, leverages_with};
+use crate::identify::noise::{
+    NoiseModel, VCE_MAX_ROUNDS, VCE_TOL, by_row_blocks, covariance_by_rows, factor_by_rows,
+    is_large, leverages, leverages_by_rows, leverages_with,
+};
 use crate::lm;
 use crate::measurement::data::Measurement;
 use crate::mechanism::{Mechanism, Params};
@@ -100,6 +103,9 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
             // repeat while the refit still moves the estimates.
             for _ in 0..VCE_MAX_REFITS {
                 linearized_vce(&mut noise, &cal);
+                // (The refit does not read the Jacobian: freed before it
+                // makes its own.)
+                cal.jacobian = DMatrix::zeros(0, 0);
                 let (next, c) = refit(&cal, &noise.sigmas())?;
                 (cal, cov) = (next, Some(c));
                 let mut check = noise.clone();
@@ -130,6 +136,7 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
                 .zip(&robust)
                 .map(|(s, w)| s / w.max(f64::MIN_POSITIVE).sqrt())
                 .collect();
+            cal.jacobian = DMatrix::zeros(0, 0);
             let (next, c) = refit(&cal, &sigma)?;
             (cal, cov) = (next, Some(c));
             if change < 1e-3 {
@@ -188,6 +195,9 @@ const VCE_MAX_REFITS: usize = 4;
 /// the σ settle. Only the readings' residuals and leverages estimate the
 /// noise.
 fn linearized_vce(noise: &mut NoiseModel, cal: &Calibration) {
+    if is_large(&cal.jacobian) {
+        return linearized_vce_by_rows(noise, cal);
+    }
     // Unweighted Jacobian of the free parameters.
     let mut j = cal.jacobian.clone();
     lm::scale_rows(&mut j, &cal.sigmas);
@@ -238,4 +248,62 @@ fn rescale(cal: &mut Calibration, sigma: &[f64]) {
     cal.unit_weight_sigma *= f;
     cal.jacobian.scale_mut(f);
     cal.sigmas = sigma.to_vec();
+}
+
+/// [`linearized_vce`] of a large Jacobian, row by row: the same estimates
+/// without its copies (its rows rescaled as they are read).
+fn linearized_vce_by_rows(noise: &mut NoiseModel, cal: &Calibration) {
+    let (m, n) = cal.jacobian.shape();
+    let r0 = &cal.residuals;
+    let k = cal.priors.len();
+    let mut prior_j = DMatrix::zeros(k, n);
+    let mut prior_r = DVector::zeros(k);
+    for (a, t) in cal.priors.iter().enumerate().filter(|(_, t)| !t.constraint) {
+        if let Some(c) = cal.free.iter().position(|&f| f == t.index) {
+            prior_j[(a, c)] = 1.0 / t.sigma;
+        }
+        prior_r[a] = (cal.parameters[t.index].identified - t.centre) / t.sigma;
+    }
+    for _ in 0..VCE_MAX_ROUNDS {
+        let s = noise.sigmas();
+        // Row `i` of the Jacobian weighted by the new σ: the fit's weighted
+        // row times σ_fit / σ.
+        let ratio: Vec<f64> = cal.sigmas.iter().zip(&s).map(|(a, b)| a / b).collect();
+        // (JᵀJ)⁺ of the readings' rows and the priors'.
+        let c = if k == 0 {
+            covariance_by_rows(&cal.jacobian, Some(&ratio))
+        } else {
+            let r = factor_by_rows(&cal.jacobian, Some(&ratio));
+            let mut stacked = DMatrix::zeros(n + k, n);
+            stacked.rows_mut(0, n).copy_from(&r);
+            stacked.rows_mut(n, k).copy_from(&prior_j);
+            lm::covariance(&stacked, lm::COVARIANCE_RANK_TOL).0
+        };
+        // Jᵀ r (weighted), the readings' then the priors'.
+        let mut g = DVector::zeros(n);
+        by_row_blocks(&cal.jacobian, Some(&ratio), |start, rows| {
+            for (t, row) in rows.chunks_exact(n).enumerate() {
+                let rw = r0[start + t] / s[start + t];
+                for (gk, v) in g.iter_mut().zip(row) {
+                    *gk += v * rw;
+                }
+            }
+        });
+        if k > 0 {
+            g += prior_j.transpose() * &prior_r;
+        }
+        let step = -(&c * g);
+        // r = r0 + J step (unweighted J: the fit's row times σ_fit).
+        let mut r = vec![0.0; m];
+        by_row_blocks(&cal.jacobian, Some(&cal.sigmas), |start, rows| {
+            for (t, row) in rows.chunks_exact(n).enumerate() {
+                let d: f64 = row.iter().zip(step.iter()).map(|(a, b)| a * b).sum();
+                r[start + t] = r0[start + t] + d;
+            }
+        });
+        let h = leverages_by_rows(&cal.jacobian, Some(&ratio), &c);
+        if noise.update(&r, &h) < VCE_TOL {
+            break;
+        }
+    }
 }

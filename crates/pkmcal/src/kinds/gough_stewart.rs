@@ -109,6 +109,7 @@ impl GoughStewart {
                 "a Gough–Stewart platform needs at least 6 legs ([[leg]] tables), got {n}"
             ));
         }
+        crate::mechanism::check_size(n, 0)?;
         for (i, l) in d.legs.iter().enumerate() {
             if l.base.iter().chain(&l.platform).any(|v| !v.is_finite()) {
                 return bad(format!("leg {}: joint centres must be finite", i + 1));

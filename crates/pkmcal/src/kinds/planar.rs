@@ -185,6 +185,7 @@ fn index_tree(d: &PlanarDescription, names: &mut Names) -> Result<Tree> {
     if d.joints.is_empty() {
         return bad("a planar linkage needs at least one [[joint]]".into());
     }
+    crate::mechanism::check_size(0, d.joints.len())?;
     let mut bodies: Vec<String> = vec!["ground".into()];
     let mut joints = Vec::with_capacity(d.joints.len());
     for (i, j) in d.joints.iter().enumerate() {

@@ -995,6 +995,7 @@ impl SpatialMechanism {
         if d.legs.is_empty() {
             return bad("a spatial mechanism needs at least one [[leg]]".into());
         }
+        crate::mechanism::check_size(d.legs.len(), d.legs.iter().map(|l| l.joints.len()).sum())?;
         let mut names = Names::new(&d.parameters);
         let motion = d.platform.motion;
         let pose_axes = &PLATFORM_AXES[..motion.coordinates()];

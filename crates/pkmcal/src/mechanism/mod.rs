@@ -18,6 +18,34 @@ use crate::units::{ParamKind, Unit};
 
 pub use crate::linalg::Scalar;
 
+/// The most legs a mechanism may have (a spatial mechanism's `[[leg]]`s, a
+/// Gough–Stewart platform's): the work of every command grows with the cube
+/// of the joints (a workspace lattice's conditioning, each pose's Newton
+/// steps), so that `simulate` on 1,000 towers ran for minutes; 128 legs
+/// take about 4 s there (BENCHMARKS.md). Real parallel machines have up to
+/// about a dozen.
+pub const MAX_LEGS: usize = 128;
+
+/// The most joints a mechanism may have, all legs together (see
+/// [`MAX_LEGS`]).
+pub const MAX_JOINTS: usize = 512;
+
+/// A description's size refused by name, or `Ok`: `legs` legs and `joints`
+/// joints against [`MAX_LEGS`] and [`MAX_JOINTS`].
+pub fn check_size(legs: usize, joints: usize) -> Result<()> {
+    if legs > MAX_LEGS {
+        return Err(Error::InvalidMechanism(format!(
+            "{legs} legs, more than the {MAX_LEGS} a mechanism may have (the work grows with the cube of the joints); describe fewer legs"
+        )));
+    }
+    if joints > MAX_JOINTS {
+        return Err(Error::InvalidMechanism(format!(
+            "{joints} joints, more than the {MAX_JOINTS} a mechanism may have (the work grows with the cube of the joints); describe fewer joints"
+        )));
+    }
+    Ok(())
+}
+
 /// The plain description of a mechanism: names, indices, nominal values.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Spec {

@@ -223,7 +223,7 @@ fn every_sigma_is_bounded_where_it_enters() {
         priors: prior.to_vec(),
         noise: Noise::lengths(0.0),
     };
-    let e = pkmcal::plan(&m, &Params::nominal(spec), &plan, &|| {}).unwrap_err();
+    let e = pkmcal::plan(&m, &Params::nominal(spec), &plan, &|_, _| {}).unwrap_err();
     assert_eq!(field(e), "noise.length");
 }
 

@@ -8,6 +8,7 @@ mod adequacy;
 mod architecture;
 mod budget;
 mod calibration;
+mod cancel;
 mod coverage;
 mod drift;
 mod engine;

@@ -469,13 +469,13 @@ fn analyses_and_plans_count_the_priors() {
         priors: vec![],
         noise: Noise::lengths(0.002),
     };
-    let without = pkmcal::plan(&r, &Params::nominal(rs), &plan, &|| {}).unwrap();
+    let without = pkmcal::plan(&r, &Params::nominal(rs), &plan, &|_, _| {}).unwrap();
     plan.priors = priors(rs, &["l11", "l21"], 0.05);
     plan.priors.push(Prior {
         index: k2,
         sigma: 1000.0,
     });
-    let given = pkmcal::plan(&r, &Params::nominal(rs), &plan, &|| {}).unwrap();
+    let given = pkmcal::plan(&r, &Params::nominal(rs), &plan, &|_, _| {}).unwrap();
     assert_eq!(given.rank, given.free);
     assert!(given.warnings.is_empty());
     assert!(given.observability.o5 > without.observability.o5);

@@ -103,14 +103,60 @@ fn a_record_comes_back_exactly_and_serves_only_its_mechanism() {
         other_format.check(spec),
         Err(RecordError::Format(_))
     ));
-    // A report written before versions: read by names.
+    // A report written before versions: its mechanism cannot be told, so
+    // it is refused (it was read by names, and another mechanism's
+    // calibration with the same names was taken).
     let legacy = CalibrationRecord {
         format: String::new(),
         version: 0,
         mechanism_identity: String::new(),
         ..back.clone()
     };
-    assert_eq!(legacy.check(spec), Ok(()));
+    assert!(legacy.check(spec).is_err());
+    let legacy = CalibrationRecord {
+        version: 0,
+        ..back.clone()
+    };
+    assert_eq!(legacy.check(spec), Err(RecordError::Version { found: 0 }));
+    // Every member checked (issue 50, 6).
+    let member = |r: CalibrationRecord| match r.check(spec) {
+        Err(RecordError::Member(m)) => m,
+        other => panic!("{other:?}"),
+    };
+    let mut missing = back.clone();
+    missing.parameters.retain(|p| p.name != "k1");
+    assert!(member(missing).contains("lacks `k1`"));
+    let mut twice = back.clone();
+    twice.parameters.push(twice.parameters[0].clone());
+    assert!(member(twice).contains("twice"));
+    let mut asymmetric = back.clone();
+    asymmetric.covariance.matrix[0][1] *= 1.01;
+    assert!(member(asymmetric).contains("not symmetric"));
+    let mut correlated = back.clone();
+    let v = correlated.covariance.matrix[0][0].sqrt() * correlated.covariance.matrix[1][1].sqrt();
+    correlated.covariance.matrix[0][1] = 2.0 * v;
+    correlated.covariance.matrix[1][0] = 2.0 * v;
+    assert!(member(correlated).contains("beyond ±1"));
+    let mut huge = back.clone();
+    huge.noise[0].redundancy = Some(1e308);
+    assert!(member(huge).contains("redundancy of 1e308"));
+    let mut given = back.clone();
+    given.noise[0].estimated = false;
+    assert!(member(given).contains("must be null"));
+    assert_eq!(back.dof(), cal.noise[0].redundancy);
+    // A value the mechanism cannot have: refused by the record, with the
+    // mechanism at hand.
+    let mut impossible = back.clone();
+    impossible.parameters[0].identified = -280.0;
+    assert_eq!(impossible.check(spec), Ok(()));
+    assert!(matches!(
+        impossible.checked_params(&mech),
+        Err(RecordError::Invalid(_))
+    ));
+    assert_eq!(
+        back.checked_params(&mech).unwrap().values,
+        cal.params.values
+    );
 }
 
 /// A tool load is a working load or a named mistake: on every shipped

@@ -158,6 +158,7 @@ fn a_record_saved_under_old_names_is_accepted() {
             names: vec!["a1x".into(), "k1".into()],
             matrix: vec![vec![1e-4, 0.0], vec![0.0, 25.0]],
         },
+        noise: vec![],
         priors: vec![],
         scale: None,
     };

@@ -38,7 +38,7 @@ fn planned<M: Mechanism>(m: &M, count: usize, candidates: usize) -> Vec<Vec<f64>
         priors: vec![],
         noise: pkmcal::Noise::lengths(0.002),
     };
-    pkmcal::plan(m, &Params::nominal(spec), &opts, &|| {})
+    pkmcal::plan(m, &Params::nominal(spec), &opts, &|_, _| {})
         .unwrap()
         .poses
         .into_iter()

@@ -1,0 +1,163 @@
+//! Per-output joint Hessians kept on the joints each output involves: a
+//! Gough–Stewart leg's constraint involves its own length and the
+//! platform's six coordinates, not the other legs', and a tool coordinate
+//! that is a joint has none. A pose keeps these for every equilibrium it
+//! starts (tens of thousands of poses in a large calibration), so the zeros
+//! are left out: the same numbers as the dense matrices, a seventh of the
+//! memory on an 8-leg platform.
+
+use nalgebra::DMatrix;
+
+/// Second derivatives `∇²_q y_k` of each output `y_k` (the constraints,
+/// then the tool coordinates) with respect to the `nq` joints, each stored
+/// as a dense block over its support: the joints whose row or column of the
+/// dense matrix holds a non-zero entry (every entry outside that block is
+/// exactly zero).
+#[derive(Debug, Clone, PartialEq)]
+pub struct JointHessians {
+    nq: usize,
+    /// Output `k`'s support is `support[starts[k]..starts[k + 1]]`.
+    starts: Vec<u32>,
+    support: Vec<u32>,
+    /// The blocks, column-major, one after another.
+    values: Vec<f64>,
+}
+
+impl JointHessians {
+    /// The dense matrices' entries on their supports (each `nq × nq`).
+    ///
+    /// # Panics
+    /// When the matrices are not all square of one size.
+    pub fn from_dense(dense: &[DMatrix<f64>]) -> Self {
+        let nq = dense.first().map_or(0, DMatrix::nrows);
+        let mut starts = Vec::with_capacity(dense.len() + 1);
+        starts.push(0);
+        let mut support = vec![];
+        let mut values = vec![];
+        for h in dense {
+            assert_eq!(h.shape(), (nq, nq), "joint Hessians are nq × nq");
+            // (NaN counts as non-zero, as it does in a weighted sum.)
+            let first = support.len();
+            support.extend((0..nq).filter_map(|i| {
+                let involved = (0..nq).any(|j| h[(i, j)] != 0.0 || h[(j, i)] != 0.0);
+                involved.then_some(i as u32)
+            }));
+            let sup = &support[first..];
+            for &c in sup {
+                values.extend(sup.iter().map(|&r| h[(r as usize, c as usize)]));
+            }
+            starts.push(support.len() as u32);
+        }
+        Self {
+            nq,
+            starts,
+            support,
+            values,
+        }
+    }
+
+    /// Number of outputs.
+    pub fn len(&self) -> usize {
+        self.starts.len() - 1
+    }
+
+    /// Whether there is no output.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Number of joints.
+    pub fn joints(&self) -> usize {
+        self.nq
+    }
+
+    /// Output `k`'s Hessian as a dense `nq × nq` matrix.
+    pub fn dense(&self, k: usize) -> DMatrix<f64> {
+        let mut m = DMatrix::zeros(self.nq, self.nq);
+        self.each(|o, sup, block| {
+            if o == k {
+                for (b, &c) in sup.iter().enumerate() {
+                    for (a, &r) in sup.iter().enumerate() {
+                        m[(r as usize, c as usize)] = block[b * sup.len() + a];
+                    }
+                }
+            }
+        });
+        m
+    }
+
+    /// `out[r, c] += Σ_k weights[k] · ∇²y_k[r, c]` on the leading `nq × nq`
+    /// block of the column-major `out` (`ld` rows), output after output,
+    /// skipping zero weights: each entry receives the same products in the
+    /// same order as the dense sum, without the zeros.
+    pub(crate) fn add_weighted(&self, weights: &[f64], out: &mut [f64], ld: usize) {
+        self.each(|k, sup, block| {
+            let wt = weights.get(k).copied().unwrap_or(0.0);
+            if wt == 0.0 {
+                return;
+            }
+            let s = sup.len();
+            for (b, &c) in sup.iter().enumerate() {
+                let col = &mut out[c as usize * ld..c as usize * ld + self.nq];
+                for (v, &r) in block[b * s..(b + 1) * s].iter().zip(sup) {
+                    col[r as usize] += v * wt;
+                }
+            }
+        });
+    }
+
+    /// `f(k, support, block)` for each output in order.
+    fn each(&self, mut f: impl FnMut(usize, &[u32], &[f64])) {
+        let mut at = 0;
+        for k in 0..self.len() {
+            let sup = &self.support[self.starts[k] as usize..self.starts[k + 1] as usize];
+            let len = sup.len() * sup.len();
+            f(k, sup, &self.values[at..at + len]);
+            at += len;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The kept blocks rebuild the dense matrices, and their weighted sum is
+    /// the dense sum bit for bit (zero weights skipped, as it skips them).
+    #[test]
+    fn blocks_rebuild_the_dense_matrices_and_their_sum() {
+        let nq = 7;
+        let mut dense = vec![];
+        for k in 0..5 {
+            let mut h = DMatrix::zeros(nq, nq);
+            for (i, j) in [(k, k), (k, (k + 2) % nq), ((k + 2) % nq, k), (6, 6)] {
+                h[(i, j)] = 1.0 / (1.0 + (i * nq + j + k) as f64);
+            }
+            dense.push(h);
+        }
+        dense.push(DMatrix::zeros(nq, nq));
+        let kept = JointHessians::from_dense(&dense);
+        assert_eq!(kept.len(), 6);
+        for (k, h) in dense.iter().enumerate() {
+            assert_eq!(kept.dense(k), *h);
+        }
+        let weights = [0.3, -1.7, 0.0, 2.5e-3, 1e5, 4.0];
+        let ld = nq + 3;
+        let mut sum = vec![0.0; ld * ld];
+        kept.add_weighted(&weights, &mut sum, ld);
+        let mut expected = vec![0.0; ld * ld];
+        for (h, &wt) in dense.iter().zip(&weights) {
+            if wt != 0.0 {
+                for c in 0..nq {
+                    for r in 0..nq {
+                        expected[c * ld + r] += h[(r, c)] * wt;
+                    }
+                }
+            }
+        }
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&sum), bits(&expected));
+        // Outputs keep 3 (or 2) of 7 joints: 9 (or 4) of 49 entries.
+        assert_eq!(kept.values.len(), 4 * 9 + 4);
+    }
+}
