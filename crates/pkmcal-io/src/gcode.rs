@@ -371,9 +371,11 @@ fn read_klipper(body: &str) -> Read {
 }
 
 /// The number `SafeStrtod` reads at the start of `s` (RepRapFirmware):
-/// spaces, a sign, digits, a point, digits, an exponent; its value and
-/// length, or `None` without a digit.
-fn safe_strtod(s: &str) -> Option<(f64, usize)> {
+/// spaces, a sign, digits, a point, digits, an exponent (taken even without
+/// digits: an exponent of 0); its value and length, or `None` without a
+/// digit. The one reading of RepRapFirmware's numbers: G-code moves and
+/// `config.g`'s parameters ([`crate::firmware::reprap`]).
+pub(crate) fn safe_strtod(s: &str) -> Option<(f64, usize)> {
     let b = s.as_bytes();
     let mut i = 0;
     while matches!(b.get(i), Some(b' ' | b'\t')) {

@@ -935,62 +935,14 @@ pub struct Command<'a> {
 
 /// Where a parameter's value stops being read: a number (with `SafeStrtod`'s
 /// syntax: sign, digits, point, exponent) from `s`, its end; `None` without
-/// a digit.
+/// a digit (or where `s` is not text up to it).
 fn number_at(s: &[u8]) -> Option<(f64, usize)> {
-    let mut i = 0;
-    while matches!(s.get(i), Some(b' ' | b'\t')) {
-        i += 1;
-    }
-    let start = i;
-    if matches!(s.get(i), Some(b'-' | b'+')) {
-        i += 1;
-    }
-    let mut digits = 0;
-    while s.get(i).is_some_and(u8::is_ascii_digit) {
-        i += 1;
-        digits += 1;
-    }
-    if s.get(i) == Some(&b'.') {
-        i += 1;
-        while s.get(i).is_some_and(u8::is_ascii_digit) {
-            i += 1;
-            digits += 1;
-        }
-    }
-    if digits == 0 {
-        return None;
-    }
-    let mantissa_end = i;
-    if matches!(s.get(i), Some(b'e' | b'E')) {
-        let mut k = i + 1;
-        if matches!(s.get(k), Some(b'-' | b'+')) {
-            k += 1;
-        }
-        let e0 = k;
-        while s.get(k).is_some_and(u8::is_ascii_digit) {
-            k += 1;
-        }
-        // `SafeStrtod` takes the `E` even without digits (an exponent of 0).
-        i = k;
-        let text = std::str::from_utf8(&s[start..mantissa_end]).ok()?;
-        let exp: i32 = if k > e0 {
-            std::str::from_utf8(&s[e0..k])
-                .ok()?
-                .parse()
-                .unwrap_or(i32::MAX)
-        } else {
-            0
-        };
-        let exp = if s.get(mantissa_end + 1) == Some(&b'-') {
-            -exp
-        } else {
-            exp
-        };
-        let v: f64 = format!("{text}e{exp}").parse().ok()?;
-        return Some((v, i));
-    }
-    let v: f64 = std::str::from_utf8(&s[start..i]).ok()?.parse().ok()?;
-    Some((v, i))
+    let text = match std::str::from_utf8(s) {
+        Ok(t) => t,
+        // The number is ASCII: read up to the first byte that is not text.
+        Err(e) => std::str::from_utf8(&s[..e.valid_up_to()]).ok()?,
+    };
+    crate::gcode::safe_strtod(text)
 }
 
 /// The end of the braced expression starting at `s[0] == '{'`.
