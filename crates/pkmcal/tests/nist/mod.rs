@@ -59,8 +59,10 @@ fn line_range(text: &str, what: &str) -> (usize, usize) {
 }
 
 pub fn load(name: &str) -> Nist {
+    // Through `../pkmcal`: the same folder from the library's tests and from
+    // the benchmarks' crate (crates/pkmcal-bench), which include this file.
     let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/data/nist-strd")
+        .join("../pkmcal/tests/data/nist-strd")
         .join(format!("{name}.dat"));
     let text = std::fs::read_to_string(&path).unwrap();
     let lines: Vec<&str> = text.lines().collect();

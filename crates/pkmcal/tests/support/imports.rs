@@ -1,6 +1,6 @@
 //! A scanner of a crate's imports, for the architecture tests of the
 //! library (`crates/pkmcal/tests/all/architecture.rs`) and of the file side
-//! (`crates/pkmcal-io/tests/imports.rs`), which include it with `#[path]`:
+//! (`crates/pkmcal-io/tests/all/imports.rs`), which include it with `#[path]`:
 //! the edges between a crate's top-level modules (for a crate of flat
 //! files, between its files), their cycles, and the layers they break.
 //!

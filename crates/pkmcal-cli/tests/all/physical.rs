@@ -1,0 +1,153 @@
+//! `--physical` on `klipper`, `reprap` and `marlin` (issue 54): the values
+//! are written by the firmware's own writer (every other byte as without
+//! it), the build-volume error is reported, and misuse is refused by name.
+
+use crate::common::{fails, ok};
+use std::path::{Path, PathBuf};
+
+fn examples() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples")
+}
+
+/// The text before Klipper's SAVE_CONFIG block.
+fn regular(text: &str) -> &str {
+    &text[..text.find("#*# <----").unwrap_or(text.len())]
+}
+
+#[test]
+fn klipper_physical_writes_klippers_values_with_klippers_writer() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = examples().join("klipper-delta/printer.cfg");
+    let cfg = cfg.to_str().unwrap();
+    ok(
+        dir.path(),
+        &["klipper", "--config", cfg, "--out", "own.cfg"],
+    );
+    let out = ok(
+        dir.path(),
+        &[
+            "klipper",
+            "--config",
+            cfg,
+            "--physical",
+            "--out",
+            "phys.cfg",
+        ],
+    );
+    for says in [
+        "Physical model: 13 probe heights",
+        "nozzle error over the build volume",
+        "Klipper's own fit of the probe",
+        "the values for the nozzle",
+        "the probe pattern cannot see",
+    ] {
+        assert!(out.contains(says), "`{says}` not in:\n{out}");
+    }
+    let own = std::fs::read_to_string(dir.path().join("own.cfg")).unwrap();
+    let phys = std::fs::read_to_string(dir.path().join("phys.cfg")).unwrap();
+    assert_eq!(regular(&own), regular(&phys));
+    assert_ne!(own, phys);
+    // The same options in the block, other values.
+    let keys = |t: &str| -> Vec<String> {
+        t.lines()
+            .filter(|l| l.starts_with("#*# ") && l.contains(" = "))
+            .map(|l| l.split(" = ").next().unwrap().to_string())
+            .collect()
+    };
+    assert_eq!(keys(&own), keys(&phys));
+    // The nozzle's error with the written values is below Klipper's own
+    // fit's on the fitted printer (XY RMS), as printed.
+    let xy = |who: &str| -> f64 {
+        let line = out.lines().find(|l| l.contains(who)).unwrap();
+        let rest = &line[line.find("XY RMS ").unwrap() + 7..];
+        rest.split(' ').next().unwrap().parse().unwrap()
+    };
+    assert!(
+        xy("the values for the nozzle") < xy("Klipper's own fit"),
+        "{out}"
+    );
+}
+
+#[test]
+fn reprap_and_marlin_physical_write_their_lines() {
+    let dir = tempfile::tempdir().unwrap();
+    let r = examples().join("reprap-delta");
+    ok(
+        dir.path(),
+        &[
+            "reprap",
+            "--config",
+            r.join("config.g").to_str().unwrap(),
+            "--probes",
+            r.join("probes.csv").to_str().unwrap(),
+            "--physical",
+            "--out",
+            "new.g",
+        ],
+    );
+    let g = std::fs::read_to_string(dir.path().join("new.g")).unwrap();
+    assert!(g.contains("\nM665 L") && g.contains("\nM666 X"), "{g}");
+    let m = examples().join("marlin-delta");
+    ok(
+        dir.path(),
+        &[
+            "marlin",
+            "--config",
+            m.join("M503.txt").to_str().unwrap(),
+            "--probes",
+            m.join("G30.log").to_str().unwrap(),
+            "--physical",
+            "--tolerance",
+            "rod_a1=0.05,bed.rx=0.001",
+            "--out",
+            "new.gcode",
+        ],
+    );
+    let g = std::fs::read_to_string(dir.path().join("new.gcode")).unwrap();
+    assert!(g.contains("\nM665 L") && g.contains("M500"), "{g}");
+}
+
+#[test]
+fn physical_misuse_is_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = examples().join("klipper-delta/printer.cfg");
+    let cfg = cfg.to_str().unwrap();
+    fails(
+        dir.path(),
+        &["klipper", "--config", cfg, "--tolerance", "rod_a1=0.05"],
+        2,
+        "add --physical",
+    );
+    fails(
+        dir.path(),
+        &["klipper", "--config", cfg, "--physical", "--out-dir", "d"],
+        2,
+        "--out-dir",
+    );
+    fails(
+        dir.path(),
+        &[
+            "klipper",
+            "--config",
+            cfg,
+            "--physical",
+            "--tolerance",
+            "rod_z9=0.05",
+        ],
+        2,
+        "rod_z9",
+    );
+    let rotary = examples().join("klipper-rotary-delta/printer.cfg");
+    fails(
+        dir.path(),
+        &[
+            "klipper",
+            "--config",
+            rotary.to_str().unwrap(),
+            "--physical",
+        ],
+        1,
+        "rotary delta",
+    );
+    assert!(!dir.path().join("d").exists());
+}

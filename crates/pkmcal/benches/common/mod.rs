@@ -1,5 +1,0 @@
-//! What the benchmarks share: the shipped examples' mechanism descriptions.
-
-#[path = "../../tests/support/examples.rs"]
-mod examples;
-pub use examples::example_table;
