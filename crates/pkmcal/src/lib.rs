@@ -121,3 +121,35 @@ pub(crate) fn on_pool<R: Send>(f: impl FnOnce() -> R + Send) -> R {
         rayon::scope(|_| f())
     }
 }
+
+thread_local! {
+    /// Whether the parallel loops over a calibration's poses run on the
+    /// calling thread alone ([`serially`]).
+    static SERIAL: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Runs `f` with the loops over a calibration's poses on the calling thread
+/// ([`pose_chunk`]): for work that is itself one of many parallel tasks (a
+/// run of a Monte Carlo study), where splitting each evaluation's 35 poses
+/// over the pool costs more than it shares. The results are the same: the
+/// loops assemble their poses in order either way.
+pub(crate) fn serially<R>(f: impl FnOnce() -> R) -> R {
+    struct Restore(bool);
+    impl Drop for Restore {
+        fn drop(&mut self) {
+            SERIAL.with(|s| s.set(self.0));
+        }
+    }
+    let _restore = Restore(SERIAL.with(|s| s.replace(true)));
+    f()
+}
+
+/// The fewest poses one task of a parallel loop over a calibration's poses
+/// takes (rayon's `with_min_len`): all of them under [`serially`], else 1.
+pub(crate) fn pose_chunk() -> usize {
+    if SERIAL.with(std::cell::Cell::get) {
+        usize::MAX
+    } else {
+        1
+    }
+}

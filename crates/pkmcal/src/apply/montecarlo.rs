@@ -160,66 +160,75 @@ pub fn monte_carlo<M: Mechanism>(
         .collect::<Result<_>>()?;
     let normals = noise_normals(&tool, opts.noise)?;
     let cache = PoseCache::default();
+    let one_run = |r: usize| -> Result<Run> {
+        // The fits stop at their next evaluation once the caller's
+        // cancel flag is set (their solver shares it); the runs not yet
+        // started stop here.
+        crate::error::check_cancel(opts.calibration.solver.cancel.as_deref())?;
+        let seed = opts.seed.wrapping_add(r as u64);
+        let mut rng = StdRng::seed_from_u64(seed);
+        let len = Normal::new(0.0, opts.length_error.max(0.0)).expect("valid σ");
+        let ang = Normal::new(0.0, opts.angle_error.max(0.0)).expect("valid σ");
+        let unit = Normal::new(0.0, 1.0).expect("valid σ");
+        let mut truth = nominal.clone();
+        // A parameter with a tolerance is drawn from it (the machine is
+        // built within its tolerances, calibrated or not).
+        let prior = |i: usize| priors.iter().find(|p| p.index == i).map(|p| p.sigma);
+        for &i in free {
+            // Stiffness stays nominal without a tolerance: its errors are
+            // a separate question.
+            match (prior(i), spec.param_kind(i), spec.param_unit(i)) {
+                (Some(s), ..) => truth.values[i] += s * unit.sample(&mut rng),
+                (None, ParamKind::Stiffness, _) => {}
+                (None, _, Unit::Radian) => truth.values[i] += ang.sample(&mut rng),
+                _ => truth.values[i] += len.sample(&mut rng),
+            }
+        }
+        for p in priors.iter().filter(|p| !free.contains(&p.index)) {
+            truth.values[p.index] += p.sigma * unit.sample(&mut rng);
+        }
+        // The measurements `simulate` draws with this seed.
+        let mut noise = StdRng::seed_from_u64(seed ^ 0x9e37_79b9);
+        let data = training
+            .iter()
+            .zip(poses)
+            .map(|((commands, pose), target)| {
+                let c = commands.clone();
+                measure(mech, &tool, &truth, target, c, pose, &normals, &mut noise)
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let cal = calibrate_with_cache(mech, &tool, &data, &nominal, &opts.calibration, &cache)?;
+        // Accuracy on the unseen poses: the truth's exact prediction
+        // (noise-free) minus the calibrated model's, in the base frame.
+        let errors = unseen
+            .iter()
+            .map(|pose| {
+                let t = predict_pose(mech, pose, &truth, Model::Exact, &[])?.x;
+                let c = predict_pose(mech, pose, &cal.params, cal.model, &[])?.x;
+                Ok(t.iter().zip(&c).map(|(a, b)| a - b).collect())
+            })
+            .collect::<Result<Vec<Vec<f64>>>>()?;
+        progress();
+        Ok(Run {
+            converged: cal.converged,
+            validation: error_stats(&errors, tool.units()),
+            parameter_errors: free
+                .iter()
+                .map(|&i| cal.params.values[i] - truth.values[i])
+                .collect(),
+        })
+    };
+    // With a run for every thread, the runs are the parallel work: each
+    // calibrates on its own thread.
+    let serial = opts.runs >= rayon::current_num_threads();
     let runs: Vec<Result<Run>> = (0..opts.runs)
         .into_par_iter()
         .map(|r| {
-            // The fits stop at their next evaluation once the caller's
-            // cancel flag is set (their solver shares it); the runs not yet
-            // started stop here.
-            crate::error::check_cancel(opts.calibration.solver.cancel.as_deref())?;
-            let seed = opts.seed.wrapping_add(r as u64);
-            let mut rng = StdRng::seed_from_u64(seed);
-            let len = Normal::new(0.0, opts.length_error.max(0.0)).expect("valid σ");
-            let ang = Normal::new(0.0, opts.angle_error.max(0.0)).expect("valid σ");
-            let unit = Normal::new(0.0, 1.0).expect("valid σ");
-            let mut truth = nominal.clone();
-            // A parameter with a tolerance is drawn from it (the machine is
-            // built within its tolerances, calibrated or not).
-            let prior = |i: usize| priors.iter().find(|p| p.index == i).map(|p| p.sigma);
-            for &i in free {
-                // Stiffness stays nominal without a tolerance: its errors are
-                // a separate question.
-                match (prior(i), spec.param_kind(i), spec.param_unit(i)) {
-                    (Some(s), ..) => truth.values[i] += s * unit.sample(&mut rng),
-                    (None, ParamKind::Stiffness, _) => {}
-                    (None, _, Unit::Radian) => truth.values[i] += ang.sample(&mut rng),
-                    _ => truth.values[i] += len.sample(&mut rng),
-                }
+            if serial {
+                crate::serially(|| one_run(r))
+            } else {
+                one_run(r)
             }
-            for p in priors.iter().filter(|p| !free.contains(&p.index)) {
-                truth.values[p.index] += p.sigma * unit.sample(&mut rng);
-            }
-            // The measurements `simulate` draws with this seed.
-            let mut noise = StdRng::seed_from_u64(seed ^ 0x9e37_79b9);
-            let data = training
-                .iter()
-                .zip(poses)
-                .map(|((commands, pose), target)| {
-                    let c = commands.clone();
-                    measure(mech, &tool, &truth, target, c, pose, &normals, &mut noise)
-                })
-                .collect::<Result<Vec<_>>>()?;
-            let cal =
-                calibrate_with_cache(mech, &tool, &data, &nominal, &opts.calibration, &cache)?;
-            // Accuracy on the unseen poses: the truth's exact prediction
-            // (noise-free) minus the calibrated model's, in the base frame.
-            let errors = unseen
-                .iter()
-                .map(|pose| {
-                    let t = predict_pose(mech, pose, &truth, Model::Exact, &[])?.x;
-                    let c = predict_pose(mech, pose, &cal.params, cal.model, &[])?.x;
-                    Ok(t.iter().zip(&c).map(|(a, b)| a - b).collect())
-                })
-                .collect::<Result<Vec<Vec<f64>>>>()?;
-            progress();
-            Ok(Run {
-                converged: cal.converged,
-                validation: error_stats(&errors, tool.units()),
-                parameter_errors: free
-                    .iter()
-                    .map(|&i| cal.params.values[i] - truth.values[i])
-                    .collect(),
-            })
         })
         .collect();
     crate::error::check_cancel(opts.calibration.solver.cancel.as_deref())?;

@@ -48,6 +48,9 @@ impl JointHessians {
             }
             starts.push(support.len() as u32);
         }
+        // Kept with every prepared pose: no spare capacity.
+        support.shrink_to_fit();
+        values.shrink_to_fit();
         Self {
             nq,
             starts,

@@ -76,7 +76,7 @@ pub struct Pose {
     pub nominal_q: Vec<f64>,
     /// Φ, J_p, Γ, H, J_f at the nominal configuration (computed on first use:
     /// only the linear model needs them).
-    lin: OnceLock<Result<Linearization>>,
+    lin: OnceLock<Box<Result<Linearization>>>,
     /// Second derivatives of each constraint and tool coordinate with respect
     /// to the joints at the nominal configuration (computed on first use by the
     /// exact model; Newton's curvature there is good to ~1e-6 relative), kept
@@ -86,7 +86,12 @@ pub struct Pose {
     /// (no warm start), with the model and load it was made for: a
     /// calibration that starts at nominal parameters and the accuracy it
     /// reports before calibration make it once ([`Pose::predict_at_nominal`]).
-    at_nominal: OnceLock<(Model, Vec<f64>, Prediction)>,
+    at_nominal: OnceLock<Box<(Model, Vec<f64>, Prediction)>>,
+    /// The sensitivity at nominal parameters, with the model and load it
+    /// was computed for ([`Pose::sensitivity_at_nominal`]): every fit that
+    /// starts at nominal parameters (each run of a Monte Carlo study)
+    /// computes the same Jacobian there.
+    sensitivity_at_nominal: OnceLock<Box<(Model, Vec<f64>, crate::engine::sensitivity::Sensitivity)>>,
 }
 
 impl Pose {
@@ -102,7 +107,7 @@ impl Pose {
         force: &[f64],
     ) -> Result<Prediction> {
         debug_assert_eq!(nominal.values, mech.spec().nominal);
-        if let Some((m, f, p)) = self.at_nominal.get()
+        if let Some((m, f, p)) = self.at_nominal.get().map(|b| &**b)
             && *m == model
             && f == force
         {
@@ -110,8 +115,42 @@ impl Pose {
         }
         let p = predict_pose(mech, self, nominal, model, force)?;
         // (Another thread may have kept its own, the same, first.)
-        let _ = self.at_nominal.set((model, force.to_vec(), p.clone()));
+        let _ = self
+            .at_nominal
+            .set(Box::new((model, force.to_vec(), p.clone())));
         Ok(p)
+    }
+
+    /// [`crate::engine::sensitivity::sensitivity_at`] at nominal parameters
+    /// `nominal` (the caller's, equal to `Params::nominal`) for
+    /// `prediction`: the one kept for this model and load when it was
+    /// computed for the same prediction (then the same, bit for bit, as it
+    /// is a function of them alone), else computed (and kept if it is the
+    /// first).
+    pub(crate) fn sensitivity_at_nominal<M: Mechanism>(
+        &self,
+        mech: &M,
+        nominal: &Params,
+        model: Model,
+        force: &[f64],
+        prediction: Prediction,
+    ) -> Result<crate::engine::sensitivity::Sensitivity> {
+        debug_assert_eq!(nominal.values, mech.spec().nominal);
+        if let Some((m, f, s)) = self.sensitivity_at_nominal.get().map(|b| &**b)
+            && *m == model
+            && f == force
+            && s.prediction.same_bits(&prediction)
+        {
+            return Ok(s.clone());
+        }
+        let s = crate::engine::sensitivity::sensitivity_at(
+            mech, self, nominal, model, force, prediction,
+        )?;
+        // (Another thread may have kept its own, the same, first.)
+        let _ = self
+            .sensitivity_at_nominal
+            .set(Box::new((model, force.to_vec(), s.clone())));
+        Ok(s)
     }
 
     /// Φ, J_p, Γ, H, J_f at the nominal configuration (eq. 4–7, 9), the
@@ -120,13 +159,14 @@ impl Pose {
         let spec = mech.spec();
         self.lin
             .get_or_init(|| {
-                linearize(
+                Box::new(linearize(
                     mech,
                     &self.nominal_q,
                     &spec.nominal[..spec.n_geometric()],
                     &spec.independent,
-                )
+                ))
             })
+            .as_ref()
             .as_ref()
             .map_err(Clone::clone)
     }
@@ -161,6 +201,22 @@ pub struct Prediction {
     /// Lagrange multipliers of the constraints at the equilibrium (exact
     /// model), else empty.
     pub multipliers: Vec<f64>,
+}
+
+impl Prediction {
+    /// Whether `other` is this prediction bit for bit (a signed zero or a
+    /// NaN as well).
+    pub(crate) fn same_bits(&self, other: &Self) -> bool {
+        let same = |a: &[f64], b: &[f64]| {
+            a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+        };
+        self.iterations == other.iterations
+            && same(&self.q, &other.q)
+            && same(&self.x, &other.x)
+            && same(&self.deflection, &other.deflection)
+            && same(&self.torque, &other.torque)
+            && same(&self.multipliers, &other.multipliers)
+    }
 }
 
 /// Result of the exact equilibrium.
@@ -253,7 +309,9 @@ pub fn prepare_pose<M: Mechanism>(
 /// whenever it tries the guess first.
 pub(crate) struct Ahead {
     guess: Option<Vec<f64>>,
-    pose: Option<Pose>,
+    /// (Boxed: a sequence of these is collected before the poses are
+    /// taken out, most of them `None` when the poses are cached.)
+    pose: Option<Box<Pose>>,
 }
 
 /// [`Ahead`] for `commands` (`None` for commands `prepare_pose` rejects).
@@ -266,12 +324,15 @@ pub(crate) fn pose_ahead<M: Mechanism>(mech: &M, commands: &[f64]) -> Option<Ahe
     let guess = mech.configuration_guess(commands, rho);
     let pose = guess.as_ref().and_then(|g| {
         let q = forward_kinematics(mech, rho, &q_u, g).ok()?;
-        (commands_mismatch(spec, commands, &q) < CONSISTENT).then(|| Pose {
+        (commands_mismatch(spec, commands, &q) < CONSISTENT).then(|| {
+            Box::new(Pose {
             commands: commands.to_vec(),
             nominal_q: q,
             lin: OnceLock::new(),
             hessians: OnceLock::new(),
             at_nominal: OnceLock::new(),
+            sensitivity_at_nominal: OnceLock::new(),
+            })
         })
     });
     Some(Ahead { guess, pose })
@@ -339,7 +400,7 @@ pub(crate) fn prepare_pose_ahead<M: Mechanism>(
     // exactly), and stop at the first that agrees to `CONSISTENT`.
     let mismatch = |q: &[f64]| commands_mismatch(spec, commands, q);
     let (mut ahead_guess, ahead_pose) = match ahead {
-        Some(a) => (Some(a.guess), a.pose),
+        Some(a) => (Some(a.guess), a.pose.map(|p| *p)),
         None => (None, None),
     };
     let mut guess_of = || {
@@ -471,6 +532,7 @@ pub(crate) fn prepare_pose_ahead<M: Mechanism>(
         lin: OnceLock::new(),
         hessians: OnceLock::new(),
         at_nominal: OnceLock::new(),
+        sensitivity_at_nominal: OnceLock::new(),
     })
 }
 

@@ -279,6 +279,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         // start is done ahead, in parallel.
         let mut ahead: Vec<Option<Ahead>> = valid
             .par_iter()
+            .with_min_len(crate::pose_chunk())
             .map(|m| {
                 let key = (m.origin.expect("numbered"), false);
                 if check().is_err() || PoseCache::holds(cache, key, &m.commands) {
@@ -374,6 +375,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             .poses
             .par_iter()
             .zip(warm.par_iter())
+            .with_min_len(crate::pose_chunk())
             .enumerate()
             .map(|(i, (pose, warm))| {
                 crate::error::check_cancel(cancel)?;
@@ -563,6 +565,10 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             &self.poses,
         );
         let cancel = self.cancel.as_deref();
+        // At nominal parameters (where every fit starts) each pose's
+        // sensitivity is kept with it, for the next fit from there (a large
+        // problem's poses keep no more than they must).
+        let at_nominal = !self.large && params.values == mech.spec().nominal;
         // Each output column `k`'s value for an entry computed as `v`.
         let put = |j: &mut DMatrix<f64>, i: usize, v: &DMatrix<f64>, a: usize, first: usize| {
             for (k, &c) in cols.iter().enumerate() {
@@ -583,16 +589,15 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
                 .collect();
             let sens: Vec<_> = idx
                 .par_iter()
+                .with_min_len(crate::pose_chunk())
                 .map(|&i| {
                     crate::error::check_cancel(cancel)?;
-                    sensitivity_at(
-                        mech,
-                        &poses[i],
-                        &params,
-                        model,
-                        force,
-                        predictions[i].clone(),
-                    )
+                    let prediction = predictions[i].clone();
+                    if at_nominal {
+                        poses[i].sensitivity_at_nominal(mech, &params, model, force, prediction)
+                    } else {
+                        sensitivity_at(mech, &poses[i], &params, model, force, prediction)
+                    }
                     .map_err(|e| e.at_pose(origins[i]))
                 })
                 .collect::<Result<_>>()?;
