@@ -1,6 +1,6 @@
 """MINPACK (scipy.optimize.least_squares, method='lm', analytic Jacobians by
 sympy) on the 27 NIST StRD problems, from both starts: median wall time per
-fit and correct significant digits, to compare with `cargo bench -p pkmcal
+fit and correct significant digits, to compare with `cargo bench -p pkmcal-bench
 --bench nist`. Run: python3 benchmarks/nist_scipy.py (needs scipy, sympy)."""
 
 import pathlib, re, statistics, time

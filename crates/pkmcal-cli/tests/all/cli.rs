@@ -1,6 +1,5 @@
 //! End-to-end tests of the command-line tool.
 
-
 /// Agreement of predict with simulate on noise-free data (mm).
 const SAME_MM: f64 = 1e-9;
 

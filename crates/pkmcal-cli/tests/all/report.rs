@@ -201,7 +201,9 @@ fn report_renders_in_headless_chromium() {
             std::env::var_os("CI").is_none(),
             "CI is set but no Chromium was found: the report was not rendered"
         );
-        crate::common::skipped("no Chromium found (install Debian's `chromium` package to run this test)");
+        crate::common::skipped(
+            "no Chromium found (install Debian's `chromium` package to run this test)",
+        );
         return;
     };
     let dir = tempfile::tempdir().unwrap();

@@ -3,7 +3,7 @@
 //! (`crates/pkmcal/tests/support/imports.rs`).
 
 #[path = "../../../pkmcal/tests/support/imports.rs"]
-mod imports;
+mod scanner;
 
 use std::path::Path;
 
@@ -12,12 +12,12 @@ use std::path::Path;
 #[test]
 fn no_import_circle_between_files() {
     let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
-    let (modules, edges) = imports::module_graph(&src);
+    let (modules, edges) = scanner::module_graph(&src);
     assert!(modules.contains("output"), "{modules:?}");
-    if let Some(cycle) = imports::find_cycle(&modules, &edges) {
+    if let Some(cycle) = scanner::find_cycle(&modules, &edges) {
         panic!(
             "import circle between the files of pkmcal-io:\n  {}",
-            imports::cycle_words(&cycle, &edges)
+            scanner::cycle_words(&cycle, &edges)
         );
     }
 }
