@@ -91,7 +91,8 @@ pub struct Pose {
     /// was computed for ([`Pose::sensitivity_at_nominal`]): every fit that
     /// starts at nominal parameters (each run of a Monte Carlo study)
     /// computes the same Jacobian there.
-    sensitivity_at_nominal: OnceLock<Box<(Model, Vec<f64>, crate::engine::sensitivity::Sensitivity)>>,
+    sensitivity_at_nominal:
+        OnceLock<Box<(Model, Vec<f64>, crate::engine::sensitivity::Sensitivity)>>,
 }
 
 impl Pose {
@@ -326,12 +327,12 @@ pub(crate) fn pose_ahead<M: Mechanism>(mech: &M, commands: &[f64]) -> Option<Ahe
         let q = forward_kinematics(mech, rho, &q_u, g).ok()?;
         (commands_mismatch(spec, commands, &q) < CONSISTENT).then(|| {
             Box::new(Pose {
-            commands: commands.to_vec(),
-            nominal_q: q,
-            lin: OnceLock::new(),
-            hessians: OnceLock::new(),
-            at_nominal: OnceLock::new(),
-            sensitivity_at_nominal: OnceLock::new(),
+                commands: commands.to_vec(),
+                nominal_q: q,
+                lin: OnceLock::new(),
+                hessians: OnceLock::new(),
+                at_nominal: OnceLock::new(),
+                sensitivity_at_nominal: OnceLock::new(),
             })
         })
     });

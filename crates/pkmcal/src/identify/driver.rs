@@ -156,7 +156,8 @@ fn calibrate_on<M: Mechanism>(
     opts: &CalibrationOptions,
     cache: &PoseCache,
 ) -> Result<Calibration> {
-    let data = numbered(data);
+    // (Rows numbered already, a calibration's own, are not copied.)
+    let data = crate::measurement::data::numbered_cow(data);
     check_sigma(measurement, &data)?;
     let cap = (data.len() as f64 * MAX_DROPPED_FRACTION).floor() as usize;
     let mut kept = data;
@@ -187,7 +188,7 @@ fn calibrate_on<M: Mechanism>(
             ))
             .at_pose(g.origin));
         }
-        kept.retain(|m| m.origin != Some(g.origin));
+        kept.to_mut().retain(|m| m.origin != Some(g.origin));
         dropped.push(g.origin);
     }
     if !dropped.is_empty() {
@@ -230,7 +231,7 @@ fn calibrate_on<M: Mechanism>(
             .max_by(|a, b| a.standardized.total_cmp(&b.standardized))
             .expect("not empty")
             .clone();
-        kept.retain(|m| m.origin != Some(worst.origin));
+        kept.to_mut().retain(|m| m.origin != Some(worst.origin));
         dropped.push(worst.origin);
         found.push(worst);
         problem = problem_of(&kept)?;

@@ -106,8 +106,11 @@ pub fn variance_ratio(a: &NoiseGroup, b: &NoiseGroup, level: f64) -> Option<Vari
 pub(crate) struct NoiseModel {
     /// Per residual: `Ok(σ)` given, `Err(g)` the estimated group `g`.
     assign: Vec<Result<f64, usize>>,
-    /// Per residual: its unit and reading name.
-    readings: Vec<(Unit, String)>,
+    /// Per residual: its unit and reading name (an index into `axes`: one
+    /// string per name, not per reading).
+    readings: Vec<(Unit, u32)>,
+    /// The readings' names.
+    axes: Vec<String>,
     /// Estimated groups: unit, whether they are distances between poses
     /// (another instrument, their own group), and axis names.
     groups: Vec<(Unit, bool, Vec<String>)>,
@@ -132,11 +135,19 @@ impl NoiseModel {
         let mut groups: Vec<(Unit, bool, Vec<String>)> = vec![];
         let mut assign = Vec::with_capacity(data.len() * measurement.len());
         let mut readings = Vec::with_capacity(data.len() * measurement.len());
+        let mut axes: Vec<String> = vec![];
         for m in data {
             let pair = m.partner.is_some();
             for a in 0..measurement.row_len(m) {
                 let (unit, axis) = (measurement.row_unit(m, a), measurement.row_axis(m, a));
-                readings.push((unit, axis.to_string()));
+                let name = match axes.iter().position(|n| n == axis) {
+                    Some(i) => i,
+                    None => {
+                        axes.push(axis.to_string());
+                        axes.len() - 1
+                    }
+                };
+                readings.push((unit, name as u32));
                 match m.sigma_of(a) {
                     Some(s) => assign.push(Ok(s)),
                     None => {
@@ -159,6 +170,7 @@ impl NoiseModel {
         Self {
             assign,
             readings,
+            axes,
             groups,
             sigma: vec![1.0; n],
             redundancy: vec![f64::NAN; n],
@@ -300,7 +312,7 @@ impl NoiseModel {
         let mut given: Vec<Given> = vec![];
         for (k, (a, ri)) in self.assign.iter().zip(r).enumerate() {
             if let Ok(s) = a {
-                let (unit, axis) = (self.readings[k].0, &self.readings[k].1);
+                let (unit, axis) = (self.readings[k].0, &self.axes[self.readings[k].1 as usize]);
                 let e = match given.iter().position(|x| x.0 == unit) {
                     Some(e) => e,
                     None => {

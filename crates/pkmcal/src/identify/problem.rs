@@ -11,7 +11,7 @@ use crate::error::Origin;
 use crate::error::{Error, Result};
 use crate::lm::Problem;
 use crate::measurement::MeasurementModel;
-use crate::measurement::data::{Measurement, numbered};
+use crate::measurement::data::Measurement;
 use crate::mechanism::{Mechanism, Params};
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
@@ -258,7 +258,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         if data.len() > MAX_POSES {
             return Err(too_many_poses(data.len()));
         }
-        let data = numbered(data);
+        let data = crate::measurement::data::numbered_cow(data);
         let mut poses: Vec<Arc<Pose>> = Vec::with_capacity(data.len());
         let mut pose_origins: Vec<Origin> = Vec::with_capacity(data.len());
         let mut rows: Vec<Row> = Vec::with_capacity(data.len());

@@ -40,6 +40,19 @@ impl Measurement {
 /// `data` with every pose's [`Origin`] filled in (its 1-based position where
 /// none was given), so that subsets still name the original poses.
 pub fn numbered(data: &[Measurement]) -> Vec<Measurement> {
+    numbered_cow(data).into_owned()
+}
+
+/// [`numbered`] without a copy when every pose is numbered already (a
+/// calibration's own rows: ten thousand poses are megabytes).
+pub fn numbered_cow(data: &[Measurement]) -> std::borrow::Cow<'_, [Measurement]> {
+    if data.iter().all(|m| m.origin.is_some()) {
+        return std::borrow::Cow::Borrowed(data);
+    }
+    std::borrow::Cow::Owned(numbered_copy(data))
+}
+
+fn numbered_copy(data: &[Measurement]) -> Vec<Measurement> {
     data.iter()
         .enumerate()
         .map(|(i, m)| {
