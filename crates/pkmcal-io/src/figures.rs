@@ -125,8 +125,17 @@ fn readable(values: &[f64], unit: pkmcal::Unit) -> (Vec<f64>, &'static str) {
 /// Panels whose before and after scales differ by more than this get an
 /// after panel of their own.
 const SPLIT_RATIO: f64 = 10.0;
+/// The widest figure (px): the report's page is 1100 px with 1 em margins,
+/// so a figure this wide is drawn at its own size and its 12 px labels stay
+/// 12 px (figures 1,200-1,400 px wide were shrunk to 9 px text).
+pub const FIGURE_WIDTH: u32 = 1060;
+
+/// The figures' smallest text, tick labels and axis names (px), drawn at
+/// that size: no figure is wider than [`FIGURE_WIDTH`].
+const LABEL_PX: u32 = 14;
+
 /// Height of one row of panels (px).
-const PANEL_HEIGHT: u32 = 150;
+const PANEL_HEIGHT: u32 = 158;
 /// Height of the legend strip above the panels (px).
 const LEGEND_HEIGHT: u32 = 34;
 
@@ -148,7 +157,7 @@ fn error_panel<DB: DrawingBackend>(
     let last = numbers.last().copied().unwrap_or(1.0).max(first);
     let mut chart = ChartBuilder::on(area)
         .margin(8)
-        .x_label_area_size(30)
+        .x_label_area_size(38)
         .y_label_area_size(62)
         .build_cartesian_2d(first - 0.5..last + 0.5, lo..hi)
         .map_err(err)?;
@@ -160,8 +169,8 @@ fn error_panel<DB: DrawingBackend>(
         .y_labels(5)
         .x_label_formatter(&|x| format!("{}", x.round() as i64))
         .y_label_formatter(&tick)
-        .label_style((FONT, 12))
-        .axis_desc_style((FONT, 13))
+        .label_style((FONT, LABEL_PX))
+        .axis_desc_style((FONT, LABEL_PX))
         .max_light_lines(0)
         .draw()
         .map_err(err)?;
@@ -302,7 +311,7 @@ pub fn errors_per_pose(
         .iter()
         .any(|(_, _, b, a)| peak(b) > SPLIT_RATIO * peak(a).max(1e-300));
     let height = LEGEND_HEIGHT + PANEL_HEIGHT * rows.len() as u32;
-    let width = if split { 1200u32 } else { 1000 };
+    let width = if split { FIGURE_WIDTH } else { 1000 };
     render!(
         "errors",
         "Errors at each measured pose (paper Fig. 9)",
@@ -367,9 +376,9 @@ pub fn errors_per_pose(
 }
 
 /// Most bars in one panel of the parameter figure.
-const PARAMS_PER_PANEL: usize = 20;
+const PARAMS_PER_PANEL: usize = (ROW_WIDTH as usize - 120) / 55;
 /// Widest row of parameter panels (px).
-const ROW_WIDTH: u32 = 1400;
+const ROW_WIDTH: u32 = FIGURE_WIDTH;
 /// Height of one row of parameter panels (px).
 const PARAM_ROW_HEIGHT: u32 = 420;
 
@@ -464,8 +473,8 @@ pub fn parameter_changes(groups: &[(String, &'static str, Vec<ParamBar>)]) -> Re
                         })
                         .y_desc(from)
                         .y_label_formatter(&tick)
-                        .label_style((FONT, 13))
-                        .axis_desc_style((FONT, 13))
+                        .label_style((FONT, LABEL_PX))
+                        .axis_desc_style((FONT, LABEL_PX))
                         .max_light_lines(0)
                         .disable_x_mesh()
                         .draw()
@@ -581,7 +590,7 @@ fn arrow_panel<DB: DrawingBackend>(
         .y_desc(format!("{} (mm)", axes[1]))
         .x_label_formatter(&tick)
         .y_label_formatter(&tick)
-        .label_style((FONT, 13))
+        .label_style((FONT, LABEL_PX))
         .axis_desc_style((FONT, 14))
         .max_light_lines(0)
         .draw()
@@ -630,7 +639,7 @@ fn arrow_panel<DB: DrawingBackend>(
     area.draw(&Text::new(
         format!("{} {unit} error", tick(&(bar * f))),
         (18 + len, y - 7),
-        (FONT, 13).into_font(),
+        (FONT, LABEL_PX).into_font(),
     ))
     .map_err(err)?;
     Ok(())
@@ -668,7 +677,7 @@ pub fn workspace_errors(
     let project = |v: &[Vec<f64>], [a, b]: [usize; 2]| -> Vec<Vec<f64>> {
         v.iter().map(|p| vec![p[a], p[b]]).collect()
     };
-    let w = 640u32;
+    let w = FIGURE_WIDTH / 2;
     let rows: Vec<Row> = views
         .iter()
         .map(|&(ix, names)| {
@@ -777,7 +786,7 @@ pub struct MapSweep {
 }
 
 /// Width of one map panel with its colour bar (px).
-const MAP_PANEL_WIDTH: u32 = 560;
+const MAP_PANEL_WIDTH: u32 = FIGURE_WIDTH / 2;
 /// Height of a row title strip (px).
 const ROW_TITLE: u32 = 24;
 /// Height of the row of angle sweeps (px).
@@ -817,8 +826,8 @@ fn heat_panel<DB: DrawingBackend>(
         .y_labels(6)
         .x_label_formatter(&tick)
         .y_label_formatter(&tick)
-        .label_style((FONT, 12))
-        .axis_desc_style((FONT, 13))
+        .label_style((FONT, LABEL_PX))
+        .axis_desc_style((FONT, LABEL_PX))
         .max_light_lines(0)
         .draw()
         .map_err(err)?;
@@ -847,7 +856,7 @@ fn heat_panel<DB: DrawingBackend>(
         .set_tick_mark_size(plotters::chart::LabelAreaPosition::Right, 7)
         .y_labels(5)
         .y_label_formatter(&tick)
-        .label_style((FONT, 12))
+        .label_style((FONT, LABEL_PX))
         .draw()
         .map_err(err)?;
     let steps = 60;
@@ -894,8 +903,8 @@ fn sweep_panel<DB: DrawingBackend>(
         .y_labels(5)
         .x_label_formatter(&tick)
         .y_label_formatter(&tick)
-        .label_style((FONT, 12))
-        .axis_desc_style((FONT, 13))
+        .label_style((FONT, LABEL_PX))
+        .axis_desc_style((FONT, LABEL_PX))
         .max_light_lines(0)
         .draw()
         .map_err(err)?;
@@ -1105,8 +1114,8 @@ pub fn residuals(standardized: &[f64]) -> Result<Figure> {
                 .y_label_formatter(&tick)
                 .x_desc("residual / σ")
                 .y_desc("density")
-                .label_style((FONT, 12))
-                .axis_desc_style((FONT, 13))
+                .label_style((FONT, LABEL_PX))
+                .axis_desc_style((FONT, LABEL_PX))
                 .max_light_lines(0)
                 .draw()
                 .map_err(err)?;
@@ -1138,8 +1147,8 @@ pub fn residuals(standardized: &[f64]) -> Result<Figure> {
                 .y_label_formatter(&tick)
                 .x_desc("normal quantile")
                 .y_desc("residual / σ")
-                .label_style((FONT, 12))
-                .axis_desc_style((FONT, 13))
+                .label_style((FONT, LABEL_PX))
+                .axis_desc_style((FONT, LABEL_PX))
                 .max_light_lines(0)
                 .draw()
                 .map_err(err)?;
@@ -1172,7 +1181,10 @@ pub fn singular_values(sv: &[f64], threshold: f64) -> Result<Figure> {
         format!(
             "The {n} singular values of the identification Jacobian with columns scaled to unit norm; below the red line a direction counts as unidentifiable. Their spread is the condition number."
         ),
-        ((800u32).max(60 + 22 * n as u32), 380u32 + LEGEND_HEIGHT),
+        (
+            (800u32).max(60 + 22 * n as u32).min(FIGURE_WIDTH),
+            380u32 + LEGEND_HEIGHT
+        ),
         |root| {
             root.fill(&WHITE).map_err(err)?;
             let (top, body) = root.split_vertically(LEGEND_HEIGHT);
@@ -1203,8 +1215,8 @@ pub fn singular_values(sv: &[f64], threshold: f64) -> Result<Figure> {
                 .x_label_formatter(&|x| format!("{}", x.round() as i64))
                 .y_desc("singular value (column-scaled)")
                 .y_label_formatter(&|v| format!("{v:.0e}"))
-                .label_style((FONT, 12))
-                .axis_desc_style((FONT, 13))
+                .label_style((FONT, LABEL_PX))
+                .axis_desc_style((FONT, LABEL_PX))
                 .max_light_lines(0)
                 .draw()
                 .map_err(err)?;

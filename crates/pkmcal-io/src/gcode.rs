@@ -1267,7 +1267,13 @@ where
             } else {
                 LENGTH_DECIMALS
             };
-            let _ = write!(line, " {}{:.*}", words[k], decimals, v);
+            // A value that rounds to zero is written `0.0000`, never
+            // `-0.0000` (which a second rewrite would write otherwise).
+            let mut text = format!("{v:.decimals$}");
+            if text.starts_with('-') && text[1..].bytes().all(|b| b == b'0' || b == b'.') {
+                text.remove(0);
+            }
+            let _ = write!(line, " {}{text}", words[k]);
             sent_pos[k] = Some(send[k]);
         }
         if let Some(e) = &pc.e_text {

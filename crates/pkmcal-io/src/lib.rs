@@ -30,6 +30,8 @@ pub mod report;
 pub mod text;
 
 #[cfg(test)]
+mod fuzz_grammar;
+#[cfg(test)]
 mod fuzz_readers;
 
 pub use error::{Error, Result};

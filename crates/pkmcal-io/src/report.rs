@@ -365,20 +365,7 @@ pub fn figures_cancellable(
 }
 
 fn stats_row(html: &mut String, label: &str, s: &ErrorStats) {
-    let _ = write!(
-        html,
-        "<tr><td>{}</td>{}",
-        escape(label),
-        s.axis_min
-            .iter()
-            .zip(&s.axis_max)
-            .zip(&s.axis_units)
-            .map(|((a, b), u)| {
-                let f = crate::text::column_unit(*u).0;
-                format!("<td>{:.4} … {:.4}</td>", a * f, b * f)
-            })
-            .collect::<String>(),
-    );
+    let _ = write!(html, "<tr><td>{}</td>", escape(label));
     if s.axis_units.contains(&pkmcal::Unit::Millimetre) {
         let _ = write!(
             html,
@@ -471,14 +458,35 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
             escape(&(r.wording.hint)(w))
         );
     }
-    // Two header rows: what each group of columns is, then its columns.
+    // The headline distance and angle errors in one table, each axis's
+    // range in another with the axes as rows: a 6-DOF measurement's nine
+    // axes as columns pushed the headline out of a 1100 px page.
     let units = r.measurement.units();
     let lengths = units.contains(&pkmcal::Unit::Millimetre);
     let angles = units.contains(&pkmcal::Unit::Radian);
+    let mut rows: Vec<(String, &ErrorStats)> = vec![
+        (
+            "calibration poses, before".into(),
+            &r.report.accuracy.before,
+        ),
+        ("calibration poses, after".into(), &r.report.accuracy.after),
+    ];
+    if let Some(v) = &r.report.validation {
+        rows.push((
+            format!("validation ({}), before", v.source),
+            &v.accuracy.before,
+        ));
+        rows.push((
+            format!("validation ({}), after", v.source),
+            &v.accuracy.after,
+        ));
+    }
+    if let Some(cv) = &r.report.cross_validation {
+        rows.push((format!("{}-fold cross-validation", cv.folds), &cv.pooled));
+    }
     let _ = write!(
         h,
-        "<h2>Accuracy</h2><div class=\"wide\"><table><tr><th rowspan=\"2\">poses</th><th colspan=\"{}\">error range of each axis</th>{}{}</tr><tr>",
-        units.len(),
+        "<h2>Accuracy</h2><div class=\"wide\"><table><tr><th rowspan=\"2\">poses</th>{}{}</tr><tr>",
         if lengths {
             "<th colspan=\"4\">distance error, mm</th>"
         } else {
@@ -488,16 +496,8 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
             "<th colspan=\"2\">angle error, mrad</th>"
         } else {
             ""
-        }
+        },
     );
-    for (a, u) in r.measurement.axes().iter().zip(units) {
-        let _ = write!(
-            h,
-            "<th>{}, {}</th>",
-            escape(&a.to_uppercase()),
-            crate::text::column_unit(*u).1
-        );
-    }
     if lengths {
         h.push_str("<th>min</th><th>mean</th><th>RMS</th><th>max</th>");
     }
@@ -505,30 +505,30 @@ figcaption {{ font-size: 0.9em; color: #444; margin-top: 0.3em; }}
         h.push_str("<th>RMS</th><th>max</th>");
     }
     h.push_str("</tr>");
-    stats_row(
-        &mut h,
-        "calibration poses, before",
-        &r.report.accuracy.before,
-    );
-    stats_row(&mut h, "calibration poses, after", &r.report.accuracy.after);
-    if let Some(v) = &r.report.validation {
-        stats_row(
-            &mut h,
-            &format!("validation ({}), before", v.source),
-            &v.accuracy.before,
-        );
-        stats_row(
-            &mut h,
-            &format!("validation ({}), after", v.source),
-            &v.accuracy.after,
-        );
+    for (label, s) in &rows {
+        stats_row(&mut h, label, s);
     }
-    if let Some(cv) = &r.report.cross_validation {
-        stats_row(
-            &mut h,
-            &format!("{}-fold cross-validation", cv.folds),
-            &cv.pooled,
-        );
+    let _ = write!(
+        h,
+        "</table></div><div class=\"wide\"><table><tr><th rowspan=\"2\">axis</th><th colspan=\"{}\">error range of each axis</th></tr><tr>",
+        rows.len()
+    );
+    for (label, _) in &rows {
+        let _ = write!(h, "<th>{}</th>", escape(label));
+    }
+    h.push_str("</tr>");
+    for (k, (a, u)) in r.measurement.axes().iter().zip(units).enumerate() {
+        let (f, unit) = crate::text::column_unit(*u);
+        let _ = write!(h, "<tr><td>{}, {unit}</td>", escape(&a.to_uppercase()));
+        for (_, s) in &rows {
+            match (s.axis_min.get(k), s.axis_max.get(k)) {
+                (Some(lo), Some(hi)) => {
+                    let _ = write!(h, "<td>{:.4} … {:.4}</td>", lo * f, hi * f);
+                }
+                _ => h.push_str("<td></td>"),
+            }
+        }
+        h.push_str("</tr>");
     }
     let _ = write!(
         h,

@@ -472,3 +472,15 @@ pub fn check_cancel(cancel: Option<&std::sync::atomic::AtomicBool>) -> Result<()
 pub fn count(n: usize, one: &str, many: &str) -> String {
     format!("{n} {}", if n == 1 { one } else { many })
 }
+
+/// A number a user typed, for messages: as written for ordinary
+/// magnitudes (`0.05`, `280`), in exponent form beyond them (`1e308`,
+/// `1e-200`), so that no message prints 300 digits.
+pub fn shown(v: f64) -> String {
+    let a = v.abs();
+    if v == 0.0 || !v.is_finite() || (1e-4..1e7).contains(&a) {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
+    }
+}

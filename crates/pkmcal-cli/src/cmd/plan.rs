@@ -85,7 +85,12 @@ pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
     // follows (shown on a terminal whatever the count: a 48-leg platform
     // takes minutes).
     let foreseen = (c.count as u64).saturating_mul(2);
-    let bar = run.bar(foreseen, false, "planning steps", 1);
+    let bar = run.bar(
+        foreseen,
+        false,
+        "planning steps (greedy, then up to 20 exchange passes)",
+        1,
+    );
     let shown = (AtomicU64::new(0), AtomicU64::new(foreseen));
     let plan = pkmcal::apply::planning::plan(
         mech,

@@ -638,7 +638,7 @@ fn a_tampered_calibration_record_is_refused_naming_it() {
         (
             "scale",
             edited(&|r| r["scale"]["dof"] = serde_json::json!(-3.0)),
-            "`scale` has -3e0 degrees of freedom",
+            "`scale` has -3 degrees of freedom",
         ),
         (
             "prior-elsewhere",
@@ -703,11 +703,27 @@ fn a_tampered_calibration_record_is_refused_naming_it() {
         assert_eq!(o.status.code(), Some(1), "drift {name}: {err}");
         assert!(err.contains(&file), "drift {name}: {err}");
     }
-    // Degrees of freedom beyond any calibration's are the normal limit, not
-    // NaN or p = 1: a 0.5 mm change of l11 (128σ) with a scale of 1e308
-    // degrees of freedom was "no change".
+    // A scale with more degrees of freedom than the record's readings is
+    // refused, the number in exponent form; degrees of freedom beyond any
+    // calibration's (2e6, readings as many) are the normal limit, not NaN
+    // or p = 1: a 0.5 mm change of l11 (128σ) with a scale of 1e308 degrees
+    // of freedom was "no change".
+    std::fs::write(
+        d.join("dof.json"),
+        edited(&|r| r["scale"]["dof"] = serde_json::json!(1e308)),
+    )
+    .unwrap();
+    let o = run(d, &["drift", "--new", "dof.json", "--old", "r.json"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("dof.json") && err.contains("`scale` has 1e308 degrees of freedom"),
+        "{err}"
+    );
     let moved = edited(&|r| {
-        r["scale"]["dof"] = serde_json::json!(1e308);
+        r["scale"]["dof"] = serde_json::json!(2e6);
+        r["noise"][0]["count"] = serde_json::json!(2_000_000);
+        r["noise"][0]["redundancy"] = serde_json::json!(2e6);
         for p in r["parameters"].as_array_mut().unwrap() {
             if p["name"] == "l11" {
                 p["identified"] = serde_json::json!(p["identified"].as_f64().unwrap() + 0.5);

@@ -324,8 +324,18 @@ pub fn budget_cancellable<M: Mechanism>(
             // Per target: squared error of each axis.
             let mut out = vec![0.0; targets.len() * nx];
             for (k, ((pose, _), t)) in at_targets.iter().zip(targets).enumerate() {
+                // A drawn machine that cannot reach a target says the
+                // tolerances are wider than the mechanism holds together
+                // (`l11=30%` blamed "pose 7" of a grid the user never gave).
                 let x = predict_pose(mech, pose, &p, opts.model, &opts.force)
-                    .map_err(|e| e.at_pose(crate::error::Origin::row(k)))?
+                    .map_err(|e| {
+                        Error::InvalidRequest(format!(
+                            "machine {} drawn from the tolerances cannot reach target {} of {} over the workspace ({e}): the tolerances are wider than the mechanism stays assembled within; narrow them, or take the first-order figures alone (no samples)",
+                            s + 1,
+                            k + 1,
+                            targets.len()
+                        ))
+                    })?
                     .x;
                 for a in 0..nx {
                     let e = x[a] - t[a];

@@ -19,6 +19,10 @@ use crate::units::Unit;
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
+/// The largest relative tolerance, as a fraction of the nominal value
+/// (10,000 %: a σ a hundred times the value itself says nothing more).
+pub const MAX_RELATIVE_TOLERANCE: f64 = 100.0;
+
 /// A parameter's tolerance as a user states it: one standard deviation in
 /// the parameter's unit, or a fraction of its nominal value.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -44,20 +48,32 @@ impl Tolerance {
             Some(p) => Tolerance::Relative(p.trim().parse::<f64>().map_err(|_| bad())? / 100.0),
             None => Tolerance::Absolute(t.parse::<f64>().map_err(|_| bad())?),
         };
-        tol.check().map_err(|_| bad())?;
+        match tol {
+            // A percentage too large: the range said, with what was typed.
+            Tolerance::Relative(f) if f.is_finite() && f > 0.0 => tol.check()?,
+            _ => tol.check().map_err(|_| bad())?,
+        }
         Ok(tol)
     }
 
+    /// A tolerance's number in range: positive and finite, a percentage at
+    /// most [`MAX_RELATIVE_TOLERANCE`] times the nominal value (a larger
+    /// one is a typing error: `1e308%` would make σ infinite).
     fn check(&self) -> Result<()> {
-        let v = match self {
-            Tolerance::Absolute(v) | Tolerance::Relative(v) => *v,
-        };
-        if v.is_finite() && v > 0.0 {
-            Ok(())
-        } else {
-            Err(Error::InvalidRequest(format!(
-                "a tolerance must be a positive finite number, got {v}"
-            )))
+        match *self {
+            Tolerance::Absolute(v) if v.is_finite() && v > 0.0 => Ok(()),
+            Tolerance::Absolute(v) => Err(Error::InvalidRequest(format!(
+                "a tolerance must be a positive finite number, got {}",
+                crate::error::shown(v)
+            ))),
+            Tolerance::Relative(f) if f.is_finite() && f > 0.0 && f <= MAX_RELATIVE_TOLERANCE => {
+                Ok(())
+            }
+            Tolerance::Relative(f) => Err(Error::InvalidRequest(format!(
+                "a tolerance of {} % of the nominal value is out of range: a percentage must be positive and at most {} %",
+                crate::error::shown(f * 100.0),
+                MAX_RELATIVE_TOLERANCE * 100.0
+            ))),
         }
     }
 
@@ -108,6 +124,22 @@ pub(crate) fn resolve_named(
                 "`{name}` is 0 nominally, so a tolerance relative to it is 0; give its σ in {}",
                 unit(i)
             )));
+        }
+        if let Tolerance::Relative(f) = tol {
+            // σ from a percentage: the percentage and the nominal value
+            // named with it, not a σ the user never typed.
+            check_sigma(name, sigma, unit(i)).map_err(|_| {
+                Error::InvalidRequest(format!(
+                    "tolerance of `{name}`: {} % of its nominal {} {} is a σ of {} {}, out of range (positive and at most {:e} {})",
+                    crate::error::shown(f * 100.0),
+                    crate::error::shown(nominal(i)),
+                    unit(i),
+                    crate::error::shown(sigma),
+                    unit(i),
+                    unit(i).max_magnitude(),
+                    unit(i)
+                ))
+            })?;
         }
         check_sigma(name, sigma, unit(i))?;
         out.push((i, sigma));

@@ -328,11 +328,7 @@ impl CalibrationRecord {
                 (true, r) => {
                     return member(format!(
                         "{at} was estimated with a redundancy of {}, which must be a number between 0 and its {} readings",
-                        r.map_or("null".into(), |r| if r.abs() < 1e6 {
-                            r.to_string()
-                        } else {
-                            format!("{r:e}")
-                        }),
+                        r.map_or("null".into(), crate::error::shown),
                         g.count
                     ));
                 }
@@ -359,11 +355,18 @@ impl CalibrationRecord {
                 ));
             }
         }
+        // The scale's degrees of freedom are the estimated groups'
+        // redundancy: at most the readings the record counts.
+        let readings = self
+            .noise
+            .iter()
+            .fold(0usize, |a, g| a.saturating_add(g.count));
         if let Some(dof) = self.scale.and_then(|s| s.dof())
-            && !(dof.is_finite() && dof >= 0.0)
+            && !(dof.is_finite() && dof >= 0.0 && (self.noise.is_empty() || dof <= readings as f64))
         {
             return member(format!(
-                "`scale` has {dof:e} degrees of freedom; they must be a finite number, not negative"
+                "`scale` has {} degrees of freedom; they must be a finite number, not negative and at most the {readings} readings its `noise` counts",
+                crate::error::shown(dof)
             ));
         }
         Ok(())

@@ -26,4 +26,5 @@ mod record;
 mod renamed;
 mod round_trip;
 mod spatial;
+mod typed_numbers;
 mod use_calibration;
