@@ -62,6 +62,7 @@ pub struct Args {
 impl Args {
     pub fn paths(&self) -> Result<args::Paths> {
         let mut out: Vec<PathBuf> = self.out.iter().cloned().collect();
+        out.extend(self.physical.outputs());
         let mut dirs = vec![];
         if let Some(d) = &self.out_dir {
             out.extend(pkmcal_io::output::in_dir(d, &OUT_DIR_FILES)?);
@@ -85,6 +86,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         a.physical.apply(&mut request)?;
         let output = crate::cmd::physical::Output {
             out: a.out.as_deref(),
+            physical: &a.physical,
             header: String::new(),
             footer: "",
             written: "(values in its SAVE_CONFIG block)",
