@@ -1,7 +1,8 @@
 //! `--physical --height-map` on `klipper`, `reprap` and `marlin` (issue
 //! 54): the map is written in the firmware's own format and reads back by
 //! its rules, it is said in the summary, it is written with the other
-//! outputs or not at all, and misuse is refused by name.
+//! outputs or not at all, and misuse is refused by name; the extra
+//! measurement suggested is named in the firmware's commands.
 
 mod common;
 use common::{fails, ok};
@@ -36,6 +37,13 @@ fn each_firmware_writes_a_map_it_can_read() {
     );
     assert!(
         out.contains("height map of what the written values leave on the bed (Klipper [bed_mesh pkmcal] profile, 7 x 7 nodes"),
+        "{out}"
+    );
+    assert!(
+        out.contains("the extra measurements that would shrink the cube's uncertainty most")
+            && out.contains("1. the 12 distances of Klipper's calibration object")
+            && out.contains("DELTA_ANALYZE CENTER_DISTS=")
+            && out.contains(" then PROBE (the probe at "),
         "{out}"
     );
     let text = std::fs::read_to_string(dir.path().join("mesh.cfg")).unwrap();
@@ -73,7 +81,7 @@ fn each_firmware_writes_a_map_it_can_read() {
         arg(e.join("marlin-delta/M503.txt")),
         arg(e.join("marlin-delta/G30.log")),
     );
-    ok(
+    let out = ok(
         dir.path(),
         &[
             "marlin",
@@ -88,6 +96,7 @@ fn each_firmware_writes_a_map_it_can_read() {
             "3",
         ],
     );
+    assert!(out.contains("one more probe point: G30 X"), "{out}");
     let text = std::fs::read_to_string(dir.path().join("mesh.gcode")).unwrap();
     assert!(text.contains("GRID_MAX_POINTS_X and _Y 3"), "{text}");
     let xs = [-90.0, 0.0, 90.0];

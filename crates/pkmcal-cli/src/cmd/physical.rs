@@ -207,16 +207,16 @@ pub fn run<F: Firmware>(
     for v in printer.values(fw_spec, &proj.params, &proj.bed)? {
         say!("  {:<28} {:>14.6} {:>14.6}", v.name, v.before, v.after);
     }
+    let mapped = crate::cmd::physical_outputs::Mapped {
+        fit: &fit,
+        fw_mech: &fw_mech,
+        fw_params: &proj.params,
+        fw_bed,
+        source,
+    };
+    crate::cmd::physical_outputs::suggestion(printer, &mapped)?;
     if let Some(path) = &output.physical.height_map {
-        let fw_bed = ld.corrects_bed_tilt.then_some(proj.bed.as_slice());
-        let map = crate::cmd::physical_outputs::Mapped {
-            fit: &fit,
-            fw_mech: &fw_mech,
-            fw_params: &proj.params,
-            fw_bed,
-            source,
-        };
-        crate::cmd::physical_outputs::height_map(run, printer, &map, path, output.physical)?;
+        crate::cmd::physical_outputs::height_map(run, printer, &mapped, path, output.physical)?;
     }
     if let Some(out) = output.out {
         let mut text = output.header;

@@ -1,4 +1,5 @@
 //! What `--physical` writes and says besides the firmware's values: the
+//! extra measurement that would shrink the cube's uncertainty most, and the
 //! height map in the firmware's own format (`--height-map`, issue 54).
 
 use anyhow::Result;
@@ -8,6 +9,7 @@ use pkmcal_io::description::Mech;
 use pkmcal_io::firmware::Firmware;
 use pkmcal_io::firmware::height_map::{self, KLIPPER_PROFILE, MeshFormat};
 use pkmcal_io::firmware::physical::PhysicalFit;
+use pkmcal_io::firmware::physical_plan::{self, Extra};
 use std::path::Path;
 
 /// The fitted printer and the firmware's values written for it.
@@ -91,6 +93,60 @@ pub fn height_map<F: Firmware>(
     if map.largest_sd().is_some_and(|sd| sd > largest) {
         say!(
             "  the map's uncertainty exceeds its values: what it corrects is not known yet; measure more (calibration object distances, or probe heights further out) before loading it"
+        );
+    }
+    Ok(())
+}
+
+/// How many suggestions are listed.
+const SUGGESTIONS: usize = 3;
+
+/// Say which extra measurements would shrink the predicted cube's
+/// uncertainty most, in the firmware's commands.
+pub fn suggestion<F: Firmware>(printer: &F, m: &Mapped<'_>) -> Result<()> {
+    let firmware = printer.name();
+    let klipper = firmware == "Klipper";
+    let list = physical_plan::suggest(m.fit, m.fw_mech, m.fw_params, m.fw_bed, klipper)?;
+    let Some(first) = list.first() else {
+        return Ok(());
+    };
+    say!(
+        "\nthe extra measurements that would shrink the cube's uncertainty most (its largest σ now {:.3} mm; linearised, the fit's noise for each reading):",
+        first.largest().0
+    );
+    let o = m.fit.delta.probe_offset;
+    let probe_at = |p: [f64; 2]| -> String {
+        match firmware {
+            "Klipper" => format!(
+                "G1 X{:.1} Y{:.1} then PROBE (the probe at {:.1}, {:.1})",
+                p[0] - o[0],
+                p[1] - o[1],
+                p[0],
+                p[1]
+            ),
+            "RepRapFirmware" => format!("G30 P<next> X{:.1} Y{:.1} Z-99999", p[0], p[1]),
+            _ => format!("G30 X{:.1} Y{:.1}", p[0], p[1]),
+        }
+    };
+    for (k, s) in list.iter().take(SUGGESTIONS).enumerate() {
+        let what = match &s.extra {
+            Extra::ProbePoint { at } => format!("one more probe point: {}", probe_at(*at)),
+            Extra::SecondLevel { height, points } => format!(
+                "{} probe heights on a {height} mm gauge block (known height): {}",
+                points.len(),
+                points
+                    .iter()
+                    .map(|p| probe_at(*p))
+                    .collect::<Vec<_>>()
+                    .join("; ")
+            ),
+            Extra::ObjectDistances => "the 12 distances of Klipper's calibration object (docs/prints/calibrate_size.stl) printed with the written values, measured with calipers: DELTA_ANALYZE CENTER_DISTS=… OUTER_DISTS=… (and the pillar widths), then SAVE_CONFIG".to_string(),
+        };
+        let (before, after) = s.largest();
+        say!(
+            "  {}. {what}: largest σ {before:.3} -> {after:.3} mm ({:.0} % of the cube errors' variance)",
+            k + 1,
+            100.0 * s.variance_removed()
         );
     }
     Ok(())
