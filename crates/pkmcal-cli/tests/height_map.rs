@@ -151,6 +151,10 @@ fn misuse_is_refused_by_name() {
             "--height-map maps what the physical model's values leave: add --physical",
         ),
         (
+            vec!["--previous", "old.cfg"],
+            "--previous compares physical calibrations: add --physical",
+        ),
+        (
             vec!["--physical", "--mesh-points", "5"],
             "--mesh-points sets the height map's mesh: add --height-map FILE",
         ),
@@ -168,4 +172,38 @@ fn misuse_is_refused_by_name() {
         fails(dir.path(), &all, 2, says);
     }
     assert!(!dir.path().join("m.cfg").exists());
+}
+
+#[test]
+fn previous_says_whether_the_printer_changed() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = arg(examples().join("klipper-delta/printer.cfg"));
+    let out = ok(
+        dir.path(),
+        &[
+            "klipper",
+            "--config",
+            &cfg,
+            "--physical",
+            "--previous",
+            &cfg,
+        ],
+    );
+    assert!(
+        out.contains("no change beyond the two calibrations' uncertainty (joint test over the"),
+        "{out}"
+    );
+    fails(
+        dir.path(),
+        &[
+            "klipper",
+            "--config",
+            &cfg,
+            "--physical",
+            "--previous",
+            "missing.cfg",
+        ],
+        1,
+        "missing.cfg",
+    );
 }

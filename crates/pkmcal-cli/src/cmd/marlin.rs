@@ -98,6 +98,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             crate::cmd::physical::Output {
                 out: a.out.as_deref(),
                 physical: &a.physical,
+                previous: None,
                 header: format!(
                     "; Marlin delta settings for the nozzle over the build volume by pkmcal {} --physical from {} ({n} probe points)\n",
                     env!("CARGO_PKG_VERSION"),

@@ -22,6 +22,9 @@ pub struct Output<'a> {
     pub written: &'a str,
     /// The --physical options (the height map's).
     pub physical: &'a crate::args::PhysicalArgs,
+    /// The printer's previous readings, compared with these (`--previous`),
+    /// and where they came from.
+    pub previous: Option<(&'a dyn Firmware, String)>,
 }
 
 /// A parameter whose uncertainty the readings reduce by less than this
@@ -57,7 +60,7 @@ pub fn run<F: Firmware>(
     let fw_spec = fw_mech.spec();
     let own = firmware::calibrate(printer, Request::new(pkmcal::Model::Exact))?;
     let own_cal = own.calibration();
-    let fit = physical::calibrate(printer, &ld, request)?;
+    let fit = physical::calibrate(printer, &ld, request.clone())?;
     let cal = &fit.study.calibration;
     let spec = fit.mech.spec();
     let proj = physical::project(&ld, &fw_mech, &fit.mech, &cal.params, &cal.measurement)?;
@@ -215,6 +218,9 @@ pub fn run<F: Firmware>(
         source,
     };
     crate::cmd::physical_outputs::suggestion(printer, &mapped)?;
+    if let Some((previous, from)) = &output.previous {
+        crate::cmd::physical_outputs::drift(*previous, from, request, &fit)?;
+    }
     if let Some(path) = &output.physical.height_map {
         crate::cmd::physical_outputs::height_map(run, printer, &mapped, path, output.physical)?;
     }

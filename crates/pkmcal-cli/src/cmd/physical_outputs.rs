@@ -8,7 +8,8 @@ use pkmcal_io::Run;
 use pkmcal_io::description::Mech;
 use pkmcal_io::firmware::Firmware;
 use pkmcal_io::firmware::height_map::{self, KLIPPER_PROFILE, MeshFormat};
-use pkmcal_io::firmware::physical::PhysicalFit;
+use pkmcal_io::firmware::physical::{self, PhysicalFit};
+use pkmcal_io::firmware::physical_drift;
 use pkmcal_io::firmware::physical_plan::{self, Extra};
 use std::path::Path;
 
@@ -149,5 +150,51 @@ pub fn suggestion<F: Firmware>(printer: &F, m: &Mapped<'_>) -> Result<()> {
             100.0 * s.variance_removed()
         );
     }
+    Ok(())
+}
+
+/// Fit the `previous` readings (from `from`) as these were fitted and say
+/// whether the physical printer changed since, beyond both fits'
+/// uncertainty.
+pub fn drift(
+    previous: &dyn Firmware,
+    from: &str,
+    request: pkmcal::Request,
+    now: &PhysicalFit,
+) -> Result<()> {
+    let Some(ld) = previous.linear_delta()? else {
+        anyhow::bail!("--previous {from} is not a linear delta");
+    };
+    let before = physical::calibrate(previous, &ld, request)?;
+    let d = physical_drift::drift(&before, now, pkmcal::identify::DEFAULT_ALPHA)?;
+    let changed: Vec<String> = d
+        .parameters
+        .iter()
+        .filter(|p| p.drifted)
+        .map(|p| format!("{} {:+.4} ± {:.4}", p.name, p.change, p.sigma))
+        .collect();
+    let alone = if d.parameters.is_empty() {
+        "no parameter is seen alone by both".to_string()
+    } else {
+        format!(
+            "{} of the {} parameters seen alone changed beyond both uncertainties{}{}",
+            changed.len(),
+            d.parameters.len(),
+            if changed.is_empty() { "" } else { ": " },
+            changed.join(", ")
+        )
+    };
+    say!(
+        "\nsince {from}: {} (joint test over the {} directions both calibrations' data see: χ² {:.1}, p {:.3}; {alone}; {} held by the tolerances not compared)",
+        if d.joint_drift {
+            "the printer changed"
+        } else {
+            "no change beyond the two calibrations' uncertainty"
+        },
+        d.dof,
+        d.chi2,
+        d.p_joint,
+        d.untested.len()
+    );
     Ok(())
 }

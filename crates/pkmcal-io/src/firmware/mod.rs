@@ -17,6 +17,7 @@ pub mod klipper;
 pub mod klipper_rotary;
 pub mod marlin;
 pub mod physical;
+pub mod physical_drift;
 pub mod physical_plan;
 pub mod reprap;
 
