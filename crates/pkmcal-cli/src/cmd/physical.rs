@@ -217,7 +217,7 @@ pub fn run<F: Firmware>(
         fw_bed,
         source,
     };
-    crate::cmd::physical_outputs::suggestion(printer, &mapped)?;
+    crate::cmd::physical_outputs::suggestion(printer, &mapped);
     if let Some((previous, from)) = &output.previous {
         crate::cmd::physical_outputs::drift(*previous, from, request, &fit)?;
     }

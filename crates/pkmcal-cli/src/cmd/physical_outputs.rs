@@ -103,8 +103,16 @@ pub fn height_map<F: Firmware>(
 const SUGGESTIONS: usize = 3;
 
 /// Say which extra measurements would shrink the predicted cube's
-/// uncertainty most, in the firmware's commands.
-pub fn suggestion<F: Firmware>(printer: &F, m: &Mapped<'_>) -> Result<()> {
+/// uncertainty most, in the firmware's commands; where they cannot be
+/// scored (a candidate the printer cannot reach), say why and go on: the
+/// values are written all the same.
+pub fn suggestion<F: Firmware>(printer: &F, m: &Mapped<'_>) {
+    if let Err(e) = suggest(printer, m) {
+        say!("\nthe extra measurements could not be scored: {e:#}");
+    }
+}
+
+fn suggest<F: Firmware>(printer: &F, m: &Mapped<'_>) -> Result<()> {
     let firmware = printer.name();
     let klipper = firmware == "Klipper";
     let list = physical_plan::suggest(m.fit, m.fw_mech, m.fw_params, m.fw_bed, klipper)?;
