@@ -126,14 +126,43 @@ pub struct PhysicalArgs {
     /// names), comma-separated or repeated.
     #[command(flatten)]
     pub given: ToleranceArg,
+    /// With --physical: write the Z error the written values leave over the
+    /// bed (the fitted nozzle's, at each node of a round mesh) as the
+    /// firmware's own height map here: for Klipper a `[bed_mesh pkmcal]`
+    /// profile to [include] (BED_MESH_PROFILE LOAD=pkmcal), for
+    /// RepRapFirmware a heightmap.csv (G29 S1 P"FILE"), for Marlin the
+    /// M421 lines of its bilinear grid.
+    #[arg(long, value_name = "FILE")]
+    pub height_map: Option<std::path::PathBuf>,
+    /// With --height-map: nodes across the mesh (odd, 3 to 21); by default
+    /// Klipper's [bed_mesh] round_probe_count, else 5. Marlin's must be its
+    /// GRID_MAX_POINTS_X.
+    #[arg(long, value_name = "N", value_parser = values::mesh_points)]
+    pub mesh_points: Option<usize>,
 }
 
 impl PhysicalArgs {
+    /// The files --physical writes besides --out.
+    pub fn outputs(&self) -> Vec<std::path::PathBuf> {
+        self.height_map.iter().cloned().collect()
+    }
+
     /// The tolerances onto the request (refused without --physical).
     pub fn apply(&self, r: &mut pkmcal::Request) -> anyhow::Result<()> {
         if !self.physical && !self.given.tolerance.is_empty() {
             return crate::words::usage(
                 "--tolerance belongs to the physical model: add --physical".to_string(),
+            );
+        }
+        if !self.physical && self.height_map.is_some() {
+            return crate::words::usage(
+                "--height-map maps what the physical model's values leave: add --physical"
+                    .to_string(),
+            );
+        }
+        if self.height_map.is_none() && self.mesh_points.is_some() {
+            return crate::words::usage(
+                "--mesh-points sets the height map's mesh: add --height-map FILE".to_string(),
             );
         }
         r.tolerances = self.given.tolerances()?;
@@ -390,6 +419,14 @@ pub mod values {
         (v > 0.0 && v <= top)
             .then_some(v)
             .ok_or_else(|| format!("{v} must be above 0 and at most {top}"))
+    }
+    /// Nodes across a height map's round mesh (odd, 3 to 21).
+    pub fn mesh_points(s: &str) -> Result<usize, String> {
+        let n = s
+            .trim()
+            .parse::<usize>()
+            .map_err(|_| format!("`{s}` is not a count of nodes"))?;
+        pkmcal_io::firmware::height_map::mesh_points(n)
     }
     /// A probe's x, y offset from the nozzle (mm): two numbers, each at
     /// most 1 m in size.

@@ -53,6 +53,12 @@ pub struct Args {
     pub weighting: Weighting,
     #[command(flatten)]
     pub physical: args::PhysicalArgs,
+    /// With --physical: the printer's previous configuration (with the
+    /// SAVE_CONFIG probe results of an earlier DELTA_CALIBRATE): whether the
+    /// physical printer changed since, beyond both calibrations'
+    /// uncertainty.
+    #[arg(long, value_name = "OLD.cfg")]
+    pub previous: Option<PathBuf>,
     /// Warn of a written value whose σ exceeds this, in the value's own
     /// unit (mm, °, %).
     #[arg(long, value_name = "SIGMA", default_value_t = pkmcal_io::firmware::DEFAULT_MAX_SIGMA, value_parser = args::values::max_sigma)]
@@ -62,13 +68,17 @@ pub struct Args {
 impl Args {
     pub fn paths(&self) -> Result<args::Paths> {
         let mut out: Vec<PathBuf> = self.out.iter().cloned().collect();
+        out.extend(self.physical.outputs());
         let mut dirs = vec![];
         if let Some(d) = &self.out_dir {
             out.extend(pkmcal_io::output::in_dir(d, &OUT_DIR_FILES)?);
             out.extend(pkmcal_io::output::in_dir(d, &[DISTANCES_FILE])?);
             dirs.push(d.clone());
         }
-        Ok(args::Paths::new([Some(self.config.clone())], out).with_dirs(dirs))
+        Ok(
+            args::Paths::new([Some(self.config.clone()), self.previous.clone()], out)
+                .with_dirs(dirs),
+        )
     }
 }
 
@@ -78,16 +88,30 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             "--out-dir writes the firmware's own model; leave it out with --physical".to_string(),
         );
     }
+    if !a.physical.physical && a.previous.is_some() {
+        return crate::words::usage(
+            "--previous compares physical calibrations: add --physical".to_string(),
+        );
+    }
     let (text, ini) = klipper::read_config(run, &a.config)?;
+    let previous = match (&a.previous, a.physical.physical) {
+        (Some(p), true) => Some(KlipperPrinter::read(run, p, a.weighting)?),
+        _ => None,
+    };
     if a.physical.physical {
         let mut request = Request::new(pkmcal::Model::Exact);
         a.params_set.apply(&mut request);
         a.physical.apply(&mut request)?;
         let output = crate::cmd::physical::Output {
             out: a.out.as_deref(),
+            physical: &a.physical,
             header: String::new(),
             footer: "",
             written: "(values in its SAVE_CONFIG block)",
+            previous: previous
+                .as_ref()
+                .zip(a.previous.as_ref())
+                .map(|(p, path)| (p as &dyn Firmware, path.display().to_string())),
         };
         let source = a.config.display().to_string();
         if klipper_rotary::is_rotary(&ini) {

@@ -13,6 +13,7 @@ pub mod marlin;
 pub mod montecarlo;
 pub mod parameters;
 pub mod physical;
+pub mod physical_outputs;
 pub mod plan;
 pub mod predict;
 pub mod reprap;

@@ -20,6 +20,11 @@ pub struct Output<'a> {
     pub footer: &'a str,
     /// What the command says of the written file.
     pub written: &'a str,
+    /// The --physical options (the height map's).
+    pub physical: &'a crate::args::PhysicalArgs,
+    /// The printer's previous readings, compared with these (`--previous`),
+    /// and where they came from.
+    pub previous: Option<(&'a dyn Firmware, String)>,
 }
 
 /// A parameter whose uncertainty the readings reduce by less than this
@@ -55,7 +60,7 @@ pub fn run<F: Firmware>(
     let fw_spec = fw_mech.spec();
     let own = firmware::calibrate(printer, Request::new(pkmcal::Model::Exact))?;
     let own_cal = own.calibration();
-    let fit = physical::calibrate(printer, &ld, request)?;
+    let fit = physical::calibrate(printer, &ld, request.clone())?;
     let cal = &fit.study.calibration;
     let spec = fit.mech.spec();
     let proj = physical::project(&ld, &fw_mech, &fit.mech, &cal.params, &cal.measurement)?;
@@ -204,6 +209,20 @@ pub fn run<F: Firmware>(
     );
     for v in printer.values(fw_spec, &proj.params, &proj.bed)? {
         say!("  {:<28} {:>14.6} {:>14.6}", v.name, v.before, v.after);
+    }
+    let mapped = crate::cmd::physical_outputs::Mapped {
+        fit: &fit,
+        fw_mech: &fw_mech,
+        fw_params: &proj.params,
+        fw_bed,
+        source,
+    };
+    crate::cmd::physical_outputs::suggestion(printer, &mapped);
+    if let Some((previous, from)) = &output.previous {
+        crate::cmd::physical_outputs::drift(*previous, from, request, &fit)?;
+    }
+    if let Some(path) = &output.physical.height_map {
+        crate::cmd::physical_outputs::height_map(run, printer, &mapped, path, output.physical)?;
     }
     if let Some(out) = output.out {
         let mut text = output.header;

@@ -45,7 +45,7 @@ impl Args {
     pub fn paths(&self) -> Result<args::Paths> {
         Ok(args::Paths::new(
             [Some(self.config.clone()), Some(self.probes.clone())],
-            self.out.clone(),
+            self.out.iter().cloned().chain(self.physical.outputs()),
         ))
     }
 }
@@ -64,6 +64,8 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             &a.probes.display().to_string(),
             crate::cmd::physical::Output {
                 out: a.out.as_deref(),
+                physical: &a.physical,
+                previous: None,
                 header: format!(
                     "; Delta parameters for the nozzle over the build volume by pkmcal {} --physical from {} ({n} probe points)\n",
                     env!("CARGO_PKG_VERSION"),

@@ -11,17 +11,17 @@
 
 // Where it was before the merge, so that a test file still written as its
 // own binary (`tests/<topic>.rs` with `mod common;`) keeps compiling.
-#[path = "../common/mod.rs"]
-mod common;
-
 mod budget;
 mod calibrate;
 mod cli;
+#[path = "../common/mod.rs"]
+mod common;
 mod controllers;
 mod drift;
 mod examples;
 mod firmware_checks;
 mod gcode;
+mod height_map;
 mod input;
 mod instruments;
 mod klipper;

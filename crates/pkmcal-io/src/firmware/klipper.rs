@@ -1578,6 +1578,14 @@ impl Firmware for KlipperPrinter {
         }))
     }
 
+    fn mesh_layout(
+        &self,
+        radius: f64,
+        count: Option<usize>,
+    ) -> Result<Option<super::height_map::MeshLayout>> {
+        super::height_map::klipper_layout(&self.ini, radius, count).map(Some)
+    }
+
     fn located(&self, e: pkmcal::Error) -> Error {
         let name = match &e {
             pkmcal::Error::Pose {

@@ -1371,6 +1371,15 @@ impl Firmware for MarlinPrinter {
         }))
     }
 
+    fn mesh_layout(
+        &self,
+        radius: f64,
+        count: Option<usize>,
+    ) -> Result<Option<super::height_map::MeshLayout>> {
+        use super::height_map::{MESH_POINTS, MeshFormat, MeshLayout};
+        MeshLayout::round(MeshFormat::Marlin, radius, count.unwrap_or(MESH_POINTS)).map(Some)
+    }
+
     fn located(&self, e: pkmcal::Error) -> Error {
         Error::located(e, &self.probes)
     }

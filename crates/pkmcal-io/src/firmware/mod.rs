@@ -12,10 +12,13 @@
 //! linear deltas (`--physical`).
 
 pub mod g33;
+pub mod height_map;
 pub mod klipper;
 pub mod klipper_rotary;
 pub mod marlin;
 pub mod physical;
+pub mod physical_drift;
+pub mod physical_plan;
 pub mod reprap;
 
 use crate::description::Mech;
@@ -112,6 +115,18 @@ pub trait Firmware {
     /// The printer as a linear delta for the physical model
     /// ([`physical`]); `None` when it is not one (a rotary delta).
     fn linear_delta(&self) -> Result<Option<physical::LinearDelta>> {
+        Ok(None)
+    }
+
+    /// The levelling mesh a height map of this printer is written on
+    /// ([`height_map`]), `count` nodes across where given, over a circle of
+    /// `radius` (mm) unless the configuration sets its own mesh; `None`
+    /// where the firmware has no format for one.
+    fn mesh_layout(
+        &self,
+        _radius: f64,
+        _count: Option<usize>,
+    ) -> Result<Option<height_map::MeshLayout>> {
         Ok(None)
     }
 

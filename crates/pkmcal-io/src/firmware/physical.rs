@@ -603,26 +603,19 @@ pub fn cube_at(
     Ok(([e[1][0] - e[0][0], e[3][1] - e[2][1]], flatness))
 }
 
-/// The verdict's cubes ([`cube_centres`]) printed with the firmware's
-/// values `fw_params` on the fitted printer: each error at the fit's
-/// values, its standard deviation from [`CUBE_DRAWS`] draws of the free
-/// parameters from the fit's covariance.
-pub fn cube_errors(
-    fit: &PhysicalFit,
-    fw_mech: &Mech,
-    fw_params: &Params,
-    fw_bed: Option<&[f64]>,
-) -> Result<Vec<CubeError>> {
+/// [`CUBE_DRAWS`] draws (seeded, [`CUBE_SEED`]) of the fitted printer's
+/// parameters and bed from the fit's posterior: its free parameters from
+/// their covariance, the rest as fitted.
+pub fn posterior_draws(fit: &PhysicalFit) -> Result<Vec<(Params, Vec<f64>)>> {
     use rand::SeedableRng;
     use rand_distr::{Distribution, StandardNormal};
     let cal = &fit.study.calibration;
     let spec = fit.mech.spec();
     let names = fit.readings.measurement.all_names(spec);
     let n_params = spec.n_params();
-    let nozzle = fit.delta.nozzle();
     let eig = cal.covariance.clone().symmetric_eigen();
     let mut rng = rand::rngs::StdRng::seed_from_u64(CUBE_SEED);
-    let draws: Vec<(Params, Vec<f64>)> = (0..CUBE_DRAWS)
+    (0..CUBE_DRAWS)
         .map(|_| -> Result<(Params, Vec<f64>)> {
             let z: Vec<f64> = (0..cal.free.len())
                 .map(|_| StandardNormal.sample(&mut rng))
@@ -641,7 +634,22 @@ pub fn cube_errors(
             }
             Ok((p, bed))
         })
-        .collect::<Result<_>>()?;
+        .collect()
+}
+
+/// The verdict's cubes ([`cube_centres`]) printed with the firmware's
+/// values `fw_params` on the fitted printer: each error at the fit's
+/// values, its standard deviation from [`CUBE_DRAWS`] draws of the free
+/// parameters from the fit's covariance.
+pub fn cube_errors(
+    fit: &PhysicalFit,
+    fw_mech: &Mech,
+    fw_params: &Params,
+    fw_bed: Option<&[f64]>,
+) -> Result<Vec<CubeError>> {
+    let cal = &fit.study.calibration;
+    let nozzle = fit.delta.nozzle();
+    let draws = posterior_draws(fit)?;
     cube_centres(&fit.delta)
         .into_iter()
         .map(|centre| {

@@ -713,6 +713,15 @@ impl Firmware for RrfPrinter {
         }))
     }
 
+    fn mesh_layout(
+        &self,
+        radius: f64,
+        count: Option<usize>,
+    ) -> Result<Option<super::height_map::MeshLayout>> {
+        use super::height_map::{MESH_POINTS, MeshFormat, MeshLayout};
+        MeshLayout::round(MeshFormat::RepRap, radius, count.unwrap_or(MESH_POINTS)).map(Some)
+    }
+
     fn located(&self, e: pkmcal::Error) -> Error {
         Error::located(e, &self.probes)
     }

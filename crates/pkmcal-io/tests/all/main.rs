@@ -6,9 +6,12 @@
 //! comment saying what it covers) and add `mod <topic>;` below. Run one
 //! file's tests with `cargo test -p pkmcal-io --test all <topic>::`.
 
+mod height_map;
 mod imports;
 mod klipper_rotary;
 mod marlin;
 mod physical;
 mod physical_acceptance;
+mod physical_drift;
+mod physical_plan;
 mod renamed;

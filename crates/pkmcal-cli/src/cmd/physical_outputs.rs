@@ -1,0 +1,208 @@
+//! What `--physical` writes and says besides the firmware's values: the
+//! extra measurement that would shrink the cube's uncertainty most, and the
+//! height map in the firmware's own format (`--height-map`, issue 54).
+
+use anyhow::Result;
+use pkmcal::Params;
+use pkmcal_io::Run;
+use pkmcal_io::description::Mech;
+use pkmcal_io::firmware::Firmware;
+use pkmcal_io::firmware::height_map::{self, KLIPPER_PROFILE, MeshFormat};
+use pkmcal_io::firmware::physical::{self, PhysicalFit};
+use pkmcal_io::firmware::physical_drift;
+use pkmcal_io::firmware::physical_plan::{self, Extra};
+use std::path::Path;
+
+/// The fitted printer and the firmware's values written for it.
+pub struct Mapped<'a> {
+    /// The physical fit.
+    pub fit: &'a PhysicalFit,
+    /// The firmware's description.
+    pub fw_mech: &'a Mech,
+    /// Its written values.
+    pub fw_params: &'a Params,
+    /// The bed tilt the firmware applies, where it applies one.
+    pub fw_bed: Option<&'a [f64]>,
+    /// Where the readings came from.
+    pub source: &'a str,
+}
+
+/// Map what the written values leave over the bed, stage it at `path` in
+/// the firmware's format, and say so.
+pub fn height_map<F: Firmware>(
+    run: &Run<'_>,
+    printer: &F,
+    m: &Mapped<'_>,
+    path: &Path,
+    physical: &crate::args::PhysicalArgs,
+) -> Result<()> {
+    let ld = &m.fit.delta;
+    let Some(layout) = printer.mesh_layout(ld.print_radius(), physical.mesh_points)? else {
+        anyhow::bail!(
+            "{} keeps no height map pkmcal can write: leave --height-map out",
+            printer.name()
+        );
+    };
+    let map = height_map::residual_map(m.fit, m.fw_mech, m.fw_params, m.fw_bed, &layout)?;
+    let n = layout.count;
+    let s = layout.spacing();
+    let (lo, hi) = (map.xs[0], map.xs[n - 1]);
+    let how = match layout.format {
+        MeshFormat::Klipper => format!(
+            "[include] this file in printer.cfg (which needs a [bed_mesh] section), then\n\
+             BED_MESH_PROFILE LOAD={KLIPPER_PROFILE}"
+        ),
+        MeshFormat::RepRap => "load it with G29 S1 P\"<this file>\"".to_string(),
+        MeshFormat::Marlin => format!(
+            "for bilinear levelling with GRID_MAX_POINTS_X and _Y {n}: run G29 L{lo:.2} R{hi:.2} F{:.2} B{:.2}\n\
+             once (the grid's bounds), send these lines, then M420 S1, and M500 to keep them",
+            map.ys[0],
+            map.ys[n - 1]
+        ),
+    };
+    let comment = format!(
+        "pkmcal {} --physical from {}:\n\
+         the nozzle's Z error the written values leave over the bed, as a mesh whose\n\
+         value the firmware adds to Z: {n} x {n} nodes {s:.2} mm apart within {} mm of\n\
+         ({}, {}), each row's outermost value beyond.\n{how}",
+        env!("CARGO_PKG_VERSION"),
+        m.source,
+        layout.radius,
+        layout.origin[0],
+        layout.origin[1],
+    );
+    let text = height_map::write(&map, &layout, &comment);
+    run.files.stage(path, text.as_bytes())?;
+    let v = map.values();
+    let (min, max) = (
+        v.iter().copied().fold(f64::INFINITY, f64::min),
+        v.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+    );
+    let format = match layout.format {
+        MeshFormat::Klipper => format!("Klipper [bed_mesh {KLIPPER_PROFILE}] profile"),
+        MeshFormat::RepRap => "RepRapFirmware heightmap.csv".into(),
+        MeshFormat::Marlin => "Marlin M421 lines".into(),
+    };
+    say!(
+        "\nheight map of what the written values leave on the bed ({format}, {n} x {n} nodes {s:.2} mm apart within {} mm): {} nodes, from {min:+.4} to {max:+.4} mm, σ up to {:.4} mm -> {}",
+        layout.radius,
+        v.len(),
+        map.largest_sd().unwrap_or(f64::NAN),
+        path.display()
+    );
+    let largest = v.iter().fold(0.0_f64, |m, x| m.max(x.abs()));
+    if map.largest_sd().is_some_and(|sd| sd > largest) {
+        say!(
+            "  the map's uncertainty exceeds its values: what it corrects is not known yet; measure more (calibration object distances, or probe heights further out) before loading it"
+        );
+    }
+    Ok(())
+}
+
+/// How many suggestions are listed.
+const SUGGESTIONS: usize = 3;
+
+/// Say which extra measurements would shrink the predicted cube's
+/// uncertainty most, in the firmware's commands; where they cannot be
+/// scored (a candidate the printer cannot reach), say why and go on: the
+/// values are written all the same.
+pub fn suggestion<F: Firmware>(printer: &F, m: &Mapped<'_>) {
+    if let Err(e) = suggest(printer, m) {
+        say!("\nthe extra measurements could not be scored: {e:#}");
+    }
+}
+
+fn suggest<F: Firmware>(printer: &F, m: &Mapped<'_>) -> Result<()> {
+    let firmware = printer.name();
+    let klipper = firmware == "Klipper";
+    let list = physical_plan::suggest(m.fit, m.fw_mech, m.fw_params, m.fw_bed, klipper)?;
+    let Some(first) = list.first() else {
+        return Ok(());
+    };
+    say!(
+        "\nthe extra measurements that would shrink the cube's uncertainty most (its largest σ now {:.3} mm; linearised, the fit's noise for each reading):",
+        first.largest().0
+    );
+    let o = m.fit.delta.probe_offset;
+    let probe_at = |p: [f64; 2]| -> String {
+        match firmware {
+            "Klipper" => format!(
+                "G1 X{:.1} Y{:.1} then PROBE (the probe at {:.1}, {:.1})",
+                p[0] - o[0],
+                p[1] - o[1],
+                p[0],
+                p[1]
+            ),
+            "RepRapFirmware" => format!("G30 P<next> X{:.1} Y{:.1} Z-99999", p[0], p[1]),
+            _ => format!("G30 X{:.1} Y{:.1}", p[0], p[1]),
+        }
+    };
+    for (k, s) in list.iter().take(SUGGESTIONS).enumerate() {
+        let what = match &s.extra {
+            Extra::ProbePoint { at } => format!("one more probe point: {}", probe_at(*at)),
+            Extra::SecondLevel { height, points } => format!(
+                "{} probe heights on a {height} mm gauge block (known height): {}",
+                points.len(),
+                points
+                    .iter()
+                    .map(|p| probe_at(*p))
+                    .collect::<Vec<_>>()
+                    .join("; ")
+            ),
+            Extra::ObjectDistances => "the 12 distances of Klipper's calibration object (docs/prints/calibrate_size.stl) printed with the written values, measured with calipers: DELTA_ANALYZE CENTER_DISTS=… OUTER_DISTS=… (and the pillar widths), then SAVE_CONFIG".to_string(),
+        };
+        let (before, after) = s.largest();
+        say!(
+            "  {}. {what}: largest σ {before:.3} -> {after:.3} mm ({:.0} % of the cube errors' variance)",
+            k + 1,
+            100.0 * s.variance_removed()
+        );
+    }
+    Ok(())
+}
+
+/// Fit the `previous` readings (from `from`) as these were fitted and say
+/// whether the physical printer changed since, beyond both fits'
+/// uncertainty.
+pub fn drift(
+    previous: &dyn Firmware,
+    from: &str,
+    request: pkmcal::Request,
+    now: &PhysicalFit,
+) -> Result<()> {
+    let Some(ld) = previous.linear_delta()? else {
+        anyhow::bail!("--previous {from} is not a linear delta");
+    };
+    let before = physical::calibrate(previous, &ld, request)?;
+    let d = physical_drift::drift(&before, now, pkmcal::identify::DEFAULT_ALPHA)?;
+    let changed: Vec<String> = d
+        .parameters
+        .iter()
+        .filter(|p| p.drifted)
+        .map(|p| format!("{} {:+.4} ± {:.4}", p.name, p.change, p.sigma))
+        .collect();
+    let alone = if d.parameters.is_empty() {
+        "no parameter is seen alone by both".to_string()
+    } else {
+        format!(
+            "{} of the {} parameters seen alone changed beyond both uncertainties{}{}",
+            changed.len(),
+            d.parameters.len(),
+            if changed.is_empty() { "" } else { ": " },
+            changed.join(", ")
+        )
+    };
+    say!(
+        "\nsince {from}: {} (joint test over the {} directions both calibrations' data see: χ² {:.1}, p {:.3}; {alone}; {} held by the tolerances not compared)",
+        if d.joint_drift {
+            "the printer changed"
+        } else {
+            "no change beyond the two calibrations' uncertainty"
+        },
+        d.dof,
+        d.chi2,
+        d.p_joint,
+        d.untested.len()
+    );
+    Ok(())
+}

@@ -1,0 +1,343 @@
+//! Which extra measurement would shrink the predicted cube error most
+//! (`--physical`, issue 54): candidates a printer owner can take — one
+//! more probe point, the probe pattern again on a gauge block (heights at a
+//! second level), the twelve distances of Klipper's calibration object
+//! measured with calipers — each scored by how much it would reduce the
+//! variance of the verdict's cube errors ([`physical::cube_errors`]: X and
+//! Y size and top flatness, at the centre and the edge).
+//!
+//! The fit's posterior covariance `Σ` of the free parameters (and the
+//! bed's) is updated by a candidate's readings as a Gauss-Markov update
+//! would: with `A` the readings' Jacobian and `R` their noise,
+//! `Σ' = Σ − Σ Aᵀ (A Σ Aᵀ + R)⁻¹ A Σ`; the cube errors' Jacobian `G` gives
+//! their variances `diag(G Σ Gᵀ)` before and `diag(G Σ' Gᵀ)` after. The
+//! candidate that reduces their sum most is the targeted (c-optimal)
+//! choice: the one that buys the most certainty about the printed cube,
+//! not about the parameters in general. Jacobians are forward differences
+//! through the physical model.
+
+use super::physical::{self, PhysicalFit};
+use crate::description::Mech;
+use crate::error::{Error, Result};
+use nalgebra::DMatrix;
+use pkmcal::{Mechanism, Params};
+
+/// Klipper's calibration object (`delta_calibrate.py`,
+/// `docs/prints/calibrate_size.stl`): its six directions (degrees), its
+/// outer radius and its ridges' (mm).
+const OBJECT_ANGLES_DEG: [f64; 6] = [210.0, 270.0, 330.0, 30.0, 90.0, 150.0];
+const OBJECT_OUTER_MM: f64 = 65.0;
+const OBJECT_RIDGE_MM: f64 = 4.5;
+/// The gauge block's height for heights at a second level (mm).
+pub const GAUGE_BLOCK_MM: f64 = 50.0;
+/// Directions of the candidate probe points (every 30°) and their share of
+/// the build volume's radius (less the probe's offset: the nozzle stays
+/// within it).
+const PROBE_RING_STEP_DEG: f64 = 30.0;
+const PROBE_RING_SHARES: [f64; 2] = [0.5, 0.9];
+/// Forward-difference step of the Jacobians (mm or rad).
+const DIFF: f64 = 1e-6;
+
+/// An extra measurement.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Extra {
+    /// One probe reading with the probe at `at` (x, y on the bed, mm).
+    ProbePoint {
+        /// Where the probe touches.
+        at: [f64; 2],
+    },
+    /// The probe at `points` on a gauge block `height` mm high.
+    SecondLevel {
+        /// The block's height (mm).
+        height: f64,
+        /// Where the probe touches its top.
+        points: Vec<[f64; 2]>,
+    },
+    /// The 12 distances of Klipper's calibration object printed with the
+    /// written values and measured with calipers.
+    ObjectDistances,
+}
+
+/// A candidate and what it would do to the cube's predicted uncertainty.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Suggestion {
+    /// The measurement.
+    pub extra: Extra,
+    /// Its readings.
+    pub readings: usize,
+    /// Each cube error's σ now and after it (mm), in the order X size,
+    /// Y size, flatness at the centre, then at the edge (the linearised
+    /// σ; [`physical::cube_errors`] gives them from draws).
+    pub sd_before: Vec<f64>,
+    /// The same after the measurement (mm).
+    pub sd_after: Vec<f64>,
+}
+
+impl Suggestion {
+    /// The largest cube σ now and after (mm).
+    pub fn largest(&self) -> (f64, f64) {
+        let m = |v: &[f64]| v.iter().copied().fold(0.0, f64::max);
+        (m(&self.sd_before), m(&self.sd_after))
+    }
+
+    /// The share of the cube errors' summed variance it removes.
+    pub fn variance_removed(&self) -> f64 {
+        let s = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>();
+        1.0 - s(&self.sd_after) / s(&self.sd_before).max(f64::MIN_POSITIVE)
+    }
+}
+
+/// The ends of the calibration object's 12 distances (on the bed, mm), as
+/// Klipper's `measurements_to_distances` places them: six from the inner
+/// ridge to the outer, six between neighbouring outer pillars.
+pub fn object_pairs() -> Vec<([f64; 2], [f64; 2])> {
+    let dir: Vec<[f64; 2]> = OBJECT_ANGLES_DEG
+        .iter()
+        .map(|a| {
+            let (s, c) = a.to_radians().sin_cos();
+            [c, s]
+        })
+        .collect();
+    let at = |d: [f64; 2], r: f64| [d[0] * r, d[1] * r];
+    let outer = OBJECT_OUTER_MM + OBJECT_RIDGE_MM;
+    let mut pairs: Vec<_> = dir
+        .iter()
+        .map(|d| (at(*d, OBJECT_RIDGE_MM), at(*d, outer)))
+        .collect();
+    for k in 0..6 {
+        let start = at(dir[k], OBJECT_OUTER_MM);
+        let s = dir[(k + 2) % 6];
+        pairs.push((
+            [
+                start[0] + s[0] * OBJECT_RIDGE_MM,
+                start[1] + s[1] * OBJECT_RIDGE_MM,
+            ],
+            [start[0] + s[0] * outer, start[1] + s[1] * outer],
+        ));
+    }
+    pairs
+}
+
+/// The candidate probe points: every [`PROBE_RING_STEP_DEG`] at the shares
+/// [`PROBE_RING_SHARES`] of `radius`.
+fn probe_candidates(radius: f64) -> Vec<[f64; 2]> {
+    let mut out = vec![];
+    for share in PROBE_RING_SHARES {
+        let mut a: f64 = 0.0;
+        while a < 360.0 - 1e-9 {
+            let (s, c) = a.to_radians().sin_cos();
+            out.push([share * radius * c, share * radius * s]);
+            a += PROBE_RING_STEP_DEG;
+        }
+    }
+    out
+}
+
+/// The gauge block's points: the centre and towards each tower's
+/// direction (90° + 120° k) at half the radius.
+fn block_points(radius: f64) -> Vec<[f64; 2]> {
+    let mut out = vec![[0.0, 0.0]];
+    for k in 0..3 {
+        let (s, c) = (90.0 + 120.0 * k as f64).to_radians().sin_cos();
+        out.push([0.5 * radius * c, 0.5 * radius * s]);
+    }
+    out
+}
+
+/// Every quantity the candidates and the cube depend on, for the printer
+/// `params` with bed `bed`: the 6 cube errors, then each candidate probe
+/// point's height, each block point's, each object distance.
+struct Quantities<'a> {
+    fit: &'a PhysicalFit,
+    fw_mech: &'a Mech,
+    fw_params: &'a Params,
+    fw_bed: Option<&'a [f64]>,
+    probes: Vec<[f64; 2]>,
+    block: Vec<[f64; 2]>,
+    pairs: Vec<([f64; 2], [f64; 2])>,
+}
+
+impl Quantities<'_> {
+    fn eval(&self, params: &Params, bed: &[f64]) -> Result<Vec<f64>> {
+        let fit = self.fit;
+        let mut out = vec![];
+        for centre in physical::cube_centres(&fit.delta) {
+            let (size, flat) = physical::cube_at(
+                self.fw_mech,
+                self.fw_params,
+                self.fw_bed,
+                &fit.mech,
+                params,
+                bed,
+                fit.delta.nozzle(),
+                centre,
+            )?;
+            out.extend([size[0], size[1], flat]);
+        }
+        // A probe reading: the probe's height over the bed with the nozzle
+        // sent to put it at the point (the probe is the effector frame's
+        // origin).
+        let o = fit.delta.probe_offset;
+        let probe_targets: Vec<[f64; 3]> = self
+            .probes
+            .iter()
+            .map(|p| [p[0] - o[0], p[1] - o[1], 0.0])
+            .chain(
+                self.block
+                    .iter()
+                    .map(|p| [p[0] - o[0], p[1] - o[1], GAUGE_BLOCK_MM]),
+            )
+            .collect();
+        let probe = physical::nozzle_errors(
+            self.fw_mech,
+            self.fw_params,
+            self.fw_bed,
+            &fit.mech,
+            params,
+            bed,
+            [0.0, 0.0, 0.0],
+            &probe_targets,
+        )?;
+        out.extend(probe.iter().map(|e| e[2]));
+        let ends: Vec<[f64; 3]> = self
+            .pairs
+            .iter()
+            .flat_map(|(a, b)| [[a[0], a[1], 0.0], [b[0], b[1], 0.0]])
+            .collect();
+        let e = physical::nozzle_errors(
+            self.fw_mech,
+            self.fw_params,
+            self.fw_bed,
+            &fit.mech,
+            params,
+            bed,
+            fit.delta.nozzle(),
+            &ends,
+        )?;
+        for (k, pair) in e.chunks(2).enumerate() {
+            let (a, b) = self.pairs[k];
+            let pa = [a[0] + pair[0][0], a[1] + pair[0][1]];
+            let pb = [b[0] + pair[1][0], b[1] + pair[1][1]];
+            out.push((pa[0] - pb[0]).hypot(pa[1] - pb[1]));
+        }
+        Ok(out)
+    }
+}
+
+/// The extra measurements for the fitted printer `fit` with the written
+/// values `fw_params` (bed `fw_bed` where the firmware tilts Z), best
+/// first: each probe point of a ring, the block, and the calibration
+/// object's distances where `distances` (the firmware reads them).
+pub fn suggest(
+    fit: &PhysicalFit,
+    fw_mech: &Mech,
+    fw_params: &Params,
+    fw_bed: Option<&[f64]>,
+    distances: bool,
+) -> Result<Vec<Suggestion>> {
+    let radius = fit.delta.print_radius();
+    let q = Quantities {
+        fit,
+        fw_mech,
+        fw_params,
+        fw_bed,
+        probes: probe_candidates(
+            radius - fit.delta.probe_offset[0].hypot(fit.delta.probe_offset[1]),
+        ),
+        block: block_points(radius),
+        pairs: if distances { object_pairs() } else { vec![] },
+    };
+    let cal = &fit.study.calibration;
+    let spec = fit.mech.spec();
+    let names = fit.readings.measurement.all_names(spec);
+    let n_params = spec.n_params();
+    let base = q.eval(&cal.params, &cal.measurement)?;
+    let columns: Vec<Vec<f64>> = {
+        use rayon::prelude::*;
+        cal.free
+            .par_iter()
+            .map(|&i| -> Result<Vec<f64>> {
+                let (mut p, mut bed) = (cal.params.clone(), cal.measurement.clone());
+                if i < n_params {
+                    let v = p.get(spec, &names[i])?;
+                    p.set(spec, &names[i], v + DIFF)?;
+                } else {
+                    bed[i - n_params] += DIFF;
+                }
+                Ok(q.eval(&p, &bed)?
+                    .iter()
+                    .zip(&base)
+                    .map(|(a, b)| (a - b) / DIFF)
+                    .collect())
+            })
+            .collect::<Result<_>>()?
+    };
+    let n_free = cal.free.len();
+    let jac = DMatrix::from_fn(base.len(), n_free, |r, c| columns[c][r]);
+    let sigma = &cal.covariance;
+    if sigma.nrows() != n_free {
+        return Err(Error::Content(
+            "the fit's covariance does not match its free parameters".into(),
+        ));
+    }
+    let g = jac.rows(0, 6).into_owned();
+    let gs = &g * sigma;
+    let sd_before: Vec<f64> = (0..6)
+        .map(|k| gs.row(k).dot(&g.row(k)).max(0.0).sqrt())
+        .collect();
+    let score = |rows: &[usize], noise: f64, extra: Extra| -> Option<Suggestion> {
+        let a = DMatrix::from_fn(rows.len(), n_free, |r, c| jac[(rows[r], c)]);
+        let s =
+            &a * sigma * a.transpose() + DMatrix::identity(rows.len(), rows.len()) * noise * noise;
+        let inv = s.try_inverse()?;
+        let gsa = &gs * a.transpose();
+        let drop = &gsa * inv * gsa.transpose();
+        let sd_after = (0..6)
+            .map(|k| (sd_before[k].powi(2) - drop[(k, k)]).max(0.0).sqrt())
+            .collect();
+        Some(Suggestion {
+            extra,
+            readings: rows.len(),
+            sd_before: sd_before.clone(),
+            sd_after,
+        })
+    };
+    let mut out = vec![];
+    let first_probe = 6;
+    for (k, at) in q.probes.iter().enumerate() {
+        out.extend(score(
+            &[first_probe + k],
+            physical::PROBE_NOISE_MM,
+            Extra::ProbePoint { at: *at },
+        ));
+    }
+    let first_block = first_probe + q.probes.len();
+    let rows: Vec<usize> = (first_block..first_block + q.block.len()).collect();
+    out.extend(score(
+        &rows,
+        physical::PROBE_NOISE_MM,
+        Extra::SecondLevel {
+            height: GAUGE_BLOCK_MM,
+            points: q.block.clone(),
+        },
+    ));
+    if distances {
+        let first = first_block + q.block.len();
+        let rows: Vec<usize> = (first..first + q.pairs.len()).collect();
+        out.extend(score(
+            &rows,
+            physical::DISTANCE_NOISE_MM,
+            Extra::ObjectDistances,
+        ));
+    }
+    // Best probe point only, then the groups: by variance removed.
+    out.sort_by(|a, b| b.variance_removed().total_cmp(&a.variance_removed()));
+    let mut seen_probe = false;
+    out.retain(|s| {
+        let probe = matches!(s.extra, Extra::ProbePoint { .. });
+        let keep = !(probe && seen_probe);
+        seen_probe |= probe;
+        keep
+    });
+    Ok(out)
+}
