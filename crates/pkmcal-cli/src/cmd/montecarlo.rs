@@ -123,12 +123,12 @@ pub fn run(run: &Run<'_>, c: Args) -> Result<()> {
         } else {
             String::new()
         },
-        c.length_error,
-        c.angle_error,
+        pkmcal::error::shown(c.length_error),
+        pkmcal::error::shown(c.angle_error),
         if n_priors > 0 { " otherwise" } else { "" },
-        noise.length,
+        pkmcal::error::shown(noise.length),
         if spec.tool_units.contains(&pkmcal::Unit::Radian) {
-            format!(", {} rad on angles", noise.angle)
+            format!(", {} rad on angles", pkmcal::error::shown(noise.angle))
         } else {
             String::new()
         }

@@ -181,9 +181,9 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         "simulated {}, {} (noise {} mm on lengths{}, seed {}) -> {}",
         pkmcal::error::count(data.len(), "pose", "poses"),
         measurement.describe(),
-        noise.length,
+        pkmcal::error::shown(noise.length),
         if angles {
-            format!(", {} rad on angles", noise.angle)
+            format!(", {} rad on angles", pkmcal::error::shown(noise.angle))
         } else {
             String::new()
         },

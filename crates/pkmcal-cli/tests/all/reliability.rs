@@ -2226,3 +2226,20 @@ fn a_full_disk_fails_naming_the_file_and_writes_nothing() {
         no_temporaries(&small);
     }
 }
+
+/// Issue 50: every number a user types is printed sensibly: a simulated
+/// noise of 1e-308 mm was echoed in the summary as 0.000… with 300 zeros.
+#[test]
+fn typed_numbers_are_echoed_in_exponent_form() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let o = common::run(
+        d,
+        &[
+            "simulate", "--grid", "3", "--noise", "1e-308", "--out", "s.csv",
+        ],
+    );
+    assert!(o.status.success());
+    let said = String::from_utf8_lossy(&o.stderr);
+    assert!(said.contains("noise 1e-308 mm"), "{said}");
+}
