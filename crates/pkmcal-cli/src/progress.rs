@@ -4,6 +4,8 @@ use pkmcal_io::{Bars, Progress};
 
 /// Work items below which no progress bar is shown (it would only flicker).
 const PROGRESS_MIN_ITEMS: u64 = 2000;
+/// How often a shown bar is redrawn when no step has been done (ms).
+const BAR_TICK_MS: u64 = 250;
 
 /// A bar on standard error, hidden when standard error is not a terminal,
 /// with `--quiet`, or for small jobs.
@@ -35,15 +37,22 @@ impl Bars for TerminalBars {
         } else {
             min_items
         };
-        if self.quiet || quiet || len < min || !std::io::stderr().is_terminal() {
+        let hidden = self.quiet || quiet || len < min || !std::io::stderr().is_terminal();
+        if hidden {
             bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
         }
         bar.set_style(
             indicatif::ProgressStyle::with_template(&format!(
-                "{{bar:40}} {{pos}}/{{len}} {what} ({{eta}})"
+                "{{bar:40}} {{pos}}/{{len}} {what} ({{elapsed}}, {{eta}} left)"
             ))
             .expect("valid template"),
         );
+        if !hidden {
+            // Drawn at once and redrawn while the work before the first step
+            // runs (a 48-leg plan prepares its candidates for seconds), so a
+            // long command is never silent.
+            bar.enable_steady_tick(std::time::Duration::from_millis(BAR_TICK_MS));
+        }
         Box::new(Bar(bar))
     }
 }
