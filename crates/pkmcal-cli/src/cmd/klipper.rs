@@ -88,6 +88,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             header: String::new(),
             footer: "",
             written: "(values in its SAVE_CONFIG block)",
+            max_sigma: a.max_sigma,
         };
         let source = a.config.display().to_string();
         if klipper_rotary::is_rotary(&ini) {
