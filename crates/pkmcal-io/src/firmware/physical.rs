@@ -64,6 +64,9 @@ pub const GRID_POINTS: usize = 9;
 /// The towers in order.
 const TOWERS: [&str; 3] = ["a", "b", "c"];
 
+/// How the firmware's description names its tower angles (`angle_a` …).
+const TOWER_ANGLE: &str = "angle_";
+
 /// Stiffness written for the carriages (N/mm), as the firmware's
 /// description writes it: a linear delta is not redundant, so it changes no
 /// prediction without a load.
@@ -837,7 +840,8 @@ pub fn choose(fit: &PhysicalFit, fw_mech: &Mech, own: &Params, own_bed: &[f64]) 
 /// `proj` (weighing Z `z_weight`): the fit's posterior propagated through
 /// the projection. Each of [`CHOICE_DRAWS`] draws of the printer moves the
 /// projection by one Gauss-Newton step from its values (the projection is
-/// linear in the printer's errors over their uncertainty).
+/// linear in the printer's errors over their uncertainty). The tower
+/// angles' common turn, which no printed part shows, is left out.
 pub fn projection_sigmas<F: Firmware + ?Sized>(
     firmware: &F,
     fit: &PhysicalFit,
@@ -906,10 +910,25 @@ pub fn projection_sigmas<F: Firmware + ?Sized>(
         let step = svd
             .solve(&nalgebra::DVector::from_column_slice(&de), cut)
             .map_err(|m| Error::Content(format!("the projection's least squares failed: {m}")))?;
+        // A turn of every tower angle together turns every part printed:
+        // no part shows it, and only the placement's small weight holds it;
+        // the σ are of the angles less their common turn.
+        let angles: Vec<usize> = (0..names.len())
+            .filter(|&k| names[k].starts_with(TOWER_ANGLE))
+            .collect();
+        let turn = match angles.len() {
+            3 => angles.iter().map(|&k| step[k]).sum::<f64>() / 3.0,
+            _ => 0.0,
+        };
         let mut moved = proj.params.clone();
         for (k, n) in names.iter().enumerate() {
+            let common = if angles.len() == 3 && angles.contains(&k) {
+                turn
+            } else {
+                0.0
+            };
             let v = moved.get(fw_spec, n)?;
-            moved.set(fw_spec, n, v - step[k])?;
+            moved.set(fw_spec, n, v - (step[k] - common))?;
         }
         // About the projection's own values: no cancellation.
         let vals: Vec<f64> = written(&moved, bed)?
