@@ -112,6 +112,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
                 .as_ref()
                 .zip(a.previous.as_ref())
                 .map(|(p, path)| (p as &dyn Firmware, path.display().to_string())),
+            max_sigma: a.max_sigma,
         };
         let source = a.config.display().to_string();
         if klipper_rotary::is_rotary(&ini) {

@@ -106,6 +106,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
                 ),
                 footer: "; send M500 once to keep them in EEPROM (not in a start script)\n",
                 written: "(send the two lines to the printer, then M500 to keep them)",
+                max_sigma: a.max_sigma,
             },
         );
     }

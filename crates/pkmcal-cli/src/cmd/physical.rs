@@ -3,7 +3,7 @@
 //! projected onto the firmware's values for the nozzle over the build
 //! volume, and written by the firmware's own writer (issue 54).
 
-use anyhow::{Result, bail};
+use anyhow::Result;
 use pkmcal::{Mechanism, Params, Request};
 use pkmcal_io::Run;
 use pkmcal_io::firmware::physical::{self, ErrorSummary};
@@ -25,6 +25,8 @@ pub struct Output<'a> {
     /// The printer's previous readings, compared with these (`--previous`),
     /// and where they came from.
     pub previous: Option<(&'a dyn Firmware, String)>,
+    /// The largest σ of a written value before a warning (`--max-sigma`).
+    pub max_sigma: f64,
 }
 
 /// A parameter whose uncertainty the readings reduce by less than this
@@ -51,10 +53,10 @@ pub fn run<F: Firmware>(
     output: Output<'_>,
 ) -> Result<()> {
     let Some(ld) = printer.linear_delta()? else {
-        bail!(
-            "--physical models linear deltas; this {} printer is a rotary delta (leave --physical out)",
+        return crate::words::usage(format!(
+            "--physical models linear deltas (towers with carriages); this {} printer is a rotary delta, whose arms and their errors it has no model of: calibrate its firmware values without --physical",
             printer.name()
-        );
+        ));
     };
     let fw_mech = printer.mechanism()?;
     let fw_spec = fw_mech.spec();
@@ -63,24 +65,22 @@ pub fn run<F: Firmware>(
     let fit = physical::calibrate(printer, &ld, request.clone())?;
     let cal = &fit.study.calibration;
     let spec = fit.mech.spec();
-    let proj = physical::project(&ld, &fw_mech, &fit.mech, &cal.params, &cal.measurement)?;
-    let errors = |p: &Params, bed: Option<&[f64]>| -> Result<ErrorSummary> {
-        Ok(ErrorSummary::of(&physical::nozzle_errors(
+    let choice = physical::choose(&fit, &fw_mech, &own_cal.params, &own_cal.measurement)?;
+    let proj = &choice.written;
+    let before = ErrorSummary::of(&physical::in_bed_frame(
+        &proj.targets,
+        &physical::nozzle_errors(
             &fw_mech,
-            p,
-            bed.filter(|_| ld.corrects_bed_tilt),
+            &Params::nominal(fw_spec),
+            Some(own.readings.measurement.nominal()).filter(|_| ld.corrects_bed_tilt),
             &fit.mech,
             &cal.params,
             &cal.measurement,
             ld.nozzle(),
             &proj.targets,
-        )?))
-    };
-    let before = errors(
-        &Params::nominal(fw_spec),
-        Some(own.readings.measurement.nominal()),
-    )?;
-    let with_own = errors(&own_cal.params, Some(&own_cal.measurement))?;
+        )?,
+    ));
+    let with_own = choice.own.summary;
     let measurement = &fit.readings.measurement;
     let heights = &fit.readings.poses;
     let h_before = firmware::probe_errors(
@@ -135,7 +135,15 @@ pub fn run<F: Firmware>(
             WarningKind::HeldByTolerance { .. } | WarningKind::PriorDominated { .. }
         )
     }) {
-        say!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
+        match &w.kind {
+            // No one stated the probe's σ: the readings scattering less
+            // than a typical probe's is news, not a fault.
+            WarningKind::NoiseOverstated { found, .. } if fit.noise_assumed => say!(
+                "the probe's readings scatter less than a typical probe's (σ {found:.2e} mm from the residuals against the {} mm assumed): the uncertainties below are on the safe side",
+                physical::PROBE_NOISE_MM
+            ),
+            _ => say!("warning: {}\n  hint: {}", w.message, crate::words::hint(w)),
+        }
     }
     let unseen: Vec<String> = PARTS
         .iter()
@@ -160,18 +168,30 @@ pub fn run<F: Firmware>(
         );
     }
     say!(
-        "\nnozzle error over the build volume of the fitted printer ({} points within {:.0} mm of the centre, z {} mm; over the bed):",
+        "\nnozzle error over the build volume of the fitted printer, in the bed's frame ({} points within {:.0} mm of the centre, z {} mm; x, y less the shift and turn no part shows, z over the bed):",
         proj.targets.len(),
         ld.print_radius(),
         physical::GRID_HEIGHTS_MM.map(|z| format!("{z}")).join(", ")
     );
+    let z_weighed = if choice.z_weight > 1.0 {
+        format!(
+            ", Z weighing {}× XY to stay no worse than {}'s",
+            choice.z_weight,
+            printer.name()
+        )
+    } else {
+        String::new()
+    };
     for (what, e) in [
-        ("the current values", before),
+        ("the current values".to_string(), before),
         (
-            &format!("{}'s own fit of the probe", printer.name()) as &str,
+            format!("{}'s own fit of the probe", printer.name()),
             with_own,
         ),
-        ("the values for the nozzle", proj.summary),
+        (
+            format!("the values for the nozzle{z_weighed}"),
+            choice.projected.summary,
+        ),
     ] {
         say!(
             "  {what:<36} XY RMS {:.4} mm, max {:.4} mm; Z RMS {:.4} mm, max {:.4} mm",
@@ -181,10 +201,31 @@ pub fn run<F: Firmware>(
             e.z_max
         );
     }
+    let gain = |g: [f64; 2]| format!("{:+.5} ± {:.5} mm²", g[0], g[1]);
+    if choice.projection_written {
+        say!(
+            "the values for the nozzle are written: over the fit's uncertainty they lower the mean square error by {} (Z alone {})",
+            gain(choice.gain),
+            gain(choice.z_gain)
+        );
+    } else {
+        say!(
+            "{}'s own fit is written: over the fit's uncertainty the values for the nozzle would lower the mean square error by {} (Z alone {}), not beyond {} standard deviation{}: the readings cannot show them better",
+            printer.name(),
+            gain(choice.gain),
+            gain(choice.z_gain),
+            physical::CHOICE_SIGMAS,
+            if physical::CHOICE_SIGMAS == 1.0 {
+                ""
+            } else {
+                "s"
+            }
+        );
+    }
     let fw_bed = ld.corrects_bed_tilt.then_some(proj.bed.as_slice());
     let cubes = physical::cube_errors(&fit, &fw_mech, &proj.params, fw_bed)?;
     say!(
-        "\npredicted {} mm cube printed with the values for the nozzle (± one standard deviation from the fit's uncertainty, {} draws):",
+        "\npredicted {} mm cube printed with the values written (± one standard deviation from the fit's uncertainty, {} draws):",
         physical::CUBE_MM,
         physical::CUBE_DRAWS
     );
@@ -201,14 +242,57 @@ pub fn run<F: Firmware>(
             c.flatness_sd
         );
     }
+    // Each written value's σ: the firmware's own fit's where it is
+    // written, else the posterior's through the projection.
+    let mut values = printer.values(fw_spec, &proj.params, &proj.bed)?;
+    let sigmas: Vec<f64> = if choice.projection_written {
+        physical::projection_sigmas(printer, &fit, &fw_mech, proj, choice.z_weight)?
+    } else {
+        firmware::written(printer, &own)?
+            .values
+            .iter()
+            .map(|v| v.sigma.unwrap_or(0.0))
+            .collect()
+    };
+    for (v, s) in values.iter_mut().zip(&sigmas) {
+        v.sigma = Some(*s);
+    }
     say!(
-        "\n  {:<28} {:>14} {:>14}",
+        "\n  {:<28} {:>14} {:>14} {:>14}",
         format!("{} value", printer.name()),
         "before",
-        "after"
+        "after",
+        "σ"
     );
-    for v in printer.values(fw_spec, &proj.params, &proj.bed)? {
-        say!("  {:<28} {:>14.6} {:>14.6}", v.name, v.before, v.after);
+    for v in &values {
+        let sigma = match v.sigma {
+            Some(s) if s > 0.0 => format!("{s:.4} {}", v.unit),
+            Some(s) if s.is_nan() => "unknown".into(),
+            _ => "fixed".into(),
+        };
+        say!(
+            "  {:<28} {:>14.6} {:>14.6} {:>14}",
+            v.name,
+            v.before,
+            v.after,
+            sigma
+        );
+    }
+    let uncertain: Vec<(String, f64, &'static str)> = values
+        .iter()
+        .filter_map(|v| {
+            v.sigma
+                .filter(|s| *s > output.max_sigma)
+                .map(|s| (v.name.clone(), s, v.unit))
+        })
+        .collect();
+    if !uncertain.is_empty() {
+        let (message, hint) =
+            crate::words::firmware_warning(&firmware::FirmwareWarning::Uncertain {
+                values: uncertain,
+                limit: output.max_sigma,
+            });
+        say!("warning: {message}\n  hint: {hint}");
     }
     let mapped = crate::cmd::physical_outputs::Mapped {
         fit: &fit,
@@ -229,11 +313,12 @@ pub fn run<F: Firmware>(
         text.push_str(&printer.updated(fw_spec, &proj.params, &proj.bed)?);
         text.push_str(output.footer);
         run.files.stage(out, text.as_bytes())?;
-        say!(
-            "\nvalues for the nozzle -> {} {}",
-            out.display(),
-            output.written
-        );
+        let what = if choice.projection_written {
+            "values for the nozzle".to_string()
+        } else {
+            format!("{}'s own fit", printer.name())
+        };
+        say!("\n{what} -> {} {}", out.display(), output.written);
     }
     Ok(())
 }

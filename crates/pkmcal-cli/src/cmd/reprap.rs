@@ -73,6 +73,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
                 ),
                 footer: "",
                 written: "(replace the M665 and M666 lines of the file the firmware takes them from with these two)",
+                max_sigma: a.max_sigma,
             },
         );
     }

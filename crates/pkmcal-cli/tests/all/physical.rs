@@ -37,17 +37,20 @@ fn klipper_physical_writes_klippers_values_with_klippers_writer() {
     for says in [
         "Physical model: 13 probe heights",
         "nozzle error over the build volume",
+        "in the bed's frame",
         "Klipper's own fit of the probe",
         "the values for the nozzle",
         "the probe pattern cannot see",
+        "position_endstop",
     ] {
         assert!(out.contains(says), "`{says}` not in:\n{out}");
     }
+    // Pkmcal's assumed probe noise is no stated one: a note, no warning.
+    assert!(!out.contains("the stated noise is larger"), "{out}");
     let own = std::fs::read_to_string(dir.path().join("own.cfg")).unwrap();
     let phys = std::fs::read_to_string(dir.path().join("phys.cfg")).unwrap();
     assert_eq!(regular(&own), regular(&phys));
-    assert_ne!(own, phys);
-    // The same options in the block, other values.
+    // The same options in the block.
     let keys = |t: &str| -> Vec<String> {
         t.lines()
             .filter(|l| l.starts_with("#*# ") && l.contains(" = "))
@@ -55,17 +58,17 @@ fn klipper_physical_writes_klippers_values_with_klippers_writer() {
             .collect()
     };
     assert_eq!(keys(&own), keys(&phys));
-    // The nozzle's error with the written values is below Klipper's own
-    // fit's on the fitted printer (XY RMS), as printed.
-    let xy = |who: &str| -> f64 {
-        let line = out.lines().find(|l| l.contains(who)).unwrap();
-        let rest = &line[line.find("XY RMS ").unwrap() + 7..];
-        rest.split(' ').next().unwrap().parse().unwrap()
-    };
-    assert!(
-        xy("the values for the nozzle") < xy("Klipper's own fit"),
-        "{out}"
-    );
+    // Thirteen heights of the shipped example cannot show the values for
+    // the nozzle better than Klipper's own fit over the fit's
+    // uncertainty: Klipper's own fit is written, as the plain command
+    // writes it, each value with its σ.
+    assert!(out.contains("Klipper's own fit is written"), "{out}");
+    assert_eq!(own, phys);
+    let endstop = out
+        .lines()
+        .find(|l| l.contains("[stepper_a] position_endstop"))
+        .unwrap();
+    assert!(endstop.trim_end().ends_with(" mm"), "{endstop}");
 }
 
 #[test]
@@ -146,7 +149,7 @@ fn physical_misuse_is_refused_by_name() {
             rotary.to_str().unwrap(),
             "--physical",
         ],
-        1,
+        2,
         "rotary delta",
     );
     assert!(!dir.path().join("d").exists());

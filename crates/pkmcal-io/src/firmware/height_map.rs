@@ -254,7 +254,7 @@ pub fn residual_map(
     let best = at(&cal.params, &cal.measurement)?;
     let mut sum = vec![0.0; targets.len()];
     let mut sq = vec![0.0; targets.len()];
-    let draws = physical::posterior_draws(fit)?;
+    let draws = physical::posterior_draws(fit, physical::CUBE_DRAWS, physical::CUBE_SEED)?;
     for (p, bed) in &draws {
         for (k, v) in at(p, bed)?.into_iter().enumerate() {
             sum[k] += v;

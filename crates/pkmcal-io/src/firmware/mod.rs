@@ -77,6 +77,14 @@ pub trait Firmware {
     /// `spec`.
     fn readings(&self, spec: &Spec) -> Result<Readings>;
 
+    /// The readings as the physical model ([`physical`]) takes them: where
+    /// the carriages were when the probe triggered, the probe's offset from
+    /// the nozzle included ([`Firmware::readings`] by default, where the
+    /// firmware saves the carriages' positions or moves by the offset).
+    fn physical_readings(&self, spec: &Spec) -> Result<Readings> {
+        self.readings(spec)
+    }
+
     /// The firmware's own free set, given what the readings hold.
     fn default_free(&self, spec: &Spec, readings: &Readings) -> Vec<String>;
 

@@ -64,6 +64,9 @@ pub const GRID_POINTS: usize = 9;
 /// The towers in order.
 const TOWERS: [&str; 3] = ["a", "b", "c"];
 
+/// How the firmware's description names its tower angles (`angle_a` …).
+const TOWER_ANGLE: &str = "angle_";
+
 /// Stiffness written for the carriages (N/mm), as the firmware's
 /// description writes it: a linear delta is not redundant, so it changes no
 /// prediction without a load.
@@ -241,6 +244,9 @@ pub struct PhysicalFit {
     pub free_names: Vec<String>,
     /// The study (a MAP fit: the readings and the tolerances).
     pub study: pkmcal::identify::Study,
+    /// Whether the probe's noise is pkmcal's assumption
+    /// ([`PROBE_NOISE_MM`], a typical probe's), not one a user stated.
+    pub noise_assumed: bool,
 }
 
 /// The physical model of `firmware`'s printer fitted to its readings as far
@@ -255,7 +261,7 @@ pub fn calibrate<F: Firmware + ?Sized>(
 ) -> Result<PhysicalFit> {
     let (mech, table) = physical_mechanism(ld)?;
     let spec = mech.spec();
-    let mut readings = firmware.readings(spec)?;
+    let mut readings = firmware.physical_readings(spec)?;
     // The readings weigh as their stated noise says, not as the firmware's
     // own fit weighs them against each other.
     for m in readings
@@ -272,7 +278,8 @@ pub fn calibrate<F: Firmware + ?Sized>(
                 .push((axis.to_string(), Tolerance::Absolute(BED_TILT_SIGMA_RAD)));
         }
     }
-    if request.stated_noise.is_none() {
+    let noise_assumed = request.stated_noise.is_none();
+    if noise_assumed {
         request.stated_noise = Some(PROBE_NOISE_MM);
         request.stated_readings = f64::INFINITY;
     }
@@ -303,6 +310,7 @@ pub fn calibrate<F: Firmware + ?Sized>(
         readings,
         free_names,
         study,
+        noise_assumed,
     })
 }
 
@@ -398,6 +406,63 @@ pub fn nozzle_errors(
         .collect()
 }
 
+/// The rigid motion in the bed's plane that best explains the XY errors
+/// `errors` at the nozzle targets `targets` (least squares): a shift in x
+/// and y (mm) and a turn about z (rad, counter-clockwise), to first order.
+///
+/// The bed has no datum in its plane: nothing a probe, a caliper or its
+/// owner measures fixes where on the bed, or at which heading, a part is
+/// printed, and no probe height sees either. A printer whose every nozzle
+/// position is shifted or turned by the same small motion prints the same
+/// parts, so the nozzle's error in the bed's frame is its error less this
+/// motion ([`in_bed_frame`]). Its size and its form (scale, skew, bowing,
+/// walls leaning with height) are left whole.
+pub fn bed_motion(targets: &[[f64; 3]], errors: &[[f64; 3]]) -> [f64; 3] {
+    let n = targets.len().min(errors.len());
+    if n == 0 {
+        return [0.0; 3];
+    }
+    let nf = n as f64;
+    let mean = |f: &dyn Fn(usize) -> f64| (0..n).map(f).sum::<f64>() / nf;
+    let (x0, y0) = (mean(&|i| targets[i][0]), mean(&|i| targets[i][1]));
+    let (ex, ey) = (mean(&|i| errors[i][0]), mean(&|i| errors[i][1]));
+    let (mut num, mut den) = (0.0, 0.0);
+    for i in 0..n {
+        let (x, y) = (targets[i][0] - x0, targets[i][1] - y0);
+        num += x * (errors[i][1] - ey) - y * (errors[i][0] - ex);
+        den += x * x + y * y;
+    }
+    let turn = if den > 0.0 { num / den } else { 0.0 };
+    [ex + turn * y0, ey - turn * x0, turn]
+}
+
+/// The nozzle's errors `errors` at `targets` in the bed's frame: less the
+/// rigid motion in the bed's plane ([`bed_motion`]) that no part printed
+/// shows. Z is left as it is: the bed's plane is its datum.
+pub fn in_bed_frame(targets: &[[f64; 3]], errors: &[[f64; 3]]) -> Vec<[f64; 3]> {
+    weighed(targets, errors, 0.0)
+}
+
+/// The nozzle's errors `errors` at `targets` with the rigid motion in the
+/// bed's plane ([`bed_motion`]) weighing `placement` (0: in the bed's
+/// frame, 1: as they are): their sum of squares is that of the errors in
+/// the bed's frame plus `placement²` times that of the motion's.
+pub fn weighed(targets: &[[f64; 3]], errors: &[[f64; 3]], placement: f64) -> Vec<[f64; 3]> {
+    let [tx, ty, turn] = bed_motion(targets, errors);
+    let k = 1.0 - placement;
+    targets
+        .iter()
+        .zip(errors)
+        .map(|(t, e)| {
+            [
+                e[0] - k * (tx - turn * t[1]),
+                e[1] - k * (ty + turn * t[0]),
+                e[2],
+            ]
+        })
+        .collect()
+}
+
 /// RMS and largest size of the XY and Z errors.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ErrorSummary {
@@ -432,6 +497,7 @@ impl ErrorSummary {
 
 /// The firmware's values for the nozzle on a physical printer: its
 /// description's parameters and bed, and what they leave.
+#[derive(Debug, Clone)]
 pub struct Projection {
     /// The firmware description's parameters.
     pub params: Params,
@@ -452,17 +518,43 @@ const PROJECTION_ITERATIONS: usize = 6;
 const PROJECTION_STEP: f64 = 1e-9;
 /// Step of the finite differences of the projection's Jacobian (mm, rad).
 const PROJECTION_DIFF: f64 = 1e-6;
+/// Directions of the firmware's values whose singular value is below this
+/// share of the largest are left where they are (their change would not
+/// show in the error: a turn of every tower angle together).
+const PROJECTION_RANK: f64 = 1e-9;
+/// Halvings of a Gauss-Newton step before the projection stops.
+const PROJECTION_HALVINGS: usize = 8;
+/// How much the placement of a part on the bed (the rigid motion in the
+/// bed's plane, [`bed_motion`]) weighs in the projection against its form:
+/// a millimetre off where it was asked as a hundredth of a millimetre of
+/// form. It only chooses between values that print the same parts.
+pub const PLACEMENT_WEIGHT: f64 = 0.01;
 
-/// The firmware's values that minimise the real nozzle's error (x, y, z
-/// over the bed, least squares) over the build-volume grid, on the
-/// physical printer `params` with bed `bed`: Gauss-Newton on the values
-/// [`LinearDelta::values`] from the firmware's current ones.
+/// The firmware's values that minimise the real nozzle's error in the
+/// bed's frame ([`in_bed_frame`]: x, y, and z over the bed; least squares)
+/// over the build-volume grid, on the physical printer `params` with bed
+/// `bed`: Gauss-Newton on the values [`LinearDelta::values`] from the
+/// firmware's current ones. Among values that print the same parts, those
+/// that place them where asked ([`PLACEMENT_WEIGHT`]).
 pub fn project(
     ld: &LinearDelta,
     fw_mech: &Mech,
     mech: &Mech,
     params: &Params,
     bed: &[f64],
+) -> Result<Projection> {
+    project_weighing(ld, fw_mech, mech, params, bed, 1.0)
+}
+
+/// [`project`] with the nozzle's Z error weighing `z_weight` times its XY
+/// error (in the bed's frame) in the least squares.
+pub fn project_weighing(
+    ld: &LinearDelta,
+    fw_mech: &Mech,
+    mech: &Mech,
+    params: &Params,
+    bed: &[f64],
+    z_weight: f64,
 ) -> Result<Projection> {
     let fw_spec = fw_mech.spec();
     let targets = build_volume(ld.print_radius());
@@ -484,11 +576,18 @@ pub fn project(
             bed,
             nozzle,
             &targets,
-        )?
+        )
+        .map(|e| {
+            weighed(&targets, &e, PLACEMENT_WEIGHT)
+                .into_iter()
+                .map(|v| [v[0], v[1], z_weight * v[2]])
+                .collect::<Vec<_>>()
+        })?
         .into_iter()
         .flatten()
         .collect())
     };
+    let ss = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>();
     let mut e = errors(&fw)?;
     for _ in 0..PROJECTION_ITERATIONS {
         let mut jac = nalgebra::DMatrix::zeros(e.len(), names.len());
@@ -502,26 +601,45 @@ pub fn project(
             }
         }
         let rhs = nalgebra::DVector::from_column_slice(&e);
-        let step = jac
-            .svd(true, true)
-            .solve(&rhs, 1e-12)
+        let svd = jac.svd(true, true);
+        let cut = svd.singular_values.max() * PROJECTION_RANK;
+        let step = svd
+            .solve(&rhs, cut)
             .map_err(|m| Error::Content(format!("the projection's least squares failed: {m}")))?;
-        let mut next = fw.clone();
-        for (k, n) in names.iter().enumerate() {
-            let v = next.get(fw_spec, n)?;
-            next.set(fw_spec, n, v - step[k])?;
+        // Gauss-Newton's step, halved until it lowers the error.
+        let mut accepted = None;
+        let mut scale = 1.0;
+        for _ in 0..PROJECTION_HALVINGS {
+            let mut next = fw.clone();
+            for (k, n) in names.iter().enumerate() {
+                let v = next.get(fw_spec, n)?;
+                next.set(fw_spec, n, v - scale * step[k])?;
+            }
+            let en = errors(&next)?;
+            if ss(&en) <= ss(&e) {
+                accepted = Some((next, en));
+                break;
+            }
+            scale /= 2.0;
         }
-        let en = errors(&next)?;
-        let ss = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>();
-        if ss(&en) > ss(&e) {
-            break;
-        }
+        let Some((next, en)) = accepted else { break };
         fw = next;
         e = en;
-        if step.amax() < PROJECTION_STEP {
+        if scale * step.amax() < PROJECTION_STEP {
             break;
         }
     }
+    let e = nozzle_errors(
+        fw_mech,
+        &fw,
+        fw_bed.as_deref(),
+        mech,
+        params,
+        bed,
+        nozzle,
+        &targets,
+    )?;
+    let e: Vec<f64> = in_bed_frame(&targets, &e).into_iter().flatten().collect();
     let errors: Vec<[f64; 3]> = e.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
     if errors.is_empty() {
         invalid!("the build volume holds no point to project on");
@@ -537,6 +655,302 @@ pub fn project(
         targets,
         errors,
     })
+}
+
+/// `count` draws of the physical printer (its parameters and its bed) from
+/// the fit's posterior: the free parameters from their covariance about
+/// the fit's values, seeded by `seed`.
+pub fn posterior_draws(
+    fit: &PhysicalFit,
+    count: usize,
+    seed: u64,
+) -> Result<Vec<(Params, Vec<f64>)>> {
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, StandardNormal};
+    let cal = &fit.study.calibration;
+    let spec = fit.mech.spec();
+    let names = fit.readings.measurement.all_names(spec);
+    let n_params = spec.n_params();
+    let eig = cal.covariance.clone().symmetric_eigen();
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+    (0..count)
+        .map(|_| -> Result<(Params, Vec<f64>)> {
+            let z: Vec<f64> = (0..cal.free.len())
+                .map(|_| StandardNormal.sample(&mut rng))
+                .collect();
+            let (mut p, mut bed) = (cal.params.clone(), cal.measurement.clone());
+            for (k, &i) in cal.free.iter().enumerate() {
+                let d: f64 = (0..z.len())
+                    .map(|j| eig.eigenvectors[(k, j)] * eig.eigenvalues[j].max(0.0).sqrt() * z[j])
+                    .sum();
+                if i < n_params {
+                    let v = p.get(spec, &names[i])?;
+                    p.set(spec, &names[i], v + d)?;
+                } else {
+                    bed[i - n_params] += d;
+                }
+            }
+            Ok((p, bed))
+        })
+        .collect()
+}
+
+/// Draws from the fit's posterior behind the choice of the values written
+/// ([`choose`]).
+pub const CHOICE_DRAWS: usize = 32;
+/// Their seed.
+pub const CHOICE_SEED: u64 = 2;
+/// The projection replaces the firmware's own fit only where the expected
+/// gain over the posterior exceeds this many of its standard deviations.
+pub const CHOICE_SIGMAS: f64 = 1.0;
+/// The largest weight of Z against XY the projection tries to keep the
+/// nozzle's Z no worse than the firmware's own fit leaves it.
+const MAX_Z_WEIGHT: f64 = 64.0;
+
+/// Which values are written, and why.
+pub struct Choice {
+    /// The values written (the projection's, or the firmware's own fit's),
+    /// with their errors on the fitted printer.
+    pub written: Projection,
+    /// The firmware's own fit's values and their errors on the fitted
+    /// printer.
+    pub own: Projection,
+    /// The projection's, weighing Z [`Choice::z_weight`] times XY.
+    pub projected: Projection,
+    /// The weight of Z against XY that keeps the projection's Z no worse
+    /// than the firmware's own fit's on the fitted printer (1: no need).
+    pub z_weight: f64,
+    /// The expected mean square nozzle error (mm², in the bed's frame,
+    /// over the build volume and the posterior) the projection removes
+    /// from the firmware's own fit's, and its standard deviation.
+    pub gain: [f64; 2],
+    /// The same of Z alone.
+    pub z_gain: [f64; 2],
+    /// Whether the projection was written (its gain beyond
+    /// [`CHOICE_SIGMAS`] standard deviations).
+    pub projection_written: bool,
+}
+
+/// The firmware values to write for the nozzle: the projection onto the
+/// fitted printer ([`project_weighing`]), Z weighing as much as keeps it no
+/// worse than the firmware's own fit (`own`, `own_bed`: its values and
+/// bed) leaves it; written in place of the firmware's own fit only where
+/// that lowers the nozzle's mean square error over the build volume in
+/// expectation over the fit's posterior by more than [`CHOICE_SIGMAS`] of
+/// its standard deviation (what the data cannot see is no reason to move
+/// from what the firmware's own fit writes).
+pub fn choose(fit: &PhysicalFit, fw_mech: &Mech, own: &Params, own_bed: &[f64]) -> Result<Choice> {
+    let ld = &fit.delta;
+    let cal = &fit.study.calibration;
+    let targets = build_volume(ld.print_radius());
+    let nozzle = ld.nozzle();
+    let tilt = |b: &[f64]| match ld.corrects_bed_tilt {
+        true => vec![
+            0.0,
+            b.get(1).copied().unwrap_or(0.0),
+            b.get(2).copied().unwrap_or(0.0),
+        ],
+        false => vec![0.0; 3],
+    };
+    let fw_bed = |b: &[f64]| ld.corrects_bed_tilt.then(|| b.to_vec());
+    let own_bed = tilt(own_bed);
+    let on = |p: &Params, b: &[f64], mp: &Params, mb: &[f64]| -> Result<Vec<[f64; 3]>> {
+        Ok(in_bed_frame(
+            &targets,
+            &nozzle_errors(
+                fw_mech,
+                p,
+                fw_bed(b).as_deref(),
+                &fit.mech,
+                mp,
+                mb,
+                nozzle,
+                &targets,
+            )?,
+        ))
+    };
+    let own_errors = on(own, &own_bed, &cal.params, &cal.measurement)?;
+    let own = Projection {
+        params: own.clone(),
+        bed: own_bed,
+        summary: ErrorSummary::of(&own_errors),
+        targets: targets.clone(),
+        errors: own_errors,
+    };
+    let mut z_weight = 1.0;
+    let mut projected = project_weighing(
+        ld,
+        fw_mech,
+        &fit.mech,
+        &cal.params,
+        &cal.measurement,
+        z_weight,
+    )?;
+    while projected.summary.z_rms > own.summary.z_rms && z_weight < MAX_Z_WEIGHT {
+        z_weight *= 2.0;
+        projected = project_weighing(
+            ld,
+            fw_mech,
+            &fit.mech,
+            &cal.params,
+            &cal.measurement,
+            z_weight,
+        )?;
+    }
+    let draws = posterior_draws(fit, CHOICE_DRAWS, CHOICE_SEED)?;
+    let mean_square = |e: &[[f64; 3]]| {
+        let n = e.len().max(1) as f64;
+        let z = e.iter().map(|v| v[2] * v[2]).sum::<f64>() / n;
+        (
+            e.iter().map(|v| v[0] * v[0] + v[1] * v[1]).sum::<f64>() / n + z,
+            z,
+        )
+    };
+    let mut gains = vec![];
+    for (p, b) in &draws {
+        let (t0, z0) = mean_square(&on(&own.params, &own.bed, p, b)?);
+        let (t1, z1) = mean_square(&on(&projected.params, &projected.bed, p, b)?);
+        gains.push([t0 - t1, z0 - z1]);
+    }
+    let stat = |k: usize| -> [f64; 2] {
+        let n = gains.len().max(2) as f64;
+        let m = gains.iter().map(|g| g[k]).sum::<f64>() / n;
+        let v = gains.iter().map(|g| (g[k] - m).powi(2)).sum::<f64>() / (n - 1.0);
+        [m, v.sqrt()]
+    };
+    let (gain, z_gain) = (stat(0), stat(1));
+    let projection_written = gain[0] > CHOICE_SIGMAS * gain[1];
+    Ok(Choice {
+        written: if projection_written {
+            projected.clone()
+        } else {
+            own.clone()
+        },
+        own,
+        projected,
+        z_weight,
+        gain,
+        z_gain,
+        projection_written,
+    })
+}
+
+/// The standard deviation of each value `firmware` writes
+/// ([`Firmware::values`], in its order and unit) from the projection
+/// `proj` (weighing Z `z_weight`): the fit's posterior propagated through
+/// the projection. Each of [`CHOICE_DRAWS`] draws of the printer moves the
+/// projection by one Gauss-Newton step from its values (the projection is
+/// linear in the printer's errors over their uncertainty). The tower
+/// angles' common turn, which no printed part shows, is left out.
+pub fn projection_sigmas<F: Firmware + ?Sized>(
+    firmware: &F,
+    fit: &PhysicalFit,
+    fw_mech: &Mech,
+    proj: &Projection,
+    z_weight: f64,
+) -> Result<Vec<f64>> {
+    let ld = &fit.delta;
+    let cal = &fit.study.calibration;
+    let fw_spec = fw_mech.spec();
+    let targets = &proj.targets;
+    let nozzle = ld.nozzle();
+    let names: Vec<&String> = ld
+        .values
+        .iter()
+        .filter(|n| fw_spec.param_index(n).is_ok())
+        .collect();
+    let objective = |fw: &Params, params: &Params, bed: &[f64]| -> Result<Vec<f64>> {
+        let fw_bed = ld.corrects_bed_tilt.then(|| bed.to_vec());
+        let e = nozzle_errors(
+            fw_mech,
+            fw,
+            fw_bed.as_deref(),
+            &fit.mech,
+            params,
+            bed,
+            nozzle,
+            targets,
+        )?;
+        Ok(weighed(targets, &e, PLACEMENT_WEIGHT)
+            .into_iter()
+            .flat_map(|v| [v[0], v[1], z_weight * v[2]])
+            .collect())
+    };
+    let e0 = objective(&proj.params, &cal.params, &cal.measurement)?;
+    let mut jac = nalgebra::DMatrix::zeros(e0.len(), names.len());
+    for (k, n) in names.iter().enumerate() {
+        let mut p = proj.params.clone();
+        let v = p.get(fw_spec, n)?;
+        p.set(fw_spec, n, v + PROJECTION_DIFF)?;
+        let ep = objective(&p, &cal.params, &cal.measurement)?;
+        for (i, (a, b)) in ep.iter().zip(&e0).enumerate() {
+            jac[(i, k)] = (a - b) / PROJECTION_DIFF;
+        }
+    }
+    let svd = jac.svd(true, true);
+    let cut = svd.singular_values.max() * PROJECTION_RANK;
+    let written = |p: &Params, bed: &[f64]| -> Result<Vec<f64>> {
+        let bed = match ld.corrects_bed_tilt {
+            true => vec![0.0, bed[1], bed[2]],
+            false => proj.bed.clone(),
+        };
+        Ok(firmware
+            .values(fw_spec, p, &bed)?
+            .into_iter()
+            .map(|v| v.after)
+            .collect())
+    };
+    let mut sum: Vec<f64> = vec![];
+    let mut sq: Vec<f64> = vec![];
+    let base = written(&proj.params, &cal.measurement)?;
+    let draws = posterior_draws(fit, CHOICE_DRAWS, CHOICE_SEED)?;
+    for (p, bed) in &draws {
+        let e = objective(&proj.params, p, bed)?;
+        let de: Vec<f64> = e.iter().zip(&e0).map(|(a, b)| a - b).collect();
+        let step = svd
+            .solve(&nalgebra::DVector::from_column_slice(&de), cut)
+            .map_err(|m| Error::Content(format!("the projection's least squares failed: {m}")))?;
+        // A turn of every tower angle together turns every part printed:
+        // no part shows it, and only the placement's small weight holds it;
+        // the σ are of the angles less their common turn.
+        let angles: Vec<usize> = (0..names.len())
+            .filter(|&k| names[k].starts_with(TOWER_ANGLE))
+            .collect();
+        let turn = match angles.len() {
+            3 => angles.iter().map(|&k| step[k]).sum::<f64>() / 3.0,
+            _ => 0.0,
+        };
+        let mut moved = proj.params.clone();
+        for (k, n) in names.iter().enumerate() {
+            let common = if angles.len() == 3 && angles.contains(&k) {
+                turn
+            } else {
+                0.0
+            };
+            let v = moved.get(fw_spec, n)?;
+            moved.set(fw_spec, n, v - (step[k] - common))?;
+        }
+        // About the projection's own values: no cancellation.
+        let vals: Vec<f64> = written(&moved, bed)?
+            .iter()
+            .zip(&base)
+            .map(|(a, b)| a - b)
+            .collect();
+        if sum.is_empty() {
+            sum = vec![0.0; vals.len()];
+            sq = vec![0.0; vals.len()];
+        }
+        for (i, v) in vals.iter().enumerate() {
+            sum[i] += v;
+            sq[i] += v * v;
+        }
+    }
+    let n = draws.len().max(2) as f64;
+    Ok(sum
+        .iter()
+        .zip(&sq)
+        .map(|(s, q)| ((q - s * s / n) / (n - 1.0)).max(0.0).sqrt())
+        .collect())
 }
 
 /// The side of the verdict's calibration cube (mm).
@@ -603,40 +1017,6 @@ pub fn cube_at(
     Ok(([e[1][0] - e[0][0], e[3][1] - e[2][1]], flatness))
 }
 
-/// [`CUBE_DRAWS`] draws (seeded, [`CUBE_SEED`]) of the fitted printer's
-/// parameters and bed from the fit's posterior: its free parameters from
-/// their covariance, the rest as fitted.
-pub fn posterior_draws(fit: &PhysicalFit) -> Result<Vec<(Params, Vec<f64>)>> {
-    use rand::SeedableRng;
-    use rand_distr::{Distribution, StandardNormal};
-    let cal = &fit.study.calibration;
-    let spec = fit.mech.spec();
-    let names = fit.readings.measurement.all_names(spec);
-    let n_params = spec.n_params();
-    let eig = cal.covariance.clone().symmetric_eigen();
-    let mut rng = rand::rngs::StdRng::seed_from_u64(CUBE_SEED);
-    (0..CUBE_DRAWS)
-        .map(|_| -> Result<(Params, Vec<f64>)> {
-            let z: Vec<f64> = (0..cal.free.len())
-                .map(|_| StandardNormal.sample(&mut rng))
-                .collect();
-            let (mut p, mut bed) = (cal.params.clone(), cal.measurement.clone());
-            for (k, &i) in cal.free.iter().enumerate() {
-                let d: f64 = (0..z.len())
-                    .map(|j| eig.eigenvectors[(k, j)] * eig.eigenvalues[j].max(0.0).sqrt() * z[j])
-                    .sum();
-                if i < n_params {
-                    let v = p.get(spec, &names[i])?;
-                    p.set(spec, &names[i], v + d)?;
-                } else {
-                    bed[i - n_params] += d;
-                }
-            }
-            Ok((p, bed))
-        })
-        .collect()
-}
-
 /// The verdict's cubes ([`cube_centres`]) printed with the firmware's
 /// values `fw_params` on the fitted printer: each error at the fit's
 /// values, its standard deviation from [`CUBE_DRAWS`] draws of the free
@@ -649,7 +1029,7 @@ pub fn cube_errors(
 ) -> Result<Vec<CubeError>> {
     let cal = &fit.study.calibration;
     let nozzle = fit.delta.nozzle();
-    let draws = posterior_draws(fit)?;
+    let draws = posterior_draws(fit, CUBE_DRAWS, CUBE_SEED)?;
     cube_centres(&fit.delta)
         .into_iter()
         .map(|centre| {

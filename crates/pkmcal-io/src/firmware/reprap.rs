@@ -272,12 +272,21 @@ fn macro_path(dir: &Path, name: &str) -> std::result::Result<PathBuf, String> {
 /// naming the line and the file: the geometry would otherwise be stale and
 /// undo the saved calibration.
 pub fn delta_from_config_file(run: &crate::Run<'_>, path: &std::path::Path) -> Result<RrfDelta> {
+    Ok(settings_from_config_file(run, path)?.0)
+}
+
+/// [`delta_from_config_file`] with the offset of Z probe 0 from the
+/// nozzle the configuration gives (`G31 X Y`, as the firmware runs it).
+pub fn settings_from_config_file(
+    run: &crate::Run<'_>,
+    path: &std::path::Path,
+) -> Result<(RrfDelta, [f64; 2])> {
     let text = run
         .files
         .read_to_string(path, crate::output::InputKind::Description)?;
     let dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let config = path.display().to_string();
-    delta_from_text(&text, path, &mut |name, cmd| {
+    settings_from_text(&text, path, &mut |name, cmd| {
         let place = format!("{}:{}", cmd.file.display(), cmd.line);
         if cmd.code == ('M', 98) && !cmd.text.contains(['"', '{']) {
             return Err(cmd.error(format!(
@@ -315,18 +324,24 @@ struct Settings<'a> {
     delta: RrfDelta,
     /// Whether any was run.
     seen: bool,
+    /// The X and Y offsets of Z probe 0 from the nozzle (`G31 X Y`, its
+    /// last), the probe's trigger point at the nozzle's plus these.
+    probe_offset: [f64; 2],
     /// The macro files, by name.
     open: &'a mut OpenMacro<'a>,
 }
 
 impl script::Host for Settings<'_> {
     fn reads(&self, code: (char, u32)) -> bool {
-        matches!(code, ('M', 665 | 666))
+        matches!(code, ('M', 665 | 666) | ('G', 31))
     }
 
     fn command(&mut self, cmd: &script::Command<'_>) -> Result<()> {
         if !self.reads(cmd.code) {
             return Ok(());
+        }
+        if cmd.code == ('G', 31) {
+            return probe_offset(&mut self.probe_offset, cmd);
         }
         self.seen = true;
         apply(&mut self.delta, cmd)
@@ -335,6 +350,39 @@ impl script::Host for Settings<'_> {
     fn open(&mut self, name: &str, cmd: &script::Command<'_>) -> Result<(String, PathBuf)> {
         (self.open)(name, cmd)
     }
+}
+
+/// The largest probe offset from the nozzle a `G31` may give (mm).
+const MAX_PROBE_OFFSET_MM: f64 = 1e3;
+
+/// Apply a `G31` command to the offset of Z probe 0 (`K0`, or no `K`: the
+/// probe `G30` uses unless told): its `X` and `Y`, each read as the
+/// firmware reads it, set what they give (the probe's trigger point at the
+/// nozzle's position plus them: RepRapFirmware moves the nozzle to a probe
+/// point less the offset); another probe's is left.
+fn probe_offset(offset: &mut [f64; 2], cmd: &script::Command<'_>) -> Result<()> {
+    if let Some((k, word)) = cmd.floats('K')?
+        && k.first().is_some_and(|k| *k != 0.0)
+    {
+        let _ = word;
+        return Ok(());
+    }
+    for (i, letter) in ['X', 'Y'].into_iter().enumerate() {
+        let Some((values, word)) = cmd.floats(letter)? else {
+            continue;
+        };
+        match values.as_slice() {
+            [v] if v.is_finite() && v.abs() <= MAX_PROBE_OFFSET_MM => offset[i] = *v,
+            [v] => {
+                return Err(cmd.error(format!(
+                    "`{word}` in `{}`: the probe's {letter} offset {v} mm is beyond what a printer holds (at most {MAX_PROBE_OFFSET_MM} mm in size)",
+                    cmd.text
+                )));
+            }
+            _ => return Err(cmd.error(format!("`{word}`: {letter} takes one value, not a list"))),
+        }
+    }
+    Ok(())
 }
 
 /// Apply an `M665` or `M666` command to `d`, each parameter read as the
@@ -409,9 +457,20 @@ fn apply(d: &mut RrfDelta, cmd: &script::Command<'_>) -> Result<()> {
 /// The run of [`delta_from_gcode`]: `open(name, command)` gives the text
 /// and path of the macro a command runs, or an error.
 fn delta_from_text(text: &str, file: &Path, open: &mut OpenMacro<'_>) -> Result<RrfDelta> {
+    Ok(settings_from_text(text, file, open)?.0)
+}
+
+/// The run of [`delta_from_text`], with the offset of Z probe 0 from the
+/// nozzle (`G31 X Y`; 0, 0 where none is given, the firmware's default).
+fn settings_from_text(
+    text: &str,
+    file: &Path,
+    open: &mut OpenMacro<'_>,
+) -> Result<(RrfDelta, [f64; 2])> {
     let mut settings = Settings {
         delta: RrfDelta::default(),
         seen: false,
+        probe_offset: [0.0, 0.0],
         open,
     };
     script::run(text, file, &mut settings)?;
@@ -433,7 +492,7 @@ fn delta_from_text(text: &str, file: &Path, open: &mut OpenMacro<'_>) -> Result<
             d.print_radius
         );
     }
-    Ok(d)
+    Ok((d, settings.probe_offset))
 }
 
 /// A RepRapFirmware printer: the configuration's path, its delta as the
@@ -451,6 +510,9 @@ pub struct RrfPrinter {
     /// One diagonal for the three towers (`M665 L` with one value), fitted
     /// as one.
     pub shared_arm: bool,
+    /// The offset of Z probe 0 from the nozzle (mm, `G31 X Y`): the
+    /// physical model's probe ([`Firmware::physical_readings`]).
+    pub probe_offset: [f64; 2],
 }
 
 /// The parameters `M665`/`M666` hold: the radius, the tower angle
@@ -465,6 +527,39 @@ pub fn rrf_holds() -> Vec<String> {
 }
 
 impl RrfPrinter {
+    /// The readings with the nozzle at each probe point less `offset` (the
+    /// probe's offset from the nozzle: RepRapFirmware moves the nozzle so
+    /// for `G30 P… X… Y…`); the firmware's own fit takes the probe at the
+    /// nozzle.
+    fn readings_with(&self, spec: &pkmcal::Spec, offset: [f64; 2]) -> Result<Readings> {
+        let poses = self
+            .points
+            .iter()
+            .enumerate()
+            .map(|(i, (p, line))| pkmcal::Measurement {
+                target: None,
+                commands: self
+                    .delta
+                    .carriage_heights([p[0] - offset[0], p[1] - offset[1], p[2]])
+                    .to_vec(),
+                partner: None,
+                measured: vec![0.0],
+                sigma: vec![],
+                origin: Some(pkmcal::Origin {
+                    pose: i + 1,
+                    line: Some(*line),
+                    distance: false,
+                }),
+            })
+            .collect();
+        let bed = self.delta.bed();
+        Ok(Readings {
+            measurement: MeasurementModel::probe(spec)?.with_own(&bed)?,
+            poses,
+            distances: vec![],
+        })
+    }
+
     /// Read the configuration as the firmware runs it and the probe
     /// results; `free` (the names a user gives) says whether the shared
     /// diagonal is fitted. A probe point the printer cannot reach is
@@ -475,7 +570,7 @@ impl RrfPrinter {
         probes: &Path,
         free: Option<&[String]>,
     ) -> Result<Self> {
-        let delta = delta_from_config_file(run, config)?;
+        let (delta, probe_offset) = settings_from_config_file(run, config)?;
         let csv = Csv::read(run, probes)?;
         csv.require_rows()?;
         let points = csv.named(&["x".to_string(), "y".to_string(), "z".to_string()])?;
@@ -544,6 +639,7 @@ impl RrfPrinter {
                 .map(|(i, p)| ([p[0], p[1], p[2]], csv.line(i)))
                 .collect(),
             shared_arm,
+            probe_offset,
         })
     }
 }
@@ -565,29 +661,11 @@ impl Firmware for RrfPrinter {
     }
 
     fn readings(&self, spec: &pkmcal::Spec) -> Result<Readings> {
-        let poses = self
-            .points
-            .iter()
-            .enumerate()
-            .map(|(i, (p, line))| pkmcal::Measurement {
-                target: None,
-                commands: self.delta.carriage_heights(*p).to_vec(),
-                partner: None,
-                measured: vec![0.0],
-                sigma: vec![],
-                origin: Some(pkmcal::Origin {
-                    pose: i + 1,
-                    line: Some(*line),
-                    distance: false,
-                }),
-            })
-            .collect();
-        let bed = self.delta.bed();
-        Ok(Readings {
-            measurement: MeasurementModel::probe(spec)?.with_own(&bed)?,
-            poses,
-            distances: vec![],
-        })
+        self.readings_with(spec, [0.0, 0.0])
+    }
+
+    fn physical_readings(&self, spec: &pkmcal::Spec) -> Result<Readings> {
+        self.readings_with(spec, self.probe_offset)
     }
 
     fn default_free(&self, _spec: &pkmcal::Spec, _readings: &Readings) -> Vec<String> {
@@ -703,9 +781,9 @@ impl Firmware for RrfPrinter {
     fn linear_delta(&self) -> Result<Option<super::physical::LinearDelta>> {
         Ok(Some(super::physical::LinearDelta {
             delta: self.delta.as_klipper(),
-            // The probe file gives where the probe touched, and its
-            // offset is not read: taken at the nozzle.
-            probe_offset: [0.0, 0.0],
+            // The probe file gives where the probe touched; the nozzle was
+            // at that less G31's offset.
+            probe_offset: self.probe_offset,
             firmware: "RepRapFirmware",
             values: rrf_holds(),
             corrects_bed_tilt: true,

@@ -171,3 +171,61 @@ fn a_shared_chain_names_an_earlier_leg() {
         assert!(e.contains("leg `a2`") && e.contains(says), "{e}");
     }
 }
+
+/// RepRapFirmware's probe offset is `G31 X Y` of Z probe 0 (the last one
+/// the configuration runs; another probe's `K1` left), the probe's trigger
+/// point at the nozzle's plus it: the physical model takes the readings
+/// with the nozzle at each probe point less it; the firmware's own fit as
+/// before.
+#[test]
+fn reprap_probe_offset_is_g31s() {
+    let files = pkmcal_io::Files::new();
+    let run = pkmcal_io::Run::quiet(&files);
+    let d = examples().join("reprap-delta");
+    let dir = tempfile::tempdir().unwrap();
+    let config = std::fs::read_to_string(d.join("config.g")).unwrap();
+    std::fs::write(
+        dir.path().join("config.g"),
+        format!("G31 P500 X3 Y3 Z1\n{config}\nG31 P500 X20 Y-15 Z1.2\nG31 K1 X5 Y5\n"),
+    )
+    .unwrap();
+    let printer = RrfPrinter::read(
+        &run,
+        &dir.path().join("config.g"),
+        &d.join("probes.csv"),
+        None,
+    )
+    .unwrap();
+    let ld = printer.linear_delta().unwrap().unwrap();
+    assert_eq!(ld.probe_offset, [20.0, -15.0]);
+    let spec = printer.mechanism().unwrap();
+    let (own, physical) = (
+        printer.readings(spec.spec()).unwrap(),
+        printer.physical_readings(spec.spec()).unwrap(),
+    );
+    let plain = reprap().readings(spec.spec()).unwrap();
+    for ((a, b), c) in own.poses.iter().zip(&physical.poses).zip(&plain.poses) {
+        assert_eq!(a.commands, c.commands);
+        assert_ne!(a.commands, b.commands);
+    }
+    // Out of bounds: refused with its line.
+    std::fs::write(
+        dir.path().join("config.g"),
+        format!("{config}\nG31 X5000\n"),
+    )
+    .unwrap();
+    let e = RrfPrinter::read(
+        &run,
+        &dir.path().join("config.g"),
+        &d.join("probes.csv"),
+        None,
+    )
+    .err()
+    .unwrap()
+    .to_string();
+    assert!(e.contains("X5000") || e.contains("5000"), "{e}");
+    assert_eq!(
+        reprap().linear_delta().unwrap().unwrap().probe_offset,
+        [0.0, 0.0]
+    );
+}
