@@ -2233,7 +2233,7 @@ fn a_full_disk_fails_naming_the_file_and_writes_nothing() {
 fn typed_numbers_are_echoed_in_exponent_form() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let o = common::run(
+    let o = run(
         d,
         &[
             "simulate", "--grid", "3", "--noise", "1e-308", "--out", "s.csv",
