@@ -53,6 +53,12 @@ pub fn print_written<F: pkmcal_io::firmware::Firmware + ?Sized>(
     what: &str,
 ) -> anyhow::Result<pkmcal_io::firmware::Written> {
     let written = pkmcal_io::firmware::written(printer, calibrated)?;
+    print_values(what, &written.values);
+    Ok(written)
+}
+
+/// A firmware's values before and after, with their σ, as a table.
+pub fn print_values(what: &str, values: &[pkmcal_io::firmware::FirmwareValue]) {
     say!(
         "\n  {:<28} {:>14} {:>14} {:>14}",
         what,
@@ -60,7 +66,7 @@ pub fn print_written<F: pkmcal_io::firmware::Firmware + ?Sized>(
         "after",
         "σ"
     );
-    for v in &written.values {
+    for v in values {
         let sigma = match v.sigma {
             Some(s) if s > 0.0 => format!("{s:.4} {}", v.unit),
             Some(s) if s.is_nan() => "unknown".into(),
@@ -74,7 +80,6 @@ pub fn print_written<F: pkmcal_io::firmware::Firmware + ?Sized>(
             sigma
         );
     }
-    Ok(written)
 }
 
 /// The checks of a printer's written values and of its fit

@@ -257,41 +257,9 @@ pub fn run<F: Firmware>(
     for (v, s) in values.iter_mut().zip(&sigmas) {
         v.sigma = Some(*s);
     }
-    say!(
-        "\n  {:<28} {:>14} {:>14} {:>14}",
-        format!("{} value", printer.name()),
-        "before",
-        "after",
-        "σ"
-    );
-    for v in &values {
-        let sigma = match v.sigma {
-            Some(s) if s > 0.0 => format!("{s:.4} {}", v.unit),
-            Some(s) if s.is_nan() => "unknown".into(),
-            _ => "fixed".into(),
-        };
-        say!(
-            "  {:<28} {:>14.6} {:>14.6} {:>14}",
-            v.name,
-            v.before,
-            v.after,
-            sigma
-        );
-    }
-    let uncertain: Vec<(String, f64, &'static str)> = values
-        .iter()
-        .filter_map(|v| {
-            v.sigma
-                .filter(|s| *s > output.max_sigma)
-                .map(|s| (v.name.clone(), s, v.unit))
-        })
-        .collect();
-    if !uncertain.is_empty() {
-        let (message, hint) =
-            crate::words::firmware_warning(&firmware::FirmwareWarning::Uncertain {
-                values: uncertain,
-                limit: output.max_sigma,
-            });
+    crate::cmd::print_values(&format!("{} value", printer.name()), &values);
+    if let Some(w) = firmware::uncertain(&values, output.max_sigma) {
+        let (message, hint) = crate::words::firmware_warning(&w);
         say!("warning: {message}\n  hint: {hint}");
     }
     let mapped = crate::cmd::physical_outputs::Mapped {

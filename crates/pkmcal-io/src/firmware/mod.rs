@@ -645,7 +645,17 @@ pub fn checks<F: Firmware + ?Sized>(
             fix,
         });
     }
-    let uncertain: Vec<(String, f64, &'static str)> = values
+    out.extend(uncertain(values, max_sigma));
+    if let Some(w) = tilt_absorbed(firmware, calibrated, written)? {
+        out.push(w);
+    }
+    Ok(out)
+}
+
+/// The written values whose σ exceeds `max_sigma` (`--max-sigma`), as
+/// one warning; `None` when every σ is within it.
+pub fn uncertain(values: &[FirmwareValue], max_sigma: f64) -> Option<FirmwareWarning> {
+    let beyond: Vec<(String, f64, &'static str)> = values
         .iter()
         .filter_map(|v| {
             v.sigma
@@ -653,16 +663,10 @@ pub fn checks<F: Firmware + ?Sized>(
                 .map(|s| (v.name.clone(), s, v.unit))
         })
         .collect();
-    if !uncertain.is_empty() {
-        out.push(FirmwareWarning::Uncertain {
-            values: uncertain,
-            limit: max_sigma,
-        });
-    }
-    if let Some(w) = tilt_absorbed(firmware, calibrated, written)? {
-        out.push(w);
-    }
-    Ok(out)
+    (!beyond.is_empty()).then(|| FirmwareWarning::Uncertain {
+        values: beyond,
+        limit: max_sigma,
+    })
 }
 
 /// The bed tilt the fit left out, when its score test says the probe
