@@ -663,7 +663,7 @@ pub fn uncertain(values: &[FirmwareValue], max_sigma: f64) -> Option<FirmwareWar
                 .map(|s| (v.name.clone(), s, v.unit))
         })
         .collect();
-    (!beyond.is_empty()).then(|| FirmwareWarning::Uncertain {
+    (!beyond.is_empty()).then_some(FirmwareWarning::Uncertain {
         values: beyond,
         limit: max_sigma,
     })
