@@ -7,6 +7,7 @@ use anyhow::{Result, bail};
 use pkmcal::{Mechanism, Params, Request};
 use pkmcal_io::Run;
 use pkmcal_io::firmware::physical::{self, ErrorSummary};
+use pkmcal_io::firmware::physical_report;
 use pkmcal_io::firmware::{self, Firmware};
 use std::path::Path;
 
@@ -26,21 +27,6 @@ pub struct Output<'a> {
     /// and where they came from.
     pub previous: Option<(&'a dyn Firmware, String)>,
 }
-
-/// A parameter whose uncertainty the readings reduce by less than this
-/// share (of its variance) is one the probe pattern cannot see.
-const UNSEEN_FROM_DATA: f64 = 0.1;
-
-/// The parts of the physical model, by the start of their parameters'
-/// names, for the verdict.
-const PARTS: [(&str, &[&str]); 6] = [
-    ("tower radii", &["radius_"]),
-    ("tower angles", &["angle_"]),
-    ("tower lean", &["a.tilt", "b.tilt", "c.tilt"]),
-    ("rod lengths", &["rod_"]),
-    ("ball joints", &["a1.", "a2.", "b1.", "b2.", "c1.", "c2."]),
-    ("bed tilt", &["bed."]),
-];
 
 /// Fit, project, print, and write as `output` says.
 pub fn run<F: Firmware>(
@@ -137,25 +123,14 @@ pub fn run<F: Firmware>(
     }) {
         say!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
     }
-    let unseen: Vec<String> = PARTS
+    let unseen: Vec<String> = physical_report::unseen(&fit)
         .iter()
-        .filter_map(|(part, prefixes)| {
-            let of_part: Vec<_> = cal
-                .parameters
-                .iter()
-                .filter(|p| p.free && prefixes.iter().any(|x| p.name.starts_with(x)))
-                .collect();
-            let blind = of_part
-                .iter()
-                .filter(|p| p.from_data.is_some_and(|f| f < UNSEEN_FROM_DATA))
-                .count();
-            (blind > 0).then(|| format!("{part} ({blind} of {})", of_part.len()))
-        })
+        .map(|u| format!("{} ({} of {})", u.part, u.blind, u.of))
         .collect();
     if !unseen.is_empty() {
         say!(
             "the probe pattern cannot see (the readings take less than {:.0} % of their uncertainty): {}",
-            100.0 * UNSEEN_FROM_DATA,
+            100.0 * physical_report::UNSEEN_FROM_DATA,
             unseen.join(", ")
         );
     }
@@ -217,12 +192,35 @@ pub fn run<F: Firmware>(
         fw_bed,
         source,
     };
-    crate::cmd::physical_outputs::suggestion(printer, &mapped);
-    if let Some((previous, from)) = &output.previous {
-        crate::cmd::physical_outputs::drift(*previous, from, request, &fit)?;
-    }
+    let suggestions = crate::cmd::physical_outputs::suggestion(printer, &mapped);
+    let drift = match &output.previous {
+        Some((previous, from)) => Some((
+            from.clone(),
+            crate::cmd::physical_outputs::drift(*previous, from, request, &fit)?,
+        )),
+        None => None,
+    };
     if let Some(path) = &output.physical.height_map {
         crate::cmd::physical_outputs::height_map(run, printer, &mapped, path, output.physical)?;
+    }
+    if let Some(dir) = &output.physical.report_dir {
+        let page = physical_report::Page::build(&physical_report::Inputs {
+            printer,
+            source,
+            own: &own,
+            fit: &fit,
+            fw_mech: &fw_mech,
+            projection: &proj,
+            before: [before, with_own],
+            cubes: &cubes,
+            suggestions: &suggestions,
+            shown: crate::cmd::physical_outputs::SUGGESTIONS,
+            drift,
+            mesh_points: output.physical.mesh_points,
+            height_map: output.physical.height_map.as_deref(),
+        })?;
+        physical_report::write_report_dir(run, dir, &page)?;
+        say!("\nreport -> {}", dir.display());
     }
     if let Some(out) = output.out {
         let mut text = output.header;
