@@ -229,3 +229,40 @@ fn report_is_all_or_nothing_and_needs_physical() {
         assert!(!dir.path().join(f).exists(), "{f} written");
     }
 }
+
+#[test]
+fn klipper_report_says_the_drift_against_previous() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = examples().join("klipper-delta/printer.cfg");
+    let cfg = cfg.to_str().unwrap();
+    let out = ok(
+        dir.path(),
+        &[
+            "klipper",
+            "--config",
+            cfg,
+            "--physical",
+            "--previous",
+            cfg,
+            "--report-dir",
+            "r",
+        ],
+    );
+    let html = whole(&dir.path().join("r"));
+    // The same readings twice: no change, in the verdict and its section,
+    // with the summary's χ².
+    assert!(
+        out.contains("no change beyond the two calibrations' uncertainty"),
+        "{out}"
+    );
+    let since = out.lines().find(|l| l.contains("joint test")).unwrap();
+    let chi2 = since
+        .split("χ² ")
+        .nth(1)
+        .unwrap()
+        .split(',')
+        .next()
+        .unwrap();
+    assert!(html.contains("<h2>Since ") && html.contains(&format!("χ² {chi2}")));
+    assert!(html.contains("<b>no change beyond the two calibrations' uncertainty</b>"));
+}

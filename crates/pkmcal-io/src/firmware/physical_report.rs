@@ -843,7 +843,7 @@ pub fn html(page: &Page, figs: &[Figure]) -> String {
     // The values.
     let _ = write!(
         h,
-        "<h2>Values to write</h2><p>The written values minimise the nozzle's error over the build volume ({} points within {:.0} mm of the centre, z {} mm), not the probe's at the probed points. σ: for {fw}'s own fit from its covariance; for the written values from {} draws of the fitted printer through the projection (linearised).</p><div class=\"wide\"><table><tr><th>{fw} value</th><th>unit</th><th>current</th><th>{fw}'s own fit</th><th>σ</th><th>written</th><th>σ</th></tr>",
+        "<h2>Values to write</h2><p>The written values minimise the nozzle's error over the build volume ({} points within {:.0} mm of the centre, z {} mm), not the probe's at the probed points. σ: for {fw}'s own fit from its covariance (<i>fixed</i>: a value its fit leaves as it was); for the written values from {} draws of the fitted printer through the projection (linearised).</p><div class=\"wide\"><table><tr><th>{fw} value</th><th>unit</th><th>current</th><th>{fw}'s own fit</th><th>σ</th><th>written</th><th>σ</th></tr>",
         page.grid.0,
         page.grid.1,
         physical::GRID_HEIGHTS_MM.map(|z| format!("{z}")).join(", "),
@@ -857,7 +857,11 @@ pub fn html(page: &Page, figs: &[Figure]) -> String {
             v.unit,
             v.current,
             v.own,
-            v.own_sd.map_or(String::new(), |s| format!("{s:.4}")),
+            match v.own_sd {
+                Some(s) if s > 0.0 => format!("{s:.4}"),
+                Some(_) => "fixed".to_string(),
+                None => String::new(),
+            },
             v.written,
             v.written_sd
         );
