@@ -139,12 +139,31 @@ pub struct PhysicalArgs {
     /// GRID_MAX_POINTS_X.
     #[arg(long, value_name = "N", value_parser = values::mesh_points)]
     pub mesh_points: Option<usize>,
+    /// With --physical: a directory (created if missing) of the report for
+    /// the printer's owner: report.html with the verdict in words, the
+    /// values to write with their σ, the nozzle's error maps over the bed
+    /// (Z and XY, with their σ), the predicted cubes, the next
+    /// measurements and the height map's nodes; its figures as SVG and PNG.
+    #[arg(long, value_name = "DIR")]
+    pub report_dir: Option<std::path::PathBuf>,
 }
 
 impl PhysicalArgs {
     /// The files --physical writes besides --out.
-    pub fn outputs(&self) -> Vec<std::path::PathBuf> {
-        self.height_map.iter().cloned().collect()
+    pub fn outputs(&self) -> anyhow::Result<Vec<std::path::PathBuf>> {
+        let mut out: Vec<_> = self.height_map.iter().cloned().collect();
+        if let Some(d) = &self.report_dir {
+            out.extend(pkmcal_io::output::in_dir(
+                d,
+                pkmcal_io::firmware::physical_report::FILES,
+            )?);
+        }
+        Ok(out)
+    }
+
+    /// The directories --physical creates.
+    pub fn dirs(&self) -> Vec<std::path::PathBuf> {
+        self.report_dir.iter().cloned().collect()
     }
 
     /// The tolerances onto the request (refused without --physical).
@@ -158,6 +177,11 @@ impl PhysicalArgs {
             return crate::words::usage(
                 "--height-map maps what the physical model's values leave: add --physical"
                     .to_string(),
+            );
+        }
+        if !self.physical && self.report_dir.is_some() {
+            return crate::words::usage(
+                "--report-dir writes the physical model's report: add --physical".to_string(),
             );
         }
         if self.height_map.is_none() && self.mesh_points.is_some() {

@@ -12,11 +12,11 @@ pub const FONT_BYTES: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
 /// The font family the figures use.
 pub const FONT: &str = "DejaVu Sans";
 
-const BEFORE: RGBColor = RGBColor(200, 55, 45);
-const AFTER: RGBColor = RGBColor(30, 100, 200);
+pub(crate) const BEFORE: RGBColor = RGBColor(200, 55, 45);
+pub(crate) const AFTER: RGBColor = RGBColor(30, 100, 200);
 const GREY: RGBColor = RGBColor(200, 200, 200);
 
-fn register_font() {
+pub(crate) fn register_font() {
     static ONCE: Once = Once::new();
     ONCE.call_once(|| {
         plotters::style::register_font(FONT, FontStyle::Normal, FONT_BYTES)
@@ -39,7 +39,7 @@ pub struct Figure {
     pub png: Vec<u8>,
 }
 
-fn err<E: std::fmt::Debug>(e: E) -> Error {
+pub(crate) fn err<E: std::fmt::Debug>(e: E) -> Error {
     Error::Content(format!("drawing failed: {e:?}"))
 }
 
@@ -85,8 +85,10 @@ macro_rules! render {
     }};
 }
 
+pub(crate) use render;
+
 /// Tick label with about three significant digits and no "-0".
-fn tick(v: &f64) -> String {
+pub(crate) fn tick(v: &f64) -> String {
     if v.abs() < 1e-12 {
         return "0".into();
     }
@@ -99,7 +101,7 @@ fn tick(v: &f64) -> String {
     }
 }
 
-fn range(values: impl Iterator<Item = f64>, pad: f64) -> (f64, f64) {
+pub(crate) fn range(values: impl Iterator<Item = f64>, pad: f64) -> (f64, f64) {
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
     for v in values.filter(|v| v.is_finite()) {
         lo = lo.min(v);
@@ -132,7 +134,7 @@ pub const FIGURE_WIDTH: u32 = 1060;
 
 /// The figures' smallest text, tick labels and axis names (px), drawn at
 /// that size: no figure is wider than [`FIGURE_WIDTH`].
-const LABEL_PX: u32 = 14;
+pub(crate) const LABEL_PX: u32 = 14;
 
 /// Height of one row of panels (px).
 const PANEL_HEIGHT: u32 = 158;
@@ -534,7 +536,7 @@ fn nice(v: f64) -> f64 {
 /// One plan-view panel: the workspace, the measured poses and their error
 /// vectors magnified so that the largest spans 10 % of the width, with a
 /// scale bar in a readable unit.
-fn arrow_panel<DB: DrawingBackend>(
+pub(crate) fn arrow_panel<DB: DrawingBackend>(
     area: &DrawingArea<DB, plotters::coord::Shift>,
     workspace: &[Vec<f64>],
     points: &[Vec<f64>],
@@ -786,7 +788,7 @@ pub struct MapSweep {
 }
 
 /// Width of one map panel with its colour bar (px).
-const MAP_PANEL_WIDTH: u32 = FIGURE_WIDTH / 2;
+pub(crate) const MAP_PANEL_WIDTH: u32 = FIGURE_WIDTH / 2;
 /// Height of a row title strip (px).
 const ROW_TITLE: u32 = 24;
 /// Height of the row of angle sweeps (px).
@@ -794,7 +796,7 @@ const SWEEP_HEIGHT: u32 = 280;
 
 /// One heat map with a labelled colour bar; values in mm shown in a
 /// readable unit.
-fn heat_panel<DB: DrawingBackend>(
+pub(crate) fn heat_panel<DB: DrawingBackend>(
     area: &DrawingArea<DB, plotters::coord::Shift>,
     slice: &MapSlice,
     title: &str,

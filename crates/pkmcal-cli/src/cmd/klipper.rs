@@ -68,8 +68,8 @@ pub struct Args {
 impl Args {
     pub fn paths(&self) -> Result<args::Paths> {
         let mut out: Vec<PathBuf> = self.out.iter().cloned().collect();
-        out.extend(self.physical.outputs());
-        let mut dirs = vec![];
+        out.extend(self.physical.outputs()?);
+        let mut dirs = self.physical.dirs();
         if let Some(d) = &self.out_dir {
             out.extend(pkmcal_io::output::in_dir(d, &OUT_DIR_FILES)?);
             out.extend(pkmcal_io::output::in_dir(d, &[DISTANCES_FILE])?);

@@ -7,6 +7,7 @@ use anyhow::Result;
 use pkmcal::{Mechanism, Params, Request};
 use pkmcal_io::Run;
 use pkmcal_io::firmware::physical::{self, ErrorSummary};
+use pkmcal_io::firmware::physical_report;
 use pkmcal_io::firmware::{self, Firmware};
 use std::path::Path;
 
@@ -28,21 +29,6 @@ pub struct Output<'a> {
     /// The largest σ of a written value before a warning (`--max-sigma`).
     pub max_sigma: f64,
 }
-
-/// A parameter whose uncertainty the readings reduce by less than this
-/// share (of its variance) is one the probe pattern cannot see.
-const UNSEEN_FROM_DATA: f64 = 0.1;
-
-/// The parts of the physical model, by the start of their parameters'
-/// names, for the verdict.
-const PARTS: [(&str, &[&str]); 6] = [
-    ("tower radii", &["radius_"]),
-    ("tower angles", &["angle_"]),
-    ("tower lean", &["a.tilt", "b.tilt", "c.tilt"]),
-    ("rod lengths", &["rod_"]),
-    ("ball joints", &["a1.", "a2.", "b1.", "b2.", "c1.", "c2."]),
-    ("bed tilt", &["bed."]),
-];
 
 /// Fit, project, print, and write as `output` says.
 pub fn run<F: Firmware>(
@@ -145,25 +131,14 @@ pub fn run<F: Firmware>(
             _ => say!("warning: {}\n  hint: {}", w.message, crate::words::hint(w)),
         }
     }
-    let unseen: Vec<String> = PARTS
+    let unseen: Vec<String> = physical_report::unseen(&fit)
         .iter()
-        .filter_map(|(part, prefixes)| {
-            let of_part: Vec<_> = cal
-                .parameters
-                .iter()
-                .filter(|p| p.free && prefixes.iter().any(|x| p.name.starts_with(x)))
-                .collect();
-            let blind = of_part
-                .iter()
-                .filter(|p| p.from_data.is_some_and(|f| f < UNSEEN_FROM_DATA))
-                .count();
-            (blind > 0).then(|| format!("{part} ({blind} of {})", of_part.len()))
-        })
+        .map(|u| format!("{} ({} of {})", u.part, u.blind, u.of))
         .collect();
     if !unseen.is_empty() {
         say!(
             "the probe pattern cannot see (the readings take less than {:.0} % of their uncertainty): {}",
-            100.0 * UNSEEN_FROM_DATA,
+            100.0 * physical_report::UNSEEN_FROM_DATA,
             unseen.join(", ")
         );
     }
@@ -242,21 +217,7 @@ pub fn run<F: Firmware>(
             c.flatness_sd
         );
     }
-    // Each written value's σ: the firmware's own fit's where it is
-    // written, else the posterior's through the projection.
-    let mut values = printer.values(fw_spec, &proj.params, &proj.bed)?;
-    let sigmas: Vec<f64> = if choice.projection_written {
-        physical::projection_sigmas(printer, &fit, &fw_mech, proj, choice.z_weight)?
-    } else {
-        firmware::written(printer, &own)?
-            .values
-            .iter()
-            .map(|v| v.sigma.unwrap_or(0.0))
-            .collect()
-    };
-    for (v, s) in values.iter_mut().zip(&sigmas) {
-        v.sigma = Some(*s);
-    }
+    let values = physical::written_values(printer, &fit, &fw_mech, &choice, &own)?;
     crate::cmd::print_values(&format!("{} value", printer.name()), &values);
     if let Some(w) = firmware::uncertain(&values, output.max_sigma) {
         let (message, hint) = crate::words::firmware_warning(&w);
@@ -269,12 +230,36 @@ pub fn run<F: Firmware>(
         fw_bed,
         source,
     };
-    crate::cmd::physical_outputs::suggestion(printer, &mapped);
-    if let Some((previous, from)) = &output.previous {
-        crate::cmd::physical_outputs::drift(*previous, from, request, &fit)?;
-    }
+    let suggestions = crate::cmd::physical_outputs::suggestion(printer, &mapped);
+    let drift = match &output.previous {
+        Some((previous, from)) => Some((
+            from.clone(),
+            crate::cmd::physical_outputs::drift(*previous, from, request, &fit)?,
+        )),
+        None => None,
+    };
     if let Some(path) = &output.physical.height_map {
         crate::cmd::physical_outputs::height_map(run, printer, &mapped, path, output.physical)?;
+    }
+    if let Some(dir) = &output.physical.report_dir {
+        let page = physical_report::Page::build(&physical_report::Inputs {
+            printer,
+            source,
+            own: &own,
+            fit: &fit,
+            fw_mech: &fw_mech,
+            projection: proj,
+            values: &values,
+            before: [before, with_own],
+            cubes: &cubes,
+            suggestions: &suggestions,
+            shown: crate::cmd::physical_outputs::SUGGESTIONS,
+            drift,
+            mesh_points: output.physical.mesh_points,
+            height_map: output.physical.height_map.as_deref(),
+        })?;
+        physical_report::write_report_dir(run, dir, &page)?;
+        say!("\nreport -> {}", dir.display());
     }
     if let Some(out) = output.out {
         let mut text = output.header;

@@ -10,7 +10,8 @@ use pkmcal_io::firmware::Firmware;
 use pkmcal_io::firmware::height_map::{self, KLIPPER_PROFILE, MeshFormat};
 use pkmcal_io::firmware::physical::{self, PhysicalFit};
 use pkmcal_io::firmware::physical_drift;
-use pkmcal_io::firmware::physical_plan::{self, Extra};
+use pkmcal_io::firmware::physical_plan::{self, Suggestion};
+use pkmcal_io::firmware::physical_report;
 use std::path::Path;
 
 /// The fitted printer and the firmware's values written for it.
@@ -90,8 +91,10 @@ pub fn height_map<F: Firmware>(
         map.largest_sd().unwrap_or(f64::NAN),
         path.display()
     );
-    let largest = v.iter().fold(0.0_f64, |m, x| m.max(x.abs()));
-    if map.largest_sd().is_some_and(|sd| sd > largest) {
+    if matches!(
+        physical_report::map_advice(&map),
+        physical_report::MapAdvice::Uncertain { .. }
+    ) {
         say!(
             "  the map's uncertainty exceeds its values: what it corrects is not known yet; measure more (calibration object distances, or probe heights further out) before loading it"
         );
@@ -100,57 +103,35 @@ pub fn height_map<F: Firmware>(
 }
 
 /// How many suggestions are listed.
-const SUGGESTIONS: usize = 3;
+pub const SUGGESTIONS: usize = 3;
 
 /// Say which extra measurements would shrink the predicted cube's
-/// uncertainty most, in the firmware's commands; where they cannot be
-/// scored (a candidate the printer cannot reach), say why and go on: the
-/// values are written all the same.
-pub fn suggestion<F: Firmware>(printer: &F, m: &Mapped<'_>) {
-    if let Err(e) = suggest(printer, m) {
-        say!("\nthe extra measurements could not be scored: {e:#}");
+/// uncertainty most, in the firmware's commands, and return them (best
+/// first); where they cannot be scored (a candidate the printer cannot
+/// reach), say why and go on: the values are written all the same.
+pub fn suggestion<F: Firmware>(printer: &F, m: &Mapped<'_>) -> Vec<Suggestion> {
+    match suggest(printer, m) {
+        Ok(list) => list,
+        Err(e) => {
+            say!("\nthe extra measurements could not be scored: {e:#}");
+            vec![]
+        }
     }
 }
 
-fn suggest<F: Firmware>(printer: &F, m: &Mapped<'_>) -> Result<()> {
+fn suggest<F: Firmware>(printer: &F, m: &Mapped<'_>) -> Result<Vec<Suggestion>> {
     let firmware = printer.name();
     let klipper = firmware == "Klipper";
     let list = physical_plan::suggest(m.fit, m.fw_mech, m.fw_params, m.fw_bed, klipper)?;
     let Some(first) = list.first() else {
-        return Ok(());
+        return Ok(list);
     };
     say!(
         "\nthe extra measurements that would shrink the cube's uncertainty most (its largest σ now {:.3} mm; linearised, the fit's noise for each reading):",
         first.largest().0
     );
-    let o = m.fit.delta.probe_offset;
-    let probe_at = |p: [f64; 2]| -> String {
-        match firmware {
-            "Klipper" => format!(
-                "G1 X{:.1} Y{:.1} then PROBE (the probe at {:.1}, {:.1})",
-                p[0] - o[0],
-                p[1] - o[1],
-                p[0],
-                p[1]
-            ),
-            "RepRapFirmware" => format!("G30 P<next> X{:.1} Y{:.1} Z-99999", p[0], p[1]),
-            _ => format!("G30 X{:.1} Y{:.1}", p[0], p[1]),
-        }
-    };
     for (k, s) in list.iter().take(SUGGESTIONS).enumerate() {
-        let what = match &s.extra {
-            Extra::ProbePoint { at } => format!("one more probe point: {}", probe_at(*at)),
-            Extra::SecondLevel { height, points } => format!(
-                "{} probe heights on a {height} mm gauge block (known height): {}",
-                points.len(),
-                points
-                    .iter()
-                    .map(|p| probe_at(*p))
-                    .collect::<Vec<_>>()
-                    .join("; ")
-            ),
-            Extra::ObjectDistances => "the 12 distances of Klipper's calibration object (docs/prints/calibrate_size.stl) printed with the written values, measured with calipers: DELTA_ANALYZE CENTER_DISTS=… OUTER_DISTS=… (and the pillar widths), then SAVE_CONFIG".to_string(),
-        };
+        let what = physical_report::measurement_words(&s.extra, firmware, m.fit.delta.probe_offset);
         let (before, after) = s.largest();
         say!(
             "  {}. {what}: largest σ {before:.3} -> {after:.3} mm ({:.0} % of the cube errors' variance)",
@@ -158,7 +139,7 @@ fn suggest<F: Firmware>(printer: &F, m: &Mapped<'_>) -> Result<()> {
             100.0 * s.variance_removed()
         );
     }
-    Ok(())
+    Ok(list)
 }
 
 /// Fit the `previous` readings (from `from`) as these were fitted and say
@@ -169,7 +150,7 @@ pub fn drift(
     from: &str,
     request: pkmcal::Request,
     now: &PhysicalFit,
-) -> Result<()> {
+) -> Result<pkmcal::identify::Drift> {
     let Some(ld) = previous.linear_delta()? else {
         anyhow::bail!("--previous {from} is not a linear delta");
     };
@@ -204,5 +185,5 @@ pub fn drift(
         d.p_joint,
         d.untested.len()
     );
-    Ok(())
+    Ok(d)
 }

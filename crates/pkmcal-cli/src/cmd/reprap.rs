@@ -45,8 +45,9 @@ impl Args {
     pub fn paths(&self) -> Result<args::Paths> {
         Ok(args::Paths::new(
             [Some(self.config.clone()), Some(self.probes.clone())],
-            self.out.iter().cloned().chain(self.physical.outputs()),
-        ))
+            self.out.iter().cloned().chain(self.physical.outputs()?),
+        )
+        .with_dirs(self.physical.dirs()))
     }
 }
 

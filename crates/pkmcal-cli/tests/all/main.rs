@@ -30,6 +30,7 @@ mod marlin;
 mod measurements;
 mod noise;
 mod physical;
+mod physical_report;
 mod readme;
 mod reliability;
 mod renamed;

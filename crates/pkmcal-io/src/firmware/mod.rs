@@ -19,6 +19,7 @@ pub mod marlin;
 pub mod physical;
 pub mod physical_drift;
 pub mod physical_plan;
+pub mod physical_report;
 pub mod reprap;
 
 use crate::description::Mech;

@@ -835,6 +835,34 @@ pub fn choose(fit: &PhysicalFit, fw_mech: &Mech, own: &Params, own_bed: &[f64]) 
     })
 }
 
+/// The values `firmware` writes under `--physical` ([`Firmware::values`],
+/// before and after), each with its σ: the firmware's own fit's (`own`)
+/// where its values are written, else the posterior's through the
+/// projection ([`projection_sigmas`]).
+pub fn written_values<F: Firmware + ?Sized>(
+    firmware: &F,
+    fit: &PhysicalFit,
+    fw_mech: &Mech,
+    choice: &Choice,
+    own: &super::PrinterCalibration,
+) -> Result<Vec<super::FirmwareValue>> {
+    let proj = &choice.written;
+    let mut values = firmware.values(fw_mech.spec(), &proj.params, &proj.bed)?;
+    let sigmas: Vec<f64> = if choice.projection_written {
+        projection_sigmas(firmware, fit, fw_mech, proj, choice.z_weight)?
+    } else {
+        super::written(firmware, own)?
+            .values
+            .iter()
+            .map(|v| v.sigma.unwrap_or(0.0))
+            .collect()
+    };
+    for (v, s) in values.iter_mut().zip(&sigmas) {
+        v.sigma = Some(*s);
+    }
+    Ok(values)
+}
+
 /// The standard deviation of each value `firmware` writes
 /// ([`Firmware::values`], in its order and unit) from the projection
 /// `proj` (weighing Z `z_weight`): the fit's posterior propagated through

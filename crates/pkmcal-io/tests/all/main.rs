@@ -14,4 +14,5 @@ mod physical;
 mod physical_acceptance;
 mod physical_drift;
 mod physical_plan;
+mod physical_report;
 mod renamed;
