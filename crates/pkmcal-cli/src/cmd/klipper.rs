@@ -2,6 +2,7 @@
 //! configuration and write Klipper's values back.
 
 use crate::args;
+use anyhow::Context as _;
 use anyhow::Result;
 use pkmcal::{Mechanism, Params, Request};
 use pkmcal_io::Run;
@@ -95,7 +96,17 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     }
     let (text, ini) = klipper::read_config(run, &a.config)?;
     let previous = match (&a.previous, a.physical.physical) {
-        (Some(p), true) => Some(KlipperPrinter::read(run, p, a.weighting)?),
+        (Some(p), true) if !klipper_rotary::is_rotary(&ini) => {
+            let before = KlipperPrinter::read(run, p, a.weighting)
+                .with_context(|| format!("--previous {}", p.display()))?;
+            // Its readings as this configuration reads them (the same
+            // geometry labels both).
+            let (text, ini) = klipper::read_config(run, &a.config)?;
+            Some(
+                KlipperPrinter::from_parsed(&a.config, text, ini, a.weighting)?
+                    .with_readings_of(before),
+            )
+        }
         _ => None,
     };
     if a.physical.physical {

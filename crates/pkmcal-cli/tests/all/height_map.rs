@@ -205,4 +205,59 @@ fn previous_says_whether_the_printer_changed() {
         1,
         "missing.cfg",
     );
+    // A recalibration changes the configured geometry, not the printer: the
+    // same saved probe results under another delta_radius, tower angle and
+    // endstop are no change (each file's own geometry gave χ² 218 to 3.6e6).
+    let text = std::fs::read_to_string(examples().join("klipper-delta/printer.cfg")).unwrap();
+    let relabelled = text
+        .replace("delta_radius: 174.75", "delta_radius: 174.80")
+        .replace(
+            "position_endstop: 297.05   #",
+            "position_endstop: 297.10   #",
+        );
+    assert_ne!(relabelled, text);
+    let recalibrated = dir.path().join("recalibrated.cfg");
+    std::fs::write(&recalibrated, &relabelled).unwrap();
+    let out = ok(
+        dir.path(),
+        &[
+            "klipper",
+            "--config",
+            &arg(recalibrated.clone()),
+            "--physical",
+            "--previous",
+            &cfg,
+        ],
+    );
+    assert!(
+        out.contains("no change beyond the two calibrations' uncertainty"),
+        "{out}"
+    );
+    // Carriage a 1 mm (80 steps) further from its endstop at every probe:
+    // the printer changed.
+    let moved: String = text
+        .lines()
+        .map(|l| match l.split_once("_pos = ") {
+            Some((head, v)) if l.starts_with("#*# height") => {
+                let mut x: Vec<f64> = v.split(',').map(|t| t.trim().parse().unwrap()).collect();
+                x[0] += 80.0;
+                format!("{head}_pos = {:.3},{:.3},{:.3}\n", x[0], x[1], x[2])
+            }
+            _ => format!("{l}\n"),
+        })
+        .collect();
+    let moved_path = dir.path().join("moved.cfg");
+    std::fs::write(&moved_path, moved).unwrap();
+    let out = ok(
+        dir.path(),
+        &[
+            "klipper",
+            "--config",
+            &arg(recalibrated),
+            "--physical",
+            "--previous",
+            &arg(moved_path),
+        ],
+    );
+    assert!(out.contains("the printer changed"), "{out}");
 }

@@ -1416,6 +1416,21 @@ impl KlipperPrinter {
         Self::from_parsed(path, text, ini, weighting)
     }
 
+    /// This configuration with `previous`'s saved probe results and
+    /// calibration-object distances in place of its own: an earlier
+    /// `DELTA_CALIBRATE`'s readings as this configuration reads them. The
+    /// saved positions are steps from the endstop switches, which belong to
+    /// the printer; the configured geometry only labels them, and a
+    /// recalibration changes it. Read with one configuration, two sets of
+    /// readings of an unchanged printer fit the same printer (`--physical
+    /// --previous`: with each file's own geometry, the fits' unseen parts sat
+    /// at different tolerance centres and the drift test saw a change).
+    pub fn with_readings_of(mut self, previous: KlipperPrinter) -> Self {
+        self.delta.probes = previous.delta.probes;
+        self.delta.distances = previous.delta.distances;
+        self
+    }
+
     /// A `printer.cfg` read ([`read_config`]), as Klipper reads it.
     pub fn from_parsed(path: &Path, text: String, ini: Ini, weighting: Weighting) -> Result<Self> {
         let delta = delta_from_config(&ini)?;
