@@ -192,9 +192,17 @@ pub fn measurement_words(extra: &Extra, firmware: &str, probe_offset: [f64; 2]) 
         }
     };
     match extra {
-        Extra::ProbePoint { at } => format!("one more probe point: {}", probe_at(*at)),
+        Extra::ProbePoint { at } => format!(
+            "one more probe point: {}{}",
+            probe_at(*at),
+            match firmware {
+                "Klipper" => " (not read back by pkmcal yet: DELTA_CALIBRATE saves only its own pattern; it shows what such a point would teach)",
+                "RepRapFirmware" => ", its reading added to the probe file (--probes)",
+                _ => ", its `Bed X: … Y: … Z: …` report added to the probe log (--probes)",
+            }
+        ),
         Extra::SecondLevel { height, points } => format!(
-            "{} probe heights on a {height} mm gauge block (known height): {}",
+            "{} probe heights on a {height} mm gauge block (known height): {} (not read back by pkmcal yet: no reader takes a block's height; it shows what a second level would teach)",
             points.len(),
             points
                 .iter()
