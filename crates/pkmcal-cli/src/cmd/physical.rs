@@ -104,6 +104,20 @@ pub fn run<F: Firmware>(
         ld.probe_offset[0],
         ld.probe_offset[1],
     );
+    if !request.tolerances.is_empty() {
+        let given: Vec<String> = request
+            .tolerances
+            .iter()
+            .map(|(name, t)| match t {
+                pkmcal::apply::budget::Tolerance::Absolute(s) => format!("{name} {s}"),
+                pkmcal::apply::budget::Tolerance::Relative(f) => format!("{name} {}%", f * 100.0),
+            })
+            .collect();
+        say!(
+            "tolerances given in place of those (--tolerance, in each one's unit): {}",
+            given.join(", ")
+        );
+    }
     say!("{}", cal.termination.reason());
     say!(
         "height errors of the physical fit: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm",
@@ -250,6 +264,7 @@ pub fn run<F: Firmware>(
             fw_mech: &fw_mech,
             projection: proj,
             values: &values,
+            projected: (choice.projected.summary, choice.projection_written),
             before: [before, with_own],
             cubes: &cubes,
             suggestions: &suggestions,

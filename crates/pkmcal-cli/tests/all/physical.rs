@@ -154,3 +154,26 @@ fn physical_misuse_is_refused_by_name() {
     );
     assert!(!dir.path().join("d").exists());
 }
+
+#[test]
+fn physical_says_the_tolerances_given() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = examples().join("klipper-delta/printer.cfg");
+    let out = ok(
+        dir.path(),
+        &[
+            "klipper",
+            "--config",
+            cfg.to_str().unwrap(),
+            "--physical",
+            "--tolerance",
+            "rod_a1=0.5,radius_b=2%",
+        ],
+    );
+    assert!(
+        out.contains(
+            "tolerances given in place of those (--tolerance, in each one's unit): rod_a1 0.5, radius_b 2%"
+        ),
+        "{out}"
+    );
+}

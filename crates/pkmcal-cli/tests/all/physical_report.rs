@@ -77,10 +77,20 @@ fn klipper_report_shows_the_summarys_numbers() {
     // Each written value, as the summary prints it.
     let mut values = 0;
     for line in out.lines().filter(|l| l.trim_start().starts_with("[")) {
-        let after = line.split_whitespace().last().unwrap();
+        // `[section] name  before  after  σ unit` (or `fixed`).
+        let numbers: Vec<&str> = line
+            .split_whitespace()
+            .filter(|t| t.parse::<f64>().is_ok())
+            .collect();
+        let after = numbers[1];
         assert!(
             html.contains(&format!("<b>{after}</b>")),
             "{after} of `{line}` not in the report"
+        );
+        let sigma = numbers.get(2).copied().unwrap_or("fixed");
+        assert!(
+            html.contains(&format!("<td>{sigma}</td>")),
+            "σ {sigma} of `{line}` not in the report"
         );
         values += 1;
     }

@@ -312,6 +312,12 @@ pub struct Page {
     /// The nozzle's error over the build volume: the current values, the
     /// firmware's own fit, the written values.
     pub errors: [ErrorSummary; 3],
+    /// The same with the values for the nozzle (the projection), written
+    /// or not.
+    pub projected: ErrorSummary,
+    /// Whether the values for the nozzle are the written ones (else the
+    /// firmware's own fit is: [`physical::Choice::projection_written`]).
+    pub projection_written: bool,
     /// Points and heights of the build-volume grid.
     pub grid: (usize, f64),
     /// The values.
@@ -342,6 +348,9 @@ pub struct Inputs<'a> {
     pub fw_mech: &'a Mech,
     /// The written values.
     pub projection: &'a Projection,
+    /// The values for the nozzle's errors (the projection's), and whether
+    /// they are written ([`physical::Choice`]).
+    pub projected: (ErrorSummary, bool),
     /// The values written, each with its σ ([`physical::written_values`]).
     pub values: &'a [FirmwareValue],
     /// The nozzle's error summaries: the current values, the own fit.
@@ -504,6 +513,8 @@ impl Page {
             free: fit.free_names.len(),
             unseen: unseen(fit),
             errors: [i.before[0], i.before[1], proj.summary],
+            projected: i.projected.0,
+            projection_written: i.projected.1,
             grid: (proj.targets.len(), r),
             values,
             cubes: i.cubes.to_vec(),
@@ -838,10 +849,20 @@ pub fn html(page: &Page, figs: &[Figure]) -> String {
     h.push_str("</table></div>");
     // The errors.
     h.push_str("<h2>The nozzle's error over the build volume</h2><table><tr><th rowspan=\"2\">values</th><th colspan=\"2\">XY error, mm</th><th colspan=\"2\">Z error, mm</th></tr><tr><th>RMS</th><th>max</th><th>RMS</th><th>max</th></tr>");
+    let mark = |written: bool| if written { " (written)" } else { "" };
     for (label, e) in [
         ("the current values".to_string(), current),
-        (format!("{fw}'s own fit of the probe"), own),
-        ("the written values".to_string(), written),
+        (
+            format!(
+                "{fw}'s own fit of the probe{}",
+                mark(!page.projection_written)
+            ),
+            own,
+        ),
+        (
+            format!("the values for the nozzle{}", mark(page.projection_written)),
+            &page.projected,
+        ),
     ] {
         let _ = write!(
             h,

@@ -49,6 +49,7 @@ fn the_written_values_sigma_is_that_of_reprojected_draws() {
         fw_mech: &fw,
         projection: &proj,
         values: &written,
+        projected: (proj.summary, true),
         before: [zero, zero],
         cubes: &cubes,
         suggestions: &[],
