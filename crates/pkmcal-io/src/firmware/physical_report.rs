@@ -765,6 +765,21 @@ pub fn html(page: &Page, figs: &[Figure]) -> String {
         "<li>With the written values the nozzle misses by <b>{:.4} mm</b> RMS in XY and <b>{:.4} mm</b> RMS in Z over the build volume; with {fw}'s own fit of the probe by {:.4} mm and {:.4} mm; with the current values by {:.4} mm and {:.4} mm.</li>",
         written.xy_rms, written.z_rms, own.xy_rms, own.z_rms, current.xy_rms, current.z_rms
     );
+    let _ = write!(
+        h,
+        "<li>{}</li>",
+        if page.projection_written {
+            format!(
+                "The values for the nozzle are written: over the fit's uncertainty they lower the nozzle's error beyond one standard deviation ({fw}'s own fit: {:.4} mm XY, {:.4} mm Z RMS).",
+                own.xy_rms, own.z_rms
+            )
+        } else {
+            format!(
+                "{fw}'s own fit is written: the values for the nozzle ({:.4} mm XY, {:.4} mm Z RMS on the fitted printer) would not lower the error beyond one standard deviation of the fit's uncertainty; the readings cannot show them better.",
+                page.projected.xy_rms, page.projected.z_rms
+            )
+        }
+    );
     if page.unseen.is_empty() {
         h.push_str("<li>The probe pattern sees every part of the printer's model.</li>");
     } else {
@@ -827,11 +842,23 @@ pub fn html(page: &Page, figs: &[Figure]) -> String {
     // The values.
     let _ = write!(
         h,
-        "<h2>Values to write</h2><p>The written values minimise the nozzle's error over the build volume ({} points within {:.0} mm of the centre, z {} mm), not the probe's at the probed points. σ: for {fw}'s own fit from its covariance (<i>fixed</i>: a value its fit leaves as it was); for the written values from {} draws of the fitted printer through the projection (linearised).</p><div class=\"wide\"><table><tr><th>{fw} value</th><th>unit</th><th>current</th><th>{fw}'s own fit</th><th>σ</th><th>written</th><th>σ</th></tr>",
-        page.grid.0,
-        page.grid.1,
-        physical::GRID_HEIGHTS_MM.map(|z| format!("{z}")).join(", "),
-        physical::CUBE_DRAWS
+        "<h2>Values to write</h2><p>{}</p><div class=\"wide\"><table><tr><th>{fw} value</th><th>unit</th><th>current</th><th>{fw}'s own fit</th><th>σ</th><th>written</th><th>σ</th></tr>",
+        if page.projection_written {
+            format!(
+                "The written values are the values for the nozzle: they minimise the nozzle's error over the build volume ({} points within {:.0} mm of the centre, z {} mm), not the probe's at the probed points, and over the fit's uncertainty they do so by more than one standard deviation. σ: for {fw}'s own fit from its covariance (<i>fixed</i>: a value its fit leaves as it was); for the written values from {} draws of the fitted printer through the projection (linearised).",
+                page.grid.0,
+                page.grid.1,
+                physical::GRID_HEIGHTS_MM.map(|z| format!("{z}")).join(", "),
+                physical::CHOICE_DRAWS
+            )
+        } else {
+            format!(
+                "The written values are {fw}'s own fit: the values for the nozzle (which minimise the nozzle's error over the build volume, {} points within {:.0} mm of the centre, z {} mm) would not lower it by more than one standard deviation over the fit's uncertainty: the readings cannot show them better. σ: from {fw}'s fit's covariance (<i>fixed</i>: a value its fit leaves as it was).",
+                page.grid.0,
+                page.grid.1,
+                physical::GRID_HEIGHTS_MM.map(|z| format!("{z}")).join(", "),
+            )
+        }
     );
     for v in &page.values {
         let _ = write!(
