@@ -131,7 +131,7 @@ enum Command {
     /// List a mechanism's parameters (name, kind, unit, nominal value, free by
     /// default), joints, actuators and tool axes with the workspace box.
     Parameters(cmd::parameters::Args),
-    /// Calibrate a linear delta printer from its Klipper printer.cfg (the probe
+    /// Calibrate a delta printer (linear or rotary) from its Klipper printer.cfg (the probe
     /// results DELTA_CALIBRATE saved) and write Klipper's values back.
     Klipper(cmd::klipper::Args),
     /// Calibrate a linear delta printer run by RepRapFirmware from its M665/M666

@@ -132,9 +132,13 @@ const SPLIT_RATIO: f64 = 10.0;
 /// 12 px (figures 1,200-1,400 px wide were shrunk to 9 px text).
 pub const FIGURE_WIDTH: u32 = 1060;
 
-/// The figures' smallest text, tick labels and axis names (px), drawn at
-/// that size: no figure is wider than [`FIGURE_WIDTH`].
-pub(crate) const LABEL_PX: u32 = 14;
+/// The figures' smallest text, tick labels and axis names, as plotters
+/// takes a size: its SVG and bitmap text is this over 1.24 (the font's
+/// line height), 13.7 px; drawn at that size, as no figure is wider than
+/// [`FIGURE_WIDTH`] (14 gave 11.3 px text).
+pub(crate) const LABEL_PX: u32 = 17;
+/// Panel titles and captions, as plotters takes a size (14.5 px text).
+pub(crate) const TITLE_PX: u32 = 18;
 
 /// Height of one row of panels (px).
 const PANEL_HEIGHT: u32 = 158;
@@ -218,7 +222,7 @@ fn legend<DB: DrawingBackend>(
         area.draw(&Text::new(
             name.to_string(),
             (x + 12, LEGEND_HEIGHT as i32 / 2 - 8),
-            (FONT, 15).into_font(),
+            (FONT, TITLE_PX).into_font(),
         ))
         .map_err(err)?;
         x += 24 + 9 * name.len() as i32;
@@ -457,7 +461,7 @@ pub fn parameter_changes(groups: &[(String, &'static str, Vec<ParamBar>)]) -> Re
                     let n = bars.len();
                     let mut chart = ChartBuilder::on(&area)
                         .margin(10)
-                        .caption(unit.as_str(), (FONT, 15))
+                        .caption(unit.as_str(), (FONT, TITLE_PX))
                         .x_label_area_size(40)
                         .y_label_area_size(75)
                         .build_cartesian_2d(-0.5f64..n as f64 - 0.5, lo..hi)
@@ -580,7 +584,7 @@ pub(crate) fn arrow_panel<DB: DrawingBackend>(
         .margin(12)
         .caption(
             format!("{title}, error vectors magnified {}×", tick(&scale.round())),
-            (FONT, 15),
+            (FONT, TITLE_PX),
         )
         .x_label_area_size(36)
         .y_label_area_size(55)
@@ -593,7 +597,7 @@ pub(crate) fn arrow_panel<DB: DrawingBackend>(
         .x_label_formatter(&tick)
         .y_label_formatter(&tick)
         .label_style((FONT, LABEL_PX))
-        .axis_desc_style((FONT, 14))
+        .axis_desc_style((FONT, TITLE_PX))
         .max_light_lines(0)
         .draw()
         .map_err(err)?;
@@ -815,7 +819,7 @@ pub(crate) fn heat_panel<DB: DrawingBackend>(
     let (plot, legend) = area.split_horizontally(MAP_PANEL_WIDTH - 110);
     let mut chart = ChartBuilder::on(&plot)
         .margin(10)
-        .caption(format!("{title} ({unit})"), (FONT, 14))
+        .caption(format!("{title} ({unit})"), (FONT, TITLE_PX))
         .x_label_area_size(34)
         .y_label_area_size(56)
         .build_cartesian_2d(x0..x1, y0..y1)
@@ -873,7 +877,7 @@ pub(crate) fn heat_panel<DB: DrawingBackend>(
         .draw(&Text::new(
             unit.to_string(),
             (12, 22),
-            (FONT, 14).into_font(),
+            (FONT, TITLE_PX).into_font(),
         ))
         .map_err(err)?;
     Ok(())
@@ -974,7 +978,7 @@ pub fn workspace_maps(slices: &[MapSlice], sweeps: &[MapSweep], centre: &str) ->
                     format!("{}–{} slice at {}", s.axes[0], s.axes[1], s.held)
                 };
                 title
-                    .draw(&Text::new(text, (12, 4), (FONT, 15).into_font()))
+                    .draw(&Text::new(text, (12, 4), (FONT, TITLE_PX).into_font()))
                     .map_err(err)?;
                 let (l, r) = body.split_horizontally(MAP_PANEL_WIDTH);
                 heat_panel(&l, s, "error without compensation", &s.miss)?;
@@ -986,7 +990,7 @@ pub fn workspace_maps(slices: &[MapSlice], sweeps: &[MapSweep], centre: &str) ->
                     .draw(&Text::new(
                         format!("along each angle, the other axes at the centre ({centre})"),
                         (12, 4),
-                        (FONT, 15).into_font(),
+                        (FONT, TITLE_PX).into_font(),
                     ))
                     .map_err(err)?;
                 let cells = body.split_evenly((2, sweeps.len()));
@@ -1106,7 +1110,7 @@ pub fn residuals(standardized: &[f64]) -> Result<Figure> {
             let (l, r) = root.split_horizontally(500);
             let mut hist = ChartBuilder::on(&l)
                 .margin(10)
-                .caption("residual histogram", (FONT, 14))
+                .caption("residual histogram", (FONT, TITLE_PX))
                 .x_label_area_size(34)
                 .y_label_area_size(50)
                 .build_cartesian_2d(-lim..lim, 0.0..top)
@@ -1139,7 +1143,7 @@ pub fn residuals(standardized: &[f64]) -> Result<Figure> {
             .map_err(err)?;
             let mut qq = ChartBuilder::on(&r)
                 .margin(10)
-                .caption("normal Q–Q plot", (FONT, 14))
+                .caption("normal Q–Q plot", (FONT, TITLE_PX))
                 .x_label_area_size(34)
                 .y_label_area_size(50)
                 .build_cartesian_2d(-lim..lim, -lim..lim)
@@ -1202,7 +1206,7 @@ pub fn singular_values(sv: &[f64], threshold: f64) -> Result<Figure> {
             top.draw(&Text::new(
                 "rank threshold: below it a direction is unidentifiable",
                 (112, LEGEND_HEIGHT as i32 / 2 - 8),
-                (FONT, 14).into_font(),
+                (FONT, TITLE_PX).into_font(),
             ))
             .map_err(err)?;
             let mut chart = ChartBuilder::on(&body)

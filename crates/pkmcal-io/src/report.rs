@@ -553,9 +553,11 @@ pub fn html(r: &ReportInputs, figs: &[Figure]) -> String {
     }
     // With priors: each one's tolerance and its information from the data.
     let priors = !cal.priors.is_empty();
+    // A note column only where a parameter has a note (a renamed name).
+    let notes = cal.parameters.iter().any(|p| p.note.is_some());
     let _ = write!(
         h,
-        "<h2>Parameters</h2>{}<table><tr><th>parameter</th><th>unit</th><th>nominal</th><th>identified</th><th>change</th><th>σ</th>{}<th></th></tr>",
+        "<h2>Parameters</h2>{}<table><tr><th>parameter</th><th>unit</th><th>nominal</th><th>identified</th><th>change</th><th>σ</th>{}{}</tr>",
         if priors {
             "<p>The fit is held by the parameters' tolerances (priors, one σ about nominal): <i>from data</i> is the share of what is known of each that the measurements gave.</p>"
         } else {
@@ -565,7 +567,8 @@ pub fn html(r: &ReportInputs, figs: &[Figure]) -> String {
             "<th>tolerance</th><th>from data</th>"
         } else {
             ""
-        }
+        },
+        if notes { "<th>note</th>" } else { "" }
     );
     for p in &cal.parameters {
         let class = if p.free { "" } else { " class=\"fixed\"" };
@@ -580,7 +583,7 @@ pub fn html(r: &ReportInputs, figs: &[Figure]) -> String {
         };
         let _ = write!(
             h,
-            "<tr{class}><td>{}</td><td>{}</td><td>{:.6}</td><td>{:.8}</td><td>{:+.4e}</td><td>{}</td>{prior}<td>{}</td></tr>",
+            "<tr{class}><td>{}</td><td>{}</td><td>{:.6}</td><td>{:.8}</td><td>{:+.4e}</td><td>{}</td>{prior}{}</tr>",
             escape(&p.name),
             escape(p.unit.symbol()),
             p.nominal,
@@ -591,7 +594,11 @@ pub fn html(r: &ReportInputs, figs: &[Figure]) -> String {
             } else {
                 "fixed".into()
             },
-            escape(p.note.as_deref().unwrap_or(""))
+            if notes {
+                format!("<td>{}</td>", escape(p.note.as_deref().unwrap_or("")))
+            } else {
+                String::new()
+            }
         );
     }
     h.push_str("</table>");

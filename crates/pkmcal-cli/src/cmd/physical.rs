@@ -183,7 +183,7 @@ pub fn run<F: Firmware>(
         ),
     ] {
         say!(
-            "  {what:<36} XY RMS {:.4} mm, max {:.4} mm; Z RMS {:.4} mm, max {:.4} mm",
+            "  {what:<40} XY RMS {:.4} mm, max {:.4} mm; Z RMS {:.4} mm, max {:.4} mm",
             e.xy_rms,
             e.xy_max,
             e.z_rms,

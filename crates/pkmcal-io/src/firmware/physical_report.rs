@@ -570,7 +570,10 @@ fn signed_panel<DB: DrawingBackend>(
     let (plot, legend) = area.split_horizontally(figures::MAP_PANEL_WIDTH - 110);
     let mut chart = ChartBuilder::on(&plot)
         .margin(10)
-        .caption(format!("{title} ({unit})"), (figures::FONT, 15))
+        .caption(
+            format!("{title} ({unit})"),
+            (figures::FONT, figures::TITLE_PX),
+        )
         .x_label_area_size(40)
         .y_label_area_size(56)
         .build_cartesian_2d(x0..x1, y0..y1)
