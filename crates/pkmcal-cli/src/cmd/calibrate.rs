@@ -175,9 +175,12 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     let freed = request
         .freed_by_tolerances(spec, &measurement, &description.tolerances)
         .map_err(|e| crate::cmd::in_mechanism(e, &description))?;
-    let study_opts = request
+    let mut study_opts = request
         .study_options(mech, &measurement, &description.tolerances, &start)
         .map_err(|e| crate::cmd::in_mechanism(e, &description))?;
+    // The fit's Jacobian is read by nothing but the report's record of the
+    // whole calibration: without a report it goes once the fit is done.
+    study_opts.keep_jacobian = a.report.is_some() || a.report_dir.is_some();
     let bar = run.bar(a.kfold.unwrap_or(0) as u64, a.kfold.is_none(), "folds", 1);
     // Every pose carries its data-file number and line, so errors, outliers
     // and dropped poses name them without translation.

@@ -127,6 +127,7 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
                 validation: pkmcal::identify::ValidationPlan::Given(vdata.clone()),
                 kfold: None,
                 seed: a.seed,
+                keep_jacobian: true,
             },
             &|| {},
         )

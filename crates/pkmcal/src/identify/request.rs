@@ -564,6 +564,7 @@ impl Request {
             validation,
             kfold: self.kfold,
             seed: self.seed,
+            keep_jacobian: true,
         })
     }
 }
