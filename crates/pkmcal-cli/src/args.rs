@@ -166,6 +166,19 @@ impl PhysicalArgs {
         self.report_dir.iter().cloned().collect()
     }
 
+    /// A firmware command's files: its `inputs`, `--out` and what
+    /// --physical writes.
+    pub fn paths(
+        &self,
+        inputs: impl IntoIterator<Item = Option<PathBuf>>,
+        out: Option<&PathBuf>,
+    ) -> anyhow::Result<Paths> {
+        Ok(
+            Paths::new(inputs, out.into_iter().cloned().chain(self.outputs()?))
+                .with_dirs(self.dirs()),
+        )
+    }
+
     /// The tolerances onto the request (refused without --physical).
     pub fn apply(&self, r: &mut pkmcal::Request) -> anyhow::Result<()> {
         if !self.physical && !self.given.tolerance.is_empty() {

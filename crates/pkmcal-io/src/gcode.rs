@@ -529,10 +529,11 @@ fn read_marlin(body: &str) -> Read {
     read
 }
 
-/// The G and M commands after the first on a line as RepRapFirmware splits
-/// it (a `G` or `M` outside quotes and braces and not after `'`), with
-/// their numbers.
-fn later_commands(body: &[u8]) -> Vec<(char, Option<u32>)> {
+/// Where the G and M commands after the first on a line start, as
+/// RepRapFirmware splits it: a `G` or `M` outside quotes and braces and not
+/// after `'` (`body`: the line after its first command's letter). The one
+/// rule the G-code reader and config.g's reader split lines by.
+pub(crate) fn later_command_starts(body: &[u8]) -> Vec<usize> {
     let (mut quoted, mut escaped, mut braces) = (false, false, 0usize);
     let mut out = vec![];
     for (k, &c) in body.iter().enumerate() {
@@ -550,15 +551,26 @@ fn later_commands(body: &[u8]) -> Vec<(char, Option<u32>)> {
                     braces -= 1;
                 }
             } else if !escaped && matches!(c.to_ascii_uppercase(), b'G' | b'M') {
-                out.push((
-                    (c as char).to_ascii_uppercase(),
-                    code_number(&body[k + 1..]).map(|(n, _)| n),
-                ));
+                out.push(k);
             }
         }
         escaped = false;
     }
     out
+}
+
+/// The G and M commands after the first on a line as RepRapFirmware splits
+/// it ([`later_command_starts`]), with their numbers.
+fn later_commands(body: &[u8]) -> Vec<(char, Option<u32>)> {
+    later_command_starts(body)
+        .into_iter()
+        .map(|k| {
+            (
+                (body[k] as char).to_ascii_uppercase(),
+                code_number(&body[k + 1..]).map(|(n, _)| n),
+            )
+        })
+        .collect()
 }
 
 /// Read one line (without its line end) as `dialect` reads it, in the

@@ -68,11 +68,10 @@ pub struct Args {
 
 impl Args {
     pub fn paths(&self) -> Result<args::Paths> {
-        Ok(args::Paths::new(
+        self.physical.paths(
             [Some(self.config.clone()), Some(self.probes.clone())],
-            self.out.iter().cloned().chain(self.physical.outputs()?),
+            self.out.as_ref(),
         )
-        .with_dirs(self.physical.dirs()))
     }
 }
 

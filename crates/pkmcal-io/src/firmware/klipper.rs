@@ -1394,6 +1394,84 @@ pub(crate) fn z_weight(probes: &[Probe], distances: &[Distance]) -> f64 {
     distances.len() as f64 / (KLIPPER_MEASURE_WEIGHT * probed as f64)
 }
 
+/// The probe heights and calibration-object distances Klipper saved, as
+/// readings of its printer (linear or rotary: `commands` turns a probe's
+/// steps from the endstops into the mechanism's commands). With Klipper's
+/// weighting and distances, its cost `z_weight · Σ heights² + Σ distances²`
+/// is given as known standard deviations: σ_distance 1 (in mm; only the
+/// ratio acts), σ_height 1/√z_weight.
+pub(super) fn saved_readings(
+    spec: &pkmcal::Spec,
+    probes: &[Probe],
+    saved: &[Distance],
+    commands: impl Fn(&[f64; 3]) -> [f64; 3],
+    weighting: Weighting,
+    z_weight: f64,
+) -> Result<Readings> {
+    let origin = |i: usize, distance: bool| {
+        Some(pkmcal::Origin {
+            pose: i + 1,
+            line: None,
+            distance,
+        })
+    };
+    let mut poses: Vec<pkmcal::Measurement> = probes
+        .iter()
+        .enumerate()
+        .map(|(i, p)| pkmcal::Measurement {
+            target: None,
+            commands: commands(&p.steps).to_vec(),
+            partner: None,
+            measured: vec![p.height],
+            sigma: vec![],
+            origin: origin(i, false),
+        })
+        .collect();
+    let mut distances: Vec<pkmcal::Measurement> = saved
+        .iter()
+        .enumerate()
+        .map(|(i, d)| pkmcal::Measurement {
+            target: None,
+            commands: commands(&d.steps[0]).to_vec(),
+            partner: Some(commands(&d.steps[1]).to_vec()),
+            measured: vec![d.distance],
+            sigma: vec![],
+            origin: origin(i, true),
+        })
+        .collect();
+    if weighting == Weighting::Klipper && !saved.is_empty() {
+        for m in &mut poses {
+            m.sigma = vec![Some(1.0 / z_weight.sqrt())];
+        }
+        for m in &mut distances {
+            m.sigma = vec![Some(1.0)];
+        }
+    }
+    Ok(Readings {
+        measurement: MeasurementModel::probe(spec)?,
+        poses,
+        distances,
+    })
+}
+
+/// With the shrunk weighting and distances: Klipper's ratio
+/// (`z_weight`) as the stated one, its scale estimated.
+pub(super) fn configure_weighting(
+    request: &mut Request,
+    readings: &Readings,
+    weighting: Weighting,
+    z_weight: f64,
+) {
+    if let Weighting::Shrunk(readings_worth) = weighting
+        && !readings.distances.is_empty()
+    {
+        request.stated_noise = Some(1.0 / z_weight.sqrt());
+        request.stated_distance_noise = Some(1.0);
+        request.stated_readings = readings_worth;
+        request.stated_relative = true;
+    }
+}
+
 /// A Klipper printer: its configuration's text and path, as read, and the
 /// weighting of its heights against its calibration object's distances.
 pub struct KlipperPrinter {
@@ -1468,57 +1546,14 @@ impl Firmware for KlipperPrinter {
 
     fn readings(&self, spec: &pkmcal::Spec) -> Result<Readings> {
         let delta = &self.delta;
-        let mut poses: Vec<pkmcal::Measurement> = delta
-            .probes
-            .iter()
-            .enumerate()
-            .map(|(i, p)| pkmcal::Measurement {
-                target: None,
-                commands: delta.carriage_heights(&p.steps).to_vec(),
-                partner: None,
-                measured: vec![p.height],
-                sigma: vec![],
-                origin: Some(pkmcal::Origin {
-                    pose: i + 1,
-                    line: None,
-                    distance: false,
-                }),
-            })
-            .collect();
-        let mut distances: Vec<pkmcal::Measurement> = delta
-            .distances
-            .iter()
-            .enumerate()
-            .map(|(i, d)| pkmcal::Measurement {
-                target: None,
-                commands: delta.carriage_heights(&d.steps[0]).to_vec(),
-                partner: Some(delta.carriage_heights(&d.steps[1]).to_vec()),
-                measured: vec![d.distance],
-                sigma: vec![],
-                origin: Some(pkmcal::Origin {
-                    pose: i + 1,
-                    line: None,
-                    distance: true,
-                }),
-            })
-            .collect();
-        if self.weighting == Weighting::Klipper && !delta.distances.is_empty() {
-            // Klipper's cost `z_weight · Σ heights² + Σ distances²` as known
-            // standard deviations: σ_distance 1 (in mm; only the ratio
-            // acts), σ_height 1/√z_weight.
-            let z_weight = klipper_z_weight(delta);
-            for m in &mut poses {
-                m.sigma = vec![Some(1.0 / z_weight.sqrt())];
-            }
-            for m in &mut distances {
-                m.sigma = vec![Some(1.0)];
-            }
-        }
-        Ok(Readings {
-            measurement: MeasurementModel::probe(spec)?,
-            poses,
-            distances,
-        })
+        saved_readings(
+            spec,
+            &delta.probes,
+            &delta.distances,
+            |steps| delta.carriage_heights(steps),
+            self.weighting,
+            klipper_z_weight(delta),
+        )
     }
 
     fn default_free(&self, spec: &pkmcal::Spec, readings: &Readings) -> Vec<String> {
@@ -1530,15 +1565,12 @@ impl Firmware for KlipperPrinter {
     }
 
     fn configure(&self, request: &mut Request, readings: &Readings) {
-        if let Weighting::Shrunk(readings_worth) = self.weighting
-            && !readings.distances.is_empty()
-        {
-            // Klipper's ratio as the stated one, its scale estimated.
-            request.stated_noise = Some(1.0 / klipper_z_weight(&self.delta).sqrt());
-            request.stated_distance_noise = Some(1.0);
-            request.stated_readings = readings_worth;
-            request.stated_relative = true;
-        }
+        configure_weighting(
+            request,
+            readings,
+            self.weighting,
+            klipper_z_weight(&self.delta),
+        );
     }
 
     fn values(

@@ -33,7 +33,7 @@ use super::klipper::{
 use super::{Firmware, FirmwareValue, Readings, Separation, TiltPlace};
 use crate::error::{Error, Result};
 use crate::{invalid, refuse};
-use pkmcal::{MeasurementModel, Params, Request};
+use pkmcal::{Params, Request};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -516,56 +516,14 @@ impl Firmware for RotaryPrinter {
 
     fn readings(&self, spec: &pkmcal::Spec) -> Result<Readings> {
         let d = &self.delta;
-        let mut poses: Vec<pkmcal::Measurement> = d
-            .probes
-            .iter()
-            .enumerate()
-            .map(|(i, p)| pkmcal::Measurement {
-                target: None,
-                commands: d.commands(&p.steps).to_vec(),
-                partner: None,
-                measured: vec![p.height],
-                sigma: vec![],
-                origin: Some(pkmcal::Origin {
-                    pose: i + 1,
-                    line: None,
-                    distance: false,
-                }),
-            })
-            .collect();
-        let mut distances: Vec<pkmcal::Measurement> = d
-            .distances
-            .iter()
-            .enumerate()
-            .map(|(i, x)| pkmcal::Measurement {
-                target: None,
-                commands: d.commands(&x.steps[0]).to_vec(),
-                partner: Some(d.commands(&x.steps[1]).to_vec()),
-                measured: vec![x.distance],
-                sigma: vec![],
-                origin: Some(pkmcal::Origin {
-                    pose: i + 1,
-                    line: None,
-                    distance: true,
-                }),
-            })
-            .collect();
-        if self.weighting == Weighting::Klipper && !d.distances.is_empty() {
-            // Klipper's cost `z_weight · Σ heights² + Σ distances²` as known
-            // standard deviations (only the ratio acts).
-            let z_weight = self.z_weight();
-            for m in &mut poses {
-                m.sigma = vec![Some(1.0 / z_weight.sqrt())];
-            }
-            for m in &mut distances {
-                m.sigma = vec![Some(1.0)];
-            }
-        }
-        Ok(Readings {
-            measurement: MeasurementModel::probe(spec)?,
-            poses,
-            distances,
-        })
+        super::klipper::saved_readings(
+            spec,
+            &d.probes,
+            &d.distances,
+            |steps| d.commands(steps),
+            self.weighting,
+            self.z_weight(),
+        )
     }
 
     fn default_free(&self, _spec: &pkmcal::Spec, readings: &Readings) -> Vec<String> {
@@ -577,14 +535,7 @@ impl Firmware for RotaryPrinter {
     }
 
     fn configure(&self, request: &mut Request, readings: &Readings) {
-        if let Weighting::Shrunk(readings_worth) = self.weighting
-            && !readings.distances.is_empty()
-        {
-            request.stated_noise = Some(1.0 / self.z_weight().sqrt());
-            request.stated_distance_noise = Some(1.0);
-            request.stated_readings = readings_worth;
-            request.stated_relative = true;
-        }
+        super::klipper::configure_weighting(request, readings, self.weighting, self.z_weight());
     }
 
     fn values(

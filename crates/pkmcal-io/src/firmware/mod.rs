@@ -350,6 +350,30 @@ pub fn problem<F: Firmware + ?Sized>(firmware: &F, request: Request) -> Result<P
     })
 }
 
+/// The study of `readings` on `mech` from its nominal values (the
+/// firmware's or the physical model's); an error at a reading names it in
+/// the firmware's terms.
+pub(crate) fn study<F: Firmware + ?Sized>(
+    firmware: &F,
+    mech: &Mech,
+    readings: &Readings,
+    opts: &pkmcal::identify::StudyOptions,
+) -> Result<pkmcal::identify::Study> {
+    pkmcal::identify::study(
+        mech,
+        &readings.measurement,
+        &readings.poses,
+        readings.distances.clone(),
+        &Params::nominal(mech.spec()),
+        opts,
+        &|| {},
+    )
+    .map_err(|e| match &e.error {
+        pkmcal::Error::Pose { .. } => firmware.located(e.error),
+        _ => Error::from(e.error),
+    })
+}
+
 /// Calibrate `firmware`'s printer from its readings as `request` asks
 /// (the firmware's default free set where it names none), from the
 /// firmware's values; an error at a reading names it in the firmware's
@@ -364,21 +388,8 @@ pub fn calibrate<F: Firmware + ?Sized>(
         opts,
         free_names,
     } = problem(firmware, request)?;
-    let nominal = Params::nominal(mech.spec());
     let free = opts.calibration.free.clone();
-    let study = pkmcal::identify::study(
-        &mech,
-        &readings.measurement,
-        &readings.poses,
-        readings.distances.clone(),
-        &nominal,
-        &opts,
-        &|| {},
-    )
-    .map_err(|e| match &e.error {
-        pkmcal::Error::Pose { .. } => firmware.located(e.error),
-        _ => Error::from(e.error),
-    })?;
+    let study = study(firmware, &mech, &readings, &opts)?;
     Ok(PrinterCalibration {
         mech,
         readings,

@@ -291,19 +291,7 @@ pub fn calibrate<F: Firmware + ?Sized>(
     let free_names = request.free_names(spec, measurement, &free);
     let nominal = Params::nominal(spec);
     let opts = request.study_options(&mech, measurement, &table, &nominal)?;
-    let study = pkmcal::identify::study(
-        &mech,
-        measurement,
-        &readings.poses,
-        readings.distances.clone(),
-        &nominal,
-        &opts,
-        &|| {},
-    )
-    .map_err(|e| match &e.error {
-        pkmcal::Error::Pose { .. } => firmware.located(e.error),
-        _ => Error::from(e.error),
-    })?;
+    let study = super::study(firmware, &mech, &readings, &opts)?;
     Ok(PhysicalFit {
         delta: ld.clone(),
         mech,

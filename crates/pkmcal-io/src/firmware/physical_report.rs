@@ -803,7 +803,8 @@ pub fn html(page: &Page, figs: &[Figure]) -> String {
     for (c, where_) in page.cubes.iter().zip(["at the centre", "at the edge"]) {
         let _ = write!(
             h,
-            "<li>A 20 mm cube {where_} ({:.0}, {:.0}) would print {:+.3} ± {:.3} mm in X, {:+.3} ± {:.3} mm in Y, its top flat to {:.3} ± {:.3} mm.</li>",
+            "<li>A {} mm cube {where_} ({:.0}, {:.0}) would print {:+.3} ± {:.3} mm in X, {:+.3} ± {:.3} mm in Y, its top flat to {:.3} ± {:.3} mm.</li>",
+            physical::CUBE_MM,
             c.centre[0],
             c.centre[1],
             c.size[0],

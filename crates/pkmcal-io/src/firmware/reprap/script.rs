@@ -1211,27 +1211,11 @@ fn commands_of(text: &str) -> Vec<(char, Option<u32>, usize, usize, usize)> {
     } else {
         return vec![];
     }
-    let (mut quoted, mut escaped, mut braces) = (false, false, 0usize);
-    for (k, &c) in b.iter().enumerate().skip(1) {
-        if c == b'\'' {
-            escaped = !quoted;
-            continue;
-        }
-        if c == b'"' {
-            quoted = !quoted;
-        } else if !quoted {
-            if c == b'{' {
-                braces += 1;
-            } else if braces > 0 {
-                if c == b'}' {
-                    braces -= 1;
-                }
-            } else if !escaped && matches!(c.to_ascii_uppercase(), b'G' | b'M') {
-                starts.push(k);
-            }
-        }
-        escaped = false;
-    }
+    starts.extend(
+        crate::gcode::later_command_starts(&b[1..])
+            .into_iter()
+            .map(|k| k + 1),
+    );
     let mut out = vec![];
     for (n, &s) in starts.iter().enumerate() {
         let end = starts.get(n + 1).copied().unwrap_or(b.len());
