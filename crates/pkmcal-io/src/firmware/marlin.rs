@@ -946,19 +946,9 @@ pub struct MarlinPrinter {
 }
 
 /// The parameters M665/M666 hold in a Marlin with rod trims; without them,
-/// the one [`SHARED_ARM`] in place of the three arms.
-const MARLIN_FREE: [&str; 10] = [
-    "delta_radius",
-    "angle_a",
-    "angle_b",
-    "angle_c",
-    "arm_a",
-    "arm_b",
-    "arm_c",
-    "da",
-    "db",
-    "dc",
-];
+/// the one [`SHARED_ARM`] in place of the three arms: a linear delta's ten
+/// values, as Klipper's.
+const MARLIN_FREE: [&str; 10] = super::klipper::KLIPPER_VALUES;
 
 impl MarlinPrinter {
     /// Read the settings and the probe log. `probe_xy` gives the probe's
