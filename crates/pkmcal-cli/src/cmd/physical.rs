@@ -248,7 +248,7 @@ pub fn run<F: Firmware>(
     let drift = match &output.previous {
         Some((previous, from)) => Some((
             from.clone(),
-            crate::cmd::physical_outputs::drift(*previous, from, request, &fit)?,
+            crate::cmd::physical_outputs::drift(*previous, from, &own)?,
         )),
         None => None,
     };

@@ -8,7 +8,7 @@ use pkmcal_io::Run;
 use pkmcal_io::description::Mech;
 use pkmcal_io::firmware::Firmware;
 use pkmcal_io::firmware::height_map::{self, KLIPPER_PROFILE, MeshFormat};
-use pkmcal_io::firmware::physical::{self, PhysicalFit};
+use pkmcal_io::firmware::physical::PhysicalFit;
 use pkmcal_io::firmware::physical_drift;
 use pkmcal_io::firmware::physical_plan::{self, Suggestion};
 use pkmcal_io::firmware::physical_report;
@@ -148,14 +148,11 @@ fn suggest<F: Firmware>(printer: &F, m: &Mapped<'_>) -> Result<Vec<Suggestion>> 
 pub fn drift(
     previous: &dyn Firmware,
     from: &str,
-    request: pkmcal::Request,
-    now: &PhysicalFit,
+    now: &pkmcal_io::firmware::PrinterCalibration,
 ) -> Result<pkmcal::identify::Drift> {
-    let Some(ld) = previous.linear_delta()? else {
-        anyhow::bail!("--previous {from} is not a linear delta");
-    };
-    let before = physical::calibrate(previous, &ld, request)?;
-    let d = physical_drift::drift(&before, now, pkmcal::identify::DEFAULT_ALPHA)?;
+    let before =
+        pkmcal_io::firmware::calibrate(previous, pkmcal::Request::new(pkmcal::Model::Exact))?;
+    let d = physical_drift::firmware_drift(&before, now, pkmcal::identify::DEFAULT_ALPHA)?;
     let changed: Vec<String> = d
         .parameters
         .iter()
