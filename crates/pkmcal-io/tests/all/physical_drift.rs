@@ -91,3 +91,54 @@ fn drift_false_alarms_at_its_rate_and_sees_a_moved_carriage() {
         RUNS / 10
     );
 }
+
+/// Pairs of physical fits compared.
+const PHYSICAL_PAIRS: usize = 40;
+/// The directions 13 heights show of the physical model, the bed's tilt
+/// (the instrument's, integrated out) less.
+const PHYSICAL_SEEN: usize = 11;
+
+fn physical_fit(text: &str) -> firmware::physical::PhysicalFit {
+    use firmware::Firmware;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("printer.cfg");
+    std::fs::write(&path, text).unwrap();
+    let files = pkmcal_io::Files::new();
+    let run = pkmcal_io::Run::quiet(&files);
+    let printer = KlipperPrinter::read(&run, &path, Weighting::Klipper).unwrap();
+    let ld = printer.linear_delta().unwrap().unwrap();
+    firmware::physical::calibrate(&printer, &ld, Request::new(pkmcal::Model::Exact)).unwrap()
+}
+
+/// The drift test on two physical fits, 59 parameters held mostly by their
+/// tolerances and 13 heights (what `--previous` does not compare, but
+/// `pkmcal::identify::drift` must get right for any prior-held fit): it
+/// compares the 11 directions the heights show, the bed's tilt integrated
+/// out, and false-alarms at about its rate. It once counted 20 directions
+/// and said "changed" on 40 of 40 pairs.
+#[test]
+fn physical_fits_compare_what_the_heights_show() {
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/klipper-delta/printer.cfg"),
+    )
+    .unwrap();
+    let mut rng = rand::rngs::StdRng::seed_from_u64(59);
+    let mut alarms = 0;
+    for _ in 0..PHYSICAL_PAIRS {
+        let a = physical_fit(&reprobed(&text, &mut rng, 0.0));
+        let b = physical_fit(&reprobed(&text, &mut rng, 0.0));
+        let d = pkmcal::identify::drift(
+            &pkmcal::identify::Compared::from_calibration(&a.study.calibration),
+            &pkmcal::identify::Compared::from_calibration(&b.study.calibration),
+            ALPHA,
+        )
+        .unwrap();
+        assert_eq!(d.dof, PHYSICAL_SEEN, "{d:?}");
+        alarms += usize::from(d.joint_drift);
+    }
+    let bound = ALPHA + 4.0 * (ALPHA * (1.0 - ALPHA) / PHYSICAL_PAIRS as f64).sqrt();
+    assert!(
+        alarms as f64 / PHYSICAL_PAIRS as f64 <= bound,
+        "false alarms {alarms} of {PHYSICAL_PAIRS}"
+    );
+}
