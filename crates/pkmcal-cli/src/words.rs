@@ -315,17 +315,35 @@ pub fn firmware_warning(w: &pkmcal_io::firmware::FirmwareWarning) -> (String, St
                 format!("{separate}, or keep `{fix}` fixed at a measured value (--fix {fix})"),
             )
         }
-        W::Uncertain { values, limit } => (
-            format!(
-                "written with a σ beyond {limit} (in each one's unit): {}",
-                values
-                    .iter()
-                    .map(|(n, s, u)| format!("{n} σ {s:.4} {u}"))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ),
-            "probe more points over the whole bed, or keep fixed what the readings cannot determine (--fix); --max-sigma sets the limit".into(),
-        ),
+        W::Uncertain {
+            values,
+            limit,
+            nozzle,
+        } => {
+            let listed = values
+                .iter()
+                .map(|(n, s, u)| format!("{n} σ {s:.4} {u}"))
+                .collect::<Vec<_>>()
+                .join(", ");
+            match nozzle {
+                Some([xy, z]) if xy.max(*z) <= *limit => (
+                    format!(
+                        "written with a σ beyond {limit} (in each one's unit): {listed}; but they move together: the nozzle they place has σ {xy:.4} mm in XY and {z:.4} mm in Z (RMS over the build volume, in the bed's frame)"
+                    ),
+                    "each value's σ is of it alone; a print shows the nozzle's. To pin each value down, measure what the probe cannot see (the next measurements below); --max-sigma sets the limit".into(),
+                ),
+                Some([xy, z]) => (
+                    format!(
+                        "written with a σ beyond {limit} (in each one's unit): {listed}; the nozzle they place has σ {xy:.4} mm in XY and {z:.4} mm in Z (RMS over the build volume, in the bed's frame)"
+                    ),
+                    "the readings leave the nozzle itself uncertain: take the next measurements below, or state tighter tolerances of the parts you know (--tolerance); --max-sigma sets the limit".into(),
+                ),
+                None => (
+                    format!("written with a σ beyond {limit} (in each one's unit): {listed}"),
+                    "probe more points over the whole bed, or keep fixed what the readings cannot determine (--fix); --max-sigma sets the limit".into(),
+                ),
+            }
+        }
         W::TiltAbsorbed {
             firmware,
             slopes,

@@ -233,7 +233,19 @@ pub fn run<F: Firmware>(
     }
     let values = physical::written_values(printer, &fit, &fw_mech, &choice, &own)?;
     crate::cmd::print_values(&format!("{} value", printer.name()), &values);
-    if let Some(w) = firmware::uncertain(&values, output.max_sigma) {
+    let beyond = values
+        .iter()
+        .any(|v| v.sigma.is_some_and(|s| s > output.max_sigma));
+    let nozzle = match beyond {
+        true => Some(physical::nozzle_sigma(
+            &fit,
+            &fw_mech,
+            &proj.params,
+            fw_bed,
+        )?),
+        false => None,
+    };
+    if let Some(w) = firmware::uncertain(&values, output.max_sigma, nozzle) {
         let (message, hint) = crate::words::firmware_warning(&w);
         say!("warning: {message}\n  hint: {hint}");
     }

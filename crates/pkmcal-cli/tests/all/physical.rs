@@ -177,3 +177,68 @@ fn physical_says_the_tolerances_given() {
         "{out}"
     );
 }
+
+/// The σ-beyond-limit warning under `--physical` says what the nozzle is
+/// left with, and blames the right cause: on the RepRapFirmware example
+/// the arm lengths' σ (0.29–0.40 mm) are of each alone, and they move with
+/// the endstops and radius so that the nozzle's σ is 0.07 mm XY and 0.02
+/// mm Z: at a 0.1 limit, "they move together"; at 0.01 on the Klipper
+/// example, whose own fit's values have σ 0.01–0.03 but whose nozzle the
+/// heights place only to 0.2 mm XY, the nozzle itself is uncertain.
+#[test]
+fn the_uncertain_warning_names_the_nozzle_s_sigma_and_its_cause() {
+    let dir = tempfile::tempdir().unwrap();
+    let r = examples().join("reprap-delta");
+    let out = ok(
+        dir.path(),
+        &[
+            "reprap",
+            "--config",
+            r.join("config.g").to_str().unwrap(),
+            "--probes",
+            r.join("probes.csv").to_str().unwrap(),
+            "--physical",
+            "--max-sigma",
+            "0.1",
+            "--out",
+            "new.g",
+        ],
+    );
+    let warning = out
+        .lines()
+        .find(|l| l.starts_with("warning: written with a σ beyond 0.1"))
+        .unwrap_or_else(|| panic!("{out}"));
+    assert!(warning.contains("M665 L (Z) σ 0.4"), "{warning}");
+    assert!(
+        warning.contains("but they move together: the nozzle they place has σ 0.07"),
+        "{warning}"
+    );
+    assert!(out.contains("each value's σ is of it alone"), "{out}");
+    let cfg = examples().join("klipper-delta/printer.cfg");
+    let out = ok(
+        dir.path(),
+        &[
+            "klipper",
+            "--config",
+            cfg.to_str().unwrap(),
+            "--physical",
+            "--max-sigma",
+            "0.01",
+            "--out",
+            "new.cfg",
+        ],
+    );
+    let warning = out
+        .lines()
+        .find(|l| l.starts_with("warning: written with a σ beyond 0.01"))
+        .unwrap_or_else(|| panic!("{out}"));
+    assert!(!warning.contains("move together"), "{warning}");
+    assert!(
+        warning.contains("the nozzle they place has σ 0.19"),
+        "{warning}"
+    );
+    assert!(
+        out.contains("the readings leave the nozzle itself uncertain"),
+        "{out}"
+    );
+}

@@ -222,6 +222,12 @@ pub enum FirmwareWarning {
         values: Vec<(String, f64, &'static str)>,
         /// The limit (in each value's unit).
         limit: f64,
+        /// Under `--physical`: the nozzle's σ with all the values written,
+        /// XY then Z (mm, root mean square over the build volume in the
+        /// bed's frame; [`physical::nozzle_sigma`]). Below the limit, the
+        /// values move together: each alone is uncertain, the nozzle they
+        /// place is not.
+        nozzle: Option<[f64; 2]>,
     },
     /// The probe heights show a bed tilt that the fit has no parameter
     /// for: the fitted values took it.
@@ -657,7 +663,7 @@ pub fn checks<F: Firmware + ?Sized>(
             fix,
         });
     }
-    out.extend(uncertain(values, max_sigma));
+    out.extend(uncertain(values, max_sigma, None));
     if let Some(w) = tilt_absorbed(firmware, calibrated, written)? {
         out.push(w);
     }
@@ -665,8 +671,13 @@ pub fn checks<F: Firmware + ?Sized>(
 }
 
 /// The written values whose σ exceeds `max_sigma` (`--max-sigma`), as
-/// one warning; `None` when every σ is within it.
-pub fn uncertain(values: &[FirmwareValue], max_sigma: f64) -> Option<FirmwareWarning> {
+/// one warning, with the nozzle's σ they leave where it is known
+/// ([`FirmwareWarning::Uncertain`]); `None` when every σ is within it.
+pub fn uncertain(
+    values: &[FirmwareValue],
+    max_sigma: f64,
+    nozzle: Option<[f64; 2]>,
+) -> Option<FirmwareWarning> {
     let beyond: Vec<(String, f64, &'static str)> = values
         .iter()
         .filter_map(|v| {
@@ -678,6 +689,7 @@ pub fn uncertain(values: &[FirmwareValue], max_sigma: f64) -> Option<FirmwareWar
     (!beyond.is_empty()).then_some(FirmwareWarning::Uncertain {
         values: beyond,
         limit: max_sigma,
+        nozzle,
     })
 }
 

@@ -969,6 +969,50 @@ pub fn projection_sigmas<F: Firmware + ?Sized>(
         .collect())
 }
 
+/// The nozzle's uncertainty with the firmware's values `fw_params`
+/// written: over [`CUBE_DRAWS`] draws of the fitted printer, the standard
+/// deviation of the nozzle's error at each point of the build volume
+/// ([`build_volume`]) in the bed's frame ([`in_bed_frame`]: XY less the
+/// shift and turn no part shows), as the root mean square over the points:
+/// XY (the two axes' together), then Z (mm). What a print shows of the
+/// values' uncertainty: values that move together (an arm length with its
+/// endstop) may each have a large σ and place the nozzle well.
+pub fn nozzle_sigma(
+    fit: &PhysicalFit,
+    fw_mech: &Mech,
+    fw_params: &Params,
+    fw_bed: Option<&[f64]>,
+) -> Result<[f64; 2]> {
+    let targets = build_volume(fit.delta.print_radius());
+    let nozzle = fit.delta.nozzle();
+    let mut sum = vec![[0.0; 3]; targets.len()];
+    let mut sq = vec![[0.0; 3]; targets.len()];
+    let draws = posterior_draws(fit, CUBE_DRAWS, CUBE_SEED)?;
+    for (p, bed) in &draws {
+        let e = in_bed_frame(
+            &targets,
+            &nozzle_errors(
+                fw_mech, fw_params, fw_bed, &fit.mech, p, bed, nozzle, &targets,
+            )?,
+        );
+        for ((s, q), e) in sum.iter_mut().zip(sq.iter_mut()).zip(&e) {
+            for k in 0..3 {
+                s[k] += e[k];
+                q[k] += e[k] * e[k];
+            }
+        }
+    }
+    let n = draws.len().max(2) as f64;
+    let var = |s: f64, q: f64| ((q - s * s / n) / (n - 1.0)).max(0.0);
+    let points = targets.len().max(1) as f64;
+    let (mut xy, mut z) = (0.0, 0.0);
+    for (s, q) in sum.iter().zip(&sq) {
+        xy += var(s[0], q[0]) + var(s[1], q[1]);
+        z += var(s[2], q[2]);
+    }
+    Ok([(xy / points).sqrt(), (z / points).sqrt()])
+}
+
 /// The side of the verdict's calibration cube (mm).
 pub const CUBE_MM: f64 = 20.0;
 /// Draws from the fit's posterior behind the cube's uncertainty.
