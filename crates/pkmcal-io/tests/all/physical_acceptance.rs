@@ -466,3 +466,166 @@ fn gap_closed(cases: Vec<Case>, check_cubes: bool) -> f64 {
     }
     mean
 }
+
+/// The data's limit, shown by twins. Each printer `A` has a twin `B`: `A`
+/// reflected through the physical fit of its own data, `B = fit − k (A −
+/// fit)` ([`TWIN_REFLECTION`]): what the data do not see turned to the
+/// other side, a printer within the tolerances as `A` is. Probed, `B` gives
+/// `A`'s results to within a χ² of [`TWIN_APART`] under their noise (the
+/// probe's 0.01 mm, the calipers' 0.02 mm): the results hardly tell them
+/// apart, and the values a method writes from them serve both. Over a family of
+/// values spanning Klipper's fit and both printers' limits (`own + s
+/// (limit_A − own) + t (limit_B − own)`, s and t from −0.5 to 1.5), the best
+/// share of the gap closed on the two together (their mean) is returned,
+/// with that χ².
+fn twin(case: &Case, with_distances: bool) -> (f64, f64) {
+    let dir = tempfile::tempdir().unwrap();
+    let reg = regular(case.probe);
+    let blank = read(dir.path(), &with_results(&reg, &[[0.0; 3]; 7], &[]));
+    let ld = blank.linear_delta().unwrap().unwrap();
+    let (mech, truth_a, bed_a) = truth(case, &ld);
+    let results = |p: &Params, bed: &[f64]| {
+        let steps = probe(&blank, &mech, p, bed);
+        let distances = if with_distances {
+            object_distances(&blank, &mech, p)
+        } else {
+            vec![]
+        };
+        (steps, distances)
+    };
+    let (steps_a, dist_a) = results(&truth_a, &bed_a);
+    let printer_a = read(dir.path(), &with_results(&reg, &steps_a, &dist_a));
+    let fit = physical::calibrate(&printer_a, &ld, stated(case)).unwrap();
+    let reflect = |a: &[f64], f: &[f64]| -> Vec<f64> {
+        a.iter()
+            .zip(f)
+            .map(|(a, f)| f - TWIN_REFLECTION * (a - f))
+            .collect()
+    };
+    let cal = &fit.study.calibration;
+    let mut truth_b = truth_a.clone();
+    truth_b.values = reflect(&truth_a.values, &cal.params.values);
+    let bed_b = reflect(&bed_a, &cal.measurement);
+    let (steps_b, dist_b) = results(&truth_b, &bed_b);
+    // Each kind of result against its own noise: the χ² of one set of
+    // results under the other printer (a probe result's three carriages
+    // move together, counted as one reading).
+    let mut apart = 0.0_f64;
+    for (a, b) in steps_a.iter().zip(&steps_b) {
+        for k in 0..3 {
+            apart += ((a[k] - b[k]) * STEP / physical::PROBE_NOISE_MM).powi(2) / 3.0;
+        }
+    }
+    for ((da, _), (db, _)) in dist_a.iter().zip(&dist_b) {
+        apart += ((da - db) / physical::DISTANCE_NOISE_MM).powi(2);
+    }
+    let printer_b = read(dir.path(), &with_results(&reg, &steps_b, &dist_b));
+    let fw = printer_a.mechanism().unwrap();
+    let grid = physical::build_volume(ld.print_radius());
+    let error = |v: &Params, p: &Params, bed: &[f64]| {
+        ErrorSummary::of(&physical::in_bed_frame(
+            &grid,
+            &physical::nozzle_errors(&fw, v, None, &mech, p, bed, ld.nozzle(), &grid).unwrap(),
+        ))
+        .rms()
+    };
+    let own = |printer: &KlipperPrinter| {
+        firmware::calibrate(printer, Request::new(pkmcal::Model::Exact))
+            .unwrap()
+            .study
+            .calibration
+            .params
+            .clone()
+    };
+    let (own_a, own_b) = (own(&printer_a), own(&printer_b));
+    let limit =
+        |p: &Params, bed: &[f64]| physical::project(&ld, &fw, &mech, p, bed).unwrap().params;
+    let (lim_a, lim_b) = (limit(&truth_a, &bed_a), limit(&truth_b, &bed_b));
+    let gap_a = (
+        error(&own_a, &truth_a, &bed_a),
+        error(&lim_a, &truth_a, &bed_a),
+    );
+    let gap_b = (
+        error(&own_b, &truth_b, &bed_b),
+        error(&lim_b, &truth_b, &bed_b),
+    );
+    let mut best = f64::NEG_INFINITY;
+    for i in 0..=TWIN_STEPS {
+        for j in 0..=TWIN_STEPS {
+            let s = -0.5 + 2.0 * i as f64 / TWIN_STEPS as f64;
+            let t = -0.5 + 2.0 * j as f64 / TWIN_STEPS as f64;
+            let mut v = own_a.clone();
+            for k in 0..v.values.len() {
+                v.values[k] += s * (lim_a.values[k] - own_a.values[k])
+                    + t * (lim_b.values[k] - own_a.values[k]);
+            }
+            let closed = |(own, lim): (f64, f64), e: f64| (own - e) / (own - lim).max(1e-9);
+            let mean = (closed(gap_a, error(&v, &truth_a, &bed_a))
+                + closed(gap_b, error(&v, &truth_b, &bed_b)))
+                / 2.0;
+            best = best.max(mean);
+        }
+    }
+    eprintln!(
+        "seed {}{}: twins χ² {apart:.3} apart; A: Klipper's fit {:.4}, limit {:.4}; B: Klipper's fit {:.4}, limit {:.4}; best mean share closed {best:.3}",
+        case.seed,
+        if with_distances {
+            " with distances"
+        } else {
+            ""
+        },
+        gap_a.0,
+        gap_a.1,
+        gap_b.0,
+        gap_b.1
+    );
+    (best, apart)
+}
+
+/// How far through the fit `A` is reflected: `B = fit − k (A − fit)`.
+const TWIN_REFLECTION: f64 = 0.5;
+/// Twins' results differ by less than this χ² under their noise: a
+/// likelihood ratio of at most e^1.5 = 4.5 between them, as much as the
+/// physical fit itself leaves from `A`'s results with distances (χ² 0.9).
+const TWIN_APART: f64 = 3.0;
+/// Steps of the family of values over each of its two directions.
+const TWIN_STEPS: usize = 8;
+
+/// Where the gap is one the data cannot see (the rod mismatch with an
+/// offset probe: printer 3 with and without distances, printer 4 without;
+/// printer 4's twin with distances is χ² 5.3 from it, told apart), no values
+/// close half of it on a printer and its twin together: the issue's "half
+/// the gap on average" is beyond what any method told the firmware's
+/// results can promise there (BENCHMARKS.md).
+#[test]
+fn twins_the_probe_cannot_tell_apart_bound_the_gap_closed() {
+    for (seed, with_distances) in [(3, false), (3, true), (4, false)] {
+        let (best, apart) = twin(&case(seed), with_distances);
+        assert!(apart < TWIN_APART, "seed {seed}: twins χ² {apart} apart");
+        assert!(
+            best < 0.5,
+            "seed {seed}: {best:.3} of the gap closed on both"
+        );
+    }
+}
+
+/// Every printer of the acceptance and its twin (`cargo test -p pkmcal-io
+/// --test all -- --ignored twins_all --nocapture`).
+#[test]
+#[ignore]
+fn twins_all() {
+    let mut best = vec![];
+    for c in cases() {
+        for with_distances in [false, true] {
+            let (b, apart) = twin(&c, with_distances);
+            if apart < TWIN_APART {
+                best.push(b);
+            }
+        }
+    }
+    let mean = best.iter().sum::<f64>() / best.len() as f64;
+    eprintln!(
+        "best mean share closed on printer and twin (twins within χ² {TWIN_APART}): {best:.3?}, mean {mean:.3}"
+    );
+    assert!(mean.is_finite());
+}
