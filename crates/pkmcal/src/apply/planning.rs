@@ -2,7 +2,7 @@
 //! observable (greedy selection, then DETMAX-style exchange), on the
 //! information matrix `M = Σ AᵀA` of column-scaled identification Jacobians.
 
-use crate::apply::screening::{REFRESH_UPDATES, Screen, shortlist};
+use crate::apply::screening::{REFRESH_UPDATES, Screen, shortlist, taken};
 use crate::apply::workspace::WorkspacePoint;
 use crate::engine::models::{Model, prepare_pose};
 use crate::engine::sensitivity::sensitivity;
@@ -113,13 +113,14 @@ pub(super) fn screen(c: &Candidates, m: &DMatrix<f64>, reg: f64, chosen: &[usize
     for i in 0..n {
         mr[(i, i)] += reg;
     }
+    let taken = taken(c.rows.len(), chosen);
     let Some(chol) = mr.cholesky() else {
-        return (0..c.rows.len()).filter(|i| !chosen.contains(i)).collect();
+        return (0..c.rows.len()).filter(|&i| !taken[i]).collect();
     };
     let l = chol.l();
-    let mut gains: Vec<(f64, usize)> = (0..c.rows.len())
+    let gains: Vec<(f64, usize)> = (0..c.rows.len())
         .into_par_iter()
-        .filter(|i| !chosen.contains(i))
+        .filter(|&i| !taken[i])
         .map(|i| {
             let a = &c.rows[i];
             let b = l
@@ -132,8 +133,7 @@ pub(super) fn screen(c: &Candidates, m: &DMatrix<f64>, reg: f64, chosen: &[usize
             (gain, i)
         })
         .collect();
-    gains.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-    gains.into_iter().take(SCREENED).map(|(_, i)| i).collect()
+    shortlist(gains, SCREENED)
 }
 
 fn singular_values(m: &DMatrix<f64>) -> Vec<f64> {
@@ -267,12 +267,18 @@ const BOUND_REFINEMENTS: usize = 3;
 /// score (less a rounding margin): the same choice as scoring every
 /// candidate, with a few eigendecompositions instead of thousands. Also
 /// returns how many candidates were scored exactly.
+///
+/// With a `floor` (an exchange's question: does any candidate beat the
+/// current plan?) candidates whose bound is below it are not scored: the
+/// answer is the best when that scores at least `floor`, and may be `None`
+/// or a candidate below `floor` otherwise.
 fn best_of(
     c: &Candidates,
     m: &DMatrix<f64>,
     reg: f64,
     criterion: PlanCriterion,
     pool: Vec<usize>,
+    floor: Option<f64>,
 ) -> (Option<(f64, usize)>, usize) {
     let order = |a: &(f64, usize), b: &(f64, usize)| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1));
     let exact = |i: usize| (score(&(m + &information(c, i)), reg, criterion), i);
@@ -290,7 +296,15 @@ fn best_of(
     let mut best: Option<(f64, usize)> = None;
     let (mut next, mut refined) = (0, 0);
     while next < ranked.len() {
-        if let Some((s, _)) = best
+        // Below the best so far, or below the floor, less the margin (`x −
+        // margin·|x|` grows with `x`: the best is never cut by a floor below
+        // it).
+        let cut = match (best, floor) {
+            (Some((s, _)), Some(f)) => Some(s.max(f)),
+            (Some((s, _)), None) => Some(s),
+            (None, f) => f,
+        };
+        if let Some(s) = cut
             && ranked[next].0 < s - margin * s.abs()
         {
             break;
@@ -319,6 +333,7 @@ fn best_of(
             t2.base -= tangent_value(&t2, &c.rows[b]) - t2.base;
             margin = margin.max(t2.margin);
             let (s, _) = best.unwrap_or((f64::INFINITY, 0));
+            let s = floor.map_or(s, |f| s.max(f));
             let live = ranked[next..].partition_point(|e| e.0 >= s - margin * s.abs());
             ranked[next..next + live]
                 .par_iter_mut()
@@ -435,7 +450,8 @@ pub fn plan_poses_with_progress(
 /// the exchanges start from those candidates instead of a greedy selection.
 /// `tick(done, foreseen)` after each greedy step and exchange position: the
 /// steps done and those foreseen (the greedy steps and one exchange pass,
-/// then one pass more each time a pass improved the plan).
+/// then, each time a pass improved the plan, the positions not yet tried
+/// against the improved plan).
 fn choose(
     c: &Candidates,
     count: usize,
@@ -477,7 +493,10 @@ fn choose(
             *kept = Screen::fresh(c, m, reg);
         }
     };
-    let unchosen = |chosen: &[usize]| (0..nc).filter(|i| !chosen.contains(i)).collect();
+    let unchosen = |chosen: &[usize]| {
+        let taken = taken(nc, chosen);
+        (0..nc).filter(|&i| !taken[i]).collect()
+    };
     let (mut done, mut foreseen) = (0, count - chosen.len().min(count) + count);
     while chosen.len() < count {
         crate::error::check_cancel(cancel)?;
@@ -492,7 +511,7 @@ fn choose(
         } else {
             screen(c, &m, reg, &chosen)
         };
-        let (_, i) = best_of(c, &m, reg, criterion, pool)
+        let (_, i) = best_of(c, &m, reg, criterion, pool, None)
             .0
             .expect("enough candidates");
         m += &information(c, i);
@@ -506,29 +525,39 @@ fn choose(
         tick(done, foreseen);
     }
     let mut current = score(&m, reg, criterion);
+    // Positions tried in a row without an exchange.
+    let mut unchanged = 0;
     for pass in 0..EXCHANGE_PASSES {
         let mut improved = false;
+        // The positions tried since the last exchange were tried against
+        // this same plan: the exchanges end once every position has been
+        // (Fedorov's rule), a pass earlier than a pass of no exchange. They
+        // are foreseen again only if an exchange comes first.
+        let mut spare = 0;
         if pass > 0 {
-            foreseen += count;
+            spare = unchanged.min(count);
+            foreseen += count - spare;
         }
         // Each pass starts from a fresh screen (the updates' rounding reset).
         kept = None;
         for k in 0..chosen.len() {
+            if unchanged >= chosen.len() {
+                break;
+            }
             crate::error::check_cancel(cancel)?;
             let without = &m - &information(c, chosen[k]);
             let pool: Vec<usize> = if screening {
                 fresh_if_due(&mut kept, &m);
                 kept.as_ref()
-                    .and_then(|s| s.gains_without(c, chosen[k], &chosen))
-                    .map_or_else(
-                        || screen(c, &without, reg, &chosen),
-                        |g| shortlist(g, SCREENED),
-                    )
+                    .and_then(|s| s.shortlist_without(c, chosen[k], &chosen, SCREENED))
+                    .unwrap_or_else(|| screen(c, &without, reg, &chosen))
             } else {
                 unchosen(&chosen)
             };
-            if let Some((s, i)) = best_of(c, &without, reg, criterion, pool).0
-                && s > current * (1.0 + 1e-12) + 1e-300
+            // Only a candidate above the current plan's score can be taken.
+            let floor = current * (1.0 + 1e-12) + 1e-300;
+            if let Some((s, i)) = best_of(c, &without, reg, criterion, pool, Some(floor)).0
+                && s > floor
             {
                 if let Some(st) = kept.as_mut()
                     && !(st.update(c, chosen[k], -1.0) && st.update(c, i, 1.0))
@@ -539,6 +568,10 @@ fn choose(
                 chosen[k] = i;
                 current = s;
                 improved = true;
+                unchanged = 0;
+                foreseen += std::mem::take(&mut spare);
+            } else {
+                unchanged += 1;
             }
             done += 1;
             tick(done, foreseen);
@@ -636,9 +669,9 @@ pub fn check_count(count: usize, axes: usize, free: usize) -> Result<()> {
 /// thinned evenly to `opts.max_candidates`, chosen by [`plan_poses`];
 /// `tick(done, foreseen)` is called after each greedy step and exchange
 /// position with the steps done and those foreseen so far (the greedy steps
-/// and one exchange pass; one pass more each time a pass improves the plan,
-/// and the exchanges again from the plain grid where the plan ends below
-/// it).
+/// and one exchange pass; each time a pass improves the plan, the positions
+/// not yet tried against the improved plan; and the exchanges again from
+/// the plain grid where the plan ends below it).
 pub fn plan<M: Mechanism>(
     mech: &M,
     params: &Params,
@@ -938,8 +971,26 @@ mod tests {
                     .iter()
                     .map(|&i| (score(&(&m + &info[i]), reg, criterion), i))
                     .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)));
-                let (best, scored) = best_of(&c, &m, reg, criterion, pool.clone());
+                let (best, scored) = best_of(&c, &m, reg, criterion, pool.clone(), None);
                 assert_eq!(best, every, "{criterion:?}, step {}", chosen.len());
+                // A floor at or below the best leaves the choice as it is; one
+                // above it finds nothing above it.
+                let top = every.expect("a candidate").0;
+                for (floor, below) in [
+                    (top, true),
+                    (top - 1e-3 * top.abs(), true),
+                    (top + 1e-3 * top.abs(), false),
+                ] {
+                    let (got, _) = best_of(&c, &m, reg, criterion, pool.clone(), Some(floor));
+                    if below {
+                        assert_eq!(got, every, "{criterion:?}, floor {floor}");
+                    } else {
+                        assert!(
+                            got.is_none_or(|g| g.0 < floor),
+                            "{criterion:?}, floor {floor}"
+                        );
+                    }
+                }
                 if chosen.len() * nx >= n {
                     scored_full_rank.0 += scored;
                     scored_full_rank.1 += pool.len();

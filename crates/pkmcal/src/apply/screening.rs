@@ -15,7 +15,12 @@
 //! ```
 //!
 //! The gain of a candidate once pose `k` has left (an exchange's question) is
-//! the same formula without keeping the result. Rounding accumulates over
+//! the same formula without keeping the result. Only the candidates that can
+//! be among the shortlisted need it: with `μ` the largest eigenvalue of
+//! `G_k`, `M − A_kᵀA_k ≽ (1 − μ) M`, so each gain without pose `k` lies
+//! between `log det(I + G_j)` and `log det(I + G_j / (1 − μ))`, and a
+//! candidate whose upper end is below the shortlist's lowest lower end is
+//! left out unread ([`Screen::shortlist_without`]). Rounding accumulates over
 //! updates, so the state is computed afresh every [`REFRESH_UPDATES`]
 //! updates and at every exchange pass; the screen only shortlists (the
 //! criterion itself is scored exactly on the shortlist), so its last digits
@@ -45,7 +50,16 @@ pub(crate) struct Screen {
     g: Vec<Block>,
     /// Updates since the state was computed afresh.
     pub(crate) updates: usize,
+    /// `log det(I + G_j)` and `trace G_j` of every candidate, for the
+    /// current state (computed when first asked for).
+    gain_trace: std::sync::OnceLock<Vec<(f64, f64)>>,
 }
+
+/// Relative margin on the bounds of [`Screen::shortlist_without`]: the kept
+/// `Y_j` and `G_j` agree to about 1e-12 of the gains (rounding of the
+/// updates), so a candidate is left out only when its bound is below the
+/// threshold by far more than that.
+const BOUND_MARGIN: f64 = 1e-6;
 
 /// Most rows a candidate may have for the kept screen (a spatial tool's
 /// six coordinates; more use the fresh screen).
@@ -62,19 +76,70 @@ fn columns_of(c: &Candidates, k: usize, nx: usize, n: usize) -> Vec<f64> {
     ak
 }
 
-/// `C_j = A_j M⁻¹ A_kᵀ` (`nx × MAX_ROWS`, row-major, into `cj`) for
-/// candidate `j` from its kept `Y_j` and pose `k`'s columns `ak`
-/// ([`columns_of`]): the eight products of a column side by side.
-fn cross(y: &[f64], ak: &[f64], n: usize, nx: usize, cj: &mut [[f64; MAX_ROWS]; MAX_ROWS]) {
+/// `C_j = A_j M⁻¹ A_kᵀ` (`nx × nx` of a `MAX_ROWS` block, row-major, into
+/// `cj`) for candidate `j` from its kept `Y_j` and pose `k`'s columns `ak`
+/// ([`columns_of`]). Each entry is summed over the `n` parameters in their
+/// order; rows are taken three at a time, so that the sums of a row do not
+/// wait on one another (the same sums, in the same order, as one row at a
+/// time).
+fn cross(y: &[f64], ak: &[f64], n: usize, nx: usize, cj: &mut Block) {
+    match nx {
+        1 => cross_rows::<1>(y, ak, n, cj),
+        2 => cross_rows::<2>(y, ak, n, cj),
+        3 => cross_rows::<3>(y, ak, n, cj),
+        4 => cross_rows::<4>(y, ak, n, cj),
+        5 => cross_rows::<5>(y, ak, n, cj),
+        6 => cross_rows::<6>(y, ak, n, cj),
+        7 => cross_rows::<7>(y, ak, n, cj),
+        _ => cross_rows::<MAX_ROWS>(y, ak, n, cj),
+    }
+}
+
+/// [`cross`] for `NX` rows (each row's loop on its own, which the compiler
+/// turns into vector operations).
+fn cross_rows<const NX: usize>(y: &[f64], ak: &[f64], n: usize, cj: &mut Block) {
     let (ak, _) = ak.as_chunks::<MAX_ROWS>();
-    for (s, out) in cj.iter_mut().enumerate().take(nx) {
-        let mut acc = [0.0; MAX_ROWS];
-        for (yv, a) in y[s * n..(s + 1) * n].iter().zip(ak) {
-            for r in 0..MAX_ROWS {
-                acc[r] += yv * a[r];
+    let ak = &ak[..n];
+    let row = |a: &[f64; MAX_ROWS]| -> [f64; NX] {
+        let mut out = [0.0; NX];
+        out.copy_from_slice(&a[..NX]);
+        out
+    };
+    let mut s = 0;
+    while s + 3 <= NX {
+        let (y0, y1, y2) = (
+            &y[s * n..(s + 1) * n],
+            &y[(s + 1) * n..(s + 2) * n],
+            &y[(s + 2) * n..(s + 3) * n],
+        );
+        let (mut c0, mut c1, mut c2) = ([0.0; NX], [0.0; NX], [0.0; NX]);
+        for (((a, v0), v1), v2) in ak.iter().zip(y0).zip(y1).zip(y2) {
+            let a = row(a);
+            for r in 0..NX {
+                c0[r] += v0 * a[r];
+            }
+            for r in 0..NX {
+                c1[r] += v1 * a[r];
+            }
+            for r in 0..NX {
+                c2[r] += v2 * a[r];
             }
         }
-        *out = acc;
+        cj[s][..NX].copy_from_slice(&c0);
+        cj[s + 1][..NX].copy_from_slice(&c1);
+        cj[s + 2][..NX].copy_from_slice(&c2);
+        s += 3;
+    }
+    while s < NX {
+        let mut c0 = [0.0; NX];
+        for (a, v0) in ak.iter().zip(&y[s * n..(s + 1) * n]) {
+            let a = row(a);
+            for r in 0..NX {
+                c0[r] += v0 * a[r];
+            }
+        }
+        cj[s][..NX].copy_from_slice(&c0);
+        s += 1;
     }
 }
 
@@ -188,16 +253,29 @@ impl Screen {
             yt,
             g,
             updates: 0,
+            gain_trace: std::sync::OnceLock::new(),
+        })
+    }
+
+    /// `log det(I + G_j)` and `trace G_j` of every candidate.
+    fn gain_trace(&self) -> &[(f64, f64)] {
+        self.gain_trace.get_or_init(|| {
+            let nx = self.nx;
+            self.g
+                .par_iter()
+                .map(|g| (log_det_plus_identity(g, nx), (0..nx).map(|s| g[s][s]).sum()))
+                .collect()
         })
     }
 
     /// The gain `log det(I + G_j)` of every candidate not in `chosen`.
     pub(crate) fn gains(&self, chosen: &[usize]) -> Vec<(f64, usize)> {
-        self.g
-            .par_iter()
+        let taken = taken(self.g.len(), chosen);
+        self.gain_trace()
+            .iter()
             .enumerate()
-            .filter(|(j, _)| !chosen.contains(j))
-            .map(|(j, g)| (log_det_plus_identity(g, self.nx), j))
+            .filter(|(j, _)| !taken[*j])
+            .map(|(j, &(gain, _))| (gain, j))
             .collect()
     }
 
@@ -222,27 +300,99 @@ impl Screen {
     /// The gain of every candidate not in `chosen` against the information
     /// without pose `k` (`M − A_kᵀA_k`), the state unchanged; `None` when
     /// that cannot be formed stably.
+    #[cfg(test)]
     pub(crate) fn gains_without(
         &self,
         c: &Candidates,
         k: usize,
         chosen: &[usize],
     ) -> Option<Vec<(f64, usize)>> {
-        let (n, nx) = (self.n, self.nx);
+        let taken = taken(self.g.len(), chosen);
+        let pool: Vec<usize> = (0..self.g.len()).filter(|&j| !taken[j]).collect();
         let kernel = self.kernel(k, -1.0)?;
-        let ak = columns_of(c, k, nx, n);
-        let gains = self
-            .yt
-            .par_chunks(n * nx)
-            .zip(self.g.par_iter())
+        Some(self.gains_without_of(c, k, &kernel, &pool))
+    }
+
+    /// The `keep` candidates not in `chosen` with the largest gains against
+    /// the information without pose `k` (ties: the smallest index): the
+    /// shortlist of [`Screen::gains_without`], reading `Y_j` only for the
+    /// candidates whose bounds (module doc) let them be among it. `None`
+    /// when the information without pose `k` cannot be formed stably.
+    pub(crate) fn shortlist_without(
+        &self,
+        c: &Candidates,
+        k: usize,
+        chosen: &[usize],
+        keep: usize,
+    ) -> Option<Vec<usize>> {
+        let nx = self.nx;
+        let kernel = self.kernel(k, -1.0)?;
+        let taken = taken(self.g.len(), chosen);
+        let bounds = self.gain_trace();
+        let mut lower: Vec<(f64, usize)> = bounds
+            .iter()
             .enumerate()
-            .filter(|(j, _)| !chosen.contains(j))
-            .map(|(j, (y, g))| {
+            .filter(|(j, _)| !taken[*j])
+            .map(|(j, &(gain, _))| (gain, j))
+            .collect();
+        // `1 / (1 − μ)` is the largest eigenvalue of the kernel `(I − G_k)⁻¹`.
+        let k_block = DMatrix::from_fn(nx, nx, |s, t| kernel[s][t]);
+        let f = k_block
+            .symmetric_eigenvalues()
+            .iter()
+            .copied()
+            .fold(1.0_f64, f64::max);
+        let usable = lower.iter().all(|e| e.0.is_finite()) && f.is_finite();
+        let pool: Vec<usize> = if keep > 0 && keep < lower.len() && usable {
+            // The shortlist's gains are at least its lower bounds' `keep`-th
+            // largest: a candidate whose upper bound is below that is not in
+            // it. Upper bounds: `log(1 + fλ) − log(1 + λ) ≤ (f − 1)λ` summed
+            // over `G_j`'s eigenvalues, then `log det(I + f G_j)` itself.
+            let order = |a: &(f64, usize), b: &(f64, usize)| b.0.total_cmp(&a.0);
+            let (_, tau, _) = lower.select_nth_unstable_by(keep - 1, order);
+            let tau = tau.0;
+            let cut = tau - BOUND_MARGIN * (1.0 + tau.abs());
+            lower
+                .par_iter()
+                .filter(|&&(gain, j)| {
+                    gain >= cut
+                        || (gain + (f - 1.0) * bounds[j].1 >= cut && {
+                            let mut gf = self.g[j];
+                            for row in gf.iter_mut().take(nx) {
+                                for v in row.iter_mut().take(nx) {
+                                    *v *= f;
+                                }
+                            }
+                            log_det_plus_identity(&gf, nx) >= cut
+                        })
+                })
+                .map(|&(_, j)| j)
+                .collect()
+        } else {
+            lower.iter().map(|&(_, j)| j).collect()
+        };
+        Some(shortlist(self.gains_without_of(c, k, &kernel, &pool), keep))
+    }
+
+    /// The gain against the information without pose `k` (its `kernel`
+    /// `(I − G_k)⁻¹`) of each candidate of `pool`, in parallel.
+    fn gains_without_of(
+        &self,
+        c: &Candidates,
+        k: usize,
+        kernel: &Block,
+        pool: &[usize],
+    ) -> Vec<(f64, usize)> {
+        let (n, nx) = (self.n, self.nx);
+        let ak = columns_of(c, k, nx, n);
+        pool.par_iter()
+            .map(|&j| {
+                let (y, g) = (&self.yt[j * n * nx..(j + 1) * n * nx], &self.g[j]);
                 let mut cj = [[0.0; MAX_ROWS]; MAX_ROWS];
                 cross(y, &ak, n, nx, &mut cj);
                 // G_j + C_j K C_jᵀ
                 let mut e = [[0.0; MAX_ROWS]; MAX_ROWS];
-                small_product(&cj, &kernel, nx, 1.0, &mut e);
+                small_product(&cj, kernel, nx, 1.0, &mut e);
                 let mut gm = *g;
                 for s in 0..nx {
                     for t in 0..nx {
@@ -255,8 +405,7 @@ impl Screen {
                 }
                 (log_det_plus_identity(&gm, nx), j)
             })
-            .collect();
-        Some(gains)
+            .collect()
     }
 
     /// Follow `M ← M + σ A_kᵀA_k` (`sign` σ = ±1) for every candidate;
@@ -301,14 +450,35 @@ impl Screen {
                 }
             });
         self.updates += 1;
+        self.gain_trace = std::sync::OnceLock::new();
         self.yt.iter().all(|v| v.is_finite())
     }
 }
 
-/// The `keep` candidates with the largest gains (ties: the smallest index).
+/// The `keep` candidates with the largest gains (ties: the smallest index),
+/// largest first.
 pub(crate) fn shortlist(mut gains: Vec<(f64, usize)>, keep: usize) -> Vec<usize> {
-    gains.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-    gains.into_iter().take(keep).map(|(_, i)| i).collect()
+    let order = |a: &(f64, usize), b: &(f64, usize)| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1));
+    // A total order (the indices differ): the first `keep` are the same
+    // whichever way they are found.
+    if keep < gains.len() {
+        gains.select_nth_unstable_by(keep, order);
+        gains.truncate(keep);
+    }
+    gains.sort_unstable_by(order);
+    gains.into_iter().map(|(_, i)| i).collect()
+}
+
+/// Whether each of `count` candidates is in `chosen` (a lookup for the
+/// loops over every candidate).
+pub(crate) fn taken(count: usize, chosen: &[usize]) -> Vec<bool> {
+    let mut taken = vec![false; count];
+    for &i in chosen {
+        if let Some(t) = taken.get_mut(i) {
+            *t = true;
+        }
+    }
+    taken
 }
 
 #[cfg(test)]
@@ -429,6 +599,61 @@ mod tests {
             shortlist(kept.gains_without(&c, 40, &set).expect("stable"), keep),
             super::super::planning::screen(&c, &without, reg, &set)
         );
+        assert_eq!(
+            kept.shortlist_without(&c, 40, &set, keep).expect("stable"),
+            super::super::planning::screen(&c, &without, reg, &set)
+        );
+    }
+
+    /// The shortlist without a pose, bounded, is the shortlist of every
+    /// candidate's gain without it, for every chosen pose and shortlist
+    /// length, as the state follows additions and removals; and each gain
+    /// without a pose lies within its bounds.
+    #[test]
+    fn bounded_shortlist_without_is_the_full_ones() {
+        let (nx, n) = (6, 16);
+        let c = candidates(17, 400, nx, n);
+        let reg = 1e-9;
+        let mut set: Vec<usize> = (0..12).map(|k| 7 * k).collect();
+        let mut kept = Screen::fresh(&c, &info(&c, &set, n), reg).expect("positive definite");
+        for step in 0..4 {
+            for &k in &set {
+                for keep in [1, 5, 24, 500] {
+                    let full = shortlist(kept.gains_without(&c, k, &set).expect("stable"), keep);
+                    let bounded = kept.shortlist_without(&c, k, &set, keep).expect("stable");
+                    assert_eq!(bounded, full, "step {step}, without {k}, {keep} kept");
+                }
+            }
+            let out = set.remove(step);
+            assert!(kept.update(&c, out, -1.0));
+            for add in [200 + step, 300 + step] {
+                assert!(kept.update(&c, add, 1.0));
+                set.push(add);
+            }
+        }
+        // The kernel's largest eigenvalue bounds how far a gain can grow.
+        let k = set[0];
+        let kernel = kept.kernel(k, -1.0).expect("stable");
+        let f = DMatrix::from_fn(nx, nx, |s, t| kernel[s][t])
+            .symmetric_eigenvalues()
+            .max();
+        let (lower, without) = (
+            kept.gains(&set),
+            kept.gains_without(&c, k, &set).expect("stable"),
+        );
+        for ((l, j), (w, _)) in lower.iter().zip(&without) {
+            let mut gf = kept.g[*j];
+            for row in gf.iter_mut().take(nx) {
+                for v in row.iter_mut().take(nx) {
+                    *v *= f;
+                }
+            }
+            let upper = log_det_plus_identity(&gf, nx);
+            assert!(
+                *l <= w + 1e-12 && *w <= upper + 1e-12,
+                "{l} ≤ {w} ≤ {upper}"
+            );
+        }
     }
 
     /// Candidates of another shape, or more rows than a block holds, are
