@@ -1077,8 +1077,6 @@ fn equilibrium_in<M: Mechanism>(
             } else if fresh && !lu.factor(kkt.as_slice(), n) {
                 false
             } else {
-                // (The same bits as the one-pass scaled solve for fresh
-                // factors.)
                 lu.solve(step.as_mut_slice());
                 true
             };
