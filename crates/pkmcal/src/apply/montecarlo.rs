@@ -3,7 +3,7 @@
 //! calibration, and the resulting accuracy on unseen poses and parameters.
 
 use crate::apply::simulate::{measure, noise_normals, prepare_target};
-use crate::engine::models::{Model, Pose, predict_pose};
+use crate::engine::models::{Model, Pose, predict_pose, predict_pose_near};
 use crate::error::Result;
 use crate::identify::stats::{ErrorStats, error_stats};
 use crate::identify::{CalibrationOptions, PoseCache, Prior, calibrate_with_cache};
@@ -203,8 +203,11 @@ pub fn monte_carlo<M: Mechanism>(
         let errors = unseen
             .iter()
             .map(|pose| {
-                let t = predict_pose(mech, pose, &truth, Model::Exact, &[])?.x;
-                let c = predict_pose(mech, pose, &cal.params, cal.model, &[])?.x;
+                let t = predict_pose(mech, pose, &truth, Model::Exact, &[])?;
+                // From the truth's equilibrium: the calibrated parameters
+                // are micrometres from the true ones.
+                let c = predict_pose_near(mech, pose, &cal.params, cal.model, &[], &t)?.x;
+                let t = t.x;
                 Ok(t.iter().zip(&c).map(|(a, b)| a - b).collect())
             })
             .collect::<Result<Vec<Vec<f64>>>>()?;

@@ -54,13 +54,20 @@ pub(crate) fn solve_kkt_in_place(
     independent: &[usize],
     work: &mut KktWork,
 ) -> bool {
-    let n = kkt.nrows();
-    let usable = n > nq
+    let usable = tries_null_space(kkt.nrows(), nq, independent);
+    (usable && work.null_space(kkt, rhs, nq, independent)) || solve_scaled_in_place(kkt, rhs)
+}
+
+/// Whether [`solve_kkt_in_place`] tries the null-space solve on an `n × n`
+/// system of `nq` joints with these independent joints (else it solves the
+/// whole system by the scaled LU, whose factors may then be kept for later
+/// right-hand sides: [`crate::linalg::solve::ScaledLu`]).
+pub(crate) fn tries_null_space(n: usize, nq: usize, independent: &[usize]) -> bool {
+    n > nq
         && independent.len() + (n - nq) == nq
         && !independent.is_empty()
         && independent.iter().all(|&u| u < nq)
-        && null_space_pays(nq, n - nq);
-    (usable && work.null_space(kkt, rhs, nq, independent)) || solve_scaled_in_place(kkt, rhs)
+        && null_space_pays(nq, n - nq)
 }
 
 /// Whether the null-space solve is taken for `nq` joints and `m`

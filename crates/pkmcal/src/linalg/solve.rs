@@ -163,6 +163,220 @@ fn scaled_lu_solve(n: usize, av: &mut [f64], bv: &mut [f64]) -> bool {
     true
 }
 
+/// The scaled LU of [`solve_scaled_in_place`] in two parts: the factors of
+/// a square system kept ([`ScaledLu::factor`]), then right-hand sides
+/// solved with them ([`ScaledLu::solve`]). Newton iterations that keep one
+/// matrix for several steps (the exact equilibrium's) factor it once. The
+/// scale factors are the powers of two nearest below each row's and then
+/// each column's largest magnitude (as LAPACK's `dgeequb`), so that scaling
+/// and unscaling are exact multiplications, and the pivots are applied as
+/// reciprocals: no division but one a pivot. The solutions agree with
+/// `solve_scaled_in_place`'s to rounding (its factors are scaled to exactly
+/// 1, by divisions); the singularity test is the same, relative to the
+/// scaled matrix's largest entry (here between 1 and 2).
+#[derive(Debug, Default, Clone)]
+pub(crate) struct ScaledLu {
+    /// Size of the system.
+    n: usize,
+    /// The scaled matrix's LU factors (column-major, unit lower factor
+    /// below the diagonal).
+    lu: Vec<f64>,
+    /// The rows' scale factors (powers of two).
+    rows: Vec<f64>,
+    /// The columns' scale factors (powers of two).
+    cols: Vec<f64>,
+    /// The reciprocals of the pivots.
+    inverse_pivots: Vec<f64>,
+    /// The row swapped with row `k` at step `k`.
+    piv: Vec<usize>,
+}
+
+impl ScaledLu {
+    /// Factor the `n × n` column-major `a` (copied); `false` when it is
+    /// singular by [`solve_scaled_in_place`]'s test, or a row's or column's
+    /// largest magnitude is outside the normal range of `f64` (below
+    /// 2⁻¹⁰²² or from 2¹⁰²² on, far from any mechanism's): the factors are
+    /// then not usable.
+    pub(crate) fn factor(&mut self, a: &[f64], n: usize) -> bool {
+        debug_assert_eq!(a.len(), n * n);
+        self.n = n;
+        self.lu.clear();
+        self.lu.extend_from_slice(a);
+        for v in [&mut self.rows, &mut self.cols, &mut self.inverse_pivots] {
+            v.clear();
+            v.resize(n, 0.0);
+        }
+        self.piv.clear();
+        self.piv.resize(n, 0);
+        if n == 0 {
+            return true;
+        }
+        let (lu, r, c, ip, piv) = (
+            self.lu.as_mut_slice(),
+            self.rows.as_mut_slice(),
+            self.cols.as_mut_slice(),
+            self.inverse_pivots.as_mut_slice(),
+            self.piv.as_mut_slice(),
+        );
+        // (The reference's 8 × 8 system with loops compiled for its size.)
+        match n {
+            8 => factor_scaled(8, lu, r, c, ip, piv),
+            _ => factor_scaled(n, lu, r, c, ip, piv),
+        }
+    }
+
+    /// Solve with the factors of the last successful [`ScaledLu::factor`]:
+    /// `b` (`n` entries) becomes the solution.
+    pub(crate) fn solve(&self, b: &mut [f64]) {
+        let n = self.n;
+        debug_assert_eq!(b.len(), n);
+        let (lu, r, c, ip, piv) = (
+            &self.lu,
+            &self.rows,
+            &self.cols,
+            &self.inverse_pivots,
+            &self.piv,
+        );
+        match n {
+            8 => substitute_scaled(8, lu, r, c, ip, piv, b),
+            _ => substitute_scaled(n, lu, r, c, ip, piv, b),
+        }
+    }
+}
+
+/// The power of two `f` for which `m · f` is in [1, 2) (`m` positive), or
+/// `None` when `m` or `f` would not be a normal number (`m` NaN, infinite,
+/// zero, subnormal, or from 2¹⁰²² on).
+#[inline(always)]
+fn unit_factor(m: f64) -> Option<f64> {
+    // The biased exponent `e` of `m` (its sign bit is clear): `m` is in
+    // [2^(e−1023), 2^(e−1022)), and 2^(1023−e) has the biased exponent
+    // 2046 − e.
+    let e = m.to_bits() >> 52;
+    (m > 0.0 && (1..=2045).contains(&e)).then(|| f64::from_bits((2046 - e) << 52))
+}
+
+/// [`ScaledLu::factor`] on the column-major `av` in place.
+#[inline(always)]
+fn factor_scaled(
+    n: usize,
+    av: &mut [f64],
+    r: &mut [f64],
+    c: &mut [f64],
+    ip: &mut [f64],
+    piv: &mut [usize],
+) -> bool {
+    // The rows' largest magnitudes (NaN skipped), then their factors.
+    for col in av.chunks_exact(n) {
+        for (ri, v) in r.iter_mut().zip(col) {
+            *ri = larger(*ri, v.abs());
+        }
+    }
+    let mut usable = true;
+    for ri in r.iter_mut() {
+        match unit_factor(*ri) {
+            Some(f) => *ri = f,
+            None => usable = false,
+        }
+    }
+    if !usable {
+        return false;
+    }
+    for col in av.chunks_exact_mut(n) {
+        for (v, ri) in col.iter_mut().zip(r.iter()) {
+            *v *= ri;
+        }
+    }
+    // The columns' factors, and the scaled matrix's largest entry.
+    let mut scale = 0.0f64;
+    for (col, cj) in av.chunks_exact_mut(n).zip(c.iter_mut()) {
+        let big = largest_magnitude(col);
+        let Some(f) = unit_factor(big) else {
+            return false;
+        };
+        *cj = f;
+        scale = larger(scale, big * f);
+        col.iter_mut().for_each(|v| *v *= f);
+    }
+    // LU with partial pivoting, the swaps recorded.
+    let mut min_pivot = f64::INFINITY;
+    for k in 0..n {
+        let colk = &av[k * n..(k + 1) * n];
+        let (mut p, mut big) = (k, colk[k].abs());
+        for (i, v) in colk.iter().enumerate().skip(k + 1) {
+            if v.abs() > big {
+                (p, big) = (i, v.abs());
+            }
+        }
+        piv[k] = p;
+        if p != k {
+            for col in av.chunks_exact_mut(n) {
+                col.swap(k, p);
+            }
+        }
+        let pivot = av[k + k * n];
+        // (`f64::min` keeps the non-NaN operand, as this comparison does.)
+        if pivot.abs() < min_pivot {
+            min_pivot = pivot.abs();
+        }
+        if pivot == 0.0 {
+            continue;
+        }
+        let inverse = 1.0 / pivot;
+        ip[k] = inverse;
+        let (done, rest) = av.split_at_mut((k + 1) * n);
+        let lk = &mut done[k * n + k + 1..];
+        lk.iter_mut().for_each(|v| *v *= inverse);
+        for col in rest.chunks_exact_mut(n) {
+            let y = col[k];
+            if y == 0.0 {
+                continue;
+            }
+            for (v, l) in col[k + 1..].iter_mut().zip(lk.iter()) {
+                *v -= l * y;
+            }
+        }
+    }
+    !(min_pivot.is_nan() || min_pivot < SINGULAR_RCOND * scale)
+}
+
+/// [`ScaledLu::solve`]: the substitutions with [`factor_scaled`]'s factors.
+#[inline(always)]
+fn substitute_scaled(
+    n: usize,
+    av: &[f64],
+    r: &[f64],
+    c: &[f64],
+    ip: &[f64],
+    piv: &[usize],
+    x: &mut [f64],
+) {
+    for (v, ri) in x.iter_mut().zip(r.iter()) {
+        *v *= ri;
+    }
+    for (k, &p) in piv.iter().enumerate() {
+        x.swap(k, p);
+    }
+    for k in 0..n {
+        let xk = x[k];
+        let col = &av[k * n..(k + 1) * n];
+        for (v, l) in x[k + 1..].iter_mut().zip(&col[k + 1..]) {
+            *v -= l * xk;
+        }
+    }
+    for k in (0..n).rev() {
+        let col = &av[k * n..(k + 1) * n];
+        x[k] *= ip[k];
+        let xk = x[k];
+        for (v, u) in x[..k].iter_mut().zip(&col[..k]) {
+            *v -= u * xk;
+        }
+    }
+    for (v, cj) in x.iter_mut().zip(c.iter()) {
+        *v *= cj;
+    }
+}
+
 /// `m.max(v)` for a running maximum `m` that is not NaN: a NaN `v` is
 /// skipped, as `f64::max` skips it.
 #[inline(always)]
@@ -248,6 +462,66 @@ mod tests {
                 assert_eq!(running.to_bits(), sequential.to_bits());
             }
         }
+    }
+
+    /// The scaled LU kept and solved later agrees with the one-pass scaled
+    /// solve to rounding (several sizes, mixed units, right-hand sides
+    /// solved in turn with one factorisation), refuses the same singular
+    /// systems, and scales by powers of two only.
+    #[test]
+    fn kept_scaled_factors_solve_as_the_one_pass_solve() {
+        let mut rng = StdRng::seed_from_u64(5);
+        let mut lu = ScaledLu::default();
+        for n in 1..=12 {
+            for case in 0..3 {
+                let mut a = DMatrix::from_fn(n, n, |_, _| rng.random_range(-3.0..3.0));
+                // Mixed units: a stiff block beside small entries.
+                for i in 0..n / 2 {
+                    a[(i, i)] *= 1e4;
+                }
+                if case == 1 {
+                    a.column_mut(n - 1).fill(0.0);
+                }
+                if case == 2 {
+                    a[(0, n - 1)] = f64::NAN;
+                }
+                let factored = lu.factor(a.as_slice(), n);
+                for v in lu.rows.iter().chain(&lu.cols).filter(|_| factored) {
+                    assert_eq!(v.to_bits() << 12, 0, "{v} is a power of two");
+                }
+                for _ in 0..3 {
+                    let b = DMatrix::from_fn(n, 1, |_, _| rng.random_range(-3.0..3.0));
+                    let (mut a1, mut b1) = (a.clone(), b.clone());
+                    let solved = solve_scaled_in_place(&mut a1, &mut b1);
+                    assert_eq!(solved, factored, "n {n} case {case}");
+                    if solved {
+                        let mut b2 = b.as_slice().to_vec();
+                        lu.solve(&mut b2);
+                        // (A NaN entry that passes the test gives NaN
+                        // solutions in both, which the callers reject.)
+                        let size = b1.amax();
+                        for (x, y) in b1.iter().zip(&b2) {
+                            let close = (x - y).abs() <= 1e-10 * size;
+                            assert!(close || (x.is_nan() && y.is_nan()), "n {n}: {x} {y}");
+                        }
+                    }
+                }
+            }
+        }
+        // Largest magnitudes outside the normal range are refused.
+        assert_eq!(unit_factor(3.0), Some(0.5));
+        assert_eq!(unit_factor(1.0), Some(1.0));
+        assert_eq!(unit_factor(0.75), Some(2.0));
+        for m in [
+            0.0,
+            f64::MIN_POSITIVE / 2.0,
+            f64::MAX,
+            f64::INFINITY,
+            f64::NAN,
+        ] {
+            assert_eq!(unit_factor(m), None, "{m}");
+        }
+        assert!(!lu.factor(&[f64::MAX, 1.0, 1.0, 1.0], 2));
     }
 
     /// The in-place solve is [`checked_lu`] then its solve, bit for bit,
