@@ -1419,6 +1419,7 @@ pub(super) fn saved_readings(
         .iter()
         .enumerate()
         .map(|(i, p)| pkmcal::Measurement {
+            point: None,
             target: None,
             commands: commands(&p.steps).to_vec(),
             partner: None,
@@ -1431,6 +1432,7 @@ pub(super) fn saved_readings(
         .iter()
         .enumerate()
         .map(|(i, d)| pkmcal::Measurement {
+            point: None,
             target: None,
             commands: commands(&d.steps[0]).to_vec(),
             partner: Some(commands(&d.steps[1]).to_vec()),

@@ -1229,6 +1229,7 @@ impl Firmware for MarlinPrinter {
             .iter()
             .enumerate()
             .map(|(i, p)| pkmcal::Measurement {
+                point: None,
                 target: None,
                 commands: self.commands(p).to_vec(),
                 partner: None,

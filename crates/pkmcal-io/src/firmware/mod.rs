@@ -762,7 +762,7 @@ pub fn probe_errors(
         .map(|m| {
             let pr = pkmcal::predict(mech, p, &m.commands, pkmcal::Model::Exact, &[])?;
             let mut y = [0.0];
-            measurement.observe(&pr.x, bed, &mut y);
+            measurement.observe_point(&pr.x, bed, m.point.as_deref(), &mut y);
             Ok(y[0] - m.measured[0])
         })
         .collect()

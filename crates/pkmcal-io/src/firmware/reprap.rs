@@ -537,6 +537,7 @@ impl RrfPrinter {
             .iter()
             .enumerate()
             .map(|(i, (p, line))| pkmcal::Measurement {
+                point: None,
                 target: None,
                 commands: self
                     .delta
