@@ -1359,6 +1359,8 @@ impl Firmware for MarlinPrinter {
             values: marlin_holds(self.delta(), self.shared_arm),
             corrects_bed_tilt: false,
             print_radius: self.probe_radius(),
+            // The nozzle is −oz over the bed where the probe triggers.
+            probe_height: -self.probe_offset[2],
         }))
     }
 
