@@ -207,7 +207,7 @@ pub fn readings(
                 refuse!(
                     path,
                     line,
-                    "({x}, {y}) is {:.1} mm from the centre, outside the build volume ({} within {radius} mm): give touches on the bed",
+                    "({x}, {y}) is {:.1} mm from the centre, outside the build volume (at most {radius} mm by {}'s configuration): give touches on the bed",
                     x.hypot(y),
                     ld.firmware
                 );
