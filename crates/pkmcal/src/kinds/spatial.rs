@@ -631,10 +631,13 @@ fn tool_axes(
             }
         }
     }
-    // A turning platform's whole pose may be read beyond its degrees of
-    // freedom (a delta's effector, whose tilt a second point on it shows):
-    // it is then observed, not commanded.
-    let whole = d.platform.motion == Motion::Full && tool.len() == pose_axes.len();
+    // A turning platform's whole pose, listed, may be read beyond its
+    // degrees of freedom (a delta's effector, whose tilt a second point on
+    // it shows): it is then observed, not commanded. Left out, the tool is
+    // one axis per degree of freedom.
+    let whole = d.platform.tool.is_some()
+        && d.platform.motion == Motion::Full
+        && tool.len() == pose_axes.len();
     if tool.len() != dof && !whole {
         return bad(format!(
             "the mechanism has {dof} degrees of freedom but {} tool axes ({}); list {dof} of {} as `tool = [...]` in [platform]",
