@@ -126,6 +126,16 @@ pub struct PhysicalArgs {
     /// names), comma-separated or repeated.
     #[command(flatten)]
     pub given: ToleranceArg,
+    /// With --physical: heights measured by hand, read besides the
+    /// firmware's probe results: a CSV with columns x, y, z (the position
+    /// the firmware displays when the tool touches), tool (nozzle or
+    /// probe), surface (the height over the bed of what it touched: 0 for
+    /// the bed, a gauge block's height) and optionally sigma (mm; by
+    /// default 0.02 for the nozzle, a paper test's, the probe's own for the
+    /// probe). The nozzle touching where the probe triggers shows the
+    /// effector's tilt that the probe's offset turns into Z error.
+    #[arg(long, value_name = "HEIGHTS.csv")]
+    pub heights: Option<std::path::PathBuf>,
     /// With --physical: write the Z error the written values leave over the
     /// bed (the fitted nozzle's, at each node of a round mesh) as the
     /// firmware's own height map here: for Klipper a `[bed_mesh pkmcal]`
@@ -173,10 +183,16 @@ impl PhysicalArgs {
         inputs: impl IntoIterator<Item = Option<PathBuf>>,
         out: Option<&PathBuf>,
     ) -> anyhow::Result<Paths> {
-        Ok(
-            Paths::new(inputs, out.into_iter().cloned().chain(self.outputs()?))
-                .with_dirs(self.dirs()),
+        Ok(Paths::new(
+            inputs.into_iter().chain(self.inputs()),
+            out.into_iter().cloned().chain(self.outputs()?),
         )
+        .with_dirs(self.dirs()))
+    }
+
+    /// The files --physical reads besides the firmware's.
+    pub fn inputs(&self) -> Vec<Option<PathBuf>> {
+        vec![self.heights.clone()]
     }
 
     /// The tolerances onto the request (refused without --physical).
@@ -190,6 +206,11 @@ impl PhysicalArgs {
             return crate::words::usage(
                 "--height-map maps what the physical model's values leave: add --physical"
                     .to_string(),
+            );
+        }
+        if !self.physical && self.heights.is_some() {
+            return crate::words::usage(
+                "--heights are read by the physical model: add --physical".to_string(),
             );
         }
         if !self.physical && self.report_dir.is_some() {

@@ -76,6 +76,7 @@ pub fn data_from<M: Mechanism>(
         .zip(measured)
         .enumerate()
         .map(|(i, (c, m))| Measurement {
+            point: None,
             target: targets.as_ref().map(|t| t[i].clone()),
             commands: c,
             partner: None,
@@ -144,6 +145,7 @@ pub fn read_distances<M: Mechanism>(
             None => vec![],
         };
         out.push(Measurement {
+            point: None,
             target: None,
             commands: a,
             partner: Some(b),

@@ -78,7 +78,7 @@ pub fn check_data<M: Mechanism>(
     for (m, p) in sample.iter().zip(&predicted) {
         if let Some(p) = p {
             let mut y = vec![0.0; ny];
-            measurement.observe(&p.x, mv, &mut y);
+            measurement.observe_point(&p.x, mv, m.point.as_deref(), &mut y);
             pred_rows.push(y);
             meas_rows.push(m.measured.clone());
         }

@@ -617,6 +617,7 @@ pub fn distances(
         .zip(d)
         .enumerate()
         .map(|(i, ((a, b), d))| pkmcal::Measurement {
+            point: None,
             target: None,
             commands: a,
             partner: Some(b),
@@ -702,6 +703,7 @@ pub fn measurements(
         .zip(s)
         .enumerate()
         .map(|(i, ((commands, measured), sigma))| pkmcal::Measurement {
+            point: None,
             target: t.as_ref().map(|t| t[i].clone()),
             commands,
             partner: None,

@@ -76,10 +76,13 @@ impl Args {
             out.extend(pkmcal_io::output::in_dir(d, &[DISTANCES_FILE])?);
             dirs.push(d.clone());
         }
-        Ok(
-            args::Paths::new([Some(self.config.clone()), self.previous.clone()], out)
-                .with_dirs(dirs),
+        Ok(args::Paths::new(
+            [Some(self.config.clone()), self.previous.clone()]
+                .into_iter()
+                .chain(self.physical.inputs()),
+            out,
         )
+        .with_dirs(dirs))
     }
 }
 

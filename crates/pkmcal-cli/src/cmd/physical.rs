@@ -48,7 +48,11 @@ pub fn run<F: Firmware>(
     let fw_spec = fw_mech.spec();
     let own = firmware::calibrate(printer, Request::new(pkmcal::Model::Exact))?;
     let own_cal = own.calibration();
-    let fit = physical::calibrate(printer, &ld, request.clone())?;
+    let touches = match &output.physical.heights {
+        Some(path) => Some(pkmcal_io::firmware::physical_heights::read(run, path)?),
+        None => None,
+    };
+    let fit = physical::calibrate_with(printer, &ld, request.clone(), touches.as_ref())?;
     let cal = &fit.study.calibration;
     let spec = fit.mech.spec();
     let choice = physical::choose(&fit, &fw_mech, &own_cal.params, &own_cal.measurement)?;
@@ -84,14 +88,24 @@ pub fn run<F: Firmware>(
         heights,
     )?;
     say!(
-        "Physical model: {} probe heights{} from {source} ({}), {} parameters within their tolerances (rods {} mm, tower radii {} mm, tower lean {} mrad, ball joints {} mm, bed tilt {} mrad; probe σ {} mm); effector radius {} mm, rod spacing {} mm, probe offset ({}, {}) mm",
-        heights.len(),
+        "Physical model: {} probe heights{} from {source} ({}){}, {} parameters within their tolerances (rods {} mm, tower radii {} mm, tower lean {} mrad, ball joints {} mm, bed tilt {} mrad; probe σ {} mm); effector radius {} mm, rod spacing {} mm, probe offset ({}, {}) mm",
+        heights.len() - fit.touches.0,
         if fit.readings.distances.is_empty() {
             String::new()
         } else {
             format!(" and {} distances", fit.readings.distances.len())
         },
         printer.name(),
+        match &touches {
+            Some(t) => format!(
+                " and {} touches ({} of the nozzle, σ {} mm unless given) from {}",
+                fit.touches.0,
+                fit.touches.1,
+                pkmcal_io::firmware::physical_heights::TOUCH_NOISE_MM,
+                t.path.display()
+            ),
+            None => String::new(),
+        },
         fit.free_names.len(),
         physical::ROD_SIGMA_MM,
         physical::TOWER_RADIUS_SIGMA_MM,

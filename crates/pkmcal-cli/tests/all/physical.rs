@@ -155,6 +155,63 @@ fn physical_misuse_is_refused_by_name() {
     assert!(!dir.path().join("d").exists());
 }
 
+/// `--heights` without `--physical` is refused (exit 2); a bad row is
+/// named by its file and line (exit 1) and nothing is written; the
+/// example's file is read and counted.
+#[test]
+fn heights_are_read_with_physical_and_refused_by_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = examples().join("klipper-delta/printer.cfg");
+    let cfg = cfg.to_str().unwrap();
+    let heights = examples().join("klipper-delta/heights.csv");
+    let heights = heights.to_str().unwrap();
+    fails(
+        dir.path(),
+        &["klipper", "--config", cfg, "--heights", heights],
+        2,
+        "--heights are read by the physical model: add --physical",
+    );
+    std::fs::write(
+        dir.path().join("bad.csv"),
+        "x,y,z,tool,surface\n0,0,0.1,nozzle,0.1\n10,10,0.2,extruder,0\n",
+    )
+    .unwrap();
+    fails(
+        dir.path(),
+        &[
+            "klipper",
+            "--config",
+            cfg,
+            "--physical",
+            "--heights",
+            "bad.csv",
+            "--out",
+            "new.cfg",
+        ],
+        1,
+        "bad.csv:3: column `tool`: `extruder`",
+    );
+    assert!(!dir.path().join("new.cfg").exists());
+    let said = ok(
+        dir.path(),
+        &[
+            "klipper",
+            "--config",
+            cfg,
+            "--physical",
+            "--heights",
+            heights,
+            "--out",
+            "new.cfg",
+        ],
+    );
+    assert!(
+        said.contains("and 11 touches (7 of the nozzle, σ 0.02 mm unless given)"),
+        "{said}"
+    );
+    assert!(dir.path().join("new.cfg").exists());
+}
+
 #[test]
 fn physical_says_the_tolerances_given() {
     let dir = tempfile::tempdir().unwrap();

@@ -129,6 +129,21 @@ pub fn probe_offset(ini: &Ini) -> Result<[f64; 2]> {
     Ok([0.0, 0.0])
 }
 
+/// What Klipper's saved probe results read where the probe triggers on the
+/// bed (mm): the `z_offset` they were saved with (`DELTA_CALIBRATE` saves
+/// it as each height), else the probe's `z_offset`, else 0.
+pub fn probe_height(ini: &Ini, probes: &[Probe]) -> Result<f64> {
+    if let Some(p) = probes.first() {
+        return Ok(p.height);
+    }
+    for section in ["probe", "bltouch"] {
+        if ini.has_section(section) {
+            return Ok(ini.length(section, "z_offset", false)?.unwrap_or(0.0));
+        }
+    }
+    Ok(0.0)
+}
+
 /// What Klipper adds to [`KLIPPER_FREE`] when distances were measured on its
 /// calibration object (its extended calibration): the three arm lengths.
 pub const KLIPPER_EXTENDED: [&str; 3] = ["arm_a", "arm_b", "arm_c"];
@@ -1419,6 +1434,7 @@ pub(super) fn saved_readings(
         .iter()
         .enumerate()
         .map(|(i, p)| pkmcal::Measurement {
+            point: None,
             target: None,
             commands: commands(&p.steps).to_vec(),
             partner: None,
@@ -1431,6 +1447,7 @@ pub(super) fn saved_readings(
         .iter()
         .enumerate()
         .map(|(i, d)| pkmcal::Measurement {
+            point: None,
             target: None,
             commands: commands(&d.steps[0]).to_vec(),
             partner: Some(commands(&d.steps[1]).to_vec()),
@@ -1622,6 +1639,7 @@ impl Firmware for KlipperPrinter {
                 Some(r) => r,
                 None => self.delta.probe_radius,
             },
+            probe_height: probe_height(&self.ini, &self.delta.probes)?,
         }))
     }
 

@@ -1229,6 +1229,7 @@ impl Firmware for MarlinPrinter {
             .iter()
             .enumerate()
             .map(|(i, p)| pkmcal::Measurement {
+                point: None,
                 target: None,
                 commands: self.commands(p).to_vec(),
                 partner: None,
@@ -1358,6 +1359,8 @@ impl Firmware for MarlinPrinter {
             values: marlin_holds(self.delta(), self.shared_arm),
             corrects_bed_tilt: false,
             print_radius: self.probe_radius(),
+            // The nozzle is −oz over the bed where the probe triggers.
+            probe_height: -self.probe_offset[2],
         }))
     }
 

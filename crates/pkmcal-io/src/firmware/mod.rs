@@ -18,6 +18,7 @@ pub mod klipper_rotary;
 pub mod marlin;
 pub mod physical;
 pub mod physical_drift;
+pub mod physical_heights;
 pub mod physical_plan;
 pub mod physical_report;
 pub mod reprap;
@@ -365,6 +366,16 @@ pub(crate) fn study<F: Firmware + ?Sized>(
     readings: &Readings,
     opts: &pkmcal::identify::StudyOptions,
 ) -> Result<pkmcal::identify::Study> {
+    study_located(mech, readings, opts, &|e| firmware.located(e))
+}
+
+/// [`study`], an error at a reading named by `located`.
+pub(crate) fn study_located(
+    mech: &Mech,
+    readings: &Readings,
+    opts: &pkmcal::identify::StudyOptions,
+    located: &dyn Fn(pkmcal::Error) -> Error,
+) -> Result<pkmcal::identify::Study> {
     pkmcal::identify::study(
         mech,
         &readings.measurement,
@@ -375,7 +386,7 @@ pub(crate) fn study<F: Firmware + ?Sized>(
         &|| {},
     )
     .map_err(|e| match &e.error {
-        pkmcal::Error::Pose { .. } => firmware.located(e.error),
+        pkmcal::Error::Pose { .. } => located(e.error),
         _ => Error::from(e.error),
     })
 }
@@ -774,7 +785,7 @@ pub fn probe_errors(
         .map(|m| {
             let pr = pkmcal::predict(mech, p, &m.commands, pkmcal::Model::Exact, &[])?;
             let mut y = [0.0];
-            measurement.observe(&pr.x, bed, &mut y);
+            measurement.observe_point(&pr.x, bed, m.point.as_deref(), &mut y);
             Ok(y[0] - m.measured[0])
         })
         .collect()

@@ -55,6 +55,11 @@ pub const PROBE_NOISE_MM: f64 = 0.01;
 /// (calipers).
 pub const DISTANCE_NOISE_MM: f64 = 0.02;
 
+/// The effector's turn about each axis that the physical model's workspace
+/// spans where its tool is the whole pose (rad): far beyond what parts
+/// within their tolerances give.
+const EFFECTOR_TURN_RAD: f64 = 0.05;
+
 /// Heights of the build-volume grid's layers above the bed (mm).
 pub const GRID_HEIGHTS_MM: [f64; 4] = [0.0, 20.0, 50.0, 100.0];
 /// Points across the build-volume grid's diameter in x and in y (those
@@ -91,6 +96,12 @@ pub struct LinearDelta {
     /// The build volume's radius (mm): Klipper's `print_radius`, else the
     /// probed circle's.
     pub print_radius: f64,
+    /// What the firmware's saved probe results read where the probe
+    /// triggers on the bed (mm): Klipper's `z_offset`, Marlin's −`M851 Z`
+    /// (the nozzle's height over the bed then), RepRapFirmware's 0. A
+    /// probe's touch on a surface ([`super::physical_heights`]) reads this
+    /// over the surface's height.
+    pub probe_height: f64,
 }
 
 impl LinearDelta {
@@ -109,6 +120,13 @@ impl LinearDelta {
 /// The physical model of `ld` as a pkmcal spatial description (TOML), with
 /// its default `[tolerances]`.
 pub fn physical_description(ld: &LinearDelta) -> String {
+    physical_description_with(ld, false)
+}
+
+/// [`physical_description`], its tool the effector's whole pose (x y z rx
+/// ry rz) with `whole_pose`: a reading of the nozzle turns with the
+/// effector ([`pkmcal::Measurement::point`]). The same printer.
+pub fn physical_description_with(ld: &LinearDelta, whole_pose: bool) -> String {
     let d = &ld.delta;
     let o = ld.probe_offset;
     let half = ROD_SPACING_MM / 2.0;
@@ -140,7 +158,7 @@ pub fn physical_description(ld: &LinearDelta) -> String {
          # effector's frame is at the probe's trigger point; the nozzle at\n\
          # ({:?}, {:?}, 0) in it. Commands are the firmware's carriage heights (mm).\n\
          type = \"spatial\"\nname = \"Linear delta printer, physical (from {})\"\nfree = [{}]\n\n\
-         [platform]\nmotion = \"full\"\ntool = [\"x\", \"y\", \"z\"]   # the probe's trigger point\n",
+         [platform]\nmotion = \"full\"\ntool = [{}]   # the probe's trigger point{}\n",
         ld.firmware,
         -o[0],
         -o[1],
@@ -148,7 +166,15 @@ pub fn physical_description(ld: &LinearDelta) -> String {
         free.iter()
             .map(|n| format!("\"{n}\""))
             .collect::<Vec<_>>()
-            .join(", ")
+            .join(", "),
+        match whole_pose {
+            true => "\"x\", \"y\", \"z\", \"rx\", \"ry\", \"rz\"",
+            false => "\"x\", \"y\", \"z\"",
+        },
+        match whole_pose {
+            true => " and the effector's turn",
+            false => "",
+        }
     );
     for (i, t) in TOWERS.iter().enumerate() {
         let th = d.angles[i].to_radians();
@@ -213,6 +239,15 @@ pub fn physical_description(ld: &LinearDelta) -> String {
         -r,
         GRID_HEIGHTS_MM[GRID_HEIGHTS_MM.len() - 1] + 10.0
     );
+    if whole_pose {
+        // The effector's turn within its parts' tolerances (rad).
+        s.pop();
+        let _ = writeln!(
+            s,
+            "rx = [{t:?}, {EFFECTOR_TURN_RAD:?}]\nry = [{t:?}, {EFFECTOR_TURN_RAD:?}]\nrz = [{t:?}, {EFFECTOR_TURN_RAD:?}]\n",
+            t = -EFFECTOR_TURN_RAD
+        );
+    }
     let _ = writeln!(s, "[tolerances]   # σ of each part (pkmcal's defaults)");
     for (n, v, unit) in &tol {
         let _ = writeln!(s, "\"{n}\" = {v:?}   # {unit}");
@@ -222,13 +257,22 @@ pub fn physical_description(ld: &LinearDelta) -> String {
 
 /// The physical model of `ld`: its mechanism and its `[tolerances]`.
 pub fn physical_mechanism(ld: &LinearDelta) -> Result<(Mech, Vec<(String, Tolerance)>)> {
+    physical_mechanism_with(ld, false)
+}
+
+/// [`physical_mechanism`] of [`physical_description_with`].
+pub fn physical_mechanism_with(
+    ld: &LinearDelta,
+    whole_pose: bool,
+) -> Result<(Mech, Vec<(String, Tolerance)>)> {
     let parts =
-        crate::description::description_from_str(&physical_description(ld)).map_err(|e| {
-            e.context(format!(
-                "the physical model of the {} geometry",
-                ld.firmware
-            ))
-        })?;
+        crate::description::description_from_str(&physical_description_with(ld, whole_pose))
+            .map_err(|e| {
+                e.context(format!(
+                    "the physical model of the {} geometry",
+                    ld.firmware
+                ))
+            })?;
     Ok((parts.mech, parts.tolerances))
 }
 
@@ -247,6 +291,9 @@ pub struct PhysicalFit {
     /// Whether the probe's noise is pkmcal's assumption
     /// ([`PROBE_NOISE_MM`], a typical probe's), not one a user stated.
     pub noise_assumed: bool,
+    /// How many of the readings' poses (the last) are touches measured by
+    /// hand ([`super::physical_heights`]), nozzle touches of them.
+    pub touches: (usize, usize),
 }
 
 /// The physical model of `firmware`'s printer fitted to its readings as far
@@ -257,9 +304,22 @@ pub struct PhysicalFit {
 pub fn calibrate<F: Firmware + ?Sized>(
     firmware: &F,
     ld: &LinearDelta,
-    mut request: Request,
+    request: Request,
 ) -> Result<PhysicalFit> {
-    let (mech, table) = physical_mechanism(ld)?;
+    calibrate_with(firmware, ld, request, None)
+}
+
+/// [`calibrate`], with the touches measured by hand (`touches`,
+/// [`super::physical_heights`]) read as well: the physical model's tool is
+/// then the effector's whole pose, so that a nozzle touch reads the
+/// effector's tilt; each touch weighs by its σ.
+pub fn calibrate_with<F: Firmware + ?Sized>(
+    firmware: &F,
+    ld: &LinearDelta,
+    mut request: Request,
+    touches: Option<&super::physical_heights::Touches>,
+) -> Result<PhysicalFit> {
+    let (mech, table) = physical_mechanism_with(ld, touches.is_some())?;
     let spec = mech.spec();
     let mut readings = firmware.physical_readings(spec)?;
     // The readings weigh as their stated noise says, not as the firmware's
@@ -270,6 +330,20 @@ pub fn calibrate<F: Firmware + ?Sized>(
         .chain(readings.distances.iter_mut())
     {
         m.sigma.clear();
+    }
+    let first = readings.poses.len();
+    let mut counts = (0, 0);
+    if let Some(t) = touches {
+        let fw_mech = firmware.mechanism()?;
+        let fw_bed = ld
+            .corrects_bed_tilt
+            .then(|| readings.measurement.nominal().to_vec());
+        let rows = super::physical_heights::readings(t, ld, &fw_mech, fw_bed.as_deref(), first)?;
+        counts = (
+            rows.len(),
+            rows.iter().filter(|m| m.point.is_some()).count(),
+        );
+        readings.poses.extend(rows);
     }
     for axis in ["bed.rx", "bed.ry"] {
         if !request.tolerances.iter().any(|(n, _)| n == axis) {
@@ -291,7 +365,12 @@ pub fn calibrate<F: Firmware + ?Sized>(
     let free_names = request.free_names(spec, measurement, &free);
     let nominal = Params::nominal(spec);
     let opts = request.study_options(&mech, measurement, &table, &nominal)?;
-    let study = super::study(firmware, &mech, &readings, &opts)?;
+    let study = super::study_located(&mech, &readings, &opts, &|e| match touches
+        .and_then(|t| super::physical_heights::located(t, first, &e))
+    {
+        Some(located) => located,
+        None => firmware.located(e),
+    })?;
     Ok(PhysicalFit {
         delta: ld.clone(),
         mech,
@@ -299,6 +378,7 @@ pub fn calibrate<F: Firmware + ?Sized>(
         free_names,
         study,
         noise_assumed,
+        touches: counts,
     })
 }
 

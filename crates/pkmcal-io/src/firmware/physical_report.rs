@@ -196,13 +196,13 @@ pub fn measurement_words(extra: &Extra, firmware: &str, probe_offset: [f64; 2]) 
             "one more probe point: {}{}",
             probe_at(*at),
             match firmware {
-                "Klipper" => " (not read back by pkmcal yet: DELTA_CALIBRATE saves only its own pattern; it shows what such a point would teach)",
+                "Klipper" => ", read back from --heights as a `probe` row: the x, y, z PROBE reports, surface 0 (DELTA_CALIBRATE saves only its own pattern)",
                 "RepRapFirmware" => ", its reading added to the probe file (--probes)",
                 _ => ", its `Bed X: … Y: … Z: …` report added to the probe log (--probes)",
             }
         ),
         Extra::SecondLevel { height, points } => format!(
-            "{} probe heights on a {height} mm gauge block (known height): {} (not read back by pkmcal yet: no reader takes a block's height; it shows what a second level would teach)",
+            "{} probe heights on a {height} mm gauge block (known height): {}; read back from --heights as `probe` rows: the nozzle's x, y, z the firmware displays when the probe triggers, surface {height}",
             points.len(),
             points
                 .iter()

@@ -537,6 +537,7 @@ impl RrfPrinter {
             .iter()
             .enumerate()
             .map(|(i, (p, line))| pkmcal::Measurement {
+                point: None,
                 target: None,
                 commands: self
                     .delta
@@ -788,6 +789,8 @@ impl Firmware for RrfPrinter {
             values: rrf_holds(),
             corrects_bed_tilt: true,
             print_radius: self.delta.print_radius,
+            // The probe file's heights are 0 where the probe meets the bed.
+            probe_height: 0.0,
         }))
     }
 

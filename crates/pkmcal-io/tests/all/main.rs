@@ -13,6 +13,7 @@ mod marlin;
 mod physical;
 mod physical_acceptance;
 mod physical_drift;
+mod physical_heights;
 mod physical_plan;
 mod physical_report;
 mod renamed;

@@ -19,6 +19,7 @@
 use pkmcal::{Mechanism, Params, Request};
 use pkmcal_io::firmware::klipper::{KlipperPrinter, Weighting, read_config};
 use pkmcal_io::firmware::physical::{self, ErrorSummary, LinearDelta};
+use pkmcal_io::firmware::physical_heights;
 use pkmcal_io::firmware::{self, Firmware};
 use std::fmt::Write as _;
 use std::path::Path;
@@ -40,6 +41,13 @@ const CUBE_WITHIN_1_SIGMA: f64 = 0.6;
 /// 0.141 on these 12 printers in the bed's frame (the issue's goal is 0.5,
 /// not met: BENCHMARKS.md says why).
 const GAP_CLOSED: f64 = 0.1;
+/// The share of the gap closed on average with 7 nozzle touches besides
+/// the probe results, or those and 7 on a gauge block (measured 0.296 and
+/// 0.332 on these 6 printers: BENCHMARKS.md; only the rod mismatch's
+/// tilt is what they see).
+const TOUCHES_GAP_CLOSED: f64 = 0.25;
+/// With the distances as well (measured 0.733; the issue asks 0.5).
+const DISTANCES_TOUCHES_GAP_CLOSED: f64 = 0.5;
 
 /// The printer's regular configuration (no SAVE_CONFIG block yet).
 fn regular(probe: [f64; 2]) -> String {
@@ -257,9 +265,71 @@ fn probe(
         .collect()
 }
 
+/// The σ of a simulated nozzle touch (mm): a paper test's, as pkmcal
+/// assumes one ([`physical_heights::TOUCH_NOISE_MM`]).
+const TOUCH_NOISE: f64 = physical_heights::TOUCH_NOISE_MM;
+
+/// Nozzle touches as a printer's owner measures them (a paper test) and
+/// writes them down for `--heights`: the nozzle over each of the probe's
+/// points, lowered by Klipper's kinematics until the real nozzle meets the
+/// real bed (or the top of a gauge block `surfaces` over it: one touch at
+/// each point for each); the z displayed then (to 0.001 mm), off by a
+/// seeded touch noise.
+fn touches(
+    printer: &KlipperPrinter,
+    mech: &pkmcal_io::description::Mech,
+    truth: &Params,
+    bed: &[f64],
+    seed: u64,
+    surfaces: &[f64],
+) -> String {
+    let fw = printer.mechanism().unwrap();
+    let fw_p = Params::nominal(fw.spec());
+    let d = &printer.delta;
+    let ld = printer.linear_delta().unwrap().unwrap();
+    let mut noise = Normal(seed.wrapping_mul(0xD1B5_4A32_D192_ED03) | 1);
+    let mut points = vec![[0.0, 0.0]];
+    for (i, s) in SCATTER.iter().enumerate() {
+        let a = (90.0 + 60.0 * i as f64).to_radians();
+        points.push([a.cos() * s * d.probe_radius, a.sin() * s * d.probe_radius]);
+    }
+    let mut out = String::from("x,y,z,tool,surface\n");
+    for &surface in surfaces {
+        for xy in &points {
+            let mut z = surface;
+            for _ in 0..30 {
+                let c = pkmcal::controller_commands(&fw, &fw_p, &[xy[0], xy[1], z]).unwrap();
+                let n = physical::nozzle_at(mech, truth, &c, ld.nozzle()).unwrap();
+                z -= n[2] - physical::bed_height(bed, n[0], n[1]) - surface;
+            }
+            let shown = z + TOUCH_NOISE * noise.next();
+            let _ = writeln!(out, "{:.3},{:.3},{shown:.3},nozzle,{surface}", xy[0], xy[1]);
+        }
+    }
+    out
+}
+
+/// What a simulated printer's owner gives `--physical`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Data {
+    /// `DELTA_CALIBRATE`'s probe results.
+    Probes,
+    /// And `DELTA_ANALYZE`'s distances.
+    Distances,
+    /// And nozzle touches on the bed at the probe's points (`--heights`).
+    Touches,
+    /// And those touches on the bed and on a [`GAUGE_MM`] gauge block there.
+    Gauge,
+    /// And the distances and the touches on the bed.
+    DistancesTouches,
+}
+
+/// The height of the simulated gauge block (mm).
+const GAUGE_MM: f64 = 50.0;
+
 /// One simulated printer: the build-volume error of Klipper's own fit, of
 /// the physical fit's projection, and the projection limit.
-fn run_case(case: &Case, with_distances: bool) -> ([ErrorSummary; 3], Vec<(f64, f64, f64)>) {
+fn run_case(case: &Case, data: Data) -> ([ErrorSummary; 3], Vec<(f64, f64, f64)>) {
     let dir = tempfile::tempdir().unwrap();
     let reg = regular(case.probe);
     // The printer before any result (a placeholder block to read it).
@@ -267,7 +337,7 @@ fn run_case(case: &Case, with_distances: bool) -> ([ErrorSummary; 3], Vec<(f64, 
     let ld = blank.linear_delta().unwrap().unwrap();
     let (mech, truth_p, truth_bed) = truth(case, &ld);
     let steps = probe(&blank, &mech, &truth_p, &truth_bed);
-    let distances = if with_distances {
+    let distances = if matches!(data, Data::Distances | Data::DistancesTouches) {
         object_distances(&blank, &mech, &truth_p)
     } else {
         vec![]
@@ -292,7 +362,19 @@ fn run_case(case: &Case, with_distances: bool) -> ([ErrorSummary; 3], Vec<(f64, 
     let own_fit = firmware::calibrate(&printer, Request::new(pkmcal::Model::Exact)).unwrap();
     let own_cal = &own_fit.study.calibration;
     let own = error(&own_cal.params);
-    let fit = physical::calibrate(&printer, &ld, stated(case)).unwrap();
+    let surfaces: &[f64] = match data {
+        Data::Probes | Data::Distances => &[],
+        Data::Touches | Data::DistancesTouches => &[0.0],
+        Data::Gauge => &[0.0, GAUGE_MM],
+    };
+    let touched = (!surfaces.is_empty()).then(|| {
+        let path = dir.path().join("touches.csv");
+        let text = touches(&blank, &mech, &truth_p, &truth_bed, case.seed, surfaces);
+        std::fs::write(&path, text).unwrap();
+        let files = pkmcal_io::Files::new();
+        physical_heights::read(&pkmcal_io::Run::quiet(&files), &path).unwrap()
+    });
+    let fit = physical::calibrate_with(&printer, &ld, stated(case), touched.as_ref()).unwrap();
     let choice = physical::choose(&fit, &fw, &own_cal.params, &own_cal.measurement).unwrap();
     let projected = &choice.written;
     let written = error(&projected.params);
@@ -386,41 +468,75 @@ fn cases() -> Vec<Case> {
 
 #[test]
 fn physical_projection_beats_klippers_fit_and_closes_the_gap() {
-    let mean = gap_closed(cases(), true);
-    assert!(mean >= GAP_CLOSED, "mean gap closed {mean:.3}");
+    let (mean, worse) = gap_closed(cases(), &[Data::Probes, Data::Distances], true);
+    assert_eq!(worse, [0, 0], "never worse than Klipper's own fit");
+    let all = (mean[0] + mean[1]) / 2.0;
+    assert!(all >= GAP_CLOSED, "mean gap closed {all:.3}");
+}
+
+/// With nozzle touches at the probe's 7 points (`--heights`, a paper
+/// test's σ): the effector's tilt that the probe's offset turns into Z
+/// error is seen (the rod mismatch's printers); with the distances as
+/// well, the XY the heights cannot see.
+#[test]
+fn nozzle_touches_close_the_gap() {
+    let (mean, worse) = gap_closed(
+        cases(),
+        &[Data::Touches, Data::Gauge, Data::DistancesTouches],
+        false,
+    );
+    assert_eq!(worse, [0, 0, 0], "never worse than Klipper's own fit");
+    assert!(mean[0] >= TOUCHES_GAP_CLOSED, "touches: {mean:.3?}");
+    assert!(mean[1] >= TOUCHES_GAP_CLOSED, "gauge: {mean:.3?}");
+    assert!(
+        mean[2] >= DISTANCES_TOUCHES_GAP_CLOSED,
+        "distances and touches: {mean:.3?}"
+    );
 }
 
 /// Fresh printers (seeds 7 to 20, the six kinds again with other draws):
-/// never worse than Klipper's own fit there either; the share of the gap
-/// closed reported (BENCHMARKS.md). Slow: `cargo test -p pkmcal-io --test
+/// with the probe results, with or without the distances, never worse than
+/// Klipper's own fit there either; the share of the gap closed, and with
+/// touches how often worse, reported (BENCHMARKS.md). Slow: `cargo test -p pkmcal-io --test
 /// physical_acceptance -- --ignored`.
 #[test]
 #[ignore]
 fn fresh_printers() {
-    let mean = gap_closed((7..=20).map(case).collect(), false);
-    assert!(mean.is_finite());
+    let (mean, worse) = gap_closed(
+        (7..=20).map(case).collect(),
+        &[
+            Data::Probes,
+            Data::Distances,
+            Data::Touches,
+            Data::Gauge,
+            Data::DistancesTouches,
+        ],
+        false,
+    );
+    assert!(mean.iter().all(|m| m.is_finite()));
+    // The probe results alone, and with the distances, never worse (the
+    // touches' count is reported: BENCHMARKS.md).
+    assert_eq!(worse[..2], [0, 0], "never worse than Klipper's own fit");
 }
 
-/// The share of the gap closed on `cases`, each with and without
-/// distances; every one never worse than Klipper's fit; with `cubes`, the
-/// verdict's cubes checked.
-fn gap_closed(cases: Vec<Case>, check_cubes: bool) -> f64 {
+/// The share of the gap closed on `cases` with each of `data`, on average
+/// over the cases, and on how many the written values were worse than
+/// Klipper's own fit (both in `data`'s order); with `cubes`, the verdict's
+/// cubes checked.
+fn gap_closed(cases: Vec<Case>, data: &[Data], check_cubes: bool) -> (Vec<f64>, Vec<usize>) {
     let mut closed = vec![];
+    let mut by_data = vec![vec![]; data.len()];
+    let mut worse = vec![0; data.len()];
     let mut cubes = vec![];
     let mut table = String::new();
     for case in cases {
-        for with_distances in [false, true] {
-            let ([own, written, limit], c) = run_case(&case, with_distances);
+        for (k, &with) in data.iter().enumerate() {
+            let ([own, written, limit], c) = run_case(&case, with);
             cubes.extend(c);
             let _ = writeln!(
                 table,
-                "seed {}{}: Klipper's fit {:.4} (xy {:.4}, z {:.4}), written {:.4} (xy {:.4}, z {:.4}), limit {:.4} (xy {:.4}, z {:.4}) mm RMS",
+                "seed {} {with:?}: Klipper's fit {:.4} (xy {:.4}, z {:.4}), written {:.4} (xy {:.4}, z {:.4}), limit {:.4} (xy {:.4}, z {:.4}) mm RMS, written/limit {:.2}",
                 case.seed,
-                if with_distances {
-                    " with distances"
-                } else {
-                    ""
-                },
                 own.rms(),
                 own.xy_rms,
                 own.z_rms,
@@ -429,19 +545,25 @@ fn gap_closed(cases: Vec<Case>, check_cubes: bool) -> f64 {
                 written.z_rms,
                 limit.rms(),
                 limit.xy_rms,
-                limit.z_rms
+                limit.z_rms,
+                written.rms() / limit.rms()
             );
-            assert!(
-                written.rms() <= own.rms() + NEVER_WORSE_MM,
-                "seed {}: worse than Klipper's own fit\n{table}",
-                case.seed
-            );
+            if written.rms() > own.rms() + NEVER_WORSE_MM {
+                let _ = writeln!(table, "  (worse than Klipper's own fit)");
+                worse[k] += 1;
+            }
             let gap = own.rms() - limit.rms();
             closed.push((own.rms() - written.rms()) / gap.max(1e-9));
+            by_data[k].push(closed[closed.len() - 1]);
         }
     }
-    let mean = closed.iter().sum::<f64>() / closed.len() as f64;
-    eprintln!("{table}gap closed: {closed:.3?}, mean {mean:.3}");
+    let mean: Vec<f64> = by_data
+        .iter()
+        .map(|c| c.iter().sum::<f64>() / c.len() as f64)
+        .collect();
+    eprintln!(
+        "{table}gap closed: {closed:.3?}, mean by data {data:?}: {mean:.3?}, worse than Klipper's fit: {worse:?}"
+    );
     let within = |k: f64| {
         cubes
             .iter()
@@ -464,7 +586,7 @@ fn gap_closed(cases: Vec<Case>, check_cubes: bool) -> f64 {
             "{cubes:.4?}"
         );
     }
-    mean
+    (mean, worse)
 }
 
 /// The data's limit, shown by twins. Each printer `A` has a twin `B`: `A`

@@ -277,6 +277,7 @@ impl Poses {
                 }),
             };
             out.push(Measurement {
+                point: None,
                 target: t,
                 commands: c,
                 partner: p,

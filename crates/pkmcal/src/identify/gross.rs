@@ -59,7 +59,7 @@ pub(super) fn gross_errors<M: Mechanism>(
         .zip(data)
         .filter(|(_, d)| d.partner.is_none())
         .map(|(x, d)| {
-            measurement.observe(x, &m0, &mut y);
+            measurement.observe_point(x, &m0, d.point.as_deref(), &mut y);
             lengths
                 .iter()
                 .map(|&a| (y[a] - d.measured[a]).powi(2))

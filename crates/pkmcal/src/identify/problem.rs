@@ -78,6 +78,8 @@ pub struct IdentificationProblem<'a, M: Mechanism> {
     rows: Vec<Row>,
     n_readings: usize,
     measured: Vec<Vec<f64>>,
+    /// Each row's point of the tool body read ([`Measurement::point`]).
+    points: Vec<Option<Vec<f64>>>,
     model: Model,
     force: Vec<f64>,
     /// The last parameters evaluated and their predictions: a Jacobian at an
@@ -157,6 +159,7 @@ impl PoseCache {
 /// within range (a distance only where the model measures distances).
 fn check_row(measurement: &MeasurementModel, m: &Measurement) -> Result<()> {
     let origin = m.origin.expect("numbered");
+    measurement.check_point(m).map_err(|e| e.at_pose(origin))?;
     let len = measurement.row_len(m);
     if let Some(partner) = &m.partner {
         measurement
@@ -332,6 +335,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             rows,
             n_readings: offset,
             measured: data.iter().map(|m| m.measured.clone()).collect(),
+            points: data.iter().map(|m| m.point.clone()).collect(),
             model,
             force: force.to_vec(),
             cache: RefCell::new(None),
@@ -508,14 +512,15 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         let mut r = DVector::zeros(self.n_readings);
         let mut y = vec![0.0; self.measurement.len()];
         let predictions = self.predictions(&params)?;
-        for (row, measured) in self.rows.iter().zip(&self.measured) {
+        for ((row, measured), point) in self.rows.iter().zip(&self.measured).zip(&self.points) {
             let xa = &predictions[row.first].x;
             match row.second {
                 Some(b) => {
                     r[row.offset] = self.measurement.distance(xa, &predictions[b].x) - measured[0];
                 }
                 None => {
-                    self.measurement.observe(xa, &m, &mut y);
+                    self.measurement
+                        .observe_point(xa, &m, point.as_deref(), &mut y);
                     for a in 0..row.len {
                         r[row.offset + a] = y[a] - measured[a];
                     }
@@ -602,7 +607,11 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
                 })
                 .collect::<Result<_>>()?;
             let mut at = 0;
-            for (row, measured) in chunk.iter().zip(&self.measured[first_row..]) {
+            for ((row, measured), point) in chunk
+                .iter()
+                .zip(&self.measured[first_row..])
+                .zip(&self.points[first_row..])
+            {
                 let sa = &sens[at];
                 at += 1;
                 match row.second {
@@ -619,7 +628,11 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
                         put(&mut j, row.offset, &jx, 0, 0);
                     }
                     None => {
-                        let (y, dx, dm) = self.measurement.observe_jacobian(&sa.prediction.x, &m);
+                        let (y, dx, dm) = self.measurement.observe_point_jacobian(
+                            &sa.prediction.x,
+                            &m,
+                            point.as_deref(),
+                        );
                         for a in 0..row.len {
                             r[row.offset + a] = y[a] - measured[a];
                         }

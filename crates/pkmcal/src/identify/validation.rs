@@ -145,11 +145,12 @@ fn accuracy_cached<M: Mechanism>(
         tools
             .iter()
             .zip(&measured)
-            .map(|(x, y)| match measurement.to_base(y, mv) {
+            .zip(data)
+            .map(|((x, y), d)| match measurement.to_base(y, mv) {
                 Some(b) => b.iter().zip(x).map(|(p, q)| p - q).collect(),
                 None => {
                     let mut h = vec![0.0; measurement.len()];
-                    measurement.observe(x, mv, &mut h);
+                    measurement.observe_point(x, mv, d.point.as_deref(), &mut h);
                     y.iter().zip(&h).map(|(p, q)| p - q).collect()
                 }
             })

@@ -631,7 +631,14 @@ fn tool_axes(
             }
         }
     }
-    if tool.len() != dof {
+    // A turning platform's whole pose, listed, may be read beyond its
+    // degrees of freedom (a delta's effector, whose tilt a second point on
+    // it shows): it is then observed, not commanded. Left out, the tool is
+    // one axis per degree of freedom.
+    let whole = d.platform.tool.is_some()
+        && d.platform.motion == Motion::Full
+        && tool.len() == pose_axes.len();
+    if tool.len() != dof && !whole {
         return bad(format!(
             "the mechanism has {dof} degrees of freedom but {} tool axes ({}); list {dof} of {} as `tool = [...]` in [platform]",
             tool.len(),
@@ -1145,7 +1152,15 @@ impl SpatialMechanism {
         }
         self.spec.reference_q = q0.clone();
         self.spec.validate()?;
-        let fixed: Vec<usize> = self.tool.iter().map(|&k| self.pose0 + k).collect();
+        // A whole pose read beyond the degrees of freedom: its first
+        // coordinates (the position) hold the assembly, the rest follow.
+        let dof = q0.len() - self.spec.n_constraints;
+        let fixed: Vec<usize> = self
+            .tool
+            .iter()
+            .take(dof)
+            .map(|&k| self.pose0 + k)
+            .collect();
         crate::engine::kinematics::solve_closure(self, &rho, &mut q0, &fixed).map_err(|e| {
             Error::InvalidMechanism(format!(
                 "the [assembly] configuration does not close ({e}); check the lengths, the pose and the joint values (a leg that cannot reach the platform there, or guesses far from the wanted assembly)"

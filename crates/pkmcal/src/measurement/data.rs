@@ -28,6 +28,14 @@ pub struct Measurement {
     /// Where the pose came from, for messages and reports; `None`: its
     /// position in the data given to the library.
     pub origin: Option<Origin>,
+    /// The point of the tool body read, in the tool frame (mm), where it is
+    /// not the tool point: a probe reading a second point fixed on the tool
+    /// (a printer's nozzle touching the bed where its probe triggers
+    /// elsewhere). `None`: the tool point. Only a probe reads another point,
+    /// and only on a spatial tool with an orientation
+    /// ([`crate::MeasurementModel::check_point`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub point: Option<Vec<f64>>,
 }
 
 impl Measurement {

@@ -233,6 +233,8 @@ fn body_point<D: Scalar>(layout: ToolLayout, x: &[D], t: &[D]) -> [D; 3] {
             let (s, c) = x[2].sin_cos();
             [x[0] + c * t[0] - s * t[1], x[1] + s * t[0] + c * t[1], zero]
         }
+        // No point given: the tool point itself.
+        ToolLayout::SpatialPose if t.is_empty() => [x[0], x[1], x[2]],
         ToolLayout::SpatialPose => transform(x, [t[0], t[1], t[2]]),
         _ => {
             let mut p = [zero; 3];
@@ -655,6 +657,37 @@ impl MeasurementModel {
         }
     }
 
+    /// Check a row's point of the tool body ([`crate::Measurement::point`]):
+    /// only a probe reads a point other than the tool point, on a spatial
+    /// tool with an orientation, at three finite coordinates within any
+    /// tool's size.
+    pub fn check_point(&self, row: &crate::Measurement) -> Result<()> {
+        let Some(p) = &row.point else {
+            return Ok(());
+        };
+        if self.instrument != Instrument::Probe || row.partner.is_some() {
+            return Err(Error::InvalidRequest(
+                "only a probe's height reads a point of the tool other than the tool point; give the row without its point".into(),
+            ));
+        }
+        if self.tool != ToolLayout::SpatialPose {
+            return Err(Error::InvalidMechanism(format!(
+                "a point off the tool point moves with the tool's orientation, which this mechanism's tool ({}) does not give; give the tool as a whole pose (x y z rx ry rz)",
+                self.tool_axes.join(" ")
+            )));
+        }
+        if p.len() != 3
+            || p.iter()
+                .any(|v| !(v.is_finite() && v.abs() <= crate::units::MAX_LENGTH_MM))
+        {
+            return Err(Error::InvalidRequest(format!(
+                "the point read needs 3 finite coordinates in the tool frame (mm) within ±{:e} mm, got {p:?}",
+                crate::units::MAX_LENGTH_MM
+            )));
+        }
+        Ok(())
+    }
+
     /// Check that the tool has a point whose distances between poses can be
     /// measured (every position coordinate).
     pub fn check_distances(&self) -> Result<()> {
@@ -702,6 +735,13 @@ impl MeasurementModel {
     /// The readings `y = h(x, m)` of a tool at `x` (base frame) under the
     /// model's parameters `m`.
     pub fn observe<D: Scalar>(&self, x: &[D], m: &[D], y: &mut [D]) {
+        self.observe_point(x, m, None, y)
+    }
+
+    /// The readings of a row whose probe reads the tool body's `point`
+    /// (tool frame, mm; [`crate::Measurement::point`], checked by
+    /// [`MeasurementModel::check_point`]); `None`: [`MeasurementModel::observe`].
+    pub fn observe_point<D: Scalar>(&self, x: &[D], m: &[D], point: Option<&[f64]>, y: &mut [D]) {
         let f = &m[self.n_own..];
         let zero = D::from(0.0);
         match &self.instrument {
@@ -746,7 +786,8 @@ impl MeasurementModel {
                 }
             }
             Instrument::Probe => {
-                let p = body_point(self.tool, x, &[]);
+                let t: Vec<D> = point.unwrap_or(&[]).iter().map(|&v| D::from(v)).collect();
+                let p = body_point(self.tool, x, &t);
                 let h = m[0] - p[0] * m[2].tan() + p[1] * m[1].tan();
                 y[0] = p[2] - h;
             }
@@ -756,9 +797,20 @@ impl MeasurementModel {
     /// [`MeasurementModel::observe`] and its exact derivatives (dual numbers)
     /// with respect to the tool coordinates and to the model's parameters.
     pub fn observe_jacobian(&self, x: &[f64], m: &[f64]) -> (Vec<f64>, DMatrix<f64>, DMatrix<f64>) {
+        self.observe_point_jacobian(x, m, None)
+    }
+
+    /// [`MeasurementModel::observe_point`] and its exact derivatives, as
+    /// [`MeasurementModel::observe_jacobian`].
+    pub fn observe_point_jacobian(
+        &self,
+        x: &[f64],
+        m: &[f64],
+        point: Option<&[f64]>,
+    ) -> (Vec<f64>, DMatrix<f64>, DMatrix<f64>) {
         let (nx, nm, ny) = (x.len(), m.len(), self.len());
         let mut y = vec![0.0; ny];
-        self.observe(x, m, &mut y);
+        self.observe_point(x, m, point, &mut y);
         let mut dx = DMatrix::zeros(ny, nx);
         let mut dm = DMatrix::zeros(ny, nm);
         let mut xd: Vec<Dual64> = x.iter().map(|&v| Dual64::from(v)).collect();
@@ -770,7 +822,7 @@ impl MeasurementModel {
             } else {
                 md[j - nx] = Dual64::from(m[j - nx]).derivative();
             }
-            self.observe(&xd, &md, &mut out);
+            self.observe_point(&xd, &md, point, &mut out);
             for (i, o) in out.iter().enumerate() {
                 if j < nx {
                     dx[(i, j)] = o.eps;

@@ -268,3 +268,67 @@ fn ball_offset_on_a_platform_is_identified() {
         assert!((got - want).abs() < RECOVERY, "{name}: {got}");
     }
 }
+
+/// A probe reading a second point of the tool (a printer's nozzle where its
+/// probe triggers elsewhere): the point's height over the bed, turning with
+/// the tool; its Jacobian exact; refused where no orientation carries it,
+/// or on another instrument.
+#[test]
+fn a_probe_reads_a_second_point_of_the_tool() {
+    let gs = gough_stewart("gough-stewart-6");
+    let probe = MeasurementModel::probe(gs.spec()).unwrap();
+    let bed: [f64; 3] = [1.5, 0.01, -0.02];
+    let truth = perturbed(gs.spec(), 3, 0.2, 0.002);
+    let point = vec![30.0, -20.0, 5.0];
+    let mut data = simulate(&gs, &probe, &truth, &spread(&gs, 6), 0.0, 1).unwrap();
+    for m in data.iter_mut().skip(1).step_by(2) {
+        let x = predict(&gs, &truth, &m.commands, Model::Exact, &[])
+            .unwrap()
+            .x;
+        let r = pkmcal::linalg::pose::rotation(x[3], x[4], x[5]);
+        let p: [f64; 3] =
+            std::array::from_fn(|i| x[i] + (0..3).map(|k| r[i][k] * point[k]).sum::<f64>());
+        m.measured = vec![p[2] - (bed[0] - p[0] * bed[2].tan() + p[1] * bed[1].tan())];
+        m.point = Some(point.clone());
+        // The tool point alone reads another height once the tool turns.
+        let mut y = [0.0];
+        probe.observe(&x, &bed, &mut y);
+        assert!(
+            (y[0] - m.measured[0]).abs() > 1e-3,
+            "{} {}",
+            y[0],
+            m.measured[0]
+        );
+    }
+    for m in data.iter_mut().step_by(2) {
+        let x = predict(&gs, &truth, &m.commands, Model::Exact, &[])
+            .unwrap()
+            .x;
+        probe.observe(&x, &bed, &mut m.measured);
+    }
+    let problem = IdentificationProblem::new(&gs, &probe, &data, Model::Exact, &[]).unwrap();
+    let x: Vec<f64> = truth.values.iter().chain(&bed).copied().collect();
+    let (r, j) = problem.residuals_and_jacobian(&x).unwrap();
+    assert!(r.amax() < ROUND_OFF_MM, "{r}");
+    for c in 0..x.len() {
+        let h = 1e-6 * (1.0 + x[c].abs());
+        let (mut a, mut b) = (x.clone(), x.clone());
+        a[c] += h;
+        b[c] -= h;
+        let fd = (problem.residuals(&a).unwrap() - problem.residuals(&b).unwrap()) / (2.0 * h);
+        let scale = j.column(c).amax().max(fd.amax()).max(1.0);
+        assert!(
+            (&fd - j.column(c)).amax() < JACOBIAN_REL * scale,
+            "column {c}"
+        );
+    }
+    // Where the tool has no orientation, or the instrument is not a probe.
+    let tool = MeasurementModel::tool(gs.spec());
+    let err = IdentificationProblem::new(&gs, &tool, &data[1..2], Model::Exact, &[])
+        .err()
+        .unwrap();
+    assert!(err.to_string().contains("only a probe"), "{err}");
+    let rrr = planar("3-rrr");
+    let flat = MeasurementModel::probe(rrr.spec());
+    assert!(flat.is_err(), "a planar tool has no height to probe");
+}

@@ -98,6 +98,7 @@ fn distance_data(truth: &Params, targets: &[Vec<f64>], noise: f64, seed: u64) ->
     exact
         .into_iter()
         .map(|m| Measurement {
+            point: None,
             target: None,
             sigma: vec![],
             origin: None,
@@ -125,6 +126,7 @@ fn both_routes(data: &[Measurement]) -> (Params, Params) {
     let tri: Vec<Measurement> = data
         .iter()
         .map(|m| Measurement {
+            point: None,
             target: None,
             sigma: vec![],
             origin: None,

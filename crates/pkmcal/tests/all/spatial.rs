@@ -378,6 +378,26 @@ fn bad_descriptions_name_the_leg_and_joint() {
         e.contains("3 degrees of freedom") && e.contains("tool = ["),
         "{e}"
     );
+    // Listed as the whole pose, it is observed beyond them; then the
+    // workspace names every axis.
+    let e = refused(
+        |t| {
+            t.get_mut("platform")
+                .unwrap()
+                .as_table_mut()
+                .unwrap()
+                .insert(
+                    "tool".into(),
+                    toml::Value::Array(
+                        ["x", "y", "z", "rx", "ry", "rz"]
+                            .map(toml::Value::from)
+                            .to_vec(),
+                    ),
+                );
+        },
+        "3-prs",
+    );
+    assert!(e.contains("[workspace] needs `x = [min, max]`"), "{e}");
 }
 
 /// A height probe on a tilted bed: its reading is the tool's height above
