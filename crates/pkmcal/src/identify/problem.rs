@@ -324,6 +324,13 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             poses.push(pose);
             pose_origins.push(origin);
         }
+        let large = offset.saturating_mul(mech.spec().n_params() + measurement.n_params())
+            >= crate::lm::LARGE_JACOBIAN;
+        if large {
+            for pose in &poses {
+                pose.transient_hessians();
+            }
+        }
         Ok(Self {
             mech,
             measurement,
@@ -336,8 +343,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             force: force.to_vec(),
             cache: RefCell::new(None),
             jacobian_cache: RefCell::new(None),
-            large: offset.saturating_mul(mech.spec().n_params() + measurement.n_params())
-                >= crate::lm::LARGE_JACOBIAN,
+            large,
             cancel: None,
         })
     }

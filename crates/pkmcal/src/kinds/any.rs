@@ -94,6 +94,14 @@ impl Mechanism for AnyMechanism {
     fn joint_hessians(&self, q: &[f64], rho: &[f64]) -> Vec<DMatrix<f64>> {
         each!(self, m => m.joint_hessians(q, rho))
     }
+    fn joint_hessians_into(
+        &self,
+        q: &[f64],
+        rho: &[f64],
+        out: &mut crate::engine::curvature::JointHessians,
+    ) {
+        each!(self, m => m.joint_hessians_into(q, rho, out))
+    }
     fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
         each!(self, m => m.on_branch(q, rho))
     }

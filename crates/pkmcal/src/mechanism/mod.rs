@@ -511,6 +511,22 @@ pub trait Mechanism: Send + Sync {
         crate::mechanism::autodiff::output_hessians(self, q, rho, 0..q.len(), 0..q.len())
     }
 
+    /// [`Mechanism::joint_hessians`] kept on their supports, written into
+    /// `out` (its storage reused): the same numbers as
+    /// [`JointHessians::from_dense`](crate::engine::curvature::JointHessians::from_dense)
+    /// of the dense matrices. The default builds those; a mechanism that
+    /// knows its Hessians' supports writes them directly.
+    fn joint_hessians_into(
+        &self,
+        q: &[f64],
+        rho: &[f64],
+        out: &mut crate::engine::curvature::JointHessians,
+    ) where
+        Self: Sized,
+    {
+        *out = crate::engine::curvature::JointHessians::from_dense(&self.joint_hessians(q, rho));
+    }
+
     /// Check parameter values beyond finiteness (e.g. lengths that must be
     /// positive). The default accepts every value.
     fn check_params(&self, _rho: &[f64]) -> Result<()> {
