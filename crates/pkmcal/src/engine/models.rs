@@ -199,7 +199,8 @@ impl Pose {
     /// keep them (unless they are kept already): a pose of a large problem
     /// (tens of thousands of poses) would otherwise hold them, 2.5 kB a pose
     /// on an 8-leg platform, for the whole calibration. The numbers are the
-    /// same, computed from the same nominal configuration.
+    /// same, computed from the same nominal configuration. For mechanisms
+    /// that compute them cheaply ([`Mechanism::joint_hessians_cheap`]).
     pub(crate) fn transient_hessians(&self) {
         let _ = self.transient.set(());
     }

@@ -326,7 +326,8 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         }
         let large = offset.saturating_mul(mech.spec().n_params() + measurement.n_params())
             >= crate::lm::LARGE_JACOBIAN;
-        if large {
+        // (Where the mechanism computes its joint Hessians cheaply.)
+        if large && mech.joint_hessians_cheap() {
             for pose in &poses {
                 pose.transient_hessians();
             }

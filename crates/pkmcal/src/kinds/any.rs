@@ -94,6 +94,9 @@ impl Mechanism for AnyMechanism {
     fn joint_hessians(&self, q: &[f64], rho: &[f64]) -> Vec<DMatrix<f64>> {
         each!(self, m => m.joint_hessians(q, rho))
     }
+    fn joint_hessians_cheap(&self) -> bool {
+        each!(self, m => m.joint_hessians_cheap())
+    }
     fn joint_hessians_into(
         &self,
         q: &[f64],

@@ -608,6 +608,10 @@ impl Mechanism for GoughStewart {
         out
     }
 
+    fn joint_hessians_cheap(&self) -> bool {
+        true
+    }
+
     fn joint_hessians_into(
         &self,
         q: &[f64],

@@ -511,6 +511,14 @@ pub trait Mechanism: Send + Sync {
         crate::mechanism::autodiff::output_hessians(self, q, rho, 0..q.len(), 0..q.len())
     }
 
+    /// Whether [`Mechanism::joint_hessians_into`] is cheap beside an
+    /// equilibrium (written directly, no dense matrices): a large
+    /// calibration then computes them for each equilibrium instead of
+    /// keeping them with every pose. The default: no.
+    fn joint_hessians_cheap(&self) -> bool {
+        false
+    }
+
     /// [`Mechanism::joint_hessians`] kept on their supports, written into
     /// `out` (its storage reused): the same numbers as
     /// [`JointHessians::from_dense`](crate::engine::curvature::JointHessians::from_dense)
