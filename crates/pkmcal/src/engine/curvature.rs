@@ -80,11 +80,13 @@ impl JointHessians {
     }
 
     /// Add the next output's Hessian, given on the joints `joints`
-    /// (ascending) as `entry(a, b)` for `joints[a]`, `joints[b]` (every other
-    /// entry zero): kept as [`JointHessians::from_dense`] keeps the dense
-    /// matrix, the same support and values, without building it.
-    pub fn push(&mut self, joints: &[usize], entry: impl Fn(usize, usize) -> f64) {
+    /// (ascending) as `block` (`k × k` column-major, `k = joints.len()`;
+    /// every other entry zero): kept as [`JointHessians::from_dense`] keeps
+    /// the dense matrix, the same support and values, without building it.
+    pub fn push(&mut self, joints: &[usize], block: &[f64]) {
         let k = joints.len();
+        assert_eq!(block.len(), k * k, "a k × k block on k joints");
+        let entry = |a: usize, b: usize| block[b * k + a];
         // (NaN counts as non-zero, as in `from_dense`.)
         let involved = |a: usize| (0..k).any(|b| entry(a, b) != 0.0 || entry(b, a) != 0.0);
         // The involved joints' positions as bits (up to 64 joints; beyond,
@@ -252,9 +254,10 @@ mod tests {
                 }
             }
             dense.push(h);
-            pushed.push(&joints, |a, c| b[a][c]);
+            let block: Vec<f64> = (0..4).flat_map(|c| (0..4).map(move |a| b[a][c])).collect();
+            pushed.push(&joints, &block);
         }
-        pushed.push(&[], |_, _| 0.0);
+        pushed.push(&[], &[]);
         dense.push(DMatrix::zeros(nq, nq));
         let kept = JointHessians::from_dense(&dense);
         let bits = |h: &JointHessians| {

@@ -184,7 +184,11 @@ impl Pose {
     /// The joint Hessians at the nominal configuration, computed into `out`.
     fn joint_hessians_into<M: Mechanism>(&self, mech: &M, out: &mut JointHessians) {
         let spec = mech.spec();
-        mech.joint_hessians_into(&self.nominal_q, &spec.nominal[..spec.n_geometric()], out);
+        let (q, rho) = (&self.nominal_q, &spec.nominal[..spec.n_geometric()]);
+        out.clear(q.len());
+        if !mech.joint_hessian_blocks(q, rho, &mut |joints, block| out.push(joints, block)) {
+            *out = JointHessians::from_dense(&mech.joint_hessians(q, rho));
+        }
     }
 
     /// The joint Hessians at the nominal configuration, computed.
@@ -200,7 +204,8 @@ impl Pose {
     /// (tens of thousands of poses) would otherwise hold them, 2.5 kB a pose
     /// on an 8-leg platform, for the whole calibration. The numbers are the
     /// same, computed from the same nominal configuration. For mechanisms
-    /// that compute them cheaply ([`Mechanism::joint_hessians_cheap`]).
+    /// that compute them cheaply ([`Mechanism::joint_hessians_cheap`],
+    /// [`Mechanism::joint_hessian_blocks`]).
     pub(crate) fn transient_hessians(&self) {
         let _ = self.transient.set(());
     }

@@ -612,25 +612,24 @@ impl Mechanism for GoughStewart {
         true
     }
 
-    fn joint_hessians_into(
+    fn joint_hessian_blocks(
         &self,
         q: &[f64],
         rho: &[f64],
-        out: &mut crate::engine::curvature::JointHessians,
-    ) {
+        out: &mut dyn FnMut(&[usize], &[f64]),
+    ) -> bool {
         // Each leg's on the platform's six joints, as `joint_hessians`
         // places them; the tool coordinates are joints (no curvature).
-        let (n, nq) = (self.n, self.n + 6);
+        let n = self.n;
         let legs = LegHessians::new(q, rho, n);
         let platform: [usize; 6] = std::array::from_fn(|k| n + k);
-        out.clear(nq);
         for i in 0..n {
-            let hi = legs.platform(i);
-            out.push(&platform, |r, c| hi[(r, c)]);
+            out(&platform, legs.platform(i).as_slice());
         }
         for _ in 0..6 {
-            out.push(&[], |_, _| 0.0);
+            out(&[], &[]);
         }
+        true
     }
 
     fn inverse_kinematics_closed(&self, target: &[f64], rho: &[f64]) -> Option<Result<Vec<f64>>> {

@@ -511,28 +511,26 @@ pub trait Mechanism: Send + Sync {
         crate::mechanism::autodiff::output_hessians(self, q, rho, 0..q.len(), 0..q.len())
     }
 
-    /// Whether [`Mechanism::joint_hessians_into`] is cheap beside an
-    /// equilibrium (written directly, no dense matrices): a large
+    /// Whether [`Mechanism::joint_hessian_blocks`] gives the joint
+    /// Hessians cheaply beside an equilibrium: a large
     /// calibration then computes them for each equilibrium instead of
     /// keeping them with every pose. The default: no.
     fn joint_hessians_cheap(&self) -> bool {
         false
     }
 
-    /// [`Mechanism::joint_hessians`] kept on their supports, written into
-    /// `out` (its storage reused): the same numbers as
-    /// [`JointHessians::from_dense`](crate::engine::curvature::JointHessians::from_dense)
-    /// of the dense matrices. The default builds those; a mechanism that
-    /// knows its Hessians' supports writes them directly.
-    fn joint_hessians_into(
+    /// Each output's joint Hessian (the order of
+    /// [`Mechanism::joint_hessians`]) given to `out` as the joints it
+    /// involves (ascending) and its block over them (column-major; every
+    /// other entry zero), without the dense matrices. Returns whether it
+    /// gave them: the default gives none (the dense matrices serve).
+    fn joint_hessian_blocks(
         &self,
-        q: &[f64],
-        rho: &[f64],
-        out: &mut crate::engine::curvature::JointHessians,
-    ) where
-        Self: Sized,
-    {
-        *out = crate::engine::curvature::JointHessians::from_dense(&self.joint_hessians(q, rho));
+        _q: &[f64],
+        _rho: &[f64],
+        _out: &mut dyn FnMut(&[usize], &[f64]),
+    ) -> bool {
+        false
     }
 
     /// Check parameter values beyond finiteness (e.g. lengths that must be

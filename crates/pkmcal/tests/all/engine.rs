@@ -657,7 +657,8 @@ fn gough_stewart_joint_hessians_into_are_the_dense_ones() {
             for v in &mut q {
                 *v += rng.random_range(-0.1..0.1) * v.abs().max(1.0);
             }
-            gs.joint_hessians_into(&q, &rho, &mut into);
+            into.clear(q.len());
+            assert!(gs.joint_hessian_blocks(&q, &rho, &mut |j, b| into.push(j, b)));
             let dense = JointHessians::from_dense(&gs.joint_hessians(&q, &rho));
             let bits = |h: &JointHessians| {
                 (0..h.len())
