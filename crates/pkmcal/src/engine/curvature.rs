@@ -59,6 +59,70 @@ impl JointHessians {
         }
     }
 
+    /// No output, for no joint (to be refilled by [`JointHessians::clear`]
+    /// and [`JointHessians::push`]).
+    pub fn empty() -> Self {
+        Self {
+            nq: 0,
+            starts: vec![0],
+            support: vec![],
+            values: vec![],
+        }
+    }
+
+    /// Drop every output (keeping the storage), for `nq` joints.
+    pub fn clear(&mut self, nq: usize) {
+        self.nq = nq;
+        self.starts.clear();
+        self.starts.push(0);
+        self.support.clear();
+        self.values.clear();
+    }
+
+    /// Add the next output's Hessian, given on the joints `joints`
+    /// (ascending) as `block` (`k × k` column-major, `k = joints.len()`;
+    /// every other entry zero): kept as [`JointHessians::from_dense`] keeps
+    /// the dense matrix, the same support and values, without building it.
+    pub fn push(&mut self, joints: &[usize], block: &[f64]) {
+        let k = joints.len();
+        assert_eq!(block.len(), k * k, "a k × k block on k joints");
+        let entry = |a: usize, b: usize| block[b * k + a];
+        // (NaN counts as non-zero, as in `from_dense`.)
+        let involved = |a: usize| (0..k).any(|b| entry(a, b) != 0.0 || entry(b, a) != 0.0);
+        // The involved joints' positions as bits (up to 64 joints; beyond,
+        // asked again).
+        let mut mask = 0u64;
+        let first = self.support.len();
+        for (a, &joint) in joints.iter().enumerate() {
+            if involved(a) {
+                self.support.push(joint as u32);
+                if a < 64 {
+                    mask |= 1 << a;
+                }
+            }
+        }
+        debug_assert!(self.support[first..].is_sorted());
+        let on = |a: usize| {
+            if k <= 64 {
+                mask >> a & 1 == 1
+            } else {
+                involved(a)
+            }
+        };
+        for b in (0..k).filter(|&b| on(b)) {
+            self.values
+                .extend((0..k).filter(|&a| on(a)).map(|a| entry(a, b)));
+        }
+        self.starts.push(self.support.len() as u32);
+    }
+
+    /// Release the spare capacity (for Hessians kept with a pose).
+    pub fn shrink_to_fit(&mut self) {
+        self.starts.shrink_to_fit();
+        self.support.shrink_to_fit();
+        self.values.shrink_to_fit();
+    }
+
     /// Number of outputs.
     pub fn len(&self) -> usize {
         self.starts.len() - 1
@@ -162,5 +226,48 @@ mod tests {
         assert_eq!(bits(&sum), bits(&expected));
         // Outputs keep 3 (or 2) of 7 joints: 9 (or 4) of 49 entries.
         assert_eq!(kept.values.len(), 4 * 9 + 4);
+    }
+
+    /// Outputs pushed on their joints are kept as the dense matrices are.
+    #[test]
+    fn pushed_blocks_are_the_dense_ones() {
+        let nq = 9;
+        let joints = [1, 4, 5, 8];
+        let blocks = [
+            [
+                [1.0, 0.0, 2.0, 0.0],
+                [0.0, 0.0, 0.0, 0.0],
+                [2.0, 0.0, -0.0, 0.0],
+                [0.0, 0.0, 0.0, 3.0],
+            ],
+            [[0.0; 4]; 4],
+            [[0.0, f64::NAN, 0.0, 0.0], [0.0; 4], [0.0; 4], [0.0; 4]],
+        ];
+        let mut dense = vec![];
+        let mut pushed = JointHessians::empty();
+        pushed.clear(nq);
+        for b in &blocks {
+            let mut h = DMatrix::zeros(nq, nq);
+            for (a, &r) in joints.iter().enumerate() {
+                for (c, &col) in joints.iter().enumerate() {
+                    h[(r, col)] = b[a][c];
+                }
+            }
+            dense.push(h);
+            let block: Vec<f64> = (0..4).flat_map(|c| (0..4).map(move |a| b[a][c])).collect();
+            pushed.push(&joints, &block);
+        }
+        pushed.push(&[], &[]);
+        dense.push(DMatrix::zeros(nq, nq));
+        let kept = JointHessians::from_dense(&dense);
+        let bits = |h: &JointHessians| {
+            (
+                h.nq,
+                h.starts.clone(),
+                h.support.clone(),
+                h.values.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+            )
+        };
+        assert_eq!(bits(&pushed), bits(&kept));
     }
 }

@@ -82,6 +82,10 @@ pub struct Pose {
     /// exact model; Newton's curvature there is good to ~1e-6 relative), kept
     /// without their zeros.
     hessians: OnceLock<JointHessians>,
+    /// Set when the pose belongs to a large problem ([`Pose::transient_hessians`]):
+    /// its joint Hessians are then computed for each equilibrium from the
+    /// nominal configuration, the same numbers, and not kept.
+    transient: OnceLock<()>,
     /// The prediction at nominal parameters from the nominal configuration
     /// (no warm start), with the model and load it was made for: a
     /// calibration that starts at nominal parameters and the accuracy it
@@ -174,12 +178,56 @@ impl Pose {
 
     /// Per-output joint Hessians at the nominal configuration.
     pub fn hessians<M: Mechanism>(&self, mech: &M) -> &JointHessians {
-        self.hessians.get_or_init(|| {
-            let spec = mech.spec();
-            JointHessians::from_dense(
-                &mech.joint_hessians(&self.nominal_q, &spec.nominal[..spec.n_geometric()]),
-            )
-        })
+        self.hessians.get_or_init(|| self.joint_hessians(mech))
+    }
+
+    /// The joint Hessians at the nominal configuration, computed into `out`.
+    fn joint_hessians_into<M: Mechanism>(&self, mech: &M, out: &mut JointHessians) {
+        let spec = mech.spec();
+        let (q, rho) = (&self.nominal_q, &spec.nominal[..spec.n_geometric()]);
+        out.clear(q.len());
+        if !mech.joint_hessian_blocks(q, rho, &mut |joints, block| out.push(joints, block)) {
+            *out = JointHessians::from_dense(&mech.joint_hessians(q, rho));
+        }
+    }
+
+    /// The joint Hessians at the nominal configuration, computed.
+    fn joint_hessians<M: Mechanism>(&self, mech: &M) -> JointHessians {
+        let mut h = JointHessians::empty();
+        self.joint_hessians_into(mech, &mut h);
+        h.shrink_to_fit();
+        h
+    }
+
+    /// Compute this pose's joint Hessians for each equilibrium rather than
+    /// keep them (unless they are kept already): a pose of a large problem
+    /// (tens of thousands of poses) would otherwise hold them, 2.5 kB a pose
+    /// on an 8-leg platform, for the whole calibration. The numbers are the
+    /// same, computed from the same nominal configuration. For mechanisms
+    /// that compute them cheaply ([`Mechanism::joint_hessians_cheap`],
+    /// [`Mechanism::joint_hessian_blocks`]).
+    pub(crate) fn transient_hessians(&self) {
+        let _ = self.transient.set(());
+    }
+
+    /// `f` of the joint Hessians: the kept ones, or, for a pose whose
+    /// Hessians are transient, ones computed for this call.
+    fn with_hessians<M: Mechanism, R>(&self, mech: &M, f: impl FnOnce(&JointHessians) -> R) -> R {
+        match self.hessians.get() {
+            Some(h) => f(h),
+            // Computed into a buffer of the thread's (a nested call, which
+            // nothing makes today, would get one of its own).
+            None if self.transient.get().is_some() => {
+                TRANSIENT_HESSIANS.with(|cell| match cell.try_borrow_mut() {
+                    Ok(mut h) => {
+                        self.joint_hessians_into(mech, &mut h);
+                        f(&h)
+                    }
+                    Err(_) => f(&self.joint_hessians(mech)),
+                })
+            }
+            None => f(self.hessians(mech)),
+        }
     }
 }
 
@@ -331,6 +379,7 @@ pub(crate) fn pose_ahead<M: Mechanism>(mech: &M, commands: &[f64]) -> Option<Ahe
                 nominal_q: q,
                 lin: OnceLock::new(),
                 hessians: OnceLock::new(),
+                transient: OnceLock::new(),
                 at_nominal: OnceLock::new(),
                 sensitivity_at_nominal: OnceLock::new(),
             })
@@ -532,6 +581,7 @@ pub(crate) fn prepare_pose_ahead<M: Mechanism>(
         nominal_q,
         lin: OnceLock::new(),
         hessians: OnceLock::new(),
+        transient: OnceLock::new(),
         at_nominal: OnceLock::new(),
         sensitivity_at_nominal: OnceLock::new(),
     })
@@ -618,14 +668,9 @@ fn exact_from<M: Mechanism>(
     force: &[f64],
     start: &[f64],
 ) -> Result<Prediction> {
-    let eq = equilibrium(
-        mech,
-        params,
-        &pose.commands,
-        force,
-        start,
-        Some(pose.hessians(mech)),
-    )?;
+    let eq = pose.with_hessians(mech, |h| {
+        equilibrium(mech, params, &pose.commands, force, start, Some(h))
+    })?;
     let mut x = vec![0.0; mech.spec().tool_axes.len()];
     mech.tool(&eq.q, params.geometric(), &mut x);
     let deflection = eq
@@ -933,6 +978,9 @@ const KEPT_FACTORS_MULTIPLIERS: f64 = 0.1;
 const KEPT_FACTORS_RATE: f64 = 0.1;
 
 thread_local! {
+    /// The joint Hessians of a pose that keeps none ([`Pose::with_hessians`]).
+    static TRANSIENT_HESSIANS: std::cell::RefCell<JointHessians> =
+        std::cell::RefCell::new(JointHessians::empty());
     static EQUILIBRIUM_WORK: std::cell::RefCell<EquilibriumWork> =
         std::cell::RefCell::new(EquilibriumWork::default());
 }

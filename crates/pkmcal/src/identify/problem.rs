@@ -327,6 +327,14 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             poses.push(pose);
             pose_origins.push(origin);
         }
+        let large = offset.saturating_mul(mech.spec().n_params() + measurement.n_params())
+            >= crate::lm::LARGE_JACOBIAN;
+        // (Where the mechanism computes its joint Hessians cheaply.)
+        if large && mech.joint_hessians_cheap() {
+            for pose in &poses {
+                pose.transient_hessians();
+            }
+        }
         Ok(Self {
             mech,
             measurement,
@@ -340,8 +348,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             force: force.to_vec(),
             cache: RefCell::new(None),
             jacobian_cache: RefCell::new(None),
-            large: offset.saturating_mul(mech.spec().n_params() + measurement.n_params())
-                >= crate::lm::LARGE_JACOBIAN,
+            large,
             cancel: None,
         })
     }

@@ -94,6 +94,17 @@ impl Mechanism for AnyMechanism {
     fn joint_hessians(&self, q: &[f64], rho: &[f64]) -> Vec<DMatrix<f64>> {
         each!(self, m => m.joint_hessians(q, rho))
     }
+    fn joint_hessians_cheap(&self) -> bool {
+        each!(self, m => m.joint_hessians_cheap())
+    }
+    fn joint_hessian_blocks(
+        &self,
+        q: &[f64],
+        rho: &[f64],
+        out: &mut dyn FnMut(&[usize], &[f64]),
+    ) -> bool {
+        each!(self, m => m.joint_hessian_blocks(q, rho, out))
+    }
     fn on_branch(&self, q: &[f64], rho: &[f64]) -> bool {
         each!(self, m => m.on_branch(q, rho))
     }

@@ -421,6 +421,45 @@ impl<'a> LegHessians<'a> {
         }
         (idx, h)
     }
+
+    /// [`LegHessians::leg`]'s block on the platform's six joints `(p, θ)`
+    /// alone (its first six rows and columns), computed without the rest:
+    /// the same products in the same order, so the same numbers (a large
+    /// calibration computes these for each equilibrium).
+    fn platform(&self, i: usize) -> nalgebra::SMatrix<f64, 6, 6> {
+        use nalgebra::{Matrix3, SMatrix, Vector3};
+        let n = self.n;
+        let (q, rho, rot) = (self.q, self.rho, &self.rot);
+        let p = Vector3::new(q[n], q[n + 1], q[n + 2]);
+        let a = Vector3::new(rho[3 * i], rho[3 * i + 1], rho[3 * i + 2]);
+        let b = Vector3::new(
+            rho[3 * n + 3 * i],
+            rho[3 * n + 3 * i + 1],
+            rho[3 * n + 3 * i + 2],
+        );
+        let w = p + rot.r * b - a;
+        let len = w.norm();
+        let mut h = SMatrix::<f64, 6, 6>::zeros();
+        if len <= 0.0 {
+            return h;
+        }
+        let u = w / len;
+        let mut wz = SMatrix::<f64, 3, 6>::zeros();
+        wz.fixed_view_mut::<3, 3>(0, 0)
+            .copy_from(&Matrix3::identity());
+        for j in 0..3 {
+            wz.fixed_view_mut::<3, 1>(0, 3 + j)
+                .copy_from(&(rot.d[j] * b));
+        }
+        let proj = (Matrix3::identity() - u * u.transpose()) / len;
+        h += wz.transpose() * proj * wz;
+        for j in 0..3 {
+            for k in 0..3 {
+                h[(3 + j, 3 + k)] += u.dot(&(rot.dd[j][k] * b));
+            }
+        }
+        h
+    }
 }
 
 impl Built for GoughStewart {
@@ -567,6 +606,30 @@ impl Mechanism for GoughStewart {
         }
         out.extend(std::iter::repeat_n(nalgebra::DMatrix::zeros(nq, nq), 6));
         out
+    }
+
+    fn joint_hessians_cheap(&self) -> bool {
+        true
+    }
+
+    fn joint_hessian_blocks(
+        &self,
+        q: &[f64],
+        rho: &[f64],
+        out: &mut dyn FnMut(&[usize], &[f64]),
+    ) -> bool {
+        // Each leg's on the platform's six joints, as `joint_hessians`
+        // places them; the tool coordinates are joints (no curvature).
+        let n = self.n;
+        let legs = LegHessians::new(q, rho, n);
+        let platform: [usize; 6] = std::array::from_fn(|k| n + k);
+        for i in 0..n {
+            out(&platform, legs.platform(i).as_slice());
+        }
+        for _ in 0..6 {
+            out(&[], &[]);
+        }
+        true
     }
 
     fn inverse_kinematics_closed(&self, target: &[f64], rho: &[f64]) -> Option<Result<Vec<f64>>> {

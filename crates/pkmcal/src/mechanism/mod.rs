@@ -511,6 +511,28 @@ pub trait Mechanism: Send + Sync {
         crate::mechanism::autodiff::output_hessians(self, q, rho, 0..q.len(), 0..q.len())
     }
 
+    /// Whether [`Mechanism::joint_hessian_blocks`] gives the joint
+    /// Hessians cheaply beside an equilibrium: a large
+    /// calibration then computes them for each equilibrium instead of
+    /// keeping them with every pose. The default: no.
+    fn joint_hessians_cheap(&self) -> bool {
+        false
+    }
+
+    /// Each output's joint Hessian (the order of
+    /// [`Mechanism::joint_hessians`]) given to `out` as the joints it
+    /// involves (ascending) and its block over them (column-major; every
+    /// other entry zero), without the dense matrices. Returns whether it
+    /// gave them: the default gives none (the dense matrices serve).
+    fn joint_hessian_blocks(
+        &self,
+        _q: &[f64],
+        _rho: &[f64],
+        _out: &mut dyn FnMut(&[usize], &[f64]),
+    ) -> bool {
+        false
+    }
+
     /// Check parameter values beyond finiteness (e.g. lengths that must be
     /// positive). The default accepts every value.
     fn check_params(&self, _rho: &[f64]) -> Result<()> {

@@ -637,3 +637,36 @@ fn gough_stewart_closed_form_hessians_equal_automatic_ones() {
         }
     }
 }
+
+/// The Gough–Stewart platform's joint Hessians written on their supports
+/// are those of its dense matrices, bit for bit (a large calibration
+/// computes them for each equilibrium rather than keep them).
+#[test]
+fn gough_stewart_joint_hessians_into_are_the_dense_ones() {
+    use pkmcal::engine::curvature::JointHessians;
+    use rand::{RngExt, SeedableRng};
+    for name in ["gough-stewart-6", "gough-stewart-8"] {
+        let gs = common::gough_stewart(name);
+        let spec = gs.spec();
+        let ng = spec.n_geometric();
+        let rho = common::perturbed(spec, 5, 0.5, 1e-3).values[..ng].to_vec();
+        let mut rng = rand::rngs::StdRng::seed_from_u64(17);
+        let mut into = JointHessians::empty();
+        for _ in 0..200 {
+            let mut q = spec.reference_q.clone();
+            for v in &mut q {
+                *v += rng.random_range(-0.1..0.1) * v.abs().max(1.0);
+            }
+            into.clear(q.len());
+            assert!(gs.joint_hessian_blocks(&q, &rho, &mut |j, b| into.push(j, b)));
+            let dense = JointHessians::from_dense(&gs.joint_hessians(&q, &rho));
+            let bits = |h: &JointHessians| {
+                (0..h.len())
+                    .map(|k| h.dense(k).iter().map(|v| v.to_bits()).collect::<Vec<_>>())
+                    .collect::<Vec<_>>()
+            };
+            assert_eq!(bits(&into), bits(&dense), "{name}");
+            assert_eq!(into, dense, "{name}");
+        }
+    }
+}
