@@ -11,6 +11,7 @@
 //! [`g33`] to compare). [`physical`] is the printer as built, for the
 //! linear deltas (`--physical`).
 
+pub mod choices;
 pub mod g33;
 pub mod height_map;
 pub mod klipper;
@@ -766,4 +767,33 @@ pub fn probe_errors(
             Ok(y[0] - m.measured[0])
         })
         .collect()
+}
+
+/// The file a firmware command writes (`--out`): the firmware's lines
+/// `updated` ([`Firmware::updated`]) with, for the firmwares whose
+/// settings are G-code lines, a comment saying where they came from
+/// (`source`, `probes` probe points; `physical`: the values for the
+/// nozzle) and, for Marlin, how to keep them.
+pub fn out_file<F: Firmware + ?Sized>(
+    firmware: &F,
+    updated: &str,
+    source: &str,
+    probes: usize,
+    physical: bool,
+) -> String {
+    let version = env!("CARGO_PKG_VERSION");
+    let how = if physical {
+        format!(
+            "for the nozzle over the build volume by pkmcal {version} --physical from {source} ({probes} probe points)"
+        )
+    } else {
+        format!("identified by pkmcal {version} from {source} ({probes} probe points)")
+    };
+    match firmware.name() {
+        "RepRapFirmware" => format!("; Delta parameters {how}\n{updated}"),
+        "Marlin" => format!(
+            "; Marlin delta settings {how}\n{updated}; send M500 once to keep them in EEPROM (not in a start script)\n"
+        ),
+        _ => updated.to_string(),
+    }
 }
