@@ -286,25 +286,17 @@ pub fn message(e: &anyhow::Error) -> (String, bool) {
     (parts.join(": "), usage)
 }
 
-/// A firmware calibration's check, worded: what it found and what to do.
+/// A firmware calibration's check, worded: what it found (the library's
+/// words) and what to do (in the command line's options).
 pub fn firmware_warning(w: &pkmcal_io::firmware::FirmwareWarning) -> (String, String) {
     use pkmcal_io::firmware::{FirmwareWarning as W, Separation, TiltPlace};
-    match w {
+    let hint = match w {
         W::Correlated {
-            values,
-            parameters,
-            r,
-            weakest,
-            heights,
             distances,
             separation,
             fix,
+            ..
         } => {
-            let read = if *distances == 0 {
-                format!("{heights} probe heights")
-            } else {
-                format!("{heights} probe heights and {distances} distances")
-            };
             let separate = match (separation, distances) {
                 (Separation::Distances, 0) => {
                     "add DELTA_ANALYZE distances (measured on a calibration object)"
@@ -312,70 +304,20 @@ pub fn firmware_warning(w: &pkmcal_io::firmware::FirmwareWarning) -> (String, St
                 (Separation::Distances, _) => "add more DELTA_ANALYZE distances",
                 (Separation::FurtherOut, _) => "probe points further out towards the bed's edge",
             };
-            let listed = match values.as_slice() {
-                [rest @ .., last] if !rest.is_empty() => format!("{} and {last}", rest.join(", ")),
-                v => v.join(""),
-            };
-            let what = match parameters {
-                Some([pa, pb]) => format!("`{pa}` and `{pb}` (written as {listed})"),
-                None => listed,
-            };
-            let by = if values.len() == 2 {
-                format!("r = {r:.3}")
-            } else {
-                format!("|r| {weakest:.3} to {:.3}", r.abs())
-            };
-            (
-                format!("{what} move together ({by}): {read} cannot tell them apart"),
-                format!("{separate}, or keep `{fix}` fixed at a measured value (--fix {fix})"),
-            )
+            format!("{separate}, or keep `{fix}` fixed at a measured value (--fix {fix})")
         }
-        W::Uncertain { values, limit } => (
-            format!(
-                "written with a σ beyond {limit} (in each one's unit): {}",
-                values
-                    .iter()
-                    .map(|(n, s, u)| format!("{n} σ {s:.4} {u}"))
-                    .collect::<Vec<_>>()
-                    .join(", ")
+        W::Uncertain { .. } => "probe more points over the whole bed, or keep fixed what the readings cannot determine (--fix); --max-sigma sets the limit".into(),
+        W::TiltAbsorbed { place, .. } => match place {
+            TiltPlace::Values { values, free } => format!(
+                "free {} to write the tilt as {values} (--free default,{}), or level the bed",
+                free.join(" and "),
+                free.join(",")
             ),
-            "probe more points over the whole bed, or keep fixed what the readings cannot determine (--fix); --max-sigma sets the limit".into(),
-        ),
-        W::TiltAbsorbed {
-            firmware,
-            slopes,
-            p,
-            share,
-            absorbed,
-            place,
-        } => {
-            let took: Vec<String> = absorbed
-                .iter()
-                .map(|(n, d, u)| format!("{n} by {d:+.4} {u}"))
-                .collect();
-            let whose = match place {
-                TiltPlace::Values { .. } => format!("{firmware}'s fit as asked"),
-                _ => (*firmware).to_string(),
-            };
-            let message = format!(
-                "the probe heights show a bed tilt of {:+.3} % in x and {:+.3} % in y (mm per 100 mm; score test p = {p:.1e}, {:.0} % of the heights' misfit) that {whose} has no value for; the fitted values absorbed it: {}",
-                100.0 * slopes[0],
-                100.0 * slopes[1],
-                100.0 * share,
-                took.join(", ")
-            );
-            let hint = match place {
-                TiltPlace::Values { values, free } => format!(
-                    "free {} to write the tilt as {values} (--free default,{}), or level the bed",
-                    free.join(" and "),
-                    free.join(",")
-                ),
-                TiltPlace::BedMesh => "level the bed and probe again (a tilt is the bed's, not the delta's: Klipper's bed_mesh can take it when printing)".into(),
-                TiltPlace::Levelling => "level the bed and probe again (a tilt is the bed's, not the delta's: Marlin's bed levelling, G29, can take it when printing)".into(),
-            };
-            (message, hint)
-        }
-    }
+            TiltPlace::BedMesh => "level the bed and probe again (a tilt is the bed's, not the delta's: Klipper's bed_mesh can take it when printing)".into(),
+            TiltPlace::Levelling => "level the bed and probe again (a tilt is the bed's, not the delta's: Marlin's bed levelling, G29, can take it when printing)".into(),
+        },
+    };
+    (w.message(), hint)
 }
 
 /// What the physical fit's residuals say of the readings' noise, worded:

@@ -189,3 +189,21 @@ def test_results_compare_by_value():
     a = pkmcal.reprap(*RRF)
     assert pickle.loads(pickle.dumps(a)) == a
     assert isinstance(a, pkmcal.FirmwareCalibration)
+
+
+def test_rectangular_klipper_mesh_as_cli(cli, tmp_path):
+    # Klipper's rectangular [bed_mesh]: the profile keeps its layout, the
+    # same file from both front ends.
+    cfg = tmp_path / "printer.cfg"
+    cfg.write_text(
+        "[bed_mesh]\nmesh_min: -120, -120\nmesh_max: 120, 120\nprobe_count: 5, 7\n\n" + KLIPPER.read_text()
+    )
+    out = cli("klipper", "--config", cfg, "--physical", "--height-map", tmp_path / "cli.cfg").stdout
+    r = pkmcal.klipper(cfg, physical=True, height_map=tmp_path / "py.cfg")
+    text = (tmp_path / "py.cfg").read_text()
+    assert text == (tmp_path / "cli.cfg").read_text()
+    assert "x_count = 5\ny_count = 7\n" in text
+    assert "min_x = -120.0\nmax_x = 120.0\nmin_y = -120.0\nmax_y = 120.0" in text
+    m = r.physical.height_map if r.physical else None
+    assert m is not None and m.rectangular and m.counts == (5, 7) and m.spacings == (60.0, 40.0)
+    assert "5 x 7 nodes 60.00 by 40.00 mm apart from (-120, -120) to (120, 120)" in out

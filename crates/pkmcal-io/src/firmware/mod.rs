@@ -245,6 +245,78 @@ pub enum FirmwareWarning {
     },
 }
 
+impl FirmwareWarning {
+    /// What the warning found, in words that name no option (each front
+    /// end adds its hint, naming its own options or keywords).
+    pub fn message(&self) -> String {
+        match self {
+            FirmwareWarning::Correlated {
+                values,
+                parameters,
+                r,
+                weakest,
+                heights,
+                distances,
+                ..
+            } => {
+                let read = if *distances == 0 {
+                    format!("{heights} probe heights")
+                } else {
+                    format!("{heights} probe heights and {distances} distances")
+                };
+                let listed = match values.as_slice() {
+                    [rest @ .., last] if !rest.is_empty() => {
+                        format!("{} and {last}", rest.join(", "))
+                    }
+                    v => v.join(""),
+                };
+                let what = match parameters {
+                    Some([pa, pb]) => format!("`{pa}` and `{pb}` (written as {listed})"),
+                    None => listed,
+                };
+                let by = if values.len() == 2 {
+                    format!("r = {r:.3}")
+                } else {
+                    format!("|r| {weakest:.3} to {:.3}", r.abs())
+                };
+                format!("{what} move together ({by}): {read} cannot tell them apart")
+            }
+            FirmwareWarning::Uncertain { values, limit } => format!(
+                "written with a σ beyond {limit} (in each one's unit): {}",
+                values
+                    .iter()
+                    .map(|(n, s, u)| format!("{n} σ {s:.4} {u}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+            FirmwareWarning::TiltAbsorbed {
+                firmware,
+                slopes,
+                p,
+                share,
+                absorbed,
+                place,
+            } => {
+                let took: Vec<String> = absorbed
+                    .iter()
+                    .map(|(n, d, u)| format!("{n} by {d:+.4} {u}"))
+                    .collect();
+                let whose = match place {
+                    TiltPlace::Values { .. } => format!("{firmware}'s fit as asked"),
+                    _ => (*firmware).to_string(),
+                };
+                format!(
+                    "the probe heights show a bed tilt of {:+.3} % in x and {:+.3} % in y (mm per 100 mm; score test p = {p:.1e}, {:.0} % of the heights' misfit) that {whose} has no value for; the fitted values absorbed it: {}",
+                    100.0 * slopes[0],
+                    100.0 * slopes[1],
+                    100.0 * share,
+                    took.join(", ")
+                )
+            }
+        }
+    }
+}
+
 /// Written values correlated beyond this are warned of (issue 49: arm
 /// lengths from heights alone correlate with their endstops at 0.996–0.998).
 pub const MAX_CORRELATION: f64 = 0.99;

@@ -238,24 +238,16 @@ fn note<'py>(
     Ok(d)
 }
 
-/// A firmware check, worded with the package's keywords.
+/// A firmware check: what it found (the library's words) and what to do,
+/// naming the package's keywords.
 fn firmware_warning<'py>(py: Python<'py>, w: &FirmwareWarning) -> PyResult<Bound<'py, PyDict>> {
-    let (kind, message, hint) = match w {
+    let (kind, hint) = match w {
         FirmwareWarning::Correlated {
-            values,
-            parameters,
-            r,
-            weakest,
-            heights,
             distances,
             separation,
             fix,
+            ..
         } => {
-            let read = if *distances == 0 {
-                format!("{heights} probe heights")
-            } else {
-                format!("{heights} probe heights and {distances} distances")
-            };
             let separate = match (separation, distances) {
                 (Separation::Distances, 0) => {
                     "add DELTA_ANALYZE distances (measured on a calibration object)"
@@ -263,60 +255,16 @@ fn firmware_warning<'py>(py: Python<'py>, w: &FirmwareWarning) -> PyResult<Bound
                 (Separation::Distances, _) => "add more DELTA_ANALYZE distances",
                 (Separation::FurtherOut, _) => "probe points further out towards the bed's edge",
             };
-            let listed = match values.as_slice() {
-                [rest @ .., last] if !rest.is_empty() => format!("{} and {last}", rest.join(", ")),
-                v => v.join(""),
-            };
-            let what = match parameters {
-                Some([pa, pb]) => format!("`{pa}` and `{pb}` (written as {listed})"),
-                None => listed,
-            };
-            let by = if values.len() == 2 {
-                format!("r = {r:.3}")
-            } else {
-                format!("|r| {weakest:.3} to {:.3}", r.abs())
-            };
             (
                 "correlated",
-                format!("{what} move together ({by}): {read} cannot tell them apart"),
                 format!("{separate}, or keep `{fix}` fixed at a measured value (fix=\"{fix}\")"),
             )
         }
-        FirmwareWarning::Uncertain { values, limit } => (
+        FirmwareWarning::Uncertain { .. } => (
             "uncertain",
-            format!(
-                "written with a σ beyond {limit} (in each one's unit): {}",
-                values
-                    .iter()
-                    .map(|(n, s, u)| format!("{n} σ {s:.4} {u}"))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ),
             "probe more points over the whole bed, or keep fixed what the readings cannot determine (fix=); max_sigma= sets the limit".into(),
         ),
-        FirmwareWarning::TiltAbsorbed {
-            firmware,
-            slopes,
-            p,
-            share,
-            absorbed,
-            place,
-        } => {
-            let took: Vec<String> = absorbed
-                .iter()
-                .map(|(n, d, u)| format!("{n} by {d:+.4} {u}"))
-                .collect();
-            let whose = match place {
-                TiltPlace::Values { .. } => format!("{firmware}'s fit as asked"),
-                _ => (*firmware).to_string(),
-            };
-            let message = format!(
-                "the probe heights show a bed tilt of {:+.3} % in x and {:+.3} % in y (mm per 100 mm; score test p = {p:.1e}, {:.0} % of the heights' misfit) that {whose} has no value for; the fitted values absorbed it: {}",
-                100.0 * slopes[0],
-                100.0 * slopes[1],
-                100.0 * share,
-                took.join(", ")
-            );
+        FirmwareWarning::TiltAbsorbed { place, .. } => {
             let hint = match place {
                 TiltPlace::Values { values, free } => format!(
                     "free {} to write the tilt as {values} (free=\"default,{}\"), or level the bed",
@@ -326,10 +274,10 @@ fn firmware_warning<'py>(py: Python<'py>, w: &FirmwareWarning) -> PyResult<Bound
                 TiltPlace::BedMesh => "level the bed and probe again (a tilt is the bed's, not the delta's: Klipper's bed_mesh can take it when printing)".into(),
                 TiltPlace::Levelling => "level the bed and probe again (a tilt is the bed's, not the delta's: Marlin's bed levelling, G29, can take it when printing)".into(),
             };
-            ("tilt_absorbed", message, hint)
+            ("tilt_absorbed", hint)
         }
     };
-    note(py, kind, message, hint)
+    note(py, kind, w.message(), hint)
 }
 
 /// A calibration's warning, as the package's other results give it.
