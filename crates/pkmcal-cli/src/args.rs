@@ -156,6 +156,12 @@ pub struct PhysicalArgs {
     /// measurements and the height map's nodes; its figures as SVG and PNG.
     #[arg(long, value_name = "DIR")]
     pub report_dir: Option<std::path::PathBuf>,
+    /// With --physical: the probe's σ (mm, above 0 and at most 1; its
+    /// repeatability, e.g. the standard deviation Klipper's PROBE_ACCURACY
+    /// reports), which weighs the probe heights against the parts'
+    /// tolerances; by default a typical probe's 0.01 mm is assumed.
+    #[arg(long, value_name = "MM", value_parser = values::probe_noise)]
+    pub probe_noise: Option<f64>,
 }
 
 impl PhysicalArgs {
@@ -195,35 +201,27 @@ impl PhysicalArgs {
         vec![self.heights.clone()]
     }
 
-    /// The tolerances onto the request (refused without --physical).
+    /// The choices of a firmware command, as far as its rules go
+    /// ([`pkmcal_io::firmware::choices`]); the command adds its own.
+    pub fn choices(&self) -> pkmcal_io::firmware::choices::Choices {
+        pkmcal_io::firmware::choices::Choices {
+            physical: self.physical,
+            tolerances: !self.given.tolerance.is_empty(),
+            height_map: self.height_map.is_some(),
+            mesh_points: self.mesh_points,
+            report_dir: self.report_dir.is_some(),
+            probe_noise: self.probe_noise,
+            heights: self.heights.is_some(),
+            ..Default::default()
+        }
+    }
+
+    /// The tolerances and the probe's stated noise onto the request
+    /// (refused without --physical).
     pub fn apply(&self, r: &mut pkmcal::Request) -> anyhow::Result<()> {
-        if !self.physical && !self.given.tolerance.is_empty() {
-            return crate::words::usage(
-                "--tolerance belongs to the physical model: add --physical".to_string(),
-            );
-        }
-        if !self.physical && self.height_map.is_some() {
-            return crate::words::usage(
-                "--height-map maps what the physical model's values leave: add --physical"
-                    .to_string(),
-            );
-        }
-        if !self.physical && self.heights.is_some() {
-            return crate::words::usage(
-                "--heights are read by the physical model: add --physical".to_string(),
-            );
-        }
-        if !self.physical && self.report_dir.is_some() {
-            return crate::words::usage(
-                "--report-dir writes the physical model's report: add --physical".to_string(),
-            );
-        }
-        if self.height_map.is_none() && self.mesh_points.is_some() {
-            return crate::words::usage(
-                "--mesh-points sets the height map's mesh: add --height-map FILE".to_string(),
-            );
-        }
+        self.choices().check()?;
         r.tolerances = self.given.tolerances()?;
+        r.stated_noise = self.probe_noise;
         Ok(())
     }
 }
@@ -473,10 +471,18 @@ pub mod values {
     /// own unit: mm, °, %).
     pub fn max_sigma(s: &str) -> Result<f64, String> {
         let v = number(s)?;
-        let top = pkmcal_io::firmware::MAX_SIGMA_LIMIT;
-        (v > 0.0 && v <= top)
-            .then_some(v)
-            .ok_or_else(|| format!("{v} must be above 0 and at most {top}"))
+        pkmcal_io::firmware::choices::max_sigma(v).map_err(|e| match e {
+            pkmcal::RequestError::Invalid { problem, .. } => problem,
+            e => e.to_string(),
+        })
+    }
+    /// A probe's stated σ (mm), bounded by the library's rule.
+    pub fn probe_noise(s: &str) -> Result<f64, String> {
+        let v = number(s)?;
+        pkmcal_io::firmware::choices::probe_noise(v).map_err(|e| match e {
+            pkmcal::RequestError::Invalid { problem, .. } => problem,
+            e => e.to_string(),
+        })
     }
     /// Nodes across a height map's round mesh (odd, 3 to 21).
     pub fn mesh_points(s: &str) -> Result<usize, String> {

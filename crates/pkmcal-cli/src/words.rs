@@ -80,6 +80,15 @@ pub fn flag(f: Field) -> &'static str {
         FirmwareLetters => "--m665-b",
         ProbeOffset => "--probe-offset",
         G33Radius => "--g33-radius",
+        Physical => "--physical",
+        HeightMap => "--height-map",
+        MeshPoints => "--mesh-points",
+        ReportDir => "--report-dir",
+        OutDir => "--out-dir",
+        Previous => "--previous",
+        ProbeNoise => "--probe-noise",
+        Heights => "--heights",
+        MaxSigma => "--max-sigma",
         // The solver's settings have no option on the command line.
         _ => "the solver's settings",
     }
@@ -91,6 +100,7 @@ fn flag_with_value(f: Field) -> String {
         Field::Validation => "--validate FILE".into(),
         Field::Holdout => "--holdout F".into(),
         Field::Tolerances => "--tolerance".into(),
+        Field::HeightMap => "--height-map FILE".into(),
         f => flag(f).into(),
     }
 }
@@ -148,6 +158,12 @@ pub fn request(e: &RequestError) -> String {
         }
         RequestError::ToleranceTable(problem) => {
             format!("in the [tolerances] table of the mechanism: {problem}")
+        }
+        RequestError::Belongs { field, needs, why } => {
+            format!("{} {why}: add {}", flag(*field), flag_with_value(*needs))
+        }
+        RequestError::Excluded { field, with, why } => {
+            format!("{} {why}; leave it out with {}", flag(*field), flag(*with))
         }
     }
 }
@@ -271,25 +287,17 @@ pub fn message(e: &anyhow::Error) -> (String, bool) {
     (parts.join(": "), usage)
 }
 
-/// A firmware calibration's check, worded: what it found and what to do.
+/// A firmware calibration's check, worded: what it found (the library's
+/// words) and what to do (in the command line's options).
 pub fn firmware_warning(w: &pkmcal_io::firmware::FirmwareWarning) -> (String, String) {
-    use pkmcal_io::firmware::{FirmwareWarning as W, Separation, TiltPlace};
-    match w {
+    use pkmcal_io::firmware::{FirmwareWarning as W, Separation, TiltPlace, UncertainCause};
+    let hint = match w {
         W::Correlated {
-            values,
-            parameters,
-            r,
-            weakest,
-            heights,
             distances,
             separation,
             fix,
+            ..
         } => {
-            let read = if *distances == 0 {
-                format!("{heights} probe heights")
-            } else {
-                format!("{heights} probe heights and {distances} distances")
-            };
             let separate = match (separation, distances) {
                 (Separation::Distances, 0) => {
                     "add DELTA_ANALYZE distances (measured on a calibration object)"
@@ -297,86 +305,97 @@ pub fn firmware_warning(w: &pkmcal_io::firmware::FirmwareWarning) -> (String, St
                 (Separation::Distances, _) => "add more DELTA_ANALYZE distances",
                 (Separation::FurtherOut, _) => "probe points further out towards the bed's edge",
             };
-            let listed = match values.as_slice() {
-                [rest @ .., last] if !rest.is_empty() => format!("{} and {last}", rest.join(", ")),
-                v => v.join(""),
-            };
-            let what = match parameters {
-                Some([pa, pb]) => format!("`{pa}` and `{pb}` (written as {listed})"),
-                None => listed,
-            };
-            let by = if values.len() == 2 {
-                format!("r = {r:.3}")
-            } else {
-                format!("|r| {weakest:.3} to {:.3}", r.abs())
-            };
-            (
-                format!("{what} move together ({by}): {read} cannot tell them apart"),
-                format!("{separate}, or keep `{fix}` fixed at a measured value (--fix {fix})"),
-            )
+            format!("{separate}, or keep `{fix}` fixed at a measured value (--fix {fix})")
         }
-        W::Uncertain {
-            values,
-            limit,
-            nozzle,
-        } => {
-            let listed = values
-                .iter()
-                .map(|(n, s, u)| format!("{n} σ {s:.4} {u}"))
-                .collect::<Vec<_>>()
-                .join(", ");
-            match nozzle {
-                Some([xy, z]) if xy.max(*z) <= *limit => (
-                    format!(
-                        "written with a σ beyond {limit} (in each one's unit): {listed}; but they move together: the nozzle they place has σ {xy:.4} mm in XY and {z:.4} mm in Z (RMS over the build volume, in the bed's frame)"
-                    ),
-                    "each value's σ is of it alone; a print shows the nozzle's. To pin each value down, measure what the probe cannot see (the next measurements below); --max-sigma sets the limit".into(),
-                ),
-                Some([xy, z]) => (
-                    format!(
-                        "written with a σ beyond {limit} (in each one's unit): {listed}; the nozzle they place has σ {xy:.4} mm in XY and {z:.4} mm in Z (RMS over the build volume, in the bed's frame)"
-                    ),
-                    "the readings leave the nozzle itself uncertain: take the next measurements below, or state tighter tolerances of the parts you know (--tolerance); --max-sigma sets the limit".into(),
-                ),
-                None => (
-                    format!("written with a σ beyond {limit} (in each one's unit): {listed}"),
-                    "probe more points over the whole bed, or keep fixed what the readings cannot determine (--fix); --max-sigma sets the limit".into(),
-                ),
-            }
-        }
-        W::TiltAbsorbed {
-            firmware,
-            slopes,
-            p,
-            share,
-            absorbed,
-            place,
-        } => {
-            let took: Vec<String> = absorbed
-                .iter()
-                .map(|(n, d, u)| format!("{n} by {d:+.4} {u}"))
-                .collect();
-            let whose = match place {
-                TiltPlace::Values { .. } => format!("{firmware}'s fit as asked"),
-                _ => (*firmware).to_string(),
-            };
-            let message = format!(
-                "the probe heights show a bed tilt of {:+.3} % in x and {:+.3} % in y (mm per 100 mm; score test p = {p:.1e}, {:.0} % of the heights' misfit) that {whose} has no value for; the fitted values absorbed it: {}",
-                100.0 * slopes[0],
-                100.0 * slopes[1],
-                100.0 * share,
-                took.join(", ")
-            );
-            let hint = match place {
-                TiltPlace::Values { values, free } => format!(
-                    "free {} to write the tilt as {values} (--free default,{}), or level the bed",
-                    free.join(" and "),
-                    free.join(",")
-                ),
-                TiltPlace::BedMesh => "level the bed and probe again (a tilt is the bed's, not the delta's: Klipper's bed_mesh can take it when printing)".into(),
-                TiltPlace::Levelling => "level the bed and probe again (a tilt is the bed's, not the delta's: Marlin's bed levelling, G29, can take it when printing)".into(),
-            };
-            (message, hint)
-        }
+        W::Uncertain { limit, nozzle, .. } => match pkmcal_io::firmware::uncertain_cause(*limit, *nozzle) {
+            UncertainCause::Together => "each value's σ is of it alone; a print shows the nozzle's. To pin each value down, measure what the probe cannot see (the next measurements below); --max-sigma sets the limit".into(),
+            UncertainCause::Nozzle => "the readings leave the nozzle itself uncertain: take the next measurements below, or state tighter tolerances of the parts you know (--tolerance); --max-sigma sets the limit".into(),
+            UncertainCause::Readings => "probe more points over the whole bed, or keep fixed what the readings cannot determine (--fix); --max-sigma sets the limit".into(),
+        },
+        W::TiltAbsorbed { place, .. } => match place {
+            TiltPlace::Values { values, free } => format!(
+                "free {} to write the tilt as {values} (--free default,{}), or level the bed",
+                free.join(" and "),
+                free.join(",")
+            ),
+            TiltPlace::BedMesh => "level the bed and probe again (a tilt is the bed's, not the delta's: Klipper's bed_mesh can take it when printing)".into(),
+            TiltPlace::Levelling => "level the bed and probe again (a tilt is the bed's, not the delta's: Marlin's bed levelling, G29, can take it when printing)".into(),
+        },
+    };
+    (w.message(), hint)
+}
+
+/// What the physical fit's residuals say of the readings' noise, worded:
+/// whether the σ they were weighed with was stated (`--probe-noise`) or
+/// assumed, and what to do about each.
+pub fn noise_note(n: &pkmcal_io::firmware::physical::NoiseNote) -> String {
+    use pkmcal_io::firmware::physical::ProbeNoise;
+    let whose = match (n.heights, n.noise) {
+        (true, ProbeNoise::Assumed(_)) => "a typical probe's".to_string(),
+        (true, ProbeNoise::Stated(s)) => format!("the σ {s} mm stated (--probe-noise)"),
+        (false, _) => "a caliper's".to_string(),
+    };
+    let readings = if n.heights {
+        "the probe's readings"
+    } else {
+        "the distances"
+    };
+    let against = match n.noise {
+        ProbeNoise::Assumed(s) => format!("against the {s} mm assumed"),
+        ProbeNoise::Stated(s) => format!("against the {s} mm stated"),
+    };
+    if !n.more {
+        return match (n.heights, n.noise) {
+            // A typical part scattering less than assumed is news, not a
+            // fault.
+            (_, ProbeNoise::Assumed(_)) => format!(
+                "{readings} scatter less than {whose} (σ {:.2e} mm from the residuals {against}): the uncertainties below are on the safe side",
+                n.found
+            ),
+            (_, ProbeNoise::Stated(s)) => format!(
+                "warning: {readings} scatter less than {whose} (σ {:.2e} mm from the residuals; χ² test, lower tail p = {:.1e}): every uncertainty below is as much too large\n  hint: the σ stated is larger than the heights show: check --probe-noise {s} against the probe's repeatability (the standard deviation of repeated probes at one point, as PROBE_ACCURACY reports it), or leave --probe-noise out to assume a typical probe's {}",
+                n.found,
+                n.p,
+                pkmcal_io::firmware::physical::PROBE_NOISE_MM
+            ),
+        };
     }
+    let freeing = if n.suspects.is_empty() {
+        String::new()
+    } else {
+        format!(
+            "; freeing {} would remove the share of the misfit given: {}",
+            if n.suspects.len() == 1 {
+                "this parameter"
+            } else {
+                "these parameters"
+            },
+            n.suspects
+                .iter()
+                .map(|(p, s)| format!("`{p}` ({:.0} %)", 100.0 * s))
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+    };
+    let message = format!(
+        "{readings} scatter more than {whose} (σ {:.2e} mm from the residuals {against}; χ² test, p = {:.1e}){freeing}: every uncertainty below is as much too small",
+        n.found, n.p
+    );
+    let model = if n.suspects.is_empty() {
+        "the printer moves in a way the physical model does not describe (backlash, a loose joint, thermal drift between the probes)"
+    } else {
+        "free the parameters named (--free) and calibrate again"
+    };
+    let hint = match (n.heights, n.noise) {
+        (true, ProbeNoise::Assumed(_)) => format!(
+            "the probe's σ was assumed, not stated: measure its repeatability (the standard deviation of repeated probes at one point, as PROBE_ACCURACY reports it) and state it with --probe-noise; if it is as small as assumed, {model}"
+        ),
+        (true, ProbeNoise::Stated(s)) => format!(
+            "check --probe-noise {s} against the probe's repeatability measured as the heights were (speed, temperature); if it is right, {model}"
+        ),
+        (false, _) => format!(
+            "check the distances measured on the calibration object for a misread value; if they are right, {model}"
+        ),
+    };
+    format!("warning: {message}\n  hint: {hint}")
 }

@@ -228,7 +228,29 @@ pub fn keyword(f: pkmcal::Field) -> &'static str {
         Targets => "targets",
         Alpha => "alpha",
         Grid => "grid",
+        Out => "out",
+        Weighting => "weighting",
+        FirmwareLetters => "m665_b",
+        ProbeOffset => "probe_offset",
+        G33Radius => "g33_radius",
+        Physical => "physical",
+        HeightMap => "height_map",
+        MeshPoints => "mesh_points",
+        ReportDir => "report_dir",
+        OutDir => "out_dir",
+        Previous => "previous",
+        ProbeNoise => "probe_noise",
+        Heights => "heights",
+        MaxSigma => "max_sigma",
         _ => "the arguments",
+    }
+}
+
+/// The keyword with what it takes, where a message shows how to give it.
+fn keyword_with_value(f: pkmcal::Field) -> String {
+    match f {
+        pkmcal::Field::Physical => "physical=True".into(),
+        f => format!("{}=...", keyword(f)),
     }
 }
 
@@ -253,6 +275,18 @@ pub fn request_words(e: &pkmcal::RequestError) -> String {
         }
         R::Needs { field, needs } => format!("{}= needs {}=", keyword(*field), keyword(*needs)),
         R::ToleranceTable(p) => format!("in the mechanism's [tolerances] table: {p}"),
+        R::Belongs { field, needs, why } => {
+            format!(
+                "{}= {why}: add {}",
+                keyword(*field),
+                keyword_with_value(*needs)
+            )
+        }
+        R::Excluded { field, with, why } => format!(
+            "{}= {why}; leave it out with {}",
+            keyword(*field),
+            keyword_with_value(*with)
+        ),
     }
 }
 

@@ -38,6 +38,7 @@ fn defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
         pkmcal::identify::DEFAULT_STATED_NOISE_READINGS,
     )?;
     d.set_item("alpha", pkmcal::identify::DEFAULT_ALPHA)?;
+    d.set_item("max_sigma", pkmcal_io::firmware::DEFAULT_MAX_SIGMA)?;
     Ok(d)
 }
 
@@ -87,5 +88,8 @@ fn _pkmcal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(functions::design::montecarlo, m)?)?;
     m.add_function(wrap_pyfunction!(functions::design::budget, m)?)?;
     m.add_function(wrap_pyfunction!(functions::design::drift, m)?)?;
+    m.add_function(wrap_pyfunction!(functions::firmware::klipper, m)?)?;
+    m.add_function(wrap_pyfunction!(functions::firmware::reprap, m)?)?;
+    m.add_function(wrap_pyfunction!(functions::firmware::marlin, m)?)?;
     Ok(())
 }

@@ -238,6 +238,25 @@ pub enum Field {
     ProbeOffset,
     /// The radius a firmware's own calibration probed at (Marlin's G33).
     G33Radius,
+    /// A printer fitted as built (the physical delta model), not as its
+    /// firmware describes it.
+    Physical,
+    /// A height map in the firmware's own format.
+    HeightMap,
+    /// The nodes across a height map.
+    MeshPoints,
+    /// A report's directory.
+    ReportDir,
+    /// A directory of the firmware's model as pkmcal files.
+    OutDir,
+    /// A printer's previous calibration, to compare with.
+    Previous,
+    /// The probe's noise, stated by its user.
+    ProbeNoise,
+    /// Heights measured by hand (a nozzle's or probe's touches).
+    Heights,
+    /// The largest σ of a written value before a warning.
+    MaxSigma,
 }
 
 impl Field {
@@ -301,6 +320,15 @@ impl Field {
             FirmwareLetters => "the meaning of the firmware's letters",
             ProbeOffset => "the probe's offset from the nozzle",
             G33Radius => "G33's calibration radius",
+            Physical => "the physical model",
+            HeightMap => "the height map",
+            MeshPoints => "the height map's nodes",
+            ReportDir => "the report's directory",
+            OutDir => "the output directory",
+            Previous => "the previous calibration",
+            ProbeNoise => "the probe's noise",
+            Heights => "the heights measured by hand",
+            MaxSigma => "the largest σ before a warning",
         }
     }
 }
@@ -357,6 +385,28 @@ pub enum RequestError {
     /// file's error, not a choice: the front end names the file).
     #[error("in the [tolerances] table: {0}")]
     ToleranceTable(String),
+    /// A choice that only means something with another: what it does
+    /// (`why`, in words that name no option), and the choice to add.
+    #[error("{field} {why}: add {needs}")]
+    Belongs {
+        /// The choice given.
+        field: Field,
+        /// The choice it belongs to.
+        needs: Field,
+        /// What the choice does, which the other one makes possible.
+        why: &'static str,
+    },
+    /// A choice that another one leaves no place for: what it does, and
+    /// the choice it is to be left out with.
+    #[error("{field} {why}; leave it out with {with}")]
+    Excluded {
+        /// The choice given.
+        field: Field,
+        /// The choice that excludes it.
+        with: Field,
+        /// What the choice does, which the other one has no use for.
+        why: &'static str,
+    },
 }
 
 impl RequestError {
@@ -372,7 +422,10 @@ impl RequestError {
     /// The choice this error is about first.
     pub fn field(&self) -> Option<Field> {
         match self {
-            RequestError::Invalid { field, .. } | RequestError::Needs { field, .. } => Some(*field),
+            RequestError::Invalid { field, .. }
+            | RequestError::Needs { field, .. }
+            | RequestError::Belongs { field, .. }
+            | RequestError::Excluded { field, .. } => Some(*field),
             RequestError::Exclusive { a, .. } => Some(*a),
             RequestError::ToleranceTable(_) => None,
         }

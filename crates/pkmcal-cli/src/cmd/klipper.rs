@@ -87,16 +87,12 @@ impl Args {
 }
 
 pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
-    if a.physical.physical && a.out_dir.is_some() {
-        return crate::words::usage(
-            "--out-dir writes the firmware's own model; leave it out with --physical".to_string(),
-        );
+    pkmcal_io::firmware::choices::Choices {
+        out_dir: a.out_dir.is_some(),
+        previous: a.previous.is_some(),
+        ..a.physical.choices()
     }
-    if !a.physical.physical && a.previous.is_some() {
-        return crate::words::usage(
-            "--previous compares physical calibrations: add --physical".to_string(),
-        );
-    }
+    .check()?;
     let (text, ini) = klipper::read_config(run, &a.config)?;
     let previous = match (&a.previous, a.physical.physical) {
         (Some(p), true) if !klipper_rotary::is_rotary(&ini) => {
@@ -119,8 +115,6 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         let output = crate::cmd::physical::Output {
             out: a.out.as_deref(),
             physical: &a.physical,
-            header: String::new(),
-            footer: "",
             written: "(values in its SAVE_CONFIG block)",
             previous: previous
                 .as_ref()

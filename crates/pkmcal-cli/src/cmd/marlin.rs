@@ -9,7 +9,6 @@ use pkmcal_io::Run;
 use pkmcal_io::firmware::g33::{self, G33Options};
 use pkmcal_io::firmware::marlin::{LetterB, MarlinDelta, MarlinPrinter, ProbeKind};
 use pkmcal_io::firmware::{self, Firmware};
-use std::fmt::Write as _;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -89,7 +88,6 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     )?;
     a.physical.apply(&mut request)?;
     if a.physical.physical {
-        let n = printer.readings(printer.mechanism()?.spec())?.poses.len();
         return crate::cmd::physical::run(
             run,
             &printer,
@@ -99,12 +97,6 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
                 out: a.out.as_deref(),
                 physical: &a.physical,
                 previous: None,
-                header: format!(
-                    "; Marlin delta settings for the nozzle over the build volume by pkmcal {} --physical from {} ({n} probe points)\n",
-                    env!("CARGO_PKG_VERSION"),
-                    a.probes.display(),
-                ),
-                footer: "; send M500 once to keep them in EEPROM (not in a start script)\n",
                 written: "(send the two lines to the printer, then M500 to keep them)",
                 max_sigma: a.max_sigma,
             },
@@ -247,16 +239,13 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
         }
         Err(e) => say!("  not run: {}", crate::words::io(&e)),
     }
-    let mut note = String::new();
-    let _ = writeln!(
-        note,
-        "; Marlin delta settings identified by pkmcal {} from {} ({} probe points)",
-        env!("CARGO_PKG_VERSION"),
-        a.probes.display(),
-        acc.poses
+    let note = firmware::out_file(
+        &printer,
+        &printer.updated(spec, &cal.params, &cal.measurement)?,
+        &a.probes.display().to_string(),
+        acc.poses,
+        false,
     );
-    note.push_str(&printer.updated(spec, &cal.params, &cal.measurement)?);
-    note.push_str("; send M500 once to keep them in EEPROM (not in a start script)\n");
     if let Some(out) = &a.out {
         run.files.stage(out, note.as_bytes())?;
         say!(

@@ -4,9 +4,9 @@
 //! volume, and written by the firmware's own writer (issue 54).
 
 use anyhow::Result;
-use pkmcal::{Mechanism, Params, Request};
+use pkmcal::{Mechanism, Request};
 use pkmcal_io::Run;
-use pkmcal_io::firmware::physical::{self, ErrorSummary};
+use pkmcal_io::firmware::physical;
 use pkmcal_io::firmware::physical_report;
 use pkmcal_io::firmware::{self, Firmware};
 use std::path::Path;
@@ -15,10 +15,6 @@ use std::path::Path;
 pub struct Output<'a> {
     /// The file (`--out`), if any.
     pub out: Option<&'a Path>,
-    /// What goes before the firmware's writer's text.
-    pub header: String,
-    /// And after it.
-    pub footer: &'a str,
     /// What the command says of the written file.
     pub written: &'a str,
     /// The --physical options (the height map's).
@@ -38,57 +34,34 @@ pub fn run<F: Firmware>(
     source: &str,
     output: Output<'_>,
 ) -> Result<()> {
-    let Some(ld) = printer.linear_delta()? else {
+    let touches = match &output.physical.heights {
+        Some(path) => Some(pkmcal_io::firmware::physical_heights::read(run, path)?),
+        None => None,
+    };
+    let Some(assessed) = physical::assess(printer, request.clone(), touches.as_ref())? else {
         return crate::words::usage(format!(
             "--physical models linear deltas (towers with carriages); this {} printer is a rotary delta, whose arms and their errors it has no model of: calibrate its firmware values without --physical",
             printer.name()
         ));
     };
-    let fw_mech = printer.mechanism()?;
+    let physical::Assessment {
+        delta: ld,
+        fw_mech,
+        own,
+        fit,
+        choice,
+        before,
+        heights: [h_before, h_after],
+        cubes,
+        values,
+    } = &assessed;
     let fw_spec = fw_mech.spec();
-    let own = firmware::calibrate(printer, Request::new(pkmcal::Model::Exact))?;
-    let own_cal = own.calibration();
-    let touches = match &output.physical.heights {
-        Some(path) => Some(pkmcal_io::firmware::physical_heights::read(run, path)?),
-        None => None,
-    };
-    let fit = physical::calibrate_with(printer, &ld, request.clone(), touches.as_ref())?;
     let cal = &fit.study.calibration;
-    let spec = fit.mech.spec();
-    let choice = physical::choose(&fit, &fw_mech, &own_cal.params, &own_cal.measurement)?;
     let proj = &choice.written;
-    let before = ErrorSummary::of(&physical::in_bed_frame(
-        &proj.targets,
-        &physical::nozzle_errors(
-            &fw_mech,
-            &Params::nominal(fw_spec),
-            Some(own.readings.measurement.nominal()).filter(|_| ld.corrects_bed_tilt),
-            &fit.mech,
-            &cal.params,
-            &cal.measurement,
-            ld.nozzle(),
-            &proj.targets,
-        )?,
-    ));
     let with_own = choice.own.summary;
-    let measurement = &fit.readings.measurement;
     let heights = &fit.readings.poses;
-    let h_before = firmware::probe_errors(
-        &fit.mech,
-        measurement,
-        &Params::nominal(spec),
-        measurement.nominal(),
-        heights,
-    )?;
-    let h_after = firmware::probe_errors(
-        &fit.mech,
-        measurement,
-        &cal.params,
-        &cal.measurement,
-        heights,
-    )?;
     say!(
-        "Physical model: {} probe heights{} from {source} ({}){}, {} parameters within their tolerances (rods {} mm, tower radii {} mm, tower lean {} mrad, ball joints {} mm, bed tilt {} mrad; probe σ {} mm); effector radius {} mm, rod spacing {} mm, probe offset ({}, {}) mm",
+        "Physical model: {} probe heights{} from {source} ({}){}, {} parameters within their tolerances (rods {} mm, tower radii {} mm, tower lean {} mrad, ball joints {} mm, bed tilt {} mrad; probe σ {} mm{}); effector radius {} mm, rod spacing {} mm, probe offset ({}, {}) mm",
         heights.len() - fit.touches.0,
         if fit.readings.distances.is_empty() {
             String::new()
@@ -112,7 +85,8 @@ pub fn run<F: Firmware>(
         physical::TOWER_LEAN_SIGMA_RAD * 1e3,
         physical::JOINT_SIGMA_MM,
         physical::BED_TILT_SIGMA_RAD * 1e3,
-        physical::PROBE_NOISE_MM,
+        fit.probe_noise.mm(),
+        physical_report::stated_words(fit.probe_noise),
         physical::EFFECTOR_RADIUS_MM,
         physical::ROD_SPACING_MM,
         ld.probe_offset[0],
@@ -135,10 +109,10 @@ pub fn run<F: Firmware>(
     say!("{}", cal.termination.reason());
     say!(
         "height errors of the physical fit: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm",
-        max_abs(&h_before),
-        rms(&h_before),
-        max_abs(&h_after),
-        rms(&h_after)
+        max_abs(h_before),
+        rms(h_before),
+        max_abs(h_after),
+        rms(h_after)
     );
     // What the tolerances hold is said part by part below, not direction
     // by direction.
@@ -149,17 +123,12 @@ pub fn run<F: Firmware>(
             WarningKind::HeldByTolerance { .. } | WarningKind::PriorDominated { .. }
         )
     }) {
-        match &w.kind {
-            // No one stated the probe's σ: the readings scattering less
-            // than a typical probe's is news, not a fault.
-            WarningKind::NoiseOverstated { found, .. } if fit.noise_assumed => say!(
-                "the probe's readings scatter less than a typical probe's (σ {found:.2e} mm from the residuals against the {} mm assumed): the uncertainties below are on the safe side",
-                physical::PROBE_NOISE_MM
-            ),
-            _ => say!("warning: {}\n  hint: {}", w.message, crate::words::hint(w)),
+        match physical::NoiseNote::of(fit, w) {
+            Some(note) => say!("{}", crate::words::noise_note(&note)),
+            None => say!("warning: {}\n  hint: {}", w.message, crate::words::hint(w)),
         }
     }
-    let unseen: Vec<String> = physical_report::unseen(&fit)
+    let unseen: Vec<String> = physical_report::unseen(fit)
         .iter()
         .map(|u| format!("{} ({} of {})", u.part, u.blind, u.of))
         .collect();
@@ -186,7 +155,7 @@ pub fn run<F: Firmware>(
         String::new()
     };
     for (what, e) in [
-        ("the current values".to_string(), before),
+        ("the current values".to_string(), *before),
         (
             format!("{}'s own fit of the probe", printer.name()),
             with_own,
@@ -225,14 +194,13 @@ pub fn run<F: Firmware>(
             }
         );
     }
-    let fw_bed = ld.corrects_bed_tilt.then_some(proj.bed.as_slice());
-    let cubes = physical::cube_errors(&fit, &fw_mech, &proj.params, fw_bed)?;
+    let fw_bed = assessed.fw_bed();
     say!(
         "\npredicted {} mm cube printed with the values written (± one standard deviation from the fit's uncertainty, {} draws):",
         physical::CUBE_MM,
         physical::CUBE_DRAWS
     );
-    for (where_, c) in ["at the centre", "at the edge"].iter().zip(&cubes) {
+    for (where_, c) in ["at the centre", "at the edge"].iter().zip(cubes.iter()) {
         say!(
             "  {where_} ({:.0}, {:.0}): X size {:+.3} ± {:.3} mm, Y size {:+.3} ± {:.3} mm, top flatness {:.3} ± {:.3} mm",
             c.centre[0],
@@ -245,27 +213,14 @@ pub fn run<F: Firmware>(
             c.flatness_sd
         );
     }
-    let values = physical::written_values(printer, &fit, &fw_mech, &choice, &own)?;
-    crate::cmd::print_values(&format!("{} value", printer.name()), &values);
-    let beyond = values
-        .iter()
-        .any(|v| v.sigma.is_some_and(|s| s > output.max_sigma));
-    let nozzle = match beyond {
-        true => Some(physical::nozzle_sigma(
-            &fit,
-            &fw_mech,
-            &proj.params,
-            fw_bed,
-        )?),
-        false => None,
-    };
-    if let Some(w) = firmware::uncertain(&values, output.max_sigma, nozzle) {
+    crate::cmd::print_values(&format!("{} value", printer.name()), values);
+    if let Some(w) = physical::uncertain(&assessed, output.max_sigma)? {
         let (message, hint) = crate::words::firmware_warning(&w);
         say!("warning: {message}\n  hint: {hint}");
     }
     let mapped = crate::cmd::physical_outputs::Mapped {
-        fit: &fit,
-        fw_mech: &fw_mech,
+        fit,
+        fw_mech,
         fw_params: &proj.params,
         fw_bed,
         source,
@@ -274,7 +229,7 @@ pub fn run<F: Firmware>(
     let drift = match &output.previous {
         Some((previous, from)) => Some((
             from.clone(),
-            crate::cmd::physical_outputs::drift(*previous, from, &own)?,
+            crate::cmd::physical_outputs::drift(*previous, from, own)?,
         )),
         None => None,
     };
@@ -285,14 +240,14 @@ pub fn run<F: Firmware>(
         let page = physical_report::Page::build(&physical_report::Inputs {
             printer,
             source,
-            own: &own,
-            fit: &fit,
-            fw_mech: &fw_mech,
+            own,
+            fit,
+            fw_mech,
             projection: proj,
-            values: &values,
+            values,
             projected: (choice.projected.summary, choice.projection_written),
-            before: [before, with_own],
-            cubes: &cubes,
+            before: [*before, with_own],
+            cubes,
             suggestions: &suggestions,
             shown: crate::cmd::physical_outputs::SUGGESTIONS,
             drift,
@@ -303,9 +258,13 @@ pub fn run<F: Firmware>(
         say!("\nreport -> {}", dir.display());
     }
     if let Some(out) = output.out {
-        let mut text = output.header;
-        text.push_str(&printer.updated(fw_spec, &proj.params, &proj.bed)?);
-        text.push_str(output.footer);
+        let text = firmware::out_file(
+            printer,
+            &printer.updated(fw_spec, &proj.params, &proj.bed)?,
+            source,
+            own.readings.poses.len(),
+            true,
+        );
         run.files.stage(out, text.as_bytes())?;
         let what = if choice.projection_written {
             "values for the nozzle".to_string()

@@ -37,42 +37,22 @@ pub fn height_map<F: Firmware>(
     path: &Path,
     physical: &crate::args::PhysicalArgs,
 ) -> Result<()> {
-    let ld = &m.fit.delta;
-    let Some(layout) = printer.mesh_layout(ld.print_radius(), physical.mesh_points)? else {
+    let Some(written) = height_map::for_printer(
+        printer,
+        m.fit,
+        m.fw_mech,
+        m.fw_params,
+        m.fw_bed,
+        m.source,
+        physical.mesh_points,
+    )?
+    else {
         anyhow::bail!(
             "{} keeps no height map pkmcal can write: leave --height-map out",
             printer.name()
         );
     };
-    let map = height_map::residual_map(m.fit, m.fw_mech, m.fw_params, m.fw_bed, &layout)?;
-    let n = layout.count;
-    let s = layout.spacing();
-    let (lo, hi) = (map.xs[0], map.xs[n - 1]);
-    let how = match layout.format {
-        MeshFormat::Klipper => format!(
-            "[include] this file in printer.cfg (which needs a [bed_mesh] section), then\n\
-             BED_MESH_PROFILE LOAD={KLIPPER_PROFILE}"
-        ),
-        MeshFormat::RepRap => "load it with G29 S1 P\"<this file>\"".to_string(),
-        MeshFormat::Marlin => format!(
-            "for bilinear levelling with GRID_MAX_POINTS_X and _Y {n}: run G29 L{lo:.2} R{hi:.2} F{:.2} B{:.2}\n\
-             once (the grid's bounds), send these lines, then M420 S1, and M500 to keep them",
-            map.ys[0],
-            map.ys[n - 1]
-        ),
-    };
-    let comment = format!(
-        "pkmcal {} --physical from {}:\n\
-         the nozzle's Z error the written values leave over the bed, as a mesh whose\n\
-         value the firmware adds to Z: {n} x {n} nodes {s:.2} mm apart within {} mm of\n\
-         ({}, {}), each row's outermost value beyond.\n{how}",
-        env!("CARGO_PKG_VERSION"),
-        m.source,
-        layout.radius,
-        layout.origin[0],
-        layout.origin[1],
-    );
-    let text = height_map::write(&map, &layout, &comment);
+    let height_map::Written { map, layout, text } = written;
     run.files.stage(path, text.as_bytes())?;
     let v = map.values();
     let (min, max) = (
@@ -85,8 +65,8 @@ pub fn height_map<F: Firmware>(
         MeshFormat::Marlin => "Marlin M421 lines".into(),
     };
     say!(
-        "\nheight map of what the written values leave on the bed ({format}, {n} x {n} nodes {s:.2} mm apart within {} mm): {} nodes, from {min:+.4} to {max:+.4} mm, σ up to {:.4} mm -> {}",
-        layout.radius,
+        "\nheight map of what the written values leave on the bed ({format}, {}): {} nodes, from {min:+.4} to {max:+.4} mm, σ up to {:.4} mm -> {}",
+        layout.words(),
         v.len(),
         map.largest_sd().unwrap_or(f64::NAN),
         path.display()

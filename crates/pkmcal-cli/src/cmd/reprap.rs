@@ -7,7 +7,6 @@ use pkmcal::{Mechanism, Request};
 use pkmcal_io::Run;
 use pkmcal_io::firmware::reprap::RrfPrinter;
 use pkmcal_io::firmware::{self, Firmware};
-use std::fmt::Write as _;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -56,7 +55,6 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     a.physical.apply(&mut request)?;
     let printer = RrfPrinter::read(run, &a.config, &a.probes, request.free.as_deref())?;
     if a.physical.physical {
-        let n = printer.readings(printer.mechanism()?.spec())?.poses.len();
         return crate::cmd::physical::run(
             run,
             &printer,
@@ -66,12 +64,6 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
                 out: a.out.as_deref(),
                 physical: &a.physical,
                 previous: None,
-                header: format!(
-                    "; Delta parameters for the nozzle over the build volume by pkmcal {} --physical from {} ({n} probe points)\n",
-                    env!("CARGO_PKG_VERSION"),
-                    a.probes.display(),
-                ),
-                footer: "",
                 written: "(replace the M665 and M666 lines of the file the firmware takes them from with these two)",
                 max_sigma: a.max_sigma,
             },
@@ -118,15 +110,13 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     );
     let written = super::print_written(&printer, &calibrated, "written value")?;
     super::print_checks(&printer, &calibrated, &written, a.max_sigma)?;
-    let mut note = String::new();
-    let _ = writeln!(
-        note,
-        "; Delta parameters identified by pkmcal {} from {} ({} probe points)",
-        env!("CARGO_PKG_VERSION"),
-        a.probes.display(),
-        acc.poses
+    let note = firmware::out_file(
+        &printer,
+        &printer.updated(spec, &cal.params, &cal.measurement)?,
+        &a.probes.display().to_string(),
+        acc.poses,
+        false,
     );
-    note.push_str(&printer.updated(spec, &cal.params, &cal.measurement)?);
     if let Some(out) = &a.out {
         run.files.stage(out, note.as_bytes())?;
         say!(

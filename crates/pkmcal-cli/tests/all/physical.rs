@@ -299,3 +299,67 @@ fn the_uncertain_warning_names_the_nozzle_s_sigma_and_its_cause() {
         "{out}"
     );
 }
+
+/// The probe's σ stated (`--probe-noise`) or assumed: the summary says
+/// which, and the adequacy note names it with a hint fit for its cause
+/// (the example's heights scatter by 2 µm).
+#[test]
+fn probe_noise_stated_or_assumed_is_said() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = examples().join("klipper-delta/printer.cfg");
+    let cfg = cfg.to_str().unwrap();
+    let run = |noise: Option<&str>| {
+        let mut args = vec!["klipper", "--config", cfg, "--physical"];
+        args.extend(noise.iter().flat_map(|n| ["--probe-noise", n]));
+        ok(dir.path(), &args)
+    };
+    // Assumed, and the heights scatter less: news, no warning.
+    let out = run(None);
+    assert!(out.contains("probe σ 0.01 mm)"), "{out}");
+    assert!(
+        out.contains("scatter less than a typical probe's") && out.contains("0.01 mm assumed"),
+        "{out}"
+    );
+    assert!(!out.contains("--probe-noise"), "{out}");
+    // Stated above what they show: a warning about the value stated.
+    let out = run(Some("0.2"));
+    assert!(out.contains("probe σ 0.2 mm as stated)"), "{out}");
+    assert!(
+        out.contains("warning: the probe's readings scatter less than the σ 0.2 mm stated"),
+        "{out}"
+    );
+    assert!(
+        out.contains("hint: the σ stated is larger than the heights show: check --probe-noise 0.2"),
+        "{out}"
+    );
+    assert!(!out.contains("assumed"), "{out}");
+    // Stated below what they show: check the value stated (not: state one).
+    let out = run(Some("0.0002"));
+    assert!(
+        out.contains("scatter more than the σ 0.0002 mm stated (--probe-noise)"),
+        "{out}"
+    );
+    assert!(out.contains("hint: check --probe-noise 0.0002"), "{out}");
+    assert!(!out.contains("was assumed"), "{out}");
+    // Bounded where read, and only with --physical.
+    for bad in ["0", "-0.01", "1.5", "inf", "nan"] {
+        fails(
+            dir.path(),
+            &[
+                "klipper",
+                "--config",
+                cfg,
+                "--physical",
+                &format!("--probe-noise={bad}"),
+            ],
+            2,
+            "--probe-noise",
+        );
+    }
+    fails(
+        dir.path(),
+        &["klipper", "--config", cfg, "--probe-noise", "0.01"],
+        2,
+        "--probe-noise weighs the physical fit's probe heights: add --physical",
+    );
+}

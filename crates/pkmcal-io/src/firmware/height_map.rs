@@ -116,6 +116,23 @@ pub struct MeshLayout {
     pub origin: [f64; 2],
     /// Klipper's interpolation (Klipper only).
     pub klipper: KlipperInterpolation,
+    /// A rectangular mesh's corners and counts (Klipper's `mesh_min`,
+    /// `mesh_max`, `probe_count`), where the mesh is not round; its nodes
+    /// beyond `radius` of the bed's centre (the build volume's, which the
+    /// nozzle cannot reach) take their row's outermost value.
+    pub rect: Option<Rect>,
+}
+
+/// A rectangular mesh as Klipper lays it out (`generate_points`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Rect {
+    /// The first node (mm).
+    pub min: [f64; 2],
+    /// The last node as configured (mm); the last written is `min` plus
+    /// the spacing times the count less one.
+    pub max: [f64; 2],
+    /// Nodes in x and in y (at least 3 each).
+    pub counts: [usize; 2],
 }
 
 impl MeshLayout {
@@ -129,6 +146,7 @@ impl MeshLayout {
             count,
             origin: [0.0, 0.0],
             klipper: KlipperInterpolation::defaults(count),
+            rect: None,
         };
         if !(layout.radius.is_finite() && layout.spacing() >= MIN_SPACING_MM) {
             invalid!(
@@ -138,10 +156,114 @@ impl MeshLayout {
         Ok(layout)
     }
 
+    /// A rectangular mesh of `counts` nodes from `min` to `max` (Klipper's
+    /// `mesh_min`, `mesh_max`, `probe_count`), its nodes beyond `radius`
+    /// of the bed's centre filled from their row, with Klipper's default
+    /// interpolation.
+    pub fn rectangular(
+        format: MeshFormat,
+        min: [f64; 2],
+        max: [f64; 2],
+        counts: [usize; 2],
+        radius: f64,
+    ) -> Result<Self> {
+        if counts.iter().any(|&n| !(3..=MAX_MESH_POINTS).contains(&n)) {
+            invalid!(
+                "{} x {} nodes: a rectangular mesh has 3 to {MAX_MESH_POINTS} nodes each way",
+                counts[0],
+                counts[1]
+            );
+        }
+        if !(min.iter().chain(&max).all(|v| v.is_finite()) && max[0] > min[0] && max[1] > min[1]) {
+            invalid!(
+                "mesh_min {}, {} and mesh_max {}, {}: the maximum must exceed the minimum each way",
+                min[0],
+                min[1],
+                max[0],
+                max[1]
+            );
+        }
+        let layout = MeshLayout {
+            format,
+            radius,
+            count: counts[0],
+            origin: [0.0, 0.0],
+            klipper: KlipperInterpolation::defaults(counts[0].max(counts[1])),
+            rect: Some(Rect { min, max, counts }),
+        };
+        if layout.spacings().iter().any(|s| *s < MIN_SPACING_MM) {
+            invalid!(
+                "a mesh of {} x {} nodes from ({}, {}) to ({}, {}) puts them less than {MIN_SPACING_MM} mm apart: give fewer nodes",
+                counts[0],
+                counts[1],
+                min[0],
+                min[1],
+                max[0],
+                max[1]
+            );
+        }
+        Ok(layout)
+    }
+
     /// The nodes' spacing (mm): Klipper's, the diameter's share floored to
-    /// 0.01 mm.
+    /// 0.01 mm (a rectangular mesh's: in x).
     pub fn spacing(&self) -> f64 {
-        (2.0 * self.radius / (self.count - 1) as f64 * 100.0).floor() / 100.0
+        self.spacings()[0]
+    }
+
+    /// The nodes' spacing in x and in y (mm), floored to 0.01 mm as
+    /// Klipper floors them.
+    pub fn spacings(&self) -> [f64; 2] {
+        let floor = |d: f64| (d * 100.0).floor() / 100.0;
+        match &self.rect {
+            None => {
+                let s = floor(2.0 * self.radius / (self.count - 1) as f64);
+                [s, s]
+            }
+            Some(r) => [0, 1].map(|k| floor((r.max[k] - r.min[k]) / (r.counts[k] - 1) as f64)),
+        }
+    }
+
+    /// Nodes in x and in y.
+    pub fn counts(&self) -> [usize; 2] {
+        self.rect.as_ref().map_or([self.count; 2], |r| r.counts)
+    }
+
+    /// The nodes' coordinates along x (`axis` 0) or y (1), lowest first
+    /// (mm).
+    pub fn nodes(&self, axis: usize) -> Vec<f64> {
+        match &self.rect {
+            None => self
+                .offsets()
+                .iter()
+                .map(|d| self.origin[axis] + d)
+                .collect(),
+            Some(r) => {
+                let s = self.spacings()[axis];
+                (0..r.counts[axis])
+                    .map(|i| r.min[axis] + i as f64 * s)
+                    .collect()
+            }
+        }
+    }
+
+    /// The mesh in words: its nodes, their spacing and where they lie.
+    pub fn words(&self) -> String {
+        let [nx, ny] = self.counts();
+        let [sx, sy] = self.spacings();
+        match &self.rect {
+            None => format!(
+                "{nx} x {ny} nodes {sx:.2} mm apart within {} mm",
+                self.radius
+            ),
+            Some(r) => format!(
+                "{nx} x {ny} nodes {sx:.2} by {sy:.2} mm apart from ({}, {}) to ({}, {})",
+                r.min[0],
+                r.min[1],
+                r.min[0] + sx * (nx - 1) as f64,
+                r.min[1] + sy * (ny - 1) as f64
+            ),
+        }
     }
 
     /// The nodes' coordinates along x (or y) relative to the origin, from
@@ -228,12 +350,15 @@ pub fn residual_map(
     fw_bed: Option<&[f64]>,
     layout: &MeshLayout,
 ) -> Result<HeightMap> {
-    let offsets = layout.offsets();
-    let xs: Vec<f64> = offsets.iter().map(|d| layout.origin[0] + d).collect();
-    let ys: Vec<f64> = offsets.iter().map(|d| layout.origin[1] + d).collect();
+    let xs = layout.nodes(0);
+    let ys = layout.nodes(1);
+    let (dxs, dys) = match layout.rect {
+        None => (layout.offsets(), layout.offsets()),
+        Some(_) => (xs.clone(), ys.clone()),
+    };
     let mut nodes = vec![];
-    for (j, dy) in offsets.iter().enumerate() {
-        for (i, dx) in offsets.iter().enumerate() {
+    for (j, dy) in dys.iter().enumerate() {
+        for (i, dx) in dxs.iter().enumerate() {
             if layout.probed(*dx, *dy) {
                 nodes.push((j, i, [xs[i], ys[j], 0.0]));
             }
@@ -684,16 +809,6 @@ pub fn klipper_layout(
         })?),
         None => None,
     };
-    let n = count.or(config_count.filter(|_| own_radius.is_some()));
-    let mut layout = MeshLayout::round(
-        MeshFormat::Klipper,
-        own_radius.unwrap_or(radius),
-        n.unwrap_or(MESH_POINTS),
-    )
-    .map_err(|e| e.context("the [bed_mesh] of the configuration"))?;
-    if own_radius.is_none() {
-        return Ok(layout);
-    }
     let pair = |key: &str| -> Result<Option<Vec<f64>>> {
         let Some(v) = get(key) else { return Ok(None) };
         let parts: Option<Vec<f64>> = v
@@ -705,7 +820,50 @@ pub fn klipper_layout(
             _ => invalid!("[bed_mesh] {key} = `{v}` is not one or two numbers"),
         }
     };
-    if let Some(o) = pair("mesh_origin")? {
+    let corners = match (own_radius, pair("mesh_min")?, pair("mesh_max")?) {
+        (None, Some(lo), Some(hi)) if lo.len() == 2 && hi.len() == 2 => {
+            Some(([lo[0], lo[1]], [hi[0], hi[1]]))
+        }
+        (None, Some(_), Some(_)) => {
+            invalid!("[bed_mesh] mesh_min and mesh_max must be two numbers each (x, y)")
+        }
+        _ => None,
+    };
+    let mut layout = match corners {
+        // Klipper's rectangular bed: `probe_count` (one or two whole
+        // numbers, 3 by default) nodes from `mesh_min` to `mesh_max`.
+        Some((lo, hi)) => {
+            let counts = match (count, pair("probe_count")?) {
+                (Some(n), _) => [n, n],
+                (None, None) => [3, 3],
+                (None, Some(p)) => {
+                    let whole = |x: f64| -> Result<usize> {
+                        if x.fract() == 0.0 && (3.0..=MAX_MESH_POINTS as f64).contains(&x) {
+                            Ok(x as usize)
+                        } else {
+                            invalid!(
+                                "[bed_mesh] probe_count must be whole numbers from 3 to {MAX_MESH_POINTS}"
+                            )
+                        }
+                    };
+                    [whole(p[0])?, whole(*p.last().unwrap_or(&p[0]))?]
+                }
+            };
+            MeshLayout::rectangular(MeshFormat::Klipper, lo, hi, counts, radius)
+        }
+        None => MeshLayout::round(
+            MeshFormat::Klipper,
+            own_radius.unwrap_or(radius),
+            count
+                .or(config_count.filter(|_| own_radius.is_some()))
+                .unwrap_or(MESH_POINTS),
+        ),
+    }
+    .map_err(|e| e.context("the [bed_mesh] of the configuration"))?;
+    if own_radius.is_none() && corners.is_none() {
+        return Ok(layout);
+    }
+    if let Some(o) = pair("mesh_origin")?.filter(|_| corners.is_none()) {
         layout.origin = [o[0], *o.last().unwrap_or(&o[0])];
     }
     if let Some(p) = pair("mesh_pps")? {
@@ -727,12 +885,22 @@ pub fn klipper_layout(
         }
         layout.klipper.tension = t;
     }
+    let [most, least] = {
+        let [a, b] = layout.counts();
+        [a.max(b), a.min(b)]
+    };
     let k = &mut layout.klipper;
     if k.pps == [0, 0] {
         k.algo = "direct".into();
-    } else if layout.count > 6 {
+    } else if most > 6 && least < 4 {
+        invalid!(
+            "[bed_mesh] probe_count {}, {}: Klipper interpolates 3 nodes one way and more than 6 the other with neither of its algorithms; give at least 4 each way",
+            layout.counts()[0],
+            layout.counts()[1]
+        );
+    } else if most > 6 {
         k.algo = "bicubic".into();
-    } else if layout.count < 4 {
+    } else if least < 4 {
         k.algo = "lagrange".into();
     } else if !["lagrange", "bicubic"].contains(&k.algo.as_str()) {
         invalid!(
@@ -741,4 +909,72 @@ pub fn klipper_layout(
         );
     }
     Ok(layout)
+}
+
+/// A height map of what a printer's written values leave, in its
+/// firmware's format.
+pub struct Written {
+    /// The map.
+    pub map: HeightMap,
+    /// Its mesh.
+    pub layout: MeshLayout,
+    /// The file's text, with a comment saying where it came from and how
+    /// the firmware loads it.
+    pub text: String,
+}
+
+/// The height map of the nozzle's Z error the written values `fw_params`
+/// (bed `fw_bed` where the firmware tilts Z) leave on the fitted printer,
+/// in `printer`'s format, `mesh_points` nodes across (its default where
+/// `None`); `None` for a firmware that keeps no map pkmcal writes.
+pub fn for_printer<F: super::Firmware + ?Sized>(
+    printer: &F,
+    fit: &super::physical::PhysicalFit,
+    fw_mech: &crate::description::Mech,
+    fw_params: &pkmcal::Params,
+    fw_bed: Option<&[f64]>,
+    source: &str,
+    mesh_points: Option<usize>,
+) -> Result<Option<Written>> {
+    let ld = &fit.delta;
+    let Some(layout) = printer.mesh_layout(ld.print_radius(), mesh_points)? else {
+        return Ok(None);
+    };
+    let map = residual_map(fit, fw_mech, fw_params, fw_bed, &layout)?;
+    let n = layout.count;
+    let (lo, hi) = (map.xs[0], map.xs[map.xs.len() - 1]);
+    let how = match layout.format {
+        MeshFormat::Klipper => format!(
+            "[include] this file in printer.cfg (which needs a [bed_mesh] section), then\n\
+             BED_MESH_PROFILE LOAD={KLIPPER_PROFILE}"
+        ),
+        MeshFormat::RepRap => "load it with G29 S1 P\"<this file>\"".to_string(),
+        MeshFormat::Marlin => format!(
+            "for bilinear levelling with GRID_MAX_POINTS_X and _Y {n}: run G29 L{lo:.2} R{hi:.2} F{:.2} B{:.2}\n\
+             once (the grid's bounds), send these lines, then M420 S1, and M500 to keep them",
+            map.ys[0],
+            map.ys[n - 1]
+        ),
+    };
+    let mesh = match &layout.rect {
+        None => format!(
+            "{} of\n({}, {}), each row's outermost value beyond.",
+            layout.words(),
+            layout.origin[0],
+            layout.origin[1],
+        ),
+        Some(_) => format!(
+            "{},\nthose beyond {} mm of the centre (out of the nozzle's reach) their row's outermost.",
+            layout.words(),
+            layout.radius
+        ),
+    };
+    let comment = format!(
+        "pkmcal {} --physical from {source}:\n\
+         the nozzle's Z error the written values leave over the bed, as a mesh whose\n\
+         value the firmware adds to Z: {mesh}\n{how}",
+        env!("CARGO_PKG_VERSION"),
+    );
+    let text = write(&map, &layout, &comment);
+    Ok(Some(Written { map, layout, text }))
 }

@@ -11,6 +11,7 @@
 //! [`g33`] to compare). [`physical`] is the printer as built, for the
 //! linear deltas (`--physical`).
 
+pub mod choices;
 pub mod g33;
 pub mod height_map;
 pub mod klipper;
@@ -249,6 +250,92 @@ pub enum FirmwareWarning {
         /// Where a tilt has a place in this firmware.
         place: TiltPlace,
     },
+}
+
+impl FirmwareWarning {
+    /// What the warning found, in words that name no option (each front
+    /// end adds its hint, naming its own options or keywords).
+    pub fn message(&self) -> String {
+        match self {
+            FirmwareWarning::Correlated {
+                values,
+                parameters,
+                r,
+                weakest,
+                heights,
+                distances,
+                ..
+            } => {
+                let read = if *distances == 0 {
+                    format!("{heights} probe heights")
+                } else {
+                    format!("{heights} probe heights and {distances} distances")
+                };
+                let listed = match values.as_slice() {
+                    [rest @ .., last] if !rest.is_empty() => {
+                        format!("{} and {last}", rest.join(", "))
+                    }
+                    v => v.join(""),
+                };
+                let what = match parameters {
+                    Some([pa, pb]) => format!("`{pa}` and `{pb}` (written as {listed})"),
+                    None => listed,
+                };
+                let by = if values.len() == 2 {
+                    format!("r = {r:.3}")
+                } else {
+                    format!("|r| {weakest:.3} to {:.3}", r.abs())
+                };
+                format!("{what} move together ({by}): {read} cannot tell them apart")
+            }
+            FirmwareWarning::Uncertain {
+                values,
+                limit,
+                nozzle,
+            } => {
+                let listed = values
+                    .iter()
+                    .map(|(n, s, u)| format!("{n} σ {s:.4} {u}"))
+                    .collect::<Vec<_>>()
+                    .join(", ");
+                let nozzle = match nozzle {
+                    Some([xy, z]) => format!(
+                        "; {}the nozzle they place has σ {xy:.4} mm in XY and {z:.4} mm in Z (RMS over the build volume, in the bed's frame)",
+                        match uncertain_cause(*limit, Some([*xy, *z])) {
+                            UncertainCause::Together => "but they move together: ",
+                            _ => "",
+                        }
+                    ),
+                    None => String::new(),
+                };
+                format!("written with a σ beyond {limit} (in each one's unit): {listed}{nozzle}")
+            }
+            FirmwareWarning::TiltAbsorbed {
+                firmware,
+                slopes,
+                p,
+                share,
+                absorbed,
+                place,
+            } => {
+                let took: Vec<String> = absorbed
+                    .iter()
+                    .map(|(n, d, u)| format!("{n} by {d:+.4} {u}"))
+                    .collect();
+                let whose = match place {
+                    TiltPlace::Values { .. } => format!("{firmware}'s fit as asked"),
+                    _ => (*firmware).to_string(),
+                };
+                format!(
+                    "the probe heights show a bed tilt of {:+.3} % in x and {:+.3} % in y (mm per 100 mm; score test p = {p:.1e}, {:.0} % of the heights' misfit) that {whose} has no value for; the fitted values absorbed it: {}",
+                    100.0 * slopes[0],
+                    100.0 * slopes[1],
+                    100.0 * share,
+                    took.join(", ")
+                )
+            }
+        }
+    }
 }
 
 /// Written values correlated beyond this are warned of (issue 49: arm
@@ -681,6 +768,31 @@ pub fn checks<F: Firmware + ?Sized>(
     Ok(out)
 }
 
+/// Why written values are uncertain ([`FirmwareWarning::Uncertain`]):
+/// what a front end's hint answers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum UncertainCause {
+    /// Each value alone is uncertain, the nozzle they place together is
+    /// known within the limit: they move together.
+    Together,
+    /// The nozzle itself is uncertain beyond the limit: the readings do
+    /// not show it.
+    Nozzle,
+    /// The nozzle's σ is not known (the firmware's own fit, without the
+    /// physical model): fewer free values or more readings.
+    Readings,
+}
+
+/// The cause of a σ-beyond-limit warning with limit `limit` and the
+/// nozzle's σ `nozzle` (XY, Z; mm) where known.
+pub fn uncertain_cause(limit: f64, nozzle: Option<[f64; 2]>) -> UncertainCause {
+    match nozzle {
+        Some([xy, z]) if xy.max(z) <= limit => UncertainCause::Together,
+        Some(_) => UncertainCause::Nozzle,
+        None => UncertainCause::Readings,
+    }
+}
+
 /// The written values whose σ exceeds `max_sigma` (`--max-sigma`), as
 /// one warning, with the nozzle's σ they leave where it is known
 /// ([`FirmwareWarning::Uncertain`]); `None` when every σ is within it.
@@ -789,4 +901,33 @@ pub fn probe_errors(
             Ok(y[0] - m.measured[0])
         })
         .collect()
+}
+
+/// The file a firmware command writes (`--out`): the firmware's lines
+/// `updated` ([`Firmware::updated`]) with, for the firmwares whose
+/// settings are G-code lines, a comment saying where they came from
+/// (`source`, `probes` probe points; `physical`: the values for the
+/// nozzle) and, for Marlin, how to keep them.
+pub fn out_file<F: Firmware + ?Sized>(
+    firmware: &F,
+    updated: &str,
+    source: &str,
+    probes: usize,
+    physical: bool,
+) -> String {
+    let version = env!("CARGO_PKG_VERSION");
+    let how = if physical {
+        format!(
+            "for the nozzle over the build volume by pkmcal {version} --physical from {source} ({probes} probe points)"
+        )
+    } else {
+        format!("identified by pkmcal {version} from {source} ({probes} probe points)")
+    };
+    match firmware.name() {
+        "RepRapFirmware" => format!("; Delta parameters {how}\n{updated}"),
+        "Marlin" => format!(
+            "; Marlin delta settings {how}\n{updated}; send M500 once to keep them in EEPROM (not in a start script)\n"
+        ),
+        _ => updated.to_string(),
+    }
 }

@@ -288,19 +288,117 @@ pub struct PhysicalFit {
     pub free_names: Vec<String>,
     /// The study (a MAP fit: the readings and the tolerances).
     pub study: pkmcal::identify::Study,
-    /// Whether the probe's noise is pkmcal's assumption
-    /// ([`PROBE_NOISE_MM`], a typical probe's), not one a user stated.
-    pub noise_assumed: bool,
+    /// The probe's noise the fit weighed the heights with: stated by its
+    /// user, or pkmcal's assumption ([`PROBE_NOISE_MM`], a typical
+    /// probe's).
+    pub probe_noise: ProbeNoise,
     /// How many of the readings' poses (the last) are touches measured by
     /// hand ([`super::physical_heights`]), nozzle touches of them.
     pub touches: (usize, usize),
+}
+
+/// The probe's σ of a physical fit (mm), and whose it is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ProbeNoise {
+    /// Stated by the probe's user.
+    Stated(f64),
+    /// pkmcal's assumption, a typical probe's ([`PROBE_NOISE_MM`]).
+    Assumed(f64),
+}
+
+impl ProbeNoise {
+    /// The σ (mm).
+    pub fn mm(self) -> f64 {
+        match self {
+            ProbeNoise::Stated(s) | ProbeNoise::Assumed(s) => s,
+        }
+    }
+
+    /// Whether it is pkmcal's assumption.
+    pub fn assumed(self) -> bool {
+        matches!(self, ProbeNoise::Assumed(_))
+    }
+}
+
+/// What the residuals say of the readings' noise, where the adequacy test
+/// finds it wrong ([`pkmcal::identify::adequacy`]): which readings, the
+/// σ the fit weighed them with (the probe's stated or assumed; the
+/// distances' is always assumed, [`DISTANCE_NOISE_MM`]) and the σ the
+/// residuals show.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NoiseNote {
+    /// The probe heights' (or else the distances').
+    pub heights: bool,
+    /// The σ the fit weighed them with.
+    pub noise: ProbeNoise,
+    /// The σ the residuals show (mm).
+    pub found: f64,
+    /// The χ² test's p-value (the tail the residuals are in).
+    pub p: f64,
+    /// Whether they scatter more than that σ (else less).
+    pub more: bool,
+    /// With `more`: the parameters left out whose freeing would explain
+    /// it, with their share of the misfit (empty: none does, the misfit is
+    /// spread like noise).
+    pub suspects: Vec<(String, f64)>,
+}
+
+impl NoiseNote {
+    /// The note of a fit's adequacy warning, if `w` is one (on readings
+    /// whose σ the fit stated, not given in the data).
+    pub fn of(fit: &PhysicalFit, w: &pkmcal::identify::Warning) -> Option<NoiseNote> {
+        use pkmcal::identify::WarningKind as K;
+        let (axes, found, given, p, more, suspects) = match &w.kind {
+            K::NoiseOverstated {
+                axes,
+                found,
+                given,
+                p,
+                ..
+            } => (axes, *found, *given, *p, false, vec![]),
+            K::NoiseUnderstated {
+                axes,
+                found,
+                given,
+                p,
+                ..
+            } => (axes, *found, *given, *p, true, vec![]),
+            K::ModelInadequate {
+                axes,
+                found,
+                given,
+                p,
+                suspects,
+                ..
+            } => (axes, *found, *given, *p, true, suspects.clone()),
+            _ => return None,
+        };
+        if given {
+            return None;
+        }
+        let heights = !axes.iter().any(|a| a == pkmcal::DISTANCE_AXIS);
+        Some(NoiseNote {
+            heights,
+            noise: if heights {
+                fit.probe_noise
+            } else {
+                ProbeNoise::Assumed(DISTANCE_NOISE_MM)
+            },
+            found,
+            p,
+            more,
+            suspects,
+        })
+    }
 }
 
 /// The physical model of `firmware`'s printer fitted to its readings as far
 /// as they and the tolerances allow (a MAP fit): the description's
 /// tolerances, the bed's tilt [`BED_TILT_SIGMA_RAD`] and the readings'
 /// noise [`PROBE_NOISE_MM`] (distances [`DISTANCE_NOISE_MM`]) unless
-/// `request` states its own.
+/// `request` states its own. The probe's σ, stated or assumed, is taken as
+/// known: what the residuals say of it is the adequacy test's
+/// ([`NoiseNote`]).
 pub fn calibrate<F: Firmware + ?Sized>(
     firmware: &F,
     ld: &LinearDelta,
@@ -352,11 +450,12 @@ pub fn calibrate_with<F: Firmware + ?Sized>(
                 .push((axis.to_string(), Tolerance::Absolute(BED_TILT_SIGMA_RAD)));
         }
     }
-    let noise_assumed = request.stated_noise.is_none();
-    if noise_assumed {
-        request.stated_noise = Some(PROBE_NOISE_MM);
-        request.stated_readings = f64::INFINITY;
-    }
+    let probe_noise = match request.stated_noise {
+        Some(s) => ProbeNoise::Stated(s),
+        None => ProbeNoise::Assumed(PROBE_NOISE_MM),
+    };
+    request.stated_noise = Some(probe_noise.mm());
+    request.stated_readings = f64::INFINITY;
     if request.stated_distance_noise.is_none() && !readings.distances.is_empty() {
         request.stated_distance_noise = Some(DISTANCE_NOISE_MM);
     }
@@ -377,7 +476,7 @@ pub fn calibrate_with<F: Firmware + ?Sized>(
         readings,
         free_names,
         study,
-        noise_assumed,
+        probe_noise,
         touches: counts,
     })
 }
@@ -1093,6 +1192,23 @@ pub fn nozzle_sigma(
     Ok([(xy / points).sqrt(), (z / points).sqrt()])
 }
 
+/// The σ-beyond-limit warning of an assessment's written values
+/// ([`super::uncertain`]), with the nozzle's σ they leave together
+/// ([`nozzle_sigma`]); `None` when every σ is within `max_sigma`.
+pub fn uncertain(a: &Assessment, max_sigma: f64) -> Result<Option<super::FirmwareWarning>> {
+    if !a
+        .values
+        .iter()
+        .any(|v| v.sigma.is_some_and(|s| s > max_sigma))
+    {
+        return Ok(None);
+    }
+    let proj = &a.choice.written;
+    let fw_bed = a.delta.corrects_bed_tilt.then_some(proj.bed.as_slice());
+    let nozzle = nozzle_sigma(&a.fit, &a.fw_mech, &proj.params, fw_bed)?;
+    Ok(super::uncertain(&a.values, max_sigma, Some(nozzle)))
+}
+
 /// The side of the verdict's calibration cube (mm).
 pub const CUBE_MM: f64 = 20.0;
 /// Draws from the fit's posterior behind the cube's uncertainty.
@@ -1207,4 +1323,100 @@ pub fn cube_errors(
             })
         })
         .collect()
+}
+
+/// A printer's physical calibration: the fit, the firmware's values chosen
+/// for the nozzle, and what the verdict says of them (every front end's
+/// `--physical`).
+pub struct Assessment {
+    /// The printer as built, where it started.
+    pub delta: LinearDelta,
+    /// The firmware's description.
+    pub fw_mech: Mech,
+    /// The firmware's own fit of the probe.
+    pub own: super::PrinterCalibration,
+    /// The physical fit.
+    pub fit: PhysicalFit,
+    /// The values written: the projection or the firmware's own fit.
+    pub choice: Choice,
+    /// The nozzle's error over the build volume with the current values.
+    pub before: ErrorSummary,
+    /// The probe heights' errors of the physical fit, before and after.
+    pub heights: [Vec<f64>; 2],
+    /// The predicted cubes with the values written ([`cube_centres`]).
+    pub cubes: Vec<CubeError>,
+    /// The values written, with their σ.
+    pub values: Vec<super::FirmwareValue>,
+}
+
+impl Assessment {
+    /// The bed tilt the firmware applies with the written values, where it
+    /// applies one.
+    pub fn fw_bed(&self) -> Option<&[f64]> {
+        self.delta
+            .corrects_bed_tilt
+            .then_some(self.choice.written.bed.as_slice())
+    }
+}
+
+/// Fit `firmware`'s printer as built (`request`: the free set, the
+/// tolerances, the probe's stated noise), project onto the firmware's
+/// values, choose what to write and predict its cubes; `None` for a
+/// printer that is not a linear delta.
+pub fn assess<F: Firmware + ?Sized>(
+    firmware: &F,
+    request: Request,
+    touches: Option<&super::physical_heights::Touches>,
+) -> Result<Option<Assessment>> {
+    let Some(ld) = firmware.linear_delta()? else {
+        return Ok(None);
+    };
+    let fw_mech = firmware.mechanism()?;
+    let fw_spec = fw_mech.spec();
+    let own = super::calibrate(firmware, Request::new(pkmcal::Model::Exact))?;
+    let own_cal = own.calibration();
+    let fit = calibrate_with(firmware, &ld, request, touches)?;
+    let cal = &fit.study.calibration;
+    let spec = fit.mech.spec();
+    let choice = choose(&fit, &fw_mech, &own_cal.params, &own_cal.measurement)?;
+    let proj = &choice.written;
+    let before = ErrorSummary::of(&in_bed_frame(
+        &proj.targets,
+        &nozzle_errors(
+            &fw_mech,
+            &Params::nominal(fw_spec),
+            Some(own.readings.measurement.nominal()).filter(|_| ld.corrects_bed_tilt),
+            &fit.mech,
+            &cal.params,
+            &cal.measurement,
+            ld.nozzle(),
+            &proj.targets,
+        )?,
+    ));
+    let measurement = &fit.readings.measurement;
+    let poses = &fit.readings.poses;
+    let heights = [
+        super::probe_errors(
+            &fit.mech,
+            measurement,
+            &Params::nominal(spec),
+            measurement.nominal(),
+            poses,
+        )?,
+        super::probe_errors(&fit.mech, measurement, &cal.params, &cal.measurement, poses)?,
+    ];
+    let fw_bed = ld.corrects_bed_tilt.then_some(proj.bed.as_slice());
+    let cubes = cube_errors(&fit, &fw_mech, &proj.params, fw_bed)?;
+    let values = written_values(firmware, &fit, &fw_mech, &choice, &own)?;
+    Ok(Some(Assessment {
+        delta: ld,
+        fw_mech,
+        own,
+        fit,
+        choice,
+        before,
+        heights,
+        cubes,
+        values,
+    }))
 }

@@ -307,7 +307,7 @@ pub fn suggest(
     for (k, at) in q.probes.iter().enumerate() {
         out.extend(score(
             &[first_probe + k],
-            physical::PROBE_NOISE_MM,
+            fit.probe_noise.mm(),
             Extra::ProbePoint { at: *at },
         ));
     }
@@ -315,7 +315,7 @@ pub fn suggest(
     let rows: Vec<usize> = (first_block..first_block + q.block.len()).collect();
     out.extend(score(
         &rows,
-        physical::PROBE_NOISE_MM,
+        fit.probe_noise.mm(),
         Extra::SecondLevel {
             height: GAUGE_BLOCK_MM,
             points: q.block.clone(),

@@ -332,6 +332,8 @@ pub struct Page {
     pub next: Vec<NextMeasurement>,
     /// The drift against `--previous` (where from, and the test).
     pub drift: Option<(String, Drift)>,
+    /// The probe's σ the fit weighed the heights with.
+    pub probe_noise: physical::ProbeNoise,
 }
 
 /// What [`Page::build`] takes: the fit and what the command computed of it.
@@ -522,6 +524,7 @@ impl Page {
             map,
             next,
             drift: i.drift.clone(),
+            probe_noise: i.fit.probe_noise,
         })
     }
 }
@@ -1020,7 +1023,7 @@ pub fn html(page: &Page, figs: &[Figure]) -> String {
     // The fit.
     let _ = write!(
         h,
-        "<h2>The fit</h2><table class=\"kv\"><tr><td>readings</td><td>{} probe heights{} from {}</td></tr><tr><td>model</td><td>the physical delta: {} parameters within their tolerances (rods {} mm, tower radii {} mm, tower lean {} mrad, ball joints {} mm, bed tilt {} mrad; probe σ {} mm)</td></tr><tr><td>pkmcal</td><td>{}</td></tr></table>",
+        "<h2>The fit</h2><table class=\"kv\"><tr><td>readings</td><td>{} probe heights{} from {}</td></tr><tr><td>model</td><td>the physical delta: {} parameters within their tolerances (rods {} mm, tower radii {} mm, tower lean {} mrad, ball joints {} mm, bed tilt {} mrad; probe σ {} mm{})</td></tr><tr><td>pkmcal</td><td>{}</td></tr></table>",
         page.readings.0,
         if page.readings.1 > 0 {
             format!(" and {} distances", page.readings.1)
@@ -1034,11 +1037,19 @@ pub fn html(page: &Page, figs: &[Figure]) -> String {
         physical::TOWER_LEAN_SIGMA_RAD * 1e3,
         physical::JOINT_SIGMA_MM,
         physical::BED_TILT_SIGMA_RAD * 1e3,
-        physical::PROBE_NOISE_MM,
+        page.probe_noise.mm(),
+        stated_words(page.probe_noise),
         env!("CARGO_PKG_VERSION")
     );
     h.push_str(PAGE_END);
     h
+}
+
+/// What follows the probe's σ where it is said: nothing for pkmcal's
+/// assumption (the text before a user could state it), ` as stated` for a
+/// user's.
+pub fn stated_words(noise: physical::ProbeNoise) -> &'static str {
+    if noise.assumed() { "" } else { " as stated" }
 }
 
 /// Write the figures and `report.html` into `dir` (staged: all or nothing).

@@ -21,18 +21,17 @@ const SAME_MM: f64 = 1e-9;
 
 /// A map on `layout` with made-up values (a bowl and a tilt, mm).
 fn made_up(layout: &MeshLayout) -> HeightMap {
-    let offsets = layout.offsets();
-    let xs: Vec<f64> = offsets.iter().map(|d| d + layout.origin[0]).collect();
-    let ys: Vec<f64> = offsets.iter().map(|d| d + layout.origin[1]).collect();
-    let z: Vec<Vec<Option<f64>>> = offsets
+    let xs = layout.nodes(0);
+    let ys = layout.nodes(1);
+    let z: Vec<Vec<Option<f64>>> = ys
         .iter()
-        .map(|dy| {
-            offsets
-                .iter()
-                .map(|dx| {
-                    layout.probed(*dx, *dy).then(|| {
-                        1e-6 * (dx * dx + dy * dy) - 3e-4 * dx + 1.234_567e-4 * dy - 0.0123
-                    })
+        .map(|y| {
+            xs.iter()
+                .map(|x| {
+                    let (dx, dy) = (x - layout.origin[0], y - layout.origin[1]);
+                    layout.probed(dx, dy).then_some(
+                        1e-6 * (dx * dx + dy * dy) - 3e-4 * dx + 1.234_567e-4 * dy - 0.0123,
+                    )
                 })
                 .collect()
         })
@@ -98,6 +97,108 @@ fn klipper_profile_is_read_back_as_klipper_reads_it() {
         // Another profile's name is not this one.
         assert!(height_map::read_klipper(&text, "default").is_err());
     }
+}
+
+/// A rectangular `[bed_mesh]` (Klipper's `mesh_min`, `mesh_max`,
+/// `probe_count`) is written as Klipper saves the profile it probes there:
+/// its nodes `min + i · spacing`, the spacing floored to 0.01 mm (so the
+/// last node may fall short of `mesh_max`), `x_count` and `y_count` apart,
+/// and read back by Klipper's rules.
+#[test]
+fn klipper_rectangular_profile_is_read_back_as_klipper_reads_it() {
+    let floor = |d: f64| (d * 100.0).floor() / 100.0;
+    for (min, max, counts) in [
+        ([-80.0, -70.0], [80.0, 70.0], [5, 3]),
+        ([-100.5, -60.0], [99.0, 61.3], [7, 9]),
+        ([10.0, 20.0], [200.0, 180.0], [4, 6]),
+    ] {
+        let layout =
+            MeshLayout::rectangular(MeshFormat::Klipper, min, max, counts, 1000.0).unwrap();
+        let map = made_up(&layout);
+        let text = height_map::write(&map, &layout, "a comment");
+        let read = height_map::read_klipper(&text, KLIPPER_PROFILE).unwrap();
+        agrees(&read, &map, 6, true);
+        assert_eq!([read.xs.len(), read.ys.len()], counts);
+        assert!(text.contains(&format!(
+            "x_count = {}\ny_count = {}\n",
+            counts[0], counts[1]
+        )));
+        for k in 0..2 {
+            let nodes = if k == 0 { &read.xs } else { &read.ys };
+            let s = floor((max[k] - min[k]) / (counts[k] - 1) as f64);
+            assert!((nodes[0] - min[k]).abs() < SAME_MM);
+            let last = min[k] + s * (counts[k] - 1) as f64;
+            assert!(
+                (nodes[counts[k] - 1] - last).abs() < SAME_MM,
+                "{nodes:?} {last}"
+            );
+            assert!(last <= max[k] + SAME_MM);
+        }
+        assert_eq!(
+            text.contains("algo = bicubic"),
+            counts[0].max(counts[1]) > 6,
+            "lagrange oscillates above 6 nodes"
+        );
+    }
+    // Klipper's own refusals.
+    for (min, max, counts) in [
+        ([0.0, 0.0], [0.0, 10.0], [3, 3]),
+        ([0.0, 0.0], [10.0, 10.0], [2, 3]),
+        ([0.0, 0.0], [3.0, 30.0], [5, 3]),
+    ] {
+        assert!(
+            MeshLayout::rectangular(MeshFormat::Klipper, min, max, counts, 100.0).is_err(),
+            "{min:?} {max:?} {counts:?}"
+        );
+    }
+}
+
+/// A configuration's rectangular `[bed_mesh]` sets the layout; on a delta
+/// its nodes beyond the build volume's radius (which the nozzle cannot
+/// reach) take their row's outermost value, and the profile reads back
+/// whole.
+#[test]
+fn klippers_rectangular_bed_mesh_sets_the_layout() {
+    let p = klipper_with(
+        "[bed_mesh]\nmesh_min: -120, -120\nmesh_max: 120, 120\nprobe_count: 5, 7\nmesh_pps: 2\n\n",
+    );
+    let l = p.mesh_layout(120.0, None).unwrap().unwrap();
+    let r = l.rect.clone().unwrap();
+    assert_eq!(
+        (r.min, r.max, r.counts),
+        ([-120.0, -120.0], [120.0, 120.0], [5, 7])
+    );
+    assert_eq!(l.spacings(), [60.0, 40.0]);
+    assert_eq!(l.klipper.algo, "bicubic");
+    assert_eq!(
+        p.mesh_layout(120.0, Some(5)).unwrap().unwrap().counts(),
+        [5, 5]
+    );
+    let defaults = klipper_with("[bed_mesh]\nmesh_min: -50, -50\nmesh_max: 50, 50\n\n");
+    assert_eq!(
+        defaults.mesh_layout(120.0, None).unwrap().unwrap().counts(),
+        [3, 3]
+    );
+    for bad in [
+        "mesh_min: -50\nmesh_max: 50, 50",
+        "mesh_min: -50, -50\nmesh_max: 50, 50\nprobe_count: 2",
+    ] {
+        let p = klipper_with(&format!("[bed_mesh]\n{bad}\n\n"));
+        assert!(p.mesh_layout(120.0, None).is_err(), "{bad}");
+    }
+    let ld = p.linear_delta().unwrap().unwrap();
+    let fw = p.mechanism().unwrap();
+    let fit = physical::calibrate(&p, &ld, Request::new(pkmcal::Model::Exact)).unwrap();
+    let cal = &fit.study.calibration;
+    let proj = physical::project(&ld, &fw, &fit.mech, &cal.params, &cal.measurement).unwrap();
+    let layout = p.mesh_layout(ld.print_radius(), None).unwrap().unwrap();
+    let map = height_map::residual_map(&fit, &fw, &proj.params, None, &layout).unwrap();
+    // The corners (170 mm out) are beyond the print radius (140 mm); the
+    // middle row is within it.
+    assert!(map.z[0][0].is_none() && map.z[3].iter().all(Option::is_some));
+    let read =
+        height_map::read_klipper(&height_map::write(&map, &layout, ""), KLIPPER_PROFILE).unwrap();
+    agrees(&read, &map, 6, true);
 }
 
 #[test]

@@ -3,4 +3,5 @@
 
 pub mod apply;
 pub mod design;
+pub mod firmware;
 pub mod fit;

@@ -1,0 +1,705 @@
+//! The firmware calibrations (`pkmcal klipper`, `reprap`, `marlin` on the
+//! command line): a printer's configuration and probe results read as its
+//! firmware reads them, its values fitted (or, with ``physical=True``, the
+//! printer as built fitted and the firmware's values chosen for the nozzle
+//! over the build volume), what the command line prints returned as data,
+//! and the files written only where asked (``out=``, ``height_map=``).
+//! `pkmcal/_api.py` turns the dict returned into its dataclasses.
+
+use crate::errors::{io_err, keyword, request_err, usage, wrong_type};
+use crate::files::{path_arg, reading, written};
+use crate::keywords::Kw;
+use crate::request::tolerances_arg;
+use crate::threads::interruptible;
+use pkmcal::{Field, Mechanism, Params, Request};
+use pkmcal_io::firmware::choices::{self, Choices};
+use pkmcal_io::firmware::klipper::{KlipperPrinter, Weighting};
+use pkmcal_io::firmware::klipper_rotary::{self, RotaryPrinter};
+use pkmcal_io::firmware::marlin::{LetterB, MarlinPrinter};
+use pkmcal_io::firmware::physical::{self, ErrorSummary, NoiseNote, ProbeNoise};
+use pkmcal_io::firmware::reprap::RrfPrinter;
+use pkmcal_io::firmware::{
+    self, Firmware, FirmwareValue, FirmwareWarning, Separation, TiltPlace, height_map,
+    physical_plan, physical_report,
+};
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+use std::path::PathBuf;
+
+/// The firmware command's choices of a call, checked by the library's
+/// rules ([`Choices::check`]).
+struct Common {
+    request: Request,
+    physical: bool,
+    max_sigma: f64,
+    out: Option<PathBuf>,
+    height_map: Option<PathBuf>,
+    mesh_points: Option<usize>,
+}
+
+fn path_kw(kw: &Kw<'_>, name: &str) -> PyResult<Option<PathBuf>> {
+    kw.any(name)?
+        .map(|p| {
+            path_arg(&p)
+                .map(PathBuf::from)
+                .map_err(|_| wrong_type(name, "a path (str or os.PathLike)", &p))
+        })
+        .transpose()
+}
+
+fn common(kw: &Kw<'_>, extra: Choices) -> PyResult<Common> {
+    let physical = kw.flag("physical")?;
+    let tolerances = tolerances_arg(kw.any("tolerances")?.as_ref())?;
+    let height_map = path_kw(kw, "height_map")?;
+    let mesh_points = kw.count("mesh_points")?;
+    let probe_noise = kw.f64("probe_noise")?;
+    Choices {
+        physical,
+        tolerances: !tolerances.is_empty(),
+        height_map: height_map.is_some(),
+        mesh_points,
+        probe_noise,
+        ..extra
+    }
+    .check()
+    .map_err(request_err)?;
+    let max_sigma = match kw.f64("max_sigma")? {
+        Some(v) => choices::max_sigma(v).map_err(request_err)?,
+        None => firmware::DEFAULT_MAX_SIGMA,
+    };
+    let mut request = Request::new(pkmcal::Model::Exact);
+    request.free = kw.names("free")?;
+    request.fix = kw.names("fix")?.unwrap_or_default();
+    request.tolerances = tolerances;
+    request.stated_noise = probe_noise;
+    Ok(Common {
+        request,
+        physical,
+        max_sigma,
+        out: path_kw(kw, "out")?,
+        height_map,
+        mesh_points,
+    })
+}
+
+/// ``klipper(config, **options)``.
+#[pyfunction]
+pub fn klipper<'py>(py: Python<'py>, args: &Bound<'py, PyDict>) -> PyResult<Bound<'py, PyDict>> {
+    let kw = Kw::new(args.clone());
+    let config = path_kw(&kw, "config")?.ok_or_else(|| usage("config: a value is needed"))?;
+    let previous = path_kw(&kw, "previous")?;
+    let c = common(
+        &kw,
+        Choices {
+            previous: previous.is_some(),
+            ..Choices::default()
+        },
+    )?;
+    let weighting: Weighting = match kw.str("weighting")? {
+        Some(w) => w
+            .parse()
+            .map_err(|e: String| usage(format!("{}: {e}", keyword(Field::Weighting))))?,
+        None => Weighting::Klipper,
+    };
+    let (text, ini) =
+        reading(|run| pkmcal_io::firmware::klipper::read_config(run, &config)).map_err(io_err)?;
+    if klipper_rotary::is_rotary(&ini) {
+        let printer = RotaryPrinter::from_parsed(&config, text, ini, weighting).map_err(io_err)?;
+        return result(py, &printer, &config, c, None, Some(weighting));
+    }
+    let before = match &previous {
+        Some(p) if c.physical => {
+            let before = reading(|run| KlipperPrinter::read(run, p, weighting))
+                .map_err(|e| io_err(e.context(format!("previous {}", p.display()))))?;
+            let (text, ini) =
+                reading(|run| pkmcal_io::firmware::klipper::read_config(run, &config))
+                    .map_err(io_err)?;
+            Some((
+                KlipperPrinter::from_parsed(&config, text, ini, weighting)
+                    .map_err(io_err)?
+                    .with_readings_of(before),
+                p.display().to_string(),
+            ))
+        }
+        _ => None,
+    };
+    let printer = KlipperPrinter::from_parsed(&config, text, ini, weighting).map_err(io_err)?;
+    result(
+        py,
+        &printer,
+        &config,
+        c,
+        before
+            .as_ref()
+            .map(|(p, s)| (p as &dyn Firmware, s.clone())),
+        Some(weighting),
+    )
+}
+
+/// ``reprap(config, probes, **options)``.
+#[pyfunction]
+pub fn reprap<'py>(py: Python<'py>, args: &Bound<'py, PyDict>) -> PyResult<Bound<'py, PyDict>> {
+    let kw = Kw::new(args.clone());
+    let config = path_kw(&kw, "config")?.ok_or_else(|| usage("config: a value is needed"))?;
+    let probes = path_kw(&kw, "probes")?.ok_or_else(|| usage("probes: a value is needed"))?;
+    let c = common(&kw, Choices::default())?;
+    let printer = reading(|run| RrfPrinter::read(run, &config, &probes, c.request.free.as_deref()))
+        .map_err(io_err)?;
+    result(py, &printer, &probes, c, None, None)
+}
+
+/// ``marlin(config, probes, **options)``.
+#[pyfunction]
+pub fn marlin<'py>(py: Python<'py>, args: &Bound<'py, PyDict>) -> PyResult<Bound<'py, PyDict>> {
+    let kw = Kw::new(args.clone());
+    let config = path_kw(&kw, "config")?.ok_or_else(|| usage("config: a value is needed"))?;
+    let probes = path_kw(&kw, "probes")?.ok_or_else(|| usage("probes: a value is needed"))?;
+    let c = common(&kw, Choices::default())?;
+    let letter_b: Option<LetterB> = kw
+        .str("m665_b")?
+        .map(|s| {
+            s.parse()
+                .map_err(|e: String| usage(format!("{}: {e}", keyword(Field::FirmwareLetters))))
+        })
+        .transpose()?;
+    let probe_offset: Option<[f64; 2]> = kw
+        .any("probe_offset")?
+        .map(|v| {
+            v.extract::<(f64, f64)>()
+                .map(|(x, y)| [x, y])
+                .map_err(|_| wrong_type("probe_offset", "two numbers (x, y)", &v))
+        })
+        .transpose()?;
+    let g33_radius = kw.f64("g33_radius")?;
+    let printer = reading(|run| {
+        MarlinPrinter::read(
+            run,
+            &config,
+            &probes,
+            letter_b,
+            probe_offset,
+            g33_radius,
+            c.request.free.as_deref(),
+        )
+    })
+    .map_err(io_err)?;
+    result(py, &printer, &probes, c, None, None)
+}
+
+fn max_abs(v: &[f64]) -> f64 {
+    v.iter().fold(0.0, |m, x| m.max(x.abs()))
+}
+
+fn rms(v: &[f64]) -> f64 {
+    (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt()
+}
+
+/// `{"max": …, "rms": …}` of errors.
+fn figures<'py>(py: Python<'py>, v: &[f64]) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("max", max_abs(v))?;
+    d.set_item("rms", rms(v))?;
+    Ok(d)
+}
+
+fn value_dicts<'py>(py: Python<'py>, values: &[FirmwareValue]) -> PyResult<Bound<'py, PyList>> {
+    let l = PyList::empty(py);
+    for v in values {
+        let d = PyDict::new(py);
+        d.set_item("name", &v.name)?;
+        d.set_item("before", v.before)?;
+        d.set_item("after", v.after)?;
+        d.set_item("sigma", v.sigma)?;
+        d.set_item("unit", v.unit)?;
+        l.append(d)?;
+    }
+    Ok(l)
+}
+
+fn summary_dict<'py>(py: Python<'py>, e: &ErrorSummary) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("xy_rms", e.xy_rms)?;
+    d.set_item("xy_max", e.xy_max)?;
+    d.set_item("z_rms", e.z_rms)?;
+    d.set_item("z_max", e.z_max)?;
+    Ok(d)
+}
+
+fn note<'py>(
+    py: Python<'py>,
+    kind: &str,
+    message: String,
+    hint: String,
+) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("kind", kind)?;
+    d.set_item("message", message)?;
+    d.set_item("hint", hint)?;
+    Ok(d)
+}
+
+/// A firmware check: what it found (the library's words) and what to do,
+/// naming the package's keywords.
+fn firmware_warning<'py>(py: Python<'py>, w: &FirmwareWarning) -> PyResult<Bound<'py, PyDict>> {
+    let (kind, hint) = match w {
+        FirmwareWarning::Correlated {
+            distances,
+            separation,
+            fix,
+            ..
+        } => {
+            let separate = match (separation, distances) {
+                (Separation::Distances, 0) => {
+                    "add DELTA_ANALYZE distances (measured on a calibration object)"
+                }
+                (Separation::Distances, _) => "add more DELTA_ANALYZE distances",
+                (Separation::FurtherOut, _) => "probe points further out towards the bed's edge",
+            };
+            (
+                "correlated",
+                format!("{separate}, or keep `{fix}` fixed at a measured value (fix=\"{fix}\")"),
+            )
+        }
+        FirmwareWarning::Uncertain { limit, nozzle, .. } => (
+            "uncertain",
+            match firmware::uncertain_cause(*limit, *nozzle) {
+                firmware::UncertainCause::Together => "each value's σ is of it alone; a print shows the nozzle's. To pin each value down, measure what the probe cannot see (the next measurements); max_sigma= sets the limit".into(),
+                firmware::UncertainCause::Nozzle => "the readings leave the nozzle itself uncertain: take the next measurements, or state tighter tolerances of the parts you know (tolerances=); max_sigma= sets the limit".into(),
+                firmware::UncertainCause::Readings => "probe more points over the whole bed, or keep fixed what the readings cannot determine (fix=); max_sigma= sets the limit".into(),
+            },
+        ),
+        FirmwareWarning::TiltAbsorbed { place, .. } => {
+            let hint = match place {
+                TiltPlace::Values { values, free } => format!(
+                    "free {} to write the tilt as {values} (free=\"default,{}\"), or level the bed",
+                    free.join(" and "),
+                    free.join(",")
+                ),
+                TiltPlace::BedMesh => "level the bed and probe again (a tilt is the bed's, not the delta's: Klipper's bed_mesh can take it when printing)".into(),
+                TiltPlace::Levelling => "level the bed and probe again (a tilt is the bed's, not the delta's: Marlin's bed levelling, G29, can take it when printing)".into(),
+            };
+            ("tilt_absorbed", hint)
+        }
+    };
+    note(py, kind, w.message(), hint)
+}
+
+/// A calibration's warning, as the package's other results give it.
+fn calibration_warning<'py>(
+    py: Python<'py>,
+    w: &pkmcal::identify::Warning,
+) -> PyResult<Bound<'py, PyDict>> {
+    note(py, w.kind.name(), w.message.clone(), w.hint.clone())
+}
+
+/// What the physical fit's residuals say of the readings' noise, worded
+/// with the package's keywords: stated (``probe_noise=``) or assumed.
+fn noise_note<'py>(py: Python<'py>, n: &NoiseNote) -> PyResult<Bound<'py, PyDict>> {
+    let whose = match (n.heights, n.noise) {
+        (true, ProbeNoise::Assumed(_)) => "a typical probe's".to_string(),
+        (true, ProbeNoise::Stated(s)) => format!("the σ {s} mm stated (probe_noise=)"),
+        (false, _) => "a caliper's".to_string(),
+    };
+    let readings = if n.heights {
+        "the probe's readings"
+    } else {
+        "the distances"
+    };
+    let against = match n.noise {
+        ProbeNoise::Assumed(s) => format!("against the {s} mm assumed"),
+        ProbeNoise::Stated(s) => format!("against the {s} mm stated"),
+    };
+    let (message, hint) = if !n.more {
+        match n.noise {
+            ProbeNoise::Assumed(_) => (
+                format!(
+                    "{readings} scatter less than {whose} (σ {:.2e} mm from the residuals {against}): the uncertainties are on the safe side",
+                    n.found
+                ),
+                String::new(),
+            ),
+            ProbeNoise::Stated(s) => (
+                format!(
+                    "{readings} scatter less than {whose} (σ {:.2e} mm from the residuals; χ² test, lower tail p = {:.1e}): every uncertainty is as much too large",
+                    n.found, n.p
+                ),
+                format!(
+                    "the σ stated is larger than the heights show: check probe_noise={s} against the probe's repeatability (the standard deviation of repeated probes at one point, as PROBE_ACCURACY reports it), or leave probe_noise out to assume a typical probe's {}",
+                    physical::PROBE_NOISE_MM
+                ),
+            ),
+        }
+    } else {
+        let freeing = if n.suspects.is_empty() {
+            String::new()
+        } else {
+            format!(
+                "; freeing {} would remove the share of the misfit given: {}",
+                if n.suspects.len() == 1 {
+                    "this parameter"
+                } else {
+                    "these parameters"
+                },
+                n.suspects
+                    .iter()
+                    .map(|(p, s)| format!("`{p}` ({:.0} %)", 100.0 * s))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        };
+        let model = if n.suspects.is_empty() {
+            "the printer moves in a way the physical model does not describe (backlash, a loose joint, thermal drift between the probes)"
+        } else {
+            "free the parameters named (free=) and calibrate again"
+        };
+        (
+            format!(
+                "{readings} scatter more than {whose} (σ {:.2e} mm from the residuals {against}; χ² test, p = {:.1e}){freeing}: every uncertainty is as much too small",
+                n.found, n.p
+            ),
+            match (n.heights, n.noise) {
+                (true, ProbeNoise::Assumed(_)) => format!(
+                    "the probe's σ was assumed, not stated: measure its repeatability (the standard deviation of repeated probes at one point, as PROBE_ACCURACY reports it) and state it with probe_noise=; if it is as small as assumed, {model}"
+                ),
+                (true, ProbeNoise::Stated(s)) => format!(
+                    "check probe_noise={s} against the probe's repeatability measured as the heights were (speed, temperature); if it is right, {model}"
+                ),
+                (false, _) => format!(
+                    "check the distances measured on the calibration object for a misread value; if they are right, {model}"
+                ),
+            },
+        )
+    };
+    let d = note(py, "noise", message, hint)?;
+    d.set_item("heights", n.heights)?;
+    d.set_item("stated", !n.noise.assumed())?;
+    d.set_item("noise", n.noise.mm())?;
+    d.set_item("found", n.found)?;
+    d.set_item("p", n.p)?;
+    d.set_item("more", n.more)?;
+    d.set_item("suspects", n.suspects.clone())?;
+    Ok(d)
+}
+
+/// Run the calibration as the call asks and return what it found.
+fn result<'py, F: Firmware + Sync>(
+    py: Python<'py>,
+    printer: &F,
+    source: &std::path::Path,
+    c: Common,
+    previous: Option<(&dyn Firmware, String)>,
+    weighting: Option<Weighting>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("firmware", printer.name())?;
+    d.set_item("source", source.display().to_string())?;
+    if c.physical {
+        return physical_result(py, d, printer, source, c, previous);
+    }
+    let request = c.request.clone();
+    let calibrated =
+        interruptible(py, |_cancel| firmware::calibrate(printer, request))?.map_err(io_err)?;
+    let spec = calibrated.mech.spec();
+    let cal = calibrated.calibration();
+    let readings = &calibrated.readings;
+    let measurement = &readings.measurement;
+    let (before, after) = if weighting.is_some() {
+        let nominal = Params::nominal(spec);
+        (
+            firmware::probe_errors(
+                &calibrated.mech,
+                measurement,
+                &nominal,
+                measurement.nominal(),
+                &readings.poses,
+            )
+            .map_err(io_err)?,
+            firmware::probe_errors(
+                &calibrated.mech,
+                measurement,
+                &cal.params,
+                &cal.measurement,
+                &readings.poses,
+            )
+            .map_err(io_err)?,
+        )
+    } else {
+        let first = |e: &[Vec<f64>]| e.iter().map(|r| r[0]).collect::<Vec<f64>>();
+        (
+            first(&calibrated.study.before),
+            first(&calibrated.study.after),
+        )
+    };
+    d.set_item("free", calibrated.free_names.clone())?;
+    d.set_item("termination", cal.termination.reason())?;
+    d.set_item("heights", readings.poses.len())?;
+    d.set_item("distances", readings.distances.len())?;
+    let h = PyDict::new(py);
+    h.set_item("before", figures(py, &before)?)?;
+    h.set_item("after", figures(py, &after)?)?;
+    d.set_item("height_errors", h)?;
+    match (
+        &calibrated.study.accuracy.distances,
+        readings.distances.is_empty(),
+    ) {
+        (Some(x), false) => {
+            let e = PyDict::new(py);
+            let f = |max: f64, rms: f64| -> PyResult<Bound<'py, PyDict>> {
+                let d = PyDict::new(py);
+                d.set_item("max", max)?;
+                d.set_item("rms", rms)?;
+                Ok(d)
+            };
+            e.set_item("before", f(x.before_max, x.before_rms)?)?;
+            e.set_item("after", f(x.after_max, x.after_rms)?)?;
+            d.set_item("distance_errors", e)?;
+        }
+        _ => d.set_item("distance_errors", py.None())?,
+    }
+    let written = firmware::written(printer, &calibrated).map_err(io_err)?;
+    d.set_item("values", value_dicts(py, &written.values)?)?;
+    let warnings = PyList::empty(py);
+    for w in &cal.warnings {
+        warnings.append(calibration_warning(py, w)?)?;
+    }
+    for w in firmware::checks(printer, &calibrated, &written, c.max_sigma).map_err(io_err)? {
+        warnings.append(firmware_warning(py, &w)?)?;
+    }
+    d.set_item("warnings", warnings)?;
+    d.set_item("physical", py.None())?;
+    let text = printer
+        .updated(spec, &cal.params, &cal.measurement)
+        .map_err(io_err)?;
+    d.set_item("updated", &text)?;
+    if let Some(out) = &c.out {
+        let text = firmware::out_file(
+            printer,
+            &text,
+            &source.display().to_string(),
+            calibrated.study.accuracy.poses,
+            false,
+        );
+        written_file(out, &text)?;
+    }
+    d.set_item("out", c.out.as_ref().map(|p| p.display().to_string()))?;
+    Ok(d)
+}
+
+fn written_file(path: &std::path::Path, text: &str) -> PyResult<()> {
+    written(|run| run.files.stage(path, text.as_bytes()))
+}
+
+fn physical_result<'py, F: Firmware + Sync>(
+    py: Python<'py>,
+    d: Bound<'py, PyDict>,
+    printer: &F,
+    source: &std::path::Path,
+    c: Common,
+    previous: Option<(&dyn Firmware, String)>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let request = c.request.clone();
+    let assessed = interruptible(py, |_cancel| physical::assess(printer, request, None))?
+        .map_err(io_err)?
+        .ok_or_else(|| {
+            usage(format!(
+                "physical=True models linear deltas (towers with carriages); this {} printer is a rotary delta, whose arms and their errors it has no model of: calibrate its firmware values with physical=False",
+                printer.name()
+            ))
+        })?;
+    let fit = &assessed.fit;
+    let cal = &fit.study.calibration;
+    let choice = &assessed.choice;
+    let proj = &choice.written;
+    d.set_item("free", fit.free_names.clone())?;
+    d.set_item("termination", cal.termination.reason())?;
+    d.set_item("heights", fit.readings.poses.len())?;
+    d.set_item("distances", fit.readings.distances.len())?;
+    let h = PyDict::new(py);
+    h.set_item("before", figures(py, &assessed.heights[0])?)?;
+    h.set_item("after", figures(py, &assessed.heights[1])?)?;
+    d.set_item("height_errors", h)?;
+    d.set_item("distance_errors", py.None())?;
+    d.set_item("values", value_dicts(py, &assessed.values)?)?;
+    let warnings = PyList::empty(py);
+    let mut noise = py.None().into_bound(py);
+    use pkmcal::identify::WarningKind;
+    for w in cal.warnings.iter().filter(|w| {
+        !matches!(
+            w.kind,
+            WarningKind::HeldByTolerance { .. } | WarningKind::PriorDominated { .. }
+        )
+    }) {
+        match NoiseNote::of(fit, w) {
+            Some(n) => {
+                let n = noise_note(py, &n)?;
+                noise = n.clone().into_any();
+                // A typical probe scattering less than assumed is news, not
+                // a fault: no warning.
+                if !n
+                    .get_item("hint")?
+                    .is_some_and(|h| h.to_string().is_empty())
+                {
+                    warnings.append(n)?;
+                }
+            }
+            None => warnings.append(calibration_warning(py, w)?)?,
+        }
+    }
+    if let Some(w) = physical::uncertain(&assessed, c.max_sigma).map_err(io_err)? {
+        warnings.append(firmware_warning(py, &w)?)?;
+    }
+    d.set_item("warnings", warnings)?;
+    let p = PyDict::new(py);
+    p.set_item("probe_noise", fit.probe_noise.mm())?;
+    p.set_item("probe_noise_stated", !fit.probe_noise.assumed())?;
+    p.set_item("noise_note", noise)?;
+    p.set_item("projection_written", choice.projection_written)?;
+    p.set_item("gain", choice.gain.to_vec())?;
+    p.set_item("z_gain", choice.z_gain.to_vec())?;
+    p.set_item("z_weight", choice.z_weight)?;
+    p.set_item("grid_points", proj.targets.len())?;
+    p.set_item("print_radius", assessed.delta.print_radius())?;
+    let e = PyDict::new(py);
+    e.set_item("current", summary_dict(py, &assessed.before)?)?;
+    e.set_item("own", summary_dict(py, &choice.own.summary)?)?;
+    e.set_item("projected", summary_dict(py, &choice.projected.summary)?)?;
+    p.set_item("nozzle_errors", e)?;
+    let cubes = PyList::empty(py);
+    for c in &assessed.cubes {
+        let x = PyDict::new(py);
+        x.set_item("centre", c.centre.to_vec())?;
+        x.set_item("size", c.size.to_vec())?;
+        x.set_item("size_sd", c.size_sd.to_vec())?;
+        x.set_item("flatness", c.flatness)?;
+        x.set_item("flatness_sd", c.flatness_sd)?;
+        cubes.append(x)?;
+    }
+    p.set_item("cubes", cubes)?;
+    let unseen = PyList::empty(py);
+    for u in physical_report::unseen(fit) {
+        let x = PyDict::new(py);
+        x.set_item("part", u.part)?;
+        x.set_item("blind", u.blind)?;
+        x.set_item("of", u.of)?;
+        x.set_item("meaning", u.meaning)?;
+        unseen.append(x)?;
+    }
+    p.set_item("unseen", unseen)?;
+    let fw_bed = assessed.fw_bed();
+    let klipper = printer.name() == "Klipper";
+    let next = PyList::empty(py);
+    // As the command line does: where the candidates cannot be scored, the
+    // values are written all the same, with no suggestion.
+    if let Ok(list) = physical_plan::suggest(fit, &assessed.fw_mech, &proj.params, fw_bed, klipper)
+    {
+        for s in &list {
+            let x = PyDict::new(py);
+            x.set_item(
+                "what",
+                physical_report::measurement_words(
+                    &s.extra,
+                    printer.name(),
+                    fit.delta.probe_offset,
+                ),
+            )?;
+            let (before, after) = s.largest();
+            x.set_item("largest_before", before)?;
+            x.set_item("largest_after", after)?;
+            x.set_item("variance_removed", s.variance_removed())?;
+            next.append(x)?;
+        }
+    }
+    p.set_item("next_measurements", next)?;
+    match previous {
+        Some((prev, from)) => {
+            let before =
+                firmware::calibrate(prev, Request::new(pkmcal::Model::Exact)).map_err(io_err)?;
+            let dr = pkmcal_io::firmware::physical_drift::firmware_drift(
+                &before,
+                &assessed.own,
+                pkmcal::identify::DEFAULT_ALPHA,
+            )
+            .map_err(io_err)?;
+            let x = PyDict::new(py);
+            x.set_item("previous", from)?;
+            x.set_item("changed", dr.joint_drift)?;
+            x.set_item("chi2", dr.chi2)?;
+            x.set_item("dof", dr.dof)?;
+            x.set_item("p", dr.p_joint)?;
+            let params = PyList::empty(py);
+            for q in &dr.parameters {
+                let y = PyDict::new(py);
+                y.set_item("name", &q.name)?;
+                y.set_item("change", q.change)?;
+                y.set_item("sigma", q.sigma)?;
+                y.set_item("p", q.p_value)?;
+                y.set_item("changed", q.drifted)?;
+                params.append(y)?;
+            }
+            x.set_item("parameters", params)?;
+            x.set_item("untested", dr.untested.clone())?;
+            p.set_item("drift", x)?;
+        }
+        None => p.set_item("drift", py.None())?,
+    }
+    let src = source.display().to_string();
+    match &c.height_map {
+        Some(path) => {
+            let Some(map) = height_map::for_printer(
+                printer,
+                fit,
+                &assessed.fw_mech,
+                &proj.params,
+                fw_bed,
+                &src,
+                c.mesh_points,
+            )
+            .map_err(io_err)?
+            else {
+                return Err(usage(format!(
+                    "{} keeps no height map pkmcal can write: leave height_map out",
+                    printer.name()
+                )));
+            };
+            written_file(path, &map.text)?;
+            let v = map.map.values();
+            let x = PyDict::new(py);
+            x.set_item("path", path.display().to_string())?;
+            x.set_item("counts", map.layout.counts().to_vec())?;
+            x.set_item("spacings", map.layout.spacings().to_vec())?;
+            x.set_item("rectangular", map.layout.rect.is_some())?;
+            x.set_item("radius", map.layout.radius)?;
+            x.set_item("nodes", v.len())?;
+            x.set_item("min", v.iter().copied().fold(f64::INFINITY, f64::min))?;
+            x.set_item("max", v.iter().copied().fold(f64::NEG_INFINITY, f64::max))?;
+            x.set_item("largest_sd", map.map.largest_sd())?;
+            x.set_item(
+                "uncertain",
+                matches!(
+                    physical_report::map_advice(&map.map),
+                    physical_report::MapAdvice::Uncertain { .. }
+                ),
+            )?;
+            p.set_item("height_map", x)?;
+        }
+        None => p.set_item("height_map", py.None())?,
+    }
+    d.set_item("physical", p)?;
+    let fw_spec = assessed.fw_mech.spec();
+    let text = printer
+        .updated(fw_spec, &proj.params, &proj.bed)
+        .map_err(io_err)?;
+    d.set_item("updated", &text)?;
+    if let Some(out) = &c.out {
+        let text = firmware::out_file(
+            printer,
+            &text,
+            &src,
+            assessed.own.readings.poses.len(),
+            true,
+        );
+        written_file(out, &text)?;
+    }
+    d.set_item("out", c.out.as_ref().map(|p| p.display().to_string()))?;
+    Ok(d)
+}
