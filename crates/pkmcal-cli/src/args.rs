@@ -137,16 +137,17 @@ pub struct PhysicalArgs {
     #[arg(long, value_name = "HEIGHTS.csv")]
     pub heights: Option<std::path::PathBuf>,
     /// With --physical: write the Z error the written values leave over the
-    /// bed (the fitted nozzle's, at each node of a round mesh) as the
+    /// bed (the fitted nozzle's, at each node of a round mesh, or of
+    /// Klipper's rectangular [bed_mesh] where it has one) as the
     /// firmware's own height map here: for Klipper a `[bed_mesh pkmcal]`
     /// profile to [include] (BED_MESH_PROFILE LOAD=pkmcal), for
     /// RepRapFirmware a heightmap.csv (G29 S1 P"FILE"), for Marlin the
     /// M421 lines of its bilinear grid.
     #[arg(long, value_name = "FILE")]
     pub height_map: Option<std::path::PathBuf>,
-    /// With --height-map: nodes across the mesh (odd, 3 to 21); by default
-    /// Klipper's [bed_mesh] round_probe_count, else 5. Marlin's must be its
-    /// GRID_MAX_POINTS_X.
+    /// With --height-map: nodes across the mesh (odd, 3 to 21; each way on
+    /// a rectangular one); by default Klipper's [bed_mesh] round_probe_count
+    /// or probe_count, else 5. Marlin's must be its GRID_MAX_POINTS_X.
     #[arg(long, value_name = "N", value_parser = values::mesh_points)]
     pub mesh_points: Option<usize>,
     /// With --physical: a directory (created if missing) of the report for

@@ -330,70 +330,28 @@ pub fn firmware_warning(w: &pkmcal_io::firmware::FirmwareWarning) -> (String, St
 /// assumed, and what to do about each.
 pub fn noise_note(n: &pkmcal_io::firmware::physical::NoiseNote) -> String {
     use pkmcal_io::firmware::physical::ProbeNoise;
-    let whose = match (n.heights, n.noise) {
-        (true, ProbeNoise::Assumed(_)) => "a typical probe's".to_string(),
-        (true, ProbeNoise::Stated(s)) => format!("the σ {s} mm stated (--probe-noise)"),
-        (false, _) => "a caliper's".to_string(),
-    };
-    let readings = if n.heights {
-        "the probe's readings"
-    } else {
-        "the distances"
-    };
-    let against = match n.noise {
-        ProbeNoise::Assumed(s) => format!("against the {s} mm assumed"),
-        ProbeNoise::Stated(s) => format!("against the {s} mm stated"),
-    };
-    if !n.more {
-        return match (n.heights, n.noise) {
-            // A typical part scattering less than assumed is news, not a
-            // fault.
-            (_, ProbeNoise::Assumed(_)) => format!(
-                "{readings} scatter less than {whose} (σ {:.2e} mm from the residuals {against}): the uncertainties below are on the safe side",
-                n.found
-            ),
-            (_, ProbeNoise::Stated(s)) => format!(
-                "warning: {readings} scatter less than {whose} (σ {:.2e} mm from the residuals; χ² test, lower tail p = {:.1e}): every uncertainty below is as much too large\n  hint: the σ stated is larger than the heights show: check --probe-noise {s} against the probe's repeatability (the standard deviation of repeated probes at one point, as PROBE_ACCURACY reports it), or leave --probe-noise out to assume a typical probe's {}",
-                n.found,
-                n.p,
-                pkmcal_io::firmware::physical::PROBE_NOISE_MM
-            ),
-        };
+    let message = n.message();
+    if !n.is_warning() {
+        return message;
     }
-    let freeing = if n.suspects.is_empty() {
-        String::new()
-    } else {
-        format!(
-            "; freeing {} would remove the share of the misfit given: {}",
-            if n.suspects.len() == 1 {
-                "this parameter"
-            } else {
-                "these parameters"
-            },
-            n.suspects
-                .iter()
-                .map(|(p, s)| format!("`{p}` ({:.0} %)", 100.0 * s))
-                .collect::<Vec<_>>()
-                .join(", ")
-        )
-    };
-    let message = format!(
-        "{readings} scatter more than {whose} (σ {:.2e} mm from the residuals {against}; χ² test, p = {:.1e}){freeing}: every uncertainty below is as much too small",
-        n.found, n.p
-    );
     let model = if n.suspects.is_empty() {
         "the printer moves in a way the physical model does not describe (backlash, a loose joint, thermal drift between the probes)"
     } else {
         "free the parameters named (--free) and calibrate again"
     };
-    let hint = match (n.heights, n.noise) {
-        (true, ProbeNoise::Assumed(_)) => format!(
+    let hint = match (n.more, n.heights, n.noise) {
+        (false, _, s) => format!(
+            "the σ stated is larger than the heights show: check --probe-noise {} against the probe's repeatability (the standard deviation of repeated probes at one point, as PROBE_ACCURACY reports it), or leave --probe-noise out to assume a typical probe's {}",
+            s.mm(),
+            pkmcal_io::firmware::physical::PROBE_NOISE_MM
+        ),
+        (true, true, ProbeNoise::Assumed(_)) => format!(
             "the probe's σ was assumed, not stated: measure its repeatability (the standard deviation of repeated probes at one point, as PROBE_ACCURACY reports it) and state it with --probe-noise; if it is as small as assumed, {model}"
         ),
-        (true, ProbeNoise::Stated(s)) => format!(
+        (true, true, ProbeNoise::Stated(s)) => format!(
             "check --probe-noise {s} against the probe's repeatability measured as the heights were (speed, temperature); if it is right, {model}"
         ),
-        (false, _) => format!(
+        (true, false, _) => format!(
             "check the distances measured on the calibration object for a misread value; if they are right, {model}"
         ),
     };

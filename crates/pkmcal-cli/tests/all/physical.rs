@@ -336,7 +336,7 @@ fn probe_noise_stated_or_assumed_is_said() {
     // Stated below what they show: check the value stated (not: state one).
     let out = run(Some("0.0002"));
     assert!(
-        out.contains("scatter more than the σ 0.0002 mm stated (--probe-noise)"),
+        out.contains("scatter more than the σ 0.0002 mm stated (σ"),
         "{out}"
     );
     assert!(out.contains("hint: check --probe-noise 0.0002"), "{out}");

@@ -344,6 +344,65 @@ pub struct NoiseNote {
 }
 
 impl NoiseNote {
+    /// Whether it is a warning: the readings scatter more than the σ they
+    /// were weighed with, or less than one a user stated (a typical part
+    /// scattering less than assumed is news, not a fault: a note).
+    pub fn is_warning(&self) -> bool {
+        self.more || !self.noise.assumed()
+    }
+
+    /// What the residuals say, in words naming no option (each front end
+    /// adds its hint, in its own options' names).
+    pub fn message(&self) -> String {
+        let whose = match (self.heights, self.noise) {
+            (true, ProbeNoise::Assumed(_)) => "a typical probe's".to_string(),
+            (true, ProbeNoise::Stated(s)) => format!("the σ {s} mm stated"),
+            (false, _) => "a caliper's".to_string(),
+        };
+        let readings = if self.heights {
+            "the probe's readings"
+        } else {
+            "the distances"
+        };
+        let against = match self.noise {
+            ProbeNoise::Assumed(s) => format!("against the {s} mm assumed"),
+            ProbeNoise::Stated(s) => format!("against the {s} mm stated"),
+        };
+        if !self.more {
+            return match self.noise {
+                ProbeNoise::Assumed(_) => format!(
+                    "{readings} scatter less than {whose} (σ {:.2e} mm from the residuals {against}): the uncertainties are on the safe side",
+                    self.found
+                ),
+                ProbeNoise::Stated(_) => format!(
+                    "{readings} scatter less than {whose} (σ {:.2e} mm from the residuals; χ² test, lower tail p = {:.1e}): every uncertainty is as much too large",
+                    self.found, self.p
+                ),
+            };
+        }
+        let freeing = if self.suspects.is_empty() {
+            String::new()
+        } else {
+            format!(
+                "; freeing {} would remove the share of the misfit given: {}",
+                if self.suspects.len() == 1 {
+                    "this parameter"
+                } else {
+                    "these parameters"
+                },
+                self.suspects
+                    .iter()
+                    .map(|(p, s)| format!("`{p}` ({:.0} %)", 100.0 * s))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        };
+        format!(
+            "{readings} scatter more than {whose} (σ {:.2e} mm from the residuals {against}; χ² test, p = {:.1e}){freeing}: every uncertainty is as much too small",
+            self.found, self.p
+        )
+    }
+
     /// The note of a fit's adequacy warning, if `w` is one (on readings
     /// whose σ the fit stated, not given in the data).
     pub fn of(fit: &PhysicalFit, w: &pkmcal::identify::Warning) -> Option<NoiseNote> {

@@ -295,80 +295,28 @@ fn calibration_warning<'py>(
 /// What the physical fit's residuals say of the readings' noise, worded
 /// with the package's keywords: stated (``probe_noise=``) or assumed.
 fn noise_note<'py>(py: Python<'py>, n: &NoiseNote) -> PyResult<Bound<'py, PyDict>> {
-    let whose = match (n.heights, n.noise) {
-        (true, ProbeNoise::Assumed(_)) => "a typical probe's".to_string(),
-        (true, ProbeNoise::Stated(s)) => format!("the σ {s} mm stated (probe_noise=)"),
-        (false, _) => "a caliper's".to_string(),
-    };
-    let readings = if n.heights {
-        "the probe's readings"
+    let message = n.message();
+    let model = if n.suspects.is_empty() {
+        "the printer moves in a way the physical model does not describe (backlash, a loose joint, thermal drift between the probes)"
     } else {
-        "the distances"
+        "free the parameters named (free=) and calibrate again"
     };
-    let against = match n.noise {
-        ProbeNoise::Assumed(s) => format!("against the {s} mm assumed"),
-        ProbeNoise::Stated(s) => format!("against the {s} mm stated"),
-    };
-    let (message, hint) = if !n.more {
-        match n.noise {
-            ProbeNoise::Assumed(_) => (
-                format!(
-                    "{readings} scatter less than {whose} (σ {:.2e} mm from the residuals {against}): the uncertainties are on the safe side",
-                    n.found
-                ),
-                String::new(),
-            ),
-            ProbeNoise::Stated(s) => (
-                format!(
-                    "{readings} scatter less than {whose} (σ {:.2e} mm from the residuals; χ² test, lower tail p = {:.1e}): every uncertainty is as much too large",
-                    n.found, n.p
-                ),
-                format!(
-                    "the σ stated is larger than the heights show: check probe_noise={s} against the probe's repeatability (the standard deviation of repeated probes at one point, as PROBE_ACCURACY reports it), or leave probe_noise out to assume a typical probe's {}",
-                    physical::PROBE_NOISE_MM
-                ),
-            ),
-        }
-    } else {
-        let freeing = if n.suspects.is_empty() {
-            String::new()
-        } else {
-            format!(
-                "; freeing {} would remove the share of the misfit given: {}",
-                if n.suspects.len() == 1 {
-                    "this parameter"
-                } else {
-                    "these parameters"
-                },
-                n.suspects
-                    .iter()
-                    .map(|(p, s)| format!("`{p}` ({:.0} %)", 100.0 * s))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            )
-        };
-        let model = if n.suspects.is_empty() {
-            "the printer moves in a way the physical model does not describe (backlash, a loose joint, thermal drift between the probes)"
-        } else {
-            "free the parameters named (free=) and calibrate again"
-        };
-        (
-            format!(
-                "{readings} scatter more than {whose} (σ {:.2e} mm from the residuals {against}; χ² test, p = {:.1e}){freeing}: every uncertainty is as much too small",
-                n.found, n.p
-            ),
-            match (n.heights, n.noise) {
-                (true, ProbeNoise::Assumed(_)) => format!(
-                    "the probe's σ was assumed, not stated: measure its repeatability (the standard deviation of repeated probes at one point, as PROBE_ACCURACY reports it) and state it with probe_noise=; if it is as small as assumed, {model}"
-                ),
-                (true, ProbeNoise::Stated(s)) => format!(
-                    "check probe_noise={s} against the probe's repeatability measured as the heights were (speed, temperature); if it is right, {model}"
-                ),
-                (false, _) => format!(
-                    "check the distances measured on the calibration object for a misread value; if they are right, {model}"
-                ),
-            },
-        )
+    let hint = match (n.is_warning(), n.more, n.heights, n.noise) {
+        (false, ..) => String::new(),
+        (true, false, _, s) => format!(
+            "the σ stated is larger than the heights show: check probe_noise={} against the probe's repeatability (the standard deviation of repeated probes at one point, as PROBE_ACCURACY reports it), or leave probe_noise out to assume a typical probe's {}",
+            s.mm(),
+            physical::PROBE_NOISE_MM
+        ),
+        (true, true, true, ProbeNoise::Assumed(_)) => format!(
+            "the probe's σ was assumed, not stated: measure its repeatability (the standard deviation of repeated probes at one point, as PROBE_ACCURACY reports it) and state it with probe_noise=; if it is as small as assumed, {model}"
+        ),
+        (true, true, true, ProbeNoise::Stated(s)) => format!(
+            "check probe_noise={s} against the probe's repeatability measured as the heights were (speed, temperature); if it is right, {model}"
+        ),
+        (true, true, false, _) => format!(
+            "check the distances measured on the calibration object for a misread value; if they are right, {model}"
+        ),
     };
     let d = note(py, "noise", message, hint)?;
     d.set_item("heights", n.heights)?;
