@@ -158,6 +158,7 @@ def test_stated_probe_noise_is_said_stated(cli):
         ({"max_sigma": 0.0}, "max_sigma: 0 must be above 0"),
         ({"previous": KLIPPER}, "previous= compares physical calibrations: add physical=True"),
         ({"weighting": "often"}, "weighting: "),
+        ({"heights": EXAMPLES / "klipper-delta" / "heights.csv"}, "heights= are read by the physical model: add physical=True"),
     ],
 )
 def test_misuse_is_refused_by_keyword(tmp_path, kwargs, says):
@@ -208,3 +209,31 @@ def test_rectangular_klipper_mesh_as_cli(cli, tmp_path):
     m = r.physical.height_map if r.physical else None
     assert m is not None and m.rectangular and m.counts == (5, 7) and m.spacings == (60.0, 40.0)
     assert "5 x 7 nodes 60.00 by 40.00 mm apart from (-120, -120) to (120, 120)" in out
+
+
+def test_heights_measured_by_hand_as_cli(cli, tmp_path):
+    """``heights=`` reads the touches as ``--heights`` does: the same values
+    written, the probe's heights counted without the touches."""
+    heights = EXAMPLES / "klipper-delta" / "heights.csv"
+    out = cli(
+        "klipper", "--config", KLIPPER, "--physical", "--heights", heights,
+        "--out", tmp_path / "cli.cfg",
+    ).stdout
+    r = pkmcal.klipper(KLIPPER, physical=True, heights=heights, out=tmp_path / "py.cfg")
+    assert (tmp_path / "py.cfg").read_bytes() == (tmp_path / "cli.cfg").read_bytes()
+    assert f"Physical model: {r.heights} probe heights" in out
+    assert "touches" in out
+    assert_values_as_cli(r, out)
+    without = pkmcal.klipper(KLIPPER, physical=True)
+    assert without.heights == r.heights
+
+
+def test_physical_outputs_all_or_nothing(tmp_path):
+    """One output that cannot be written: none is (the height map is not
+    left behind when ``out=`` fails)."""
+    with pytest.raises(pkmcal.PkmcalError):
+        pkmcal.klipper(
+            KLIPPER, physical=True,
+            out=tmp_path / "missing" / "new.cfg", height_map=tmp_path / "map.cfg",
+        )
+    assert not list(tmp_path.iterdir())

@@ -363,3 +363,46 @@ fn probe_noise_stated_or_assumed_is_said() {
         "--probe-noise weighs the physical fit's probe heights: add --physical",
     );
 }
+
+/// `--heights` on RepRapFirmware and Marlin: the build volume's top is
+/// where the nozzle is homed (`M665 H`), not Klipper's endstops (which
+/// their descriptions hold as 0: every touch above the bed was refused).
+#[test]
+fn heights_are_read_on_reprap_and_marlin() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("h.csv"),
+        "x,y,z,tool,surface\n0,0,0.05,nozzle,0.1\n40,0,0.02,nozzle,0\n0,40,50.3,nozzle,50\n",
+    )
+    .unwrap();
+    let r = examples().join("reprap-delta");
+    let out = ok(
+        dir.path(),
+        &[
+            "reprap",
+            "--config",
+            r.join("config.g").to_str().unwrap(),
+            "--probes",
+            r.join("probes.csv").to_str().unwrap(),
+            "--physical",
+            "--heights",
+            "h.csv",
+        ],
+    );
+    assert!(out.contains("and 3 touches (3 of the nozzle"), "{out}");
+    let m = examples().join("marlin-delta");
+    let out = ok(
+        dir.path(),
+        &[
+            "marlin",
+            "--config",
+            m.join("M503.txt").to_str().unwrap(),
+            "--probes",
+            m.join("G30.log").to_str().unwrap(),
+            "--physical",
+            "--heights",
+            "h.csv",
+        ],
+    );
+    assert!(out.contains("and 3 touches (3 of the nozzle"), "{out}");
+}

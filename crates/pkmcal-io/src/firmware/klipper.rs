@@ -1640,6 +1640,12 @@ impl Firmware for KlipperPrinter {
                 None => self.delta.probe_radius,
             },
             probe_height: probe_height(&self.ini, &self.delta.probes)?,
+            homed_height: self
+                .delta
+                .endstops
+                .iter()
+                .copied()
+                .fold(f64::INFINITY, f64::min),
         }))
     }
 

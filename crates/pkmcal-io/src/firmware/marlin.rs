@@ -1361,6 +1361,7 @@ impl Firmware for MarlinPrinter {
             print_radius: self.probe_radius(),
             // The nozzle is −oz over the bed where the probe triggers.
             probe_height: -self.probe_offset[2],
+            homed_height: self.delta().height,
         }))
     }
 

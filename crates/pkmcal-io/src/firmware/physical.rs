@@ -102,6 +102,10 @@ pub struct LinearDelta {
     /// probe's touch on a surface ([`super::physical_heights`]) reads this
     /// over the surface's height.
     pub probe_height: f64,
+    /// The nozzle's height over the bed when homed (mm), the build volume's
+    /// top: Klipper's lowest `position_endstop`, RepRapFirmware's and
+    /// Marlin's `M665 H`.
+    pub homed_height: f64,
 }
 
 impl LinearDelta {

@@ -190,12 +190,7 @@ pub fn readings(
     let path = &touches.path;
     let fw_params = Params::nominal(fw_mech.spec());
     let radius = ld.print_radius();
-    let top = ld
-        .delta
-        .endstops
-        .iter()
-        .copied()
-        .fold(f64::INFINITY, f64::min);
+    let top = ld.homed_height;
     touches
         .rows
         .iter()
@@ -216,7 +211,7 @@ pub fn readings(
                 refuse!(
                     path,
                     line,
-                    "z {z} mm is outside the build volume (from {} to {top} mm, the lowest tower's endstop): give the z the firmware displays when the {} touches",
+                    "z {z} mm is outside the build volume (from {} to {top} mm, where the nozzle is homed): give the z the firmware displays when the {} touches",
                     -MAX_BELOW_BED_MM,
                     t.tool.name()
                 );

@@ -791,6 +791,7 @@ impl Firmware for RrfPrinter {
             print_radius: self.delta.print_radius,
             // The probe file's heights are 0 where the probe meets the bed.
             probe_height: 0.0,
+            homed_height: self.delta.homed_height,
         }))
     }
 

@@ -289,6 +289,7 @@ def klipper(
     physical: bool = False,
     tolerances: _Tolerances = None,
     probe_noise: Optional[float] = None,
+    heights: Optional[_Path] = None,
     previous: Optional[_Path] = None,
     out: Optional[_Path] = None,
     height_map: Optional[_Path] = None,
@@ -303,8 +304,10 @@ def klipper(
     ``physical=True``: fit the printer as built within its parts'
     ``tolerances`` (a dict name → σ replacing the defaults) with the probe's
     σ ``probe_noise`` (mm, above 0 and at most 1; a typical probe's 0.01 mm
-    assumed by default), and write the values for the nozzle over the build
-    volume; ``previous``: an earlier configuration, whether the printer
+    assumed by default), with the heights measured by hand in ``heights``
+    (a CSV ``x, y, z, tool, surface[, sigma]``: where the nozzle or the
+    probe touched a surface of known height, as ``--heights`` reads it),
+    and write the values for the nozzle over the build volume; ``previous``: an earlier configuration, whether the printer
     changed since; ``height_map``: write what the values leave as a Klipper
     ``[bed_mesh]`` profile (``mesh_points`` nodes across). ``out``: write
     the configuration with the new values (never over ``config``).
@@ -322,6 +325,7 @@ def reprap(
     physical: bool = False,
     tolerances: _Tolerances = None,
     probe_noise: Optional[float] = None,
+    heights: Optional[_Path] = None,
     out: Optional[_Path] = None,
     height_map: Optional[_Path] = None,
     mesh_points: Optional[int] = None,
@@ -348,6 +352,7 @@ def marlin(
     physical: bool = False,
     tolerances: _Tolerances = None,
     probe_noise: Optional[float] = None,
+    heights: Optional[_Path] = None,
     out: Optional[_Path] = None,
     height_map: Optional[_Path] = None,
     mesh_points: Optional[int] = None,

@@ -35,6 +35,7 @@ struct Common {
     out: Option<PathBuf>,
     height_map: Option<PathBuf>,
     mesh_points: Option<usize>,
+    heights: Option<PathBuf>,
 }
 
 fn path_kw(kw: &Kw<'_>, name: &str) -> PyResult<Option<PathBuf>> {
@@ -53,12 +54,14 @@ fn common(kw: &Kw<'_>, extra: Choices) -> PyResult<Common> {
     let height_map = path_kw(kw, "height_map")?;
     let mesh_points = kw.count("mesh_points")?;
     let probe_noise = kw.f64("probe_noise")?;
+    let heights = path_kw(kw, "heights")?;
     Choices {
         physical,
         tolerances: !tolerances.is_empty(),
         height_map: height_map.is_some(),
         mesh_points,
         probe_noise,
+        heights: heights.is_some(),
         ..extra
     }
     .check()
@@ -79,6 +82,7 @@ fn common(kw: &Kw<'_>, extra: Choices) -> PyResult<Common> {
         out: path_kw(kw, "out")?,
         height_map,
         mesh_points,
+        heights,
     })
 }
 
@@ -446,7 +450,16 @@ fn physical_result<'py, F: Firmware + Sync>(
     previous: Option<(&dyn Firmware, String)>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let request = c.request.clone();
-    let assessed = interruptible(py, |_cancel| physical::assess(printer, request, None))?
+    let touches = match &c.heights {
+        Some(path) => Some(
+            reading(|run| pkmcal_io::firmware::physical_heights::read(run, path))
+                .map_err(io_err)?,
+        ),
+        None => None,
+    };
+    let assessed = interruptible(py, |_cancel| {
+        physical::assess(printer, request, touches.as_ref())
+    })?
         .map_err(io_err)?
         .ok_or_else(|| {
             usage(format!(
@@ -460,7 +473,8 @@ fn physical_result<'py, F: Firmware + Sync>(
     let proj = &choice.written;
     d.set_item("free", fit.free_names.clone())?;
     d.set_item("termination", cal.termination.reason())?;
-    d.set_item("heights", fit.readings.poses.len())?;
+    // The probe's heights; the touches measured by hand are not among them.
+    d.set_item("heights", fit.readings.poses.len() - fit.touches.0)?;
     d.set_item("distances", fit.readings.distances.len())?;
     let h = PyDict::new(py);
     h.set_item("before", figures(py, &assessed.heights[0])?)?;
@@ -591,6 +605,8 @@ fn physical_result<'py, F: Firmware + Sync>(
         None => p.set_item("drift", py.None())?,
     }
     let src = source.display().to_string();
+    // Every file asked for is written together, or none (all or nothing).
+    let mut outputs: Vec<(PathBuf, String)> = vec![];
     match &c.height_map {
         Some(path) => {
             let Some(map) = height_map::for_printer(
@@ -609,7 +625,7 @@ fn physical_result<'py, F: Firmware + Sync>(
                     printer.name()
                 )));
             };
-            written_file(path, &map.text)?;
+            outputs.push((path.clone(), map.text.clone()));
             let v = map.map.values();
             let x = PyDict::new(py);
             x.set_item("path", path.display().to_string())?;
@@ -646,8 +662,13 @@ fn physical_result<'py, F: Firmware + Sync>(
             assessed.own.readings.poses.len(),
             true,
         );
-        written_file(out, &text)?;
+        outputs.push((out.clone(), text));
     }
+    written(|run| {
+        outputs
+            .iter()
+            .try_for_each(|(path, text)| run.files.stage(path, text.as_bytes()))
+    })?;
     d.set_item("out", c.out.as_ref().map(|p| p.display().to_string()))?;
     Ok(d)
 }
