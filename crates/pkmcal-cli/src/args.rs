@@ -161,7 +161,7 @@ pub struct PhysicalArgs {
     /// repeatability, e.g. the standard deviation Klipper's PROBE_ACCURACY
     /// reports), which weighs the probe heights against the parts'
     /// tolerances; by default a typical probe's 0.01 mm is assumed.
-    #[arg(long, value_name = "MM", value_parser = values::probe_noise)]
+    #[arg(long, value_name = "MM", allow_negative_numbers = true, value_parser = values::probe_noise)]
     pub probe_noise: Option<f64>,
 }
 

@@ -62,7 +62,7 @@ pub struct Args {
     pub previous: Option<PathBuf>,
     /// Warn of a written value whose σ exceeds this, in the value's own
     /// unit (mm, °, %).
-    #[arg(long, value_name = "SIGMA", default_value_t = pkmcal_io::firmware::DEFAULT_MAX_SIGMA, value_parser = args::values::max_sigma)]
+    #[arg(long, value_name = "SIGMA", default_value_t = pkmcal_io::firmware::DEFAULT_MAX_SIGMA, allow_negative_numbers = true, value_parser = args::values::max_sigma)]
     pub max_sigma: f64,
 }
 

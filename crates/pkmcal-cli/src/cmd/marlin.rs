@@ -35,7 +35,7 @@ pub struct Args {
     /// them in the start G-code). Never over --config.
     /// Warn of a written value whose σ exceeds this, in the value's own
     /// unit (mm, °, %).
-    #[arg(long, value_name = "SIGMA", default_value_t = pkmcal_io::firmware::DEFAULT_MAX_SIGMA, value_parser = args::values::max_sigma)]
+    #[arg(long, value_name = "SIGMA", default_value_t = pkmcal_io::firmware::DEFAULT_MAX_SIGMA, allow_negative_numbers = true, value_parser = args::values::max_sigma)]
     pub max_sigma: f64,
     #[arg(long, value_name = "NEW.gcode")]
     pub out: Option<PathBuf>,

@@ -356,6 +356,19 @@ fn probe_noise_stated_or_assumed_is_said() {
             "--probe-noise",
         );
     }
+    // A negative number as its own argument reaches the bound, not clap's
+    // "unexpected argument".
+    for (option, says) in [
+        ("--probe-noise", "a probe's σ is above 0"),
+        ("--max-sigma", "must be above 0"),
+    ] {
+        fails(
+            dir.path(),
+            &["klipper", "--config", cfg, "--physical", option, "-1"],
+            2,
+            says,
+        );
+    }
     fails(
         dir.path(),
         &["klipper", "--config", cfg, "--probe-noise", "0.01"],
