@@ -276,6 +276,9 @@ pub(crate) struct Prepared {
     pub(crate) a: (DVector<f64>, DMatrix<f64>),
     pub(crate) b: (DVector<f64>, DMatrix<f64>),
     pub(crate) unseen: DMatrix<f64>,
+    /// An orthonormal basis of what `unseen` leaves (columns; empty when
+    /// nothing is unseen: then all of it).
+    pub(crate) seen: DMatrix<f64>,
     pub(crate) untested: Vec<String>,
     pub(crate) data_only: bool,
     pub(crate) nu: Option<f64>,
@@ -403,13 +406,14 @@ pub(crate) fn prepare(a: &Compared, b: &Compared) -> Result<Prepared> {
     // What either calibration's data do not see, orthonormal: the
     // directions the two projectors onto the unseen share on average
     // ([`unseen_of_either`]).
-    let unseen = unseen_of_either(&na, &nb, m);
+    let (unseen, seen) = unseen_of_either(&na, &nb, m);
     Ok(Prepared {
         tested,
         scale: d,
         a: (pa, sa),
         b: (pb, sb),
         unseen,
+        seen,
         untested,
         data_only,
         nu,
@@ -425,38 +429,41 @@ pub(crate) fn prepare(a: &Compared, b: &Compared) -> Result<Prepared> {
 /// curvature) give `(1 ± cos θ)/2`, so one is kept and the sliver between
 /// them, `θ²/4`, is not. Taking every direction of their union instead
 /// (their columns' span) made a handful of such slivers "unseen" and left
-/// the comparison on whatever the roundoff pointed at.
-fn unseen_of_either(na: &DMatrix<f64>, nb: &DMatrix<f64>, m: usize) -> DMatrix<f64> {
+/// the comparison on whatever the roundoff pointed at. Also the basis of
+/// the rest (what both see), from the same eigenvectors.
+fn unseen_of_either(
+    na: &DMatrix<f64>,
+    nb: &DMatrix<f64>,
+    m: usize,
+) -> (DMatrix<f64>, DMatrix<f64>) {
     if na.ncols() + nb.ncols() == 0 {
-        return DMatrix::zeros(m, 0);
+        return (DMatrix::zeros(m, 0), DMatrix::zeros(m, 0));
     }
     let mean = (na * na.transpose() + nb * nb.transpose()) / 2.0;
     let eig = mean.symmetric_eigen();
-    let keep: Vec<usize> = (0..m)
-        .filter(|&k| eig.eigenvalues[k] > UNSEEN_MERGE)
-        .collect();
-    eig.eigenvectors.select_columns(&keep)
+    let (unseen, seen): (Vec<usize>, Vec<usize>) =
+        (0..m).partition(|&k| eig.eigenvalues[k] > UNSEEN_MERGE);
+    (
+        eig.eigenvectors.select_columns(&unseen),
+        eig.eigenvectors.select_columns(&seen),
+    )
 }
 
 /// The seen part of a covariance and of a change: `Qᵀ S Q` and `Qᵀ x`, `Q`
-/// an orthonormal basis of what `unseen` leaves (all of it when nothing is
-/// unseen, then `S` and `x` themselves). The joint test runs on these, not
+/// the basis `seen` of what the unseen directions leave (`S` and `x`
+/// themselves when nothing is unseen). The joint test runs on these, not
 /// on `S` with the unseen projected out: its zero directions, rescaled to
 /// correlation form, were rounding errors counted as degrees of freedom.
 fn seen_part(
     s: &DMatrix<f64>,
     x: &DVector<f64>,
     unseen: &DMatrix<f64>,
+    seen: &DMatrix<f64>,
 ) -> (DMatrix<f64>, DVector<f64>) {
-    let m = s.nrows();
     if unseen.ncols() == 0 {
         return (s.clone(), x.clone());
     }
-    let keep = DMatrix::identity(m, m) - unseen * unseen.transpose();
-    let eig = keep.symmetric_eigen();
-    let seen: Vec<usize> = (0..m).filter(|&k| eig.eigenvalues[k] > 0.5).collect();
-    let q = eig.eigenvectors.select_columns(&seen);
-    (q.transpose() * s * &q, q.transpose() * x)
+    (seen.transpose() * s * seen, seen.transpose() * x)
 }
 
 /// Compare `a` with `b` (the later calibration, or nominal values with no
@@ -473,6 +480,7 @@ pub fn drift(a: &Compared, b: &Compared, alpha: f64) -> Result<Drift> {
         a: (pa, sa),
         b: (pb, sb),
         unseen,
+        seen,
         mut untested,
         data_only,
         nu,
@@ -524,7 +532,7 @@ pub fn drift(a: &Compared, b: &Compared, alpha: f64) -> Result<Drift> {
         }
     }
     // The joint test on what both see.
-    let (s_seen, change_seen) = seen_part(&s_sum, &change_s, &unseen);
+    let (s_seen, change_seen) = seen_part(&s_sum, &change_s, &unseen, &seen);
     let (chi2, dof, p_joint) = quadratic_test(&s_seen, &change_seen, nu)?;
     Ok(Drift {
         alpha,
