@@ -854,8 +854,13 @@ pub fn klipper_layout(
         None => MeshLayout::round(
             MeshFormat::Klipper,
             own_radius.unwrap_or(radius),
+            // A printer's own mesh beyond the most nodes pkmcal writes (a
+            // real configuration probes 23 across) gets a profile of the
+            // most: the profile is loaded by its own name, its own count.
             count
-                .or(config_count.filter(|_| own_radius.is_some()))
+                .or(config_count
+                    .filter(|_| own_radius.is_some())
+                    .map(|n| n.min(MAX_MESH_POINTS)))
                 .unwrap_or(MESH_POINTS),
         ),
     }

@@ -305,6 +305,11 @@ fn klippers_own_bed_mesh_sets_the_layout() {
         ([3, 3], "bicubic")
     );
     assert_eq!(p.mesh_layout(140.0, Some(5)).unwrap().unwrap().count, 5);
+    // A printer's own mesh finer than pkmcal writes (23 across, as a real
+    // configuration has): the profile has the most nodes pkmcal writes.
+    let fine = klipper_with("[bed_mesh]\nmesh_radius: 90\nround_probe_count: 23\n\n");
+    let l = fine.mesh_layout(140.0, None).unwrap().unwrap();
+    assert_eq!(l.count, pkmcal_io::firmware::height_map::MAX_MESH_POINTS);
     let plain = klipper_with("");
     let l = plain.mesh_layout(140.0, None).unwrap().unwrap();
     assert_eq!(
