@@ -88,6 +88,7 @@ pub fn flag(f: Field) -> &'static str {
         Previous => "--previous",
         ProbeNoise => "--probe-noise",
         Heights => "--heights",
+        Probes => "--probes",
         MaxSigma => "--max-sigma",
         // The solver's settings have no option on the command line.
         _ => "the solver's settings",
@@ -131,6 +132,7 @@ pub const WORDING: pkmcal_io::text::Wording = pkmcal_io::text::Wording {
     frame_base: "identified; --frame base if the data are in the base frame",
     all_correlations: "--report's JSON",
     hint,
+    input: |f| flag(f).to_string(),
 };
 
 /// A refused choice in the command line's words.

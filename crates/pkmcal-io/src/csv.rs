@@ -115,6 +115,7 @@ impl Csv {
                     pkmcal::identify::too_many_poses(rows.len() + 1)
                 );
             }
+            beyond_header(path, line, &headers, found, &rec)?;
             rows.push((line, rec.iter().map(str::to_string).collect()));
         }
         Ok(Self {
@@ -199,6 +200,40 @@ fn field_number(path: &Path, line: u64, name: &str, field: Option<&str>) -> Resu
         );
     }
     Ok(v)
+}
+
+/// A row's fields beyond the header's columns are no column's: a decimal
+/// comma between commas, or a column left unnamed: refused, at its line.
+/// Empty ones (a trailing separator) are nothing.
+fn beyond_header(
+    path: &Path,
+    line: u64,
+    headers: &[String],
+    delimiter: u8,
+    rec: &csv::StringRecord,
+) -> Result<()> {
+    if rec.iter().skip(headers.len()).all(str::is_empty) {
+        return Ok(());
+    }
+    let fields = rec
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| !f.is_empty())
+        .last()
+        .map_or(0, |(k, _)| k + 1);
+    refuse!(
+        path,
+        Some(line),
+        "{fields} fields, but the header names {} columns ({}, {}); name every column in the header{}",
+        headers.len(),
+        listed(headers),
+        delimiter_name(delimiter),
+        if delimiter == b',' {
+            ", and write decimals with a point (or separate fields by `;` where they use a comma)"
+        } else {
+            ""
+        }
+    )
 }
 
 /// A CSV file read as a stream, once (a pipe works), in batches of rows:
@@ -306,6 +341,7 @@ impl CsvStream {
             if rec.iter().all(str::is_empty) {
                 continue;
             }
+            beyond_header(&self.path, line, &self.headers, self.delimiter, &rec)?;
             let values = cols
                 .iter()
                 .zip(names)

@@ -501,6 +501,9 @@ pub struct Wording {
     pub all_correlations: &'static str,
     /// A warning's hint.
     pub hint: fn(&pkmcal::identify::Warning) -> String,
+    /// How an input is named where advice says to give it (an option, a
+    /// keyword).
+    pub input: fn(pkmcal::Field) -> String,
 }
 
 /// A value in a readable unit (µm, mrad…), to four significant digits.

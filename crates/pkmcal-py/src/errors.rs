@@ -241,6 +241,7 @@ pub fn keyword(f: pkmcal::Field) -> &'static str {
         Previous => "previous",
         ProbeNoise => "probe_noise",
         Heights => "heights",
+        Probes => "probes",
         MaxSigma => "max_sigma",
         _ => "the arguments",
     }

@@ -255,6 +255,9 @@ pub enum Field {
     ProbeNoise,
     /// Heights measured by hand (a nozzle's or probe's touches).
     Heights,
+    /// A firmware's probe readings (RepRapFirmware's probe file, Marlin's
+    /// console log).
+    Probes,
     /// The largest σ of a written value before a warning.
     MaxSigma,
 }
@@ -328,6 +331,7 @@ impl Field {
             Previous => "the previous calibration",
             ProbeNoise => "the probe's noise",
             Heights => "the heights measured by hand",
+            Probes => "the probe readings",
             MaxSigma => "the largest σ before a warning",
         }
     }

@@ -61,7 +61,7 @@ pub fn run<F: Firmware>(
     let with_own = choice.own.summary;
     let heights = &fit.readings.poses;
     say!(
-        "Physical model: {} probe heights{} from {source} ({}){}, {} parameters within their tolerances (rods {} mm, tower radii {} mm, tower lean {} mrad, ball joints {} mm, bed tilt {} mrad; probe σ {} mm{}); effector radius {} mm, rod spacing {} mm, probe offset ({}, {}) mm",
+        "Physical model: {} probe heights{} from {source} ({}){}, {} parameters within their tolerances ({}; probe σ {} mm{}); effector radius {} mm, rod spacing {} mm, probe offset ({}, {}) mm",
         heights.len() - fit.touches.0,
         if fit.readings.distances.is_empty() {
             String::new()
@@ -80,11 +80,11 @@ pub fn run<F: Firmware>(
             None => String::new(),
         },
         fit.free_names.len(),
-        physical::ROD_SIGMA_MM,
-        physical::TOWER_RADIUS_SIGMA_MM,
-        physical::TOWER_LEAN_SIGMA_RAD * 1e3,
-        physical::JOINT_SIGMA_MM,
-        physical::BED_TILT_SIGMA_RAD * 1e3,
+        physical::tolerance_groups(fit)
+            .iter()
+            .map(physical::ToleranceGroup::words)
+            .collect::<Vec<_>>()
+            .join(", "),
         fit.probe_noise.mm(),
         physical_report::stated_words(fit.probe_noise),
         physical::EFFECTOR_RADIUS_MM,
@@ -252,6 +252,7 @@ pub fn run<F: Firmware>(
             shown: crate::cmd::physical_outputs::SUGGESTIONS,
             drift,
             mesh_points: output.physical.mesh_points,
+            wording: &crate::words::WORDING,
             height_map: output.physical.height_map.as_deref(),
         })?;
         physical_report::write_report_dir(run, dir, &page)?;

@@ -100,9 +100,14 @@ pub fn suggestion<F: Firmware>(printer: &F, m: &Mapped<'_>) -> Vec<Suggestion> {
 }
 
 fn suggest<F: Firmware>(printer: &F, m: &Mapped<'_>) -> Result<Vec<Suggestion>> {
-    let firmware = printer.name();
-    let klipper = firmware == "Klipper";
-    let list = physical_plan::suggest(m.fit, m.fw_mech, m.fw_params, m.fw_bed, klipper)?;
+    let firmware = printer.flavour();
+    let list = physical_plan::suggest(
+        m.fit,
+        m.fw_mech,
+        m.fw_params,
+        m.fw_bed,
+        firmware.reads_object_distances(),
+    )?;
     let Some(first) = list.first() else {
         return Ok(list);
     };
@@ -111,7 +116,12 @@ fn suggest<F: Firmware>(printer: &F, m: &Mapped<'_>) -> Result<Vec<Suggestion>> 
         first.largest().0
     );
     for (k, s) in list.iter().take(SUGGESTIONS).enumerate() {
-        let what = physical_report::measurement_words(&s.extra, firmware, m.fit.delta.probe_offset);
+        let what = physical_report::measurement_words(
+            &s.extra,
+            firmware,
+            m.fit.delta.probe_offset,
+            &crate::words::WORDING,
+        );
         let (before, after) = s.largest();
         say!(
             "  {}. {what}: largest σ {before:.3} -> {after:.3} mm ({:.0} % of the cube errors' variance)",

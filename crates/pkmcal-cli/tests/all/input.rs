@@ -10,7 +10,12 @@ const GOOD: &str = "q1,q2,q3\n1.4614,3.5609,-2.5939\n";
 fn malformed_csv_files() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let cases: [(&str, &str, &str); 7] = [
+    let cases: [(&str, &str, &str); 8] = [
+        (
+            "long.csv",
+            "q1,q2,q3\n1.46,3.56,-2.59\n1,46,3.56,-2.59\n",
+            "long.csv:3: 4 fields, but the header names 3 columns (q1, q2, q3, separated by commas); name every column in the header, and write decimals with a point",
+        ),
         (
             "dup.csv",
             "q1,q2,q3,q2\n1.46,3.56,-2.59,3.56\n",
@@ -46,6 +51,37 @@ fn malformed_csv_files() {
         );
     }
     assert!(!d.join("o.csv").exists(), "nothing written on failure");
+    // A trailing separator is no field.
+    std::fs::write(
+        d.join("trailing.csv"),
+        "q1,q2,q3,\n1.4614,3.5609,-2.5939,\n",
+    )
+    .unwrap();
+    ok(
+        d,
+        &["predict", "--commands", "trailing.csv", "--out", "o.csv"],
+    );
+    // Files read whole keep the same rule: a hand-written heights file.
+    let cfg = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../examples/klipper-delta/printer.cfg");
+    std::fs::write(
+        d.join("heights.csv"),
+        "x,y,z,tool,surface\n0,0,0.013,nozzle,0.1\n0,45,-0.036,nozzle,0.1,0.02\n",
+    )
+    .unwrap();
+    fails(
+        d,
+        &[
+            "klipper",
+            "--config",
+            cfg.to_str().unwrap(),
+            "--physical",
+            "--heights",
+            "heights.csv",
+        ],
+        1,
+        "heights.csv:3: 6 fields, but the header names 5 columns (x, y, z, tool, surface, separated by commas)",
+    );
 }
 
 #[test]

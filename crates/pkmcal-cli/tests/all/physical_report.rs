@@ -276,3 +276,47 @@ fn klipper_report_says_the_drift_against_previous() {
     assert!(html.contains("<h2>Since ") && html.contains(&format!("χ² {chi2}")));
     assert!(html.contains("<b>no change beyond the two calibrations' uncertainty</b>"));
 }
+
+/// The page says what the fit was given: the tolerances it held the parts
+/// by (a user's in place of the defaults, as the summary says them) and
+/// the touches measured by hand; the next measurements name the command
+/// line's own options.
+#[test]
+fn the_report_says_the_tolerances_and_touches_the_fit_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let ex = examples();
+    let cfg = ex.join("klipper-delta/printer.cfg");
+    let heights = ex.join("klipper-delta/heights.csv");
+    let out = ok(
+        dir.path(),
+        &[
+            "klipper",
+            "--config",
+            cfg.to_str().unwrap(),
+            "--physical",
+            "--tolerance",
+            "rod_a1=0.01,bed.rx=0.004",
+            "--heights",
+            heights.to_str().unwrap(),
+            "--report-dir",
+            "report",
+        ],
+    );
+    let tolerances = "rods 0.01–0.1 mm, tower radii 0.5 mm, tower lean 1 mrad, ball joints 0.1 mm, bed tilt 2–4 mrad";
+    assert!(out.contains(tolerances), "{out}");
+    let html = whole(&dir.path().join("report"));
+    assert!(html.contains(tolerances), "the page's tolerances");
+    assert!(
+        html.contains("13 probe heights from")
+            && html.contains("; 11 touches measured by hand (7 of the nozzle)"),
+        "the page's readings"
+    );
+    assert!(
+        html.contains("give --height-map to write it"),
+        "the height map's option"
+    );
+    assert!(
+        html.contains("read back from --heights as `nozzle` rows"),
+        "the nozzle touches' input"
+    );
+}

@@ -975,7 +975,7 @@ pub fn for_printer<F: super::Firmware + ?Sized>(
         ),
     };
     let comment = format!(
-        "pkmcal {} --physical from {source}:\n\
+        "pkmcal {}, the physical model, from {source}:\n\
          the nozzle's Z error the written values leave over the bed, as a mesh whose\n\
          value the firmware adds to Z: {mesh}\n{how}",
         env!("CARGO_PKG_VERSION"),

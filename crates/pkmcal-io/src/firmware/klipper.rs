@@ -1553,8 +1553,8 @@ impl Firmware for KlipperPrinter {
         TiltPlace::BedMesh
     }
 
-    fn name(&self) -> &'static str {
-        "Klipper"
+    fn flavour(&self) -> super::Flavour {
+        super::Flavour::Klipper
     }
 
     fn description(&self) -> String {
@@ -1632,7 +1632,7 @@ impl Firmware for KlipperPrinter {
         Ok(Some(super::physical::LinearDelta {
             delta: self.delta.clone(),
             probe_offset: probe_offset(&self.ini)?,
-            firmware: "Klipper",
+            firmware: super::Flavour::Klipper,
             values: KLIPPER_VALUES.map(String::from).to_vec(),
             corrects_bed_tilt: false,
             print_radius: match self.ini.length("printer", "print_radius", true)? {

@@ -506,8 +506,8 @@ impl Firmware for RotaryPrinter {
         TiltPlace::BedMesh
     }
 
-    fn name(&self) -> &'static str {
-        "Klipper"
+    fn flavour(&self) -> super::Flavour {
+        super::Flavour::Klipper
     }
 
     fn description(&self) -> String {

@@ -1206,8 +1206,8 @@ pub fn marlin_holds(delta: &MarlinDelta, shared_arm: bool) -> Vec<String> {
 }
 
 impl Firmware for MarlinPrinter {
-    fn name(&self) -> &'static str {
-        "Marlin"
+    fn flavour(&self) -> super::Flavour {
+        super::Flavour::Marlin
     }
 
     fn description(&self) -> String {
@@ -1355,7 +1355,7 @@ impl Firmware for MarlinPrinter {
         Ok(Some(super::physical::LinearDelta {
             delta: self.delta().as_klipper(self.probe_radius()),
             probe_offset: [self.probe_offset[0], self.probe_offset[1]],
-            firmware: "Marlin",
+            firmware: super::Flavour::Marlin,
             values: marlin_holds(self.delta(), self.shared_arm),
             corrects_bed_tilt: false,
             print_radius: self.probe_radius(),

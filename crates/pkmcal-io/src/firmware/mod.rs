@@ -58,10 +58,50 @@ pub struct Readings {
     pub distances: Vec<Measurement>,
 }
 
+/// Which firmware a printer runs: what decides its commands' spelling and
+/// where an extra reading goes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Flavour {
+    /// Klipper (its linear and rotary deltas).
+    Klipper,
+    /// RepRapFirmware.
+    RepRapFirmware,
+    /// Marlin.
+    Marlin,
+}
+
+impl Flavour {
+    /// The firmware's name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Flavour::Klipper => "Klipper",
+            Flavour::RepRapFirmware => "RepRapFirmware",
+            Flavour::Marlin => "Marlin",
+        }
+    }
+
+    /// Whether it reads the distances of a printed calibration object
+    /// (Klipper's `DELTA_ANALYZE`).
+    pub fn reads_object_distances(self) -> bool {
+        self == Flavour::Klipper
+    }
+}
+
+impl std::fmt::Display for Flavour {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 /// A printer's firmware configuration, read: what a front end calibrates.
 pub trait Firmware {
-    /// The firmware's name (`Klipper`, `RepRapFirmware`).
-    fn name(&self) -> &'static str;
+    /// Which firmware it is.
+    fn flavour(&self) -> Flavour;
+
+    /// The firmware's name (`Klipper`, `RepRapFirmware`, `Marlin`).
+    fn name(&self) -> &'static str {
+        self.flavour().name()
+    }
 
     /// The printer as a pkmcal mechanism description (TOML).
     fn description(&self) -> String;
@@ -918,16 +958,16 @@ pub fn out_file<F: Firmware + ?Sized>(
     let version = env!("CARGO_PKG_VERSION");
     let how = if physical {
         format!(
-            "for the nozzle over the build volume by pkmcal {version} --physical from {source} ({probes} probe points)"
+            "for the nozzle over the build volume by pkmcal {version}, the physical model, from {source} ({probes} probe points)"
         )
     } else {
         format!("identified by pkmcal {version} from {source} ({probes} probe points)")
     };
-    match firmware.name() {
-        "RepRapFirmware" => format!("; Delta parameters {how}\n{updated}"),
-        "Marlin" => format!(
+    match firmware.flavour() {
+        Flavour::RepRapFirmware => format!("; Delta parameters {how}\n{updated}"),
+        Flavour::Marlin => format!(
             "; Marlin delta settings {how}\n{updated}; send M500 once to keep them in EEPROM (not in a start script)\n"
         ),
-        _ => updated.to_string(),
+        Flavour::Klipper => updated.to_string(),
     }
 }

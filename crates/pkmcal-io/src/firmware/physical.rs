@@ -85,8 +85,8 @@ pub struct LinearDelta {
     /// The probe's x, y offset from the nozzle (mm; 0, 0 for a probe at
     /// the nozzle).
     pub probe_offset: [f64; 2],
-    /// The firmware's name.
-    pub firmware: &'static str,
+    /// Which firmware.
+    pub firmware: super::Flavour,
     /// The parameters of the firmware's description that its values hold
     /// (what the projection fits).
     pub values: Vec<String>,
@@ -155,7 +155,7 @@ pub fn physical_description_with(ld: &LinearDelta, whole_pose: bool) -> String {
     free.extend(TOWERS.map(|t| format!("d{t}")));
     let _ = writeln!(
         s,
-        "# The physical linear delta of {}'s values (pkmcal --physical): each\n\
+        "# The physical linear delta of {}'s values (pkmcal's physical model): each\n\
          # tower at its own radius and angle, leaning (a.tilt1, a.tilt2), its\n\
          # parallelogram two rods of their own lengths from two ball joints on the\n\
          # carriage to two on the effector, which turns as well as moves. The\n\
@@ -299,6 +299,72 @@ pub struct PhysicalFit {
     /// How many of the readings' poses (the last) are touches measured by
     /// hand ([`super::physical_heights`]), nozzle touches of them.
     pub touches: (usize, usize),
+}
+
+/// One kind of part's tolerances as a physical fit used them: the
+/// defaults, or a user's in their place.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ToleranceGroup {
+    /// The parts, in words (`rods`, `tower radii`…).
+    pub what: &'static str,
+    /// The unit shown.
+    pub unit: &'static str,
+    /// The smallest and largest σ of its parts, in that unit.
+    pub range: (f64, f64),
+}
+
+impl ToleranceGroup {
+    /// In words: `rods 0.1 mm`, or `rods 0.01–0.1 mm` where they differ.
+    pub fn words(&self) -> String {
+        let (lo, hi) = self.range;
+        if lo == hi {
+            format!("{} {lo} {}", self.what, self.unit)
+        } else {
+            format!("{} {lo}–{hi} {}", self.what, self.unit)
+        }
+    }
+}
+
+/// The tolerances `fit` held its parts by, by kind (rods, tower radii,
+/// tower lean, ball joints, bed tilt; angles in mrad), from the priors it
+/// used: a kind whose parts are all fixed is left out.
+pub fn tolerance_groups(fit: &PhysicalFit) -> Vec<ToleranceGroup> {
+    fn joint(n: &str) -> bool {
+        let b = n.as_bytes();
+        b.len() == 5
+            && matches!(b[0], b'a' | b'b' | b'c')
+            && matches!(b[1], b'1' | b'2')
+            && b[2] == b'.'
+            && matches!(b[3], b'e' | b'p')
+            && matches!(b[4], b'x' | b'y' | b'z')
+    }
+    // Words, unit, scale to it, and which parameters.
+    type Kind = (&'static str, &'static str, f64, fn(&str) -> bool);
+    let kinds: [Kind; 5] = [
+        ("rods", "mm", 1.0, |n| n.starts_with("rod_")),
+        ("tower radii", "mm", 1.0, |n| n.starts_with("radius_")),
+        ("tower lean", "mrad", 1e3, |n| n.contains(".tilt")),
+        ("ball joints", "mm", 1.0, joint),
+        ("bed tilt", "mrad", 1e3, |n| n == "bed.rx" || n == "bed.ry"),
+    ];
+    let priors = &fit.study.calibration.priors;
+    kinds
+        .iter()
+        .filter_map(|(what, unit, scale, of)| {
+            let sigmas: Vec<f64> = priors
+                .iter()
+                .filter(|p| of(&p.name))
+                .map(|p| p.sigma * scale)
+                .collect();
+            let lo = sigmas.iter().copied().reduce(f64::min)?;
+            let hi = sigmas.iter().copied().reduce(f64::max)?;
+            Some(ToleranceGroup {
+                what,
+                unit,
+                range: (lo, hi),
+            })
+        })
+        .collect()
 }
 
 /// The probe's σ of a physical fit (mm), and whose it is.

@@ -1,7 +1,8 @@
 //! Which extra measurement would shrink the predicted cube error most
 //! (`--physical`, issue 54): candidates a printer owner can take — one
 //! more probe point, the probe pattern again on a gauge block (heights at a
-//! second level), the twelve distances of Klipper's calibration object
+//! second level), the nozzle touching the bed at seven points (a paper
+//! test), the twelve distances of Klipper's calibration object
 //! measured with calipers — each scored by how much it would reduce the
 //! variance of the verdict's cube errors ([`physical::cube_errors`]: X and
 //! Y size and top flatness, at the centre and the edge).
@@ -35,6 +36,8 @@ pub const GAUGE_BLOCK_MM: f64 = 50.0;
 /// within it).
 const PROBE_RING_STEP_DEG: f64 = 30.0;
 const PROBE_RING_SHARES: [f64; 2] = [0.5, 0.9];
+/// The nozzle touches' ring, a share of the build volume's radius.
+const TOUCH_RING_SHARE: f64 = 0.8;
 /// Forward-difference step of the Jacobians (mm or rad).
 const DIFF: f64 = 1e-6;
 
@@ -51,6 +54,13 @@ pub enum Extra {
         /// The block's height (mm).
         height: f64,
         /// Where the probe touches its top.
+        points: Vec<[f64; 2]>,
+    },
+    /// The nozzle touching the bed at `points` (a paper test), each read
+    /// as a `nozzle` row of the heights measured by hand
+    /// ([`super::physical_heights`]).
+    NozzleTouches {
+        /// Where the nozzle touches (x, y on the bed, mm).
         points: Vec<[f64; 2]>,
     },
     /// The 12 distances of Klipper's calibration object printed with the
@@ -144,6 +154,18 @@ fn block_points(radius: f64) -> Vec<[f64; 2]> {
     out
 }
 
+/// The nozzle touches' points: the centre and six every 60° (from the
+/// third tower's direction, 90°) at [`TOUCH_RING_SHARE`] of `radius`, as
+/// `DELTA_CALIBRATE` spreads its probe points.
+fn touch_points(radius: f64) -> Vec<[f64; 2]> {
+    let mut out = vec![[0.0, 0.0]];
+    for k in 0..6 {
+        let (s, c) = (90.0 + 60.0 * k as f64).to_radians().sin_cos();
+        out.push([TOUCH_RING_SHARE * radius * c, TOUCH_RING_SHARE * radius * s]);
+    }
+    out
+}
+
 /// Every quantity the candidates and the cube depend on, for the printer
 /// `params` with bed `bed`: the 6 cube errors, then each candidate probe
 /// point's height, each block point's, each object distance.
@@ -154,6 +176,7 @@ struct Quantities<'a> {
     fw_bed: Option<&'a [f64]>,
     probes: Vec<[f64; 2]>,
     block: Vec<[f64; 2]>,
+    touches: Vec<[f64; 2]>,
     pairs: Vec<([f64; 2], [f64; 2])>,
 }
 
@@ -199,6 +222,20 @@ impl Quantities<'_> {
             &probe_targets,
         )?;
         out.extend(probe.iter().map(|e| e[2]));
+        // A nozzle touch: the nozzle's height over the bed where the
+        // firmware puts it at z = 0.
+        let touch_targets: Vec<[f64; 3]> = self.touches.iter().map(|p| [p[0], p[1], 0.0]).collect();
+        let touch = physical::nozzle_errors(
+            self.fw_mech,
+            self.fw_params,
+            self.fw_bed,
+            &fit.mech,
+            params,
+            bed,
+            fit.delta.nozzle(),
+            &touch_targets,
+        )?;
+        out.extend(touch.iter().map(|e| e[2]));
         let ends: Vec<[f64; 3]> = self
             .pairs
             .iter()
@@ -245,6 +282,7 @@ pub fn suggest(
             radius - fit.delta.probe_offset[0].hypot(fit.delta.probe_offset[1]),
         ),
         block: block_points(radius),
+        touches: touch_points(radius),
         pairs: if distances { object_pairs() } else { vec![] },
     };
     let cal = &fit.study.calibration;
@@ -321,8 +359,17 @@ pub fn suggest(
             points: q.block.clone(),
         },
     ));
+    let first_touch = first_block + q.block.len();
+    let rows: Vec<usize> = (first_touch..first_touch + q.touches.len()).collect();
+    out.extend(score(
+        &rows,
+        super::physical_heights::TOUCH_NOISE_MM,
+        Extra::NozzleTouches {
+            points: q.touches.clone(),
+        },
+    ));
     if distances {
-        let first = first_block + q.block.len();
+        let first = first_touch + q.touches.len();
         let rows: Vec<usize> = (first..first + q.pairs.len()).collect();
         out.extend(score(
             &rows,

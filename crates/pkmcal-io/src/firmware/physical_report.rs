@@ -12,11 +12,13 @@
 use super::height_map::{self, HeightMap};
 use super::physical::{self, CubeError, ErrorSummary, PhysicalFit, Projection};
 use super::physical_plan::{Extra, Suggestion};
-use super::{Firmware, FirmwareValue, PrinterCalibration};
+use super::{Firmware, FirmwareValue, Flavour, PrinterCalibration};
 use crate::description::Mech;
 use crate::error::Result;
 use crate::figures::{self, Figure, err, range, register_font, render, tick};
 use crate::report::{PAGE_END, escape, page_start};
+use crate::text::Wording;
+use pkmcal::Field;
 use pkmcal::Params;
 use pkmcal::identify::Drift;
 use plotters::prelude::*;
@@ -174,41 +176,70 @@ impl MapAdvice {
     }
 }
 
-/// An extra measurement in the firmware's commands (`firmware` its name,
-/// the probe at `probe_offset` from the nozzle).
-pub fn measurement_words(extra: &Extra, firmware: &str, probe_offset: [f64; 2]) -> String {
+/// An extra measurement in the firmware's commands (`firmware` the
+/// printer's, the probe at `probe_offset` from the nozzle), the inputs it
+/// is read back from named as the front end names them (`wording`).
+pub fn measurement_words(
+    extra: &Extra,
+    firmware: Flavour,
+    probe_offset: [f64; 2],
+    wording: &Wording,
+) -> String {
     let o = probe_offset;
+    let input = wording.input;
+    // The nozzle over `p` (x, y on the bed, mm).
+    // To a tenth of a millimetre, never "-0.0".
+    let mm = |v: f64| format!("{:.1}", (v * 10.0).round() / 10.0 + 0.0);
+    let nozzle_at = |p: [f64; 2]| -> String { format!("G1 X{} Y{}", mm(p[0]), mm(p[1])) };
     let probe_at = |p: [f64; 2]| -> String {
         match firmware {
-            "Klipper" => format!(
-                "G1 X{:.1} Y{:.1} then PROBE (the probe at {:.1}, {:.1})",
-                p[0] - o[0],
-                p[1] - o[1],
-                p[0],
-                p[1]
+            Flavour::Klipper => format!(
+                "G1 X{} Y{} then PROBE (the probe at {}, {})",
+                mm(p[0] - o[0]),
+                mm(p[1] - o[1]),
+                mm(p[0]),
+                mm(p[1])
             ),
-            "RepRapFirmware" => format!("G30 P<next> X{:.1} Y{:.1} Z-99999", p[0], p[1]),
-            _ => format!("G30 X{:.1} Y{:.1}", p[0], p[1]),
+            Flavour::RepRapFirmware => {
+                format!("G30 P<next> X{} Y{} Z-99999", mm(p[0]), mm(p[1]))
+            }
+            Flavour::Marlin => format!("G30 X{} Y{}", mm(p[0]), mm(p[1])),
         }
+    };
+    let list = |points: &[[f64; 2]], at: &dyn Fn([f64; 2]) -> String| {
+        points.iter().map(|p| at(*p)).collect::<Vec<_>>().join("; ")
     };
     match extra {
         Extra::ProbePoint { at } => format!(
             "one more probe point: {}{}",
             probe_at(*at),
             match firmware {
-                "Klipper" => ", read back from --heights as a `probe` row: the x, y, z PROBE reports, surface 0 (DELTA_CALIBRATE saves only its own pattern)",
-                "RepRapFirmware" => ", its reading added to the probe file (--probes)",
-                _ => ", its `Bed X: … Y: … Z: …` report added to the probe log (--probes)",
+                Flavour::Klipper => format!(
+                    ", read back from {} as a `probe` row: the x, y, z PROBE reports, surface 0 (DELTA_CALIBRATE saves only its own pattern)",
+                    input(Field::Heights)
+                ),
+                Flavour::RepRapFirmware => format!(
+                    ", its reading added to the probe file ({})",
+                    input(Field::Probes)
+                ),
+                Flavour::Marlin => format!(
+                    ", its `Bed X: … Y: … Z: …` report added to the probe log ({})",
+                    input(Field::Probes)
+                ),
             }
         ),
         Extra::SecondLevel { height, points } => format!(
-            "{} probe heights on a {height} mm gauge block (known height): {}; read back from --heights as `probe` rows: the nozzle's x, y, z the firmware displays when the probe triggers, surface {height}",
+            "{} probe heights on a {height} mm gauge block (known height): {}; read back from {} as `probe` rows: the nozzle's x, y, z the firmware displays when the probe triggers, surface {height}",
             points.len(),
-            points
-                .iter()
-                .map(|p| probe_at(*p))
-                .collect::<Vec<_>>()
-                .join("; ")
+            list(points, &probe_at),
+            input(Field::Heights)
+        ),
+        Extra::NozzleTouches { points } => format!(
+            "{} nozzle touches on the bed (a paper test, σ about {} mm): {}, then lower the nozzle until it grips the paper; read back from {} as `nozzle` rows: the x, y, z the firmware displays, surface 0",
+            points.len(),
+            super::physical_heights::TOUCH_NOISE_MM,
+            list(points, &nozzle_at),
+            input(Field::Heights)
         ),
         Extra::ObjectDistances => "the 12 distances of Klipper's calibration object (docs/prints/calibrate_size.stl) printed with the written values, measured with calipers: DELTA_ANALYZE CENTER_DISTS=… OUTER_DISTS=… (and the pillar widths), then SAVE_CONFIG".to_string(),
     }
@@ -282,8 +313,10 @@ pub struct MapPart {
     pub map: HeightMap,
     /// Whether to load it.
     pub advice: MapAdvice,
-    /// Where it was written (`--height-map`), if it was.
+    /// Where it was written, if it was.
     pub written_to: Option<String>,
+    /// How the front end is told to write it (its option or keyword).
+    pub give: String,
 }
 
 /// An extra measurement on the page.
@@ -334,6 +367,11 @@ pub struct Page {
     pub drift: Option<(String, Drift)>,
     /// The probe's σ the fit weighed the heights with.
     pub probe_noise: physical::ProbeNoise,
+    /// The tolerances the fit held the parts by.
+    pub tolerances: Vec<physical::ToleranceGroup>,
+    /// How many of the readings are touches measured by hand, nozzle
+    /// touches of them.
+    pub touches: (usize, usize),
 }
 
 /// What [`Page::build`] takes: the fit and what the command computed of it.
@@ -369,6 +407,8 @@ pub struct Inputs<'a> {
     pub mesh_points: Option<usize>,
     /// Where the height map is written, if it is.
     pub height_map: Option<&'a Path>,
+    /// The front end's names of its inputs.
+    pub wording: &'a Wording,
 }
 
 /// Mean and standard deviation accumulator.
@@ -494,6 +534,7 @@ impl Page {
                     advice: map_advice(&map),
                     map,
                     written_to: i.height_map.map(|p| p.display().to_string()),
+                    give: (i.wording.input)(Field::HeightMap),
                 })
             }
             None => None,
@@ -503,7 +544,7 @@ impl Page {
             .iter()
             .take(i.shown)
             .map(|s| NextMeasurement {
-                words: measurement_words(&s.extra, ld.firmware, ld.probe_offset),
+                words: measurement_words(&s.extra, ld.firmware, ld.probe_offset, i.wording),
                 largest: s.largest(),
                 share: s.variance_removed(),
             })
@@ -525,6 +566,8 @@ impl Page {
             next,
             drift: i.drift.clone(),
             probe_noise: i.fit.probe_noise,
+            tolerances: physical::tolerance_groups(i.fit),
+            touches: i.fit.touches,
         })
     }
 }
@@ -962,8 +1005,14 @@ pub fn html(page: &Page, figs: &[Figure]) -> String {
             "<h2>Height map</h2><p>{} {}</p>",
             escape(&m.advice.words()),
             match &m.written_to {
-                Some(p) => format!("Written to <code>{}</code>; its nodes (mm; ± σ), the value {fw} adds to Z:", escape(p)),
-                None => "Not written (add --height-map FILE); its nodes would be (mm; ± σ), the value the firmware adds to Z:".to_string(),
+                Some(p) => format!(
+                    "Written to <code>{}</code>; its nodes (mm; ± σ), the value {fw} adds to Z:",
+                    escape(p)
+                ),
+                None => format!(
+                    "Not written (give {} to write it); its nodes would be (mm; ± σ), the value the firmware adds to Z:",
+                    m.give
+                ),
             }
         );
         h.push_str("<div class=\"wide\"><table><tr><th>y \\ x, mm</th>");
@@ -1023,20 +1072,31 @@ pub fn html(page: &Page, figs: &[Figure]) -> String {
     // The fit.
     let _ = write!(
         h,
-        "<h2>The fit</h2><table class=\"kv\"><tr><td>readings</td><td>{} probe heights{} from {}</td></tr><tr><td>model</td><td>the physical delta: {} parameters within their tolerances (rods {} mm, tower radii {} mm, tower lean {} mrad, ball joints {} mm, bed tilt {} mrad; probe σ {} mm{})</td></tr><tr><td>pkmcal</td><td>{}</td></tr></table>",
-        page.readings.0,
+        "<h2>The fit</h2><table class=\"kv\"><tr><td>readings</td><td>{} probe heights{} from {}{}</td></tr><tr><td>model</td><td>the physical delta: {} parameters within their tolerances ({}; probe σ {} mm{})</td></tr><tr><td>pkmcal</td><td>{}</td></tr></table>",
+        page.readings.0 - page.touches.0,
         if page.readings.1 > 0 {
             format!(" and {} distances", page.readings.1)
         } else {
             String::new()
         },
         escape(&page.source),
+        if page.touches.0 > 0 {
+            format!(
+                "; {} touches measured by hand ({} of the nozzle)",
+                page.touches.0, page.touches.1
+            )
+        } else {
+            String::new()
+        },
         page.free,
-        physical::ROD_SIGMA_MM,
-        physical::TOWER_RADIUS_SIGMA_MM,
-        physical::TOWER_LEAN_SIGMA_RAD * 1e3,
-        physical::JOINT_SIGMA_MM,
-        physical::BED_TILT_SIGMA_RAD * 1e3,
+        escape(
+            &page
+                .tolerances
+                .iter()
+                .map(physical::ToleranceGroup::words)
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
         page.probe_noise.mm(),
         stated_words(page.probe_noise),
         env!("CARGO_PKG_VERSION")

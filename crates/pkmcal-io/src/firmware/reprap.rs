@@ -653,8 +653,8 @@ impl Firmware for RrfPrinter {
         }
     }
 
-    fn name(&self) -> &'static str {
-        "RepRapFirmware"
+    fn flavour(&self) -> super::Flavour {
+        super::Flavour::RepRapFirmware
     }
 
     fn description(&self) -> String {
@@ -785,7 +785,7 @@ impl Firmware for RrfPrinter {
             // The probe file gives where the probe touched; the nozzle was
             // at that less G31's offset.
             probe_offset: self.probe_offset,
-            firmware: "RepRapFirmware",
+            firmware: super::Flavour::RepRapFirmware,
             values: rrf_holds(),
             corrects_bed_tilt: true,
             print_radius: self.delta.print_radius,

@@ -5,7 +5,7 @@
 //! uncertainty; on the Klipper example, whose probe heights cannot see the
 //! XY scale, the caliper distances come first.
 
-use pkmcal::Request;
+use pkmcal::{Mechanism, Request};
 use pkmcal_io::firmware::Firmware;
 use pkmcal_io::firmware::klipper::{KlipperPrinter, Weighting};
 use pkmcal_io::firmware::physical;
@@ -44,7 +44,12 @@ fn the_suggestions_are_scored_by_the_cubes_own_uncertainty() {
     let cal = &fit.study.calibration;
     let proj = physical::project(&ld, &fw, &fit.mech, &cal.params, &cal.measurement).unwrap();
     let list = physical_plan::suggest(&fit, &fw, &proj.params, None, true).unwrap();
-    assert_eq!(list.len(), 3, "the best probe point, the block, the object");
+    assert_eq!(
+        list.len(),
+        4,
+        "the best probe point, the block, the nozzle touches, the object"
+    );
+
     assert!(
         matches!(list[0].extra, Extra::ObjectDistances),
         "{:?}",
@@ -73,5 +78,86 @@ fn the_suggestions_are_scored_by_the_cubes_own_uncertainty() {
     assert!(
         list.iter()
             .all(|s| !matches!(s.extra, Extra::ObjectDistances))
+    );
+}
+
+/// How far the variance the nozzle touches are scored to remove may lie
+/// from what a fit that reads them leaves (shares of the cube errors'
+/// variance): both are linearised, about two different estimates (the
+/// refit moves the parameters) and two models (a touch needs the
+/// effector's whole pose).
+const SCORED_AGAINST_REFIT: f64 = 0.02;
+
+/// The nozzle touches are scored as what they are: the fit that reads
+/// them (`--heights`, taken where the fitted printer puts the nozzle on
+/// the bed) leaves the cube's variance the candidate said it would.
+#[test]
+fn nozzle_touches_leave_what_they_were_scored_to_leave() {
+    use pkmcal_io::firmware::physical_heights::{Tool, Touch, Touches};
+    let path =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/klipper-delta/printer.cfg");
+    let files = pkmcal_io::Files::new();
+    let run = pkmcal_io::Run::quiet(&files);
+    let printer = KlipperPrinter::read(&run, &path, Weighting::Klipper).unwrap();
+    let ld = printer.linear_delta().unwrap().unwrap();
+    let fw = printer.mechanism().unwrap();
+    let fit = physical::calibrate(&printer, &ld, Request::new(pkmcal::Model::Exact)).unwrap();
+    let cal = &fit.study.calibration;
+    let proj = physical::project(&ld, &fw, &fit.mech, &cal.params, &cal.measurement).unwrap();
+    let list = physical_plan::suggest(&fit, &fw, &proj.params, None, false).unwrap();
+    let scored = list
+        .iter()
+        .find(|s| matches!(s.extra, Extra::NozzleTouches { .. }))
+        .expect("the nozzle touches are a candidate");
+    let Extra::NozzleTouches { points } = &scored.extra else {
+        unreachable!()
+    };
+    assert_eq!(points.len(), 7);
+    // Each touch where the fitted printer puts the nozzle on the bed with
+    // the configuration's values: sent to (x, y, 0), it stands e_z above.
+    let at: Vec<[f64; 3]> = points.iter().map(|p| [p[0], p[1], 0.0]).collect();
+    let current = pkmcal::Params::nominal(fw.spec());
+    let e = physical::nozzle_errors(
+        &fw,
+        &current,
+        None,
+        &fit.mech,
+        &cal.params,
+        &cal.measurement,
+        ld.nozzle(),
+        &at,
+    )
+    .unwrap();
+    let touches = Touches {
+        path: "touches.csv".into(),
+        rows: points
+            .iter()
+            .zip(&e)
+            .enumerate()
+            .map(|(k, (p, e))| Touch {
+                line: k as u64 + 2,
+                position: [p[0], p[1], -e[2]],
+                tool: Tool::Nozzle,
+                surface: 0.0,
+                sigma: None,
+            })
+            .collect(),
+    };
+    let refit = physical::calibrate_with(
+        &printer,
+        &ld,
+        Request::new(pkmcal::Model::Exact),
+        Some(&touches),
+    )
+    .unwrap();
+    let cal = &refit.study.calibration;
+    let proj = physical::project(&ld, &fw, &refit.mech, &cal.params, &cal.measurement).unwrap();
+    let after = physical_plan::suggest(&refit, &fw, &proj.params, None, false).unwrap();
+    let var = |sd: &[f64]| sd.iter().map(|s| s * s).sum::<f64>();
+    let left = var(&after[0].sd_before) / var(&scored.sd_before);
+    let said = 1.0 - scored.variance_removed();
+    assert!(
+        (left - said).abs() < SCORED_AGAINST_REFIT,
+        "the refit leaves {left:.3} of the variance, the candidate said {said:.3}"
     );
 }

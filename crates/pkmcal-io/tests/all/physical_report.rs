@@ -7,7 +7,7 @@
 use pkmcal::{Mechanism, Request};
 use pkmcal_io::firmware::klipper::{KlipperPrinter, Weighting};
 use pkmcal_io::firmware::physical::{self, ErrorSummary};
-use pkmcal_io::firmware::physical_report::{Inputs, Page};
+use pkmcal_io::firmware::physical_report::{self, Inputs, Page};
 use pkmcal_io::firmware::{self, Firmware};
 use std::path::Path;
 
@@ -19,6 +19,14 @@ const DRAWS: usize = 24;
 const FACTOR: f64 = 1.6;
 /// Below this σ (mm, °) a value is one the projection holds.
 const FIXED: f64 = 1e-9;
+
+/// A front end's wording that names each input by its description.
+const WORDING: pkmcal_io::text::Wording = pkmcal_io::text::Wording {
+    frame_base: "identified",
+    all_correlations: "the record",
+    hint: |w| w.hint.clone(),
+    input: |f| format!("«{}»", f.describe()),
+};
 
 #[test]
 fn the_written_values_sigma_is_that_of_reprojected_draws() {
@@ -57,8 +65,20 @@ fn the_written_values_sigma_is_that_of_reprojected_draws() {
         drift: None,
         mesh_points: None,
         height_map: None,
+        wording: &WORDING,
     })
     .unwrap();
+    // The page names its inputs as the front end does: no option of the
+    // command line where another front end words it.
+    let html = physical_report::html(&page, &[]);
+    assert!(
+        html.contains("give «the height map» to write it"),
+        "the page names the height map as its front end does"
+    );
+    assert!(
+        !html.contains("--"),
+        "the page names no command-line option of its own"
+    );
     // The written values are the projection's.
     let values = printer.values(spec, &proj.params, &proj.bed).unwrap();
     assert_eq!(page.values.len(), values.len());

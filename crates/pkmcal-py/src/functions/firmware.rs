@@ -548,7 +548,7 @@ fn physical_result<'py, F: Firmware + Sync>(
     }
     p.set_item("unseen", unseen)?;
     let fw_bed = assessed.fw_bed();
-    let klipper = printer.name() == "Klipper";
+    let klipper = printer.flavour().reads_object_distances();
     let next = PyList::empty(py);
     // As the command line does: where the candidates cannot be scored, the
     // values are written all the same, with no suggestion.
@@ -560,8 +560,9 @@ fn physical_result<'py, F: Firmware + Sync>(
                 "what",
                 physical_report::measurement_words(
                     &s.extra,
-                    printer.name(),
+                    printer.flavour(),
                     fit.delta.probe_offset,
+                    &crate::results::calibration::PY_WORDING,
                 ),
             )?;
             let (before, after) = s.largest();

@@ -25,10 +25,11 @@ pub struct PyCalibration {
 }
 
 /// A summary in Python's words.
-const PY_WORDING: pkmcal_io::text::Wording = pkmcal_io::text::Wording {
+pub(crate) const PY_WORDING: pkmcal_io::text::Wording = pkmcal_io::text::Wording {
     frame_base: "identified; frame=\"base\" if the data are in the base frame",
     all_correlations: "Calibration.correlation",
     hint: |w| w.hint.clone(),
+    input: |f| format!("{}=", crate::errors::keyword(f)),
 };
 
 /// Where the validation poses came from, in Python's words.
