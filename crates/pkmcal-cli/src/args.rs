@@ -145,8 +145,8 @@ pub struct PhysicalArgs {
     /// M421 lines of its bilinear grid.
     #[arg(long, value_name = "FILE")]
     pub height_map: Option<std::path::PathBuf>,
-    /// With --height-map: nodes across the mesh (odd, 3 to 21; each way on
-    /// a rectangular one); by default Klipper's [bed_mesh] round_probe_count
+    /// With --height-map: nodes across the mesh, each way (3 to 21; odd on a
+    /// round mesh, which has a centre node); by default Klipper's [bed_mesh] round_probe_count
     /// or probe_count, else 5. Marlin's must be its GRID_MAX_POINTS_X.
     #[arg(long, value_name = "N", value_parser = values::mesh_points)]
     pub mesh_points: Option<usize>,
@@ -485,7 +485,8 @@ pub mod values {
             e => e.to_string(),
         })
     }
-    /// Nodes across a height map's round mesh (odd, 3 to 21).
+    /// Nodes across a height map's mesh, each way (3 to 21; odd on a round
+    /// one, which the printer's mesh decides).
     pub fn mesh_points(s: &str) -> Result<usize, String> {
         let n = s
             .trim()

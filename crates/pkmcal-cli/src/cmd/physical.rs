@@ -38,6 +38,9 @@ pub fn run<F: Firmware>(
         Some(path) => Some(pkmcal_io::firmware::physical_heights::read(run, path)?),
         None => None,
     };
+    if output.physical.height_map.is_some() || output.physical.report_dir.is_some() {
+        physical::mesh_layout(printer, output.physical.mesh_points)?;
+    }
     let Some(assessed) = physical::assess(printer, request.clone(), touches.as_ref())? else {
         return crate::words::usage(format!(
             "--physical models linear deltas (towers with carriages); this {} printer is a rotary delta, whose arms and their errors it has no model of: calibrate its firmware values without --physical",

@@ -159,7 +159,11 @@ fn misuse_is_refused_by_name() {
         ),
         (
             vec!["--physical", "--height-map", "m.cfg", "--mesh-points", "6"],
-            "an odd count from 3 to 21",
+            "--mesh-points: 6 nodes across: a round bed's mesh has an odd count from 3 to 21 (this printer's mesh is round)",
+        ),
+        (
+            vec!["--physical", "--height-map", "m.cfg", "--mesh-points", "23"],
+            "invalid value '23' for '--mesh-points <N>': 23 nodes across: a mesh has 3 to 21 nodes each way",
         ),
         (
             vec!["--physical", "--height-map", "m.cfg", "--mesh-points", "x"],
@@ -169,6 +173,9 @@ fn misuse_is_refused_by_name() {
         let mut all = vec!["klipper", "--config", &cfg];
         all.extend(args);
         fails(dir.path(), &all, 2, says);
+        // Refused before any work: nothing printed.
+        let o = crate::common::run(dir.path(), &all);
+        assert!(o.stdout.is_empty(), "{all:?} printed before refusing");
     }
     assert!(!dir.path().join("m.cfg").exists());
 }

@@ -90,15 +90,42 @@ const ON_CIRCLE_MM: f64 = 1e-9;
 /// The least spacing of the nodes (mm): Klipper refuses below 1 mm.
 const MIN_SPACING_MM: f64 = 1.0;
 
+/// A count of nodes across a mesh, each way: 3 to [`MAX_MESH_POINTS`] (a
+/// round mesh's must also be odd: [`round_mesh_points`]).
+pub fn mesh_points(n: usize) -> std::result::Result<usize, String> {
+    if (3..=MAX_MESH_POINTS).contains(&n) {
+        Ok(n)
+    } else {
+        Err(format!(
+            "{n} nodes across: a mesh has 3 to {MAX_MESH_POINTS} nodes each way"
+        ))
+    }
+}
+
 /// A count of nodes across a round mesh: odd (a round bed's grid has a
 /// centre node), 3 to [`MAX_MESH_POINTS`].
-pub fn mesh_points(n: usize) -> std::result::Result<usize, String> {
+pub fn round_mesh_points(n: usize) -> std::result::Result<usize, String> {
     if n % 2 == 1 && (3..=MAX_MESH_POINTS).contains(&n) {
         Ok(n)
     } else {
         Err(format!(
             "{n} nodes across: a round bed's mesh has an odd count from 3 to {MAX_MESH_POINTS}"
         ))
+    }
+}
+
+/// The nodes across a round mesh: the user's `given` count (an even one
+/// refused as theirs, [`pkmcal::Field::MeshPoints`], which a front end
+/// words as its option), else `default`.
+pub fn round_count(given: Option<usize>, default: usize) -> Result<usize> {
+    match given {
+        Some(n) => round_mesh_points(n).map_err(|p| {
+            Error::from(pkmcal::Error::Request(pkmcal::RequestError::invalid(
+                pkmcal::Field::MeshPoints,
+                format!("{p} (this printer's mesh is round)"),
+            )))
+        }),
+        None => Ok(default),
     }
 }
 
@@ -139,7 +166,7 @@ impl MeshLayout {
     /// A round mesh of `count` nodes across a circle of `radius` about the
     /// bed's centre, with Klipper's default interpolation.
     pub fn round(format: MeshFormat, radius: f64, count: usize) -> Result<Self> {
-        let count = mesh_points(count).map_err(Error::Content)?;
+        let count = round_mesh_points(count).map_err(Error::Content)?;
         let layout = MeshLayout {
             format,
             radius: (radius * 10.0).floor() / 10.0,
@@ -857,11 +884,12 @@ pub fn klipper_layout(
             // A printer's own mesh beyond the most nodes pkmcal writes (a
             // real configuration probes 23 across) gets a profile of the
             // most: the profile is loaded by its own name, its own count.
-            count
-                .or(config_count
+            round_count(
+                count,
+                config_count
                     .filter(|_| own_radius.is_some())
-                    .map(|n| n.min(MAX_MESH_POINTS)))
-                .unwrap_or(MESH_POINTS),
+                    .map_or(MESH_POINTS, |n| n.min(MAX_MESH_POINTS)),
+            )?,
         ),
     }
     .map_err(|e| e.context("the [bed_mesh] of the configuration"))?;

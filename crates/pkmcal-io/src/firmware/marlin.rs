@@ -1370,8 +1370,8 @@ impl Firmware for MarlinPrinter {
         radius: f64,
         count: Option<usize>,
     ) -> Result<Option<super::height_map::MeshLayout>> {
-        use super::height_map::{MESH_POINTS, MeshFormat, MeshLayout};
-        MeshLayout::round(MeshFormat::Marlin, radius, count.unwrap_or(MESH_POINTS)).map(Some)
+        use super::height_map::{MESH_POINTS, MeshFormat, MeshLayout, round_count};
+        MeshLayout::round(MeshFormat::Marlin, radius, round_count(count, MESH_POINTS)?).map(Some)
     }
 
     fn located(&self, e: pkmcal::Error) -> Error {

@@ -1488,6 +1488,21 @@ impl Assessment {
     }
 }
 
+/// The height map's mesh on `firmware`'s printer with `mesh_points`
+/// nodes across (a user's count, else the printer's own or pkmcal's),
+/// over its build volume; `None` for a printer that is not a linear delta
+/// or keeps no map. Checked before a fit: a count the mesh cannot take is
+/// refused before any work.
+pub fn mesh_layout<F: Firmware + ?Sized>(
+    firmware: &F,
+    mesh_points: Option<usize>,
+) -> Result<Option<super::height_map::MeshLayout>> {
+    match firmware.linear_delta()? {
+        Some(ld) => firmware.mesh_layout(ld.print_radius(), mesh_points),
+        None => Ok(None),
+    }
+}
+
 /// Fit `firmware`'s printer as built (`request`: the free set, the
 /// tolerances, the probe's stated noise), project onto the firmware's
 /// values, choose what to write and predict its cubes; `None` for a

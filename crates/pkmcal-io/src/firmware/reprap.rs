@@ -800,8 +800,8 @@ impl Firmware for RrfPrinter {
         radius: f64,
         count: Option<usize>,
     ) -> Result<Option<super::height_map::MeshLayout>> {
-        use super::height_map::{MESH_POINTS, MeshFormat, MeshLayout};
-        MeshLayout::round(MeshFormat::RepRap, radius, count.unwrap_or(MESH_POINTS)).map(Some)
+        use super::height_map::{MESH_POINTS, MeshFormat, MeshLayout, round_count};
+        MeshLayout::round(MeshFormat::RepRap, radius, round_count(count, MESH_POINTS)?).map(Some)
     }
 
     fn located(&self, e: pkmcal::Error) -> Error {

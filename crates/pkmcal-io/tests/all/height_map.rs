@@ -174,6 +174,11 @@ fn klippers_rectangular_bed_mesh_sets_the_layout() {
         p.mesh_layout(120.0, Some(5)).unwrap().unwrap().counts(),
         [5, 5]
     );
+    // An even count each way is a rectangular mesh's own.
+    assert_eq!(
+        p.mesh_layout(120.0, Some(6)).unwrap().unwrap().counts(),
+        [6, 6]
+    );
     let defaults = klipper_with("[bed_mesh]\nmesh_min: -50, -50\nmesh_max: 50, 50\n\n");
     assert_eq!(
         defaults.mesh_layout(120.0, None).unwrap().unwrap().counts(),
@@ -266,10 +271,15 @@ fn marlin_lines_are_read_back_as_marlin_takes_them() {
 
 #[test]
 fn mesh_counts_and_spacings_are_bounded() {
-    for n in [0, 1, 2, 4, 23, 1001] {
+    for n in [0, 1, 2, 23, 1001] {
         assert!(height_map::mesh_points(n).is_err(), "{n}");
+        assert!(height_map::round_mesh_points(n).is_err(), "{n}");
     }
+    // Even counts: a rectangular mesh's, not a round one's.
+    assert_eq!(height_map::mesh_points(4), Ok(4));
+    assert!(height_map::round_mesh_points(4).is_err());
     assert_eq!(height_map::mesh_points(21), Ok(21));
+    assert_eq!(height_map::round_mesh_points(21), Ok(21));
     assert!(MeshLayout::round(MeshFormat::Klipper, 5.0, 21).is_err());
     assert!(MeshLayout::round(MeshFormat::Klipper, f64::NAN, 5).is_err());
     // Klipper's spacing: the diameter's share floored to 0.01 mm, the

@@ -457,6 +457,9 @@ fn physical_result<'py, F: Firmware + Sync>(
         ),
         None => None,
     };
+    if c.height_map.is_some() {
+        physical::mesh_layout(printer, c.mesh_points).map_err(io_err)?;
+    }
     let assessed = interruptible(py, |_cancel| {
         physical::assess(printer, request, touches.as_ref())
     })?
