@@ -639,8 +639,8 @@ fn result<'py, F: Firmware + Sync>(
         outputs.extend(out_dir_files(printer, &calibrated, source, dir));
     }
     written(|run| {
+        // (Checked before any work: check_paths.)
         if let Some(dir) = &c.out_dir {
-            pkmcal_io::output::in_dir(dir, &OUT_DIR_FILES)?;
             run.files.create_dir(dir)?;
         }
         outputs
@@ -948,7 +948,6 @@ fn physical_result<'py, F: Firmware + Sync>(
     // measurements).
     let report = match &c.report_dir {
         Some(dir) => {
-            pkmcal_io::output::in_dir(dir, physical_report::FILES).map_err(io_err)?;
             let (own, fw_mech, values) = (&assessed.own, &assessed.fw_mech, &assessed.values);
             let (before, cubes) = (assessed.before, &assessed.cubes);
             let (suggestions, height_map) = (&suggestions, c.height_map.as_deref());
