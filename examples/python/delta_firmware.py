@@ -1,13 +1,14 @@
 """A delta printer's firmware calibrated from Python: the Klipper example's
 probe results fitted as Klipper fits them, then the printer as built
 (``physical=True``) with the probe's σ stated, the values to write and the
-verdict read as data.
+verdict read as data; then the Marlin example with Marlin's own G33 run on
+the printer the fit found, compared with pkmcal's values.
 
     python examples/python/delta_firmware.py [printer.cfg]
 
-Nothing is written: ``out=`` and ``height_map=`` would write the new
-configuration and a ``[bed_mesh]`` profile, as ``pkmcal klipper --out
---height-map`` does.
+Nothing is written: ``out=``, ``height_map=`` and ``report_dir=`` would
+write the new configuration, a ``[bed_mesh]`` profile and the owner's
+report, as ``pkmcal klipper --out --height-map --report-dir`` does.
 """
 
 import pathlib
@@ -21,7 +22,7 @@ config = sys.argv[1] if len(sys.argv) > 1 else str(here.parent / "klipper-delta"
 own = pkmcal.klipper(config)
 print(f"Klipper's own fit: {own.termination}; height RMS {own.height_errors['after'].rms:.4f} mm")
 for v in own.values:
-    sigma = "fixed" if not v.sigma else f"{v.sigma:.4f} {v.unit}"
+    sigma = "fixed" if v.sigma is None else f"{v.sigma:.4f} {v.unit}"
     print(f"  {v.name:<28} {v.before:>12.4f} -> {v.after:>12.4f}  σ {sigma}")
 
 built = pkmcal.klipper(config, physical=True, probe_noise=0.005)
@@ -41,3 +42,16 @@ if verdict.noise_note is not None:
     print(f"  {verdict.noise_note.message}")
 for w in built.warnings:
     print(f"warning: {w.message}\n  hint: {w.hint}")
+
+marlin = here.parent / "marlin-delta"
+m = pkmcal.marlin(marlin / "M503.txt", marlin / "G30.log")
+g33 = m.g33
+assert g33 is not None
+if g33.run is None:
+    print(f"\nG33 not run: {g33.not_run}")
+else:
+    run = g33.run
+    print(f"\nMarlin's G33 P{g33.points} at radius {g33.radius:.2f} mm ({g33.radius_from}), {len(run.std_devs)} iterations, would set:")
+    for line in run.settings.splitlines():
+        print(f"  {line}")
+    print(f"  height RMS at the probed points: G33's {run.with_g33.rms:.4f} mm, pkmcal's {run.with_pkmcal.rms:.4f} mm")

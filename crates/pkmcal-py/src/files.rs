@@ -26,6 +26,21 @@ pub fn written(write: impl FnOnce(&pkmcal_io::Run) -> pkmcal_io::Result<()>) -> 
     write(&run).and_then(|()| files.commit()).map_err(io_err)
 }
 
+/// Refuse a call's planned outputs before any work, as the command line
+/// refuses them (`pkmcal_io::Files::check`): each a new or regular file in
+/// an existing directory (or in one of `dirs`, the directories the call
+/// creates), none one of its `inputs` (through any path or link) nor
+/// another output.
+pub fn check_outputs(
+    inputs: &[&std::path::Path],
+    outputs: &[&std::path::Path],
+    dirs: &[std::path::PathBuf],
+) -> PyResult<()> {
+    pkmcal_io::Files::new()
+        .check(inputs, outputs, dirs)
+        .map_err(io_err)
+}
+
 /// A run that only reads (no unit override, no progress display).
 pub fn reading<T>(read: impl FnOnce(&pkmcal_io::Run) -> T) -> T {
     read(&pkmcal_io::Run::quiet(&pkmcal_io::Files::new()))

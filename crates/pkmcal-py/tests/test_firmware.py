@@ -237,3 +237,261 @@ def test_physical_outputs_all_or_nothing(tmp_path):
             out=tmp_path / "missing" / "new.cfg", height_map=tmp_path / "map.cfg",
         )
     assert not list(tmp_path.iterdir())
+
+
+REPORT_FILES = [
+    "report.html",
+    "nozzle-z.svg", "nozzle-z.png",
+    "nozzle-xy.svg", "nozzle-xy.png",
+    "nozzle-sigma.svg", "nozzle-sigma.png",
+]
+
+
+def assert_same_files(a, b, names):
+    for name in names:
+        assert (a / name).read_bytes() == (b / name).read_bytes(), name
+    assert sorted(p.name for p in a.iterdir()) == sorted(p.name for p in b.iterdir())
+
+
+@pytest.mark.parametrize("firmware", ["klipper", "reprap", "marlin"])
+def test_report_dir_equals_cli(cli, tmp_path, firmware):
+    """``report_dir=`` writes the report ``--report-dir`` writes: the figures
+    byte for byte, the page but for the names of the inputs its advice says
+    to give (the height map's path is on the page: both write it to the
+    same path, one after the other)."""
+    if firmware == "klipper":
+        # With the drift since a previous configuration on the page.
+        files = ["--config", KLIPPER, "--previous", KLIPPER]
+        call = lambda **k: pkmcal.klipper(KLIPPER, previous=KLIPPER, **k)  # noqa: E731
+    elif firmware == "reprap":
+        files = ["--config", RRF[0], "--probes", RRF[1]]
+        call = lambda **k: pkmcal.reprap(*RRF, **k)  # noqa: E731
+    else:
+        files = ["--config", MARLIN[0], "--probes", MARLIN[1]]
+        call = lambda **k: pkmcal.marlin(*MARLIN, **k)  # noqa: E731
+    height_map = tmp_path / "map"
+    out = cli(firmware, *files, "--physical", "--report-dir", tmp_path / "cli",
+              "--height-map", height_map).stdout
+    assert f"report -> {tmp_path / 'cli'}" in out
+    cli_map = height_map.read_bytes()
+    r = call(physical=True, report_dir=tmp_path / "py", height_map=height_map)
+    assert height_map.read_bytes() == cli_map
+    assert r.report_dir == str(tmp_path / "py")
+    assert_same_files(tmp_path / "py", tmp_path / "cli",
+                      [f for f in REPORT_FILES if f != "report.html"])
+    # The page is the command line's but for how it names the inputs its
+    # advice says to give: Python's keywords, not the command line's options.
+    html = (tmp_path / "py" / "report.html").read_text()
+    cli_html = (tmp_path / "cli" / "report.html").read_text()
+    for option, keyword in [("--heights", "heights="), ("--probes", "probes="),
+                            ("--height-map", "height_map=")]:
+        cli_html = cli_html.replace(option, keyword)
+    assert html == cli_html
+    assert str(height_map) in html
+    # The next measurements the call returns head the page's.
+    assert r.physical is not None and r.physical.next_measurements
+    assert r.physical.next_measurements[0].what.split(" ")[0] in html
+    assert (r.physical.drift is not None) == (firmware == "klipper")
+    assert ("<h2>Since " in html) == (firmware == "klipper")
+
+
+def test_report_dir_needs_physical_and_is_all_or_nothing(tmp_path):
+    with pytest.raises(pkmcal.PkmcalError, match="report_dir= writes the physical model's report: add physical=True"):
+        pkmcal.reprap(*RRF, report_dir=tmp_path / "r")
+    # An output that cannot be written: the report's directory is not left
+    # behind, nor its files.
+    with pytest.raises(pkmcal.PkmcalError):
+        pkmcal.reprap(*RRF, physical=True, report_dir=tmp_path / "r",
+                      out=tmp_path / "missing" / "new.g")
+    assert not list(tmp_path.iterdir())
+    # A file where the directory would be is refused, naming it.
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(pkmcal.PkmcalError, match="not a directory|directory"):
+        pkmcal.reprap(*RRF, physical=True, report_dir=tmp_path / "f")
+    assert (tmp_path / "f").read_text() == "x"
+
+
+def klipper_with_distances(tmp_path):
+    """The Klipper example with DELTA_ANALYZE distances added to its saved
+    block: pairs of its probe points, each distance the one its configured
+    geometry predicts plus a few hundredths (the arms it does not know)."""
+    import numpy as np
+
+    from conftest import columns, read_csv
+
+    pkmcal.klipper(KLIPPER, out_dir=tmp_path / "nominal")
+    mech = pkmcal.Mechanism(tmp_path / "nominal" / "mechanism.toml")
+    commands = columns(read_csv(tmp_path / "nominal" / "probes.csv"), ["a", "b", "c"])
+    steps = [l.split("=")[1].strip() for l in KLIPPER.read_text().splitlines()
+             if re.match(r"#\*# height\d+_pos", l)]
+    assert len(steps) == len(commands)
+    x = pkmcal.predict(mech, commands).x[:, :3]
+    lines = []
+    for n, (i, j) in enumerate([(0, 1), (0, 2), (0, 3), (1, 2), (2, 3), (3, 4), (4, 5), (5, 6)]):
+        d = float(np.linalg.norm(x[i] - x[j])) + 0.01 * ((n % 3) - 1)
+        lines.append(f"#*# distance{n} = {d:.6f}\n#*# distance{n}_pos1 = {steps[i]}\n#*# distance{n}_pos2 = {steps[j]}\n")
+    cfg = tmp_path / "printer.cfg"
+    cfg.write_text(KLIPPER.read_text().rstrip("\n") + "\n" + "".join(lines))
+    return cfg
+
+
+def test_out_dir_equals_cli(cli, tmp_path):
+    """``out_dir=`` writes what ``--out-dir`` writes, byte for byte: the
+    mechanism, the probe heights, the distances (with DELTA_ANALYZE ones)
+    and the identified parameters; with ``out=`` all or nothing."""
+    cfg = klipper_with_distances(tmp_path)
+    out = cli("klipper", "--config", cfg, "--out-dir", tmp_path / "cli", "--out", tmp_path / "cli.cfg").stdout
+    assert "8 distances measured on the calibration object" in out
+    r = pkmcal.klipper(cfg, out_dir=tmp_path / "py", out=tmp_path / "py.cfg")
+    assert r.distances == 8 and r.out_dir == str(tmp_path / "py")
+    names = ["mechanism.toml", "probes.csv", "calibration.toml", "distances.csv"]
+    assert_same_files(tmp_path / "py", tmp_path / "cli", names)
+    assert (tmp_path / "py.cfg").read_bytes() == (tmp_path / "cli.cfg").read_bytes()
+    # Without distances, no distances.csv (as the command line).
+    cli("klipper", "--config", KLIPPER, "--out-dir", tmp_path / "cli2")
+    r = pkmcal.klipper(KLIPPER, out_dir=tmp_path / "py2")
+    assert_same_files(tmp_path / "py2", tmp_path / "cli2", names[:3])
+    # What it wrote is read by the other functions: with the parameters
+    # identified, the probed points (all at height 0) lie flatter than with
+    # the configuration's.
+    from conftest import columns, read_csv
+
+    mech = pkmcal.Mechanism(tmp_path / "py2" / "mechanism.toml")
+    commands = columns(read_csv(tmp_path / "py2" / "probes.csv"), ["a", "b", "c"])
+    z_before = pkmcal.predict(mech, commands).x[:, 2]
+    z_after = pkmcal.predict(mech, commands, tmp_path / "py2" / "calibration.toml").x[:, 2]
+    assert z_after.std() < 0.5 * z_before.std(), (z_before.std(), z_after.std())
+
+
+def test_out_dir_refusals_and_all_or_nothing(tmp_path):
+    with pytest.raises(pkmcal.PkmcalError, match="out_dir="):
+        pkmcal.klipper(KLIPPER, physical=True, out_dir=tmp_path / "d")
+    with pytest.raises(TypeError):
+        pkmcal.reprap(*RRF, out_dir=tmp_path / "d")  # type: ignore[call-arg]
+    with pytest.raises(pkmcal.PkmcalError):
+        pkmcal.klipper(KLIPPER, out_dir=tmp_path / "d", out=tmp_path / "missing" / "new.cfg")
+    assert not list(tmp_path.iterdir())
+
+
+def g33_lines(stdout):
+    lines = stdout.splitlines()
+    i = next(k for k, l in enumerate(lines) if l.startswith("G33 P"))
+    return lines[i:i + 5]
+
+
+@pytest.mark.parametrize("extra,kwargs", [
+    ([], {}),
+    (["--g33-points", "3", "--g33-fixed-angles", "--g33-radius", "80"],
+     {"g33_points": 3, "g33_fixed_angles": True, "g33_radius": 80.0}),
+])
+def test_marlin_g33_comparison_equals_cli(cli, extra, kwargs):
+    """The comparison with Marlin's own G33 that ``pkmcal marlin`` prints,
+    as data: the same run, the settings it would set, the height errors
+    with its values and with pkmcal's."""
+    out = cli("marlin", "--config", MARLIN[0], "--probes", MARLIN[1], *extra).stdout
+    r = pkmcal.marlin(*MARLIN, **kwargs)
+    g = r.g33
+    assert g is not None and g.run is not None and g.not_run is None
+    head, runs, m665, m666, errors = g33_lines(out)
+    assert head.startswith(f"G33 P{g.points}{'' if g.towers else ' T'} ({g.factors} factors: {g.adjusts})")
+    assert f"at radius {g.radius:.2f} mm" in head
+    assert g.radius_from == ("given" if kwargs else "farthest probed point")
+    run = g.run
+    sd = " → ".join(f"{s:.3f}" for s in run.std_devs)
+    assert runs.startswith(f"  {len(run.std_devs)} iteration{'' if len(run.std_devs) == 1 else 's'} of {run.probes} points, std dev {sd} mm")
+    assert ("rolled back to the best" in runs) == run.rolled_back
+    assert run.settings.splitlines() == [m665.strip(), m666.strip()]
+    said = (f"with G33's values: max {run.with_g33.max:.4f} mm, RMS {run.with_g33.rms:.4f} mm; "
+            f"with pkmcal's: max {run.with_pkmcal.max:.4f} mm, RMS {run.with_pkmcal.rms:.4f} mm")
+    assert said in errors, f"{said!r} not in {errors!r}"
+    # A real comparison: G33 changes the settings it calibrates.
+    assert run.settings != "\n".join(MARLIN[0].read_text().splitlines()[:2])
+    assert len(run.std_devs) >= 1 and run.probes > 0
+
+
+def test_g33_only_for_marlin_without_physical():
+    assert pkmcal.klipper(KLIPPER).g33 is None
+    assert pkmcal.reprap(*RRF).g33 is None
+    r = pkmcal.marlin(*MARLIN, physical=True)
+    assert r.g33 is None and r.physical is not None
+
+
+@pytest.mark.parametrize("kwargs,says", [
+    ({"g33_points": 0}, "g33_points=0: G33's probe points (its P) are 1 to 10"),
+    ({"g33_points": 11}, "g33_points=11"),
+    ({"g33_points": -1}, "g33_points"),
+    ({"g33_radius": 0.0}, "g33_radius: 0 mm"),
+    ({"g33_radius": float("nan")}, "g33_radius: NaN mm"),
+])
+def test_g33_choices_bounded(kwargs, says):
+    with pytest.raises(pkmcal.PkmcalError, match=re.escape(says)):
+        pkmcal.marlin(*MARLIN, **kwargs)
+
+
+@pytest.mark.parametrize("firmware", ["marlin", "marlin-physical", "klipper-physical", "rotary"])
+def test_fixed_values_have_no_sigma(cli, firmware):
+    """A value no free parameter moves has ``sigma`` None (the command line
+    says "fixed"), never 0.0; the others a σ above 0."""
+    if firmware.startswith("marlin"):
+        physical = firmware.endswith("physical")
+        out = cli("marlin", "--config", MARLIN[0], "--probes", MARLIN[1],
+                  *(["--physical"] if physical else [])).stdout
+        r = pkmcal.marlin(*MARLIN, physical=physical)
+    elif firmware == "klipper-physical":
+        out = cli("klipper", "--config", KLIPPER, "--physical").stdout
+        r = pkmcal.klipper(KLIPPER, physical=True)
+    else:
+        out = cli("klipper", "--config", ROTARY).stdout
+        r = pkmcal.klipper(ROTARY)
+    fixed = [l.split()[0:3] for l in out.splitlines() if l.rstrip().endswith(" fixed")]
+    assert fixed, out
+    for v in r.values:
+        row = next(l for l in out.splitlines() if l.startswith(f"  {v.name:<28} "))
+        assert row.rstrip().endswith(" fixed") == (v.sigma is None) == v.fixed, row
+        assert v.sigma is None or v.sigma > 0 or v.sigma != v.sigma
+    assert_values_as_cli(r, out)
+
+
+def test_outputs_never_over_inputs_or_each_other(tmp_path):
+    """As the command line refuses them, before any work: ``out=`` over
+    the configuration (or any input), two outputs on one file."""
+    cfg = tmp_path / "printer.cfg"
+    cfg.write_bytes(KLIPPER.read_bytes())
+    with pytest.raises(pkmcal.PkmcalError, match="also an input"):
+        pkmcal.klipper(cfg, out=cfg)
+    assert cfg.read_bytes() == KLIPPER.read_bytes()
+    with pytest.raises(pkmcal.PkmcalError, match="also an input"):
+        pkmcal.reprap(*RRF, out=RRF[1])
+    with pytest.raises(pkmcal.PkmcalError):
+        pkmcal.klipper(cfg, out_dir=tmp_path / "d", out=tmp_path / "d" / "mechanism.toml")
+    with pytest.raises(pkmcal.PkmcalError):
+        pkmcal.marlin(*MARLIN, physical=True, out=tmp_path / "m.g", height_map=tmp_path / "m.g")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["printer.cfg"]
+
+
+def test_g33_not_run_says_why_as_cli(cli):
+    """Where G33 cannot run (its circle out of the printer's reach), the
+    comparison says why, in the command line's words, and the values are
+    returned all the same."""
+    out = cli("marlin", "--config", MARLIN[0], "--probes", MARLIN[1], "--g33-radius", "1000").stdout
+    r = pkmcal.marlin(*MARLIN, g33_radius=1000.0)
+    g = r.g33
+    assert g is not None and g.run is None and g.not_run is not None
+    assert "out of reach" in g.not_run
+    assert f"  not run: {g.not_run}" in out.splitlines()
+    assert r.values
+
+
+def test_next_measurements_name_pythons_keywords():
+    """The advice says how to give each measurement back in Python's words
+    (``heights=``, ``probes=``), never the command line's options."""
+    for r in [pkmcal.klipper(KLIPPER, physical=True),
+              pkmcal.reprap(*RRF, physical=True),
+              pkmcal.marlin(*MARLIN, physical=True)]:
+        assert r.physical is not None
+        words = [n.what for n in r.physical.next_measurements]
+        assert words and not any("--" in w for w in words), words
+        assert any("heights=" in w for w in words), words
+    touches = [n.what for n in pkmcal.klipper(KLIPPER, physical=True).physical.next_measurements
+               if "nozzle touches" in n.what]
+    assert touches and "read back from heights= as `nozzle` rows" in touches[0]

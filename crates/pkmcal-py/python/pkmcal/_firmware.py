@@ -2,11 +2,12 @@
 :func:`reprap` and :func:`marlin` (the command line's ``pkmcal klipper``,
 ``reprap`` and ``marlin``), their options as keywords with the same
 meanings, what the command line prints returned as data. Files are written
-only where asked (``out=``, ``height_map=``), all or nothing."""
+only where asked (``out=``, ``height_map=``, ``report_dir=``, ``out_dir=``),
+all or nothing, byte for byte as the command line writes them."""
 
 import dataclasses as _dataclasses
 import os
-from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple, Union
+from typing import Any, Dict, List, Literal, Mapping, Optional, Sequence, Tuple, Union
 
 from . import _pkmcal as _ext
 
@@ -28,14 +29,20 @@ class Errors:
 @_dataclasses.dataclass(frozen=True)
 class FirmwareValue:
     """A value the firmware keeps: ``before`` (the configuration's) and
-    ``after`` (the one written), its ``sigma`` in its ``unit`` (``None``:
-    fixed; NaN: unknown)."""
+    ``after`` (the one written), its ``sigma`` in its ``unit``: ``None``
+    where the value is fixed (no free parameter moves it; the command line
+    says "fixed"), NaN where it is unknown; ``fixed`` says the same."""
 
     name: str
     before: float
     after: float
     sigma: Optional[float]
     unit: str
+
+    @property
+    def fixed(self) -> bool:
+        """No free parameter moves this value (``sigma`` is ``None``)."""
+        return self.sigma is None
 
 
 @_dataclasses.dataclass(frozen=True)
@@ -183,6 +190,45 @@ class Physical:
 
 
 @_dataclasses.dataclass(frozen=True)
+class G33Run:
+    """Marlin's G33 run on the printer the fit found: the standard
+    deviation of each iteration's heights (mm, as G33 prints them), whether
+    it ``rolled_back`` to its best iteration, the points it probed per
+    iteration (``probes``), the M665/M666 lines it would set
+    (``settings``), and the height errors at the probed points with G33's
+    values (``with_g33``) and with pkmcal's (``with_pkmcal``): the fit's
+    residuals plus the change the fitted printer predicts."""
+
+    std_devs: List[float]
+    rolled_back: bool
+    probes: int
+    settings: str
+    with_g33: Errors
+    with_pkmcal: Errors
+
+
+@_dataclasses.dataclass(frozen=True)
+class G33Comparison:
+    """Marlin's own calibration, G33, as its G33.cpp runs it on the printer
+    the fit found (``pkmcal marlin`` prints it after the values): its ``P``
+    (``points``), whether it calibrates the tower angles (``towers``: no
+    ``T``), the ``factors`` it adjusts and what they are (``adjusts``), the
+    ``radius`` it probes at (mm) and where that came from
+    (``radius_from``: ``"given"`` by ``g33_radius=``, ``"log"`` the G33 log
+    printed it, ``"M665 B"``, or ``"farthest probed point"``); what it did
+    (``run``), or why it could not run (``not_run``)."""
+
+    points: int
+    towers: bool
+    factors: int
+    adjusts: str
+    radius: float
+    radius_from: Literal["given", "log", "M665 B", "farthest probed point"]
+    run: Optional[G33Run]
+    not_run: Optional[str]
+
+
+@_dataclasses.dataclass(frozen=True)
 class FirmwareCalibration:
     """A firmware calibration: the ``firmware``, where its readings came
     from (``source``), the parameters ``free``, how the fit ended
@@ -190,8 +236,9 @@ class FirmwareCalibration:
     errors before and after (``height_errors``, ``distance_errors``:
     ``{"before": Errors, "after": Errors}``), the ``values`` written with
     their σ, the ``warnings``, the firmware's lines with the new values
-    (``updated``), the file written (``out``) and, with ``physical=True``,
-    the verdict (``physical``)."""
+    (``updated``), the files written (``out``, ``out_dir``,
+    ``report_dir``), with ``physical=True`` the verdict (``physical``) and,
+    for Marlin without it, the comparison with its own G33 (``g33``)."""
 
     firmware: str
     source: str
@@ -206,6 +253,9 @@ class FirmwareCalibration:
     physical: Optional[Physical]
     updated: str
     out: Optional[str]
+    out_dir: Optional[str]
+    report_dir: Optional[str]
+    g33: Optional[G33Comparison]
 
 
 def _errors(d: Optional[Mapping[str, Any]]) -> Optional[Dict[str, Errors]]:
@@ -261,6 +311,26 @@ def _physical(d: Optional[Mapping[str, Any]]) -> Optional[Physical]:
     )
 
 
+def _g33(d: Optional[Mapping[str, Any]]) -> Optional[G33Comparison]:
+    if d is None:
+        return None
+    run = d["run"]
+    return G33Comparison(
+        **{
+            **d,
+            "run": None
+            if run is None
+            else G33Run(
+                **{
+                    **run,
+                    "with_g33": Errors(**run["with_g33"]),
+                    "with_pkmcal": Errors(**run["with_pkmcal"]),
+                }
+            ),
+        }
+    )
+
+
 def _result(d: Mapping[str, Any]) -> FirmwareCalibration:
     return FirmwareCalibration(
         firmware=d["firmware"],
@@ -276,6 +346,9 @@ def _result(d: Mapping[str, Any]) -> FirmwareCalibration:
         physical=_physical(d["physical"]),
         updated=d["updated"],
         out=d["out"],
+        out_dir=d["out_dir"],
+        report_dir=d["report_dir"],
+        g33=_g33(d["g33"]),
     )
 
 
@@ -292,8 +365,10 @@ def klipper(
     heights: Optional[_Path] = None,
     previous: Optional[_Path] = None,
     out: Optional[_Path] = None,
+    out_dir: Optional[_Path] = None,
     height_map: Optional[_Path] = None,
     mesh_points: Optional[int] = None,
+    report_dir: Optional[_Path] = None,
 ) -> FirmwareCalibration:
     """Calibrate a Klipper delta printer (``kinematics: delta`` or
     ``rotary_delta``) from its configuration ``config`` with the probe
@@ -309,8 +384,15 @@ def klipper(
     probe touched a surface of known height, as ``--heights`` reads it),
     and write the values for the nozzle over the build volume; ``previous``: an earlier configuration, whether the printer
     changed since; ``height_map``: write what the values leave as a Klipper
-    ``[bed_mesh]`` profile (``mesh_points`` nodes across). ``out``: write
-    the configuration with the new values (never over ``config``).
+    ``[bed_mesh]`` profile (``mesh_points`` nodes across);
+    ``report_dir``: write the report for the printer's owner there
+    (report.html with its figures, as ``--report-dir``). ``out``: write
+    the configuration with the new values (never over ``config``);
+    ``out_dir`` (not with ``physical=True``): write the printer as a pkmcal
+    mechanism (mechanism.toml), its probe data (probes.csv, and
+    distances.csv with DELTA_ANALYZE distances) and the identified
+    parameters (calibration.toml) there, for the other functions. Every
+    file asked for is written, or none.
     """
     return _result(_ext.klipper(locals()))
 
@@ -329,6 +411,7 @@ def reprap(
     out: Optional[_Path] = None,
     height_map: Optional[_Path] = None,
     mesh_points: Optional[int] = None,
+    report_dir: Optional[_Path] = None,
 ) -> FirmwareCalibration:
     """Calibrate a RepRapFirmware delta printer from the M665/M666 lines of
     ``config`` (config.g or config-override.g) and the probe results
@@ -349,6 +432,8 @@ def marlin(
     m665_b: Optional[str] = None,
     probe_offset: Optional[Tuple[float, float]] = None,
     g33_radius: Optional[float] = None,
+    g33_points: int = 4,
+    g33_fixed_angles: bool = False,
     physical: bool = False,
     tolerances: _Tolerances = None,
     probe_noise: Optional[float] = None,
@@ -356,13 +441,18 @@ def marlin(
     out: Optional[_Path] = None,
     height_map: Optional[_Path] = None,
     mesh_points: Optional[int] = None,
+    report_dir: Optional[_Path] = None,
 ) -> FirmwareCalibration:
     """Calibrate a Marlin delta printer from its M503 settings ``config``
-    and a console log of probes ``probes``, as ``pkmcal marlin`` does
-    (without its comparison with G33); ``m665_b``
-    (``"calibration-radius"`` or ``"rod-trim"``), ``probe_offset`` (x, y
-    mm) and ``g33_radius`` where the files do not say; the other options as
-    :func:`klipper`'s (``height_map``: M421 lines). ``out``: write the new
-    M665 and M666 lines.
+    and a console log of probes ``probes``, as ``pkmcal marlin`` does;
+    ``m665_b`` (``"calibration-radius"`` or ``"rod-trim"``) and
+    ``probe_offset`` (x, y mm) where the files do not say; the other options
+    as :func:`klipper`'s (``height_map``: M421 lines). Without
+    ``physical=True`` the result holds the comparison with Marlin's own G33
+    (``g33``), run with ``g33_points`` probe points (its ``P``, 1 to 10),
+    without the tower angles if ``g33_fixed_angles`` (its ``T``), at
+    ``g33_radius`` (mm; by default the G33 log's, else M665 B, else the
+    farthest probed point; also where a G33 log's heights lie when it does
+    not say). ``out``: write the new M665 and M666 lines.
     """
     return _result(_ext.marlin(locals()))

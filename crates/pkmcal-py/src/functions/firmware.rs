@@ -3,24 +3,29 @@
 //! firmware reads them, its values fitted (or, with ``physical=True``, the
 //! printer as built fitted and the firmware's values chosen for the nozzle
 //! over the build volume), what the command line prints returned as data,
-//! and the files written only where asked (``out=``, ``height_map=``).
+//! and the files written only where asked (``out=``, ``height_map=``,
+//! ``report_dir=``, Klipper's ``out_dir=``), all or nothing, byte for byte
+//! as the command line writes them. Marlin's comparison with its own G33
+//! is returned as data (``g33``).
 //! `pkmcal/_api.py` turns the dict returned into its dataclasses.
 
 use crate::errors::{io_err, keyword, request_err, usage, wrong_type};
-use crate::files::{path_arg, reading, written};
+use crate::files::{check_outputs, path_arg, reading, written};
 use crate::keywords::Kw;
 use crate::request::tolerances_arg;
 use crate::threads::interruptible;
 use pkmcal::{Field, Mechanism, Params, Request};
 use pkmcal_io::firmware::choices::{self, Choices};
+use pkmcal_io::firmware::g33::{self, G33Options};
+use pkmcal_io::firmware::klipper::{DISTANCES_FILE, OUT_DIR_FILES};
 use pkmcal_io::firmware::klipper::{KlipperPrinter, Weighting};
 use pkmcal_io::firmware::klipper_rotary::{self, RotaryPrinter};
-use pkmcal_io::firmware::marlin::{LetterB, MarlinPrinter};
+use pkmcal_io::firmware::marlin::{LetterB, MarlinDelta, MarlinPrinter};
 use pkmcal_io::firmware::physical::{self, ErrorSummary, NoiseNote, ProbeNoise};
 use pkmcal_io::firmware::reprap::RrfPrinter;
 use pkmcal_io::firmware::{
-    self, Firmware, FirmwareValue, FirmwareWarning, Separation, TiltPlace, height_map,
-    physical_plan, physical_report,
+    self, Firmware, FirmwareValue, FirmwareWarning, PrinterCalibration, Separation, TiltPlace,
+    height_map, physical_plan, physical_report,
 };
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
@@ -36,6 +41,34 @@ struct Common {
     height_map: Option<PathBuf>,
     mesh_points: Option<usize>,
     heights: Option<PathBuf>,
+    report_dir: Option<PathBuf>,
+    out_dir: Option<PathBuf>,
+}
+
+impl Common {
+    /// Refuse, before any work, an output that is one of the call's
+    /// `inputs` (or the heights read) or another output, as the command
+    /// line does: `out=` is never written over the configuration.
+    fn check_paths(&self, inputs: &[&std::path::Path]) -> PyResult<()> {
+        let mut outputs: Vec<PathBuf> = self.out.iter().chain(&self.height_map).cloned().collect();
+        let mut dirs = vec![];
+        if let Some(d) = &self.report_dir {
+            outputs.extend(pkmcal_io::output::in_dir(d, physical_report::FILES).map_err(io_err)?);
+            dirs.push(d.clone());
+        }
+        if let Some(d) = &self.out_dir {
+            outputs.extend(pkmcal_io::output::in_dir(d, &OUT_DIR_FILES).map_err(io_err)?);
+            outputs.extend(pkmcal_io::output::in_dir(d, &[DISTANCES_FILE]).map_err(io_err)?);
+            dirs.push(d.clone());
+        }
+        let inputs: Vec<&std::path::Path> = inputs
+            .iter()
+            .copied()
+            .chain(self.heights.as_deref())
+            .collect();
+        let outputs: Vec<&std::path::Path> = outputs.iter().map(PathBuf::as_path).collect();
+        check_outputs(&inputs, &outputs, &dirs)
+    }
 }
 
 fn path_kw(kw: &Kw<'_>, name: &str) -> PyResult<Option<PathBuf>> {
@@ -55,6 +88,8 @@ fn common(kw: &Kw<'_>, extra: Choices) -> PyResult<Common> {
     let mesh_points = kw.count("mesh_points")?;
     let probe_noise = kw.f64("probe_noise")?;
     let heights = path_kw(kw, "heights")?;
+    let report_dir = path_kw(kw, "report_dir")?;
+    let out_dir = path_kw(kw, "out_dir")?;
     Choices {
         physical,
         tolerances: !tolerances.is_empty(),
@@ -62,6 +97,8 @@ fn common(kw: &Kw<'_>, extra: Choices) -> PyResult<Common> {
         mesh_points,
         probe_noise,
         heights: heights.is_some(),
+        report_dir: report_dir.is_some(),
+        out_dir: out_dir.is_some(),
         ..extra
     }
     .check()
@@ -83,6 +120,8 @@ fn common(kw: &Kw<'_>, extra: Choices) -> PyResult<Common> {
         height_map,
         mesh_points,
         heights,
+        report_dir,
+        out_dir,
     })
 }
 
@@ -99,6 +138,12 @@ pub fn klipper<'py>(py: Python<'py>, args: &Bound<'py, PyDict>) -> PyResult<Boun
             ..Choices::default()
         },
     )?;
+    c.check_paths(
+        &[config.as_path()]
+            .into_iter()
+            .chain(previous.as_deref())
+            .collect::<Vec<_>>(),
+    )?;
     let weighting: Weighting = match kw.str("weighting")? {
         Some(w) => w
             .parse()
@@ -109,7 +154,7 @@ pub fn klipper<'py>(py: Python<'py>, args: &Bound<'py, PyDict>) -> PyResult<Boun
         reading(|run| pkmcal_io::firmware::klipper::read_config(run, &config)).map_err(io_err)?;
     if klipper_rotary::is_rotary(&ini) {
         let printer = RotaryPrinter::from_parsed(&config, text, ini, weighting).map_err(io_err)?;
-        return result(py, &printer, &config, c, None, Some(weighting));
+        return result(py, &printer, &config, c, None, Some(weighting), no_g33);
     }
     let before = match &previous {
         Some(p) if c.physical => {
@@ -137,6 +182,7 @@ pub fn klipper<'py>(py: Python<'py>, args: &Bound<'py, PyDict>) -> PyResult<Boun
             .as_ref()
             .map(|(p, s)| (p as &dyn Firmware, s.clone())),
         Some(weighting),
+        no_g33,
     )
 }
 
@@ -147,9 +193,10 @@ pub fn reprap<'py>(py: Python<'py>, args: &Bound<'py, PyDict>) -> PyResult<Bound
     let config = path_kw(&kw, "config")?.ok_or_else(|| usage("config: a value is needed"))?;
     let probes = path_kw(&kw, "probes")?.ok_or_else(|| usage("probes: a value is needed"))?;
     let c = common(&kw, Choices::default())?;
+    c.check_paths(&[&config, &probes])?;
     let printer = reading(|run| RrfPrinter::read(run, &config, &probes, c.request.free.as_deref()))
         .map_err(io_err)?;
-    result(py, &printer, &probes, c, None, None)
+    result(py, &printer, &probes, c, None, None, no_g33)
 }
 
 /// ``marlin(config, probes, **options)``.
@@ -159,6 +206,7 @@ pub fn marlin<'py>(py: Python<'py>, args: &Bound<'py, PyDict>) -> PyResult<Bound
     let config = path_kw(&kw, "config")?.ok_or_else(|| usage("config: a value is needed"))?;
     let probes = path_kw(&kw, "probes")?.ok_or_else(|| usage("probes: a value is needed"))?;
     let c = common(&kw, Choices::default())?;
+    c.check_paths(&[&config, &probes])?;
     let letter_b: Option<LetterB> = kw
         .str("m665_b")?
         .map(|s| {
@@ -175,6 +223,26 @@ pub fn marlin<'py>(py: Python<'py>, args: &Bound<'py, PyDict>) -> PyResult<Bound
         })
         .transpose()?;
     let g33_radius = kw.f64("g33_radius")?;
+    if let Some(r) = g33_radius
+        && !(r.is_finite() && r > 0.0)
+    {
+        return Err(usage(format!(
+            "g33_radius: {r} mm: G33's calibration radius is a distance above 0"
+        )));
+    }
+    let ask = G33Ask {
+        points: match kw.count("g33_points")? {
+            None => G33_POINTS,
+            Some(p @ 1..=G33_MOST_POINTS) => p as u8,
+            Some(p) => {
+                return Err(usage(format!(
+                    "g33_points={p}: G33's probe points (its P) are 1 to {G33_MOST_POINTS}"
+                )));
+            }
+        },
+        towers: !kw.flag("g33_fixed_angles")?,
+        radius: g33_radius,
+    };
     let printer = reading(|run| {
         MarlinPrinter::read(
             run,
@@ -187,7 +255,127 @@ pub fn marlin<'py>(py: Python<'py>, args: &Bound<'py, PyDict>) -> PyResult<Bound
         )
     })
     .map_err(io_err)?;
-    result(py, &printer, &probes, c, None, None)
+    result(py, &printer, &probes, c, None, None, |py, calibrated| {
+        g33_comparison(py, &printer, calibrated, &ask).map(|d| d.into_any())
+    })
+}
+
+/// No comparison with a firmware's own calibration (Klipper's,
+/// RepRapFirmware's).
+fn no_g33<'py>(py: Python<'py>, _: &PrinterCalibration) -> PyResult<Bound<'py, PyAny>> {
+    Ok(py.None().into_bound(py))
+}
+
+/// G33's probe points by default (Marlin's
+/// DELTA_CALIBRATION_DEFAULT_POINTS), as the command line's `--g33-points`.
+const G33_POINTS: u8 = 4;
+/// The most probe points G33 takes (its `P`).
+const G33_MOST_POINTS: usize = 10;
+
+/// What Marlin's G33 is run with for the comparison: its `P`
+/// (``g33_points``), its tower angles or not (``g33_fixed_angles``: `T`),
+/// and the radius given (``g33_radius``).
+struct G33Ask {
+    points: u8,
+    towers: bool,
+    radius: Option<f64>,
+}
+
+/// Marlin's own G33, as its G33.cpp runs it, on the printer the fit found,
+/// against pkmcal's values: what the command line prints after the values
+/// (`pkmcal marlin`), as data. Where G33 cannot run, `not_run` says why.
+fn g33_comparison<'py>(
+    py: Python<'py>,
+    printer: &MarlinPrinter,
+    calibrated: &PrinterCalibration,
+    ask: &G33Ask,
+) -> PyResult<Bound<'py, PyDict>> {
+    let cal = calibrated.calibration();
+    let mech = &calibrated.mech;
+    let spec = mech.spec();
+    let measurement = &calibrated.readings.measurement;
+    let new = printer
+        .delta()
+        .identified(spec, &cal.params)
+        .map_err(io_err)?;
+    let (radius, whence) = match (ask.radius, printer.log.g33_radius, printer.delta()) {
+        (Some(r), _, _) => (r, "given"),
+        (None, Some(r), _) => (r, "log"),
+        (
+            None,
+            None,
+            MarlinDelta {
+                calibration_radius: Some(r),
+                letter_b: Some(LetterB::CalibrationRadius),
+                ..
+            },
+        ) => (*r, "M665 B"),
+        _ => (printer.probe_radius(), "farthest probed point"),
+    };
+    let opts = G33Options {
+        points: ask.points,
+        towers: ask.towers,
+        radius,
+        precision: 0.0,
+        force: 0,
+    };
+    let (factors, adjusts) = opts.factors();
+    let probe = |s: &MarlinDelta, xy: [f64; 2]| {
+        printer.probe_as(s, xy, mech, measurement, &cal.params, &cal.measurement)
+    };
+    let run = g33::run(printer.delta(), &opts, &mut |s, xy| probe(s, xy));
+    // The fit's residuals at the probed points.
+    let residuals = firmware::probe_errors(
+        mech,
+        measurement,
+        &cal.params,
+        &cal.measurement,
+        &calibrated.readings.poses,
+    )
+    .map_err(io_err)?;
+    let compared = run.and_then(|g| {
+        // The heights the probe would report at the points probed, with
+        // G33's settings and with pkmcal's: the fitted printer's, plus what
+        // it left unexplained there.
+        let at = |s: &MarlinDelta| -> pkmcal_io::Result<Vec<f64>> {
+            printer
+                .log
+                .points
+                .iter()
+                .zip(&residuals)
+                .map(|(p, e)| {
+                    let n = printer.nozzle(p);
+                    Ok(probe(s, [n[0], n[1]])? + e)
+                })
+                .collect()
+        };
+        Ok((at(&g.settings)?, at(&new)?, g))
+    });
+    let d = PyDict::new(py);
+    d.set_item("points", opts.points)?;
+    d.set_item("towers", opts.towers)?;
+    d.set_item("factors", factors)?;
+    d.set_item("adjusts", adjusts)?;
+    d.set_item("radius", radius)?;
+    d.set_item("radius_from", whence)?;
+    match compared {
+        Ok((with_g33, with_new, g)) => {
+            let r = PyDict::new(py);
+            r.set_item("std_devs", g.std_devs.clone())?;
+            r.set_item("rolled_back", g.rolled_back)?;
+            r.set_item("probes", g.probes)?;
+            r.set_item("settings", g.settings.gcode())?;
+            r.set_item("with_g33", figures(py, &with_g33)?)?;
+            r.set_item("with_pkmcal", figures(py, &with_new)?)?;
+            d.set_item("run", r)?;
+            d.set_item("not_run", py.None())?;
+        }
+        Err(e) => {
+            d.set_item("run", py.None())?;
+            d.set_item("not_run", crate::errors::io_words(&e))?;
+        }
+    }
+    Ok(d)
 }
 
 fn max_abs(v: &[f64]) -> f64 {
@@ -213,7 +401,10 @@ fn value_dicts<'py>(py: Python<'py>, values: &[FirmwareValue]) -> PyResult<Bound
         d.set_item("name", &v.name)?;
         d.set_item("before", v.before)?;
         d.set_item("after", v.after)?;
-        d.set_item("sigma", v.sigma)?;
+        // As the command line shows it: a σ above 0 is the value's, NaN
+        // unknown; a value no free parameter moves (σ 0, or none) is fixed:
+        // None.
+        d.set_item("sigma", v.sigma.filter(|s| *s > 0.0 || s.is_nan()))?;
         d.set_item("unit", v.unit)?;
         l.append(d)?;
     }
@@ -333,6 +524,10 @@ fn noise_note<'py>(py: Python<'py>, n: &NoiseNote) -> PyResult<Bound<'py, PyDict
     Ok(d)
 }
 
+/// The next measurements the report lists, as the command line's
+/// (`physical_outputs::SUGGESTIONS`).
+const REPORT_SUGGESTIONS: usize = 3;
+
 /// Run the calibration as the call asks and return what it found.
 fn result<'py, F: Firmware + Sync>(
     py: Python<'py>,
@@ -341,11 +536,14 @@ fn result<'py, F: Firmware + Sync>(
     c: Common,
     previous: Option<(&dyn Firmware, String)>,
     weighting: Option<Weighting>,
+    compare: impl FnOnce(Python<'py>, &PrinterCalibration) -> PyResult<Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("firmware", printer.name())?;
     d.set_item("source", source.display().to_string())?;
     if c.physical {
+        d.set_item("g33", py.None())?;
+        d.set_item("out_dir", py.None())?;
         return physical_result(py, d, printer, source, c, previous);
     }
     let request = c.request.clone();
@@ -408,21 +606,25 @@ fn result<'py, F: Firmware + Sync>(
         }
         _ => d.set_item("distance_errors", py.None())?,
     }
-    let written = firmware::written(printer, &calibrated).map_err(io_err)?;
-    d.set_item("values", value_dicts(py, &written.values)?)?;
+    let values = firmware::written(printer, &calibrated).map_err(io_err)?;
+    d.set_item("values", value_dicts(py, &values.values)?)?;
     let warnings = PyList::empty(py);
     for w in &cal.warnings {
         warnings.append(calibration_warning(py, w)?)?;
     }
-    for w in firmware::checks(printer, &calibrated, &written, c.max_sigma).map_err(io_err)? {
+    for w in firmware::checks(printer, &calibrated, &values, c.max_sigma).map_err(io_err)? {
         warnings.append(firmware_warning(py, &w)?)?;
     }
     d.set_item("warnings", warnings)?;
     d.set_item("physical", py.None())?;
+    d.set_item("report_dir", py.None())?;
+    d.set_item("g33", compare(py, &calibrated)?)?;
     let text = printer
         .updated(spec, &cal.params, &cal.measurement)
         .map_err(io_err)?;
     d.set_item("updated", &text)?;
+    // Every file asked for is written together, or none (all or nothing).
+    let mut outputs: Vec<(PathBuf, Vec<u8>)> = vec![];
     if let Some(out) = &c.out {
         let text = firmware::out_file(
             printer,
@@ -431,14 +633,92 @@ fn result<'py, F: Firmware + Sync>(
             calibrated.study.accuracy.poses,
             false,
         );
-        written_file(out, &text)?;
+        outputs.push((out.clone(), text.into_bytes()));
     }
+    if let Some(dir) = &c.out_dir {
+        outputs.extend(out_dir_files(printer, &calibrated, source, dir));
+    }
+    written(|run| {
+        // (Checked before any work: check_paths.)
+        if let Some(dir) = &c.out_dir {
+            run.files.create_dir(dir)?;
+        }
+        outputs
+            .iter()
+            .try_for_each(|(path, bytes)| run.files.stage(path, bytes))
+    })?;
     d.set_item("out", c.out.as_ref().map(|p| p.display().to_string()))?;
+    d.set_item(
+        "out_dir",
+        c.out_dir.as_ref().map(|p| p.display().to_string()),
+    )?;
     Ok(d)
 }
 
-fn written_file(path: &std::path::Path, text: &str) -> PyResult<()> {
-    written(|run| run.files.stage(path, text.as_bytes()))
+/// The files of ``out_dir=`` (the command line's `--out-dir` of `pkmcal
+/// klipper`): the printer as a pkmcal mechanism, its probe heights (and
+/// distances) as data files, the identified parameters; as the command
+/// line writes them, for the other calls.
+fn out_dir_files<F: Firmware>(
+    printer: &F,
+    calibrated: &PrinterCalibration,
+    config: &std::path::Path,
+    dir: &std::path::Path,
+) -> Vec<(PathBuf, Vec<u8>)> {
+    use std::fmt::Write as _;
+    let spec = calibrated.mech.spec();
+    let readings = &calibrated.readings;
+    let names = spec.actuated_names();
+    let mut csv = format!("# frame: base\n{},probe\n", names.join(","));
+    for m in &readings.poses {
+        let _ = writeln!(
+            csv,
+            "{:?},{:?},{:?},{:?}",
+            m.commands[0], m.commands[1], m.commands[2], m.measured[0]
+        );
+    }
+    let [m_file, d_file, p_file] = OUT_DIR_FILES;
+    let mut files = vec![
+        (dir.join(m_file), printer.description().into_bytes()),
+        (dir.join(d_file), csv.into_bytes()),
+    ];
+    if !readings.distances.is_empty() {
+        let mut csv = format!(
+            "{},{},distance\n",
+            names
+                .iter()
+                .map(|n| format!("{n}_1"))
+                .collect::<Vec<_>>()
+                .join(","),
+            names
+                .iter()
+                .map(|n| format!("{n}_2"))
+                .collect::<Vec<_>>()
+                .join(",")
+        );
+        for m in &readings.distances {
+            let b = m.partner.as_deref().unwrap_or_default();
+            let _ = writeln!(
+                csv,
+                "{:?},{:?},{:?},{:?},{:?},{:?},{:?}",
+                m.commands[0], m.commands[1], m.commands[2], b[0], b[1], b[2], m.measured[0]
+            );
+        }
+        files.push((dir.join(DISTANCES_FILE), csv.into_bytes()));
+    }
+    files.push((
+        dir.join(p_file),
+        pkmcal_io::params::params_to_string(
+            spec,
+            &calibrated.calibration().params,
+            &format!(
+                "pkmcal klipper: identified from the probe heights of {}",
+                config.display()
+            ),
+        )
+        .into_bytes(),
+    ));
+    files
 }
 
 fn physical_result<'py, F: Firmware + Sync>(
@@ -555,28 +835,27 @@ fn physical_result<'py, F: Firmware + Sync>(
     let next = PyList::empty(py);
     // As the command line does: where the candidates cannot be scored, the
     // values are written all the same, with no suggestion.
-    if let Ok(list) = physical_plan::suggest(fit, &assessed.fw_mech, &proj.params, fw_bed, klipper)
-    {
-        for s in &list {
-            let x = PyDict::new(py);
-            x.set_item(
-                "what",
-                physical_report::measurement_words(
-                    &s.extra,
-                    printer.flavour(),
-                    fit.delta.probe_offset,
-                    &crate::results::calibration::PY_WORDING,
-                ),
-            )?;
-            let (before, after) = s.largest();
-            x.set_item("largest_before", before)?;
-            x.set_item("largest_after", after)?;
-            x.set_item("variance_removed", s.variance_removed())?;
-            next.append(x)?;
-        }
+    let suggestions = physical_plan::suggest(fit, &assessed.fw_mech, &proj.params, fw_bed, klipper)
+        .unwrap_or_default();
+    for s in &suggestions {
+        let x = PyDict::new(py);
+        x.set_item(
+            "what",
+            physical_report::measurement_words(
+                &s.extra,
+                printer.flavour(),
+                fit.delta.probe_offset,
+                &crate::results::calibration::PY_WORDING,
+            ),
+        )?;
+        let (before, after) = s.largest();
+        x.set_item("largest_before", before)?;
+        x.set_item("largest_after", after)?;
+        x.set_item("variance_removed", s.variance_removed())?;
+        next.append(x)?;
     }
     p.set_item("next_measurements", next)?;
-    match previous {
+    let drift = match previous {
         Some((prev, from)) => {
             let before =
                 firmware::calibrate(prev, Request::new(pkmcal::Model::Exact)).map_err(io_err)?;
@@ -587,7 +866,7 @@ fn physical_result<'py, F: Firmware + Sync>(
             )
             .map_err(io_err)?;
             let x = PyDict::new(py);
-            x.set_item("previous", from)?;
+            x.set_item("previous", &from)?;
             x.set_item("changed", dr.joint_drift)?;
             x.set_item("chi2", dr.chi2)?;
             x.set_item("dof", dr.dof)?;
@@ -605,12 +884,16 @@ fn physical_result<'py, F: Firmware + Sync>(
             x.set_item("parameters", params)?;
             x.set_item("untested", dr.untested.clone())?;
             p.set_item("drift", x)?;
+            Some((from, dr))
         }
-        None => p.set_item("drift", py.None())?,
-    }
+        None => {
+            p.set_item("drift", py.None())?;
+            None
+        }
+    };
     let src = source.display().to_string();
     // Every file asked for is written together, or none (all or nothing).
-    let mut outputs: Vec<(PathBuf, String)> = vec![];
+    let mut outputs: Vec<(PathBuf, Vec<u8>)> = vec![];
     match &c.height_map {
         Some(path) => {
             let Some(map) = height_map::for_printer(
@@ -629,7 +912,7 @@ fn physical_result<'py, F: Firmware + Sync>(
                     printer.name()
                 )));
             };
-            outputs.push((path.clone(), map.text.clone()));
+            outputs.push((path.clone(), map.text.clone().into_bytes()));
             let v = map.map.values();
             let x = PyDict::new(py);
             x.set_item("path", path.display().to_string())?;
@@ -666,13 +949,53 @@ fn physical_result<'py, F: Firmware + Sync>(
             assessed.own.readings.poses.len(),
             true,
         );
-        outputs.push((out.clone(), text));
+        outputs.push((out.clone(), text.into_bytes()));
     }
+    // The report for the printer's owner, as `--report-dir` writes it: its
+    // page built from what is above (the command line lists as many next
+    // measurements).
+    let report = match &c.report_dir {
+        Some(dir) => {
+            let (own, fw_mech, values) = (&assessed.own, &assessed.fw_mech, &assessed.values);
+            let (before, cubes) = (assessed.before, &assessed.cubes);
+            let (suggestions, height_map) = (&suggestions, c.height_map.as_deref());
+            let page = interruptible(py, |_cancel| {
+                physical_report::Page::build(&physical_report::Inputs {
+                    printer,
+                    source: &src,
+                    own,
+                    fit,
+                    fw_mech,
+                    projection: proj,
+                    values,
+                    projected: (choice.projected.summary, choice.projection_written),
+                    before: [before, choice.own.summary],
+                    cubes,
+                    suggestions,
+                    shown: REPORT_SUGGESTIONS,
+                    drift,
+                    mesh_points: c.mesh_points,
+                    height_map,
+                    wording: &crate::results::calibration::PY_WORDING,
+                })
+            })?
+            .map_err(io_err)?;
+            Some((dir.clone(), page))
+        }
+        None => None,
+    };
     written(|run| {
+        if let Some((dir, page)) = &report {
+            physical_report::write_report_dir(run, dir, page)?;
+        }
         outputs
             .iter()
-            .try_for_each(|(path, text)| run.files.stage(path, text.as_bytes()))
+            .try_for_each(|(path, bytes)| run.files.stage(path, bytes))
     })?;
     d.set_item("out", c.out.as_ref().map(|p| p.display().to_string()))?;
+    d.set_item(
+        "report_dir",
+        c.report_dir.as_ref().map(|p| p.display().to_string()),
+    )?;
     Ok(d)
 }
