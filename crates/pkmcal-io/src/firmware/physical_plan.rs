@@ -197,6 +197,20 @@ impl Quantities<'_> {
             )?;
             out.extend([size[0], size[1], flat]);
         }
+        // The tool's error (x, y, z over the bed) at each target the
+        // firmware's values send it to.
+        let errors = |tool: [f64; 3], targets: &[[f64; 3]]| {
+            physical::nozzle_errors(
+                self.fw_mech,
+                self.fw_params,
+                self.fw_bed,
+                &fit.mech,
+                params,
+                bed,
+                tool,
+                targets,
+            )
+        };
         // A probe reading: the probe's height over the bed with the nozzle
         // sent to put it at the point (the probe is the effector frame's
         // origin).
@@ -211,46 +225,22 @@ impl Quantities<'_> {
                     .map(|p| [p[0] - o[0], p[1] - o[1], GAUGE_BLOCK_MM]),
             )
             .collect();
-        let probe = physical::nozzle_errors(
-            self.fw_mech,
-            self.fw_params,
-            self.fw_bed,
-            &fit.mech,
-            params,
-            bed,
-            [0.0, 0.0, 0.0],
-            &probe_targets,
-        )?;
-        out.extend(probe.iter().map(|e| e[2]));
+        out.extend(errors([0.0; 3], &probe_targets)?.iter().map(|e| e[2]));
         // A nozzle touch: the nozzle's height over the bed where the
-        // firmware puts it at z = 0.
-        let touch_targets: Vec<[f64; 3]> = self.touches.iter().map(|p| [p[0], p[1], 0.0]).collect();
-        let touch = physical::nozzle_errors(
-            self.fw_mech,
-            self.fw_params,
-            self.fw_bed,
-            &fit.mech,
-            params,
-            bed,
-            fit.delta.nozzle(),
-            &touch_targets,
-        )?;
-        out.extend(touch.iter().map(|e| e[2]));
-        let ends: Vec<[f64; 3]> = self
-            .pairs
+        // firmware puts it at z = 0; then the object's distances' ends.
+        let nozzle_targets: Vec<[f64; 3]> = self
+            .touches
             .iter()
-            .flat_map(|(a, b)| [[a[0], a[1], 0.0], [b[0], b[1], 0.0]])
+            .map(|p| [p[0], p[1], 0.0])
+            .chain(
+                self.pairs
+                    .iter()
+                    .flat_map(|(a, b)| [[a[0], a[1], 0.0], [b[0], b[1], 0.0]]),
+            )
             .collect();
-        let e = physical::nozzle_errors(
-            self.fw_mech,
-            self.fw_params,
-            self.fw_bed,
-            &fit.mech,
-            params,
-            bed,
-            fit.delta.nozzle(),
-            &ends,
-        )?;
+        let nozzle = errors(fit.delta.nozzle(), &nozzle_targets)?;
+        let (touch, e) = nozzle.split_at(self.touches.len());
+        out.extend(touch.iter().map(|e| e[2]));
         for (k, pair) in e.chunks(2).enumerate() {
             let (a, b) = self.pairs[k];
             let pa = [a[0] + pair[0][0], a[1] + pair[0][1]];
