@@ -154,9 +154,11 @@ impl FirstOrder {
     fn start(&self, from: &[f64], delta: &[f64], out: &mut Vec<f64>) {
         out.clear();
         out.extend_from_slice(from);
-        for (c, d) in delta.iter().enumerate() {
+        // (Over the column-major storage: a column per parameter.)
+        let rows = self.dq.nrows().max(1);
+        for (column, d) in self.dq.as_slice().chunks_exact(rows).zip(delta) {
             if *d != 0.0 {
-                for (o, v) in out.iter_mut().zip(self.dq.column(c).iter()) {
+                for (o, v) in out.iter_mut().zip(column) {
                     *o += v * d;
                 }
             }
