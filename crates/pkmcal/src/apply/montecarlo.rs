@@ -2,8 +2,9 @@
 //! random parameter errors and measurement noise, simulated measurements,
 //! calibration, and the resulting accuracy on unseen poses and parameters.
 
-use crate::apply::simulate::{measure, noise_normals, prepare_target};
-use crate::engine::models::{Model, Pose, predict_pose, predict_pose_near};
+use crate::apply::simulate::{noise_normals, prepare_target, reading};
+use crate::engine::models::{Model, Pose, Prediction, predict_pose, predict_pose_near};
+use crate::engine::sensitivity::joint_sensitivity;
 use crate::error::Result;
 use crate::identify::stats::{ErrorStats, error_stats};
 use crate::identify::{CalibrationOptions, PoseCache, Prior, calibrate_with_cache};
@@ -11,6 +12,7 @@ use crate::measurement::MeasurementModel;
 use crate::measurement::data::Noise;
 use crate::mechanism::{Mechanism, Params};
 use crate::units::{ParamKind, Unit};
+use nalgebra::DMatrix;
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 use rand_distr::{Distribution, Normal};
@@ -128,6 +130,63 @@ impl MonteCarloOptions {
     }
 }
 
+/// The first-order prediction of the exact model's equilibrium at a pose
+/// for parameters near nominal: the nominal one and its `∂q/∂p`
+/// ([`joint_sensitivity`]).
+struct FirstOrder {
+    /// `∂q/∂p` at nominal parameters (joints × parameters).
+    dq: DMatrix<f64>,
+    /// The nominal equilibrium's joints.
+    q: Vec<f64>,
+}
+
+impl FirstOrder {
+    /// At `pose` with `nominal` parameters, unloaded; `None` where the
+    /// exact model is not what computes or its derivative is singular
+    /// (the truth's equilibria then start from the nominal configuration).
+    fn at_nominal<M: Mechanism>(mech: &M, pose: &Pose, nominal: &Params) -> Option<Self> {
+        let p = predict_pose(mech, pose, nominal, Model::Exact, &[]).ok()?;
+        let dq = joint_sensitivity(mech, pose, nominal, &[], &p)?;
+        Some(Self { dq, q: p.q })
+    }
+
+    /// `from + ∂q/∂p · delta` into `out`.
+    fn start(&self, from: &[f64], delta: &[f64], out: &mut Vec<f64>) {
+        out.clear();
+        out.extend_from_slice(from);
+        // (Over the column-major storage: a column per parameter.)
+        let rows = self.dq.nrows().max(1);
+        for (column, d) in self.dq.as_slice().chunks_exact(rows).zip(delta) {
+            if *d != 0.0 {
+                for (o, v) in out.iter_mut().zip(column) {
+                    *o += v * d;
+                }
+            }
+        }
+    }
+}
+
+/// The truth's exact prediction at `pose`, its equilibrium started from
+/// the first-order prediction for the parameters' `error` from nominal
+/// (else from the nominal configuration, as `predict_pose`). `start` is a
+/// buffer.
+fn truth_at<M: Mechanism>(
+    mech: &M,
+    pose: &Pose,
+    truth: &Params,
+    first: Option<&FirstOrder>,
+    error: &[f64],
+    start: &mut Vec<f64>,
+) -> Result<Prediction> {
+    match first {
+        Some(f) => {
+            f.start(&f.q, error, start);
+            predict_pose_near(mech, pose, truth, Model::Exact, &[], start)
+        }
+        None => predict_pose(mech, pose, truth, Model::Exact, &[]),
+    }
+}
+
 pub fn monte_carlo<M: Mechanism>(
     mech: &M,
     poses: &[Vec<f64>],
@@ -150,13 +209,24 @@ pub fn monte_carlo<M: Mechanism>(
     // Every run measures the same commands and judges on the same unseen
     // ones: their poses are prepared once (nominal forward kinematics,
     // joint Hessians), and the calibrations share them.
-    let training: Vec<(Vec<f64>, Pose)> = poses
+    // With each, the first-order prediction of an equilibrium there, which
+    // starts the truth's (a run's truth is a parameter error away from
+    // nominal, its calibration a calibration's error from the truth).
+    let training: Vec<(Vec<f64>, Pose, Option<FirstOrder>)> = poses
         .par_iter()
-        .map(|t| prepare_target(mech, t))
+        .map(|t| {
+            let (commands, pose) = prepare_target(mech, t)?;
+            let first = FirstOrder::at_nominal(mech, &pose, &nominal);
+            Ok((commands, pose, first))
+        })
         .collect::<Result<_>>()?;
-    let unseen: Vec<Pose> = validation
+    let unseen: Vec<(Pose, Option<FirstOrder>)> = validation
         .par_iter()
-        .map(|t| prepare_target(mech, t).map(|(_, pose)| pose))
+        .map(|t| {
+            let (_, pose) = prepare_target(mech, t)?;
+            let first = FirstOrder::at_nominal(mech, &pose, &nominal);
+            Ok((pose, first))
+        })
         .collect::<Result<_>>()?;
     let normals = noise_normals(&tool, opts.noise)?;
     let cache = PoseCache::default();
@@ -189,24 +259,46 @@ pub fn monte_carlo<M: Mechanism>(
         }
         // The measurements `simulate` draws with this seed.
         let mut noise = StdRng::seed_from_u64(seed ^ 0x9e37_79b9);
+        let error: Vec<f64> = truth
+            .values
+            .iter()
+            .zip(&nominal.values)
+            .map(|(t, n)| t - n)
+            .collect();
+        let mut start = vec![];
         let data = training
             .iter()
             .zip(poses)
-            .map(|((commands, pose), target)| {
+            .map(|((commands, pose, first), target)| {
+                let p = truth_at(mech, pose, &truth, first.as_ref(), &error, &mut start)?;
                 let c = commands.clone();
-                measure(mech, &tool, &truth, target, c, pose, &normals, &mut noise)
+                Ok(reading(&tool, target, c, &p, &normals, &mut noise))
             })
             .collect::<Result<Vec<_>>>()?;
         let cal = calibrate_with_cache(mech, &tool, &data, &nominal, &opts.calibration, &cache)?;
         // Accuracy on the unseen poses: the truth's exact prediction
         // (noise-free) minus the calibrated model's, in the base frame.
+        // The calibration's error, for the first-order start of its
+        // predictions from the truth's.
+        let missed: Vec<f64> = cal
+            .params
+            .values
+            .iter()
+            .zip(&truth.values)
+            .map(|(c, t)| c - t)
+            .collect();
         let errors = unseen
             .iter()
-            .map(|pose| {
-                let t = predict_pose(mech, pose, &truth, Model::Exact, &[])?;
-                // From the truth's equilibrium: the calibrated parameters
-                // are micrometres from the true ones.
-                let c = predict_pose_near(mech, pose, &cal.params, cal.model, &[], &t)?.x;
+            .map(|(pose, first)| {
+                let t = truth_at(mech, pose, &truth, first.as_ref(), &error, &mut start)?;
+                // From the truth's equilibrium, moved by the first-order
+                // change: the calibrated parameters are micrometres from
+                // the true ones.
+                match first {
+                    Some(f) => f.start(&t.q, &missed, &mut start),
+                    None => start.clone_from(&t.q),
+                }
+                let c = predict_pose_near(mech, pose, &cal.params, cal.model, &[], &start)?.x;
                 let t = t.x;
                 Ok(t.iter().zip(&c).map(|(a, b)| a - b).collect())
             })

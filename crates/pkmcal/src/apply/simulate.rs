@@ -156,6 +156,19 @@ pub(crate) fn measure<M: Mechanism>(
     rng: &mut StdRng,
 ) -> Result<Measurement> {
     let p = predict_pose(mech, pose, truth, Model::Exact, &[])?;
+    Ok(reading(measurement, target, commands, &p, normals, rng))
+}
+
+/// The simulated reading of the truth's prediction `p` at a target: `p`
+/// observed by `measurement`, plus one draw of each axis' noise.
+pub(crate) fn reading(
+    measurement: &MeasurementModel,
+    target: &[f64],
+    commands: Vec<f64>,
+    p: &crate::engine::models::Prediction,
+    normals: &[Normal<f64>],
+    rng: &mut StdRng,
+) -> Measurement {
     let mut read = vec![0.0; measurement.len()];
     measurement.observe(&p.x, measurement.nominal(), &mut read);
     let measured = read
@@ -163,12 +176,12 @@ pub(crate) fn measure<M: Mechanism>(
         .zip(normals)
         .map(|(y, n)| y + n.sample(rng))
         .collect();
-    Ok(Measurement {
+    Measurement {
         target: Some(target.to_vec()),
         commands,
         measured,
         ..Default::default()
-    })
+    }
 }
 
 /// Simulated distances between pairs of poses (a printed object or a gauge

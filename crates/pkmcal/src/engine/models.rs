@@ -92,11 +92,21 @@ pub struct Pose {
     /// reports before calibration make it once ([`Pose::predict_at_nominal`]).
     at_nominal: OnceLock<Box<(Model, Vec<f64>, Prediction)>>,
     /// The sensitivity at nominal parameters, with the model and load it
-    /// was computed for ([`Pose::sensitivity_at_nominal`]): every fit that
-    /// starts at nominal parameters (each run of a Monte Carlo study)
+    /// was computed for ([`Pose::tool_sensitivity_at_nominal`]): every fit
+    /// that starts at nominal parameters (each run of a Monte Carlo study)
     /// computes the same Jacobian there.
-    sensitivity_at_nominal:
-        OnceLock<Box<(Model, Vec<f64>, crate::engine::sensitivity::Sensitivity)>>,
+    sensitivity_at_nominal: OnceLock<Box<KeptSensitivity>>,
+}
+
+/// The derivatives a pose keeps at nominal parameters
+/// ([`Pose::tool_sensitivity_at_nominal`]) and what they were computed for.
+#[derive(Debug, Clone)]
+struct KeptSensitivity {
+    model: Model,
+    force: Vec<f64>,
+    prediction: Prediction,
+    /// `∂x/∂p`.
+    tool: DMatrix<f64>,
 }
 
 impl Pose {
@@ -126,36 +136,42 @@ impl Pose {
         Ok(p)
     }
 
-    /// [`crate::engine::sensitivity::sensitivity_at`] at nominal parameters
-    /// `nominal` (the caller's, equal to `Params::nominal`) for
+    /// [`crate::engine::sensitivity::tool_sensitivity`] at nominal
+    /// parameters `nominal` (the caller's, equal to `Params::nominal`) for
     /// `prediction`: the one kept for this model and load when it was
     /// computed for the same prediction (then the same, bit for bit, as it
     /// is a function of them alone), else computed (and kept if it is the
     /// first).
-    pub(crate) fn sensitivity_at_nominal<M: Mechanism>(
+    pub(crate) fn tool_sensitivity_at_nominal<M: Mechanism>(
         &self,
         mech: &M,
         nominal: &Params,
         model: Model,
         force: &[f64],
-        prediction: Prediction,
-    ) -> Result<crate::engine::sensitivity::Sensitivity> {
+        prediction: &Prediction,
+    ) -> Result<DMatrix<f64>> {
         debug_assert_eq!(nominal.values, mech.spec().nominal);
-        if let Some((m, f, s)) = self.sensitivity_at_nominal.get().map(|b| &**b)
-            && *m == model
-            && f == force
-            && s.prediction.same_bits(&prediction)
+        let kept = self.sensitivity_at_nominal.get().map(|b| &**b);
+        if let Some(k) = kept
+            && k.model == model
+            && k.force == force
+            && k.prediction.same_bits(prediction)
         {
-            return Ok(s.clone());
+            return Ok(k.tool.clone());
         }
-        let s = crate::engine::sensitivity::sensitivity_at(
+        let tool = crate::engine::sensitivity::tool_sensitivity(
             mech, self, nominal, model, force, prediction,
         )?;
-        // (Another thread may have kept its own, the same, first.)
-        let _ = self
-            .sensitivity_at_nominal
-            .set(Box::new((model, force.to_vec(), s.clone())));
-        Ok(s)
+        if kept.is_none() {
+            // (Another thread may have kept its own, the same, first.)
+            let _ = self.sensitivity_at_nominal.set(Box::new(KeptSensitivity {
+                model,
+                force: force.to_vec(),
+                prediction: prediction.clone(),
+                tool: tool.clone(),
+            }));
+        }
+        Ok(tool)
     }
 
     /// Φ, J_p, Γ, H, J_f at the nominal configuration (eq. 4–7, 9), the
@@ -725,24 +741,24 @@ pub fn predict_pose_warm<M: Mechanism>(
 /// by far less, and another assembly mode is tenths of a radian away.
 pub(crate) const NEAR_TURN: f64 = PLAUSIBLE_MISMATCH;
 
-/// [`predict_pose`] for parameters near those of `near`, a prediction at
-/// the same pose (e.g. the true parameters' where `params` are calibrated
-/// ones): Newton starts from its joints, and its answer is taken when it
-/// converged within [`NEAR_TURN`] of them (the same assembly mode); else
-/// the prediction is made from the nominal configuration as
-/// `predict_pose` makes it. Converged to the same tolerances as
-/// `predict_pose`'s; the last bits may differ (another start).
+/// [`predict_pose`] from `start`, joints near the answer (e.g. the true
+/// parameters' equilibrium at the same pose where `params` are calibrated
+/// ones, or a first-order prediction): Newton starts there, and its answer
+/// is taken when it converged within [`NEAR_TURN`] of it (the same
+/// assembly mode); else the prediction is made from the nominal
+/// configuration as `predict_pose` makes it. Converged to the same
+/// tolerances as `predict_pose`'s; the last bits may differ (another
+/// start).
 pub(crate) fn predict_pose_near<M: Mechanism>(
     mech: &M,
     pose: &Pose,
     params: &Params,
     model: Model,
     force: &[f64],
-    near: &Prediction,
+    start: &[f64],
 ) -> Result<Prediction> {
     let spec = mech.spec();
     let f = effective_force(mech, pose, force)?;
-    let start = near.q.as_slice();
     let warm = match effective_model(spec, model, &f) {
         Model::Exact => exact_from(mech, pose, params, &f, start).ok(),
         Model::Rigid => rigid_from(mech, pose, params, start).ok(),
@@ -766,12 +782,18 @@ pub(crate) fn effective_force<M: Mechanism>(
     mech: &M,
     pose: &Pose,
     force: &[f64],
-) -> Result<Vec<f64>> {
+) -> Result<std::borrow::Cow<'static, [f64]>> {
     let spec = mech.spec();
     let nx = spec.tool_axes.len();
     if force.is_empty() || force.iter().all(|f| *f == 0.0) {
         check_load(spec, force)?;
-        return Ok(vec![0.0; nx]);
+        // (No load: zeros, borrowed where there are few enough, as on
+        // every mechanism today: nothing allocated for each prediction.)
+        const NO_LOAD: [f64; 8] = [0.0; 8];
+        return Ok(match NO_LOAD.get(..nx) {
+            Some(zeros) => std::borrow::Cow::Borrowed(zeros),
+            None => std::borrow::Cow::Owned(vec![0.0; nx]),
+        });
     }
     check_load(spec, force)?;
     let x = jacobians(
@@ -781,10 +803,8 @@ pub(crate) fn effective_force<M: Mechanism>(
         0..0,
     )
     .x;
-    Ok(crate::engine::load::generalized_forces(
-        spec.tool_layout,
-        &x,
-        force,
+    Ok(std::borrow::Cow::Owned(
+        crate::engine::load::generalized_forces(spec.tool_layout, &x, force),
     ))
 }
 
@@ -1263,7 +1283,7 @@ mod tests {
             ) else {
                 continue;
             };
-            let warm = predict_pose_near(mech, &pose, &cal, Model::Exact, &[], &t).unwrap();
+            let warm = predict_pose_near(mech, &pose, &cal, Model::Exact, &[], &t.q).unwrap();
             let far = |a: &[f64], b: &[f64]| {
                 a.iter()
                     .zip(b)
@@ -1276,7 +1296,7 @@ mod tests {
             // neighbourhood) is refused or lands on the cold answer.
             let mut other = t.clone();
             other.q.iter_mut().for_each(|q| *q += 1.0);
-            let p = predict_pose_near(mech, &pose, &cal, Model::Exact, &[], &other).unwrap();
+            let p = predict_pose_near(mech, &pose, &cal, Model::Exact, &[], &other.q).unwrap();
             assert!(far(&p.q, &cold.q) < 1e-10, "{:?} {:?}", p.q, cold.q);
             checked += 1;
         }

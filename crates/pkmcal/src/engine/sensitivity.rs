@@ -6,8 +6,8 @@
 use crate::engine::linearized::load_vector;
 use crate::engine::models::{Model, Pose, Prediction, independent_actuators, predict_pose};
 use crate::error::{Error, Result};
-use crate::linalg::solve::solve_scaled;
-use crate::mechanism::autodiff::jacobians;
+use crate::linalg::solve::{solve_scaled, solve_scaled_in_place};
+use crate::mechanism::autodiff::jacobians_into;
 use crate::mechanism::{Mechanism, Params};
 use nalgebra::{DMatrix, DVector};
 
@@ -51,17 +51,33 @@ pub fn sensitivity_at<M: Mechanism>(
     force: &[f64],
     prediction: Prediction,
 ) -> Result<Sensitivity> {
+    let jacobian = tool_sensitivity(mech, pose, params, model, force, &prediction)?;
+    Ok(Sensitivity {
+        prediction,
+        jacobian,
+    })
+}
+
+/// `∂x/∂p` of [`sensitivity_at`], for a prediction the caller keeps.
+pub(crate) fn tool_sensitivity<M: Mechanism>(
+    mech: &M,
+    pose: &Pose,
+    params: &Params,
+    model: Model,
+    force: &[f64],
+    prediction: &Prediction,
+) -> Result<DMatrix<f64>> {
     let spec = mech.spec();
     let ng = spec.n_geometric();
     let nx = spec.tool_axes.len();
     let np = spec.n_params();
     let rho = params.geometric();
     let force = crate::engine::models::effective_force(mech, pose, force)?;
-    let ind = independent_actuators(spec);
-    let mut jac = DMatrix::zeros(nx, np);
     let effective = crate::engine::models::effective_model(spec, model, &force);
     match effective {
         Model::Rigid | Model::Linear => {
+            let ind = independent_actuators(spec);
+            let mut jac = DMatrix::zeros(nx, np);
             let (jf, jx_rho) = crate::engine::linearized::tool_derivatives(
                 mech,
                 &prediction.q,
@@ -82,10 +98,7 @@ pub fn sensitivity_at<M: Mechanism>(
                 dqu = linear_qu_derivatives(mech, pose, params, &force)?;
             }
             jac += &jf * dqu;
-            Ok(Sensitivity {
-                prediction,
-                jacobian: jac,
-            })
+            Ok(jac)
         }
         Model::Exact => exact_sensitivity(mech, params, &pose.commands, &force, prediction),
     }
@@ -148,6 +161,92 @@ fn linear_qu_derivatives<M: Mechanism>(
     Ok(d)
 }
 
+/// `∂q/∂p` of the exact model's equilibrium at `prediction` (nq × n_params):
+/// `dz/dp = −F_z⁻¹ F_p` of the KKT conditions, the joints' rows, the same
+/// blocks as [`exact_sensitivity`] differentiates. `None` where the exact
+/// model is not what computes (no load on the actuators: the rigid one) or
+/// the system is singular. A start `q + ∂q/∂p Δp` for parameters `Δp`
+/// away is then second-order close to their equilibrium (a Monte Carlo
+/// run's truth, [`crate::apply::montecarlo`]).
+pub(crate) fn joint_sensitivity<M: Mechanism>(
+    mech: &M,
+    pose: &Pose,
+    params: &Params,
+    force: &[f64],
+    prediction: &Prediction,
+) -> Option<DMatrix<f64>> {
+    let spec = mech.spec();
+    let force = crate::engine::models::effective_force(mech, pose, force).ok()?;
+    if crate::engine::models::effective_model(spec, Model::Exact, &force) != Model::Exact {
+        return None;
+    }
+    let (ng, na) = (spec.n_geometric(), spec.n_actuated());
+    let nq = spec.joints.len();
+    let m = spec.n_constraints;
+    let np = spec.n_params();
+    if prediction.multipliers.len() != m {
+        return None;
+    }
+    let (rho, k, q) = (params.geometric(), params.stiffness(), &prediction.q);
+    let w: Vec<f64> = force.iter().map(|f| -f * spec.work_scale).collect();
+    let j = crate::mechanism::autodiff::jacobians(mech, q, rho, 0..nq + ng);
+    let lag = mech.weighted_hessian(q, rho, &prediction.multipliers, &w);
+    let mut fz = DMatrix::zeros(nq + m, nq + m);
+    fz.view_mut((0, 0), (nq, nq)).copy_from(&lag.columns(0, nq));
+    for (a, &jt) in spec.actuated.iter().enumerate() {
+        fz[(jt, jt)] += k[a];
+    }
+    for c in 0..nq {
+        for r in 0..m {
+            fz[(c, nq + r)] = j.dg[(r, c)];
+            fz[(nq + r, c)] = j.dg[(r, c)];
+        }
+    }
+    // −F_p: the ρ columns `−[∂²L/∂q∂ρ; ∂g/∂ρ]`; an offset's `k_a` and a
+    // stiffness's `c_a + Δq_a − q_a` on its joint's row.
+    let mut rhs = DMatrix::zeros(nq + m, np);
+    rhs.view_mut((0, 0), (nq, ng))
+        .copy_from(&(-lag.columns(nq, ng)));
+    rhs.view_mut((nq, 0), (m, ng))
+        .copy_from(&(-j.dg.columns(nq, ng)));
+    for (a, &jt) in spec.actuated.iter().enumerate() {
+        rhs[(jt, ng + a)] = k[a];
+        rhs[(jt, ng + na + a)] = pose.commands[a] + params.offsets()[a] - q[jt];
+    }
+    let dz = solve_scaled(fz, rhs)?;
+    Some(dz.rows(0, nq).into_owned())
+}
+
+/// The buffers of [`exact_sensitivity`], reused from one call to the next
+/// on a thread (as the equilibrium's): a call allocates its result and the
+/// mechanism's weighted Hessian only.
+#[derive(Default)]
+struct SensitivityWork {
+    /// `−force · work_scale`.
+    w: Vec<f64>,
+    /// Derivatives at the solution.
+    j: Option<crate::mechanism::autodiff::Jacobians>,
+    /// `F_z`, then its transpose, factorised in place.
+    fz: DMatrix<f64>,
+    fzt: DMatrix<f64>,
+    /// `[X_q 0]ᵀ`, then the adjoint `Y`.
+    y: DMatrix<f64>,
+}
+
+thread_local! {
+    static SENSITIVITY_WORK: std::cell::RefCell<SensitivityWork> =
+        std::cell::RefCell::new(SensitivityWork::default());
+}
+
+/// Size a matrix to `r × c` (zeros), keeping its storage when the shape fits.
+fn zeroed(m: &mut DMatrix<f64>, r: usize, c: usize) {
+    if m.shape() == (r, c) {
+        m.fill(0.0);
+    } else {
+        *m = DMatrix::zeros(r, c);
+    }
+}
+
 /// Implicit differentiation of the KKT conditions of the equilibrium at its
 /// solution `prediction.q` (exact model).
 fn exact_sensitivity<M: Mechanism>(
@@ -155,8 +254,32 @@ fn exact_sensitivity<M: Mechanism>(
     params: &Params,
     commands: &[f64],
     force: &[f64],
-    prediction: Prediction,
-) -> Result<Sensitivity> {
+    prediction: &Prediction,
+) -> Result<DMatrix<f64>> {
+    // (A nested call, which nothing makes today, would get buffers of its
+    // own.)
+    SENSITIVITY_WORK.with(|cell| match cell.try_borrow_mut() {
+        Ok(mut ws) => exact_sensitivity_in(mech, params, commands, force, prediction, &mut ws),
+        Err(_) => exact_sensitivity_in(
+            mech,
+            params,
+            commands,
+            force,
+            prediction,
+            &mut SensitivityWork::default(),
+        ),
+    })
+}
+
+/// [`exact_sensitivity`] in the workspace `ws`.
+fn exact_sensitivity_in<M: Mechanism>(
+    mech: &M,
+    params: &Params,
+    commands: &[f64],
+    force: &[f64],
+    prediction: &Prediction,
+    ws: &mut SensitivityWork,
+) -> Result<DMatrix<f64>> {
     let spec = mech.spec();
     let (ng, na) = (spec.n_geometric(), spec.n_actuated());
     let nq = spec.joints.len();
@@ -166,43 +289,62 @@ fn exact_sensitivity<M: Mechanism>(
     let rho = params.geometric();
     let k = params.stiffness();
     let q = &prediction.q;
-    let w: Vec<f64> = force.iter().map(|f| -f * spec.work_scale).collect();
-    let j = jacobians(mech, q, rho, 0..nq + ng);
-    // Multipliers from stationarity: Gqᵀλ = Sᵀτ − Xqᵀw (least squares).
-    let gq = j.dg.columns(0, nq).into_owned();
-    let xq = j.dx.columns(0, nq).into_owned();
-    let mut rhs = -(xq.transpose() * DVector::from_column_slice(&w));
-    for (a, &jt) in spec.actuated.iter().enumerate() {
-        rhs[jt] += prediction.torque[a];
-    }
-    let lambda = if prediction.multipliers.len() == m {
-        DVector::from_column_slice(&prediction.multipliers)
+    let SensitivityWork { w, j, fz, fzt, y } = ws;
+    w.clear();
+    w.extend(force.iter().map(|f| -f * spec.work_scale));
+    let j = j.get_or_insert_with(crate::mechanism::autodiff::Jacobians::empty);
+    jacobians_into(mech, q, rho, 0..nq + ng, j);
+    // Multipliers from stationarity: Gqᵀλ = Sᵀτ − Xqᵀw (least squares),
+    // where the prediction has none.
+    let estimated;
+    let lambda: &[f64] = if prediction.multipliers.len() == m {
+        &prediction.multipliers
     } else {
-        crate::linalg::lu::Lu::new(&gq * gq.transpose())
+        let gq = j.dg.columns(0, nq).into_owned();
+        let xq = j.dx.columns(0, nq).into_owned();
+        let mut rhs = -(xq.transpose() * DVector::from_column_slice(w));
+        for (a, &jt) in spec.actuated.iter().enumerate() {
+            rhs[jt] += prediction.torque[a];
+        }
+        estimated = crate::linalg::lu::Lu::new(&gq * gq.transpose())
             .solve(&(&gq * rhs))
             .ok_or_else(|| Error::Singular {
                 q: q.clone(),
                 reason: "the constraint Jacobian is rank deficient".into(),
-            })?
+            })?;
+        estimated.as_slice()
     };
-    let lag = mech.weighted_hessian(q, rho, lambda.as_slice(), &w);
-    let mut fz = DMatrix::zeros(nq + m, nq + m);
+    let lag = mech.weighted_hessian(q, rho, lambda, w);
+    zeroed(fz, nq + m, nq + m);
     fz.view_mut((0, 0), (nq, nq)).copy_from(&lag.columns(0, nq));
     for (a, &jt) in spec.actuated.iter().enumerate() {
         fz[(jt, jt)] += k[a];
     }
-    fz.view_mut((0, nq), (nq, m)).copy_from(&gq.transpose());
-    fz.view_mut((nq, 0), (m, nq)).copy_from(&gq);
-    let singular = || Error::Singular {
-        q: q.clone(),
-        reason: "the equilibrium (KKT) system is singular".into(),
-    };
+    for c in 0..nq {
+        for r in 0..m {
+            fz[(c, nq + r)] = j.dg[(r, c)];
+            fz[(nq + r, c)] = j.dg[(r, c)];
+        }
+    }
     // By the adjoint: `∂x/∂p = X_q dq/dp = −[X_q 0] F_z⁻¹ F_p = −Yᵀ F_p`
     // with `F_zᵀ Y = [X_q 0]ᵀ`: one solve per tool coordinate instead of one
     // per parameter.
-    let mut e = DMatrix::zeros(nq + m, nx);
-    e.view_mut((0, 0), (nq, nx)).copy_from(&xq.transpose());
-    let y = solve_scaled(fz.transpose(), e).ok_or_else(singular)?;
+    if fzt.shape() != (nq + m, nq + m) {
+        *fzt = DMatrix::zeros(nq + m, nq + m);
+    }
+    fz.transpose_to(fzt);
+    zeroed(y, nq + m, nx);
+    for c in 0..nq {
+        for r in 0..nx {
+            y[(c, r)] = j.dx[(r, c)];
+        }
+    }
+    if !solve_scaled_in_place(fzt, y) {
+        return Err(Error::Singular {
+            q: q.clone(),
+            reason: "the equilibrium (KKT) system is singular".into(),
+        });
+    }
     // F_p's blocks: ρ columns `[∂²L/∂q∂ρ; ∂g/∂ρ]`; the offset and stiffness
     // columns are nonzero only on the actuated joints' rows
     // (`−k_a` and `−(c_a + Δq_a − q_a)`).
@@ -219,8 +361,75 @@ fn exact_sensitivity<M: Mechanism>(
         }
     }
     debug_assert_eq!(jac.nrows(), nx);
-    Ok(Sensitivity {
-        prediction,
-        jacobian: jac,
-    })
+    Ok(jac)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::engine::models::prepare_pose;
+
+    /// Relative error allowed between `∂q/∂p` and its finite differences.
+    const JOINT_REL: f64 = 1e-6;
+
+    /// `∂q/∂p` of the equilibrium is its finite differences (central,
+    /// Richardson-extrapolated) at nominal parameters, every column, on
+    /// the reference at spread poses; and a start `q + ∂q/∂p Δp` is
+    /// second-order close to the equilibrium for `Δp`.
+    #[test]
+    fn joint_sensitivities_are_exact() {
+        let mech = crate::JeongKim2Dof::new();
+        let spec = mech.spec();
+        let nominal = Params::nominal(spec);
+        let np = spec.n_params();
+        let q_at =
+            |pose: &Pose, p: &Params| predict_pose(&mech, pose, p, Model::Exact, &[]).unwrap().q;
+        for target in crate::apply::workspace::spread_targets(&mech, 4).unwrap() {
+            let c: Vec<f64> = spec.actuated.iter().map(|&j| target.q[j]).collect();
+            let pose = prepare_pose(&mech, &c, Some(&target.q)).unwrap();
+            let p0 = predict_pose(&mech, &pose, &nominal, Model::Exact, &[]).unwrap();
+            let dq = joint_sensitivity(&mech, &pose, &nominal, &[], &p0).unwrap();
+            assert_eq!(dq.shape(), (spec.joints.len(), np));
+            for col in 0..np {
+                let h = 1e-4 * nominal.values[col].abs().max(1.0);
+                let d = |h: f64| {
+                    let (mut a, mut b) = (nominal.clone(), nominal.clone());
+                    a.values[col] += h;
+                    b.values[col] -= h;
+                    let (qa, qb) = (q_at(&pose, &a), q_at(&pose, &b));
+                    qa.iter()
+                        .zip(&qb)
+                        .map(|(x, y)| (x - y) / (2.0 * h))
+                        .collect::<Vec<_>>()
+                };
+                let (d1, d2) = (d(h), d(h / 2.0));
+                let scale = dq.column(col).amax().max(1e-6);
+                for (r, (a, b)) in d1.iter().zip(&d2).enumerate() {
+                    let fd = (4.0 * b - a) / 3.0;
+                    assert!(
+                        (fd - dq[(r, col)]).abs() <= JOINT_REL * scale,
+                        "column {col} row {r}: {} vs {fd}",
+                        dq[(r, col)]
+                    );
+                }
+            }
+            // Second order: halving Δp quarters the start's error.
+            let miss = |s: f64| {
+                let mut p = nominal.clone();
+                let mut delta = vec![0.0; np];
+                for (i, d) in delta.iter_mut().enumerate().take(spec.n_geometric()) {
+                    *d = s * if i % 2 == 0 { 0.1 } else { -0.07 };
+                    p.values[i] += *d;
+                }
+                let exact = q_at(&pose, &p);
+                let start = &DVector::from_column_slice(&p0.q) + &dq * DVector::from_vec(delta);
+                exact
+                    .iter()
+                    .zip(start.iter())
+                    .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()))
+            };
+            let (far, near) = (miss(1.0), miss(0.5));
+            assert!(near < 0.3 * far, "{far:e} then {near:e}");
+        }
+    }
 }

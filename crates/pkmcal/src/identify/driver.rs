@@ -552,9 +552,29 @@ fn free_set<M: Mechanism>(
     let analyze = |jac: &DMatrix<f64>| {
         analyze_identifiability(cols, jac, requested, data.len(), opts.auto_fix)
     };
+    // The analysis another calibration made of the same matrix (a Monte
+    // Carlo study's runs start alike), the same bit for bit; a large
+    // problem's Jacobian is not kept for it.
+    let shared = problem.shared.filter(|_| !problem.is_large());
+    let kept = match (known, shared) {
+        (None, Some(c)) => c.analysis(&weighted, cols, requested, data.len(), opts.auto_fix),
+        _ => None,
+    };
+    let reused = kept.is_some();
     let (mut identifiability, mut free) = match known {
         // A refit keeps the first fit's analysis (its free set is `exact_free`).
         Some(ident) if !opts.auto_fix => (ident.clone(), requested.to_vec()),
+        _ if reused => {
+            let (ident, free) = kept.expect("matched");
+            if free == requested {
+                // The fit the speculation would have kept (its cancel flag
+                // is never set then).
+                let mut fit = solver.clone();
+                fit.free = Some(mask(np + nf, requested));
+                speculative = Some(fit_with_priors(augmented, x0, &fit));
+            }
+            (ident, free)
+        }
         // The caller's own cancel flag governs every fit: no speculation.
         _ if opts.solver.cancel.is_some() => analyze(&weighted),
         // A large problem keeps one Jacobian at a time: the analysis, then
@@ -586,6 +606,17 @@ fn free_set<M: Mechanism>(
             (ident, free)
         }
     };
+    if let (None, false, Some(c)) = (known, reused, shared) {
+        let result = (identifiability.clone(), free.clone());
+        c.keep_analysis(
+            &weighted,
+            cols,
+            requested,
+            data.len(),
+            opts.auto_fix,
+            &result,
+        );
+    }
     // Stiffness acts only where the actuators fight, which they do not at
     // nominal parameters: judge its identifiability where they do, at the
     // solution without it.

@@ -2,11 +2,12 @@
 //! of the measurement model's predicted readings, their exact Jacobian, and
 //! the caches that share poses and evaluations within one calibration.
 
+use super::identifiability::{Columns, Identifiability};
 use super::result::FinalPredictions;
 use crate::engine::models::{
     Ahead, Model, Pose, Prediction, pose_ahead, predict_pose_warm, prepare_pose, prepare_pose_ahead,
 };
-use crate::engine::sensitivity::sensitivity_at;
+use crate::engine::sensitivity::tool_sensitivity;
 use crate::error::Origin;
 use crate::error::{Error, Result};
 use crate::lm::Problem;
@@ -95,6 +96,9 @@ pub struct IdentificationProblem<'a, M: Mechanism> {
     /// Set from another thread to stop at the next pose
     /// ([`Error::Cancelled`]).
     cancel: Option<Arc<std::sync::atomic::AtomicBool>>,
+    /// The cache its poses came from, shared with the other calibrations
+    /// that use it (its identifiability analysis, [`PoseCache::analysis`]).
+    pub(super) shared: Option<&'a PoseCache>,
 }
 
 /// Poses prepared once and shared by the identification problems of one
@@ -104,8 +108,54 @@ pub struct IdentificationProblem<'a, M: Mechanism> {
 /// Hessians are then computed once per calibration; pass the same cache to
 /// [`calibrate_with_cache`] and [`calibration_accuracy_with_cache`] to
 /// compute them once for both.
+///
+/// It also keeps the last identifiability analysis made at a fit's start
+/// ([`PoseCache::analysis`]): the runs of a Monte Carlo study start at the
+/// same parameters with the same weights, where the Jacobian does not
+/// depend on their truth or noise, and analyse the same matrix.
 #[derive(Default)]
-pub struct PoseCache(Mutex<HashMap<PoseKey, CachedPose>>);
+pub struct PoseCache {
+    poses: Mutex<HashMap<PoseKey, CachedPose>>,
+    analysis: Mutex<Option<Arc<KeptAnalysis>>>,
+}
+
+/// An identifiability analysis with everything it was a function of: the
+/// weighted Jacobian, the columns' names, units, kinds and nominal values,
+/// the parameters requested, the number of poses and `auto_fix`.
+pub(super) struct KeptAnalysis {
+    jacobian: DMatrix<f64>,
+    columns: Columns,
+    requested: Vec<usize>,
+    poses: usize,
+    auto_fix: bool,
+    /// The analysis and the free set it left.
+    pub(super) result: (Identifiability, Vec<usize>),
+}
+
+impl KeptAnalysis {
+    /// Whether this analysis was made of the same inputs, bit for bit.
+    fn is_for(
+        &self,
+        jacobian: &DMatrix<f64>,
+        columns: &Columns,
+        requested: &[usize],
+        poses: usize,
+        auto_fix: bool,
+    ) -> bool {
+        let bits = |a: &[f64], b: &[f64]| {
+            a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+        };
+        self.poses == poses
+            && self.auto_fix == auto_fix
+            && self.requested == requested
+            && self.jacobian.shape() == jacobian.shape()
+            && bits(self.jacobian.as_slice(), jacobian.as_slice())
+            && self.columns.names == columns.names
+            && self.columns.units == columns.units
+            && self.columns.kinds == columns.kinds
+            && bits(&self.columns.nominal, &columns.nominal)
+    }
+}
 
 /// The commands a pose was prepared for, and the pose.
 type CachedPose = (Vec<f64>, Arc<Pose>);
@@ -122,7 +172,8 @@ impl PoseCache {
     /// Whether `cache` holds the pose of `key` for these commands.
     fn holds(cache: Option<&Self>, key: PoseKey, commands: &[f64]) -> bool {
         cache.is_some_and(|c| {
-            c.0.lock()
+            c.poses
+                .lock()
                 .expect("not poisoned")
                 .get(&key)
                 .is_some_and(|(c, _)| c == commands)
@@ -140,18 +191,57 @@ impl PoseCache {
         let Some(cache) = cache else {
             return prepare().map(Arc::new);
         };
-        if let Some((c, p)) = cache.0.lock().expect("not poisoned").get(&key)
+        if let Some((c, p)) = cache.poses.lock().expect("not poisoned").get(&key)
             && c == commands
         {
             return Ok(p.clone());
         }
         let pose = Arc::new(prepare()?);
         cache
-            .0
+            .poses
             .lock()
             .expect("not poisoned")
             .insert(key, (commands.to_vec(), pose.clone()));
         Ok(pose)
+    }
+}
+
+impl PoseCache {
+    /// [`super::identifiability::analyze_identifiability`] of these inputs: the kept analysis when
+    /// it was made of the same ones (then the same, bit for bit, as it is
+    /// a function of them alone), else `analyze()`, kept for the next
+    /// caller.
+    pub(super) fn analysis(
+        &self,
+        jacobian: &DMatrix<f64>,
+        columns: &Columns,
+        requested: &[usize],
+        poses: usize,
+        auto_fix: bool,
+    ) -> Option<(Identifiability, Vec<usize>)> {
+        let kept = self.analysis.lock().expect("not poisoned").clone()?;
+        kept.is_for(jacobian, columns, requested, poses, auto_fix)
+            .then(|| kept.result.clone())
+    }
+
+    /// Keep `result`, the analysis of these inputs, for [`Self::analysis`].
+    pub(super) fn keep_analysis(
+        &self,
+        jacobian: &DMatrix<f64>,
+        columns: &Columns,
+        requested: &[usize],
+        poses: usize,
+        auto_fix: bool,
+        result: &(Identifiability, Vec<usize>),
+    ) {
+        *self.analysis.lock().expect("not poisoned") = Some(Arc::new(KeptAnalysis {
+            jacobian: jacobian.clone(),
+            columns: columns.clone(),
+            requested: requested.to_vec(),
+            poses,
+            auto_fix,
+            result: result.clone(),
+        }));
     }
 }
 
@@ -243,7 +333,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         data: &[Measurement],
         model: Model,
         force: &[f64],
-        cache: Option<&PoseCache>,
+        cache: Option<&'a PoseCache>,
     ) -> Result<Self> {
         Self::prepared(mech, measurement, data, model, force, cache, &|| Ok(()))
     }
@@ -255,7 +345,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         data: &[Measurement],
         model: Model,
         force: &[f64],
-        cache: Option<&PoseCache>,
+        cache: Option<&'a PoseCache>,
         check: &(dyn Fn() -> Result<()> + Sync),
     ) -> Result<Self> {
         if data.len() > MAX_POSES {
@@ -350,6 +440,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             jacobian_cache: RefCell::new(None),
             large,
             cancel: None,
+            shared: cache,
         })
     }
 
@@ -541,17 +632,27 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
     /// `∂h/∂x · ∂x/∂p` for the mechanism's, `∂h/∂m` for the model's; a
     /// distance row's is `∂d/∂x_a · ∂x_a/∂p + ∂d/∂x_b · ∂x_b/∂p`.
     pub fn residuals_and_jacobian(&self, x: &[f64]) -> Result<(DVector<f64>, DMatrix<f64>)> {
+        if self.large {
+            let all: Vec<usize> = (0..x.len()).collect();
+            return self.assemble(x, &all, None);
+        }
+        let c = self.kept_jacobian(x)?;
+        Ok((c.1.clone(), c.2.clone()))
+    }
+
+    /// Residuals and the whole Jacobian at `x`, kept for the next
+    /// evaluation there (shared, not copied; not for a large problem).
+    fn kept_jacobian(&self, x: &[f64]) -> Result<CachedJacobian> {
         if let Some(c) = self.jacobian_cache.borrow().as_ref()
             && c.0 == x
         {
-            return Ok((c.1.clone(), c.2.clone()));
+            return Ok(Arc::clone(c));
         }
         let all: Vec<usize> = (0..x.len()).collect();
         let (r, j) = self.assemble(x, &all, None)?;
-        if !self.large {
-            *self.jacobian_cache.borrow_mut() = Some(Arc::new((x.to_vec(), r.clone(), j.clone())));
-        }
-        Ok((r, j))
+        let c = Arc::new((x.to_vec(), r, j));
+        *self.jacobian_cache.borrow_mut() = Some(Arc::clone(&c));
+        Ok(c)
     }
 
     /// Residuals and the Jacobian's columns `cols` (indices of the full
@@ -604,46 +705,43 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
                 .with_min_len(crate::pose_chunk())
                 .map(|&i| {
                     crate::error::check_cancel(cancel)?;
-                    let prediction = predictions[i].clone();
+                    let prediction = &predictions[i];
                     if at_nominal {
-                        poses[i].sensitivity_at_nominal(mech, &params, model, force, prediction)
+                        poses[i]
+                            .tool_sensitivity_at_nominal(mech, &params, model, force, prediction)
                     } else {
-                        sensitivity_at(mech, &poses[i], &params, model, force, prediction)
+                        tool_sensitivity(mech, &poses[i], &params, model, force, prediction)
                     }
                     .map_err(|e| e.at_pose(origins[i]))
                 })
-                .collect::<Result<_>>()?;
+                .collect::<Result<Vec<_>>>()?;
             let mut at = 0;
             for ((row, measured), point) in chunk
                 .iter()
                 .zip(&self.measured[first_row..])
                 .zip(&self.points[first_row..])
             {
-                let sa = &sens[at];
+                let (sa, xa) = (&sens[at], &predictions[idx[at]].x);
                 at += 1;
                 match row.second {
                     Some(_) => {
-                        let sb = &sens[at];
+                        let (sb, xb) = (&sens[at], &predictions[idx[at]].x);
                         at += 1;
-                        let (d, da, db) = self
-                            .measurement
-                            .distance_jacobian(&sa.prediction.x, &sb.prediction.x);
+                        let (d, da, db) = self.measurement.distance_jacobian(xa, xb);
                         r[row.offset] = d - measured[0];
                         let ga = DMatrix::from_row_slice(1, da.len(), &da);
                         let gb = DMatrix::from_row_slice(1, db.len(), &db);
-                        let jx = ga * &sa.jacobian + gb * &sb.jacobian;
+                        let jx = ga * sa + gb * sb;
                         put(&mut j, row.offset, &jx, 0, 0);
                     }
                     None => {
-                        let (y, dx, dm) = self.measurement.observe_point_jacobian(
-                            &sa.prediction.x,
-                            &m,
-                            point.as_deref(),
-                        );
+                        let (y, dx, dm) =
+                            self.measurement
+                                .observe_point_jacobian(xa, &m, point.as_deref());
                         for a in 0..row.len {
                             r[row.offset + a] = y[a] - measured[a];
                         }
-                        let jx = dx * &sa.jacobian;
+                        let jx = dx * sa;
                         for a in 0..row.len {
                             put(&mut j, row.offset + a, &jx, a, 0);
                             put(&mut j, row.offset + a, &dm, a, np);
@@ -697,18 +795,18 @@ impl<M: Mechanism> Problem for IdentificationProblem<'_, M> {
         free: &[usize],
         weights: Option<&[f64]>,
     ) -> std::result::Result<(DVector<f64>, DMatrix<f64>), String> {
-        if !self.large {
-            // The full Jacobian, kept for the next evaluation at `x`.
-            let (r, j) = self.evaluate(x, true)?;
-            let mut j = j.expect("asked for").select_columns(free);
-            if let Some(w) = weights {
-                crate::lm::scale_rows(&mut j, w);
-            }
-            return Ok((r, j));
-        }
         let (params, _) = self.split(x).map_err(|e| e.to_string())?;
         if params.stiffness().iter().any(|k| *k <= 0.0) {
             return Err("non-positive stiffness".into());
+        }
+        if !self.large {
+            // The full Jacobian, kept for the next evaluation at `x`.
+            let c = self.kept_jacobian(x).map_err(|e| e.to_string())?;
+            let mut j = c.2.select_columns(free);
+            if let Some(w) = weights {
+                crate::lm::scale_rows(&mut j, w);
+            }
+            return Ok((c.1.clone(), j));
         }
         self.assemble(x, free, weights).map_err(|e| e.to_string())
     }
