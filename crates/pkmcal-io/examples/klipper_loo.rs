@@ -10,7 +10,7 @@
 //! predicts better or worse than Klipper's ratio, and its median score
 //! against Klipper's (BENCHMARKS.md, issues 39 and 37).
 //!
-//!     cargo run --release -p pkmcal-io --example klipper_loo -- <real-configs/klipper/cases>
+//!     cargo run --release -p pkmcal-io --features studies --example klipper_loo -- <real-configs/klipper/cases>
 
 use anyhow::{Context, Result};
 use pkmcal::{Mechanism, Model, Params};

@@ -4,7 +4,7 @@
 //! changed by 3σ of the difference; the false-alarm rate of the
 //! Holm–Bonferroni parameter test and of the joint test, and their power.
 //!
-//!     cargo run --release -p pkmcal --example drift_rate -- [REPEATS]
+//!     cargo run --release -p pkmcal --features studies --example drift_rate -- [REPEATS]
 
 use pkmcal::identify::{Compared, DEFAULT_ALPHA, drift};
 use pkmcal::{CalibrationOptions, JeongKim2Dof, MeasurementModel, Mechanism, Model, Noise, Params};
