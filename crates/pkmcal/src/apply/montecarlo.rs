@@ -7,8 +7,9 @@ use crate::engine::models::{Model, Pose, Prediction, predict_pose, predict_pose_
 use crate::engine::sensitivity::joint_sensitivity;
 use crate::error::Result;
 use crate::identify::stats::{ErrorStats, error_stats};
-use crate::identify::{CalibrationOptions, PoseCache, Prior, calibrate_with_cache};
+use crate::identify::{Calibration, CalibrationOptions, PoseCache, Prior, calibrate_with_cache};
 use crate::measurement::MeasurementModel;
+use crate::measurement::data::Measurement;
 use crate::measurement::data::Noise;
 use crate::mechanism::{Mechanism, Params};
 use crate::units::{ParamKind, Unit};
@@ -103,8 +104,6 @@ fn percentile(v: &mut [f64], p: f64) -> f64 {
 /// is minutes already.
 pub const MAX_RUNS: usize = 1_000_000;
 
-/// Run the study: calibrate from measurements at `poses` (targets), judge on
-/// `validation` targets. `progress` is called after each run (from any thread).
 impl MonteCarloOptions {
     /// Refuse what cannot be simulated: more than [`MAX_RUNS`] runs, none,
     /// random errors or noise that are negative, not finite or beyond any
@@ -187,12 +186,38 @@ fn truth_at<M: Mechanism>(
     }
 }
 
+/// Run the study: calibrate from measurements at `poses` (targets), judge on
+/// `validation` targets. `progress` is called after each run (from any thread).
 pub fn monte_carlo<M: Mechanism>(
     mech: &M,
     poses: &[Vec<f64>],
     validation: &[Vec<f64>],
     opts: &MonteCarloOptions,
     progress: &(dyn Fn() + Sync),
+) -> Result<(Vec<Run>, MonteCarloSummary)> {
+    // A run reads the calibration's parameters and whether it converged:
+    // the fit alone, the same bit for bit, without its report.
+    let mut fit = opts.calibration.clone();
+    fit.fit_only = true;
+    let (tool, nominal) = (
+        MeasurementModel::tool(mech.spec()),
+        Params::nominal(mech.spec()),
+    );
+    let calibrate = |data: &[Measurement], cache: &PoseCache| {
+        calibrate_with_cache(mech, &tool, data, &nominal, &fit, cache)
+    };
+    study(mech, poses, validation, opts, progress, &calibrate)
+}
+
+/// [`monte_carlo`] with each run's data calibrated by `calibrate` (from
+/// nominal parameters, the poses prepared in the cache it is given).
+fn study<M: Mechanism>(
+    mech: &M,
+    poses: &[Vec<f64>],
+    validation: &[Vec<f64>],
+    opts: &MonteCarloOptions,
+    progress: &(dyn Fn() + Sync),
+    calibrate: &(dyn Fn(&[Measurement], &PoseCache) -> Result<Calibration> + Sync),
 ) -> Result<(Vec<Run>, MonteCarloSummary)> {
     opts.check()?;
     let spec = mech.spec();
@@ -275,7 +300,7 @@ pub fn monte_carlo<M: Mechanism>(
                 Ok(reading(&tool, target, c, &p, &normals, &mut noise))
             })
             .collect::<Result<Vec<_>>>()?;
-        let cal = calibrate_with_cache(mech, &tool, &data, &nominal, &opts.calibration, &cache)?;
+        let cal = calibrate(&data, &cache)?;
         // Accuracy on the unseen poses: the truth's exact prediction
         // (noise-free) minus the calibrated model's, in the base frame.
         // The calibration's error, for the first-order start of its
@@ -351,4 +376,92 @@ pub fn monte_carlo<M: Mechanism>(
             .collect(),
     };
     Ok((runs, summary))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::apply::workspace::random_targets;
+    use crate::engine::models::Model;
+    use crate::identify::Loss;
+    use crate::kinds::reference::JeongKim2Dof;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    /// A study of `runs` whose every run is calibrated twice, the fit alone
+    /// (as [`monte_carlo`] does) and the full calibration (first one, then
+    /// the other, alternately): the same parameters and `converged`, bit for
+    /// bit, and the fit alone without the report.
+    fn fit_alone_is_the_full_fit<M: Mechanism>(
+        mech: &M,
+        calibration: CalibrationOptions,
+        runs: usize,
+    ) {
+        let poses = random_targets(mech, 35, 7).unwrap();
+        let validation = validation_targets(mech, 5, 11).unwrap();
+        let opts = MonteCarloOptions {
+            runs,
+            noise: 0.002.into(),
+            seed: 3,
+            length_error: 0.3,
+            angle_error: 1e-3,
+            calibration,
+        };
+        let spec = mech.spec();
+        let (tool, nominal) = (MeasurementModel::tool(spec), Params::nominal(spec));
+        let mut fit = opts.calibration.clone();
+        fit.fit_only = true;
+        let compared = AtomicUsize::new(0);
+        let calibrate = |data: &[Measurement], cache: &PoseCache| {
+            let k = compared.fetch_add(1, Ordering::Relaxed);
+            let full =
+                || calibrate_with_cache(mech, &tool, data, &nominal, &opts.calibration, cache);
+            let alone = || calibrate_with_cache(mech, &tool, data, &nominal, &fit, cache);
+            let (full, alone) = if k.is_multiple_of(2) {
+                (full()?, alone()?)
+            } else {
+                let a = alone()?;
+                (full()?, a)
+            };
+            let bits = |c: &Calibration| -> Vec<u64> {
+                c.params.values.iter().map(|v| v.to_bits()).collect()
+            };
+            assert_eq!(bits(&alone), bits(&full), "run {k}");
+            assert_eq!(alone.converged, full.converged, "run {k}");
+            assert!(alone.noise.is_empty() && !full.noise.is_empty());
+            Ok(alone)
+        };
+        let (_, summary) = study(mech, &poses, &validation, &opts, &|| {}, &calibrate).unwrap();
+        assert_eq!(compared.into_inner(), runs);
+        assert!(summary.converged > 0);
+    }
+
+    /// The reference with the defaults (one noise group: its σ estimated
+    /// after the fit, unread by the runs).
+    #[test]
+    fn the_fit_alone_on_the_reference() {
+        let mech = JeongKim2Dof::new();
+        fit_alone_is_the_full_fit(
+            &mech,
+            CalibrationOptions::new(mech.spec(), Model::Exact),
+            50,
+        );
+    }
+
+    /// The five-bar with a tolerance (the noise refitted with the prior),
+    /// and the reference with a robust loss dropping outliers (the
+    /// reweighting refits, the outliers found).
+    #[test]
+    fn the_fit_alone_with_priors_refits_and_outliers() {
+        let d: crate::PlanarDescription = crate::example_table("five-bar").try_into().unwrap();
+        let five = crate::PlanarLinkage::new(&d).unwrap();
+        let mut opts = CalibrationOptions::new(five.spec(), Model::Exact);
+        let index = opts.free[0];
+        opts.priors.push(Prior { index, sigma: 0.5 });
+        fit_alone_is_the_full_fit(&five, opts, 50);
+        let mech = JeongKim2Dof::new();
+        let mut opts = CalibrationOptions::new(mech.spec(), Model::Exact);
+        opts.loss = Loss::Huber(Loss::HUBER_DEFAULT);
+        opts.drop_outliers = true;
+        fit_alone_is_the_full_fit(&mech, opts, 10);
+    }
 }

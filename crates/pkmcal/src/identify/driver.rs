@@ -73,6 +73,17 @@ pub struct CalibrationOptions {
     /// shrinks towards its stated share of it, and no adequacy test holds
     /// the residuals to it.
     pub stated_noise_relative: bool,
+    /// The fit alone (Monte Carlo's runs, which read the parameters and
+    /// whether the fit converged): everything computed after it only for
+    /// the report is skipped (the standard deviations and covariance, the
+    /// noise report, outliers when none is dropped, prior warnings and
+    /// conflicts, adequacy, final predictions). The parameters and
+    /// `converged` are those of the full calibration, bit for bit: what
+    /// can change them (reweighting, noise refits, outliers dropped, the
+    /// gross-error screening) is kept. Where a report-only step can fail
+    /// (an adequacy test's Jacobian, with a stated noise or given σ) the
+    /// full calibration is made.
+    pub(crate) fit_only: bool,
 }
 
 /// Readings a stated noise is worth by default: a group of fewer readings'
@@ -106,6 +117,7 @@ impl CalibrationOptions {
             stated_distance_noise: None,
             stated_noise_readings: DEFAULT_STATED_NOISE_READINGS,
             stated_noise_relative: false,
+            fit_only: false,
         }
     }
 }
@@ -158,6 +170,22 @@ fn calibrate_on<M: Mechanism>(
 ) -> Result<Calibration> {
     // (Rows numbered already, a calibration's own, are not copied.)
     let data = crate::measurement::data::numbered_cow(data);
+    // The adequacy tests need a stated noise or given σ, and can then fail
+    // (their score test's Jacobian): the fit alone only without them.
+    let full;
+    let opts = if opts.fit_only
+        && (opts.stated_noise.is_some()
+            || opts.stated_distance_noise.is_some()
+            || data.iter().any(|m| m.sigma.iter().any(Option::is_some)))
+    {
+        full = CalibrationOptions {
+            fit_only: false,
+            ..opts.clone()
+        };
+        &full
+    } else {
+        opts
+    };
     check_sigma(measurement, &data)?;
     let cap = (data.len() as f64 * MAX_DROPPED_FRACTION).floor() as usize;
     let mut kept = data;
@@ -211,15 +239,18 @@ fn calibrate_on<M: Mechanism>(
                     dropping: opts.drop_outliers,
                 }));
             }
+            cal.dropped = dropped;
+            found.append(&mut cal.outliers);
+            cal.outliers = found;
+            if opts.fit_only {
+                return Ok(cal);
+            }
             let beyond = super::prior::prior_warnings(&mut cal);
             cal.warnings.extend(beyond);
             cal.adequacy = super::adequacy::adequacy_tests(&cal);
             if let Some(w) = super::adequacy::adequacy(&problem, &cal)? {
                 cal.warnings.push(w);
             }
-            cal.dropped = dropped;
-            found.append(&mut cal.outliers);
-            cal.outliers = found;
             cal.final_predictions = problem.final_predictions(&cal.params);
             return Ok(cal);
         }
@@ -809,7 +840,9 @@ fn assemble<M: Mechanism>(
         final_predictions: None,
         prior_conflicts: vec![],
     };
-    super::uncertainty::apply_scale(&mut cal, super::uncertainty::Scale::Known, &[]);
+    if !opts.fit_only {
+        super::uncertainty::apply_scale(&mut cal, super::uncertainty::Scale::Known, &[]);
+    }
     Ok((cal, cov_unit))
 }
 

@@ -91,10 +91,15 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
         // whatever its σ, so one estimate after the fit is exact (not with
         // priors, whose weights are known: the group's σ moves the fit).
         let uniform = noise.estimated_groups() == 1 && !noise.any_given() && cal.priors.is_empty();
+        // (The fit alone skips it with the squared loss and no outlier
+        // dropped: the σ then weigh nothing after this fit.)
+        let unused = opts.fit_only && opts.loss == Loss::Squared && !opts.drop_outliers;
         if uniform {
-            let h = lev(&cal, &cov);
-            noise.update(&cal.residuals, &h);
-            rescale(&mut cal, &noise.sigmas());
+            if !unused {
+                let h = lev(&cal, &cov);
+                noise.update(&cal.residuals, &h);
+                rescale(&mut cal, &noise.sigmas());
+            }
             cov = None;
         } else {
             // Iterate the estimates on the fit linearised at the current
@@ -162,6 +167,10 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
             })
             .collect();
     }
+    // The fit alone: outliers only where they are dropped.
+    if opts.fit_only && !opts.drop_outliers {
+        return Ok(cal);
+    }
     // Studentised: a pose that pulls the fit towards itself (high leverage)
     // shows a small residual for a large error.
     let h = lev(&cal, &cov);
@@ -178,6 +187,9 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
         &u,
         opts.outlier_threshold,
     );
+    if opts.fit_only {
+        return Ok(cal);
+    }
     cal.noise = noise.report(&cal.residuals);
     cal.loss = opts.loss;
     // The one scale rule (docs/model.md §6): the covariance at the final σ.
