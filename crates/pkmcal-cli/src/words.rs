@@ -80,6 +80,7 @@ pub fn flag(f: Field) -> &'static str {
         FirmwareLetters => "--m665-b",
         ProbeOffset => "--probe-offset",
         G33Radius => "--g33-radius",
+        G33Points => "--g33-points",
         Physical => "--physical",
         HeightMap => "--height-map",
         MeshPoints => "--mesh-points",

@@ -233,6 +233,7 @@ pub fn keyword(f: pkmcal::Field) -> &'static str {
         FirmwareLetters => "m665_b",
         ProbeOffset => "probe_offset",
         G33Radius => "g33_radius",
+        G33Points => "g33_points",
         Physical => "physical",
         HeightMap => "height_map",
         MeshPoints => "mesh_points",

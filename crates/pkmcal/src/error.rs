@@ -238,6 +238,8 @@ pub enum Field {
     ProbeOffset,
     /// The radius a firmware's own calibration probed at (Marlin's G33).
     G33Radius,
+    /// The probe points of a firmware's own calibration (Marlin's G33 `P`).
+    G33Points,
     /// A printer fitted as built (the physical delta model), not as its
     /// firmware describes it.
     Physical,
@@ -323,6 +325,7 @@ impl Field {
             FirmwareLetters => "the meaning of the firmware's letters",
             ProbeOffset => "the probe's offset from the nozzle",
             G33Radius => "G33's calibration radius",
+            G33Points => "G33's probe points",
             Physical => "the physical model",
             HeightMap => "the height map",
             MeshPoints => "the height map's nodes",

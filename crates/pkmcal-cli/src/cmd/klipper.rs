@@ -10,9 +10,7 @@ use pkmcal_io::firmware::klipper::{
     self, DISTANCES_FILE, KlipperPrinter, OUT_DIR_FILES, Weighting, klipper_z_weight,
 };
 use pkmcal_io::firmware::klipper_rotary::{self, RotaryPrinter};
-use pkmcal_io::firmware::{self, Firmware};
-use pkmcal_io::params::params_to_string;
-use std::fmt::Write as _;
+use pkmcal_io::firmware::{self, Firmware, Spread};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -179,12 +177,13 @@ fn report<F: Firmware>(
         calibrated.free_names.join(" ")
     );
     say!("{}", cal.termination.reason());
+    let (before, after) = (Spread::of(&before), Spread::of(&after));
     say!(
         "height errors: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm",
-        max_abs(&before),
-        rms(&before),
-        max_abs(&after),
-        rms(&after)
+        before.max,
+        before.rms,
+        after.max,
+        after.rms
     );
     if n_distances > 0
         && let Some(d) = &study.accuracy.distances
@@ -268,55 +267,9 @@ fn report<F: Firmware>(
     }
     if let Some(dir) = &a.out_dir {
         run.files.create_dir(dir)?;
-        let names = spec.actuated_names();
-        let mut csv = format!("# frame: base\n{},probe\n", names.join(","));
-        for m in heights {
-            let _ = writeln!(
-                csv,
-                "{:?},{:?},{:?},{:?}",
-                m.commands[0], m.commands[1], m.commands[2], m.measured[0]
-            );
+        for (path, bytes) in klipper::out_dir_files(printer, &calibrated, &a.config, dir) {
+            run.files.stage(&path, &bytes)?;
         }
-        let [m_file, d_file, p_file] = OUT_DIR_FILES;
-        run.files
-            .stage(&dir.join(m_file), printer.description().as_bytes())?;
-        run.files.stage(&dir.join(d_file), csv.as_bytes())?;
-        if !readings.distances.is_empty() {
-            let mut csv = format!(
-                "{},{},distance\n",
-                names
-                    .iter()
-                    .map(|n| format!("{n}_1"))
-                    .collect::<Vec<_>>()
-                    .join(","),
-                names
-                    .iter()
-                    .map(|n| format!("{n}_2"))
-                    .collect::<Vec<_>>()
-                    .join(",")
-            );
-            for m in &readings.distances {
-                let b = m.partner.as_deref().unwrap_or_default();
-                let _ = writeln!(
-                    csv,
-                    "{:?},{:?},{:?},{:?},{:?},{:?},{:?}",
-                    m.commands[0], m.commands[1], m.commands[2], b[0], b[1], b[2], m.measured[0]
-                );
-            }
-            run.files.stage(&dir.join(DISTANCES_FILE), csv.as_bytes())?;
-        }
-        run.files.stage(
-            &dir.join(p_file),
-            params_to_string(
-                spec,
-                &cal.params,
-                &format!(
-                    "pkmcal klipper: identified from the probe heights of {}",
-                    a.config.display()
-                ),
-            )
-            .as_bytes(),
-        )?;
         let dist = if readings.distances.is_empty() {
             String::new()
         } else {
@@ -328,14 +281,6 @@ fn report<F: Firmware>(
         );
     }
     Ok(())
-}
-
-fn rms(v: &[f64]) -> f64 {
-    (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt()
-}
-
-fn max_abs(v: &[f64]) -> f64 {
-    v.iter().fold(0.0, |m, x| m.max(x.abs()))
 }
 
 /// Confidence level of the printed height/distance variance ratio.

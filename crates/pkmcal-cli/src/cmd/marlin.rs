@@ -6,9 +6,9 @@ use crate::args;
 use anyhow::Result;
 use pkmcal::{Mechanism, Request};
 use pkmcal_io::Run;
-use pkmcal_io::firmware::g33::{self, G33Options};
-use pkmcal_io::firmware::marlin::{LetterB, MarlinDelta, MarlinPrinter, ProbeKind};
-use pkmcal_io::firmware::{self, Firmware};
+use pkmcal_io::firmware::g33::{self, G33Ask, G33Compared, RadiusFrom};
+use pkmcal_io::firmware::marlin::{LetterB, MarlinPrinter, ProbeKind};
+use pkmcal_io::firmware::{self, Firmware, Spread};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -50,7 +50,7 @@ pub struct Args {
     pub probe_offset: Option<[f64; 2]>,
     /// G33's probe points for the comparison (its `P`, 1 to 10; 4 is
     /// Marlin's default DELTA_CALIBRATION_DEFAULT_POINTS).
-    #[arg(long, value_name = "P", default_value_t = 4, value_parser = clap::value_parser!(u8).range(1..=10))]
+    #[arg(long, value_name = "P", default_value_t = g33::DEFAULT_POINTS, value_parser = g33_points)]
     pub g33_points: u8,
     /// G33 without the tower angles (its `T`).
     #[arg(long)]
@@ -59,7 +59,7 @@ pub struct Args {
     /// radius:…`): where the comparison probes, and where the heights of a
     /// G33 log lie when the log does not say. Default: the log's, else M665
     /// B (Marlin 1.1 to 2.0.x), else the farthest probed point.
-    #[arg(long, value_name = "MM", value_parser = args::values::positive)]
+    #[arg(long, value_name = "MM", value_parser = g33_radius)]
     pub g33_radius: Option<f64>,
     #[command(flatten)]
     pub physical: args::PhysicalArgs,
@@ -107,13 +107,12 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     let (cal, acc) = (&study.calibration, &study.accuracy);
     let mech = &calibrated.mech;
     let spec = mech.spec();
-    let measurement = &calibrated.readings.measurement;
     let new = printer.delta().identified(spec, &cal.params)?;
-    let heights = |e: &[Vec<f64>]| -> (f64, f64) {
+    let heights = |e: &[Vec<f64>]| -> Spread {
         let v: Vec<f64> = e.iter().map(|r| r[0]).collect();
-        (max_abs(&v), rms(&v))
+        Spread::of(&v)
     };
-    let ((bm, br), (am, ar)) = (heights(&study.before), heights(&study.after));
+    let (before, after) = (heights(&study.before), heights(&study.after));
     let g33_points = printer
         .log
         .points
@@ -139,7 +138,11 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     );
     say!("{}", cal.termination.reason());
     say!(
-        "height errors: before max {bm:.4} mm, RMS {br:.4} mm; after max {am:.4} mm, RMS {ar:.4} mm"
+        "height errors: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm",
+        before.max,
+        before.rms,
+        after.max,
+        after.rms
     );
     for w in &cal.warnings {
         say!("warning: {}\n  hint: {}", w.message, crate::words::hint(w));
@@ -152,68 +155,32 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     let written = super::print_written(&printer, &calibrated, "written value")?;
     super::print_checks(&printer, &calibrated, &written, a.max_sigma)?;
     // Marlin's own G33 on the printer the fit found.
-    let (radius, whence) = match (a.g33_radius, printer.log.g33_radius, printer.delta()) {
-        (Some(r), _, _) => (r, "given"),
-        (None, Some(r), _) => (r, "the radius the G33 log printed"),
-        (
-            None,
-            None,
-            MarlinDelta {
-                calibration_radius: Some(r),
-                letter_b: Some(LetterB::CalibrationRadius),
-                ..
-            },
-        ) => (*r, "M665 B"),
-        _ => (
-            printer.probe_radius(),
-            "the farthest probed point; --g33-radius sets it",
-        ),
-    };
-    let opts = G33Options {
+    let ask = G33Ask {
         points: a.g33_points,
         towers: !a.g33_fixed_angles,
-        radius,
-        precision: 0.0,
-        force: 0,
+        radius: a.g33_radius,
     };
-    let (factors, what) = opts.factors();
-    let probe = |s: &MarlinDelta, xy: [f64; 2]| {
-        printer.probe_as(s, xy, mech, measurement, &cal.params, &cal.measurement)
+    let c = g33::compare(&printer, &calibrated, &ask)?;
+    let whence = match c.radius_from {
+        RadiusFrom::Given => "given",
+        RadiusFrom::Log => "the radius the G33 log printed",
+        RadiusFrom::M665B => "M665 B",
+        RadiusFrom::FarthestProbe => "the farthest probed point; --g33-radius sets it",
     };
-    let g33 = g33::run(printer.delta(), &opts, &mut |s, xy| probe(s, xy));
+    let (factors, what) = c.factors;
     say!(
-        "G33 P{}{} ({factors} factors: {what}), as Marlin's G33.cpp runs it on the printer this fit found, at radius {radius:.2} mm ({whence}):",
-        opts.points,
-        if opts.towers { "" } else { " T" },
+        "G33 P{}{} ({factors} factors: {what}), as Marlin's G33.cpp runs it on the printer this fit found, at radius {:.2} mm ({whence}):",
+        c.options.points,
+        if c.options.towers { "" } else { " T" },
+        c.options.radius,
     );
-    // The fit's residuals at the probed points (the heights the probe would
-    // report with pkmcal's values, but for the fitted printer's own).
-    let residuals = firmware::probe_errors(
-        mech,
-        measurement,
-        &cal.params,
-        &cal.measurement,
-        &calibrated.readings.poses,
-    )?;
-    match g33.and_then(|g| {
-        // The heights the probe would report at the points probed, with
-        // G33's settings and with pkmcal's: the fitted printer's, plus what
-        // it left unexplained there.
-        let at = |s: &MarlinDelta| -> pkmcal_io::Result<Vec<f64>> {
-            printer
-                .log
-                .points
-                .iter()
-                .zip(&residuals)
-                .map(|(p, e)| {
-                    let n = printer.nozzle(p);
-                    Ok(probe(s, [n[0], n[1]])? + e)
-                })
-                .collect()
-        };
-        Ok((at(&g.settings)?, at(&new)?, g))
-    }) {
-        Ok((with_g33, with_new, g)) => {
+    match &c.outcome {
+        Ok(G33Compared {
+            run: g,
+            points,
+            with_g33,
+            with_calibration: with_new,
+        }) => {
             let sd: Vec<String> = g.std_devs.iter().map(|s| format!("{s:.3}")).collect();
             say!(
                 "  {} iteration{} of {} points, std dev {} mm{}; it would set:",
@@ -229,15 +196,14 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
             );
             say_raw!("{}", indent(&g.settings.gcode()));
             say!(
-                "  height errors at the {} probed points with G33's values: max {:.4} mm, RMS {:.4} mm; with pkmcal's: max {:.4} mm, RMS {:.4} mm (the fit's residuals and the change the fitted printer predicts)",
-                with_g33.len(),
-                max_abs(&with_g33),
-                rms(&with_g33),
-                max_abs(&with_new),
-                rms(&with_new)
+                "  height errors at the {points} probed points with G33's values: max {:.4} mm, RMS {:.4} mm; with pkmcal's: max {:.4} mm, RMS {:.4} mm (the fit's residuals and the change the fitted printer predicts)",
+                with_g33.max,
+                with_g33.rms,
+                with_new.max,
+                with_new.rms
             );
         }
-        Err(e) => say!("  not run: {}", crate::words::io(&e)),
+        Err(e) => say!("  not run: {}", crate::words::io(e)),
     }
     let note = firmware::out_file(
         &printer,
@@ -260,10 +226,26 @@ fn indent(s: &str) -> String {
     s.lines().map(|l| format!("  {l}\n")).collect()
 }
 
-fn rms(v: &[f64]) -> f64 {
-    (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt()
+/// G33's probe points (its `P`), bounded by the library's rule.
+fn g33_points(s: &str) -> Result<u8, String> {
+    let n = s
+        .trim()
+        .parse::<usize>()
+        .map_err(|_| format!("`{s}` is not a count of probe points"))?;
+    pkmcal_io::firmware::choices::g33_points(n).map_err(|e| match e {
+        pkmcal::RequestError::Invalid { problem, .. } => problem,
+        e => e.to_string(),
+    })
 }
 
-fn max_abs(v: &[f64]) -> f64 {
-    v.iter().fold(0.0, |m, x| m.max(x.abs()))
+/// G33's calibration radius (mm), bounded by the library's rule.
+fn g33_radius(s: &str) -> Result<f64, String> {
+    let v = s
+        .trim()
+        .parse::<f64>()
+        .map_err(|_| format!("`{s}` is not a number"))?;
+    pkmcal_io::firmware::choices::g33_radius(v).map_err(|e| match e {
+        pkmcal::RequestError::Invalid { problem, .. } => problem,
+        e => e.to_string(),
+    })
 }

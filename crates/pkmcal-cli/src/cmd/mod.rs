@@ -67,10 +67,10 @@ pub fn print_values(what: &str, values: &[pkmcal_io::firmware::FirmwareValue]) {
         "σ"
     );
     for v in values {
-        let sigma = match v.sigma {
-            Some(s) if s > 0.0 => format!("{s:.4} {}", v.unit),
-            Some(s) if s.is_nan() => "unknown".into(),
-            _ => "fixed".into(),
+        let sigma = match v.sigma_shown() {
+            pkmcal_io::firmware::Sigma::Known(s) => format!("{s:.4} {}", v.unit),
+            pkmcal_io::firmware::Sigma::Unknown => "unknown".into(),
+            pkmcal_io::firmware::Sigma::Fixed => "fixed".into(),
         };
         say!(
             "  {:<28} {:>14.6} {:>14.6} {:>14}",

@@ -8,7 +8,7 @@ use pkmcal::{Mechanism, Request};
 use pkmcal_io::Run;
 use pkmcal_io::firmware::physical;
 use pkmcal_io::firmware::physical_report;
-use pkmcal_io::firmware::{self, Firmware};
+use pkmcal_io::firmware::{self, Firmware, Spread};
 use std::path::Path;
 
 /// Where and how the firmware's values are written.
@@ -110,12 +110,13 @@ pub fn run<F: Firmware>(
         );
     }
     say!("{}", cal.termination.reason());
+    let (h_before, h_after) = (Spread::of(h_before), Spread::of(h_after));
     say!(
         "height errors of the physical fit: before max {:.4} mm, RMS {:.4} mm; after max {:.4} mm, RMS {:.4} mm",
-        max_abs(h_before),
-        rms(h_before),
-        max_abs(h_after),
-        rms(h_after)
+        h_before.max,
+        h_before.rms,
+        h_after.max,
+        h_after.rms
     );
     // What the tolerances hold is said part by part below, not direction
     // by direction.
@@ -252,7 +253,7 @@ pub fn run<F: Firmware>(
             before: [*before, with_own],
             cubes,
             suggestions: &suggestions,
-            shown: crate::cmd::physical_outputs::SUGGESTIONS,
+            shown: pkmcal_io::firmware::physical_plan::SHOWN,
             drift,
             mesh_points: output.physical.mesh_points,
             wording: &crate::words::WORDING,
@@ -278,12 +279,4 @@ pub fn run<F: Firmware>(
         say!("\n{what} -> {} {}", out.display(), output.written);
     }
     Ok(())
-}
-
-fn rms(v: &[f64]) -> f64 {
-    (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt()
-}
-
-fn max_abs(v: &[f64]) -> f64 {
-    v.iter().fold(0.0, |m, x| m.max(x.abs()))
 }

@@ -82,9 +82,6 @@ pub fn height_map<F: Firmware>(
     Ok(())
 }
 
-/// How many suggestions are listed.
-pub const SUGGESTIONS: usize = 3;
-
 /// Say which extra measurements would shrink the predicted cube's
 /// uncertainty most, in the firmware's commands, and return them (best
 /// first); where they cannot be scored (a candidate the printer cannot
@@ -115,7 +112,7 @@ fn suggest<F: Firmware>(printer: &F, m: &Mapped<'_>) -> Result<Vec<Suggestion>> 
         "\nthe extra measurements that would shrink the cube's uncertainty most (its largest σ now {:.3} mm; linearised, the fit's noise for each reading):",
         first.largest().0
     );
-    for (k, s) in list.iter().take(SUGGESTIONS).enumerate() {
+    for (k, s) in list.iter().take(physical_plan::SHOWN).enumerate() {
         let what = physical_report::measurement_words(
             &s.extra,
             firmware,
@@ -140,9 +137,7 @@ pub fn drift(
     from: &str,
     now: &pkmcal_io::firmware::PrinterCalibration,
 ) -> Result<pkmcal::identify::Drift> {
-    let before =
-        pkmcal_io::firmware::calibrate(previous, pkmcal::Request::new(pkmcal::Model::Exact))?;
-    let d = physical_drift::firmware_drift(&before, now, pkmcal::identify::DEFAULT_ALPHA)?;
+    let d = physical_drift::since(previous, now)?;
     let changed: Vec<String> = d
         .parameters
         .iter()

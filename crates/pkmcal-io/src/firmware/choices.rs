@@ -137,6 +137,34 @@ pub fn max_sigma(v: f64) -> Result<f64, RequestError> {
     }
 }
 
+/// G33's probe points for a comparison (its `P`), checked:
+/// [`super::g33::FEWEST_POINTS`] to [`super::g33::MOST_POINTS`]. The
+/// problem names no value: each front end gives the one it read.
+pub fn g33_points(n: usize) -> Result<u8, RequestError> {
+    use super::g33::{FEWEST_POINTS, MOST_POINTS};
+    u8::try_from(n)
+        .ok()
+        .filter(|p| (FEWEST_POINTS..=MOST_POINTS).contains(p))
+        .ok_or_else(|| {
+            RequestError::invalid(
+                Field::G33Points,
+                format!("G33's probe points (its P) are {FEWEST_POINTS} to {MOST_POINTS}"),
+            )
+        })
+}
+
+/// G33's calibration radius (mm), checked: finite, above 0.
+pub fn g33_radius(mm: f64) -> Result<f64, RequestError> {
+    if mm.is_finite() && mm > 0.0 {
+        Ok(mm)
+    } else {
+        Err(RequestError::invalid(
+            Field::G33Radius,
+            format!("{mm} mm: G33's calibration radius is a distance above 0"),
+        ))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -147,6 +175,21 @@ mod tests {
         for bad in [0.0, -0.01, f64::NAN, f64::INFINITY, 1.5] {
             let e = probe_noise(bad).unwrap_err();
             assert_eq!(e.field(), Some(Field::ProbeNoise), "{bad}");
+        }
+    }
+
+    #[test]
+    fn g33_choices_are_bounded() {
+        assert_eq!(g33_points(1), Ok(1));
+        assert_eq!(g33_points(10), Ok(10));
+        for bad in [0, 11, 256, usize::MAX] {
+            let e = g33_points(bad).unwrap_err();
+            assert_eq!(e.field(), Some(Field::G33Points), "{bad}");
+        }
+        assert_eq!(g33_radius(80.0), Ok(80.0));
+        for bad in [0.0, -5.0, f64::NAN, f64::INFINITY] {
+            let e = g33_radius(bad).unwrap_err();
+            assert_eq!(e.field(), Some(Field::G33Radius), "{bad}");
         }
     }
 

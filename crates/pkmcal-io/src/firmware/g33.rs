@@ -12,8 +12,10 @@
 //! is Marlin's, in double precision (Marlin's single-precision floats differ
 //! from it by about 1e-5 mm).
 
-use super::marlin::MarlinDelta;
-use crate::error::Result;
+use super::marlin::{LetterB, MarlinDelta, MarlinPrinter};
+use super::{PrinterCalibration, Spread};
+use crate::error::{Error, Result};
+use pkmcal::Mechanism as _;
 
 /// The points of G33's calibration circle, and the centre.
 const NPP: usize = 6;
@@ -27,6 +29,17 @@ const CA: usize = 6;
 
 /// The most iterations G33 runs.
 const MAX_ITERATIONS: usize = 31;
+
+/// G33's probe points where none are asked for (Marlin's
+/// `DELTA_CALIBRATION_DEFAULT_POINTS`).
+pub const DEFAULT_POINTS: u8 = 4;
+
+/// The fewest probe points a comparison runs G33 with (`P1`: the height
+/// alone; `P0` probes nothing).
+pub const FEWEST_POINTS: u8 = 1;
+
+/// The most probe points G33 takes (its `P`).
+pub const MOST_POINTS: u8 = 10;
 
 /// What `G33` is asked for: its parameters.
 #[derive(Debug, Clone, PartialEq)]
@@ -451,5 +464,144 @@ pub fn run(
         std_devs,
         rolled_back,
         probes,
+    })
+}
+
+/// Where the calibration radius of a comparison comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RadiusFrom {
+    /// Given by the user.
+    Given,
+    /// The radius a G33 log printed.
+    Log,
+    /// `M665 B` (Marlin 1.1 to 2.0.x, where it is the calibration radius).
+    M665B,
+    /// The farthest point probed (no radius known otherwise).
+    FarthestProbe,
+}
+
+/// What Marlin's G33 is run with in a comparison: its `P`, its tower
+/// angles or not (`T` absent), and the radius the user gave, if any.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct G33Ask {
+    /// Probe points ([`FEWEST_POINTS`] to [`MOST_POINTS`]).
+    pub points: u8,
+    /// Calibrate the tower angles.
+    pub towers: bool,
+    /// The calibration radius given (mm).
+    pub radius: Option<f64>,
+}
+
+/// Marlin's own G33 on the printer a calibration found, against the
+/// calibration's values ([`compare`]).
+#[derive(Debug)]
+pub struct G33Comparison {
+    /// What G33 was run with.
+    pub options: G33Options,
+    /// Where its radius came from.
+    pub radius_from: RadiusFrom,
+    /// How many independent settings it adjusts, and which
+    /// ([`G33Options::factors`]).
+    pub factors: (usize, &'static str),
+    /// How it ran, or why it could not (a point beyond the reach of the
+    /// settings it tried, a pose the fitted printer cannot take): the
+    /// file side's typed error, which each front end words.
+    pub outcome: std::result::Result<G33Compared, Error>,
+}
+
+/// A G33 that ran, and the probe's height errors at the points probed
+/// with its settings and with the calibration's.
+#[derive(Debug, Clone, PartialEq)]
+pub struct G33Compared {
+    /// How G33 ended.
+    pub run: G33Run,
+    /// The points the heights are compared at (the log's probed points).
+    pub points: usize,
+    /// The height errors with G33's settings (mm).
+    pub with_g33: Spread,
+    /// The height errors with the calibration's values (mm).
+    pub with_calibration: Spread,
+}
+
+/// The radius G33 is run at: the one asked, else the log's, else `M665 B`
+/// where it is the calibration radius, else the farthest probed point.
+pub fn radius(printer: &MarlinPrinter, asked: Option<f64>) -> (f64, RadiusFrom) {
+    match (asked, printer.log.g33_radius, printer.delta()) {
+        (Some(r), _, _) => (r, RadiusFrom::Given),
+        (None, Some(r), _) => (r, RadiusFrom::Log),
+        (
+            None,
+            None,
+            MarlinDelta {
+                calibration_radius: Some(r),
+                letter_b: Some(LetterB::CalibrationRadius),
+                ..
+            },
+        ) => (*r, RadiusFrom::M665B),
+        _ => (printer.probe_radius(), RadiusFrom::FarthestProbe),
+    }
+}
+
+/// Run Marlin's G33, as its G33.cpp runs it, on the printer `calibrated`
+/// found (its probe lowered as Marlin lowers it, [`MarlinPrinter::probe_as`]),
+/// from the printer's settings, and compare the heights the probe would
+/// report at the points probed with G33's settings and with the
+/// calibration's: the fitted printer's, plus what the fit left unexplained
+/// there (its residuals). A G33 that cannot run is the comparison's
+/// `outcome`; an error of the calibration's own values is returned.
+pub fn compare(
+    printer: &MarlinPrinter,
+    calibrated: &PrinterCalibration,
+    ask: &G33Ask,
+) -> Result<G33Comparison> {
+    let cal = calibrated.calibration();
+    let mech = &calibrated.mech;
+    let measurement = &calibrated.readings.measurement;
+    let new = printer.delta().identified(mech.spec(), &cal.params)?;
+    let (radius, radius_from) = radius(printer, ask.radius);
+    let options = G33Options {
+        points: ask.points,
+        towers: ask.towers,
+        radius,
+        precision: 0.0,
+        force: 0,
+    };
+    let probe = |s: &MarlinDelta, xy: [f64; 2]| {
+        printer.probe_as(s, xy, mech, measurement, &cal.params, &cal.measurement)
+    };
+    let g33 = run(printer.delta(), &options, &mut |s, xy| probe(s, xy));
+    let residuals = super::probe_errors(
+        mech,
+        measurement,
+        &cal.params,
+        &cal.measurement,
+        &calibrated.readings.poses,
+    )?;
+    let outcome = g33.and_then(|g| {
+        let at = |s: &MarlinDelta| -> Result<Vec<f64>> {
+            printer
+                .log
+                .points
+                .iter()
+                .zip(&residuals)
+                .map(|(p, e)| {
+                    let n = printer.nozzle(p);
+                    Ok(probe(s, [n[0], n[1]])? + e)
+                })
+                .collect()
+        };
+        let (with_g33, with_new) = (at(&g.settings)?, at(&new)?);
+        Ok(G33Compared {
+            run: g,
+            points: with_g33.len(),
+            with_g33: Spread::of(&with_g33),
+            with_calibration: Spread::of(&with_new),
+        })
+    });
+    Ok(G33Comparison {
+        factors: options.factors(),
+        options,
+        radius_from,
+        outcome,
     })
 }

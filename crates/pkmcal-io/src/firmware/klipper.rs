@@ -1391,6 +1391,70 @@ pub const OUT_DIR_FILES: [&str; 3] = ["mechanism.toml", "probes.csv", "calibrati
 /// And the distances, when the configuration saves any.
 pub const DISTANCES_FILE: &str = "distances.csv";
 
+/// The files of a calibrated printer's model as pkmcal files, for the
+/// other commands, each under `dir` with its bytes (to stage together):
+/// the printer as a mechanism ([`Firmware::description`]), its probe
+/// heights as data (in the base frame, the carriages' commands and the
+/// probe's reading), the distances measured on the calibration object
+/// where it has any, and the identified parameters, whose header names
+/// `config`, the configuration they came from.
+pub fn out_dir_files<F: Firmware + ?Sized>(
+    printer: &F,
+    calibrated: &super::PrinterCalibration,
+    config: &Path,
+    dir: &Path,
+) -> Vec<(PathBuf, Vec<u8>)> {
+    use pkmcal::Mechanism as _;
+    let spec = calibrated.mech.spec();
+    let readings = &calibrated.readings;
+    let names = spec.actuated_names();
+    let mut csv = format!("# frame: base\n{},probe\n", names.join(","));
+    for m in &readings.poses {
+        let _ = writeln!(
+            csv,
+            "{:?},{:?},{:?},{:?}",
+            m.commands[0], m.commands[1], m.commands[2], m.measured[0]
+        );
+    }
+    let [m_file, d_file, p_file] = OUT_DIR_FILES;
+    let mut files = vec![
+        (dir.join(m_file), printer.description().into_bytes()),
+        (dir.join(d_file), csv.into_bytes()),
+    ];
+    if !readings.distances.is_empty() {
+        let ends = |end: &str| {
+            names
+                .iter()
+                .map(|n| format!("{n}_{end}"))
+                .collect::<Vec<_>>()
+                .join(",")
+        };
+        let mut csv = format!("{},{},distance\n", ends("1"), ends("2"));
+        for m in &readings.distances {
+            let b = m.partner.as_deref().unwrap_or_default();
+            let _ = writeln!(
+                csv,
+                "{:?},{:?},{:?},{:?},{:?},{:?},{:?}",
+                m.commands[0], m.commands[1], m.commands[2], b[0], b[1], b[2], m.measured[0]
+            );
+        }
+        files.push((dir.join(DISTANCES_FILE), csv.into_bytes()));
+    }
+    files.push((
+        dir.join(p_file),
+        crate::params::params_to_string(
+            spec,
+            &calibrated.calibration().params,
+            &format!(
+                "pkmcal klipper: identified from the probe heights of {}",
+                config.display()
+            ),
+        )
+        .into_bytes(),
+    ));
+    files
+}
+
 /// The weight of the heights in Klipper's extended calibration: its cost
 /// `z_weight · Σ heights² + Σ distances²` with `z_weight = n_distances /
 /// (0.5 · n_probed)`, which weighs them as variances `σ_height² /

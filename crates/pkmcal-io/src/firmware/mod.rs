@@ -46,6 +46,60 @@ pub struct FirmwareValue {
     pub sigma: Option<f64>,
 }
 
+impl FirmwareValue {
+    /// Its σ as shown beside it ([`Sigma::of`]); a value with no σ yet
+    /// (`None`) is one no free parameter moves: fixed.
+    pub fn sigma_shown(&self) -> Sigma {
+        self.sigma.map_or(Sigma::Fixed, Sigma::of)
+    }
+}
+
+/// A written value's σ as it is shown: the one rule of every table and
+/// result that gives it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Sigma {
+    /// The value's standard uncertainty (above 0), in its unit.
+    Known(f64),
+    /// Not known (the covariance is not: NaN).
+    Unknown,
+    /// No free parameter moves the value (σ 0 or less): the fit holds it.
+    Fixed,
+}
+
+impl Sigma {
+    /// A propagated σ as shown: above 0 the value's, NaN unknown, anything
+    /// else fixed.
+    pub fn of(sigma: f64) -> Self {
+        if sigma > 0.0 {
+            Sigma::Known(sigma)
+        } else if sigma.is_nan() {
+            Sigma::Unknown
+        } else {
+            Sigma::Fixed
+        }
+    }
+}
+
+/// The largest size and the RMS of errors (mm), as the summaries give
+/// them (0 for none).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Spread {
+    /// The largest absolute error.
+    pub max: f64,
+    /// The root mean square about 0.
+    pub rms: f64,
+}
+
+impl Spread {
+    /// The spread of `errors`.
+    pub fn of(errors: &[f64]) -> Self {
+        Spread {
+            max: errors.iter().fold(0.0, |m, x| m.max(x.abs())),
+            rms: (errors.iter().map(|x| x * x).sum::<f64>() / errors.len().max(1) as f64).sqrt(),
+        }
+    }
+}
+
 /// What a printer gives a calibration: the readings (probe heights as
 /// poses, distances measured on a calibration object as pairs of poses),
 /// what they read, and each reading's name in the firmware's terms.

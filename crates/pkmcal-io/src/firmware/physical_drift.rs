@@ -18,6 +18,16 @@
 use crate::error::Result;
 use pkmcal::identify::{Compared, Drift};
 
+/// Whether the printer changed since its `previous` readings (read with
+/// the configuration of `now`:
+/// [`super::klipper::KlipperPrinter::with_readings_of`]): they are fitted
+/// with the firmware's own model and its default choices, and compared
+/// with `now` at the drift test's default false-alarm rate.
+pub fn since(previous: &dyn super::Firmware, now: &super::PrinterCalibration) -> Result<Drift> {
+    let before = super::calibrate(previous, pkmcal::Request::new(pkmcal::Model::Exact))?;
+    firmware_drift(&before, now, pkmcal::identify::DEFAULT_ALPHA)
+}
+
 /// The drift from the `previous` firmware fit to `now` (both read with one
 /// configuration) at familywise false-alarm rate `alpha`.
 pub fn firmware_drift(

@@ -29,6 +29,10 @@ use pkmcal::{Mechanism, Params};
 const OBJECT_ANGLES_DEG: [f64; 6] = [210.0, 270.0, 330.0, 30.0, 90.0, 150.0];
 const OBJECT_OUTER_MM: f64 = 65.0;
 const OBJECT_RIDGE_MM: f64 = 4.5;
+/// How many of the next measurements ([`suggest`]) a summary or report
+/// lists, best first.
+pub const SHOWN: usize = 3;
+
 /// The gauge block's height for heights at a second level (mm).
 pub const GAUGE_BLOCK_MM: f64 = 50.0;
 /// Directions of the candidate probe points (every 30°) and their share of

@@ -12,7 +12,7 @@
 use super::height_map::{self, HeightMap};
 use super::physical::{self, CubeError, ErrorSummary, PhysicalFit, Projection};
 use super::physical_plan::{Extra, Suggestion};
-use super::{Firmware, FirmwareValue, Flavour, PrinterCalibration};
+use super::{Firmware, FirmwareValue, Flavour, PrinterCalibration, Sigma};
 use crate::description::Mech;
 use crate::error::Result;
 use crate::figures::{self, Figure, err, range, register_font, render, tick};
@@ -399,7 +399,7 @@ pub struct Inputs<'a> {
     pub cubes: &'a [CubeError],
     /// The next measurements ([`super::physical_plan::suggest`]).
     pub suggestions: &'a [Suggestion],
-    /// How many of them are shown.
+    /// How many of them are shown ([`super::physical_plan::SHOWN`]).
     pub shown: usize,
     /// The drift against a previous calibration.
     pub drift: Option<(String, Drift)>,
@@ -572,12 +572,13 @@ impl Page {
     }
 }
 
-/// A σ as the values' table shows it: "fixed" for a value the fit holds.
+/// A σ as the values' table shows it ([`Sigma::of`]): "fixed" for a
+/// value the fit holds; none, an empty cell.
 fn sigma_cell(sigma: Option<f64>) -> String {
-    match sigma {
-        Some(s) if s > 0.0 => format!("{s:.4}"),
-        Some(s) if s.is_nan() => "unknown".to_string(),
-        Some(_) => "fixed".to_string(),
+    match sigma.map(Sigma::of) {
+        Some(Sigma::Known(s)) => format!("{s:.4}"),
+        Some(Sigma::Unknown) => "unknown".to_string(),
+        Some(Sigma::Fixed) => "fixed".to_string(),
         None => String::new(),
     }
 }

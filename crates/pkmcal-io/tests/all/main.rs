@@ -6,6 +6,7 @@
 //! comment saying what it covers) and add `mod <topic>;` below. Run one
 //! file's tests with `cargo test -p pkmcal-io --test all <topic>::`.
 
+mod firmware_shared;
 mod height_map;
 mod imports;
 mod klipper_rotary;

@@ -16,16 +16,16 @@ use crate::request::tolerances_arg;
 use crate::threads::interruptible;
 use pkmcal::{Field, Mechanism, Params, Request};
 use pkmcal_io::firmware::choices::{self, Choices};
-use pkmcal_io::firmware::g33::{self, G33Options};
-use pkmcal_io::firmware::klipper::{DISTANCES_FILE, OUT_DIR_FILES};
+use pkmcal_io::firmware::g33::{self, G33Ask, RadiusFrom};
+use pkmcal_io::firmware::klipper::{DISTANCES_FILE, OUT_DIR_FILES, out_dir_files};
 use pkmcal_io::firmware::klipper::{KlipperPrinter, Weighting};
 use pkmcal_io::firmware::klipper_rotary::{self, RotaryPrinter};
-use pkmcal_io::firmware::marlin::{LetterB, MarlinDelta, MarlinPrinter};
+use pkmcal_io::firmware::marlin::{LetterB, MarlinPrinter};
 use pkmcal_io::firmware::physical::{self, ErrorSummary, NoiseNote, ProbeNoise};
 use pkmcal_io::firmware::reprap::RrfPrinter;
 use pkmcal_io::firmware::{
-    self, Firmware, FirmwareValue, FirmwareWarning, PrinterCalibration, Separation, TiltPlace,
-    height_map, physical_plan, physical_report,
+    self, Firmware, FirmwareValue, FirmwareWarning, PrinterCalibration, Separation, Sigma, Spread,
+    TiltPlace, height_map, physical_plan, physical_report,
 };
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
@@ -222,23 +222,20 @@ pub fn marlin<'py>(py: Python<'py>, args: &Bound<'py, PyDict>) -> PyResult<Bound
                 .map_err(|_| wrong_type("probe_offset", "two numbers (x, y)", &v))
         })
         .transpose()?;
-    let g33_radius = kw.f64("g33_radius")?;
-    if let Some(r) = g33_radius
-        && !(r.is_finite() && r > 0.0)
-    {
-        return Err(usage(format!(
-            "g33_radius: {r} mm: G33's calibration radius is a distance above 0"
-        )));
-    }
+    let g33_radius = kw
+        .f64("g33_radius")?
+        .map(choices::g33_radius)
+        .transpose()
+        .map_err(request_err)?;
     let ask = G33Ask {
         points: match kw.count("g33_points")? {
-            None => G33_POINTS,
-            Some(p @ 1..=G33_MOST_POINTS) => p as u8,
-            Some(p) => {
-                return Err(usage(format!(
-                    "g33_points={p}: G33's probe points (its P) are 1 to {G33_MOST_POINTS}"
-                )));
-            }
+            None => g33::DEFAULT_POINTS,
+            Some(p) => choices::g33_points(p).map_err(|e| match e {
+                pkmcal::RequestError::Invalid { field, problem, .. } => {
+                    usage(format!("{}={p}: {problem}", keyword(field)))
+                }
+                e => request_err(e),
+            })?,
         },
         towers: !kw.flag("g33_fixed_angles")?,
         radius: g33_radius,
@@ -266,131 +263,58 @@ fn no_g33<'py>(py: Python<'py>, _: &PrinterCalibration) -> PyResult<Bound<'py, P
     Ok(py.None().into_bound(py))
 }
 
-/// G33's probe points by default (Marlin's
-/// DELTA_CALIBRATION_DEFAULT_POINTS), as the command line's `--g33-points`.
-const G33_POINTS: u8 = 4;
-/// The most probe points G33 takes (its `P`).
-const G33_MOST_POINTS: usize = 10;
-
-/// What Marlin's G33 is run with for the comparison: its `P`
-/// (``g33_points``), its tower angles or not (``g33_fixed_angles``: `T`),
-/// and the radius given (``g33_radius``).
-struct G33Ask {
-    points: u8,
-    towers: bool,
-    radius: Option<f64>,
-}
-
 /// Marlin's own G33, as its G33.cpp runs it, on the printer the fit found,
-/// against pkmcal's values: what the command line prints after the values
-/// (`pkmcal marlin`), as data. Where G33 cannot run, `not_run` says why.
+/// against pkmcal's values ([`g33::compare`]): what the command line
+/// prints after the values (`pkmcal marlin`), as data. Where G33 cannot
+/// run, `not_run` says why.
 fn g33_comparison<'py>(
     py: Python<'py>,
     printer: &MarlinPrinter,
     calibrated: &PrinterCalibration,
     ask: &G33Ask,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let cal = calibrated.calibration();
-    let mech = &calibrated.mech;
-    let spec = mech.spec();
-    let measurement = &calibrated.readings.measurement;
-    let new = printer
-        .delta()
-        .identified(spec, &cal.params)
-        .map_err(io_err)?;
-    let (radius, whence) = match (ask.radius, printer.log.g33_radius, printer.delta()) {
-        (Some(r), _, _) => (r, "given"),
-        (None, Some(r), _) => (r, "log"),
-        (
-            None,
-            None,
-            MarlinDelta {
-                calibration_radius: Some(r),
-                letter_b: Some(LetterB::CalibrationRadius),
-                ..
-            },
-        ) => (*r, "M665 B"),
-        _ => (printer.probe_radius(), "farthest probed point"),
-    };
-    let opts = G33Options {
-        points: ask.points,
-        towers: ask.towers,
-        radius,
-        precision: 0.0,
-        force: 0,
-    };
-    let (factors, adjusts) = opts.factors();
-    let probe = |s: &MarlinDelta, xy: [f64; 2]| {
-        printer.probe_as(s, xy, mech, measurement, &cal.params, &cal.measurement)
-    };
-    let run = g33::run(printer.delta(), &opts, &mut |s, xy| probe(s, xy));
-    // The fit's residuals at the probed points.
-    let residuals = firmware::probe_errors(
-        mech,
-        measurement,
-        &cal.params,
-        &cal.measurement,
-        &calibrated.readings.poses,
-    )
-    .map_err(io_err)?;
-    let compared = run.and_then(|g| {
-        // The heights the probe would report at the points probed, with
-        // G33's settings and with pkmcal's: the fitted printer's, plus what
-        // it left unexplained there.
-        let at = |s: &MarlinDelta| -> pkmcal_io::Result<Vec<f64>> {
-            printer
-                .log
-                .points
-                .iter()
-                .zip(&residuals)
-                .map(|(p, e)| {
-                    let n = printer.nozzle(p);
-                    Ok(probe(s, [n[0], n[1]])? + e)
-                })
-                .collect()
-        };
-        Ok((at(&g.settings)?, at(&new)?, g))
-    });
+    let c = g33::compare(printer, calibrated, ask).map_err(io_err)?;
     let d = PyDict::new(py);
-    d.set_item("points", opts.points)?;
-    d.set_item("towers", opts.towers)?;
-    d.set_item("factors", factors)?;
-    d.set_item("adjusts", adjusts)?;
-    d.set_item("radius", radius)?;
-    d.set_item("radius_from", whence)?;
-    match compared {
-        Ok((with_g33, with_new, g)) => {
+    d.set_item("points", c.options.points)?;
+    d.set_item("towers", c.options.towers)?;
+    d.set_item("factors", c.factors.0)?;
+    d.set_item("adjusts", c.factors.1)?;
+    d.set_item("radius", c.options.radius)?;
+    d.set_item(
+        "radius_from",
+        match c.radius_from {
+            RadiusFrom::Given => "given",
+            RadiusFrom::Log => "log",
+            RadiusFrom::M665B => "M665 B",
+            RadiusFrom::FarthestProbe => "farthest probed point",
+        },
+    )?;
+    match &c.outcome {
+        Ok(x) => {
+            let g = &x.run;
             let r = PyDict::new(py);
             r.set_item("std_devs", g.std_devs.clone())?;
             r.set_item("rolled_back", g.rolled_back)?;
             r.set_item("probes", g.probes)?;
             r.set_item("settings", g.settings.gcode())?;
-            r.set_item("with_g33", figures(py, &with_g33)?)?;
-            r.set_item("with_pkmcal", figures(py, &with_new)?)?;
+            r.set_item("with_g33", figures(py, x.with_g33)?)?;
+            r.set_item("with_pkmcal", figures(py, x.with_calibration)?)?;
             d.set_item("run", r)?;
             d.set_item("not_run", py.None())?;
         }
         Err(e) => {
             d.set_item("run", py.None())?;
-            d.set_item("not_run", crate::errors::io_words(&e))?;
+            d.set_item("not_run", crate::errors::io_words(e))?;
         }
     }
     Ok(d)
 }
 
-fn max_abs(v: &[f64]) -> f64 {
-    v.iter().fold(0.0, |m, x| m.max(x.abs()))
-}
-
-fn rms(v: &[f64]) -> f64 {
-    (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt()
-}
-
 /// `{"max": …, "rms": …}` of errors.
-fn figures<'py>(py: Python<'py>, v: &[f64]) -> PyResult<Bound<'py, PyDict>> {
+fn figures<'py>(py: Python<'py>, s: Spread) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
-    d.set_item("max", max_abs(v))?;
-    d.set_item("rms", rms(v))?;
+    d.set_item("max", s.max)?;
+    d.set_item("rms", s.rms)?;
     Ok(d)
 }
 
@@ -401,10 +325,16 @@ fn value_dicts<'py>(py: Python<'py>, values: &[FirmwareValue]) -> PyResult<Bound
         d.set_item("name", &v.name)?;
         d.set_item("before", v.before)?;
         d.set_item("after", v.after)?;
-        // As the command line shows it: a σ above 0 is the value's, NaN
-        // unknown; a value no free parameter moves (σ 0, or none) is fixed:
-        // None.
-        d.set_item("sigma", v.sigma.filter(|s| *s > 0.0 || s.is_nan()))?;
+        // As the command line shows it ([`FirmwareValue::sigma_shown`]):
+        // unknown NaN, fixed None.
+        d.set_item(
+            "sigma",
+            match v.sigma_shown() {
+                Sigma::Known(s) => Some(s),
+                Sigma::Unknown => Some(f64::NAN),
+                Sigma::Fixed => None,
+            },
+        )?;
         d.set_item("unit", v.unit)?;
         l.append(d)?;
     }
@@ -524,10 +454,6 @@ fn noise_note<'py>(py: Python<'py>, n: &NoiseNote) -> PyResult<Bound<'py, PyDict
     Ok(d)
 }
 
-/// The next measurements the report lists, as the command line's
-/// (`physical_outputs::SUGGESTIONS`).
-const REPORT_SUGGESTIONS: usize = 3;
-
 /// Run the calibration as the call asks and return what it found.
 fn result<'py, F: Firmware + Sync>(
     py: Python<'py>,
@@ -585,8 +511,8 @@ fn result<'py, F: Firmware + Sync>(
     d.set_item("heights", readings.poses.len())?;
     d.set_item("distances", readings.distances.len())?;
     let h = PyDict::new(py);
-    h.set_item("before", figures(py, &before)?)?;
-    h.set_item("after", figures(py, &after)?)?;
+    h.set_item("before", figures(py, Spread::of(&before))?)?;
+    h.set_item("after", figures(py, Spread::of(&after))?)?;
     d.set_item("height_errors", h)?;
     match (
         &calibrated.study.accuracy.distances,
@@ -594,12 +520,7 @@ fn result<'py, F: Firmware + Sync>(
     ) {
         (Some(x), false) => {
             let e = PyDict::new(py);
-            let f = |max: f64, rms: f64| -> PyResult<Bound<'py, PyDict>> {
-                let d = PyDict::new(py);
-                d.set_item("max", max)?;
-                d.set_item("rms", rms)?;
-                Ok(d)
-            };
+            let f = |max, rms| figures(py, Spread { max, rms });
             e.set_item("before", f(x.before_max, x.before_rms)?)?;
             e.set_item("after", f(x.after_max, x.after_rms)?)?;
             d.set_item("distance_errors", e)?;
@@ -655,72 +576,6 @@ fn result<'py, F: Firmware + Sync>(
     Ok(d)
 }
 
-/// The files of ``out_dir=`` (the command line's `--out-dir` of `pkmcal
-/// klipper`): the printer as a pkmcal mechanism, its probe heights (and
-/// distances) as data files, the identified parameters; as the command
-/// line writes them, for the other calls.
-fn out_dir_files<F: Firmware>(
-    printer: &F,
-    calibrated: &PrinterCalibration,
-    config: &std::path::Path,
-    dir: &std::path::Path,
-) -> Vec<(PathBuf, Vec<u8>)> {
-    use std::fmt::Write as _;
-    let spec = calibrated.mech.spec();
-    let readings = &calibrated.readings;
-    let names = spec.actuated_names();
-    let mut csv = format!("# frame: base\n{},probe\n", names.join(","));
-    for m in &readings.poses {
-        let _ = writeln!(
-            csv,
-            "{:?},{:?},{:?},{:?}",
-            m.commands[0], m.commands[1], m.commands[2], m.measured[0]
-        );
-    }
-    let [m_file, d_file, p_file] = OUT_DIR_FILES;
-    let mut files = vec![
-        (dir.join(m_file), printer.description().into_bytes()),
-        (dir.join(d_file), csv.into_bytes()),
-    ];
-    if !readings.distances.is_empty() {
-        let mut csv = format!(
-            "{},{},distance\n",
-            names
-                .iter()
-                .map(|n| format!("{n}_1"))
-                .collect::<Vec<_>>()
-                .join(","),
-            names
-                .iter()
-                .map(|n| format!("{n}_2"))
-                .collect::<Vec<_>>()
-                .join(",")
-        );
-        for m in &readings.distances {
-            let b = m.partner.as_deref().unwrap_or_default();
-            let _ = writeln!(
-                csv,
-                "{:?},{:?},{:?},{:?},{:?},{:?},{:?}",
-                m.commands[0], m.commands[1], m.commands[2], b[0], b[1], b[2], m.measured[0]
-            );
-        }
-        files.push((dir.join(DISTANCES_FILE), csv.into_bytes()));
-    }
-    files.push((
-        dir.join(p_file),
-        pkmcal_io::params::params_to_string(
-            spec,
-            &calibrated.calibration().params,
-            &format!(
-                "pkmcal klipper: identified from the probe heights of {}",
-                config.display()
-            ),
-        )
-        .into_bytes(),
-    ));
-    files
-}
-
 fn physical_result<'py, F: Firmware + Sync>(
     py: Python<'py>,
     d: Bound<'py, PyDict>,
@@ -737,7 +592,9 @@ fn physical_result<'py, F: Firmware + Sync>(
         ),
         None => None,
     };
-    if c.height_map.is_some() {
+    // A mesh count the printer's mesh cannot take is refused before the
+    // fit, as the command line does (the report lists the map's nodes).
+    if c.height_map.is_some() || c.report_dir.is_some() {
         physical::mesh_layout(printer, c.mesh_points).map_err(io_err)?;
     }
     let assessed = interruptible(py, |_cancel| {
@@ -760,8 +617,8 @@ fn physical_result<'py, F: Firmware + Sync>(
     d.set_item("heights", fit.readings.poses.len() - fit.touches.0)?;
     d.set_item("distances", fit.readings.distances.len())?;
     let h = PyDict::new(py);
-    h.set_item("before", figures(py, &assessed.heights[0])?)?;
-    h.set_item("after", figures(py, &assessed.heights[1])?)?;
+    h.set_item("before", figures(py, Spread::of(&assessed.heights[0]))?)?;
+    h.set_item("after", figures(py, Spread::of(&assessed.heights[1]))?)?;
     d.set_item("height_errors", h)?;
     d.set_item("distance_errors", py.None())?;
     d.set_item("values", value_dicts(py, &assessed.values)?)?;
@@ -857,14 +714,8 @@ fn physical_result<'py, F: Firmware + Sync>(
     p.set_item("next_measurements", next)?;
     let drift = match previous {
         Some((prev, from)) => {
-            let before =
-                firmware::calibrate(prev, Request::new(pkmcal::Model::Exact)).map_err(io_err)?;
-            let dr = pkmcal_io::firmware::physical_drift::firmware_drift(
-                &before,
-                &assessed.own,
-                pkmcal::identify::DEFAULT_ALPHA,
-            )
-            .map_err(io_err)?;
+            let dr =
+                pkmcal_io::firmware::physical_drift::since(prev, &assessed.own).map_err(io_err)?;
             let x = PyDict::new(py);
             x.set_item("previous", &from)?;
             x.set_item("changed", dr.joint_drift)?;
@@ -972,7 +823,7 @@ fn physical_result<'py, F: Firmware + Sync>(
                     before: [before, choice.own.summary],
                     cubes,
                     suggestions,
-                    shown: REPORT_SUGGESTIONS,
+                    shown: physical_plan::SHOWN,
                     drift,
                     mesh_points: c.mesh_points,
                     height_map,
