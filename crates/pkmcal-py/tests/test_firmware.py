@@ -503,3 +503,8 @@ def test_an_even_mesh_count_on_a_round_mesh_is_refused_by_its_keyword(tmp_path):
     with pytest.raises(pkmcal.PkmcalError, match=r"mesh_points=: 6 nodes across: a round bed's mesh has an odd count"):
         pkmcal.klipper(KLIPPER, physical=True, height_map=tmp_path / "m.cfg", mesh_points=6)
     assert not (tmp_path / "m.cfg").exists()
+
+
+def test_g33_options_are_refused_with_physical():
+    with pytest.raises(pkmcal.PkmcalError, match="g33_points= sets the run of Marlin's own G33"):
+        pkmcal.marlin(*MARLIN, physical=True, g33_points=7)

@@ -75,6 +75,11 @@ impl Args {
 }
 
 pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
+    pkmcal_io::firmware::choices::Choices {
+        g33: a.g33_points != g33::DEFAULT_POINTS || a.g33_fixed_angles,
+        ..a.physical.choices()
+    }
+    .check()?;
     let mut request = Request::new(pkmcal::Model::Exact);
     a.params_set.apply(&mut request);
     let printer = MarlinPrinter::read(

@@ -76,7 +76,12 @@ pub fn height_map<F: Firmware>(
         physical_report::MapAdvice::Uncertain { .. }
     ) {
         say!(
-            "  the map's uncertainty exceeds its values: what it corrects is not known yet; measure more (calibration object distances, or probe heights further out) before loading it"
+            "  the map's uncertainty exceeds its values: what it corrects is not known yet; measure more ({}) before loading it",
+            if printer.flavour().reads_object_distances() {
+                "calibration object distances, nozzle touches, or probe heights further out"
+            } else {
+                "nozzle touches, or probe heights further out"
+            }
         );
     }
     Ok(())

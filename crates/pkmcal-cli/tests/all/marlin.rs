@@ -240,3 +240,38 @@ fn bad_input_is_refused_by_name_and_nothing_is_written() {
         "calibration-radius",
     );
 }
+
+/// G33's own options set the comparison with Marlin's own fit, which
+/// `--physical` does not write: refused with it, before any work, not
+/// read past; and the physical summary's hint names only what Marlin can
+/// read back (no calibration object's distances).
+#[test]
+fn g33_options_are_refused_with_physical() {
+    let dir = tempfile::tempdir().unwrap();
+    let (cfg, log) = (example("M503.txt"), example("G30.log"));
+    for extra in [vec!["--g33-points", "7"], vec!["--g33-fixed-angles"]] {
+        let mut args = vec!["marlin", "--config", &cfg, "--probes", &log, "--physical"];
+        args.extend(extra);
+        fails(
+            dir.path(),
+            &args,
+            2,
+            "--g33-points sets the run of Marlin's own G33 beside the firmware's own fit; leave it out with --physical",
+        );
+    }
+    let out = ok(
+        dir.path(),
+        &[
+            "marlin",
+            "--config",
+            &cfg,
+            "--probes",
+            &log,
+            "--physical",
+            "--height-map",
+            "map.gcode",
+        ],
+    );
+    assert!(!out.contains("calibration object"), "{out}");
+    assert!(!out.contains("DELTA_ANALYZE"), "{out}");
+}

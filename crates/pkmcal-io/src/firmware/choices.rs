@@ -32,6 +32,10 @@ pub struct Choices {
     pub probe_noise: Option<f64>,
     /// Heights measured by hand to read.
     pub heights: bool,
+    /// Options of Marlin's G33 comparison given (its points, fixed tower
+    /// angles): it compares the firmware's own fit, which `--physical`
+    /// does not write.
+    pub g33: bool,
 }
 
 impl Choices {
@@ -48,6 +52,13 @@ impl Choices {
                 field: Field::OutDir,
                 with: Field::Physical,
                 why: "writes the firmware's own model",
+            });
+        }
+        if self.physical && self.g33 {
+            return Err(RequestError::Excluded {
+                field: Field::G33Points,
+                with: Field::Physical,
+                why: "sets the run of Marlin's own G33 beside the firmware's own fit",
             });
         }
         if !self.physical && self.previous {

@@ -283,12 +283,14 @@ impl MeshLayout {
                 "{nx} x {ny} nodes {sx:.2} mm apart within {} mm",
                 self.radius
             ),
+            // Klipper's nodes to its own 0.01 mm (its spacing is floored
+            // there), not a sum's last bits.
             Some(r) => format!(
                 "{nx} x {ny} nodes {sx:.2} by {sy:.2} mm apart from ({}, {}) to ({}, {})",
                 r.min[0],
                 r.min[1],
-                r.min[0] + sx * (nx - 1) as f64,
-                r.min[1] + sy * (ny - 1) as f64
+                ((r.min[0] + sx * (nx - 1) as f64) * 100.0).round() / 100.0,
+                ((r.min[1] + sy * (ny - 1) as f64) * 100.0).round() / 100.0
             ),
         }
     }

@@ -316,7 +316,9 @@ pub struct ToleranceGroup {
 impl ToleranceGroup {
     /// In words: `rods 0.1 mm`, or `rods 0.01–0.1 mm` where they differ.
     pub fn words(&self) -> String {
-        let (lo, hi) = self.range;
+        // To nine significant digits: `33.3`, not a sum's last bits.
+        let short = |v: f64| -> f64 { format!("{v:.8e}").parse().unwrap_or(v) };
+        let (lo, hi) = (short(self.range.0), short(self.range.1));
         if lo == hi {
             format!("{} {lo} {}", self.what, self.unit)
         } else {

@@ -164,7 +164,7 @@ impl MapAdvice {
     pub fn words(&self) -> String {
         match *self {
             MapAdvice::Uncertain { largest, sd } => format!(
-                "Do not load the height map yet: its uncertainty (σ up to {sd:.4} mm) exceeds what it corrects (up to {largest:.4} mm). Measure more first (below)."
+                "Do not load the height map yet: its uncertainty (σ up to {sd:.4} mm) exceeds what it corrects (up to {largest:.4} mm). Measure more first (the next measurements)."
             ),
             MapAdvice::Small { largest } => format!(
                 "The height map is not needed: the written values leave at most {largest:.4} mm on the bed (under {MAP_WORTH_MM} mm)."
@@ -201,7 +201,7 @@ pub fn measurement_words(
                 mm(p[1])
             ),
             Flavour::RepRapFirmware => {
-                format!("G30 P<next> X{} Y{} Z-99999", mm(p[0]), mm(p[1]))
+                format!("G30 P<next> X{} Y{} Z-99999 S-1", mm(p[0]), mm(p[1]))
             }
             Flavour::Marlin => format!("G30 X{} Y{}", mm(p[0]), mm(p[1])),
         }
@@ -235,7 +235,7 @@ pub fn measurement_words(
             input(Field::Heights)
         ),
         Extra::NozzleTouches { points } => format!(
-            "{} nozzle touches on the bed (a paper test, σ about {} mm): {}, then lower the nozzle until it grips the paper; read back from {} as `nozzle` rows: the x, y, z the firmware displays, surface 0",
+            "{} nozzle touches on the bed (a paper test, σ about {} mm): {}, then lower the nozzle until it grips the paper; read back from {} as `nozzle` rows: the x, y, z the firmware displays, surface the paper's thickness (about 0.1)",
             points.len(),
             super::physical_heights::TOUCH_NOISE_MM,
             list(points, &nozzle_at),
@@ -806,7 +806,7 @@ pub fn html(page: &Page, figs: &[Figure]) -> String {
         "pkmcal physical calibration — {fw} ({})",
         page.source
     ));
-    h.push_str("<style>.verdict li { margin: 0.4em 0; } .verdict { font-size: 1.05em; } td.l { text-align: left; }</style>");
+    h.push_str("<style>.verdict li { margin: 0.4em 0; } .verdict { font-size: 1.05em; } td.l, th.l { text-align: left; }</style>");
     let [current, own, written] = &page.errors;
     // The verdict, in words.
     h.push_str("<h2>Verdict</h2><ul class=\"verdict\">");
@@ -985,7 +985,7 @@ pub fn html(page: &Page, figs: &[Figure]) -> String {
     h.push_str("</table>");
     // The next measurements.
     if !page.next.is_empty() {
-        h.push_str("<h2>Next measurements</h2><p>Ranked by how much of the cube errors' variance each would remove (linearised, the fit's noise for each reading).</p><table><tr><th>#</th><th>measurement, in the firmware's commands</th><th>cube's largest σ, mm</th><th>variance removed</th></tr>");
+        h.push_str("<h2>Next measurements</h2><p>Ranked by how much of the cube errors' variance each would remove (linearised, the fit's noise for each reading).</p><table><tr><th>#</th><th class=\"l\">measurement, in the firmware's commands</th><th>cube's largest σ, mm</th><th>variance removed</th></tr>");
         for (k, n) in page.next.iter().enumerate() {
             let _ = write!(
                 h,

@@ -205,7 +205,14 @@ pub fn marlin<'py>(py: Python<'py>, args: &Bound<'py, PyDict>) -> PyResult<Bound
     let kw = Kw::new(args.clone());
     let config = path_kw(&kw, "config")?.ok_or_else(|| usage("config: a value is needed"))?;
     let probes = path_kw(&kw, "probes")?.ok_or_else(|| usage("probes: a value is needed"))?;
-    let c = common(&kw, Choices::default())?;
+    let g33 = kw.count("g33_points")?.is_some() || kw.flag("g33_fixed_angles")?;
+    let c = common(
+        &kw,
+        Choices {
+            g33,
+            ..Choices::default()
+        },
+    )?;
     c.check_paths(&[&config, &probes])?;
     let letter_b: Option<LetterB> = kw
         .str("m665_b")?
