@@ -500,7 +500,7 @@ def test_next_measurements_name_pythons_keywords():
 def test_an_even_mesh_count_on_a_round_mesh_is_refused_by_its_keyword(tmp_path):
     """A round mesh has a centre node: an even ``mesh_points`` is refused,
     naming the keyword, before any file is written."""
-    with pytest.raises(pkmcal.PkmcalError, match=r"mesh_points=: 6 nodes across: a round bed's mesh has an odd count"):
+    with pytest.raises(pkmcal.PkmcalError, match=r"mesh_points: 6 nodes across: a round bed's mesh has an odd count"):
         pkmcal.klipper(KLIPPER, physical=True, height_map=tmp_path / "m.cfg", mesh_points=6)
     assert not (tmp_path / "m.cfg").exists()
 
