@@ -76,7 +76,7 @@ impl Args {
 
 pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
     pkmcal_io::firmware::choices::Choices {
-        g33: a.g33_points != g33::DEFAULT_POINTS || a.g33_fixed_angles,
+        g33: pkmcal_io::firmware::choices::g33_given(usize::from(a.g33_points), a.g33_fixed_angles),
         ..a.physical.choices()
     }
     .check()?;

@@ -148,6 +148,13 @@ pub fn max_sigma(v: f64) -> Result<f64, RequestError> {
     }
 }
 
+/// Whether a user set Marlin's G33 comparison (`points` read, its tower
+/// angles held): [`Choices::g33`]. The points are compared with G33's
+/// default, which both front ends pass when none is given.
+pub fn g33_given(points: usize, fixed_angles: bool) -> bool {
+    points != usize::from(super::g33::DEFAULT_POINTS) || fixed_angles
+}
+
 /// G33's probe points for a comparison (its `P`), checked:
 /// [`super::g33::FEWEST_POINTS`] to [`super::g33::MOST_POINTS`]. The
 /// problem names no value: each front end gives the one it read.

@@ -205,12 +205,12 @@ pub fn marlin<'py>(py: Python<'py>, args: &Bound<'py, PyDict>) -> PyResult<Bound
     let kw = Kw::new(args.clone());
     let config = path_kw(&kw, "config")?.ok_or_else(|| usage("config: a value is needed"))?;
     let probes = path_kw(&kw, "probes")?.ok_or_else(|| usage("probes: a value is needed"))?;
-    // As the command line reads them: points other than G33's default, or
-    // its tower angles held (the wrapper always passes the default).
-    let g33 = kw
-        .count("g33_points")?
-        .is_some_and(|p| p != usize::from(g33::DEFAULT_POINTS))
-        || kw.flag("g33_fixed_angles")?;
+    // (The wrapper always passes G33's default points.)
+    let g33 = choices::g33_given(
+        kw.count("g33_points")?
+            .unwrap_or(usize::from(g33::DEFAULT_POINTS)),
+        kw.flag("g33_fixed_angles")?,
+    );
     let c = common(
         &kw,
         Choices {
