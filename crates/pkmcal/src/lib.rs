@@ -71,8 +71,8 @@ pub use engine::linearized::{
     Linearization, joint_errors, linearize, load_vector, projection, tool_derivatives,
 };
 pub use engine::models::{
-    Equilibrium, Model, Pose, Prediction, equilibrium, predict, predict_pose, predict_pose_warm,
-    prepare_pose,
+    Equilibrium, Model, Pose, Prediction, equilibrium, predict, predict_near, predict_pose,
+    predict_pose_warm, prepare_pose,
 };
 pub use error::{Error, Field, Origin, RequestError, Result, Suggestion};
 pub use identify::noise::{NoiseGroup, VarianceRatio, variance_ratio};

@@ -396,21 +396,33 @@ pub fn residual_map(
     let targets: Vec<[f64; 3]> = nodes.iter().map(|n| n.2).collect();
     let cal = &fit.study.calibration;
     let nozzle = fit.delta.nozzle();
-    let at = |params: &Params, bed: &[f64]| -> Result<Vec<f64>> {
-        Ok(physical::nozzle_errors(
-            fw_mech, fw_params, fw_bed, &fit.mech, params, bed, nozzle, &targets,
-        )
-        .map_err(|e| e.context("a node of the height map"))?
-        .into_iter()
-        .map(|e| -e[2])
-        .collect())
+    // The firmware's commands for the nodes, the same for every draw.
+    let sent = physical::Sent::new(fw_mech, fw_params, fw_bed, &targets)
+        .map_err(|e| e.context("a node of the height map"))?;
+    // Each node's correction on the printer `params` (bed `bed`), and the
+    // printer's joints there; from `starts` (the fitted printer's) where
+    // given.
+    let at = |params: &Params,
+              bed: &[f64],
+              starts: Option<&[Vec<f64>]>|
+     -> Result<(Vec<f64>, physical::Joints)> {
+        let printer = physical::Printer {
+            mech: &fit.mech,
+            params,
+            bed,
+            nozzle,
+        };
+        let (e, q) = sent
+            .nozzle_errors(&printer, starts)
+            .map_err(|e| e.context("a node of the height map"))?;
+        Ok((e.into_iter().map(|e| -e[2]).collect(), q))
     };
-    let best = at(&cal.params, &cal.measurement)?;
+    let (best, joints) = at(&cal.params, &cal.measurement, None)?;
     let mut sum = vec![0.0; targets.len()];
     let mut sq = vec![0.0; targets.len()];
     let draws = physical::posterior_draws(fit, physical::CUBE_DRAWS, physical::CUBE_SEED)?;
     for (p, bed) in &draws {
-        for (k, v) in at(p, bed)?.into_iter().enumerate() {
+        for (k, v) in at(p, bed, Some(&joints))?.0.into_iter().enumerate() {
             sum[k] += v;
             sq[k] += v * v;
         }

@@ -621,13 +621,31 @@ pub fn nozzle_at(
     commands: &[f64],
     nozzle: [f64; 3],
 ) -> Result<[f64; 3]> {
-    let pr = pkmcal::predict(mech, params, commands, pkmcal::Model::Exact, &[])?;
+    Ok(nozzle_from(mech, params, commands, nozzle, None)?.0)
+}
+
+/// [`nozzle_at`], and the printer's joints there; from `start`, the joints
+/// at nearby commands or on a nearby printer ([`pkmcal::predict_near`]),
+/// where given: a projection's steps and a posterior's draws move the
+/// nozzle by millimetres at most, and a cold prediction's nominal forward
+/// kinematics is most of its cost.
+fn nozzle_from(
+    mech: &Mech,
+    params: &Params,
+    commands: &[f64],
+    nozzle: [f64; 3],
+    start: Option<&[f64]>,
+) -> Result<([f64; 3], Vec<f64>)> {
+    let exact = pkmcal::Model::Exact;
+    let pr = match start {
+        Some(q) => pkmcal::predict_near(mech, params, commands, exact, &[], q)?,
+        None => pkmcal::predict(mech, params, commands, exact, &[])?,
+    };
     let n = pr.q.len();
     let pose = &pr.q[n - 6..];
     let r = pkmcal::linalg::pose::rotation(pose[3], pose[4], pose[5]);
-    Ok(std::array::from_fn(|i| {
-        pose[i] + (0..3).map(|k| r[i][k] * nozzle[k]).sum::<f64>()
-    }))
+    let at = std::array::from_fn(|i| pose[i] + (0..3).map(|k| r[i][k] * nozzle[k]).sum::<f64>());
+    Ok((at, pr.q))
 }
 
 /// The bed plane's height (mm) at `x`, `y` for the probe's parameters
@@ -689,19 +707,96 @@ pub fn nozzle_errors(
     nozzle: [f64; 3],
     targets: &[[f64; 3]],
 ) -> Result<Vec<[f64; 3]>> {
-    use rayon::prelude::*;
-    targets
-        .par_iter()
-        .map(|t| {
-            let c = firmware_commands(fw_mech, fw_params, fw_bed, *t)?;
-            let n = nozzle_at(mech, params, &c, nozzle)?;
-            Ok([
-                n[0] - t[0],
-                n[1] - t[1],
-                n[2] - bed_height(bed, n[0], n[1]) - t[2],
-            ])
-        })
-        .collect()
+    let at = Printer {
+        mech,
+        params,
+        bed,
+        nozzle,
+    };
+    Ok(nozzle_errors_from(fw_mech, fw_params, fw_bed, &at, targets, None)?.0)
+}
+
+/// A printer's joints at each nozzle target (its predictions' `q`), kept
+/// to start the next evaluation's predictions at the same targets.
+pub(crate) type Joints = Vec<Vec<f64>>;
+
+/// A printer as the nozzle's errors read it: its description, parameters,
+/// bed plane and nozzle offset.
+#[derive(Clone, Copy)]
+pub(crate) struct Printer<'a> {
+    pub mech: &'a Mech,
+    pub params: &'a Params,
+    pub bed: &'a [f64],
+    pub nozzle: [f64; 3],
+}
+
+/// [`nozzle_errors`] on `at`, and the printer's joints at each target;
+/// each prediction from the joints `starts` of the same target (at nearby
+/// firmware values or on a nearby printer) where given ([`nozzle_from`]).
+fn nozzle_errors_from(
+    fw_mech: &Mech,
+    fw_params: &Params,
+    fw_bed: Option<&[f64]>,
+    at: &Printer,
+    targets: &[[f64; 3]],
+    starts: Option<&[Vec<f64>]>,
+) -> Result<(Vec<[f64; 3]>, Joints)> {
+    let sent = Sent::new(fw_mech, fw_params, fw_bed, targets)?;
+    sent.nozzle_errors(at, starts)
+}
+
+/// The carriage heights the firmware sends for each nozzle target under
+/// fixed values ([`firmware_commands`]): made once where many printers
+/// (a posterior's draws) are compared under the same values.
+pub(crate) struct Sent<'t> {
+    targets: &'t [[f64; 3]],
+    commands: Vec<Vec<f64>>,
+}
+
+impl<'t> Sent<'t> {
+    pub(crate) fn new(
+        fw_mech: &Mech,
+        fw_params: &Params,
+        fw_bed: Option<&[f64]>,
+        targets: &'t [[f64; 3]],
+    ) -> Result<Self> {
+        use rayon::prelude::*;
+        let commands = targets
+            .par_iter()
+            .map(|t| firmware_commands(fw_mech, fw_params, fw_bed, *t))
+            .collect::<Result<_>>()?;
+        Ok(Sent { targets, commands })
+    }
+
+    /// The nozzle's error at each target on the printer `at` (as
+    /// [`nozzle_errors`]), and the printer's joints there; each prediction
+    /// from `starts`' joints of the same target where given.
+    pub(crate) fn nozzle_errors(
+        &self,
+        at: &Printer,
+        starts: Option<&[Vec<f64>]>,
+    ) -> Result<(Vec<[f64; 3]>, Joints)> {
+        use rayon::prelude::*;
+        let errors: Vec<([f64; 3], Vec<f64>)> = self
+            .targets
+            .par_iter()
+            .zip(&self.commands)
+            .enumerate()
+            .map(|(i, (t, c))| {
+                let start = starts.and_then(|s| s.get(i)).map(Vec::as_slice);
+                let (n, q) = nozzle_from(at.mech, at.params, c, at.nozzle, start)?;
+                Ok((
+                    [
+                        n[0] - t[0],
+                        n[1] - t[1],
+                        n[2] - bed_height(at.bed, n[0], n[1]) - t[2],
+                    ],
+                    q,
+                ))
+            })
+            .collect::<Result<_>>()?;
+        Ok(errors.into_iter().unzip())
+    }
 }
 
 /// The rigid motion in the bed's plane that best explains the XY errors
@@ -863,37 +958,31 @@ pub fn project_weighing(
         .collect();
     let fw_bed = ld.corrects_bed_tilt.then(|| bed.to_vec());
     let mut fw = Params::nominal(fw_spec);
-    let nozzle = ld.nozzle();
-    let errors = |p: &Params| -> Result<Vec<f64>> {
-        Ok(nozzle_errors(
-            fw_mech,
-            p,
-            fw_bed.as_deref(),
-            mech,
-            params,
-            bed,
-            nozzle,
-            &targets,
-        )
-        .map(|e| {
-            weighed(&targets, &e, PLACEMENT_WEIGHT)
-                .into_iter()
-                .map(|v| [v[0], v[1], z_weight * v[2]])
-                .collect::<Vec<_>>()
-        })?
-        .into_iter()
-        .flatten()
-        .collect())
+    let at = Printer {
+        mech,
+        params,
+        bed,
+        nozzle: ld.nozzle(),
+    };
+    // The weighed errors, and the joints at each target (each step's
+    // predictions start from the last accepted values' joints).
+    let errors = |p: &Params, starts: Option<&[Vec<f64>]>| -> Result<(Vec<f64>, Joints)> {
+        let (e, q) = nozzle_errors_from(fw_mech, p, fw_bed.as_deref(), &at, &targets, starts)?;
+        let e = weighed(&targets, &e, PLACEMENT_WEIGHT)
+            .into_iter()
+            .flat_map(|v| [v[0], v[1], z_weight * v[2]])
+            .collect();
+        Ok((e, q))
     };
     let ss = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>();
-    let mut e = errors(&fw)?;
+    let (mut e, mut joints) = errors(&fw, None)?;
     for _ in 0..PROJECTION_ITERATIONS {
         let mut jac = nalgebra::DMatrix::zeros(e.len(), names.len());
         for (k, n) in names.iter().enumerate() {
             let mut p = fw.clone();
             let v = p.get(fw_spec, n)?;
             p.set(fw_spec, n, v + PROJECTION_DIFF)?;
-            let ep = errors(&p)?;
+            let (ep, _) = errors(&p, Some(&joints))?;
             for (i, (a, b)) in ep.iter().zip(&e).enumerate() {
                 jac[(i, k)] = (a - b) / PROJECTION_DIFF;
             }
@@ -913,29 +1002,30 @@ pub fn project_weighing(
                 let v = next.get(fw_spec, n)?;
                 next.set(fw_spec, n, v - scale * step[k])?;
             }
-            let en = errors(&next)?;
+            let (en, qn) = errors(&next, Some(&joints))?;
             if ss(&en) <= ss(&e) {
-                accepted = Some((next, en));
+                accepted = Some((next, en, qn));
                 break;
             }
             scale /= 2.0;
         }
-        let Some((next, en)) = accepted else { break };
+        let Some((next, en, qn)) = accepted else {
+            break;
+        };
         fw = next;
         e = en;
+        joints = qn;
         if scale * step.amax() < PROJECTION_STEP {
             break;
         }
     }
-    let e = nozzle_errors(
+    let (e, _) = nozzle_errors_from(
         fw_mech,
         &fw,
         fw_bed.as_deref(),
-        mech,
-        params,
-        bed,
-        nozzle,
+        &at,
         &targets,
+        Some(&joints),
     )?;
     let e: Vec<f64> = in_bed_frame(&targets, &e).into_iter().flatten().collect();
     let errors: Vec<[f64; 3]> = e.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
@@ -1052,22 +1142,26 @@ pub fn choose(fit: &PhysicalFit, fw_mech: &Mech, own: &Params, own_bed: &[f64]) 
     };
     let fw_bed = |b: &[f64]| ld.corrects_bed_tilt.then(|| b.to_vec());
     let own_bed = tilt(own_bed);
-    let on = |p: &Params, b: &[f64], mp: &Params, mb: &[f64]| -> Result<Vec<[f64; 3]>> {
-        Ok(in_bed_frame(
-            &targets,
-            &nozzle_errors(
-                fw_mech,
-                p,
-                fw_bed(b).as_deref(),
-                &fit.mech,
-                mp,
-                mb,
-                nozzle,
-                &targets,
-            )?,
-        ))
+    // The errors in the bed's frame with the firmware's values `p` (bed
+    // `b`) on the printer `mp` (bed `mb`), and its joints at each target;
+    // from `starts` where given.
+    let sent = |p: &Params, b: &[f64]| Sent::new(fw_mech, p, fw_bed(b).as_deref(), &targets);
+    let on = |sent: &Sent,
+              mp: &Params,
+              mb: &[f64],
+              starts: Option<&[Vec<f64>]>|
+     -> Result<(Vec<[f64; 3]>, Joints)> {
+        let at = Printer {
+            mech: &fit.mech,
+            params: mp,
+            bed: mb,
+            nozzle,
+        };
+        let (e, q) = sent.nozzle_errors(&at, starts)?;
+        Ok((in_bed_frame(&targets, &e), q))
     };
-    let own_errors = on(own, &own_bed, &cal.params, &cal.measurement)?;
+    let own_sent = sent(own, &own_bed)?;
+    let (own_errors, own_joints) = on(&own_sent, &cal.params, &cal.measurement, None)?;
     let own = Projection {
         params: own.clone(),
         bed: own_bed,
@@ -1104,10 +1198,21 @@ pub fn choose(fit: &PhysicalFit, fw_mech: &Mech, own: &Params, own_bed: &[f64]) 
             z,
         )
     };
+    // Each draw's predictions start from the fitted printer's joints at
+    // the same commands.
+    let projected_sent = sent(&projected.params, &projected.bed)?;
+    let (_, projected_joints) = on(
+        &projected_sent,
+        &cal.params,
+        &cal.measurement,
+        Some(&own_joints),
+    )?;
     let mut gains = vec![];
     for (p, b) in &draws {
-        let (t0, z0) = mean_square(&on(&own.params, &own.bed, p, b)?);
-        let (t1, z1) = mean_square(&on(&projected.params, &projected.bed, p, b)?);
+        let (own_e, _) = on(&own_sent, p, b, Some(&own_joints))?;
+        let (projected_e, _) = on(&projected_sent, p, b, Some(&projected_joints))?;
+        let (t0, z0) = mean_square(&own_e);
+        let (t1, z1) = mean_square(&projected_e);
         gains.push([t0 - t1, z0 - z1]);
     }
     let stat = |k: usize| -> [f64; 2] {
@@ -1185,30 +1290,48 @@ pub fn projection_sigmas<F: Firmware + ?Sized>(
         .iter()
         .filter(|n| fw_spec.param_index(n).is_ok())
         .collect();
-    let objective = |fw: &Params, params: &Params, bed: &[f64]| -> Result<Vec<f64>> {
+    // The weighed errors with the firmware's values `fw` (the
+    // projection's where `None`) on the printer `params`, and the joints at
+    // each target, from `starts` where given (the fitted printer's at the
+    // projection's values).
+    // Where the firmware does not tilt its z with the printer's bed, the
+    // projection's values send the same commands to every draw.
+    let sent = match ld.corrects_bed_tilt {
+        true => None,
+        false => Some(Sent::new(fw_mech, &proj.params, None, targets)?),
+    };
+    let objective = |fw: Option<&Params>,
+                     params: &Params,
+                     bed: &[f64],
+                     starts: Option<&[Vec<f64>]>|
+     -> Result<(Vec<f64>, Joints)> {
         let fw_bed = ld.corrects_bed_tilt.then(|| bed.to_vec());
-        let e = nozzle_errors(
-            fw_mech,
-            fw,
-            fw_bed.as_deref(),
-            &fit.mech,
+        let at = Printer {
+            mech: &fit.mech,
             params,
             bed,
             nozzle,
-            targets,
-        )?;
-        Ok(weighed(targets, &e, PLACEMENT_WEIGHT)
+        };
+        let (e, q) = match (fw, &sent) {
+            (None, Some(sent)) => sent.nozzle_errors(&at, starts)?,
+            (fw, _) => {
+                let fw = fw.unwrap_or(&proj.params);
+                nozzle_errors_from(fw_mech, fw, fw_bed.as_deref(), &at, targets, starts)?
+            }
+        };
+        let e = weighed(targets, &e, PLACEMENT_WEIGHT)
             .into_iter()
             .flat_map(|v| [v[0], v[1], z_weight * v[2]])
-            .collect())
+            .collect();
+        Ok((e, q))
     };
-    let e0 = objective(&proj.params, &cal.params, &cal.measurement)?;
+    let (e0, joints) = objective(None, &cal.params, &cal.measurement, None)?;
     let mut jac = nalgebra::DMatrix::zeros(e0.len(), names.len());
     for (k, n) in names.iter().enumerate() {
         let mut p = proj.params.clone();
         let v = p.get(fw_spec, n)?;
         p.set(fw_spec, n, v + PROJECTION_DIFF)?;
-        let ep = objective(&p, &cal.params, &cal.measurement)?;
+        let (ep, _) = objective(Some(&p), &cal.params, &cal.measurement, Some(&joints))?;
         for (i, (a, b)) in ep.iter().zip(&e0).enumerate() {
             jac[(i, k)] = (a - b) / PROJECTION_DIFF;
         }
@@ -1231,7 +1354,7 @@ pub fn projection_sigmas<F: Firmware + ?Sized>(
     let base = written(&proj.params, &cal.measurement)?;
     let draws = posterior_draws(fit, CHOICE_DRAWS, CHOICE_SEED)?;
     for (p, bed) in &draws {
-        let e = objective(&proj.params, p, bed)?;
+        let (e, _) = objective(None, p, bed, Some(&joints))?;
         let de: Vec<f64> = e.iter().zip(&e0).map(|(a, b)| a - b).collect();
         let step = svd
             .solve(&nalgebra::DVector::from_column_slice(&de), cut)
@@ -1298,13 +1421,24 @@ pub fn nozzle_sigma(
     let mut sum = vec![[0.0; 3]; targets.len()];
     let mut sq = vec![[0.0; 3]; targets.len()];
     let draws = posterior_draws(fit, CUBE_DRAWS, CUBE_SEED)?;
+    // Each draw's predictions start from the fitted printer's joints.
+    let cal = &fit.study.calibration;
+    let fitted = Printer {
+        mech: &fit.mech,
+        params: &cal.params,
+        bed: &cal.measurement,
+        nozzle,
+    };
+    let sent = Sent::new(fw_mech, fw_params, fw_bed, &targets)?;
+    let (_, joints) = sent.nozzle_errors(&fitted, None)?;
     for (p, bed) in &draws {
-        let e = in_bed_frame(
-            &targets,
-            &nozzle_errors(
-                fw_mech, fw_params, fw_bed, &fit.mech, p, bed, nozzle, &targets,
-            )?,
-        );
+        let at = Printer {
+            params: p,
+            bed,
+            ..fitted
+        };
+        let (e, _) = sent.nozzle_errors(&at, Some(&joints))?;
+        let e = in_bed_frame(&targets, &e);
         for ((s, q), e) in sum.iter_mut().zip(sq.iter_mut()).zip(&e) {
             for k in 0..3 {
                 s[k] += e[k];
@@ -1385,8 +1519,22 @@ pub fn cube_at(
     nozzle: [f64; 3],
     centre: [f64; 2],
 ) -> Result<([f64; 2], f64)> {
+    let at = Printer {
+        mech,
+        params,
+        bed,
+        nozzle,
+    };
+    let points = cube_points(centre);
+    let sent = Sent::new(fw_mech, fw_params, fw_bed, &points)?;
+    Ok(cube_of(&sent.nozzle_errors(&at, None)?.0))
+}
+
+/// The cube's points at `centre`: the middles of its four sides at half
+/// its height, then its top's four corners.
+fn cube_points(centre: [f64; 2]) -> [[f64; 3]; 8] {
     let (h, [x, y]) = (CUBE_MM / 2.0, centre);
-    let points = [
+    [
         [x - h, y, h],
         [x + h, y, h],
         [x, y - h, h],
@@ -1395,13 +1543,15 @@ pub fn cube_at(
         [x + h, y - h, CUBE_MM],
         [x - h, y + h, CUBE_MM],
         [x + h, y + h, CUBE_MM],
-    ];
-    let e = nozzle_errors(
-        fw_mech, fw_params, fw_bed, mech, params, bed, nozzle, &points,
-    )?;
+    ]
+}
+
+/// The size errors (X, Y) and top flatness from the nozzle's errors at
+/// [`cube_points`].
+fn cube_of(e: &[[f64; 3]]) -> ([f64; 2], f64) {
     let top = e[4..].iter().map(|v| v[2]);
     let flatness = top.clone().fold(f64::MIN, f64::max) - top.fold(f64::MAX, f64::min);
-    Ok(([e[1][0] - e[0][0], e[3][1] - e[2][1]], flatness))
+    ([e[1][0] - e[0][0], e[3][1] - e[2][1]], flatness)
 }
 
 /// The verdict's cubes ([`cube_centres`]) printed with the firmware's
@@ -1420,22 +1570,26 @@ pub fn cube_errors(
     cube_centres(&fit.delta)
         .into_iter()
         .map(|centre| {
-            let (size, flatness) = cube_at(
-                fw_mech,
-                fw_params,
-                fw_bed,
-                &fit.mech,
-                &cal.params,
-                &cal.measurement,
+            let fitted = Printer {
+                mech: &fit.mech,
+                params: &cal.params,
+                bed: &cal.measurement,
                 nozzle,
-                centre,
-            )?;
+            };
+            let points = cube_points(centre);
+            let sent = Sent::new(fw_mech, fw_params, fw_bed, &points)?;
+            let (e, joints) = sent.nozzle_errors(&fitted, None)?;
+            let (size, flatness) = cube_of(&e);
             let mut sum = [0.0; 3];
             let mut sq = [0.0; 3];
             for (p, bed) in &draws {
-                let (s, f) = cube_at(
-                    fw_mech, fw_params, fw_bed, &fit.mech, p, bed, nozzle, centre,
-                )?;
+                let at = Printer {
+                    params: p,
+                    bed,
+                    ..fitted
+                };
+                // From the fitted printer's joints at the same commands.
+                let (s, f) = cube_of(&sent.nozzle_errors(&at, Some(&joints))?.0);
                 for (k, v) in [s[0], s[1], f].into_iter().enumerate() {
                     sum[k] += v;
                     sq[k] += v * v;

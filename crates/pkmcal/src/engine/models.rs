@@ -776,6 +776,58 @@ pub(crate) fn predict_pose_near<M: Mechanism>(
     predict_pose(mech, pose, params, model, force)
 }
 
+/// A prediction for `commands` from a configuration `start` near the
+/// answer (the solution at nearby commands or parameters, as a projection
+/// or a scan of neighbouring points has it), without the nominal forward
+/// kinematics [`predict`] makes first: forward kinematics (the rigid model)
+/// or the equilibrium (the exact one) starts at `start`, and its answer is
+/// taken when it converged within 0.05 rad of it (a length counted at 100
+/// mm per rad: the same assembly mode). Otherwise, and for the linear model or a load, the prediction is
+/// [`predict`]'s. Converged to the same tolerances as `predict`'s; the last
+/// bits may differ (another start).
+pub fn predict_near<M: Mechanism>(
+    mech: &M,
+    params: &Params,
+    commands: &[f64],
+    model: Model,
+    force: &[f64],
+    start: &[f64],
+) -> Result<Prediction> {
+    let spec = mech.spec();
+    check_commands(spec, commands)?;
+    check_load(spec, force)?;
+    if start.len() == spec.joints.len() && force.iter().all(|f| *f == 0.0) {
+        // The start stands for the pose's nominal configuration: only the
+        // rigid and exact models read it (as their start and, for the
+        // exact one, where Newton's curvature is taken).
+        let pose = Pose {
+            commands: reduced_commands(spec, commands),
+            nominal_q: start.to_vec(),
+            lin: OnceLock::new(),
+            hessians: OnceLock::new(),
+            transient: OnceLock::new(),
+            at_nominal: OnceLock::new(),
+            sensitivity_at_nominal: OnceLock::new(),
+        };
+        let f = effective_force(mech, &pose, force)?;
+        let warm = match effective_model(spec, model, &f) {
+            Model::Exact => exact_from(mech, &pose, params, &f, start).ok(),
+            Model::Rigid => rigid_from(mech, &pose, params, start).ok(),
+            Model::Linear => None,
+        };
+        if let Some(p) = warm {
+            let moved = crate::engine::kinematics::turn_of(
+                spec,
+                p.q.iter().zip(start).map(|(a, b)| a - b).enumerate(),
+            );
+            if p.q.len() == start.len() && moved <= NEAR_TURN {
+                return Ok(p);
+            }
+        }
+    }
+    predict(mech, params, commands, model, force)
+}
+
 /// The generalised forces of the load `force` (a wrench, [`crate::engine::load`])
 /// at the pose's nominal configuration.
 pub(crate) fn effective_force<M: Mechanism>(

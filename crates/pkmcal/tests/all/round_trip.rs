@@ -132,3 +132,82 @@ fn the_readme_plan_compensated_predicts_back() {
         }
     }
 }
+
+/// A prediction from a nearby start ([`pkmcal::predict_near`]) agrees with
+/// the cold one ([`pkmcal::predict`]) to this (mm, or rad): both converged
+/// to the solvers' tolerances from different starts.
+const NEAR_AGREES: f64 = 1e-9;
+
+/// `predict_near` started from the joints at nearby commands (a projection's
+/// step) or on the nominal mechanism (a posterior's draw) is the cold
+/// prediction on every shipped mechanism, redundant ones included (the exact
+/// model's equilibrium); from a start on another assembly mode, or of the
+/// wrong length, the cold prediction itself, bit for bit.
+fn near_starts<M: Mechanism>(m: &M, seed: u64) {
+    let spec = m.spec();
+    let truth = perturbed_by_unit(spec, seed, 0.2, 2e-3);
+    let nominal = Params::nominal(spec);
+    let mut checked = 0;
+    for t in spread(m, 12) {
+        let Ok(c) = pkmcal::nominal_commands(m, &t) else {
+            continue;
+        };
+        let Ok(cold) = pkmcal::predict(m, &truth, &c, Model::Exact, &[]) else {
+            continue;
+        };
+        // From the nominal mechanism's joints at the same commands, and from
+        // the truth's at commands a step away.
+        let at_nominal = pkmcal::predict(m, &nominal, &c, Model::Exact, &[]).unwrap();
+        let stepped: Vec<f64> = c.iter().map(|v| v + 1e-3).collect();
+        let starts = [at_nominal.q.clone()];
+        let near_step = pkmcal::predict(m, &truth, &stepped, Model::Exact, &[]);
+        for start in starts.iter().chain(near_step.as_ref().map(|p| &p.q)) {
+            let near = pkmcal::predict_near(m, &truth, &c, Model::Exact, &[], start).unwrap();
+            let gap = near
+                .x
+                .iter()
+                .zip(&cold.x)
+                .chain(near.q.iter().zip(&cold.q))
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            assert!(gap <= NEAR_AGREES, "{}: {gap:e} at {t:?}", spec.name);
+        }
+        // A start far off (every joint moved by 0.5, rad or mm) is not taken
+        // unless it converges back to the same answer; one of the wrong
+        // length is not taken.
+        let far: Vec<f64> = cold.q.iter().map(|q| q + 0.5).collect();
+        for start in [far.as_slice(), &cold.q[1..]] {
+            let p = pkmcal::predict_near(m, &truth, &c, Model::Exact, &[], start).unwrap();
+            if p.q != cold.q {
+                let gap =
+                    p.q.iter()
+                        .zip(&cold.q)
+                        .map(|(a, b)| (a - b).abs())
+                        .fold(0.0, f64::max);
+                assert!(gap <= NEAR_AGREES, "{}: far start {gap:e}", spec.name);
+            }
+        }
+        checked += 1;
+    }
+    assert!(checked >= 6, "{}: {checked} targets checked", spec.name);
+}
+
+#[test]
+fn predictions_from_near_starts_are_the_cold_ones_on_every_shipped_mechanism() {
+    near_starts(&pkmcal::JeongKim2Dof::new(), 1);
+    for name in ["five-bar", "3-rrr", "4-rrr", "jeong-kim-planar"] {
+        near_starts(&planar(name), 2);
+    }
+    for name in ["gough-stewart-6", "gough-stewart-8"] {
+        near_starts(&gough_stewart(name), 3);
+    }
+    for name in [
+        "linear-delta",
+        "linear-delta-4",
+        "rotary-delta",
+        "3-prs",
+        "spatial-gough-stewart-6",
+    ] {
+        near_starts(&spatial(name), 4);
+    }
+}
