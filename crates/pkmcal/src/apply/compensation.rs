@@ -267,11 +267,11 @@ pub fn predistort<M: Mechanism>(
     let mut sent = target.to_vec();
     let mut residual = f64::INFINITY;
     for it in 0..MAX_PREDISTORT_ITERATIONS {
-        // The controller's configuration starts forward kinematics: the
-        // real machine is near it.
+        // The controller's configuration starts the real machine's forward
+        // kinematics (or equilibrium): the real machine is near it.
         let (commands, q) = controller_configuration(mech, controller, &sent)?;
-        let pose = crate::engine::models::prepare_pose(mech, &commands, Some(&q))?;
-        let reached = crate::engine::models::predict_pose(mech, &pose, real, model, &opts.force)?;
+        let reached =
+            crate::engine::models::predict_near(mech, real, &commands, model, &opts.force, &q)?;
         residual = 0.0;
         for ((s, x), t) in sent.iter_mut().zip(&reached.x).zip(target) {
             let e = x - t;

@@ -782,9 +782,11 @@ pub(crate) fn predict_pose_near<M: Mechanism>(
 /// kinematics [`predict`] makes first: forward kinematics (the rigid model)
 /// or the equilibrium (the exact one) starts at `start`, and its answer is
 /// taken when it converged within 0.05 rad of it (a length counted at 100
-/// mm per rad: the same assembly mode). Otherwise, and for the linear model or a load, the prediction is
-/// [`predict`]'s. Converged to the same tolerances as `predict`'s; the last
-/// bits may differ (another start).
+/// mm per rad: the same assembly mode). Otherwise, and for the linear
+/// model or a load, the prediction is made as [`predict_pose`] makes it,
+/// the pose prepared with `start` among its candidate starts
+/// ([`prepare_pose`]). Converged to the same tolerances as `predict`'s; the
+/// last bits may differ (another start).
 pub fn predict_near<M: Mechanism>(
     mech: &M,
     params: &Params,
@@ -825,7 +827,9 @@ pub fn predict_near<M: Mechanism>(
             }
         }
     }
-    predict(mech, params, commands, model, force)
+    let start = (start.len() == spec.joints.len()).then_some(start);
+    let pose = prepare_pose(mech, commands, start)?;
+    predict_pose(mech, &pose, params, model, force)
 }
 
 /// The generalised forces of the load `force` (a wrench, [`crate::engine::load`])

@@ -141,8 +141,9 @@ const NEAR_AGREES: f64 = 1e-9;
 /// `predict_near` started from the joints at nearby commands (a projection's
 /// step) or on the nominal mechanism (a posterior's draw) is the cold
 /// prediction on every shipped mechanism, redundant ones included (the exact
-/// model's equilibrium); from a start on another assembly mode, or of the
-/// wrong length, the cold prediction itself, bit for bit.
+/// model's equilibrium); from a start far off, or of the wrong length, the
+/// prediction made as the cold one is (the start only among its pose's
+/// candidate starts).
 fn near_starts<M: Mechanism>(m: &M, seed: u64) {
     let spec = m.spec();
     let truth = perturbed_by_unit(spec, seed, 0.2, 2e-3);
