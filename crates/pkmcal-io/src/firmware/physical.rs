@@ -1532,7 +1532,7 @@ pub fn cube_at(
 
 /// The cube's points at `centre`: the middles of its four sides at half
 /// its height, then its top's four corners.
-fn cube_points(centre: [f64; 2]) -> [[f64; 3]; 8] {
+pub(crate) fn cube_points(centre: [f64; 2]) -> [[f64; 3]; 8] {
     let (h, [x, y]) = (CUBE_MM / 2.0, centre);
     [
         [x - h, y, h],
@@ -1548,7 +1548,7 @@ fn cube_points(centre: [f64; 2]) -> [[f64; 3]; 8] {
 
 /// The size errors (X, Y) and top flatness from the nozzle's errors at
 /// [`cube_points`].
-fn cube_of(e: &[[f64; 3]]) -> ([f64; 2], f64) {
+pub(crate) fn cube_of(e: &[[f64; 3]]) -> ([f64; 2], f64) {
     let top = e[4..].iter().map(|v| v[2]);
     let flatness = top.clone().fold(f64::MIN, f64::max) - top.fold(f64::MAX, f64::min);
     ([e[1][0] - e[0][0], e[3][1] - e[2][1]], flatness)

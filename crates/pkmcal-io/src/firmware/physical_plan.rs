@@ -171,13 +171,11 @@ fn touch_points(radius: f64) -> Vec<[f64; 2]> {
 }
 
 /// Every quantity the candidates and the cube depend on, for the printer
-/// `params` with bed `bed`: the 6 cube errors, then each candidate probe
+/// `params` with bed `bed` under the firmware's written values (their
+/// commands in [`Sents`]): the 6 cube errors, then each candidate probe
 /// point's height, each block point's, each object distance.
 struct Quantities<'a> {
     fit: &'a PhysicalFit,
-    fw_mech: &'a Mech,
-    fw_params: &'a Params,
-    fw_bed: Option<&'a [f64]>,
     probes: Vec<[f64; 2]>,
     block: Vec<[f64; 2]>,
     touches: Vec<[f64; 2]>,
@@ -185,42 +183,12 @@ struct Quantities<'a> {
 }
 
 impl Quantities<'_> {
-    fn eval(&self, params: &Params, bed: &[f64]) -> Result<Vec<f64>> {
-        let fit = self.fit;
-        let mut out = vec![];
-        for centre in physical::cube_centres(&fit.delta) {
-            let (size, flat) = physical::cube_at(
-                self.fw_mech,
-                self.fw_params,
-                self.fw_bed,
-                &fit.mech,
-                params,
-                bed,
-                fit.delta.nozzle(),
-                centre,
-            )?;
-            out.extend([size[0], size[1], flat]);
-        }
-        // The tool's error (x, y, z over the bed) at each target the
-        // firmware's values send it to.
-        let errors = |tool: [f64; 3], targets: &[[f64; 3]]| {
-            physical::nozzle_errors(
-                self.fw_mech,
-                self.fw_params,
-                self.fw_bed,
-                &fit.mech,
-                params,
-                bed,
-                tool,
-                targets,
-            )
-        };
-        // A probe reading: the probe's height over the bed with the nozzle
-        // sent to put it at the point (the probe is the effector frame's
-        // origin).
-        let o = fit.delta.probe_offset;
-        let probe_targets: Vec<[f64; 3]> = self
-            .probes
+    /// The probe's targets: the nozzle sent to put the probe (the effector
+    /// frame's origin) over each candidate point, then over each block
+    /// point at the block's height.
+    fn probe_targets(&self) -> Vec<[f64; 3]> {
+        let o = self.fit.delta.probe_offset;
+        self.probes
             .iter()
             .map(|p| [p[0] - o[0], p[1] - o[1], 0.0])
             .chain(
@@ -228,12 +196,13 @@ impl Quantities<'_> {
                     .iter()
                     .map(|p| [p[0] - o[0], p[1] - o[1], GAUGE_BLOCK_MM]),
             )
-            .collect();
-        out.extend(errors([0.0; 3], &probe_targets)?.iter().map(|e| e[2]));
-        // A nozzle touch: the nozzle's height over the bed where the
-        // firmware puts it at z = 0; then the object's distances' ends.
-        let nozzle_targets: Vec<[f64; 3]> = self
-            .touches
+            .collect()
+    }
+
+    /// The nozzle's targets: each touch at z = 0, then both ends of each
+    /// object distance.
+    fn nozzle_targets(&self) -> Vec<[f64; 3]> {
+        self.touches
             .iter()
             .map(|p| [p[0], p[1], 0.0])
             .chain(
@@ -241,8 +210,50 @@ impl Quantities<'_> {
                     .iter()
                     .flat_map(|(a, b)| [[a[0], a[1], 0.0], [b[0], b[1], 0.0]]),
             )
-            .collect();
-        let nozzle = errors(fit.delta.nozzle(), &nozzle_targets)?;
+            .collect()
+    }
+
+    /// The quantities on the printer `params` with bed `bed`, and the
+    /// printer's joints at every point read; each prediction from
+    /// `starts`' joints at the same point where given.
+    fn eval(
+        &self,
+        sent: &Sents,
+        params: &Params,
+        bed: &[f64],
+        starts: Option<&Kept>,
+    ) -> Result<(Vec<f64>, Kept)> {
+        let fit = self.fit;
+        let at = |tool: [f64; 3]| physical::Printer {
+            mech: &fit.mech,
+            params,
+            bed,
+            nozzle: tool,
+        };
+        let mut out = vec![];
+        let mut kept = Kept {
+            cubes: vec![],
+            probes: vec![],
+            nozzle: vec![],
+        };
+        for (k, cube) in sent.cubes.iter().enumerate() {
+            let start = starts.and_then(|s| s.cubes.get(k)).map(Vec::as_slice);
+            let (e, joints) = cube.nozzle_errors(&at(fit.delta.nozzle()), start)?;
+            let (size, flat) = physical::cube_of(&e);
+            out.extend([size[0], size[1], flat]);
+            kept.cubes.push(joints);
+        }
+        // A probe reading: the probe's height over the bed (the probe is
+        // the effector frame's origin).
+        let start = starts.map(|s| s.probes.as_slice());
+        let (e, joints) = sent.probes.nozzle_errors(&at([0.0; 3]), start)?;
+        out.extend(e.iter().map(|e| e[2]));
+        kept.probes = joints;
+        // A nozzle touch: the nozzle's height over the bed where the
+        // firmware puts it at z = 0; then the object's distances' ends.
+        let start = starts.map(|s| s.nozzle.as_slice());
+        let (nozzle, joints) = sent.nozzle.nozzle_errors(&at(fit.delta.nozzle()), start)?;
+        kept.nozzle = joints;
         let (touch, e) = nozzle.split_at(self.touches.len());
         out.extend(touch.iter().map(|e| e[2]));
         for (k, pair) in e.chunks(2).enumerate() {
@@ -251,8 +262,24 @@ impl Quantities<'_> {
             let pb = [b[0] + pair[1][0], b[1] + pair[1][1]];
             out.push((pa[0] - pb[0]).hypot(pa[1] - pb[1]));
         }
-        Ok(out)
+        Ok((out, kept))
     }
+}
+
+/// The firmware's commands for every point the quantities read, made once:
+/// its values are fixed and only the printer varies.
+struct Sents<'t> {
+    cubes: Vec<physical::Sent<'t>>,
+    probes: physical::Sent<'t>,
+    nozzle: physical::Sent<'t>,
+}
+
+/// The printer's joints at every point the quantities read, in [`Sents`]'
+/// order: the next evaluation's predictions start there.
+struct Kept {
+    cubes: Vec<physical::Joints>,
+    probes: physical::Joints,
+    nozzle: physical::Joints,
 }
 
 /// The extra measurements for the fitted printer `fit` with the written
@@ -269,9 +296,6 @@ pub fn suggest(
     let radius = fit.delta.print_radius();
     let q = Quantities {
         fit,
-        fw_mech,
-        fw_params,
-        fw_bed,
         probes: probe_candidates(
             radius - fit.delta.probe_offset[0].hypot(fit.delta.probe_offset[1]),
         ),
@@ -283,7 +307,18 @@ pub fn suggest(
     let spec = fit.mech.spec();
     let names = fit.readings.measurement.all_names(spec);
     let n_params = spec.n_params();
-    let base = q.eval(&cal.params, &cal.measurement)?;
+    let cube_points: Vec<[[f64; 3]; 8]> = physical::cube_centres(&fit.delta)
+        .into_iter()
+        .map(physical::cube_points)
+        .collect();
+    let (probe_targets, nozzle_targets) = (q.probe_targets(), q.nozzle_targets());
+    let sent = |targets| physical::Sent::new(fw_mech, fw_params, fw_bed, targets);
+    let sents = Sents {
+        cubes: cube_points.iter().map(|p| sent(p)).collect::<Result<_>>()?,
+        probes: sent(&probe_targets)?,
+        nozzle: sent(&nozzle_targets)?,
+    };
+    let (base, kept) = q.eval(&sents, &cal.params, &cal.measurement, None)?;
     let columns: Vec<Vec<f64>> = {
         use rayon::prelude::*;
         cal.free
@@ -296,7 +331,8 @@ pub fn suggest(
                 } else {
                     bed[i - n_params] += DIFF;
                 }
-                Ok(q.eval(&p, &bed)?
+                Ok(q.eval(&sents, &p, &bed, Some(&kept))?
+                    .0
                     .iter()
                     .zip(&base)
                     .map(|(a, b)| (a - b) / DIFF)
