@@ -136,6 +136,27 @@ impl Pose {
         Ok(p)
     }
 
+    /// [`Pose::predict_at_nominal`] written into `out` (its vectors keep
+    /// their storage when the kept prediction is taken).
+    pub(crate) fn predict_at_nominal_into<M: Mechanism>(
+        &self,
+        mech: &M,
+        nominal: &Params,
+        model: Model,
+        force: &[f64],
+        out: &mut Prediction,
+    ) -> Result<()> {
+        if let Some((m, f, p)) = self.at_nominal.get().map(|b| &**b)
+            && *m == model
+            && f == force
+        {
+            out.clone_from(p);
+            return Ok(());
+        }
+        *out = self.predict_at_nominal(mech, nominal, model, force)?;
+        Ok(())
+    }
+
     /// [`crate::engine::sensitivity::tool_sensitivity`] at nominal
     /// parameters `nominal` (the caller's, equal to `Params::nominal`) for
     /// `prediction`: the one kept for this model and load when it was
@@ -248,7 +269,7 @@ impl Pose {
 }
 
 /// Where the tool is and what the actuators feel.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Default, PartialEq)]
 pub struct Prediction {
     /// Full joint vector.
     pub q: Vec<f64>,
@@ -266,6 +287,29 @@ pub struct Prediction {
     /// Lagrange multipliers of the constraints at the equilibrium (exact
     /// model), else empty.
     pub multipliers: Vec<f64>,
+}
+
+impl Clone for Prediction {
+    fn clone(&self) -> Self {
+        Self {
+            q: self.q.clone(),
+            x: self.x.clone(),
+            deflection: self.deflection.clone(),
+            torque: self.torque.clone(),
+            iterations: self.iterations,
+            multipliers: self.multipliers.clone(),
+        }
+    }
+
+    /// Into this prediction's vectors, which keep their storage.
+    fn clone_from(&mut self, source: &Self) {
+        self.q.clone_from(&source.q);
+        self.x.clone_from(&source.x);
+        self.deflection.clone_from(&source.deflection);
+        self.torque.clone_from(&source.torque);
+        self.iterations = source.iterations;
+        self.multipliers.clone_from(&source.multipliers);
+    }
 }
 
 impl Prediction {
@@ -684,25 +728,46 @@ fn exact_from<M: Mechanism>(
     force: &[f64],
     start: &[f64],
 ) -> Result<Prediction> {
-    let eq = pose.with_hessians(mech, |h| {
-        equilibrium(mech, params, &pose.commands, force, start, Some(h))
-    })?;
-    let mut x = vec![0.0; mech.spec().tool_axes.len()];
-    mech.tool(&eq.q, params.geometric(), &mut x);
-    let deflection = eq
-        .torque
-        .iter()
-        .zip(params.stiffness())
-        .map(|(t, k)| -t / k)
-        .collect();
-    Ok(Prediction {
-        q: eq.q,
+    let mut p = Prediction::default();
+    exact_into(mech, pose, params, force, start, &mut p)?;
+    Ok(p)
+}
+
+/// [`exact_from`] written into `out`, whose vectors keep their storage
+/// (the same numbers; `out` is left unspecified on an error).
+fn exact_into<M: Mechanism>(
+    mech: &M,
+    pose: &Pose,
+    params: &Params,
+    force: &[f64],
+    start: &[f64],
+    out: &mut Prediction,
+) -> Result<()> {
+    let Prediction {
+        q,
         x,
         deflection,
-        torque: eq.torque,
-        iterations: eq.iterations,
-        multipliers: eq.lambda,
-    })
+        torque,
+        iterations,
+        multipliers,
+    } = out;
+    *iterations = pose.with_hessians(mech, |h| {
+        equilibrium_into(
+            mech,
+            params,
+            &pose.commands,
+            force,
+            start,
+            Some(h),
+            (q, multipliers, torque),
+        )
+    })?;
+    x.clear();
+    x.resize(mech.spec().tool_axes.len(), 0.0);
+    mech.tool(q, params.geometric(), x);
+    deflection.clear();
+    deflection.extend(torque.iter().zip(params.stiffness()).map(|(t, k)| -t / k));
+    Ok(())
 }
 
 /// Like [`predict_pose`], with a warm start for the exact model: the
@@ -716,22 +781,39 @@ pub fn predict_pose_warm<M: Mechanism>(
     force: &[f64],
     warm: Option<&[f64]>,
 ) -> Result<Prediction> {
+    let mut p = Prediction::default();
+    predict_pose_warm_into(mech, pose, params, model, force, warm, &mut p)?;
+    Ok(p)
+}
+
+/// [`predict_pose_warm`] written into `out`: a warm-started equilibrium
+/// keeps `out`'s storage (a fit's evaluations reuse their predictions'
+/// vectors; the same numbers). `out` is left unspecified on an error.
+pub(crate) fn predict_pose_warm_into<M: Mechanism>(
+    mech: &M,
+    pose: &Pose,
+    params: &Params,
+    model: Model,
+    force: &[f64],
+    warm: Option<&[f64]>,
+    out: &mut Prediction,
+) -> Result<()> {
     let f = effective_force(mech, pose, force)?;
-    match (effective_model(mech.spec(), model, &f), warm) {
-        (Model::Exact, Some(w)) => {
-            if let Ok(p) = exact_from(mech, pose, params, &f, w) {
-                return Ok(p);
-            }
-        }
-        (Model::Rigid, Some(w)) => {
-            // Forward kinematics from the neighbouring solution.
-            if let Ok(p) = rigid_from(mech, pose, params, w) {
-                return Ok(p);
-            }
-        }
-        _ => {}
+    let effective = effective_model(mech.spec(), model, &f);
+    if let (Model::Exact, Some(w)) = (effective, warm)
+        && exact_into(mech, pose, params, &f, w, out).is_ok()
+    {
+        return Ok(());
     }
-    predict_pose(mech, pose, params, model, force)
+    // The rigid model: forward kinematics from the neighbouring solution.
+    if let (Model::Rigid, Some(w)) = (effective, warm)
+        && let Ok(p) = rigid_from(mech, pose, params, w)
+    {
+        *out = p;
+        return Ok(());
+    }
+    *out = predict_pose(mech, pose, params, model, force)?;
+    Ok(())
 }
 
 /// A warm-started solution farther than this from its start (rad; a length
@@ -918,6 +1000,39 @@ pub fn equilibrium<M: Mechanism>(
     start: &[f64],
     hessians: Option<&JointHessians>,
 ) -> Result<Equilibrium> {
+    let (mut q, mut lambda, mut torque) = (vec![], vec![], vec![]);
+    let iterations = equilibrium_into(
+        mech,
+        params,
+        commands,
+        force,
+        start,
+        hessians,
+        (&mut q, &mut lambda, &mut torque),
+    )?;
+    Ok(Equilibrium {
+        q,
+        lambda,
+        torque,
+        iterations,
+    })
+}
+
+/// The joints, multipliers and torques an equilibrium is written into.
+type EquilibriumOut<'a> = (&'a mut Vec<f64>, &'a mut Vec<f64>, &'a mut Vec<f64>);
+
+/// [`equilibrium`] written into `out` (joints, multipliers, torques; their
+/// storage kept, their contents unspecified on an error): its Newton
+/// iterations.
+fn equilibrium_into<M: Mechanism>(
+    mech: &M,
+    params: &Params,
+    commands: &[f64],
+    force: &[f64],
+    start: &[f64],
+    hessians: Option<&JointHessians>,
+    out: EquilibriumOut<'_>,
+) -> Result<usize> {
     let spec = mech.spec();
     check_commands(spec, commands)?;
     // Generalised forces on the tool coordinates ([`crate::engine::load`]).
@@ -931,10 +1046,10 @@ pub fn equilibrium<M: Mechanism>(
         }
     };
     // The iteration's buffers live in a per-thread workspace: the hot path
-    // allocates only its results (a nested call, which nothing makes today,
-    // would get buffers of its own).
+    // allocates nothing but what `out` lacks (a nested call, which nothing
+    // makes today, would get buffers of its own).
     EQUILIBRIUM_WORK.with(|cell| match cell.try_borrow_mut() {
-        Ok(mut ws) => equilibrium_in(mech, params, commands, force, start, hessians, &mut ws),
+        Ok(mut ws) => equilibrium_in(mech, params, commands, force, start, hessians, &mut ws, out),
         Err(_) => equilibrium_in(
             mech,
             params,
@@ -943,6 +1058,7 @@ pub fn equilibrium<M: Mechanism>(
             start,
             hessians,
             &mut EquilibriumWork::default(),
+            out,
         ),
     })
 }
@@ -1012,7 +1128,8 @@ fn shape(m: &mut DMatrix<f64>, r: usize, c: usize) {
     }
 }
 
-/// [`equilibrium`] in the workspace `ws`.
+/// [`equilibrium_into`] in the workspace `ws`.
+#[allow(clippy::too_many_arguments)]
 fn equilibrium_in<M: Mechanism>(
     mech: &M,
     params: &Params,
@@ -1021,7 +1138,8 @@ fn equilibrium_in<M: Mechanism>(
     start: &[f64],
     hessians: &JointHessians,
     ws: &mut EquilibriumWork,
-) -> Result<Equilibrium> {
+    (q, lambda, torque): EquilibriumOut<'_>,
+) -> Result<usize> {
     let spec = mech.spec();
     let nq = spec.joints.len();
     let m = spec.n_constraints;
@@ -1074,7 +1192,11 @@ fn equilibrium_in<M: Mechanism>(
     let mut last = f64::INFINITY;
     // The joints, the multipliers (estimated at the first iteration) and
     // the step.
-    let mut state = (start.to_vec(), vec![0.0; m], step);
+    q.clear();
+    q.extend_from_slice(start);
+    lambda.clear();
+    lambda.resize(m, 0.0);
+    let mut state = (q, lambda, step);
     let end = newton::run(
         &newton::EQUILIBRIUM,
         &mut state,
@@ -1150,7 +1272,7 @@ fn equilibrium_in<M: Mechanism>(
             };
             if !solved {
                 return Err(Error::Singular {
-                    q: q.clone(),
+                    q: q.to_vec(),
                     reason: "the equilibrium (KKT) system is singular".into(),
                 });
             }
@@ -1179,19 +1301,15 @@ fn equilibrium_in<M: Mechanism>(
         },
     )?;
     if let newton::End::Converged(iterations) = end {
-        let (q, lambda, _) = state;
-        let torque = spec
-            .actuated
-            .iter()
-            .enumerate()
-            .map(|(a, &jt)| k[a] * (motor[a] - q[jt]))
-            .collect();
-        return Ok(Equilibrium {
-            q,
-            lambda,
-            torque,
-            iterations,
-        });
+        let (q, _, _) = state;
+        torque.clear();
+        torque.extend(
+            spec.actuated
+                .iter()
+                .enumerate()
+                .map(|(a, &jt)| k[a] * (motor[a] - q[jt])),
+        );
+        return Ok(iterations);
     }
     Err(Error::NoConvergence {
         what: "static equilibrium".into(),
@@ -1341,5 +1459,54 @@ mod tests {
                 assert_eq!(bits(&kept), bits(&fresh), "{model:?} {force:?}");
             }
         }
+    }
+
+    /// A prediction written into one that held another (another pose's,
+    /// another model's, a loaded one's) is the one made afresh, bit for
+    /// bit, warm-started or not, and at nominal parameters: a fit's
+    /// evaluations write into their previous predictions.
+    fn reused(mech: &impl Mechanism, load: &[f64]) {
+        let spec = mech.spec();
+        let nominal = Params::nominal(spec);
+        let mut off = nominal.clone();
+        for (v, d) in off
+            .values
+            .iter_mut()
+            .zip([1e-3, -2e-3, 5e-4].iter().cycle())
+        {
+            *v += d * v.abs().max(1.0);
+        }
+        let mut used = Prediction::default();
+        for target in crate::apply::workspace::spread_targets(mech, 4).unwrap() {
+            let c: Vec<f64> = spec.actuated.iter().map(|&j| target.q[j]).collect();
+            let pose = prepare_pose(mech, &c, Some(&target.q)).unwrap();
+            for model in [Model::Exact, Model::Linear, Model::Rigid] {
+                for force in [&[][..], load] {
+                    let warm = predict_pose(mech, &pose, &nominal, model, force).unwrap();
+                    for start in [None, Some(warm.q.as_slice())] {
+                        let fresh =
+                            predict_pose_warm(mech, &pose, &off, model, force, start).unwrap();
+                        predict_pose_warm_into(mech, &pose, &off, model, force, start, &mut used)
+                            .unwrap();
+                        assert!(used.same_bits(&fresh), "{model:?} {force:?}");
+                    }
+                    let fresh = pose
+                        .predict_at_nominal(mech, &nominal, model, force)
+                        .unwrap();
+                    pose.predict_at_nominal_into(mech, &nominal, model, force, &mut used)
+                        .unwrap();
+                    assert!(used.same_bits(&fresh), "{model:?} {force:?} at nominal");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn predictions_written_into_used_ones_are_fresh_ones() {
+        reused(&crate::JeongKim2Dof::new(), &[2.0, -1.0]);
+        reused(
+            &crate::PlanarLinkage::new(&example("4-rrr").try_into().unwrap()).unwrap(),
+            &[5.0, -3.0, 0.0],
+        );
     }
 }

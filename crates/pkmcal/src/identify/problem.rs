@@ -5,7 +5,8 @@
 use super::identifiability::{Columns, Identifiability};
 use super::result::FinalPredictions;
 use crate::engine::models::{
-    Ahead, Model, Pose, Prediction, pose_ahead, predict_pose_warm, prepare_pose, prepare_pose_ahead,
+    Ahead, Model, Pose, Prediction, pose_ahead, predict_pose_warm_into, prepare_pose,
+    prepare_pose_ahead,
 };
 use crate::engine::sensitivity::tool_sensitivity;
 use crate::error::Origin;
@@ -87,6 +88,11 @@ pub struct IdentificationProblem<'a, M: Mechanism> {
     /// accepted trial point reuses them, and equilibria start from them
     /// (shared with the callers, not copied).
     cache: RefCell<Option<CachedPredictions>>,
+    /// The predictions before the cache's, whose vectors the next
+    /// evaluation writes into when no one else holds them (a fit's
+    /// evaluations then allocate no prediction; not for a large problem,
+    /// whose predictions are not held twice between evaluations).
+    spare: RefCell<Option<Arc<Vec<Prediction>>>>,
     /// The last Jacobian evaluated, with its parameters.
     jacobian_cache: RefCell<Option<CachedJacobian>>,
     /// Readings × parameters at least [`crate::lm::LARGE_JACOBIAN`]: no
@@ -437,6 +443,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             model,
             force: force.to_vec(),
             cache: RefCell::new(None),
+            spare: RefCell::new(None),
             jacobian_cache: RefCell::new(None),
             large,
             cancel: None,
@@ -462,36 +469,62 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         {
             return Ok(Arc::clone(p));
         }
-        // Poses in parallel (each independent; assembled in order, so the
-        // result does not depend on the threads).
-        let warm: Vec<Option<&[f64]>> = (0..self.poses.len())
-            .map(|i| cached.as_ref().map(|(_, p)| p[i].q.as_slice()))
-            .collect();
+        // Each pose warm-started from the last evaluation's prediction.
+        let last: Option<&[Prediction]> = cached.as_ref().map(|(_, p)| p.as_slice());
+        let n = self.poses.len();
+        // Written into the spare predictions' vectors when no one else
+        // holds them (the same numbers as into new ones).
+        let mut out = self
+            .spare
+            .take()
+            .and_then(|mut p| {
+                Arc::get_mut(&mut p)
+                    .is_some_and(|v| v.len() == n)
+                    .then_some(p)
+            })
+            .unwrap_or_else(|| Arc::new(vec![Prediction::default(); n]));
         let (mech, model, force, origins) =
             (self.mech, self.model, &self.force, &self.pose_origins);
         let cancel = self.cancel.as_deref();
         // From scratch at nominal parameters (a calibration's start, the
         // accuracy before it): each pose's prediction is made once.
-        let at_nominal = cached.is_none() && params.values == mech.spec().nominal;
-        let out: Result<Vec<Prediction>> = self
-            .poses
-            .par_iter()
-            .zip(warm.par_iter())
+        let at_nominal = last.is_none() && params.values == mech.spec().nominal;
+        // Poses in parallel (each independent and written in its place, so
+        // the result does not depend on the threads).
+        let done: Result<()> = Arc::get_mut(&mut out)
+            .expect("held here alone")
+            .par_iter_mut()
+            .zip(self.poses.par_iter())
             .with_min_len(crate::pose_chunk())
             .enumerate()
-            .map(|(i, (pose, warm))| {
+            .try_for_each(|(i, (out, pose))| {
                 crate::error::check_cancel(cancel)?;
                 if at_nominal {
-                    pose.predict_at_nominal(mech, params, model, force)
+                    pose.predict_at_nominal_into(mech, params, model, force, out)
                 } else {
-                    predict_pose_warm(mech, pose, params, model, force, *warm)
+                    let warm = last.map(|p| p[i].q.as_slice());
+                    predict_pose_warm_into(mech, pose, params, model, force, warm, out)
                 }
                 .map_err(|e| e.at_pose(origins[i]))
-            })
-            .collect();
+            });
         drop(cached);
-        let out = Arc::new(out?);
-        *self.cache.borrow_mut() = Some((params.values.clone(), Arc::clone(&out)));
+        let keep = !self.large;
+        if let Err(e) = done {
+            if keep {
+                *self.spare.borrow_mut() = Some(out);
+            }
+            return Err(e);
+        }
+        let mut values = params.values.clone();
+        let before = self.cache.replace(None);
+        if let Some((mut v, p)) = before {
+            v.clone_from(&params.values);
+            values = v;
+            if keep {
+                *self.spare.borrow_mut() = Some(p);
+            }
+        }
+        *self.cache.borrow_mut() = Some((values, Arc::clone(&out)));
         Ok(out)
     }
 
