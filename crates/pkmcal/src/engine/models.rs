@@ -818,44 +818,49 @@ pub(crate) fn predict_pose_warm_into<M: Mechanism>(
 
 /// A warm-started solution farther than this from its start (rad; a length
 /// counted at 100 mm per rad, [`crate::engine::kinematics::step_turn`]) is
-/// not taken by [`predict_pose_near`]: a start that close to the answer
+/// not taken by [`predict_pose_near_into`]: a start that close to the answer
 /// (parameters a calibration's error apart, micrometres) moves the joints
 /// by far less, and another assembly mode is tenths of a radian away.
 pub(crate) const NEAR_TURN: f64 = PLAUSIBLE_MISMATCH;
 
 /// [`predict_pose`] from `start`, joints near the answer (e.g. the true
 /// parameters' equilibrium at the same pose where `params` are calibrated
-/// ones, or a first-order prediction): Newton starts there, and its answer
-/// is taken when it converged within [`NEAR_TURN`] of it (the same
-/// assembly mode); else the prediction is made from the nominal
-/// configuration as `predict_pose` makes it. Converged to the same
-/// tolerances as `predict_pose`'s; the last bits may differ (another
-/// start).
-pub(crate) fn predict_pose_near<M: Mechanism>(
+/// ones, or a first-order prediction), written into `out` (whose vectors
+/// keep their storage when the start is taken; unspecified on an error):
+/// Newton starts there, and its answer is taken when it converged within
+/// [`NEAR_TURN`] of it (the same assembly mode); else the prediction is
+/// made from the nominal configuration as `predict_pose` makes it.
+/// Converged to the same tolerances as `predict_pose`'s; the last bits may
+/// differ (another start).
+pub(crate) fn predict_pose_near_into<M: Mechanism>(
     mech: &M,
     pose: &Pose,
     params: &Params,
     model: Model,
     force: &[f64],
     start: &[f64],
-) -> Result<Prediction> {
+    out: &mut Prediction,
+) -> Result<()> {
     let spec = mech.spec();
     let f = effective_force(mech, pose, force)?;
     let warm = match effective_model(spec, model, &f) {
-        Model::Exact => exact_from(mech, pose, params, &f, start).ok(),
-        Model::Rigid => rigid_from(mech, pose, params, start).ok(),
-        Model::Linear => None,
+        Model::Exact => exact_into(mech, pose, params, &f, start, out).is_ok(),
+        Model::Rigid => rigid_from(mech, pose, params, start)
+            .map(|p| *out = p)
+            .is_ok(),
+        Model::Linear => false,
     };
-    if let Some(p) = warm {
+    if warm {
         let moved = crate::engine::kinematics::turn_of(
             spec,
-            p.q.iter().zip(start).map(|(a, b)| a - b).enumerate(),
+            out.q.iter().zip(start).map(|(a, b)| a - b).enumerate(),
         );
-        if p.q.len() == start.len() && moved <= NEAR_TURN {
-            return Ok(p);
+        if out.q.len() == start.len() && moved <= NEAR_TURN {
+            return Ok(());
         }
     }
-    predict_pose(mech, pose, params, model, force)
+    *out = predict_pose(mech, pose, params, model, force)?;
+    Ok(())
 }
 
 /// The generalised forces of the load `force` (a wrench, [`crate::engine::load`])
@@ -1421,6 +1426,20 @@ mod tests {
         assert!(checked >= 8, "{checked} poses");
     }
 
+    /// [`predict_pose_near_into`] into a new prediction.
+    fn predict_pose_near<M: Mechanism>(
+        mech: &M,
+        pose: &Pose,
+        params: &Params,
+        model: Model,
+        force: &[f64],
+        start: &[f64],
+    ) -> Result<Prediction> {
+        let mut p = Prediction::default();
+        predict_pose_near_into(mech, pose, params, model, force, start, &mut p)?;
+        Ok(p)
+    }
+
     #[test]
     fn predictions_from_near_ones_are_the_cold_ones() {
         near_starts(&crate::JeongKim2Dof::new());
@@ -1463,8 +1482,9 @@ mod tests {
 
     /// A prediction written into one that held another (another pose's,
     /// another model's, a loaded one's) is the one made afresh, bit for
-    /// bit, warm-started or not, and at nominal parameters: a fit's
-    /// evaluations write into their previous predictions.
+    /// bit, warm-started or not, from a near start, and at nominal
+    /// parameters: a fit's evaluations and a Monte Carlo run's predictions
+    /// write into their previous ones.
     fn reused(mech: &impl Mechanism, load: &[f64]) {
         let spec = mech.spec();
         let nominal = Params::nominal(spec);
@@ -1490,6 +1510,11 @@ mod tests {
                             .unwrap();
                         assert!(used.same_bits(&fresh), "{model:?} {force:?}");
                     }
+                    let fresh =
+                        predict_pose_near(mech, &pose, &off, model, force, &warm.q).unwrap();
+                    predict_pose_near_into(mech, &pose, &off, model, force, &warm.q, &mut used)
+                        .unwrap();
+                    assert!(used.same_bits(&fresh), "{model:?} {force:?} near");
                     let fresh = pose
                         .predict_at_nominal(mech, &nominal, model, force)
                         .unwrap();

@@ -12,8 +12,8 @@ use crate::engine::sensitivity::tool_sensitivity;
 use crate::error::Origin;
 use crate::error::{Error, Result};
 use crate::lm::Problem;
-use crate::measurement::MeasurementModel;
 use crate::measurement::data::Measurement;
+use crate::measurement::{MeasurementModel, ObserveJacobian};
 use crate::mechanism::{Mechanism, Params};
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
@@ -726,6 +726,10 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
                 }
             }
         };
+        // A row's readings and derivatives, and `∂h/∂x · ∂x/∂p`, kept from
+        // one row to the next.
+        let mut observed = ObserveJacobian::default();
+        let mut jx = DMatrix::zeros(0, 0);
         let mut first_row = 0;
         for chunk in self.rows.chunks(JACOBIAN_CHUNK) {
             // Poses in parallel, assembled in order.
@@ -768,16 +772,23 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
                         put(&mut j, row.offset, &jx, 0, 0);
                     }
                     None => {
-                        let (y, dx, dm) =
-                            self.measurement
-                                .observe_point_jacobian(xa, &m, point.as_deref());
+                        self.measurement.observe_point_jacobian_into(
+                            xa,
+                            &m,
+                            point.as_deref(),
+                            &mut observed,
+                        );
+                        let ObserveJacobian { y, dx, dm, .. } = &observed;
                         for a in 0..row.len {
                             r[row.offset + a] = y[a] - measured[a];
                         }
-                        let jx = dx * sa;
+                        if jx.shape() != (dx.nrows(), sa.ncols()) {
+                            jx = DMatrix::zeros(dx.nrows(), sa.ncols());
+                        }
+                        dx.mul_to(sa, &mut jx);
                         for a in 0..row.len {
                             put(&mut j, row.offset + a, &jx, a, 0);
-                            put(&mut j, row.offset + a, &dm, a, np);
+                            put(&mut j, row.offset + a, dm, a, np);
                         }
                     }
                 }
