@@ -473,7 +473,8 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         let last: Option<&[Prediction]> = cached.as_ref().map(|(_, p)| p.as_slice());
         let n = self.poses.len();
         // Written into the spare predictions' vectors when no one else
-        // holds them (the same numbers as into new ones).
+        // holds them, else into the thread's pooled ones (the same numbers
+        // as into new ones).
         let mut out = self
             .spare
             .take()
@@ -482,7 +483,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
                     .is_some_and(|v| v.len() == n)
                     .then_some(p)
             })
-            .unwrap_or_else(|| Arc::new(vec![Prediction::default(); n]));
+            .unwrap_or_else(|| Arc::new(pooled_predictions(n)));
         let (mech, model, force, origins) =
             (self.mech, self.model, &self.force, &self.pose_origins);
         let cancel = self.cancel.as_deref();
@@ -808,6 +809,60 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             .copied()
             .collect();
         self.residuals_and_jacobian(&x)
+    }
+}
+
+/// Most poses of a problem whose predictions go to the thread's pool when
+/// it is dropped ([`SPARE_PREDICTIONS`]): a Monte Carlo run's hundred or
+/// so, not a large calibration's.
+const POOLED_POSES: usize = 1024;
+
+/// Predictions pooled on a thread ([`SPARE_PREDICTIONS`]), at most.
+const POOLED: usize = 2;
+
+thread_local! {
+    /// The predictions of the problems dropped on this thread (their last
+    /// two evaluations'), whose vectors the next problem's first
+    /// evaluations write into: a Monte Carlo run calibrates a new problem
+    /// on the poses of the last.
+    static SPARE_PREDICTIONS: RefCell<Vec<Vec<Prediction>>> = const { RefCell::new(Vec::new()) };
+}
+
+/// `n` predictions to write into: pooled ones when the thread has some
+/// ([`SPARE_PREDICTIONS`]), else new ones.
+fn pooled_predictions(n: usize) -> Vec<Prediction> {
+    let pooled = SPARE_PREDICTIONS
+        .try_with(|pool| pool.try_borrow_mut().ok()?.pop())
+        .ok()
+        .flatten();
+    let mut p = pooled.unwrap_or_default();
+    p.resize_with(n, Prediction::default);
+    p
+}
+
+impl<M: Mechanism> Drop for IdentificationProblem<'_, M> {
+    /// The last two evaluations' predictions go to the thread's pool when
+    /// no one else holds them (for a problem of at most [`POOLED_POSES`]
+    /// poses).
+    fn drop(&mut self) {
+        if self.poses.len() > POOLED_POSES {
+            return;
+        }
+        let last = self.cache.get_mut().take().map(|(_, p)| p);
+        let kept = [self.spare.get_mut().take(), last];
+        // (Not when the thread is ending.)
+        let _ = SPARE_PREDICTIONS.try_with(|pool| {
+            let Ok(mut pool) = pool.try_borrow_mut() else {
+                return;
+            };
+            for p in kept.into_iter().flatten() {
+                if pool.len() < POOLED
+                    && let Ok(p) = Arc::try_unwrap(p)
+                {
+                    pool.push(p);
+                }
+            }
+        });
     }
 }
 
