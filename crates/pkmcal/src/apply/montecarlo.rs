@@ -297,7 +297,7 @@ fn study<M: Mechanism>(
         // The run's predictions are written into these two (the truth's,
         // the calibrated model's).
         let (mut start, mut t, mut c) = (vec![], Prediction::default(), Prediction::default());
-        let data = training
+        let mut data = training
             .iter()
             .zip(poses)
             .map(|((commands, pose, first), target)| {
@@ -314,6 +314,9 @@ fn study<M: Mechanism>(
                 Ok(reading(&tool, target, c, &t, &normals, &mut noise))
             })
             .collect::<Result<Vec<_>>>()?;
+        // Numbered as the calibration numbers them, which then takes them
+        // without a copy.
+        crate::measurement::data::number(&mut data);
         let cal = calibrate(&data, &cache)?;
         // Accuracy on the unseen poses: the truth's exact prediction
         // (noise-free) minus the calibrated model's, in the base frame.
