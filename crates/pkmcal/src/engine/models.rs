@@ -20,6 +20,7 @@ use crate::engine::curvature::JointHessians;
 use crate::engine::kinematics::{forward_kinematics, reference_configuration};
 use crate::engine::linearized::{Linearization, joint_errors, linearize, load_vector};
 use crate::error::{Error, Result};
+use crate::linalg::product_into;
 use crate::mechanism::autodiff::{jacobians, jacobians_into};
 use crate::mechanism::{Mechanism, Params};
 use nalgebra::{DMatrix, DVector};
@@ -1086,10 +1087,9 @@ struct EquilibriumWork {
     weights: Vec<f64>,
     /// Derivatives at the current configuration.
     j: Option<crate::mechanism::autodiff::Jacobians>,
-    /// `Gᵀ`, `G Gᵀ`, `∇E` and `−G ∇E` of the least-squares multipliers.
+    /// `Gᵀ`, `G Gᵀ` and `−G ∇E` of the least-squares multipliers.
     gt: DMatrix<f64>,
     ggt: DMatrix<f64>,
-    ge: DVector<f64>,
     rhs: DVector<f64>,
     /// The buffers of the KKT solve on the constraints' null space.
     kkt_work: crate::linalg::kkt::KktWork,
@@ -1178,7 +1178,6 @@ fn equilibrium_in<M: Mechanism>(
         j,
         gt,
         ggt,
-        ge,
         rhs,
         kkt_work,
         lu,
@@ -1224,15 +1223,12 @@ fn equilibrium_in<M: Mechanism>(
                 shape(gt, nq, m);
                 j.dg.transpose_to(gt);
                 shape(ggt, m, m);
-                j.dg.mul_to(gt, ggt);
-                if ge.len() != nq {
-                    *ge = DVector::zeros(nq);
-                }
-                ge.as_mut_slice().copy_from_slice(grad_e);
+                let dg = j.dg.as_slice();
+                product_into(dg, gt.as_slice(), ggt.as_mut_slice(), m, nq, m);
                 if rhs.len() != m {
                     *rhs = DVector::zeros(m);
                 }
-                j.dg.mul_to(ge, rhs);
+                product_into(dg, grad_e, rhs.as_mut_slice(), m, nq, 1);
                 rhs.neg_mut();
                 if crate::linalg::lu::solve_in_place(ggt, rhs.as_mut_slice()) {
                     lam.copy_from_slice(rhs.as_slice());

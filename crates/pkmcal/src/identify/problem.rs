@@ -783,10 +783,18 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
                         for a in 0..row.len {
                             r[row.offset + a] = y[a] - measured[a];
                         }
-                        if jx.shape() != (dx.nrows(), sa.ncols()) {
-                            jx = DMatrix::zeros(dx.nrows(), sa.ncols());
+                        let (ny, nx, ns) = (dx.nrows(), dx.ncols(), sa.ncols());
+                        if jx.shape() != (ny, ns) {
+                            jx = DMatrix::zeros(ny, ns);
                         }
-                        dx.mul_to(sa, &mut jx);
+                        crate::linalg::product_into(
+                            dx.as_slice(),
+                            sa.as_slice(),
+                            jx.as_mut_slice(),
+                            ny,
+                            nx,
+                            ns,
+                        );
                         for a in 0..row.len {
                             put(&mut j, row.offset + a, &jx, a, 0);
                             put(&mut j, row.offset + a, dm, a, np);
