@@ -41,14 +41,15 @@ pub(crate) fn product_into(a: &[f64], b: &[f64], out: &mut [f64], m: usize, k: u
         out.fill(0.0);
         return;
     }
+    // Each entry summed in a register, in nalgebra's order (its first
+    // product, then each next one added).
     for (y, bj) in out.chunks_exact_mut(m.max(1)).zip(b.chunks_exact(k)) {
-        for (yi, ai) in y.iter_mut().zip(&a[..m]) {
-            *yi = ai * bj[0];
-        }
-        for (ak, bkj) in a.chunks_exact(m.max(1)).zip(bj).skip(1) {
-            for (yi, ai) in y.iter_mut().zip(ak) {
-                *yi += ai * bkj;
+        for (i, yi) in y.iter_mut().enumerate() {
+            let mut sum = a[i] * bj[0];
+            for (l, bl) in bj.iter().enumerate().skip(1) {
+                sum += a[l * m + i] * bl;
             }
+            *yi = sum;
         }
     }
 }
