@@ -1087,7 +1087,8 @@ struct EquilibriumWork {
     weights: Vec<f64>,
     /// Derivatives at the current configuration.
     j: Option<crate::mechanism::autodiff::Jacobians>,
-    /// `Gᵀ`, `G Gᵀ` and `−G ∇E` of the least-squares multipliers.
+    /// `Gᵀ` (where `G Gᵀ` takes it), `G Gᵀ` and `−G ∇E` of the
+    /// least-squares multipliers.
     gt: DMatrix<f64>,
     ggt: DMatrix<f64>,
     rhs: DVector<f64>,
@@ -1220,15 +1221,12 @@ fn equilibrium_in<M: Mechanism>(
             if it == 0 {
                 // Least-squares multipliers at the start: Gᵀλ ≈ −∇E (the same
                 // products as `&G * Gᵀ` and `G * ∇E`, into the workspace).
-                shape(gt, nq, m);
-                j.dg.transpose_to(gt);
                 shape(ggt, m, m);
-                let dg = j.dg.as_slice();
-                product_into(dg, gt.as_slice(), ggt.as_mut_slice(), m, nq, m);
+                crate::linalg::gram_into(&j.dg, gt, ggt.as_mut_slice());
                 if rhs.len() != m {
                     *rhs = DVector::zeros(m);
                 }
-                product_into(dg, grad_e, rhs.as_mut_slice(), m, nq, 1);
+                product_into(j.dg.as_slice(), grad_e, rhs.as_mut_slice(), m, nq, 1);
                 rhs.neg_mut();
                 if crate::linalg::lu::solve_in_place(ggt, rhs.as_mut_slice()) {
                     lam.copy_from_slice(rhs.as_slice());

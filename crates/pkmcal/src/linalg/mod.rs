@@ -54,11 +54,48 @@ pub(crate) fn product_into(a: &[f64], b: &[f64], out: &mut [f64], m: usize, k: u
     }
 }
 
+/// `out = g gᵀ` of column-major `g` (`m × k`) into `out` (`m × m`), the
+/// same to the bit as [`product_into`] of `g` and its transpose: where that
+/// loops, entry `(i, j)` is `Σₗ g_il g_jl` in `l`'s order, which is entry
+/// `(j, i)` (each product commutes exactly), so each is computed once;
+/// else `gt` (`k × m`) takes the transpose for the kernel's product.
+pub(crate) fn gram_into(
+    g: &nalgebra::DMatrix<f64>,
+    gt: &mut nalgebra::DMatrix<f64>,
+    out: &mut [f64],
+) {
+    let (m, k) = g.shape();
+    assert_eq!(out.len(), m * m);
+    if m > LOOPED_PRODUCT && k > LOOPED_PRODUCT {
+        if gt.shape() != (k, m) {
+            *gt = nalgebra::DMatrix::zeros(k, m);
+        }
+        g.transpose_to(gt);
+        product_into(g.as_slice(), gt.as_slice(), out, m, k, m);
+        return;
+    }
+    if k == 0 {
+        out.fill(0.0);
+        return;
+    }
+    let g = g.as_slice();
+    for j in 0..m {
+        for i in 0..=j {
+            let mut sum = g[i] * g[j];
+            for l in 1..k {
+                sum += g[l * m + i] * g[l * m + j];
+            }
+            out[j * m + i] = sum;
+            out[i * m + j] = sum;
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
-    /// [`super::product_into`] is nalgebra's `mul_to` to the bit, for
-    /// shapes on both sides of its loop (seeded random entries, signed
-    /// zeros among them).
+    /// [`super::product_into`] and [`super::gram_into`] are nalgebra's
+    /// `mul_to` to the bit, for shapes on both sides of its loop (seeded
+    /// random entries, signed zeros among them).
     #[test]
     fn products_are_nalgebra_s() {
         use rand::{RngExt, SeedableRng};
@@ -86,6 +123,16 @@ mod tests {
             super::product_into(a.as_slice(), b.as_slice(), &mut got, m, k, n);
             let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
             assert_eq!(bits(&got), bits(want.as_slice()), "{m}x{k} by {k}x{n}");
+            // And `a aᵀ` by [`super::gram_into`].
+            let mut want = nalgebra::DMatrix::zeros(m, m);
+            a.mul_to(&a.transpose(), &mut want);
+            let mut got = vec![f64::NAN; m * m];
+            super::gram_into(&a, &mut nalgebra::DMatrix::zeros(0, 0), &mut got);
+            assert_eq!(
+                bits(&got),
+                bits(want.as_slice()),
+                "{m}x{k} by its transpose"
+            );
         }
     }
 }
