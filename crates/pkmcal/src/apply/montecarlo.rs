@@ -3,7 +3,7 @@
 //! calibration, and the resulting accuracy on unseen poses and parameters.
 
 use crate::apply::simulate::{noise_normals, prepare_target, reading};
-use crate::engine::models::{Model, Pose, Prediction, predict_pose, predict_pose_near};
+use crate::engine::models::{Model, Pose, Prediction, predict_pose, predict_pose_near_into};
 use crate::engine::sensitivity::joint_sensitivity;
 use crate::error::Result;
 use crate::identify::stats::{ErrorStats, error_stats};
@@ -167,8 +167,8 @@ impl FirstOrder {
 
 /// The truth's exact prediction at `pose`, its equilibrium started from
 /// the first-order prediction for the parameters' `error` from nominal
-/// (else from the nominal configuration, as `predict_pose`). `start` is a
-/// buffer.
+/// (else from the nominal configuration, as `predict_pose`), into `out`.
+/// `start` is a buffer.
 fn truth_at<M: Mechanism>(
     mech: &M,
     pose: &Pose,
@@ -176,13 +176,17 @@ fn truth_at<M: Mechanism>(
     first: Option<&FirstOrder>,
     error: &[f64],
     start: &mut Vec<f64>,
-) -> Result<Prediction> {
+    out: &mut Prediction,
+) -> Result<()> {
     match first {
         Some(f) => {
             f.start(&f.q, error, start);
-            predict_pose_near(mech, pose, truth, Model::Exact, &[], start)
+            predict_pose_near_into(mech, pose, truth, Model::Exact, &[], start, out)
         }
-        None => predict_pose(mech, pose, truth, Model::Exact, &[]),
+        None => {
+            *out = predict_pose(mech, pose, truth, Model::Exact, &[])?;
+            Ok(())
+        }
     }
 }
 
@@ -290,16 +294,29 @@ fn study<M: Mechanism>(
             .zip(&nominal.values)
             .map(|(t, n)| t - n)
             .collect();
-        let mut start = vec![];
-        let data = training
+        // The run's predictions are written into these two (the truth's,
+        // the calibrated model's).
+        let (mut start, mut t, mut c) = (vec![], Prediction::default(), Prediction::default());
+        let mut data = training
             .iter()
             .zip(poses)
             .map(|((commands, pose, first), target)| {
-                let p = truth_at(mech, pose, &truth, first.as_ref(), &error, &mut start)?;
+                truth_at(
+                    mech,
+                    pose,
+                    &truth,
+                    first.as_ref(),
+                    &error,
+                    &mut start,
+                    &mut t,
+                )?;
                 let c = commands.clone();
-                Ok(reading(&tool, target, c, &p, &normals, &mut noise))
+                Ok(reading(&tool, target, c, &t, &normals, &mut noise))
             })
             .collect::<Result<Vec<_>>>()?;
+        // Numbered as the calibration numbers them, which then takes them
+        // without a copy.
+        crate::measurement::data::number(&mut data);
         let cal = calibrate(&data, &cache)?;
         // Accuracy on the unseen poses: the truth's exact prediction
         // (noise-free) minus the calibrated model's, in the base frame.
@@ -315,7 +332,15 @@ fn study<M: Mechanism>(
         let errors = unseen
             .iter()
             .map(|(pose, first)| {
-                let t = truth_at(mech, pose, &truth, first.as_ref(), &error, &mut start)?;
+                truth_at(
+                    mech,
+                    pose,
+                    &truth,
+                    first.as_ref(),
+                    &error,
+                    &mut start,
+                    &mut t,
+                )?;
                 // From the truth's equilibrium, moved by the first-order
                 // change: the calibrated parameters are micrometres from
                 // the true ones.
@@ -323,9 +348,8 @@ fn study<M: Mechanism>(
                     Some(f) => f.start(&t.q, &missed, &mut start),
                     None => start.clone_from(&t.q),
                 }
-                let c = predict_pose_near(mech, pose, &cal.params, cal.model, &[], &start)?.x;
-                let t = t.x;
-                Ok(t.iter().zip(&c).map(|(a, b)| a - b).collect())
+                predict_pose_near_into(mech, pose, &cal.params, cal.model, &[], &start, &mut c)?;
+                Ok(t.x.iter().zip(&c.x).map(|(a, b)| a - b).collect())
             })
             .collect::<Result<Vec<Vec<f64>>>>()?;
         progress();

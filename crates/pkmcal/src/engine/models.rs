@@ -20,6 +20,7 @@ use crate::engine::curvature::JointHessians;
 use crate::engine::kinematics::{forward_kinematics, reference_configuration};
 use crate::engine::linearized::{Linearization, joint_errors, linearize, load_vector};
 use crate::error::{Error, Result};
+use crate::linalg::product_into;
 use crate::mechanism::autodiff::{jacobians, jacobians_into};
 use crate::mechanism::{Mechanism, Params};
 use nalgebra::{DMatrix, DVector};
@@ -136,6 +137,27 @@ impl Pose {
         Ok(p)
     }
 
+    /// [`Pose::predict_at_nominal`] written into `out` (its vectors keep
+    /// their storage when the kept prediction is taken).
+    pub(crate) fn predict_at_nominal_into<M: Mechanism>(
+        &self,
+        mech: &M,
+        nominal: &Params,
+        model: Model,
+        force: &[f64],
+        out: &mut Prediction,
+    ) -> Result<()> {
+        if let Some((m, f, p)) = self.at_nominal.get().map(|b| &**b)
+            && *m == model
+            && f == force
+        {
+            out.clone_from(p);
+            return Ok(());
+        }
+        *out = self.predict_at_nominal(mech, nominal, model, force)?;
+        Ok(())
+    }
+
     /// [`crate::engine::sensitivity::tool_sensitivity`] at nominal
     /// parameters `nominal` (the caller's, equal to `Params::nominal`) for
     /// `prediction`: the one kept for this model and load when it was
@@ -248,7 +270,7 @@ impl Pose {
 }
 
 /// Where the tool is and what the actuators feel.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Default, PartialEq)]
 pub struct Prediction {
     /// Full joint vector.
     pub q: Vec<f64>,
@@ -266,6 +288,29 @@ pub struct Prediction {
     /// Lagrange multipliers of the constraints at the equilibrium (exact
     /// model), else empty.
     pub multipliers: Vec<f64>,
+}
+
+impl Clone for Prediction {
+    fn clone(&self) -> Self {
+        Self {
+            q: self.q.clone(),
+            x: self.x.clone(),
+            deflection: self.deflection.clone(),
+            torque: self.torque.clone(),
+            iterations: self.iterations,
+            multipliers: self.multipliers.clone(),
+        }
+    }
+
+    /// Into this prediction's vectors, which keep their storage.
+    fn clone_from(&mut self, source: &Self) {
+        self.q.clone_from(&source.q);
+        self.x.clone_from(&source.x);
+        self.deflection.clone_from(&source.deflection);
+        self.torque.clone_from(&source.torque);
+        self.iterations = source.iterations;
+        self.multipliers.clone_from(&source.multipliers);
+    }
 }
 
 impl Prediction {
@@ -684,25 +729,46 @@ fn exact_from<M: Mechanism>(
     force: &[f64],
     start: &[f64],
 ) -> Result<Prediction> {
-    let eq = pose.with_hessians(mech, |h| {
-        equilibrium(mech, params, &pose.commands, force, start, Some(h))
-    })?;
-    let mut x = vec![0.0; mech.spec().tool_axes.len()];
-    mech.tool(&eq.q, params.geometric(), &mut x);
-    let deflection = eq
-        .torque
-        .iter()
-        .zip(params.stiffness())
-        .map(|(t, k)| -t / k)
-        .collect();
-    Ok(Prediction {
-        q: eq.q,
+    let mut p = Prediction::default();
+    exact_into(mech, pose, params, force, start, &mut p)?;
+    Ok(p)
+}
+
+/// [`exact_from`] written into `out`, whose vectors keep their storage
+/// (the same numbers; `out` is left unspecified on an error).
+fn exact_into<M: Mechanism>(
+    mech: &M,
+    pose: &Pose,
+    params: &Params,
+    force: &[f64],
+    start: &[f64],
+    out: &mut Prediction,
+) -> Result<()> {
+    let Prediction {
+        q,
         x,
         deflection,
-        torque: eq.torque,
-        iterations: eq.iterations,
-        multipliers: eq.lambda,
-    })
+        torque,
+        iterations,
+        multipliers,
+    } = out;
+    *iterations = pose.with_hessians(mech, |h| {
+        equilibrium_into(
+            mech,
+            params,
+            &pose.commands,
+            force,
+            start,
+            Some(h),
+            (q, multipliers, torque),
+        )
+    })?;
+    x.clear();
+    x.resize(mech.spec().tool_axes.len(), 0.0);
+    mech.tool(q, params.geometric(), x);
+    deflection.clear();
+    deflection.extend(torque.iter().zip(params.stiffness()).map(|(t, k)| -t / k));
+    Ok(())
 }
 
 /// Like [`predict_pose`], with a warm start for the exact model: the
@@ -716,64 +782,86 @@ pub fn predict_pose_warm<M: Mechanism>(
     force: &[f64],
     warm: Option<&[f64]>,
 ) -> Result<Prediction> {
+    let mut p = Prediction::default();
+    predict_pose_warm_into(mech, pose, params, model, force, warm, &mut p)?;
+    Ok(p)
+}
+
+/// [`predict_pose_warm`] written into `out`: a warm-started equilibrium
+/// keeps `out`'s storage (a fit's evaluations reuse their predictions'
+/// vectors; the same numbers). `out` is left unspecified on an error.
+pub(crate) fn predict_pose_warm_into<M: Mechanism>(
+    mech: &M,
+    pose: &Pose,
+    params: &Params,
+    model: Model,
+    force: &[f64],
+    warm: Option<&[f64]>,
+    out: &mut Prediction,
+) -> Result<()> {
     let f = effective_force(mech, pose, force)?;
-    match (effective_model(mech.spec(), model, &f), warm) {
-        (Model::Exact, Some(w)) => {
-            if let Ok(p) = exact_from(mech, pose, params, &f, w) {
-                return Ok(p);
-            }
-        }
-        (Model::Rigid, Some(w)) => {
-            // Forward kinematics from the neighbouring solution.
-            if let Ok(p) = rigid_from(mech, pose, params, w) {
-                return Ok(p);
-            }
-        }
-        _ => {}
+    let effective = effective_model(mech.spec(), model, &f);
+    if let (Model::Exact, Some(w)) = (effective, warm)
+        && exact_into(mech, pose, params, &f, w, out).is_ok()
+    {
+        return Ok(());
     }
-    predict_pose(mech, pose, params, model, force)
+    // The rigid model: forward kinematics from the neighbouring solution.
+    if let (Model::Rigid, Some(w)) = (effective, warm)
+        && let Ok(p) = rigid_from(mech, pose, params, w)
+    {
+        *out = p;
+        return Ok(());
+    }
+    *out = predict_pose(mech, pose, params, model, force)?;
+    Ok(())
 }
 
 /// A warm-started solution farther than this from its start (rad; a length
 /// counted at 100 mm per rad, [`crate::engine::kinematics::step_turn`]) is
-/// not taken by [`predict_pose_near`]: a start that close to the answer
+/// not taken by [`predict_pose_near_into`]: a start that close to the answer
 /// (parameters a calibration's error apart, micrometres) moves the joints
 /// by far less, and another assembly mode is tenths of a radian away.
 pub(crate) const NEAR_TURN: f64 = PLAUSIBLE_MISMATCH;
 
 /// [`predict_pose`] from `start`, joints near the answer (e.g. the true
 /// parameters' equilibrium at the same pose where `params` are calibrated
-/// ones, or a first-order prediction): Newton starts there, and its answer
-/// is taken when it converged within [`NEAR_TURN`] of it (the same
-/// assembly mode); else the prediction is made from the nominal
-/// configuration as `predict_pose` makes it. Converged to the same
-/// tolerances as `predict_pose`'s; the last bits may differ (another
-/// start).
-pub(crate) fn predict_pose_near<M: Mechanism>(
+/// ones, or a first-order prediction), written into `out` (whose vectors
+/// keep their storage when the start is taken; unspecified on an error):
+/// Newton starts there, and its answer is taken when it converged within
+/// [`NEAR_TURN`] of it (the same assembly mode); else the prediction is
+/// made from the nominal configuration as `predict_pose` makes it.
+/// Converged to the same tolerances as `predict_pose`'s; the last bits may
+/// differ (another start).
+pub(crate) fn predict_pose_near_into<M: Mechanism>(
     mech: &M,
     pose: &Pose,
     params: &Params,
     model: Model,
     force: &[f64],
     start: &[f64],
-) -> Result<Prediction> {
+    out: &mut Prediction,
+) -> Result<()> {
     let spec = mech.spec();
     let f = effective_force(mech, pose, force)?;
     let warm = match effective_model(spec, model, &f) {
-        Model::Exact => exact_from(mech, pose, params, &f, start).ok(),
-        Model::Rigid => rigid_from(mech, pose, params, start).ok(),
-        Model::Linear => None,
+        Model::Exact => exact_into(mech, pose, params, &f, start, out).is_ok(),
+        Model::Rigid => rigid_from(mech, pose, params, start)
+            .map(|p| *out = p)
+            .is_ok(),
+        Model::Linear => false,
     };
-    if let Some(p) = warm {
+    if warm {
         let moved = crate::engine::kinematics::turn_of(
             spec,
-            p.q.iter().zip(start).map(|(a, b)| a - b).enumerate(),
+            out.q.iter().zip(start).map(|(a, b)| a - b).enumerate(),
         );
-        if p.q.len() == start.len() && moved <= NEAR_TURN {
-            return Ok(p);
+        if out.q.len() == start.len() && moved <= NEAR_TURN {
+            return Ok(());
         }
     }
-    predict_pose(mech, pose, params, model, force)
+    *out = predict_pose(mech, pose, params, model, force)?;
+    Ok(())
 }
 
 /// A prediction for `commands` from a configuration `start` near the
@@ -974,6 +1062,39 @@ pub fn equilibrium<M: Mechanism>(
     start: &[f64],
     hessians: Option<&JointHessians>,
 ) -> Result<Equilibrium> {
+    let (mut q, mut lambda, mut torque) = (vec![], vec![], vec![]);
+    let iterations = equilibrium_into(
+        mech,
+        params,
+        commands,
+        force,
+        start,
+        hessians,
+        (&mut q, &mut lambda, &mut torque),
+    )?;
+    Ok(Equilibrium {
+        q,
+        lambda,
+        torque,
+        iterations,
+    })
+}
+
+/// The joints, multipliers and torques an equilibrium is written into.
+type EquilibriumOut<'a> = (&'a mut Vec<f64>, &'a mut Vec<f64>, &'a mut Vec<f64>);
+
+/// [`equilibrium`] written into `out` (joints, multipliers, torques; their
+/// storage kept, their contents unspecified on an error): its Newton
+/// iterations.
+fn equilibrium_into<M: Mechanism>(
+    mech: &M,
+    params: &Params,
+    commands: &[f64],
+    force: &[f64],
+    start: &[f64],
+    hessians: Option<&JointHessians>,
+    out: EquilibriumOut<'_>,
+) -> Result<usize> {
     let spec = mech.spec();
     check_commands(spec, commands)?;
     // Generalised forces on the tool coordinates ([`crate::engine::load`]).
@@ -987,10 +1108,10 @@ pub fn equilibrium<M: Mechanism>(
         }
     };
     // The iteration's buffers live in a per-thread workspace: the hot path
-    // allocates only its results (a nested call, which nothing makes today,
-    // would get buffers of its own).
+    // allocates nothing but what `out` lacks (a nested call, which nothing
+    // makes today, would get buffers of its own).
     EQUILIBRIUM_WORK.with(|cell| match cell.try_borrow_mut() {
-        Ok(mut ws) => equilibrium_in(mech, params, commands, force, start, hessians, &mut ws),
+        Ok(mut ws) => equilibrium_in(mech, params, commands, force, start, hessians, &mut ws, out),
         Err(_) => equilibrium_in(
             mech,
             params,
@@ -999,6 +1120,7 @@ pub fn equilibrium<M: Mechanism>(
             start,
             hessians,
             &mut EquilibriumWork::default(),
+            out,
         ),
     })
 }
@@ -1021,10 +1143,10 @@ struct EquilibriumWork {
     weights: Vec<f64>,
     /// Derivatives at the current configuration.
     j: Option<crate::mechanism::autodiff::Jacobians>,
-    /// `Gᵀ`, `G Gᵀ`, `∇E` and `−G ∇E` of the least-squares multipliers.
+    /// `Gᵀ` (where `G Gᵀ` takes it), `G Gᵀ` and `−G ∇E` of the
+    /// least-squares multipliers.
     gt: DMatrix<f64>,
     ggt: DMatrix<f64>,
-    ge: DVector<f64>,
     rhs: DVector<f64>,
     /// The buffers of the KKT solve on the constraints' null space.
     kkt_work: crate::linalg::kkt::KktWork,
@@ -1068,7 +1190,8 @@ fn shape(m: &mut DMatrix<f64>, r: usize, c: usize) {
     }
 }
 
-/// [`equilibrium`] in the workspace `ws`.
+/// [`equilibrium_into`] in the workspace `ws`.
+#[allow(clippy::too_many_arguments)]
 fn equilibrium_in<M: Mechanism>(
     mech: &M,
     params: &Params,
@@ -1077,7 +1200,8 @@ fn equilibrium_in<M: Mechanism>(
     start: &[f64],
     hessians: &JointHessians,
     ws: &mut EquilibriumWork,
-) -> Result<Equilibrium> {
+    (q, lambda, torque): EquilibriumOut<'_>,
+) -> Result<usize> {
     let spec = mech.spec();
     let nq = spec.joints.len();
     let m = spec.n_constraints;
@@ -1111,7 +1235,6 @@ fn equilibrium_in<M: Mechanism>(
         j,
         gt,
         ggt,
-        ge,
         rhs,
         kkt_work,
         lu,
@@ -1130,7 +1253,11 @@ fn equilibrium_in<M: Mechanism>(
     let mut last = f64::INFINITY;
     // The joints, the multipliers (estimated at the first iteration) and
     // the step.
-    let mut state = (start.to_vec(), vec![0.0; m], step);
+    q.clear();
+    q.extend_from_slice(start);
+    lambda.clear();
+    lambda.resize(m, 0.0);
+    let mut state = (q, lambda, step);
     let end = newton::run(
         &newton::EQUILIBRIUM,
         &mut state,
@@ -1150,18 +1277,12 @@ fn equilibrium_in<M: Mechanism>(
             if it == 0 {
                 // Least-squares multipliers at the start: Gᵀλ ≈ −∇E (the same
                 // products as `&G * Gᵀ` and `G * ∇E`, into the workspace).
-                shape(gt, nq, m);
-                j.dg.transpose_to(gt);
                 shape(ggt, m, m);
-                j.dg.mul_to(gt, ggt);
-                if ge.len() != nq {
-                    *ge = DVector::zeros(nq);
-                }
-                ge.as_mut_slice().copy_from_slice(grad_e);
+                crate::linalg::gram_into(&j.dg, gt, ggt.as_mut_slice());
                 if rhs.len() != m {
                     *rhs = DVector::zeros(m);
                 }
-                j.dg.mul_to(ge, rhs);
+                product_into(j.dg.as_slice(), grad_e, rhs.as_mut_slice(), m, nq, 1);
                 rhs.neg_mut();
                 if crate::linalg::lu::solve_in_place(ggt, rhs.as_mut_slice()) {
                     lam.copy_from_slice(rhs.as_slice());
@@ -1206,7 +1327,7 @@ fn equilibrium_in<M: Mechanism>(
             };
             if !solved {
                 return Err(Error::Singular {
-                    q: q.clone(),
+                    q: q.to_vec(),
                     reason: "the equilibrium (KKT) system is singular".into(),
                 });
             }
@@ -1235,19 +1356,15 @@ fn equilibrium_in<M: Mechanism>(
         },
     )?;
     if let newton::End::Converged(iterations) = end {
-        let (q, lambda, _) = state;
-        let torque = spec
-            .actuated
-            .iter()
-            .enumerate()
-            .map(|(a, &jt)| k[a] * (motor[a] - q[jt]))
-            .collect();
-        return Ok(Equilibrium {
-            q,
-            lambda,
-            torque,
-            iterations,
-        });
+        let (q, _, _) = state;
+        torque.clear();
+        torque.extend(
+            spec.actuated
+                .iter()
+                .enumerate()
+                .map(|(a, &jt)| k[a] * (motor[a] - q[jt])),
+        );
+        return Ok(iterations);
     }
     Err(Error::NoConvergence {
         what: "static equilibrium".into(),
@@ -1359,6 +1476,20 @@ mod tests {
         assert!(checked >= 8, "{checked} poses");
     }
 
+    /// [`predict_pose_near_into`] into a new prediction.
+    fn predict_pose_near<M: Mechanism>(
+        mech: &M,
+        pose: &Pose,
+        params: &Params,
+        model: Model,
+        force: &[f64],
+        start: &[f64],
+    ) -> Result<Prediction> {
+        let mut p = Prediction::default();
+        predict_pose_near_into(mech, pose, params, model, force, start, &mut p)?;
+        Ok(p)
+    }
+
     #[test]
     fn predictions_from_near_ones_are_the_cold_ones() {
         near_starts(&crate::JeongKim2Dof::new());
@@ -1397,5 +1528,60 @@ mod tests {
                 assert_eq!(bits(&kept), bits(&fresh), "{model:?} {force:?}");
             }
         }
+    }
+
+    /// A prediction written into one that held another (another pose's,
+    /// another model's, a loaded one's) is the one made afresh, bit for
+    /// bit, warm-started or not, from a near start, and at nominal
+    /// parameters: a fit's evaluations and a Monte Carlo run's predictions
+    /// write into their previous ones.
+    fn reused(mech: &impl Mechanism, load: &[f64]) {
+        let spec = mech.spec();
+        let nominal = Params::nominal(spec);
+        let mut off = nominal.clone();
+        for (v, d) in off
+            .values
+            .iter_mut()
+            .zip([1e-3, -2e-3, 5e-4].iter().cycle())
+        {
+            *v += d * v.abs().max(1.0);
+        }
+        let mut used = Prediction::default();
+        for target in crate::apply::workspace::spread_targets(mech, 4).unwrap() {
+            let c: Vec<f64> = spec.actuated.iter().map(|&j| target.q[j]).collect();
+            let pose = prepare_pose(mech, &c, Some(&target.q)).unwrap();
+            for model in [Model::Exact, Model::Linear, Model::Rigid] {
+                for force in [&[][..], load] {
+                    let warm = predict_pose(mech, &pose, &nominal, model, force).unwrap();
+                    for start in [None, Some(warm.q.as_slice())] {
+                        let fresh =
+                            predict_pose_warm(mech, &pose, &off, model, force, start).unwrap();
+                        predict_pose_warm_into(mech, &pose, &off, model, force, start, &mut used)
+                            .unwrap();
+                        assert!(used.same_bits(&fresh), "{model:?} {force:?}");
+                    }
+                    let fresh =
+                        predict_pose_near(mech, &pose, &off, model, force, &warm.q).unwrap();
+                    predict_pose_near_into(mech, &pose, &off, model, force, &warm.q, &mut used)
+                        .unwrap();
+                    assert!(used.same_bits(&fresh), "{model:?} {force:?} near");
+                    let fresh = pose
+                        .predict_at_nominal(mech, &nominal, model, force)
+                        .unwrap();
+                    pose.predict_at_nominal_into(mech, &nominal, model, force, &mut used)
+                        .unwrap();
+                    assert!(used.same_bits(&fresh), "{model:?} {force:?} at nominal");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn predictions_written_into_used_ones_are_fresh_ones() {
+        reused(&crate::JeongKim2Dof::new(), &[2.0, -1.0]);
+        reused(
+            &crate::PlanarLinkage::new(&example("4-rrr").try_into().unwrap()).unwrap(),
+            &[5.0, -3.0, 0.0],
+        );
     }
 }

@@ -283,6 +283,7 @@ pub(super) fn calibrate_once<M: Mechanism>(
     exact_free: Option<&[usize]>,
     known: Option<&Identifiability>,
     terms: Option<&[PriorTerm]>,
+    covariance: bool,
 ) -> Result<(Calibration, DMatrix<f64>)> {
     let (mech, measurement) = (problem.mech, problem.measurement);
     let spec = mech.spec();
@@ -388,7 +389,7 @@ pub(super) fn calibrate_once<M: Mechanism>(
         terms: all_terms,
         rows: terms.len(),
     };
-    assemble(problem, data, opts, sigma, &cols, m, fit)
+    assemble(problem, data, opts, sigma, &cols, m, fit, covariance)
 }
 
 /// The stated noises make sense: positive σ, a non-negative worth, distances
@@ -731,7 +732,10 @@ struct Fit {
 /// `(J̃ᵀW̃J̃)⁻¹` at the fit's weights (the standard deviations, shares and
 /// correlations that the scale rule fills in the end,
 /// [`super::uncertainty::apply_scale`], from it as they stand), and that
-/// covariance again for the leverages of the noise estimation.
+/// covariance again for the leverages of the noise estimation; without
+/// `covariance`, neither (an empty matrix, and no rank warning: a fit
+/// alone whose caller reads none).
+#[allow(clippy::too_many_arguments)]
 fn assemble<M: Mechanism>(
     problem: &IdentificationProblem<'_, M>,
     data: &[Measurement],
@@ -740,6 +744,7 @@ fn assemble<M: Mechanism>(
     cols: &Columns,
     m: usize,
     fit: Fit,
+    covariance: bool,
 ) -> Result<(Calibration, DMatrix<f64>)> {
     let (mech, measurement) = (problem.mech, problem.measurement);
     let spec = mech.spec();
@@ -759,7 +764,11 @@ fn assemble<M: Mechanism>(
     let params = Params::new(spec, report.x[..np].to_vec())?;
     let m_values = report.x[np..].to_vec();
     let frame = m_values[measurement.frame_range()].to_vec();
-    let (cov_unit, rank) = report.covariance(crate::lm::COVARIANCE_RANK_TOL);
+    let (cov_unit, rank) = if covariance {
+        report.covariance(crate::lm::COVARIANCE_RANK_TOL)
+    } else {
+        (DMatrix::zeros(0, 0), free.len())
+    };
     if rank < free.len() {
         warnings.push(Warning::new(WarningKind::RankDeficient {
             rank,

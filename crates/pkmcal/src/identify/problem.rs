@@ -5,14 +5,15 @@
 use super::identifiability::{Columns, Identifiability};
 use super::result::FinalPredictions;
 use crate::engine::models::{
-    Ahead, Model, Pose, Prediction, pose_ahead, predict_pose_warm, prepare_pose, prepare_pose_ahead,
+    Ahead, Model, Pose, Prediction, pose_ahead, predict_pose_warm_into, prepare_pose,
+    prepare_pose_ahead,
 };
 use crate::engine::sensitivity::tool_sensitivity;
 use crate::error::Origin;
 use crate::error::{Error, Result};
 use crate::lm::Problem;
-use crate::measurement::MeasurementModel;
 use crate::measurement::data::Measurement;
+use crate::measurement::{MeasurementModel, ObserveJacobian};
 use crate::mechanism::{Mechanism, Params};
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
@@ -87,6 +88,11 @@ pub struct IdentificationProblem<'a, M: Mechanism> {
     /// accepted trial point reuses them, and equilibria start from them
     /// (shared with the callers, not copied).
     cache: RefCell<Option<CachedPredictions>>,
+    /// The predictions before the cache's, whose vectors the next
+    /// evaluation writes into when no one else holds them (a fit's
+    /// evaluations then allocate no prediction; not for a large problem,
+    /// whose predictions are not held twice between evaluations).
+    spare: RefCell<Option<Arc<Vec<Prediction>>>>,
     /// The last Jacobian evaluated, with its parameters.
     jacobian_cache: RefCell<Option<CachedJacobian>>,
     /// Readings × parameters at least [`crate::lm::LARGE_JACOBIAN`]: no
@@ -437,6 +443,7 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             model,
             force: force.to_vec(),
             cache: RefCell::new(None),
+            spare: RefCell::new(None),
             jacobian_cache: RefCell::new(None),
             large,
             cancel: None,
@@ -462,36 +469,63 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
         {
             return Ok(Arc::clone(p));
         }
-        // Poses in parallel (each independent; assembled in order, so the
-        // result does not depend on the threads).
-        let warm: Vec<Option<&[f64]>> = (0..self.poses.len())
-            .map(|i| cached.as_ref().map(|(_, p)| p[i].q.as_slice()))
-            .collect();
+        // Each pose warm-started from the last evaluation's prediction.
+        let last: Option<&[Prediction]> = cached.as_ref().map(|(_, p)| p.as_slice());
+        let n = self.poses.len();
+        // Written into the spare predictions' vectors when no one else
+        // holds them, else into the thread's pooled ones (the same numbers
+        // as into new ones).
+        let mut out = self
+            .spare
+            .take()
+            .and_then(|mut p| {
+                Arc::get_mut(&mut p)
+                    .is_some_and(|v| v.len() == n)
+                    .then_some(p)
+            })
+            .unwrap_or_else(|| Arc::new(pooled_predictions(n)));
         let (mech, model, force, origins) =
             (self.mech, self.model, &self.force, &self.pose_origins);
         let cancel = self.cancel.as_deref();
         // From scratch at nominal parameters (a calibration's start, the
         // accuracy before it): each pose's prediction is made once.
-        let at_nominal = cached.is_none() && params.values == mech.spec().nominal;
-        let out: Result<Vec<Prediction>> = self
-            .poses
-            .par_iter()
-            .zip(warm.par_iter())
+        let at_nominal = last.is_none() && params.values == mech.spec().nominal;
+        // Poses in parallel (each independent and written in its place, so
+        // the result does not depend on the threads).
+        let done: Result<()> = Arc::get_mut(&mut out)
+            .expect("held here alone")
+            .par_iter_mut()
+            .zip(self.poses.par_iter())
             .with_min_len(crate::pose_chunk())
             .enumerate()
-            .map(|(i, (pose, warm))| {
+            .try_for_each(|(i, (out, pose))| {
                 crate::error::check_cancel(cancel)?;
                 if at_nominal {
-                    pose.predict_at_nominal(mech, params, model, force)
+                    pose.predict_at_nominal_into(mech, params, model, force, out)
                 } else {
-                    predict_pose_warm(mech, pose, params, model, force, *warm)
+                    let warm = last.map(|p| p[i].q.as_slice());
+                    predict_pose_warm_into(mech, pose, params, model, force, warm, out)
                 }
                 .map_err(|e| e.at_pose(origins[i]))
-            })
-            .collect();
+            });
         drop(cached);
-        let out = Arc::new(out?);
-        *self.cache.borrow_mut() = Some((params.values.clone(), Arc::clone(&out)));
+        let keep = !self.large;
+        if let Err(e) = done {
+            if keep {
+                *self.spare.borrow_mut() = Some(out);
+            }
+            return Err(e);
+        }
+        let mut values = params.values.clone();
+        let before = self.cache.replace(None);
+        if let Some((mut v, p)) = before {
+            v.clone_from(&params.values);
+            values = v;
+            if keep {
+                *self.spare.borrow_mut() = Some(p);
+            }
+        }
+        *self.cache.borrow_mut() = Some((values, Arc::clone(&out)));
         Ok(out)
     }
 
@@ -693,6 +727,10 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
                 }
             }
         };
+        // A row's readings and derivatives, and `∂h/∂x · ∂x/∂p`, kept from
+        // one row to the next.
+        let mut observed = ObserveJacobian::default();
+        let mut jx = DMatrix::zeros(0, 0);
         let mut first_row = 0;
         for chunk in self.rows.chunks(JACOBIAN_CHUNK) {
             // Poses in parallel, assembled in order.
@@ -735,16 +773,31 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
                         put(&mut j, row.offset, &jx, 0, 0);
                     }
                     None => {
-                        let (y, dx, dm) =
-                            self.measurement
-                                .observe_point_jacobian(xa, &m, point.as_deref());
+                        self.measurement.observe_point_jacobian_into(
+                            xa,
+                            &m,
+                            point.as_deref(),
+                            &mut observed,
+                        );
+                        let ObserveJacobian { y, dx, dm, .. } = &observed;
                         for a in 0..row.len {
                             r[row.offset + a] = y[a] - measured[a];
                         }
-                        let jx = dx * sa;
+                        let (ny, nx, ns) = (dx.nrows(), dx.ncols(), sa.ncols());
+                        if jx.shape() != (ny, ns) {
+                            jx = DMatrix::zeros(ny, ns);
+                        }
+                        crate::linalg::product_into(
+                            dx.as_slice(),
+                            sa.as_slice(),
+                            jx.as_mut_slice(),
+                            ny,
+                            nx,
+                            ns,
+                        );
                         for a in 0..row.len {
                             put(&mut j, row.offset + a, &jx, a, 0);
-                            put(&mut j, row.offset + a, &dm, a, np);
+                            put(&mut j, row.offset + a, dm, a, np);
                         }
                     }
                 }
@@ -764,6 +817,60 @@ impl<'a, M: Mechanism> IdentificationProblem<'a, M> {
             .copied()
             .collect();
         self.residuals_and_jacobian(&x)
+    }
+}
+
+/// Most poses of a problem whose predictions go to the thread's pool when
+/// it is dropped ([`SPARE_PREDICTIONS`]): a Monte Carlo run's hundred or
+/// so, not a large calibration's.
+const POOLED_POSES: usize = 1024;
+
+/// Predictions pooled on a thread ([`SPARE_PREDICTIONS`]), at most.
+const POOLED: usize = 2;
+
+thread_local! {
+    /// The predictions of the problems dropped on this thread (their last
+    /// two evaluations'), whose vectors the next problem's first
+    /// evaluations write into: a Monte Carlo run calibrates a new problem
+    /// on the poses of the last.
+    static SPARE_PREDICTIONS: RefCell<Vec<Vec<Prediction>>> = const { RefCell::new(Vec::new()) };
+}
+
+/// `n` predictions to write into: pooled ones when the thread has some
+/// ([`SPARE_PREDICTIONS`]), else new ones.
+fn pooled_predictions(n: usize) -> Vec<Prediction> {
+    let pooled = SPARE_PREDICTIONS
+        .try_with(|pool| pool.try_borrow_mut().ok()?.pop())
+        .ok()
+        .flatten();
+    let mut p = pooled.unwrap_or_default();
+    p.resize_with(n, Prediction::default);
+    p
+}
+
+impl<M: Mechanism> Drop for IdentificationProblem<'_, M> {
+    /// The last two evaluations' predictions go to the thread's pool when
+    /// no one else holds them (for a problem of at most [`POOLED_POSES`]
+    /// poses).
+    fn drop(&mut self) {
+        if self.poses.len() > POOLED_POSES {
+            return;
+        }
+        let last = self.cache.get_mut().take().map(|(_, p)| p);
+        let kept = [self.spare.get_mut().take(), last];
+        // (Not when the thread is ending.)
+        let _ = SPARE_PREDICTIONS.try_with(|pool| {
+            let Ok(mut pool) = pool.try_borrow_mut() else {
+                return;
+            };
+            for p in kept.into_iter().flatten() {
+                if pool.len() < POOLED
+                    && let Ok(p) = Arc::try_unwrap(p)
+                {
+                    pool.push(p);
+                }
+            }
+        });
     }
 }
 

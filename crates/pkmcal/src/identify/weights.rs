@@ -31,6 +31,15 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
         opts.stated_noise_readings,
         opts.stated_noise_relative,
     );
+    // One estimated group and nothing given, without priors: the weights
+    // are uniform whatever its σ (below); the fit alone with the squared
+    // loss and no outlier dropped then reads no covariance.
+    let one_group = noise.estimated_groups() == 1 && !noise.any_given();
+    let unread = opts.fit_only
+        && opts.loss == Loss::Squared
+        && !opts.drop_outliers
+        && one_group
+        && opts.priors.is_empty();
     // `(JᵀJ)⁺` of `cal.jacobian` (the fit's own, for the leverages) while
     // that Jacobian is the fit's.
     let (mut cal, cov) = calibrate_once(
@@ -43,6 +52,7 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
         None,
         None,
         None,
+        !unread,
     )?;
     // The free set and identifiability of the first fit hold for the refits.
     let mut refit_opts = opts.clone();
@@ -59,6 +69,7 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
             Some(&cal.free),
             Some(&cal.identifiability),
             Some(&cal.priors),
+            true,
         )?;
         next.identifiability = cal.identifiability.clone();
         for (p, first) in next.parameters.iter_mut().zip(&cal.parameters) {
@@ -90,7 +101,7 @@ pub(super) fn calibrate_weighted<M: Mechanism>(
         // One estimated group and nothing given: the weights are uniform
         // whatever its σ, so one estimate after the fit is exact (not with
         // priors, whose weights are known: the group's σ moves the fit).
-        let uniform = noise.estimated_groups() == 1 && !noise.any_given() && cal.priors.is_empty();
+        let uniform = one_group && cal.priors.is_empty();
         // (The fit alone skips it with the squared loss and no outlier
         // dropped: the σ then weigh nothing after this fit.)
         let unused = opts.fit_only && opts.loss == Loss::Squared && !opts.drop_outliers;

@@ -546,13 +546,30 @@ fn analytic_weighted_hessian(
 /// weighting of [`analytic_weighted_hessian`].
 struct PointDerivatives {
     p: [nalgebra::Vector2<f64>; 3],
-    /// Per point: (column of `[q; ρ]`, derivative).
-    first: [Vec<(usize, nalgebra::Vector2<f64>)>; 3],
-    /// Per point: (joint row, column, second derivative).
-    second: [Vec<(usize, usize, nalgebra::Vector2<f64>)>; 3],
+    /// Per point: (column of `[q; ρ]`, derivative) ([`Self::first`]; in
+    /// arrays, not vectors: this is made for every sensitivity).
+    first: (FirstOf<6>, FirstOf<6>, FirstOf<4>),
+    /// Per point: (joint row, column, second derivative) ([`Self::second`]).
+    second: (SecondOf<7>, SecondOf<7>, SecondOf<2>),
 }
 
+/// A point's `n` first derivatives: (column of `[q; ρ]`, derivative).
+type FirstOf<const N: usize> = [(usize, nalgebra::Vector2<f64>); N];
+
+/// A point's `n` second derivatives: (joint row, column, derivative).
+type SecondOf<const N: usize> = [(usize, usize, nalgebra::Vector2<f64>); N];
+
 impl PointDerivatives {
+    /// Per point: (column of `[q; ρ]`, derivative).
+    fn first(&self) -> [&[(usize, nalgebra::Vector2<f64>)]; 3] {
+        [&self.first.0, &self.first.1, &self.first.2]
+    }
+
+    /// Per point: (joint row, column, second derivative).
+    fn second(&self) -> [&[(usize, usize, nalgebra::Vector2<f64>)]; 3] {
+        [&self.second.0, &self.second.1, &self.second.2]
+    }
+
     fn new(q: &[f64], r: &[f64]) -> Self {
         use nalgebra::Vector2;
         const NQ: usize = 5;
@@ -565,8 +582,8 @@ impl PointDerivatives {
         let (a1, b1) = (q[0], q[0] + q[3]);
         let (a2, b2) = (q[1], q[1] + q[4]);
         let a3 = q[2];
-        let first: [Vec<(usize, Vector2<f64>)>; 3] = [
-            vec![
+        let first = (
+            [
                 (0, ep(a1) * r[0] + ep(b1) * r[1]),
                 (3, ep(b1) * r[1]),
                 (rho(0), e(a1)),
@@ -574,7 +591,7 @@ impl PointDerivatives {
                 (rho(5), Vector2::new(1.0, 0.0)),
                 (rho(6), Vector2::new(0.0, 1.0)),
             ],
-            vec![
+            [
                 (1, ep(a2) * r[2] + ep(b2) * r[3]),
                 (4, ep(b2) * r[3]),
                 (rho(2), e(a2)),
@@ -582,16 +599,16 @@ impl PointDerivatives {
                 (rho(7), Vector2::new(1.0, 0.0)),
                 (rho(8), Vector2::new(0.0, 1.0)),
             ],
-            vec![
+            [
                 (2, ep(a3) * r[4]),
                 (rho(4), e(a3)),
                 (rho(9), Vector2::new(1.0, 0.0)),
                 (rho(10), Vector2::new(0.0, 1.0)),
             ],
-        ];
+        );
         // Second derivatives of each point, rows in q: (row, column, value).
-        let second: [Vec<(usize, usize, Vector2<f64>)>; 3] = [
-            vec![
+        let second = (
+            [
                 (0, 0, -(e(a1) * r[0] + e(b1) * r[1])),
                 (0, 3, -e(b1) * r[1]),
                 (3, 0, -e(b1) * r[1]),
@@ -600,7 +617,7 @@ impl PointDerivatives {
                 (0, rho(1), ep(b1)),
                 (3, rho(1), ep(b1)),
             ],
-            vec![
+            [
                 (1, 1, -(e(a2) * r[2] + e(b2) * r[3])),
                 (1, 4, -e(b2) * r[3]),
                 (4, 1, -e(b2) * r[3]),
@@ -609,8 +626,8 @@ impl PointDerivatives {
                 (1, rho(3), ep(b2)),
                 (4, rho(3), ep(b2)),
             ],
-            vec![(2, 2, -e(a3) * r[4]), (2, rho(4), ep(a3))],
-        ];
+            [(2, 2, -e(a3) * r[4]), (2, rho(4), ep(a3))],
+        );
         Self {
             p: [p1, p2, p3],
             first,
@@ -630,7 +647,7 @@ impl PointDerivatives {
         use nalgebra::{DMatrix, Matrix2, Vector2};
         const NQ: usize = 5;
         let rho = |k: usize| NQ + k;
-        let (first, second) = (&self.first, &self.second);
+        let (first, second) = (self.first(), self.second());
         let p = self.p;
         let [p1, p2, _] = p;
         // Outer function φ̃(P, D, Pt): gradient and Hessian in P (2×2 blocks).

@@ -61,19 +61,22 @@ pub fn numbered_cow(data: &[Measurement]) -> std::borrow::Cow<'_, [Measurement]>
 }
 
 fn numbered_copy(data: &[Measurement]) -> Vec<Measurement> {
-    data.iter()
-        .enumerate()
-        .map(|(i, m)| {
-            let mut m = m.clone();
-            let distance = m.partner.is_some();
-            m.origin.get_or_insert(Origin {
-                pose: i + 1,
-                line: None,
-                distance,
-            });
-            m
-        })
-        .collect()
+    let mut data = data.to_vec();
+    number(&mut data);
+    data
+}
+
+/// Fill in every pose's [`Origin`] where none was given, as [`numbered`]
+/// does, in place.
+pub(crate) fn number(data: &mut [Measurement]) {
+    for (i, m) in data.iter_mut().enumerate() {
+        let distance = m.partner.is_some();
+        m.origin.get_or_insert(Origin {
+            pose: i + 1,
+            line: None,
+            distance,
+        });
+    }
 }
 
 /// Standard deviations of simulated measurement noise, per kind of

@@ -808,21 +808,53 @@ impl MeasurementModel {
         m: &[f64],
         point: Option<&[f64]>,
     ) -> (Vec<f64>, DMatrix<f64>, DMatrix<f64>) {
+        let mut work = ObserveJacobian::default();
+        self.observe_point_jacobian_into(x, m, point, &mut work);
+        (work.y, work.dx, work.dm)
+    }
+
+    /// [`MeasurementModel::observe_point_jacobian`] into `work`'s readings
+    /// and derivatives, whose storage (and that of the dual numbers) is
+    /// kept from one row to the next: the same numbers.
+    pub(crate) fn observe_point_jacobian_into(
+        &self,
+        x: &[f64],
+        m: &[f64],
+        point: Option<&[f64]>,
+        work: &mut ObserveJacobian,
+    ) {
         let (nx, nm, ny) = (x.len(), m.len(), self.len());
-        let mut y = vec![0.0; ny];
-        self.observe_point(x, m, point, &mut y);
-        let mut dx = DMatrix::zeros(ny, nx);
-        let mut dm = DMatrix::zeros(ny, nm);
-        let mut xd: Vec<Dual64> = x.iter().map(|&v| Dual64::from(v)).collect();
-        let mut md: Vec<Dual64> = m.iter().map(|&v| Dual64::from(v)).collect();
-        let mut out = vec![Dual64::from(0.0); ny];
+        let ObserveJacobian {
+            y,
+            dx,
+            dm,
+            xd,
+            md,
+            out,
+        } = work;
+        y.clear();
+        y.resize(ny, 0.0);
+        self.observe_point(x, m, point, y);
+        // (Every entry of both is written below.)
+        if dx.shape() != (ny, nx) {
+            *dx = DMatrix::zeros(ny, nx);
+        }
+        if dm.shape() != (ny, nm) {
+            *dm = DMatrix::zeros(ny, nm);
+        }
+        xd.clear();
+        xd.extend(x.iter().map(|&v| Dual64::from(v)));
+        md.clear();
+        md.extend(m.iter().map(|&v| Dual64::from(v)));
+        out.clear();
+        out.resize(ny, Dual64::from(0.0));
         for j in 0..nx + nm {
             if j < nx {
                 xd[j] = Dual64::from(x[j]).derivative();
             } else {
                 md[j - nx] = Dual64::from(m[j - nx]).derivative();
             }
-            self.observe_point(&xd, &md, point, &mut out);
+            self.observe_point(xd, md, point, out);
             for (i, o) in out.iter().enumerate() {
                 if j < nx {
                     dx[(i, j)] = o.eps;
@@ -836,7 +868,6 @@ impl MeasurementModel {
                 md[j - nx] = Dual64::from(m[j - nx]);
             }
         }
-        (y, dx, dm)
     }
 
     /// The base-frame tool coordinates behind readings `y` of the whole tool
@@ -889,5 +920,32 @@ impl MeasurementModel {
         let f = frame::register(self.frame_layout(), &reference, measured)?;
         m[self.n_own..].copy_from_slice(&f);
         Ok(m)
+    }
+}
+
+/// The readings `y` and their derivatives `dx` (by the tool's coordinates)
+/// and `dm` (by the model's parameters) of
+/// [`MeasurementModel::observe_point_jacobian_into`], with the dual numbers
+/// it evaluates: kept from one row to the next.
+#[derive(Debug)]
+pub(crate) struct ObserveJacobian {
+    pub(crate) y: Vec<f64>,
+    pub(crate) dx: DMatrix<f64>,
+    pub(crate) dm: DMatrix<f64>,
+    xd: Vec<Dual64>,
+    md: Vec<Dual64>,
+    out: Vec<Dual64>,
+}
+
+impl Default for ObserveJacobian {
+    fn default() -> Self {
+        Self {
+            y: vec![],
+            dx: DMatrix::zeros(0, 0),
+            dm: DMatrix::zeros(0, 0),
+            xd: vec![],
+            md: vec![],
+            out: vec![],
+        }
     }
 }
