@@ -5,11 +5,13 @@
 
 use num_dual::DualNum;
 
-pub(crate) mod kkt;
+#[doc(hidden)] // public for the integration tests only
+pub mod kkt;
 pub mod lu;
 pub mod pose;
 pub mod small;
-pub(crate) mod solve;
+#[doc(hidden)] // public for the integration tests only
+pub mod solve;
 
 /// The scalar type mechanism functions are written for: `f64` or a dual number.
 pub trait Scalar: DualNum<Primitive = f64> + Copy + Send + Sync {}
