@@ -29,11 +29,6 @@ pub mod record;
 pub mod report;
 pub mod text;
 
-#[cfg(test)]
-mod fuzz_grammar;
-#[cfg(test)]
-mod fuzz_readers;
-
 pub use error::{Error, Result};
 pub use output::Files;
 

@@ -102,12 +102,6 @@ pub use mechanism::{
 };
 pub use units::{AngleUnit, FileUnits, LengthUnit, ParamKind, PartialUnits, Quantity, Role, Unit};
 
-#[cfg(test)]
-#[path = "../tests/support/examples.rs"]
-mod examples;
-#[cfg(test)]
-pub(crate) use examples::example_table;
-
 /// Runs `f` on a thread of rayon's pool (at once when called from one):
 /// work that evaluates poses in parallel many times over (a calibration:
 /// each evaluation of the fit is a parallel section) then starts each

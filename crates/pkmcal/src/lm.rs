@@ -236,12 +236,14 @@ pub struct Report {
     /// The solver's QR factorisation of `jacobian` when its last one was of
     /// that Jacobian (the usual case: the last step was negligible), for
     /// [`Report::covariance`].
-    factored: Option<Box<Factored>>,
+    #[doc(hidden)] // public for the integration tests only
+    pub factored: Option<Box<Factored>>,
 }
 
 /// A matrix's QR factorisation with column pivoting as [`qrfac`] leaves it.
 #[derive(Debug, Clone)]
-struct Factored {
+#[doc(hidden)] // public for the integration tests only
+pub struct Factored {
     /// Which matrix was factored ([`fingerprint`]): the report's Jacobian
     /// is not copied to be compared.
     of: Fingerprint,
@@ -272,7 +274,8 @@ fn fingerprint(m: &DMatrix<f64>) -> Fingerprint {
 
 impl Factored {
     /// Whether `qr` holds `R` alone ([`triangular_factor`]).
-    fn compact(&self) -> bool {
+    #[doc(hidden)] // public for the integration tests only
+    pub fn compact(&self) -> bool {
         self.qr.nrows() < self.of.0
     }
 }
@@ -292,7 +295,8 @@ impl Report {
 }
 
 /// Rows folded at a time by [`triangular_factor`].
-const FOLD_ROWS: usize = 128;
+#[doc(hidden)] // public for the integration tests only
+pub const FOLD_ROWS: usize = 128;
 
 /// The triangular factor `R` (`n × n`, upper) of `a = Q R` (no pivoting)
 /// and the first `n` entries of `Qᵀf`, by blocks of rows: each block is
@@ -300,7 +304,8 @@ const FOLD_ROWS: usize = 128;
 /// that act on one row of the factor and the block's rows (a sequential
 /// TSQR), so that `a` is read, not overwritten, and besides it only `n²`
 /// numbers are kept. [`qrfac`] of the factor then pivots it: `a P = Q Q_R R'`.
-pub(crate) fn triangular_factor(a: &DMatrix<f64>, f: &[f64]) -> (DMatrix<f64>, Vec<f64>) {
+#[doc(hidden)] // public for the integration tests only
+pub fn triangular_factor(a: &DMatrix<f64>, f: &[f64]) -> (DMatrix<f64>, Vec<f64>) {
     let all: Vec<usize> = (0..a.ncols()).collect();
     triangular_factor_of(a, &all, None, f)
 }
@@ -478,7 +483,8 @@ const BLOCK: usize = 8;
 /// holds R in its upper triangle (diagonal in `rdiag`) and the Householder
 /// vectors below; `ipvt[j]` is the original column of column j; `acnorm` the
 /// original column norms.
-pub(crate) fn qrfac(a: &mut DMatrix<f64>) -> (Vec<usize>, Vec<f64>, Vec<f64>) {
+#[doc(hidden)] // public for the integration tests only
+pub fn qrfac(a: &mut DMatrix<f64>) -> (Vec<usize>, Vec<f64>, Vec<f64>) {
     let (m, n) = a.shape();
     let eps = f64::EPSILON;
     let acnorm: Vec<f64> = (0..n).map(|j| a.column(j).norm()).collect();
@@ -633,7 +639,8 @@ fn qrsolv(
 }
 
 /// `v ← Qᵀ v` by the Householder vectors [`qrfac`] leaves below R in `qr`.
-fn apply_qt(qr: &DMatrix<f64>, v: &mut [f64]) {
+#[doc(hidden)] // public for the integration tests only
+pub fn apply_qt(qr: &DMatrix<f64>, v: &mut [f64]) {
     let (m, n) = qr.shape();
     for j in 0..m.min(n) {
         let col = &qr.as_slice()[j * m..(j + 1) * m];
@@ -1286,112 +1293,4 @@ pub(crate) fn covariance_of(
         }
     }
     (cov, rank)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use rand::SeedableRng;
-    use rand_distr::{Distribution, StandardNormal};
-
-    /// Agreement of the blockwise factorisation with MINPACK's, relative.
-    const FACTOR_TOL: f64 = 1e-11;
-
-    fn random(seed: u64, m: usize, n: usize) -> (DMatrix<f64>, DVector<f64>) {
-        let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-        let mut g = || -> f64 { StandardNormal.sample(&mut rng) };
-        // Columns of different scales, as a calibration's are.
-        let a = DMatrix::from_fn(m, n, |_, j| g() * 10f64.powi(j as i32 % 4 - 2));
-        let f = DVector::from_fn(m, |_, _| g());
-        (a, f)
-    }
-
-    /// The least-squares solution of `a x ≈ f` by MINPACK's QR ([`qrfac`]).
-    fn least_squares(a: &DMatrix<f64>, f: &DVector<f64>) -> DVector<f64> {
-        let n = a.ncols();
-        let mut qr = a.clone();
-        let (ipvt, rdiag, _) = qrfac(&mut qr);
-        let mut qtf = f.as_slice().to_vec();
-        apply_qt(&qr, &mut qtf);
-        let mut z = vec![0.0; n];
-        for j in (0..n).rev() {
-            let sum: f64 = (j + 1..n).map(|l| qr[(j, l)] * z[l]).sum();
-            z[j] = (qtf[j] - sum) / rdiag[j];
-        }
-        let mut x = DVector::zeros(n);
-        for j in 0..n {
-            x[ipvt[j]] = z[j];
-        }
-        x
-    }
-
-    /// The factor by blocks is `a`'s: `RᵀR = aᵀa`, and `R x = (Qᵀf)[..n]`
-    /// solves the least-squares problem `a x ≈ f` as MINPACK's QR does.
-    #[test]
-    fn blockwise_factor_is_the_matrix_s() {
-        for (m, n) in [
-            (3 * FOLD_ROWS + 17, 9),
-            (FOLD_ROWS, 5),
-            (12, 12),
-            (40 * FOLD_ROWS + 3, 9),
-        ] {
-            let (a, f) = random(m as u64, m, n);
-            let (r, qtf) = triangular_factor(&a, f.as_slice());
-            for j in 0..n {
-                for i in j + 1..n {
-                    assert_eq!(r[(i, j)], 0.0);
-                }
-            }
-            let ata = a.transpose() * &a;
-            let rtr = r.transpose() * &r;
-            assert!((&rtr - &ata).amax() <= FACTOR_TOL * ata.amax(), "{m} × {n}");
-            let x = r
-                .solve_upper_triangular(&DVector::from_vec(qtf))
-                .expect("full rank");
-            let expected = least_squares(&a, &f);
-            assert!((&x - &expected).amax() <= FACTOR_TOL * expected.amax().max(1.0));
-        }
-    }
-
-    /// A linear least-squares problem.
-    struct Linear(DMatrix<f64>, DVector<f64>);
-
-    impl Problem for Linear {
-        fn n_params(&self) -> usize {
-            self.0.ncols()
-        }
-        fn n_residuals(&self) -> usize {
-            self.0.nrows()
-        }
-        fn evaluate(
-            &self,
-            x: &[f64],
-            jacobian: bool,
-        ) -> Result<(DVector<f64>, Option<DMatrix<f64>>), String> {
-            let r = &self.0 * DVector::from_column_slice(x) - &self.1;
-            Ok((r, jacobian.then(|| self.0.clone())))
-        }
-    }
-
-    /// A fit with a Jacobian beyond [`LARGE_JACOBIAN`] is factorised by
-    /// blocks and ends where MINPACK's QR puts the least-squares solution,
-    /// with the same covariance, and keeps no copy of the Jacobian.
-    #[test]
-    fn a_large_fit_factorised_by_blocks_is_the_least_squares_one() {
-        let n = 27;
-        let m = LARGE_JACOBIAN / n + 1;
-        let (a, f) = random(5, m, n);
-        let expected = least_squares(&a, &f);
-        let problem = Linear(a, f);
-        let report = minimize(&problem, &vec![0.0; n], &Options::default());
-        assert!(report.termination.converged(), "{:?}", report.termination);
-        let x = DVector::from_vec(report.x.clone());
-        assert!((&x - &expected).amax() <= FACTOR_TOL * expected.amax());
-        let factored = report.factored.as_ref().expect("kept");
-        assert!(factored.compact());
-        let (c, rank) = report.covariance(COVARIANCE_RANK_TOL);
-        let (c0, rank0) = covariance(&report.jacobian, COVARIANCE_RANK_TOL);
-        assert_eq!(rank, rank0);
-        assert!((&c - &c0).amax() <= FACTOR_TOL * c0.amax());
-    }
 }

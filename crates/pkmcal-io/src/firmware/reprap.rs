@@ -23,7 +23,8 @@ use crate::{invalid, refuse};
 use pkmcal::{Field, MeasurementModel, Params, Request, RequestError};
 use std::path::{Path, PathBuf};
 
-mod script;
+#[doc(hidden)] // public for the integration tests only
+pub mod script;
 pub use script::{MAX_EXPRESSION_DEPTH, MAX_ITERATIONS, MAX_MACRO_DEPTH};
 
 /// RepRapFirmware's standard tower angles (degrees), before corrections.

@@ -6,15 +6,23 @@
 //! comment saying what it covers) and add `mod <topic>;` below. Run one
 //! file's tests with `cargo test -p pkmcal-io --test all <topic>::`.
 
+mod choices;
+mod csv;
 mod firmware_shared;
+mod fuzz_grammar;
+mod fuzz_readers;
+mod gcode;
 mod height_map;
 mod imports;
 mod klipper_rotary;
 mod marlin;
+mod output;
 mod physical;
 mod physical_acceptance;
 mod physical_drift;
 mod physical_heights;
 mod physical_plan;
 mod physical_report;
+mod record;
 mod renamed;
+mod reprap_script;

@@ -7,7 +7,8 @@ pub mod compensation;
 pub mod montecarlo;
 pub mod planning;
 pub mod rows;
-mod screening;
+#[doc(hidden)] // public for the integration tests only
+pub mod screening;
 pub mod simulate;
 pub mod tooldrift;
 pub mod workspace;

@@ -83,7 +83,8 @@ pub struct CalibrationOptions {
     /// gross-error screening) is kept. Where a report-only step can fail
     /// (an adequacy test's Jacobian, with a stated noise or given σ) the
     /// full calibration is made.
-    pub(crate) fit_only: bool,
+    #[doc(hidden)] // public for the integration tests only
+    pub fit_only: bool,
 }
 
 /// Readings a stated noise is worth by default: a group of fewer readings'

@@ -109,7 +109,8 @@ pub enum EndKind {
     Rod,
 }
 
-fn origin() -> [Value; 3] {
+#[doc(hidden)] // public for the integration tests only
+pub fn origin() -> [Value; 3] {
     [Value::Number(0.0), Value::Number(0.0), Value::Number(0.0)]
 }
 
@@ -317,7 +318,8 @@ pub struct SpatialMechanism {
 
 /// A leg's joints with every universal and spherical joint written as the
 /// revolute joints it is (`<name>_1`, `<name>_2`[, `<name>_3`]).
-fn expand_joints(leg: &SpatialLeg) -> Result<Vec<SpatialJoint>> {
+#[doc(hidden)] // public for the integration tests only
+pub fn expand_joints(leg: &SpatialLeg) -> Result<Vec<SpatialJoint>> {
     let mut out = Vec::with_capacity(leg.joints.len());
     for j in &leg.joints {
         let (ln, jn) = (&leg.name, &j.name);
@@ -1812,61 +1814,5 @@ impl SpatialMechanism {
     fn same_branch(&self, s: [i8; 2]) -> bool {
         (self.branch[0] == 0 || s[0] == self.branch[0])
             && (self.branch[1] == 0 || s[1] == self.branch[1])
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn leg_with(kind: SpatialJointKind, axis2: Option<[f64; 3]>) -> SpatialLeg {
-        SpatialLeg {
-            name: "l".into(),
-            angle: None,
-            joints: vec![SpatialJoint {
-                name: "s".into(),
-                kind,
-                at: [Value::Number(1.0), Value::Number(2.0), Value::Number(3.0)],
-                axis: [0.0, 0.0, 2.0],
-                axis2,
-                axis3: None,
-                tilt: None,
-                actuated: false,
-                stiffness: None,
-            }],
-            chain: None,
-            end: LegEnd {
-                kind: EndKind::Spherical,
-                at: origin(),
-                platform: origin(),
-                length: None,
-                name: None,
-                actuated: false,
-                stiffness: None,
-            },
-        }
-    }
-
-    /// A spherical joint is three revolute joints about one centre, with
-    /// mutually perpendicular axes unless given; a universal joint two.
-    #[test]
-    fn spherical_and_universal_joints_expand_to_revolute_ones() {
-        let s = expand_joints(&leg_with(SpatialJointKind::Spherical, None)).unwrap();
-        let names: Vec<&str> = s.iter().map(|j| j.name.as_str()).collect();
-        assert_eq!(names, ["s_1", "s_2", "s_3"]);
-        assert!(s.iter().all(|j| j.kind == SpatialJointKind::Revolute));
-        assert_eq!(s[0].at[2], Value::Number(3.0));
-        assert_eq!(s[1].at, origin());
-        for (a, b) in [(0, 1), (0, 2), (1, 2)] {
-            assert!(dot(s[a].axis, s[b].axis).abs() < 1e-15);
-        }
-        assert!((dot(s[0].axis, s[0].axis) - 1.0).abs() < 1e-15);
-        let u = expand_joints(&leg_with(
-            SpatialJointKind::Universal,
-            Some([1.0, 0.0, 0.0]),
-        ))
-        .unwrap();
-        assert_eq!(u.len(), 2);
-        assert_eq!(u[1].axis, [1.0, 0.0, 0.0]);
     }
 }

@@ -9,7 +9,8 @@ pub const SINGULAR_RCOND: f64 = 1e-9;
 
 /// LU factorisation (partial pivoting) of a square matrix, or `None` when a
 /// pivot falls below [`SINGULAR_RCOND`] times the largest entry (singular).
-pub(crate) fn checked_lu(a: DMatrix<f64>) -> Option<crate::linalg::lu::Lu> {
+#[doc(hidden)] // public for the integration tests only
+pub fn checked_lu(a: DMatrix<f64>) -> Option<crate::linalg::lu::Lu> {
     let scale = a.amax();
     if scale.is_nan() || scale <= 0.0 {
         return None;
@@ -29,7 +30,8 @@ pub(crate) fn solve_scaled(a: DMatrix<f64>, b: DMatrix<f64>) -> Option<DMatrix<f
 
 /// [`solve_scaled`] in place: `b` becomes the solution and `a` its scaled
 /// LU factors; `false` (with `a` and `b` overwritten) when `A` is singular.
-pub(crate) fn solve_scaled_in_place(a: &mut DMatrix<f64>, b: &mut DMatrix<f64>) -> bool {
+#[doc(hidden)] // public for the integration tests only
+pub fn solve_scaled_in_place(a: &mut DMatrix<f64>, b: &mut DMatrix<f64>) -> bool {
     let n = a.nrows();
     if n == 0 {
         return true;
@@ -175,16 +177,19 @@ fn scaled_lu_solve(n: usize, av: &mut [f64], bv: &mut [f64]) -> bool {
 /// 1, by divisions); the singularity test is the same, relative to the
 /// scaled matrix's largest entry (here between 1 and 2).
 #[derive(Debug, Default, Clone)]
-pub(crate) struct ScaledLu {
+#[doc(hidden)] // public for the integration tests only
+pub struct ScaledLu {
     /// Size of the system.
     n: usize,
     /// The scaled matrix's LU factors (column-major, unit lower factor
     /// below the diagonal).
     lu: Vec<f64>,
     /// The rows' scale factors (powers of two).
-    rows: Vec<f64>,
+    #[doc(hidden)] // public for the integration tests only
+    pub rows: Vec<f64>,
     /// The columns' scale factors (powers of two).
-    cols: Vec<f64>,
+    #[doc(hidden)] // public for the integration tests only
+    pub cols: Vec<f64>,
     /// The reciprocals of the pivots.
     inverse_pivots: Vec<f64>,
     /// The row swapped with row `k` at step `k`.
@@ -197,7 +202,8 @@ impl ScaledLu {
     /// largest magnitude is outside the normal range of `f64` (below
     /// 2⁻¹⁰²² or from 2¹⁰²² on, far from any mechanism's): the factors are
     /// then not usable.
-    pub(crate) fn factor(&mut self, a: &[f64], n: usize) -> bool {
+    #[doc(hidden)] // public for the integration tests only
+    pub fn factor(&mut self, a: &[f64], n: usize) -> bool {
         debug_assert_eq!(a.len(), n * n);
         self.n = n;
         self.lu.clear();
@@ -227,7 +233,8 @@ impl ScaledLu {
 
     /// Solve with the factors of the last successful [`ScaledLu::factor`]:
     /// `b` (`n` entries) becomes the solution.
-    pub(crate) fn solve(&self, b: &mut [f64]) {
+    #[doc(hidden)] // public for the integration tests only
+    pub fn solve(&self, b: &mut [f64]) {
         let n = self.n;
         debug_assert_eq!(b.len(), n);
         let (lu, r, c, ip, piv) = (
@@ -248,7 +255,8 @@ impl ScaledLu {
 /// `None` when `m` or `f` would not be a normal number (`m` NaN, infinite,
 /// zero, subnormal, or from 2¹⁰²² on).
 #[inline(always)]
-fn unit_factor(m: f64) -> Option<f64> {
+#[doc(hidden)] // public for the integration tests only
+pub fn unit_factor(m: f64) -> Option<f64> {
     // The biased exponent `e` of `m` (its sign bit is clear): `m` is in
     // [2^(e−1023), 2^(e−1022)), and 2^(1023−e) has the biased exponent
     // 2046 − e.
@@ -380,7 +388,8 @@ fn substitute_scaled(
 /// `m.max(v)` for a running maximum `m` that is not NaN: a NaN `v` is
 /// skipped, as `f64::max` skips it.
 #[inline(always)]
-fn larger(m: f64, v: f64) -> f64 {
+#[doc(hidden)] // public for the integration tests only
+pub fn larger(m: f64, v: f64) -> f64 {
     if v > m { v } else { m }
 }
 
@@ -389,7 +398,8 @@ fn larger(m: f64, v: f64) -> f64 {
 /// the sequential `fold` of [`larger`], bit for bit, in fewer dependent
 /// steps.
 #[inline(always)]
-fn largest_magnitude(v: &[f64]) -> f64 {
+#[doc(hidden)] // public for the integration tests only
+pub fn largest_magnitude(v: &[f64]) -> f64 {
     let mut lanes = [0.0f64; 4];
     let mut chunks = v.chunks_exact(4);
     for c in &mut chunks {
@@ -414,7 +424,8 @@ pub(crate) fn solve_square(a: DMatrix<f64>, b: DVector<f64>) -> Option<DVector<f
 /// `false` when `A` is singular (by [`checked_lu`]'s test). The same
 /// operations as [`checked_lu`] then [`crate::linalg::lu::Lu::solve`], so the same
 /// bits.
-pub(crate) fn solve_square_in_place(a: &mut DMatrix<f64>, b: &mut [f64]) -> bool {
+#[doc(hidden)] // public for the integration tests only
+pub fn solve_square_in_place(a: &mut DMatrix<f64>, b: &mut [f64]) -> bool {
     // `amax` skips NaN entries as this does, and where every entry is NaN
     // both scales are rejected (NaN there, 0 here).
     let scale = largest_magnitude(a.as_slice());
@@ -430,128 +441,4 @@ pub(crate) fn solve_square_in_place(a: &mut DMatrix<f64>, b: &mut [f64]) -> bool
         .step_by(n + 1)
         .fold(f64::INFINITY, |m, v| if v.abs() < m { v.abs() } else { m });
     min_pivot >= SINGULAR_RCOND * scale && solved
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use rand::{RngExt, SeedableRng, rngs::StdRng};
-
-    /// The scaled solve's maxima are `f64::max`'s sequential folds, bit for
-    /// bit: NaN entries skipped, signed zeros, every length and remainder.
-    #[test]
-    fn lane_maxima_are_the_sequential_folds() {
-        let mut rng = StdRng::seed_from_u64(11);
-        for len in 0..40 {
-            for case in 0..4 {
-                let v: Vec<f64> = (0..len)
-                    .map(|i| match (case, i % 5) {
-                        (1, 0) => f64::NAN,
-                        (2, _) => -0.0,
-                        (3, 1) => f64::INFINITY,
-                        _ => rng.random_range(-1e3..1e3),
-                    })
-                    .collect();
-                let sequential = v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
-                assert_eq!(
-                    largest_magnitude(&v).to_bits(),
-                    sequential.to_bits(),
-                    "{v:?}"
-                );
-                let running = v.iter().fold(0.0f64, |m, x| larger(m, x.abs()));
-                assert_eq!(running.to_bits(), sequential.to_bits());
-            }
-        }
-    }
-
-    /// The scaled LU kept and solved later agrees with the one-pass scaled
-    /// solve to rounding (several sizes, mixed units, right-hand sides
-    /// solved in turn with one factorisation), refuses the same singular
-    /// systems, and scales by powers of two only.
-    #[test]
-    fn kept_scaled_factors_solve_as_the_one_pass_solve() {
-        let mut rng = StdRng::seed_from_u64(5);
-        let mut lu = ScaledLu::default();
-        for n in 1..=12 {
-            for case in 0..3 {
-                let mut a = DMatrix::from_fn(n, n, |_, _| rng.random_range(-3.0..3.0));
-                // Mixed units: a stiff block beside small entries.
-                for i in 0..n / 2 {
-                    a[(i, i)] *= 1e4;
-                }
-                if case == 1 {
-                    a.column_mut(n - 1).fill(0.0);
-                }
-                if case == 2 {
-                    a[(0, n - 1)] = f64::NAN;
-                }
-                let factored = lu.factor(a.as_slice(), n);
-                for v in lu.rows.iter().chain(&lu.cols).filter(|_| factored) {
-                    assert_eq!(v.to_bits() << 12, 0, "{v} is a power of two");
-                }
-                for _ in 0..3 {
-                    let b = DMatrix::from_fn(n, 1, |_, _| rng.random_range(-3.0..3.0));
-                    let (mut a1, mut b1) = (a.clone(), b.clone());
-                    let solved = solve_scaled_in_place(&mut a1, &mut b1);
-                    assert_eq!(solved, factored, "n {n} case {case}");
-                    if solved {
-                        let mut b2 = b.as_slice().to_vec();
-                        lu.solve(&mut b2);
-                        // (A NaN entry that passes the test gives NaN
-                        // solutions in both, which the callers reject.)
-                        let size = b1.amax();
-                        for (x, y) in b1.iter().zip(&b2) {
-                            let close = (x - y).abs() <= 1e-10 * size;
-                            assert!(close || (x.is_nan() && y.is_nan()), "n {n}: {x} {y}");
-                        }
-                    }
-                }
-            }
-        }
-        // Largest magnitudes outside the normal range are refused.
-        assert_eq!(unit_factor(3.0), Some(0.5));
-        assert_eq!(unit_factor(1.0), Some(1.0));
-        assert_eq!(unit_factor(0.75), Some(2.0));
-        for m in [
-            0.0,
-            f64::MIN_POSITIVE / 2.0,
-            f64::MAX,
-            f64::INFINITY,
-            f64::NAN,
-        ] {
-            assert_eq!(unit_factor(m), None, "{m}");
-        }
-        assert!(!lu.factor(&[f64::MAX, 1.0, 1.0, 1.0], 2));
-    }
-
-    /// The in-place solve is [`checked_lu`] then its solve, bit for bit,
-    /// singular systems included (a zero column, a tiny pivot, a NaN entry).
-    #[test]
-    fn square_solves_in_place_are_the_allocating_ones() {
-        let mut rng = StdRng::seed_from_u64(7);
-        for n in 1..=14 {
-            for case in 0..4 {
-                let mut a = DMatrix::from_fn(n, n, |_, _| rng.random_range(-3.0..3.0));
-                let b = DVector::from_fn(n, |_, _| rng.random_range(-3.0..3.0));
-                match case {
-                    1 => a.column_mut(n / 2).fill(0.0),
-                    2 => {
-                        // The last column nearly the first (a tiny pivot).
-                        let c = a.column(0) + a.column(n - 1) * 1e-12;
-                        a.column_mut(n - 1).copy_from(&c);
-                    }
-                    3 => a[(n - 1, 0)] = f64::NAN,
-                    _ => {}
-                }
-                let expected = checked_lu(a.clone()).and_then(|lu| lu.solve(&b));
-                let (mut a2, mut x) = (a.clone(), b.as_slice().to_vec());
-                let solved = solve_square_in_place(&mut a2, &mut x);
-                assert_eq!(solved, expected.is_some(), "n {n} case {case}");
-                if let Some(e) = expected {
-                    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-                    assert_eq!(bits(e.as_slice()), bits(&x), "n {n} case {case}");
-                }
-            }
-        }
-    }
 }

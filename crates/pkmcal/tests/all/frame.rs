@@ -4,6 +4,8 @@
 
 use crate::common;
 use common::{gough_stewart, perturbed, spread};
+use pkmcal::ToolLayout;
+use pkmcal::measurement::frame::*;
 use pkmcal::measurement::frame::{observe, to_base};
 use pkmcal::{
     CalibrationOptions, Frame, JeongKim2Dof, Measurement, MeasurementModel, Mechanism, Model,
@@ -253,5 +255,100 @@ fn the_frame_rule_is_one_rule() {
     ] {
         let m = e.to_string();
         assert!(!m.contains("--") && !m.contains('='), "{m}");
+    }
+}
+
+// The tests of `pkmcal::measurement::frame` itself.
+
+/// Round-off agreement of exact computations.
+const EXACT: f64 = 1e-9;
+
+fn poses() -> Vec<Vec<f64>> {
+    vec![
+        vec![10.0, 20.0, 700.0, 0.01, -0.02, 0.03],
+        vec![-50.0, 35.0, 650.0, -0.05, 0.04, 0.2],
+        vec![80.0, -60.0, 720.0, 0.1, 0.0, -0.1],
+        vec![0.0, 0.0, 690.0, 0.0, 0.07, 0.0],
+    ]
+}
+
+#[test]
+fn observe_and_to_base_are_inverse() {
+    let frame = [1000.0, -200.0, 50.0, 0.02, -0.03, 0.035];
+    for x in poses() {
+        let mut y = vec![0.0; 6];
+        observe(ToolLayout::SpatialPose, &x, &frame, &mut y);
+        let back = to_base(ToolLayout::SpatialPose, &y, &frame);
+        for (a, b) in x.iter().zip(&back) {
+            assert!((a - b).abs() < EXACT, "{x:?} -> {back:?}");
+        }
+    }
+    let frame = [500.0, 300.0, 0.4];
+    let x = [10.0, 20.0, 0.3];
+    let mut y = [0.0; 3];
+    observe(ToolLayout::PlanarPose, &x, &frame, &mut y);
+    let back = to_base(ToolLayout::PlanarPose, &y, &frame);
+    assert!(x.iter().zip(&back).all(|(a, b)| (a - b).abs() < EXACT));
+}
+
+#[test]
+fn registration_recovers_the_frame() {
+    let frame = [1000.0, -200.0, 50.0, 0.02, -0.03, 0.035];
+    let x = poses();
+    let y: Vec<Vec<f64>> = x
+        .iter()
+        .map(|p| {
+            let mut o = vec![0.0; 6];
+            observe(ToolLayout::SpatialPose, p, &frame, &mut o);
+            o
+        })
+        .collect();
+    let f = register(ToolLayout::SpatialPose, &x, &y).unwrap();
+    for (a, b) in f.iter().zip(&frame) {
+        assert!((a - b).abs() < 1e-6, "{f:?}");
+    }
+    let frame2 = [500.0, 300.0, 0.4];
+    let x2: Vec<Vec<f64>> = vec![vec![0.0, 0.0], vec![100.0, 0.0], vec![30.0, 80.0]];
+    let y2: Vec<Vec<f64>> = x2
+        .iter()
+        .map(|p| {
+            let mut o = vec![0.0; 2];
+            observe(ToolLayout::PlanarPoint, p, &frame2, &mut o);
+            o
+        })
+        .collect();
+    let f2 = register(ToolLayout::PlanarPoint, &x2, &y2).unwrap();
+    for (a, b) in f2.iter().zip(&frame2) {
+        assert!((a - b).abs() < 1e-9, "{f2:?}");
+    }
+}
+
+#[test]
+fn derivatives_match_central_differences() {
+    let frame = vec![100.0, -20.0, 5.0, 0.2, -0.3, 0.35];
+    let x = poses()[1].clone();
+    let (_, dx, df) = observe_jacobian(ToolLayout::SpatialPose, &x, &frame);
+    let h = 1e-6;
+    for j in 0..12 {
+        let (mut a, mut b) = (x.clone(), frame.clone());
+        let (mut a2, mut b2) = (x.clone(), frame.clone());
+        if j < 6 {
+            a[j] += h;
+            a2[j] -= h;
+        } else {
+            b[j - 6] += h;
+            b2[j - 6] -= h;
+        }
+        let (mut yp, mut ym) = (vec![0.0; 6], vec![0.0; 6]);
+        observe(ToolLayout::SpatialPose, &a, &b, &mut yp);
+        observe(ToolLayout::SpatialPose, &a2, &b2, &mut ym);
+        for i in 0..6 {
+            let fd = (yp[i] - ym[i]) / (2.0 * h);
+            let ad = if j < 6 { dx[(i, j)] } else { df[(i, j - 6)] };
+            assert!(
+                (fd - ad).abs() < 1e-6 * (1.0 + ad.abs()),
+                "{i},{j}: {fd} {ad}"
+            );
+        }
     }
 }

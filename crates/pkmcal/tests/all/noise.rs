@@ -17,6 +17,12 @@ const NOISE: Noise = Noise {
     length: 0.002,
     angle: 1e-5,
 };
+use nalgebra::DMatrix;
+use pkmcal::identify::noise::*;
+use pkmcal::measurement::MeasurementModel;
+use pkmcal::measurement::data::Measurement;
+use rand::SeedableRng;
+use rand_distr::{Distribution, Normal};
 /// Estimated and known-σ fits may differ by this fraction in accuracy (mean
 /// over the seeds).
 const SAME_ACCURACY: f64 = 0.05;
@@ -349,4 +355,168 @@ fn every_parameter_carries_its_declared_unit() {
         s.tool_units,
         [Unit::Millimetre, Unit::Millimetre, Unit::Radian]
     );
+}
+
+// The tests of `pkmcal::identify::noise` itself.
+
+/// The variance ratio's interval against F quantiles from tables
+/// (F(10, 20): 0.975 quantile 2.7737, 0.025 quantile 1/3.4185).
+#[test]
+fn variance_ratio_interval_is_fishers() {
+    let group = |sigma: f64, nu: f64| NoiseGroup {
+        unit: Unit::Millimetre,
+        axes: vec![],
+        count: 0,
+        estimated: true,
+        sigma,
+        residual_rms: sigma,
+        redundancy: Some(nu),
+        stated: None,
+        stated_readings: None,
+        stated_relative: false,
+    };
+    let r = variance_ratio(&group(2.0, 10.5), &group(1.0, 20.0), 0.95).unwrap();
+    assert_eq!(r.ratio, 4.0);
+    assert!((r.low - 4.0 / 2.7737).abs() < 1e-3, "{r:?}");
+    assert!((r.high - 4.0 * 3.4185).abs() < 1e-3, "{r:?}");
+    assert!(variance_ratio(&group(2.0, 0.5), &group(1.0, 20.0), 0.95).is_none());
+    let mut given = group(1.0, 3.0);
+    given.redundancy = None;
+    assert!(variance_ratio(&given, &group(1.0, 20.0), 0.95).is_none());
+}
+
+#[test]
+fn leverages_sum_to_the_number_of_parameters() {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(3);
+    let n = Normal::new(0.0, 1.0).unwrap();
+    let j = DMatrix::from_fn(20, 4, |_, _| n.sample(&mut rng));
+    let h = leverages(&j);
+    assert!((h.iter().sum::<f64>() - 4.0).abs() < 1e-10);
+    assert!(h.iter().all(|v| (0.0..=1.0 + 1e-12).contains(v)));
+}
+
+fn hexapod() -> pkmcal::GoughStewart {
+    let t = crate::common::table("gough-stewart-6");
+    pkmcal::GoughStewart::new(&t.try_into().unwrap()).unwrap()
+}
+
+#[test]
+fn groups_by_unit_and_given_sigma() {
+    use pkmcal::Mechanism;
+    let mech = hexapod();
+    let tool = MeasurementModel::tool_axes(mech.spec(), &["x", "y", "rx"]).unwrap();
+    let m = Measurement {
+        measured: vec![0.0; 3],
+        sigma: vec![Some(0.002), None, None],
+        ..Default::default()
+    };
+    let mut nm = NoiseModel::new(&[m.clone(), m], &tool);
+    assert_eq!(nm.estimated_groups(), 2);
+    nm.sigma = vec![0.003, 1e-5];
+    assert_eq!(nm.sigmas(), vec![0.002, 0.003, 1e-5, 0.002, 0.003, 1e-5]);
+    let rep = nm.report(&[0.0; 6]);
+    assert_eq!(rep.len(), 3);
+    assert_eq!(rep[0].axes, vec!["y".to_string()]);
+    assert_eq!(rep[1].unit, Unit::Radian);
+    assert!(!rep[2].estimated && rep[2].count == 2);
+}
+
+#[test]
+fn distances_between_poses_are_a_group_of_their_own() {
+    use pkmcal::Mechanism;
+    let mech = hexapod();
+    let tool = MeasurementModel::tool_axes(mech.spec(), &["x", "y", "rx"]).unwrap();
+    let pose = Measurement {
+        measured: vec![0.0; 3],
+        ..Default::default()
+    };
+    let pair = Measurement {
+        measured: vec![0.0],
+        partner: Some(vec![]),
+        ..Default::default()
+    };
+    let mut nm = NoiseModel::new(&[pose, pair.clone(), pair], &tool);
+    assert_eq!(nm.estimated_groups(), 3);
+    nm.sigma = vec![0.003, 1e-5, 0.02];
+    assert_eq!(nm.sigmas(), vec![0.003, 0.003, 1e-5, 0.02, 0.02]);
+    assert_eq!(nm.keys(), vec![0, 0, 1, 2, 2]);
+    let rep = nm.report(&[0.0; 5]);
+    assert_eq!(rep[2].axes, vec!["distance".to_string()]);
+    assert_eq!(rep[2].count, 2);
+    assert_eq!(rep[2].unit, Unit::Millimetre);
+}
+
+/// Stated noise as a prior of each group, the distances' included, by
+/// the formula of docs/model.md §6; with only the ratios stated, their
+/// common scale is the pooled estimate, no readings' worth gives the
+/// data's own estimates and an infinite worth the stated ratio.
+#[test]
+fn stated_noise_is_a_prior_of_every_group_and_a_ratio_shrinks() {
+    use pkmcal::Mechanism;
+    let mech = hexapod();
+    let tool = MeasurementModel::tool_axes(mech.spec(), &["x", "y"]).unwrap();
+    let pose = Measurement {
+        measured: vec![0.0; 2],
+        ..Default::default()
+    };
+    let pair = Measurement {
+        measured: vec![0.0],
+        partner: Some(vec![]),
+        ..Default::default()
+    };
+    let data = [pose.clone(), pose, pair.clone(), pair.clone(), pair];
+    let r = [0.01, -0.02, 0.015, 0.005, 0.3, -0.2, 0.25];
+    let h = [0.3, 0.2, 0.4, 0.1, 0.5, 0.2, 0.3];
+    let (ss0, red0) = (
+        0.01f64.powi(2) + 0.02f64.powi(2) + 0.015f64.powi(2) + 0.005f64.powi(2),
+        0.7 + 0.8 + 0.6 + 0.9,
+    );
+    let (ss1, red1) = (
+        0.3f64.powi(2) + 0.2f64.powi(2) + 0.25f64.powi(2),
+        0.5 + 0.8 + 0.7,
+    );
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-14 * b.abs();
+    // The distances' stated σ alone, worth 3 readings.
+    let mut nm = NoiseModel::new(&data, &tool).with_stated(None, Some(0.2), 3.0, false);
+    nm.update(&r, &h);
+    assert!(close(nm.sigma[0], (ss0 / red0).sqrt()));
+    assert!(close(
+        nm.sigma[1],
+        ((3.0 * 0.04 + ss1) / (3.0 + red1)).sqrt()
+    ));
+    let rep = nm.report(&r);
+    assert_eq!((rep[0].stated, rep[1].stated), (None, Some(0.2)));
+    // Only the ratio stated (readings 0.5, distances 1): the scale τ is
+    // pooled over both groups.
+    let relative = |nu: f64| {
+        let mut nm = NoiseModel::new(&data, &tool).with_stated(
+            Some(Noise::lengths(0.5)),
+            Some(1.0),
+            nu,
+            true,
+        );
+        nm.update(&r, &h);
+        nm
+    };
+    let tau2 = (ss0 / 0.25 + ss1) / (red0 + red1);
+    let nm = relative(4.0);
+    assert!(close(
+        nm.sigma[0],
+        ((4.0 * 0.25 * tau2 + ss0) / (4.0 + red0)).sqrt()
+    ));
+    assert!(close(
+        nm.sigma[1],
+        ((4.0 * tau2 + ss1) / (4.0 + red1)).sqrt()
+    ));
+    let rep = nm.report(&r);
+    assert!(close(rep[0].stated.unwrap(), 0.5 * tau2.sqrt()));
+    assert!(close(rep[1].stated.unwrap(), tau2.sqrt()));
+    assert!(rep[0].stated_relative && rep[1].stated_relative);
+    assert!(variance_ratio(&rep[0], &rep[1], 0.95).is_none());
+    let nm = relative(0.0);
+    assert!(close(nm.sigma[0], (ss0 / red0).sqrt()));
+    assert!(close(nm.sigma[1], (ss1 / red1).sqrt()));
+    let nm = relative(f64::INFINITY);
+    assert!(close(nm.sigma[0] / nm.sigma[1], 0.5));
+    assert!(close(nm.sigma[1], tau2.sqrt()));
 }

@@ -6,6 +6,9 @@
 
 use crate::common;
 use common::{gough_stewart, perturbed_by_unit, spatial, table};
+use pkmcal::kinds::description::Value;
+use pkmcal::kinds::spatial::*;
+use pkmcal::linalg::small::dot;
 use pkmcal::mechanism::autodiff::{automatic_jacobians, jacobians, output_hessians, weighted_sum};
 use pkmcal::{Mechanism, Model, Params, SpatialDescription, SpatialMechanism};
 use rand::{RngExt, SeedableRng};
@@ -928,4 +931,57 @@ fn tool_derivatives_by_the_adjoint_equal_the_linearisation() {
     for name in EXAMPLES {
         check(name, &spatial(name));
     }
+}
+
+// The tests of `pkmcal::kinds::spatial` itself.
+
+fn leg_with(kind: SpatialJointKind, axis2: Option<[f64; 3]>) -> SpatialLeg {
+    SpatialLeg {
+        name: "l".into(),
+        angle: None,
+        joints: vec![SpatialJoint {
+            name: "s".into(),
+            kind,
+            at: [Value::Number(1.0), Value::Number(2.0), Value::Number(3.0)],
+            axis: [0.0, 0.0, 2.0],
+            axis2,
+            axis3: None,
+            tilt: None,
+            actuated: false,
+            stiffness: None,
+        }],
+        chain: None,
+        end: LegEnd {
+            kind: EndKind::Spherical,
+            at: origin(),
+            platform: origin(),
+            length: None,
+            name: None,
+            actuated: false,
+            stiffness: None,
+        },
+    }
+}
+
+/// A spherical joint is three revolute joints about one centre, with
+/// mutually perpendicular axes unless given; a universal joint two.
+#[test]
+fn spherical_and_universal_joints_expand_to_revolute_ones() {
+    let s = expand_joints(&leg_with(SpatialJointKind::Spherical, None)).unwrap();
+    let names: Vec<&str> = s.iter().map(|j| j.name.as_str()).collect();
+    assert_eq!(names, ["s_1", "s_2", "s_3"]);
+    assert!(s.iter().all(|j| j.kind == SpatialJointKind::Revolute));
+    assert_eq!(s[0].at[2], Value::Number(3.0));
+    assert_eq!(s[1].at, origin());
+    for (a, b) in [(0, 1), (0, 2), (1, 2)] {
+        assert!(dot(s[a].axis, s[b].axis).abs() < 1e-15);
+    }
+    assert!((dot(s[0].axis, s[0].axis) - 1.0).abs() < 1e-15);
+    let u = expand_joints(&leg_with(
+        SpatialJointKind::Universal,
+        Some([1.0, 0.0, 0.0]),
+    ))
+    .unwrap();
+    assert_eq!(u.len(), 2);
+    assert_eq!(u[1].axis, [1.0, 0.0, 0.0]);
 }

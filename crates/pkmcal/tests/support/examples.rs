@@ -1,6 +1,6 @@
 //! The shipped examples' mechanism descriptions, for tests and benchmarks
-//! (one file, included by the library's unit tests, its integration tests
-//! and its benchmarks).
+//! (one file, included by the library's integration tests and its
+//! benchmarks).
 
 /// The mechanism file of `examples/<name>` as a table (without `type`, the
 /// targets and the tables other readers use: `[units]`, `[ballbar]`,

@@ -53,7 +53,8 @@ pub const MAX_LINES_RUN: u64 = 1_000_000;
 
 /// A value of an expression.
 #[derive(Debug, Clone, PartialEq)]
-enum Value {
+#[doc(hidden)] // public for the integration tests only
+pub enum Value {
     /// A 32-bit integer (the firmware's `int32`).
     Int(i32),
     /// A float, held at the firmware's precision (32 bits).
@@ -65,7 +66,8 @@ enum Value {
 }
 
 impl Value {
-    fn float(x: f64) -> Value {
+    #[doc(hidden)] // public for the integration tests only
+    pub fn float(x: f64) -> Value {
         Value::Float(x as f32 as f64)
     }
 
@@ -90,12 +92,14 @@ impl Value {
 
 /// An expression's value, or why it is not known here (its text says why,
 /// and what to do).
-type Eval = std::result::Result<Value, String>;
+#[doc(hidden)] // public for the integration tests only
+pub type Eval = std::result::Result<Value, String>;
 
 /// A variable: its value (or why it is unknown), and whether it certainly
 /// exists (not when it was set in a block whose condition is unknown).
 #[derive(Debug, Clone)]
-struct Slot {
+#[doc(hidden)] // public for the integration tests only
+pub struct Slot {
     value: Eval,
     certain: bool,
 }
@@ -103,21 +107,28 @@ struct Slot {
 /// A local variable (`var`): its name, value and the block nesting it was
 /// declared at.
 #[derive(Debug, Clone)]
-struct Local {
+#[doc(hidden)] // public for the integration tests only
+pub struct Local {
     name: String,
     slot: Slot,
     nesting: usize,
 }
 
 /// What the expressions of a line can read.
-struct Scope<'a> {
-    globals: &'a HashMap<String, Slot>,
-    locals: &'a [Local],
-    params: &'a HashMap<char, Eval>,
+#[doc(hidden)] // public for the integration tests only
+pub struct Scope<'a> {
+    #[doc(hidden)] // public for the integration tests only
+    pub globals: &'a HashMap<String, Slot>,
+    #[doc(hidden)] // public for the integration tests only
+    pub locals: &'a [Local],
+    #[doc(hidden)] // public for the integration tests only
+    pub params: &'a HashMap<char, Eval>,
     /// The innermost loop's iterations, if in a loop.
-    iterations: Option<u32>,
+    #[doc(hidden)] // public for the integration tests only
+    pub iterations: Option<u32>,
     /// The line's number.
-    line: usize,
+    #[doc(hidden)] // public for the integration tests only
+    pub line: usize,
 }
 
 /// An expression parser over one text, as the firmware's
@@ -712,7 +723,8 @@ fn function(name: &str, args: &[Value]) -> std::result::Result<Value, String> {
 }
 
 /// Evaluate `text` as one expression.
-fn evaluate(text: &str, scope: &Scope<'_>) -> Eval {
+#[doc(hidden)] // public for the integration tests only
+pub fn evaluate(text: &str, scope: &Scope<'_>) -> Eval {
     Parser {
         s: text.as_bytes(),
         i: 0,
@@ -936,7 +948,8 @@ pub struct Command<'a> {
 /// Where a parameter's value stops being read: a number (with `SafeStrtod`'s
 /// syntax: sign, digits, point, exponent) from `s`, its end; `None` without
 /// a digit (or where `s` is not text up to it).
-fn number_at(s: &[u8]) -> Option<(f64, usize)> {
+#[doc(hidden)] // public for the integration tests only
+pub fn number_at(s: &[u8]) -> Option<(f64, usize)> {
     let text = match std::str::from_utf8(s) {
         Ok(t) => t,
         // The number is ASCII: read up to the first byte that is not text.
@@ -968,7 +981,8 @@ fn brace_end(s: &[u8]) -> Option<usize> {
 /// after its first occurrence (either case) outside quotes and braces, an
 /// `E` after a digit being an exponent, a letter after `'` another
 /// parameter (lower case).
-fn seen(params: &str, letter: char) -> Option<usize> {
+#[doc(hidden)] // public for the integration tests only
+pub fn seen(params: &str, letter: char) -> Option<usize> {
     let b = params.as_bytes();
     let (mut quoted, mut escaped, mut braces) = (false, false, 0usize);
     for (k, &c) in b.iter().enumerate() {
@@ -1201,7 +1215,8 @@ impl Command<'_> {
 /// The commands of a line's text: each starts at a `G` or `M` (or `T`)
 /// outside quotes and braces and not after `'`; `(letter, number, start,
 /// end of code, end)`; a text that does not start with a command is none.
-fn commands_of(text: &str) -> Vec<(char, Option<u32>, usize, usize, usize)> {
+#[doc(hidden)] // public for the integration tests only
+pub fn commands_of(text: &str) -> Vec<(char, Option<u32>, usize, usize, usize)> {
     let b = text.as_bytes();
     let mut starts = vec![];
     if let Some(&c) = b.first()
@@ -1786,86 +1801,4 @@ fn unknown_block(
     frame.top().kind = Kind::Plain;
     frame.pc = end;
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn value(text: &str) -> Eval {
-        let globals = HashMap::new();
-        let params = HashMap::new();
-        let scope = Scope {
-            globals: &globals,
-            locals: &[],
-            params: &params,
-            iterations: None,
-            line: 1,
-        };
-        evaluate(text, &scope)
-    }
-
-    /// The firmware's priorities, integer and 32-bit float arithmetic,
-    /// short cuts.
-    #[test]
-    fn expressions_evaluate_as_the_firmware_does() {
-        assert_eq!(value("1 + 2 * 3"), Ok(Value::Int(7)));
-        assert_eq!(value("(1 + 2) * 3"), Ok(Value::Int(9)));
-        assert_eq!(value("7 / 2"), Ok(Value::float(3.5)));
-        assert_eq!(value("-2 - -3"), Ok(Value::Int(1)));
-        assert_eq!(value("1 < 2 && 3 >= 3"), Ok(Value::Bool(true)));
-        assert_eq!(value("1 = 1 || move.x > 0"), Ok(Value::Bool(true)));
-        assert_eq!(value("1 != 1 && move.x > 0"), Ok(Value::Bool(false)));
-        assert_eq!(value("true ? 4 : move.x"), Ok(Value::Int(4)));
-        // 0.1 + 0.2 = 0.3 in 32-bit floats, as in the firmware.
-        assert_eq!(value("0.1 + 0.2 == 0.3"), Ok(Value::Bool(true)));
-        assert_eq!(value("\"a\" ^ 1"), Ok(Value::Str("a1".into())));
-        assert_eq!(value("max(1, 2.5, 2)"), Ok(Value::float(2.5)));
-        assert_eq!(
-            value("{1, 2}"),
-            Ok(Value::Array(vec![Value::Int(1), Value::Int(2)]))
-        );
-        assert!(
-            value("move.axes[0].max")
-                .unwrap_err()
-                .contains("object model")
-        );
-        assert!(value("if").is_err());
-        assert!(value("1 +").is_err());
-        assert!(value("5 && true").unwrap_err().contains("Boolean"));
-    }
-
-    /// 50,000 nested brackets or signs are refused by name, not by the
-    /// stack.
-    #[test]
-    fn deep_expressions_are_refused() {
-        for text in [
-            format!("{}1{}", "(".repeat(50_000), ")".repeat(50_000)),
-            format!("{}1", "-".repeat(50_000)),
-            format!("{}1{}", "{".repeat(50_000), "}".repeat(50_000)),
-            format!("1{}", " + (1".repeat(50_000)),
-        ] {
-            let e = value(&text).unwrap_err();
-            assert!(e.contains("nests more than"), "{e}");
-        }
-        let ok = format!("{}1{}", "(".repeat(30), ")".repeat(30));
-        assert_eq!(value(&ok), Ok(Value::Int(1)));
-    }
-
-    #[test]
-    fn parameters_are_found_as_the_firmware_seen_finds_them() {
-        assert_eq!(seen("R195 R196", 'R'), Some(1));
-        assert_eq!(seen("L1E5 E2", 'E'), Some(6));
-        assert_eq!(seen("P\"R.g\" R1", 'R'), Some(8));
-        assert_eq!(seen("{global.r} R1", 'R'), Some(12));
-        assert_eq!(seen("r5", 'R'), Some(1));
-        assert_eq!(number_at(b"195 R196"), Some((195.0, 3)));
-        assert_eq!(number_at(b"1e3"), Some((1000.0, 3)));
-        assert_eq!(number_at(b"-.5:2"), Some((-0.5, 3)));
-        assert_eq!(number_at(b"x"), None);
-        let c = commands_of("M665 R1 M666 X2 M98 P\"m.g\"");
-        let codes: Vec<(char, Option<u32>)> = c.iter().map(|x| (x.0, x.1)).collect();
-        assert_eq!(codes, [('M', Some(665)), ('M', Some(666)), ('M', Some(98))]);
-        assert_eq!(commands_of("echo \"M665\""), vec![]);
-    }
 }

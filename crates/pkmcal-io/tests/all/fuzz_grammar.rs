@@ -36,7 +36,7 @@ fn number() -> impl Strategy<Value = String> {
 }
 
 /// A RepRapFirmware expression of at most `depth` nested levels (the
-/// reader's bound is [`crate::firmware::reprap::script::MAX_EXPRESSION_DEPTH`];
+/// reader's bound is [`pkmcal_io::firmware::reprap::script::MAX_EXPRESSION_DEPTH`];
 /// deeper ones must be refused, never overflow the stack).
 fn expression() -> impl Strategy<Value = String> {
     let leaf = prop_oneof![
@@ -259,10 +259,10 @@ fn at<'a>(v: &'a mut serde_json::Value, path: &[String]) -> &'a mut serde_json::
 fn read_record(dir: &Path, text: &str) -> Option<String> {
     let p = dir.join("record.json");
     std::fs::write(&p, text).expect("write");
-    let files = crate::Files::new();
-    let run = crate::Run::quiet(&files);
+    let files = pkmcal_io::Files::new();
+    let run = pkmcal_io::Run::quiet(&files);
     let spec = pkmcal::kinds::reference::JeongKim2Dof::default_spec();
-    match crate::record::read_calibration_record(&run, &p) {
+    match pkmcal_io::record::read_calibration_record(&run, &p) {
         Err(e) => Some(e.to_string()),
         Ok(r) => match r.check(&spec).and_then(|()| r.params(&spec).map(|_| ())) {
             Ok(()) => None,
@@ -280,7 +280,7 @@ proptest! {
     #[test]
     fn reprap_configurations_answer_or_name_their_line(text in config()) {
         let lines = text.lines().count() as u64;
-        if let Err(e) = crate::firmware::reprap::delta_from_gcode(&text, "config.g") {
+        if let Err(e) = pkmcal_io::firmware::reprap::delta_from_gcode(&text, "config.g") {
             // What the whole file sets (no geometry, when an `M99` ends it
             // early, or an impossible one) is refused naming the file;
             // anything else at its line.
@@ -304,14 +304,14 @@ proptest! {
         let n = text.lines().count() as u64;
         let axes = ["x".to_string(), "y".to_string(), "z".to_string()];
         let units = [pkmcal::Unit::Millimetre; 3];
-        for dialect in crate::gcode::Dialect::ALL {
-            let settings = crate::gcode::Rewrite { dialect, offset: vec![], max_segment: None };
+        for dialect in pkmcal_io::gcode::Dialect::ALL {
+            let settings = pkmcal_io::gcode::Rewrite { dialect, offset: vec![], max_segment: None };
             let path = Path::new("part.gcode");
-            match crate::gcode::rewrite(path, text.as_bytes(), &axes, &units, &settings, identity) {
-                Err(crate::Error::Gcode { line, .. }) => prop_assert!((1..=n).contains(&line), "{line} of {n}\n{text}"),
+            match pkmcal_io::gcode::rewrite(path, text.as_bytes(), &axes, &units, &settings, identity) {
+                Err(pkmcal_io::Error::Gcode { line, .. }) => prop_assert!((1..=n).contains(&line), "{line} of {n}\n{text}"),
                 Err(e) => prop_assert!(e.to_string().contains("part.gcode"), "{e}"),
                 Ok(once) => {
-                    let twice = crate::gcode::rewrite(path, &once.bytes, &axes, &units, &settings, identity);
+                    let twice = pkmcal_io::gcode::rewrite(path, &once.bytes, &axes, &units, &settings, identity);
                     prop_assert!(twice.as_ref().is_ok_and(|t| t.bytes == once.bytes), "{}: {text}\n->\n{}\n->\n{:?}", dialect.name(), String::from_utf8_lossy(&once.bytes), twice.map(|t| String::from_utf8_lossy(&t.bytes).into_owned()));
                 }
             }
@@ -358,11 +358,11 @@ fn a_record_read_and_written_comes_back() {
     let dir = tempfile::tempdir().expect("temp dir");
     let p = dir.path().join("record.json");
     std::fs::write(&p, record().to_string()).expect("write");
-    let files = crate::Files::new();
-    let run = crate::Run::quiet(&files);
-    let once = crate::record::read_calibration_record(&run, &p).expect("the shipped record");
+    let files = pkmcal_io::Files::new();
+    let run = pkmcal_io::Run::quiet(&files);
+    let once = pkmcal_io::record::read_calibration_record(&run, &p).expect("the shipped record");
     std::fs::write(&p, serde_json::to_string(&once).expect("JSON")).expect("write");
-    let twice = crate::record::read_calibration_record(&run, &p).expect("read again");
+    let twice = pkmcal_io::record::read_calibration_record(&run, &p).expect("read again");
     assert_eq!(once, twice);
 }
 
@@ -384,7 +384,7 @@ fn deep_expressions_are_refused_at_their_line() {
             2,
         ),
     ] {
-        let e = crate::firmware::reprap::delta_from_gcode(&text, "config.g")
+        let e = pkmcal_io::firmware::reprap::delta_from_gcode(&text, "config.g")
             .unwrap_err()
             .to_string();
         assert_eq!(line_named(&e, "config.g"), Some(line), "{e}");

@@ -8,6 +8,7 @@
 //! hang. 1,000 cases per property in the suite; `PKMCAL_FUZZ_CASES=N` for
 //! long runs (BENCHMARKS.md).
 
+use pkmcal_io::gcode::{Dialect, Mode, Parsed, parse};
 use proptest::prelude::*;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
@@ -148,9 +149,9 @@ proptest! {
     fn fuzz_gcode_lines(pick in any::<usize>(), edits in proptest::collection::vec((0usize..200, any::<u8>(), any::<bool>()), 0..8), noise in proptest::collection::vec(any::<u8>(), 0..80)) {
         let lines = gcode_lines();
         let line = mutate(&lines[pick % lines.len()], &edits);
-        for d in crate::gcode::Dialect::ALL {
+        for d in pkmcal_io::gcode::Dialect::ALL {
             for l in [&line, &noise] {
-                crate::gcode::fuzz_parse(l, d);
+                fuzz_parse(l, d);
             }
         }
     }
@@ -161,12 +162,12 @@ proptest! {
         let text = String::from_utf8_lossy(&mutate(&all[pick % all.len()], &edits)).into_owned();
         let dir = tempfile::tempdir().expect("temp dir");
         let file = dir.path().join("printer.cfg");
-        let files = crate::Files::new();
-        let run = crate::Run::quiet(&files);
-        if let Ok(ini) = crate::firmware::klipper::parse_config(&run, &text, &file)
-            && let Ok(delta) = crate::firmware::klipper::delta_from_config(&ini)
+        let files = pkmcal_io::Files::new();
+        let run = pkmcal_io::Run::quiet(&files);
+        if let Ok(ini) = pkmcal_io::firmware::klipper::parse_config(&run, &text, &file)
+            && let Ok(delta) = pkmcal_io::firmware::klipper::delta_from_config(&ini)
         {
-            let _ = crate::firmware::klipper::updated_config(&text, &delta, &ini);
+            let _ = pkmcal_io::firmware::klipper::updated_config(&text, &delta, &ini);
         }
     }
 
@@ -174,12 +175,12 @@ proptest! {
     fn fuzz_reprap_configs(pick in any::<usize>(), edits in proptest::collection::vec((0usize..20_000, any::<u8>(), any::<bool>()), 0..8)) {
         let all = reprap_configs();
         let text = String::from_utf8_lossy(&mutate(&all[pick % all.len()], &edits)).into_owned();
-        let _ = crate::firmware::reprap::delta_from_gcode(&text, "config.g");
+        let _ = pkmcal_io::firmware::reprap::delta_from_gcode(&text, "config.g");
     }
 
     #[test]
     fn fuzz_marlin_settings_and_probes(pick in any::<usize>(), other in any::<usize>(), edits in proptest::collection::vec((0usize..20_000, any::<u8>(), any::<bool>()), 0..8)) {
-        use crate::firmware::marlin;
+        use pkmcal_io::firmware::marlin;
         let all = marlin_texts();
         let text = String::from_utf8_lossy(&mutate(&all[pick % all.len()], &edits)).into_owned();
         let log_text = String::from_utf8_lossy(&all[other % all.len()]).into_owned();
@@ -203,10 +204,10 @@ proptest! {
         let text = String::from_utf8_lossy(&mutate(&all[pick % all.len()], &edits)).into_owned();
         let dir = tempfile::tempdir().expect("temp dir");
         let file = dir.path().join("printer.cfg");
-        let files = crate::Files::new();
-        let run = crate::Run::quiet(&files);
-        if let Ok(ini) = crate::firmware::klipper::parse_config(&run, &text, &file)
-            && let Ok(p) = crate::firmware::klipper_rotary::RotaryPrinter::from_parsed(&file, text, ini, crate::firmware::klipper::Weighting::Klipper)
+        let files = pkmcal_io::Files::new();
+        let run = pkmcal_io::Run::quiet(&files);
+        if let Ok(ini) = pkmcal_io::firmware::klipper::parse_config(&run, &text, &file)
+            && let Ok(p) = pkmcal_io::firmware::klipper_rotary::RotaryPrinter::from_parsed(&file, text, ini, pkmcal_io::firmware::klipper::Weighting::Klipper)
         {
             let _ = p.delta.mechanism_toml();
         }
@@ -217,13 +218,30 @@ proptest! {
         let dir = tempfile::tempdir().expect("temp dir");
         let p = dir.path().join("record.json");
         std::fs::write(&p, mutate(record(), &edits)).expect("write");
-        let files = crate::Files::new();
-        let run = crate::Run::quiet(&files);
-        if let Ok(r) = crate::record::read_calibration_record(&run, &p) {
+        let files = pkmcal_io::Files::new();
+        let run = pkmcal_io::Run::quiet(&files);
+        if let Ok(r) = pkmcal_io::record::read_calibration_record(&run, &p) {
             let spec = pkmcal::kinds::reference::JeongKim2Dof::default_spec();
             if r.check(&spec).is_ok() {
                 let _ = r.params(&spec);
             }
         }
+    }
+}
+
+/// [`parse`] for the fuzzing of the readers: a line read in a dialect must
+/// give an answer, and a followed line only upper-case word letters.
+fn fuzz_parse(line: &[u8], dialect: Dialect) {
+    for mode in [Mode::Unknown, Mode::Printer, Mode::Cnc] {
+        fuzz_parse_in(line, dialect, mode);
+    }
+}
+
+fn fuzz_parse_in(line: &[u8], dialect: Dialect, mode: Mode) {
+    if let Ok(Parsed::Code(c)) = parse(line, dialect, mode) {
+        assert!(
+            c.words.iter().all(|(w, _)| w.is_ascii_uppercase()),
+            "{line:?}"
+        );
     }
 }
