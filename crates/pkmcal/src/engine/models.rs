@@ -851,26 +851,42 @@ pub fn predict_pose_near_into<M: Mechanism>(
     start: &[f64],
     out: &mut Prediction,
 ) -> Result<()> {
-    let spec = mech.spec();
     let f = effective_force(mech, pose, force)?;
-    let warm = match effective_model(spec, model, &f) {
-        Model::Exact => exact_into(mech, pose, params, &f, start, out).is_ok(),
+    if near_taken(mech, pose, params, model, &f, start, out) {
+        return Ok(());
+    }
+    *out = predict_pose(mech, pose, params, model, force)?;
+    Ok(())
+}
+
+/// The start of [`predict_pose_near_into`] and [`predict_near`]: the
+/// rigid or exact model's prediction from `start` (`f` the load's
+/// generalised forces) written into `out`, and whether it is taken:
+/// converged within [`NEAR_TURN`] of `start` (the same assembly mode).
+fn near_taken<M: Mechanism>(
+    mech: &M,
+    pose: &Pose,
+    params: &Params,
+    model: Model,
+    f: &[f64],
+    start: &[f64],
+    out: &mut Prediction,
+) -> bool {
+    let spec = mech.spec();
+    let warm = match effective_model(spec, model, f) {
+        Model::Exact => exact_into(mech, pose, params, f, start, out).is_ok(),
         Model::Rigid => rigid_from(mech, pose, params, start)
             .map(|p| *out = p)
             .is_ok(),
         Model::Linear => false,
     };
-    if warm {
+    warm && out.q.len() == start.len() && {
         let moved = crate::engine::kinematics::turn_of(
             spec,
             out.q.iter().zip(start).map(|(a, b)| a - b).enumerate(),
         );
-        if out.q.len() == start.len() && moved <= NEAR_TURN {
-            return Ok(());
-        }
+        moved <= NEAR_TURN
     }
-    *out = predict_pose(mech, pose, params, model, force)?;
-    Ok(())
 }
 
 /// A prediction for `commands` from a configuration `start` near the
@@ -909,19 +925,9 @@ pub fn predict_near<M: Mechanism>(
             sensitivity_at_nominal: OnceLock::new(),
         };
         let f = effective_force(mech, &pose, force)?;
-        let warm = match effective_model(spec, model, &f) {
-            Model::Exact => exact_from(mech, &pose, params, &f, start).ok(),
-            Model::Rigid => rigid_from(mech, &pose, params, start).ok(),
-            Model::Linear => None,
-        };
-        if let Some(p) = warm {
-            let moved = crate::engine::kinematics::turn_of(
-                spec,
-                p.q.iter().zip(start).map(|(a, b)| a - b).enumerate(),
-            );
-            if p.q.len() == start.len() && moved <= NEAR_TURN {
-                return Ok(p);
-            }
+        let mut out = Prediction::default();
+        if near_taken(mech, &pose, params, model, &f, start, &mut out) {
+            return Ok(out);
         }
     }
     let start = (start.len() == spec.joints.len()).then_some(start);
