@@ -895,11 +895,13 @@ fn near_taken<M: Mechanism>(
 /// kinematics [`predict`] makes first: forward kinematics (the rigid model)
 /// or the equilibrium (the exact one) starts at `start`, and its answer is
 /// taken when it converged within 0.05 rad of it (a length counted at 100
-/// mm per rad: the same assembly mode). Otherwise, and for the linear
-/// model or a load, the prediction is made as [`predict_pose`] makes it,
-/// the pose prepared with `start` among its candidate starts
-/// ([`prepare_pose`]). Converged to the same tolerances as `predict`'s; the
-/// last bits may differ (another start).
+/// mm per rad: the same assembly mode). `start` is a whole configuration
+/// (`mech.spec().joints.len()` values in joint order, e.g. an earlier
+/// [`Prediction::q`]); one of another length is not used. Otherwise, and
+/// for the linear model or a load, the prediction is made as [`predict`]
+/// makes it, with `start` also offered to [`prepare_pose`] as a candidate
+/// start. Converged to the same tolerances as `predict`'s; the last bits
+/// may differ (another start).
 pub fn predict_near<M: Mechanism>(
     mech: &M,
     params: &Params,
