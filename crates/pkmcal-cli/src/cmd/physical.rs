@@ -268,7 +268,9 @@ pub fn run<F: Firmware>(
             &printer.updated(fw_spec, &proj.params, &proj.bed)?,
             source,
             own.readings.poses.len(),
-            true,
+            // The header says the physical model's values only where they
+            // are written (else the firmware's own fit is).
+            choice.projection_written,
         );
         run.files.stage(out, text.as_bytes())?;
         let what = if choice.projection_written {

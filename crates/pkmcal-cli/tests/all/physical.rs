@@ -75,7 +75,7 @@ fn klipper_physical_writes_klippers_values_with_klippers_writer() {
 fn reprap_and_marlin_physical_write_their_lines() {
     let dir = tempfile::tempdir().unwrap();
     let r = examples().join("reprap-delta");
-    ok(
+    let reprap = ok(
         dir.path(),
         &[
             "reprap",
@@ -90,8 +90,21 @@ fn reprap_and_marlin_physical_write_their_lines() {
     );
     let g = std::fs::read_to_string(dir.path().join("new.g")).unwrap();
     assert!(g.contains("\nM665 L") && g.contains("\nM666 X"), "{g}");
+    // The file's header says what the summary says was written: the
+    // physical model's values, or the firmware's own fit.
+    let header_agrees = |out: &str, file: &str| {
+        let first = file.lines().next().unwrap_or_default();
+        let own = out.contains("'s own fit ->");
+        assert_ne!(
+            own,
+            out.contains("values for the nozzle ->"),
+            "one of the two is said: {out}"
+        );
+        assert_eq!(!own, first.contains("the physical model"), "{first}\n{out}");
+    };
+    header_agrees(&reprap, &g);
     let m = examples().join("marlin-delta");
-    ok(
+    let marlin = ok(
         dir.path(),
         &[
             "marlin",
@@ -108,6 +121,7 @@ fn reprap_and_marlin_physical_write_their_lines() {
     );
     let g = std::fs::read_to_string(dir.path().join("new.gcode")).unwrap();
     assert!(g.contains("\nM665 L") && g.contains("M500"), "{g}");
+    header_agrees(&marlin, &g);
 }
 
 #[test]

@@ -1000,8 +1000,9 @@ pub fn probe_errors(
 /// The file a firmware command writes (`--out`): the firmware's lines
 /// `updated` ([`Firmware::updated`]) with, for the firmwares whose
 /// settings are G-code lines, a comment saying where they came from
-/// (`source`, `probes` probe points; `physical`: the values for the
-/// nozzle) and, for Marlin, how to keep them.
+/// (`source`, `probes` probe points; `physical`: the physical model's
+/// values for the nozzle, its projection written, not the firmware's own
+/// fit) and, for Marlin, how to keep them.
 pub fn out_file<F: Firmware + ?Sized>(
     firmware: &F,
     updated: &str,

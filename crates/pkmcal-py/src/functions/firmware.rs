@@ -810,7 +810,9 @@ fn physical_result<'py, F: Firmware + Sync>(
             &text,
             &src,
             assessed.own.readings.poses.len(),
-            true,
+            // The header says the physical model's values only where they
+            // are written (else the firmware's own fit is).
+            choice.projection_written,
         );
         outputs.push((out.clone(), text.into_bytes()));
     }
