@@ -111,6 +111,20 @@ struct KeptSensitivity {
 }
 
 impl Pose {
+    /// A pose of (reduced) `commands` at the configuration `nominal_q`,
+    /// nothing computed yet.
+    fn at(commands: Vec<f64>, nominal_q: Vec<f64>) -> Self {
+        Pose {
+            commands,
+            nominal_q,
+            lin: OnceLock::new(),
+            hessians: OnceLock::new(),
+            transient: OnceLock::new(),
+            at_nominal: OnceLock::new(),
+            sensitivity_at_nominal: OnceLock::new(),
+        }
+    }
+
     /// [`predict_pose`] at nominal parameters `nominal` (the caller's, equal
     /// to `Params::nominal`), computed once per model and load: the first
     /// computed is kept, any other is computed each time. The same
@@ -440,17 +454,8 @@ pub fn pose_ahead<M: Mechanism>(mech: &M, commands: &[f64]) -> Option<Ahead> {
     let guess = mech.configuration_guess(commands, rho);
     let pose = guess.as_ref().and_then(|g| {
         let q = forward_kinematics(mech, rho, &q_u, g).ok()?;
-        (commands_mismatch(spec, commands, &q) < CONSISTENT).then(|| {
-            Box::new(Pose {
-                commands: commands.to_vec(),
-                nominal_q: q,
-                lin: OnceLock::new(),
-                hessians: OnceLock::new(),
-                transient: OnceLock::new(),
-                at_nominal: OnceLock::new(),
-                sensitivity_at_nominal: OnceLock::new(),
-            })
-        })
+        (commands_mismatch(spec, commands, &q) < CONSISTENT)
+            .then(|| Box::new(Pose::at(commands.to_vec(), q)))
     });
     Some(Ahead { guess, pose })
 }
@@ -644,15 +649,7 @@ pub fn prepare_pose_ahead<M: Mechanism>(
         Some((_, q)) => q,
         None => return Err(first_error.expect("at least one attempt was made")),
     };
-    Ok(Pose {
-        commands: commands.to_vec(),
-        nominal_q,
-        lin: OnceLock::new(),
-        hessians: OnceLock::new(),
-        transient: OnceLock::new(),
-        at_nominal: OnceLock::new(),
-        sensitivity_at_nominal: OnceLock::new(),
-    })
+    Ok(Pose::at(commands.to_vec(), nominal_q))
 }
 
 /// The rigid model's prediction of a pose: forward kinematics of the
@@ -917,15 +914,7 @@ pub fn predict_near<M: Mechanism>(
         // The start stands for the pose's nominal configuration: only the
         // rigid and exact models read it (as their start and, for the
         // exact one, where Newton's curvature is taken).
-        let pose = Pose {
-            commands: reduced_commands(spec, commands),
-            nominal_q: start.to_vec(),
-            lin: OnceLock::new(),
-            hessians: OnceLock::new(),
-            transient: OnceLock::new(),
-            at_nominal: OnceLock::new(),
-            sensitivity_at_nominal: OnceLock::new(),
-        };
+        let pose = Pose::at(reduced_commands(spec, commands), start.to_vec());
         let f = effective_force(mech, &pose, force)?;
         let mut out = Prediction::default();
         if near_taken(mech, &pose, params, model, &f, start, &mut out) {

@@ -11,6 +11,30 @@ use pkmcal::{
     predict_pose, prepare_pose,
 };
 
+/// `$f(&mechanism, seed)` on every shipped mechanism (a seed for each
+/// kind): the reference, the planar linkages, the Gough–Stewart platforms
+/// and the spatial mechanisms.
+macro_rules! on_every_shipped_mechanism {
+    ($f:ident) => {
+        $f(&pkmcal::JeongKim2Dof::new(), 1);
+        for name in ["five-bar", "3-rrr", "4-rrr", "jeong-kim-planar"] {
+            $f(&planar(name), 2);
+        }
+        for name in ["gough-stewart-6", "gough-stewart-8"] {
+            $f(&gough_stewart(name), 3);
+        }
+        for name in [
+            "linear-delta",
+            "linear-delta-4",
+            "rotary-delta",
+            "3-prs",
+            "spatial-gough-stewart-6",
+        ] {
+            $f(&spatial(name), 4);
+        }
+    };
+}
+
 /// Compensated commands predicted back reach their target to this (mm, or
 /// rad on an orientation axis).
 const ROUND_TRIP: f64 = 1e-9;
@@ -82,22 +106,7 @@ fn round_trip<M: Mechanism + Sync>(m: &M, seed: u64) {
 
 #[test]
 fn compensated_commands_predict_back_to_their_targets_on_every_shipped_mechanism() {
-    round_trip(&pkmcal::JeongKim2Dof::new(), 1);
-    for name in ["five-bar", "3-rrr", "4-rrr", "jeong-kim-planar"] {
-        round_trip(&planar(name), 2);
-    }
-    for name in ["gough-stewart-6", "gough-stewart-8"] {
-        round_trip(&gough_stewart(name), 3);
-    }
-    for name in [
-        "linear-delta",
-        "linear-delta-4",
-        "rotary-delta",
-        "3-prs",
-        "spatial-gough-stewart-6",
-    ] {
-        round_trip(&spatial(name), 4);
-    }
+    on_every_shipped_mechanism!(round_trip);
 }
 
 /// The README's case: the reference mechanism with `l11 = 280.3` and
@@ -195,20 +204,5 @@ fn near_starts<M: Mechanism>(m: &M, seed: u64) {
 
 #[test]
 fn predictions_from_near_starts_are_the_cold_ones_on_every_shipped_mechanism() {
-    near_starts(&pkmcal::JeongKim2Dof::new(), 1);
-    for name in ["five-bar", "3-rrr", "4-rrr", "jeong-kim-planar"] {
-        near_starts(&planar(name), 2);
-    }
-    for name in ["gough-stewart-6", "gough-stewart-8"] {
-        near_starts(&gough_stewart(name), 3);
-    }
-    for name in [
-        "linear-delta",
-        "linear-delta-4",
-        "rotary-delta",
-        "3-prs",
-        "spatial-gough-stewart-6",
-    ] {
-        near_starts(&spatial(name), 4);
-    }
+    on_every_shipped_mechanism!(near_starts);
 }
