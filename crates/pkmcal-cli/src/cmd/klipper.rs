@@ -144,10 +144,10 @@ pub fn run(run: &Run<'_>, a: Args) -> Result<()> {
 /// Calibrate a Klipper printer holding `n_distances` distances and whose
 /// heights Klipper weighs `z_weight` times a distance; print and write as
 /// asked.
-fn report<F: Firmware>(
+fn report(
     run: &Run<'_>,
     a: &Args,
-    printer: &F,
+    printer: &dyn Firmware,
     n_distances: usize,
     z_weight: f64,
 ) -> Result<()> {

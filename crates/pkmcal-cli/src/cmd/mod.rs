@@ -47,8 +47,8 @@ pub fn note_renamed(run: &pkmcal_io::Run<'_>, spec: &pkmcal::Spec, request: &pkm
 }
 
 /// A printer's written values with their σ, as a table headed `what`.
-pub fn print_written<F: pkmcal_io::firmware::Firmware + ?Sized>(
-    printer: &F,
+pub fn print_written(
+    printer: &dyn pkmcal_io::firmware::Firmware,
     calibrated: &pkmcal_io::firmware::PrinterCalibration,
     what: &str,
 ) -> anyhow::Result<pkmcal_io::firmware::Written> {
@@ -84,8 +84,8 @@ pub fn print_values(what: &str, values: &[pkmcal_io::firmware::FirmwareValue]) {
 
 /// The checks of a printer's written values and of its fit
 /// ([`pkmcal_io::firmware::checks`]), worded.
-pub fn print_checks<F: pkmcal_io::firmware::Firmware + ?Sized>(
-    printer: &F,
+pub fn print_checks(
+    printer: &dyn pkmcal_io::firmware::Firmware,
     calibrated: &pkmcal_io::firmware::PrinterCalibration,
     written: &pkmcal_io::firmware::Written,
     max_sigma: f64,

@@ -27,9 +27,9 @@ pub struct Output<'a> {
 }
 
 /// Fit, project, print, and write as `output` says.
-pub fn run<F: Firmware>(
+pub fn run(
     run: &Run<'_>,
-    printer: &F,
+    printer: &dyn Firmware,
     request: Request,
     source: &str,
     output: Output<'_>,

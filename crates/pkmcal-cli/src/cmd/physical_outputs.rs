@@ -30,9 +30,9 @@ pub struct Mapped<'a> {
 
 /// Map what the written values leave over the bed, stage it at `path` in
 /// the firmware's format, and say so.
-pub fn height_map<F: Firmware>(
+pub fn height_map(
     run: &Run<'_>,
-    printer: &F,
+    printer: &dyn Firmware,
     m: &Mapped<'_>,
     path: &Path,
     physical: &crate::args::PhysicalArgs,
@@ -91,7 +91,7 @@ pub fn height_map<F: Firmware>(
 /// uncertainty most, in the firmware's commands, and return them (best
 /// first); where they cannot be scored (a candidate the printer cannot
 /// reach), say why and go on: the values are written all the same.
-pub fn suggestion<F: Firmware>(printer: &F, m: &Mapped<'_>) -> Vec<Suggestion> {
+pub fn suggestion(printer: &dyn Firmware, m: &Mapped<'_>) -> Vec<Suggestion> {
     match suggest(printer, m) {
         Ok(list) => list,
         Err(e) => {
@@ -101,7 +101,7 @@ pub fn suggestion<F: Firmware>(printer: &F, m: &Mapped<'_>) -> Vec<Suggestion> {
     }
 }
 
-fn suggest<F: Firmware>(printer: &F, m: &Mapped<'_>) -> Result<Vec<Suggestion>> {
+fn suggest(printer: &dyn Firmware, m: &Mapped<'_>) -> Result<Vec<Suggestion>> {
     let firmware = printer.flavour();
     let list = physical_plan::suggest(
         m.fit,

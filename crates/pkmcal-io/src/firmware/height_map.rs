@@ -974,8 +974,8 @@ pub struct Written {
 /// (bed `fw_bed` where the firmware tilts Z) leave on the fitted printer,
 /// in `printer`'s format, `mesh_points` nodes across (its default where
 /// `None`); `None` for a firmware that keeps no map pkmcal writes.
-pub fn for_printer<F: super::Firmware + ?Sized>(
-    printer: &F,
+pub fn for_printer(
+    printer: &dyn super::Firmware,
     fit: &super::physical::PhysicalFit,
     fw_mech: &crate::description::Mech,
     fw_params: &pkmcal::Params,

@@ -1398,8 +1398,8 @@ pub const DISTANCES_FILE: &str = "distances.csv";
 /// probe's reading), the distances measured on the calibration object
 /// where it has any, and the identified parameters, whose header names
 /// `config`, the configuration they came from.
-pub fn out_dir_files<F: Firmware + ?Sized>(
-    printer: &F,
+pub fn out_dir_files(
+    printer: &dyn Firmware,
     calibrated: &super::PrinterCalibration,
     config: &Path,
     dir: &Path,

@@ -453,8 +453,8 @@ const SIGMA_STEP: f64 = 1e-3;
 /// A printer's calibration request: the firmware's default free set in
 /// place of the description's, the user's names, `fix` and the firmware's
 /// own settings; checked against what the firmware can hold.
-pub fn request<F: Firmware + ?Sized>(
-    firmware: &F,
+pub fn request(
+    firmware: &dyn Firmware,
     spec: &Spec,
     readings: &Readings,
     mut request: Request,
@@ -517,7 +517,7 @@ pub struct PrinterProblem {
 
 /// The problem a calibration of `firmware`'s printer fits, as `request`
 /// asks (the firmware's default free set where it names none).
-pub fn problem<F: Firmware + ?Sized>(firmware: &F, request: Request) -> Result<PrinterProblem> {
+pub fn problem(firmware: &dyn Firmware, request: Request) -> Result<PrinterProblem> {
     let mech = firmware.mechanism()?;
     let spec = mech.spec();
     let readings = firmware.readings(spec)?;
@@ -541,8 +541,8 @@ pub fn problem<F: Firmware + ?Sized>(firmware: &F, request: Request) -> Result<P
 /// The study of `readings` on `mech` from its nominal values (the
 /// firmware's or the physical model's); an error at a reading names it in
 /// the firmware's terms.
-pub(crate) fn study<F: Firmware + ?Sized>(
-    firmware: &F,
+pub(crate) fn study(
+    firmware: &dyn Firmware,
     mech: &Mech,
     readings: &Readings,
     opts: &pkmcal::identify::StudyOptions,
@@ -576,10 +576,7 @@ pub(crate) fn study_located(
 /// (the firmware's default free set where it names none), from the
 /// firmware's values; an error at a reading names it in the firmware's
 /// terms.
-pub fn calibrate<F: Firmware + ?Sized>(
-    firmware: &F,
-    request: Request,
-) -> Result<PrinterCalibration> {
+pub fn calibrate(firmware: &dyn Firmware, request: Request) -> Result<PrinterCalibration> {
     let PrinterProblem {
         mech,
         readings,
@@ -619,10 +616,7 @@ pub struct Written {
 /// parameter's σ: small against the values' curvature over the
 /// uncertainty, whatever the parameter's unit (mm, °, N/mm), and far above
 /// rounding since the values are not rounded.
-pub fn written<F: Firmware + ?Sized>(
-    firmware: &F,
-    calibrated: &PrinterCalibration,
-) -> Result<Written> {
+pub fn written(firmware: &dyn Firmware, calibrated: &PrinterCalibration) -> Result<Written> {
     let spec = calibrated.mech.spec();
     let cal = calibrated.calibration();
     let np = spec.n_params();
@@ -711,8 +705,8 @@ const TILT: [&str; 2] = ["bed.rx", "bed.ry"];
 /// written values correlated beyond [`MAX_CORRELATION`], σ beyond
 /// `max_sigma` (in each value's unit), and a bed tilt the data show that
 /// the fit left out (its score test at [`pkmcal::identify::OMITTED_ALPHA`]).
-pub fn checks<F: Firmware + ?Sized>(
-    firmware: &F,
+pub fn checks(
+    firmware: &dyn Firmware,
     calibrated: &PrinterCalibration,
     written: &Written,
     max_sigma: f64,
@@ -912,8 +906,8 @@ pub fn uncertain(
 
 /// The bed tilt the fit left out, when its score test says the probe
 /// heights show it.
-fn tilt_absorbed<F: Firmware + ?Sized>(
-    firmware: &F,
+fn tilt_absorbed(
+    firmware: &dyn Firmware,
     calibrated: &PrinterCalibration,
     written: &Written,
 ) -> Result<Option<FirmwareWarning>> {
@@ -1003,8 +997,8 @@ pub fn probe_errors(
 /// (`source`, `probes` probe points; `physical`: the physical model's
 /// values for the nozzle, its projection written, not the firmware's own
 /// fit) and, for Marlin, how to keep them.
-pub fn out_file<F: Firmware + ?Sized>(
-    firmware: &F,
+pub fn out_file(
+    firmware: &dyn Firmware,
     updated: &str,
     source: &str,
     probes: usize,

@@ -530,8 +530,8 @@ impl NoiseNote {
 /// `request` states its own. The probe's σ, stated or assumed, is taken as
 /// known: what the residuals say of it is the adequacy test's
 /// ([`NoiseNote`]).
-pub fn calibrate<F: Firmware + ?Sized>(
-    firmware: &F,
+pub fn calibrate(
+    firmware: &dyn Firmware,
     ld: &LinearDelta,
     request: Request,
 ) -> Result<PhysicalFit> {
@@ -542,8 +542,8 @@ pub fn calibrate<F: Firmware + ?Sized>(
 /// [`super::physical_heights`]) read as well: the physical model's tool is
 /// then the effector's whole pose, so that a nozzle touch reads the
 /// effector's tilt; each touch weighs by its σ.
-pub fn calibrate_with<F: Firmware + ?Sized>(
-    firmware: &F,
+pub fn calibrate_with(
+    firmware: &dyn Firmware,
     ld: &LinearDelta,
     mut request: Request,
     touches: Option<&super::physical_heights::Touches>,
@@ -1242,8 +1242,8 @@ pub fn choose(fit: &PhysicalFit, fw_mech: &Mech, own: &Params, own_bed: &[f64]) 
 /// before and after), each with its σ: the firmware's own fit's (`own`)
 /// where its values are written, else the posterior's through the
 /// projection ([`projection_sigmas`]).
-pub fn written_values<F: Firmware + ?Sized>(
-    firmware: &F,
+pub fn written_values(
+    firmware: &dyn Firmware,
     fit: &PhysicalFit,
     fw_mech: &Mech,
     choice: &Choice,
@@ -1273,8 +1273,8 @@ pub fn written_values<F: Firmware + ?Sized>(
 /// projection by one Gauss-Newton step from its values (the projection is
 /// linear in the printer's errors over their uncertainty). The tower
 /// angles' common turn, which no printed part shows, is left out.
-pub fn projection_sigmas<F: Firmware + ?Sized>(
-    firmware: &F,
+pub fn projection_sigmas(
+    firmware: &dyn Firmware,
     fit: &PhysicalFit,
     fw_mech: &Mech,
     proj: &Projection,
@@ -1649,8 +1649,8 @@ impl Assessment {
 /// over its build volume; `None` for a printer that is not a linear delta
 /// or keeps no map. Checked before a fit: a count the mesh cannot take is
 /// refused before any work.
-pub fn mesh_layout<F: Firmware + ?Sized>(
-    firmware: &F,
+pub fn mesh_layout(
+    firmware: &dyn Firmware,
     mesh_points: Option<usize>,
 ) -> Result<Option<super::height_map::MeshLayout>> {
     match firmware.linear_delta()? {
@@ -1663,8 +1663,8 @@ pub fn mesh_layout<F: Firmware + ?Sized>(
 /// tolerances, the probe's stated noise), project onto the firmware's
 /// values, choose what to write and predict its cubes; `None` for a
 /// printer that is not a linear delta.
-pub fn assess<F: Firmware + ?Sized>(
-    firmware: &F,
+pub fn assess(
+    firmware: &dyn Firmware,
     request: Request,
     touches: Option<&super::physical_heights::Touches>,
 ) -> Result<Option<Assessment>> {

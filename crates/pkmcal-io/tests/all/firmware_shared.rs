@@ -37,7 +37,7 @@ fn marlin() -> MarlinPrinter {
     .unwrap()
 }
 
-fn calibrate<F: firmware::Firmware + ?Sized>(printer: &F) -> firmware::PrinterCalibration {
+fn calibrate(printer: &dyn firmware::Firmware) -> firmware::PrinterCalibration {
     firmware::calibrate(printer, Request::new(pkmcal::Model::Exact)).unwrap()
 }
 

@@ -467,9 +467,9 @@ fn noise_note<'py>(py: Python<'py>, n: &NoiseNote) -> PyResult<Bound<'py, PyDict
 }
 
 /// Run the calibration as the call asks and return what it found.
-fn result<'py, F: Firmware + Sync>(
+fn result<'py>(
     py: Python<'py>,
-    printer: &F,
+    printer: &(dyn Firmware + Sync),
     source: &std::path::Path,
     c: Common,
     previous: Option<(&dyn Firmware, String)>,
@@ -588,10 +588,10 @@ fn result<'py, F: Firmware + Sync>(
     Ok(d)
 }
 
-fn physical_result<'py, F: Firmware + Sync>(
+fn physical_result<'py>(
     py: Python<'py>,
     d: Bound<'py, PyDict>,
-    printer: &F,
+    printer: &(dyn Firmware + Sync),
     source: &std::path::Path,
     c: Common,
     previous: Option<(&dyn Firmware, String)>,
